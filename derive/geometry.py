@@ -1,0 +1,67 @@
+"""Array geometry: exact gaps from the pose, array forces and moments, the sums of eqs 8-12.
+
+Each array i has a body-frame face centre a_i and unit normal n_i (the direction in which the
+track pushes it). The track surface it faces is a plane fixed in the inertial frame through the
+point a_i - g0_i n_i of the design pose, with the same normal; so the exact gap at pose (X, R) is
+
+    gap_i = g0_i + n_i . (X + (R - 1) a_i)
+
+with no small-angle approximation. The lift acts along n_i (inertial, the track's normal) and
+the drag along -x; their moments are taken about O with the rotated arm R a_i.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import sympy as sp
+
+# Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).
+CONTROL_AXES: tuple[str, ...] = ("y", "z")
+_AXIS_VECTOR = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}
+
+
+@dataclass(frozen=True)
+class ArraySymbols:
+    """The symbols of one array's geometry and circuit count."""
+
+    name: str
+    position: sp.Matrix  # a_i, body frame
+    normal: sp.Matrix  # n_i, body frame, unit
+    nominal_gap: sp.Symbol
+    circuits: sp.Symbol
+
+
+def array_gap(arr: ArraySymbols, position_O: sp.Matrix, R: sp.Matrix) -> sp.Expr:
+    """Exact gap of an array at pose (X, R) (see the module docstring)."""
+    return arr.nominal_gap + (arr.normal.T * (position_O + (R - sp.eye(3)) * arr.position))[0]
+
+
+def control_components(normal_values: Sequence[float], tol: float = 1e-12) -> tuple[str, ...]:
+    """Control force components an array has: the body axes (y, z) its normal has a part along.
+
+    Arrays facing up have a z component only; the 45-degree arrays have both, which gives the
+    ten array forces of the paper (F_z1..F_z6 and F_y1, F_y2, F_y4, F_y5) for its geometry.
+    """
+    return tuple(ax for ax in CONTROL_AXES if abs(normal_values["xyz".index(ax)]) > tol)
+
+
+def generalized_wrench_row(position: sp.Matrix, direction: sp.Matrix) -> sp.Matrix:
+    """(F_y, F_z, M_x, M_y, M_z) about O of a unit force along ``direction`` at ``position``."""
+    m = position.cross(direction)
+    return sp.Matrix([direction[1], direction[2], m[0], m[1], m[2]])
+
+
+def control_effectiveness(positions: Sequence[sp.Matrix], components: Sequence[Sequence[str]]
+                          ) -> sp.Matrix:
+    """E (5 x n): generalized forces (u_y, u_z, u_phi, u_theta, u_psi) from array forces.
+
+    Column j is the wrench about O of a unit body-axis force component of one array at its
+    face centre, at the design pose; columns are ordered array by array, y before z.
+    """
+    cols = []
+    for pos, comps in zip(positions, components, strict=True):
+        for ax in comps:
+            cols.append(generalized_wrench_row(pos, sp.Matrix(_AXIS_VECTOR[ax])))
+    return sp.Matrix.hstack(*cols)

@@ -1,0 +1,114 @@
+"""Linearisation at trim: the stiffness matrix K_st0 (eqs 5-19) and the full A, B.
+
+The generalized coordinates of eqs 17-19 are q = (y, z, phi, theta, psi) and the generalized
+forces (F_y, F_z, M_x, M_y, M_z): inertial components, moments about O. The magnetic stiffness
+is K_st0 = -dW/dq of the array forces alone, holding the speed (V, 0, 0) fixed. Because every
+array's lift and drag scale as exp(-2 k gap) (eq 3), d(lift_i)/d(gap_i) = -2 k lift_i exactly,
+which gives K_st0 in closed form in the trim array forces (the derivation the paper's eqs 13-16
+sketch with small-angle arguments); it is derived here from the geometry for any pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import sympy as sp
+
+from . import conventions as cv
+from .model import CarriageModel, Structure, build_model
+from .numeric import ModelFunctions
+from .rigid_body import inertia_about_origin
+from .trim import Trim
+
+GENERALIZED_FORCES: tuple[str, ...] = ("F_y", "F_z", "M_x", "M_y", "M_z")
+Q_STATES: tuple[str, ...] = tuple(cv.AXIS_POSITION_STATE[a] for a in cv.AXES)
+
+
+@dataclass(frozen=True)
+class StiffnessForm:
+    """Symbolic K_st0 (5x5) in the trim array forces and the pose (eqs 13-19 derived)."""
+
+    K: sp.Matrix  # magnetic K_st0, in (q, F_L, F_D, p)
+    K_other: sp.Matrix  # gravity (CG offset) and propulsion moments, in (q, F_prop, p)
+    q: sp.Matrix
+    lift_sym: sp.Matrix
+    drag_sym: sp.Matrix
+
+
+@lru_cache(maxsize=8)
+def stiffness_form(structure: Structure) -> StiffnessForm:
+    """K_st0 = -dW/dq of the array wrench with lift_i = F_L_i exp(-2k (gap_i(q) - gap_i*))."""
+    m = build_model(structure)
+    q = sp.Matrix([m.x[cv.STATE_INDEX[s]] for s in Q_STATES])
+    trim_gap = sp.Matrix(sp.symbols(f"G0:{len(m.arrays)}", real=True))
+    ex = sp.Matrix([1, 0, 0])
+    W = sp.zeros(6, 1)
+    for i, a in enumerate(m.arrays):
+        scale = sp.exp(-2 * m.wavenumber * (m.gaps[i] - trim_gap[i]))
+        f = scale * (m.lift_sym[i] * a.normal - m.drag_sym[i] * ex)
+        W[0:3, 0] += f
+        W[3:6, 0] += (m.R * a.position).cross(f)
+    rows = W[1:6, 0]  # F_y, F_z, M_x, M_y, M_z
+    K = -rows.jacobian(q)
+    K = K.xreplace({g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})
+    mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
+    f_prop = m.u[0] * ex
+    other = ((m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))
+             + (m.R * m.vec("operation.propulsion_point")).cross(f_prop))
+    K_other = -sp.Matrix.vstack(sp.zeros(2, 1), other).jacobian(q)
+    return StiffnessForm(K, K_other, q, m.lift_sym, m.drag_sym)
+
+
+def design_pose_stiffness(structure: Structure) -> sp.Matrix:
+    """K_st0 at zero attitude: the closed form to set beside the paper's eqs 13-19."""
+    sf = stiffness_form(structure)
+    zero = {s: 0 for s in sf.q}
+    return sf.K.xreplace(zero)
+
+
+def magnetic_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
+    """K_st0 evaluated at the trim pose and array forces."""
+    f, _ = _lambdify_stiffness(mf.model.structure)
+    return np.asarray(f(_trim_q(trim), trim.lift, trim.drag, p), dtype=float)
+
+
+def other_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
+    """Stiffness of the gravity and propulsion moments about O at trim (CG offset terms)."""
+    _, f = _lambdify_stiffness(mf.model.structure)
+    return np.asarray(f(_trim_q(trim), trim.u[0], p), dtype=float)
+
+
+def total_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
+    """K_st0 plus the gravity and propulsion terms: -dW/dq of every external force."""
+    return magnetic_stiffness(mf, trim, p) + other_stiffness(mf, trim, p)
+
+
+def _trim_q(trim: Trim) -> np.ndarray:
+    return np.array([trim.x[cv.STATE_INDEX[s]] for s in Q_STATES])
+
+
+@lru_cache(maxsize=8)
+def _lambdify_stiffness(structure: Structure):
+    sf = stiffness_form(structure)
+    m = build_model(structure)
+    mag = sp.lambdify([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K, modules="numpy", cse=True)
+    other = sp.lambdify([sf.q, m.u[0], m.p], sf.K_other, modules="numpy", cse=True)
+    return mag, other
+
+
+def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:
+    """Diagonal of M_RB (eq 17) at O: (m, m, I_O,xx, I_O,yy, I_O,zz)."""
+    val = dict(zip(model.p, p, strict=True))
+    m = model.param("vehicle.mass")
+    inertia = sp.Matrix(3, 3, lambda i, j: model.param(
+        "vehicle.inertia_cg." + ("xx", "xy", "xz", "xy", "yy", "yz", "xz", "yz", "zz")[3 * i + j]))
+    I_O = inertia_about_origin(m, inertia, model.vec("vehicle.cg_offset")).xreplace(val)
+    mv = float(m.xreplace(val))
+    return np.array([mv, mv, float(I_O[0, 0]), float(I_O[1, 1]), float(I_O[2, 2])])
+
+
+def linearize(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A (12x12) and B (12 x n_inputs) of the full model at trim."""
+    return mf.jacobians(trim.x, trim.u, p)

@@ -1,0 +1,197 @@
+"""The nonlinear 12-state carriage model, symbolic in every parameter.
+
+Assembles the rigid-body equations (eqs 1-2), the Inductrack force law (eqs 3-4) and the array
+geometry (eqs 8-12) into xdot = f(x, u, p). The model depends on the parameter values only
+through the symbols of ``p``; it depends on the *structure* of the carriage (which arrays exist
+and which control force components each has), so a structure is its cache key.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import lru_cache
+
+import sympy as sp
+
+from . import conventions as cv
+from .geometry import ArraySymbols, array_gap, control_components
+from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
+from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
+
+
+@dataclass(frozen=True)
+class Structure:
+    """What the symbolic derivation depends on besides parameter values.
+
+    ``param_names`` is the ordered parameter vector (from the schema, see params.flatten);
+    ``arrays`` pairs each array name with its control force components (e.g. ("y", "z")).
+    """
+
+    param_names: tuple[str, ...]
+    arrays: tuple[tuple[str, tuple[str, ...]], ...]
+
+
+def structure_of(params) -> Structure:  # params: maglevgen.params.Parameters (no import: pure)
+    """The structure of a validated parameter set."""
+    from_names = tuple(e.name for e in _flatten(params))
+    arrays = tuple((name, control_components(arr.normal)) for name, arr in params.arrays.items())
+    return Structure(from_names, arrays)
+
+
+def _flatten(params):
+    from maglevgen.params import flatten  # local: derive/ stays free of I/O at import time
+
+    return flatten(params)
+
+
+def symbol_name(param_name: str) -> str:
+    """A valid identifier for a dotted parameter name: vehicle.mass -> vehicle_mass."""
+    return re.sub(r"[^A-Za-z0-9_]", "_", param_name)
+
+
+@dataclass(frozen=True)
+class CarriageModel:
+    """The symbolic model, kept in layers joined by intermediate symbols.
+
+    xdot = [kinematics(x); accelerations(x, W, p)], W = wrench(x, u, F_L, F_D, p),
+    F_L = lift(x, p), F_D = drag(x, p). Keeping the layers apart (instead of one expanded
+    expression) keeps every expression small, so differentiating, lambdifying and converting to
+    CasADi stay fast; ``compose`` gives the single expression when one is wanted.
+    """
+
+    structure: Structure
+    p: sp.Matrix  # parameter symbols, in Structure.param_names order
+    x: sp.Matrix  # 12 states, conventions.STATES order
+    u: sp.Matrix  # inputs: propulsion, then the array control force components
+    input_names: tuple[str, ...]
+    arrays: tuple[ArraySymbols, ...]
+    wavenumber: sp.Expr
+    B0: sp.Expr
+    R: sp.Matrix
+    gaps: sp.Matrix  # exact gap of each array, in (x, p)
+    array_speeds: sp.Matrix  # along-track speed of each array face centre, in (x, p)
+    lift: sp.Matrix  # total lift of each array (all its circuits), in (x, p)
+    drag: sp.Matrix  # total drag of each array, in (x, p)
+    speed_sym: sp.Matrix  # s_i standing for array_speeds[i] in lift_at_speed / drag_at_speed
+    lift_at_speed: sp.Matrix  # lift in (x, s, p)
+    drag_at_speed: sp.Matrix  # drag in (x, s, p)
+    lift_sym: sp.Matrix  # F_L_i standing for lift[i] in ``wrench``
+    drag_sym: sp.Matrix  # F_D_i standing for drag[i] in ``wrench``
+    wrench: sp.Matrix  # (force, moment about O), body axes, in (x, u, F_L, F_D, p)
+    wrench_sym: sp.Matrix  # W standing for ``wrench`` in ``accelerations``
+    kinematics: sp.Matrix  # (R v, Euler rates), in x
+    accelerations: sp.Matrix  # (v_dot, omega_dot), eqs 1-2, in (x, W, p)
+
+    def param(self, name: str) -> sp.Symbol:
+        return self.p[self.structure.param_names.index(name)]
+
+    def vec(self, name: str) -> sp.Matrix:
+        return sp.Matrix([self.param(f"{name}.{c}") for c in "xyz"])
+
+    def compose(self) -> sp.Matrix:
+        """xdot as one expression in (x, u, p) (large: prefer the layers)."""
+        sub = dict(zip(self.lift_sym, self.lift, strict=True))
+        sub.update(zip(self.drag_sym, self.drag, strict=True))
+        wrench = self.wrench.xreplace(sub)
+        acc = self.accelerations.xreplace(dict(zip(self.wrench_sym, wrench, strict=True)))
+        return sp.Matrix.vstack(self.kinematics, acc)
+
+
+def input_names_of(structure: Structure) -> tuple[str, ...]:
+    """Input order: F_prop, then F_<axis><array> for each array's control components."""
+    names = [cv.PROPULSION.name]
+    for name, comps in structure.arrays:
+        names += [f"F_{ax}{name}" for ax in comps]
+    return tuple(names)
+
+
+@lru_cache(maxsize=8)
+def build_model(structure: Structure) -> CarriageModel:
+    """Derive xdot = f(x, u, p) for a structure (eqs 1-4, 8-12)."""
+    p = sp.Matrix([sp.Symbol(symbol_name(n), real=True) for n in structure.param_names])
+    sym = dict(zip(structure.param_names, p, strict=True))
+
+    def vec(prefix: str) -> sp.Matrix:
+        return sp.Matrix([sym[f"{prefix}.{c}"] for c in "xyz"])
+
+    x = sp.Matrix(sp.symbols(" ".join(cv.STATE_NAMES), real=True))
+    pos, (phi, theta, psi) = x[0:3, 0], x[3:6]
+    vel, omega = x[6:9, 0], x[9:12, 0]
+    input_names = input_names_of(structure)
+    u = sp.Matrix(sp.symbols(" ".join(input_names), real=True))
+
+    m, g = sym["vehicle.mass"], sym["vehicle.gravity"]
+    inertia = sp.Matrix(3, 3, lambda i, j: sym["vehicle.inertia_cg." + _INERTIA_KEYS[i][j]])
+    r_G = vec("vehicle.cg_offset")
+    k = 2 * sp.pi / sym["halbach.wavelength"]
+    B0 = halbach_surface_field(sym["halbach.remanence"], sym["halbach.thickness"],
+                               sym["halbach.magnets_per_wavelength"], k)
+    w, L, Rc = sym["halbach.width"], sym["circuit.inductance"], sym["circuit.resistance"]
+    R = rotation_body_to_inertial(phi, theta, psi)
+    ex = sp.Matrix([1, 0, 0])
+
+    arrays, gaps, speeds, lifts, drags = [], [], [], [], []
+    speed_sym = sp.Matrix(sp.symbols(f"s0:{len(structure.arrays)}", real=True))
+    for (name, _comps), s in zip(structure.arrays, speed_sym, strict=True):
+        a = ArraySymbols(name, vec(f"arrays.{name}.position"), vec(f"arrays.{name}.normal"),
+                         sym[f"arrays.{name}.nominal_gap"], sym[f"arrays.{name}.circuits"])
+        gap = array_gap(a, pos, R)
+        speed = (ex.T * R * (vel + omega.cross(a.position)))[0]
+        arrays.append(a)
+        gaps.append(gap)
+        speeds.append(speed)
+        lifts.append(a.circuits * lift_per_circuit(B0, w, k, L, Rc, gap, s))
+        drags.append(a.circuits * drag_per_circuit(B0, w, k, L, Rc, gap, s))
+
+    n = len(arrays)
+    at_speed = dict(zip(speed_sym, speeds, strict=True))
+    lift_s, drag_s = sp.Matrix(lifts), sp.Matrix(drags)
+    lift_sym = sp.Matrix(sp.symbols(f"F_L0:{n}", real=True))
+    drag_sym = sp.Matrix(sp.symbols(f"F_D0:{n}", real=True))
+    wrench = _wrench(structure, arrays, u, lift_sym, drag_sym, R, m, g, r_G,
+                     vec("operation.propulsion_point"))
+    wrench_sym = sp.Matrix(sp.symbols("W_Fx W_Fy W_Fz W_Mx W_My W_Mz", real=True))
+    v_dot, omega_dot = body_accelerations(m, inertia, r_G, vel, omega,
+                                          wrench_sym[0:3, 0], wrench_sym[3:6, 0])
+    kinematics = sp.Matrix.vstack(R * vel, euler_rates(phi, theta, omega))
+    return CarriageModel(structure, p, x, u, input_names, tuple(arrays), k, B0, R,
+                         sp.Matrix(gaps), sp.Matrix(speeds), lift_s.xreplace(at_speed),
+                         drag_s.xreplace(at_speed), speed_sym, lift_s, drag_s,
+                         lift_sym, drag_sym, wrench, wrench_sym, kinematics,
+                         sp.Matrix.vstack(v_dot, omega_dot))
+
+
+def _wrench(structure: Structure, arrays: list[ArraySymbols], u: sp.Matrix, lift: sp.Matrix,
+            drag: sp.Matrix, R: sp.Matrix, m: sp.Expr, g: sp.Expr, r_G: sp.Matrix,
+            a_prop: sp.Matrix) -> sp.Matrix:
+    """Total external force and moment about O, body axes (eqs 8-12 come out of this sum).
+
+    Lift acts along the track normal n_i and drag along -x (inertial); gravity at the CG;
+    propulsion along the track at ``a_prop``; control components along body axes at a_i.
+    """
+    ex = sp.Matrix([1, 0, 0])
+    force_in, moment_in = sp.zeros(3, 1), sp.zeros(3, 1)
+    for a, fl, fd in zip(arrays, lift, drag, strict=True):
+        f = fl * a.normal - fd * ex
+        force_in += f
+        moment_in += (R * a.position).cross(f)
+    f_prop = u[0] * ex
+    force_in += f_prop
+    moment_in += (R * a_prop).cross(f_prop)
+    f_grav = sp.Matrix([0, 0, -m * g])
+    force_in += f_grav
+    moment_in += (R * r_G).cross(f_grav)
+    force_b, moment_b = R.T * force_in, R.T * moment_in
+    j = 1
+    for a, (_name, comps) in zip(arrays, structure.arrays, strict=True):
+        for ax in comps:
+            fc = sp.zeros(3, 1)
+            fc["xyz".index(ax)] = u[j]
+            force_b += fc
+            moment_b += a.position.cross(fc)
+            j += 1
+    return sp.Matrix.vstack(force_b, moment_b)
+
+
+_INERTIA_KEYS = (("xx", "xy", "xz"), ("xy", "yy", "yz"), ("xz", "yz", "zz"))

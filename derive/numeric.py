@@ -1,0 +1,114 @@
+"""Numerical evaluation of the symbolic model: lambdified layers and chain-rule Jacobians.
+
+Each layer of ``CarriageModel`` and each of its partial derivatives is a SymPy expression,
+lambdified once per structure. xdot and the Jacobians (A, B) are composed from them by the
+chain rule, which is exact: the symbolic linearisation is the product of symbolic partials.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import sympy as sp
+
+from .model import CarriageModel, Structure, build_model
+
+
+def _fn(args: list, expr: sp.Matrix) -> Callable[..., np.ndarray]:
+    f = sp.lambdify(args, expr, modules="numpy", cse=True)
+    shape = expr.shape
+
+    def call(*a: np.ndarray) -> np.ndarray:
+        return np.asarray(f(*a), dtype=float).reshape(shape)
+
+    return call
+
+
+@dataclass(frozen=True)
+class ModelFunctions:
+    """Numerical functions of one structure's model; arguments are 1-D float arrays."""
+
+    model: CarriageModel
+    kin: Callable[..., np.ndarray]
+    kin_x: Callable[..., np.ndarray]
+    speeds: Callable[..., np.ndarray]
+    gaps: Callable[..., np.ndarray]
+    lift: Callable[..., np.ndarray]  # (x, s, p)
+    drag: Callable[..., np.ndarray]
+    lift_x: Callable[..., np.ndarray]
+    lift_s: Callable[..., np.ndarray]
+    drag_x: Callable[..., np.ndarray]
+    drag_s: Callable[..., np.ndarray]
+    speeds_x: Callable[..., np.ndarray]
+    wrench: Callable[..., np.ndarray]  # (x, u, FL, FD, p)
+    wrench_x: Callable[..., np.ndarray]
+    wrench_u: Callable[..., np.ndarray]
+    wrench_FL: Callable[..., np.ndarray]
+    wrench_FD: Callable[..., np.ndarray]
+    acc: Callable[..., np.ndarray]  # (x, W, p)
+    acc_x: Callable[..., np.ndarray]
+    acc_W: Callable[..., np.ndarray]
+
+    def forces(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(gaps, lift, drag) of every array at state x."""
+        s = self.speeds(x, p).ravel()
+        return self.gaps(x, p).ravel(), self.lift(x, s, p).ravel(), self.drag(x, s, p).ravel()
+
+    def body_wrench(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Total external force and moment about O, body axes."""
+        _, fl, fd = self.forces(x, p)
+        return self.wrench(x, u, fl, fd, p).ravel()
+
+    def xdot(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        w = self.body_wrench(x, u, p)
+        return np.concatenate([self.kin(x).ravel(), self.acc(x, w, p).ravel()])
+
+    def jacobians(self, x: np.ndarray, u: np.ndarray, p: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B) = (d xdot/dx, d xdot/du) by the chain rule through the layers."""
+        s = self.speeds(x, p).ravel()
+        fl, fd = self.lift(x, s, p).ravel(), self.drag(x, s, p).ravel()
+        s_x = self.speeds_x(x, p)
+        fl_x = self.lift_x(x, s, p) + self.lift_s(x, s, p) @ s_x
+        fd_x = self.drag_x(x, s, p) + self.drag_s(x, s, p) @ s_x
+        w = self.wrench(x, u, fl, fd, p).ravel()
+        w_x = (self.wrench_x(x, u, fl, fd, p) + self.wrench_FL(x, u, fl, fd, p) @ fl_x
+               + self.wrench_FD(x, u, fl, fd, p) @ fd_x)
+        a_W = self.acc_W(x, w, p)
+        A = np.vstack([self.kin_x(x), self.acc_x(x, w, p) + a_W @ w_x])
+        B = np.vstack([np.zeros((6, len(u))), a_W @ self.wrench_u(x, u, fl, fd, p)])
+        return A, B
+
+
+@lru_cache(maxsize=8)
+def model_functions(structure: Structure) -> ModelFunctions:
+    """Lambdify the layers of the model of ``structure`` and their partial derivatives."""
+    m = build_model(structure)
+    x, u, s = list(m.x), list(m.u), list(m.speed_sym)
+    fl, fd, w = list(m.lift_sym), list(m.drag_sym), list(m.wrench_sym)
+    xs, xups = [m.x], [m.x, m.u, m.lift_sym, m.drag_sym, m.p]
+    return ModelFunctions(
+        model=m,
+        kin=_fn(xs, m.kinematics),
+        kin_x=_fn(xs, m.kinematics.jacobian(x)),
+        speeds=_fn([m.x, m.p], m.array_speeds),
+        gaps=_fn([m.x, m.p], m.gaps),
+        lift=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed),
+        drag=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed),
+        lift_x=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed.jacobian(x)),
+        lift_s=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed.jacobian(s)),
+        drag_x=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed.jacobian(x)),
+        drag_s=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed.jacobian(s)),
+        speeds_x=_fn([m.x, m.p], m.array_speeds.jacobian(x)),
+        wrench=_fn(xups, m.wrench),
+        wrench_x=_fn(xups, m.wrench.jacobian(x)),
+        wrench_u=_fn(xups, m.wrench.jacobian(u)),
+        wrench_FL=_fn(xups, m.wrench.jacobian(fl)),
+        wrench_FD=_fn(xups, m.wrench.jacobian(fd)),
+        acc=_fn([m.x, m.wrench_sym, m.p], m.accelerations),
+        acc_x=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(x)),
+        acc_W=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(w)),
+    )

@@ -1,0 +1,145 @@
+"""Trim: the equilibrium of the nonlinear model at a forward speed.
+
+Unknowns: lateral offset y, heave z, roll, pitch, yaw and the propulsion force F_prop; the
+carriage moves at speed V along the track (inertial velocity (V, 0, 0), no rotation) with no
+control force. The equations are the six accelerations of eqs 1-2 set to zero. With upper and
+lower arrays both acting, the heave has no closed form, so the root is found numerically: a
+bracketed 1-D solve of the vertical balance gives the start, Newton (MINPACK hybrd) the rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq, root
+
+from maglevgen.errors import NoTrimError
+
+from .numeric import ModelFunctions
+
+_TRIM_UNKNOWNS = ("y", "z", "phi", "theta", "psi")
+
+
+@dataclass(frozen=True)
+class Trim:
+    """An equilibrium: the state, the propulsion force, and every array's gap and forces."""
+
+    speed: float
+    x: np.ndarray  # 12 states
+    u: np.ndarray  # inputs (propulsion, control components = 0)
+    gaps: np.ndarray
+    lift: np.ndarray
+    drag: np.ndarray
+    residual: float  # max |acceleration| at the root, m/s^2 or rad/s^2
+
+
+def trim_state(speed: float, q: np.ndarray) -> np.ndarray:
+    """The 12-state vector at pose q = (y, z, phi, theta, psi) moving at (speed, 0, 0) inertial."""
+    phi, theta, psi = q[2:5]
+    x = np.zeros(12)
+    x[1:6] = q
+    x[6:9] = _rotation(phi, theta, psi).T @ np.array([speed, 0.0, 0.0])
+    return x
+
+
+def _rotation(phi: float, theta: float, psi: float) -> np.ndarray:
+    cf, sf, ct, st, cp, sp_ = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta),
+                               np.cos(psi), np.sin(psi))
+    return (np.array([[cp, -sp_, 0], [sp_, cp, 0], [0, 0, 1]])
+            @ np.array([[ct, 0, st], [0, 1, 0], [-st, 0, ct]])
+            @ np.array([[1, 0, 0], [0, cf, -sf], [0, sf, cf]]))
+
+
+def _heave_limits(mf: ModelFunctions, p: np.ndarray, min_gap: float) -> tuple[float, float]:
+    """The heave range in which every array keeps at least ``min_gap`` at zero attitude."""
+    g0 = mf.gaps(np.zeros(12), p).ravel()
+    dz = mf.gaps(np.eye(12)[2], p).ravel() - g0  # gap change per metre of heave
+    lo = max((min_gap - g) / d for g, d in zip(g0, dz, strict=True) if d > 0)
+    hi = min((min_gap - g) / d for g, d in zip(g0, dz, strict=True) if d < 0)
+    return lo, hi
+
+
+def _vertical_force(mf: ModelFunctions, p: np.ndarray, speed: float, z: float) -> float:
+    x = trim_state(speed, np.array([0.0, z, 0.0, 0.0, 0.0]))
+    u = np.zeros(mf.model.u.shape[0])
+    return float(mf.body_wrench(x, u, p)[2])
+
+
+def lift_off_speed(mf: ModelFunctions, p: np.ndarray, min_gap: float,
+                   v_max: float = 1e4) -> float:
+    """The lowest speed with an equilibrium that keeps every gap above ``min_gap``.
+
+    A necessary bound comes first (the vertical balance at zero attitude with the upper gap at
+    its limit); the equilibrium's own pitch and roll then move it up, found by bisection on
+    whether a trim exists.
+    """
+    z_lo, _ = _heave_limits(mf, p, min_gap)
+    f = lambda v: _vertical_force(mf, p, v, z_lo)  # noqa: E731
+    if f(v_max) <= 0:
+        return float("inf")
+    lo = float(brentq(f, 1e-6, v_max, xtol=1e-9))
+    hi = max(2 * lo, 1e-3)
+    while not _has_trim(mf, p, hi, min_gap):
+        hi *= 2
+        if hi > v_max:
+            return float("inf")
+    while hi - lo > 1e-6 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if _has_trim(mf, p, mid, min_gap) else (mid, hi)
+    return hi
+
+
+def _has_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float) -> bool:
+    try:
+        solve_trim(mf, p, speed, min_gap, _explain=False)
+    except NoTrimError:
+        return False
+    return True
+
+
+def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
+               _explain: bool = True) -> Trim:
+    """The equilibrium at ``speed``, or NoTrimError saying why there is none."""
+    if not speed > 0:
+        raise NoTrimError(f"operation.speed = {speed!r}: must be > 0")
+    n_u = mf.model.u.shape[0]
+    z_lo, z_hi = _heave_limits(mf, p, min_gap)
+    if not z_lo < z_hi:
+        raise NoTrimError(f"track geometry leaves no heave range with every gap above "
+                          f"track.min_gap = {min_gap:g} m")
+    f_lo, f_hi = (_vertical_force(mf, p, speed, z) for z in (z_lo, z_hi))
+    if f_lo <= 0:
+        v_off = lift_off_speed(mf, p, min_gap) if _explain else float("nan")
+        raise NoTrimError(
+            f"no trim at speed {speed:g} m/s: the arrays cannot lift the carriage off the track "
+            f"(net vertical force {f_lo:.4g} N at the contact gap); lift-off needs "
+            f"{v_off:.4g} m/s")
+    if f_hi >= 0:
+        raise NoTrimError(f"no trim at speed {speed:g} m/s: the lift pushes the lower arrays "
+                          f"into the track (net vertical force {f_hi:.4g} N at their contact gap)")
+    z0 = brentq(lambda z: _vertical_force(mf, p, speed, z), z_lo, z_hi, xtol=1e-15)
+
+    def residual(unknowns: np.ndarray) -> np.ndarray:
+        x = trim_state(speed, unknowns[:5])
+        u = np.zeros(n_u)
+        u[0] = unknowns[5]
+        return mf.xdot(x, u, p)[6:12]
+
+    drag0 = mf.forces(trim_state(speed, np.array([0.0, z0, 0, 0, 0])), p)[2].sum()
+    sol = root(residual, np.array([0.0, z0, 0.0, 0.0, 0.0, drag0]), method="hybr", tol=1e-14)
+    res = float(np.max(np.abs(residual(sol.x))))
+    if not sol.success and res > 1e-8:
+        raise NoTrimError(f"no trim at speed {speed:g} m/s: the equilibrium solver did not "
+                          f"converge ({sol.message.strip()}; residual {res:.3g})")
+    x = trim_state(speed, sol.x[:5])
+    u = np.zeros(n_u)
+    u[0] = sol.x[5]
+    gaps, lift, drag = mf.forces(x, p)
+    if gaps.min() < min_gap:
+        i = int(np.argmin(gaps))
+        name = mf.model.arrays[i].name
+        hint = f"; lift-off needs {lift_off_speed(mf, p, min_gap):.4g} m/s" if _explain else ""
+        raise NoTrimError(f"no trim at speed {speed:g} m/s: array {name} would sit at gap "
+                          f"{gaps[i]:.4g} m, below track.min_gap = {min_gap:g} m{hint}")
+    return Trim(speed, x, u, gaps, lift, drag, res)

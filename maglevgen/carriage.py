@@ -1,0 +1,124 @@
+"""A carriage: validated parameters joined to its symbolic model, trim and linearisation.
+
+This is the numeric layer the CLI, code generator and report share; it calls into derive/
+(symbolic, pure) and never writes files.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import sympy as sp
+
+from .derive import conventions as cv
+from .derive.linearize import (
+    generalized_mass,
+    linearize,
+    magnetic_stiffness,
+    other_stiffness,
+)
+from .derive.model import CarriageModel, Structure, structure_of
+from .derive.numeric import ModelFunctions, model_functions
+from .derive.paper import paper_stiffness
+from .derive.trim import Trim, lift_off_speed, solve_trim
+from .params import LoadedParams, flatten
+
+
+@dataclass(frozen=True)
+class StiffnessRow:
+    """One axis of the stiffness table: derived (at trim) beside the paper's printed form."""
+
+    axis: str
+    unit: str
+    derived_magnetic: float
+    derived_total: float
+    paper_formula: str
+    paper_value: float
+
+    @property
+    def relative_difference(self) -> float:
+        return (self.paper_value - self.derived_magnetic) / self.derived_magnetic
+
+
+_STIFFNESS_UNITS = {"lateral": "N/m", "vertical": "N/m", "roll": "N*m/rad", "pitch": "N*m/rad",
+                    "yaw": "N*m/rad"}
+
+
+class Carriage:
+    """Parameters, model and derived numbers of one carriage."""
+
+    def __init__(self, loaded: LoadedParams) -> None:
+        self.loaded = loaded
+        self.params = loaded.params
+        self.entries = flatten(self.params)
+        self.p = np.array([e.value for e in self.entries])
+
+    @cached_property
+    def structure(self) -> Structure:
+        return structure_of(self.params)
+
+    @cached_property
+    def functions(self) -> ModelFunctions:
+        return model_functions(self.structure)
+
+    @property
+    def model(self) -> CarriageModel:
+        return self.functions.model
+
+    def trim(self, speed: float | None = None) -> Trim:
+        v = self.params.operation.speed if speed is None else speed
+        return solve_trim(self.functions, self.p, v, self.params.track.min_gap)
+
+    def lift_off_speed(self) -> float:
+        return lift_off_speed(self.functions, self.p, self.params.track.min_gap)
+
+    def linearize(self, trim: Trim) -> tuple[np.ndarray, np.ndarray]:
+        return linearize(self.functions, trim, self.p)
+
+    def magnetic_stiffness(self, trim: Trim) -> np.ndarray:
+        return magnetic_stiffness(self.functions, trim, self.p)
+
+    def total_stiffness(self, trim: Trim) -> np.ndarray:
+        return self.magnetic_stiffness(trim) + other_stiffness(self.functions, trim, self.p)
+
+    def generalized_mass(self) -> np.ndarray:
+        return generalized_mass(self.model, self.p)
+
+    def _array_roles(self) -> tuple[list[int], list[int]]:
+        """Indices of upper arrays (normal along z only) and of the others (lower, lateral)."""
+        upper, lower = [], []
+        for i, arr in enumerate(self.params.arrays.values()):
+            (upper if abs(arr.normal[2]) > 1 - 1e-9 else lower).append(i)
+        return upper, lower
+
+    def paper_stiffness_inputs(self, trim: Trim) -> dict[str, float]:
+        """The quantities the paper's eqs 13-19 use, read from the geometry and the trim."""
+        upper, lower = self._array_roles()
+        arrays = list(self.params.arrays.values())
+        f_lat = float(np.mean([trim.lift[i] * abs(arrays[i].normal[1]) for i in lower]))
+        return {
+            "F_lat": f_lat,  # F_bncd_y: lateral component of one lower array's lift
+            "F_upper": float(np.mean([trim.lift[i] for i in upper])),
+            "m": self.params.vehicle.mass,
+            "g": self.params.vehicle.gravity,
+            "k": self.params.wavenumber,
+            "Lz": float(np.mean([abs(arrays[i].position[2]) for i in lower])),
+            "Lx": float(np.mean([abs(arrays[i].position[0]) for i in upper])),
+            "Lxla": float(np.mean([abs(arrays[i].position[0]) for i in lower])),
+        }
+
+    def stiffness_table(self, trim: Trim) -> list[StiffnessRow]:
+        """Per-axis stiffness: derived K_st0 diagonal (and with gravity) beside eqs 13-19."""
+        kin = self.paper_stiffness_inputs(trim)
+        syms = {name: sp.Symbol(name) for name in kin}
+        printed = paper_stiffness(**syms)
+        K_mag, K_tot = self.magnetic_stiffness(trim), self.total_stiffness(trim)
+        rows = []
+        for i, axis in enumerate(cv.AXES):
+            expr = printed[axis]
+            rows.append(StiffnessRow(axis, _STIFFNESS_UNITS[axis], float(K_mag[i, i]),
+                                     float(K_tot[i, i]), sp.sstr(expr),
+                                     float(expr.xreplace({syms[n]: v for n, v in kin.items()}))))
+        return rows

@@ -1,0 +1,167 @@
+"""The `maglevgen` command: a thin layer over params, derive/ and the code generator.
+
+Errors are one line on stderr; exit 0 success, 2 bad input, 1 internal failure. ``--debug``
+shows the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .derive import conventions as cv
+from .errors import MaglevError
+from .params import annotate_with_units, default_params_text, load_params, schema_rows
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--params", metavar="FILE", help="parameter file (default: the LLNL carriage)")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], dest="overrides",
+                   help="override a parameter, dotted name as in the file (repeatable)")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+
+
+def _carriage(args: argparse.Namespace):
+    from .carriage import Carriage
+
+    return Carriage(load_params(args.params, args.overrides))
+
+
+# ------------------------------------------------------------------------------------ params
+
+
+def cmd_params_show(args: argparse.Namespace) -> int:
+    if args.params or args.overrides:
+        load_params(args.params, args.overrides)  # validate what is shown
+    text = default_params_text() if not args.params else Path(args.params).read_text("utf-8")
+    sys.stdout.write(text if args.raw else annotate_with_units(text))
+    return 0
+
+
+def cmd_params_schema(args: argparse.Namespace) -> int:
+    rows = schema_rows()
+    width = max(len(r[0]) for r in rows)
+    for key, unit, desc, paper in rows:
+        tail = f"  (paper: {paper})" if paper else ""
+        print(f"{key:<{width}}  [{unit}]  {desc}{tail}")
+    return 0
+
+
+# -------------------------------------------------------------------------------------- trim
+
+
+def trim_report(carriage, speed: float | None) -> dict:
+    """Everything `maglevgen trim` prints, as plain data."""
+    trim = carriage.trim(speed)
+    rows = carriage.stiffness_table(trim)
+    names = list(carriage.params.arrays)
+    return {
+        "speed": trim.speed,
+        "params_sha256": carriage.loaded.sha256,
+        "state": {s.name: float(v) for s, v in zip(cv.STATES, trim.x, strict=True)},
+        "state_units": {s.name: s.unit for s in cv.STATES},
+        "propulsion_force": float(trim.u[0]),
+        "residual": trim.residual,
+        "lift_off_speed": carriage.lift_off_speed(),
+        "arrays": {n: {"gap": float(g), "lift": float(fl), "drag": float(fd)}
+                   for n, g, fl, fd in zip(names, trim.gaps, trim.lift, trim.drag, strict=True)},
+        "stiffness": {
+            r.axis: {"unit": r.unit, "derived": r.derived_magnetic,
+                     "derived_with_gravity": r.derived_total, "paper_formula": r.paper_formula,
+                     "paper": r.paper_value, "paper_relative_difference": r.relative_difference}
+            for r in rows
+        },
+        "stiffness_matrix": carriage.magnetic_stiffness(trim).tolist(),
+        "paper_inputs": carriage.paper_stiffness_inputs(trim),
+    }
+
+
+def cmd_trim(args: argparse.Namespace) -> int:
+    rep = trim_report(_carriage(args), args.speed)
+    if args.json:
+        print(json.dumps(rep, indent=2, sort_keys=False))
+        return 0
+    print(f"Trim at {rep['speed']:g} m/s (lift-off at {rep['lift_off_speed']:.3f} m/s; "
+          f"residual {rep['residual']:.2e})")
+    for s in cv.STATES:
+        print(f"  {s.name:>6} = {rep['state'][s.name]: .6e} {s.unit:<6} {s.description}")
+    print(f"  F_prop = {rep['propulsion_force']: .6e} N      propulsion balancing the drag")
+    print("\nArray   gap [mm]   lift [N]   drag [N]")
+    for n, a in rep["arrays"].items():
+        print(f"  {n:>4} {a['gap'] * 1e3:9.4f} {a['lift']:10.4f} {a['drag']:10.4f}")
+    print("\nStiffness (eqs 13-19)  derived K_st0   +gravity/prop   paper (printed)"
+          "           paper/derived - 1")
+    for axis, r in rep["stiffness"].items():
+        print(f"  {axis:<9} {r['unit']:<8} {r['derived']:12.5g} {r['derived_with_gravity']:14.5g}"
+              f"   {r['paper']:10.5g} = {r['paper_formula']:<22} "
+              f"{r['paper_relative_difference']:+.1%}")
+    print("\nThe printed forms ignore the 45-degree tilt of arrays 1, 2, 4, 5 (their vertical "
+          "components and the\nroll arm of their normals), the lower arrays in the vertical "
+          "stiffness, and the moment arms of\nthe upper arrays in pitch; see the report.")
+    return 0
+
+
+# ---------------------------------------------------------------------------------- main
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="maglevgen",
+        description="Inductrack maglev carriage: symbolic dynamics and control, generated C.")
+    parser.add_argument("--version", action="version", version=f"maglevgen {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    params = sub.add_parser("params", help="show the parameter file and its schema")
+    psub = params.add_subparsers(dest="params_command", required=True)
+    show = psub.add_parser("show", help="print the parameter file with each key's unit")
+    _common(show)
+    show.add_argument("--raw", action="store_true", help="print the file exactly as stored")
+    show.set_defaults(func=cmd_params_show)
+    schema = psub.add_parser("schema", help="list every key with its unit and meaning")
+    schema.add_argument("--debug", action="store_true")
+    schema.set_defaults(func=cmd_params_schema)
+
+    trim = sub.add_parser("trim", help="equilibrium, array gaps and forces, stiffness table")
+    _common(trim)
+    trim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
+    trim.add_argument("--json", action="store_true", help="machine-readable output")
+    trim.set_defaults(func=cmd_trim)
+    return parser
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(type(o))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except MaglevError as exc:
+        if getattr(args, "debug", False):
+            raise
+        print(f"maglevgen: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("maglevgen: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # internal failure: one line unless --debug
+        if getattr(args, "debug", False):
+            raise
+        print(f"maglevgen: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
+              file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

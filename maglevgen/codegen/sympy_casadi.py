@@ -1,0 +1,113 @@
+"""Convert SymPy expressions to CasADi SX, node by node (no re-derivation, no string eval).
+
+Shared subexpressions are converted once (memo on the SymPy node), so CasADi sees the same
+DAG that SymPy built; CasADi's own CSE then works on it during code generation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import casadi as ca
+import sympy as sp
+
+_UNARY = {
+    sp.sin: ca.sin, sp.cos: ca.cos, sp.tan: ca.tan, sp.exp: ca.exp, sp.log: ca.log,
+    sp.sqrt: ca.sqrt, sp.Abs: ca.fabs, sp.tanh: ca.tanh, sp.asin: ca.asin, sp.acos: ca.acos,
+    sp.atan: ca.atan, sp.sinh: ca.sinh, sp.cosh: ca.cosh, sp.sign: ca.sign,
+}
+
+
+class SympyToCasadi:
+    """A converter bound to a mapping from SymPy symbols to CasADi expressions."""
+
+    def __init__(self, mapping: Mapping[sp.Symbol, Any]) -> None:
+        self._memo: dict[sp.Basic, Any] = dict(mapping)
+
+    def __call__(self, expr: sp.Basic | sp.MatrixBase) -> Any:
+        if isinstance(expr, sp.MatrixBase):
+            rows, cols = expr.shape
+            out = ca.SX(rows, cols)
+            for i in range(rows):
+                for j in range(cols):
+                    out[i, j] = self._conv(expr[i, j])
+            return out
+        return self._conv(expr)
+
+    def _conv(self, e: sp.Basic) -> Any:
+        hit = self._memo.get(e)
+        if hit is not None:
+            return hit
+        out = self._convert_node(e)
+        self._memo[e] = out
+        return out
+
+    def _convert_node(self, e: sp.Basic) -> Any:
+        if isinstance(e, sp.Symbol):
+            raise KeyError(f"symbol {e} has no CasADi counterpart")
+        if e.is_Number or e in (sp.pi, sp.E):
+            return ca.SX(float(e))
+        if isinstance(e, sp.Piecewise):
+            *branches, (last, _true) = e.args
+            out = self._conv(last)
+            for val, cond in reversed(branches):
+                out = ca.if_else(self._conv(cond), self._conv(val), out)
+            return out
+        args = [self._conv(a) for a in e.args]
+        if isinstance(e, sp.Add):
+            out = args[0]
+            for a in args[1:]:
+                out = out + a
+            return out
+        if isinstance(e, sp.Mul):
+            out = args[0]
+            for a in args[1:]:
+                out = out * a
+            return out
+        if isinstance(e, sp.Pow):
+            return _power(args[0], e.exp)
+        fn = _UNARY.get(e.func)
+        if fn is not None:
+            return fn(args[0])
+        if isinstance(e, sp.StrictLessThan | sp.LessThan | sp.StrictGreaterThan
+                      | sp.GreaterThan):
+            a, b = args
+            return {sp.StrictLessThan: a < b, sp.LessThan: a <= b,
+                    sp.StrictGreaterThan: a > b, sp.GreaterThan: a >= b}[e.func]
+        if isinstance(e, sp.Max):
+            return _fold(ca.fmax, args)
+        if isinstance(e, sp.Min):
+            return _fold(ca.fmin, args)
+        raise NotImplementedError(f"no CasADi conversion for {e.func.__name__}")
+
+
+def _fold(fn: Any, args: list[Any]) -> Any:
+    out = args[0]
+    for a in args[1:]:
+        out = fn(out, a)
+    return out
+
+
+def _power(base: Any, exponent: sp.Expr) -> Any:
+    """Integer powers as products (exact, and what C compilers like); x^(1/2) as sqrt."""
+    if exponent.is_Integer:
+        n = int(exponent)
+        if n == 0:
+            return ca.SX(1.0)
+        if 0 < abs(n) <= 4:
+            out = base
+            for _ in range(abs(n) - 1):
+                out = out * base
+            return out if n > 0 else 1 / out
+        return ca.constpow(base, float(n))
+    if exponent == sp.Rational(1, 2):
+        return ca.sqrt(base)
+    if exponent == sp.Rational(-1, 2):
+        return 1 / ca.sqrt(base)
+    return ca.power(base, float(exponent))
+
+
+def to_casadi(expr: sp.Basic | sp.MatrixBase, mapping: Mapping[sp.Symbol, Any]) -> Any:
+    """Convert ``expr`` with ``mapping`` giving the CasADi expression of each free symbol."""
+    return SympyToCasadi(mapping)(expr)

@@ -1,0 +1,19 @@
+"""Errors the CLI turns into a one-line message and an exit code."""
+
+from __future__ import annotations
+
+
+class MaglevError(Exception):
+    """Base class: an error whose message is fit to show a user on one line."""
+
+    exit_code = 1
+
+
+class InputError(MaglevError):
+    """Bad input: a malformed or inconsistent parameter file, a bad option, no trim (exit 2)."""
+
+    exit_code = 2
+
+
+class NoTrimError(InputError):
+    """The carriage has no equilibrium at the requested speed."""

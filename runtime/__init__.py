@@ -1,0 +1,1 @@
+"""Compile, load and integrate the generated C (the thin runtime)."""
