@@ -1,0 +1,166 @@
+"""The paper's printed forms (derive/paper.py) and their inconsistencies, shown numerically.
+
+Each constraint set is re-typed here from the paper's text as a numpy matrix (order given in
+each test), so the checks do not go through the module's own constraint builder; references
+are numpy rank and least squares, python-control's lqr and SymPy derivatives.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+import sympy as sp
+from sympy.physics import units
+from sympy.physics.units.systems.si import dimsys_SI
+
+from maglevgen.derive import allocation, paper
+
+LX, LY, LXLA = 0.26, 0.09, 0.26
+RNG = np.random.default_rng(3)
+# Eq 22, forces in the order (F_z3, F_z1, F_z2, F_z6, F_z5, F_z4).
+EQ22 = np.array([[1, -1, -1, 1, -1, -1], [1, -1, -1, -1, 1, 1]], dtype=float)
+Z_ORDER = ("F_z3", "F_z1", "F_z2", "F_z6", "F_z5", "F_z4")
+# Eq 23, forces in the order (F_y1, F_y2, F_y4, F_y5).
+EQ23 = np.array([[1, -1, 1, -1]] * 3, dtype=float)
+Y_ORDER = ("F_y1", "F_y2", "F_y4", "F_y5")
+
+
+def _printed(u: np.ndarray) -> dict[str, float]:
+    """The printed eqs 22-23 solutions at numeric u and the paper's arms."""
+    sym = paper.paper_allocation([sp.Float(x) for x in u], sp.Float(LX), sp.Float(LY),
+                                 sp.Float(LXLA))
+    return {name: float(v) for name, v in sym.items()}
+
+
+def _rhs22(u):
+    return np.array([u[1], u[3] / LX])
+
+
+def _rhs23(u):
+    return np.array([u[0], u[2] / LY, u[2] / LXLA])  # third entry prints u_phi, not u_psi
+
+
+def test_eq22_printed_solution_violates_its_constraints():
+    for _ in range(5):
+        u = RNG.normal(size=5)
+        F = np.array([_printed(u)[n] for n in Z_ORDER])
+        residual = EQ22 @ F - _rhs22(u)
+        assert np.linalg.norm(residual) > 0.1 * np.linalg.norm(_rhs22(u))
+
+
+def test_eq22_minimum_norm_solution_differs_from_printed():
+    u = RNG.normal(size=5)
+    F_ls = np.linalg.lstsq(EQ22, _rhs22(u), rcond=None)[0]  # minimum-norm solution
+    np.testing.assert_allclose(EQ22 @ F_ls, _rhs22(u), atol=1e-12)
+    F_printed = np.array([_printed(u)[n] for n in Z_ORDER])
+    assert np.linalg.norm(F_ls - F_printed) > 0.1 * np.linalg.norm(F_ls)
+    # The module's Lagrange solution of the same constraints agrees with lstsq.
+    T = np.array(allocation.minimum_norm_allocation(sp.Matrix(EQ22.astype(int))), dtype=float)
+    np.testing.assert_allclose(T @ _rhs22(u), F_ls, atol=1e-12)
+
+
+def test_eq23_constraints_have_rank_one():
+    assert np.linalg.matrix_rank(EQ23) == 1
+
+    def misfit(u):
+        F_ls = np.linalg.lstsq(EQ23, _rhs23(u), rcond=None)[0]
+        return np.linalg.norm(EQ23 @ F_ls - _rhs23(u))
+
+    # Solvable only if u_y = u_phi/L_y = u_phi/L_xlat; with L_y != L_xlat that is u_y = u_phi = 0.
+    assert misfit(RNG.normal(size=5)) > 1e-3
+    assert misfit(np.array([1.0, 0.0, LY, 0.0, 0.0])) > 1e-3  # u_y = u_phi/L_y only
+    assert misfit(np.array([0.0, 2.0, 0.0, 3.0, 4.0])) < 1e-12
+
+
+def test_eq23_printed_solution_violates_even_consistent_constraints():
+    # Choose u on the consistent set (L_y = L_xlat here): u_phi / L_y = u_y.
+    u = np.array([1.5, 0.0, 1.5 * LY, 0.0, 0.0])
+    arms = (sp.Float(LX), sp.Float(LY), sp.Float(LY))
+    sym = paper.paper_allocation([sp.Float(x) for x in u], *arms)
+    F = np.array([float(sym[n]) for n in Y_ORDER])
+    rhs = np.array([u[0], u[2] / LY, u[2] / LY])
+    assert np.linalg.norm(EQ23 @ F - rhs) > 1.0
+
+
+def test_printed_allocation_ignores_yaw_command():
+    u = RNG.normal(size=5)
+    u2 = u.copy()
+    u2[4] += 10.0
+    assert _printed(u) == _printed(u2)
+
+
+def test_eq10_eq11_are_multiples_of_eq9_eq8():
+    # Rows of eqs 8 and 11 over (F_z3, F_z1, F_z2, F_z6, F_z4, F_z5); eqs 9, 10 over Y_ORDER.
+    heave = np.array([1, -1, -1, 1, -1, -1])
+    assert np.linalg.matrix_rank(np.vstack([heave, 0.26 * heave])) == 1
+    lateral = np.array([1, -1, 1, -1])
+    assert np.linalg.matrix_rank(np.vstack([lateral, 0.119 * lateral])) == 1
+    # The geometry's E makes heave and pitch independent (rows u_z, u_theta of E on F_z).
+    E = np.array(allocation.paper_effectiveness(), dtype=float)
+    z_cols = [1, 3, 4, 6, 8, 9]
+    assert np.linalg.matrix_rank(E[[1, 3]][:, z_cols]) == 2
+
+
+def test_eq22_pitch_and_eq11_pitch_disagree():
+    eq11 = 0.26 * np.array([1, -1, -1, 1, -1, -1])  # eq 11 over Z_ORDER (F_z4, F_z5 symmetric)
+    assert np.linalg.matrix_rank(np.vstack([eq11, EQ22[1]])) == 2
+
+
+def test_discrepancy_report_names_each_inconsistency():
+    found = paper.paper_discrepancies_allocation()
+    keys = [("eq 22", "do not satisfy"), ("eq 23", "do not satisfy"), ("eq 22", "minimum-norm"),
+            ("eq 23", "rank 1"), ("u_psi", "never allocated"), ("eq 11", "eq 8"),
+            ("eq 10", "eq 9"), ("eq 22's pitch", "eq 11"), ("eq 23's yaw", "eq 12"),
+            ("eq 21", "meter")]
+    for a, b in keys:
+        assert any(a in s and b in s for s in found), (a, b, found)
+
+
+def test_eq21_units():
+    # u_phi = L_y * sum M_x: length * force * length; eq 20's I_xx phi'': mass length^2 / time^2.
+    eq21 = dimsys_SI.get_dimensional_dependencies(
+        units.length * units.force * units.length)
+    eq20 = dimsys_SI.get_dimensional_dependencies(
+        units.mass * units.length**2 / units.time**2)
+    assert eq21 != eq20
+
+
+def test_printed_K_follows_from_printed_P_but_is_not_the_lqr_gain():
+    k, m = 2000.0, 9.3
+    P, K = (np.array(X.evalf(), dtype=float) for X in paper.paper_riccati(sp.Float(k), sp.Float(m)))
+    np.testing.assert_allclose(np.array([[0.0, 1.0 / m]]) @ P, K, rtol=1e-12)
+    A = np.array([[0.0, 1.0], [-k / m, 0.0]])
+    B = np.array([[0.0], [1.0 / m]])
+    K_lqr = control.lqr(A, B, np.eye(2), np.eye(1))[0]
+    assert abs(K[0, 0] - K_lqr[0, 0]) > 1e3 * abs(K_lqr[0, 0])
+
+
+@pytest.mark.parametrize("m", [0.5, 9.3])
+def test_printed_K_is_the_lqr_gain_only_at_unit_stiffness(m):
+    # At k = 1 eq 32's K coincides with control.lqr's; eq 31's P still does not.
+    A = np.array([[0.0, 1.0], [-1.0 / m, 0.0]])
+    B = np.array([[0.0], [1.0 / m]])
+    K_lqr, P_lqr, _ = control.lqr(A, B, np.eye(2), np.eye(1))
+    P, K = (np.array(X.evalf(), dtype=float) for X in paper.paper_riccati(sp.Integer(1),
+                                                                           sp.Float(m)))
+    np.testing.assert_allclose(K, K_lqr, rtol=1e-10)
+    assert abs(P[0, 0] - P_lqr[0, 0]) > 1e-3 * abs(P_lqr[0, 0])
+
+
+def test_printed_lateral_and_vertical_stiffness_follow_from_the_exponential_law():
+    F, m, g, k, dy, dz = sp.symbols("F m g k Delta_y Delta_z", positive=True)
+    printed = paper.paper_stiffness(F, sp.Symbol("F_u"), m, g, k, *sp.symbols("L_z L_x L_xla"))
+    # Eq 13 with F = F(y1) the per-array force: 2 F [e^{2 k dy} - e^{-2 k dy}].
+    lateral = 2 * F * (sp.exp(2 * k * dy) - sp.exp(-2 * k * dy))
+    assert sp.simplify(sp.diff(lateral, dy).subs(dy, 0) - printed["lateral"]) == 0
+    # Eq 6: F_L = m g e^{-2 k dz}; the restoring stiffness is -dF/d(dz).
+    lift = m * g * sp.exp(-2 * k * dz)
+    assert sp.simplify(-sp.diff(lift, dz).subs(dz, 0) - printed["vertical"]) == 0
+
+
+def test_riccati_discrepancy_report():
+    found = paper.paper_discrepancies_riccati()
+    assert any("does not satisfy eq 30" in s for s in found)
+    assert any("no degenerate case" in s for s in found)
+    assert any("only at k = [1]" in s for s in found)
