@@ -39,8 +39,13 @@ def _carriage(args: argparse.Namespace):
 def cmd_params_show(args: argparse.Namespace) -> int:
     if args.params or args.overrides:
         load_params(args.params, args.overrides)  # validate what is shown
-    text = default_params_text() if not args.params else Path(args.params).read_text("utf-8")
-    sys.stdout.write(text if args.raw else annotate_with_units(text))
+    raw = (default_params_text().encode("utf-8") if not args.params
+           else Path(args.params).read_bytes())
+    if args.raw:
+        sys.stdout.flush()
+        sys.stdout.buffer.write(raw)
+        return 0
+    sys.stdout.write(annotate_with_units(raw.decode("utf-8")))
     return 0
 
 
