@@ -112,6 +112,74 @@ def cmd_trim(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------------- gains
+
+
+def gains_report(carriage, speed: float | None) -> dict:
+    """Everything `maglevgen gains` prints, as plain data."""
+    from .controllers import allocation_matrix, carriage_gains, coupled_comparison, effectiveness
+
+    trim = carriage.trim(speed)
+    gains = carriage_gains(carriage, trim)
+    ctl = carriage.params.control
+    Q, R = tuple(ctl.state_weights), ctl.input_weight
+    cc = coupled_comparison(carriage, trim, gains)
+    poles = lambda ev: [[float(e.real), float(e.imag)] for e in sorted(ev, key=_pole_key)]  # noqa: E731
+    return {
+        "speed": trim.speed,
+        "Q": [[Q[0], 0.0], [0.0, Q[1]]],
+        "R": R,
+        "params_sha256": carriage.loaded.sha256,
+        "convention": "u = -K x, x = (position, rate), A = [[0, 1], [-k/m, 0]], B = [0, 1/m]",
+        "axes": {g.axis: g.to_json(Q, R) for g in gains},
+        "coupled": {
+            "states": ["y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r"],
+            "cost_per_axis_design": cc.cost_per_axis,
+            "cost_coupled_lqr": cc.cost_coupled,
+            "poles_per_axis_design": poles(cc.poles_per_axis),
+            "poles_coupled_lqr": poles(cc.poles_coupled),
+            "poles_damping": poles(cc.poles_damping),
+        },
+        "allocation": {
+            "forces": list(carriage.model.input_names[1:]),
+            "controls": [c.name for c in cv.CONTROLS],
+            "effectiveness": effectiveness(carriage).tolist(),
+            "minimum_norm": allocation_matrix(carriage).tolist(),
+        },
+    }
+
+
+def _pole_key(e: complex) -> tuple[float, float]:
+    return (float(e.real), float(e.imag))
+
+
+def cmd_gains(args: argparse.Namespace) -> int:
+    rep = gains_report(_carriage(args), args.speed)
+    if args.json:
+        print(json.dumps(rep, indent=2))
+        return 0
+    q, r = rep["Q"], rep["R"]
+    print(f"Per-axis LQR at {rep['speed']:g} m/s, Q = diag({q[0][0]:g}, {q[1][1]:g}), "
+          f"R = {r:g}; u = -K (position, rate)")
+    print(f"  {'axis':<9}{'k':>12}{'m':>10}{'K1 (closed)':>14}{'K2 (closed)':>13}"
+          f"{'K numerical':>26}{'K paper eq 32':>26}  more accurate")
+    for axis, a in rep["axes"].items():
+        acc = a["accuracy_vs_50_digit_reference"]
+        kn, kp = a["K_numerical"], a["K_paper"]
+        print(f"  {axis:<9}{a['stiffness']:12.5g}{a['inertia']:10.4g}"
+              f"{a['K_closed_form'][0]:14.6g}{a['K_closed_form'][1]:13.6g}"
+              f"{kn[0]:13.6g}{kn[1]:13.6g}{kp[0]:13.6g}{kp[1]:13.6g}  {acc['more_accurate']}"
+              f" ({acc['closed_form']:.1e} vs {acc['numerical']:.1e})")
+    c = rep["coupled"]
+    print(f"\nOn the coupled 10-state linearisation: cost of the per-axis design "
+          f"{c['cost_per_axis_design']:.6g}, of the coupled LQR {c['cost_coupled_lqr']:.6g}; "
+          f"slowest poles {max(p[0] for p in c['poles_per_axis_design']):.4g} and "
+          f"{max(p[0] for p in c['poles_coupled_lqr']):.4g} 1/s")
+    print("The paper's eq 31-32 gain (K1 = sqrt(k^2+1) - 1) is not the LQR gain: its P does "
+          "not solve eq 30.")
+    return 0
+
+
 # ---------------------------------------------------------------------------------- main
 
 
@@ -137,6 +205,12 @@ def build_parser() -> argparse.ArgumentParser:
     trim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
     trim.add_argument("--json", action="store_true", help="machine-readable output")
     trim.set_defaults(func=cmd_trim)
+
+    gains = sub.add_parser("gains", help="per-axis LQR in closed form vs numerical and paper")
+    _common(gains)
+    gains.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
+    gains.add_argument("--json", action="store_true", help="machine-readable output")
+    gains.set_defaults(func=cmd_gains)
     return parser
 
 

@@ -1,0 +1,111 @@
+"""`maglevgen gains`, the gain schedule and the coupled comparison against numerical LQR."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import control
+import numpy as np
+import pytest
+import scipy.linalg
+
+from maglevgen.carriage import Carriage
+from maglevgen.cli import main
+from maglevgen.controllers import (
+    allocation_matrix,
+    axis_plants,
+    carriage_gains,
+    coupled_comparison,
+    gain_schedule,
+    reduced_model,
+)
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.riccati import lqr_gain_numeric
+
+
+@pytest.fixture(scope="module")
+def gains_json() -> dict:
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["gains", "--json"]) == 0
+    return json.loads(buf.getvalue())
+
+
+def test_gains_json_shape_and_lqr(gains_json: dict) -> None:
+    assert set(gains_json["axes"]) == set(cv.AXES)
+    assert gains_json["Q"] == [[1.0, 0.0], [0.0, 1.0]] and gains_json["R"] == 1.0
+    for axis in cv.AXES:
+        a = gains_json["axes"][axis]
+        A, B = np.array(a["A"]), np.array(a["B"])
+        assert A.shape == (2, 2) and B.shape == (2, 1)
+        assert A[1, 0] == pytest.approx(-a["stiffness"] / a["inertia"], rel=1e-15)
+        K_ref, _, _ = control.lqr(A, B, np.eye(2), np.eye(1))
+        np.testing.assert_allclose(a["K_closed_form"], np.ravel(K_ref), rtol=1e-7)
+        P_care = scipy.linalg.solve_continuous_are(A, B, np.eye(2), np.eye(1))
+        np.testing.assert_allclose(a["P_closed_form"], P_care, rtol=1e-6)
+        # the closed form is at least as close to the 50-digit value as the numerical solver
+        acc = a["accuracy_vs_50_digit_reference"]
+        assert acc["closed_form"] <= max(acc["numerical"], 4 * np.finfo(float).eps)
+        # the paper's printed gain is far from the LQR gain for these stiffnesses
+        assert a["relative_difference"]["paper_vs_closed_form"] > 0.1
+
+
+def test_gains_match_trim_stiffness(carriage: Carriage, trim, gains_json: dict) -> None:
+    K = carriage.total_stiffness(trim)
+    for i, axis in enumerate(cv.AXES):
+        assert gains_json["axes"][axis]["stiffness"] == pytest.approx(K[i, i], rel=1e-12)
+
+
+def test_allocation_is_pseudo_inverse_of_geometry(carriage: Carriage) -> None:
+    """T = pinv(E), with E built here from the array positions by cross products."""
+    cols = []
+    for arr, (_, comps) in zip(carriage.params.arrays.values(), carriage.structure.arrays,
+                               strict=True):
+        for ax in comps:
+            d = np.eye(3)["xyz".index(ax)]
+            m = np.cross(arr.position, d)
+            cols.append([d[1], d[2], *m])
+    E = np.array(cols).T
+    assert E.shape == (5, 10)
+    np.testing.assert_allclose(allocation_matrix(carriage), np.linalg.pinv(E), atol=1e-12)
+
+
+def test_schedule_is_lqr_of_trim_at_each_speed(carriage: Carriage) -> None:
+    speeds = np.array([8.0, 20.0, 60.0])
+    sched = gain_schedule(carriage, speeds)
+    for j, v in enumerate(speeds):
+        for axis, k, m in axis_plants(carriage, carriage.trim(float(v))):
+            A = np.array([[0.0, 1.0], [-k / m, 0.0]])
+            B = np.array([[0.0], [1.0 / m]])
+            K, _, _ = control.lqr(A, B, np.eye(2), np.eye(1))
+            np.testing.assert_allclose(sched[axis][j], np.ravel(K), rtol=1e-6)
+            f32 = lqr_gain_numeric(k, m, dtype=np.float32)
+            np.testing.assert_allclose(f32, sched[axis][j], rtol=1e-5)
+    # stiffness grows with speed (the force law saturates towards high speed)
+    assert sched["vertical"][0, 0] > sched["vertical"][-1, 0]
+
+
+def test_coupled_lqr_is_optimal_and_per_axis_design_stabilises(carriage: Carriage,
+                                                                trim) -> None:
+    gains = carriage_gains(carriage, trim)
+    cc = coupled_comparison(carriage, trim, gains)
+    assert np.max(cc.poles_per_axis.real) < 0
+    assert np.max(cc.poles_coupled.real) < 0
+    # the coupled LQR minimises the cost the per-axis design is measured with
+    assert cc.cost_coupled <= cc.cost_per_axis * (1 + 1e-9)
+    # and its gain solves the coupled Riccati equation (scipy as the reference)
+    Ar, Bg, C_rate = reduced_model(carriage, trim)
+    C_pos = np.hstack([np.eye(5), np.zeros((5, 5))])
+    Q = C_pos.T @ C_pos + C_rate.T @ C_rate
+    P = scipy.linalg.solve_continuous_are(Ar, Bg, Q, np.eye(5))
+    np.testing.assert_allclose(cc.K_coupled, Bg.T @ P, rtol=1e-6, atol=1e-9)
+
+
+def test_gains_table_prints(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["gains", "--set", "control.input_weight=0.01"]) == 0
+    out = capsys.readouterr().out
+    for axis in cv.AXES:
+        assert axis in out
+    assert "R = 0.01" in out
