@@ -180,6 +180,21 @@ def cmd_gains(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------- generate
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from .codegen.generate import GenerateOptions, render, write_output
+
+    opts = GenerateOptions(args.precision, args.parameters)
+    carriage = _carriage(args)
+    paths = write_output(render(carriage, opts), Path(args.out))
+    print(f"wrote {len(paths)} files to {Path(args.out).resolve()} ({opts.command})")
+    for path in paths:
+        print(f"  {path.name}")
+    return 0
+
+
 # ---------------------------------------------------------------------------------- main
 
 
@@ -211,6 +226,15 @@ def build_parser() -> argparse.ArgumentParser:
     gains.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
     gains.add_argument("--json", action="store_true", help="machine-readable output")
     gains.set_defaults(func=cmd_gains)
+
+    gen = sub.add_parser("generate", help="generate C for the dynamics and controllers")
+    _common(gen)
+    gen.add_argument("--precision", choices=("double", "single"), default="double")
+    gen.add_argument("--parameters", choices=("baked", "runtime"), default="baked",
+                     help="fold the parameter values in, or take them as an input vector p")
+    gen.add_argument("--out", default="generated", metavar="DIR",
+                     help="output folder (default: ./generated)")
+    gen.set_defaults(func=cmd_generate)
     return parser
 
 

@@ -1,0 +1,214 @@
+"""The generated functions, built as CasADi Functions from the SymPy derivation.
+
+Every function takes the parameter vector ``p`` as its last input; `bake` folds a parameter
+file's values in as constants. Names, inputs and outputs are declared once in ``FUNCTIONS``
+and everything downstream (C, header, manifest) reads them from the Function objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import sympy as sp
+
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.linearize import Q_STATES, stiffness_form
+from maglevgen.derive.model import CarriageModel
+from maglevgen.derive.riccati import riccati_stable_form
+from maglevgen.derive.rigid_body import inertia_about_origin
+
+from .casadi_model import casadi_model
+from .sympy_casadi import SympyToCasadi
+
+PREFIX = "maglev_"
+N_AXES = len(cv.AXES)
+
+# What each generated function does, for the header and the manifest.
+DESCRIPTIONS: dict[str, str] = {
+    "dynamics": "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, 8-12)",
+    "jacobians": "(A, B) = (df/dx, df/du) of maglev_dynamics",
+    "trim": "equilibrium at speed v (Newton iterations in C): trim state and propulsion force",
+    "lqr_gains": "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim",
+    "lqr_control": "u_gen = -K (a - a_trim, a_dot): the five LQR forces/moments at speed v",
+    "damping_control": "u_gen = -c a_dot: the five optimized-damping forces/moments (eqs 20-21)",
+    "allocate": "array forces of minimum norm that produce u_gen (eqs 22-23 derived)",
+    "rk4_step": "one RK4 step of the closed loop with linear axis feedback held over the step",
+}
+
+
+@dataclass(frozen=True)
+class Built:
+    """The generated functions (runtime parameters) and the parameter vector's size."""
+
+    functions: tuple[ca.Function, ...]
+    n_p: int
+
+
+def _pairs(syms, sx) -> dict:
+    return {s: sx[i] for i, s in enumerate(syms)}
+
+
+def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
+    """All generated functions with the parameters as a run-time input."""
+    cm = casadi_model(model)
+    x, u, p = cm.x, cm.u, cm.p
+    n_x, n_u = x.shape[0], u.shape[0]
+    base = {**_pairs(model.x, x), **_pairs(model.u, u), **_pairs(model.p, p)}
+    conv = SympyToCasadi(base)
+
+    dynamics = ca.Function("maglev_dynamics", [x, u, p], [cm.xdot], ["x", "u", "p"], ["xdot"])
+    jacobians = ca.Function("maglev_jacobians", [x, u, p],
+                            [ca.jacobian(cm.xdot, x), ca.jacobian(cm.xdot, u)],
+                            ["x", "u", "p"], ["A", "B"])
+
+    # --- trim: Newton on the six accelerations in (y, z, phi, theta, psi, F_prop)
+    v = ca.SX.sym("v")
+    z6 = ca.SX.sym("z", 6)
+    x_trim = _trim_state(v, z6)
+    u_trim = ca.vertcat(z6[5], ca.SX.zeros(n_u - 1))
+    residual = dynamics(x_trim, u_trim, p)[6:12]
+    res_fn = ca.Function("maglev_trim_residual", [z6, ca.vertcat(v, p)], [residual])
+    newton = ca.rootfinder("maglev_trim_newton", "fast_newton", res_fn,
+                           {"max_iter": newton_iterations, "abstol": 1e-13})
+    v_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("p", p.shape[0])
+    guess = ca.vertcat(0, 0, 0, 0, 0, 0)
+    z_sol = newton(guess, ca.vertcat(v_mx, p_mx))
+    trim_state_fn = ca.Function("maglev_trim_state", [v, z6], [x_trim, u_trim])
+    xt_mx, ut_mx = trim_state_fn(v_mx, z_sol)
+    trim = ca.Function("maglev_trim", [v_mx, p_mx], [xt_mx, ut_mx[0]], ["v", "p"],
+                       ["x_trim", "F_prop"])
+
+    # --- per-axis plants at trim and their closed-form gains
+    sf = stiffness_form(model.structure)
+    q_sx = ca.SX.sym("q", 5)
+    fl, fd, fprop = ca.SX.sym("FL", len(model.arrays)), ca.SX.sym("FD", len(model.arrays)), \
+        ca.SX.sym("Fp")
+    conv_k = SympyToCasadi({**base, **_pairs(sf.q, q_sx), **_pairs(sf.lift_sym, fl),
+                            **_pairs(sf.drag_sym, fd), model.u[0]: fprop})
+    k_diag = ca.vertcat(*[conv_k(sf.K[i, i] + sf.K_other[i, i]) for i in range(5)])
+    m_diag = conv(_generalized_mass(model))
+    q1 = p[model.structure.param_names.index("control.state_weights.0")]
+    q2 = p[model.structure.param_names.index("control.state_weights.1")]
+    r = p[model.structure.param_names.index("control.input_weight")]
+    # closed-form gains (riccati_stable_form) and damping of each axis from (k, m)
+    km = ca.SX.sym("km", 2 * N_AXES)
+    K_sx, c_sx = ca.SX(N_AXES, 2), ca.SX(N_AXES, 1)
+    ks, ms = sp.Symbol("k", real=True), sp.Symbol("m", positive=True)
+    wsyms = sp.symbols("q1 q2 r", positive=True)
+    stable = riccati_stable_form(ks, ms, *wsyms)
+    for i in range(N_AXES):
+        k_i, m_i = km[i], km[N_AXES + i]
+        conv_axis = SympyToCasadi({ks: k_i, ms: m_i, **dict(zip(wsyms, (q1, q2, r),
+                                                               strict=True))})
+        K_sx[i, 0] = conv_axis(stable.K[0])
+        K_sx[i, 1] = conv_axis(stable.K[1])
+        # optimized damping c = sqrt(k m) (derive/damping.py); none where k <= 0
+        c_sx[i] = ca.if_else(k_i > 0, ca.sqrt(ca.fmax(k_i, 0) * m_i), 0)
+    K_fn = ca.Function("maglev_axis_gains", [km, p], [K_sx, c_sx])
+    plant_qf = ca.Function("maglev_axis_plant_qf", [q_sx, fl, fd, fprop, p],
+                           [ca.vertcat(k_diag, m_diag)])
+    xs = ca.SX.sym("x_s", n_x)
+    fprop_s = ca.SX.sym("F_prop")
+    lift_fn = ca.Function("maglev_array_forces", [x, p], [cm.lift, cm.drag])
+    fl_t, fd_t = lift_fn(xs, p)
+    q_of_x = ca.vertcat(*[xs[cv.STATE_INDEX[s]] for s in Q_STATES])
+    plant = ca.Function("maglev_axis_plant", [xs, fprop_s, p],
+                        [plant_qf(q_of_x, fl_t, fd_t, fprop_s, p)])
+    km_mx = plant(xt_mx, ut_mx[0], p_mx)
+    K_mx, c_mx = K_fn(km_mx, p_mx)
+    lqr_gains = ca.Function("maglev_lqr_gains", [v_mx, p_mx], [K_mx, c_mx], ["v", "p"],
+                            ["K", "c_damping"])
+
+    # --- controllers on the axis coordinates a = (y, z, phi, theta, psi) and their rates
+    rates_fn = ca.Function("maglev_axis_rates", [x], [
+        ca.vertcat(*[cm.xdot[cv.STATE_INDEX[s]] for s in Q_STATES])])
+    x_mx = ca.MX.sym("x", n_x)
+    a_mx = ca.vertcat(*[x_mx[cv.STATE_INDEX[s]] for s in Q_STATES])
+    a_trim = ca.vertcat(*[xt_mx[cv.STATE_INDEX[s]] for s in Q_STATES])
+    adot = rates_fn(x_mx)
+    u_lqr = -(K_mx[:, 0] * (a_mx - a_trim) + K_mx[:, 1] * adot)
+    lqr_control = ca.Function("maglev_lqr_control", [x_mx, v_mx, p_mx], [u_lqr],
+                              ["x", "v", "p"], ["u_gen"])
+    damping_control = ca.Function("maglev_damping_control", [x_mx, v_mx, p_mx], [-c_mx * adot],
+                                  ["x", "v", "p"], ["u_gen"])
+
+    # --- allocation: T = E^T (E E^T)^-1 from the array positions in p
+    u_gen = ca.SX.sym("u_gen", N_AXES)
+    E = _effectiveness(model, p)
+    forces = E.T @ ca.solve(E @ E.T, u_gen)
+    allocate = ca.Function("maglev_allocate", [u_gen, p], [forces], ["u_gen", "p"],
+                           ["F_arrays"])
+
+    # --- closed-loop RK4 step with linear axis feedback held over the step
+    dt = ca.SX.sym("dt")
+    F_prop = ca.SX.sym("F_prop")
+    k_pos, k_rate, a_ref = (ca.SX.sym(n, N_AXES) for n in ("k_pos", "k_rate", "a_ref"))
+    x0 = ca.SX.sym("x", n_x)
+    a0 = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
+    u_axes = -(k_pos * (a0 - a_ref) + k_rate * rates_fn(x0))
+    u_full = ca.vertcat(F_prop, allocate(u_axes, p))
+    f = lambda xx: dynamics(xx, u_full, p)  # noqa: E731
+    k1 = f(x0)
+    k2 = f(x0 + dt / 2 * k1)
+    k3 = f(x0 + dt / 2 * k2)
+    k4 = f(x0 + dt * k3)
+    x_next = x0 + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    rk4 = ca.Function("maglev_rk4_step", [x0, dt, F_prop, k_pos, k_rate, a_ref, p],
+                      [x_next, u_full],
+                      ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
+    fns = (dynamics, jacobians, trim, lqr_gains, lqr_control, damping_control, allocate, rk4)
+    return Built(tuple(_dense_outputs(f) for f in fns), p.shape[0])
+
+
+def _dense_outputs(fn: ca.Function) -> ca.Function:
+    """The same function with dense outputs (firmware indexes them with the header's macros)."""
+    if all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
+        return fn
+    sym = ca.SX.sym if fn.is_a("SXFunction") else ca.MX.sym
+    ins = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in())]
+    outs = [ca.densify(o) for o in fn.call(ins)]
+    return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out())
+
+
+def _trim_state(v: ca.SX, z6: ca.SX) -> ca.SX:
+    """The 12-state vector at pose z6[0:5] moving at (v, 0, 0) inertial (as derive.trim)."""
+    phi, theta, psi = z6[2], z6[3], z6[4]
+    cf, sf, ct, st, cp, sp_ = (ca.cos(phi), ca.sin(phi), ca.cos(theta), ca.sin(theta),
+                               ca.cos(psi), ca.sin(psi))
+    # body velocity R^T (v, 0, 0): v times the first row of R = Rz Ry Rx
+    vel = v * ca.vertcat(cp * ct, cp * st * sf - sp_ * cf, cp * st * cf + sp_ * sf)
+    return ca.vertcat(0, z6[0:5], vel, 0, 0, 0)
+
+
+def _generalized_mass(model: CarriageModel) -> sp.Matrix:
+    m = model.param("vehicle.mass")
+    keys = ("xx", "xy", "xz", "xy", "yy", "yz", "xz", "yz", "zz")
+    inertia = sp.Matrix(3, 3, lambda i, j: model.param("vehicle.inertia_cg." + keys[3 * i + j]))
+    I_O = inertia_about_origin(m, inertia, model.vec("vehicle.cg_offset"))
+    return sp.Matrix([m, m, I_O[0, 0], I_O[1, 1], I_O[2, 2]])
+
+
+def _effectiveness(model: CarriageModel, p: ca.SX) -> ca.SX:
+    cols = []
+    for name, comps in model.structure.arrays:
+        pos = ca.vertcat(*[p[model.structure.param_names.index(f"arrays.{name}.position.{c}")]
+                           for c in "xyz"])
+        for ax in comps:
+            d = ca.DM(np.eye(3)["xyz".index(ax)])
+            mom = ca.cross(pos, d)
+            cols.append(ca.vertcat(d[1], d[2], mom))
+    return ca.horzcat(*cols)
+
+
+def bake(fn: ca.Function, p_value: np.ndarray) -> ca.Function:
+    """The same function with its last input (p) replaced by constants.
+
+    SX functions are re-expanded so that CasADi folds the constants into the expressions; MX
+    functions (those calling the trim Newton solver) get p as a constant argument.
+    """
+    sym = ca.SX.sym if fn.is_a("SXFunction") else ca.MX.sym
+    ins = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in() - 1)]
+    outs = fn.call([*ins, ca.DM(p_value)])
+    return ca.Function(fn.name(), ins, outs, fn.name_in()[:-1], fn.name_out())

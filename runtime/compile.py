@@ -1,0 +1,75 @@
+"""Compile generated C into a shared library, cached by the content hash of sources and flags."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+from maglevgen.errors import InputError, MaglevError
+
+DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
+
+
+class CompileError(MaglevError):
+    """The compiler rejected the generated code (an internal failure: exit 1)."""
+
+
+def find_compiler(cc: str | None = None) -> str:
+    """The C compiler: ``cc``, else $CC, else gcc; a clear error when there is none."""
+    name = cc or os.environ.get("CC") or "gcc"
+    path = shutil.which(name)
+    if path is None:
+        raise InputError(f"C compiler {name!r} not found (install gcc or set CC)")
+    return path
+
+
+def default_cache_dir() -> Path:
+    base = os.environ.get("MAGLEVGEN_CACHE") or os.environ.get("XDG_CACHE_HOME")
+    return Path(base) / "maglevgen" if base else Path.home() / ".cache" / "maglevgen"
+
+
+def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,
+                   cc: str | None = None, cache_dir: Path | None = None) -> Path:
+    """Build (or reuse) a shared library from C sources; returns its path.
+
+    The cache key hashes the compiler path, flags and every source's and header's bytes, so a
+    stale entry can never be returned; a cached file that is not a valid ELF object (a
+    corrupted entry) is rebuilt. The library is written to a temporary name and renamed.
+    """
+    compiler = find_compiler(cc)
+    sources = [Path(s).resolve() for s in sources]
+    h = hashlib.sha256()
+    h.update(compiler.encode() + b"\0" + "\0".join(flags).encode())
+    for src in sources:
+        for f in sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c" else [src]:
+            h.update(f.name.encode() + b"\0" + f.read_bytes())
+    key = h.hexdigest()[:24]
+    cache = Path(cache_dir) if cache_dir else default_cache_dir()
+    lib = cache / f"lib{key}.so"
+    if lib.exists() and _looks_like_elf(lib):
+        return lib
+    cache.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".lib{key}.", suffix=".so", dir=cache)
+    os.close(fd)
+    cmd = [compiler, *flags, *map(str, sources), "-o", tmp, "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        os.unlink(tmp)
+        first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
+        raise CompileError(f"compiling {sources[0].name} failed: {first}")
+    os.replace(tmp, lib)
+    return lib
+
+
+def _looks_like_elf(path: Path) -> bool:
+    try:
+        with path.open("rb") as f:
+            head = f.read(4)
+        return head == b"\x7fELF" and path.stat().st_size > 1024
+    except OSError:
+        return False

@@ -1,0 +1,231 @@
+"""Generated C against the SymPy model and the 50-digit LQR; firmware rules; determinism."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from maglevgen.carriage import Carriage
+from maglevgen.codegen.generate import GenerateOptions, render, write_output
+from maglevgen.controllers import axis_plants
+from maglevgen.derive.riccati import lqr_gain_mp
+from maglevgen.params import load_params
+from maglevgen.runtime.compile import compile_shared
+from maglevgen.runtime.ffi import GeneratedLibrary
+
+REPO = Path(__file__).resolve().parents[1]
+WARN = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]
+SINGLE_WARN = ["-Wdouble-promotion", "-Wfloat-conversion"]
+TOL = {"double": 1e-12, "single": 1e-5}
+
+
+@pytest.fixture(scope="module", params=["double", "single"])
+def runtime_lib(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path]:
+    out = tmp_path_factory.mktemp(f"gen_{request.param}")
+    write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
+    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    return request.param, lib
+
+
+def _ext(runtime_lib: tuple[str, Path], name: str):
+    precision, lib = runtime_lib
+    fn = GeneratedLibrary(lib, precision).function(name)
+    return lambda *a: [o.squeeze() if o.size == 1 else o for o in fn(*a)]
+
+
+def test_casadi_external_loads_every_function(carriage: Carriage, tmp_path: Path) -> None:
+    out = tmp_path / "gen"
+    write_output(render(carriage, GenerateOptions("double", "runtime")), out)
+    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    manifest = json.loads((out / "manifest.json").read_text())
+    ours = GeneratedLibrary(lib, "double")
+    rng = np.random.default_rng(0)
+    for f in manifest["functions"]:
+        ext = ca.external(f["name"], str(lib))
+        args = [rng.normal(size=(io["rows"], io["cols"])) for io in f["inputs"]]
+        if f["name"] != "maglev_dynamics":
+            continue
+        args[0][6] += 20
+        for a, b in zip(ext(*args) if ext.n_out() > 1 else [ext(*args)],
+                        ours.function(f["name"])(*args), strict=True):
+            np.testing.assert_allclose(np.array(a), b, rtol=1e-15)
+
+
+def test_dynamics_matches_sympy_model(runtime_lib, carriage: Carriage) -> None:
+    precision, _ = runtime_lib
+    f = _ext(runtime_lib, "maglev_dynamics")
+    rng = np.random.default_rng(11)
+    n = 1000
+    X = rng.normal(scale=[1, 2e-3, 2e-3, .01, .01, .01, 2, .05, .05, .05, .05, .05], size=(n, 12))
+    X[:, 6] += 20.0
+    X[:, 2] += 3e-5
+    U = rng.normal(scale=5.0, size=(n, carriage.model.u.shape[0]))
+    U[:, 0] += 70.0
+    # The reference is the double-precision model at the inputs as the library sees them
+    # (rounded to its precision); errors are measured against each component's typical size,
+    # since a component that crosses zero has no meaningful relative error in float32.
+    real = np.float32 if precision == "single" else np.float64
+    p = carriage.p.astype(real).astype(float)
+    refs, gots = [], []
+    for x, u in zip(X.astype(real).astype(float), U.astype(real).astype(float), strict=True):
+        refs.append(carriage.functions.xdot(x, u, p))
+        gots.append(np.array(f(x, u, p)[0], dtype=float).ravel())
+    refs, gots = np.array(refs), np.array(gots)
+    worst = float(np.max(np.abs(gots - refs) / np.mean(np.abs(refs), axis=0)))
+    assert worst < TOL[precision], worst
+
+
+@pytest.mark.parametrize("speed", [8.0, 20.0, 45.0])
+@pytest.mark.parametrize("override", [(), ("vehicle.mass=8.0",), ("control.input_weight=0.01",
+                                                                  "vehicle.inertia_cg.yy=0.42")])
+def test_lqr_gains_match_50_digit_reference(runtime_lib, speed: float, override) -> None:
+    precision, _ = runtime_lib
+    car = Carriage(load_params(overrides=list(override)))
+    (q1, q2), r = car.params.control.state_weights, car.params.control.input_weight
+    K, _c = _ext(runtime_lib, "maglev_lqr_gains")(speed, car.p)
+    K = np.array(K)
+    for i, (_axis, k, m) in enumerate(axis_plants(car, car.trim(speed))):
+        ref = np.array([float(v) for v in lqr_gain_mp(k, m, q1, q2, r)])
+        rel = np.max(np.abs(K[i] - ref) / np.abs(ref))
+        # double: the trim Newton and stiffness in C agree with Python's to ~1e-13
+        assert rel < TOL[precision] * (10 if precision == "double" else 1), (i, rel)
+
+
+def test_trim_in_c_matches_python(runtime_lib, carriage: Carriage) -> None:
+    precision, _ = runtime_lib
+    for v in (6.0, 20.0, 80.0):
+        x, fp = _ext(runtime_lib, "maglev_trim")(v, carriage.p)
+        tr = carriage.trim(v)
+        tol = 1e-9 if precision == "double" else 1e-4
+        np.testing.assert_allclose(np.array(x).ravel(), tr.x, atol=tol * 20)
+        assert float(fp) == pytest.approx(tr.u[0], rel=tol)
+
+
+def test_allocation_is_pseudo_inverse(runtime_lib, carriage: Carriage) -> None:
+    from maglevgen.controllers import allocation_matrix
+
+    precision, _ = runtime_lib
+    T = allocation_matrix(carriage)
+    f = _ext(runtime_lib, "maglev_allocate")
+    for u in np.random.default_rng(2).normal(size=(20, 5)):
+        np.testing.assert_allclose(np.array(f(u, carriage.p)[0]).ravel(), T @ u,
+                                   rtol=TOL[precision] * 10, atol=TOL[precision] * 10)
+
+
+@pytest.fixture(scope="module")
+def baked(carriage: Carriage, tmp_path_factory) -> dict[str, Path]:
+    out = {}
+    for precision in ("double", "single"):
+        d = tmp_path_factory.mktemp(f"baked_{precision}")
+        write_output(render(carriage, GenerateOptions(precision, "baked")), d)
+        out[precision] = d
+    return out
+
+
+@pytest.mark.parametrize("cc", ["gcc", "clang"])
+@pytest.mark.parametrize("precision", ["double", "single"])
+def test_compiles_warning_free(baked: dict[str, Path], cc: str, precision: str,
+                               tmp_path: Path) -> None:
+    if shutil.which(cc) is None:
+        pytest.skip(f"{cc} is not installed (.ci/run installs it)")
+    flags = WARN + (SINGLE_WARN if precision == "single" else [])
+    d = baked[precision]
+    for src in ("maglev_functions.c", "main.c"):
+        proc = subprocess.run([cc, *flags, "-c", str(d / src), "-o", str(tmp_path / "o.o")],
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+
+
+def test_no_writable_globals_and_only_maglev_symbols(baked: dict[str, Path],
+                                                    tmp_path: Path) -> None:
+    obj = tmp_path / "f.o"
+    subprocess.run(["gcc", "-std=c99", "-O2", "-c", str(baked["double"] / "maglev_functions.c"),
+                    "-o", str(obj)], check=True)
+    syms = subprocess.run(["nm", "--defined-only", str(obj)], capture_output=True, text=True,
+                          check=True).stdout.split("\n")
+    for line in filter(None, syms):
+        kind, name = line.split()[-2:]
+        assert kind not in "DBdbCc", f"writable data symbol {name}"
+        if kind.isupper():
+            assert name.startswith("maglev_"), name
+    sz = subprocess.run(["size", "-A", str(obj)], capture_output=True, text=True).stdout
+    for section in (".data", ".bss"):
+        for line in sz.splitlines():
+            if line.startswith(section + " "):
+                assert int(line.split()[1]) == 0, line
+
+
+def test_example_builds_with_cmake_and_runs(baked: dict[str, Path], tmp_path: Path) -> None:
+    if shutil.which("cmake") is None:
+        pytest.skip("cmake is not installed (.ci/run installs it)")
+    build = tmp_path / "build"
+    subprocess.run(["cmake", "-S", str(baked["double"]), "-B", str(build)], check=True,
+                   capture_output=True)
+    subprocess.run(["cmake", "--build", str(build)], check=True, capture_output=True)
+    out = subprocess.run([str(build / "maglev_example")], capture_output=True, text=True,
+                         check=True).stdout
+    values = [float(line.split("=")[1]) for line in out.splitlines() if "x[" in line]
+    assert len(values) == 12 and all(np.isfinite(values))
+    assert abs(values[2]) < 0.01  # still levitating near the trim heave
+
+
+def test_sanitizers_on_random_inputs(baked: dict[str, Path], tmp_path: Path) -> None:
+    """ASan + UBSan on a driver that calls every function with random inputs."""
+    d = baked["double"]
+    manifest = json.loads((d / "manifest.json").read_text())
+    calls = []
+    for f in manifest["functions"]:
+        nin = [io["rows"] * io["cols"] for io in f["inputs"]]
+        nout = [io["rows"] * io["cols"] for io in f["outputs"]]
+        body = [f"  {{ /* {f['name']} */"]
+        for i, n in enumerate(nin):
+            body.append(f"    double in{i}[{n}]; fill(in{i}, {n});")
+        for i, n in enumerate(nout):
+            body.append(f"    double out{i}[{n}];")
+        body.append(f"    const double* arg[{f['sz_arg']}]; double* res[{f['sz_res']}];")
+        body += [f"    arg[{i}] = in{i};" for i in range(len(nin))]
+        body += [f"    res[{i}] = out{i};" for i in range(len(nout))]
+        body.append(f"    long long iw[{f['sz_iw'] + 1}]; double w[{f['sz_w'] + 1}];")
+        body.append(f"    (void){f['name']}(arg, res, (casadi_int*)iw, w, 0); }}")
+        calls.append("\n".join(body))
+    driver = tmp_path / "driver.c"
+    driver.write_text(
+        '#include <stdlib.h>\n#include "maglev.h"\n'
+        "static void fill(double* x, int n) { for (int i = 0; i < n; ++i) "
+        "x[i] = (double)rand() / RAND_MAX - 0.5; }\n"
+        "int main(void) { srand(1); for (int rep = 0; rep < 50; ++rep) {\n"
+        + "\n".join(calls) + "\n} return 0; }\n")
+    exe = tmp_path / "driver"
+    cmd = ["gcc", "-std=c99", "-g", "-O1", "-fsanitize=address,undefined",
+           "-fno-sanitize-recover=all", "-I", str(d), str(driver), str(d / "maglev_functions.c"),
+           "-o", str(exe), "-lm"]
+    subprocess.run(cmd, check=True, capture_output=True)
+    proc = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+
+
+def test_generated_folder_is_current(tmp_path: Path) -> None:
+    """generated/ in the repo equals a fresh generation (from another working folder)."""
+    out = tmp_path / "gen"
+    env = {**os.environ, "PYTHONHASHSEED": "123"}
+    subprocess.run([sys.executable, "-m", "maglevgen.cli", "generate", "--out", str(out)],
+                   check=True, cwd=tmp_path, env=env, capture_output=True)
+    repo = REPO / "generated"
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(p.name for p in repo.iterdir())
+    for name in names:
+        assert (out / name).read_bytes() == (repo / name).read_bytes(), name
+
+
+def test_generation_is_deterministic(carriage: Carriage) -> None:
+    a = render(carriage, GenerateOptions("single", "runtime"))
+    b = render(Carriage(load_params()), GenerateOptions("single", "runtime"))
+    assert a == b
