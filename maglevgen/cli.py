@@ -108,7 +108,8 @@ def cmd_trim(args: argparse.Namespace) -> int:
               f"{r['paper_relative_difference']:+.1%}")
     print("\nThe printed forms ignore the 45-degree tilt of arrays 1, 2, 4, 5 (their vertical "
           "components and the\nroll arm of their normals), the lower arrays in the vertical "
-          "stiffness, and the moment arms of\nthe upper arrays in pitch; see the report.")
+          "stiffness, and the moment arms of\nthe upper arrays in pitch; derive/linearize.py "
+          "derives them from the geometry.")
     return 0
 
 
