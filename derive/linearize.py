@@ -98,15 +98,19 @@ def _lambdify_stiffness(structure: Structure):
     return mag, other
 
 
-def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:
-    """Diagonal of M_RB (eq 17) at O: (m, m, I_O,xx, I_O,yy, I_O,zz)."""
-    val = dict(zip(model.p, p, strict=True))
+def generalized_mass_expr(model: CarriageModel) -> sp.Matrix:
+    """Diagonal of M_RB (eq 17) at O: (m, m, I_O,xx, I_O,yy, I_O,zz), symbolic."""
     m = model.param("vehicle.mass")
-    inertia = sp.Matrix(3, 3, lambda i, j: model.param(
-        "vehicle.inertia_cg." + ("xx", "xy", "xz", "xy", "yy", "yz", "xz", "yz", "zz")[3 * i + j]))
-    I_O = inertia_about_origin(m, inertia, model.vec("vehicle.cg_offset")).xreplace(val)
-    mv = float(m.xreplace(val))
-    return np.array([mv, mv, float(I_O[0, 0]), float(I_O[1, 1]), float(I_O[2, 2])])
+    keys = ("xx", "xy", "xz", "xy", "yy", "yz", "xz", "yz", "zz")
+    inertia = sp.Matrix(3, 3, lambda i, j: model.param("vehicle.inertia_cg." + keys[3 * i + j]))
+    I_O = inertia_about_origin(m, inertia, model.vec("vehicle.cg_offset"))
+    return sp.Matrix([m, m, I_O[0, 0], I_O[1, 1], I_O[2, 2]])
+
+
+def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:
+    """`generalized_mass_expr` evaluated at the parameter values ``p``."""
+    val = dict(zip(model.p, p, strict=True))
+    return np.array([float(e) for e in generalized_mass_expr(model).xreplace(val)])
 
 
 def linearize(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

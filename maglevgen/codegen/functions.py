@@ -14,10 +14,9 @@ import numpy as np
 import sympy as sp
 
 from maglevgen.derive import conventions as cv
-from maglevgen.derive.linearize import Q_STATES, stiffness_form
+from maglevgen.derive.linearize import Q_STATES, generalized_mass_expr, stiffness_form
 from maglevgen.derive.model import CarriageModel
 from maglevgen.derive.riccati import riccati_stable_form
-from maglevgen.derive.rigid_body import inertia_about_origin
 
 from .casadi_model import casadi_model
 from .sympy_casadi import SympyToCasadi
@@ -88,7 +87,7 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
     conv_k = SympyToCasadi({**base, **_pairs(sf.q, q_sx), **_pairs(sf.lift_sym, fl),
                             **_pairs(sf.drag_sym, fd), model.u[0]: fprop})
     k_diag = ca.vertcat(*[conv_k(sf.K[i, i] + sf.K_other[i, i]) for i in range(5)])
-    m_diag = conv(_generalized_mass(model))
+    m_diag = conv(generalized_mass_expr(model))
     q1 = p[model.structure.param_names.index("control.state_weights.0")]
     q2 = p[model.structure.param_names.index("control.state_weights.1")]
     r = p[model.structure.param_names.index("control.input_weight")]
@@ -180,14 +179,6 @@ def _trim_state(v: ca.SX, z6: ca.SX) -> ca.SX:
     # body velocity R^T (v, 0, 0): v times the first row of R = Rz Ry Rx
     vel = v * ca.vertcat(cp * ct, cp * st * sf - sp_ * cf, cp * st * cf + sp_ * sf)
     return ca.vertcat(0, z6[0:5], vel, 0, 0, 0)
-
-
-def _generalized_mass(model: CarriageModel) -> sp.Matrix:
-    m = model.param("vehicle.mass")
-    keys = ("xx", "xy", "xz", "xy", "yy", "yz", "xz", "yz", "zz")
-    inertia = sp.Matrix(3, 3, lambda i, j: model.param("vehicle.inertia_cg." + keys[3 * i + j]))
-    I_O = inertia_about_origin(m, inertia, model.vec("vehicle.cg_offset"))
-    return sp.Matrix([m, m, I_O[0, 0], I_O[1, 1], I_O[2, 2]])
 
 
 def _effectiveness(model: CarriageModel, p: ca.SX) -> ca.SX:
