@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import control
-import mpmath
 import numpy as np
 import scipy.linalg
 import sympy as sp
@@ -89,8 +88,7 @@ def axis_gains(axis: str, k: float, m: float, q1: float, q2: float, r: float) ->
     K_cf = lqr_gain_numeric(k, m, q1, q2, r)
     P = np.array(riccati_solution_mp(k, m, q1, q2, r).tolist(), dtype=float)
     K_num, _, _ = control.lqr(A, B, np.diag([q1, q2]), np.array([[r]]))
-    Pp, Kp = paper_riccati(sp.Float(k, 30), sp.Float(m, 30))
-    del Pp
+    _, Kp = paper_riccati(sp.Float(k, 30), sp.Float(m, 30))
     K_ref = np.array([float(v) for v in lqr_gain_mp(k, m, q1, q2, r)])
     c = float(damping_gain_closed_form(sp.Float(k), sp.Float(m))) if k > 0 else None
     return AxisGains(axis, k, m, A, B, P, np.asarray(K_cf, dtype=float),
@@ -197,13 +195,3 @@ def coupled_comparison(carriage: Carriage, trim: Trim,
     eig = lambda K: np.linalg.eigvals(Ar - Bg @ K)  # noqa: E731
     return CoupledComparison(eig(K_a), eig(K_c), eig(K_d), cost(K_a), cost(K_c),
                              np.asarray(K_c))
-
-
-def mp_reference_ok(k: float, m: float, q1: float, q2: float, r: float) -> float:
-    """Relative Riccati residual of the 50-digit closed form (for reports)."""
-    from .derive.riccati import riccati_relative_residual
-
-    P = riccati_solution_mp(k, m, q1, q2, r)
-    A = mpmath.matrix([[0, 1], [-mpmath.mpf(k) / m, 0]])
-    B = mpmath.matrix([[0], [1 / mpmath.mpf(m)]])
-    return float(riccati_relative_residual(A, B, mpmath.diag([q1, q2]), mpmath.matrix([[r]]), P))
