@@ -59,6 +59,30 @@ def test_casadi_external_loads_every_function(carriage: Carriage, tmp_path: Path
             np.testing.assert_allclose(np.array(a), b, rtol=1e-15, equal_nan=True)
 
 
+def test_dynamics_matches_sympy_model(runtime_lib, carriage: Carriage) -> None:
+    precision, _ = runtime_lib
+    f = _ext(runtime_lib, "maglev_dynamics")
+    rng = np.random.default_rng(11)
+    n = 1000
+    X = rng.normal(scale=[1, 2e-3, 2e-3, .01, .01, .01, 2, .05, .05, .05, .05, .05], size=(n, 12))
+    X[:, 6] += 20.0
+    X[:, 2] += 3e-5
+    U = rng.normal(scale=5.0, size=(n, carriage.model.u.shape[0]))
+    U[:, 0] += 70.0
+    # The reference is the double-precision model at the inputs as the library sees them
+    # (rounded to its precision); errors are measured against each component's typical size,
+    # since a component that crosses zero has no meaningful relative error in float32.
+    real = np.float32 if precision == "single" else np.float64
+    p = carriage.p.astype(real).astype(float)
+    refs, gots = [], []
+    for x, u in zip(X.astype(real).astype(float), U.astype(real).astype(float), strict=True):
+        refs.append(carriage.functions.xdot(x, u, p))
+        gots.append(np.array(f(x, u, p)[0], dtype=float).ravel())
+    refs, gots = np.array(refs), np.array(gots)
+    worst = float(np.max(np.abs(gots - refs) / np.mean(np.abs(refs), axis=0)))
+    assert worst < TOL[precision], worst
+
+
 @pytest.mark.parametrize("speed", [8.0, 20.0, 45.0])
 @pytest.mark.parametrize("override", [(), ("vehicle.mass=8.0",), ("control.input_weight=0.01",
                                                                   "vehicle.inertia_cg.yy=0.42")])
