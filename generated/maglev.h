@@ -229,7 +229,7 @@ int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
     int mem);
 
 /*
- * maglev_rk4_step: one RK4 step of the closed loop with linear axis feedback held over the step
+ * maglev_rk4_step: one RK4 step of the closed loop; the axis feedback is evaluated at every stage
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   in  dt[1x1]  [s] step
  *   in  F_prop[1x1]  [N] propulsion force
@@ -242,8 +242,20 @@ int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_RK4_STEP_SZ_ARG 6
 #define MAGLEV_RK4_STEP_SZ_RES 2
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 142
+#define MAGLEV_RK4_STEP_SZ_W 166
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
+ * maglev_gaps: the gap of each array (exact pose geometry); contact when one reaches the track
+ *   in  x[12x1]  state, MAGLEV_X_* order
+ *   out gaps[6x1]  [m] gap of each array, in the parameter file's array order
+ */
+#define MAGLEV_GAPS_SZ_ARG 1
+#define MAGLEV_GAPS_SZ_RES 1
+#define MAGLEV_GAPS_SZ_IW 0
+#define MAGLEV_GAPS_SZ_W 20
+int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
 #ifdef __cplusplus

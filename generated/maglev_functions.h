@@ -165,6 +165,24 @@ int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_in
 #define maglev_rk4_step_SZ_RES 2
 #define maglev_rk4_step_SZ_IW 0
 #define maglev_rk4_step_SZ_W 0
+int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_gaps_checkout(void);
+void maglev_gaps_release(int mem);
+void maglev_gaps_incref(void);
+void maglev_gaps_decref(void);
+casadi_int maglev_gaps_n_in(void);
+casadi_int maglev_gaps_n_out(void);
+casadi_real maglev_gaps_default_in(casadi_int i);
+const char* maglev_gaps_name_in(casadi_int i);
+const char* maglev_gaps_name_out(casadi_int i);
+const casadi_int* maglev_gaps_sparsity_in(casadi_int i);
+const casadi_int* maglev_gaps_sparsity_out(casadi_int i);
+int maglev_gaps_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int maglev_gaps_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define maglev_gaps_SZ_ARG 1
+#define maglev_gaps_SZ_RES 1
+#define maglev_gaps_SZ_IW 0
+#define maglev_gaps_SZ_W 0
 void maglev_functions_casadi_version(int* major, int* minor, int* patch);
 int maglev_functions_casadi_int_size(void);
 int maglev_functions_casadi_real_size(void);

@@ -196,6 +196,33 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------- simulate
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from . import progress
+    from .codegen.generate import write_output
+    from .sim_output import render_results
+    from .simulate import CONTROLLERS, run_scenarios
+
+    controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
+    carriage = _carriage(args)
+    run = run_scenarios(carriage, controllers, args.t_end, args.dt, args.speed,
+                        announce=progress.step, bar=progress.bar)
+    header = {"params_sha256": carriage.loaded.sha256, "speed": run.op.speed,
+              "propulsion_force": run.op.f_prop, "rk4_stability_limit": run.dt_limit,
+              "fastest_closed_loop_growth": run.fastest_growth}
+    files = render_results(run.trajectories, run.input_names, header)
+    paths = write_output(files, Path(args.out))
+    print(f"Simulated {args.t_end:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
+          f"limit {run.dt_limit:.3g} s) from trim at {run.op.speed:g} m/s, F_prop = "
+          f"{run.op.f_prop:.4g} N")
+    for traj in run.trajectories:
+        print(f"  {traj.controller:<8} {traj.status}{': ' + traj.event if traj.event else ''}")
+    print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (metrics.md: the tables)")
+    return 0
+
+
 # ---------------------------------------------------------------------------------- main
 
 
@@ -236,6 +263,18 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--out", default="generated", metavar="DIR",
                      help="output folder (default: ./generated)")
     gen.set_defaults(func=cmd_generate)
+
+    sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
+    _common(sim)
+    sim.add_argument("--controller", choices=("none", "damping", "lqr", "all"), default="all")
+    sim.add_argument("--t-end", type=float, default=10.0, metavar="S",
+                     help="simulated time [s] (default 10)")
+    sim.add_argument("--dt", type=float, default=1e-3, metavar="S",
+                     help="RK4 step [s] (default 1e-3)")
+    sim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
+    sim.add_argument("--out", default="build/simulation", metavar="DIR",
+                     help="output folder (default: ./build/simulation)")
+    sim.set_defaults(func=cmd_simulate)
     return parser
 
 

@@ -7,7 +7,7 @@ import os
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from maglevgen.errors import InputError, MaglevError
@@ -34,12 +34,14 @@ def default_cache_dir() -> Path:
 
 
 def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,
-                   cc: str | None = None, cache_dir: Path | None = None) -> Path:
+                   cc: str | None = None, cache_dir: Path | None = None,
+                   progress: Callable[[str], None] | None = None) -> Path:
     """Build (or reuse) a shared library from C sources; returns its path.
 
     The cache key hashes the compiler path, flags and every source's and header's bytes, so a
-    stale entry can never be returned; a cached file that is not a valid ELF object (a
-    corrupted entry) is rebuilt. The library is written to a temporary name and renamed.
+    stale entry can never be returned; a cached library whose bytes no longer match the
+    checksum recorded beside it (a corrupted entry) is rebuilt. The library and its checksum
+    are written to temporary names and renamed.
     """
     compiler = find_compiler(cc)
     sources = [Path(s).resolve() for s in sources]
@@ -51,9 +53,14 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     key = h.hexdigest()[:24]
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
     lib = cache / f"lib{key}.so"
-    if lib.exists() and _looks_like_elf(lib):
+    if _intact(lib):
         return lib
-    cache.mkdir(parents=True, exist_ok=True)
+    if progress is not None:
+        progress(f"compiling {sources[0].name} ({' '.join(flags)}; cached afterwards)")
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the cache folder {cache}: {exc.strerror}") from None
     fd, tmp = tempfile.mkstemp(prefix=f".lib{key}.", suffix=".so", dir=cache)
     os.close(fd)
     cmd = [compiler, *flags, *map(str, sources), "-o", tmp, "-lm"]
@@ -62,8 +69,32 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
         os.unlink(tmp)
         first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
         raise CompileError(f"compiling {sources[0].name} failed: {first}")
+    digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()
+    _write_atomic(_checksum_path(lib), digest + "\n")
     os.replace(tmp, lib)
     return lib
+
+
+def _checksum_path(lib: Path) -> Path:
+    return lib.with_name(lib.name + ".sha256")
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def _intact(lib: Path) -> bool:
+    """A cached library that exists, is ELF and matches its recorded checksum."""
+    if not _looks_like_elf(lib):
+        return False
+    try:
+        recorded = _checksum_path(lib).read_text().strip()
+    except OSError:
+        return False
+    return hashlib.sha256(lib.read_bytes()).hexdigest() == recorded
 
 
 def _looks_like_elf(path: Path) -> bool:

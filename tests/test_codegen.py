@@ -137,7 +137,7 @@ def test_compiles_warning_free(baked: dict[str, Path], cc: str, precision: str,
         pytest.skip(f"{cc} is not installed (.ci/run installs it)")
     flags = WARN + (SINGLE_WARN if precision == "single" else [])
     d = baked[precision]
-    for src in ("maglev_functions.c", "main.c"):
+    for src in ("maglev_functions.c", "maglev_simulate.c", "main.c"):
         proc = subprocess.run([cc, *flags, "-c", str(d / src), "-o", str(tmp_path / "o.o")],
                               capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr

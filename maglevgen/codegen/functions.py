@@ -33,7 +33,8 @@ DESCRIPTIONS: dict[str, str] = {
     "lqr_control": "u_gen = -K (a - a_trim, a_dot): the five LQR forces/moments at speed v",
     "damping_control": "u_gen = -c a_dot: the five optimized-damping forces/moments (eqs 20-21)",
     "allocate": "array forces of minimum norm that produce u_gen (eqs 22-23 derived)",
-    "rk4_step": "one RK4 step of the closed loop with linear axis feedback held over the step",
+    "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
+    "gaps": "the gap of each array (exact pose geometry); contact when one reaches the track",
 }
 
 
@@ -140,24 +141,32 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
     allocate = ca.Function("maglev_allocate", [u_gen, p], [forces], ["u_gen", "p"],
                            ["F_arrays"])
 
-    # --- closed-loop RK4 step with linear axis feedback held over the step
+    # --- closed-loop RK4 step: the linear axis feedback is evaluated at every stage, so the
+    # step integrates the continuous closed loop x' = f(x, u(x)) to fourth order.
     dt = ca.SX.sym("dt")
     F_prop = ca.SX.sym("F_prop")
     k_pos, k_rate, a_ref = (ca.SX.sym(n, N_AXES) for n in ("k_pos", "k_rate", "a_ref"))
     x0 = ca.SX.sym("x", n_x)
-    a0 = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
-    u_axes = -(k_pos * (a0 - a_ref) + k_rate * rates_fn(x0))
-    u_full = ca.vertcat(F_prop, allocate(u_axes, p))
-    f = lambda xx: dynamics(xx, u_full, p)  # noqa: E731
+
+    def closed_loop_input(xx: ca.SX) -> ca.SX:
+        a = ca.vertcat(*[xx[cv.STATE_INDEX[s]] for s in Q_STATES])
+        u_axes = -(k_pos * (a - a_ref) + k_rate * rates_fn(xx))
+        return ca.vertcat(F_prop, allocate(u_axes, p))
+
+    def f(xx: ca.SX) -> ca.SX:
+        return dynamics(xx, closed_loop_input(xx), p)
+
     k1 = f(x0)
     k2 = f(x0 + dt / 2 * k1)
     k3 = f(x0 + dt / 2 * k2)
     k4 = f(x0 + dt * k3)
     x_next = x0 + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     rk4 = ca.Function("maglev_rk4_step", [x0, dt, F_prop, k_pos, k_rate, a_ref, p],
-                      [x_next, u_full],
+                      [x_next, closed_loop_input(x0)],
                       ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
-    fns = (dynamics, jacobians, trim, lqr_gains, lqr_control, damping_control, allocate, rk4)
+    gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
+    fns = (dynamics, jacobians, trim, lqr_gains, lqr_control, damping_control, allocate, rk4,
+           gaps)
     return Built(tuple(_dense_outputs(f) for f in fns), p.shape[0])
 
 

@@ -1,0 +1,144 @@
+"""The compiled simulation library of a carriage, cached on disk.
+
+The derivation and the C generated from it with run-time parameters depend on the carriage's
+*structure* (which arrays exist, which force components each has) and on this toolchain's
+source, never on parameter values. Both caches are keyed accordingly:
+
+- ``derivation/<key>/``: the generated C, keyed by the derivation's source files, the
+  library versions, the structure and the precision, with a checksum file that detects a
+  corrupted entry (which is then regenerated);
+- the shared library, keyed by the content of those sources and the compiler flags
+  (runtime/compile.py), so editing a parameter recompiles nothing.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import json
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import sympy
+
+from . import __version__
+from .codegen.generate import SIMULATE_FILES, render_runtime_sources, write_output
+from .derive.model import Structure, build_model
+from .runtime.compile import compile_shared, default_cache_dir
+from .runtime.ffi import GeneratedLibrary
+
+CHECKSUMS = "checksums.json"
+# Packages whose source the generated C depends on (the derivation and the code generator).
+_SOURCE_PACKAGES = ("maglevgen.derive", "maglevgen.codegen")
+_SOURCE_FILES = (("maglevgen", "params.py"), *(("maglevgen.templates", f"{n}.j2")
+                                                for n in SIMULATE_FILES))
+
+Progress = Callable[[str], None]
+
+
+def _quiet(_: str) -> None:
+    pass
+
+
+def source_fingerprint() -> str:
+    """sha256 over the derivation's and code generator's source files and library versions."""
+    h = hashlib.sha256()
+    for lib, version in (("maglevgen", __version__), ("casadi", ca.__version__),
+                         ("sympy", sympy.__version__), ("numpy", np.__version__)):
+        h.update(f"{lib}={version}\n".encode())
+    files: list[tuple[str, bytes]] = []
+    for pkg in _SOURCE_PACKAGES:
+        for f in sorted(resources.files(pkg).iterdir(), key=lambda t: t.name):
+            if f.name.endswith(".py"):
+                files.append((f"{pkg}/{f.name}", f.read_bytes()))
+    for pkg, name in _SOURCE_FILES:
+        files.append((f"{pkg}/{name}", resources.files(pkg).joinpath(name).read_bytes()))
+    for name, data in files:
+        h.update(name.encode() + b"\0" + hashlib.sha256(data).digest())
+    return h.hexdigest()
+
+
+def derivation_key(structure: Structure, precision: str) -> str:
+    h = hashlib.sha256()
+    h.update(source_fingerprint().encode())
+    h.update(repr(structure).encode() + precision.encode())
+    return h.hexdigest()[:24]
+
+
+def _checksums(files: dict[str, bytes]) -> str:
+    sums = {name: hashlib.sha256(data).hexdigest() for name, data in sorted(files.items())}
+    return json.dumps(sums, indent=1, sort_keys=True) + "\n"
+
+
+def _intact(folder: Path) -> bool:
+    """True when every file listed in the folder's checksum file is present and unchanged."""
+    try:
+        listed = json.loads((folder / CHECKSUMS).read_text())
+        return all(hashlib.sha256((folder / n).read_bytes()).hexdigest() == s
+                   for n, s in listed.items()) and bool(listed)
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def runtime_sources(structure: Structure, precision: str = "double",
+                    cache_dir: Path | None = None, progress: Progress = _quiet) -> Path:
+    """The folder holding the run-time-parameter C of ``structure``: cached, or derived now."""
+    cache = Path(cache_dir) if cache_dir else default_cache_dir()
+    folder = cache / "derivation" / derivation_key(structure, precision)
+    if _intact(folder):
+        return folder
+    progress("deriving the model and generating C (cached afterwards)")
+    files = render_runtime_sources(build_model(structure), precision)
+    data = {n: t.encode() for n, t in files.items()}
+    write_output({**files, CHECKSUMS: _checksums(data)}, folder)
+    return folder
+
+
+class SimulationLibrary(GeneratedLibrary):
+    """The compiled run-time-parameter library: every generated function and maglev_simulate."""
+
+    def __init__(self, path: Path, precision: str = "double") -> None:
+        super().__init__(path, precision)
+        real = ctypes.c_float if precision == "single" else ctypes.c_double
+        ptr = ctypes.POINTER(real)
+        fn = self._lib.maglev_simulate
+        fn.restype = ctypes.c_longlong
+        fn.argtypes = [ptr, real, ctypes.c_longlong, real, ptr, ptr, ptr, ptr, real, ptr, ptr,
+                       ptr, ctypes.POINTER(ctypes.c_int)]
+        self._simulate = fn
+
+    def simulate(self, x0: np.ndarray, dt: float, n_steps: int, f_prop: float,
+                 k_pos: np.ndarray, k_rate: np.ndarray, a_ref: np.ndarray, p: np.ndarray,
+                 gap_min: float, n_u: int, n_gaps: int) -> tuple[int, int, np.ndarray, np.ndarray,
+                                                                 np.ndarray]:
+        """maglev_simulate: (last sample, status, x rows, u rows, gap rows) up to that sample."""
+        real = self._real
+        ins = [np.ascontiguousarray(a, dtype=real) for a in (x0, k_pos, k_rate, a_ref, p)]
+        x = np.zeros((n_steps + 1, ins[0].size), dtype=real)
+        u = np.zeros((n_steps + 1, n_u), dtype=real)
+        g = np.zeros((n_steps + 1, n_gaps), dtype=real)
+        status = ctypes.c_int(-1)
+        ptr = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
+
+        def c(a: np.ndarray):
+            return a.ctypes.data_as(ptr)
+
+        last = self._simulate(c(ins[0]), dt, n_steps, f_prop, c(ins[1]), c(ins[2]), c(ins[3]),
+                              c(ins[4]), gap_min, c(x), c(u), c(g), ctypes.byref(status))
+        n = int(last) + 1
+        return int(last), status.value, x[:n], u[:n], g[:n]
+
+
+def simulation_library(structure: Structure, precision: str = "double",
+                       cache_dir: Path | None = None, cc: str | None = None,
+                       progress: Progress = _quiet) -> SimulationLibrary:
+    """Generate (or reuse) and compile (or reuse) the simulation library of ``structure``."""
+    folder = runtime_sources(structure, precision, cache_dir, progress)
+    sources = [folder / "maglev_functions.c", *(folder / n for n in SIMULATE_FILES
+                                                if n.endswith(".c"))]
+    cache = Path(cache_dir) if cache_dir else default_cache_dir()
+    lib = compile_shared(sources, cc=cc, cache_dir=cache / "lib", progress=progress)
+    return SimulationLibrary(lib, precision)

@@ -1,0 +1,153 @@
+"""What `maglevgen simulate` writes: trajectories (CSV, .npz), figs 3-8 (PNG) and the metrics.
+
+Every writer returns bytes keyed by file name; the caller writes them at once (atomically).
+Column names and units come from derive/conventions.py and the model's input names.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from collections.abc import Sequence
+
+import numpy as np
+
+from .derive import conventions as cv
+from .simulate import (
+    CONTROLLER_TITLES,
+    DISTURBANCE_DOC,
+    SETTLING_BAND,
+    Trajectory,
+    metrics,
+)
+
+# The paper's figures: (file, title, [(state, scale, axis label)], figures reproduced)
+FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = (
+    ("levitation_pitch.png", "Levitation height and pitch",
+     (("z", 1e3, "heave z - z_trim [mm]"), ("theta", 1e3, "pitch - pitch_trim [mrad]")),
+     "figs 3, 5, 7"),
+    ("travel_roll.png", "Travel distance and roll",
+     (("x", 1.0, "travel x [m]"), ("phi", 1e3, "roll [mrad]")), "fig 4"),
+    ("lateral_pitch.png", "Lateral position and pitch",
+     (("y", 1e3, "lateral y [mm]"), ("theta", 1e3, "pitch - pitch_trim [mrad]")),
+     "figs 6, 8"),
+)
+_AXIS_OF_STATE = {s: i for i, s in enumerate(("y", "z", "phi", "theta", "psi"))}
+
+
+def columns(input_names: Sequence[str], n_gaps: int) -> list[tuple[str, str]]:
+    """(name, unit) of every trajectory column."""
+    cols = [("t", "s")] + [(s.name, s.unit) for s in cv.STATES]
+    cols += [(n, "N") for n in input_names]
+    cols += [(f"gap_{i + 1}", "m") for i in range(n_gaps)]
+    return cols
+
+
+def table(traj: Trajectory) -> np.ndarray:
+    return np.column_stack([traj.t, traj.x, traj.u, traj.gaps])
+
+
+def trajectory_csv(traj: Trajectory, input_names: Sequence[str]) -> bytes:
+    cols = columns(input_names, traj.gaps.shape[1])
+    buf = io.StringIO()
+    buf.write(f"# maglevgen simulate: controller {traj.controller} "
+              f"({CONTROLLER_TITLES[traj.controller]}), dt {traj.dt:g} s, status {traj.status}"
+              f"{'; ' + traj.event if traj.event else ''}\n")
+    buf.write(f"# initial disturbance: {DISTURBANCE_DOC}\n")
+    buf.write(",".join(f"{n} [{u}]" for n, u in cols) + "\n")
+    np.savetxt(buf, table(traj), delimiter=",", fmt="%.10e")
+    return buf.getvalue().encode()
+
+
+def trajectories_npz(trajs: Sequence[Trajectory], input_names: Sequence[str]) -> bytes:
+    """One archive: ``<controller>`` (n x columns) per run, plus the column names and units."""
+    cols = columns(input_names, trajs[0].gaps.shape[1])
+    arrays = {t.controller: table(t) for t in trajs}
+    arrays["columns"] = np.array([n for n, _ in cols])
+    arrays["units"] = np.array([u for _, u in cols])
+    buf = io.BytesIO()
+    # np.savez stamps the current time into the zip entries; fixed stamps keep it reproducible
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            with zf.open(info, "w") as out:
+                np.lib.format.write_array(out, np.asanyarray(arr), allow_pickle=False)
+    return buf.getvalue()
+
+
+def figure_png(trajs: Sequence[Trajectory], title: str,
+               panels: tuple[tuple[str, float, str], ...], figs: str) -> bytes:
+    """Two stacked panels with the controllers overlaid (deterministic PNG bytes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with plt.rc_context({"svg.hashsalt": "maglevgen", "font.size": 9}):
+        fig, axes = plt.subplots(len(panels), 1, figsize=(7, 5), sharex=True)
+        for ax, (state, scale, label) in zip(axes, panels, strict=True):
+            for traj in trajs:
+                if state in _AXIS_OF_STATE:
+                    y = traj.axis_deviation[:, _AXIS_OF_STATE[state]]
+                else:
+                    y = traj.x[:, cv.STATE_INDEX[state]]
+                name = CONTROLLER_TITLES[traj.controller]
+                if traj.event:
+                    name += " (contact)" if traj.status == "contact" else f" ({traj.status})"
+                ax.plot(traj.t, y * scale, lw=0.9, label=name)
+            ax.set_ylabel(label)
+            ax.grid(True, lw=0.3)
+        axes[0].legend(loc="upper right", fontsize=8)
+        axes[-1].set_xlabel("time [s]")
+        fig.suptitle(f"{title} (paper {figs})")
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
+        plt.close(fig)
+    return buf.getvalue()
+
+
+def metrics_markdown(all_metrics: Sequence[dict]) -> str:
+    """One table per controller: settling time, peak deviation, RMS control per axis."""
+    lines = ["# Closed-loop simulation metrics", "",
+             f"Initial disturbance: {DISTURBANCE_DOC}. The propulsion force is held at its trim "
+             "value; the along-track speed is not controlled and drifts (above the "
+             "Inductrack's characteristic speed the drag falls as the speed rises, so the "
+             "speed equilibrium is unstable under a steady force). Deviations are measured "
+             "from the trim at the current speed. Settling time: the first time after which "
+             f"the deviation stays within {SETTLING_BAND:.0%} of its peak; 'not settled' when "
+             "it never does within the run.", ""]
+    for m in all_metrics:
+        lines += [f"## {CONTROLLER_TITLES[m['controller']]} (`{m['controller']}`)", "",
+                  f"Status: {m['status']}" + (f" ({m['event']})" if m["event"] else "")
+                  + f"; {m['steps']} steps of {m['dt']:g} s to t = {m['t_end']:g} s; smallest "
+                  f"gap {m['min_gap'] * 1e3:.3f} mm; speed {m['speed_start']:.4f} -> "
+                  f"{m['speed_end']:.4f} m/s; RMS array control force "
+                  f"{m['rms_array_force']:.4g} N.", "",
+                  "| axis | settling time [s] | peak deviation | final deviation | "
+                  "RMS control force/moment |", "| --- | --- | --- | --- | --- |"]
+        for axis, a in m["axes"].items():
+            ts = "not settled" if a["settling_time"] is None else f"{a['settling_time']:.3f}"
+            lines.append(f"| {axis} ({a['state']}) | {ts} | {a['peak_deviation']:.4g} "
+                         f"{a['unit']} | {a['final_deviation']:.3g} {a['unit']} | "
+                         f"{a['rms_control']:.4g} {a['force_unit']} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],
+                   header: dict) -> dict[str, bytes]:
+    """Every output file of a simulation run."""
+    all_metrics = [metrics(t) for t in trajs]
+    files: dict[str, bytes] = {}
+    for t in trajs:
+        files[f"trajectory_{t.controller}.csv"] = trajectory_csv(t, input_names)
+    files["trajectories.npz"] = trajectories_npz(trajs, input_names)
+    for name, title, panels, figs in FIGURES:
+        files[name] = figure_png(trajs, title, panels, figs)
+    files["metrics.json"] = (json.dumps({**header, "disturbance": DISTURBANCE_DOC,
+                                         "runs": all_metrics}, indent=2) + "\n").encode()
+    files["metrics.md"] = (metrics_markdown(all_metrics) + "\n").encode()
+    return files
