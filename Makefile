@@ -1,5 +1,5 @@
 # The two commands of the README: `make run` (set up, then the main job on the default
-# carriage) and `make test` (set up, then the test suite). Both create .venv on first use.
+# carriage: `maglevgen build`) and `make test` (set up, then the test suite). Both create .venv on first use.
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
@@ -15,7 +15,7 @@ $(BIN)/maglevgen: pyproject.toml
 setup: $(BIN)/maglevgen
 
 run: setup
-	$(BIN)/maglevgen trim
+	$(BIN)/maglevgen build
 
 test: setup
 	$(BIN)/ruff check .
@@ -23,6 +23,11 @@ test: setup
 
 lint: setup
 	$(BIN)/ruff check .
+
+# Benchmarks against the usual alternatives (a few minutes): writes BENCHMARKS.md and
+# bench/results.json.
+bench: setup
+	MAGLEV_BENCH_COMMAND="make bench" $(BIN)/python bench/run.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -12,15 +12,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 import sympy as sp
 
 from . import conventions as cv
 from .model import CarriageModel, Structure, build_model
-from .numeric import ModelFunctions
 from .rigid_body import inertia_about_origin
-from .trim import Trim
+
+if TYPE_CHECKING:  # numeric imports this module to lambdify the stiffness
+    from .numeric import ModelFunctions
+    from .trim import Trim
 
 GENERALIZED_FORCES: tuple[str, ...] = ("F_y", "F_z", "M_x", "M_y", "M_z")
 Q_STATES: tuple[str, ...] = tuple(cv.AXIS_POSITION_STATE[a] for a in cv.AXES)
@@ -70,14 +73,13 @@ def design_pose_stiffness(structure: Structure) -> sp.Matrix:
 
 def magnetic_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
     """K_st0 evaluated at the trim pose and array forces."""
-    f, _ = _lambdify_stiffness(mf.model.structure)
-    return np.asarray(f(_trim_q(trim), trim.lift, trim.drag, p), dtype=float)
+    return np.asarray(mf.stiffness_magnetic(_trim_q(trim), trim.lift, trim.drag, p),
+                      dtype=float)
 
 
 def other_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
     """Stiffness of the gravity and propulsion moments about O at trim (CG offset terms)."""
-    _, f = _lambdify_stiffness(mf.model.structure)
-    return np.asarray(f(_trim_q(trim), trim.u[0], p), dtype=float)
+    return np.asarray(mf.stiffness_other(_trim_q(trim), trim.u[0], p), dtype=float)
 
 
 def total_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
@@ -89,8 +91,8 @@ def _trim_q(trim: Trim) -> np.ndarray:
     return np.array([trim.x[cv.STATE_INDEX[s]] for s in Q_STATES])
 
 
-@lru_cache(maxsize=8)
-def _lambdify_stiffness(structure: Structure):
+def lambdify_stiffness(structure: Structure):
+    """(K_st0(q, F_L, F_D, p), K_other(q, F_prop, p)) as numpy functions."""
     sf = stiffness_form(structure)
     m = build_model(structure)
     mag = sp.lambdify([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K, modules="numpy", cse=True)

@@ -51,6 +51,8 @@ class ModelFunctions:
     acc: Callable[..., np.ndarray]  # (x, W, p)
     acc_x: Callable[..., np.ndarray]
     acc_W: Callable[..., np.ndarray]
+    stiffness_magnetic: Callable[..., np.ndarray]  # K_st0 (q, F_L, F_D, p), derive.linearize
+    stiffness_other: Callable[..., np.ndarray]  # gravity/propulsion stiffness (q, F_prop, p)
 
     def forces(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(gaps, lift, drag) of every array at state x."""
@@ -86,7 +88,10 @@ class ModelFunctions:
 @lru_cache(maxsize=8)
 def model_functions(structure: Structure) -> ModelFunctions:
     """Lambdify the layers of the model of ``structure`` and their partial derivatives."""
+    from .linearize import lambdify_stiffness  # it imports this module's types
+
     m = build_model(structure)
+    stiffness_magnetic, stiffness_other = lambdify_stiffness(structure)
     x, u, s = list(m.x), list(m.u), list(m.speed_sym)
     fl, fd, w = list(m.lift_sym), list(m.drag_sym), list(m.wrench_sym)
     xs, xups = [m.x], [m.x, m.u, m.lift_sym, m.drag_sym, m.p]
@@ -111,4 +116,6 @@ def model_functions(structure: Structure) -> ModelFunctions:
         acc=_fn([m.x, m.wrench_sym, m.p], m.accelerations),
         acc_x=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(x)),
         acc_W=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(w)),
+        stiffness_magnetic=stiffness_magnetic,
+        stiffness_other=stiffness_other,
     )

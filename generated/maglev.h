@@ -178,6 +178,19 @@ int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casa
     int mem);
 
 /*
+ * maglev_axis_plants: per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed v
+ *   in  v[1x1]  [m/s] forward speed
+ *   out k[5x1]  per axis stiffness [N/m or N*m/rad], MAGLEV_AXIS_* order
+ *   out m[5x1]  per axis mass or inertia [kg or kg*m^2], MAGLEV_AXIS_* order
+ */
+#define MAGLEV_AXIS_PLANTS_SZ_ARG 7
+#define MAGLEV_AXIS_PLANTS_SZ_RES 7
+#define MAGLEV_AXIS_PLANTS_SZ_IW 0
+#define MAGLEV_AXIS_PLANTS_SZ_W 721
+int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
  * maglev_lqr_gains: per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim
  *   in  v[1x1]  [m/s] forward speed
  *   out K[5x2]  per axis (row, MAGLEV_AXIS_* order): position gain, rate gain

@@ -47,7 +47,9 @@ extern "C" {
 #define casadi_f16 CASADI_PREFIX(f16)
 #define casadi_f17 CASADI_PREFIX(f17)
 #define casadi_f18 CASADI_PREFIX(f18)
+#define casadi_f19 CASADI_PREFIX(f19)
 #define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f20 CASADI_PREFIX(f20)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -392,8 +394,8 @@ static const casadi_int casadi_s6[30] =
   0, 1, 2, 3, 4, 5};
 static const casadi_int casadi_s7[6] = {0, 1, 2, 3, 4, 5};
 static const casadi_int casadi_s8[3] = {1, 1, 1};
-static const casadi_int casadi_s9[3] = {5, 2, 1};
-static const casadi_int casadi_s10[3] = {5, 1, 1};
+static const casadi_int casadi_s9[3] = {5, 1, 1};
+static const casadi_int casadi_s10[3] = {5, 2, 1};
 static const casadi_int casadi_s11[3] = {10, 1, 1};
 static const casadi_int casadi_s12[3] = {6, 1, 1};
 
@@ -11821,8 +11823,133 @@ static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
+/* maglev_axis_plants:(v,p[75])->(k[5],m[5]) */
+static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+2, *rr, w0, *w1=w+433, *w3=w+439, *w4=w+515, *w5=w+521, *w6=w+533, *w7=w+544, *w8=w+554;
+  const casadi_real **arg1=arg+2, *cs, *wr2;
+  (void)mem;
+  w0 = arg[0] ? arg[0][0] : 0;
+  casadi_clear(w1, 6);
+  wr2 = arg[1] ? arg[1] : casadi_zeros;
+  rr=w3;
+  *rr++ = w0;
+  for (i=0, cs=wr2; i<75; ++i) *rr++ = *cs++;
+  arg1[0]=w1;
+  arg1[1]=w3;
+  res1[0]=w4;
+  if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=(&w0);
+  arg1[1]=w4;
+  res1[0]=w5;
+  res1[1]=w6;
+  if (casadi_f6(arg1, res1, iw, w, 0)) return 1;
+  for (rr=(&w0), cs=w6+0; cs!=w6+1; cs+=1) *rr++ = *cs;
+  arg1[0]=w5;
+  arg1[1]=(&w0);
+  arg1[2]=wr2;
+  res1[0]=w7;
+  if (casadi_f9(arg1, res1, iw, w, 0)) return 1;
+  for (rr=w8, cs=w7+0; cs!=w7+5; cs+=1) *rr++ = *cs;
+  casadi_copy(w8, 5, res[0]);
+  for (rr=w8, cs=w7+5; cs!=w7+10; cs+=1) *rr++ = *cs;
+  casadi_copy(w8, 5, res[1]);
+  return 0;
+}
+
+/* maglev_axis_plants:(v)->(k[5],m[5]) */
+static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, w0, *w2=w+635, *w3=w+640;
+  const casadi_real **arg1=arg+1, *wr1;
+  (void)mem;
+  w0 = arg[0] ? arg[0][0] : 0;
+  wr1 = casadi_c0;
+  arg1[0]=(&w0);
+  arg1[1]=wr1;
+  res1[0]=w2;
+  res1[1]=w3;
+  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
+  casadi_copy(w2, 5, res[0]);
+  casadi_copy(w3, 5, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f7(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int maglev_axis_plants_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_axis_plants_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_axis_plants_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void maglev_axis_plants_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_axis_plants_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_axis_plants_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real maglev_axis_plants_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_axis_plants_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "v";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_axis_plants_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "k";
+    case 1: return "m";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_axis_plants_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s8;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_axis_plants_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s9;
+    case 1: return casadi_s9;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int maglev_axis_plants_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 7;
+  if (sz_res!=0) *sz_res = 7;
+  if (sz_iw!=0) *sz_iw = 0;
+  if (sz_w!=0) *sz_w = 645;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_axis_plants_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 7*sizeof(const casadi_real*);
+  if (sz_res!=0) *sz_res = 7*sizeof(casadi_real*);
+  if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w!=0) *sz_w = 645*sizeof(casadi_real);
+  return 0;
+}
+
 /* maglev_axis_gains:(i0[10],i1[75])->(o0[5x2],o1[5]) */
-static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14;
   (void)iw; (void)w; (void)mem;
@@ -11984,7 +12111,7 @@ static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* maglev_lqr_gains:(v,p[75])->(K[5x2],c_damping[5]) */
-static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+2, *rr, w0, *w1=w+433, *w3=w+439, *w4=w+515, *w5=w+521, *w6=w+533, *w7=w+544, *w8=w+554, *w9=w+564;
   const casadi_real **arg1=arg+2, *cs, *wr2;
@@ -12014,14 +12141,14 @@ static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   arg1[1]=wr2;
   res1[0]=w8;
   res1[1]=w9;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
   casadi_copy(w8, 10, res[0]);
   casadi_copy(w9, 5, res[1]);
   return 0;
 }
 
 /* maglev_lqr_gains:(v)->(K[5x2],c_damping[5]) */
-static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w0, *w2=w+645, *w3=w+655;
   const casadi_real **arg1=arg+1, *wr1;
   (void)mem;
@@ -12031,14 +12158,14 @@ static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   arg1[1]=wr1;
   res1[0]=w2;
   res1[1]=w3;
-  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
   casadi_copy(w2, 10, res[0]);
   casadi_copy(w3, 5, res[1]);
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f7(arg, res, iw, w, mem);
+  return casadi_f10(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_gains_checkout(void) {
@@ -12089,8 +12216,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* maglev_lqr_gains_sparsity_in(casadi_int i
 
 CASADI_SYMBOL_EXPORT const casadi_int* maglev_lqr_gains_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s9;
-    case 1: return casadi_s10;
+    case 0: return casadi_s10;
+    case 1: return casadi_s9;
     default: return 0;
   }
 }
@@ -12112,7 +12239,7 @@ CASADI_SYMBOL_EXPORT int maglev_lqr_gains_work_bytes(casadi_int *sz_arg, casadi_
 }
 
 /* maglev_axis_rates:(i0[12])->(o0[5]) */
-static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
   (void)iw; (void)w; (void)mem;
   a00=arg[0]? arg[0][7] : 0;
@@ -12170,7 +12297,7 @@ static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* maglev_lqr_control:(x[12],v,p[75])->(u_gen[5]) */
-static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *rr, w00, *w01=w+433, *w03=w+439, *w04=w+515, *w05=w+521, *w06=w+533, *w07=w+544, *w08=w+554, *w09=w+564, w11;
   casadi_real w12, w13, w14, *w15=w+569, *w16=w+574;
@@ -12201,7 +12328,7 @@ static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=wr02;
   res1[0]=w08;
   res1[1]=0;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
   for (rr=w09, cs=w08+0; cs!=w08+5; cs+=1) *rr++ = *cs;
   wr10 = arg[0] ? arg[0] : casadi_zeros;
   w00 = wr10[1];
@@ -12231,7 +12358,7 @@ static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw
   for (rr=w15, cs=w08+5; cs!=w08+10; cs+=1) *rr++ = *cs;
   arg1[0]=wr10;
   res1[0]=w16;
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
   for (i=0, rr=w15, cs=w16; i<5; ++i) (*rr++) *= (*cs++);
   for (i=0, rr=w09, cs=w15; i<5; ++i) (*rr++) += (*cs++);
   for (i=0, rr=w09, cs=w09; i<5; ++i) *rr++ = (- *cs++ );
@@ -12240,7 +12367,7 @@ static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* maglev_lqr_control:(x[12],v)->(u_gen[5]) */
-static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+1, w1, *w3=w+671;
   const casadi_real **arg1=arg+2, *wr0, *wr2;
   (void)mem;
@@ -12251,13 +12378,13 @@ static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=(&w1);
   arg1[2]=wr2;
   res1[0]=w3;
-  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
   casadi_copy(w3, 5, res[0]);
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f11(arg, res, iw, w, mem);
+  return casadi_f13(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_control_checkout(void) {
@@ -12309,7 +12436,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* maglev_lqr_control_sparsity_in(casadi_int
 
 CASADI_SYMBOL_EXPORT const casadi_int* maglev_lqr_control_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s10;
+    case 0: return casadi_s9;
     default: return 0;
   }
 }
@@ -12331,7 +12458,7 @@ CASADI_SYMBOL_EXPORT int maglev_lqr_control_work_bytes(casadi_int *sz_arg, casad
 }
 
 /* maglev_damping_control:(x[12],v,p[75])->(u_gen[5]) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *rr, w0, *w1=w+433, *w3=w+439, *w4=w+515, *w5=w+521, *w6=w+533, *w7=w+544, *w8=w+554, *w9=w+559;
   const casadi_real **arg1=arg+3, *cs, *wr2, *wr5;
@@ -12361,11 +12488,11 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=wr2;
   res1[0]=0;
   res1[1]=w8;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
   wr5 = arg[0] ? arg[0] : casadi_zeros;
   arg1[0]=wr5;
   res1[0]=w9;
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
   for (i=0, rr=w8, cs=w9; i<5; ++i) (*rr++) *= (*cs++);
   for (i=0, rr=w8, cs=w8; i<5; ++i) *rr++ = (- *cs++ );
   casadi_copy(w8, 5, res[0]);
@@ -12373,7 +12500,7 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* maglev_damping_control:(x[12],v)->(u_gen[5]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+1, w1, *w3=w+640;
   const casadi_real **arg1=arg+2, *wr0, *wr2;
   (void)mem;
@@ -12384,13 +12511,13 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=(&w1);
   arg1[2]=wr2;
   res1[0]=w3;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
   casadi_copy(w3, 5, res[0]);
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f14(arg, res, iw, w, mem);
+  return casadi_f16(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_damping_control_checkout(void) {
@@ -12442,7 +12569,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* maglev_damping_control_sparsity_in(casadi
 
 CASADI_SYMBOL_EXPORT const casadi_int* maglev_damping_control_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s10;
+    case 0: return casadi_s9;
     default: return 0;
   }
 }
@@ -12464,7 +12591,7 @@ CASADI_SYMBOL_EXPORT int maglev_damping_control_work_bytes(casadi_int *sz_arg, c
 }
 
 /* maglev_allocate:(u_gen[5])->(F_arrays[10]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
   (void)iw; (void)w; (void)mem;
   a00=9.9299382365273625e-01;
@@ -12549,7 +12676,7 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f16(arg, res, iw, w, mem);
+  return casadi_f18(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_allocate_checkout(void) {
@@ -12592,7 +12719,7 @@ CASADI_SYMBOL_EXPORT const char* maglev_allocate_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* maglev_allocate_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s10;
+    case 0: return casadi_s9;
     default: return 0;
   }
 }
@@ -12621,7 +12748,7 @@ CASADI_SYMBOL_EXPORT int maglev_allocate_work_bytes(casadi_int *sz_arg, casadi_i
 }
 
 /* maglev_rk4_step:(x[12],dt,F_prop,k_pos[5],k_rate[5],a_ref[5])->(x_next[12],u[11]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -16458,7 +16585,7 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f17(arg, res, iw, w, mem);
+  return casadi_f19(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_rk4_step_checkout(void) {
@@ -16510,9 +16637,9 @@ CASADI_SYMBOL_EXPORT const casadi_int* maglev_rk4_step_sparsity_in(casadi_int i)
     case 0: return casadi_s0;
     case 1: return casadi_s8;
     case 2: return casadi_s8;
-    case 3: return casadi_s10;
-    case 4: return casadi_s10;
-    case 5: return casadi_s10;
+    case 3: return casadi_s9;
+    case 4: return casadi_s9;
+    case 5: return casadi_s9;
     default: return 0;
   }
 }
@@ -16542,7 +16669,7 @@ CASADI_SYMBOL_EXPORT int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_i
 }
 
 /* maglev_gaps:(x[12])->(gaps[6]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19;
   (void)iw; (void)w; (void)mem;
@@ -16671,7 +16798,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_gaps_checkout(void) {

@@ -75,6 +75,24 @@ int maglev_trim_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *s
 #define maglev_trim_SZ_RES 7
 #define maglev_trim_SZ_IW 0
 #define maglev_trim_SZ_W 632
+int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_axis_plants_checkout(void);
+void maglev_axis_plants_release(int mem);
+void maglev_axis_plants_incref(void);
+void maglev_axis_plants_decref(void);
+casadi_int maglev_axis_plants_n_in(void);
+casadi_int maglev_axis_plants_n_out(void);
+casadi_real maglev_axis_plants_default_in(casadi_int i);
+const char* maglev_axis_plants_name_in(casadi_int i);
+const char* maglev_axis_plants_name_out(casadi_int i);
+const casadi_int* maglev_axis_plants_sparsity_in(casadi_int i);
+const casadi_int* maglev_axis_plants_sparsity_out(casadi_int i);
+int maglev_axis_plants_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int maglev_axis_plants_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define maglev_axis_plants_SZ_ARG 7
+#define maglev_axis_plants_SZ_RES 7
+#define maglev_axis_plants_SZ_IW 0
+#define maglev_axis_plants_SZ_W 645
 int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_lqr_gains_checkout(void);
 void maglev_lqr_gains_release(int mem);

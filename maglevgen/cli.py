@@ -223,6 +223,50 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------------ report
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from . import progress
+    from .report import INSTALL_HINT, ReportOptions, params_text_of, write_report
+
+    carriage = _carriage(args)
+    opts = ReportOptions(simulation=Path(args.simulation) if args.simulation else None)
+    res = write_report(carriage, params_text_of(carriage.loaded), Path(args.out), opts,
+                       progress=progress.step)
+    if res.latex.tool is None:
+        progress.step(f"no LaTeX found: wrote report.tex without report.pdf; to build the PDF "
+                      f"install TeX ({INSTALL_HINT}) and rerun")
+    for what in res.failed_checks:
+        progress.step(f"warning: verification failed: {what} (see the report's Verification)")
+    built = f", PDF by {res.latex.tool} in {res.latex.seconds:.1f} s" if res.latex.ok else ""
+    print(f"wrote {len(res.paths)} files to {res.out_dir}{built}")
+    for path in res.paths:
+        print(f"  {path.name}")
+    return 0
+
+
+# ------------------------------------------------------------------------------------- build
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    from . import progress
+    from .build import BuildOptions, run_build
+
+    opts = BuildOptions(t_end=args.t_end, dt=args.dt, pdf=not args.no_pdf)
+    loaded = load_params(args.params, args.overrides)
+    res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
+    if not res.rebuilt:
+        print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")
+        return 0
+    sys.stdout.write(res.summary)
+    print(f"\nwrote {len(res.files)} files to {res.out_dir}:")
+    for sub in ("c", "lib", "simulation", "report"):
+        print(f"  {res.out_dir / sub}/")
+    print(f"  {res.out_dir / 'SUMMARY.md'} (this summary)")
+    return 0
+
+
 # ---------------------------------------------------------------------------------- main
 
 
@@ -275,6 +319,27 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
     sim.set_defaults(func=cmd_simulate)
+
+    bld = sub.add_parser("build", help="the main job: C, library, simulations and report, "
+                                       "brought up to date in one atomic step")
+    _common(bld)
+    bld.add_argument("--out", default="build", metavar="DIR",
+                     help="output folder (default: ./build)")
+    bld.add_argument("--t-end", type=float, default=10.0, metavar="S",
+                     help="simulated time [s] (default 10)")
+    bld.add_argument("--dt", type=float, default=1e-3, metavar="S",
+                     help="RK4 step [s] (default 1e-3)")
+    bld.add_argument("--no-pdf", action="store_true", help="write report.tex only")
+    bld.set_defaults(func=cmd_build)
+
+    rep = sub.add_parser("report", help="LaTeX derivation report, and its PDF where TeX is "
+                                        "installed")
+    _common(rep)
+    rep.add_argument("--out", default="report", metavar="DIR",
+                     help="output folder (default: ./report)")
+    rep.add_argument("--simulation", metavar="DIR",
+                     help="folder written by `maglevgen simulate --out`: include its figures")
+    rep.set_defaults(func=cmd_report)
     return parser
 
 

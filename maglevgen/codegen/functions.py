@@ -29,6 +29,7 @@ DESCRIPTIONS: dict[str, str] = {
     "dynamics": "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, 8-12)",
     "jacobians": "(A, B) = (df/dx, df/du) of maglev_dynamics",
     "trim": "equilibrium at speed v (Newton iterations in C): trim state and propulsion force",
+    "axis_plants": "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed v",
     "lqr_gains": "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim",
     "lqr_control": "u_gen = -K (a - a_trim, a_dot): the five LQR forces/moments at speed v",
     "damping_control": "u_gen = -c a_dot: the five optimized-damping forces/moments (eqs 20-21)",
@@ -120,6 +121,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
     K_mx, c_mx = K_fn(km_mx, p_mx)
     lqr_gains = ca.Function("maglev_lqr_gains", [v_mx, p_mx], [K_mx, c_mx], ["v", "p"],
                             ["K", "c_damping"])
+    axis_plants = ca.Function("maglev_axis_plants", [v_mx, p_mx],
+                              [km_mx[:N_AXES], km_mx[N_AXES:]], ["v", "p"], ["k", "m"])
 
     # --- controllers on the axis coordinates a = (y, z, phi, theta, psi) and their rates
     rates_fn = ca.Function("maglev_axis_rates", [x], [
@@ -165,8 +168,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
                       [x_next, closed_loop_input(x0)],
                       ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
     gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
-    fns = (dynamics, jacobians, trim, lqr_gains, lqr_control, damping_control, allocate, rk4,
-           gaps)
+    fns = (dynamics, jacobians, trim, axis_plants, lqr_gains, lqr_control, damping_control,
+           allocate, rk4, gaps)
     return Built(tuple(_dense_outputs(f) for f in fns), p.shape[0])
 
 

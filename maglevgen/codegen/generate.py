@@ -6,10 +6,7 @@ Writers return (file name, text) pairs; `write_output` alone touches the disk, a
 from __future__ import annotations
 
 import json
-import os
 import re
-import shutil
-import tempfile
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -22,14 +19,16 @@ import sympy
 from maglevgen import __version__
 from maglevgen.carriage import Carriage
 from maglevgen.derive import conventions as cv
-from maglevgen.derive.model import CarriageModel
+from maglevgen.derive.model import CarriageModel, input_names_of
 from maglevgen.errors import InputError
+from maglevgen.output import write_output  # noqa: F401  (re-exported: the writers' API)
 
 from .cpass import generate_c
 from .functions import DESCRIPTIONS, PREFIX, bake, build_functions
 
 C_NAME = "maglev_functions"
 SIMULATE_FILES = ("maglev_simulate.c", "maglev_simulate.h")
+FUNCTION_TABLE = "functions.json"
 PRECISIONS = ("double", "single")
 PARAMETER_MODES = ("baked", "runtime")
 
@@ -44,6 +43,8 @@ IO_DOCS: dict[str, str] = {
     "x_trim": "trim state", "F_prop": "[N] propulsion force",
     "K": "per axis (row, MAGLEV_AXIS_* order): position gain, rate gain",
     "c_damping": "per axis: damping gain of the optimized damping controller",
+    "k": "per axis stiffness [N/m or N*m/rad], MAGLEV_AXIS_* order",
+    "m": "per axis mass or inertia [kg or kg*m^2], MAGLEV_AXIS_* order",
     "u_gen": "generalized forces/moments, MAGLEV_AXIS_* order",
     "F_arrays": "[N] array control forces, MAGLEV_U_* order from index 1",
     "dt": "[s] step", "k_pos": "per axis position gains", "k_rate": "per axis rate gains",
@@ -131,9 +132,13 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
 
 
 def render_runtime_sources(model: CarriageModel, precision: str = "double") -> dict[str, str]:
-    """The parameter-independent C of a carriage structure (what the simulation compiles)."""
+    """The parameter-independent C of a carriage structure (what the simulation compiles) and
+    the table of its functions (FUNCTION_TABLE, JSON) that the interface files are made from."""
     opts = GenerateOptions(precision, "runtime")
-    return render_c(list(build_functions(model).functions), opts, banner(opts, None), model)
+    fns = list(build_functions(model).functions)
+    files = render_c(fns, opts, banner(opts, None), model)
+    files[FUNCTION_TABLE] = json.dumps(function_table(fns), indent=1) + "\n"
+    return files
 
 
 def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
@@ -144,14 +149,20 @@ def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
         fns = [bake(f, carriage.p) for f in fns]
     text_banner = banner(opts, carriage.loaded.sha256 if opts.parameters == "baked" else None)
     files = render_c(fns, opts, text_banner, carriage.model)
+    files.update(render_interface(carriage, opts, function_table(fns)))
+    return files
+
+
+def render_interface(carriage: Carriage, opts: GenerateOptions,
+                     table: list[dict]) -> dict[str, str]:
+    """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest."""
     header_banner = banner(opts, carriage.loaded.sha256)
     params = [{"name": e.name, "macro": _macro(e.name), "unit": e.unit or "1",
                "value": e.value, "value_repr": repr(e.value),
                "value_c": _c_literal(e.value, opts.precision)} for e in carriage.entries]
     inputs = [cv.PROPULSION] + [
         cv.Signal(n, "N", f"control force of array {n[3:]} along body {n[2]}")
-        for n in carriage.model.input_names[1:]]
-    table = function_table(fns)
+        for n in input_names_of(carriage.structure)[1:]]
     ctx = {
         "banner": header_banner, "precision": opts.precision, "parameters": opts.parameters,
         "real_type": "float" if opts.precision == "single" else "double",
@@ -160,10 +171,8 @@ def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
         "dt": "1e-3", "n_steps": 2000,
     }
     env = _template_env()
-    files["maglev.h"] = env.get_template("maglev.h.j2").render(ctx)
-    files["main.c"] = env.get_template("main.c.j2").render(ctx)
-    files["CMakeLists.txt"] = env.get_template("CMakeLists.txt.j2").render(ctx)
-    files["README.md"] = env.get_template("README.md.j2").render(ctx)
+    files = {name: env.get_template(f"{name}.j2").render(ctx)
+             for name in ("maglev.h", "main.c", "CMakeLists.txt", "README.md")}
     files["manifest.json"] = json.dumps(_manifest(carriage, opts, table, params, inputs),
                                         indent=2) + "\n"
     return files
@@ -193,35 +202,3 @@ def _manifest(carriage: Carriage, opts: GenerateOptions, table: list[dict], para
                              for p in params],
         "functions": table,
     }
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def write_output(files: dict[str, str | bytes], out_dir: Path) -> list[Path]:
-    """Write all files at once: into a sibling temporary folder, then swap it in."""
-    out_dir = out_dir.resolve()
-    parent = out_dir.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=parent))
-        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it private; outputs get the usual mode
-    except OSError as exc:
-        raise InputError(f"cannot write to {parent}: {exc.strerror}") from None
-    try:
-        for name, data in sorted(files.items()):
-            (tmp / name).write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
-        old = None
-        if out_dir.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old.", dir=parent))
-            os.replace(out_dir, old / "d")
-        os.replace(tmp, out_dir)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise InputError(f"cannot write to {out_dir}: {exc.strerror}") from None
-    return [out_dir / n for n in sorted(files)]

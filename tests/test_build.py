@@ -1,0 +1,275 @@
+"""`maglevgen build`: the main job, its cache and stamp, atomic output, bad input.
+
+Every bad-input case runs against a folder holding a good build and checks that the build
+fails with one line and exit 2, and leaves that folder byte for byte as it was, with no
+temporary folders beside it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_params_cli import BAD, edited, write_input
+
+import maglevgen.build as build_mod
+from maglevgen.build import STAMP, BuildOptions, run_build, up_to_date
+from maglevgen.cli import main
+from maglevgen.params import load_params
+
+FAST = ["--t-end", "1", "--no-pdf"]
+
+
+def assert_one_line_error(rc: int, out: str, err: str, expected: list[str]) -> None:
+    """Exit 2, nothing on stdout, the error on one line (after any progress lines)."""
+    assert rc == 2, err
+    assert out == "" and "Traceback" not in err
+    *progress, line = err.splitlines()
+    assert line.startswith("maglevgen: error: "), err
+    assert all(p.startswith("maglevgen: ") and "error" not in p for p in progress), err
+    for s in expected:
+        assert s in line, f"{s!r} not in {line!r}"
+
+
+def tree(folder: Path) -> dict[str, str]:
+    """Relative path -> sha256 of every file below ``folder``."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def siblings(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.parent.iterdir())
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory, sim_lib) -> Path:
+    """A folder holding a complete build of the default carriage."""
+    out = tmp_path_factory.mktemp("build") / "out"
+    assert main(["build", "--out", str(out), *FAST]) == 0
+    return out
+
+
+def test_build_writes_every_stage_and_a_consistent_stamp(good: Path, carriage) -> None:
+    names = set(tree(good))
+    for expected in ("c/maglev_functions.c", "c/maglev_simulate.c", "c/maglev.h",
+                     "c/manifest.json", "c/main.c", "lib/libmaglev.so",
+                     "simulation/metrics.md", "simulation/levitation_pitch.png",
+                     "report/report.tex", "SUMMARY.md", STAMP):
+        assert expected in names, expected
+    stamp = json.loads((good / STAMP).read_text())
+    assert set(stamp["files"]) == names - {STAMP}
+    assert all(tree(good)[n] == d for n, d in stamp["files"].items())
+    manifest = json.loads((good / "c/manifest.json").read_text())
+    assert [p["value"] for p in manifest["parameter_vector"]] == list(carriage.p)
+
+
+def test_summary_numbers_match_independent_computations(good: Path, carriage, trim) -> None:
+    """Trim gaps from the SymPy/scipy trim; natural frequencies from the SymPy stiffness."""
+    text = (good / "SUMMARY.md").read_text()
+    for g in trim.gaps:
+        assert f"{g * 1e3:.3f}" in text
+    K = carriage.total_stiffness(trim)
+    M = carriage.generalized_mass()
+    for i, axis in enumerate(("lateral", "vertical", "roll", "pitch", "yaw")):
+        row = next(r for r in text.splitlines() if r.startswith(f"| {axis} |"))
+        fn = float(row.split("|")[4])
+        assert fn == pytest.approx(np.sqrt(K[i, i] / M[i]) / (2 * np.pi), abs=1.5e-3)
+    assert "eq 31 does not satisfy" in text
+
+
+def test_unchanged_rebuild_regenerates_nothing(good: Path, capsys) -> None:
+    before = tree(good)
+    mtimes = {p: p.stat().st_mtime_ns for p in good.rglob("*")}
+    assert main(["build", "--out", str(good), *FAST]) == 0
+    assert "up to date" in capsys.readouterr().out
+    assert tree(good) == before
+    assert {p: p.stat().st_mtime_ns for p in good.rglob("*")} == mtimes
+
+
+def test_a_tampered_output_is_rebuilt(good: Path, tmp_path: Path) -> None:
+    out = tmp_path / "copy"
+    assert main(["build", "--out", str(out), *FAST]) == 0
+    ref = tree(out)
+    (out / "c" / "maglev.h").write_text("tampered\n")
+    key = json.loads((out / STAMP).read_text())["key"]
+    assert not up_to_date(out, key)
+    assert main(["build", "--out", str(out), *FAST]) == 0
+    assert tree(out) == ref
+
+
+def test_parameter_change_rebuilds_without_rederiving_or_recompiling(
+        good: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "heavy"
+    assert main(["build", "--out", str(out), *FAST, "--set", "vehicle.mass=9.5"]) == 0
+    err = capsys.readouterr().err
+    assert "deriving" not in err and "compiling" not in err and "lambdifying" not in err
+    manifest = json.loads((out / "c/manifest.json").read_text())
+    mass = next(p for p in manifest["parameter_vector"] if p["name"] == "vehicle.mass")
+    assert mass["value"] == 9.5
+    # the parameter-independent C is identical, the parameter-dependent header is not
+    assert (out / "c/maglev_functions.c").read_bytes() == \
+        (good / "c/maglev_functions.c").read_bytes()
+    assert (out / "c/maglev.h").read_bytes() != (good / "c/maglev.h").read_bytes()
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+def _assert_untouched(good: Path, before: dict[str, str], names: list[str]) -> None:
+    assert tree(good) == before
+    assert siblings(good) == names
+
+
+@pytest.mark.parametrize(("text", "extra", "expected"),
+                         [c[1:] for c in BAD if "--params" not in c[2]],
+                         ids=[c[0] for c in BAD if "--params" not in c[2]])
+def test_bad_parameters_leave_the_good_build(good: Path, tmp_path: Path, capsys, text,
+                                             extra, expected) -> None:
+    before, names = tree(good), siblings(good)
+    path = write_input(tmp_path, text)
+    rc = main(["build", "--out", str(good), *FAST, "--params", str(path), *extra])
+    out, err = capsys.readouterr()
+    assert_one_line_error(rc, out, err, expected)
+    _assert_untouched(good, before, names)
+
+
+@pytest.mark.parametrize(("argv", "expected"), [
+    (["--set", "operation.speed=2.0"], ["no trim at 2 m/s"]),
+    (["--set", "arrays.3.nominal_gap=0.001"], ["arrays.3.nominal_gap", "track.min_gap"]),
+    (["--set", "vehicle.mass=0"], ["vehicle.mass = 0"]),
+    (["--dt", "0.2"], ["--dt 0.2 s exceeds the RK4 stability limit"]),
+], ids=["no-trim", "gap-below-track-limit", "zero-mass", "dt-above-rk4-limit"])
+def test_bad_operating_inputs_leave_the_good_build(good: Path, capsys, argv, expected) -> None:
+    before, names = tree(good), siblings(good)
+    rc = main(["build", "--out", str(good), *FAST, *argv])
+    out, err = capsys.readouterr()
+    assert_one_line_error(rc, out, err, expected)
+    _assert_untouched(good, before, names)
+
+
+def test_inertia_not_positive_definite(good: Path, tmp_path: Path, capsys) -> None:
+    before, names = tree(good), siblings(good)
+    path = write_input(tmp_path, edited("vehicle.inertia_cg", {
+        "xx": 0.01, "yy": 0.01, "zz": 1.0, "xy": 0.0, "xz": 0.0, "yz": 0.0}))
+    rc = main(["build", "--out", str(good), *FAST, "--params", str(path)])
+    out, err = capsys.readouterr()
+    assert_one_line_error(rc, out, err, ["vehicle.inertia_cg"])
+    _assert_untouched(good, before, names)
+
+
+def test_missing_compiler(good: Path, monkeypatch, capsys) -> None:
+    before, names = tree(good), siblings(good)
+    monkeypatch.setenv("CC", "no-such-compiler")
+    rc = main(["build", "--out", str(good), *FAST, "--set", "vehicle.mass=9.4"])
+    out, err = capsys.readouterr()
+    assert_one_line_error(rc, out, err, ["C compiler 'no-such-compiler' not found"])
+    _assert_untouched(good, before, names)
+
+
+def test_unwritable_output_folder(tmp_path: Path, capsys) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    rc = main(["build", "--out", str(blocker / "out"), *FAST])
+    out, err = capsys.readouterr()
+    assert_one_line_error(rc, out, err, ["cannot write to", "a-file"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
+def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkeypatch,
+                                                              capsys) -> None:
+    before, names = tree(good), siblings(good)
+
+    def broken(*_a, **_k):
+        raise RuntimeError("simulated failure in the report stage")
+
+    monkeypatch.setattr(build_mod, "_report_files", broken)
+    rc = main(["build", "--out", str(good), *FAST, "--set", "vehicle.mass=9.3001"])
+    out, err = capsys.readouterr()
+    assert rc == 1 and out == ""
+    line = err.splitlines()[-1]
+    assert line.startswith("maglevgen: internal error: ") and "Traceback" not in err
+    assert "simulated failure in the report stage" in line
+    _assert_untouched(good, before, names)
+
+
+def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carriage,
+                                                          monkeypatch) -> None:
+    """Every cache entry (generated C, compiled library, lambdified model) corrupted at once."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("MAGLEVGEN_CACHE", str(cache))
+    out = tmp_path / "out"
+    loaded = load_params()
+    opts = BuildOptions(t_end=1.0, pdf=False)
+    run_build(loaded, out, opts, step=lambda _m: None)
+    ref = tree(out)
+    for f in cache.rglob("*"):
+        if f.suffix in (".c", ".pkl", ".so"):
+            # a new truncated file in its place (the loaded library keeps its own pages)
+            cut = f.with_name(f.name + ".cut")
+            cut.write_bytes(f.read_bytes()[: len(f.read_bytes()) // 2])
+            os.replace(cut, f)
+    from maglevgen import library
+
+    monkeypatch.setattr(library, "_MODEL_FUNCTIONS", {})
+    steps: list[str] = []
+    shutil_out = tmp_path / "out2"
+    run_build(loaded, shutil_out, opts, step=steps.append)
+    joined = " ".join(steps)
+    assert "deriving" in joined and "compiling" in joined and "lambdifying" in joined
+    assert tree(shutil_out) == ref
+
+
+def test_concurrent_builds_into_one_folder_end_consistent(tmp_path: Path, good: Path) -> None:
+    out = tmp_path / "shared"
+    env = {**os.environ}
+    procs = [subprocess.Popen([sys.executable, "-m", "maglevgen.cli", "build", "--out",
+                               str(out), *FAST, "--set", f"vehicle.mass={m}"], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+             for m in (9.3, 9.6)]
+    for p in procs:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err
+    stamp = json.loads((out / STAMP).read_text())
+    assert tree(out) == {**stamp["files"], STAMP: tree(out)[STAMP]}
+    mass = next(p["value"] for p in json.loads((out / "c/manifest.json").read_text())
+                ["parameter_vector"] if p["name"] == "vehicle.mass")
+    assert stamp["overrides"] == [f"vehicle.mass={mass}"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shared"]
+
+
+def test_interrupted_build_leaves_the_previous_output(good: Path, monkeypatch) -> None:
+    before, names = tree(good), siblings(good)
+    from maglevgen import output
+
+    real_write = output.Path.write_bytes
+    calls = {"n": 0}
+
+    def interrupt_midway(self, data):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return real_write(self, data)
+
+    monkeypatch.setattr(output.Path, "write_bytes", interrupt_midway)
+    with pytest.raises(KeyboardInterrupt):
+        run_build(load_params(None, ["vehicle.mass=9.2"]), good,
+                  BuildOptions(t_end=1.0, pdf=False), step=lambda _m: None)
+    monkeypatch.undo()
+    _assert_untouched(good, before, names)
+
+
+def test_up_to_date_check_is_fast_in_a_fresh_process(good: Path) -> None:
+    """Not a timing assert (bench/ measures it): the fresh process must not import the
+    derivation stack (sympy, casadi) to decide that nothing needs doing."""
+    code = ("import sys, maglevgen.cli as c; rc = c.main(['build', '--out', sys.argv[1], "
+            "'--t-end', '1', '--no-pdf']); heavy = [m for m in ('sympy', 'casadi', "
+            "'matplotlib', 'control') if m in sys.modules]; print(rc, heavy)")
+    proc = subprocess.run([sys.executable, "-c", code, str(good)], capture_output=True,
+                          text=True, check=True)
+    assert proc.stdout.splitlines()[-1] == "0 []", proc.stdout + proc.stderr
