@@ -19,9 +19,10 @@ raise ``ValueError`` for such k.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import sympy as sp
+
+from .memo import memoized
 
 __all__ = [
     "DampingDerivation",
@@ -63,7 +64,7 @@ def square_error_cost(c: sp.Expr = _c, k: sp.Expr = _k, m: sp.Expr = _m,
     return sp.simplify(x0**2 * P[0, 0].subs(sol[0]))
 
 
-@lru_cache(maxsize=1)
+@memoized
 def _derive() -> DampingDerivation:
     """Minimize J over c > 0 for generic k, m > 0: dJ/dc = 0 has one positive root."""
     J = square_error_cost()

@@ -11,13 +11,13 @@ sketch with small-angle arguments); it is derived here from the geometry for any
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
 import sympy as sp
 
 from . import conventions as cv
+from .memo import memoized
 from .model import CarriageModel, Structure, build_model
 from .rigid_body import inertia_about_origin
 
@@ -40,7 +40,7 @@ class StiffnessForm:
     drag_sym: sp.Matrix
 
 
-@lru_cache(maxsize=8)
+@memoized
 def stiffness_form(structure: Structure) -> StiffnessForm:
     """K_st0 = -dW/dq of the array wrench with lift_i = F_L_i exp(-2k (gap_i(q) - gap_i*))."""
     m = build_model(structure)

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 import sympy as sp
 
+from .memo import memoized
 from .model import CarriageModel, Structure, build_model
 
 
@@ -85,7 +85,7 @@ class ModelFunctions:
         return A, B
 
 
-@lru_cache(maxsize=8)
+@memoized
 def model_functions(structure: Structure) -> ModelFunctions:
     """Lambdify the layers of the model of ``structure`` and their partial derivatives."""
     from .linearize import lambdify_stiffness  # it imports this module's types

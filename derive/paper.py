@@ -17,6 +17,7 @@ import sympy as sp
 from sympy.physics import units
 
 from .allocation import minimum_norm_allocation
+from .memo import memoized
 from .riccati import axis_matrices, riccati_closed_form, riccati_residual
 
 __all__ = [
@@ -215,8 +216,13 @@ def _eq21_units() -> list[str]:
 
 def paper_discrepancies_allocation() -> list[str]:
     """Inconsistencies of eqs 8-12 and 21-23 as printed, each found by computation."""
-    return [*_solution_residuals(), *_eq22_minimum_norm(), *_eq23_rank(), *_missing_yaw(),
-            *_parallel_sums(), *_eq21_units()]
+    return list(_allocation_findings())
+
+
+@memoized
+def _allocation_findings() -> tuple[str, ...]:
+    return (*_solution_residuals(), *_eq22_minimum_norm(), *_eq23_rank(), *_missing_yaw(),
+            *_parallel_sums(), *_eq21_units())
 
 
 _DEFAULT_K, _DEFAULT_M = sp.Integer(2000), sp.Rational("9.3")  # a stiffness and the cradle mass
@@ -224,10 +230,16 @@ _DEFAULT_K, _DEFAULT_M = sp.Integer(2000), sp.Rational("9.3")  # a stiffness and
 
 def paper_discrepancies_riccati(k: sp.Expr = _DEFAULT_K, m: sp.Expr = _DEFAULT_M) -> list[str]:
     """Inconsistencies of eqs 29-33 as printed, each found by computation (at k, m for numbers)."""
+    res = paper_riccati_residual(k, m).evalf(20)
+    return [f"eq 31 does not satisfy eq 30: residual at k = {k}, m = {m} is {res.tolist()}",
+            *_riccati_symbolic_findings()]
+
+
+@memoized
+def _riccati_symbolic_findings() -> tuple[str, ...]:
+    """The findings that hold for every k and m (symbolic solves: memoised)."""
     ks, ms = sp.Symbol("k", real=True), sp.Symbol("m", positive=True)
     found = []
-    res = paper_riccati_residual(k, m).evalf(20)
-    found.append(f"eq 31 does not satisfy eq 30: residual at k = {k}, m = {m} is {res.tolist()}")
     r11 = paper_riccati_residual(ks, ms)[0, 0]
     roots = sp.solve(sp.simplify(r11), ks)
     r12 = [sp.simplify(paper_riccati_residual(k0, ms)[0, 1]) for k0 in roots]
@@ -242,4 +254,4 @@ def paper_discrepancies_riccati(k: sp.Expr = _DEFAULT_K, m: sp.Expr = _DEFAULT_M
     same = sp.solve(sp.Eq(K[0], true_K1), ks)
     found.append(f"eq 32's K1 = sqrt(k^2+1) - 1 equals the LQR gain sqrt(k^2+1) - k only at "
                  f"k = {same}")
-    return found
+    return tuple(found)

@@ -27,12 +27,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from functools import cache, lru_cache, partial
+from functools import partial
 
 import mpmath
 import numpy as np
 import scipy.linalg
 import sympy as sp
+
+from .memo import memoized
 
 __all__ = [
     "AxisLQR",
@@ -191,7 +193,7 @@ def _is_stabilizing(K: sp.Matrix) -> bool:
     return True
 
 
-@lru_cache(maxsize=1)
+@memoized
 def _generic_closed_form() -> AxisLQR:
     """Solve eq 30 with sympy.solve and keep the stabilizing solution.
 
@@ -241,7 +243,7 @@ def riccati_closed_form(k: RealLike = _k, m: RealLike = _m, q1: RealLike = _q1,
                    tuple(sub(p) for p in g.poles))
 
 
-@lru_cache(maxsize=1)
+@memoized
 def _generic_stable_form() -> AxisLQRStable:
     """Rewrite the closed form without cancellation, deriving each step from eq 30.
 
@@ -285,7 +287,7 @@ def riccati_stable_form(k: RealLike = _k, m: RealLike = _m, q1: RealLike = _q1,
                          sub(g.K2_of_K1), sub(g.P_of_gains), sub(g.K2), sub(g.P), sub(g.K))
 
 
-@cache
+@memoized
 def _numpy_functions(form: str) -> tuple[Callable, ...]:
     """Lambdified numpy evaluators of the gain expressions; they add no float64 constants."""
     if form == "closed":
@@ -313,7 +315,7 @@ def lqr_gain_numeric(k: float, m: float, q1: float = 1.0, q2: float = 1.0, r: fl
     return np.array([K1, k2_of_k1(K1, *args)], dtype=dtype)
 
 
-@cache
+@memoized
 def _mpmath_functions() -> tuple[Callable, Callable]:
     """Lambdified mpmath evaluators of the closed-form K and P."""
     g = _generic_closed_form()

@@ -146,7 +146,7 @@ extern "C" {
 #define MAGLEV_DYNAMICS_SZ_ARG 2
 #define MAGLEV_DYNAMICS_SZ_RES 1
 #define MAGLEV_DYNAMICS_SZ_IW 0
-#define MAGLEV_DYNAMICS_SZ_W 69
+#define MAGLEV_DYNAMICS_SZ_W 70
 int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -160,7 +160,7 @@ int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_JACOBIANS_SZ_ARG 2
 #define MAGLEV_JACOBIANS_SZ_RES 2
 #define MAGLEV_JACOBIANS_SZ_IW 0
-#define MAGLEV_JACOBIANS_SZ_W 253
+#define MAGLEV_JACOBIANS_SZ_W 259
 int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -191,6 +191,20 @@ int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* i
     int mem);
 
 /*
+ * maglev_axis_gains: per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form (eqs 29-33), the small part of the gain schedule
+ *   in  k[5x1]  per axis stiffness [N/m or N*m/rad], MAGLEV_AXIS_* order
+ *   in  m[5x1]  per axis mass or inertia [kg or kg*m^2], MAGLEV_AXIS_* order
+ *   out K[5x2]  per axis (row, MAGLEV_AXIS_* order): position gain, rate gain
+ *   out c_damping[5x1]  per axis: damping gain of the optimized damping controller
+ */
+#define MAGLEV_AXIS_GAINS_SZ_ARG 2
+#define MAGLEV_AXIS_GAINS_SZ_RES 2
+#define MAGLEV_AXIS_GAINS_SZ_IW 0
+#define MAGLEV_AXIS_GAINS_SZ_W 14
+int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
  * maglev_lqr_gains: per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim
  *   in  v[1x1]  [m/s] forward speed
  *   out K[5x2]  per axis (row, MAGLEV_AXIS_* order): position gain, rate gain
@@ -204,28 +218,29 @@ int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw,
     int mem);
 
 /*
- * maglev_lqr_control: u_gen = -K (a - a_trim, a_dot): the five LQR forces/moments at speed v
+ * maglev_lqr_control: one control tick: u_gen = -K (a - a_ref, a_dot), a = (y, z, phi, theta, psi)
  *   in  x[12x1]  state, MAGLEV_X_* order
- *   in  v[1x1]  [m/s] forward speed
+ *   in  K[5x2]  per axis (row, MAGLEV_AXIS_* order): position gain, rate gain
+ *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
  *   out u_gen[5x1]  generalized forces/moments, MAGLEV_AXIS_* order
  */
-#define MAGLEV_LQR_CONTROL_SZ_ARG 10
-#define MAGLEV_LQR_CONTROL_SZ_RES 5
+#define MAGLEV_LQR_CONTROL_SZ_ARG 3
+#define MAGLEV_LQR_CONTROL_SZ_RES 1
 #define MAGLEV_LQR_CONTROL_SZ_IW 0
-#define MAGLEV_LQR_CONTROL_SZ_W 764
+#define MAGLEV_LQR_CONTROL_SZ_W 15
 int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
 /*
- * maglev_damping_control: u_gen = -c a_dot: the five optimized-damping forces/moments (eqs 20-21)
+ * maglev_damping_control: one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)
  *   in  x[12x1]  state, MAGLEV_X_* order
- *   in  v[1x1]  [m/s] forward speed
+ *   in  c_damping[5x1]  per axis: damping gain of the optimized damping controller
  *   out u_gen[5x1]  generalized forces/moments, MAGLEV_AXIS_* order
  */
-#define MAGLEV_DAMPING_CONTROL_SZ_ARG 9
-#define MAGLEV_DAMPING_CONTROL_SZ_RES 5
+#define MAGLEV_DAMPING_CONTROL_SZ_ARG 2
+#define MAGLEV_DAMPING_CONTROL_SZ_RES 1
 #define MAGLEV_DAMPING_CONTROL_SZ_IW 0
-#define MAGLEV_DAMPING_CONTROL_SZ_W 733
+#define MAGLEV_DAMPING_CONTROL_SZ_W 12
 int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -267,7 +282,7 @@ int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_GAPS_SZ_ARG 1
 #define MAGLEV_GAPS_SZ_RES 1
 #define MAGLEV_GAPS_SZ_IW 0
-#define MAGLEV_GAPS_SZ_W 20
+#define MAGLEV_GAPS_SZ_W 21
 int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 

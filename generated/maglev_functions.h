@@ -93,6 +93,24 @@ int maglev_axis_plants_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi
 #define maglev_axis_plants_SZ_RES 7
 #define maglev_axis_plants_SZ_IW 0
 #define maglev_axis_plants_SZ_W 645
+int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_axis_gains_checkout(void);
+void maglev_axis_gains_release(int mem);
+void maglev_axis_gains_incref(void);
+void maglev_axis_gains_decref(void);
+casadi_int maglev_axis_gains_n_in(void);
+casadi_int maglev_axis_gains_n_out(void);
+casadi_real maglev_axis_gains_default_in(casadi_int i);
+const char* maglev_axis_gains_name_in(casadi_int i);
+const char* maglev_axis_gains_name_out(casadi_int i);
+const casadi_int* maglev_axis_gains_sparsity_in(casadi_int i);
+const casadi_int* maglev_axis_gains_sparsity_out(casadi_int i);
+int maglev_axis_gains_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int maglev_axis_gains_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define maglev_axis_gains_SZ_ARG 2
+#define maglev_axis_gains_SZ_RES 2
+#define maglev_axis_gains_SZ_IW 0
+#define maglev_axis_gains_SZ_W 0
 int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_lqr_gains_checkout(void);
 void maglev_lqr_gains_release(int mem);
@@ -125,10 +143,10 @@ const casadi_int* maglev_lqr_control_sparsity_in(casadi_int i);
 const casadi_int* maglev_lqr_control_sparsity_out(casadi_int i);
 int maglev_lqr_control_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int maglev_lqr_control_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define maglev_lqr_control_SZ_ARG 10
-#define maglev_lqr_control_SZ_RES 5
+#define maglev_lqr_control_SZ_ARG 3
+#define maglev_lqr_control_SZ_RES 1
 #define maglev_lqr_control_SZ_IW 0
-#define maglev_lqr_control_SZ_W 676
+#define maglev_lqr_control_SZ_W 0
 int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_damping_control_checkout(void);
 void maglev_damping_control_release(int mem);
@@ -143,10 +161,10 @@ const casadi_int* maglev_damping_control_sparsity_in(casadi_int i);
 const casadi_int* maglev_damping_control_sparsity_out(casadi_int i);
 int maglev_damping_control_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int maglev_damping_control_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define maglev_damping_control_SZ_ARG 9
-#define maglev_damping_control_SZ_RES 5
+#define maglev_damping_control_SZ_ARG 2
+#define maglev_damping_control_SZ_RES 1
 #define maglev_damping_control_SZ_IW 0
-#define maglev_damping_control_SZ_W 645
+#define maglev_damping_control_SZ_W 0
 int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_allocate_checkout(void);
 void maglev_allocate_release(int mem);

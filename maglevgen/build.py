@@ -13,23 +13,17 @@ import hashlib
 import json
 import os
 import shutil
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from importlib import metadata, util
 from pathlib import Path
 
 from . import __version__
+from .cache import toolchain_fingerprint
 from .output import check_writable, write_output
 from .params import LoadedParams
 
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"
-# Libraries whose versions change what a build produces.
-_VERSIONED = ("casadi", "sympy", "numpy", "scipy", "control", "matplotlib", "jinja2",
-              "cloudpickle")
-_PACKAGES = ("maglevgen", "maglevgen.derive", "maglevgen.codegen", "maglevgen.runtime",
-             "maglevgen.templates")
 
 
 @dataclass(frozen=True)
@@ -40,29 +34,6 @@ class BuildOptions:
 
     def as_dict(self) -> dict:
         return {"t_end": self.t_end, "dt": self.dt, "pdf": self.pdf}
-
-
-def toolchain_fingerprint() -> str:
-    """sha256 of maglevgen's source files and templates and the versions of its libraries.
-
-    Reads files and package metadata only (no heavy import), so the up-to-date check is fast.
-    """
-    h = hashlib.sha256()
-    h.update(f"maglevgen={__version__};python={sys.version_info[:3]}\n".encode())
-    for lib in _VERSIONED:
-        try:
-            h.update(f"{lib}={metadata.version(lib)}\n".encode())
-        except metadata.PackageNotFoundError:
-            h.update(f"{lib}=-\n".encode())
-    for pkg in _PACKAGES:
-        spec = util.find_spec(pkg)
-        roots = list(spec.submodule_search_locations or []) if spec else []
-        for root in roots:
-            for f in sorted(Path(root).rglob("*")):
-                if f.suffix in (".py", ".j2", ".toml") and "__pycache__" not in f.parts:
-                    h.update(f"{pkg}/{f.relative_to(root)}".encode() + b"\0")
-                    h.update(hashlib.sha256(f.read_bytes()).digest())
-    return h.hexdigest()
 
 
 def _compiler_identity() -> str:
@@ -115,12 +86,14 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files = tuple(json.loads((out_dir / STAMP).read_text())["files"])
         return BuildResult(out_dir, False, summary, files)
 
+    from .cache import STORE
     from .carriage import Carriage
     from .codegen.generate import FUNCTION_TABLE, GenerateOptions, render_interface
-    from .library import cached_model_functions, runtime_sources, simulation_library
+    from .library import runtime_sources, simulation_library
     from .sim_output import render_results
     from .simulate import CONTROLLERS, run_scenarios
 
+    STORE.progress = step  # announce the derivation steps that are not cached yet
     carriage = Carriage(loaded)
     files: dict[str, str | bytes] = {}
     # C: the cached run-time-parameter sources, the interface files for these parameters
@@ -128,7 +101,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # gcc runs in its own process: compile while this one lambdifies the model (both cached)
     with ThreadPoolExecutor(max_workers=1) as pool:
         compiling = pool.submit(simulation_library, carriage.structure, progress=step)
-        cached_model_functions(carriage.structure, progress=step)  # carriage.functions' source
+        carriage.functions  # noqa: B018  (derives and lambdifies the model, or loads it)
         lib = compiling.result()
     for f in sorted(folder.iterdir()):
         if f.suffix in (".c", ".h"):

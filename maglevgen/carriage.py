@@ -20,7 +20,7 @@ from .derive.linearize import (
     other_stiffness,
 )
 from .derive.model import CarriageModel, Structure, structure_of
-from .derive.numeric import ModelFunctions
+from .derive.numeric import ModelFunctions, model_functions
 from .derive.paper import paper_stiffness
 from .derive.trim import Trim, lift_off_speed, solve_trim
 from .params import LoadedParams, flatten
@@ -61,10 +61,8 @@ class Carriage:
 
     @cached_property
     def functions(self) -> ModelFunctions:
-        """The lambdified model: from the disk cache (maglevgen.library) when present."""
-        from .library import cached_model_functions
-
-        return cached_model_functions(self.structure)
+        """The lambdified model (memoised across processes: derive.memo, maglevgen.cache)."""
+        return model_functions(self.structure)
 
     @property
     def model(self) -> CarriageModel:

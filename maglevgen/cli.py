@@ -350,8 +350,12 @@ def _json_default(o: object) -> object:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from .cache import STORE
+    from .progress import step
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    STORE.progress = step  # announce derivation steps that are not cached yet
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)

@@ -16,58 +16,29 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import json
-import os
-import sys
-import tempfile
 from collections.abc import Callable
-from importlib import resources
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
-import sympy
 
-from . import __version__
+from .cache import default_cache_dir, derivation_fingerprint
 from .codegen.generate import SIMULATE_FILES, render_runtime_sources, write_output
 from .derive.model import Structure, build_model
-from .runtime.compile import compile_shared, default_cache_dir
+from .runtime.compile import compile_shared
 from .runtime.ffi import GeneratedLibrary
 
 CHECKSUMS = "checksums.json"
-# Packages whose source the generated C depends on (the derivation and the code generator).
-_SOURCE_PACKAGES = ("maglevgen.derive", "maglevgen.codegen")
-_SOURCE_FILES = (("maglevgen", "params.py"), *(("maglevgen.templates", f"{n}.j2")
-                                                for n in SIMULATE_FILES))
 
 Progress = Callable[[str], None]
-_MODEL_FUNCTIONS: dict = {}  # in-process memo of cached_model_functions
 
 
 def _quiet(_: str) -> None:
     pass
 
 
-def source_fingerprint() -> str:
-    """sha256 over the derivation's and code generator's source files and library versions."""
-    h = hashlib.sha256()
-    for lib, version in (("maglevgen", __version__), ("casadi", ca.__version__),
-                         ("sympy", sympy.__version__), ("numpy", np.__version__)):
-        h.update(f"{lib}={version}\n".encode())
-    files: list[tuple[str, bytes]] = []
-    for pkg in _SOURCE_PACKAGES:
-        for f in sorted(resources.files(pkg).iterdir(), key=lambda t: t.name):
-            if f.name.endswith(".py"):
-                files.append((f"{pkg}/{f.name}", f.read_bytes()))
-    for pkg, name in _SOURCE_FILES:
-        files.append((f"{pkg}/{name}", resources.files(pkg).joinpath(name).read_bytes()))
-    for name, data in files:
-        h.update(name.encode() + b"\0" + hashlib.sha256(data).digest())
-    return h.hexdigest()
-
-
 def derivation_key(structure: Structure, precision: str) -> str:
     h = hashlib.sha256()
-    h.update(source_fingerprint().encode())
+    h.update(derivation_fingerprint().encode())
     h.update(repr(structure).encode() + precision.encode())
     return h.hexdigest()[:24]
 
@@ -134,47 +105,6 @@ class SimulationLibrary(GeneratedLibrary):
                               c(ins[4]), gap_min, c(x), c(u), c(g), ctypes.byref(status))
         n = int(last) + 1
         return int(last), status.value, x[:n], u[:n], g[:n]
-
-
-def cached_model_functions(structure: Structure, cache_dir: Path | None = None,
-                           progress: Progress = _quiet):
-    """derive.numeric.model_functions of ``structure``, kept on disk (cloudpickle) because
-    lambdifying the layers takes seconds and depends on the derivation only."""
-    import cloudpickle
-
-    from .derive.numeric import model_functions
-
-    cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    memo_key = (structure, str(cache))
-    if memo_key in _MODEL_FUNCTIONS:
-        return _MODEL_FUNCTIONS[memo_key]
-    key = derivation_key(structure, f"numeric-py{sys.version_info[:2]}-"
-                                    f"cloudpickle{cloudpickle.__version__}")
-    path = cache / "numeric" / f"{key}.pkl"
-    try:
-        blob = path.read_bytes()
-        if hashlib.sha256(blob[64:]).hexdigest().encode() == blob[:64]:
-            _MODEL_FUNCTIONS[memo_key] = cloudpickle.loads(blob[64:])
-            return _MODEL_FUNCTIONS[memo_key]
-    except Exception:  # absent, truncated or unreadable (any unpickling error): derive again
-        pass
-    progress("lambdifying the model (cached afterwards)")
-    functions = model_functions(structure)
-    data = cloudpickle.dumps(functions)
-    _write_bytes_atomic(path, hashlib.sha256(data).hexdigest().encode() + data)
-    _MODEL_FUNCTIONS[memo_key] = functions
-    return functions
-
-
-def _write_bytes_atomic(path: Path, data: bytes) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except OSError:
-        pass  # a cache that cannot be written only costs time
 
 
 def simulation_library(structure: Structure, precision: str = "double",

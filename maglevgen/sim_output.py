@@ -33,6 +33,7 @@ FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = 
      (("y", 1e3, "lateral y [mm]"), ("theta", 1e3, "pitch - pitch_trim [mrad]")),
      "figs 6, 8"),
 )
+PLOT_POINTS = 4000  # samples per line at most (decimated evenly; the run keeps every step)
 _AXIS_OF_STATE = {s: i for i, s in enumerate(("y", "z", "phi", "theta", "psi"))}
 
 
@@ -93,16 +94,18 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
                     y = traj.axis_deviation[:, _AXIS_OF_STATE[state]]
                 else:
                     y = traj.x[:, cv.STATE_INDEX[state]]
+                every = max(1, traj.t.size // PLOT_POINTS)  # the figure is ~800 px wide
+                t, y = traj.t[::every], y[::every]
                 name = CONTROLLER_TITLES[traj.controller]
                 if traj.event:
                     name += " (contact)" if traj.status == "contact" else f" ({traj.status})"
-                ax.plot(traj.t, y * scale, lw=0.9, label=name)
+                ax.plot(t, y * scale, lw=0.9, label=name)
             ax.set_ylabel(label)
             ax.grid(True, lw=0.3)
         axes[0].legend(loc="upper right", fontsize=8)
         axes[-1].set_xlabel("time [s]")
         fig.suptitle(f"{title} (paper {figs})")
-        fig.tight_layout()
+        fig.subplots_adjust(left=0.12, right=0.97, bottom=0.1, top=0.91, hspace=0.12)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
         plt.close(fig)

@@ -10,6 +10,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from maglevgen.cache import default_cache_dir, write_atomic
 from maglevgen.errors import InputError, MaglevError
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
@@ -26,11 +27,6 @@ def find_compiler(cc: str | None = None) -> str:
     if path is None:
         raise InputError(f"C compiler {name!r} not found (install gcc or set CC)")
     return path
-
-
-def default_cache_dir() -> Path:
-    base = os.environ.get("MAGLEVGEN_CACHE") or os.environ.get("XDG_CACHE_HOME")
-    return Path(base) / "maglevgen" if base else Path.home() / ".cache" / "maglevgen"
 
 
 def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,
@@ -70,20 +66,13 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
         first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
         raise CompileError(f"compiling {sources[0].name} failed: {first}")
     digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()
-    _write_atomic(_checksum_path(lib), digest + "\n")
+    write_atomic(_checksum_path(lib), (digest + "\n").encode())
     os.replace(tmp, lib)
     return lib
 
 
 def _checksum_path(lib: Path) -> Path:
     return lib.with_name(lib.name + ".sha256")
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
 
 
 def _intact(lib: Path) -> bool:

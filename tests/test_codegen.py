@@ -119,6 +119,37 @@ def test_allocation_is_pseudo_inverse(runtime_lib, carriage: Carriage) -> None:
                                    rtol=TOL[precision] * 10, atol=TOL[precision] * 10)
 
 
+def test_gain_schedule_pieces_match_the_python_derivation(runtime_lib, carriage: Carriage,
+                                                          trim) -> None:
+    """axis_plants (trim in C) against the SymPy/scipy trim; axis_gains against the 50-digit
+    Riccati solution and the damping sqrt(k m); the per-tick controllers against numpy."""
+    precision, _ = runtime_lib
+    tol = TOL[precision] * 10
+    k, m = (np.array(a, dtype=float).ravel()
+            for a in _ext(runtime_lib, "maglev_axis_plants")(trim.speed, carriage.p))
+    plants = axis_plants(carriage, trim)
+    np.testing.assert_allclose(k, [pk for _, pk, _ in plants], rtol=tol)
+    np.testing.assert_allclose(m, [pm for _, _, pm in plants], rtol=tol)
+    K, c = (np.array(a, dtype=float) for a in _ext(runtime_lib, "maglev_axis_gains")(
+        [pk for _, pk, _ in plants], [pm for _, _, pm in plants], carriage.p))
+    for i, (_axis, pk, pm) in enumerate(plants):
+        ref = np.array([float(v) for v in lqr_gain_mp(pk, pm, 1, 1, 1)])
+        np.testing.assert_allclose(K[i], ref, rtol=tol)
+        assert c.ravel()[i] == pytest.approx(np.sqrt(max(pk, 0.0) * pm), rel=tol)
+    rng = np.random.default_rng(5)
+    idx = [1, 2, 3, 4, 5]
+    for _ in range(10):
+        x = trim.x + rng.normal(scale=1e-3, size=12)
+        a_ref = trim.x[idx]
+        rates = carriage.functions.kin(x).ravel()[idx]
+        u_lqr = np.array(_ext(runtime_lib, "maglev_lqr_control")(x, K, a_ref, carriage.p)[0])
+        np.testing.assert_allclose(u_lqr.ravel(), -(K[:, 0] * (x[idx] - a_ref) + K[:, 1] * rates),
+                                   rtol=tol, atol=tol * np.max(np.abs(K)) * 1e-3)
+        u_d = np.array(_ext(runtime_lib, "maglev_damping_control")(x, c, carriage.p)[0])
+        np.testing.assert_allclose(u_d.ravel(), -c.ravel() * rates, rtol=tol,
+                                   atol=tol * np.max(c) * 1e-3)
+
+
 @pytest.fixture(scope="module")
 def baked(carriage: Carriage, tmp_path_factory) -> dict[str, Path]:
     out = {}

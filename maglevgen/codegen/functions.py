@@ -31,8 +31,10 @@ DESCRIPTIONS: dict[str, str] = {
     "trim": "equilibrium at speed v (Newton iterations in C): trim state and propulsion force",
     "axis_plants": "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed v",
     "lqr_gains": "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim",
-    "lqr_control": "u_gen = -K (a - a_trim, a_dot): the five LQR forces/moments at speed v",
-    "damping_control": "u_gen = -c a_dot: the five optimized-damping forces/moments (eqs 20-21)",
+    "axis_gains": "per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form "
+                  "(eqs 29-33), the small part of the gain schedule",
+    "lqr_control": "one control tick: u_gen = -K (a - a_ref, a_dot), a = (y, z, phi, theta, psi)",
+    "damping_control": "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)",
     "allocate": "array forces of minimum norm that produce u_gen (eqs 22-23 derived)",
     "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
     "gaps": "the gap of each array (exact pose geometry); contact when one reaches the track",
@@ -51,7 +53,15 @@ def _pairs(syms, sx) -> dict:
     return {s: sx[i] for i, s in enumerate(syms)}
 
 
-def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
+# Newton stopping tolerances of the trim solve per precision: residual (accelerations, m/s^2 and
+# rad/s^2) and step (m, rad, N). float32 cannot reach float64's (every call would then run all
+# its iterations); 1e-5 is a few times float32's rounding of the accelerations at trim
+# (measured 2e-6 to 1e-5 between 8 and 45 m/s), and reached in as many iterations as float64.
+NEWTON_TOLERANCES = {"double": (1e-13, 1e-12), "single": (1e-5, 1e-6)}
+
+
+def build_functions(model: CarriageModel, newton_iterations: int = 30,
+                    precision: str = "double") -> Built:
     """All generated functions with the parameters as a run-time input."""
     cm = casadi_model(model)
     x, u, p = cm.x, cm.u, cm.p
@@ -71,8 +81,10 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
     u_trim = ca.vertcat(z6[5], ca.SX.zeros(n_u - 1))
     residual = dynamics(x_trim, u_trim, p)[6:12]
     res_fn = ca.Function("maglev_trim_residual", [z6, ca.vertcat(v, p)], [residual])
+    abstol, abstol_step = NEWTON_TOLERANCES[precision]
     newton = ca.rootfinder("maglev_trim_newton", "fast_newton", res_fn,
-                           {"max_iter": newton_iterations, "abstol": 1e-13})
+                           {"max_iter": newton_iterations, "abstol": abstol,
+                            "abstolStep": abstol_step})
     v_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("p", p.shape[0])
     guess = ca.vertcat(0, 0, 0, 0, 0, 0)
     z_sol = newton(guess, ca.vertcat(v_mx, p_mx))
@@ -124,18 +136,25 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
     axis_plants = ca.Function("maglev_axis_plants", [v_mx, p_mx],
                               [km_mx[:N_AXES], km_mx[N_AXES:]], ["v", "p"], ["k", "m"])
 
-    # --- controllers on the axis coordinates a = (y, z, phi, theta, psi) and their rates
+    # --- per-tick controllers on the axis coordinates a = (y, z, phi, theta, psi): the gains
+    # and the reference come from the schedule (maglev_trim, maglev_lqr_gains or
+    # maglev_axis_plants + maglev_axis_gains), computed once per speed, not at every tick.
     rates_fn = ca.Function("maglev_axis_rates", [x], [
         ca.vertcat(*[cm.xdot[cv.STATE_INDEX[s]] for s in Q_STATES])])
-    x_mx = ca.MX.sym("x", n_x)
-    a_mx = ca.vertcat(*[x_mx[cv.STATE_INDEX[s]] for s in Q_STATES])
-    a_trim = ca.vertcat(*[xt_mx[cv.STATE_INDEX[s]] for s in Q_STATES])
-    adot = rates_fn(x_mx)
-    u_lqr = -(K_mx[:, 0] * (a_mx - a_trim) + K_mx[:, 1] * adot)
-    lqr_control = ca.Function("maglev_lqr_control", [x_mx, v_mx, p_mx], [u_lqr],
-                              ["x", "v", "p"], ["u_gen"])
-    damping_control = ca.Function("maglev_damping_control", [x_mx, v_mx, p_mx], [-c_mx * adot],
-                                  ["x", "v", "p"], ["u_gen"])
+    x_c = ca.SX.sym("x", n_x)
+    K_in, c_in, a_ref_in = ca.SX.sym("K", N_AXES, 2), ca.SX.sym("c", N_AXES), \
+        ca.SX.sym("a_ref", N_AXES)
+    a_c = ca.vertcat(*[x_c[cv.STATE_INDEX[s]] for s in Q_STATES])
+    adot = rates_fn(x_c)
+    lqr_control = ca.Function("maglev_lqr_control", [x_c, K_in, a_ref_in, p],
+                              [-(K_in[:, 0] * (a_c - a_ref_in) + K_in[:, 1] * adot)],
+                              ["x", "K", "a_ref", "p"], ["u_gen"])
+    damping_control = ca.Function("maglev_damping_control", [x_c, c_in, p], [-c_in * adot],
+                                  ["x", "c_damping", "p"], ["u_gen"])
+    k_in, m_in = ca.SX.sym("k", N_AXES), ca.SX.sym("m", N_AXES)
+    axis_gains = ca.Function("maglev_axis_gains", [k_in, m_in, p],
+                             list(K_fn(ca.vertcat(k_in, m_in), p)), ["k", "m", "p"],
+                             ["K", "c_damping"])
 
     # --- allocation: T = E^T (E E^T)^-1 from the array positions in p
     u_gen = ca.SX.sym("u_gen", N_AXES)
@@ -168,8 +187,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30) -> Built:
                       [x_next, closed_loop_input(x0)],
                       ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
     gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
-    fns = (dynamics, jacobians, trim, axis_plants, lqr_gains, lqr_control, damping_control,
-           allocate, rk4, gaps)
+    fns = (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains, lqr_control,
+           damping_control, allocate, rk4, gaps)
     return Built(tuple(_dense_outputs(f) for f in fns), p.shape[0])
 
 

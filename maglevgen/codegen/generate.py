@@ -135,7 +135,7 @@ def render_runtime_sources(model: CarriageModel, precision: str = "double") -> d
     """The parameter-independent C of a carriage structure (what the simulation compiles) and
     the table of its functions (FUNCTION_TABLE, JSON) that the interface files are made from."""
     opts = GenerateOptions(precision, "runtime")
-    fns = list(build_functions(model).functions)
+    fns = list(build_functions(model, precision=precision).functions)
     files = render_c(fns, opts, banner(opts, None), model)
     files[FUNCTION_TABLE] = json.dumps(function_table(fns), indent=1) + "\n"
     return files
@@ -143,7 +143,7 @@ def render_runtime_sources(model: CarriageModel, precision: str = "double") -> d
 
 def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
     """Every output file's name and text (nothing written)."""
-    built = build_functions(carriage.model)
+    built = build_functions(carriage.model, precision=opts.precision)
     fns = list(built.functions)
     if opts.parameters == "baked":
         fns = [bake(f, carriage.p) for f in fns]

@@ -26,6 +26,17 @@ class SympyToCasadi:
         self._memo: dict[sp.Basic, Any] = dict(mapping)
 
     def __call__(self, expr: sp.Basic | sp.MatrixBase) -> Any:
+        # CasADi rewrites x * (1/d) as x / d when it builds the node, which turns each
+        # reciprocal SymPy shares (d**-1) back into one division per use; SymPy has already
+        # simplified the expressions, so CasADi's on-the-fly rewriting is off while converting.
+        previous = ca.GlobalOptions.getSimplificationOnTheFly()
+        ca.GlobalOptions.setSimplificationOnTheFly(False)
+        try:
+            return self._convert(expr)
+        finally:
+            ca.GlobalOptions.setSimplificationOnTheFly(previous)
+
+    def _convert(self, expr: sp.Basic | sp.MatrixBase) -> Any:
         if isinstance(expr, sp.MatrixBase):
             rows, cols = expr.shape
             out = ca.SX(rows, cols)

@@ -1,0 +1,64 @@
+"""Shared pieces of the benchmark suite: paths, summary statistics, running tools."""
+
+from __future__ import annotations
+
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "bench"
+REFERENCE_DIR = BENCH / "reference"
+DRIVER_DIR = BENCH / "c"
+
+
+def log(msg: str) -> None:
+    """Progress on stderr (stdout stays clean)."""
+    print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def summary(values: Sequence[float]) -> dict[str, float]:
+    """Median, quartiles, min and max of repeated measurements."""
+    v = sorted(float(x) for x in values)
+    if not v:
+        raise ValueError("no measurements")
+    if len(v) >= 2:
+        q1, _, q3 = statistics.quantiles(v, n=4, method="inclusive")
+    else:
+        q1 = q3 = v[0]
+    return {
+        "median": statistics.median(v),
+        "q1": q1,
+        "q3": q3,
+        "min": v[0],
+        "max": v[-1],
+        "n": len(v),
+    }
+
+
+def paired_ratios(a: Sequence[float], b: Sequence[float]) -> dict[str, float]:
+    """a[i] / b[i] for figures taken in the same repeat, summarised."""
+    if len(a) != len(b):
+        raise ValueError("paired measurements of different lengths")
+    return summary([x / y for x, y in zip(a, b, strict=True)])
+
+
+def run(cmd: Sequence[str], cwd: Path | None = None, env: dict | None = None) -> str:
+    """Run a command, return its stdout; raise with its stderr when it fails."""
+    proc = subprocess.run(list(map(str, cmd)), cwd=cwd, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(
+            f"{' '.join(map(str, cmd))} failed ({proc.returncode}):\n{proc.stderr.strip()[-4000:]}"
+        )
+    return proc.stdout
+
+
+def time_calls(fn: Callable[[int], object], calls: int) -> float:
+    """Nanoseconds per call of fn(i) over ``calls`` calls (perf_counter_ns around the loop)."""
+    t0 = time.perf_counter_ns()
+    for i in range(calls):
+        fn(i)
+    return (time.perf_counter_ns() - t0) / calls

@@ -1,0 +1,603 @@
+"""The benchmark suite: derivation, generation, generated-code speed and footprint, against the
+usual alternatives, measured in one run. Writes BENCHMARKS.md and bench/results.json.
+
+    python bench/run.py [--quick] [--out BENCHMARKS.md] [--json bench/results.json]
+
+(`make bench` runs it in the project's virtual environment.) Every ratio pairs two figures
+taken in the same repeat: C contenders alternate inside the C drivers; each Python repeat is
+followed by a short C run whose median it is divided by. Figures are medians of repeats.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import alternatives as alt
+import native
+import writeup
+from common import BENCH, ROOT, log, paired_ratios, run, summary, time_calls
+
+from maglevgen.carriage import Carriage
+from maglevgen.codegen.functions import build_functions
+from maglevgen.codegen.generate import GenerateOptions, render, write_output
+from maglevgen.controllers import allocation_matrix
+from maglevgen.params import load_params
+from maglevgen.runtime.compile import compile_shared
+from maglevgen.runtime.ffi import GeneratedLibrary
+
+# The closed loop: 10 s at 1 kHz from trim plus this disturbance (per axis y, z, phi, theta,
+# psi: 1 mm, 1 mm, 2 mrad, 2 mrad, 2 mrad), LQR gains at the default speed.
+DISTURBANCE = np.array([1e-3, 1e-3, 2e-3, 2e-3, 2e-3])
+DT, N_STEPS = 1e-3, 10_000
+N_SAMPLES = 64  # states near trim cycled through by the per-call timings
+
+
+@dataclass(frozen=True)
+class Repeats:
+    derive: int = 3  # cold + cached derivation pairs (fresh processes)
+    c_dynamics: int = 41  # repeats inside the C driver, each of C_CALLS calls per contender
+    c_calls: int = 20_000
+    c_simulate: int = 41
+    py_dynamics: int = 5  # repeats of each Python per-call contender
+    py_loop: int = 3  # repeats of each Python closed-loop contender
+    precision_rounds: int = 5
+    controller_ms: float = 10.0
+
+    @classmethod
+    def quick(cls) -> Repeats:
+        return cls(
+            derive=1,
+            c_dynamics=5,
+            c_calls=5000,
+            c_simulate=3,
+            py_dynamics=2,
+            py_loop=1,
+            precision_rounds=2,
+            controller_ms=2.0,
+        )
+
+
+# ------------------------------------------------------------------------------ machine
+
+
+def _first_line(cmd: list[str]) -> str:
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        return (out.stdout or out.stderr).strip().splitlines()[0]
+    except (OSError, IndexError):
+        return "not installed"
+
+
+def machine() -> dict:
+    import scipy
+    import sympy
+
+    cpu = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        affinity = len(os.sched_getaffinity(0))
+    except AttributeError:
+        affinity = os.cpu_count()
+    return {
+        "cpu": cpu,
+        "logical_cpus": os.cpu_count(),
+        "usable_cpus": affinity,
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "gcc": _first_line(["gcc", "--version"]),
+        "clang": _first_line(["clang", "--version"]),
+        "valgrind": _first_line(["valgrind", "--version"]),
+        "libc": " ".join(platform.libc_ver()),
+        "casadi": ca.__version__,
+        "sympy": sympy.__version__,
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "loadavg_start": os.getloadavg(),
+    }
+
+
+def git_state() -> dict:
+    try:
+        head = run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT).strip()
+        dirty = bool(run(["git", "status", "--porcelain"], cwd=ROOT).strip())
+    except (RuntimeError, OSError):
+        return {"commit": "unknown", "dirty": None}
+    return {"commit": head, "dirty": dirty}
+
+
+# --------------------------------------------------------------------------- derivation
+
+
+def derivation(work: Path, reps: Repeats) -> dict:
+    """Fresh-process derivation + generation + compile: cold (empty caches), then cached
+    (a second fresh process on the same cache folder), in pairs."""
+    cold, cached = [], []
+    for i in range(reps.derive):
+        cache = work / f"derive_cache{i}"
+        env = {**os.environ, "MAGLEVGEN_CACHE": str(cache)}
+        for runs in (cold, cached):
+            log(f"derivation run {i + 1}/{reps.derive} ({'cold' if runs is cold else 'cached'})")
+            out = run(
+                [sys.executable, BENCH / "derive_phases.py", work / f"derive_out{i}"], env=env
+            )
+            runs.append(json.loads(out.strip().splitlines()[-1]))
+    phases = list(cold[0])
+    return {
+        "cold": cold,
+        "cached": cached,
+        "summary": {
+            "cold": {k: summary([r[k] for r in cold]) for k in phases},
+            "cached": {k: summary([r[k] for r in cached]) for k in phases},
+        },
+        "cached_over_cold": paired_ratios([r["total"] for r in cached], [r["total"] for r in cold]),
+    }
+
+
+# ------------------------------------------------------------------------------- set-up
+
+
+@dataclass
+class Setup:
+    carriage: Carriage
+    functions: tuple
+    gen: dict[str, Path]
+    lib: GeneratedLibrary
+    lib_path: Path
+    loop: alt.Loop
+    X: np.ndarray
+    U: np.ndarray
+    runtime_exe: Path
+    runtime_input: Path
+    other_exe: dict[str, Path]  # the same driver built by other compilers (clang)
+    controller_exe: dict[str, Path]
+    controller_input: Path
+    work: Path
+
+
+def prepare(work: Path) -> Setup:
+    log("deriving the default carriage and generating the three builds")
+    carriage = Carriage(load_params(None, []))
+    functions = build_functions(carriage.model).functions
+    gen = {}
+    for precision, params in (("double", "runtime"), ("double", "baked"), ("single", "baked")):
+        out = work / f"gen_{precision}_{params}"
+        write_output(render(carriage, GenerateOptions(precision, params)), out)
+        gen[f"{precision}_{params}"] = out
+    rt = gen["double_runtime"]
+    if not (rt / "maglev_simulate.c").exists():
+        raise SystemExit("bench: the runtime build has no maglev_simulate.c; update maglevgen")
+    lib_path = compile_shared(
+        [rt / "maglev_functions.c", rt / "maglev_simulate.c"], cache_dir=work / "lib"
+    )
+    lib = GeneratedLibrary(lib_path, "double")
+    speed = carriage.params.operation.speed
+    x_trim, f_prop = (a.ravel() for a in lib.function("maglev_trim")(speed, carriage.p))
+    K, _c = lib.function("maglev_lqr_gains")(speed, carriage.p)
+    a_trim = x_trim[alt.AXIS_IDX]
+    x0 = x_trim.copy()
+    x0[alt.AXIS_IDX] += DISTURBANCE
+    loop = alt.Loop(
+        x0=x0,
+        F_prop=float(f_prop[0]),
+        k_pos=K[:, 0].copy(),
+        k_rate=K[:, 1].copy(),
+        a_ref=a_trim,
+        dt=DT,
+        n_steps=N_STEPS,
+        gap_min=carriage.params.track.min_gap,
+    )
+    rng = np.random.default_rng(2024)
+    X = x_trim + rng.normal(
+        scale=[0.5, 2e-3, 2e-3, 0.01, 0.01, 0.01, 2, 0.05, 0.05, 0.05, 0.05, 0.05],
+        size=(N_SAMPLES, 12),
+    )
+    U = np.zeros((N_SAMPLES, carriage.model.u.shape[0]))
+    U[:, 0] = loop.F_prop
+    U += rng.normal(scale=5.0, size=U.shape)
+    log("compiling the C drivers (-O2)")
+    runtime_exe = native.build_runtime_driver(rt, work / "drv_runtime")
+    other_exe = {
+        cc: native.build_runtime_driver(rt, work / f"drv_runtime_{cc}", cc=cc)
+        for cc in ("clang",)
+        if shutil.which(cc)
+    }
+    runtime_input = native.write_runtime_input(
+        work / "runtime_input.txt", carriage.p, loop.as_dict(), X, U
+    )
+    controller_exe = {
+        p: native.build_controller_driver(gen[f"{p}_baked"], work / f"drv_{p}")
+        for p in ("double", "single")
+    }
+    controller_input = native.write_controller_input(work / "controller_input.txt", speed, X)
+    return Setup(
+        carriage,
+        functions,
+        gen,
+        lib,
+        lib_path,
+        loop,
+        X,
+        U,
+        runtime_exe,
+        runtime_input,
+        other_exe,
+        controller_exe,
+        controller_input,
+        work,
+    )
+
+
+# ----------------------------------------------------------------------------- dynamics
+
+
+def _c_generated_dynamics_ns(s: Setup) -> float:
+    """A short C timing of the generated dynamics, to pair with a Python figure."""
+    d = native.time_dynamics(s.runtime_exe, s.runtime_input, 3, 20_000)
+    return float(np.median(d["generated_ns"]))
+
+
+def dynamics(s: Setup, reps: Repeats) -> dict:
+    log("dynamics: C (generated vs hand-written)")
+    c = native.time_dynamics(s.runtime_exe, s.runtime_input, reps.c_dynamics, reps.c_calls)
+    out = {
+        "c": {
+            "calls_per_repeat": c["calls"],
+            "generated_ns": summary(c["generated_ns"]),
+            "reference_ns": summary(c["reference_ns"]),
+            "reference_prepared_ns": summary(c["reference_prepared_ns"]),
+            "generated_over_reference": paired_ratios(c["generated_ns"], c["reference_ns"]),
+            "generated_over_reference_prepared": paired_ratios(
+                c["generated_ns"], c["reference_prepared_ns"]
+            ),
+            "raw": c,
+        },
+        "other_compilers": {},
+    }
+    for cc, exe in s.other_exe.items():
+        log(f"dynamics: C built by {cc}")
+        o = native.time_dynamics(exe, s.runtime_input, reps.c_dynamics, reps.c_calls)
+        out["other_compilers"][cc] = {
+            "generated_ns": summary(o["generated_ns"]),
+            "reference_ns": summary(o["reference_ns"]),
+            "generated_over_reference": paired_ratios(o["generated_ns"], o["reference_ns"]),
+        }
+    log("dynamics: callgrind instruction counts")
+    out["callgrind"] = {
+        which: native.callgrind(s.runtime_exe, s.runtime_input, which, sym, 2000, s.work)
+        for which, sym in (("gen", "maglev_dynamics"), ("ref", "ref_dynamics"))
+    }
+    out["generated_asm"] = native.disassembly_stats(
+        s.work / "drv_runtime" / "maglev_functions.o", "maglev_dynamics"
+    )
+    out["generated_body"] = native.count_math_calls(
+        (s.gen["double_runtime"] / "maglev_functions.c").read_text(),
+        "/* maglev_dynamics:(x[12],u[11],p[75])->(xdot[12]) */",
+    )
+    out["python"] = python_dynamics(s, reps)
+    return out
+
+
+def python_dynamics(s: Setup, reps: Repeats) -> dict:
+    p = s.carriage.p
+    X, U = s.X, s.U
+    n = len(X)
+    contenders = {}
+    dyn = alt.function_named(s.functions, "maglev_dynamics")
+    contenders["casadi.Function (SX), numpy arrays in"] = (
+        lambda i: dyn(X[i % n], U[i % n], p),
+        5_000,
+        0.0,
+    )
+    XD, UD, PD = [ca.DM(x) for x in X], [ca.DM(u) for u in U], ca.DM(p)
+    contenders["casadi.Function (SX), casadi.DM in"] = (
+        lambda i: dyn(XD[i % n], UD[i % n], PD),
+        5_000,
+        0.0,
+    )
+    ext = s.lib.function("maglev_dynamics")
+    contenders["generated C through ctypes (runtime.ffi)"] = (
+        lambda i: ext(X[i % n], U[i % n], p),
+        10_000,
+        0.0,
+    )
+    mf = s.carriage.functions
+    contenders["maglevgen numeric layer (lambdified layers, cse)"] = (
+        lambda i: mf.xdot(X[i % n], U[i % n], p),
+        1_500,
+        0.0,
+    )
+    for cse in (True, False):
+        log(f"dynamics: sympy.lambdify of the composed xdot, cse={cse}")
+        f, build_s = alt.lambdify_xdot(s.carriage, cse)
+        ref = np.asarray(f(X[0], U[0], p), dtype=float).ravel()
+        want = ext(X[0], U[0], p)[0].ravel()
+        if not np.allclose(ref, want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want))):
+            raise RuntimeError(f"lambdify (cse={cse}) disagrees with the generated C")
+        label = f"sympy.lambdify numpy, {'with' if cse else 'without'} cse"
+        contenders[label] = (
+            (lambda i, f=f: f(X[i % n], U[i % n], p)),
+            3_000 if cse else 6,
+            build_s,
+        )
+    out = {}
+    for label, (fn, calls, build_s) in contenders.items():
+        log(f"dynamics: {label}")
+        py, cg = [], []
+        for _ in range(reps.py_dynamics):
+            py.append(time_calls(fn, calls))
+            cg.append(_c_generated_dynamics_ns(s))
+        out[label] = {
+            "calls_per_repeat": calls,
+            "ns": summary(py),
+            "build_s": build_s,
+            "c_generated_ns": summary(cg),
+            "over_generated_c": paired_ratios(py, cg),
+            "raw_ns": py,
+            "raw_c_generated_ns": cg,
+        }
+    return out
+
+
+# -------------------------------------------------------------------------- closed loop
+
+
+def _c_simulate_ns(s: Setup) -> float:
+    d = native.time_simulate(s.runtime_exe, s.runtime_input, 3)
+    return float(np.median(d["generated_ns"]))
+
+
+def _generated_trajectory(s: Setup) -> tuple[np.ndarray, int, int]:
+    """maglev_simulate called once through ctypes: (x rows, last sample, status)."""
+    import ctypes
+
+    d = ctypes.POINTER(ctypes.c_double)
+    lib = ctypes.CDLL(str(s.lib_path))
+    fn = lib.maglev_simulate
+    fn.restype = ctypes.c_longlong
+    fn.argtypes = [
+        d,
+        ctypes.c_double,
+        ctypes.c_longlong,
+        ctypes.c_double,
+        d,
+        d,
+        d,
+        d,
+        ctypes.c_double,
+        d,
+        d,
+        d,
+        ctypes.POINTER(ctypes.c_int),
+    ]
+    lp, n = s.loop, s.loop.n_steps
+    X, U, G = np.zeros((n + 1, 12)), np.zeros((n + 1, 11)), np.zeros((n + 1, 6))
+    arrs = [
+        np.ascontiguousarray(a, dtype=float)
+        for a in (lp.x0, lp.k_pos, lp.k_rate, lp.a_ref, s.carriage.p)
+    ]
+    ptr = [a.ctypes.data_as(d) for a in arrs]
+    status = ctypes.c_int(-1)
+    last = fn(
+        ptr[0],
+        lp.dt,
+        n,
+        lp.F_prop,
+        ptr[1],
+        ptr[2],
+        ptr[3],
+        ptr[4],
+        lp.gap_min,
+        X.ctypes.data_as(d),
+        U.ctypes.data_as(d),
+        G.ctypes.data_as(d),
+        ctypes.byref(status),
+    )
+    return X[: last + 1], int(last), status.value
+
+
+def closed_loop(s: Setup, reps: Repeats) -> dict:
+    log("closed loop: C (maglev_simulate vs hand-written ref_simulate)")
+    c = native.time_simulate(s.runtime_exe, s.runtime_input, reps.c_simulate)
+    X_c, last, status = _generated_trajectory(s)
+    if (last, status) != (s.loop.n_steps, 0):
+        raise RuntimeError(f"maglev_simulate stopped at sample {last} with status {status}")
+    out = {
+        "loop": {
+            k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in s.loop.as_dict().items()
+        },
+        "c": {
+            "generated_ms": summary(np.array(c["generated_ns"]) / 1e6),
+            "reference_ms": summary(np.array(c["reference_ns"]) / 1e6),
+            "generated_over_reference": paired_ratios(c["generated_ns"], c["reference_ns"]),
+            "agreement": c["max_rel_diff"],
+            "status": {"generated": c["generated"], "reference": c["reference"]},
+            "raw": c,
+        },
+        "python": {},
+        "other_compilers": {},
+    }
+    for cc, exe in s.other_exe.items():
+        log(f"closed loop: C built by {cc}")
+        o = native.time_simulate(exe, s.runtime_input, reps.c_simulate)
+        out["other_compilers"][cc] = {
+            "generated_ms": summary(np.array(o["generated_ns"]) / 1e6),
+            "reference_ms": summary(np.array(o["reference_ns"]) / 1e6),
+            "generated_over_reference": paired_ratios(o["generated_ns"], o["reference_ns"]),
+        }
+    log("closed loop: callgrind instruction counts per RK4 step")
+    n = s.loop.n_steps
+    cg = {}
+    for which, sym in (
+        ("simgen", "maglev_simulate"),
+        ("simgen", "maglev_rk4_step"),
+        ("simgen", "maglev_gaps"),
+        ("simref", "ref_simulate"),
+    ):
+        got = native.callgrind(s.runtime_exe, s.runtime_input, which, sym, 1, s.work)
+        if got is not None:
+            cg[sym] = {
+                "instructions_per_step": got["instructions"] / n,
+                "libm_calls_per_step": {k: v / n for k, v in got["libm_calls"].items()},
+            }
+    out["callgrind"] = cg
+    out["generated_asm"] = native.disassembly_stats(
+        s.work / "drv_runtime" / "maglev_functions.o", "maglev_rk4_step"
+    )
+    rhs = alt.closed_loop_function(s.functions)
+    names = {f.name() for f in s.functions}
+    gaps = alt.function_named(s.functions, "maglev_gaps") if "maglev_gaps" in names else None
+    kin = alt.lambdify_kinematics(s.carriage)
+    xdot, _ = alt.lambdify_xdot(s.carriage, cse=True)
+    T = allocation_matrix(s.carriage)
+    p = s.carriage.p
+    stages = 4 * s.loop.n_steps + 1
+    contenders = {
+        "Python RK4 loop over casadi.Function": lambda: (
+            alt.casadi_rk4(rhs, gaps, s.loop, p)[0],
+            stages,
+        ),
+        (
+            f"scipy solve_ivp {alt.IVP_METHOD} (rtol {alt.IVP_RTOL:g}, atol {alt.IVP_ATOL:g}) "
+            "on the CSE-lambdified model"
+        ): lambda: alt.ivp_closed_loop(xdot, kin, T, s.loop, p),
+    }
+    for label, fn in contenders.items():
+        py, cg = [], []
+        for i in range(reps.py_loop):
+            log(f"closed loop: {label} ({i + 1}/{reps.py_loop})")
+            t0 = time.perf_counter_ns()
+            X_py, nfev = fn()
+            py.append(time.perf_counter_ns() - t0)
+            cg.append(_c_simulate_ns(s))
+        dev = np.abs(X_py - X_c)
+        out["python"][label] = {
+            "ms": summary(np.array(py) / 1e6),
+            "c_generated_ms": summary(np.array(cg) / 1e6),
+            "over_generated_c": paired_ratios(py, cg),
+            "rhs_evaluations": nfev,
+            "max_deviation_from_generated_c": {
+                "position_m": float(dev[:, 1:3].max()),
+                "attitude_rad": float(dev[:, 3:6].max()),
+                "all_states_relative": float(
+                    (dev / np.maximum(np.abs(X_c).max(axis=0), 1e-300)).max()
+                ),
+            },
+        }
+    return out
+
+
+# ------------------------------------------------------------------------------ precision
+
+
+def precision(s: Setup, reps: Repeats) -> dict:
+    """Controller path, float32 vs float64 (baked builds), alternating runs of the drivers."""
+    rounds: dict[str, list[dict]] = {"single": [], "double": []}
+    for r in range(reps.precision_rounds):
+        order = ("single", "double") if r % 2 == 0 else ("double", "single")
+        log(f"controller path float32 vs float64, round {r + 1}/{reps.precision_rounds}")
+        for prec in order:
+            rounds[prec].append(
+                native.time_controller(
+                    s.controller_exe[prec], s.controller_input, 3, reps.controller_ms
+                )
+            )
+    kinds = [k for k in rounds["single"][0] if k.endswith("_ns")]
+    out = {
+        "kinds": {},
+        "newton": {
+            prec: native.newton_settings(
+                (s.gen[f"{prec}_baked"] / "maglev_functions.c").read_text()
+            )
+            for prec in ("single", "double")
+        },
+    }
+    for k in kinds:
+        single = [float(np.median(r[k])) for r in rounds["single"]]
+        double = [float(np.median(r[k])) for r in rounds["double"]]
+        out["kinds"][k.removesuffix("_ns")] = {
+            "single_ns": summary(single),
+            "double_ns": summary(double),
+            "single_over_double": paired_ratios(single, double),
+        }
+    out["workspace_reals"] = {p: rounds[p][0]["sz_w"] for p in rounds}
+    return out
+
+
+# ---------------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md")
+    ap.add_argument("--json", type=Path, default=BENCH / "results.json")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="few repeats: a smoke run of the suite, not figures to publish",
+    )
+    ap.add_argument("--work", type=Path, help="keep the build files in this folder")
+    args = ap.parse_args(argv)
+    reps = Repeats.quick() if args.quick else Repeats()
+    t0 = time.perf_counter()
+    command = os.environ.get("MAGLEV_BENCH_COMMAND") or shlex.join(
+        ["python", "bench/run.py", *(argv if argv is not None else sys.argv[1:])]
+    )
+    results: dict = {
+        "meta": {
+            "date_utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "command": command,
+            "quick": args.quick,
+            "git": git_state(),
+            "repeats": reps.__dict__,
+        },
+        "machine": machine(),
+    }
+    with tempfile.TemporaryDirectory(prefix="maglev_bench_") as tmp:
+        work = args.work or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        results["derivation"] = derivation(work, reps)
+        s = prepare(work)
+        results["dynamics"] = dynamics(s, reps)
+        results["closed_loop"] = closed_loop(s, reps)
+        log("footprint (-Os, single precision, baked parameters)")
+        results["footprint"] = native.footprint(s.gen["single_baked"], work / "size_single")
+        results["footprint"]["reference"] = native.reference_footprint(work / "size_ref")
+        results["footprint"]["generated_runtime_double_dynamics"] = (
+            native.footprint_runtime_dynamics(s.gen["double_runtime"], work / "size_rt")
+        )
+        results["precision"] = precision(s, reps)
+    results["machine"]["loadavg_end"] = os.getloadavg()
+    results["meta"]["wall_s"] = time.perf_counter() - t0
+    results["targets"] = writeup.targets(results)
+    args.json.write_text(json.dumps(results, indent=1, default=float) + "\n")
+    args.out.write_text(writeup.markdown(results))
+    log(f"wrote {args.out} and {args.json} in {results['meta']['wall_s']:.0f} s")
+    for t in results["targets"]:
+        log(f"target {t['name']}: {t['measured']} ({'met' if t['met'] else 'MISSED'})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
