@@ -15,12 +15,16 @@ import os
 import shutil
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from . import __version__
-from .cache import toolchain_fingerprint
+from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
 from .output import check_writable, write_output
-from .params import LoadedParams
+
+if TYPE_CHECKING:
+    from .params import LoadedParams
 
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"
@@ -41,10 +45,12 @@ def _compiler_identity() -> str:
     return f"{name}={shutil.which(name)}"
 
 
-def build_key(loaded: LoadedParams, opts: BuildOptions, tex: str | None) -> str:
-    """Everything a build's output depends on, hashed."""
+def build_key(params_sha256: str, overrides: tuple[str, ...], opts: BuildOptions,
+              tex: str | None) -> str:
+    """Everything a build's output depends on, hashed (the parameters by their text's digest:
+    the same text always validates the same way, and the validator is part of the toolchain)."""
     h = hashlib.sha256()
-    h.update(json.dumps({"params_sha256": loaded.sha256, "overrides": list(loaded.overrides),
+    h.update(json.dumps({"params_sha256": params_sha256, "overrides": list(overrides),
                          "options": opts.as_dict(), "compiler": _compiler_identity(),
                          "tex": tex}, sort_keys=True).encode())
     h.update(toolchain_fingerprint().encode())
@@ -61,6 +67,29 @@ def up_to_date(out_dir: Path, key: str) -> bool:
                    for name, digest in stamp["files"].items())
     except (OSError, ValueError, KeyError, AttributeError, TypeError):
         return False
+
+
+def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
+                  opts: BuildOptions) -> BuildResult | None:
+    """The result of an up-to-date folder, checked from the parameter text alone (no schema,
+    no derivation imported); None when anything needs building or cannot be read."""
+    try:
+        if params_path is None:
+            text = resources.files("maglevgen").joinpath(DEFAULT_PARAMS_NAME).read_text("utf-8")
+        else:
+            text = Path(params_path).read_text(encoding="utf-8")
+        out_dir = Path(out_dir).resolve()
+    except (OSError, UnicodeDecodeError):
+        return None
+    tex = _find_tex() if opts.pdf else None
+    key = build_key(params_digest(text, overrides), tuple(overrides), opts, tex)
+    return _unchanged(out_dir) if up_to_date(out_dir, key) else None
+
+
+def _unchanged(out_dir: Path) -> BuildResult:
+    summary = (out_dir / SUMMARY).read_text()
+    files = tuple(json.loads((out_dir / STAMP).read_text())["files"])
+    return BuildResult(out_dir, False, summary, files)
 
 
 @dataclass(frozen=True)
@@ -80,11 +109,9 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     """Bring ``out_dir`` up to date for the parameters ``loaded``."""
     out_dir = check_writable(out_dir)
     tex = _find_tex() if opts.pdf else None
-    key = build_key(loaded, opts, tex)
+    key = build_key(loaded.sha256, loaded.overrides, opts, tex)
     if up_to_date(out_dir, key):
-        summary = (out_dir / SUMMARY).read_text()
-        files = tuple(json.loads((out_dir / STAMP).read_text())["files"])
-        return BuildResult(out_dir, False, summary, files)
+        return _unchanged(out_dir)
 
     from .cache import STORE
     from .carriage import Carriage

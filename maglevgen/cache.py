@@ -31,6 +31,17 @@ ALL_LIBS = ("casadi", "sympy", "numpy", "scipy", "control", "matplotlib", "jinja
             "cloudpickle", "mpmath")
 
 
+DEFAULT_PARAMS_NAME = "carriage_llnl.toml"  # the default carriage, inside the maglevgen package
+
+
+def params_digest(text: str, overrides: Iterable[str]) -> str:
+    """sha256 of a parameter file's text and the --set overrides applied to it."""
+    digest = hashlib.sha256(text.encode("utf-8"))
+    for item in overrides:
+        digest.update(b"\0" + item.encode("utf-8"))
+    return digest.hexdigest()
+
+
 def default_cache_dir() -> Path:
     base = os.environ.get("MAGLEVGEN_CACHE") or os.environ.get("XDG_CACHE_HOME")
     return Path(base) / "maglevgen" if base else Path.home() / ".cache" / "maglevgen"

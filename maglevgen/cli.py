@@ -12,12 +12,12 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import numpy as np
-
 from . import __version__
 from .derive import conventions as cv
 from .errors import MaglevError
-from .params import annotate_with_units, default_params_text, load_params, schema_rows
+
+# The parameter schema (pydantic, numpy) is imported by the commands that need it, so that
+# `maglevgen build` on an up-to-date folder answers without loading it.
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -29,6 +29,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def _carriage(args: argparse.Namespace):
     from .carriage import Carriage
+    from .params import load_params
 
     return Carriage(load_params(args.params, args.overrides))
 
@@ -37,6 +38,8 @@ def _carriage(args: argparse.Namespace):
 
 
 def cmd_params_show(args: argparse.Namespace) -> int:
+    from .params import annotate_with_units, default_params_text, load_params
+
     if args.params or args.overrides:
         load_params(args.params, args.overrides)  # validate what is shown
     raw = (default_params_text().encode("utf-8") if not args.params
@@ -50,6 +53,8 @@ def cmd_params_show(args: argparse.Namespace) -> int:
 
 
 def cmd_params_schema(args: argparse.Namespace) -> int:
+    from .params import schema_rows
+
     rows = schema_rows()
     width = max(len(r[0]) for r in rows)
     for key, unit, desc, paper in rows:
@@ -250,12 +255,17 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from . import progress
-    from .build import BuildOptions, run_build
+    from .build import BuildOptions, cached_result
 
     opts = BuildOptions(t_end=args.t_end, dt=args.dt, pdf=not args.no_pdf)
-    loaded = load_params(args.params, args.overrides)
-    res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
+    res = cached_result(args.params, args.overrides, Path(args.out), opts)
+    if res is None:  # not up to date: validate the parameters and build
+        from . import progress
+        from .build import run_build
+        from .params import load_params
+
+        loaded = load_params(args.params, args.overrides)
+        res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
     if not res.rebuilt:
         print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")
         return 0
@@ -344,6 +354,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _json_default(o: object) -> object:
+    import numpy as np
+
     if isinstance(o, np.generic):
         return o.item()
     raise TypeError(type(o))

@@ -8,7 +8,6 @@ value the paper does not give written beside it).
 
 from __future__ import annotations
 
-import hashlib
 import math
 import re
 import sys
@@ -21,6 +20,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from .cache import DEFAULT_PARAMS_NAME, params_digest
 from .errors import InputError
 
 if sys.version_info >= (3, 11):
@@ -28,7 +28,6 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-DEFAULT_PARAMS_NAME = "carriage_llnl.toml"
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
@@ -269,10 +268,7 @@ def load_params(path: str | Path | None = None, overrides: Sequence[str] = ()) -
         name, value = parse_override(item)
         _set_dotted(data, name, value)
     params = validate(data, origin)
-    digest = hashlib.sha256(text.encode("utf-8"))
-    for item in overrides:
-        digest.update(b"\0" + item.encode("utf-8"))
-    return LoadedParams(params, origin, digest.hexdigest(), tuple(overrides))
+    return LoadedParams(params, origin, params_digest(text, overrides), tuple(overrides))
 
 
 # --------------------------------------------------------------------------------------------

@@ -269,10 +269,12 @@ def test_interrupted_build_leaves_the_previous_output(good: Path, monkeypatch) -
 
 def test_up_to_date_check_is_fast_in_a_fresh_process(good: Path) -> None:
     """Not a timing assert (bench/ measures it): the fresh process must not import the
-    derivation stack (sympy, casadi) to decide that nothing needs doing."""
+    derivation stack (sympy, casadi), nor even the parameter schema (pydantic, numpy), to
+    decide that nothing needs doing."""
     code = ("import sys, maglevgen.cli as c; rc = c.main(['build', '--out', sys.argv[1], "
             "'--t-end', '1', '--no-pdf']); heavy = [m for m in ('sympy', 'casadi', "
-            "'matplotlib', 'control') if m in sys.modules]; print(rc, heavy)")
+            "'matplotlib', 'control', 'pydantic', 'numpy') if m in sys.modules]; "
+            "print(rc, heavy)")
     proc = subprocess.run([sys.executable, "-c", code, str(good)], capture_output=True,
                           text=True, check=True)
     assert proc.stdout.splitlines()[-1] == "0 []", proc.stdout + proc.stderr
