@@ -224,6 +224,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
           f"{run.op.f_prop:.4g} N")
     for traj in run.trajectories:
         print(f"  {traj.controller:<8} {traj.status}{': ' + traj.event if traj.event else ''}")
+    if args.check:
+        from .simulate import reference_check
+
+        progress.step("checking against DOP853 (rtol 1e-12) on the lambdified model")
+        for traj in run.trajectories:
+            worst = max(reference_check(carriage.functions, carriage.p, traj).items(),
+                        key=lambda kv: kv[1]["relative_to_peak"])
+            print(f"  check {traj.controller:<8} largest deviation from the adaptive reference: "
+                  f"{worst[0]} {worst[1]['max_abs']:.3g} ({worst[1]['relative_to_peak']:.2g} "
+                  "of its peak)")
     print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (metrics.md: the tables)")
     return 0
 
@@ -328,6 +338,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
+    sim.add_argument("--check", action="store_true",
+                     help="also integrate each run with scipy's adaptive DOP853 on the SymPy "
+                          "model and report the largest deviation (slow: seconds per run)")
     sim.set_defaults(func=cmd_simulate)
 
     bld = sub.add_parser("build", help="the main job: C, library, simulations and report, "

@@ -263,6 +263,18 @@ def reference_trajectory(functions, p: np.ndarray, op: OperatingPoint, controlle
     return sol.y.T
 
 
+def reference_check(functions, p: np.ndarray, traj: Trajectory) -> dict:
+    """The C run against DOP853 on the lambdified model at the same samples: the largest
+    deviation of each controlled axis, absolute and relative to the axis' peak excursion."""
+    ref = reference_trajectory(functions, p, traj.op, traj.controller, traj.t,
+                               traj.disturbance)
+    idx = list(AXIS_STATES)
+    dev = np.abs(traj.x[:, idx] - ref[:, idx]).max(axis=0)
+    peak = np.abs(ref[:, idx] - traj.op.a_trim).max(axis=0)
+    return {axis: {"max_abs": float(d), "relative_to_peak": float(d / pk) if pk > 0 else 0.0}
+            for axis, d, pk in zip(cv.AXES, dev, peak, strict=True)}
+
+
 # ------------------------------------------------------------------------------- metrics
 
 # Settled: within 5 % of the peak deviation for the rest of the run. (Not 2 %: under the steady

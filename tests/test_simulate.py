@@ -302,3 +302,15 @@ def test_cli_bad_step_exits_2_with_one_line(tmp_path: Path, sim_lib) -> None:
     assert proc.stderr.strip().splitlines()[-1].startswith("maglevgen: error: --dt 0.2 s "
                                                            "exceeds the RK4 stability limit")
     assert not out.exists()
+
+
+def test_reference_check_reports_small_deviation_and_catches_a_wrong_run(sim_lib, carriage,
+                                                                         op) -> None:
+    from maglevgen.simulate import reference_check
+
+    traj = _run(sim_lib, carriage, op, "lqr", 0.5)
+    ok = reference_check(carriage.functions, carriage.p, traj)
+    assert max(v["relative_to_peak"] for v in ok.values()) < 1e-4
+    traj.x[:, AXIS_STATES[AXIS["pitch"]]] += 1e-4  # a run that drifted off in pitch
+    bad = reference_check(carriage.functions, carriage.p, traj)
+    assert bad["pitch"]["max_abs"] == pytest.approx(1e-4, rel=0.05)
