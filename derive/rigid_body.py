@@ -59,10 +59,10 @@ def rotation_body_to_inertial(phi: sp.Expr, theta: sp.Expr, psi: sp.Expr) -> sp.
 
 
 def euler_rates(phi: sp.Expr, theta: sp.Expr, omega: sp.Matrix) -> sp.Matrix:
-    """Z-Y-X Euler angle rates from body rates (p, q, r); singular at theta = +-90 deg."""
+    """Z-Y-X Euler angle rates from body rates (p, q, r); singular at theta = +-90 deg.
+
+    tan(theta) is written sin(theta)/cos(theta): the model needs both anyway, and generated
+    code then calls no tan (one library call fewer per evaluation)."""
     p, q, r = omega
-    return sp.Matrix([
-        p + (q * sp.sin(phi) + r * sp.cos(phi)) * sp.tan(theta),
-        q * sp.cos(phi) - r * sp.sin(phi),
-        (q * sp.sin(phi) + r * sp.cos(phi)) / sp.cos(theta),
-    ])
+    s = (q * sp.sin(phi) + r * sp.cos(phi)) / sp.cos(theta)
+    return sp.Matrix([p + s * sp.sin(theta), q * sp.cos(phi) - r * sp.sin(phi), s])

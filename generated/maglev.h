@@ -160,7 +160,7 @@ int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_JACOBIANS_SZ_ARG 2
 #define MAGLEV_JACOBIANS_SZ_RES 2
 #define MAGLEV_JACOBIANS_SZ_IW 0
-#define MAGLEV_JACOBIANS_SZ_W 259
+#define MAGLEV_JACOBIANS_SZ_W 258
 int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -240,7 +240,7 @@ int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_DAMPING_CONTROL_SZ_ARG 2
 #define MAGLEV_DAMPING_CONTROL_SZ_RES 1
 #define MAGLEV_DAMPING_CONTROL_SZ_IW 0
-#define MAGLEV_DAMPING_CONTROL_SZ_W 12
+#define MAGLEV_DAMPING_CONTROL_SZ_W 11
 int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -270,7 +270,7 @@ int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_RK4_STEP_SZ_ARG 6
 #define MAGLEV_RK4_STEP_SZ_RES 2
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 166
+#define MAGLEV_RK4_STEP_SZ_W 165
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
