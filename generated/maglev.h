@@ -257,6 +257,17 @@ int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
     int mem);
 
 /*
+ * maglev_allocation_matrix: T (arrays' forces x 5): the minimum-norm allocation as a matrix
+ *   out T[10x5]  minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix
+ */
+#define MAGLEV_ALLOCATION_MATRIX_SZ_ARG 0
+#define MAGLEV_ALLOCATION_MATRIX_SZ_RES 1
+#define MAGLEV_ALLOCATION_MATRIX_SZ_IW 0
+#define MAGLEV_ALLOCATION_MATRIX_SZ_W 4
+int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
  * maglev_rk4_step: one RK4 step of the closed loop; the axis feedback is evaluated at every stage
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   in  dt[1x1]  [s] step
@@ -272,6 +283,24 @@ int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_RK4_STEP_SZ_IW 0
 #define MAGLEV_RK4_STEP_SZ_W 165
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
+ * maglev_closed_loop: xdot and u of the closed loop (the right-hand side that maglev_rk4_step integrates), the array forces being T u_gen with T an input
+ *   in  x[12x1]  state, MAGLEV_X_* order
+ *   in  F_prop[1x1]  [N] propulsion force
+ *   in  k_pos[5x1]  per axis position gains
+ *   in  k_rate[5x1]  per axis rate gains
+ *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
+ *   in  T[10x5]  minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix
+ *   out xdot[12x1]  state derivative
+ *   out u[11x1]  inputs, MAGLEV_U_* order
+ */
+#define MAGLEV_CLOSED_LOOP_SZ_ARG 6
+#define MAGLEV_CLOSED_LOOP_SZ_RES 2
+#define MAGLEV_CLOSED_LOOP_SZ_IW 0
+#define MAGLEV_CLOSED_LOOP_SZ_W 75
+int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
 /*

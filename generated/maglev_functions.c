@@ -47,7 +47,9 @@ extern "C" {
 #define casadi_f16 CASADI_PREFIX(f16)
 #define casadi_f17 CASADI_PREFIX(f17)
 #define casadi_f18 CASADI_PREFIX(f18)
+#define casadi_f19 CASADI_PREFIX(f19)
 #define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f20 CASADI_PREFIX(f20)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -73,6 +75,7 @@ extern "C" {
 #define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s11 CASADI_PREFIX(s11)
 #define casadi_s12 CASADI_PREFIX(s12)
+#define casadi_s13 CASADI_PREFIX(s13)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -395,7 +398,8 @@ static const casadi_int casadi_s8[3] = {1, 1, 1};
 static const casadi_int casadi_s9[3] = {5, 1, 1};
 static const casadi_int casadi_s10[3] = {5, 2, 1};
 static const casadi_int casadi_s11[3] = {10, 1, 1};
-static const casadi_int casadi_s12[3] = {6, 1, 1};
+static const casadi_int casadi_s12[3] = {10, 5, 1};
+static const casadi_int casadi_s13[3] = {6, 1, 1};
 
 static const casadi_real casadi_c0[75] = 
   {9.3000000000000007e+00, 6.5000000000000002e-01, 7.9399999999999998e-02, 3.5799999999999998e-01, 3.7600000000000000e-01, 0., -4.0000000000000001e-03, 0.,
@@ -13008,8 +13012,146 @@ CASADI_SYMBOL_EXPORT int maglev_allocate_work_bytes(casadi_int *sz_arg, casadi_i
   return 0;
 }
 
-/* maglev_rk4_step:(x[12],dt,F_prop,k_pos[5],k_rate[5],a_ref[5])->(x_next[12],u[11]) */
+/* maglev_allocation_matrix:()->(T[10x5]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  (void)arg; (void)iw; (void)w; (void)mem;
+  a0=2.4999999999999994e-01;
+  if (res[0]!=0) res[0][0]=a0;
+  a1=-3.3055555555555832e-01;
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a0;
+  a2=3.3055555555555832e-01;
+  if (res[0]!=0) res[0][3]=a2;
+  a3=0.;
+  if (res[0]!=0) res[0][4]=a3;
+  if (res[0]!=0) res[0][5]=a0;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a0;
+  if (res[0]!=0) res[0][8]=a2;
+  if (res[0]!=0) res[0][9]=a3;
+  if (res[0]!=0) res[0][10]=a3;
+  a2=1.6666666666666666e-01;
+  if (res[0]!=0) res[0][11]=a2;
+  if (res[0]!=0) res[0][12]=a3;
+  if (res[0]!=0) res[0][13]=a2;
+  if (res[0]!=0) res[0][14]=a2;
+  if (res[0]!=0) res[0][15]=a3;
+  if (res[0]!=0) res[0][16]=a2;
+  if (res[0]!=0) res[0][17]=a3;
+  if (res[0]!=0) res[0][18]=a2;
+  if (res[0]!=0) res[0][19]=a2;
+  if (res[0]!=0) res[0][20]=a3;
+  a2=2.7777777777777781e+00;
+  if (res[0]!=0) res[0][21]=a2;
+  if (res[0]!=0) res[0][22]=a3;
+  a0=-2.7777777777777781e+00;
+  if (res[0]!=0) res[0][23]=a0;
+  if (res[0]!=0) res[0][24]=a3;
+  if (res[0]!=0) res[0][25]=a3;
+  if (res[0]!=0) res[0][26]=a2;
+  if (res[0]!=0) res[0][27]=a3;
+  if (res[0]!=0) res[0][28]=a0;
+  if (res[0]!=0) res[0][29]=a3;
+  if (res[0]!=0) res[0][30]=a3;
+  a0=-6.4102564102564097e-01;
+  if (res[0]!=0) res[0][31]=a0;
+  if (res[0]!=0) res[0][32]=a3;
+  if (res[0]!=0) res[0][33]=a0;
+  if (res[0]!=0) res[0][34]=a0;
+  if (res[0]!=0) res[0][35]=a3;
+  a0=6.4102564102564097e-01;
+  if (res[0]!=0) res[0][36]=a0;
+  if (res[0]!=0) res[0][37]=a3;
+  if (res[0]!=0) res[0][38]=a0;
+  if (res[0]!=0) res[0][39]=a0;
+  a0=9.6153846153846145e-01;
+  if (res[0]!=0) res[0][40]=a0;
+  if (res[0]!=0) res[0][41]=a3;
+  if (res[0]!=0) res[0][42]=a0;
+  if (res[0]!=0) res[0][43]=a3;
+  if (res[0]!=0) res[0][44]=a3;
+  a0=-9.6153846153846145e-01;
+  if (res[0]!=0) res[0][45]=a0;
+  if (res[0]!=0) res[0][46]=a3;
+  if (res[0]!=0) res[0][47]=a0;
+  if (res[0]!=0) res[0][48]=a3;
+  if (res[0]!=0) res[0][49]=a3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f17(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int maglev_allocation_matrix_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_allocation_matrix_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_allocation_matrix_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void maglev_allocation_matrix_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_allocation_matrix_n_in(void) { return 0;}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_allocation_matrix_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real maglev_allocation_matrix_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_allocation_matrix_name_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_allocation_matrix_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "T";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_allocation_matrix_sparsity_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_allocation_matrix_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s12;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int maglev_allocation_matrix_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 0;
+  if (sz_res!=0) *sz_res = 1;
+  if (sz_iw!=0) *sz_iw = 0;
+  if (sz_w!=0) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_allocation_matrix_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 0*sizeof(const casadi_real*);
+  if (sz_res!=0) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w!=0) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* maglev_rk4_step:(x[12],dt,F_prop,k_pos[5],k_rate[5],a_ref[5])->(x_next[12],u[11]) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -16846,7 +16988,7 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f17(arg, res, iw, w, mem);
+  return casadi_f18(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_rk4_step_checkout(void) {
@@ -16929,8 +17071,1157 @@ CASADI_SYMBOL_EXPORT int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_i
   return 0;
 }
 
+/* maglev_closed_loop:(x[12],F_prop,k_pos[5],k_rate[5],a_ref[5],T[10x5])->(xdot[12],u[11]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69, a70, a71;
+  casadi_real a72, a73, a74;
+  (void)iw; (void)w; (void)mem;
+  a00=arg[0]? arg[0][7] : 0;
+  a01=arg[0]? arg[0][5] : 0;
+  a02=cos(a01);
+  a03=arg[0]? arg[0][3] : 0;
+  a04=sin(a03);
+  a05=(a02*a04);
+  a06=arg[0]? arg[0][4] : 0;
+  a07=sin(a06);
+  a05=(a05*a07);
+  a08=cos(a03);
+  a09=sin(a01);
+  a10=(a08*a09);
+  a05=(a05-a10);
+  a05=(a00*a05);
+  a10=arg[0]? arg[0][8] : 0;
+  a11=(a04*a09);
+  a12=(a08*a02);
+  a12=(a12*a07);
+  a11=(a11+a12);
+  a11=(a10*a11);
+  a05=(a05+a11);
+  a11=arg[0]? arg[0][6] : 0;
+  a12=(a11*a02);
+  a13=cos(a06);
+  a12=(a12*a13);
+  a05=(a05+a12);
+  if (res[0]!=0) res[0][0]=a05;
+  a05=(a08*a02);
+  a12=(a04*a09);
+  a12=(a12*a07);
+  a05=(a05+a12);
+  a05=(a00*a05);
+  a12=(a08*a09);
+  a12=(a12*a07);
+  a02=(a02*a04);
+  a12=(a12-a02);
+  a12=(a10*a12);
+  a05=(a05+a12);
+  a12=(a11*a13);
+  a12=(a12*a09);
+  a05=(a05+a12);
+  if (res[0]!=0) res[0][1]=a05;
+  a05=(a00*a13);
+  a05=(a05*a04);
+  a12=(a11*a07);
+  a05=(a05-a12);
+  a12=(a10*a08);
+  a12=(a12*a13);
+  a05=(a05+a12);
+  if (res[0]!=0) res[0][2]=a05;
+  a05=arg[0]? arg[0][9] : 0;
+  a12=arg[0]? arg[0][10] : 0;
+  a09=(a12*a04);
+  a02=arg[0]? arg[0][11] : 0;
+  a14=(a02*a08);
+  a09=(a09+a14);
+  a14=(a09/a13);
+  a14=(a14*a07);
+  a14=(a05+a14);
+  if (res[0]!=0) res[0][3]=a14;
+  a08=(a12*a08);
+  a04=(a02*a04);
+  a08=(a08-a04);
+  if (res[0]!=0) res[0][4]=a08;
+  a09=(a09/a13);
+  if (res[0]!=0) res[0][5]=a09;
+  a09=7.0710678118654746e-01;
+  a13=4.9999999999999989e-01;
+  a08=2.4865182915968206e-05;
+  a04=sin(a03);
+  a14=sin(a01);
+  a07=(a04*a14);
+  a15=cos(a03);
+  a16=cos(a01);
+  a17=(a15*a16);
+  a18=sin(a06);
+  a17=(a17*a18);
+  a07=(a07+a17);
+  a17=8.9999999999999997e-02;
+  a19=(a17*a05);
+  a19=(a10+a19);
+  a20=2.6000000000000001e-01;
+  a21=(a20*a12);
+  a19=(a19-a21);
+  a19=(a07*a19);
+  a04=(a16*a04);
+  a04=(a04*a18);
+  a15=(a15*a14);
+  a04=(a04-a15);
+  a15=(a20*a02);
+  a15=(a00+a15);
+  a14=-1.1899999999999999e-01;
+  a18=(a14*a05);
+  a15=(a15-a18);
+  a15=(a04*a15);
+  a19=(a19+a15);
+  a15=(a14*a12);
+  a15=(a11+a15);
+  a18=(a17*a02);
+  a15=(a15-a18);
+  a15=(a15*a16);
+  a18=cos(a06);
+  a15=(a15*a18);
+  a19=(a19+a15);
+  a15=casadi_sq(a19);
+  a21=(a08*a15);
+  a22=2.2500000000000001e-06;
+  a23=2.6687410300545621e-08;
+  a15=(a23*a15);
+  a15=(a22+a15);
+  a21=(a21/a15);
+  a21=(a13*a21);
+  a24=-1.2566370614359172e+02;
+  a25=2.9999999999999999e-02;
+  a26=arg[0]? arg[0][1] : 0;
+  a27=-1.;
+  a28=cos(a03);
+  a29=cos(a01);
+  a30=(a28*a29);
+  a30=(a27+a30);
+  a31=sin(a03);
+  a32=sin(a01);
+  a33=(a31*a32);
+  a34=sin(a06);
+  a33=(a33*a34);
+  a30=(a30+a33);
+  a33=(a17*a30);
+  a33=(a26+a33);
+  a35=(a28*a32);
+  a35=(a35*a34);
+  a29=(a29*a31);
+  a35=(a35-a29);
+  a29=(a14*a35);
+  a33=(a33+a29);
+  a29=cos(a06);
+  a36=(a20*a29);
+  a36=(a36*a32);
+  a33=(a33+a36);
+  a33=(a09*a33);
+  a33=(a25+a33);
+  a36=-7.0710678118654746e-01;
+  a37=arg[0]? arg[0][2] : 0;
+  a28=(a28*a29);
+  a27=(a27+a28);
+  a28=(a14*a27);
+  a28=(a37+a28);
+  a38=(a20*a34);
+  a28=(a28-a38);
+  a38=(a17*a29);
+  a38=(a38*a31);
+  a28=(a28+a38);
+  a28=(a36*a28);
+  a33=(a33+a28);
+  a33=(a24*a33);
+  a33=exp(a33);
+  a21=(a21*a33);
+  a28=(a09*a21);
+  a38=-8.9999999999999997e-02;
+  a39=(a38*a05);
+  a39=(a10+a39);
+  a40=(a20*a12);
+  a39=(a39-a40);
+  a39=(a07*a39);
+  a40=(a20*a02);
+  a40=(a00+a40);
+  a41=(a14*a05);
+  a40=(a40-a41);
+  a40=(a04*a40);
+  a39=(a39+a40);
+  a40=(a14*a12);
+  a40=(a11+a40);
+  a41=(a38*a02);
+  a40=(a40-a41);
+  a40=(a40*a16);
+  a40=(a40*a18);
+  a39=(a39+a40);
+  a40=casadi_sq(a39);
+  a41=(a08*a40);
+  a40=(a23*a40);
+  a40=(a22+a40);
+  a41=(a41/a40);
+  a41=(a13*a41);
+  a42=(a38*a30);
+  a42=(a26+a42);
+  a43=(a14*a35);
+  a42=(a42+a43);
+  a43=(a20*a29);
+  a43=(a43*a32);
+  a42=(a42+a43);
+  a42=(a36*a42);
+  a42=(a25+a42);
+  a43=(a14*a27);
+  a43=(a37+a43);
+  a44=(a20*a34);
+  a43=(a43-a44);
+  a44=(a38*a29);
+  a44=(a44*a31);
+  a43=(a43+a44);
+  a43=(a36*a43);
+  a42=(a42+a43);
+  a42=(a24*a42);
+  a42=exp(a42);
+  a41=(a41*a42);
+  a43=(a36*a41);
+  a28=(a28+a43);
+  a43=(a17*a05);
+  a43=(a10+a43);
+  a44=-2.6000000000000001e-01;
+  a45=(a44*a12);
+  a43=(a43-a45);
+  a43=(a07*a43);
+  a45=(a44*a02);
+  a45=(a00+a45);
+  a46=(a14*a05);
+  a45=(a45-a46);
+  a45=(a04*a45);
+  a43=(a43+a45);
+  a45=(a14*a12);
+  a45=(a11+a45);
+  a46=(a17*a02);
+  a45=(a45-a46);
+  a45=(a45*a16);
+  a45=(a45*a18);
+  a43=(a43+a45);
+  a45=casadi_sq(a43);
+  a46=(a08*a45);
+  a45=(a23*a45);
+  a45=(a22+a45);
+  a46=(a46/a45);
+  a46=(a13*a46);
+  a47=(a17*a30);
+  a47=(a26+a47);
+  a48=(a14*a35);
+  a47=(a47+a48);
+  a48=(a44*a29);
+  a48=(a48*a32);
+  a47=(a47+a48);
+  a47=(a09*a47);
+  a47=(a25+a47);
+  a48=(a14*a27);
+  a48=(a37+a48);
+  a49=(a44*a34);
+  a48=(a48-a49);
+  a49=(a17*a29);
+  a49=(a49*a31);
+  a48=(a48+a49);
+  a48=(a36*a48);
+  a47=(a47+a48);
+  a47=(a24*a47);
+  a47=exp(a47);
+  a46=(a46*a47);
+  a48=(a09*a46);
+  a28=(a28+a48);
+  a48=(a38*a05);
+  a48=(a10+a48);
+  a49=(a44*a12);
+  a48=(a48-a49);
+  a48=(a07*a48);
+  a49=(a44*a02);
+  a49=(a00+a49);
+  a50=(a14*a05);
+  a49=(a49-a50);
+  a49=(a04*a49);
+  a48=(a48+a49);
+  a49=(a14*a12);
+  a49=(a11+a49);
+  a50=(a38*a02);
+  a49=(a49-a50);
+  a49=(a49*a16);
+  a49=(a49*a18);
+  a48=(a48+a49);
+  a49=casadi_sq(a48);
+  a50=(a08*a49);
+  a49=(a23*a49);
+  a49=(a22+a49);
+  a50=(a50/a49);
+  a50=(a13*a50);
+  a30=(a38*a30);
+  a30=(a26+a30);
+  a35=(a14*a35);
+  a30=(a30+a35);
+  a35=(a44*a29);
+  a35=(a35*a32);
+  a30=(a30+a35);
+  a30=(a36*a30);
+  a25=(a25+a30);
+  a30=(a14*a27);
+  a30=(a37+a30);
+  a35=(a44*a34);
+  a30=(a30-a35);
+  a29=(a38*a29);
+  a29=(a29*a31);
+  a30=(a30+a29);
+  a30=(a36*a30);
+  a25=(a25+a30);
+  a25=(a24*a25);
+  a25=exp(a25);
+  a50=(a50*a25);
+  a30=(a36*a50);
+  a28=(a28+a30);
+  a30=cos(a06);
+  a29=(a28*a30);
+  a31=sin(a01);
+  a29=(a29*a31);
+  a35=(a36*a21);
+  a32=(a36*a41);
+  a35=(a35+a32);
+  a32=(a20*a12);
+  a32=(a10-a32);
+  a32=(a07*a32);
+  a51=(a20*a02);
+  a51=(a00+a51);
+  a52=-2.9999999999999999e-02;
+  a53=(a52*a05);
+  a51=(a51-a53);
+  a51=(a04*a51);
+  a32=(a32+a51);
+  a51=(a52*a12);
+  a51=(a11+a51);
+  a51=(a51*a16);
+  a51=(a51*a18);
+  a32=(a32+a51);
+  a51=casadi_sq(a32);
+  a53=(a08*a51);
+  a51=(a23*a51);
+  a51=(a22+a51);
+  a53=(a53/a51);
+  a53=(a13*a53);
+  a54=1.4999999999999999e-02;
+  a55=(a52*a27);
+  a55=(a37+a55);
+  a56=(a20*a34);
+  a55=(a55-a56);
+  a55=(a54+a55);
+  a55=(a24*a55);
+  a55=exp(a55);
+  a53=(a53*a55);
+  a35=(a35+a53);
+  a56=(a36*a46);
+  a35=(a35+a56);
+  a56=(a36*a50);
+  a35=(a35+a56);
+  a56=(a44*a12);
+  a56=(a10-a56);
+  a07=(a07*a56);
+  a56=(a44*a02);
+  a56=(a00+a56);
+  a57=(a52*a05);
+  a56=(a56-a57);
+  a04=(a04*a56);
+  a07=(a07+a04);
+  a04=(a52*a12);
+  a04=(a11+a04);
+  a04=(a04*a16);
+  a04=(a04*a18);
+  a07=(a07+a04);
+  a04=casadi_sq(a07);
+  a08=(a08*a04);
+  a23=(a23*a04);
+  a22=(a22+a23);
+  a08=(a08/a22);
+  a08=(a13*a08);
+  a27=(a52*a27);
+  a27=(a37+a27);
+  a34=(a44*a34);
+  a27=(a27-a34);
+  a27=(a54+a27);
+  a24=(a24*a27);
+  a24=exp(a24);
+  a08=(a08*a24);
+  a35=(a35+a08);
+  a27=9.1233000000000018e+01;
+  a35=(a35-a27);
+  a34=sin(a06);
+  a23=(a35*a34);
+  a29=(a29-a23);
+  a23=arg[1]? arg[1][0] : 0;
+  a04=2.2831250607464350e-04;
+  a19=(a04*a19);
+  a19=(a19/a15);
+  a19=(a13*a19);
+  a19=(a19*a33);
+  a33=(a23-a19);
+  a39=(a04*a39);
+  a39=(a39/a40);
+  a39=(a13*a39);
+  a39=(a39*a42);
+  a33=(a33-a39);
+  a32=(a04*a32);
+  a32=(a32/a51);
+  a32=(a13*a32);
+  a32=(a32*a55);
+  a33=(a33-a32);
+  a43=(a04*a43);
+  a43=(a43/a45);
+  a43=(a13*a43);
+  a43=(a43*a47);
+  a33=(a33-a43);
+  a48=(a04*a48);
+  a48=(a48/a49);
+  a48=(a13*a48);
+  a48=(a48*a25);
+  a33=(a33-a48);
+  a04=(a04*a07);
+  a04=(a04/a22);
+  a13=(a13*a04);
+  a13=(a13*a24);
+  a33=(a33-a13);
+  a24=cos(a01);
+  a04=(a33*a24);
+  a04=(a04*a30);
+  a29=(a29+a04);
+  a04=9.3000000000000007e+00;
+  a22=(a12*a10);
+  a07=5.0000000000000001e-03;
+  a25=(a07*a12);
+  a49=(a12*a25);
+  a49=(a22-a49);
+  a47=(a02*a00);
+  a49=(a49-a47);
+  a45=(a07*a02);
+  a55=(a54*a05);
+  a45=(a45-a55);
+  a55=(a02*a45);
+  a49=(a49-a55);
+  a49=(a04*a49);
+  a29=(a29-a49);
+  a49=(a29/a04);
+  a55=4.1899441340782127e-02;
+  a51=cos(a03);
+  a42=(a51*a24);
+  a40=sin(a03);
+  a15=(a40*a31);
+  a15=(a15*a34);
+  a42=(a42+a15);
+  a15=-7.4999999999999997e-02;
+  a18=(a15*a51);
+  a18=(a18*a30);
+  a18=(a23*a18);
+  a16=(a17*a30);
+  a16=(a16*a40);
+  a56=(a20*a34);
+  a16=(a16-a56);
+  a56=(a14*a51);
+  a56=(a56*a30);
+  a16=(a16+a56);
+  a56=(a19*a16);
+  a18=(a18-a56);
+  a56=(a38*a30);
+  a56=(a56*a40);
+  a57=(a20*a34);
+  a56=(a56-a57);
+  a57=(a14*a51);
+  a57=(a57*a30);
+  a56=(a56+a57);
+  a57=(a39*a56);
+  a18=(a18-a57);
+  a57=(a52*a51);
+  a57=(a57*a30);
+  a58=(a20*a34);
+  a57=(a57-a58);
+  a57=(a32*a57);
+  a18=(a18-a57);
+  a57=(a17*a30);
+  a57=(a57*a40);
+  a58=(a44*a34);
+  a57=(a57-a58);
+  a58=(a14*a51);
+  a58=(a58*a30);
+  a57=(a57+a58);
+  a58=(a43*a57);
+  a18=(a18-a58);
+  a58=(a38*a30);
+  a58=(a58*a40);
+  a59=(a44*a34);
+  a58=(a58-a59);
+  a59=(a14*a51);
+  a59=(a59*a30);
+  a58=(a58+a59);
+  a59=(a48*a58);
+  a18=(a18-a59);
+  a59=(a52*a51);
+  a59=(a59*a30);
+  a60=(a44*a34);
+  a59=(a59-a60);
+  a59=(a13*a59);
+  a18=(a18-a59);
+  a59=(a40*a31);
+  a60=(a51*a24);
+  a60=(a60*a34);
+  a59=(a59+a60);
+  a60=(a54*a59);
+  a61=(a07*a24);
+  a61=(a61*a30);
+  a60=(a60+a61);
+  a60=(a27*a60);
+  a18=(a18+a60);
+  a60=(a36*a21);
+  a61=(a24*a40);
+  a61=(a61*a34);
+  a62=(a51*a31);
+  a61=(a61-a62);
+  a62=(a17*a61);
+  a63=(a14*a59);
+  a62=(a62+a63);
+  a63=(a20*a24);
+  a63=(a63*a30);
+  a62=(a62+a63);
+  a60=(a60*a62);
+  a18=(a18-a60);
+  a60=(a36*a41);
+  a63=(a38*a61);
+  a64=(a14*a59);
+  a63=(a63+a64);
+  a64=(a20*a24);
+  a64=(a64*a30);
+  a63=(a63+a64);
+  a60=(a60*a63);
+  a18=(a18-a60);
+  a60=(a52*a59);
+  a64=(a20*a24);
+  a64=(a64*a30);
+  a60=(a60+a64);
+  a60=(a53*a60);
+  a18=(a18-a60);
+  a60=(a36*a46);
+  a64=(a17*a61);
+  a65=(a14*a59);
+  a64=(a64+a65);
+  a65=(a44*a24);
+  a65=(a65*a30);
+  a64=(a64+a65);
+  a60=(a60*a64);
+  a18=(a18-a60);
+  a60=(a36*a50);
+  a65=(a38*a61);
+  a66=(a14*a59);
+  a65=(a65+a66);
+  a66=(a44*a24);
+  a66=(a66*a30);
+  a65=(a65+a66);
+  a60=(a60*a65);
+  a18=(a18-a60);
+  a60=(a52*a59);
+  a66=(a44*a24);
+  a66=(a66*a30);
+  a60=(a60+a66);
+  a60=(a08*a60);
+  a18=(a18-a60);
+  a60=(a42*a18);
+  a66=(a36*a21);
+  a67=(a17*a42);
+  a68=(a51*a31);
+  a68=(a68*a34);
+  a69=(a24*a40);
+  a68=(a68-a69);
+  a69=(a14*a68);
+  a67=(a67+a69);
+  a69=(a20*a30);
+  a69=(a69*a31);
+  a67=(a67+a69);
+  a66=(a66*a67);
+  a69=(a36*a41);
+  a70=(a38*a42);
+  a71=(a14*a68);
+  a70=(a70+a71);
+  a71=(a20*a30);
+  a71=(a71*a31);
+  a70=(a70+a71);
+  a69=(a69*a70);
+  a66=(a66+a69);
+  a69=(a52*a68);
+  a71=(a20*a30);
+  a71=(a71*a31);
+  a69=(a69+a71);
+  a53=(a53*a69);
+  a66=(a66+a53);
+  a53=(a36*a46);
+  a71=(a17*a42);
+  a72=(a14*a68);
+  a71=(a71+a72);
+  a72=(a44*a30);
+  a72=(a72*a31);
+  a71=(a71+a72);
+  a53=(a53*a71);
+  a66=(a66+a53);
+  a53=(a36*a50);
+  a72=(a38*a42);
+  a73=(a14*a68);
+  a72=(a72+a73);
+  a73=(a44*a30);
+  a73=(a73*a31);
+  a72=(a72+a73);
+  a53=(a53*a72);
+  a66=(a66+a53);
+  a52=(a52*a68);
+  a53=(a44*a30);
+  a53=(a53*a31);
+  a52=(a52+a53);
+  a08=(a08*a52);
+  a66=(a66+a08);
+  a08=(a09*a21);
+  a08=(a08*a16);
+  a66=(a66-a08);
+  a08=(a36*a41);
+  a08=(a08*a56);
+  a66=(a66-a08);
+  a08=(a09*a46);
+  a08=(a08*a57);
+  a66=(a66-a08);
+  a08=(a36*a50);
+  a08=(a08*a58);
+  a66=(a66-a08);
+  a08=(a54*a68);
+  a58=(a07*a30);
+  a58=(a58*a31);
+  a08=(a08+a58);
+  a27=(a27*a08);
+  a66=(a66-a27);
+  a27=(a61*a66);
+  a60=(a60+a27);
+  a27=arg[5]? arg[5][1] : 0;
+  a08=arg[2]? arg[2][0] : 0;
+  a58=arg[4]? arg[4][0] : 0;
+  a26=(a26-a58);
+  a08=(a08*a26);
+  a26=arg[3]? arg[3][0] : 0;
+  a58=cos(a03);
+  a57=cos(a01);
+  a56=(a58*a57);
+  a16=sin(a03);
+  a53=sin(a01);
+  a73=(a16*a53);
+  a74=sin(a06);
+  a73=(a73*a74);
+  a56=(a56+a73);
+  a56=(a00*a56);
+  a73=(a58*a53);
+  a73=(a73*a74);
+  a57=(a57*a16);
+  a73=(a73-a57);
+  a73=(a10*a73);
+  a56=(a56+a73);
+  a73=cos(a06);
+  a57=(a11*a73);
+  a57=(a57*a53);
+  a56=(a56+a57);
+  a26=(a26*a56);
+  a08=(a08+a26);
+  a27=(a27*a08);
+  a26=arg[5]? arg[5][11] : 0;
+  a56=arg[2]? arg[2][1] : 0;
+  a57=arg[4]? arg[4][1] : 0;
+  a37=(a37-a57);
+  a56=(a56*a37);
+  a37=arg[3]? arg[3][1] : 0;
+  a57=(a00*a73);
+  a57=(a57*a16);
+  a53=(a11*a74);
+  a57=(a57-a53);
+  a53=(a10*a58);
+  a53=(a53*a73);
+  a57=(a57+a53);
+  a37=(a37*a57);
+  a56=(a56+a37);
+  a26=(a26*a56);
+  a27=(a27+a26);
+  a26=arg[5]? arg[5][21] : 0;
+  a37=arg[2]? arg[2][2] : 0;
+  a57=arg[4]? arg[4][2] : 0;
+  a03=(a03-a57);
+  a37=(a37*a03);
+  a03=arg[3]? arg[3][2] : 0;
+  a57=(a12*a16);
+  a53=(a02*a58);
+  a57=(a57+a53);
+  a53=(a57/a73);
+  a53=(a53*a74);
+  a53=(a05+a53);
+  a03=(a03*a53);
+  a37=(a37+a03);
+  a26=(a26*a37);
+  a27=(a27+a26);
+  a26=arg[5]? arg[5][31] : 0;
+  a03=arg[2]? arg[2][3] : 0;
+  a53=arg[4]? arg[4][3] : 0;
+  a06=(a06-a53);
+  a03=(a03*a06);
+  a06=arg[3]? arg[3][3] : 0;
+  a58=(a12*a58);
+  a16=(a02*a16);
+  a58=(a58-a16);
+  a06=(a06*a58);
+  a03=(a03+a06);
+  a26=(a26*a03);
+  a27=(a27+a26);
+  a26=arg[5]? arg[5][41] : 0;
+  a06=arg[2]? arg[2][4] : 0;
+  a58=arg[4]? arg[4][4] : 0;
+  a01=(a01-a58);
+  a06=(a06*a01);
+  a01=arg[3]? arg[3][4] : 0;
+  a57=(a57/a73);
+  a01=(a01*a57);
+  a06=(a06+a01);
+  a26=(a26*a06);
+  a27=(a27+a26);
+  a26=(a20*a27);
+  a60=(a60+a26);
+  a26=arg[5]? arg[5][3] : 0;
+  a26=(a26*a08);
+  a01=arg[5]? arg[5][13] : 0;
+  a01=(a01*a56);
+  a26=(a26+a01);
+  a01=arg[5]? arg[5][23] : 0;
+  a01=(a01*a37);
+  a26=(a26+a01);
+  a01=arg[5]? arg[5][33] : 0;
+  a01=(a01*a03);
+  a26=(a26+a01);
+  a01=arg[5]? arg[5][43] : 0;
+  a01=(a01*a06);
+  a26=(a26+a01);
+  a01=(a20*a26);
+  a60=(a60+a01);
+  a01=arg[5]? arg[5][4] : 0;
+  a01=(a01*a08);
+  a57=arg[5]? arg[5][14] : 0;
+  a57=(a57*a56);
+  a01=(a01+a57);
+  a57=arg[5]? arg[5][24] : 0;
+  a57=(a57*a37);
+  a01=(a01+a57);
+  a57=arg[5]? arg[5][34] : 0;
+  a57=(a57*a03);
+  a01=(a01+a57);
+  a57=arg[5]? arg[5][44] : 0;
+  a57=(a57*a06);
+  a01=(a01+a57);
+  a57=(a20*a01);
+  a60=(a60+a57);
+  a57=arg[5]? arg[5][6] : 0;
+  a57=(a57*a08);
+  a73=arg[5]? arg[5][16] : 0;
+  a73=(a73*a56);
+  a57=(a57+a73);
+  a73=arg[5]? arg[5][26] : 0;
+  a73=(a73*a37);
+  a57=(a57+a73);
+  a73=arg[5]? arg[5][36] : 0;
+  a73=(a73*a03);
+  a57=(a57+a73);
+  a73=arg[5]? arg[5][46] : 0;
+  a73=(a73*a06);
+  a57=(a57+a73);
+  a73=(a44*a57);
+  a60=(a60+a73);
+  a73=arg[5]? arg[5][8] : 0;
+  a73=(a73*a08);
+  a58=arg[5]? arg[5][18] : 0;
+  a58=(a58*a56);
+  a73=(a73+a58);
+  a58=arg[5]? arg[5][28] : 0;
+  a58=(a58*a37);
+  a73=(a73+a58);
+  a58=arg[5]? arg[5][38] : 0;
+  a58=(a58*a03);
+  a73=(a73+a58);
+  a58=arg[5]? arg[5][48] : 0;
+  a58=(a58*a06);
+  a73=(a73+a58);
+  a58=(a44*a73);
+  a60=(a60+a58);
+  a58=arg[5]? arg[5][9] : 0;
+  a58=(a58*a08);
+  a16=arg[5]? arg[5][19] : 0;
+  a16=(a16*a56);
+  a58=(a58+a16);
+  a16=arg[5]? arg[5][29] : 0;
+  a16=(a16*a37);
+  a58=(a58+a16);
+  a16=arg[5]? arg[5][39] : 0;
+  a16=(a16*a03);
+  a58=(a58+a16);
+  a16=arg[5]? arg[5][49] : 0;
+  a16=(a16*a06);
+  a58=(a58+a16);
+  a16=(a44*a58);
+  a60=(a60+a16);
+  a21=(a09*a21);
+  a21=(a21*a62);
+  a15=(a15*a68);
+  a15=(a23*a15);
+  a19=(a19*a67);
+  a15=(a15-a19);
+  a39=(a39*a70);
+  a15=(a15-a39);
+  a32=(a32*a69);
+  a15=(a15-a32);
+  a43=(a43*a71);
+  a15=(a15-a43);
+  a48=(a48*a72);
+  a15=(a15-a48);
+  a13=(a13*a52);
+  a15=(a15-a13);
+  a21=(a21-a15);
+  a41=(a36*a41);
+  a41=(a41*a63);
+  a21=(a21+a41);
+  a09=(a09*a46);
+  a09=(a09*a64);
+  a21=(a21+a09);
+  a36=(a36*a50);
+  a36=(a36*a65);
+  a21=(a21+a36);
+  a36=(a21*a30);
+  a36=(a36*a40);
+  a60=(a60+a36);
+  a36=-4.6975000000000003e-03;
+  a65=(a36*a05);
+  a50=3.7623250000000003e-01;
+  a50=(a50*a02);
+  a65=(a65+a50);
+  a50=(a05*a65);
+  a60=(a60+a50);
+  a50=(a59*a33);
+  a09=(a27+a26);
+  a09=(a09+a01);
+  a09=(a09+a57);
+  a09=(a09+a73);
+  a09=(a09+a58);
+  a50=(a50-a09);
+  a09=(a68*a28);
+  a50=(a50+a09);
+  a09=(a35*a51);
+  a09=(a09*a30);
+  a50=(a50+a09);
+  a00=(a05*a00);
+  a45=(a05*a45);
+  a45=(a00+a45);
+  a09=(a12*a11);
+  a45=(a45-a09);
+  a64=(a54*a12);
+  a46=(a12*a64);
+  a45=(a45-a46);
+  a45=(a04*a45);
+  a50=(a50-a45);
+  a45=(a07*a50);
+  a60=(a60+a45);
+  a45=8.1492499999999995e-02;
+  a45=(a45*a05);
+  a36=(a36*a02);
+  a45=(a45+a36);
+  a36=(a02*a45);
+  a60=(a60-a36);
+  a29=(a54*a29);
+  a60=(a60-a29);
+  a22=(a22-a47);
+  a22=(a54*a22);
+  a00=(a00-a09);
+  a00=(a07*a00);
+  a22=(a22-a00);
+  a22=(a04*a22);
+  a60=(a60-a22);
+  a55=(a55*a60);
+  a49=(a49-a55);
+  if (res[0]!=0) res[0][6]=a49;
+  a42=(a42*a28);
+  a28=arg[5]? arg[5][0] : 0;
+  a28=(a28*a08);
+  a49=arg[5]? arg[5][10] : 0;
+  a49=(a49*a56);
+  a28=(a28+a49);
+  a49=arg[5]? arg[5][20] : 0;
+  a49=(a49*a37);
+  a28=(a28+a49);
+  a49=arg[5]? arg[5][30] : 0;
+  a49=(a49*a03);
+  a28=(a28+a49);
+  a49=arg[5]? arg[5][40] : 0;
+  a49=(a49*a06);
+  a28=(a28+a49);
+  a49=arg[5]? arg[5][2] : 0;
+  a49=(a49*a08);
+  a55=arg[5]? arg[5][12] : 0;
+  a55=(a55*a56);
+  a49=(a49+a55);
+  a55=arg[5]? arg[5][22] : 0;
+  a55=(a55*a37);
+  a49=(a49+a55);
+  a55=arg[5]? arg[5][32] : 0;
+  a55=(a55*a03);
+  a49=(a49+a55);
+  a55=arg[5]? arg[5][42] : 0;
+  a55=(a55*a06);
+  a49=(a49+a55);
+  a55=(a28+a49);
+  a22=arg[5]? arg[5][5] : 0;
+  a22=(a22*a08);
+  a00=arg[5]? arg[5][15] : 0;
+  a00=(a00*a56);
+  a22=(a22+a00);
+  a00=arg[5]? arg[5][25] : 0;
+  a00=(a00*a37);
+  a22=(a22+a00);
+  a00=arg[5]? arg[5][35] : 0;
+  a00=(a00*a03);
+  a22=(a22+a00);
+  a00=arg[5]? arg[5][45] : 0;
+  a00=(a00*a06);
+  a22=(a22+a00);
+  a55=(a55+a22);
+  a00=arg[5]? arg[5][7] : 0;
+  a00=(a00*a08);
+  a08=arg[5]? arg[5][17] : 0;
+  a08=(a08*a56);
+  a00=(a00+a08);
+  a08=arg[5]? arg[5][27] : 0;
+  a08=(a08*a37);
+  a00=(a00+a08);
+  a08=arg[5]? arg[5][37] : 0;
+  a08=(a08*a03);
+  a00=(a00+a08);
+  a08=arg[5]? arg[5][47] : 0;
+  a08=(a08*a06);
+  a00=(a00+a08);
+  a55=(a55+a00);
+  a42=(a42-a55);
+  a61=(a61*a33);
+  a42=(a42+a61);
+  a35=(a35*a30);
+  a35=(a35*a40);
+  a42=(a42+a35);
+  a11=(a02*a11);
+  a64=(a02*a64);
+  a64=(a11+a64);
+  a10=(a05*a10);
+  a64=(a64-a10);
+  a25=(a05*a25);
+  a64=(a64+a25);
+  a64=(a04*a64);
+  a42=(a42-a64);
+  a64=(a42/a04);
+  a25=1.4042120670271236e+00;
+  a35=1.3460800000000001e-01;
+  a40=(a14*a28);
+  a61=(a17*a27);
+  a33=(a38*a26);
+  a61=(a61+a33);
+  a17=(a17*a57);
+  a61=(a61+a17);
+  a38=(a38*a73);
+  a61=(a61+a38);
+  a40=(a40-a61);
+  a61=(a14*a49);
+  a40=(a40+a61);
+  a61=(a14*a22);
+  a40=(a40+a61);
+  a14=(a14*a00);
+  a40=(a40+a14);
+  a34=(a21*a34);
+  a40=(a40-a34);
+  a24=(a66*a24);
+  a24=(a24*a30);
+  a40=(a40+a24);
+  a24=(a18*a30);
+  a24=(a24*a31);
+  a40=(a40+a24);
+  a24=3.6032500000000001e-01;
+  a24=(a24*a12);
+  a02=(a02*a24);
+  a40=(a40+a02);
+  a54=(a54*a42);
+  a40=(a40+a54);
+  a65=(a12*a65);
+  a40=(a40-a65);
+  a65=1.3950000000000001e-01;
+  a11=(a11-a10);
+  a65=(a65*a11);
+  a40=(a40+a65);
+  a35=(a35*a40);
+  a65=1.4319999999999999e-03;
+  a59=(a59*a66);
+  a66=(a20*a28);
+  a20=(a20*a49);
+  a66=(a66+a20);
+  a20=(a44*a22);
+  a66=(a66+a20);
+  a44=(a44*a00);
+  a66=(a66+a44);
+  a59=(a59-a66);
+  a68=(a68*a18);
+  a59=(a59+a68);
+  a21=(a21*a51);
+  a21=(a21*a30);
+  a59=(a59+a21);
+  a12=(a12*a45);
+  a59=(a59+a12);
+  a05=(a05*a24);
+  a59=(a59-a05);
+  a07=(a07*a42);
+  a59=(a59-a07);
+  a07=4.6500000000000007e-02;
+  a07=(a07*a11);
+  a59=(a59-a07);
+  a07=(a65*a59);
+  a35=(a35+a07);
+  a25=(a25*a35);
+  a64=(a64+a25);
+  a25=4.6807068900904125e-01;
+  a07=2.8425199999999998e-02;
+  a07=(a07*a59);
+  a65=(a65*a40);
+  a07=(a07+a65);
+  a25=(a25*a07);
+  a64=(a64-a25);
+  if (res[0]!=0) res[0][7]=a64;
+  a50=(a50/a04);
+  a04=1.3966480446927377e-02;
+  a04=(a04*a60);
+  a50=(a50+a04);
+  if (res[0]!=0) res[0][8]=a50;
+  a50=1.0682147199999999e-02;
+  a35=(a35/a50);
+  if (res[0]!=0) res[0][9]=a35;
+  a35=2.9838400000000001e-02;
+  a35=(a35*a60);
+  a35=(a35/a50);
+  if (res[0]!=0) res[0][10]=a35;
+  a07=(a07/a50);
+  if (res[0]!=0) res[0][11]=a07;
+  if (res[1]!=0) res[1][0]=a23;
+  a28=(-a28);
+  if (res[1]!=0) res[1][1]=a28;
+  a27=(-a27);
+  if (res[1]!=0) res[1][2]=a27;
+  a49=(-a49);
+  if (res[1]!=0) res[1][3]=a49;
+  a26=(-a26);
+  if (res[1]!=0) res[1][4]=a26;
+  a01=(-a01);
+  if (res[1]!=0) res[1][5]=a01;
+  a22=(-a22);
+  if (res[1]!=0) res[1][6]=a22;
+  a57=(-a57);
+  if (res[1]!=0) res[1][7]=a57;
+  a00=(-a00);
+  if (res[1]!=0) res[1][8]=a00;
+  a73=(-a73);
+  if (res[1]!=0) res[1][9]=a73;
+  a58=(-a58);
+  if (res[1]!=0) res[1][10]=a58;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f19(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int maglev_closed_loop_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_closed_loop_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_closed_loop_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void maglev_closed_loop_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_closed_loop_n_in(void) { return 6;}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_closed_loop_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real maglev_closed_loop_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_closed_loop_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "F_prop";
+    case 2: return "k_pos";
+    case 3: return "k_rate";
+    case 4: return "a_ref";
+    case 5: return "T";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_closed_loop_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "xdot";
+    case 1: return "u";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_closed_loop_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s8;
+    case 2: return casadi_s9;
+    case 3: return casadi_s9;
+    case 4: return casadi_s9;
+    case 5: return casadi_s12;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_closed_loop_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int maglev_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 6;
+  if (sz_res!=0) *sz_res = 2;
+  if (sz_iw!=0) *sz_iw = 0;
+  if (sz_w!=0) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res!=0) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w!=0) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
 /* maglev_gaps:(x[12])->(gaps[6]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
   (void)iw; (void)w; (void)mem;
@@ -17059,7 +18350,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int maglev_gaps_checkout(void) {
@@ -17109,7 +18400,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* maglev_gaps_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* maglev_gaps_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s12;
+    case 0: return casadi_s13;
     default: return 0;
   }
 }

@@ -183,6 +183,24 @@ int maglev_allocate_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_in
 #define maglev_allocate_SZ_RES 1
 #define maglev_allocate_SZ_IW 0
 #define maglev_allocate_SZ_W 0
+int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_allocation_matrix_checkout(void);
+void maglev_allocation_matrix_release(int mem);
+void maglev_allocation_matrix_incref(void);
+void maglev_allocation_matrix_decref(void);
+casadi_int maglev_allocation_matrix_n_in(void);
+casadi_int maglev_allocation_matrix_n_out(void);
+casadi_real maglev_allocation_matrix_default_in(casadi_int i);
+const char* maglev_allocation_matrix_name_in(casadi_int i);
+const char* maglev_allocation_matrix_name_out(casadi_int i);
+const casadi_int* maglev_allocation_matrix_sparsity_in(casadi_int i);
+const casadi_int* maglev_allocation_matrix_sparsity_out(casadi_int i);
+int maglev_allocation_matrix_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int maglev_allocation_matrix_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define maglev_allocation_matrix_SZ_ARG 0
+#define maglev_allocation_matrix_SZ_RES 1
+#define maglev_allocation_matrix_SZ_IW 0
+#define maglev_allocation_matrix_SZ_W 0
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_rk4_step_checkout(void);
 void maglev_rk4_step_release(int mem);
@@ -201,6 +219,24 @@ int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_in
 #define maglev_rk4_step_SZ_RES 2
 #define maglev_rk4_step_SZ_IW 0
 #define maglev_rk4_step_SZ_W 0
+int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_closed_loop_checkout(void);
+void maglev_closed_loop_release(int mem);
+void maglev_closed_loop_incref(void);
+void maglev_closed_loop_decref(void);
+casadi_int maglev_closed_loop_n_in(void);
+casadi_int maglev_closed_loop_n_out(void);
+casadi_real maglev_closed_loop_default_in(casadi_int i);
+const char* maglev_closed_loop_name_in(casadi_int i);
+const char* maglev_closed_loop_name_out(casadi_int i);
+const casadi_int* maglev_closed_loop_sparsity_in(casadi_int i);
+const casadi_int* maglev_closed_loop_sparsity_out(casadi_int i);
+int maglev_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int maglev_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define maglev_closed_loop_SZ_ARG 6
+#define maglev_closed_loop_SZ_RES 2
+#define maglev_closed_loop_SZ_IW 0
+#define maglev_closed_loop_SZ_W 0
 int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_gaps_checkout(void);
 void maglev_gaps_release(int mem);

@@ -37,6 +37,9 @@ DESCRIPTIONS: dict[str, str] = {
     "damping_control": "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)",
     "allocate": "array forces of minimum norm that produce u_gen (eqs 22-23 derived)",
     "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
+    "closed_loop": "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
+                   "integrates), the array forces being T u_gen with T an input",
+    "allocation_matrix": "T (arrays' forces x 5): the minimum-norm allocation as a matrix",
     "gaps": "the gap of each array (exact pose geometry); contact when one reaches the track",
 }
 
@@ -186,9 +189,22 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     rk4 = ca.Function("maglev_rk4_step", [x0, dt, F_prop, k_pos, k_rate, a_ref, p],
                       [x_next, closed_loop_input(x0)],
                       ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
+    # the same right-hand side on its own, with the allocation matrix T as an input:
+    # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
+    # step, so one copy of the model's code stays in the instruction cache and nothing that
+    # depends on p alone is recomputed at every stage
+    T_in = ca.SX.sym("T", E.shape[1], N_AXES)
+    a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
+    u_cl = ca.vertcat(F_prop, T_in @ -(k_pos * (a_cl - a_ref) + k_rate * rates_fn(x0)))
+    closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, k_pos, k_rate, a_ref, T_in, p],
+                              [dynamics(x0, u_cl, p), u_cl],
+                              ["x", "F_prop", "k_pos", "k_rate", "a_ref", "T", "p"],
+                              ["xdot", "u"])
+    allocation_matrix = ca.Function("maglev_allocation_matrix", [p],
+                                    [E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))], ["p"], ["T"])
     gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
     fns = (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains, lqr_control,
-           damping_control, allocate, rk4, gaps)
+           damping_control, allocate, allocation_matrix, rk4, closed_loop, gaps)
     return Built(tuple(_dense_outputs(f) for f in fns), p.shape[0])
 
 

@@ -51,6 +51,7 @@ IO_DOCS: dict[str, str] = {
     "a_ref": "per axis reference positions (y, z, phi, theta, psi)",
     "x_next": "state after the step", "x0": "state",
     "gaps": "[m] gap of each array, in the parameter file's array order",
+    "T": "minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix",
 }
 
 
