@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from functools import partial
+from functools import cache, partial
 
 import mpmath
 import numpy as np
@@ -315,7 +315,7 @@ def lqr_gain_numeric(k: float, m: float, q1: float = 1.0, q2: float = 1.0, r: fl
     return np.array([K1, k2_of_k1(K1, *args)], dtype=dtype)
 
 
-@memoized
+@cache  # in-process only: mpmath's rationals in these functions do not survive pickling
 def _mpmath_functions() -> tuple[Callable, Callable]:
     """Lambdified mpmath evaluators of the closed-form K and P."""
     g = _generic_closed_form()
