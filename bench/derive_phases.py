@@ -4,15 +4,20 @@ Run by bench/run.py in a fresh Python process (so nothing is cached in memory):
 
     python bench/derive_phases.py OUT_DIR
 
-It does what ``maglevgen generate --parameters runtime`` and a first compile do, timing each
-phase, then repeats the work in the same process (the "in-process second call": SymPy results
-are held by lru_cache, the compiled library by runtime/compile.py's content-hash cache). Disk
-caches go to $MAGLEVGEN_CACHE, which bench/run.py points at a fresh folder for a cold run and
-at the previous run's folder for a cached run. Prints one JSON object of seconds on stdout.
+It does what the first steps of ``maglevgen build`` do, timing each phase: load the
+parameters, derive the model (SymPy), lambdify it (the numeric layer), generate the
+run-time-parameter C (maglevgen/library.py ``runtime_sources``) and compile it
+(``simulation_library``). Then, in the same process, it repeats them (the "second call":
+results held in memory) and times what ``maglevgen generate --parameters runtime`` does
+(``render`` + write: the CasADi functions and their C, built anew each time) and its two parts.
+Prints one JSON object of seconds on stdout.
 
-The phases go through the same entry points as the CLI (Carriage, render), so an on-disk
-derivation cache they use is measured by bench/run.py's cached runs with no change here; if
-a cache needs an explicit call, ``derive`` / ``lambdify`` below are the functions to adapt.
+The disk caches are the ones the CLI uses, under $MAGLEVGEN_CACHE (bench/run.py points it at a
+fresh folder for a cold run and at the previous run's folder for a cached run):
+maglevgen/cache.py's memo store for the derivation steps derive/memo.py memoises (the
+derivation, the lambdified model), and maglevgen/library.py's generated C (``derivation/``) and
+compiled library (``lib/``). The phases go through the same entry points as the CLI (Carriage,
+library), so any change to those caches is measured here with no change to this script.
 """
 
 from __future__ import annotations
@@ -29,10 +34,8 @@ from maglevgen.codegen.cpass import generate_c  # noqa: E402
 from maglevgen.codegen.functions import build_functions  # noqa: E402
 from maglevgen.codegen.generate import GenerateOptions, render, write_output  # noqa: E402
 from maglevgen.derive.model import build_model  # noqa: E402
+from maglevgen.library import runtime_sources, simulation_library  # noqa: E402
 from maglevgen.params import load_params  # noqa: E402
-from maglevgen.runtime.compile import compile_shared, default_cache_dir  # noqa: E402
-
-COMPILE_FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared")
 
 
 def derive(carriage: Carriage) -> None:
@@ -42,20 +45,23 @@ def derive(carriage: Carriage) -> None:
 
 def lambdify(carriage: Carriage) -> None:
     """The numeric layer (lambdified layers and partials), through the Carriage as the CLI and
-    the generator reach it (so through whatever cache the Carriage installs)."""
+    the generator reach it (so through the memo store the package installs)."""
     _ = carriage.functions
 
 
+def sources(carriage: Carriage) -> None:
+    """The run-time-parameter C of the carriage's structure (cached as derivation/<key>)."""
+    runtime_sources(carriage.structure)
+
+
+def compile_library(carriage: Carriage) -> None:
+    """The simulation library compiled from those sources (cached under lib/)."""
+    simulation_library(carriage.structure)
+
+
 def generate(carriage: Carriage, out: Path) -> None:
-    """CasADi functions, C code and templates of the runtime-parameter build, written out."""
+    """`maglevgen generate --parameters runtime`: CasADi functions, C and templates, written."""
     write_output(render(carriage, GenerateOptions("double", "runtime")), out)
-
-
-def compile_o2(out: Path) -> None:
-    sources = [out / "maglev_functions.c"]
-    if (out / "maglev_simulate.c").exists():
-        sources.append(out / "maglev_simulate.c")
-    compile_shared(sources, COMPILE_FLAGS, cache_dir=default_cache_dir() / "bench_lib")
 
 
 def main(out_dir: str) -> None:
@@ -76,14 +82,15 @@ def main(out_dir: str) -> None:
     phase("params", load)
     phase("derive", derive, carriage)
     phase("lambdify", lambdify, carriage)
-    phase("generate", generate, carriage, out)
-    phase("compile", compile_o2, out)
+    phase("sources", sources, carriage)
+    phase("compile", compile_library, carriage)
     t["total"] = sum(t.values())
     # the same again in this process
     phase("second_derive", derive, carriage)
-    phase("second_generate", generate, carriage, out)
-    phase("second_compile", compile_o2, out)
-    # what generate spends in its two parts
+    phase("second_sources", sources, carriage)
+    phase("second_compile", compile_library, carriage)
+    # `maglevgen generate --parameters runtime` and its two parts
+    phase("generate", generate, carriage, out)
     built = {}
     phase("casadi_functions", lambda: built.update(f=build_functions(carriage.model)))
     phase("c_code", lambda: generate_c(list(built["f"].functions), "maglev_functions", "double"))

@@ -6,6 +6,7 @@ import json
 import re
 import shutil
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,19 +21,76 @@ SIZE_FLAGS = (
     "-fstack-usage",
     "-fcallgraph-info=su",
 )
+NO_PIE_SUFFIX = "_nopie"
 HEAP_SYMBOLS = ("malloc", "calloc", "realloc", "free", "aligned_alloc", "posix_memalign")
 
-# Footprint groups: the entry points a firmware image would keep; the linker keeps what they
-# reach (ld -r --gc-sections).
-CONTROLLER_PATH = ("maglev_lqr_gains", "maglev_lqr_control", "maglev_allocate")
-FOOTPRINT_GROUPS: dict[str, tuple[str, ...]] = {
-    "controller path (lqr_gains + lqr_control + allocate)": CONTROLLER_PATH,
-    "controller path + damping_control": (*CONTROLLER_PATH, "maglev_damping_control"),
-    "lqr_control alone (calls the trim Newton solve)": ("maglev_lqr_control",),
-    "allocate alone": ("maglev_allocate",),
-    "dynamics": ("maglev_dynamics",),
-    "simulate loop (maglev_simulate + rk4_step + gaps)": ("maglev_simulate",),
-}
+# Footprint groups: the entry points a firmware image keeps; the linker keeps what they reach
+# (ld -r --gc-sections). role "target": issue 9's controller path (gains + control +
+# allocation: what runs on the controller, the gains recomputed from (k, m) when they change);
+# "tick": what runs every control period; "schedule": what runs once per speed set-point
+# (the trim's Newton solve among it); "other": for scale.
+CONTROLLER_PATH = (
+    "maglev_axis_gains",
+    "maglev_lqr_control",
+    "maglev_damping_control",
+    "maglev_allocate",
+)
+SCHEDULE = ("maglev_trim", "maglev_axis_plants", "maglev_lqr_gains")
+
+
+@dataclass(frozen=True)
+class Group:
+    key: str
+    label: str
+    roots: tuple[str, ...]
+    role: str
+
+
+FOOTPRINT_GROUPS: tuple[Group, ...] = (
+    Group(
+        "controller_path",
+        "controller path (axis_gains + lqr_control + damping_control + allocate)",
+        CONTROLLER_PATH,
+        "target",
+    ),
+    Group(
+        "tick",
+        "one LQR tick (lqr_control + allocate)",
+        ("maglev_lqr_control", "maglev_allocate"),
+        "tick",
+    ),
+    Group("axis_gains", "axis_gains alone", ("maglev_axis_gains",), "tick"),
+    Group("lqr_control", "lqr_control alone", ("maglev_lqr_control",), "tick"),
+    Group("damping_control", "damping_control alone", ("maglev_damping_control",), "tick"),
+    Group("allocate", "allocate alone", ("maglev_allocate",), "tick"),
+    Group("trim", "trim (Newton in C)", ("maglev_trim",), "schedule"),
+    Group(
+        "axis_plants",
+        "axis_plants (trim + stiffness and inertia)",
+        ("maglev_axis_plants",),
+        "schedule",
+    ),
+    Group(
+        "lqr_gains",
+        "lqr_gains (trim + plants + gains in one call)",
+        ("maglev_lqr_gains",),
+        "schedule",
+    ),
+    Group("schedule", "the whole schedule (trim + axis_plants + lqr_gains)", SCHEDULE, "schedule"),
+    Group(
+        "firmware",
+        "schedule + controller path (a controller that retunes itself on board)",
+        (*SCHEDULE, *CONTROLLER_PATH),
+        "schedule",
+    ),
+    Group("dynamics", "dynamics", ("maglev_dynamics",), "other"),
+    Group(
+        "simulate",
+        "simulate loop (maglev_simulate and the functions it calls)",
+        ("maglev_simulate",),
+        "other",
+    ),
+)
 
 
 def _objects(
@@ -62,16 +120,44 @@ def build_runtime_driver(gen: Path, work: Path, cc: str = "gcc") -> Path:
     objs = _objects(cc, sources, SPEED_FLAGS, work, [gen, REFERENCE_DIR, DRIVER_DIR])
     exe = work / "bench_runtime"
     run([cc, *objs, "-o", exe, "-lm"])
+    # the same objects linked at fixed addresses, for callgrind's per-instruction counts
+    run([cc, *objs, "-no-pie", "-o", work / f"bench_runtime{NO_PIE_SUFFIX}", "-lm"])
     return exe
 
 
-def build_controller_driver(gen: Path, work: Path, cc: str = "gcc") -> Path:
-    """bench_controller against a baked build (the build's precision), -O2."""
-    sources = [gen / "maglev_functions.c", DRIVER_DIR / "bench_controller.c"]
-    objs = _objects(cc, sources, SPEED_FLAGS, work, [gen, DRIVER_DIR])
+def build_controller_driver(
+    gen: Path, work: Path, cc: str = "gcc", count_newton: bool = False
+) -> Path:
+    """bench_controller against a baked build (the build's precision), -O2.
+
+    ``count_newton``: against a copy of the generated C whose trim Newton loop counts its
+    iterations (`instrument_newton`), for `bench_controller INPUT schedule` only (the counter
+    would be timed too).
+    """
+    work.mkdir(parents=True, exist_ok=True)
+    source = gen / "maglev_functions.c"
+    flags = SPEED_FLAGS
+    if count_newton:
+        counted = work / "maglev_functions_counted.c"
+        counted.write_text(instrument_newton(source.read_text()))
+        source, flags = counted, (*SPEED_FLAGS, "-DBENCH_NEWTON_COUNT")
+    objs = _objects(cc, [source, DRIVER_DIR / "bench_controller.c"], flags, work, [gen, DRIVER_DIR])
     exe = work / "bench_controller"
     run([cc, *objs, "-o", exe, "-lm"])
     return exe
+
+
+NEWTON_LOOP = re.compile(r"(for \(iter=0; iter<\d+; \+\+iter\) \{)")
+
+
+def instrument_newton(c_source: str) -> str:
+    """The generated C with a global counter of Newton iterations (bench_newton_iterations)
+    incremented at the top of every iteration of CasADi's fast_newton loop."""
+    if len(NEWTON_LOOP.findall(c_source)) != 1:
+        raise RuntimeError("bench: expected exactly one Newton loop in the generated C")
+    return "long bench_newton_iterations = 0;\n" + NEWTON_LOOP.sub(
+        r"\1 ++bench_newton_iterations;", c_source
+    )
 
 
 def _fmt(values: np.ndarray) -> str:
@@ -110,14 +196,26 @@ def time_simulate(exe: Path, inp: Path, reps: int) -> dict:
 
 
 def time_controller(exe: Path, inp: Path, reps: int, ms: float) -> dict:
-    return json.loads(run([exe, inp, reps, ms]))
+    return json.loads(run([exe, inp, "time", reps, ms]))
+
+
+def controller_schedule(exe: Path, inp: Path, speeds: Sequence[float]) -> dict:
+    """Trim, residual, Newton iterations, plants and gains at each speed, from C."""
+    return json.loads(run([exe, inp, "schedule", *(repr(float(v)) for v in speeds)]))
 
 
 def callgrind(exe: Path, inp: Path, which: str, symbol: str, calls: int, work: Path) -> dict | None:
-    """Instructions per call of ``symbol`` (with everything it calls, libm included) and its
-    libm calls per call, from callgrind (deterministic); None without valgrind."""
+    """Per call of ``symbol`` (with everything it calls), from callgrind (deterministic):
+    instructions (libm included), libm calls, and division instructions executed in the
+    executable's own code (libm's not included); None without valgrind.
+
+    Runs the position-dependent twin of ``exe`` (`build_runtime_driver` links it), so that
+    callgrind's instruction addresses are objdump's.
+    """
     if shutil.which("valgrind") is None:
         return None
+    twin = exe.with_name(exe.name + NO_PIE_SUFFIX)
+    exe = twin if twin.exists() else exe
     out = work / f"callgrind.{which}.out"
     run(
         [
@@ -126,6 +224,8 @@ def callgrind(exe: Path, inp: Path, which: str, symbol: str, calls: int, work: P
             f"--callgrind-out-file={out}",
             "--collect-atstart=no",
             f"--toggle-collect={symbol}",
+            "--dump-instr=yes",
+            "--compress-pos=no",
             exe,
             inp,
             "count",
@@ -138,7 +238,54 @@ def callgrind(exe: Path, inp: Path, which: str, symbol: str, calls: int, work: P
     if m is None:
         return None
     libm = {k: round(v / calls, 2) for k, v in sorted(_libm_calls(text, exe.name).items())}
-    return {"instructions": int(m.group(1)) / calls, "libm_calls": libm}
+    result = {"instructions": int(m.group(1)) / calls, "libm_calls": libm}
+    if exe is twin:
+        executed = _executed_instructions(text, exe.name)
+        divs = _division_addresses(exe)
+        result["divisions"] = sum(executed.get(a, 0) for a in divs) / calls
+    return result
+
+
+DIVISIONS = ("divsd", "divss", "vdivsd", "vdivss", "divpd", "divps", "vdivpd", "vdivps")
+
+
+def _division_addresses(exe: Path) -> set[int]:
+    """Addresses of the floating-point division instructions in an executable (objdump)."""
+    out = set()
+    for line in run(["objdump", "-d", "--no-show-raw-insn", exe]).splitlines():
+        m = re.match(r"^\s+([0-9a-f]+):\s+(\S+)", line)
+        if m and m.group(2) in DIVISIONS:
+            out.add(int(m.group(1), 16))
+    return out
+
+
+def _executed_instructions(text: str, exe_name: str) -> dict[int, int]:
+    """How often each instruction of the executable ran, from a callgrind file written with
+    --dump-instr=yes --compress-pos=no (cost lines: address, line, Ir)."""
+    counts: dict[int, int] = {}
+    obs: dict[str, str] = {}
+    in_exe = skip_next = False
+    for line in text.splitlines():
+        if line.startswith(("ob=", "cob=")):
+            value = line.split("=", 1)[1]
+            m = re.match(r"\((\d+)\)(?: (.*))?", value)
+            if m:  # compressed: "(id) name" defines the id, "(id)" refers to it
+                if m.group(2):
+                    obs[m.group(1)] = m.group(2)
+                value = obs.get(m.group(1), "")
+            if line.startswith("ob="):
+                in_exe = Path(value).name == exe_name
+        elif line.startswith("calls="):
+            skip_next = True  # the next cost line is the call's inclusive cost
+        elif line.startswith("0x"):
+            if skip_next:
+                skip_next = False
+                continue
+            parts = line.split()
+            if in_exe and len(parts) >= 3:
+                addr = int(parts[0], 16)
+                counts[addr] = counts.get(addr, 0) + int(parts[-1])
+    return counts
 
 
 def _libm_calls(text: str, exe_name: str) -> dict[str, int]:
@@ -322,15 +469,18 @@ def footprint(gen_single_baked: Path, work: Path, cc: str = "gcc") -> dict:
     frames, edges = _callgraph(sorted(work.glob("*.ci")))
     casadi_names = _casadi_names(sources[0].read_text())
     groups = {}
-    for label, roots in FOOTPRINT_GROUPS.items():
-        kept = _kept(objs, roots, work / f"group{len(groups)}.o")
+    for group in FOOTPRINT_GROUPS:
+        roots = group.roots
+        kept = _kept(objs, roots, work / f"group_{group.key}.o")
         sizes = _section_sizes(kept)
         stacks = {r: _worst_stack(r, frames, edges) for r in roots}
         biggest = sorted(
             ((v, k.removeprefix(".text.")) for k, v in sizes.items() if k.startswith(".text")),
             reverse=True,
         )[:6]
-        groups[label] = {
+        groups[group.key] = {
+            "label": group.label,
+            "role": group.role,
             "roots": list(roots),
             **_kinds(sizes),
             "largest_functions": [
@@ -360,7 +510,7 @@ def footprint(gen_single_baked: Path, work: Path, cc: str = "gcc") -> dict:
     workspace = {
         m.group(1): int(m.group(2)) for m in re.finditer(r"#define (maglev_\w+)_SZ_W (\d+)", header)
     }
-    log(f"footprint: controller path .text {groups[next(iter(groups))]['text']} B")
+    log(f"footprint: controller path .text {groups['controller_path']['text']} B")
     return {
         "compiler": cc,
         "flags": list(SIZE_FLAGS),

@@ -1,5 +1,6 @@
-"""The benchmark suite: derivation, generation, generated-code speed and footprint, against the
-usual alternatives, measured in one run. Writes BENCHMARKS.md and bench/results.json.
+"""The benchmark suite: derivation, generation, the `maglevgen build` workflow, generated-code
+speed and footprint, against the usual alternatives, measured in one run. Writes BENCHMARKS.md
+and bench/results.json.
 
     python bench/run.py [--quick] [--out BENCHMARKS.md] [--json bench/results.json]
 
@@ -30,9 +31,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import alternatives as alt
 import native
+import workflow
 import writeup
 from common import BENCH, ROOT, log, paired_ratios, run, summary, time_calls
 
+from maglevgen.cache import toolchain_fingerprint
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.functions import build_functions
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
@@ -46,6 +49,16 @@ from maglevgen.runtime.ffi import GeneratedLibrary
 DISTURBANCE = np.array([1e-3, 1e-3, 2e-3, 2e-3, 2e-3])
 DT, N_STEPS = 1e-3, 10_000
 N_SAMPLES = 64  # states near trim cycled through by the per-call timings
+# the schedule (trim, plants, gains) in float32 and float64 at these multiples of the speed
+SCHEDULE_SPEED_FACTORS = (0.4, 0.6, 1.0, 1.5, 2.25)
+# generated functions maglev_simulate may call (the first two: the model's right-hand side),
+# counted by callgrind when it does
+LOOP_FUNCTIONS = (
+    "maglev_closed_loop",
+    "maglev_rk4_step",
+    "maglev_gaps",
+    "maglev_allocation_matrix",
+)
 
 
 @dataclass(frozen=True)
@@ -58,6 +71,9 @@ class Repeats:
     py_loop: int = 3  # repeats of each Python closed-loop contender
     precision_rounds: int = 5
     controller_ms: float = 10.0
+    build_cold: int = 2  # `maglevgen build` from an empty cache (fresh processes)
+    build_rebuild: int = 5  # parameter change, unchanged and PDF builds, each
+    build_profile: int = 3  # profiled parameter-change builds, per kind (timers, cProfile)
 
     @classmethod
     def quick(cls) -> Repeats:
@@ -70,6 +86,9 @@ class Repeats:
             py_loop=1,
             precision_rounds=2,
             controller_ms=2.0,
+            build_cold=1,
+            build_rebuild=1,
+            build_profile=1,
         )
 
 
@@ -172,6 +191,7 @@ class Setup:
     runtime_input: Path
     other_exe: dict[str, Path]  # the same driver built by other compilers (clang)
     controller_exe: dict[str, Path]
+    newton_exe: dict[str, Path]  # the same, with the trim's Newton iterations counted
     controller_input: Path
     work: Path
 
@@ -230,6 +250,12 @@ def prepare(work: Path) -> Setup:
         p: native.build_controller_driver(gen[f"{p}_baked"], work / f"drv_{p}")
         for p in ("double", "single")
     }
+    newton_exe = {
+        p: native.build_controller_driver(
+            gen[f"{p}_baked"], work / f"drv_{p}_newton", count_newton=True
+        )
+        for p in ("double", "single")
+    }
     controller_input = native.write_controller_input(work / "controller_input.txt", speed, X)
     return Setup(
         carriage,
@@ -244,6 +270,7 @@ def prepare(work: Path) -> Setup:
         runtime_input,
         other_exe,
         controller_exe,
+        newton_exe,
         controller_input,
         work,
     )
@@ -293,7 +320,7 @@ def dynamics(s: Setup, reps: Repeats) -> dict:
     )
     out["generated_body"] = native.count_math_calls(
         (s.gen["double_runtime"] / "maglev_functions.c").read_text(),
-        "/* maglev_dynamics:(x[12],u[11],p[75])->(xdot[12]) */",
+        "/* maglev_dynamics:(",
     )
     out["python"] = python_dynamics(s, reps)
     return out
@@ -451,20 +478,24 @@ def closed_loop(s: Setup, reps: Repeats) -> dict:
     cg = {}
     for which, sym in (
         ("simgen", "maglev_simulate"),
-        ("simgen", "maglev_rk4_step"),
-        ("simgen", "maglev_gaps"),
+        *(("simgen", f) for f in LOOP_FUNCTIONS),
         ("simref", "ref_simulate"),
     ):
         got = native.callgrind(s.runtime_exe, s.runtime_input, which, sym, 1, s.work)
-        if got is not None:
+        if got is not None and got["instructions"] > 0:  # absent: maglev_simulate never calls it
             cg[sym] = {
                 "instructions_per_step": got["instructions"] / n,
                 "libm_calls_per_step": {k: v / n for k, v in got["libm_calls"].items()},
             }
+            if "divisions" in got:
+                cg[sym]["divisions_per_step"] = got["divisions"] / n
     out["callgrind"] = cg
-    out["generated_asm"] = native.disassembly_stats(
-        s.work / "drv_runtime" / "maglev_functions.o", "maglev_rk4_step"
-    )
+    # the function holding the model in the loop: its compiled code's instruction mix
+    worker = next((f for f in LOOP_FUNCTIONS[:2] if f in cg), None)
+    if worker is not None:
+        out["generated_asm"] = native.disassembly_stats(
+            s.work / "drv_runtime" / "maglev_functions.o", worker
+        )
     rhs = alt.closed_loop_function(s.functions)
     names = {f.name() for f in s.functions}
     gaps = alt.function_named(s.functions, "maglev_gaps") if "maglev_gaps" in names else None
@@ -512,11 +543,12 @@ def closed_loop(s: Setup, reps: Repeats) -> dict:
 
 
 def precision(s: Setup, reps: Repeats) -> dict:
-    """Controller path, float32 vs float64 (baked builds), alternating runs of the drivers."""
+    """Firmware functions, float32 vs float64 (baked builds), alternating runs of the drivers;
+    and the schedule each precision computes (trim, Newton iterations, gains) over speeds."""
     rounds: dict[str, list[dict]] = {"single": [], "double": []}
     for r in range(reps.precision_rounds):
         order = ("single", "double") if r % 2 == 0 else ("double", "single")
-        log(f"controller path float32 vs float64, round {r + 1}/{reps.precision_rounds}")
+        log(f"firmware functions float32 vs float64, round {r + 1}/{reps.precision_rounds}")
         for prec in order:
             rounds[prec].append(
                 native.time_controller(
@@ -542,7 +574,59 @@ def precision(s: Setup, reps: Repeats) -> dict:
             "single_over_double": paired_ratios(single, double),
         }
     out["workspace_reals"] = {p: rounds[p][0]["sz_w"] for p in rounds}
+    out["schedule"] = schedule_accuracy(s)
     return out
+
+
+def schedule_accuracy(s: Setup) -> dict:
+    """The schedule of each baked build at several speeds: Newton iterations, the residual
+    of its trim in its own precision, and how far float32's trim and gains are from float64's
+    (and float64's from the run-time-parameter library's)."""
+    log("schedule (trim, Newton iterations, gains) in float32 and float64")
+    speed = s.carriage.params.operation.speed
+    speeds = [speed * f for f in SCHEDULE_SPEED_FACTORS]
+    got = {
+        prec: native.controller_schedule(s.newton_exe[prec], s.controller_input, speeds)["speeds"]
+        for prec in ("single", "double")
+    }
+    rows = []
+    for sg, db in zip(got["single"], got["double"], strict=True):
+        K_rt, _c = s.lib.function("maglev_lqr_gains")(db["speed"], s.carriage.p)
+        K_rt = np.asarray(K_rt).ravel(order="F")  # column-major, as the C arrays
+
+        def rel(a: str, b: dict, ref: dict = db) -> float:
+            x, y = np.asarray(b[a]), np.asarray(ref[a])
+            return float(np.max(np.abs(x - y) / np.maximum(np.abs(y), 1e-300)))
+
+        rows.append(
+            {
+                "speed": db["speed"],
+                "newton_iterations": {
+                    "single": sg["newton_iterations"],
+                    "double": db["newton_iterations"],
+                },
+                "residual": {"single": sg["residual"], "double": db["residual"]},
+                "single_vs_double": {
+                    "K_rel": rel("K", sg),
+                    "c_damping_rel": rel("c_damping", sg),
+                    "k_rel": rel("k", sg),
+                    "F_prop_rel": rel("F_prop", sg),
+                    "heave_m": abs(sg["x_trim"][2] - db["x_trim"][2]),
+                    "pitch_rad": abs(sg["x_trim"][4] - db["x_trim"][4]),
+                },
+                "double_vs_runtime_K_rel": float(
+                    np.max(np.abs(np.asarray(db["K"]) - K_rt) / np.abs(K_rt))
+                ),
+                "lqr_gains_vs_plants_then_gains_rel": {
+                    prec: max(
+                        rel("K_lqr_gains", g, {"K_lqr_gains": g["K"]}),
+                        rel("c_lqr_gains", g, {"c_lqr_gains": g["c_damping"]}),
+                    )
+                    for prec, g in (("single", sg), ("double", db))
+                },
+            }
+        )
+    return {"speeds": rows, "default_speed": speed}
 
 
 # ---------------------------------------------------------------------------------- main
@@ -574,10 +658,14 @@ def main(argv: list[str] | None = None) -> int:
         },
         "machine": machine(),
     }
+    fingerprint_start = toolchain_fingerprint()
     with tempfile.TemporaryDirectory(prefix="maglev_bench_") as tmp:
         work = args.work or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
         results["derivation"] = derivation(work, reps)
+        results["workflow"] = workflow.workflow(
+            work, reps.build_cold, reps.build_rebuild, reps.build_profile
+        )
         s = prepare(work)
         results["dynamics"] = dynamics(s, reps)
         results["closed_loop"] = closed_loop(s, reps)
@@ -589,6 +677,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         results["precision"] = precision(s, reps)
     results["machine"]["loadavg_end"] = os.getloadavg()
+    # the toolchain's source (what keys every cache) must not change while the suite runs
+    results["meta"]["toolchain_changed_during_run"] = toolchain_fingerprint() != fingerprint_start
     results["meta"]["wall_s"] = time.perf_counter() - t0
     results["targets"] = writeup.targets(results)
     args.json.write_text(json.dumps(results, indent=1, default=float) + "\n")

@@ -281,7 +281,7 @@ int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_
 #define MAGLEV_RK4_STEP_SZ_ARG 6
 #define MAGLEV_RK4_STEP_SZ_RES 2
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 165
+#define MAGLEV_RK4_STEP_SZ_W 170
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -299,7 +299,7 @@ int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_CLOSED_LOOP_SZ_ARG 6
 #define MAGLEV_CLOSED_LOOP_SZ_RES 2
 #define MAGLEV_CLOSED_LOOP_SZ_IW 0
-#define MAGLEV_CLOSED_LOOP_SZ_W 75
+#define MAGLEV_CLOSED_LOOP_SZ_W 76
 int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 

@@ -19,7 +19,7 @@ from maglevgen.derive.model import CarriageModel
 from maglevgen.derive.riccati import riccati_stable_form
 
 from .casadi_model import casadi_model
-from .sympy_casadi import SympyToCasadi
+from .sympy_casadi import SympyToCasadi, casadi_rewriting_off
 
 PREFIX = "maglev_"
 N_AXES = len(cv.AXES)
@@ -181,27 +181,28 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     def f(xx: ca.SX) -> ca.SX:
         return dynamics(xx, closed_loop_input(xx), p)
 
-    k1 = f(x0)
-    k2 = f(x0 + dt / 2 * k1)
-    k3 = f(x0 + dt / 2 * k2)
-    k4 = f(x0 + dt * k3)
-    x_next = x0 + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    rk4 = ca.Function("maglev_rk4_step", [x0, dt, F_prop, k_pos, k_rate, a_ref, p],
-                      [x_next, closed_loop_input(x0)],
-                      ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
-    # the same right-hand side on its own, with the allocation matrix T as an input:
-    # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
-    # step, so one copy of the model's code stays in the instruction cache and nothing that
-    # depends on p alone is recomputed at every stage
-    T_in = ca.SX.sym("T", E.shape[1], N_AXES)
-    a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
-    u_cl = ca.vertcat(F_prop, T_in @ -(k_pos * (a_cl - a_ref) + k_rate * rates_fn(x0)))
-    closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, k_pos, k_rate, a_ref, T_in, p],
-                              [dynamics(x0, u_cl, p), u_cl],
-                              ["x", "F_prop", "k_pos", "k_rate", "a_ref", "T", "p"],
-                              ["xdot", "u"])
-    allocation_matrix = ca.Function("maglev_allocation_matrix", [p],
-                                    [E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))], ["p"], ["T"])
+    with casadi_rewriting_off():  # keep the model's shared reciprocals (sympy_casadi)
+        k1 = f(x0)
+        k2 = f(x0 + dt / 2 * k1)
+        k3 = f(x0 + dt / 2 * k2)
+        k4 = f(x0 + dt * k3)
+        x_next = x0 + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        rk4 = ca.Function("maglev_rk4_step", [x0, dt, F_prop, k_pos, k_rate, a_ref, p],
+                          [x_next, closed_loop_input(x0)],
+                          ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
+        # the same right-hand side on its own, with the allocation matrix T as an input:
+        # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
+        # step, so one copy of the model's code stays in the instruction cache and nothing that
+        # depends on p alone is recomputed at every stage
+        T_in = ca.SX.sym("T", E.shape[1], N_AXES)
+        a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
+        u_cl = ca.vertcat(F_prop, T_in @ -(k_pos * (a_cl - a_ref) + k_rate * rates_fn(x0)))
+        closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, k_pos, k_rate, a_ref, T_in, p],
+                                  [dynamics(x0, u_cl, p), u_cl],
+                                  ["x", "F_prop", "k_pos", "k_rate", "a_ref", "T", "p"],
+                                  ["xdot", "u"])
+        allocation_matrix = ca.Function("maglev_allocation_matrix", [p],
+                                        [E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))], ["p"], ["T"])
     gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
     fns = (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains, lqr_control,
            damping_control, allocate, allocation_matrix, rk4, closed_loop, gaps)

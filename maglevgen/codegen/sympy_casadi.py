@@ -6,7 +6,8 @@ DAG that SymPy built; CasADi's own CSE then works on it during code generation.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from typing import Any
 
 import casadi as ca
@@ -19,6 +20,23 @@ _UNARY = {
 }
 
 
+@contextmanager
+def casadi_rewriting_off() -> Iterator[None]:
+    """CasADi's on-the-fly rewriting off for the block.
+
+    CasADi rewrites x * (1/d) as x / d when it builds a node, which turns each reciprocal that
+    SymPy shares (d**-1) back into one division per use. SymPy has already simplified the
+    expressions, so the rewriting is off while converting them, and while calling the
+    resulting SX functions on new symbols (which rebuilds their nodes).
+    """
+    previous = ca.GlobalOptions.getSimplificationOnTheFly()
+    ca.GlobalOptions.setSimplificationOnTheFly(False)
+    try:
+        yield
+    finally:
+        ca.GlobalOptions.setSimplificationOnTheFly(previous)
+
+
 class SympyToCasadi:
     """A converter bound to a mapping from SymPy symbols to CasADi expressions."""
 
@@ -26,15 +44,8 @@ class SympyToCasadi:
         self._memo: dict[sp.Basic, Any] = dict(mapping)
 
     def __call__(self, expr: sp.Basic | sp.MatrixBase) -> Any:
-        # CasADi rewrites x * (1/d) as x / d when it builds the node, which turns each
-        # reciprocal SymPy shares (d**-1) back into one division per use; SymPy has already
-        # simplified the expressions, so CasADi's on-the-fly rewriting is off while converting.
-        previous = ca.GlobalOptions.getSimplificationOnTheFly()
-        ca.GlobalOptions.setSimplificationOnTheFly(False)
-        try:
+        with casadi_rewriting_off():
             return self._convert(expr)
-        finally:
-            ca.GlobalOptions.setSimplificationOnTheFly(previous)
 
     def _convert(self, expr: sp.Basic | sp.MatrixBase) -> Any:
         if isinstance(expr, sp.MatrixBase):
