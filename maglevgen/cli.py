@@ -27,6 +27,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--debug", action="store_true", help="show tracebacks")
 
 
+def _run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--t-end", type=float, default=10.0, metavar="S",
+                   help="simulated time [s] (default 10)")
+    p.add_argument("--dt", type=float, default=1e-3, metavar="S",
+                   help="RK4 step [s] (default 1e-3)")
+
+
 def _carriage(args: argparse.Namespace):
     from .carriage import Carriage
     from .params import load_params
@@ -331,10 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
     _common(sim)
     sim.add_argument("--controller", choices=("none", "damping", "lqr", "all"), default="all")
-    sim.add_argument("--t-end", type=float, default=10.0, metavar="S",
-                     help="simulated time [s] (default 10)")
-    sim.add_argument("--dt", type=float, default=1e-3, metavar="S",
-                     help="RK4 step [s] (default 1e-3)")
+    _run_options(sim)
     sim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
@@ -348,10 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(bld)
     bld.add_argument("--out", default="build", metavar="DIR",
                      help="output folder (default: ./build)")
-    bld.add_argument("--t-end", type=float, default=10.0, metavar="S",
-                     help="simulated time [s] (default 10)")
-    bld.add_argument("--dt", type=float, default=1e-3, metavar="S",
-                     help="RK4 step [s] (default 1e-3)")
+    _run_options(bld)
     bld.add_argument("--no-pdf", action="store_true", help="write report.tex only")
     bld.set_defaults(func=cmd_build)
 

@@ -292,28 +292,49 @@ def _field_meta(model: type[BaseModel], field: str) -> tuple[str, str]:
 _VEC_SUFFIX = ("x", "y", "z")
 
 
-def _walk(obj: BaseModel, prefix: str) -> Iterator[ParamEntry]:
-    for field in type(obj).model_fields:
+@dataclass(frozen=True)
+class SchemaLeaf:
+    """One leaf field of a parameter set: its dotted key, value(s) and schema metadata."""
+
+    key: str
+    values: tuple[float, ...]
+    unit: str
+    description: str
+    paper: str
+    vector: bool  # a list field (one parameter entry per component)
+
+
+def schema_leaves(obj: BaseModel, prefix: str = "") -> Iterator[SchemaLeaf]:
+    """Every leaf field in file order (vectors as one leaf); the one walk over the schema."""
+    for field, info in type(obj).model_fields.items():
         value = getattr(obj, field)
-        name = f"{prefix}{field}"
+        key = f"{prefix}{field}"
         if isinstance(value, BaseModel):
-            yield from _walk(value, name + ".")
+            yield from schema_leaves(value, key + ".")
         elif isinstance(value, dict):
-            for key, item in value.items():
-                yield from _walk(item, f"{name}.{key}.")
+            for name, item in value.items():
+                yield from schema_leaves(item, f"{key}.{name}.")
         else:
-            unit, desc = _field_meta(type(obj), field)
-            if isinstance(value, list):
-                suffixes = _VEC_SUFFIX if len(value) == 3 else tuple(map(str, range(len(value))))
-                for s, c in zip(suffixes, value, strict=True):
-                    yield ParamEntry(f"{name}.{s}", float(c), unit, desc)
-            else:
-                yield ParamEntry(name, float(value), unit, desc)
+            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+            vals = tuple(float(v) for v in value) if isinstance(value, list) else (float(value),)
+            yield SchemaLeaf(key, vals, str(extra.get("unit", "")), info.description or "",
+                             str(extra.get("paper", "")), isinstance(value, list))
+
+
+def _walk(obj: BaseModel) -> Iterator[ParamEntry]:
+    for leaf in schema_leaves(obj):
+        if not leaf.vector:
+            yield ParamEntry(leaf.key, leaf.values[0], leaf.unit, leaf.description)
+            continue
+        n = len(leaf.values)
+        suffixes = _VEC_SUFFIX if n == 3 else tuple(map(str, range(n)))
+        for sfx, c in zip(suffixes, leaf.values, strict=True):
+            yield ParamEntry(f"{leaf.key}.{sfx}", c, leaf.unit, leaf.description)
 
 
 def flatten(params: Parameters) -> list[ParamEntry]:
     """The parameter vector in file order, one scalar per entry, with units from the schema."""
-    return list(_walk(params, ""))
+    return list(_walk(params))
 
 
 def schema_rows() -> list[tuple[str, str, str, str]]:

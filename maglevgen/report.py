@@ -34,7 +34,6 @@ import jinja2
 import mpmath
 import numpy as np
 import sympy as sp
-from pydantic import BaseModel
 
 from . import __version__
 from .derive import conventions as cv
@@ -669,27 +668,6 @@ class ParamRow:
     override: str  # the --set item that set it, or ""
 
 
-def _schema_leaves(obj: BaseModel, prefix: str):
-    for fname, info in type(obj).model_fields.items():
-        value = getattr(obj, fname)
-        key = prefix + fname
-        if isinstance(value, BaseModel):
-            yield from _schema_leaves(value, key + ".")
-        elif isinstance(value, dict):
-            for name, item in value.items():
-                yield from _schema_leaves(item, f"{key}.{name}.")
-        else:
-            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
-            vals = tuple(float(v) for v in value) if isinstance(value, list) else (float(value),)
-            yield (
-                key,
-                vals,
-                str(extra.get("unit", "")),
-                info.description or "",
-                str(extra.get("paper", "")),
-            )
-
-
 def _same_field_paper_note(
     key: str,
     values: tuple[float, ...],
@@ -724,7 +702,10 @@ def parameter_rows(loaded, text: str) -> tuple[list[ParamRow], list[Note]]:
     from the schema's paper value is "changed"; one given with --set is "set".
     """
     notes = parse_notes(text)
-    leaves = list(_schema_leaves(loaded.params, ""))
+    from .params import schema_leaves
+
+    leaves = [(lf.key, lf.values, lf.unit, lf.description, lf.paper)
+              for lf in schema_leaves(loaded.params)]
     rows_by_key = {k: v for k, v, *_ in leaves}
     overrides = {}
     for item in loaded.overrides:
