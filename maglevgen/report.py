@@ -1509,6 +1509,7 @@ def _simulation(source: Simulation) -> tuple[dict[str, Any], dict[str, bytes]]:
         "metrics": [],
         "runs": [],
         "disturbance": "",
+        "growth": None,
     }
     if source is None:
         return empty, {}
@@ -1572,16 +1573,26 @@ def _metrics(data: Any) -> dict[str, Any]:
                 "controller": str(run.get("controller", "")),
                 "status": str(run.get("status", "")),
                 "event": str(run.get("event") or ""),
+                "speeds": _speeds(run),
                 "axes": rows,
             }
         )
     scalars = {k: v for k, v in data.items() if k not in ("runs", "disturbance")}
     disturbance = data.get("disturbance")
+    growth = data.get("fastest_closed_loop_growth")
     return {
         "metrics": _flatten_metrics(scalars)[:40],
         "runs": runs,
         "disturbance": disturbance if isinstance(disturbance, str) else "",
+        "growth": float(growth) if isinstance(growth, int | float) else None,
     }
+
+
+def _speeds(run: Any) -> tuple[float, float] | None:
+    """(speed at the start, at the end) of a run, when metrics.json gives them."""
+    a, b = run.get("speed_start"), run.get("speed_end")
+    return (float(a), float(b)) if isinstance(a, int | float) and isinstance(b, int | float) \
+        else None
 
 
 def _flatten_metrics(data: Any, prefix: str = "") -> list[tuple[str, str]]:

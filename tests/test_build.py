@@ -278,3 +278,21 @@ def test_up_to_date_check_is_fast_in_a_fresh_process(good: Path) -> None:
     proc = subprocess.run([sys.executable, "-c", code, str(good)], capture_output=True,
                           text=True, check=True)
     assert proc.stdout.splitlines()[-1] == "0 []", proc.stdout + proc.stderr
+
+
+def test_report_lists_each_runs_speed_drift_from_the_trajectories(good: Path) -> None:
+    """The report's simulation section states the speed drift of every run; the numbers are
+    those of the trajectories written beside it (column u of trajectories.npz)."""
+    import re
+
+    tex = (good / "report/report.tex").read_text()
+    assert "speed equilibrium is unstable" in tex
+    found = re.findall(r"\\texttt\{(\w+)\}: [^\n]*\\\\\n\\multicolumn\{6\}\{l\}\{\\quad speed "
+                       r"\$([-0-9.e]+)\$ to \$([-0-9.e]+)\$", tex)
+    npz = np.load(good / "simulation/trajectories.npz")
+    col = list(npz["columns"]).index("u")
+    assert {c for c, _, _ in found} == {"none", "damping", "lqr"}
+    for controller, start, end in found:
+        u = npz[controller][:, col]
+        assert float(start) == pytest.approx(u[0], rel=1e-5)
+        assert float(end) == pytest.approx(u[-1], rel=1e-5)
