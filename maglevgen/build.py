@@ -140,10 +140,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     files["lib/libmaglev.so"] = lib.path.read_bytes()
     # simulations (validates the speed's trim and the step against RK4's stability limit)
     run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
-    header = {"params_sha256": loaded.sha256, "speed": run.op.speed,
-              "propulsion_force": run.op.f_prop, "rk4_stability_limit": run.dt_limit,
-              "fastest_closed_loop_growth": run.fastest_growth}
-    sim_files = render_results(run.trajectories, run.input_names, header)
+    sim_files = render_results(run.trajectories, run.input_names, run.header(loaded.sha256))
     files.update({f"simulation/{n}": b for n, b in sim_files.items()})
     # the report (and its PDF where TeX is installed)
     files.update({f"report/{n}": b for n, b in _report_files(carriage, sim_files, opts,

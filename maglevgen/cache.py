@@ -21,8 +21,7 @@ from . import __version__
 
 # The derivation and the code generator (what the cached C and the memoised steps depend on).
 DERIVATION_PACKAGES = ("maglevgen.derive", "maglevgen.codegen")
-DERIVATION_FILES = ("maglevgen/params.py", "templates/maglev_simulate.c.j2",
-                    "templates/maglev_simulate.h.j2")
+DERIVATION_FILES = ("maglevgen/params.py", "templates/maglev_simulate.*.j2")
 DERIVATION_LIBS = ("casadi", "sympy", "numpy", "cloudpickle")
 # Everything a build's outputs depend on.
 ALL_PACKAGES = ("maglevgen", "maglevgen.derive", "maglevgen.codegen", "maglevgen.runtime",
@@ -54,11 +53,14 @@ def _package_root(pkg: str) -> Path:
     return Path(next(iter(spec.submodule_search_locations)))
 
 
-def _resolve(rel: str) -> Path:
-    """'maglevgen/params.py' or 'templates/x.j2' -> the installed file."""
-    head, name = rel.split("/", 1)
+def _resolve(rel: str) -> list[Path]:
+    """'maglevgen/params.py' or 'templates/x.*.j2' (a glob) -> the installed files."""
+    head, pattern = rel.split("/", 1)
     pkg = {"maglevgen": "maglevgen", "templates": "maglevgen.templates"}[head]
-    return _package_root(pkg) / name
+    found = sorted(_package_root(pkg).glob(pattern))
+    if not found:
+        raise RuntimeError(f"{rel}: no such file in the installed package")
+    return found
 
 
 def _hash_files(h: Any, files: Iterable[tuple[str, Path]]) -> None:
@@ -85,7 +87,7 @@ def fingerprint(packages: Iterable[str], files: Iterable[str], libs: Iterable[st
         found = root.rglob("*") if recursive else root.iterdir()
         _hash_files(h, ((f"{pkg}/{f.relative_to(root)}", f) for f in sorted(found)
                         if f.suffix in (".py", ".j2", ".toml") and "__pycache__" not in f.parts))
-    _hash_files(h, ((rel, _resolve(rel)) for rel in files))
+    _hash_files(h, ((f"{rel}:{p.name}", p) for rel in files for p in _resolve(rel)))
     return h.hexdigest()
 
 

@@ -221,10 +221,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
     run = run_scenarios(carriage, controllers, args.t_end, args.dt, args.speed,
                         announce=progress.step, bar=progress.bar)
-    header = {"params_sha256": carriage.loaded.sha256, "speed": run.op.speed,
-              "propulsion_force": run.op.f_prop, "rk4_stability_limit": run.dt_limit,
-              "fastest_closed_loop_growth": run.fastest_growth}
-    files = render_results(run.trajectories, run.input_names, header)
+    files = render_results(run.trajectories, run.input_names, run.header(carriage.loaded.sha256))
     paths = write_output(files, Path(args.out))
     print(f"Simulated {args.t_end:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
           f"limit {run.dt_limit:.3g} s) from trim at {run.op.speed:g} m/s, F_prop = "

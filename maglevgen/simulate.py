@@ -67,9 +67,10 @@ class OperatingPoint:
         raise InputError(f"controller {controller!r}: expected one of {CONTROLLERS}")
 
 
-def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float,
-                    min_gap: float) -> OperatingPoint:
-    """Trim (Newton in C), checked against the dynamics, and the gains at ``speed``."""
+def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
+                 min_gap: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """(x_trim, F_prop, gaps): the Newton trim in C, checked against the dynamics and the
+    track; NoTrimError when there is none."""
     x_trim, f_prop = lib.function("maglev_trim")(speed, p)
     x_trim, f_prop = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
@@ -83,10 +84,15 @@ def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float,
     if np.min(gaps) < min_gap:
         raise NoTrimError(f"no trim at {speed:g} m/s with every gap above track.min_gap = "
                           f"{min_gap:g} m (smallest {np.min(gaps):.4g} m)")
+    return x_trim, f_prop, gaps
+
+
+def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float,
+                    min_gap: float) -> OperatingPoint:
+    """Checked trim, gains and allocation matrix at ``speed``, all from the generated C."""
+    x_trim, f_prop, gaps = checked_trim(lib, p, speed, min_gap)
     K, c = lib.function("maglev_lqr_gains")(speed, p)
-    n_gen = len(cv.AXES)
-    T = np.column_stack([lib.function("maglev_allocate")(e, p)[0].ravel()
-                         for e in np.eye(n_gen)])
+    (T,) = lib.function("maglev_allocation_matrix")(p)
     return OperatingPoint(speed, x_trim, f_prop, gaps, K, c.ravel(), T)
 
 
@@ -227,16 +233,11 @@ def moving_equilibrium(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint
         return np.tile(op.a_trim, (speeds.size, 1))
     grid = np.linspace(lo, hi, n_grid)
     try:
-        trims = np.array([operating_point_trim(lib, p, v, min_gap) for v in grid])
+        trims = np.array([checked_trim(lib, p, v, min_gap)[0][list(AXIS_STATES)]
+                          for v in grid])
     except NoTrimError:
         return None
     return np.column_stack([np.interp(speeds, grid, trims[:, i]) for i in range(trims.shape[1])])
-
-
-def operating_point_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
-                         min_gap: float) -> np.ndarray:
-    """The trim axis positions (y, z, phi, theta, psi) at ``speed``, checked."""
-    return operating_point(lib, p, speed, min_gap).a_trim
 
 
 def reference_trajectory(functions, p: np.ndarray, op: OperatingPoint, controller: str,
@@ -334,6 +335,12 @@ class SimulationRun:
     dt_limit: float
     input_names: tuple[str, ...]
     fastest_growth: float  # largest real part of the closed-loop poles [1/s] (the speed mode)
+
+    def header(self, params_sha256: str) -> dict:
+        """What metrics.json states about the runs besides the per-run metrics."""
+        return {"params_sha256": params_sha256, "speed": self.op.speed,
+                "propulsion_force": self.op.f_prop, "rk4_stability_limit": self.dt_limit,
+                "fastest_closed_loop_growth": self.fastest_growth}
 
 
 def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: float,
