@@ -38,6 +38,19 @@ def array_gap(arr: ArraySymbols, position_O: sp.Matrix, R: sp.Matrix) -> sp.Expr
     return arr.nominal_gap + (arr.normal.T * (position_O + (R - sp.eye(3)) * arr.position))[0]
 
 
+def array_speed(arr: ArraySymbols, R: sp.Matrix, velocity: sp.Matrix, omega: sp.Matrix
+                ) -> sp.Expr:
+    """Along-track (inertial x) speed of an array's face centre: (R (v + w x a_i))_x."""
+    return (R[0, :] * (velocity + omega.cross(arr.position)))[0]
+
+
+def array_wrench(arr: ArraySymbols, lift: sp.Expr, drag: sp.Expr, R: sp.Matrix
+                 ) -> tuple[sp.Matrix, sp.Matrix]:
+    """An array's force (lift along n_i, drag along -x) and its moment about O, inertial axes."""
+    force = lift * arr.normal - drag * sp.Matrix([1, 0, 0])
+    return force, (R * arr.position).cross(force)
+
+
 def control_components(normal_values: Sequence[float], tol: float = 1e-12) -> tuple[str, ...]:
     """Control force components an array has: the body axes (y, z) its normal has a part along.
 

@@ -17,6 +17,7 @@ import numpy as np
 import sympy as sp
 
 from . import conventions as cv
+from .geometry import array_wrench
 from .memo import memoized
 from .model import CarriageModel, Structure, build_model
 from .rigid_body import inertia_about_origin
@@ -50,9 +51,9 @@ def stiffness_form(structure: Structure) -> StiffnessForm:
     W = sp.zeros(6, 1)
     for i, a in enumerate(m.arrays):
         scale = sp.exp(-2 * m.wavenumber * (m.gaps[i] - trim_gap[i]))
-        f = scale * (m.lift_sym[i] * a.normal - m.drag_sym[i] * ex)
+        f, moment = array_wrench(a, scale * m.lift_sym[i], scale * m.drag_sym[i], m.R)
         W[0:3, 0] += f
-        W[3:6, 0] += (m.R * a.position).cross(f)
+        W[3:6, 0] += moment
     rows = W[1:6, 0]  # F_y, F_z, M_x, M_y, M_z
     K = -rows.jacobian(q)
     K = K.xreplace({g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})

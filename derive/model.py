@@ -15,7 +15,7 @@ from functools import lru_cache
 import sympy as sp
 
 from . import conventions as cv
-from .geometry import ArraySymbols, array_gap, control_components
+from .geometry import ArraySymbols, array_gap, array_speed, array_wrench, control_components
 from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
 
@@ -129,7 +129,6 @@ def build_model(structure: Structure) -> CarriageModel:
                                sym["halbach.magnets_per_wavelength"], k)
     w, L, Rc = sym["halbach.width"], sym["circuit.inductance"], sym["circuit.resistance"]
     R = rotation_body_to_inertial(phi, theta, psi)
-    ex = sp.Matrix([1, 0, 0])
 
     arrays, gaps, speeds, lifts, drags = [], [], [], [], []
     speed_sym = sp.Matrix(sp.symbols(f"s0:{len(structure.arrays)}", real=True))
@@ -137,10 +136,9 @@ def build_model(structure: Structure) -> CarriageModel:
         a = ArraySymbols(name, vec(f"arrays.{name}.position"), vec(f"arrays.{name}.normal"),
                          sym[f"arrays.{name}.nominal_gap"], sym[f"arrays.{name}.circuits"])
         gap = array_gap(a, pos, R)
-        speed = (ex.T * R * (vel + omega.cross(a.position)))[0]
         arrays.append(a)
         gaps.append(gap)
-        speeds.append(speed)
+        speeds.append(array_speed(a, R, vel, omega))
         lifts.append(a.circuits * lift_per_circuit(B0, w, k, L, Rc, gap, s))
         drags.append(a.circuits * drag_per_circuit(B0, w, k, L, Rc, gap, s))
 
@@ -173,9 +171,9 @@ def _wrench(structure: Structure, arrays: list[ArraySymbols], u: sp.Matrix, lift
     ex = sp.Matrix([1, 0, 0])
     force_in, moment_in = sp.zeros(3, 1), sp.zeros(3, 1)
     for a, fl, fd in zip(arrays, lift, drag, strict=True):
-        f = fl * a.normal - fd * ex
+        f, mo = array_wrench(a, fl, fd, R)
         force_in += f
-        moment_in += (R * a.position).cross(f)
+        moment_in += mo
     f_prop = u[0] * ex
     force_in += f_prop
     moment_in += (R * a_prop).cross(f_prop)

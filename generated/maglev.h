@@ -146,7 +146,7 @@ extern "C" {
 #define MAGLEV_DYNAMICS_SZ_ARG 2
 #define MAGLEV_DYNAMICS_SZ_RES 1
 #define MAGLEV_DYNAMICS_SZ_IW 0
-#define MAGLEV_DYNAMICS_SZ_W 70
+#define MAGLEV_DYNAMICS_SZ_W 75
 int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -160,7 +160,7 @@ int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_JACOBIANS_SZ_ARG 2
 #define MAGLEV_JACOBIANS_SZ_RES 2
 #define MAGLEV_JACOBIANS_SZ_IW 0
-#define MAGLEV_JACOBIANS_SZ_W 258
+#define MAGLEV_JACOBIANS_SZ_W 232
 int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -281,7 +281,7 @@ int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_
 #define MAGLEV_RK4_STEP_SZ_ARG 6
 #define MAGLEV_RK4_STEP_SZ_RES 2
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 170
+#define MAGLEV_RK4_STEP_SZ_W 185
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -299,7 +299,7 @@ int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_CLOSED_LOOP_SZ_ARG 6
 #define MAGLEV_CLOSED_LOOP_SZ_RES 2
 #define MAGLEV_CLOSED_LOOP_SZ_IW 0
-#define MAGLEV_CLOSED_LOOP_SZ_W 76
+#define MAGLEV_CLOSED_LOOP_SZ_W 85
 int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -311,7 +311,7 @@ int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_GAPS_SZ_ARG 1
 #define MAGLEV_GAPS_SZ_RES 1
 #define MAGLEV_GAPS_SZ_IW 0
-#define MAGLEV_GAPS_SZ_W 21
+#define MAGLEV_GAPS_SZ_W 20
 int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 

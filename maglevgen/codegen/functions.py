@@ -206,17 +206,22 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
     fns = (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains, lqr_control,
            damping_control, allocate, allocation_matrix, rk4, closed_loop, gaps)
-    return Built(tuple(_dense_outputs(f) for f in fns), p.shape[0])
+    return Built(tuple(_finished(f) for f in fns), p.shape[0])
 
 
-def _dense_outputs(fn: ca.Function) -> ca.Function:
-    """The same function with dense outputs (firmware indexes them with the header's macros)."""
-    if all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
+def _finished(fn: ca.Function) -> ca.Function:
+    """The same function with dense outputs (firmware indexes them with the header's macros)
+    and, for SX, CasADi's common subexpression elimination: SymPy's expanded expressions
+    repeat products that SymPyToCasadi's memo cannot see as shared (about 13% of the
+    dynamics' operations)."""
+    sx = fn.is_a("SXFunction")
+    if not sx and all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
         return fn
-    sym = ca.SX.sym if fn.is_a("SXFunction") else ca.MX.sym
+    sym = ca.SX.sym if sx else ca.MX.sym
     ins = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in())]
-    outs = [ca.densify(o) for o in fn.call(ins)]
-    return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out())
+    with casadi_rewriting_off():  # rebuilding the nodes must not undo the shared reciprocals
+        outs = [ca.densify(o) for o in fn.call(ins)]
+        return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out(), {"cse": sx})
 
 
 def _trim_state(v: ca.SX, z6: ca.SX) -> ca.SX:

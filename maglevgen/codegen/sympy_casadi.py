@@ -65,6 +65,17 @@ class SympyToCasadi:
         self._memo[e] = out
         return out
 
+    def _sum(self, terms: tuple[sp.Basic, ...]) -> Any:
+        """a + b - c: terms with a negative coefficient are subtracted, not multiplied by -1."""
+        plus = [t for t in terms if _negated(t) is None]
+        minus = [_negated(t) for t in terms if _negated(t) is not None]
+        out = self._conv(plus[0]) if plus else -self._conv(minus.pop(0))
+        for t in plus[1:]:
+            out = out + self._conv(t)
+        for t in minus:
+            out = out - self._conv(t)
+        return out
+
     def _convert_node(self, e: sp.Basic) -> Any:
         if isinstance(e, sp.Symbol):
             raise KeyError(f"symbol {e} has no CasADi counterpart")
@@ -76,12 +87,11 @@ class SympyToCasadi:
             for val, cond in reversed(branches):
                 out = ca.if_else(self._conv(cond), self._conv(val), out)
             return out
-        args = [self._conv(a) for a in e.args]
         if isinstance(e, sp.Add):
-            out = args[0]
-            for a in args[1:]:
-                out = out + a
-            return out
+            return self._sum(e.args)
+        if isinstance(e, sp.Mul) and e.args[0] == -1:
+            return -self._conv(-e)  # a negation, not a product with -1
+        args = [self._conv(a) for a in e.args]
         if isinstance(e, sp.Mul):
             out = args[0]
             for a in args[1:]:
@@ -102,6 +112,15 @@ class SympyToCasadi:
         if isinstance(e, sp.Min):
             return _fold(ca.fmin, args)
         raise NotImplementedError(f"no CasADi conversion for {e.func.__name__}")
+
+
+def _negated(term: sp.Basic) -> sp.Basic | None:
+    """-term when ``term`` carries a negative numeric coefficient (so a sum can subtract it)."""
+    if term.is_Number and term < 0:
+        return -term
+    if isinstance(term, sp.Mul) and term.args[0].is_Number and term.args[0] < 0:
+        return -term
+    return None
 
 
 def _fold(fn: Any, args: list[Any]) -> Any:
