@@ -45,6 +45,7 @@ LAZY_MODULES = (
     "maglevgen.carriage",
     "maglevgen.codegen.generate",
     "maglevgen.library",
+    "maglevgen.background",
     "maglevgen.sim_output",
     "maglevgen.simulate",
     "maglevgen.report",
@@ -66,10 +67,10 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("render_interface", "maglevgen.codegen.generate:render_interface"),
     ("run_scenarios", "maglevgen.simulate:run_scenarios"),
     ("c_simulate", "maglevgen.library:SimulationLibrary.simulate"),
-    ("render_results", "maglevgen.sim_output:render_results"),
-    ("trajectory_csv", "maglevgen.sim_output:trajectory_csv"),
-    ("trajectories_npz", "maglevgen.sim_output:trajectories_npz"),
-    ("figure_png", "maglevgen.sim_output:figure_png"),
+    ("render_metrics", "maglevgen.sim_output:render_metrics"),
+    # trajectories, simulation figures and report figures are drawn in forked children
+    # (maglevgen.background): this process only sees the time it waits for them
+    ("background_wait", "maglevgen.background:Background.result"),
     ("report_files", "maglevgen.build:_report_files"),
     ("build_context", "maglevgen.report:build_context"),
     ("trim_report", "maglevgen.cli:trim_report"),

@@ -330,21 +330,25 @@ STAGE_ROWS: tuple[tuple[str, str, str, int], ...] = (
         1,
     ),
     ("the C runs (`maglev_simulate` through ctypes)", "c_simulate", "c_simulate", 2),
-    ("simulation files (`render_results`)", "render_results", "render_results", 1),
-    ("CSV trajectories", "trajectory_csv", "trajectory_csv", 2),
-    (".npz trajectories", "trajectories_npz", "trajectories_npz", 2),
-    ("PNG figures (matplotlib)", "figure_png", "figure_png", 2),
+    ("simulation metrics (`render_metrics`: metrics.json, metrics.md)", "render_metrics",
+     "render_metrics", 1),
     ("report (`report_files`)", "report_files", "report_files", 1),
     ("report context (`build_context`, figures included)", "build_context", "build_context", 2),
     ("trim report", "trim_report", "trim_report", 3),
     (
-        "gains report (closed form, python-control, 50-digit reference, coupled model)",
+        "gains report (closed form, numerical LQR, 50-digit reference, coupled model)",
         "gains_report",
         "gains_report",
         3,
     ),
     ("verification table", "verification", "verification", 3),
-    ("report figures (`force_figures`, matplotlib)", "force_figures", "force_figures", 3),
+    (
+        "waiting for the child processes (`Background.result`: CSV and .npz trajectories, "
+        "simulation and report figures, drawn while the context is built)",
+        "background_wait",
+        "background_wait",
+        3,
+    ),
     ("LaTeX rendering (`render_tex`: report.tex)", "render_tex", "render_tex", 2),
     ("PDF (`run_latex`)", "run_latex", "run_latex", 2),
     ("SUMMARY.md (`summary_text`)", "summary_text", "summary_text", 1),
@@ -404,7 +408,7 @@ def _workflow_breakdown(wf: dict) -> list[str]:
     run_build = _stage(tm, "run_build") or tm["run_build_s"]["median"]
     parts = {
         "the report": _stage(tm, "report_files") or 0.0,
-        "the simulation files": _stage(tm, "render_results") or 0.0,
+        "the simulation metrics": _stage(tm, "render_metrics") or 0.0,
         "the simulation": _stage(tm, "run_scenarios") or 0.0,
         "the lambdified model": _stage(tm, "model_functions") or 0.0,
     }
@@ -437,8 +441,10 @@ def _workflow_breakdown(wf: dict) -> list[str]:
         f"before `run_build` {floor:.2f} s, then `run_build` {run_build:.2f} s, of which "
         f"{biggest}. The part that depends on the parameter values and runs in C (trim, gains "
         f"and the three closed-loop runs) takes {(_stage(tm, 'run_scenarios') or 0.0):.2f} s; "
-        "the rest is Python: the report's context and figures, the simulation's CSV and PNG "
-        "files, the imports they trigger, and the import floor"
+        "the rest is Python: the report's context (SymPy displays of the derivation with "
+        "the parameter values, the numerical checks) and the imports it triggers, and the "
+        "import floor; the trajectories and figures are written by child processes on the "
+        "other core meanwhile (`background_wait` is what is left of them)"
         + (
             f", which alone ({floor:.2f} s) exceeds the {limit:g} s target."
             if floor >= limit

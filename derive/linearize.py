@@ -65,6 +65,7 @@ def stiffness_form(structure: Structure) -> StiffnessForm:
     return StiffnessForm(K, K_other, q, m.lift_sym, m.drag_sym)
 
 
+@memoized
 def design_pose_stiffness(structure: Structure) -> sp.Matrix:
     """K_st0 at zero attitude: the closed form to set beside the paper's eqs 13-19."""
     sf = stiffness_form(structure)

@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import shutil
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import resources
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from . import __version__
+from .background import Background, PendingFiles
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
 from .output import check_writable, write_output
 
@@ -117,7 +119,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     from .carriage import Carriage
     from .codegen.generate import FUNCTION_TABLE, GenerateOptions, render_interface
     from .library import runtime_sources, simulation_library
-    from .sim_output import render_results
+    from .sim_output import background_names, render_files_and_figures, render_metrics
     from .simulate import CONTROLLERS, run_scenarios
 
     STORE.progress = step  # announce the derivation steps that are not cached yet
@@ -140,11 +142,16 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     files["lib/libmaglev.so"] = lib.path.read_bytes()
     # simulations (validates the speed's trim and the step against RK4's stability limit)
     run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
-    sim_files = render_results(run.trajectories, run.input_names, run.header(loaded.sha256))
-    files.update({f"simulation/{n}": b for n, b in sim_files.items()})
-    # the report (and its PDF where TeX is installed)
-    files.update({f"report/{n}": b for n, b in _report_files(carriage, sim_files, opts,
-                                                            step).items()})
+    # trajectories and figures are written in a child process while this one builds the
+    # report's context (which reads the figures last)
+    with Background("writing the trajectories and figures", render_files_and_figures,
+                    run.trajectories, run.input_names) as drawing:
+        sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
+                                 background_names(run.trajectories), drawing)
+        # the report (and its PDF where TeX is installed)
+        report = _report_files(carriage, sim_files, opts, step)
+        files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
+    files.update({f"report/{n}": b for n, b in report.items()})
     summary = summary_text(carriage, run, lib)
     files[SUMMARY] = summary
     digests = {n: hashlib.sha256(b.encode() if isinstance(b, str) else b).hexdigest()
@@ -157,7 +164,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     return BuildResult(out_dir, True, summary, tuple(sorted(files)))
 
 
-def _report_files(carriage, sim_files: dict[str, bytes], opts: BuildOptions,
+def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
                   step) -> dict[str, bytes]:
     """report.tex (+ report.pdf) with the simulation figures."""
     from .report import report_files

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import control
 import numpy as np
 import scipy.linalg
 import sympy as sp
@@ -22,6 +21,7 @@ from .derive import conventions as cv
 from .derive.allocation import minimum_norm_allocation
 from .derive.damping import damping_gain_closed_form
 from .derive.geometry import control_effectiveness
+from .derive.memo import memoized
 from .derive.paper import paper_riccati
 from .derive.riccati import lqr_gain_mp, lqr_gain_numeric, riccati_solution_mp
 from .derive.trim import Trim
@@ -82,12 +82,23 @@ def axis_plants(carriage: Carriage, trim: Trim) -> list[tuple[str, float, float]
     return [(axis, float(K[i, i]), float(M[i])) for i, axis in enumerate(cv.AXES)]
 
 
+def numerical_lqr(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The numerical LQR gain K = R^-1 B^T P, P from scipy's Schur-method CARE solver.
+
+    The same solver python-control's ``lqr`` calls without slycot; used here directly so that
+    a build does not import python-control (and scipy.signal, ~1 s). The tests check the
+    closed forms against python-control itself.
+    """
+    P = scipy.linalg.solve_continuous_are(A, B, Q, R)
+    return np.linalg.solve(R, B.T @ P)
+
+
 def axis_gains(axis: str, k: float, m: float, q1: float, q2: float, r: float) -> AxisGains:
     A = np.array([[0.0, 1.0], [-k / m, 0.0]])
     B = np.array([[0.0], [1.0 / m]])
     K_cf = lqr_gain_numeric(k, m, q1, q2, r)
     P = np.array(riccati_solution_mp(k, m, q1, q2, r).tolist(), dtype=float)
-    K_num, _, _ = control.lqr(A, B, np.diag([q1, q2]), np.array([[r]]))
+    K_num = numerical_lqr(A, B, np.diag([q1, q2]), np.array([[r]]))
     _, Kp = paper_riccati(sp.Float(k, 30), sp.Float(m, 30))
     K_ref = np.array([float(v) for v in lqr_gain_mp(k, m, q1, q2, r)])
     c = float(damping_gain_closed_form(sp.Float(k), sp.Float(m))) if k > 0 else None
@@ -125,8 +136,15 @@ def effectiveness(carriage: Carriage) -> np.ndarray:
 
 def allocation_matrix(carriage: Carriage) -> np.ndarray:
     """T (n x 5): minimum-norm array forces for (u_y, u_z, u_phi, u_theta, u_psi)."""
-    E = sp.Matrix(effectiveness(carriage)).applyfunc(sp.nsimplify)
-    return np.array(minimum_norm_allocation(E).evalf(), dtype=float)
+    return _minimum_norm(tuple(map(tuple, effectiveness(carriage).tolist())))
+
+
+@memoized
+def _minimum_norm(E: tuple[tuple[float, ...], ...]) -> np.ndarray:
+    """The derived minimum-norm allocation (eqs 22-23) for the array geometry E, kept across
+    processes: it depends on the array positions only, which few parameter edits change."""
+    rational = sp.Matrix(E).applyfunc(sp.nsimplify)
+    return np.array(minimum_norm_allocation(rational).evalf(), dtype=float)
 
 
 # -------------------------------------------------------------------------- coupled model
@@ -181,7 +199,7 @@ def coupled_comparison(carriage: Carriage, trim: Trim,
     C_pos = np.hstack([np.eye(5), np.zeros((5, 5))])
     Q = q1 * C_pos.T @ C_pos + q2 * C_rate.T @ C_rate
     R = r * np.eye(5)
-    K_c, _, _ = control.lqr(Ar, Bg, Q, R)
+    K_c = numerical_lqr(Ar, Bg, Q, R)
     K_a = _feedback(gains, C_rate)
     K_d = _feedback(gains, C_rate, damping=True)
 

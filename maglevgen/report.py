@@ -36,6 +36,7 @@ import numpy as np
 import sympy as sp
 
 from . import __version__
+from .background import Background
 from .derive import conventions as cv
 from .errors import InputError, MaglevError
 
@@ -1448,8 +1449,8 @@ def _verification(
         )
     checks = [
         Check(
-            "Closed-form $K$ (eq 32, stable form) vs \\texttt{control.lqr}, all axes",
-            "python-control",
+            "Closed-form $K$ (eq 32, stable form) vs numerical LQR, all axes",
+            "scipy CARE (Schur)",
             max(a["relative_difference"]["numerical_vs_closed_form"] for a in axes.values()),
             1e-6,
         ),
@@ -1460,7 +1461,7 @@ def _verification(
             1e-14,
         ),
         Check(
-            "\\texttt{control.lqr} $K$",
+            "Numerical LQR $K$ (scipy CARE)",
             "closed form in 50-digit mpmath",
             max(a["accuracy_vs_50_digit_reference"]["numerical"] for a in axes.values()),
             1e-6,
@@ -1500,7 +1501,7 @@ def _verification(
 Simulation = Path | Mapping[str, bytes | str] | None
 
 
-def _simulation(source: Simulation) -> tuple[dict[str, Any], dict[str, bytes]]:
+def _simulation(source: Simulation) -> tuple[dict[str, Any], _Deferred]:
     """Figures and metrics of `maglevgen simulate`: its output folder, or its files in memory."""
     empty = {
         "given": False,
@@ -1512,10 +1513,10 @@ def _simulation(source: Simulation) -> tuple[dict[str, Any], dict[str, bytes]]:
         "growth": None,
     }
     if source is None:
-        return empty, {}
+        return empty, _Deferred({}, {})
     if isinstance(source, Mapping):
         where = "the simulation results"
-        sim = {n: (d.encode() if isinstance(d, str) else d) for n, d in source.items()}
+        sim = source
     else:
         where = f"--simulation {source}"
         folder = Path(source)
@@ -1523,11 +1524,11 @@ def _simulation(source: Simulation) -> tuple[dict[str, Any], dict[str, bytes]]:
             raise InputError(f"{where}: not a folder")
         names = [n for n, _ in SIMULATION_FIGURES] + ["metrics.json"]
         sim = {n: (folder / n).read_bytes() for n in names if (folder / n).is_file()}
-    files: dict[str, bytes] = {}
+    files: dict[str, str] = {}  # report file -> simulation file, read when the report is done
     figures, missing = [], []
     for name, caption in SIMULATION_FIGURES:
         if name in sim:
-            files[f"sim_{name}"] = sim[name]
+            files[f"sim_{name}"] = name
             figures.append({"file": f"sim_{name}", "caption": caption, "name": name})
         else:
             missing.append(name)
@@ -1536,11 +1537,27 @@ def _simulation(source: Simulation) -> tuple[dict[str, Any], dict[str, bytes]]:
     ctx = {**empty, "given": True, "figures": figures, "missing": missing}
     if "metrics.json" in sim:
         try:
-            data = json.loads(sim["metrics.json"].decode("utf-8"))
+            data = json.loads(_as_bytes(sim["metrics.json"]).decode("utf-8"))
         except (UnicodeDecodeError, ValueError) as exc:
             raise InputError(f"{where}: metrics.json is not readable JSON ({exc})") from None
         ctx.update(_metrics(data))
-    return ctx, files
+    return ctx, _Deferred(sim, files)
+
+
+@dataclass(frozen=True)
+class _Deferred:
+    """The simulation files the report includes, read only by ``read``: `maglevgen build` may
+    still be rendering them in the background while the report's context is built."""
+
+    sim: Mapping[str, bytes | str]
+    names: dict[str, str]  # report file -> simulation file
+
+    def read(self) -> dict[str, bytes]:
+        return {out: _as_bytes(self.sim[name]) for out, name in self.names.items()}
+
+
+def _as_bytes(data: bytes | str) -> bytes:
+    return data.encode("utf-8") if isinstance(data, str) else data
 
 
 def _metrics(data: Any) -> dict[str, Any]:
@@ -1735,28 +1752,31 @@ def build_context(
     gains = gains_report(carriage, None)
     progress("report: symbolic forms")
     force = _force_law(carriage, trim, trep)
-    rigid = _rigid_body()
-    alloc = _damping_allocation(gains)
-    sections = {
-        "conventions": _conventions(carriage.model),
-        "rigid_body": rigid,
-        "force_law": force,
-        "geometry": _geometry(carriage, gains),
-        "trim": _trim(trep),
-        "stiffness": _stiffness(carriage, trim, trep),
-        "damping": alloc,
-        "riccati": _riccati(gains),
-    }
-    progress("report: comparison with the paper")
-    paper = _paper_comparison(gains, trep)
-    progress("report: verification")
-    checks = _verification(
-        carriage, trim, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
-    )
-    progress("report: figures")
-    files = force_figures(carriage, trim, force)
+    # drawn in a child process while this one builds the rest of the context
+    with Background("drawing the report figures", force_figures, carriage, trim,
+                    force) as drawing:
+        rigid = _rigid_body()
+        alloc = _damping_allocation(gains)
+        sections = {
+            "conventions": _conventions(carriage.model),
+            "rigid_body": rigid,
+            "force_law": force,
+            "geometry": _geometry(carriage, gains),
+            "trim": _trim(trep),
+            "stiffness": _stiffness(carriage, trim, trep),
+            "damping": alloc,
+            "riccati": _riccati(gains),
+        }
+        progress("report: comparison with the paper")
+        paper = _paper_comparison(gains, trep)
+        progress("report: verification")
+        checks = _verification(
+            carriage, trim, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
+        )
+        progress("report: figures")
+        files = drawing.result()
     del force["lift_fn"], force["drag_fn"]  # only the figures use them
-    files.update(sim_files)
+    files.update(sim_files.read())
     rows, notes = parameter_rows(carriage.loaded, params_text)
     loaded = carriage.loaded
     ctx: dict[str, Any] = {

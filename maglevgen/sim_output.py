@@ -140,17 +140,44 @@ def metrics_markdown(all_metrics: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
+FIGURE_NAMES: tuple[str, ...] = tuple(f[0] for f in FIGURES)
+
+
+def render_figures(trajs: Sequence[Trajectory]) -> dict[str, bytes]:
+    """The PNG figures of a simulation run (figs 3-8)."""
+    return {name: figure_png(trajs, title, panels, figs) for name, title, panels, figs in FIGURES}
+
+
 def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],
                    header: dict) -> dict[str, bytes]:
     """Every output file of a simulation run."""
-    all_metrics = [metrics(t) for t in trajs]
-    files: dict[str, bytes] = {}
-    for t in trajs:
-        files[f"trajectory_{t.controller}.csv"] = trajectory_csv(t, input_names)
+    return {**render_metrics(trajs, header), **render_trajectories(trajs, input_names),
+            **render_figures(trajs)}
+
+
+def render_trajectories(trajs: Sequence[Trajectory], input_names: Sequence[str]
+                        ) -> dict[str, bytes]:
+    """The trajectories: one CSV per run and one .npz archive of all."""
+    files = {f"trajectory_{t.controller}.csv": trajectory_csv(t, input_names) for t in trajs}
     files["trajectories.npz"] = trajectories_npz(trajs, input_names)
-    for name, title, panels, figs in FIGURES:
-        files[name] = figure_png(trajs, title, panels, figs)
-    files["metrics.json"] = (json.dumps({**header, "disturbance": DISTURBANCE_DOC,
-                                         "runs": all_metrics}, indent=2) + "\n").encode()
-    files["metrics.md"] = (metrics_markdown(all_metrics) + "\n").encode()
     return files
+
+
+def render_metrics(trajs: Sequence[Trajectory], header: dict) -> dict[str, bytes]:
+    """metrics.json and metrics.md: settling time, peak deviation and RMS control per axis."""
+    all_metrics = [metrics(t) for t in trajs]
+    return {"metrics.json": (json.dumps({**header, "disturbance": DISTURBANCE_DOC,
+                                         "runs": all_metrics}, indent=2) + "\n").encode(),
+            "metrics.md": (metrics_markdown(all_metrics) + "\n").encode()}
+
+
+def render_files_and_figures(trajs: Sequence[Trajectory], input_names: Sequence[str]
+                             ) -> dict[str, bytes]:
+    """What `maglevgen build` renders in the background: trajectories and figures."""
+    return {**render_trajectories(trajs, input_names), **render_figures(trajs)}
+
+
+def background_names(trajs: Sequence[Trajectory]) -> tuple[str, ...]:
+    """The names `render_files_and_figures` produces."""
+    return (*(f"trajectory_{t.controller}.csv" for t in trajs), "trajectories.npz",
+            *FIGURE_NAMES)

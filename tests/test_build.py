@@ -198,6 +198,41 @@ def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkey
     _assert_untouched(good, before, names)
 
 
+def test_a_failure_while_drawing_in_the_background_is_exit_1(good: Path, monkeypatch,
+                                                            capsys) -> None:
+    """The trajectories and figures are written by a forked child: its failure reaches the
+    user as one line, and the good build stays."""
+    import maglevgen.sim_output as sim_output
+
+    before, names = tree(good), siblings(good)
+
+    def broken(*_a, **_k):
+        raise RuntimeError("simulated failure while drawing")
+
+    monkeypatch.setattr(sim_output, "render_files_and_figures", broken)
+    rc = main(["build", "--out", str(good), *FAST, "--set", "vehicle.mass=9.3002"])
+    out, err = capsys.readouterr()
+    assert rc == 1 and out == ""
+    line = err.splitlines()[-1]
+    assert line == ("maglevgen: error: writing the trajectories and figures failed: "
+                    "RuntimeError: simulated failure while drawing"), err
+    _assert_untouched(good, before, names)
+
+
+def test_background_rendering_gives_the_files_of_an_in_process_run(good: Path, tmp_path: Path,
+                                                                   sim_lib) -> None:
+    """The build's simulation files (drawn in a child) equal `maglevgen simulate`'s, rendered
+    in one process, byte for byte."""
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--t-end", "1"]) == 0
+    built = {n.removeprefix("simulation/"): d for n, d in tree(good).items()
+             if n.startswith("simulation/")}
+    alone = tree(sim)
+    for name in ("metrics.json", "metrics.md"):  # their headers name the command
+        built.pop(name), alone.pop(name)
+    assert built == alone
+
+
 def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carriage,
                                                           monkeypatch) -> None:
     """Every cache entry (generated C, compiled library, lambdified model) corrupted at once."""

@@ -165,7 +165,7 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
     (sim / "levitation_pitch.png").write_bytes(png)
     (sim / "metrics.json").write_text('{"lqr": {"settling_time": 1.5, "ok": true}}')
     sim_ctx, files = rp._simulation(sim)
-    assert files == {"sim_levitation_pitch.png": png}
+    assert files.read() == {"sim_levitation_pitch.png": png}
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     assert (
         "\\includegraphics[width=\\textwidth,height=0.42\\textheight,keepaspectratio]"
@@ -193,7 +193,7 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
     }
     metrics = json.dumps({"speed": 20.0, "disturbance": "1 mm heave", "runs": [run]})
     sim_ctx, files = rp._simulation({"travel_roll.png": png, "metrics.json": metrics})
-    assert list(files) == ["sim_travel_roll.png"] and sim_ctx["runs"][0]["controller"] == "lqr"
+    assert list(files.read()) == ["sim_travel_roll.png"] and sim_ctx["runs"][0]["controller"] == "lqr"
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     assert "not settled" in tex and "1 mm heave" in tex and "\\texttt{lqr}: ok" in tex
     with pytest.raises(InputError, match="not a folder"):

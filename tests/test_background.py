@@ -1,0 +1,90 @@
+"""maglevgen.background: work in a forked child, its failures, and the pending-file view.
+
+The reference for a result is the same function called in this process.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import time
+
+import numpy as np
+import pytest
+
+from maglevgen import background
+from maglevgen.background import Background, PendingFiles
+from maglevgen.errors import MaglevError
+
+
+def _pid_and_sum(values: np.ndarray) -> tuple[int, float]:
+    return os.getpid(), float(np.sum(values))
+
+
+def _fails() -> None:
+    raise ValueError("no trim at 1e9 m/s")
+
+
+def _dies() -> None:
+    os._exit(3)
+
+
+def _slow() -> int:
+    time.sleep(60)
+    return 1
+
+
+def test_result_comes_from_a_child_and_equals_the_direct_call() -> None:
+    data = np.linspace(0.0, 1.0, 1001)  # seen by the child through fork, never pickled
+    job = Background("summing", _pid_and_sum, data)
+    pid, total = job.result()
+    assert pid != os.getpid()
+    assert total == _pid_and_sum(data)[1]
+    assert job.result() == (pid, total)  # a second call returns the same result
+
+
+def test_without_fork_the_work_runs_here(monkeypatch) -> None:
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    job = Background("summing", _pid_and_sum, np.ones(4))
+    assert job.result() == (os.getpid(), 4.0)
+
+
+def test_a_failure_in_the_child_is_one_line_naming_the_job_and_the_error() -> None:
+    with pytest.raises(MaglevError) as err:
+        Background("drawing the figures", _fails).result()
+    msg = str(err.value)
+    assert msg == "drawing the figures failed: ValueError: no trim at 1e9 m/s"
+    assert "\n" not in msg
+
+
+def test_a_child_that_dies_is_reported_with_its_exit_code() -> None:
+    with pytest.raises(MaglevError, match=r"drawing failed: .*ended with code 3"):
+        Background("drawing", _dies).result()
+
+
+def test_leaving_the_block_early_stops_the_child() -> None:
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError), Background("sleeping", _slow) as job:
+        proc = job._proc
+        assert proc is not None and proc.is_alive()
+        raise RuntimeError("the caller failed meanwhile")
+    assert not proc.is_alive()
+    assert time.monotonic() - t0 < 30  # did not wait for the 60 s sleep
+
+
+def test_pending_files_wait_for_the_job_only_when_a_pending_file_is_read(monkeypatch) -> None:
+    calls = []
+
+    def produce() -> dict[str, bytes]:
+        calls.append(1)
+        return {"fig.png": b"png", "traj.csv": b"csv"}
+
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: [])  # run lazily here
+    files = PendingFiles({"metrics.json": b"{}"}, ("fig.png", "traj.csv"),
+                         background.Background("rendering", produce))
+    assert "fig.png" in files and "metrics.json" in files and "other" not in files
+    assert sorted(files) == ["fig.png", "metrics.json", "traj.csv"] and len(files) == 3
+    assert files["metrics.json"] == b"{}" and calls == []
+    assert files["fig.png"] == b"png" and files["traj.csv"] == b"csv" and calls == [1]
+    with pytest.raises(KeyError):
+        files["other"]
