@@ -14,7 +14,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import sympy as sp
-from sympy.physics import units
 
 from .allocation import minimum_norm_allocation
 from .memo import memoized
@@ -203,6 +202,8 @@ def _parallel_sums() -> list[str]:
 
 def _eq21_units() -> list[str]:
     """u_phi = L_y * sum M_x (eq 21) is N m^2, but eq 20 adds u_phi to I_xx phi'' (N m)."""
+    from sympy.physics import units  # 0.15 s to import; only this check needs it
+
     moment = units.newton * units.meter
     eq21 = units.meter * moment
     eq20 = units.kilogram * units.meter**2 / units.second**2

@@ -146,7 +146,7 @@ extern "C" {
 #define MAGLEV_DYNAMICS_SZ_ARG 2
 #define MAGLEV_DYNAMICS_SZ_RES 1
 #define MAGLEV_DYNAMICS_SZ_IW 0
-#define MAGLEV_DYNAMICS_SZ_W 75
+#define MAGLEV_DYNAMICS_SZ_W 70
 int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -160,7 +160,7 @@ int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_JACOBIANS_SZ_ARG 2
 #define MAGLEV_JACOBIANS_SZ_RES 2
 #define MAGLEV_JACOBIANS_SZ_IW 0
-#define MAGLEV_JACOBIANS_SZ_W 232
+#define MAGLEV_JACOBIANS_SZ_W 202
 int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -252,7 +252,7 @@ int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_in
 #define MAGLEV_ALLOCATE_SZ_ARG 1
 #define MAGLEV_ALLOCATE_SZ_RES 1
 #define MAGLEV_ALLOCATE_SZ_IW 0
-#define MAGLEV_ALLOCATE_SZ_W 11
+#define MAGLEV_ALLOCATE_SZ_W 9
 int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -278,10 +278,10 @@ int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_
  *   out x_next[12x1]  state after the step
  *   out u[11x1]  inputs, MAGLEV_U_* order
  */
-#define MAGLEV_RK4_STEP_SZ_ARG 6
-#define MAGLEV_RK4_STEP_SZ_RES 2
+#define MAGLEV_RK4_STEP_SZ_ARG 12
+#define MAGLEV_RK4_STEP_SZ_RES 4
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 185
+#define MAGLEV_RK4_STEP_SZ_W 208
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -299,7 +299,7 @@ int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_CLOSED_LOOP_SZ_ARG 6
 #define MAGLEV_CLOSED_LOOP_SZ_RES 2
 #define MAGLEV_CLOSED_LOOP_SZ_IW 0
-#define MAGLEV_CLOSED_LOOP_SZ_W 85
+#define MAGLEV_CLOSED_LOOP_SZ_W 80
 int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
@@ -311,7 +311,7 @@ int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_GAPS_SZ_ARG 1
 #define MAGLEV_GAPS_SZ_RES 1
 #define MAGLEV_GAPS_SZ_IW 0
-#define MAGLEV_GAPS_SZ_W 20
+#define MAGLEV_GAPS_SZ_W 19
 int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 

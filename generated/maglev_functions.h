@@ -215,10 +215,10 @@ const casadi_int* maglev_rk4_step_sparsity_in(casadi_int i);
 const casadi_int* maglev_rk4_step_sparsity_out(casadi_int i);
 int maglev_rk4_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define maglev_rk4_step_SZ_ARG 6
-#define maglev_rk4_step_SZ_RES 2
+#define maglev_rk4_step_SZ_ARG 12
+#define maglev_rk4_step_SZ_RES 4
 #define maglev_rk4_step_SZ_IW 0
-#define maglev_rk4_step_SZ_W 0
+#define maglev_rk4_step_SZ_W 154
 int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_closed_loop_checkout(void);
 void maglev_closed_loop_release(int mem);

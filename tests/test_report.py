@@ -193,7 +193,8 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
     }
     metrics = json.dumps({"speed": 20.0, "disturbance": "1 mm heave", "runs": [run]})
     sim_ctx, files = rp._simulation({"travel_roll.png": png, "metrics.json": metrics})
-    assert list(files.read()) == ["sim_travel_roll.png"] and sim_ctx["runs"][0]["controller"] == "lqr"
+    assert list(files.read()) == ["sim_travel_roll.png"]
+    assert sim_ctx["runs"][0]["controller"] == "lqr"
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     assert "not settled" in tex and "1 mm heave" in tex and "\\texttt{lqr}: ok" in tex
     with pytest.raises(InputError, match="not a folder"):

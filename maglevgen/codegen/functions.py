@@ -166,35 +166,15 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     allocate = ca.Function("maglev_allocate", [u_gen, p], [forces], ["u_gen", "p"],
                            ["F_arrays"])
 
-    # --- closed-loop RK4 step: the linear axis feedback is evaluated at every stage, so the
-    # step integrates the continuous closed loop x' = f(x, u(x)) to fourth order.
-    dt = ca.SX.sym("dt")
+    # --- the closed loop's right-hand side, with the allocation matrix T as an input:
+    # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
+    # RK4 step, so one copy of the model's code stays in the instruction cache and nothing
+    # that depends on p alone is recomputed at every stage
     F_prop = ca.SX.sym("F_prop")
     k_pos, k_rate, a_ref = (ca.SX.sym(n, N_AXES) for n in ("k_pos", "k_rate", "a_ref"))
     x0 = ca.SX.sym("x", n_x)
-
-    def closed_loop_input(xx: ca.SX) -> ca.SX:
-        a = ca.vertcat(*[xx[cv.STATE_INDEX[s]] for s in Q_STATES])
-        u_axes = -(k_pos * (a - a_ref) + k_rate * rates_fn(xx))
-        return ca.vertcat(F_prop, allocate(u_axes, p))
-
-    def f(xx: ca.SX) -> ca.SX:
-        return dynamics(xx, closed_loop_input(xx), p)
-
+    T_in = ca.SX.sym("T", E.shape[1], N_AXES)
     with casadi_rewriting_off():  # keep the model's shared reciprocals (sympy_casadi)
-        k1 = f(x0)
-        k2 = f(x0 + dt / 2 * k1)
-        k3 = f(x0 + dt / 2 * k2)
-        k4 = f(x0 + dt * k3)
-        x_next = x0 + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        rk4 = ca.Function("maglev_rk4_step", [x0, dt, F_prop, k_pos, k_rate, a_ref, p],
-                          [x_next, closed_loop_input(x0)],
-                          ["x", "dt", "F_prop", "k_pos", "k_rate", "a_ref", "p"], ["x_next", "u"])
-        # the same right-hand side on its own, with the allocation matrix T as an input:
-        # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
-        # step, so one copy of the model's code stays in the instruction cache and nothing that
-        # depends on p alone is recomputed at every stage
-        T_in = ca.SX.sym("T", E.shape[1], N_AXES)
         a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
         u_cl = ca.vertcat(F_prop, T_in @ -(k_pos * (a_cl - a_ref) + k_rate * rates_fn(x0)))
         closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, k_pos, k_rate, a_ref, T_in, p],
@@ -203,6 +183,7 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                                   ["xdot", "u"])
         allocation_matrix = ca.Function("maglev_allocation_matrix", [p],
                                         [E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))], ["p"], ["T"])
+    rk4 = _rk4_step(closed_loop, allocation_matrix)
     gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
     fns = (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains, lqr_control,
            damping_control, allocate, allocation_matrix, rk4, closed_loop, gaps)
@@ -222,6 +203,33 @@ def _finished(fn: ca.Function) -> ca.Function:
     with casadi_rewriting_off():  # rebuilding the nodes must not undo the shared reciprocals
         outs = [ca.densify(o) for o in fn.call(ins)]
         return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out(), {"cse": sx})
+
+
+def _rk4_step(closed_loop: ca.Function, allocation_matrix: ca.Function) -> ca.Function:
+    """One RK4 step of the closed loop (MX): T once, then ``closed_loop`` at the four stages.
+
+    The linear axis feedback is evaluated at every stage, so the step integrates the
+    continuous closed loop x' = f(x, u(x)) to fourth order. Calling the SX right-hand side
+    (instead of inlining it four times) keeps the step's code a quarter of the size. The
+    step's inputs are x, dt and the closed loop's other inputs but T (p when it has one), so
+    the same construction serves the run-time-parameter and the baked functions.
+    """
+    run_names = [n for n in closed_loop.name_in() if n not in ("x", "T")]
+    x, dt = ca.MX.sym("x", closed_loop.sparsity_in("x")), ca.MX.sym("dt")
+    run = {n: ca.MX.sym(n, closed_loop.sparsity_in(n)) for n in run_names}
+    T = ca.MX(allocation_matrix.call([run[n] for n in allocation_matrix.name_in()])[0])
+
+    def stage(xx: ca.MX) -> dict[str, ca.MX]:
+        return closed_loop.call({**run, "x": xx, "T": T})
+
+    s1 = stage(x)
+    k1 = s1["xdot"]
+    k2 = stage(x + dt / 2 * k1)["xdot"]
+    k3 = stage(x + dt / 2 * k2)["xdot"]
+    k4 = stage(x + dt * k3)["xdot"]
+    return ca.Function("maglev_rk4_step", [x, dt, *run.values()],
+                       [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), s1["u"]],
+                       ["x", "dt", *run_names], ["x_next", "u"])
 
 
 def _trim_state(v: ca.SX, z6: ca.SX) -> ca.SX:
@@ -246,13 +254,23 @@ def _effectiveness(model: CarriageModel, p: ca.SX) -> ca.SX:
     return ca.horzcat(*cols)
 
 
+def bake_all(fns: tuple[ca.Function, ...], p_value: np.ndarray) -> list[ca.Function]:
+    """Every function baked (`bake`); the RK4 step is rebuilt around the baked right-hand side
+    so that it calls the baked model rather than carrying p as a constant argument."""
+    baked = {f.name(): bake(f, p_value) for f in fns if f.name() != "maglev_rk4_step"}
+    baked["maglev_rk4_step"] = _rk4_step(baked["maglev_closed_loop"],
+                                         baked["maglev_allocation_matrix"])
+    return [baked[f.name()] for f in fns]
+
+
 def bake(fn: ca.Function, p_value: np.ndarray) -> ca.Function:
     """The same function with its last input (p) replaced by constants.
 
     SX functions are re-expanded so that CasADi folds the constants into the expressions; MX
     functions (those calling the trim Newton solver) get p as a constant argument.
     """
-    sym = ca.SX.sym if fn.is_a("SXFunction") else ca.MX.sym
+    sx = fn.is_a("SXFunction")
+    sym = ca.SX.sym if sx else ca.MX.sym
     ins = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in() - 1)]
     outs = fn.call([*ins, ca.DM(p_value)])
-    return ca.Function(fn.name(), ins, outs, fn.name_in()[:-1], fn.name_out())
+    return ca.Function(fn.name(), ins, outs, fn.name_in()[:-1], fn.name_out(), {"cse": sx})

@@ -24,7 +24,7 @@ from maglevgen.errors import InputError
 from maglevgen.output import write_output  # noqa: F401  (re-exported: the writers' API)
 
 from .cpass import generate_c
-from .functions import DESCRIPTIONS, PREFIX, bake, build_functions
+from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
 
 C_NAME = "maglev_functions"
 SIMULATE_FILES = ("maglev_simulate.c", "maglev_simulate.h")
@@ -147,7 +147,7 @@ def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
     built = build_functions(carriage.model, precision=opts.precision)
     fns = list(built.functions)
     if opts.parameters == "baked":
-        fns = [bake(f, carriage.p) for f in fns]
+        fns = bake_all(tuple(fns), carriage.p)
     text_banner = banner(opts, carriage.loaded.sha256 if opts.parameters == "baked" else None)
     files = render_c(fns, opts, text_banner, carriage.model)
     files.update(render_interface(carriage, opts, function_table(fns)))
