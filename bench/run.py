@@ -51,11 +51,12 @@ DT, N_STEPS = 1e-3, 10_000
 N_SAMPLES = 64  # states near trim cycled through by the per-call timings
 # the schedule (trim, plants, gains) in float32 and float64 at these multiples of the speed
 SCHEDULE_SPEED_FACTORS = (0.4, 0.6, 1.0, 1.5, 2.25)
-# generated functions maglev_simulate may call (the first two: the model's right-hand side),
-# counted by callgrind when it does
+# generated functions maglev_simulate may call (the first three: the model's right-hand side,
+# by the name of its current and earlier versions), counted by callgrind when it does
+RHS_FUNCTIONS = ("maglev_closed_loop_prepared", "maglev_closed_loop", "maglev_rk4_step")
 LOOP_FUNCTIONS = (
-    "maglev_closed_loop",
-    "maglev_rk4_step",
+    *RHS_FUNCTIONS,
+    "maglev_closed_loop_prepare",
     "maglev_gaps",
     "maglev_allocation_matrix",
 )
@@ -491,7 +492,7 @@ def closed_loop(s: Setup, reps: Repeats) -> dict:
                 cg[sym]["divisions_per_step"] = got["divisions"] / n
     out["callgrind"] = cg
     # the function holding the model in the loop: its compiled code's instruction mix
-    worker = next((f for f in LOOP_FUNCTIONS[:2] if f in cg), None)
+    worker = next((f for f in RHS_FUNCTIONS if f in cg), None)
     if worker is not None:
         out["generated_asm"] = native.disassembly_stats(
             s.work / "drv_runtime" / "maglev_functions.o", worker

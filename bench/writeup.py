@@ -627,7 +627,8 @@ def _loop(r: dict) -> list[str]:
 def _loop_breakdown(r: dict) -> list[str]:
     cg = r["closed_loop"].get("callgrind", {})
     dyn = r["dynamics"]["callgrind"].get("gen")
-    worker = next((f for f in ("maglev_closed_loop", "maglev_rk4_step") if f in cg), None)
+    worker = next((f for f in ("maglev_closed_loop_prepared", "maglev_closed_loop",
+                               "maglev_rk4_step") if f in cg), None)
     if not dyn or worker is None or not all(k in cg for k in ("maglev_simulate", "ref_simulate")):
         return []
     per = {k: v["instructions_per_step"] for k, v in cg.items()}
@@ -642,13 +643,16 @@ def _loop_breakdown(r: dict) -> list[str]:
     four = 4 * dyn["instructions"]
     c = r["closed_loop"]["c"]
     asm = r["closed_loop"].get("generated_asm")
-    what = (
-        "`maglev_rk4_step`, one CasADi expression for the four stages with the feedback and "
-        "the allocation"
-        if worker == "maglev_rk4_step"
-        else "`maglev_closed_loop` (the model with the feedback and the allocation, the "
-        "allocation matrix an input), called at each of the four stages"
-    )
+    what = {
+        "maglev_rk4_step": "`maglev_rk4_step`, one CasADi expression for the four stages with "
+        "the feedback and the allocation",
+        "maglev_closed_loop": "`maglev_closed_loop` (the model with the feedback and the "
+        "allocation, the allocation matrix an input), called at each of the four stages",
+        "maglev_closed_loop_prepared": "`maglev_closed_loop_prepared` (the model with the "
+        "feedback and the allocation, and the gaps; what depends only on the run's constant "
+        "inputs is computed once per run by `maglev_closed_loop_prepare`), called at each of "
+        "the four stages",
+    }[worker]
     worker_div = cg[worker].get("divisions_per_step")
     extra = (
         f"most of the difference is in `{worker}`, which executes more divisions than the "

@@ -279,14 +279,14 @@ int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_
  *   out u[11x1]  inputs, MAGLEV_U_* order
  */
 #define MAGLEV_RK4_STEP_SZ_ARG 12
-#define MAGLEV_RK4_STEP_SZ_RES 4
+#define MAGLEV_RK4_STEP_SZ_RES 5
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 208
+#define MAGLEV_RK4_STEP_SZ_W 214
 int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
 /*
- * maglev_closed_loop: xdot and u of the closed loop (the right-hand side that maglev_rk4_step integrates), the array forces being T u_gen with T an input
+ * maglev_closed_loop: xdot and u of the closed loop (the right-hand side that maglev_rk4_step integrates), the array forces being T u_gen with T an input; and the gaps at x (they share the model's geometry)
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   in  F_prop[1x1]  [N] propulsion force
  *   in  k_pos[5x1]  per axis position gains
@@ -295,12 +295,44 @@ int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
  *   in  T[10x5]  minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix
  *   out xdot[12x1]  state derivative
  *   out u[11x1]  inputs, MAGLEV_U_* order
+ *   out gaps[6x1]  [m] gap of each array, in the parameter file's array order
  */
 #define MAGLEV_CLOSED_LOOP_SZ_ARG 6
-#define MAGLEV_CLOSED_LOOP_SZ_RES 2
+#define MAGLEV_CLOSED_LOOP_SZ_RES 3
 #define MAGLEV_CLOSED_LOOP_SZ_IW 0
-#define MAGLEV_CLOSED_LOOP_SZ_W 80
+#define MAGLEV_CLOSED_LOOP_SZ_W 86
 int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
+ * maglev_closed_loop_prepare: the part of maglev_closed_loop that depends only on the inputs constant over a run: c, once per simulation
+ *   in  F_prop[1x1]  [N] propulsion force
+ *   in  k_pos[5x1]  per axis position gains
+ *   in  k_rate[5x1]  per axis rate gains
+ *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
+ *   in  T[10x5]  minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix
+ *   out c[153x1]
+ */
+#define MAGLEV_CLOSED_LOOP_PREPARE_SZ_ARG 5
+#define MAGLEV_CLOSED_LOOP_PREPARE_SZ_RES 1
+#define MAGLEV_CLOSED_LOOP_PREPARE_SZ_IW 0
+#define MAGLEV_CLOSED_LOOP_PREPARE_SZ_W 11
+int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
+ * maglev_closed_loop_prepared: maglev_closed_loop's xdot, u and gaps from x and the prepared c
+ *   in  x[12x1]  state, MAGLEV_X_* order
+ *   in  c[153x1]
+ *   out xdot[12x1]  state derivative
+ *   out u[11x1]  inputs, MAGLEV_U_* order
+ *   out gaps[6x1]  [m] gap of each array, in the parameter file's array order
+ */
+#define MAGLEV_CLOSED_LOOP_PREPARED_SZ_ARG 2
+#define MAGLEV_CLOSED_LOOP_PREPARED_SZ_RES 3
+#define MAGLEV_CLOSED_LOOP_PREPARED_SZ_IW 0
+#define MAGLEV_CLOSED_LOOP_PREPARED_SZ_W 139
+int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
 /*

@@ -216,9 +216,9 @@ const casadi_int* maglev_rk4_step_sparsity_out(casadi_int i);
 int maglev_rk4_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define maglev_rk4_step_SZ_ARG 12
-#define maglev_rk4_step_SZ_RES 4
+#define maglev_rk4_step_SZ_RES 5
 #define maglev_rk4_step_SZ_IW 0
-#define maglev_rk4_step_SZ_W 154
+#define maglev_rk4_step_SZ_W 160
 int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_closed_loop_checkout(void);
 void maglev_closed_loop_release(int mem);
@@ -234,9 +234,45 @@ const casadi_int* maglev_closed_loop_sparsity_out(casadi_int i);
 int maglev_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int maglev_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define maglev_closed_loop_SZ_ARG 6
-#define maglev_closed_loop_SZ_RES 2
+#define maglev_closed_loop_SZ_RES 3
 #define maglev_closed_loop_SZ_IW 0
 #define maglev_closed_loop_SZ_W 0
+int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_closed_loop_prepare_checkout(void);
+void maglev_closed_loop_prepare_release(int mem);
+void maglev_closed_loop_prepare_incref(void);
+void maglev_closed_loop_prepare_decref(void);
+casadi_int maglev_closed_loop_prepare_n_in(void);
+casadi_int maglev_closed_loop_prepare_n_out(void);
+casadi_real maglev_closed_loop_prepare_default_in(casadi_int i);
+const char* maglev_closed_loop_prepare_name_in(casadi_int i);
+const char* maglev_closed_loop_prepare_name_out(casadi_int i);
+const casadi_int* maglev_closed_loop_prepare_sparsity_in(casadi_int i);
+const casadi_int* maglev_closed_loop_prepare_sparsity_out(casadi_int i);
+int maglev_closed_loop_prepare_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int maglev_closed_loop_prepare_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define maglev_closed_loop_prepare_SZ_ARG 5
+#define maglev_closed_loop_prepare_SZ_RES 1
+#define maglev_closed_loop_prepare_SZ_IW 0
+#define maglev_closed_loop_prepare_SZ_W 0
+int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_closed_loop_prepared_checkout(void);
+void maglev_closed_loop_prepared_release(int mem);
+void maglev_closed_loop_prepared_incref(void);
+void maglev_closed_loop_prepared_decref(void);
+casadi_int maglev_closed_loop_prepared_n_in(void);
+casadi_int maglev_closed_loop_prepared_n_out(void);
+casadi_real maglev_closed_loop_prepared_default_in(casadi_int i);
+const char* maglev_closed_loop_prepared_name_in(casadi_int i);
+const char* maglev_closed_loop_prepared_name_out(casadi_int i);
+const casadi_int* maglev_closed_loop_prepared_sparsity_in(casadi_int i);
+const casadi_int* maglev_closed_loop_prepared_sparsity_out(casadi_int i);
+int maglev_closed_loop_prepared_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int maglev_closed_loop_prepared_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define maglev_closed_loop_prepared_SZ_ARG 2
+#define maglev_closed_loop_prepared_SZ_RES 3
+#define maglev_closed_loop_prepared_SZ_IW 0
+#define maglev_closed_loop_prepared_SZ_W 0
 int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int maglev_gaps_checkout(void);
 void maglev_gaps_release(int mem);

@@ -51,7 +51,8 @@ def test_casadi_external_loads_every_function(carriage: Carriage, tmp_path: Path
     for f in manifest["functions"]:
         ext = ca.external(f["name"], str(lib))
         args = [rng.normal(size=(io["rows"], io["cols"])) for io in f["inputs"]]
-        args[-1] = carriage.p  # every runtime function takes p last
+        if f["inputs"][-1]["name"] == "p":  # p comes last (the prepared loop takes c instead)
+            args[-1] = carriage.p
         if f["inputs"][0]["name"] == "v":
             args[0] = np.array([[20.0]])  # a speed with a trim, so the Newton solve converges
         got_ext = ext.call([ca.DM(a) for a in args])
@@ -182,6 +183,41 @@ def _rk4_reference(carriage: Carriage, x: np.ndarray, dt: float, f_prop: float,
     k3 = f(x + dt / 2 * k2)[0]
     k4 = f(x + dt * k3)[0]
     return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), u0
+
+
+@pytest.mark.parametrize("parameters", ["runtime", "baked"])
+def test_prepared_closed_loop_matches_the_sympy_model(carriage: Carriage, trim,
+                                                      parameters: str, tmp_path: Path) -> None:
+    """maglev_closed_loop_prepare once, then maglev_closed_loop_prepared at many states (what
+    maglev_simulate does): xdot, u and the gaps against the SymPy model with the feedback in
+    numpy, T = pinv(E)."""
+    from maglevgen.controllers import effectiveness
+    from maglevgen.derive.conventions import STATE_INDEX
+    from maglevgen.derive.linearize import Q_STATES
+
+    write_output(render(carriage, GenerateOptions("double", parameters)), tmp_path / "gen")
+    lib = GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"],
+                                          cache_dir=tmp_path / "cache"), "double")
+    rng = np.random.default_rng(8)
+    k_pos, k_rate = rng.uniform(1e3, 1e4, 5), rng.uniform(10, 400, 5)
+    idx = [STATE_INDEX[s] for s in Q_STATES]
+    a_ref, f_prop = trim.x[idx], trim.u[0]
+    T = np.linalg.pinv(effectiveness(carriage))
+    extra = (carriage.p,) if parameters == "runtime" else ()
+    (c,) = lib.function("maglev_closed_loop_prepare")(f_prop, k_pos, k_rate, a_ref, T, *extra)
+    prepared = lib.function("maglev_closed_loop_prepared")
+    n_u = carriage.model.u.shape[0]
+    for _ in range(20):
+        x = trim.x + rng.normal(scale=[.1, 1e-3, 1e-3, 2e-3, 2e-3, 2e-3, .5, .01, .01, .01, .01,
+                                       .01])
+        xdot, u, gaps = (np.ravel(a) for a in prepared(x, c))
+        rates = carriage.functions.xdot(x, np.zeros(n_u), carriage.p)[idx]
+        u_ref = np.concatenate([[f_prop], T @ -(k_pos * (x[idx] - a_ref) + k_rate * rates)])
+        np.testing.assert_allclose(u, u_ref, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(xdot, carriage.functions.xdot(x, u_ref, carriage.p),
+                                   rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(gaps, np.ravel(carriage.functions.gaps(x, carriage.p)),
+                                   rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("parameters", ["runtime", "baked"])

@@ -1,8 +1,10 @@
 """The generated functions, built as CasADi Functions from the SymPy derivation.
 
-Every function takes the parameter vector ``p`` as its last input; `bake` folds a parameter
-file's values in as constants. Names, inputs and outputs are declared once in ``FUNCTIONS``
-and everything downstream (C, header, manifest) reads them from the Function objects.
+Every function that depends on the parameters takes the vector ``p`` as its last input
+(``maglev_closed_loop_prepared`` takes the constants ``maglev_closed_loop_prepare`` made from
+it instead); `bake_all` folds a parameter file's values in as constants. Descriptions live in
+``DESCRIPTIONS``; names, inputs and outputs in the Function objects, which everything
+downstream (C, header, manifest) reads.
 """
 
 from __future__ import annotations
@@ -38,8 +40,12 @@ DESCRIPTIONS: dict[str, str] = {
     "allocate": "array forces of minimum norm that produce u_gen (eqs 22-23 derived)",
     "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
     "closed_loop": "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
-                   "integrates), the array forces being T u_gen with T an input",
+                   "integrates), the array forces being T u_gen with T an input; and the gaps "
+                   "at x (they share the model's geometry)",
     "allocation_matrix": "T (arrays' forces x 5): the minimum-norm allocation as a matrix",
+    "closed_loop_prepare": "the part of maglev_closed_loop that depends only on the inputs "
+                           "constant over a run: c, once per simulation",
+    "closed_loop_prepared": "maglev_closed_loop's xdot, u and gaps from x and the prepared c",
     "gaps": "the gap of each array (exact pose geometry); contact when one reaches the track",
 }
 
@@ -177,17 +183,20 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     with casadi_rewriting_off():  # keep the model's shared reciprocals (sympy_casadi)
         a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
         u_cl = ca.vertcat(F_prop, T_in @ -(k_pos * (a_cl - a_ref) + k_rate * rates_fn(x0)))
+        gaps_fn = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
         closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, k_pos, k_rate, a_ref, T_in, p],
-                                  [dynamics(x0, u_cl, p), u_cl],
+                                  [dynamics(x0, u_cl, p), u_cl, gaps_fn(x0, p)],
                                   ["x", "F_prop", "k_pos", "k_rate", "a_ref", "T", "p"],
-                                  ["xdot", "u"])
+                                  ["xdot", "u", "gaps"])
         allocation_matrix = ca.Function("maglev_allocation_matrix", [p],
                                         [E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))], ["p"], ["T"])
+    fns = [_finished(f) for f in (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains,
+                                  lqr_control, damping_control, allocate, allocation_matrix)]
+    closed_loop, allocation_matrix = _finished(closed_loop), fns[-1]
+    # the step calls the finished right-hand side, so the C holds one copy of it
     rk4 = _rk4_step(closed_loop, allocation_matrix)
-    gaps = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
-    fns = (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains, lqr_control,
-           damping_control, allocate, allocation_matrix, rk4, closed_loop, gaps)
-    return Built(tuple(_finished(f) for f in fns), p.shape[0])
+    prepare, prepared = _prepared_closed_loop(closed_loop)
+    return Built((*fns, rk4, closed_loop, prepare, prepared, _finished(gaps_fn)), p.shape[0])
 
 
 def _finished(fn: ca.Function) -> ca.Function:
@@ -203,6 +212,25 @@ def _finished(fn: ca.Function) -> ca.Function:
     with casadi_rewriting_off():  # rebuilding the nodes must not undo the shared reciprocals
         outs = [ca.densify(o) for o in fn.call(ins)]
         return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out(), {"cse": sx})
+
+
+def _prepared_closed_loop(closed_loop: ca.Function) -> tuple[ca.Function, ca.Function]:
+    """``maglev_closed_loop`` split in two by CasADi's extract_parametric: what depends only on
+    the inputs that stay constant over a simulation (F_prop, gains, reference, T, p), computed
+    once (``maglev_closed_loop_prepare``), and the rest at every stage
+    (``maglev_closed_loop_prepared``): the field B0's exp and sin and the inverse inertia's
+    divisions, among others, leave the stage."""
+    ins = closed_loop.sx_in()
+    x, run = ins[0], ins[1:]
+    with casadi_rewriting_off():
+        outs = closed_loop.call(ins)
+        rest, syms, values = ca.extract_parametric(outs, run, {"extract_trivial": True})
+        c = ca.vertcat(*syms)
+        prepare = ca.Function("maglev_closed_loop_prepare", run, [ca.vertcat(*values)],
+                              closed_loop.name_in()[1:], ["c"], {"cse": True})
+        prepared = ca.Function("maglev_closed_loop_prepared", [x, c], rest, ["x", "c"],
+                               closed_loop.name_out(), {"cse": True})
+    return prepare, prepared
 
 
 def _rk4_step(closed_loop: ca.Function, allocation_matrix: ca.Function) -> ca.Function:
@@ -255,9 +283,11 @@ def _effectiveness(model: CarriageModel, p: ca.SX) -> ca.SX:
 
 
 def bake_all(fns: tuple[ca.Function, ...], p_value: np.ndarray) -> list[ca.Function]:
-    """Every function baked (`bake`); the RK4 step is rebuilt around the baked right-hand side
-    so that it calls the baked model rather than carrying p as a constant argument."""
-    baked = {f.name(): bake(f, p_value) for f in fns if f.name() != "maglev_rk4_step"}
+    """Every function with a p input baked (`bake`); the RK4 step is rebuilt around the baked
+    right-hand side so that it calls the baked model rather than carrying p as a constant
+    argument."""
+    baked = {f.name(): bake(f, p_value) if "p" in f.name_in() else f
+             for f in fns if f.name() != "maglev_rk4_step"}
     baked["maglev_rk4_step"] = _rk4_step(baked["maglev_closed_loop"],
                                          baked["maglev_allocation_matrix"])
     return [baked[f.name()] for f in fns]

@@ -124,8 +124,10 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
     """The C sources: the CasADi functions (post-processed) and the simulation loop."""
     sources = generate_c(functions, C_NAME, opts.precision)
     files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
+    prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
     ctx = {"banner": text_banner, "parameters": opts.parameters, "nx": len(cv.STATES),
-           "nu": len(model.input_names), "ng": len(model.arrays)}
+           "nu": len(model.input_names), "ng": len(model.arrays),
+           "n_prepared": prepare.numel_out(0)}
     env = _template_env()
     for name in SIMULATE_FILES:
         files[name] = env.get_template(f"{name}.j2").render(ctx)
