@@ -8,6 +8,7 @@ temporary folders beside it.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import os
 import subprocess
@@ -18,7 +19,6 @@ import numpy as np
 import pytest
 from test_params_cli import BAD, edited, write_input
 
-import maglevgen.build as build_mod
 from maglevgen.build import STAMP, BuildOptions, run_build, up_to_date
 from maglevgen.cli import main
 from maglevgen.params import load_params
@@ -181,41 +181,27 @@ def test_unwritable_output_folder(tmp_path: Path, capsys) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
 
 
-def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkeypatch,
-                                                              capsys) -> None:
+@pytest.mark.parametrize(("module", "stage", "expected"), [
+    ("maglevgen.build", "_report_files",
+     "maglevgen: internal error: RuntimeError: simulated failure (rerun with --debug)"),
+    # trajectories and figures are written by a forked child (maglevgen.background)
+    ("maglevgen.sim_output", "render_files_and_figures",
+     "maglevgen: error: writing the trajectories and figures failed: RuntimeError: simulated "
+     "failure"),
+], ids=["report-stage", "background-child"])
+def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkeypatch, capsys,
+                                                              module: str, stage: str,
+                                                              expected: str) -> None:
     before, names = tree(good), siblings(good)
 
     def broken(*_a, **_k):
-        raise RuntimeError("simulated failure in the report stage")
+        raise RuntimeError("simulated failure")
 
-    monkeypatch.setattr(build_mod, "_report_files", broken)
+    monkeypatch.setattr(importlib.import_module(module), stage, broken)
     rc = main(["build", "--out", str(good), *FAST, "--set", "vehicle.mass=9.3001"])
     out, err = capsys.readouterr()
-    assert rc == 1 and out == ""
-    line = err.splitlines()[-1]
-    assert line.startswith("maglevgen: internal error: ") and "Traceback" not in err
-    assert "simulated failure in the report stage" in line
-    _assert_untouched(good, before, names)
-
-
-def test_a_failure_while_drawing_in_the_background_is_exit_1(good: Path, monkeypatch,
-                                                            capsys) -> None:
-    """The trajectories and figures are written by a forked child: its failure reaches the
-    user as one line, and the good build stays."""
-    import maglevgen.sim_output as sim_output
-
-    before, names = tree(good), siblings(good)
-
-    def broken(*_a, **_k):
-        raise RuntimeError("simulated failure while drawing")
-
-    monkeypatch.setattr(sim_output, "render_files_and_figures", broken)
-    rc = main(["build", "--out", str(good), *FAST, "--set", "vehicle.mass=9.3002"])
-    out, err = capsys.readouterr()
-    assert rc == 1 and out == ""
-    line = err.splitlines()[-1]
-    assert line == ("maglevgen: error: writing the trajectories and figures failed: "
-                    "RuntimeError: simulated failure while drawing"), err
+    assert rc == 1 and out == "" and "Traceback" not in err
+    assert err.splitlines()[-1] == expected, err
     _assert_untouched(good, before, names)
 
 
