@@ -13,6 +13,7 @@ The .tex is deterministic: no dates, fixed number formats, seeded random samples
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
@@ -38,6 +39,7 @@ import sympy as sp
 from . import __version__
 from .background import Background
 from .derive import conventions as cv
+from .derive.memo import memoized
 from .errors import InputError, MaglevError
 
 __all__ = [
@@ -1040,17 +1042,36 @@ _Q_LABELS = ("y", "z", r"\phi", r"\theta", r"\psi")
 _W_LABELS = ("F_y", "F_z", "M_x", "M_y", "M_z")
 
 
-def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
-    from .derive.linearize import design_pose_stiffness, generalized_mass_expr
-    from .derive.paper import paper_stiffness
+def _shown_values(carriage) -> tuple[tuple[str, float], ...]:
+    """The parameter values the stiffness display substitutes: those of the symbols in K_st0
+    (the array geometry), so that editing any other parameter finds the display cached."""
+    from .derive.linearize import design_pose_stiffness
 
     model = carriage.model
-    values = {e.name: e.value for e in carriage.entries if e.name != "halbach.wavelength"}
-    K = design_pose_stiffness(model.structure)
+    free = design_pose_stiffness(model.structure).free_symbols
+    return tuple((e.name, float(e.value)) for e, s in zip(carriage.entries, model.p, strict=True)
+                 if s in free and e.name != "halbach.wavelength")
+
+
+# The stiffness display is cached across processes (derive.memo's store, whose key covers the
+# derivation's source): this file's digest is part of its arguments, so an edit here re-renders.
+_REPORT_SOURCE = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+
+
+@memoized
+def _stiffness_display(structure, values: tuple[tuple[str, float], ...],
+                       _source: str) -> tuple[Display, Display]:
+    """K_st0 at the design pose (eqs 13-19 derived) with ``values`` substituted, entry by
+    entry, and the generalized masses, as LaTeX lines."""
+    from .derive.linearize import design_pose_stiffness, generalized_mass_expr
+    from .derive.model import build_model
+
+    model = build_model(structure)
+    K = design_pose_stiffness(structure)
     names = _array_labels(model)
     rep = {s: sp.Symbol(f"F_{{L,{n}}}") for s, n in zip(model.lift_sym, names, strict=True)}
     rep.update({s: sp.Symbol(f"F_{{D,{n}}}") for s, n in zip(model.drag_sym, names, strict=True)})
-    Kd = to_display(model, K, values).xreplace(rep)
+    Kd = to_display(model, K, dict(values)).xreplace(rep)
     lines: list[str] = []
     for i in range(5):
         for j in range(5):
@@ -1061,6 +1082,15 @@ def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
     mass_lines = eqs(
         [(f"M_{{{_Q_LABELS[i]} {_Q_LABELS[i]}}}", to_display(model, mass[i])) for i in range(5)]
     )
+    return Display(tuple(lines)), mass_lines
+
+
+def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
+    from .derive.paper import paper_stiffness
+
+    model = carriage.model
+    lines, mass_lines = _stiffness_display(model.structure, _shown_values(carriage),
+                                           _REPORT_SOURCE)
     K_mag = np.array(trep["stiffness_matrix"])
     K_tot = carriage.total_stiffness(trim)
     # entries below 1e-12 of the largest are rounding noise of a structural zero
@@ -1106,7 +1136,7 @@ def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
         if abs(A[i, j]) > 1e-13 * scale
     ]
     return {
-        "K_symbolic": Display(tuple(lines)),
+        "K_symbolic": lines,
         "mass": mass_lines,
         "mass_values": carriage.generalized_mass().tolist(),
         "K_mag": matrix_tex(K_mag, lambda v: fnum(v, 5)),

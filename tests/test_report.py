@@ -305,3 +305,30 @@ def test_escape_and_long_sums_are_broken() -> None:
     lines = rp.break_sum("S", sum(xi * sp.Symbol("y") for xi in x))
     assert len(lines) > 3 and lines[0].startswith("S &=")
     assert all(rp._tex_width(line) <= rp.LINE_WIDTH + 10 for line in lines)
+
+
+def test_stiffness_display_is_keyed_by_the_geometry_it_shows() -> None:
+    """The cached K_st0 display (keyed by the array geometry it substitutes) changes with the
+    geometry, not with the mass, and equals what a fresh derivation renders."""
+    base = Carriage(load_params(overrides=[]))
+    heavier = Carriage(load_params(overrides=["vehicle.mass=12.5"]))
+    moved = Carriage(load_params(overrides=["arrays.3.position=[0.26, 0.0, -0.031]"]))
+    assert rp._shown_values(heavier) == rp._shown_values(base)
+    assert rp._shown_values(moved) != rp._shown_values(base)
+    assert ("arrays.3.position.z", -0.031) in rp._shown_values(moved)
+    shown = rp._stiffness_display(moved.structure, rp._shown_values(moved), rp._REPORT_SOURCE)
+    assert shown != rp._stiffness_display(base.structure, rp._shown_values(base),
+                                          rp._REPORT_SOURCE)
+    assert "0.031" in " ".join(shown[0].lines)  # the moved array's z arm, in the display
+    rp._stiffness_display.cache_clear()  # in-process entries; the disk store is bypassed below
+    from maglevgen.derive import memo
+
+    memo.set_store(None)
+    try:
+        fresh = rp._stiffness_display(moved.structure, rp._shown_values(moved),
+                                      rp._REPORT_SOURCE)
+    finally:
+        from maglevgen.cache import STORE
+
+        memo.set_store(STORE)
+    assert fresh == shown
