@@ -1,7 +1,8 @@
 """Work done in a forked child process while this one goes on (the machine has 2+ cores).
 
-`maglevgen build` renders its figures (matplotlib: import and drawing, about a second) in a
-child while it writes the trajectories and builds the report's context. The child is forked,
+`maglevgen build` renders its trajectories and figures (matplotlib: import and drawing, about
+a second) in children while it builds the report's context; `maglevgen simulate` draws its
+figures in a child while it writes the trajectories. The child is forked,
 so it sees this process's data without pickling; only its result travels back, over a pipe.
 Where fork is not available the work runs in this process when its result is asked for.
 """

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .background import Background
 from .derive import conventions as cv
 from .simulate import (
     CONTROLLER_TITLES,
@@ -150,9 +151,11 @@ def render_figures(trajs: Sequence[Trajectory]) -> dict[str, bytes]:
 
 def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],
                    header: dict) -> dict[str, bytes]:
-    """Every output file of a simulation run."""
-    return {**render_metrics(trajs, header), **render_trajectories(trajs, input_names),
-            **render_figures(trajs)}
+    """Every output file of a simulation run; the figures are drawn in a child process
+    (maglevgen.background) while this one writes the trajectories and metrics."""
+    with Background("drawing the figures", render_figures, trajs) as drawing:
+        files = {**render_metrics(trajs, header), **render_trajectories(trajs, input_names)}
+        return {**files, **drawing.result()}
 
 
 def render_trajectories(trajs: Sequence[Trajectory], input_names: Sequence[str]

@@ -88,3 +88,26 @@ def test_pending_files_wait_for_the_job_only_when_a_pending_file_is_read(monkeyp
     assert files["fig.png"] == b"png" and files["traj.csv"] == b"csv" and calls == [1]
     with pytest.raises(KeyError):
         files["other"]
+
+
+def test_render_results_in_a_child_equals_rendering_in_this_process(sim_lib, carriage, op
+                                                                     ) -> None:
+    """`render_results` draws the figures in a forked child: byte for byte what the same
+    functions give in this process."""
+    from maglevgen.derive.model import input_names_of
+    from maglevgen.sim_output import (
+        render_figures,
+        render_metrics,
+        render_results,
+        render_trajectories,
+    )
+    from maglevgen.simulate import simulate
+
+    trajs = [simulate(sim_lib, carriage.p, op, c, 0.5, 1e-3, carriage.params.track.min_gap)
+             for c in ("damping", "lqr")]
+    names = input_names_of(carriage.structure)
+    header = {"test": True}
+    here = {**render_metrics(trajs, header), **render_trajectories(trajs, names),
+            **render_figures(trajs)}
+    assert render_results(trajs, names, header) == here
+    assert any(n.endswith(".png") for n in here) and any(n.endswith(".csv") for n in here)

@@ -207,8 +207,8 @@ def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkey
 
 def test_background_rendering_gives_the_files_of_an_in_process_run(good: Path, tmp_path: Path,
                                                                    sim_lib) -> None:
-    """The build's simulation files (drawn in a child) equal `maglevgen simulate`'s, rendered
-    in one process, byte for byte."""
+    """The build's simulation files (trajectories and figures written by a child while the
+    report is built) equal `maglevgen simulate`'s, byte for byte."""
     sim = tmp_path / "sim"
     assert main(["simulate", "--out", str(sim), "--t-end", "1"]) == 0
     built = {n.removeprefix("simulation/"): d for n, d in tree(good).items()
