@@ -54,6 +54,8 @@ AXIS_POSITION_STATE: dict[str, str] = {
     "pitch": "theta",
     "yaw": "psi",
 }
+# The axis coordinates a = (y, z, phi, theta, psi): the states the per-axis design works on.
+Q_STATES: tuple[str, ...] = tuple(AXIS_POSITION_STATE[a] for a in AXES)
 # Generalized control force of each axis (the paper's u_y, u_z, u_phi, u_theta, u_psi).
 CONTROLS: tuple[Signal, ...] = (
     Signal("u_y", "N", "lateral control force (inertial y)"),

@@ -17,8 +17,11 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-# Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).
-CONTROL_AXES: tuple[str, ...] = ("y", "z")
+from .structure import CONTROL_AXES, control_components
+
+__all__ = ["CONTROL_AXES", "ArraySymbols", "array_gap", "array_speed", "array_wrench",
+           "control_components", "control_effectiveness", "generalized_wrench_row"]
+
 _AXIS_VECTOR = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}
 
 
@@ -49,15 +52,6 @@ def array_wrench(arr: ArraySymbols, lift: sp.Expr, drag: sp.Expr, R: sp.Matrix
     """An array's force (lift along n_i, drag along -x) and its moment about O, inertial axes."""
     force = lift * arr.normal - drag * sp.Matrix([1, 0, 0])
     return force, (R * arr.position).cross(force)
-
-
-def control_components(normal_values: Sequence[float], tol: float = 1e-12) -> tuple[str, ...]:
-    """Control force components an array has: the body axes (y, z) its normal has a part along.
-
-    Arrays facing up have a z component only; the 45-degree arrays have both, which gives the
-    ten array forces of the paper (F_z1..F_z6 and F_y1, F_y2, F_y4, F_y5) for its geometry.
-    """
-    return tuple(ax for ax in CONTROL_AXES if abs(normal_values["xyz".index(ax)]) > tol)
 
 
 def generalized_wrench_row(position: sp.Matrix, direction: sp.Matrix) -> sp.Matrix:

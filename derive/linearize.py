@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # numeric imports this module to lambdify the stiffness
     from .trim import Trim
 
 GENERALIZED_FORCES: tuple[str, ...] = ("F_y", "F_z", "M_x", "M_y", "M_z")
-Q_STATES: tuple[str, ...] = tuple(cv.AXIS_POSITION_STATE[a] for a in cv.AXES)
+Q_STATES = cv.Q_STATES  # re-exported: the axis coordinates live in conventions
 
 
 @dataclass(frozen=True)

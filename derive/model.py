@@ -15,34 +15,13 @@ from functools import lru_cache
 import sympy as sp
 
 from . import conventions as cv
-from .geometry import ArraySymbols, array_gap, array_speed, array_wrench, control_components
+from .geometry import ArraySymbols, array_gap, array_speed, array_wrench
 from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
+from .structure import Structure, input_names_of, structure_of
 
-
-@dataclass(frozen=True)
-class Structure:
-    """What the symbolic derivation depends on besides parameter values.
-
-    ``param_names`` is the ordered parameter vector (from the schema, see params.flatten);
-    ``arrays`` pairs each array name with its control force components (e.g. ("y", "z")).
-    """
-
-    param_names: tuple[str, ...]
-    arrays: tuple[tuple[str, tuple[str, ...]], ...]
-
-
-def structure_of(params) -> Structure:  # params: maglevgen.params.Parameters (no import: pure)
-    """The structure of a validated parameter set."""
-    from_names = tuple(e.name for e in _flatten(params))
-    arrays = tuple((name, control_components(arr.normal)) for name, arr in params.arrays.items())
-    return Structure(from_names, arrays)
-
-
-def _flatten(params):
-    from maglevgen.params import flatten  # local: derive/ stays free of I/O at import time
-
-    return flatten(params)
+__all__ = ["CarriageModel", "Structure", "build_model", "input_names_of", "structure_of",
+           "symbol_name"]
 
 
 def symbol_name(param_name: str) -> str:
@@ -96,14 +75,6 @@ class CarriageModel:
         wrench = self.wrench.xreplace(sub)
         acc = self.accelerations.xreplace(dict(zip(self.wrench_sym, wrench, strict=True)))
         return sp.Matrix.vstack(self.kinematics, acc)
-
-
-def input_names_of(structure: Structure) -> tuple[str, ...]:
-    """Input order: F_prop, then F_<axis><array> for each array's control components."""
-    names = [cv.PROPULSION.name]
-    for name, comps in structure.arrays:
-        names += [f"F_{ax}{name}" for ax in comps]
-    return tuple(names)
 
 
 @lru_cache(maxsize=8)

@@ -8,22 +8,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
-import sympy as sp
 
 from .derive import conventions as cv
-from .derive.linearize import (
-    generalized_mass,
-    linearize,
-    magnetic_stiffness,
-    other_stiffness,
-)
-from .derive.model import CarriageModel, Structure, structure_of
-from .derive.numeric import ModelFunctions, model_functions
-from .derive.paper import paper_stiffness
-from .derive.trim import Trim, lift_off_speed, solve_trim
+from .derive.structure import Structure, structure_of
 from .params import LoadedParams, flatten
+
+if TYPE_CHECKING:  # the symbolic layers are imported when first used: running the compiled
+    # model (maglevgen simulate, the build's simulations) needs only the parameters
+    from .derive.model import CarriageModel
+    from .derive.numeric import ModelFunctions
+    from .derive.trim import Trim
 
 
 @dataclass(frozen=True)
@@ -62,6 +59,8 @@ class Carriage:
     @cached_property
     def functions(self) -> ModelFunctions:
         """The lambdified model (memoised across processes: derive.memo, maglevgen.cache)."""
+        from .derive.numeric import model_functions
+
         return model_functions(self.structure)
 
     @property
@@ -69,22 +68,34 @@ class Carriage:
         return self.functions.model
 
     def trim(self, speed: float | None = None) -> Trim:
+        from .derive.trim import solve_trim
+
         v = self.params.operation.speed if speed is None else speed
         return solve_trim(self.functions, self.p, v, self.params.track.min_gap)
 
     def lift_off_speed(self) -> float:
+        from .derive.trim import lift_off_speed
+
         return lift_off_speed(self.functions, self.p, self.params.track.min_gap)
 
     def linearize(self, trim: Trim) -> tuple[np.ndarray, np.ndarray]:
+        from .derive.linearize import linearize
+
         return linearize(self.functions, trim, self.p)
 
     def magnetic_stiffness(self, trim: Trim) -> np.ndarray:
+        from .derive.linearize import magnetic_stiffness
+
         return magnetic_stiffness(self.functions, trim, self.p)
 
     def total_stiffness(self, trim: Trim) -> np.ndarray:
+        from .derive.linearize import other_stiffness
+
         return self.magnetic_stiffness(trim) + other_stiffness(self.functions, trim, self.p)
 
     def generalized_mass(self) -> np.ndarray:
+        from .derive.linearize import generalized_mass
+
         return generalized_mass(self.model, self.p)
 
     def _array_roles(self) -> tuple[list[int], list[int]]:
@@ -112,6 +123,10 @@ class Carriage:
 
     def stiffness_table(self, trim: Trim) -> list[StiffnessRow]:
         """Per-axis stiffness: derived K_st0 diagonal (and with gravity) beside eqs 13-19."""
+        import sympy as sp
+
+        from .derive.paper import paper_stiffness
+
         kin = self.paper_stiffness_inputs(trim)
         syms = {name: sp.Symbol(name) for name in kin}
         printed = paper_stiffness(**syms)

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from .cache import default_cache_dir, derivation_fingerprint
-from .codegen.generate import SIMULATE_FILES, render_runtime_sources, write_output
-from .derive.model import Structure, build_model
+from .derive.structure import Structure
+from .output import write_output
 from .runtime.compile import compile_shared
 from .runtime.ffi import GeneratedLibrary
 
@@ -66,6 +66,9 @@ def runtime_sources(structure: Structure, precision: str = "double",
     if _intact(folder):
         return folder
     progress("deriving the model and generating C (cached afterwards)")
+    from .codegen.generate import render_runtime_sources  # SymPy and CasADi: only on a miss
+    from .derive.model import build_model
+
     files = render_runtime_sources(build_model(structure), precision)
     data = {n: t.encode() for n, t in files.items()}
     write_output({**files, CHECKSUMS: _checksums(data)}, folder)
@@ -112,8 +115,7 @@ def simulation_library(structure: Structure, precision: str = "double",
                        progress: Progress = _quiet) -> SimulationLibrary:
     """Generate (or reuse) and compile (or reuse) the simulation library of ``structure``."""
     folder = runtime_sources(structure, precision, cache_dir, progress)
-    sources = [folder / "maglev_functions.c", *(folder / n for n in SIMULATE_FILES
-                                                if n.endswith(".c"))]
+    sources = sorted(folder.glob("*.c"))  # every C file the generator wrote (checksummed)
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
     lib = compile_shared(sources, cc=cc, cache_dir=cache / "lib", progress=progress)
     return SimulationLibrary(lib, precision)

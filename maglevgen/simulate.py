@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .derive import conventions as cv
-from .derive.linearize import Q_STATES
-from .derive.model import input_names_of
+from .derive.conventions import Q_STATES
+from .derive.structure import input_names_of
 from .errors import InputError, NoTrimError
 from .library import SimulationLibrary
 
