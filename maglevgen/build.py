@@ -117,37 +117,31 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 
     from .cache import STORE
     from .carriage import Carriage
-    from .codegen.generate import FUNCTION_TABLE, GenerateOptions, render_interface
-    from .library import runtime_sources, simulation_library
+    from .library import cached_simulation_library, runtime_sources, simulation_library
     from .sim_output import background_names, render_files_and_figures, render_metrics
     from .simulate import CONTROLLERS, run_scenarios
 
     STORE.progress = step  # announce the derivation steps that are not cached yet
     carriage = Carriage(loaded)
     files: dict[str, str | bytes] = {}
-    # C: the cached run-time-parameter sources, the interface files for these parameters
-    folder = runtime_sources(carriage.structure, progress=step)
-    # gcc runs in its own process: compile while this one lambdifies the model (both cached)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        compiling = pool.submit(simulation_library, carriage.structure, progress=step)
-        carriage.functions  # noqa: B018  (derives and lambdifies the model, or loads it)
-        lib = compiling.result()
-    for f in sorted(folder.iterdir()):
-        if f.suffix in (".c", ".h"):
-            files[f"c/{f.name}"] = f.read_bytes()
-    table = json.loads((folder / FUNCTION_TABLE).read_text())
-    for name, text in render_interface(carriage, GenerateOptions("double", "runtime"),
-                                       table).items():
-        files[f"c/{name}"] = text
-    files["lib/libmaglev.so"] = lib.path.read_bytes()
-    # simulations (validates the speed's trim and the step against RK4's stability limit)
+    lib = cached_simulation_library(carriage.structure)
+    if lib is None:  # first build of this structure: gcc compiles (in its own process) while
+        # this one derives and lambdifies the model (both cached afterwards)
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            compiling = pool.submit(simulation_library, carriage.structure, progress=step)
+            carriage.functions  # noqa: B018
+            lib = compiling.result()
+    # simulations (validates the speed's trim and the step against RK4's stability limit);
+    # up to here a parameter edit has imported no SymPy, SciPy or CasADi
     run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
-    # trajectories and figures are written in a child process while this one builds the
-    # report's context (which reads the figures last)
+    # trajectories and figures are written in a child process while this one imports the
+    # symbolic layers and builds the report's context (which reads the figures last)
     with Background("writing the trajectories and figures", render_files_and_figures,
                     run.trajectories, run.input_names) as drawing:
         sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
                                  background_names(run.trajectories), drawing)
+        files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
+        files["lib/libmaglev.so"] = lib.path.read_bytes()
         # the report (and its PDF where TeX is installed)
         report = _report_files(carriage, sim_files, opts, step)
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
@@ -162,6 +156,20 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                                "files": digests}, indent=1) + "\n"
     write_output(files, out_dir)
     return BuildResult(out_dir, True, summary, tuple(sorted(files)))
+
+
+def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
+    """c/: the cached run-time-parameter sources, and the interface files for these parameters
+    (maglev.h, main.c, CMake example, manifest)."""
+    from .codegen.generate import FUNCTION_TABLE, GenerateOptions, render_interface
+
+    files: dict[str, str | bytes] = {f"c/{f.name}": f.read_bytes()
+                                     for f in sorted(folder.iterdir()) if f.suffix in (".c", ".h")}
+    table = json.loads((folder / FUNCTION_TABLE).read_text())
+    for name, text in render_interface(carriage, GenerateOptions("double", "runtime"),
+                                       table).items():
+        files[f"c/{name}"] = text
+    return files
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,

@@ -24,7 +24,7 @@ import numpy as np
 from .cache import default_cache_dir, derivation_fingerprint
 from .derive.structure import Structure
 from .output import write_output
-from .runtime.compile import compile_shared
+from .runtime.compile import cached_shared, compile_shared
 from .runtime.ffi import GeneratedLibrary
 
 CHECKSUMS = "checksums.json"
@@ -61,8 +61,7 @@ def _intact(folder: Path) -> bool:
 def runtime_sources(structure: Structure, precision: str = "double",
                     cache_dir: Path | None = None, progress: Progress = _quiet) -> Path:
     """The folder holding the run-time-parameter C of ``structure``: cached, or derived now."""
-    cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    folder = cache / "derivation" / derivation_key(structure, precision)
+    folder = _derivation_folder(structure, precision, cache_dir)
     if _intact(folder):
         return folder
     progress("deriving the model and generating C (cached afterwards)")
@@ -115,7 +114,30 @@ def simulation_library(structure: Structure, precision: str = "double",
                        progress: Progress = _quiet) -> SimulationLibrary:
     """Generate (or reuse) and compile (or reuse) the simulation library of ``structure``."""
     folder = runtime_sources(structure, precision, cache_dir, progress)
-    sources = sorted(folder.glob("*.c"))  # every C file the generator wrote (checksummed)
-    cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    lib = compile_shared(sources, cc=cc, cache_dir=cache / "lib", progress=progress)
+    lib = compile_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib",
+                         progress=progress)
     return SimulationLibrary(lib, precision)
+
+
+def cached_simulation_library(structure: Structure, precision: str = "double",
+                              cache_dir: Path | None = None, cc: str | None = None
+                              ) -> SimulationLibrary | None:
+    """The simulation library when its C and its compiled form are both cached and intact;
+    None when something would have to be generated or compiled."""
+    folder = _derivation_folder(structure, precision, cache_dir)
+    if not _intact(folder):
+        return None
+    lib = cached_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib")
+    return None if lib is None else SimulationLibrary(lib, precision)
+
+
+def _cache(cache_dir: Path | None) -> Path:
+    return Path(cache_dir) if cache_dir else default_cache_dir()
+
+
+def _derivation_folder(structure: Structure, precision: str, cache_dir: Path | None) -> Path:
+    return _cache(cache_dir) / "derivation" / derivation_key(structure, precision)
+
+
+def _sources(folder: Path) -> list[Path]:
+    return sorted(folder.glob("*.c"))  # every C file the generator wrote (checksummed)

@@ -912,33 +912,59 @@ def _rigid_body() -> dict[str, Any]:
     }
 
 
-def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
+# Report pieces cached across processes (derive.memo's store, whose key covers the derivation's
+# source) take this file's digest as an argument, so an edit here renders them again.
+_REPORT_SOURCE = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+
+# The force law's symbols: eq 4's B_r, d, M and eq 3's w, L, R, B_0, gap delta and speed v.
+_FORCE_SYMBOLS = sp.symbols("B_r d M w L R B_0 delta v")
+
+
+@memoized
+def _force_law_forms(_source: str) -> dict[str, Any]:
+    """Eqs 3-4 in display symbols and what follows from them (parameter independent, cached
+    across processes): B0, F_L, F_D, F_D/F_L, the gap slope and the characteristic speed."""
     from .derive.inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 
-    Br, d, M, w, L, R = sp.symbols("B_r d M w L R")
-    B0, delta, v = sp.symbols("B_0 delta v")
+    Br, d, M, w, L, R, B0, delta, v = _FORCE_SYMBOLS
     k = K_SYM
-    B0_expr = halbach_surface_field(Br, d, M, k)
     FL = lift_per_circuit(B0, w, k, L, R, delta, v)
     FD = drag_per_circuit(B0, w, k, L, R, delta, v)
     ratio = sp.simplify(FD / FL)
-    slope = sp.simplify(sp.diff(FL, delta) / FL)
     (v_c,) = [s for s in sp.solve(sp.Eq(ratio, 1), v) if s.is_positive is not False]
+    return {"B0": halbach_surface_field(Br, d, M, k), "FL": FL, "FD": FD, "ratio": ratio,
+            "slope": sp.simplify(sp.diff(FL, delta) / FL), "v_c": v_c}
+
+
+def _force_numbers(carriage) -> dict[sp.Symbol, float]:
+    """The force law's symbols with the carriage's values (B0 from eq 4)."""
+    Br, d, M, w, L, R, B0, _delta, _v = _FORCE_SYMBOLS
     pr = carriage.params
-    num = {
-        Br: pr.halbach.remanence,
-        d: pr.halbach.thickness,
-        M: pr.halbach.magnets_per_wavelength,
-        k: pr.wavenumber,
-        w: pr.halbach.width,
-        L: pr.circuit.inductance,
-        R: pr.circuit.resistance,
-    }
-    B0_val = float(B0_expr.xreplace(num))
-    num[B0] = B0_val
+    num = {Br: pr.halbach.remanence, d: pr.halbach.thickness,
+           M: pr.halbach.magnets_per_wavelength, K_SYM: pr.wavenumber, w: pr.halbach.width,
+           L: pr.circuit.inductance, R: pr.circuit.resistance}
+    num[B0] = float(_force_law_forms(_REPORT_SOURCE)["B0"].xreplace(num))
+    return num
+
+
+def force_curves(carriage) -> dict[str, Any]:
+    """What the force figures draw: F_L(delta, v) and F_D(delta, v) per circuit for this
+    carriage, and its characteristic speed."""
+    forms, num = _force_law_forms(_REPORT_SOURCE), _force_numbers(carriage)
+    delta, v = _FORCE_SYMBOLS[7:]
+    return {"lift_fn": sp.lambdify((delta, v), forms["FL"].xreplace(num), "numpy"),
+            "drag_fn": sp.lambdify((delta, v), forms["FD"].xreplace(num), "numpy"),
+            "v_c_value": float(forms["v_c"].xreplace(num))}
+
+
+def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
+    forms, num = _force_law_forms(_REPORT_SOURCE), _force_numbers(carriage)
+    B0_expr, FL, FD = forms["B0"], forms["FL"], forms["FD"]
+    ratio, slope, v_c = forms["ratio"], forms["slope"], forms["v_c"]
+    v = _FORCE_SYMBOLS[8]
+    pr = carriage.params
+    B0_val = num[_FORCE_SYMBOLS[6]]
     v_c_val = float(v_c.xreplace(num))
-    FL_fn = sp.lambdify((delta, v), FL.xreplace(num), "numpy")
-    FD_fn = sp.lambdify((delta, v), FD.xreplace(num), "numpy")
     FLi, FDi = sp.Function("F_L"), sp.Function("F_D")
     Ni, di, si = sp.symbols("N_i delta_i s_i")
     arrays = []
@@ -975,8 +1001,6 @@ def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
         "v_c_value": v_c_val,
         "ratio_at_trim": float(ratio.xreplace({**num, v: trim.speed})),
         "arrays": arrays,
-        "lift_fn": FL_fn,
-        "drag_fn": FD_fn,
     }
 
 
@@ -1051,11 +1075,6 @@ def _shown_values(carriage) -> tuple[tuple[str, float], ...]:
     free = design_pose_stiffness(model.structure).free_symbols
     return tuple((e.name, float(e.value)) for e, s in zip(carriage.entries, model.p, strict=True)
                  if s in free and e.name != "halbach.wavelength")
-
-
-# The stiffness display is cached across processes (derive.memo's store, whose key covers the
-# derivation's source): this file's digest is part of its arguments, so an edit here re-renders.
-_REPORT_SOURCE = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 
 @memoized
@@ -1777,14 +1796,14 @@ def build_context(
     sim, sim_files = _simulation(options.simulation)  # bad input fails before the slow steps
     progress("report: trim and stiffness")
     trim = carriage.trim()
-    trep = trim_report(carriage, None)
-    progress("report: LQR gains, coupled comparison and allocation")
-    gains = gains_report(carriage, None)
-    progress("report: symbolic forms")
-    force = _force_law(carriage, trim, trep)
-    # drawn in a child process while this one builds the rest of the context
+    # the force figures are drawn in a child process while this one builds the context
     with Background("drawing the report figures", force_figures, carriage, trim,
-                    force) as drawing:
+                    force_curves(carriage)) as drawing:
+        trep = trim_report(carriage, None)
+        progress("report: LQR gains, coupled comparison and allocation")
+        gains = gains_report(carriage, None)
+        progress("report: symbolic forms")
+        force = _force_law(carriage, trim, trep)
         rigid = _rigid_body()
         alloc = _damping_allocation(gains)
         sections = {
@@ -1805,7 +1824,6 @@ def build_context(
         )
         progress("report: figures")
         files = drawing.result()
-    del force["lift_fn"], force["drag_fn"]  # only the figures use them
     files.update(sim_files.read())
     rows, notes = parameter_rows(carriage.loaded, params_text)
     loaded = carriage.loaded

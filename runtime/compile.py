@@ -41,16 +41,10 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     """
     compiler = find_compiler(cc)
     sources = [Path(s).resolve() for s in sources]
-    h = hashlib.sha256()
-    h.update(compiler.encode() + b"\0" + "\0".join(flags).encode())
-    for src in sources:
-        for f in sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c" else [src]:
-            h.update(f.name.encode() + b"\0" + f.read_bytes())
-    key = h.hexdigest()[:24]
-    cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    lib = cache / f"lib{key}.so"
+    lib = _library_path(compiler, sources, flags, cache_dir)
     if _intact(lib):
         return lib
+    cache, key = lib.parent, lib.name.removeprefix("lib").removesuffix(".so")
     if progress is not None:
         progress(f"compiling {sources[0].name} ({' '.join(flags)}; cached afterwards)")
     try:
@@ -69,6 +63,30 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     write_atomic(_checksum_path(lib), (digest + "\n").encode())
     os.replace(tmp, lib)
     return lib
+
+
+def cached_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,
+                  cc: str | None = None, cache_dir: Path | None = None) -> Path | None:
+    """The library `compile_shared` would return, when it is cached and intact; else None
+    (nothing is compiled, and a missing compiler is not an error here)."""
+    compiler = shutil.which(cc or os.environ.get("CC") or "gcc")
+    if compiler is None:
+        return None
+    lib = _library_path(compiler, [Path(s).resolve() for s in sources], flags, cache_dir)
+    return lib if _intact(lib) else None
+
+
+def _library_path(compiler: str, sources: Sequence[Path], flags: Sequence[str],
+                  cache_dir: Path | None) -> Path:
+    """Where the library of these sources, flags and compiler is cached: its key hashes the
+    compiler path, the flags and every source's and header's bytes."""
+    h = hashlib.sha256()
+    h.update(compiler.encode() + b"\0" + "\0".join(flags).encode())
+    for src in sources:
+        for f in sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c" else [src]:
+            h.update(f.name.encode() + b"\0" + f.read_bytes())
+    cache = Path(cache_dir) if cache_dir else default_cache_dir()
+    return cache / f"lib{h.hexdigest()[:24]}.so"
 
 
 def _checksum_path(lib: Path) -> Path:
