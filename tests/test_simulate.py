@@ -314,3 +314,23 @@ def test_reference_check_reports_small_deviation_and_catches_a_wrong_run(sim_lib
     traj.x[:, AXIS_STATES[AXIS["pitch"]]] += 1e-4  # a run that drifted off in pitch
     bad = reference_check(carriage.functions, carriage.p, traj)
     assert bad["pitch"]["max_abs"] == pytest.approx(1e-4, rel=0.05)
+
+
+def test_the_simulation_path_imports_no_symbolic_layer() -> None:
+    """Running the compiled model (`maglevgen simulate`, the build's simulations) loads the
+    parameters, the carriage and the cached library without importing SymPy, SciPy or CasADi
+    (about a second of imports a parameter edit does not need before its simulations)."""
+    code = (
+        "import sys\n"
+        "from maglevgen.carriage import Carriage\n"
+        "from maglevgen.library import cached_simulation_library\n"
+        "from maglevgen.params import load_params\n"
+        "import maglevgen.sim_output, maglevgen.simulate\n"
+        "c = Carriage(load_params(None, []))\n"
+        "c.structure, c.p\n"
+        "cached_simulation_library(c.structure)\n"
+        "print(sorted(m for m in ('sympy', 'scipy', 'casadi', 'matplotlib') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    assert out.strip() == "[]", out
