@@ -802,6 +802,13 @@ def abbreviate_radicals(
 
 
 def _conventions(model) -> dict[str, Any]:
+    return _conventions_section(model.input_names, _REPORT_SOURCE)
+
+
+@memoized
+def _conventions_section(input_names: tuple[str, ...], _source: str) -> dict[str, Any]:
+    """States, axes, inputs, R and the kinematics (cached across processes: they depend on
+    the input names alone)."""
     from .derive.rigid_body import euler_rates, rotation_body_to_inertial
 
     ab = _trig_abbrev()
@@ -816,7 +823,7 @@ def _conventions(model) -> dict[str, Any]:
     )
     inputs = [cv.PROPULSION] + [
         cv.Signal(n, "N", f"control force of array {n[3:]} along body {n[2]}")
-        for n in model.input_names[1:]
+        for n in input_names[1:]
     ]
     return {
         "states": [(i, ltx(sp.Symbol(st.name)), st) for i, st in enumerate(cv.STATES)],
@@ -898,6 +905,13 @@ def _rigid_body_check(samples: int = 3, seed: int = 7) -> int:
 
 
 def _rigid_body() -> dict[str, Any]:
+    return _rigid_body_section(_REPORT_SOURCE)
+
+
+@memoized
+def _rigid_body_section(_source: str) -> dict[str, Any]:
+    """Eqs 1-2 and the parallel-axis theorem, and the exact check of the solved equations:
+    parameter independent, cached across processes."""
     *_, IO, _IG, f1, m2, IO_expr = _rigid_body_exprs()
     comps = "xyz"
     eq1 = eqs([(f"f_{{O,{c}}}", sp.expand(f1[i])) for i, c in enumerate(comps)], tag="1")
@@ -1169,18 +1183,6 @@ def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
 
 
 def _damping_allocation(gains: dict) -> dict[str, Any]:
-    from .derive.damping import (
-        damping_gain_closed_form,
-        optimal_damping_ratio,
-        square_error_cost,
-    )
-    from .derive.paper import paper_allocation
-
-    c, k, m, x0 = sp.symbols("c k m x0", positive=True)
-    J = square_error_cost(c, k, m, x0)
-    dJ = sp.factor(sp.diff(J, c))
-    c_opt = damping_gain_closed_form(k, m)
-    curv = sp.simplify(sp.diff(J, c, 2).subs(c, c_opt))
     axes = []
     for axis, a in gains["axes"].items():
         cg = a["damping_gain"]
@@ -1193,9 +1195,38 @@ def _damping_allocation(gains: dict) -> dict[str, Any]:
         axes.append({"axis": axis, "k": a["stiffness"], "m": a["inertia"], "c": cg, "poles": poles})
     alloc = gains["allocation"]
     E, T = np.array(alloc["effectiveness"]), np.array(alloc["minimum_norm"])
-    F = sp.MatrixSymbol("F", E.shape[1], 1)
-    lam = sp.MatrixSymbol("lambda", E.shape[0], 1)
-    Es, us = sp.MatrixSymbol("E", E.shape[0], E.shape[1]), sp.MatrixSymbol("u", E.shape[0], 1)
+    return {
+        **_damping_allocation_forms(E.shape, _REPORT_SOURCE),
+        "axes": axes,
+        "E": matrix_tex(E, lambda v: fnum(v, 4)),
+        "T": matrix_tex(T, lambda v: fnum(v, 4)),
+        "E_T_residual": float(np.max(np.abs(E @ T - np.eye(E.shape[0])))),
+        "T_pinv_residual": float(np.max(np.abs(T - np.linalg.pinv(E)))),
+        "forces": [ltx(sp.Symbol(f)) for f in alloc["forces"]],
+        "controls": [ltx(sp.Symbol(c_)) for c_ in alloc["controls"]],
+    }
+
+
+@memoized
+def _damping_allocation_forms(shape: tuple[int, int], _source: str) -> dict[str, Any]:
+    """The damping cost and its optimum (eqs 20-21 derived), the allocation's Lagrangian and
+    solution for an E of ``shape``, and the paper's printed eqs 22-23: parameter
+    independent, cached across processes."""
+    from .derive.damping import (
+        damping_gain_closed_form,
+        optimal_damping_ratio,
+        square_error_cost,
+    )
+    from .derive.paper import paper_allocation
+
+    c, k, m, x0 = sp.symbols("c k m x0", positive=True)
+    J = square_error_cost(c, k, m, x0)
+    dJ = sp.factor(sp.diff(J, c))
+    c_opt = damping_gain_closed_form(k, m)
+    curv = sp.simplify(sp.diff(J, c, 2).subs(c, c_opt))
+    F = sp.MatrixSymbol("F", shape[1], 1)
+    lam = sp.MatrixSymbol("lambda", shape[0], 1)
+    Es, us = sp.MatrixSymbol("E", *shape), sp.MatrixSymbol("u", shape[0], 1)
     printed = paper_allocation()
     order = ("F_z3", "F_z1", "F_z2", "F_z6", "F_z5", "F_z4", "F_y1", "F_y2", "F_y4", "F_y5")
     pl: list[str] = []
@@ -1213,15 +1244,8 @@ def _damping_allocation(gains: dict) -> dict[str, Any]:
         "c_opt": eq(r"c^{*}", c_opt),
         "curvature": eq(r"\left.\frac{\partial^2 J}{\partial c^2}\right|_{c^{*}}", curv),
         "zeta": eq(r"\zeta^{*}", optimal_damping_ratio()),
-        "axes": axes,
         "lagrangian": eq(r"\mathcal{L}", F.T * F + lam.T * (Es * F - us)),
         "solution": eq("T", Es.T * (Es * Es.T).I),
-        "E": matrix_tex(E, lambda v: fnum(v, 4)),
-        "T": matrix_tex(T, lambda v: fnum(v, 4)),
-        "E_T_residual": float(np.max(np.abs(E @ T - np.eye(E.shape[0])))),
-        "T_pinv_residual": float(np.max(np.abs(T - np.linalg.pinv(E)))),
-        "forces": [ltx(sp.Symbol(f)) for f in alloc["forces"]],
-        "controls": [ltx(sp.Symbol(c_)) for c_ in alloc["controls"]],
         "printed": Display(tuple(pl)),
     }
 
