@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -43,7 +42,9 @@ class BuildOptions:
 
 
 def _compiler_identity() -> str:
-    name = os.environ.get("CC") or "gcc"
+    from .runtime.compile import compiler_name
+
+    name = compiler_name()
     return f"{name}={shutil.which(name)}"
 
 

@@ -158,11 +158,19 @@ def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],
         return {**files, **drawing.result()}
 
 
+NPZ_FILE = "trajectories.npz"
+
+
+def trajectory_file(traj: Trajectory) -> str:
+    """The CSV file of one run."""
+    return f"trajectory_{traj.controller}.csv"
+
+
 def render_trajectories(trajs: Sequence[Trajectory], input_names: Sequence[str]
                         ) -> dict[str, bytes]:
     """The trajectories: one CSV per run and one .npz archive of all."""
-    files = {f"trajectory_{t.controller}.csv": trajectory_csv(t, input_names) for t in trajs}
-    files["trajectories.npz"] = trajectories_npz(trajs, input_names)
+    files = {trajectory_file(t): trajectory_csv(t, input_names) for t in trajs}
+    files[NPZ_FILE] = trajectories_npz(trajs, input_names)
     return files
 
 
@@ -182,5 +190,4 @@ def render_files_and_figures(trajs: Sequence[Trajectory], input_names: Sequence[
 
 def background_names(trajs: Sequence[Trajectory]) -> tuple[str, ...]:
     """The names `render_files_and_figures` produces."""
-    return (*(f"trajectory_{t.controller}.csv" for t in trajs), "trajectories.npz",
-            *FIGURE_NAMES)
+    return (*map(trajectory_file, trajs), NPZ_FILE, *FIGURE_NAMES)

@@ -20,9 +20,14 @@ class CompileError(MaglevError):
     """The compiler rejected the generated code (an internal failure: exit 1)."""
 
 
+def compiler_name(cc: str | None = None) -> str:
+    """The C compiler asked for: ``cc``, else $CC, else gcc."""
+    return cc or os.environ.get("CC") or "gcc"
+
+
 def find_compiler(cc: str | None = None) -> str:
-    """The C compiler: ``cc``, else $CC, else gcc; a clear error when there is none."""
-    name = cc or os.environ.get("CC") or "gcc"
+    """The C compiler's path (`compiler_name`); a clear error when there is none."""
+    name = compiler_name(cc)
     path = shutil.which(name)
     if path is None:
         raise InputError(f"C compiler {name!r} not found (install gcc or set CC)")
@@ -69,7 +74,7 @@ def cached_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,
                   cc: str | None = None, cache_dir: Path | None = None) -> Path | None:
     """The library `compile_shared` would return, when it is cached and intact; else None
     (nothing is compiled, and a missing compiler is not an error here)."""
-    compiler = shutil.which(cc or os.environ.get("CC") or "gcc")
+    compiler = shutil.which(compiler_name(cc))
     if compiler is None:
         return None
     lib = _library_path(compiler, [Path(s).resolve() for s in sources], flags, cache_dir)

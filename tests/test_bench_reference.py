@@ -183,6 +183,18 @@ def _python_loop(generated: GeneratedLibrary, x0, dt, n, F_prop, k_pos, k_rate, 
     return np.array(xs), np.array(us)
 
 
+def _ref_simulate(reference: ctypes.CDLL, x0: np.ndarray, dt: float, n: int, f_prop: float,
+                  k_pos: np.ndarray, k_rate: np.ndarray, a_ref: np.ndarray, p: np.ndarray,
+                  gap_min: float = 0.002) -> tuple[int, int, np.ndarray, np.ndarray, np.ndarray]:
+    """ref_simulate over n steps: (last sample, status, states, inputs, gaps)."""
+    X, U, G = np.zeros((n + 1, 12)), np.zeros((n + 1, 11)), np.zeros((n + 1, 6))
+    status = ctypes.c_int(-1)
+    done = reference.ref_simulate(_ptr(x0), dt, n, f_prop, _ptr(k_pos), _ptr(k_rate),
+                                  _ptr(a_ref), _ptr(p), gap_min, _ptr(X), _ptr(U), _ptr(G),
+                                  ctypes.byref(status))
+    return done, status.value, X, U, G
+
+
 def test_closed_loop_matches_python_loop(
     reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: Carriage
 ) -> None:
@@ -195,24 +207,9 @@ def test_closed_loop_matches_python_loop(
     x0[idx] += [1e-3, 1e-3, 5e-3, 5e-3, 5e-3]
     dt, n, p = 1e-3, 50, np.ascontiguousarray(carriage.p)
     want_x, want_u = _python_loop(generated, x0, dt, n, trim.u[0], k_pos, k_rate, a_ref, p)
-    X, U, G = np.zeros((n + 1, 12)), np.zeros((n + 1, 11)), np.zeros((n + 1, 6))
-    status = ctypes.c_int(-1)
-    done = reference.ref_simulate(
-        _ptr(x0),
-        dt,
-        n,
-        trim.u[0],
-        _ptr(k_pos),
-        _ptr(k_rate),
-        _ptr(a_ref),
-        _ptr(p),
-        0.002,
-        _ptr(X),
-        _ptr(U),
-        _ptr(G),
-        ctypes.byref(status),
-    )
-    assert (done, status.value) == (n, 0)
+    done, status, X, U, G = _ref_simulate(reference, x0, dt, n, trim.u[0], k_pos, k_rate, a_ref,
+                                          p)
+    assert (done, status) == (n, 0)
     np.testing.assert_allclose(X, want_x, rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(U, want_u, rtol=1e-9, atol=1e-9)
     gaps = np.array([carriage.functions.forces(x, carriage.p)[0] for x in X])
@@ -225,22 +222,7 @@ def test_closed_loop_reports_contact(reference: ctypes.CDLL, carriage: Carriage)
     x0[cv.STATE_INDEX["w"]] = -1.0  # falling at 1 m/s with no feedback: contact within 15 ms
     zeros = np.zeros(5)
     n, p = 1000, np.ascontiguousarray(carriage.p)
-    X, U, G = np.zeros((n + 1, 12)), np.zeros((n + 1, 11)), np.zeros((n + 1, 6))
-    status = ctypes.c_int(-1)
-    done = reference.ref_simulate(
-        _ptr(x0),
-        1e-3,
-        n,
-        trim.u[0],
-        _ptr(zeros),
-        _ptr(zeros),
-        _ptr(zeros),
-        _ptr(p),
-        0.002,
-        _ptr(X),
-        _ptr(U),
-        _ptr(G),
-        ctypes.byref(status),
-    )
-    assert status.value == 1 and 0 < done < 30
+    done, status, _X, _U, G = _ref_simulate(reference, x0, 1e-3, n, trim.u[0], zeros, zeros,
+                                            zeros, p)
+    assert status == 1 and 0 < done < 30
     assert G[done].min() < 0.002 <= G[done - 1].min()

@@ -16,6 +16,7 @@ import pytest
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
 from maglevgen.controllers import axis_plants
+from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import lqr_gain_mp
 from maglevgen.params import load_params
 from maglevgen.runtime.compile import compile_shared
@@ -25,6 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 WARN = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]
 SINGLE_WARN = ["-Wdouble-promotion", "-Wfloat-conversion"]
 TOL = {"double": 1e-12, "single": 1e-5}
+A_STATES = [cv.STATE_INDEX[s] for s in cv.Q_STATES]  # the axis coordinates (y, z, phi, theta, psi)
 
 
 @pytest.fixture(scope="module", params=["double", "single"])
@@ -161,28 +163,29 @@ def baked(carriage: Carriage, tmp_path_factory) -> dict[str, Path]:
     return out
 
 
-def _rk4_reference(carriage: Carriage, x: np.ndarray, dt: float, f_prop: float,
-                   K: np.ndarray, a_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One classical RK4 step of the closed loop on the SymPy model (derive.numeric), with the
-    feedback u = (F_prop, T(-k_pos (a - a_ref) - k_rate a')) at every stage, T = pinv(E)."""
+def _closed_loop_reference(carriage: Carriage, f_prop: float, k_pos: np.ndarray,
+                           k_rate: np.ndarray, a_ref: np.ndarray):
+    """x -> (xdot, u) of the closed loop on the SymPy model (derive.numeric), with the feedback
+    u = (F_prop, T(-k_pos (a - a_ref) - k_rate a')) in numpy and T = pinv(E)."""
     from maglevgen.controllers import effectiveness
-    from maglevgen.derive.conventions import STATE_INDEX
-    from maglevgen.derive.linearize import Q_STATES
 
-    idx = [STATE_INDEX[s] for s in Q_STATES]
+    idx = A_STATES
     T = np.linalg.pinv(effectiveness(carriage))
     n_u = carriage.model.u.shape[0]
 
-    def f(xx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        rates = carriage.functions.xdot(xx, np.zeros(n_u), carriage.p)[idx]  # kinematics only
-        u = np.concatenate([[f_prop], T @ -(K[:, 0] * (xx[idx] - a_ref) + K[:, 1] * rates)])
-        return carriage.functions.xdot(xx, u, carriage.p), u
+    def f(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rates = carriage.functions.xdot(x, np.zeros(n_u), carriage.p)[idx]  # kinematics only
+        u = np.concatenate([[f_prop], T @ -(k_pos * (x[idx] - a_ref) + k_rate * rates)])
+        return carriage.functions.xdot(x, u, carriage.p), u
 
-    k1, u0 = f(x)
-    k2 = f(x + dt / 2 * k1)[0]
-    k3 = f(x + dt / 2 * k2)[0]
-    k4 = f(x + dt * k3)[0]
-    return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), u0
+    return f
+
+
+def _double_library(carriage: Carriage, parameters: str, tmp_path: Path) -> GeneratedLibrary:
+    """The double-precision generated C (run-time or baked parameters), compiled."""
+    write_output(render(carriage, GenerateOptions("double", parameters)), tmp_path / "gen")
+    return GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"],
+                                           cache_dir=tmp_path / "cache"), "double")
 
 
 @pytest.mark.parametrize("parameters", ["runtime", "baked"])
@@ -192,30 +195,23 @@ def test_prepared_closed_loop_matches_the_sympy_model(carriage: Carriage, trim,
     maglev_simulate does): xdot, u and the gaps against the SymPy model with the feedback in
     numpy, T = pinv(E)."""
     from maglevgen.controllers import effectiveness
-    from maglevgen.derive.conventions import STATE_INDEX
-    from maglevgen.derive.linearize import Q_STATES
 
-    write_output(render(carriage, GenerateOptions("double", parameters)), tmp_path / "gen")
-    lib = GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"],
-                                          cache_dir=tmp_path / "cache"), "double")
+    lib = _double_library(carriage, parameters, tmp_path)
     rng = np.random.default_rng(8)
     k_pos, k_rate = rng.uniform(1e3, 1e4, 5), rng.uniform(10, 400, 5)
-    idx = [STATE_INDEX[s] for s in Q_STATES]
-    a_ref, f_prop = trim.x[idx], trim.u[0]
+    a_ref, f_prop = trim.x[A_STATES], trim.u[0]
+    reference = _closed_loop_reference(carriage, f_prop, k_pos, k_rate, a_ref)
     T = np.linalg.pinv(effectiveness(carriage))
     extra = (carriage.p,) if parameters == "runtime" else ()
     (c,) = lib.function("maglev_closed_loop_prepare")(f_prop, k_pos, k_rate, a_ref, T, *extra)
     prepared = lib.function("maglev_closed_loop_prepared")
-    n_u = carriage.model.u.shape[0]
     for _ in range(20):
         x = trim.x + rng.normal(scale=[.1, 1e-3, 1e-3, 2e-3, 2e-3, 2e-3, .5, .01, .01, .01, .01,
                                        .01])
         xdot, u, gaps = (np.ravel(a) for a in prepared(x, c))
-        rates = carriage.functions.xdot(x, np.zeros(n_u), carriage.p)[idx]
-        u_ref = np.concatenate([[f_prop], T @ -(k_pos * (x[idx] - a_ref) + k_rate * rates)])
+        xdot_ref, u_ref = reference(x)
         np.testing.assert_allclose(u, u_ref, rtol=1e-10, atol=1e-9)
-        np.testing.assert_allclose(xdot, carriage.functions.xdot(x, u_ref, carriage.p),
-                                   rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(xdot, xdot_ref, rtol=1e-10, atol=1e-10)
         np.testing.assert_allclose(gaps, np.ravel(carriage.functions.gaps(x, carriage.p)),
                                    rtol=1e-12, atol=1e-15)
 
@@ -225,21 +221,23 @@ def test_rk4_step_matches_a_numpy_rk4_on_the_sympy_model(carriage: Carriage, tri
                                                          parameters: str, tmp_path: Path) -> None:
     """maglev_rk4_step (the MX step calling maglev_closed_loop four times; the baked one
     rebuilt around the baked right-hand side) against RK4 written out in numpy."""
-    write_output(render(carriage, GenerateOptions("double", parameters)), tmp_path / "gen")
-    lib = GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"],
-                                          cache_dir=tmp_path / "cache"), "double")
-    step = lib.function("maglev_rk4_step")
+    step = _double_library(carriage, parameters, tmp_path).function("maglev_rk4_step")
     rng = np.random.default_rng(5)
-    K = np.column_stack([rng.uniform(1e3, 1e4, 5), rng.uniform(10, 400, 5)])
-    a_ref = trim.x[[1, 2, 3, 4, 5]]
+    k_pos, k_rate = rng.uniform(1e3, 1e4, 5), rng.uniform(10, 400, 5)
+    a_ref, f_prop, dt = trim.x[A_STATES], trim.u[0], 2e-3
+    f = _closed_loop_reference(carriage, f_prop, k_pos, k_rate, a_ref)
     extra = (carriage.p,) if parameters == "runtime" else ()
     for _ in range(5):
         x = trim.x + rng.normal(scale=[0, 1e-3, 1e-3, 2e-3, 2e-3, 2e-3, 0, .01, .01, .01, .01,
                                        .01])
-        x_next, u = step(x, 2e-3, trim.u[0], K[:, 0], K[:, 1], a_ref, *extra)
-        ref_next, ref_u = _rk4_reference(carriage, x, 2e-3, trim.u[0], K, a_ref)
-        np.testing.assert_allclose(np.ravel(x_next), ref_next, rtol=1e-12, atol=1e-15)
-        np.testing.assert_allclose(np.ravel(u), ref_u, rtol=1e-10, atol=1e-9)
+        x_next, u = step(x, dt, f_prop, k_pos, k_rate, a_ref, *extra)
+        k1, u0 = f(x)  # classical RK4 written out
+        k2 = f(x + dt / 2 * k1)[0]
+        k3 = f(x + dt / 2 * k2)[0]
+        k4 = f(x + dt * k3)[0]
+        np.testing.assert_allclose(np.ravel(x_next), x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4),
+                                   rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(np.ravel(u), u0, rtol=1e-10, atol=1e-9)
 
 
 @pytest.mark.parametrize("cc", ["gcc", "clang"])
