@@ -43,7 +43,7 @@ from maglevgen.params import load_params  # noqa: E402
 LAZY_MODULES = (
     "maglevgen.cache",
     "maglevgen.carriage",
-    "maglevgen.codegen.generate",
+    "maglevgen.codegen.interface",
     "maglevgen.library",
     "maglevgen.background",
     "maglevgen.sim_output",
@@ -64,13 +64,13 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("simulation_library", "maglevgen.library:simulation_library"),
     ("model_functions", "maglevgen.carriage:model_functions"),  # timers only (memoised)
     ("carriage_functions", "maglevgen.carriage:Carriage.functions"),  # cprofile only
-    ("render_interface", "maglevgen.codegen.generate:render_interface"),
+    ("render_interface", "maglevgen.codegen.interface:render_interface"),
     ("run_scenarios", "maglevgen.simulate:run_scenarios"),
     ("c_simulate", "maglevgen.library:SimulationLibrary.simulate"),
     ("render_metrics", "maglevgen.sim_output:render_metrics"),
     # trajectories, simulation figures and report figures are drawn in forked children
     # (maglevgen.background): this process only sees the time it waits for them
-    ("background_wait", "maglevgen.background:Background.result"),
+    ("background_wait", "maglevgen.background:Job.result"),
     ("report_files", "maglevgen.build:_report_files"),
     ("build_context", "maglevgen.report:build_context"),
     ("trim_report", "maglevgen.cli:trim_report"),

@@ -135,6 +135,14 @@ def profile(mode: str, out: Path, cache: Path, sets: Sequence[str]) -> dict:
     return json.loads(run(cmd, cwd=ROOT, env=_env(cache)).strip().splitlines()[-1])
 
 
+def floor_run(cache: Path) -> dict:
+    """bench/build_floor.py: the CPU of the pieces every parameter-change build does."""
+    import json
+
+    cmd = [sys.executable, BENCH / "build_floor.py"]
+    return json.loads(run(cmd, cwd=ROOT, env=_env(cache)).strip().splitlines()[-1])
+
+
 def workflow(work: Path, cold_reps: int, rebuild_reps: int, profile_reps: int) -> dict:
     from maglevgen.params import load_params
 
@@ -166,6 +174,7 @@ def workflow(work: Path, cold_reps: int, rebuild_reps: int, profile_reps: int) -
         for _ in range(profile_reps)
     ]
     startup = _startup(5)
+    floor = [floor_run(cache) for _ in range(profile_reps)]
 
     def s(rows: list[dict]) -> list[float]:
         return [r["s"] for r in rows]
@@ -188,6 +197,7 @@ def workflow(work: Path, cold_reps: int, rebuild_reps: int, profile_reps: int) -
             "with_over_without": paired_ratios(s(with_pdf), s(param)),
         },
         "python_startup_s": summary(startup),
+        "floor": floor,
         "imports": imports,
         "stages_timers": _stage_summary(timers),
         "stages_cprofile": _stage_summary(cprof),

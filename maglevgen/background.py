@@ -1,100 +1,205 @@
 """Work done in a forked child process while this one goes on (the machine has 2+ cores).
 
-`maglevgen build` renders its trajectories and figures (matplotlib: import and drawing, about
-a second) in children while it builds the report's context; `maglevgen simulate` draws its
-figures in a child while it writes the trajectories. The child is forked,
-so it sees this process's data without pickling; only its result travels back, over a pipe.
-Where fork is not available the work runs in this process when its result is asked for.
+`maglevgen build` writes its trajectories in one child and draws every figure (simulation and
+report; matplotlib costs about half a second to import) in another while it builds the
+report's context; `maglevgen simulate` draws its figures in a child while it writes the
+trajectories. A child is forked, so its first job sees this process's data without
+pickling; results travel back over a pipe. Where fork is not available the work runs in this
+process when its result is asked for.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import queue
+import threading
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any, Generic, TypeVar
+from contextlib import suppress
+from multiprocessing.reduction import ForkingPickler
+from typing import Any, Generic, Protocol, TypeVar
 
 from .errors import MaglevError
 
 T = TypeVar("T")
 
 
-class Background(Generic[T]):
-    """``fn(*args)`` running in a forked child; ``result()`` waits for it.
+class Worker:
+    """A forked child that runs jobs in order while this process goes on.
 
-    Use it as a context manager: leaving the block before ``result()`` (an error elsewhere)
-    stops the child. A failure in the child raises MaglevError naming ``what`` and the error.
+    ``Worker(what, fn, *args)`` forks the child with a first job (it sees this process's data
+    through fork, nothing is pickled); ``submit(what, fn, *args)`` sends it another over a
+    pipe (pickled), so a child that imported something slow for one job reuses it for the
+    next (a thread of this process sends the jobs, so a child busy sending a large result
+    never blocks this process). Each job's ``result()`` waits for it. Use the worker as a
+    context manager: leaving the block before every result was taken (an error elsewhere)
+    stops the child. A failure in a job raises MaglevError naming the job and the error.
+    Without fork every job runs in this process when its result is asked for.
     """
 
-    def __init__(self, what: str, fn: Callable[..., T], *args: Any) -> None:
-        self._what, self._fn, self._args = what, fn, args
-        self._done = False
-        self._value: T | None = None
-        self._proc = self._conn = None
+    _serves = True  # after its first job, the child waits for more until stopped
+
+    def __init__(self, what: str, fn: Callable[..., Any], *args: Any) -> None:
+        self._what = what
+        self._jobs: list[Job] = []
+        self._proc = self._conn = self._send = None
+        self._outbox: queue.SimpleQueue | None = None
+        self._sender: threading.Thread | None = None
         if "fork" in multiprocessing.get_all_start_methods():
             ctx = multiprocessing.get_context("fork")
-            self._conn, child = ctx.Pipe(duplex=False)
-            self._proc = ctx.Process(target=_child, args=(fn, args, child), daemon=True,
-                                     name=f"maglevgen {what}")
+            self._conn, results = ctx.Pipe(duplex=False)
+            jobs, self._send = ctx.Pipe(duplex=False)
+            self._proc = ctx.Process(target=_serve,
+                                     args=(fn, args, jobs if self._serves else None, results),
+                                     daemon=True, name=f"maglevgen {what}")
             self._proc.start()
-            child.close()
+            results.close()
+            jobs.close()
+        self.first: Job = self._add(what, fn, args)
 
-    def __enter__(self) -> Background[T]:
+    def _add(self, what: str, fn: Callable[..., Any], args: tuple) -> Job:
+        job = Job(self, len(self._jobs), what, fn, args)
+        self._jobs.append(job)
+        return job
+
+    def submit(self, what: str, fn: Callable[..., Any], *args: Any) -> Job:
+        """Run ``fn(*args)`` in the child after the jobs before it."""
+        if self._proc is not None:
+            if self._send is None:
+                raise RuntimeError(f"{self._what}: the worker was stopped")
+            try:  # here, so that a job that cannot be sent fails its caller
+                payload = ForkingPickler.dumps((fn, args))
+            except Exception as exc:
+                raise MaglevError(f"{what} failed: cannot send it to the child process "
+                                  f"({type(exc).__name__}: {exc})") from None
+            if self._sender is None:
+                self._outbox = queue.SimpleQueue()
+                self._sender = threading.Thread(target=_send_all, daemon=True,
+                                                args=(self._outbox, self._send))
+                self._sender.start()
+            self._outbox.put(payload)
+        return self._add(what, fn, args)
+
+    def __enter__(self) -> Worker:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.cancel()
 
     def cancel(self) -> None:
-        """Stop the child if its result was not taken (the caller failed meanwhile)."""
-        if self._proc is not None and not self._done:
-            self._proc.terminate()
-            self._proc.join()
-            self._conn.close()
-            self._proc = None
-            self._done = True
-
-    def result(self) -> T:
-        if self._done:
-            return self._value  # type: ignore[return-value]
+        """Stop the child unless every result was taken (then it ends by itself)."""
         if self._proc is None:
-            self._value = self._fn(*self._args)
-        else:
+            return
+        finished = all(job.done for job in self._jobs)
+        if not finished:
+            self._proc.terminate()
+        if self._serves:  # other children may hold the pipe: no EOF to wait for, a None ends
+            if self._sender is None:
+                with suppress(OSError):
+                    self._send.send(None)
+            else:
+                self._outbox.put(None)
+                self._sender.join()
+        self._proc.join()
+        self._send.close()
+        self._conn.close()
+        self._proc = self._send = None
+        for job in self._jobs:
+            job.done = True
+
+    def _receive(self, index: int) -> None:
+        """Read results until job ``index`` has its own (they arrive in order)."""
+        while not self._jobs[index].done:
+            job = next(j for j in self._jobs if not j.done)
             try:
                 ok, value = self._conn.recv()
             except EOFError:
-                ok, value = False, f"the child process ended with code {self._proc.exitcode}"
-            finally:
                 self._proc.join()
-                self._conn.close()
-            if not ok:
-                raise MaglevError(f"{self._what} failed: {value}")
-            self._value = value
-        self._done = True
-        return self._value  # type: ignore[return-value]
+                ok, value = False, f"the child process ended with code {self._proc.exitcode}"
+            job.settle(ok, value)
 
 
-def _child(fn: Callable[..., Any], args: tuple, conn: Any) -> None:
-    try:
-        value = (True, fn(*args))
-    except BaseException as exc:  # reported to the parent in one line
-        value = (False, f"{type(exc).__name__}: {exc}")
-    conn.send(value)
-    conn.close()
+class Job:
+    """One job of a `Worker`."""
+
+    def __init__(self, worker: Worker, index: int, what: str, fn: Callable[..., Any],
+                 args: tuple) -> None:
+        self._worker, self._index, self._what = worker, index, what
+        self._fn, self._args = fn, args
+        self.done = False
+        self._ok, self._value = True, None
+
+    def settle(self, ok: bool, value: Any) -> None:
+        self._ok, self._value, self.done = ok, value, True
+        self._fn = self._args = None  # type: ignore[assignment]
+
+    def result(self) -> Any:
+        if not self.done:
+            if self._worker._proc is None:
+                self.settle(True, self._fn(*self._args))
+            else:
+                self._worker._receive(self._index)
+        if not self._ok:
+            raise MaglevError(f"{self._what} failed: {self._value}")
+        return self._value
+
+
+class Background(Worker, Generic[T]):
+    """``fn(*args)`` running in a forked child; ``result()`` waits for it (a one-job Worker)."""
+
+    _serves = False
+
+    def result(self) -> T:
+        return self.first.result()
+
+
+def _send_all(outbox: queue.SimpleQueue, send: Any) -> None:
+    """The sender thread: the pickled jobs in order, then the None that ends the child."""
+    while True:
+        payload = outbox.get()
+        try:
+            if payload is None:
+                send.send(None)
+                return
+            send.send_bytes(payload)
+        except OSError:  # the child has ended: the jobs' result() say how
+            return
+
+
+def _serve(fn: Callable[..., Any], args: tuple, jobs: Any, results: Any) -> None:
+    """The child: the first job, then (with a ``jobs`` pipe) each job that arrives until a
+    None or the pipe's end."""
+    while True:
+        try:
+            value = (True, fn(*args))
+        except BaseException as exc:  # reported to the parent in one line
+            value = (False, f"{type(exc).__name__}: {exc}")
+        results.send(value)
+        try:
+            job = jobs.recv() if jobs is not None else None
+        except EOFError:
+            job = None
+        if job is None:
+            break
+        fn, args = job
+    results.close()
+
+
+class _HasResult(Protocol):
+    def result(self) -> Mapping[str, bytes]: ...
 
 
 class PendingFiles(Mapping[str, bytes]):
-    """Files in memory, some of which a `Background` job is still producing: reading one of
-    those waits for the job; listing and testing names does not."""
+    """Files in memory, some of which jobs (`Worker`, `Background`) are still producing:
+    reading one of those waits for its job; listing and testing names does not."""
 
-    def __init__(self, ready: Mapping[str, bytes], pending: tuple[str, ...],
-                 job: Background[Mapping[str, bytes]]) -> None:
-        self._ready, self._pending, self._job = ready, pending, job
+    def __init__(self, ready: Mapping[str, bytes], pending: Mapping[str, _HasResult]) -> None:
+        self._ready, self._pending = ready, pending
 
     def __getitem__(self, name: str) -> bytes:
         if name in self._ready:
             return self._ready[name]
         if name in self._pending:
-            return self._job.result()[name]
+            return self._pending[name].result()[name]
         raise KeyError(name)
 
     def __contains__(self, name: object) -> bool:  # Mapping's would read the file

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from . import __version__
-from .background import Background, PendingFiles
+from .background import PendingFiles, Worker
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
 from .output import check_writable, write_output
 
@@ -135,16 +135,18 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # simulations (validates the speed's trim and the step against RK4's stability limit);
     # up to here a parameter edit has imported no SymPy, SciPy or CasADi
     run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
-    # trajectories and figures are written in a child process while this one imports the
-    # symbolic layers and builds the report's context (which reads the figures last)
-    with Background("writing the trajectories and figures", render_files_and_figures,
-                    run.trajectories, run.input_names) as drawing:
+    # one child writes the trajectories and draws every figure (one matplotlib import for the
+    # simulation's and the report's) while this process, the critical path, keeps a core to
+    # import the symbolic layers and build the report's context
+    with Worker("writing the trajectories and figures", render_files_and_figures,
+                run.trajectories, run.input_names) as drawing:
+        pending = dict.fromkeys(background_names(run.trajectories), drawing.first)
         sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
-                                 background_names(run.trajectories), drawing)
+                                 pending)
         files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         # the report (and its PDF where TeX is installed)
-        report = _report_files(carriage, sim_files, opts, step)
+        report = _report_files(carriage, sim_files, opts, step, drawing)
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
     files.update({f"report/{n}": b for n, b in report.items()})
     summary = summary_text(carriage, run, lib)
@@ -162,7 +164,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
     """c/: the cached run-time-parameter sources, and the interface files for these parameters
     (maglev.h, main.c, CMake example, manifest)."""
-    from .codegen.generate import FUNCTION_TABLE, GenerateOptions, render_interface
+    from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
 
     files: dict[str, str | bytes] = {f"c/{f.name}": f.read_bytes()
                                      for f in sorted(folder.iterdir()) if f.suffix in (".c", ".h")}
@@ -174,11 +176,12 @@ def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
-                  step) -> dict[str, bytes]:
-    """report.tex (+ report.pdf) with the simulation figures."""
+                  step, drawing: Worker) -> dict[str, bytes]:
+    """report.tex (+ report.pdf) with the simulation figures; its own figures drawn by the
+    worker that drew the simulation's."""
     from .report import report_files
 
-    return report_files(carriage, sim_files, pdf=opts.pdf, progress=step)
+    return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, drawing=drawing)
 
 
 def summary_text(carriage, run, lib) -> str:

@@ -51,6 +51,7 @@ class Carriage:
         self.params = loaded.params
         self.entries = flatten(self.params)
         self.p = np.array([e.value for e in self.entries])
+        self._trims: dict[float, Trim] = {}
 
     @cached_property
     def structure(self) -> Structure:
@@ -68,12 +69,20 @@ class Carriage:
         return self.functions.model
 
     def trim(self, speed: float | None = None) -> Trim:
+        """The equilibrium at ``speed`` (default: operation.speed), solved once per speed."""
         from .derive.trim import solve_trim
 
-        v = self.params.operation.speed if speed is None else speed
-        return solve_trim(self.functions, self.p, v, self.params.track.min_gap)
+        v = float(self.params.operation.speed if speed is None else speed)
+        if v not in self._trims:
+            self._trims[v] = solve_trim(self.functions, self.p, v, self.params.track.min_gap)
+        return self._trims[v]
 
     def lift_off_speed(self) -> float:
+        """The lowest speed with an equilibrium (a bisection over trims: solved once)."""
+        return self._lift_off
+
+    @cached_property
+    def _lift_off(self) -> float:
         from .derive.trim import lift_off_speed
 
         return lift_off_speed(self.functions, self.p, self.params.track.min_gap)

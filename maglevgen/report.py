@@ -25,6 +25,7 @@ import subprocess
 import tempfile
 import unicodedata
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass
 from fractions import Fraction
 from importlib import resources
@@ -37,7 +38,7 @@ import numpy as np
 import sympy as sp
 
 from . import __version__
-from .background import Background
+from .background import Worker
 from .derive import conventions as cv
 from .derive.memo import memoized
 from .errors import InputError, MaglevError
@@ -961,14 +962,31 @@ def _force_numbers(carriage) -> dict[sp.Symbol, float]:
     return num
 
 
-def force_curves(carriage) -> dict[str, Any]:
-    """What the force figures draw: F_L(delta, v) and F_D(delta, v) per circuit for this
-    carriage, and its characteristic speed."""
+def force_curves(carriage, trim) -> dict[str, Any]:
+    """What the force figures draw, as plain numbers (they are drawn in another process):
+    F_L and F_D (eq 3) of one upper array against the gap at the trim speed and against the
+    speed at the nominal gap, and every array's point at trim."""
     forms, num = _force_law_forms(_REPORT_SOURCE), _force_numbers(carriage)
     delta, v = _FORCE_SYMBOLS[7:]
-    return {"lift_fn": sp.lambdify((delta, v), forms["FL"].xreplace(num), "numpy"),
-            "drag_fn": sp.lambdify((delta, v), forms["FD"].xreplace(num), "numpy"),
-            "v_c_value": float(forms["v_c"].xreplace(num))}
+    FL = sp.lambdify((delta, v), forms["FL"].xreplace(num), "numpy")
+    FD = sp.lambdify((delta, v), forms["FD"].xreplace(num), "numpy")
+    v_c = float(forms["v_c"].xreplace(num))
+    arrays = list(carriage.params.arrays.items())
+    upper = [a for _, a in arrays if abs(a.normal[2]) > 1 - 1e-9] or [a for _, a in arrays]
+    n_c, g0 = upper[0].circuits, upper[0].nominal_gap
+    gap = np.linspace(carriage.params.track.min_gap, 0.05, 400)
+    speed = np.linspace(0.0, max(3 * trim.speed, 3 * v_c), 400)
+    points: dict[tuple[float, float], list[str]] = {}
+    dots = []
+    for i, (name, a) in enumerate(arrays):
+        xy = (float(trim.gaps[i] * 1e3), float(trim.lift[i] * n_c / a.circuits))
+        dots.append(xy)
+        points.setdefault((round(xy[0]), round(xy[1], -1)), []).append(name)
+    return {"speed": trim.speed, "v_c": v_c, "circuits": n_c, "nominal_gap": g0,
+            "gap": gap, "lift_gap": n_c * FL(gap, trim.speed),
+            "drag_gap": n_c * FD(gap, trim.speed),
+            "v": speed, "lift_v": n_c * FL(g0, speed), "drag_v": n_c * FD(g0, speed),
+            "dots": dots, "labels": [(xy, ", ".join(names)) for xy, names in points.items()]}
 
 
 def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
@@ -1019,32 +1037,51 @@ def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
 
 
 def _geometry(carriage, gains: dict) -> dict[str, Any]:
+    model = carriage.model
+    free = model.gaps.free_symbols
+    gap_values = tuple((e.name, float(e.value)) for e, s in zip(carriage.entries, model.p,
+                                                                  strict=True) if s in free)
+    arrays = tuple((name, tuple(map(float, a.position)), tuple(map(float, a.normal)))
+                   for name, a in carriage.params.arrays.items())
+    gaps, derived, printed = _geometry_displays(model.structure, gap_values, arrays,
+                                                _REPORT_SOURCE)
+    return {
+        "gaps": gaps,
+        "derived_sums": derived,
+        "printed_sums": printed,
+        "forces": gains["allocation"]["forces"],
+    }
+
+
+@memoized
+def _geometry_displays(structure, gap_values: tuple[tuple[str, float], ...],
+                       arrays: tuple[tuple[str, tuple[float, ...], tuple[float, ...]], ...],
+                       _source: str) -> tuple[Display, Display, Display]:
+    """The gaps with ``gap_values`` substituted, the generalized forces of the arrays' lifts
+    and drags at the design pose (eqs 8-12 derived, from ``arrays``: name, position, normal)
+    and the paper's printed sums; keyed by what they show (memoised across processes), so that
+    editing a parameter they do not show finds them cached."""
     from .derive.geometry import generalized_wrench_row
+    from .derive.model import build_model
     from .derive.paper import paper_force_sums
 
-    model = carriage.model
-    values = {e.name: e.value for e in carriage.entries}
+    model = build_model(structure)
     ab = _trig_abbrev()
     state_sym = dict(zip(model.x, sp.symbols(" ".join(cv.STATE_NAMES)), strict=True))
     gaps = []
     for i, arr in enumerate(model.arrays):
-        gexpr = to_display(model, model.gaps[i], values).xreplace(state_sym).xreplace(ab)
-        gaps += break_sum(rf"\delta_{{{arr.name}}}", round_floats(sp.expand(gexpr)))
-    # Generalized forces of the array lifts and drags at the design pose (eqs 8-12 derived).
+        gexpr = to_display(model, model.gaps[i], dict(gap_values)).xreplace(state_sym)
+        gaps += break_sum(rf"\delta_{{{arr.name}}}", round_floats(sp.expand(gexpr.xreplace(ab))))
     ex = sp.Matrix([-1, 0, 0])
     total = sp.zeros(5, 1)
-    for name, arr in carriage.params.arrays.items():
-        pos = sp.Matrix([sp.Float(c, 17) for c in arr.position])
-        nrm = sp.Matrix([sp.Float(c, 17) for c in arr.normal])
+    for name, position, normal in arrays:
+        pos = sp.Matrix([sp.Float(c, 17) for c in position])
+        nrm = sp.Matrix([sp.Float(c, 17) for c in normal])
         FL, FD = sp.Symbol(f"F_{{L,{name}}}"), sp.Symbol(f"F_{{D,{name}}}")
         total += generalized_wrench_row(pos, nrm) * FL + generalized_wrench_row(pos, ex) * FD
-    labels = (("F_y", "9"), ("F_z", "8"), ("M_x", "10"), ("M_y", "11"), ("M_z", "12"))
-    derived = eqs(
-        [
-            (rf"\textstyle\sum {lab}", round_floats(sp.expand(total[i])))
-            for i, (lab, _) in enumerate(labels)
-        ]
-    )
+    labels = ("F_y", "F_z", "M_x", "M_y", "M_z")
+    derived = eqs([(rf"\textstyle\sum {lab}", round_floats(sp.expand(total[i])))
+                   for i, lab in enumerate(labels)])
     printed_sums = paper_force_sums()
     printed_order = (("F_z", "8"), ("F_y", "9"), ("M_x", "10"), ("M_z", "11"), ("M_y", "12"))
     printed = Display(
@@ -1054,13 +1091,7 @@ def _geometry(carriage, gains: dict) -> dict[str, Any]:
             for line in break_sum(rf"\textstyle\sum {lab}", printed_sums[lab], tag=tag)
         )
     )
-    alloc = gains["allocation"]
-    return {
-        "gaps": Display(tuple(gaps)),
-        "derived_sums": derived,
-        "printed_sums": printed,
-        "forces": alloc["forces"],
-    }
+    return Display(tuple(gaps)), derived, printed
 
 
 def _trim(trep: dict) -> dict[str, Any]:
@@ -1726,57 +1757,45 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
-def force_figures(carriage, trim, force: dict) -> dict[str, bytes]:
-    """Force-versus-gap and force-versus-speed curves of the force law (PNG bytes)."""
+def force_figures(curves: dict[str, Any]) -> dict[str, bytes]:
+    """Force-versus-gap and force-versus-speed curves of the force law (PNG bytes), drawn
+    from `force_curves`."""
     import matplotlib as mpl
     from cycler import cycler
     from matplotlib.figure import Figure
 
     rc = dict(_RC)
     rc["axes.prop_cycle"] = cycler(color=["#1f77b4", "#d62728", "#2ca02c", "#9467bd"])
-    FL, FD = force["lift_fn"], force["drag_fn"]
-    arrays = list(carriage.params.arrays.items())
-    upper = [(n, a) for n, a in arrays if abs(a.normal[2]) > 1 - 1e-9] or arrays
-    n_c = upper[0][1].circuits
-    g0 = upper[0][1].nominal_gap
+    c = curves
+    n_c, speed, v_c = c["circuits"], c["speed"], c["v_c"]
     out = {}
     with mpl.rc_context(rc):
         fig = Figure(figsize=(6.0, 3.4))
         ax = fig.add_subplot()
-        gap = np.linspace(carriage.params.track.min_gap, 0.05, 400)
-        ax.plot(gap * 1e3, n_c * FL(gap, trim.speed), label=f"lift, {n_c:g} circuits")
-        ax.plot(gap * 1e3, n_c * FD(gap, trim.speed), label=f"drag, {n_c:g} circuits")
-        points: dict[tuple[float, float], list[str]] = {}
-        for i, (name, a) in enumerate(arrays):
-            xy = (trim.gaps[i] * 1e3, trim.lift[i] * n_c / a.circuits)
+        ax.plot(c["gap"] * 1e3, c["lift_gap"], label=f"lift, {n_c:g} circuits")
+        ax.plot(c["gap"] * 1e3, c["drag_gap"], label=f"drag, {n_c:g} circuits")
+        for xy in c["dots"]:
             ax.plot(*xy, "k.", ms=6)
-            points.setdefault((round(xy[0]), round(xy[1], -1)), []).append(name)
-        for (gx, fy), names in points.items():
-            ax.annotate(
-                ", ".join(names), (gx, fy), textcoords="offset points", xytext=(6, 6), fontsize=7
-            )
+        for xy, label in c["labels"]:
+            ax.annotate(label, xy, textcoords="offset points", xytext=(6, 6), fontsize=7)
         ax.set_xlabel("gap [mm]")
         ax.set_ylabel("force per array [N]")
-        ax.set_title(f"Eq 3 at {trim.speed:g} m/s; dots: arrays at trim")
+        ax.set_title(f"Eq 3 at {speed:g} m/s; dots: arrays at trim")
         ax.legend()
         fig.tight_layout()
         out["fig_force_gap.png"] = _png(fig)
 
         fig = Figure(figsize=(6.0, 3.4))
         ax = fig.add_subplot()
-        v_max = max(3 * trim.speed, 3 * force["v_c_value"])
-        v = np.linspace(0.0, v_max, 400)
-        ax.plot(v, n_c * FL(g0, v), label="lift")
-        ax.plot(v, n_c * FD(g0, v), label="drag")
-        ax.axvline(force["v_c_value"], color="0.4", ls=":", lw=1)
-        ax.axvline(trim.speed, color="0.4", ls="--", lw=1)
-        ax.annotate(
-            r"$v_c$", (force["v_c_value"], 0), textcoords="offset points", xytext=(3, 3), fontsize=8
-        )
-        ax.annotate("V", (trim.speed, 0), textcoords="offset points", xytext=(3, 3), fontsize=8)
+        ax.plot(c["v"], c["lift_v"], label="lift")
+        ax.plot(c["v"], c["drag_v"], label="drag")
+        ax.axvline(v_c, color="0.4", ls=":", lw=1)
+        ax.axvline(speed, color="0.4", ls="--", lw=1)
+        ax.annotate(r"$v_c$", (v_c, 0), textcoords="offset points", xytext=(3, 3), fontsize=8)
+        ax.annotate("V", (speed, 0), textcoords="offset points", xytext=(3, 3), fontsize=8)
         ax.set_xlabel("speed [m/s]")
         ax.set_ylabel("force per array [N]")
-        ax.set_title(f"Eq 3 at the nominal gap {g0 * 1e3:g} mm, {n_c:g} circuits")
+        ax.set_title(f"Eq 3 at the nominal gap {c['nominal_gap'] * 1e3:g} mm, {n_c:g} circuits")
         ax.legend()
         fig.tight_layout()
         out["fig_force_speed.png"] = _png(fig)
@@ -1810,19 +1829,24 @@ def build_context(
     params_text: str,
     options: ReportOptions = ReportOptions(),
     progress: Callable[[str], None] = _quiet,
+    drawing: Worker | None = None,
 ) -> tuple[dict[str, Any], dict[str, bytes]]:
     """Everything the templates show, and the binary files (figures) the report includes.
 
-    ``progress`` is called with a short message before each slow step.
+    ``progress`` is called with a short message before each slow step. The force figures are
+    drawn in a child process while this one builds the context: by ``drawing`` (a worker that
+    has matplotlib imported already, `maglevgen build`'s) or a child of their own.
     """
     from .cli import gains_report, trim_report
 
     sim, sim_files = _simulation(options.simulation)  # bad input fails before the slow steps
     progress("report: trim and stiffness")
     trim = carriage.trim()
-    # the force figures are drawn in a child process while this one builds the context
-    with Background("drawing the report figures", force_figures, carriage, trim,
-                    force_curves(carriage)) as drawing:
+    curves = force_curves(carriage, trim)
+    what = "drawing the report figures"
+    with (nullcontext(drawing) if drawing is not None
+          else Worker(what, force_figures, curves)) as worker:
+        figures = worker.first if drawing is None else worker.submit(what, force_figures, curves)
         trep = trim_report(carriage, None)
         progress("report: LQR gains, coupled comparison and allocation")
         gains = gains_report(carriage, None)
@@ -1847,7 +1871,7 @@ def build_context(
             carriage, trim, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
         )
         progress("report: figures")
-        files = drawing.result()
+        files = dict(figures.result())
     files.update(sim_files.read())
     rows, notes = parameter_rows(carriage.loaded, params_text)
     loaded = carriage.loaded
@@ -1980,14 +2004,16 @@ def render_report(
     options: ReportOptions = ReportOptions(),
     progress: Callable[[str], None] = _quiet,
     failed_dir: Path | None = None,
+    drawing: Worker | None = None,
 ) -> ReportFiles:
     """report.tex, its figures and, when ``options.build_pdf`` and TeX is installed,
     report.pdf and report.log: every file in memory.
 
     A LaTeX failure raises MaglevError naming the first error line and the log, kept with the
-    failed build in ``failed_dir`` (default: a new temporary folder).
+    failed build in ``failed_dir`` (default: a new temporary folder). ``drawing``: see
+    `build_context`.
     """
-    ctx, files = build_context(carriage, params_text, options, progress)
+    ctx, files = build_context(carriage, params_text, options, progress, drawing)
     progress("report: rendering report.tex")
     files["report.tex"] = render_tex(ctx).encode("utf-8")
     failed = [
@@ -2032,13 +2058,16 @@ def report_files(
     simulation: Mapping[str, bytes | str] | None = None,
     pdf: bool = True,
     progress: Callable[[str], None] = _quiet,
+    drawing: Worker | None = None,
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
-    ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None.
+    ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
+    ``drawing``: a worker to draw the figures in (see `build_context`).
     """
     options = ReportOptions(simulation=simulation, build_pdf=pdf)
-    return render_report(carriage, params_text_of(carriage.loaded), options, progress).files
+    return render_report(carriage, params_text_of(carriage.loaded), options, progress,
+                         drawing=drawing).files
 
 
 def write_report(

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from maglevgen import background
-from maglevgen.background import Background, PendingFiles
+from maglevgen.background import Background, PendingFiles, Worker
 from maglevgen.errors import MaglevError
 
 
@@ -72,6 +72,90 @@ def test_leaving_the_block_early_stops_the_child() -> None:
     assert time.monotonic() - t0 < 30  # did not wait for the 60 s sleep
 
 
+_LOADED: list[str] = []
+
+
+def _load(name: str) -> int:
+    """A slow import done once: the jobs after it find it in the same process."""
+    _LOADED.append(name)
+    return os.getpid()
+
+
+def _loaded_here() -> tuple[int, list[str]]:
+    return os.getpid(), list(_LOADED)
+
+
+def test_a_worker_runs_later_jobs_in_the_same_child_in_order() -> None:
+    with Worker("drawing", _load, "matplotlib") as worker:
+        second = worker.submit("summing", _pid_and_sum, np.arange(5.0))  # pickled to the child
+        third = worker.submit("reading", _loaded_here)
+        # asked out of order: the earlier results are kept until they are asked for
+        pid, loaded = third.result()
+        assert loaded == ["matplotlib"] and _LOADED == []  # the import happened in the child
+        assert second.result() == (pid, 10.0)
+        assert worker.first.result() == pid != os.getpid()
+        proc = worker._proc
+    assert proc is not None and not proc.is_alive()  # every result taken: it ended by itself
+
+
+def _megabytes(n: int) -> bytes:
+    return b"x" * (n << 20)
+
+
+def test_large_jobs_and_results_cross_without_deadlock() -> None:
+    """The child sends an 8 MB result while this process sends it an 8 MB job: pipes hold
+    far less, so each side must not wait for the other."""
+    big = np.ones(1 << 20)  # 8 MB, pickled to the child
+    with Worker("writing", _megabytes, 8) as worker:
+        second = worker.submit("summing", _pid_and_sum, big)
+        assert second.result()[1] == float(big.size)
+        assert len(worker.first.result()) == 8 << 20
+
+
+def test_a_failing_job_names_itself_and_the_worker_goes_on() -> None:
+    with Worker("drawing", _load, "matplotlib") as worker:
+        bad = worker.submit("drawing the report figures", _fails)
+        good = worker.submit("summing", _pid_and_sum, np.ones(3))
+        with pytest.raises(MaglevError, match=r"^drawing the report figures failed: ValueError"):
+            bad.result()
+        assert good.result()[1] == 3.0
+
+
+def test_a_job_that_cannot_be_sent_fails_its_caller_at_once() -> None:
+    with Worker("drawing", _load, "matplotlib") as worker:
+        with pytest.raises(MaglevError, match=r"^drawing the report figures failed: cannot send "
+                                              r"it to the child process \(.*lambda"):
+            worker.submit("drawing the report figures", lambda: 1)  # a lambda does not pickle
+        assert worker.submit("reading", _loaded_here).result()[1] == ["matplotlib"]
+
+
+def test_a_worker_that_dies_fails_its_pending_jobs_with_the_exit_code() -> None:
+    with Worker("drawing", _dies) as worker:
+        later = worker.submit("summing", _pid_and_sum, np.ones(3))
+        with pytest.raises(MaglevError, match=r"summing failed: .*ended with code 3"):
+            later.result()
+        with pytest.raises(MaglevError, match=r"drawing failed: .*ended with code 3"):
+            worker.first.result()
+
+
+def test_leaving_a_worker_early_stops_it() -> None:
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError), Worker("sleeping", _slow) as worker:
+        worker.submit("summing", _pid_and_sum, np.ones(3))
+        proc = worker._proc
+        raise RuntimeError("the caller failed meanwhile")
+    assert not proc.is_alive()
+    assert time.monotonic() - t0 < 30
+
+
+def test_without_fork_a_worker_runs_its_jobs_here(monkeypatch) -> None:
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    with Worker("summing", _pid_and_sum, np.ones(2)) as worker:
+        second = worker.submit("summing", _pid_and_sum, np.ones(3))
+        assert second.result() == (os.getpid(), 3.0)
+        assert worker.first.result() == (os.getpid(), 2.0)
+
+
 def test_pending_files_wait_for_the_job_only_when_a_pending_file_is_read(monkeypatch) -> None:
     calls = []
 
@@ -80,8 +164,8 @@ def test_pending_files_wait_for_the_job_only_when_a_pending_file_is_read(monkeyp
         return {"fig.png": b"png", "traj.csv": b"csv"}
 
     monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: [])  # run lazily here
-    files = PendingFiles({"metrics.json": b"{}"}, ("fig.png", "traj.csv"),
-                         background.Background("rendering", produce))
+    job = background.Background("rendering", produce)
+    files = PendingFiles({"metrics.json": b"{}"}, {"fig.png": job, "traj.csv": job})
     assert "fig.png" in files and "metrics.json" in files and "other" not in files
     assert sorted(files) == ["fig.png", "metrics.json", "traj.csv"] and len(files) == 3
     assert files["metrics.json"] == b"{}" and calls == []

@@ -181,6 +181,11 @@ def test_unwritable_output_folder(tmp_path: Path, capsys) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
 
 
+def _broken(*_a, **_k) -> None:
+    """A stage that fails (module level: a job sent to a child process is pickled)."""
+    raise RuntimeError("simulated failure")
+
+
 @pytest.mark.parametrize(("module", "stage", "expected"), [
     ("maglevgen.build", "_report_files",
      "maglevgen: internal error: RuntimeError: simulated failure (rerun with --debug)"),
@@ -188,16 +193,15 @@ def test_unwritable_output_folder(tmp_path: Path, capsys) -> None:
     ("maglevgen.sim_output", "render_files_and_figures",
      "maglevgen: error: writing the trajectories and figures failed: RuntimeError: simulated "
      "failure"),
-], ids=["report-stage", "background-child"])
+    # the report's figures: a second job of that child
+    ("maglevgen.report", "force_figures",
+     "maglevgen: error: drawing the report figures failed: RuntimeError: simulated failure"),
+], ids=["report-stage", "background-child", "background-child-second-job"])
 def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkeypatch, capsys,
                                                               module: str, stage: str,
                                                               expected: str) -> None:
     before, names = tree(good), siblings(good)
-
-    def broken(*_a, **_k):
-        raise RuntimeError("simulated failure")
-
-    monkeypatch.setattr(importlib.import_module(module), stage, broken)
+    monkeypatch.setattr(importlib.import_module(module), stage, _broken)
     rc = main(["build", "--out", str(good), *FAST, "--set", "vehicle.mass=9.3001"])
     out, err = capsys.readouterr()
     assert rc == 1 and out == "" and "Traceback" not in err

@@ -318,17 +318,20 @@ def test_reference_check_reports_small_deviation_and_catches_a_wrong_run(sim_lib
 
 def test_the_simulation_path_imports_no_symbolic_layer() -> None:
     """Running the compiled model (`maglevgen simulate`, the build's simulations) loads the
-    parameters, the carriage and the cached library without importing SymPy, SciPy or CasADi
-    (about a second of imports a parameter edit does not need before its simulations)."""
+    parameters, the carriage and the cached library, and the build renders the C interface
+    files, without importing SymPy, SciPy or CasADi (about a second of imports a parameter
+    edit does not need before its simulations)."""
     code = (
         "import sys\n"
         "from maglevgen.carriage import Carriage\n"
         "from maglevgen.library import cached_simulation_library\n"
         "from maglevgen.params import load_params\n"
         "import maglevgen.sim_output, maglevgen.simulate\n"
+        "from maglevgen.codegen.interface import GenerateOptions, render_interface\n"
         "c = Carriage(load_params(None, []))\n"
         "c.structure, c.p\n"
         "cached_simulation_library(c.structure)\n"
+        "render_interface(c, GenerateOptions('double', 'runtime'), [])\n"
         "print(sorted(m for m in ('sympy', 'scipy', 'casadi', 'matplotlib') if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
