@@ -57,7 +57,8 @@ def main() -> None:
     from maglevgen.sim_output import render_figures, render_trajectories
 
     out["simulation_figures"], _ = _cpu(render_figures, run.trajectories)
-    from maglevgen.report import force_curves, force_figures
+    from maglevgen.report import force_curves
+    from maglevgen.report_figures import force_figures
 
     curves = force_curves(carriage, carriage.trim())
     out["report_figures"], _ = _cpu(force_figures, curves)

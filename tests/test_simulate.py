@@ -320,13 +320,14 @@ def test_the_simulation_path_imports_no_symbolic_layer() -> None:
     """Running the compiled model (`maglevgen simulate`, the build's simulations) loads the
     parameters, the carriage and the cached library, and the build renders the C interface
     files, without importing SymPy, SciPy or CasADi (about a second of imports a parameter
-    edit does not need before its simulations)."""
+    edit does not need before its simulations); the process that draws the report's figures
+    does not import them either."""
     code = (
         "import sys\n"
         "from maglevgen.carriage import Carriage\n"
         "from maglevgen.library import cached_simulation_library\n"
         "from maglevgen.params import load_params\n"
-        "import maglevgen.sim_output, maglevgen.simulate\n"
+        "import maglevgen.sim_output, maglevgen.simulate, maglevgen.report_figures\n"
         "from maglevgen.codegen.interface import GenerateOptions, render_interface\n"
         "c = Carriage(load_params(None, []))\n"
         "c.structure, c.p\n"
