@@ -76,7 +76,6 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("trim_report", "maglevgen.cli:trim_report"),
     ("gains_report", "maglevgen.cli:gains_report"),
     ("verification", "maglevgen.report:_verification"),
-    ("force_figures", "maglevgen.report_figures:force_figures"),
     ("render_tex", "maglevgen.report:render_tex"),
     ("run_latex", "maglevgen.report:run_latex"),
     ("summary_text", "maglevgen.build:summary_text"),

@@ -485,11 +485,11 @@ def _workflow_breakdown(wf: dict) -> list[str]:
             if floor >= limit
             else f" ({floor:.2f} s)."
         )
-        + " The trajectories and all figures are written by forked child processes on the "
-        "other core meanwhile; the parent waits for them "
-        f"{(_stage(tm, 'background_wait') or 0.0):.2f} s at the end. With three processes on "
-        "two cores the build is bound by its total CPU time, so only less work (not more "
-        "parallelism) shortens it further.",
+        + " The trajectories and all figures are written by one forked child process (one "
+        "matplotlib import) on the other core meanwhile; the parent waits for it "
+        f"{(_stage(tm, 'background_wait') or 0.0):.2f} s in all. On two cores the build is "
+        "bound by its total CPU time, so only less work (not more parallelism) shortens it "
+        "further, and the floor above bounds it from below.",
         "",
     ]
     return out
