@@ -7,6 +7,7 @@ the linearised carriage (generalized mass and stiffness from the SymPy linearisa
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import subprocess
@@ -277,6 +278,11 @@ def test_cli_writes_trajectories_figures_and_metrics(cli_out: Path, carriage) ->
     npz = np.load(cli_out / "trajectories.npz")
     assert list(npz["columns"]) == [h.split(" [")[0] for h in header]
     np.testing.assert_allclose(npz["lqr"], data, rtol=1e-9, atol=1e-300)
+    # the rows are what numpy's own writer makes of the archived samples, byte for byte
+    reference = io.StringIO()
+    np.savetxt(reference, npz["lqr"], delimiter=",", fmt="%.10e")
+    rows = (cli_out / "trajectory_lqr.csv").read_text().split("\n", 3)[3]
+    assert rows == reference.getvalue()
     metrics = json.loads((cli_out / "metrics.json").read_text())
     runs = {r["controller"]: r for r in metrics["runs"]}
     assert set(runs) == set(CONTROLLERS)
