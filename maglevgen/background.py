@@ -10,11 +10,17 @@ process when its result is asked for.
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
+import os
+import pickle
 import queue
+import shutil
+import tempfile
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import suppress
+from dataclasses import dataclass
 from multiprocessing.reduction import ForkingPickler
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -26,9 +32,10 @@ T = TypeVar("T")
 class Worker:
     """A forked child that runs jobs in order while this process goes on.
 
-    ``Worker(what, fn, *args)`` forks the child with a first job (it sees this process's data
-    through fork, nothing is pickled); ``submit(what, fn, *args)`` sends it another over a
-    pipe (pickled), so a child that imported something slow for one job reuses it for the
+    ``Worker(what, fn, *args, shared=...)`` forks the child with a first job (it sees this
+    process's data through fork, nothing is pickled); ``submit(what, fn, *args)`` sends it
+    another over a pipe, pickled except for `Shared` arguments, which name an entry of
+    ``shared``. So a child that imported something slow for one job reuses it for the
     next (a thread of this process sends the jobs, so a child busy sending a large result
     never blocks this process). Each job's ``result()`` waits for it. Use the worker as a
     context manager: leaving the block before every result was taken (an error elsewhere)
@@ -38,8 +45,10 @@ class Worker:
 
     _serves = True  # after its first job, the child waits for more until stopped
 
-    def __init__(self, what: str, fn: Callable[..., Any], *args: Any) -> None:
+    def __init__(self, what: str, fn: Callable[..., Any], *args: Any,
+                 shared: Mapping[str, Any] | None = None) -> None:
         self._what = what
+        self._shared = dict(shared or {})
         self._jobs: list[Job] = []
         self._proc = self._conn = self._send = None
         self._outbox: queue.SimpleQueue | None = None
@@ -48,8 +57,11 @@ class Worker:
             ctx = multiprocessing.get_context("fork")
             self._conn, results = ctx.Pipe(duplex=False)
             jobs, self._send = ctx.Pipe(duplex=False)
+            # results travel through files: a child never waits for this process to read
+            self._spool = tempfile.mkdtemp(prefix="maglevgen-worker-")
             self._proc = ctx.Process(target=_serve,
-                                     args=(fn, args, jobs if self._serves else None, results),
+                                     args=(fn, args, jobs if self._serves else None, results,
+                                           self._shared, self._spool),
                                      daemon=True, name=f"maglevgen {what}")
             self._proc.start()
             results.close()
@@ -102,6 +114,7 @@ class Worker:
         self._proc.join()
         self._send.close()
         self._conn.close()
+        shutil.rmtree(self._spool, ignore_errors=True)
         self._proc = self._send = None
         for job in self._jobs:
             job.done = True
@@ -112,6 +125,8 @@ class Worker:
             job = next(j for j in self._jobs if not j.done)
             try:
                 ok, value = self._conn.recv()
+                if ok:
+                    value = _read_spooled(value)
             except EOFError:
                 self._proc.join()
                 ok, value = False, f"the child process ended with code {self._proc.exitcode}"
@@ -135,7 +150,7 @@ class Job:
     def result(self) -> Any:
         if not self.done:
             if self._worker._proc is None:
-                self.settle(True, self._fn(*self._args))
+                self.settle(True, self._fn(*_resolve(self._args, self._worker._shared)))
             else:
                 self._worker._receive(self._index)
         if not self._ok:
@@ -149,7 +164,10 @@ class Background(Worker, Generic[T]):
     _serves = False
 
     def result(self) -> T:
-        return self.first.result()
+        try:
+            return self.first.result()
+        finally:
+            self.cancel()  # the child has ended: join it and remove its spool
 
 
 def _send_all(outbox: queue.SimpleQueue, send: Any) -> None:
@@ -165,15 +183,42 @@ def _send_all(outbox: queue.SimpleQueue, send: Any) -> None:
             return
 
 
-def _serve(fn: Callable[..., Any], args: tuple, jobs: Any, results: Any) -> None:
+@dataclass(frozen=True)
+class Shared:
+    """A job argument the child already holds: an entry of the ``shared`` data a `Worker`
+    was forked with, sent by its name instead of pickled."""
+
+    name: str
+
+
+def _resolve(args: tuple, shared: Mapping[str, Any]) -> tuple:
+    return tuple(shared[a.name] if isinstance(a, Shared) else a for a in args)
+
+
+def _read_spooled(path: str) -> Any:
+    with open(path, "rb") as f:
+        value = pickle.load(f)
+    os.unlink(path)
+    return value
+
+
+def _serve(fn: Callable[..., Any], args: tuple, jobs: Any, results: Any,
+           shared: Mapping[str, Any], spool: str) -> None:
     """The child: the first job, then (with a ``jobs`` pipe) each job that arrives until a
-    None or the pipe's end."""
-    while True:
+    None or the pipe's end. A result is written to a file in ``spool`` and only its path
+    is sent: the pipe holds 64 KB, and a larger result would block this process until the
+    parent reads it, with the parent's next job waiting behind it."""
+    for index in itertools.count():
         try:
-            value = (True, fn(*args))
+            value = fn(*_resolve(args, shared))
+            path = os.path.join(spool, f"{index}.pkl")
+            with open(path, "wb") as f:
+                pickle.dump(value, f, pickle.HIGHEST_PROTOCOL)
+            message = (True, path)
         except BaseException as exc:  # reported to the parent in one line
-            value = (False, f"{type(exc).__name__}: {exc}")
-        results.send(value)
+            message = (False, f"{type(exc).__name__}: {exc}")
+        value = None
+        results.send(message)
         try:
             job = jobs.recv() if jobs is not None else None
         except EOFError:
@@ -184,7 +229,9 @@ def _serve(fn: Callable[..., Any], args: tuple, jobs: Any, results: Any) -> None
     results.close()
 
 
-class _HasResult(Protocol):
+class PendingResult(Protocol):
+    """Files some job is producing (a `Job`, a `Background`): ``result()`` waits for them."""
+
     def result(self) -> Mapping[str, bytes]: ...
 
 
@@ -192,7 +239,7 @@ class PendingFiles(Mapping[str, bytes]):
     """Files in memory, some of which jobs (`Worker`, `Background`) are still producing:
     reading one of those waits for its job; listing and testing names does not."""
 
-    def __init__(self, ready: Mapping[str, bytes], pending: Mapping[str, _HasResult]) -> None:
+    def __init__(self, ready: Mapping[str, bytes], pending: Mapping[str, PendingResult]) -> None:
         self._ready, self._pending = ready, pending
 
     def __getitem__(self, name: str) -> bytes:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from . import __version__
-from .background import PendingFiles, Worker
+from .background import Job, PendingFiles, Shared, Worker
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
 from .output import check_writable, write_output
 
@@ -119,7 +119,13 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     from .cache import STORE
     from .carriage import Carriage
     from .library import cached_simulation_library, runtime_sources, simulation_library
-    from .sim_output import background_names, render_files_and_figures, render_metrics
+    from .sim_output import (
+        FIGURE_NAMES,
+        render_figures,
+        render_metrics,
+        render_trajectories,
+        trajectory_names,
+    )
     from .simulate import CONTROLLERS, run_scenarios
 
     STORE.progress = step  # announce the derivation steps that are not cached yet
@@ -135,18 +141,24 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # simulations (validates the speed's trim and the step against RK4's stability limit);
     # up to here a parameter edit has imported no SymPy, SciPy or CasADi
     run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
-    # one child writes the trajectories and draws every figure (one matplotlib import for the
-    # simulation's and the report's) while this process, the critical path, keeps a core to
-    # import the symbolic layers and build the report's context
-    with Worker("writing the trajectories and figures", render_files_and_figures,
-                run.trajectories, run.input_names) as drawing:
-        pending = dict.fromkeys(background_names(run.trajectories), drawing.first)
-        sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
-                                 pending)
+    # One child draws every figure (one matplotlib import for the simulation's and the
+    # report's) and writes the trajectories, while this process imports the symbolic layers
+    # and builds the report's context. Its jobs in the order they are needed: the simulation
+    # figures, the report's figures (as soon as the trim is known), then the trajectories,
+    # which it already holds (forked with them) and nothing reads before the end.
+    with Worker("drawing the figures", render_figures, run.trajectories,
+                shared={"trajectories": run.trajectories}) as drawing:
         files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
+        step("report: trim and force figures")
+        report_figures = _draw_report_figures(drawing, carriage)
+        writing = drawing.submit("writing the trajectories", render_trajectories,
+                                 Shared("trajectories"), run.input_names)
+        sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
+                                 {**dict.fromkeys(FIGURE_NAMES, drawing.first),
+                                  **dict.fromkeys(trajectory_names(run.trajectories), writing)})
         # the report (and its PDF where TeX is installed)
-        report = _report_files(carriage, sim_files, opts, step, drawing)
+        report = _report_files(carriage, sim_files, opts, step, report_figures)
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
     files.update({f"report/{n}": b for n, b in report.items()})
     summary = summary_text(carriage, run, lib)
@@ -175,13 +187,22 @@ def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
     return files
 
 
+def _draw_report_figures(drawing: Worker, carriage) -> Job:
+    """Have ``drawing`` draw the report's force figures (they need the trim, so this imports
+    the symbolic layers)."""
+    from .report import force_curves
+    from .report_figures import force_figures
+
+    return drawing.submit("drawing the report figures", force_figures,
+                          force_curves(carriage, carriage.trim()))
+
+
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
-                  step, drawing: Worker) -> dict[str, bytes]:
-    """report.tex (+ report.pdf) with the simulation figures; its own figures drawn by the
-    worker that drew the simulation's."""
+                  step, figures: Job) -> dict[str, bytes]:
+    """report.tex (+ report.pdf) with the simulation figures and its own ``figures``."""
     from .report import report_files
 
-    return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, drawing=drawing)
+    return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures)
 
 
 def summary_text(carriage, run, lib) -> str:

@@ -37,7 +37,7 @@ import numpy as np
 import sympy as sp
 
 from . import __version__
-from .background import Worker
+from .background import PendingResult, Worker
 from .derive import conventions as cv
 from .derive.memo import memoized
 from .errors import InputError, MaglevError
@@ -1761,24 +1761,24 @@ def build_context(
     params_text: str,
     options: ReportOptions = ReportOptions(),
     progress: Callable[[str], None] = _quiet,
-    drawing: Worker | None = None,
+    figures: PendingResult | None = None,
 ) -> tuple[dict[str, Any], dict[str, bytes]]:
     """Everything the templates show, and the binary files (figures) the report includes.
 
     ``progress`` is called with a short message before each slow step. The force figures are
-    drawn in a child process while this one builds the context: by ``drawing`` (a worker that
-    has matplotlib imported already, `maglevgen build`'s) or a child of their own.
+    drawn in a child process while this one builds the context: ``figures`` when the caller
+    has them drawn already (`maglevgen build`: `force_figures` of `force_curves`, by the
+    worker that drew the simulation's), else by a child of their own.
     """
     from .cli import gains_report, trim_report
 
     sim, sim_files = _simulation(options.simulation)  # bad input fails before the slow steps
     progress("report: trim and stiffness")
     trim = carriage.trim()
-    curves = force_curves(carriage, trim)
-    what = "drawing the report figures"
-    with (nullcontext(drawing) if drawing is not None
-          else Worker(what, force_figures, curves)) as worker:
-        figures = worker.first if drawing is None else worker.submit(what, force_figures, curves)
+    with (nullcontext() if figures is not None else
+          Worker("drawing the report figures", force_figures, force_curves(carriage, trim))
+          ) as own:
+        figures = figures if own is None else own.first
         trep = trim_report(carriage, None)
         progress("report: LQR gains, coupled comparison and allocation")
         gains = gains_report(carriage, None)
@@ -1936,16 +1936,16 @@ def render_report(
     options: ReportOptions = ReportOptions(),
     progress: Callable[[str], None] = _quiet,
     failed_dir: Path | None = None,
-    drawing: Worker | None = None,
+    figures: PendingResult | None = None,
 ) -> ReportFiles:
     """report.tex, its figures and, when ``options.build_pdf`` and TeX is installed,
     report.pdf and report.log: every file in memory.
 
     A LaTeX failure raises MaglevError naming the first error line and the log, kept with the
-    failed build in ``failed_dir`` (default: a new temporary folder). ``drawing``: see
+    failed build in ``failed_dir`` (default: a new temporary folder). ``figures``: see
     `build_context`.
     """
-    ctx, files = build_context(carriage, params_text, options, progress, drawing)
+    ctx, files = build_context(carriage, params_text, options, progress, figures)
     progress("report: rendering report.tex")
     files["report.tex"] = render_tex(ctx).encode("utf-8")
     failed = [
@@ -1990,16 +1990,16 @@ def report_files(
     simulation: Mapping[str, bytes | str] | None = None,
     pdf: bool = True,
     progress: Callable[[str], None] = _quiet,
-    drawing: Worker | None = None,
+    figures: PendingResult | None = None,
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
     ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
-    ``drawing``: a worker to draw the figures in (see `build_context`).
+    ``figures``: the report's figures being drawn already (see `build_context`).
     """
     options = ReportOptions(simulation=simulation, build_pdf=pdf)
     return render_report(carriage, params_text_of(carriage.loaded), options, progress,
-                         drawing=drawing).files
+                         figures=figures).files
 
 
 def write_report(

@@ -194,12 +194,6 @@ def render_metrics(trajs: Sequence[Trajectory], header: dict) -> dict[str, bytes
             "metrics.md": (metrics_markdown(all_metrics) + "\n").encode()}
 
 
-def render_files_and_figures(trajs: Sequence[Trajectory], input_names: Sequence[str]
-                             ) -> dict[str, bytes]:
-    """What `maglevgen build` renders in the background: trajectories and figures."""
-    return {**render_trajectories(trajs, input_names), **render_figures(trajs)}
-
-
-def background_names(trajs: Sequence[Trajectory]) -> tuple[str, ...]:
-    """The names `render_files_and_figures` produces."""
-    return (*map(trajectory_file, trajs), NPZ_FILE, *FIGURE_NAMES)
+def trajectory_names(trajs: Sequence[Trajectory]) -> tuple[str, ...]:
+    """The names `render_trajectories` produces."""
+    return (*map(trajectory_file, trajs), NPZ_FILE)

@@ -8,12 +8,13 @@ from __future__ import annotations
 import multiprocessing
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from maglevgen import background
-from maglevgen.background import Background, PendingFiles, Worker
+from maglevgen.background import Background, PendingFiles, Shared, Worker
 from maglevgen.errors import MaglevError
 
 
@@ -37,8 +38,10 @@ def _slow() -> int:
 def test_result_comes_from_a_child_and_equals_the_direct_call() -> None:
     data = np.linspace(0.0, 1.0, 1001)  # seen by the child through fork, never pickled
     job = Background("summing", _pid_and_sum, data)
+    spool = Path(job._spool)
     pid, total = job.result()
     assert pid != os.getpid()
+    assert not spool.exists()  # a one-job child is cleaned up once its result is read
     assert total == _pid_and_sum(data)[1]
     assert job.result() == (pid, total)  # a second call returns the same result
 
@@ -94,8 +97,10 @@ def test_a_worker_runs_later_jobs_in_the_same_child_in_order() -> None:
         assert loaded == ["matplotlib"] and _LOADED == []  # the import happened in the child
         assert second.result() == (pid, 10.0)
         assert worker.first.result() == pid != os.getpid()
-        proc = worker._proc
+        proc, spool = worker._proc, Path(worker._spool)
+        assert spool.is_dir()  # where the child writes its results
     assert proc is not None and not proc.is_alive()  # every result taken: it ended by itself
+    assert not spool.exists()
 
 
 def _megabytes(n: int) -> bytes:
@@ -119,6 +124,29 @@ def test_a_failing_job_names_itself_and_the_worker_goes_on() -> None:
         with pytest.raises(MaglevError, match=r"^drawing the report figures failed: ValueError"):
             bad.result()
         assert good.result()[1] == 3.0
+
+
+def test_a_shared_argument_is_the_data_the_child_was_forked_with(monkeypatch) -> None:
+    """A `Shared` argument travels as its name: the 8 MB array is not pickled again."""
+    from multiprocessing.reduction import ForkingPickler
+
+    sent: list[int] = []
+    dumps = ForkingPickler.dumps
+    monkeypatch.setattr(ForkingPickler, "dumps",
+                        classmethod(lambda cls, obj, *a: sent.append(len(dumps(obj, *a)))
+                                    or dumps(obj, *a)))
+    data = np.arange(float(1 << 20))
+    with Worker("summing", _pid_and_sum, data, shared={"samples": data}) as worker:
+        again = worker.submit("summing again", _pid_and_sum, Shared("samples"))
+        assert again.result() == worker.first.result()
+        assert again.result()[1] == float(np.sum(data))
+    assert sent and max(sent) < 10_000, sent
+
+
+def test_without_fork_a_shared_argument_is_the_data_itself(monkeypatch) -> None:
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    with Worker("summing", _pid_and_sum, np.ones(2), shared={"ones": np.ones(5)}) as worker:
+        assert worker.submit("summing", _pid_and_sum, Shared("ones")).result()[1] == 5.0
 
 
 def test_a_job_that_cannot_be_sent_fails_its_caller_at_once() -> None:

@@ -189,14 +189,14 @@ def _broken(*_a, **_k) -> None:
 @pytest.mark.parametrize(("module", "stage", "expected"), [
     ("maglevgen.build", "_report_files",
      "maglevgen: internal error: RuntimeError: simulated failure (rerun with --debug)"),
-    # trajectories and figures are written by a forked child (maglevgen.background)
-    ("maglevgen.sim_output", "render_files_and_figures",
-     "maglevgen: error: writing the trajectories and figures failed: RuntimeError: simulated "
-     "failure"),
-    # the report's figures: a second job of that child
-    ("maglevgen.report", "force_figures",
+    # figures and trajectories: the jobs of a forked child (maglevgen.background)
+    ("maglevgen.sim_output", "render_figures",
+     "maglevgen: error: drawing the figures failed: RuntimeError: simulated failure"),
+    ("maglevgen.report_figures", "force_figures",
      "maglevgen: error: drawing the report figures failed: RuntimeError: simulated failure"),
-], ids=["report-stage", "background-child", "background-child-second-job"])
+    ("maglevgen.sim_output", "render_trajectories",
+     "maglevgen: error: writing the trajectories failed: RuntimeError: simulated failure"),
+], ids=["report-stage", "child-first-job", "child-second-job", "child-third-job"])
 def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkeypatch, capsys,
                                                               module: str, stage: str,
                                                               expected: str) -> None:
