@@ -1,11 +1,11 @@
 """Work done in a forked child process while this one goes on (the machine has 2+ cores).
 
-`maglevgen build` writes its trajectories in one child and draws every figure (simulation and
-report; matplotlib costs about half a second to import) in another while it builds the
-report's context; `maglevgen simulate` draws its figures in a child while it writes the
-trajectories. A child is forked, so its first job sees this process's data without
-pickling; results travel back over a pipe. Where fork is not available the work runs in this
-process when its result is asked for.
+`maglevgen build` has one child (`Worker`) draw every figure, the simulation's and the
+report's (matplotlib costs about half a second to import), and write the trajectories while
+it builds the report's context; `maglevgen simulate` draws its figures in a child
+(`Background`) while it writes the trajectories. A child is forked, so its first job sees this
+process's data without pickling; results travel back through files in a spool folder. Where
+fork is not available the work runs in this process when its result is asked for.
 """
 
 from __future__ import annotations
@@ -36,11 +36,12 @@ class Worker:
     process's data through fork, nothing is pickled); ``submit(what, fn, *args)`` sends it
     another over a pipe, pickled except for `Shared` arguments, which name an entry of
     ``shared``. So a child that imported something slow for one job reuses it for the
-    next (a thread of this process sends the jobs, so a child busy sending a large result
-    never blocks this process). Each job's ``result()`` waits for it. Use the worker as a
-    context manager: leaving the block before every result was taken (an error elsewhere)
-    stops the child. A failure in a job raises MaglevError naming the job and the error.
-    Without fork every job runs in this process when its result is asked for.
+    next. A thread of this process writes the jobs to the pipe and the child writes its
+    results to files, so neither side ever waits for the other to read. Each job's
+    ``result()`` waits for it. Use the worker as a context manager: leaving the block before
+    every result was taken (an error elsewhere) stops the child. A failure in a job raises
+    MaglevError naming the job and the error. Without fork every job runs in this process
+    when its result is asked for.
     """
 
     _serves = True  # after its first job, the child waits for more until stopped
@@ -217,7 +218,7 @@ def _serve(fn: Callable[..., Any], args: tuple, jobs: Any, results: Any,
             message = (True, path)
         except BaseException as exc:  # reported to the parent in one line
             message = (False, f"{type(exc).__name__}: {exc}")
-        value = None
+        value = None  # not held while waiting for the next job
         results.send(message)
         try:
             job = jobs.recv() if jobs is not None else None

@@ -37,7 +37,7 @@ import numpy as np
 import sympy as sp
 
 from . import __version__
-from .background import PendingResult, Worker
+from .background import Background, PendingResult
 from .derive import conventions as cv
 from .derive.memo import memoized
 from .errors import InputError, MaglevError
@@ -1776,9 +1776,9 @@ def build_context(
     progress("report: trim and stiffness")
     trim = carriage.trim()
     with (nullcontext() if figures is not None else
-          Worker("drawing the report figures", force_figures, force_curves(carriage, trim))
+          Background("drawing the report figures", force_figures, force_curves(carriage, trim))
           ) as own:
-        figures = figures if own is None else own.first
+        figures = figures if own is None else own
         trep = trim_report(carriage, None)
         progress("report: LQR gains, coupled comparison and allocation")
         gains = gains_report(carriage, None)

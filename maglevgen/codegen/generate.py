@@ -16,12 +16,10 @@ from maglevgen.output import write_output  # noqa: F401  (re-exported: the write
 
 from .cpass import generate_c
 from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
-from .interface import (  # noqa: F401  (re-exported: the generator's API)
+from .interface import (
     C_NAME,
     FUNCTION_TABLE,
     IO_DOCS,
-    PARAMETER_MODES,
-    PRECISIONS,
     SIMULATE_FILES,
     GenerateOptions,
     banner,
