@@ -30,6 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import alternatives as alt
+import envelope as envelope_bench
 import native
 import workflow
 import writeup
@@ -677,6 +678,7 @@ def main(argv: list[str] | None = None) -> int:
             native.footprint_runtime_dynamics(s.gen["double_runtime"], work / "size_rt")
         )
         results["precision"] = precision(s, reps)
+        results["envelope"] = envelope_bench.run(3 if args.quick else 5)
     results["machine"]["loadavg_end"] = os.getloadavg()
     # the toolchain's source (what keys every cache) must not change while the suite runs
     results["meta"]["toolchain_changed_during_run"] = toolchain_fingerprint() != fingerprint_start

@@ -926,6 +926,10 @@ def markdown(r: dict) -> str:
             "",
         ]
     out += ["## Machine", "", *_machine(r)]
+    if "envelope" in r:
+        import envelope as envelope_bench
+
+        out += envelope_bench.markdown(r["envelope"])
     out += [
         "## Targets",
         "",

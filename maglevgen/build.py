@@ -36,6 +36,7 @@ class BuildOptions:
     t_end: float = 10.0
     dt: float = 1e-3
     pdf: bool = True
+    allow_unstable: bool = False  # not in the key: it changes the exit code only
 
     def as_dict(self) -> dict:
         return {"t_end": self.t_end, "dt": self.dt, "pdf": self.pdf}
@@ -91,8 +92,8 @@ def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
 
 def _unchanged(out_dir: Path) -> BuildResult:
     summary = (out_dir / SUMMARY).read_text()
-    files = tuple(json.loads((out_dir / STAMP).read_text())["files"])
-    return BuildResult(out_dir, False, summary, files)
+    stamp = json.loads((out_dir / STAMP).read_text())
+    return BuildResult(out_dir, False, summary, tuple(stamp["files"]), stamp.get("verification"))
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,7 @@ class BuildResult:
     rebuilt: bool
     summary: str
     files: tuple[str, ...]
+    verification: str | None = None  # why the build's verification failed (exit 3)
 
 
 def _find_tex() -> str | None:
@@ -118,6 +120,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 
     from .cache import STORE
     from .carriage import Carriage
+    from .envelope import compute_envelope, envelope_markdown
     from .library import cached_simulation_library, runtime_sources, simulation_library
     from .sim_output import (
         FIGURE_NAMES,
@@ -141,6 +144,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # simulations (validates the speed's trim and the step against RK4's stability limit);
     # up to here a parameter edit has imported no SymPy, SciPy or CasADi
     run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
+    step("envelope: stability of each controller across the speed range")
+    env = compute_envelope(carriage, lib)
     # One child draws every figure (one matplotlib import for the simulation's and the
     # report's) and writes the trajectories, while this process imports the symbolic layers
     # and builds the report's context. Its jobs in the order they are needed: the simulation
@@ -152,25 +157,64 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
         report_figures = _draw_report_figures(drawing, carriage)
+        mapping = drawing.submit("drawing the stability map", _stability_map, env)
         writing = drawing.submit("writing the trajectories", render_trajectories,
                                  Shared("trajectories"), run.input_names)
         sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
                                  {**dict.fromkeys(FIGURE_NAMES, drawing.first),
                                   **dict.fromkeys(trajectory_names(run.trajectories), writing)})
         # the report (and its PDF where TeX is installed)
-        report = _report_files(carriage, sim_files, opts, step, report_figures)
+        stability_map = mapping.result()
+        report = _report_files(carriage, sim_files, opts, step, report_figures,
+                               (env, stability_map["envelope/stability_map.png"]))
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
+        files.update(stability_map)
     files.update({f"report/{n}": b for n, b in report.items()})
-    summary = summary_text(carriage, run, lib)
+    files["c/maglev_schedule.c"] = _schedule_c(carriage, lib)
+    files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
+    files["envelope/envelope.md"] = envelope_markdown(env)
+    summary = summary_text(carriage, run, lib, env)
     files[SUMMARY] = summary
+    verification = embedded_verification(carriage, env)
     digests = {n: hashlib.sha256(b.encode() if isinstance(b, str) else b).hexdigest()
                for n, b in sorted(files.items())}
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,
                                "params_sha256": loaded.sha256,
                                "overrides": list(loaded.overrides), "options": opts.as_dict(),
-                               "files": digests}, indent=1) + "\n"
+                               "verification": verification, "files": digests},
+                              indent=1) + "\n"
     write_output(files, out_dir)
-    return BuildResult(out_dir, True, summary, tuple(sorted(files)))
+    return BuildResult(out_dir, True, summary, tuple(sorted(files)), verification)
+
+
+def _schedule_c(carriage, lib) -> str:
+    """c/maglev_schedule.c: the embedded controller's gain schedule over the envelope."""
+    import numpy as np
+
+    from .envelope import envelope_points, resolve_range
+    from .schedule import Schedule, schedule_c_source
+
+    env = carriage.params.envelope
+    v_lo, v_hi = resolve_range(carriage, lib)
+    points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi, env.schedule_nodes))
+    return schedule_c_source(Schedule.from_points(points, env.embedded_controller))
+
+
+def _stability_map(env) -> dict[str, bytes]:
+    from .envelope import stability_map_png
+
+    return {"envelope/stability_map.png": stability_map_png(env)}
+
+
+def embedded_verification(carriage, env) -> str | None:
+    """None when the embedded controller is stable across the envelope, else the one-line
+    reason `build` exits 3 with."""
+    name = carriage.params.envelope.embedded_controller
+    c = env.controllers[name]
+    if c.ok:
+        return None
+    return (f"verification failed: the embedded controller envelope.embedded_controller = "
+            f"{name!r} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)")
 
 
 def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
@@ -198,14 +242,15 @@ def _draw_report_figures(drawing: Worker, carriage) -> Job:
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
-                  step, figures: Job) -> dict[str, bytes]:
+                  step, figures: Job, envelope) -> dict[str, bytes]:
     """report.tex (+ report.pdf) with the simulation figures and its own ``figures``."""
     from .report import report_files
 
-    return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures)
+    return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,
+                        envelope=envelope)
 
 
-def summary_text(carriage, run, lib) -> str:
+def summary_text(carriage, run, lib, env) -> str:
     """Where each output is, and the numbers an engineer checks first."""
     import numpy as np
 
@@ -215,10 +260,18 @@ def summary_text(carriage, run, lib) -> str:
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
     trim = carriage.trim(op.speed)
     rows = carriage.stiffness_table(trim)
+    from .operating import CONTROLLER_TITLES
+
+    embedded = carriage.params.envelope.embedded_controller
     lines = [f"# maglevgen build: {carriage.loaded.source}", "",
-             "Outputs: c/ (run-time-parameter C, maglev.h, CMake example), lib/libmaglev.so, "
-             "simulation/ (trajectories, figs 3-8, metrics.md), report/ (report.tex, "
-             "report.pdf).", "",
+             f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
+             "(envelope/envelope.md, envelope/stability_map.png):", ""]
+    lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
+              f": {c.verdict}" for n, c in env.controllers.items()]
+    lines += ["",
+              "Outputs: c/ (run-time-parameter C, maglev.h, CMake example), lib/libmaglev.so, "
+              "simulation/ (trajectories, figs 3-8, metrics.md), envelope/, report/ "
+              "(report.tex, report.pdf).", "",
              f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; gaps "
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from . import __version__
 from .derive import conventions as cv
-from .errors import MaglevError
+from .errors import MaglevError, VerificationError
 
 # The parameter schema (pydantic, numpy) is imported by the commands that need it, so that
 # `maglevgen build` on an up-to-date folder answers without loading it.
@@ -101,11 +101,24 @@ def trim_report(carriage, speed: float | None) -> dict:
     }
 
 
+def _verdicts(carriage, rep: dict) -> list[str]:
+    """Add the envelope's verdicts to a report (under "envelope"); the lines to print first."""
+    env = envelope_of(carriage)
+    embedded = carriage.params.envelope.embedded_controller
+    rep["envelope"] = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
+                       "verdicts": {n: c.verdict for n, c in env.controllers.items()},
+                       "stable": {n: c.ok for n, c in env.controllers.items()}}
+    return verdict_lines(env, embedded)
+
+
 def cmd_trim(args: argparse.Namespace) -> int:
-    rep = trim_report(_carriage(args), args.speed)
+    carriage = _carriage(args)
+    rep = trim_report(carriage, args.speed)
+    verdicts = _verdicts(carriage, rep)
     if args.json:
         print(json.dumps(rep, indent=2, sort_keys=False))
         return 0
+    print("\n".join(verdicts) + "\n")
     print(f"Trim at {rep['speed']:g} m/s (lift-off at {rep['lift_off_speed']:.3f} m/s; "
           f"residual {rep['residual']:.2e})")
     for s in cv.STATES:
@@ -169,10 +182,13 @@ def _pole_key(e: complex) -> tuple[float, float]:
 
 
 def cmd_gains(args: argparse.Namespace) -> int:
-    rep = gains_report(_carriage(args), args.speed)
+    carriage = _carriage(args)
+    rep = gains_report(carriage, args.speed)
+    verdicts = _verdicts(carriage, rep)
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0
+    print("\n".join(verdicts) + "\n")
     q, r = rep["Q"], rep["R"]
     print(f"Per-axis LQR at {rep['speed']:g} m/s, Q = diag({q[0][0]:g}, {q[1][1]:g}), "
           f"R = {r:g}; u = -K (position, rate)")
@@ -192,6 +208,55 @@ def cmd_gains(args: argparse.Namespace) -> int:
           f"{max(p[0] for p in c['poles_coupled_lqr']):.4g} 1/s")
     print("The paper's eq 31-32 gain (K1 = sqrt(k^2+1) - 1) is not the LQR gain: its P does "
           "not solve eq 30.")
+    return 0
+
+
+# ---------------------------------------------------------------------------------- envelope
+
+
+def _library(carriage):
+    from . import progress
+    from .library import simulation_library
+
+    return simulation_library(carriage.structure, progress=progress.step)
+
+
+def envelope_of(carriage, n_speeds: int | None = None):
+    """The envelope of a carriage through its compiled library (maglevgen.envelope)."""
+    from .envelope import DEFAULT_SPEEDS, compute_envelope
+
+    return compute_envelope(carriage, _library(carriage), n_speeds or DEFAULT_SPEEDS)
+
+
+def verdict_lines(env, embedded: str) -> list[str]:
+    """One line per controller, the embedded one marked."""
+    from .operating import CONTROLLER_TITLES
+
+    out = [f"Envelope {env.v_min:.4g} to {env.v_max:.4g} m/s (maglevgen envelope):"]
+    for name, c in env.controllers.items():
+        mark = " [embedded]" if name == embedded else ""
+        out.append(f"  {CONTROLLER_TITLES[name] + mark:<28} {c.verdict}")
+    return out
+
+
+def cmd_envelope(args: argparse.Namespace) -> int:
+    carriage = _carriage(args)
+    env = envelope_of(carriage, args.speeds)
+    if args.out:
+        from .envelope import envelope_markdown, stability_map_png
+        from .output import write_output
+
+        paths = write_output({"envelope.json": json.dumps(env.to_json(), indent=1) + "\n",
+                              "envelope.md": envelope_markdown(env),
+                              "stability_map.png": stability_map_png(env)}, Path(args.out))
+    if args.json:
+        print(json.dumps(env.to_json(), indent=1))
+        return 0
+    print("\n".join(verdict_lines(env, carriage.params.envelope.embedded_controller)))
+    print("Ten-state closed loop (y z phi theta psi v w p q r) at the trim at each of "
+          f"{env.speeds.size} speeds; x drops out, the speed is held by the propulsion.")
+    if args.out:
+        print(f"wrote {len(paths)} files to {Path(args.out).resolve()}")
     return 0
 
 
@@ -222,7 +287,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
     carriage = _carriage(args)
     run = run_scenarios(carriage, controllers, args.t_end, args.dt, args.speed,
-                        announce=progress.step, bar=progress.bar)
+                        announce=progress.step, bar=progress.bar, scenario=args.scenario)
     files = render_results(run.trajectories, run.input_names, run.header(carriage.loaded.sha256))
     paths = write_output(files, Path(args.out))
     print(f"Simulated {args.t_end:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
@@ -273,7 +338,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_build(args: argparse.Namespace) -> int:
     from .build import BuildOptions, cached_result
 
-    opts = BuildOptions(t_end=args.t_end, dt=args.dt, pdf=not args.no_pdf)
+    opts = BuildOptions(t_end=args.t_end, dt=args.dt, pdf=not args.no_pdf,
+                        allow_unstable=args.allow_unstable)
     res = cached_result(args.params, args.overrides, Path(args.out), opts)
     if res is None:  # not up to date: validate the parameters and build
         from . import progress
@@ -284,12 +350,17 @@ def cmd_build(args: argparse.Namespace) -> int:
         res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
     if not res.rebuilt:
         print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")
-        return 0
-    sys.stdout.write(res.summary)
-    print(f"\nwrote {len(res.files)} files to {res.out_dir}:")
-    for sub in ("c", "lib", "simulation", "report"):
-        print(f"  {res.out_dir / sub}/")
-    print(f"  {res.out_dir / 'SUMMARY.md'} (this summary)")
+    else:
+        sys.stdout.write(res.summary)
+        print(f"\nwrote {len(res.files)} files to {res.out_dir}:")
+        for sub in ("c", "lib", "simulation", "envelope", "report"):
+            print(f"  {res.out_dir / sub}/")
+        print(f"  {res.out_dir / 'SUMMARY.md'} (this summary)")
+    if res.verification is not None:
+        if opts.allow_unstable:
+            print(f"maglevgen: warning: {res.verification}", file=sys.stderr)
+            return 0
+        raise VerificationError(res.verification)
     return 0
 
 
@@ -336,7 +407,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
     _common(sim)
-    sim.add_argument("--controller", choices=("none", "damping", "lqr", "all"), default="all")
+    sim.add_argument("--controller", choices=("none", "damping", "lqr", "coupled", "all"),
+                     default="all")
+    sim.add_argument("--scenario", choices=("hold", "launch"), default="hold",
+                     help="hold: the trim drag at one speed (default); launch: accelerate from "
+                          "envelope.v_min to v_max with the gains scheduled in the C loop")
     _run_options(sim)
     sim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
@@ -346,6 +421,16 @@ def build_parser() -> argparse.ArgumentParser:
                           "model and report the largest deviation (slow: seconds per run)")
     sim.set_defaults(func=cmd_simulate)
 
+    env = sub.add_parser("envelope", help="closed-loop stability of each controller across "
+                                          "the speed envelope, with verdicts")
+    _common(env)
+    env.add_argument("--speeds", type=int, default=None, metavar="N",
+                     help="speeds spanning [v_min, v_max] (default 50)")
+    env.add_argument("--json", action="store_true", help="machine-readable output")
+    env.add_argument("--out", metavar="DIR",
+                     help="also write envelope.json, envelope.md and stability_map.png")
+    env.set_defaults(func=cmd_envelope)
+
     bld = sub.add_parser("build", help="the main job: C, library, simulations and report, "
                                        "brought up to date in one atomic step")
     _common(bld)
@@ -353,6 +438,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="output folder (default: ./build)")
     _run_options(bld)
     bld.add_argument("--no-pdf", action="store_true", help="write report.tex only")
+    bld.add_argument("--allow-unstable", action="store_true",
+                     help="exit 0 with a warning (not 3) when the embedded controller is "
+                          "unstable somewhere in the envelope")
     bld.set_defaults(func=cmd_build)
 
     rep = sub.add_parser("report", help="LaTeX derivation report, and its PDF where TeX is "

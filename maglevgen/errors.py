@@ -17,3 +17,10 @@ class InputError(MaglevError):
 
 class NoTrimError(InputError):
     """The carriage has no equilibrium at the requested speed."""
+
+
+class VerificationError(MaglevError):
+    """A verification failed (an embedded controller unstable in the envelope): exit 3. The
+    outputs are written all the same so that the engineer can read why."""
+
+    exit_code = 3

@@ -86,6 +86,42 @@ class SimulationLibrary(GeneratedLibrary):
         fn.argtypes = [ptr, real, ctypes.c_longlong, real, ptr, ptr, ptr, ptr, real, ptr, ptr,
                        ptr, ctypes.POINTER(ctypes.c_int)]
         self._simulate = fn
+        real_ptr = ptr
+
+        class _Schedule(ctypes.Structure):  # maglev_schedule (maglev_simulate.h)
+            _fields_ = [("n", ctypes.c_int), ("v0", real), ("dv", real), ("y", real_ptr),
+                        ("d2y", real_ptr)]
+
+        self._Schedule = _Schedule
+        fn = self._lib.maglev_launch
+        fn.restype = ctypes.c_longlong
+        fn.argtypes = [ptr, real, ctypes.c_longlong, real, real, ctypes.c_longlong,
+                       ctypes.POINTER(_Schedule), ptr, real, ptr, ptr, ptr,
+                       ctypes.POINTER(ctypes.c_int)]
+        self._launch = fn
+
+    def launch(self, x0: np.ndarray, dt: float, n_steps: int, v_end: float, f_extra: float,
+               hold_steps: int, schedule, p: np.ndarray, gap_min: float, n_u: int,
+               n_gaps: int) -> tuple[int, int, np.ndarray, np.ndarray, np.ndarray]:
+        """maglev_launch with ``schedule`` (maglevgen.schedule.Schedule): as ``simulate``."""
+        real = self._real
+        P = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
+        y = np.ascontiguousarray(schedule.values, dtype=real)
+        d2y = np.ascontiguousarray(schedule.second_derivatives, dtype=real)
+        sched = self._Schedule(len(schedule.speeds), float(schedule.speeds[0]),
+                               float(schedule.speeds[1] - schedule.speeds[0]),
+                               y.ctypes.data_as(P), d2y.ctypes.data_as(P))
+        x0c, pc = (np.ascontiguousarray(a, dtype=real) for a in (x0, p))
+        x = np.zeros((n_steps + 1, x0c.size), dtype=real)
+        u = np.zeros((n_steps + 1, n_u), dtype=real)
+        g = np.zeros((n_steps + 1, n_gaps), dtype=real)
+        status = ctypes.c_int(-1)
+        last = self._launch(x0c.ctypes.data_as(P), dt, n_steps, v_end, f_extra, hold_steps,
+                            ctypes.byref(sched), pc.ctypes.data_as(P), gap_min,
+                            x.ctypes.data_as(P), u.ctypes.data_as(P), g.ctypes.data_as(P),
+                            ctypes.byref(status))
+        n = int(last) + 1
+        return int(last), status.value, x[:n], u[:n], g[:n]
 
     def simulate(self, x0: np.ndarray, dt: float, n_steps: int, f_prop: float,
                  k_pos: np.ndarray, k_rate: np.ndarray, a_ref: np.ndarray, p: np.ndarray,

@@ -123,6 +123,53 @@ class Track(_Section):
     min_gap: float = _f("m", "smallest gap before an array touches the track (contact)", gt=0)
 
 
+EMBEDDABLE_CONTROLLERS = ("damping", "lqr", "coupled")
+
+
+class Envelope(_Section):
+    """The speeds the carriage flies and the launch: not part of the model's parameter vector
+    (nothing here changes the equations; the envelope, the schedule and the launch read it)."""
+
+    v_min: float | None = Field(
+        default=None, gt=0, description="lowest speed of the envelope (omitted: "
+        "(1 + lift_off_margin) x the lift-off speed, found by the trim in C)",
+        json_schema_extra={"unit": "m/s"})
+    lift_off_margin: float = Field(
+        default=0.5, ge=0.05, le=10, description="margin of v_min above the lift-off speed "
+        "when v_min is omitted (0.5: 50 % above)", json_schema_extra={"unit": "1"})
+    v_max: float = Field(gt=0, description="release speed: the top of the envelope",
+                         json_schema_extra={"unit": "m/s"})
+    launch_acceleration: float = Field(
+        gt=0, description="steady acceleration of the launch run: the propulsion is the trim "
+        "drag plus m times this (the paper's 'steady acceleration force')",
+        json_schema_extra={"unit": "m/s^2"})
+    schedule_nodes: int = Field(
+        default=64, ge=4, le=4096, description="speeds of the gain schedule's spline nodes "
+        "over [v_min, v_max]", json_schema_extra={"unit": "1"})
+    embedded_controller: str = Field(
+        default="coupled", description="the controller the firmware C embeds and `build` "
+        f"verifies over the envelope: one of {', '.join(EMBEDDABLE_CONTROLLERS)}",
+        json_schema_extra={"unit": "-"})
+
+    @field_validator("embedded_controller")
+    @classmethod
+    def _known_controller(cls, name: str) -> str:
+        if name not in EMBEDDABLE_CONTROLLERS:
+            raise ValueError(f"expected one of {', '.join(EMBEDDABLE_CONTROLLERS)}")
+        return name
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Envelope:
+        if self.v_min is not None and not self.v_min < self.v_max:
+            raise _ModelError("envelope.v_min", f"{self.v_min:g}",
+                              f"is not below envelope.v_max = {self.v_max:g}")
+        return self
+
+
+# sections of the file that are not model parameters (not in the parameter vector p)
+NOT_IN_MODEL: tuple[str, ...] = ("envelope",)
+
+
 class Parameters(_Section):
     """A carriage description. Arrays are keyed by their number in the paper's Fig. 2."""
 
@@ -133,6 +180,7 @@ class Parameters(_Section):
     operation: Operation
     control: Control
     track: Track
+    envelope: Envelope
 
     @model_validator(mode="after")
     def _physical_inertia(self) -> Parameters:
@@ -192,7 +240,8 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
         if not isinstance(node, dict) or key not in node:
             raise InputError(f"--set {dotted}: unknown key {'.'.join(keys[: depth + 1])!r}")
         node = node[key]
-    if not isinstance(node, dict) or keys[-1] not in node:
+    optional = {k for k, *_ in schema_rows()}  # a key of the schema the file may omit
+    if not isinstance(node, dict) or (keys[-1] not in node and dotted not in optional):
         raise InputError(f"--set {dotted}: unknown key {dotted!r}")
     node[keys[-1]] = value
 
@@ -307,6 +356,8 @@ class SchemaLeaf:
 def schema_leaves(obj: BaseModel, prefix: str = "") -> Iterator[SchemaLeaf]:
     """Every leaf field in file order (vectors as one leaf); the one walk over the schema."""
     for field, info in type(obj).model_fields.items():
+        if not prefix and field in NOT_IN_MODEL:
+            continue
         value = getattr(obj, field)
         key = f"{prefix}{field}"
         if isinstance(value, BaseModel):

@@ -89,6 +89,7 @@ class ReportOptions:
     simulation: Path | Mapping[str, bytes | str] | None = None  # `maglevgen simulate` output
     verify_c: bool = True  # compile the generated C and compare it with the SymPy model
     build_pdf: bool = True  # run LaTeX when it is installed
+    envelope: tuple[Any, bytes] | None = None  # (Envelope, stability map PNG) when computed
 
 
 # =============================================================================== formatting
@@ -1748,6 +1749,7 @@ SECTION_TITLES: dict[str, str] = {
     "riccati": "Riccati equations and LQR gains (eqs 24-33)",
     "paper": "Paper versus derivation",
     "verification": "Verification",
+    "envelope": "Operating envelope",
     "simulation": "Simulation",
 }
 
@@ -1773,6 +1775,8 @@ def build_context(
     from .cli import gains_report, trim_report
 
     sim, sim_files = _simulation(options.simulation)  # bad input fails before the slow steps
+    progress("report: envelope (stability across speed, in the compiled library)")
+    env, env_png = _envelope(carriage, options)
     progress("report: trim and stiffness")
     trim = carriage.trim()
     with (nullcontext() if figures is not None else
@@ -1801,10 +1805,11 @@ def build_context(
         progress("report: verification")
         checks = _verification(
             carriage, trim, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
-        )
+        ) + _envelope_checks(carriage, env)
         progress("report: figures")
         files = dict(figures.result())
     files.update(sim_files.read())
+    files[ENVELOPE_FIGURE] = env_png
     rows, notes = parameter_rows(carriage.loaded, params_text)
     loaded = carriage.loaded
     ctx: dict[str, Any] = {
@@ -1824,10 +1829,71 @@ def build_context(
         **sections,
         "paper": paper,
         "checks": checks,
+        "envelope": _envelope_context(carriage, env),
         "simulation": sim,
         "figures": sorted(f for f in files if f.startswith("fig_")),
     }
     return ctx, files
+
+
+# ============================================================================ envelope
+
+ENVELOPE_FIGURE = "envelope_stability_map.png"
+
+
+def _envelope(carriage, options: ReportOptions):
+    """The envelope (maglevgen.envelope, through the compiled library) and its stability map:
+    the caller's when it has them (`maglevgen build`), else computed and drawn here."""
+    from .envelope import compute_envelope, stability_map_png
+    from .library import simulation_library
+
+    if options.envelope is not None:
+        env, png = options.envelope
+        return env, png
+    env = compute_envelope(carriage, simulation_library(carriage.structure))
+    return env, stability_map_png(env)
+
+
+def _envelope_checks(carriage, env) -> list[Check]:
+    """Stability rows: each designed controller at the design speed and across the envelope
+    (a row fails when the closed loop has an eigenvalue with real part >= -margin)."""
+    from .envelope import STABILITY_MARGIN, closed_loop_stability, envelope_points
+    from .library import simulation_library
+    from .operating import CONTROLLER_TITLES
+
+    speed = carriage.params.operation.speed
+    (op,) = envelope_points(carriage, simulation_library(carriage.structure), [speed])
+    out = []
+    for name in ("coupled", "lqr", "damping"):
+        title = tex_escape(CONTROLLER_TITLES[name])
+        out.append(Check(
+            f"{title}: closed loop at {speed:.4g} m/s (largest real part, 1/s)",
+            "eigenvalues (numpy) of the C Jacobians with the gains and allocation",
+            closed_loop_stability(op, name)[0], -STABILITY_MARGIN))
+        out.append(Check(
+            f"{title}: closed loop across [{env.v_min:.4g}, {env.v_max:.4g}] m/s (largest "
+            "real part, 1/s)", f"the same at {env.speeds.size} speeds",
+            float(np.max(env.controllers[name].max_real)), -STABILITY_MARGIN))
+    return out
+
+
+def _envelope_context(carriage, env) -> dict[str, Any]:
+    from .operating import CONTROLLER_TITLES
+
+    embedded = carriage.params.envelope.embedded_controller
+    pick = np.unique(np.linspace(0, env.speeds.size - 1, min(9, env.speeds.size)).astype(int))
+    names = list(env.controllers)
+    return {
+        "v_min": env.v_min, "v_max": env.v_max, "n": int(env.speeds.size),
+        "figure": ENVELOPE_FIGURE,
+        "launch_acceleration": carriage.params.envelope.launch_acceleration,
+        "rows": [{"title": CONTROLLER_TITLES[n], "name": n, "verdict": c.verdict,
+                  "ok": c.ok, "embedded": n == embedded} for n, c in env.controllers.items()],
+        "names": [CONTROLLER_TITLES[n] for n in names],
+        "table": [{"speed": float(env.speeds[i]),
+                   "cells": [float(env.controllers[n].max_real[i]) for n in names]}
+                  for i in pick],
+    }
 
 
 # ============================================================================ LaTeX build
@@ -1991,13 +2057,14 @@ def report_files(
     pdf: bool = True,
     progress: Callable[[str], None] = _quiet,
     figures: PendingResult | None = None,
+    envelope: tuple[Any, bytes] | None = None,
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
     ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
     ``figures``: the report's figures being drawn already (see `build_context`).
     """
-    options = ReportOptions(simulation=simulation, build_pdf=pdf)
+    options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope)
     return render_report(carriage, params_text_of(carriage.loaded), options, progress,
                          figures=figures).files
 

@@ -127,14 +127,26 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
 
 def metrics_markdown(all_metrics: Sequence[dict]) -> str:
     """One table per controller: settling time, peak deviation, RMS control per axis."""
+    launch = bool(all_metrics) and all_metrics[0].get("scenario") == "launch"
+    scenario = (
+        "Launch: from the trim at the envelope's v_min the carriage accelerates to v_max under "
+        "the trim drag plus a steady acceleration force m a; the gains, the reference (the "
+        "trim at the current speed) and the drag follow the gain schedule at the measured "
+        "speed, updated in the C loop at every step. The trim is computed without "
+        "acceleration, so the thrust's moment about the CG leaves a steady pitch offset that "
+        "the proportional controllers do not remove."
+        if launch else
+        "The propulsion force is held at its trim value; the along-track speed is not "
+        "controlled and drifts (under a steady force the speed equilibrium is unstable: the "
+        "trim drag falls as the speed rises).")
     lines = ["# Closed-loop simulation metrics", "",
-             f"Initial disturbance: {DISTURBANCE_DOC}. The propulsion force is held at its trim "
-             "value; the along-track speed is not controlled and drifts (above the "
-             "Inductrack's characteristic speed the drag falls as the speed rises, so the "
-             "speed equilibrium is unstable under a steady force). Deviations are measured "
-             "from the trim at the current speed. Settling time: the first time after which "
-             f"the deviation stays within {SETTLING_BAND:.0%} of its peak; 'not settled' when "
-             "it never does within the run.", ""]
+             f"Initial disturbance: {DISTURBANCE_DOC}. {scenario} Deviations are measured "
+             "from the trim at the current speed. Status: 'contact' (a gap reached "
+             "track.min_gap), 'diverging' (non-finite, or the peak deviation grows from the "
+             "first quarter of the run to the last), 'settled' (every axis within "
+             f"{SETTLING_BAND:.0%} of its peak for the rest of the run) or 'not settled'. "
+             "Settling time: the first time after which the deviation stays within "
+             f"{SETTLING_BAND:.0%} of its peak; 'not settled' when it never does.", ""]
     for m in all_metrics:
         lines += [f"## {CONTROLLER_TITLES[m['controller']]} (`{m['controller']}`)", "",
                   f"Status: {m['status']}" + (f" ({m['event']})" if m["event"] else "")
@@ -157,8 +169,44 @@ FIGURE_NAMES: tuple[str, ...] = tuple(f[0] for f in FIGURES)
 
 
 def render_figures(trajs: Sequence[Trajectory]) -> dict[str, bytes]:
-    """The PNG figures of a simulation run (figs 3-8)."""
-    return {name: figure_png(trajs, title, panels, figs) for name, title, panels, figs in FIGURES}
+    """The PNG figures of a simulation run (figs 3-8; a launch also against speed)."""
+    out = {name: figure_png(trajs, title, panels, figs) for name, title, panels, figs in FIGURES}
+    if trajs and trajs[0].scenario == "launch":
+        out[SPEED_FIGURE] = speed_figure_png(trajs)
+    return out
+
+
+SPEED_FIGURE = "against_speed.png"
+
+
+def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
+    """Heave, pitch and roll deviations against the speed of a launch (PNG bytes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = (("z", 1e3, r"$z - z_{trim}$ [mm]"),
+              ("theta", 1e3, r"$\theta - \theta_{trim}$ [mrad]"),
+              ("phi", 1e3, r"$\phi - \phi_{trim}$ [mrad]"))
+    with plt.rc_context({"font.size": 9}):
+        fig, axes = plt.subplots(len(panels), 1, figsize=(7, 6), sharex=True)
+        for ax, (state, scale, label) in zip(axes, panels, strict=True):
+            for traj in trajs:
+                every = max(1, traj.t.size // PLOT_POINTS)
+                y = traj.axis_deviation[::every, _AXIS_OF_STATE[state]] * scale
+                ax.plot(traj.speed[::every], y, lw=0.9, label=CONTROLLER_TITLES[traj.controller]
+                        + (f" ({traj.status})" if traj.status == "contact" else ""))
+            ax.set_ylabel(label)
+            ax.grid(True, lw=0.3)
+        axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+        axes[-1].set_xlabel("speed $v$ [m/s]")
+        fig.suptitle("Launch: deviations from the scheduled trim against speed")
+        fig.subplots_adjust(left=0.12, right=0.78, bottom=0.08, top=0.93, hspace=0.12)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
+        plt.close(fig)
+    return buf.getvalue()
 
 
 def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],

@@ -20,11 +20,16 @@ from .derive.conventions import Q_STATES
 from .derive.structure import input_names_of
 from .errors import InputError, NoTrimError
 from .library import SimulationLibrary
-
-CONTROLLERS: tuple[str, ...] = ("none", "damping", "lqr")
-CONTROLLER_TITLES: dict[str, str] = {"none": "no control", "damping": "optimized damping",
-                                     "lqr": "LQR"}
-AXIS_STATES: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in Q_STATES)
+from .operating import (
+    AXIS_STATES,
+    CONTROLLER_TITLES,
+    CONTROLLERS,
+    OperatingPoint,
+    Weights,
+    checked_trim,
+    operating_point,
+)
+from .schedule import Schedule
 
 # The initial disturbance from trim (per axis): small against the gaps (15 mm upper, 30 mm
 # lower) so the response stays in the linear range the controllers were designed for.
@@ -33,80 +38,21 @@ DISTURBANCE: dict[str, float] = {"y": 1e-3, "z": 1e-3, "phi": 2e-3, "theta": 2e-
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "
                    "2 mrad yaw from trim; body velocities at trim")
 
-STATUS = {0: "completed", 1: "contact", 2: "non-finite state", 3: "generated code error"}
+SCENARIOS: tuple[str, ...] = ("hold", "launch")
+# what maglev_simulate / maglev_launch report (MAGLEV_SIM_*); a run that took every step gets
+# its status from its trajectory (run_status)
+C_STATUS = {1: "contact", 2: "diverging", 3: "generated code error"}
+RUN_STATUSES: tuple[str, ...] = ("settled", "not settled", "diverging", "contact",
+                                 "generated code error")
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls
 
 Progress = Callable[[float], None]
 
 
-@dataclass(frozen=True)
-class OperatingPoint:
-    """Trim and gains at one speed, all computed by the generated C."""
-
-    speed: float
-    x_trim: np.ndarray
-    f_prop: float
-    gaps: np.ndarray
-    K: np.ndarray  # (5, 2) LQR position and rate gains per axis
-    c_damping: np.ndarray  # (5,) optimized damping gains
-    allocation: np.ndarray  # T (n_arrays_forces x 5)
-
-    @property
-    def a_trim(self) -> np.ndarray:
-        return self.x_trim[list(AXIS_STATES)]
-
-    def gains(self, controller: str) -> tuple[np.ndarray, np.ndarray]:
-        """(k_pos, k_rate) of a controller."""
-        zero = np.zeros(len(cv.AXES))
-        if controller == "none":
-            return zero, zero
-        if controller == "damping":
-            return zero, self.c_damping
-        if controller == "lqr":
-            return self.K[:, 0].copy(), self.K[:, 1].copy()
-        raise InputError(f"controller {controller!r}: expected one of {CONTROLLERS}")
-
-
-def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
-                 min_gap: float) -> tuple[np.ndarray, float, np.ndarray]:
-    """(x_trim, F_prop, gaps): the Newton trim in C, checked against the dynamics and the
-    track; NoTrimError when there is none."""
-    x_trim, f_prop = lib.function("maglev_trim")(speed, p)
-    x_trim, f_prop = x_trim.ravel(), float(f_prop.ravel()[0])
-    n_u = lib.function("maglev_dynamics").shapes_in[1][0]
-    u = np.zeros(n_u)
-    u[0] = f_prop
-    acc = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()[6:]
-    gaps = lib.function("maglev_gaps")(x_trim, p)[0].ravel()
-    if not (np.all(np.isfinite(acc)) and np.max(np.abs(acc)) < 1e-8):
-        raise NoTrimError(f"no trim at {speed:g} m/s: the Newton solve in C did not converge "
-                          "(below lift-off speed?); see `maglevgen trim`")
-    if np.min(gaps) < min_gap:
-        raise NoTrimError(f"no trim at {speed:g} m/s with every gap above track.min_gap = "
-                          f"{min_gap:g} m (smallest {np.min(gaps):.4g} m)")
-    return x_trim, f_prop, gaps
-
-
-def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float,
-                    min_gap: float) -> OperatingPoint:
-    """Checked trim, gains and allocation matrix at ``speed``, all from the generated C."""
-    x_trim, f_prop, gaps = checked_trim(lib, p, speed, min_gap)
-    K, c = lib.function("maglev_lqr_gains")(speed, p)
-    (T,) = lib.function("maglev_allocation_matrix")(p)
-    return OperatingPoint(speed, x_trim, f_prop, gaps, K, c.ravel(), T)
-
-
 def closed_loop_matrix(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
                        controller: str) -> np.ndarray:
-    """A_cl of the closed loop linearised at trim (from the generated Jacobians)."""
-    u = np.zeros(op.allocation.shape[0] + 1)
-    u[0] = op.f_prop
-    A, B = lib.function("maglev_jacobians")(op.x_trim, u, p)
-    k_pos, k_rate = op.gains(controller)
-    select = np.zeros((len(AXIS_STATES), A.shape[0]))
-    select[range(len(AXIS_STATES)), AXIS_STATES] = 1.0
-    d_ugen = -(np.diag(k_pos) @ select + np.diag(k_rate) @ (select @ A))
-    return A + B[:, 1:] @ op.allocation @ d_ugen
+    """A_cl (12 x 12) of the closed loop linearised at trim (from the generated Jacobians)."""
+    return op.full_closed_loop(controller)
 
 
 def rk4_stability_limit(eigenvalues: np.ndarray) -> float:
@@ -143,19 +89,24 @@ class Trajectory:
     x: np.ndarray
     u: np.ndarray
     gaps: np.ndarray
-    status: str
+    c_status: int  # MAGLEV_SIM_* of the C loop
     event: str | None = None
     disturbance: dict[str, float] = field(default_factory=dict)
-
+    scenario: str = "hold"
     equilibrium: np.ndarray | None = None  # (n, 5) trim axis positions at each sample's speed
+
+    @property
+    def speed(self) -> np.ndarray:
+        """|(u, v, w)| at each sample: the speed the schedule is evaluated at [m/s]."""
+        return np.linalg.norm(self.x[:, 6:9], axis=1)
 
     @property
     def axis_deviation(self) -> np.ndarray:
         """(n, 5) deviation of y, z, phi, theta, psi from the trim at the current speed.
 
-        Under a steady propulsion force the speed drifts (the drag falls with speed above the
-        Inductrack's characteristic speed, so the speed equilibrium is unstable), and the
-        trim moves with it; deviations are measured from that moving equilibrium.
+        The speed changes during a run (the launch accelerates; under the trim propulsion of
+        the hold scenario the speed mode drifts slowly, see `OperatingPoint.speed_pole`) and
+        the trim moves with it; deviations are measured from that moving equilibrium.
         """
         ref = self.op.a_trim if self.equilibrium is None else self.equilibrium
         return self.x[:, list(AXIS_STATES)] - ref
@@ -167,6 +118,43 @@ class Trajectory:
         E = np.linalg.solve(T.T @ T, T.T)
         return self.u[:, 1:] @ E.T
 
+    @property
+    def growth_rate(self) -> float | None:
+        """ln(peak |deviation| of the last quarter / of the first quarter) per second, over the
+        axis that grows most (each axis relative to its own peak); None for a short run."""
+        n = self.t.size // 4
+        if n < 2:
+            return None
+        dev = np.abs(self.axis_deviation)
+        first, last = dev[:n].max(axis=0), dev[-n:].max(axis=0)
+        ok = first > 0
+        if not np.any(ok):
+            return 0.0
+        span = self.t[-n:].mean() - self.t[:n].mean()
+        with np.errstate(divide="ignore"):
+            return float(np.max(np.log(np.maximum(last[ok], 1e-300) / first[ok])) / span)
+
+    @property
+    def status(self) -> str:
+        """settled, not settled, diverging, contact (or generated code error): `run_status`."""
+        return run_status(self)
+
+
+def run_status(traj: Trajectory) -> str:
+    """What a run did: ``contact`` (a gap reached track.min_gap), ``diverging`` (a state
+    became non-finite, or the deviation's peak grew from the first quarter of the run to the
+    last), ``settled`` (every axis within SETTLING_BAND of its peak deviation for the rest of
+    the run) or ``not settled`` (it decays but does not settle within the run)."""
+    if traj.c_status in C_STATUS:
+        return C_STATUS[traj.c_status]
+    growth = traj.growth_rate
+    if growth is not None and growth > 0:
+        return "diverging"
+    dev = traj.axis_deviation
+    if all(settling_time(traj.t, dev[:, i]) is not None for i in range(dev.shape[1])):
+        return "settled"
+    return "not settled"
+
 
 def initial_state(op: OperatingPoint, disturbance: dict[str, float]) -> np.ndarray:
     x0 = op.x_trim.copy()
@@ -177,25 +165,44 @@ def initial_state(op: OperatingPoint, disturbance: dict[str, float]) -> np.ndarr
     return x0
 
 
+def _check_steps(t_end: float, dt: float) -> int:
+    if not (dt > 0 and t_end > 0 and np.isfinite(dt) and np.isfinite(t_end)):
+        raise InputError(f"--dt {dt:g} and --t-end {t_end:g} must be positive")
+    n_steps = round(t_end / dt)
+    if n_steps < 1:
+        raise InputError(f"--t-end {t_end:g} s is shorter than one step of {dt:g} s")
+    return n_steps
+
+
+def _contact_event(t: np.ndarray, g: np.ndarray, speed: float, min_gap: float,
+                   c_status: int) -> str | None:
+    if c_status == 1:
+        arrays = np.flatnonzero(g[-1] < min_gap) + 1
+        return (f"contact at t = {t[-1]:.4f} s, {speed:.3f} m/s: gap of array(s) "
+                f"{', '.join(map(str, arrays))} below track.min_gap = {min_gap:g} m")
+    if c_status == 2:
+        return f"non-finite state at t = {t[-1]:.4f} s"
+    if c_status != 0:
+        return f"{C_STATUS.get(c_status, 'error')} at t = {t[-1]:.4f} s"
+    return None
+
+
 def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controller: str,
              t_end: float, dt: float, min_gap: float,
              disturbance: dict[str, float] | None = None,
              progress: Progress | None = None) -> Trajectory:
-    """Run one scenario in C: RK4 from the disturbed trim to ``t_end`` or contact."""
-    if not (dt > 0 and t_end > 0 and np.isfinite(dt) and np.isfinite(t_end)):
-        raise InputError(f"--dt {dt:g} and --t-end {t_end:g} must be positive")
+    """The hold scenario in C: RK4 from the disturbed trim to ``t_end`` or contact, the
+    propulsion held at the trim drag and the gains fixed at the trim speed's."""
+    n_steps = _check_steps(t_end, dt)
     disturbance = DISTURBANCE if disturbance is None else disturbance
-    n_steps = round(t_end / dt)
-    if n_steps < 1:
-        raise InputError(f"--t-end {t_end:g} s is shorter than one step of {dt:g} s")
-    k_pos, k_rate = op.gains(controller)
+    K_pos, K_rate = (k.ravel(order="F") for k in op.gains(controller))
     x0 = initial_state(op, disturbance)
     n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     xs, us, gs = [], [], []
     done, status = 0, 0
     while True:
         chunk = min(CHUNK_STEPS, n_steps - done)
-        last, status, x, u, g = lib.simulate(x0, dt, chunk, op.f_prop, k_pos, k_rate,
+        last, status, x, u, g = lib.simulate(x0, dt, chunk, op.f_prop, K_pos, K_rate,
                                              op.a_trim, p, min_gap, n_u, n_g)
         final = status != 0 or done + chunk == n_steps
         keep = slice(None) if final else slice(None, -1)  # chunks share their end sample
@@ -208,15 +215,38 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
         x0 = x[-1]
     x, u, g = np.concatenate(xs), np.concatenate(us), np.concatenate(gs)
     t = np.arange(x.shape[0]) * dt
-    event = None
-    if status == 1:
-        arrays = np.flatnonzero(g[-1] < min_gap) + 1
-        event = (f"contact at t = {t[-1]:.4f} s: gap of array(s) "
-                 f"{', '.join(map(str, arrays))} below track.min_gap = {min_gap:g} m")
-    elif status != 0:
-        event = f"{STATUS[status]} at t = {t[-1]:.4f} s"
-    traj = Trajectory(controller, op, dt, t, x, u, g, STATUS[status], event, dict(disturbance))
-    traj.equilibrium = moving_equilibrium(lib, p, op, x[:, cv.STATE_INDEX["u"]], min_gap)
+    speed_end = float(np.linalg.norm(x[-1, 6:9]))
+    traj = Trajectory(controller, op, dt, t, x, u, g, status,
+                      _contact_event(t, g, speed_end, min_gap, status), dict(disturbance))
+    traj.equilibrium = moving_equilibrium(lib, p, op, traj.speed, min_gap)
+    return traj
+
+
+def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: OperatingPoint,
+           v_end: float, accel_force: float, dt: float, min_gap: float,
+           max_time: float, hold_steps: int = 1,
+           disturbance: dict[str, float] | None = None) -> Trajectory:
+    """The launch run in C (`maglev_launch`): from the disturbed trim at the schedule's first
+    speed the carriage accelerates under F_drag(v) + ``accel_force`` until ``v_end``, the
+    controller's gains, reference and the drag following ``schedule`` at the measured speed
+    (every ``hold_steps`` steps, held between; 0: at every RK4 stage); ``max_time`` bounds
+    the run."""
+    disturbance = DISTURBANCE if disturbance is None else disturbance
+    if not accel_force >= 0:  # 0: the propulsion follows the trim drag (the speed is held)
+        raise InputError(f"launch thrust {accel_force:g} N must not be negative")
+    n_steps = _check_steps(max_time, dt)
+    x0 = initial_state(op, disturbance)
+    _last, status, x, u, g = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps,
+                                       schedule, p, min_gap, op.allocation.shape[0] + 1,
+                                       op.gaps.size)
+    t = np.arange(x.shape[0]) * dt
+    speed = np.linalg.norm(x[:, 6:9], axis=1)
+    traj = Trajectory(schedule.controller, op, dt, t, x, u, g, status,
+                      _contact_event(t, g, float(speed[-1]), min_gap, status),
+                      dict(disturbance), scenario="launch")
+    spline = schedule.spline
+    traj.equilibrium = spline(np.clip(speed, schedule.speeds[0], schedule.speeds[-1]))[
+        :, 1:1 + len(AXIS_STATES)]
     return traj
 
 
@@ -247,14 +277,14 @@ def reference_trajectory(functions, p: np.ndarray, op: OperatingPoint, controlle
     from scipy.integrate import solve_ivp
 
     disturbance = DISTURBANCE if disturbance is None else disturbance
-    k_pos, k_rate = op.gains(controller)
+    K_pos, K_rate = op.gains(controller)
     idx = list(AXIS_STATES)
     u = np.zeros(op.allocation.shape[0] + 1)
     u[0] = op.f_prop
 
     def rhs(_t: float, x: np.ndarray) -> np.ndarray:
         rates = functions.kin(x).ravel()[idx]  # position rates do not depend on u
-        u[1:] = op.allocation @ (-(k_pos * (x[idx] - op.a_trim) + k_rate * rates))
+        u[1:] = op.allocation @ (-(K_pos @ (x[idx] - op.a_trim) + K_rate @ rates))
         return functions.xdot(x, u, p).ravel()
 
     sol = solve_ivp(rhs, (t_eval[0], t_eval[-1]), initial_state(op, disturbance),
@@ -312,12 +342,14 @@ def metrics(traj: Trajectory) -> dict:
             "final_deviation": float(abs(dev[-1, i])),
             "rms_control": float(np.sqrt(np.mean(ugen[:, i] ** 2))),
         }
+    speed = traj.speed
     return {
-        "controller": traj.controller, "status": traj.status, "event": traj.event,
+        "controller": traj.controller, "scenario": traj.scenario, "status": traj.status,
+        "event": traj.event, "growth_rate": traj.growth_rate,
         "t_end": float(traj.t[-1]), "dt": traj.dt, "steps": int(traj.t.size - 1),
         "min_gap": float(np.min(traj.gaps)),
-        "speed_start": float(traj.x[0, cv.STATE_INDEX["u"]]),
-        "speed_end": float(traj.x[-1, cv.STATE_INDEX["u"]]),
+        "speed_start": float(speed[0]), "speed_end": float(speed[-1]),
+        "speed_at_contact": float(speed[-1]) if traj.status == "contact" else None,
         "rms_array_force": float(np.sqrt(np.mean(traj.u[:, 1:] ** 2))),
         "axes": axes,
     }
@@ -335,10 +367,13 @@ class SimulationRun:
     dt_limit: float
     input_names: tuple[str, ...]
     fastest_growth: float  # largest real part of the closed-loop poles [1/s] (the speed mode)
+    scenario: str = "hold"
+    v_end: float | None = None  # the launch's release speed
 
     def header(self, params_sha256: str) -> dict:
         """What metrics.json states about the runs besides the per-run metrics."""
-        return {"params_sha256": params_sha256, "speed": self.op.speed,
+        return {"params_sha256": params_sha256, "scenario": self.scenario,
+                "speed": self.op.speed, "release_speed": self.v_end,
                 "propulsion_force": self.op.f_prop, "rk4_stability_limit": self.dt_limit,
                 "fastest_closed_loop_growth": self.fastest_growth}
 
@@ -346,22 +381,41 @@ class SimulationRun:
 def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: float,
                   speed: float | None = None, lib: SimulationLibrary | None = None,
                   announce: Callable[[str], None] | None = None,
-                  bar: Callable[[str], object] | None = None) -> SimulationRun:
+                  bar: Callable[[str], object] | None = None,
+                  scenario: str = "hold") -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
 
-    Refuses a step above RK4's stability limit for the stiffest closed-loop mode.
+    ``hold``: from the disturbed trim at ``speed`` (default operation.speed) for ``t_end``
+    with the propulsion at the trim drag and the gains of that speed. ``launch``: from the
+    disturbed trim at the envelope's v_min to v_max under the steady acceleration force
+    m * envelope.launch_acceleration, the gains scheduled (`launch`). Refuses a step above
+    RK4's stability limit for the stiffest closed-loop mode at the start speed.
     """
+    from .envelope import envelope_points, resolve_range
     from .library import simulation_library
 
     for c in controllers:
         if c not in CONTROLLERS:
-            raise InputError(f"controller {c!r}: expected one of {CONTROLLERS}")
+            raise InputError(f"controller {c!r}: expected one of {', '.join(CONTROLLERS)}")
+    if scenario not in SCENARIOS:
+        raise InputError(f"--scenario {scenario!r}: expected one of {', '.join(SCENARIOS)}")
     lib = lib or simulation_library(carriage.structure, progress=announce or (lambda _: None))
-    v = carriage.params.operation.speed if speed is None else speed
     min_gap = carriage.params.track.min_gap
-    op = operating_point(lib, carriage.p, v, min_gap)
-    eig = {c: np.linalg.eigvals(closed_loop_matrix(lib, carriage.p, op, c))
-           for c in controllers}
+    weights = Weights.of(carriage.params)
+    v_end = None
+    if scenario == "launch":
+        if speed is not None:
+            raise InputError("--speed: the launch starts at envelope.v_min; set that instead")
+        v_lo, v_end = resolve_range(carriage, lib)
+        points = envelope_points(carriage, lib, np.linspace(v_lo, v_end, carriage.params
+                                                            .envelope.schedule_nodes))
+        op = points[0]
+    else:
+        v = carriage.params.operation.speed if speed is None else speed
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"--speed {v!r}: must be a positive speed in m/s")
+        op = operating_point(lib, carriage.p, v, min_gap, weights)
+    eig = {c: np.linalg.eigvals(op.full_closed_loop(c)) for c in controllers}
     limits = {c: rk4_stability_limit(e) for c, e in eig.items()}
     worst = min(limits, key=limits.get)
     if dt > limits[worst]:
@@ -369,6 +423,12 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                          f"of the stiffest closed-loop mode ({worst} controller)")
     trajs = []
     for c in controllers:
+        if scenario == "launch":
+            a = carriage.params.envelope.launch_acceleration
+            trajs.append(launch(lib, carriage.p, Schedule.from_points(points, c), op, v_end,
+                                carriage.params.vehicle.mass * a, dt, min_gap,
+                                max_time=1.5 * (v_end - op.speed) / a + 1.0))
+            continue
         if bar is None:
             trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap))
             continue
@@ -376,4 +436,4 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
             trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, progress=update))
     growth = max(float(np.max(e.real)) for e in eig.values())
     return SimulationRun(op, tuple(trajs), limits[worst], input_names_of(carriage.structure),
-                         growth)
+                         growth, scenario, v_end)

@@ -49,7 +49,7 @@ def sim_lib(carriage: Carriage, private_cache):
 @pytest.fixture(scope="session")
 def op(sim_lib, carriage: Carriage):
     """Trim and gains at the default speed, from the generated C."""
-    from maglevgen.simulate import operating_point
+    from maglevgen.simulate import Weights, operating_point
 
     return operating_point(sim_lib, carriage.p, carriage.params.operation.speed,
-                           carriage.params.track.min_gap)
+                           carriage.params.track.min_gap, Weights.of(carriage.params))

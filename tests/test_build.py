@@ -307,7 +307,7 @@ def test_up_to_date_check_is_fast_in_a_fresh_process(good: Path) -> None:
 
 def test_report_lists_each_runs_speed_drift_from_the_trajectories(good: Path) -> None:
     """The report's simulation section states the speed drift of every run; the numbers are
-    those of the trajectories written beside it (column u of trajectories.npz)."""
+    those of the trajectories written beside it (|(u, v, w)| from trajectories.npz)."""
     import re
 
     tex = (good / "report/report.tex").read_text()
@@ -315,9 +315,9 @@ def test_report_lists_each_runs_speed_drift_from_the_trajectories(good: Path) ->
     found = re.findall(r"\\texttt\{(\w+)\}: [^\n]*\\\\\n\\multicolumn\{6\}\{l\}\{\\quad speed "
                        r"\$([-0-9.e]+)\$ to \$([-0-9.e]+)\$", tex)
     npz = np.load(good / "simulation/trajectories.npz")
-    col = list(npz["columns"]).index("u")
-    assert {c for c, _, _ in found} == {"none", "damping", "lqr"}
+    cols = [list(npz["columns"]).index(s) for s in ("u", "v", "w")]
+    assert {c for c, _, _ in found} == {"none", "damping", "lqr", "coupled"}
     for controller, start, end in found:
-        u = npz[controller][:, col]
+        u = np.linalg.norm(npz[controller][:, cols], axis=1)  # the speed |(u, v, w)|
         assert float(start) == pytest.approx(u[0], rel=1e-5)
         assert float(end) == pytest.approx(u[-1], rel=1e-5)

@@ -163,10 +163,18 @@ def baked(carriage: Carriage, tmp_path_factory) -> dict[str, Path]:
     return out
 
 
+def _gain_matrices(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Full 5 x 5 gains: a dominant diagonal (per-axis magnitudes) and cross-coupling terms,
+    so a transposed or row/column-swapped gain layout in the C shows."""
+    K_pos = np.diag(rng.uniform(1e3, 1e4, 5)) + rng.uniform(-300, 300, (5, 5))
+    K_rate = np.diag(rng.uniform(10, 400, 5)) + rng.uniform(-20, 20, (5, 5))
+    return K_pos, K_rate
+
+
 def _closed_loop_reference(carriage: Carriage, f_prop: float, k_pos: np.ndarray,
                            k_rate: np.ndarray, a_ref: np.ndarray):
     """x -> (xdot, u) of the closed loop on the SymPy model (derive.numeric), with the feedback
-    u = (F_prop, T(-k_pos (a - a_ref) - k_rate a')) in numpy and T = pinv(E)."""
+    u = (F_prop, T(-K_pos (a - a_ref) - K_rate a')) in numpy and T = pinv(E)."""
     from maglevgen.controllers import effectiveness
 
     idx = A_STATES
@@ -175,7 +183,7 @@ def _closed_loop_reference(carriage: Carriage, f_prop: float, k_pos: np.ndarray,
 
     def f(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rates = carriage.functions.xdot(x, np.zeros(n_u), carriage.p)[idx]  # kinematics only
-        u = np.concatenate([[f_prop], T @ -(k_pos * (x[idx] - a_ref) + k_rate * rates)])
+        u = np.concatenate([[f_prop], T @ -(k_pos @ (x[idx] - a_ref) + k_rate @ rates)])
         return carriage.functions.xdot(x, u, carriage.p), u
 
     return f
@@ -198,7 +206,7 @@ def test_prepared_closed_loop_matches_the_sympy_model(carriage: Carriage, trim,
 
     lib = _double_library(carriage, parameters, tmp_path)
     rng = np.random.default_rng(8)
-    k_pos, k_rate = rng.uniform(1e3, 1e4, 5), rng.uniform(10, 400, 5)
+    k_pos, k_rate = _gain_matrices(rng)
     a_ref, f_prop = trim.x[A_STATES], trim.u[0]
     reference = _closed_loop_reference(carriage, f_prop, k_pos, k_rate, a_ref)
     T = np.linalg.pinv(effectiveness(carriage))
@@ -223,7 +231,7 @@ def test_rk4_step_matches_a_numpy_rk4_on_the_sympy_model(carriage: Carriage, tri
     rebuilt around the baked right-hand side) against RK4 written out in numpy."""
     step = _double_library(carriage, parameters, tmp_path).function("maglev_rk4_step")
     rng = np.random.default_rng(5)
-    k_pos, k_rate = rng.uniform(1e3, 1e4, 5), rng.uniform(10, 400, 5)
+    k_pos, k_rate = _gain_matrices(rng)
     a_ref, f_prop, dt = trim.x[A_STATES], trim.u[0], 2e-3
     f = _closed_loop_reference(carriage, f_prop, k_pos, k_rate, a_ref)
     extra = (carriage.p,) if parameters == "runtime" else ()

@@ -238,6 +238,7 @@ def test_without_tex_the_tex_is_written_and_the_install_named(
     assert "report.tex" in out.out and "report.pdf" not in out.out
     assert "apt-get install" in out.err and "latexmk" in out.err
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == [
+        "envelope_stability_map.png",
         "fig_force_gap.png",
         "fig_force_speed.png",
         "report.tex",

@@ -90,7 +90,8 @@ def _energy(carriage: Carriage, trim, traj) -> np.ndarray:
 def test_open_loop_oscillation_does_not_decay(sim_lib, carriage, op, trim) -> None:
     """The paper's figs 3-4: with no control the disturbance keeps oscillating."""
     traj = _run(sim_lib, carriage, op, "none", 5.0)
-    assert traj.status == "completed"
+    assert traj.c_status == 0  # every step taken, no contact
+    assert traj.status in ("not settled", "diverging")  # never called settled
     ratio = _energy(carriage, trim, traj) / _energy(carriage, trim, traj)[0]
     assert ratio.max() < 3.0  # bounded over the run
     assert ratio[-1000:].min() > 0.5  # and not decaying: still at least half after 4-5 s
@@ -100,7 +101,10 @@ def test_damping_and_lqr_make_it_decay(sim_lib, carriage, op, trim) -> None:
     for controller, t_end, bound in (("damping", 5.0, 1e-3), ("lqr", 10.0, 0.2)):
         traj = _run(sim_lib, carriage, op, controller, t_end)
         e = _energy(carriage, trim, traj)
-        assert traj.status == "completed"
+        assert traj.c_status == 0
+        # the damping settles within 5 s; the paper-weight LQR's slowest mode (-0.066 1/s)
+        # decays but not to 5 % of the peak within 10 s
+        assert traj.status == ("settled" if controller == "damping" else "not settled")
         assert e[-1] / e[0] < bound, controller
         assert np.all(e[1000::1000] < e[0]), controller
 
@@ -174,7 +178,7 @@ def test_non_finite_parameters_stop_the_run(sim_lib, carriage, op) -> None:
     p = carriage.p.copy()
     p[0] = np.nan
     last, status, x, _, g = sim_lib.simulate(initial_state(op, {}), 1e-3, 100, op.f_prop,
-                                             np.zeros(5), np.zeros(5), op.a_trim, p, 0.002,
+                                             np.zeros(25), np.zeros(25), op.a_trim, p, 0.002,
                                              op.allocation.shape[0] + 1, op.gaps.size)
     # stops at the first sample with a non-finite state or gap, not at the end, not silently
     assert status == 2 and last <= 1 and x.shape[0] == last + 1
@@ -210,9 +214,10 @@ def test_parameter_change_needs_no_regeneration_or_recompile(carriage, sim_lib,
     lib = simulation_library(heavier.structure, progress=messages.append)
     assert messages == [] and lib.path == sim_lib.path
     # and the run-time parameters take effect: the trim heave sinks with the mass
-    from maglevgen.simulate import operating_point
+    from maglevgen.simulate import Weights, operating_point
 
-    heavy_op = operating_point(lib, heavier.p, 20.0, heavier.params.track.min_gap)
+    heavy_op = operating_point(lib, heavier.p, 20.0, heavier.params.track.min_gap,
+                               Weights.of(heavier.params))
     assert heavy_op.x_trim[2] == pytest.approx(heavier.trim().x[2], abs=1e-9)
     assert heavy_op.x_trim[2] < carriage.trim().x[2]
 

@@ -37,6 +37,8 @@ DESCRIPTIONS: dict[str, str] = {
                   "(eqs 29-33), the small part of the gain schedule",
     "lqr_control": "one control tick: u_gen = -K (a - a_ref, a_dot), a = (y, z, phi, theta, psi)",
     "damping_control": "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)",
+    "coupled_control": "one control tick of a full-matrix feedback (the coupled LQR): "
+                       "u_gen = -(K_pos (a - a_ref) + K_rate a_dot), K_pos and K_rate 5 x 5",
     "allocate": "array forces of minimum norm that produce u_gen (eqs 22-23 derived)",
     "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
     "closed_loop": "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
@@ -160,6 +162,10 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                               ["x", "K", "a_ref", "p"], ["u_gen"])
     damping_control = ca.Function("maglev_damping_control", [x_c, c_in, p], [-c_in * adot],
                                   ["x", "c_damping", "p"], ["u_gen"])
+    Kp_in, Kr_in = ca.SX.sym("K_pos", N_AXES, N_AXES), ca.SX.sym("K_rate", N_AXES, N_AXES)
+    coupled_control = ca.Function("maglev_coupled_control", [x_c, Kp_in, Kr_in, a_ref_in, p],
+                                  [-(Kp_in @ (a_c - a_ref_in) + Kr_in @ adot)],
+                                  ["x", "K_pos", "K_rate", "a_ref", "p"], ["u_gen"])
     k_in, m_in = ca.SX.sym("k", N_AXES), ca.SX.sym("m", N_AXES)
     axis_gains = ca.Function("maglev_axis_gains", [k_in, m_in, p],
                              list(K_fn(ca.vertcat(k_in, m_in), p)), ["k", "m", "p"],
@@ -177,21 +183,24 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     # RK4 step, so one copy of the model's code stays in the instruction cache and nothing
     # that depends on p alone is recomputed at every stage
     F_prop = ca.SX.sym("F_prop")
-    k_pos, k_rate, a_ref = (ca.SX.sym(n, N_AXES) for n in ("k_pos", "k_rate", "a_ref"))
+    # full 5 x 5 gain matrices: diagonal for the per-axis designs, full for the coupled LQR
+    K_pos, K_rate = ca.SX.sym("K_pos", N_AXES, N_AXES), ca.SX.sym("K_rate", N_AXES, N_AXES)
+    a_ref = ca.SX.sym("a_ref", N_AXES)
     x0 = ca.SX.sym("x", n_x)
     T_in = ca.SX.sym("T", E.shape[1], N_AXES)
     with casadi_rewriting_off():  # keep the model's shared reciprocals (sympy_casadi)
         a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
-        u_cl = ca.vertcat(F_prop, T_in @ -(k_pos * (a_cl - a_ref) + k_rate * rates_fn(x0)))
+        u_cl = ca.vertcat(F_prop, T_in @ -(K_pos @ (a_cl - a_ref) + K_rate @ rates_fn(x0)))
         gaps_fn = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
-        closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, k_pos, k_rate, a_ref, T_in, p],
+        closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, K_pos, K_rate, a_ref, T_in, p],
                                   [dynamics(x0, u_cl, p), u_cl, gaps_fn(x0, p)],
-                                  ["x", "F_prop", "k_pos", "k_rate", "a_ref", "T", "p"],
+                                  ["x", "F_prop", "K_pos", "K_rate", "a_ref", "T", "p"],
                                   ["xdot", "u", "gaps"])
         allocation_matrix = ca.Function("maglev_allocation_matrix", [p],
                                         [E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))], ["p"], ["T"])
     fns = [_finished(f) for f in (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains,
-                                  lqr_control, damping_control, allocate, allocation_matrix)]
+                                  lqr_control, damping_control, coupled_control, allocate,
+                                  allocation_matrix)]
     closed_loop, allocation_matrix = _finished(closed_loop), fns[-1]
     # the step calls the finished right-hand side, so the C holds one copy of it
     rk4 = _rk4_step(closed_loop, allocation_matrix)

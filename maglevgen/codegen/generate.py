@@ -51,7 +51,8 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
     sources = generate_c(functions, C_NAME, opts.precision)
     files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
     prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
-    ctx = {"banner": text_banner, "parameters": opts.parameters, "nx": len(cv.STATES),
+    ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
+           "nx": len(cv.STATES),
            "nu": len(model.input_names), "ng": len(model.arrays),
            "n_prepared": prepare.numel_out(0)}
     env = template_env()

@@ -1,0 +1,259 @@
+"""The operating envelope: where across [v_min, v_max] each controller keeps the carriage's
+linearisation stable, and a verdict that never calls an unstable design good.
+
+At each speed the trim, the Jacobians, the per-axis gains and the allocation come from the
+generated C (maglevgen.operating); the coupled LQR is solved there by SciPy's CARE. The
+eigenvalues are those of the ten-state closed loop (y, z, phi, theta, psi, v, w, p, q, r) with
+the controller and the allocation closed around it: x drops out (nothing depends on it) and
+the forward speed u is the scheduling variable held by the propulsion (its own mode under a
+constant force is reported apart, as ``speed_pole``). See maglevgen/operating.py.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError, NoTrimError
+from .library import SimulationLibrary
+from .operating import (
+    CONTROLLER_TITLES,
+    CONTROLLERS,
+    OperatingPoint,
+    Weights,
+    checked_trim,
+    operating_point,
+    stability,
+)
+
+DEFAULT_SPEEDS = 50
+# a closed loop is called stable when every eigenvalue's real part is below -STABILITY_MARGIN
+# (1/s): a mode closer to the axis than this neither decays nor grows visibly in a launch
+STABILITY_MARGIN = 1e-6
+_EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
+
+
+def lift_off_speed(lib: SimulationLibrary, p: np.ndarray, min_gap: float,
+                   v_hi: float) -> float:
+    """The lowest speed with a trim (the Newton solve in C converges and every gap is above
+    track.min_gap), by bisection between 0 and ``v_hi``."""
+    def has_trim(v: float) -> bool:
+        try:
+            checked_trim(lib, p, v, min_gap)
+        except NoTrimError:
+            return False
+        return True
+
+    if not has_trim(v_hi):
+        raise InputError(f"envelope.v_max = {v_hi:g}: the carriage has no trim at this speed "
+                         "(see `maglevgen trim --speed`)")
+    lo, hi = 0.0, v_hi
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if has_trim(mid) else (mid, hi)
+        if hi - lo < 1e-6 * hi:
+            break
+    return hi
+
+
+def resolve_range(carriage, lib: SimulationLibrary) -> tuple[float, float]:
+    """(v_min, v_max) of the parameter file's envelope, v_min from the lift-off speed when
+    the file omits it; an InputError naming the key when the range has no trim."""
+    env = carriage.params.envelope
+    min_gap = carriage.params.track.min_gap
+    if env.v_min is not None:
+        for key, v in (("envelope.v_min", env.v_min), ("envelope.v_max", env.v_max)):
+            try:
+                checked_trim(lib, carriage.p, v, min_gap)
+            except NoTrimError:
+                raise InputError(f"{key} = {v:g}: the carriage has no trim at this speed "
+                                 "(below lift-off?); see `maglevgen trim --speed`") from None
+        return float(env.v_min), float(env.v_max)
+    v_lift = lift_off_speed(lib, carriage.p, min_gap, env.v_max)
+    v_min = (1 + env.lift_off_margin) * v_lift
+    if not v_min < env.v_max:
+        raise InputError(f"envelope.v_max = {env.v_max:g}: not above the default v_min "
+                         f"{v_min:.4g} m/s ((1 + lift_off_margin) x lift-off {v_lift:.4g} m/s)")
+    return v_min, float(env.v_max)
+
+
+def envelope_points(carriage, lib: SimulationLibrary,
+                    speeds: Sequence[float]) -> list[OperatingPoint]:
+    """Operating points at ``speeds`` (trim, gains, Jacobians: the generated C)."""
+    w = Weights.of(carriage.params)
+    min_gap = carriage.params.track.min_gap
+    try:
+        return [operating_point(lib, carriage.p, float(v), min_gap, w) for v in speeds]
+    except NoTrimError as exc:
+        raise InputError(f"envelope: {exc}") from None
+
+
+@dataclass(frozen=True)
+class ControllerEnvelope:
+    """One controller across the speeds: the largest real part, the smallest damping ratio,
+    stability, the unstable speed ranges and the verdict."""
+
+    controller: str
+    max_real: np.ndarray
+    min_damping: np.ndarray
+    stable: np.ndarray
+    unstable_ranges: tuple[tuple[float, float], ...]
+    verdict: str
+
+    @property
+    def ok(self) -> bool:
+        return not self.unstable_ranges
+
+    def to_json(self) -> dict:
+        return {"max_real": self.max_real.tolist(), "min_damping": self.min_damping.tolist(),
+                "stable": self.stable.tolist(), "verdict": self.verdict,
+                "unstable_ranges": [list(r) for r in self.unstable_ranges]}
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Every controller's stability across the envelope's speeds."""
+
+    speeds: np.ndarray
+    v_min: float
+    v_max: float
+    controllers: dict[str, ControllerEnvelope]
+    speed_pole: np.ndarray  # d(u')/du at trim under the trim propulsion [1/s], per speed
+
+    def to_json(self) -> dict:
+        return {"speeds": self.speeds.tolist(), "v_min": self.v_min, "v_max": self.v_max,
+                "stability_margin": STABILITY_MARGIN,
+                "states": "y z phi theta psi v w p q r (x dropped; u held by the propulsion)",
+                "controllers": {n: c.to_json() for n, c in self.controllers.items()},
+                "speed_pole": self.speed_pole.tolist()}
+
+
+def closed_loop_stability(op: OperatingPoint, controller: str) -> tuple[float, float]:
+    """(largest real part, smallest damping ratio) of the ten-state closed loop at ``op``."""
+    A_cl = op.reduced_closed_loop(controller)
+    if not np.all(np.isfinite(A_cl)):
+        return float("inf"), float("nan")
+    return stability(np.linalg.eigvals(A_cl))
+
+
+def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,
+          v_unstable: float) -> float:
+    """The speed between a stable and an unstable grid speed where stability is lost."""
+    a, b = v_stable, v_unstable
+    for _ in range(_EDGE_STEPS):
+        mid = 0.5 * (a + b)
+        (op,) = envelope_points(carriage, lib, [mid])
+        if closed_loop_stability(op, controller)[0] < -STABILITY_MARGIN:
+            a = mid
+        else:
+            b = mid
+    return b
+
+
+def unstable_ranges(carriage, lib: SimulationLibrary, controller: str, speeds: np.ndarray,
+                    stable: np.ndarray) -> tuple[tuple[float, float], ...]:
+    """The speed intervals where the closed loop is unstable, edges located by bisection."""
+    ranges = []
+    i, n = 0, len(speeds)
+    while i < n:
+        if stable[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and not stable[j + 1]:
+            j += 1
+        lo = speeds[i] if i == 0 else _edge(carriage, lib, controller, speeds[i - 1], speeds[i])
+        hi = speeds[j] if j == n - 1 else _edge(carriage, lib, controller, speeds[j + 1],
+                                                speeds[j])
+        ranges.append((float(lo), float(hi)))
+        i = j + 1
+    return tuple(ranges)
+
+
+def verdict_text(controller: str, speeds: np.ndarray, max_real: np.ndarray,
+                 ranges: tuple[tuple[float, float], ...]) -> str:
+    """"stable across [a, b] m/s ..." or "UNSTABLE for v in [a, b] m/s ..."."""
+    worst = int(np.argmax(max_real))
+    where = f"largest real part {max_real[worst]:+.4g} 1/s at {speeds[worst]:.4g} m/s"
+    if not ranges:
+        return f"stable across [{speeds[0]:.4g}, {speeds[-1]:.4g}] m/s ({where})"
+    spans = " and ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in ranges)
+    return f"UNSTABLE for v in {spans} m/s ({where})"
+
+
+def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_SPEEDS,
+                     controllers: Sequence[str] = CONTROLLERS) -> Envelope:
+    """Each controller's stability at ``n_speeds`` speeds spanning [v_min, v_max]."""
+    if not 2 <= n_speeds <= 100_000:
+        raise InputError(f"--speeds {n_speeds}: expected 2 to 100000 speeds")
+    v_min, v_max = resolve_range(carriage, lib)
+    speeds = np.linspace(v_min, v_max, n_speeds)
+    points = envelope_points(carriage, lib, speeds)
+    out = {}
+    for c in controllers:
+        rows = np.array([closed_loop_stability(op, c) for op in points])
+        max_real, min_damping = rows[:, 0], rows[:, 1]
+        stable = max_real < -STABILITY_MARGIN
+        ranges = unstable_ranges(carriage, lib, c, speeds, stable)
+        out[c] = ControllerEnvelope(c, max_real, min_damping, stable, ranges,
+                                    verdict_text(c, speeds, max_real, ranges))
+    return Envelope(speeds, v_min, v_max, out, np.array([op.speed_pole for op in points]))
+
+
+def envelope_markdown(env: Envelope) -> str:
+    """The verdicts and a table of the largest real part per controller at a few speeds."""
+    lines = ["# Operating envelope", "",
+             f"Speeds {env.v_min:.4g} to {env.v_max:.4g} m/s ({env.speeds.size} speeds). "
+             "Eigenvalues of the ten-state linearisation (y, z, phi, theta, psi, v, w, p, q, r) "
+             "at the trim at each speed with the controller and the allocation closed around "
+             "it; x drops out, the forward speed is held by the propulsion. Stable: every real "
+             f"part below -{STABILITY_MARGIN:g} 1/s.", "",
+             "| controller | verdict |", "| --- | --- |"]
+    lines += [f"| {CONTROLLER_TITLES[n]} (`{n}`) | {c.verdict} |"
+              for n, c in env.controllers.items()]
+    pick = np.unique(np.linspace(0, env.speeds.size - 1, min(11, env.speeds.size)).astype(int))
+    names = list(env.controllers)
+    lines += ["", "Largest real part [1/s] (smallest damping ratio):", "",
+              "| speed [m/s] | " + " | ".join(f"`{n}`" for n in names) + " |",
+              "| --- |" + " --- |" * len(names)]
+    for i in pick:
+        cells = [f"{env.controllers[n].max_real[i]:+.4f} ({env.controllers[n].min_damping[i]:.3f})"
+                 for n in names]
+        lines.append(f"| {env.speeds[i]:.3f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def stability_map_png(env: Envelope) -> bytes:
+    """Largest real part against speed, one line per controller, zero marked (PNG bytes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with plt.rc_context({"font.size": 9}):
+        fig, ax = plt.subplots(figsize=(7, 4))
+        ax.axhspan(0, 1e9, color="#f6d5d5", lw=0, label="unstable (real part > 0)")
+        ax.axhline(0.0, color="k", lw=0.8)
+        for n, c in env.controllers.items():
+            ax.plot(env.speeds, c.max_real, lw=1.2, marker=".", ms=3,
+                    label=f"{CONTROLLER_TITLES[n]}")
+        ax.set_yscale("symlog", linthresh=1e-2)
+        top = max(1.0, max(float(np.nanmax(c.max_real[np.isfinite(c.max_real)], initial=0))
+                           for c in env.controllers.values()) * 2)
+        bottom = min(-1.0, min(float(np.nanmin(c.max_real[np.isfinite(c.max_real)], initial=0))
+                               for c in env.controllers.values()) * 2)
+        ax.set_ylim(bottom, top)
+        ax.set_xlim(env.speeds[0], env.speeds[-1])
+        ax.set_xlabel("speed v [m/s]")
+        ax.set_ylabel(r"largest real part of the closed-loop poles [1/s]")
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
+        ax.set_title("Stability across the envelope (symmetric log scale)")
+        fig.subplots_adjust(left=0.11, right=0.7, bottom=0.12, top=0.92)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
+        plt.close(fig)
+    return buf.getvalue()
