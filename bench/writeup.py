@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import statistics
+from pathlib import Path
 
 CONTROLLER_GROUP = "controller_path"
 TEXT_LIMIT = 4096
@@ -965,4 +967,9 @@ def markdown(r: dict) -> str:
         "",
         *_precision(r),
     ]
+    fmu_results = Path(__file__).with_name("fmu_results.json")
+    if fmu_results.exists():  # measured separately by bench/fmu.py: kept across full runs
+        import fmu
+
+        out += ["", *fmu.section(json.loads(fmu_results.read_text()))]
     return "\n".join(out).rstrip() + "\n"

@@ -309,6 +309,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------- fmu
+
+
+def cmd_fmu(args: argparse.Namespace) -> int:
+    from . import progress
+    from .fmu import FMU_NAME, build_fmu
+    from .output import write_output
+
+    data = build_fmu(_carriage(args), args.kind, args.controller, progress=progress.step)
+    (path,) = write_output({FMU_NAME: data}, Path(args.out))
+    print(f"wrote {path.resolve()} (FMI 2.0, {args.kind}, controller {args.controller}, "
+          f"{len(data)} bytes)")
+    return 0
+
+
 # ------------------------------------------------------------------------------------ report
 
 
@@ -430,6 +445,19 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--out", metavar="DIR",
                      help="also write envelope.json, envelope.md and stability_map.png")
     env.set_defaults(func=cmd_envelope)
+    from .fmu import CONTROLLERS as FMU_CONTROLLERS
+    from .fmu import KINDS as FMU_KINDS
+
+    fmu = sub.add_parser("fmu", help="FMI 2.0 FMU (model exchange, co-simulation) of the carriage")
+    _common(fmu)
+    fmu.add_argument("--kind", choices=FMU_KINDS, default="both",
+                     help="model exchange, co-simulation or both (default)")
+    fmu.add_argument("--controller", choices=tuple(FMU_CONTROLLERS), default="lqr",
+                     help="controller inside the FMU, or 'external': the generalized control "
+                          "forces are inputs (default: lqr)")
+    fmu.add_argument("--out", default="build/fmu", metavar="DIR",
+                     help="output folder of maglev.fmu (default: ./build/fmu)")
+    fmu.set_defaults(func=cmd_fmu)
 
     bld = sub.add_parser("build", help="the main job: C, library, simulations and report, "
                                        "brought up to date in one atomic step")

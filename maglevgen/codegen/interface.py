@@ -111,7 +111,7 @@ def render_interface(carriage: Carriage, opts: GenerateOptions,
     """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest."""
     header_banner = banner(opts, carriage.loaded.sha256)
     params = [{"name": e.name, "macro": _macro(e.name), "unit": e.unit or "1",
-               "value": e.value, "value_repr": repr(e.value),
+               "description": e.description, "value": e.value, "value_repr": repr(e.value),
                "value_c": _c_literal(e.value, opts.precision)} for e in carriage.entries]
     inputs = [cv.PROPULSION] + [
         cv.Signal(n, "N", f"control force of array {n[3:]} along body {n[2]}")
@@ -151,7 +151,8 @@ def _manifest(carriage: Carriage, opts: GenerateOptions, table: list[dict], para
                    for s in inputs],
         "controls": [{"name": s.name, "unit": s.unit, "description": s.description}
                      for s in cv.CONTROLS],
-        "parameter_vector": [{"name": p["name"], "unit": p["unit"], "value": p["value"]}
+        "parameter_vector": [{"name": p["name"], "unit": p["unit"],
+                              "description": p["description"], "value": p["value"]}
                              for p in params],
         "functions": table,
     }

@@ -1,0 +1,357 @@
+"""`maglevgen fmu`: the generated carriage as an FMI 2.0 FMU (model exchange, co-simulation or
+both), for Simulink, Dymola, OpenModelica, FMPy and the like.
+
+Everything in modelDescription.xml and in the wrapper's value-reference table comes from one
+list of `FmuVariable` built from the manifest (names, units, descriptions, start values), and
+both files are rendered from it by the templates fmu_model_description.xml.j2 and
+fmu_wrapper.c.j2. The model is the run-time-parameter C of the carriage's structure (the cached
+derivation of maglevgen.library): every function takes the parameter vector p, so a parameter
+set through fmi2SetReal before initialization behaves like ``--set``: the trim (maglev_trim at
+``operation.speed``), the gains (maglev_lqr_gains) and the allocation are computed from it when
+the FMU leaves initialization mode.
+
+Controllers are looked up in ``CONTROLLERS``: one entry per controller says how the wrapper
+gets the generalized forces u_gen (eqs 20-33) and which inputs it adds.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import uuid
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import __version__
+from .derive import conventions as cv
+from .derive.conventions import Q_STATES
+from .errors import InputError
+
+# Imported by the command-line parser: nothing heavier than the conventions at module level.
+
+KINDS = ("me", "cs", "both")
+MODEL_IDENTIFIER = "maglev"
+WRAPPER_C = "maglev_fmu.c"
+FMU_NAME = "maglev.fmu"
+# Parameters whose change the C takes into account at the next evaluation; every other one
+# enters the trim, the gains or the allocation, computed once at initialization ("fixed").
+TUNABLE_PARAMETERS = frozenset({"track.min_gap"})
+DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s default
+
+
+@dataclass(frozen=True)
+class FmuController:
+    """One controller of the FMU.
+
+    ``law`` "axis": u_gen = -(k_pos (a - a_ref) + k_rate a_dot) inside the generated
+    maglev_closed_loop_prepared (the path `maglevgen simulate` integrates), with ``gains_c``
+    setting k_pos and k_rate at initialization from K (5 x 2, column-major) and c_damping of
+    maglev_lqr_gains. ``law`` "generic": ``u_gen_c`` computes u_gen (5) from the state x, the
+    controller inputs ``in`` and the ``gains`` storage (``gain_slots`` values that ``gains_c``
+    fills at initialization); the array forces are then T u_gen and the derivatives come from
+    maglev_dynamics. ``inputs``: "references" (axis position offsets from trim), "controls"
+    (the generalized forces themselves) or "" (none).
+    """
+
+    name: str
+    description: str
+    law: str
+    inputs: str = ""
+    gains_c: str = ""
+    u_gen_c: str = ""
+    gain_slots: int = 1
+
+
+CONTROLLERS: dict[str, FmuController] = {c.name: c for c in (
+    FmuController("none", "no control: the array forces are zero", "axis"),
+    FmuController("damping", "optimized damping (eqs 20-21), gains at operation.speed", "axis",
+                  gains_c="for (i = 0; i < NA; ++i) m->k_rate[i * (NA + 1)] = m->c_damping[i];"),
+    FmuController("lqr", "per-axis LQR (eqs 24-33), gains at operation.speed", "axis",
+                  inputs="references",
+                  gains_c="for (i = 0; i < NA; ++i) { m->k_pos[i * (NA + 1)] = m->K[i]; "
+                          "m->k_rate[i * (NA + 1)] = m->K[NA + i]; }"),
+    # the coupled LQR's gains need a Riccati solve the C does not hold: the toolchain solves
+    # it at export (maglevgen.operating, at operation.speed for the file's parameters) and
+    # the wrapper carries them as constants (COUPLED_GAINS below); a parameter set through
+    # FMI changes the trim but not these gains
+    FmuController("coupled", "coupled LQR (full-state, maglev_coupled_control's law), gains "
+                  "solved at export for the parameter file at operation.speed", "axis",
+                  inputs="references",
+                  gains_c="for (i = 0; i < NA * NA; ++i) { m->k_pos[i] = COUPLED_K_POS[i]; "
+                          "m->k_rate[i] = COUPLED_K_RATE[i]; }"),
+    FmuController("external", "generalized control forces are inputs (minimum-norm "
+                  "allocation, eqs 22-23)", "generic", inputs="controls",
+                  u_gen_c="for (i = 0; i < NA; ++i) u_gen[i] = in[i];"),
+)}
+
+
+@dataclass(frozen=True)
+class FmuVariable:
+    """One ScalarVariable: its value reference is its index in the list (and in the C)."""
+
+    name: str
+    causality: str
+    variability: str
+    initial: str | None
+    start: float | None
+    unit: str
+    description: str
+    group: str
+    derivative: int | None = None  # 1-based index of the state this is the derivative of
+
+    @property
+    def start_xml(self) -> str | None:
+        return None if self.start is None else repr(float(self.start))
+
+
+@dataclass(frozen=True)
+class FmuModel:
+    """What the templates need: the variables, their groups' first value reference, and the
+    indices into the parameter vector the wrapper reads."""
+
+    variables: tuple[FmuVariable, ...]
+    controller: FmuController
+    kind: str
+    manifest: dict
+
+    def first(self, group: str) -> int:
+        return next((i for i, v in enumerate(self.variables) if v.group == group), -1)
+
+    def count(self, group: str) -> int:
+        return sum(v.group == group for v in self.variables)
+
+
+def _array_names(manifest: dict) -> list[str]:
+    """Array names in the parameter file's order (that of the generated gaps)."""
+    names = []
+    for e in manifest["parameter_vector"]:
+        m = re.fullmatch(r"arrays\.([^.]+)\.nominal_gap", e["name"])
+        if m:
+            names.append(m.group(1))
+    return names
+
+
+def fmu_variables(manifest: dict, controller: FmuController, kind: str) -> tuple[FmuVariable,
+                                                                                   ...]:
+    """Every FMU variable, in value-reference order, from the manifest."""
+    from .simulate import DISTURBANCE, DISTURBANCE_DOC
+
+    states = manifest["states"]
+    out: list[FmuVariable] = [
+        FmuVariable(s["name"], "output", "continuous", "calculated", None, s["unit"],
+                    f"{s['description']} (trim at operation.speed plus disturbance.{s['name']} "
+                    "at the start)", "state") for s in states]
+    out += [FmuVariable(f"der({s['name']})", "local", "continuous", "calculated", None,
+                        _per_second(s["unit"]), f"time derivative of {s['name']}", "derivative",
+                        derivative=i + 1) for i, s in enumerate(states)]
+    out += [FmuVariable(f"gap.{a}", "output", "continuous", "calculated", None, "m",
+                        f"gap of array {a} (contact below track.min_gap)", "gap")
+            for a in _array_names(manifest)]
+    out += [FmuVariable(u["name"], "output", "continuous", "calculated", None, u["unit"],
+                        f"{u['description']}, as applied", "force") for u in manifest["inputs"]]
+    prop = manifest["inputs"][0]
+    out.append(FmuVariable(f"d{prop['name']}", "input", "continuous", None, 0.0, prop["unit"],
+                           f"{prop['description']} added to the trim's (which balances the "
+                           "drag at operation.speed)", "input"))
+    if controller.inputs == "references":
+        for s in Q_STATES:
+            st = states[cv.STATE_INDEX[s]]
+            out.append(FmuVariable(f"ref.{s}", "input", "continuous", None, 0.0, st["unit"],
+                                   f"reference of {s} relative to its trim value", "cinput"))
+    elif controller.inputs == "controls":
+        out += [FmuVariable(c["name"], "input", "continuous", None, 0.0, c["unit"],
+                            c["description"], "cinput") for c in manifest["controls"]]
+    for e in manifest["parameter_vector"]:
+        tunable = e["name"] in TUNABLE_PARAMETERS
+        desc = e.get("description") or e["name"]
+        out.append(FmuVariable(e["name"], "parameter", "tunable" if tunable else "fixed",
+                               "exact", e["value"], e["unit"],
+                               desc + ("" if tunable else " (fixed: enters the trim and gains, "
+                                       "computed at initialization)"), "parameter"))
+    for s in states:
+        out.append(FmuVariable(f"disturbance.{s['name']}", "parameter", "fixed", "exact",
+                               DISTURBANCE.get(s["name"], 0.0), s["unit"],
+                               f"initial {s['name']} minus its trim value (default: "
+                               f"{DISTURBANCE_DOC})", "disturbance"))
+    if kind in ("cs", "both"):
+        out.append(FmuVariable("rk4_step", "parameter", "fixed", "exact", DEFAULT_INTERNAL_STEP,
+                               "s", "internal RK4 step of co-simulation; every communication "
+                               "step must be a whole multiple of it", "step"))
+    return tuple(out)
+
+
+def _per_second(unit: str) -> str:
+    return {"m": "m/s", "rad": "rad/s", "m/s": "m/s^2", "rad/s": "rad/s^2"}.get(unit,
+                                                                                  f"{unit}/s")
+
+
+def build_model(manifest: dict, controller: str, kind: str) -> FmuModel:
+    if kind not in KINDS:
+        raise InputError(f"--kind {kind!r}: expected one of {KINDS}")
+    if controller not in CONTROLLERS:
+        raise InputError(f"--controller {controller!r}: expected one of {tuple(CONTROLLERS)}")
+    ctl = CONTROLLERS[controller]
+    return FmuModel(fmu_variables(manifest, ctl, kind), ctl, kind, manifest)
+
+
+def _xml_escape(text: str) -> str:
+    return (text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+            .replace('"', "&quot;"))
+
+
+def _c_comment(text: str) -> str:
+    return text.replace("*/", "* /")
+
+
+def _function(manifest: dict, name: str) -> dict:
+    return next(f for f in manifest["functions"] if f["name"] == name)
+
+
+def render_files(model: FmuModel, guid: str) -> dict[str, str]:
+    """modelDescription.xml, the wrapper C and the sources' note, as text."""
+    from .codegen.interface import template_env
+
+    man = model.manifest
+    pnames = [e["name"] for e in man["parameter_vector"]]
+    used = ["maglev_dynamics", "maglev_trim", "maglev_lqr_gains", "maglev_allocation_matrix",
+            "maglev_closed_loop_prepare", "maglev_closed_loop_prepared", "maglev_gaps"]
+    sizes = {k: max(_function(man, f)[k] for f in used)
+             for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")}
+    units = sorted({v.unit for v in model.variables})
+    sources = [*man["files"]["c"], WRAPPER_C]
+    groups = ("state", "derivative", "gap", "force", "input", "cinput", "parameter",
+              "disturbance", "step")
+    ctx = {
+        "model": model, "variables": model.variables, "controller": model.controller,
+        "kind": model.kind, "guid": guid, "version": __version__, "units": units,
+        "sources": sources, "identifier": MODEL_IDENTIFIER,
+        "first": {g: model.first(g) for g in groups},
+        "count": {g: model.count(g) for g in groups},
+        "n_vars": len(model.variables), "sizes": sizes,
+        "n_prepared": _function(man, "maglev_closed_loop_prepared")["inputs"][1]["rows"],
+        "n_alloc": _function(man, "maglev_allocation_matrix")["outputs"][0]["rows"],
+        "axis_states": [cv.STATE_INDEX[s] for s in Q_STATES],
+        "p_speed": pnames.index("operation.speed"),
+        "p_min_gap": pnames.index("track.min_gap"),
+        "structure_outputs": [i + 1 for i, v in enumerate(model.variables)
+                              if v.causality == "output"],
+        "derivatives": [i + 1 for i, v in enumerate(model.variables) if v.group == "derivative"],
+        "initial_unknowns": [i + 1 for i, v in enumerate(model.variables)
+                             if v.initial == "calculated"],
+        "xml": _xml_escape, "c_comment": _c_comment,
+        "params_source": man["params_source"], "params_sha256": man["params_sha256"],
+        "overrides": man["overrides"],
+    }
+    env = template_env()
+    return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in (
+        ("modelDescription.xml", "fmu_model_description.xml"),
+        (WRAPPER_C, "fmu_wrapper.c"),
+        ("README.txt", "fmu_sources_README.txt"))}
+
+
+def fmi_headers() -> Path:
+    """The folder of FMI 2.0's fmi2Functions.h as shipped by FMPy (never copied here)."""
+    try:
+        import fmpy
+    except ImportError:
+        raise InputError("the FMI 2.0 headers come from FMPy: pip install 'maglevgen[fmu]'"
+                         ) from None
+    folder = Path(fmpy.__file__).parent / "c-code"
+    if not (folder / "fmi2Functions.h").is_file():
+        raise InputError(f"FMPy at {folder.parent} has no c-code/fmi2Functions.h")
+    return folder
+
+
+Progress = Callable[[str], None]
+
+
+def _quiet(_: str) -> None:
+    pass
+
+
+def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
+              cache_dir: Path | None = None, cc: str | None = None,
+              progress: Progress = _quiet) -> bytes:
+    """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation)."""
+    from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
+    from .library import _cache, runtime_sources
+    from .runtime.compile import compile_shared
+
+    headers = fmi_headers()  # before any slow work: FMPy missing is bad input
+    _check_trim(carriage, cache_dir, cc, progress)
+    folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
+    table = json.loads((folder / FUNCTION_TABLE).read_text())
+    interface = render_interface(carriage, GenerateOptions("double", "runtime"), table)
+    manifest = json.loads(interface["manifest.json"])
+    model = build_model(manifest, controller, kind)
+    # the GUID names the model's content: same carriage, controller and kind, same GUID
+    guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "maglevgen:" + json.dumps(
+        [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
+         json.loads(json.dumps([v.__dict__ for v in model.variables]))]))) + "}"
+    files = render_files(model, guid)
+    if controller == "coupled":
+        files[WRAPPER_C] = _with_coupled_gains(files[WRAPPER_C], carriage, cache_dir, cc)
+    sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
+        p.name for p in folder.iterdir() if p.suffix in (".c", ".h"))}
+    sources[WRAPPER_C] = files[WRAPPER_C].encode()
+    sources["manifest.json"] = interface["manifest.json"].encode()
+    sources["README.txt"] = files["README.txt"].encode()
+    # the wrapper's C is rendered per carriage (start values): compiled in its own folder,
+    # cached by content like the simulation library
+    build = _cache(cache_dir) / "fmu" / guid.strip("{}")
+    build.mkdir(parents=True, exist_ok=True)
+    for name, data in sources.items():
+        path = build / name
+        if not path.exists() or path.read_bytes() != data:
+            path.write_bytes(data)
+    flags = ("-std=c99", "-O2", "-fPIC", "-shared", f"-I{headers}")
+    lib = compile_shared(sorted(build.glob("*.c")), flags=flags, cc=cc,
+                         cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
+    return _zip({"modelDescription.xml": files["modelDescription.xml"].encode(),
+                 f"binaries/linux64/{MODEL_IDENTIFIER}.so": lib.read_bytes(),
+                 **{f"sources/{n}": d for n, d in sources.items()}})
+
+
+def _with_coupled_gains(wrapper: str, carriage, cache_dir: Path | None, cc: str | None) -> str:
+    """The wrapper's C with the coupled LQR's (K_pos, K_rate) at operation.speed as constants
+    (column-major, repr of each double: deterministic)."""
+    from .library import simulation_library
+    from .operating import Weights, operating_point
+
+    lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
+    op = operating_point(lib, carriage.p, carriage.params.operation.speed,
+                         carriage.params.track.min_gap, Weights.of(carriage.params))
+    K_pos, K_rate = op.gains("coupled")
+
+    def table(name: str, K) -> str:
+        return (f"static const casadi_real {name}[NA * NA] = {{"
+                + ", ".join(repr(float(v)) for v in K.ravel(order="F")) + "};\n")
+
+    consts = table("COUPLED_K_POS", K_pos) + table("COUPLED_K_RATE", K_rate)
+    marker = "typedef struct {"
+    return wrapper.replace(marker, consts + "\n" + marker, 1)
+
+
+def _check_trim(carriage, cache_dir: Path | None, cc: str | None, progress: Progress) -> None:
+    """No FMU whose initialization would fail at its start values: the trim at
+    operation.speed, checked as `maglevgen simulate` checks it (NoTrimError, exit 2)."""
+    from .library import simulation_library
+    from .simulate import checked_trim
+
+    lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc, progress=progress)
+    checked_trim(lib, carriage.p, carriage.params.operation.speed, carriage.params.track.min_gap)
+
+
+def _zip(members: dict[str, bytes]) -> bytes:
+    """A deterministic zip: fixed member order and time stamps."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name in sorted(members):
+            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, members[name])
+    return buf.getvalue()
