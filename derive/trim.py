@@ -131,7 +131,7 @@ def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
     res = float(np.max(np.abs(residual(sol.x))))
     if not sol.success and res > 1e-8:
         raise NoTrimError(f"no trim at speed {speed:g} m/s: the equilibrium solver did not "
-                          f"converge ({sol.message.strip()}; residual {res:.3g})")
+                          f"converge ({' '.join(sol.message.split())}; residual {res:.3g})")
     x = trim_state(speed, sol.x[:5])
     u = np.zeros(n_u)
     u[0] = sol.x[5]

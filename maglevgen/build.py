@@ -161,7 +161,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         report = _report_files(carriage, sim_files, opts, step, report_figures)
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
     files.update({f"report/{n}": b for n, b in report.items()})
-    summary = summary_text(carriage, run, lib)
+    summary = summary_text(carriage, run, lib, report_outputs(report, opts))
     files[SUMMARY] = summary
     digests = {n: hashlib.sha256(b.encode() if isinstance(b, str) else b).hexdigest()
                for n, b in sorted(files.items())}
@@ -205,8 +205,21 @@ def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures)
 
 
-def summary_text(carriage, run, lib) -> str:
-    """Where each output is, and the numbers an engineer checks first."""
+def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
+    """What report/ holds, and why report.pdf is not among them when it is not."""
+    from .texsetup import INSTALL_HINT
+
+    names = ", ".join(n for n in ("report.tex", "report.pdf") if n in report)
+    if "report.pdf" in report:
+        return f"report/ ({names})"
+    why = ("--no-pdf was given" if not opts.pdf
+           else f"TeX is not installed: `{INSTALL_HINT}` (or `make run` as root), then rerun")
+    return f"report/ ({names}; report.pdf skipped: {why})"
+
+
+def summary_text(carriage, run, lib, report: str = "report/ (report.tex)") -> str:
+    """Where each output is, and the numbers an engineer checks first; ``report``: what
+    report/ holds (see `report_outputs`)."""
     import numpy as np
 
     from .derive import conventions as cv
@@ -217,8 +230,7 @@ def summary_text(carriage, run, lib) -> str:
     rows = carriage.stiffness_table(trim)
     lines = [f"# maglevgen build: {carriage.loaded.source}", "",
              "Outputs: c/ (run-time-parameter C, maglev.h, CMake example), lib/libmaglev.so, "
-             "simulation/ (trajectories, figs 3-8, metrics.md), report/ (report.tex, "
-             "report.pdf).", "",
+             f"simulation/ (trajectories, figs 3-8, metrics.md), {report}.", "",
              f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; gaps "
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "

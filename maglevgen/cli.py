@@ -11,6 +11,7 @@ import contextlib
 import json
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -62,13 +63,13 @@ def cmd_params_show(args: argparse.Namespace) -> int:
 
 
 def cmd_params_schema(args: argparse.Namespace) -> int:
-    from .params import schema_rows
+    from .params import schema_table
 
-    rows = schema_rows()
+    rows = schema_table()
     width = max(len(r[0]) for r in rows)
-    for key, unit, desc, paper in rows:
+    for key, unit, desc, paper, allowed in rows:
         tail = f"  (paper: {paper})" if paper else ""
-        print(f"{key:<{width}}  [{unit}]  {desc}{tail}")
+        print(f"{key:<{width}}  [{unit}]  {desc}{tail}; {allowed}")
     return 0
 
 
@@ -382,22 +383,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     STORE.progress = step  # announce derivation steps that are not cached yet
     func: Callable[[argparse.Namespace], int] = args.func
+    debug = getattr(args, "debug", False)
     try:
-        return func(args)
+        with warnings.catch_warnings():
+            if not debug:
+                # numpy's floating-point warnings (overflow in an extreme but valid carriage,
+                # whose outcome is checked and reported) and SciPy's: the command reports
+                # what matters in its own words
+                warnings.simplefilter("ignore")
+            return func(args)
     except MaglevError as exc:
-        if getattr(args, "debug", False):
+        if debug:
             raise
-        print(f"maglevgen: error: {exc}", file=sys.stderr)
+        print(f"maglevgen: error: {one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("maglevgen: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # internal failure: one line unless --debug
-        if getattr(args, "debug", False):
+        if debug:
             raise
-        print(f"maglevgen: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
-              file=sys.stderr)
+        print(f"maglevgen: internal error: {type(exc).__name__}: {one_line(exc)} "
+              "(rerun with --debug)", file=sys.stderr)
         return 1
+
+
+def one_line(exc: BaseException) -> str:
+    """An error's message on one line, whatever the library that wrote it put in it."""
+    return " ".join(str(exc).split())
 
 
 def run() -> None:
