@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from . import __version__
 from .background import Job, PendingFiles, Shared, Worker
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
-from .output import check_writable, write_output
+from .output import check_writable, clean_stale_siblings, write_output
 
 if TYPE_CHECKING:
     from .params import LoadedParams
@@ -86,7 +86,10 @@ def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
         return None
     tex = _find_tex() if opts.pdf else None
     key = build_key(params_digest(text, overrides), tuple(overrides), opts, tex)
-    return _unchanged(out_dir) if up_to_date(out_dir, key) else None
+    if not up_to_date(out_dir, key):
+        return None
+    clean_stale_siblings(out_dir)  # what killed builds into this folder left beside it
+    return _unchanged(out_dir)
 
 
 def _unchanged(out_dir: Path) -> BuildResult:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from . import __version__
 from .derive import conventions as cv
-from .errors import MaglevError
+from .errors import InputError, MaglevError
 
 # The parameter schema (pydantic, numpy) is imported by the commands that need it, so that
 # `maglevgen build` on an up-to-date folder answers without loading it.
@@ -39,9 +39,25 @@ def _run_options(p: argparse.ArgumentParser) -> None:
 
 def _carriage(args: argparse.Namespace):
     from .carriage import Carriage
-    from .params import load_params
+    from .params import check_key_option, load_params
 
-    return Carriage(load_params(args.params, args.overrides))
+    loaded = load_params(args.params, args.overrides)
+    if getattr(args, "speed", None) is not None:
+        check_key_option("--speed", args.speed, "operation.speed")
+    if getattr(args, "t_end", None) is not None:
+        _check_run_options(args.t_end, args.dt)
+    return Carriage(loaded)
+
+
+def _check_run_options(t_end: float, dt: float) -> None:
+    """--t-end and --dt inside ranges the simulation can hold (its trajectories in memory)."""
+    from .params import check_option
+
+    check_option("--t-end", t_end, 1e-3, 1e4, "s", "a millisecond to nearly three hours")
+    check_option("--dt", dt, 1e-7, 1.0, "s", "RK4 steps; the stability limit is checked too")
+    if t_end / dt > 1e7:
+        raise InputError(f"--t-end {t_end:g} s / --dt {dt:g} s = {t_end / dt:.3g} "
+                                "steps: more than 1e7 (the trajectories are held in memory)")
 
 
 # ------------------------------------------------------------------------------------ params
@@ -282,6 +298,7 @@ def cmd_build(args: argparse.Namespace) -> int:
         from .params import load_params
 
         loaded = load_params(args.params, args.overrides)
+        _check_run_options(args.t_end, args.dt)
         res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
     if not res.rebuilt:
         print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")

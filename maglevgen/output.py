@@ -95,6 +95,16 @@ def remove_stale_siblings(out_dir: Path) -> list[Path]:
     return removed
 
 
+def clean_stale_siblings(out_dir: Path) -> None:
+    """`remove_stale_siblings` under the lock, for a run that writes nothing (an up-to-date
+    build); a folder it cannot lock or read is left for the next run that writes."""
+    try:
+        with _locked(out_dir.parent):
+            remove_stale_siblings(out_dir)
+    except (OSError, InputError):
+        pass
+
+
 def _mount_points() -> set[str]:
     """Every mount point of this process's namespace (bind mounts included, which
     os.path.ismount does not see when they share the parent's file system)."""

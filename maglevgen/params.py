@@ -169,8 +169,8 @@ class Array(_Section):
 
 class Operation(_Section):
     speed: float = _f("m/s", "forward speed at which trim and gains are computed",
-                      limits=(1e-3, 1e3, "moving, and under 1 km/s (the rail record is "
-                                         "168 m/s)"))
+                      limits=(1e-3, 1e3, "moving, and under 1 km/s; the rail record is "
+                                         "168 m/s"))
     propulsion_point: Vec3 = _f("m", "point of the body where the propulsion force acts",
                                 limits=_OFFSET)
 
@@ -511,6 +511,29 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
 
     walk(Parameters, "")
     return rows
+
+
+def check_option(option: str, value: float, lo: float, hi: float, unit: str, why: str) -> None:
+    """A command-line number inside [lo, hi], or a one-line InputError naming it."""
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise InputError(f"{option} {value:g}: outside the range {limits_text(lo, hi, unit)} "
+                         f"({why})")
+
+
+def check_key_option(option: str, value: float, key: str) -> None:
+    """A command-line number that stands for the schema's ``key``: inside its range."""
+    row = next(r for r in schema_table() if r[0] == key)
+    info = _model_field(key)
+    lo, hi, why = info.json_schema_extra["limits"]  # type: ignore[index]
+    check_option(option, value, lo, hi, row[1], why)
+
+
+def _model_field(key: str) -> Any:
+    model: Any = Parameters
+    *path, last = key.split(".")
+    for part in path:
+        model = model.model_fields[part].annotation
+    return model.model_fields[last]
 
 
 def annotate_with_units(text: str) -> str:
