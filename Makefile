@@ -1,5 +1,5 @@
-# The two commands of the README: `make run` (set up, then the main job on the default
-# carriage: `maglevgen build`) and `make test` (set up, then the test suite). Both create .venv on first use.
+# The two commands of the README: `make run` (set up, TeX where it can, then the main job on
+# the default carriage: `maglevgen build`) and `make test` (set up, then the test suite). Both create .venv on first use.
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
@@ -14,7 +14,10 @@ $(BIN)/maglevgen: pyproject.toml
 
 setup: $(BIN)/maglevgen
 
+# TeX for report.pdf: installed with apt-get where TeX is missing and this user may (root, or
+# sudo without a password), else one line says what to install (maglevgen/texsetup.py).
 run: setup
+	$(BIN)/python -m maglevgen.texsetup
 	$(BIN)/maglevgen build
 
 test: setup

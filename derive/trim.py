@@ -9,6 +9,7 @@ bracketed 1-D solve of the vertical balance gives the start, Newton (MINPACK hyb
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,8 +114,9 @@ def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
         v_off = lift_off_speed(mf, p, min_gap) if _explain else float("nan")
         raise NoTrimError(
             f"no trim at speed {speed:g} m/s: the arrays cannot lift the carriage off the track "
-            f"(net vertical force {f_lo:.4g} N at the contact gap); lift-off needs "
-            f"{v_off:.4g} m/s")
+            f"(net vertical force {f_lo:.4g} N at the contact gap); "
+            + (f"lift-off needs {v_off:.4g} m/s" if math.isfinite(v_off)
+               else "no speed lifts it off"))
     if f_hi >= 0:
         raise NoTrimError(f"no trim at speed {speed:g} m/s: the lift pushes the lower arrays "
                           f"into the track (net vertical force {f_hi:.4g} N at their contact gap)")
@@ -131,7 +133,7 @@ def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
     res = float(np.max(np.abs(residual(sol.x))))
     if not sol.success and res > 1e-8:
         raise NoTrimError(f"no trim at speed {speed:g} m/s: the equilibrium solver did not "
-                          f"converge ({sol.message.strip()}; residual {res:.3g})")
+                          f"converge ({' '.join(sol.message.split())}; residual {res:.3g})")
     x = trim_state(speed, sol.x[:5])
     u = np.zeros(n_u)
     u[0] = sol.x[5]

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from . import __version__
 from .background import Job, PendingFiles, Shared, Worker
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
-from .output import check_writable, write_output
+from .output import check_writable, clean_stale_siblings, write_output
 
 if TYPE_CHECKING:
     from .params import LoadedParams
@@ -87,7 +87,10 @@ def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
         return None
     tex = _find_tex() if opts.pdf else None
     key = build_key(params_digest(text, overrides), tuple(overrides), opts, tex)
-    return _unchanged(out_dir) if up_to_date(out_dir, key) else None
+    if not up_to_date(out_dir, key):
+        return None
+    clean_stale_siblings(out_dir)  # what killed builds into this folder left beside it
+    return _unchanged(out_dir)
 
 
 def _unchanged(out_dir: Path) -> BuildResult:
@@ -173,7 +176,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     files["c/maglev_schedule.c"] = _schedule_c(carriage, lib)
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
-    summary = summary_text(carriage, run, lib, env)
+    summary = summary_text(carriage, run, lib, env, report_outputs(report, opts))
     files[SUMMARY] = summary
     verification = embedded_verification(carriage, env)
     digests = {n: hashlib.sha256(b.encode() if isinstance(b, str) else b).hexdigest()
@@ -250,8 +253,21 @@ def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
                         envelope=envelope)
 
 
-def summary_text(carriage, run, lib, env) -> str:
-    """Where each output is, and the numbers an engineer checks first."""
+def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
+    """What report/ holds, and why report.pdf is not among them when it is not."""
+    from .texsetup import INSTALL_HINT
+
+    names = ", ".join(n for n in ("report.tex", "report.pdf") if n in report)
+    if "report.pdf" in report:
+        return f"report/ ({names})"
+    why = ("--no-pdf was given" if not opts.pdf
+           else f"TeX is not installed: `{INSTALL_HINT}` (or `make run` as root), then rerun")
+    return f"report/ ({names}; report.pdf skipped: {why})"
+
+
+def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") -> str:
+    """Where each output is, and the numbers an engineer checks first; ``report``: what
+    report/ holds (see `report_outputs`)."""
     import numpy as np
 
     from .derive import conventions as cv
@@ -269,9 +285,9 @@ def summary_text(carriage, run, lib, env) -> str:
     lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
               f": {c.verdict}" for n, c in env.controllers.items()]
     lines += ["",
-              "Outputs: c/ (run-time-parameter C, maglev.h, CMake example), lib/libmaglev.so, "
-              "simulation/ (trajectories, figs 3-8, metrics.md), envelope/, report/ "
-              "(report.tex, report.pdf).", "",
+              "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
+              "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
+              f"{report}.", "",
              f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; gaps "
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "

@@ -11,12 +11,13 @@ import contextlib
 import json
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from . import __version__
 from .derive import conventions as cv
-from .errors import MaglevError, VerificationError
+from .errors import InputError, MaglevError, VerificationError
 
 # The parameter schema (pydantic, numpy) is imported by the commands that need it, so that
 # `maglevgen build` on an up-to-date folder answers without loading it.
@@ -38,9 +39,25 @@ def _run_options(p: argparse.ArgumentParser) -> None:
 
 def _carriage(args: argparse.Namespace):
     from .carriage import Carriage
-    from .params import load_params
+    from .params import check_key_option, load_params
 
-    return Carriage(load_params(args.params, args.overrides))
+    loaded = load_params(args.params, args.overrides)
+    if getattr(args, "speed", None) is not None:
+        check_key_option("--speed", args.speed, "operation.speed")
+    if getattr(args, "t_end", None) is not None:
+        _check_run_options(args.t_end, args.dt)
+    return Carriage(loaded)
+
+
+def _check_run_options(t_end: float, dt: float) -> None:
+    """--t-end and --dt inside ranges the simulation can hold (its trajectories in memory)."""
+    from .params import check_option
+
+    check_option("--t-end", t_end, 1e-3, 1e4, "s", "a millisecond to nearly three hours")
+    check_option("--dt", dt, 1e-7, 1.0, "s", "RK4 steps; the stability limit is checked too")
+    if t_end / dt > 1e7:
+        raise InputError(f"--t-end {t_end:g} s / --dt {dt:g} s = {t_end / dt:.3g} "
+                                "steps: more than 1e7 (the trajectories are held in memory)")
 
 
 # ------------------------------------------------------------------------------------ params
@@ -62,13 +79,13 @@ def cmd_params_show(args: argparse.Namespace) -> int:
 
 
 def cmd_params_schema(args: argparse.Namespace) -> int:
-    from .params import schema_rows
+    from .params import schema_table
 
-    rows = schema_rows()
+    rows = schema_table()
     width = max(len(r[0]) for r in rows)
-    for key, unit, desc, paper in rows:
+    for key, unit, desc, paper, allowed in rows:
         tail = f"  (paper: {paper})" if paper else ""
-        print(f"{key:<{width}}  [{unit}]  {desc}{tail}")
+        print(f"{key:<{width}}  [{unit}]  {desc}{tail}; {allowed}")
     return 0
 
 
@@ -102,8 +119,13 @@ def trim_report(carriage, speed: float | None) -> dict:
 
 
 def _verdicts(carriage, rep: dict) -> list[str]:
-    """Add the envelope's verdicts to a report (under "envelope"); the lines to print first."""
-    env = envelope_of(carriage)
+    """Add the envelope's verdicts to a report (under "envelope"); the lines to print first.
+    A carriage whose envelope has no trim still gets its trim and gains, with the reason."""
+    try:
+        env = envelope_of(carriage)
+    except InputError as exc:
+        rep["envelope"] = {"error": str(exc)}
+        return [f"Envelope not computed: {exc}"]
     embedded = carriage.params.envelope.embedded_controller
     rep["envelope"] = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
                        "verdicts": {n: c.verdict for n, c in env.controllers.items()},
@@ -362,6 +384,7 @@ def cmd_build(args: argparse.Namespace) -> int:
         from .params import load_params
 
         loaded = load_params(args.params, args.overrides)
+        _check_run_options(args.t_end, args.dt)
         res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
     if not res.rebuilt:
         print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")
@@ -498,22 +521,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     STORE.progress = step  # announce derivation steps that are not cached yet
     func: Callable[[argparse.Namespace], int] = args.func
+    debug = getattr(args, "debug", False)
     try:
-        return func(args)
+        with warnings.catch_warnings():
+            if not debug:
+                # numpy's floating-point warnings (overflow in an extreme but valid carriage,
+                # whose outcome is checked and reported) and SciPy's: the command reports
+                # what matters in its own words
+                warnings.simplefilter("ignore")
+            return func(args)
     except MaglevError as exc:
-        if getattr(args, "debug", False):
+        if debug:
             raise
-        print(f"maglevgen: error: {exc}", file=sys.stderr)
+        print(f"maglevgen: error: {one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("maglevgen: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # internal failure: one line unless --debug
-        if getattr(args, "debug", False):
+        if debug:
             raise
-        print(f"maglevgen: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
-              file=sys.stderr)
+        print(f"maglevgen: internal error: {type(exc).__name__}: {one_line(exc)} "
+              "(rerun with --debug)", file=sys.stderr)
         return 1
+
+
+def one_line(exc: BaseException) -> str:
+    """An error's message on one line, whatever the library that wrote it put in it."""
+    return " ".join(str(exc).split())
 
 
 def run() -> None:

@@ -15,7 +15,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, get_args, get_origin
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -31,29 +31,77 @@ else:  # pragma: no cover
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
+# Ranges shared by several fields: (lo, hi, why), see _f.
+_SIZE = "a bench model to a 1 km train"
+_ARRAY_SIZE = "a millimetre-scale model to a full-size array"
+_OFFSET = (-1e3, 1e3, "a point of the vehicle: within its largest length")
+_MOMENT = (1e-9, 1e9, "a gram-scale model to a 1000 t train")
+_PRODUCT = (-1e9, 1e9, "no larger than the principal moments")
+_WEIGHT = (1e-6, 1e6, "relative LQR weights: a ratio above 1e12 leaves the Riccati "
+                      "equation ill-conditioned in double precision")
 
-def _f(unit: str, description: str, *, gt: float | None = None, ge: float | None = None,
+
+def _f(unit: str, description: str, *, limits: tuple[float, float, str],
        paper: str | None = None) -> Any:
-    """A documented field: its unit and meaning, and the paper's value where it gives one."""
-    extra: dict[str, Any] = {"unit": unit}
+    """A documented field: its unit and meaning, the paper's value where it gives one, and the
+    closed range [lo, hi] of physically meaningful values (each component's, for a vector)
+    with the reason for it. The range keeps every value away from the overflow and underflow
+    of the model's arithmetic (exp(-k g), k^2 v^2, products of masses and lengths)."""
+    extra: dict[str, Any] = {"unit": unit, "limits": list(limits)}
     if paper is not None:
         extra["paper"] = paper
-    return Field(description=description, gt=gt, ge=ge, json_schema_extra=extra)
+    return Field(description=description, json_schema_extra=extra)
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """repr of a value for a one-line message, cut at ``limit`` characters."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _number(v: Any) -> bool:
+    """A finite TOML number (booleans and non-finite floats are left to the type checks)."""
+    return (isinstance(v, int) and not isinstance(v, bool)) or (
+        isinstance(v, float) and math.isfinite(v))
+
+
+def limits_text(lo: float, hi: float, unit: str) -> str:
+    return f"[{lo:g}, {hi:g}]" + (f" {unit}" if unit and unit != "1" else "")
 
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _within_limits(cls, data: Any) -> Any:
+        """Every number inside its field's range, checked before anything computes with it."""
+        if not isinstance(data, dict):
+            return data  # the type check reports it
+        for field, info in cls.model_fields.items():
+            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+            if field not in data or "limits" not in extra:
+                continue
+            value = data[field]
+            lo, hi, why = extra["limits"]
+            comps = value if isinstance(value, list) else [value]
+            for i, c in enumerate(comps):
+                if _number(c) and not lo <= c <= hi:
+                    where = f"component {i} " if isinstance(value, list) else ""
+                    raise _ModelError(field, _short(value), f"{where}outside the range "
+                                      f"{limits_text(lo, hi, extra['unit'])} ({why})")
+        return data
+
 
 class Inertia(_Section):
     """Inertia tensor about the centre of gravity, body axes (tensor entries, not products)."""
 
-    xx: float = _f("kg*m^2", "I_xx about the CG", gt=0)
-    yy: float = _f("kg*m^2", "I_yy about the CG", gt=0)
-    zz: float = _f("kg*m^2", "I_zz about the CG", gt=0)
-    xy: float = _f("kg*m^2", "tensor entry I_xy (= -integral of x*y dm)")
-    xz: float = _f("kg*m^2", "tensor entry I_xz (= -integral of x*z dm)")
-    yz: float = _f("kg*m^2", "tensor entry I_yz (= -integral of y*z dm)")
+    xx: float = _f("kg*m^2", "I_xx about the CG", limits=_MOMENT)
+    yy: float = _f("kg*m^2", "I_yy about the CG", limits=_MOMENT)
+    zz: float = _f("kg*m^2", "I_zz about the CG", limits=_MOMENT)
+    xy: float = _f("kg*m^2", "tensor entry I_xy (= -integral of x*y dm)", limits=_PRODUCT)
+    xz: float = _f("kg*m^2", "tensor entry I_xz (= -integral of x*z dm)", limits=_PRODUCT)
+    yz: float = _f("kg*m^2", "tensor entry I_yz (= -integral of y*z dm)", limits=_PRODUCT)
 
     def matrix(self) -> np.ndarray:
         return np.array(
@@ -62,35 +110,53 @@ class Inertia(_Section):
 
 
 class Vehicle(_Section):
-    mass: float = _f("kg", "carriage mass", gt=0, paper="9.3 kg")
-    length: float = _f("m", "carriage (cradle) length", gt=0, paper="65 cm")
+    mass: float = _f("kg", "carriage mass", paper="9.3 kg",
+                     limits=(1e-3, 1e6, "a gram-scale model to a 1000 t train"))
+    length: float = _f("m", "carriage (cradle) length", paper="65 cm", limits=(1e-3, 1e3, _SIZE))
     inertia_cg: Inertia
-    cg_offset: Vec3 = _f("m", "r_G: centre of gravity relative to the body origin O, body axes")
-    gravity: float = _f("m/s^2", "gravitational acceleration", gt=0)
+    cg_offset: Vec3 = _f("m", "r_G: centre of gravity relative to the body origin O, body axes",
+                         limits=_OFFSET)
+    gravity: float = _f("m/s^2", "gravitational acceleration",
+                        limits=(0.1, 100.0, "a small moon's 0.1 to a 10 g test rig"))
 
 
 class Halbach(_Section):
-    remanence: float = _f("T", "B_r of the magnet material (eq 4)", gt=0)
-    thickness: float = _f("m", "d: array thickness normal to its face (eq 4)", gt=0)
-    magnets_per_wavelength: int = _f("1", "M: magnet elements per wavelength (eq 4)", ge=2)
-    wavelength: float = _f("m", "lambda: Halbach wavelength; k = 2*pi/lambda", gt=0, paper="0.1 m")
-    width: float = _f("m", "w: transverse width of each array (eq 3)", gt=0, paper="0.12 m")
+    remanence: float = _f("T", "B_r of the magnet material (eq 4)",
+                          limits=(1e-3, 2.5, "no permanent magnet reaches 2.5 T; NdFeB ~1.4 T"))
+    thickness: float = _f("m", "d: array thickness normal to its face (eq 4)",
+                          limits=(1e-4, 1.0, _ARRAY_SIZE))
+    magnets_per_wavelength: int = _f(
+        "1", "M: magnet elements per wavelength (eq 4)",
+        limits=(2, 256, "eq 4 needs M >= 2; above 256 its factor sin(pi/M)/(pi/M) is 1 "
+                        "within 3e-5"))
+    wavelength: float = _f("m", "lambda: Halbach wavelength; k = 2*pi/lambda", paper="0.1 m",
+                           limits=(1e-3, 10.0, _ARRAY_SIZE))
+    width: float = _f("m", "w: transverse width of each array (eq 3)", paper="0.12 m",
+                      limits=(1e-3, 10.0, _ARRAY_SIZE))
 
 
 class Circuit(_Section):
-    resistance: float = _f("ohm", "R: resistance of one track circuit (loop)", gt=0,
-                           paper="1.5e-3 ohm/loop")
-    inductance: float = _f("H", "L: inductance of one track circuit (loop)", gt=0,
-                           paper="2.6e-6 H/loop")
+    resistance: float = _f("ohm", "R: resistance of one track circuit (loop)",
+                           paper="1.5e-3 ohm/loop",
+                           limits=(1e-9, 1e3, "a near-superconducting loop to a thin wire"))
+    inductance: float = _f("H", "L: inductance of one track circuit (loop)",
+                           paper="2.6e-6 H/loop",
+                           limits=(1e-12, 1.0, "a nanometre-scale loop to a many-turn coil"))
 
 
 class Array(_Section):
-    position: Vec3 = _f("m", "centre of the array face, body axes, relative to O")
+    position: Vec3 = _f("m", "centre of the array face, body axes, relative to O",
+                        limits=_OFFSET)
     normal: Vec3 = _f("1", "direction of the track's repulsion on the array, body axes "
-                           "(normalised on load)")
+                           "(normalised on load)",
+                      limits=(-1e3, 1e3, "a direction: only its ratios count; bounded so that "
+                                         "its norm is finite"))
     nominal_gap: float = _f("m", "gap between array face and track surface at the design pose",
-                            gt=0)
-    circuits: float = _f("1", "track circuits under the array at any instant", gt=0)
+                            limits=(1e-5, 1.0, "the field decays as exp(-2 pi gap/lambda): "
+                                               "Inductrack gaps are mm to cm"))
+    circuits: float = _f("1", "track circuits under the array at any instant",
+                         limits=(0.1, 1e5, "a fraction of one loop to a 100 m array at "
+                                           "1 mm pitch"))
 
     @field_validator("normal")
     @classmethod
@@ -102,14 +168,18 @@ class Array(_Section):
 
 
 class Operation(_Section):
-    speed: float = _f("m/s", "forward speed at which trim and gains are computed", gt=0)
-    propulsion_point: Vec3 = _f("m", "point of the body where the propulsion force acts")
+    speed: float = _f("m/s", "forward speed at which trim and gains are computed",
+                      limits=(1e-3, 1e3, "moving, and under 1 km/s; the rail record is "
+                                         "168 m/s"))
+    propulsion_point: Vec3 = _f("m", "point of the body where the propulsion force acts",
+                                limits=_OFFSET)
 
 
 class Control(_Section):
     state_weights: Annotated[list[float], Field(min_length=2, max_length=2)] = _f(
-        "1", "diagonal of Q per axis: [position, rate] (paper: Q = I)", paper="Q = I")
-    input_weight: float = _f("1", "R per axis (paper: R = 1)", gt=0, paper="R = 1")
+        "1", "diagonal of Q per axis: [position, rate] (paper: Q = I)", paper="Q = I",
+        limits=_WEIGHT)
+    input_weight: float = _f("1", "R per axis (paper: R = 1)", paper="R = 1", limits=_WEIGHT)
 
     @field_validator("state_weights")
     @classmethod
@@ -120,10 +190,12 @@ class Control(_Section):
 
 
 class Track(_Section):
-    min_gap: float = _f("m", "smallest gap before an array touches the track (contact)", gt=0)
+    min_gap: float = _f("m", "smallest gap before an array touches the track (contact)",
+                        limits=(1e-6, 0.1, "a micrometre to 10 cm of mechanical clearance"))
 
 
 EMBEDDABLE_CONTROLLERS = ("damping", "lqr", "coupled")
+_ENVELOPE_SPEED = "a 1 cm/s crawl to 1 km/s, past any rail launcher"
 
 
 class Envelope(_Section):
@@ -131,25 +203,30 @@ class Envelope(_Section):
     (nothing here changes the equations; the envelope, the schedule and the launch read it)."""
 
     v_min: float | None = Field(
-        default=None, gt=0, description="lowest speed of the envelope (omitted: "
+        default=None, description="lowest speed of the envelope (omitted: "
         "(1 + lift_off_margin) x the lift-off speed, found by the trim in C)",
-        json_schema_extra={"unit": "m/s"})
+        json_schema_extra={"unit": "m/s", "limits": [0.01, 1e3, _ENVELOPE_SPEED]})
     lift_off_margin: float = Field(
-        default=0.5, ge=0.05, le=10, description="margin of v_min above the lift-off speed "
-        "when v_min is omitted (0.5: 50 % above)", json_schema_extra={"unit": "1"})
-    v_max: float = Field(gt=0, description="release speed: the top of the envelope",
-                         json_schema_extra={"unit": "m/s"})
+        default=0.5, description="margin of v_min above the lift-off speed when v_min is "
+        "omitted (0.5: 50 % above)", json_schema_extra={
+            "unit": "1", "limits": [0.05, 10.0, "at least 5 % above lift-off, where the "
+                                    "guide wheels would still touch; at most 11 x lift-off"]})
+    v_max: float = Field(description="release speed: the top of the envelope",
+                         json_schema_extra={"unit": "m/s",
+                                            "limits": [0.01, 1e3, _ENVELOPE_SPEED]})
     launch_acceleration: float = Field(
-        gt=0, description="steady acceleration of the launch run: the propulsion is the trim "
-        "drag plus m times this (the paper's 'steady acceleration force')",
-        json_schema_extra={"unit": "m/s^2"})
+        description="steady acceleration of the launch run: the propulsion is the trim drag "
+        "plus m times this (the paper's 'steady acceleration force')",
+        json_schema_extra={"unit": "m/s^2", "limits": [1e-3, 1e3, "a creeping test to 100 g"]})
     schedule_nodes: int = Field(
-        default=64, ge=4, le=4096, description="speeds of the gain schedule's spline nodes "
-        "over [v_min, v_max]", json_schema_extra={"unit": "1"})
+        default=64, description="speeds of the gain schedule's spline nodes over "
+        "[v_min, v_max]", json_schema_extra={
+            "unit": "1", "limits": [4, 4096, "a cubic spline needs 4; 4096 x 56 values is "
+                                   "past any controller's memory"]})
     embedded_controller: str = Field(
         default="coupled", description="the controller the firmware C embeds and `build` "
-        f"verifies over the envelope: one of {', '.join(EMBEDDABLE_CONTROLLERS)}",
-        json_schema_extra={"unit": "-"})
+        "verifies over the envelope", json_schema_extra={
+            "unit": "-", "choices": list(EMBEDDABLE_CONTROLLERS)})
 
     @field_validator("embedded_controller")
     @classmethod
@@ -161,7 +238,7 @@ class Envelope(_Section):
     @model_validator(mode="after")
     def _ordered(self) -> Envelope:
         if self.v_min is not None and not self.v_min < self.v_max:
-            raise _ModelError("envelope.v_min", f"{self.v_min:g}",
+            raise _ModelError("v_min", f"{self.v_min:g}",
                               f"is not below envelope.v_max = {self.v_max:g}")
         return self
 
@@ -181,6 +258,24 @@ class Parameters(_Section):
     control: Control
     track: Track
     envelope: Envelope
+
+    @field_validator("arrays", mode="before")
+    @classmethod
+    def _array_names(cls, arrays: Any) -> Any:
+        """Array names become parts of C identifiers (MAGLEV_U_F_Z3, MAGLEV_P_ARRAYS_3_...),
+        CasADi and SymPy symbol names and LaTeX subscripts: letters, digits and underscores
+        only, and distinct regardless of case (the C macros are upper case)."""
+        if not isinstance(arrays, dict):
+            return arrays
+        seen: dict[str, str] = {}
+        for name in arrays:
+            if not ARRAY_NAME.fullmatch(name):
+                raise _ModelError("<name>", _short(name), ARRAY_NAME_RULE)
+            if name.upper() in seen:
+                raise _ModelError("<name>", _short(name), f"same as array "
+                                  f"{seen[name.upper()]!r} in upper case (the C macros)")
+            seen[name.upper()] = name
+        return arrays
 
     @model_validator(mode="after")
     def _physical_inertia(self) -> Parameters:
@@ -206,9 +301,54 @@ class Parameters(_Section):
 
 
 class _ModelError(ValueError):
+    """A rule of the schema broken: ``key`` relative to where the validator sits."""
+
     def __init__(self, key: str, value: str, reason: str) -> None:
         super().__init__(reason)
         self.key, self.value, self.reason = key, value, reason
+
+
+ARRAY_NAME = re.compile(r"[A-Za-z0-9_]{1,16}")
+ARRAY_NAME_RULE = ("an array name must be 1 to 16 ASCII letters, digits or underscores "
+                   "(it becomes part of C identifiers and LaTeX)")
+
+
+def _schema_depth(tp: Any) -> int:
+    """How many tables and arrays deep a value of type ``tp`` goes (the document is 1)."""
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return 1 + max((_schema_depth(f.annotation) for f in tp.model_fields.values()),
+                       default=0)
+    origin = get_origin(tp)
+    if origin is Annotated:
+        return _schema_depth(get_args(tp)[0])
+    if origin in (list, tuple, dict):
+        return 1 + max((_schema_depth(a) for a in get_args(tp)[-1:]), default=0)
+    return max((_schema_depth(a) for a in get_args(tp)), default=0)
+
+
+def _too_deep(data: Any, limit: int) -> tuple[str, Any] | None:
+    """The first (dotted key, value) nested deeper than ``limit`` levels, or None."""
+    stack: list[tuple[Any, tuple[str, ...], int]] = [(data, (), 1)]
+    while stack:
+        node, path, depth = stack.pop()
+        if not isinstance(node, (dict, list)):
+            continue
+        if depth > limit:
+            return ".".join(path), node
+        items = node.items() if isinstance(node, dict) else enumerate(node)
+        stack.extend((v, (*path, str(k)), depth + 1) for k, v in reversed(list(items)))
+    return None
+
+
+def _deepest_line(text: str) -> str:
+    """The line with the most brackets: where a nesting too deep for the parser sits."""
+    lines = text.splitlines() or [""]
+    i = max(range(len(lines)), key=lambda j: lines[j].count("[") + lines[j].count("{"))
+    key = re.match(r"\s*([^=\s]+)\s*=", lines[i])
+    return f"line {i + 1}" + (f" (key {_short(key.group(1), 40)})" if key else "")
+
+
+SCHEMA_DEPTH = _schema_depth(Parameters)  # 4: the document, arrays, one array, its position
 
 
 # --------------------------------------------------------------------------------------------
@@ -256,7 +396,10 @@ def parse_override(item: str) -> tuple[str, Any]:
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"--set {item!r}: not a TOML value ({exc})") from None
+        raise InputError(f"--set {_short(item)}: not a TOML value ({exc})") from None
+    except RecursionError:
+        raise InputError(f"--set {name}: arrays or inline tables nested deeper than the "
+                         f"schema's {SCHEMA_DEPTH} levels") from None
     return name, value
 
 
@@ -275,14 +418,18 @@ def _lookup(data: Any, loc: Sequence[int | str]) -> Any:
 
 def validate(data: dict[str, Any], origin: str) -> Parameters:
     """Validate raw TOML data; raise a one-line InputError naming the key and the value."""
+    deep = _too_deep(data, SCHEMA_DEPTH)
+    if deep is not None:
+        raise InputError(f"{origin}: {deep[0]} = {_short(deep[1])}: nested deeper than the "
+                         f"schema's {SCHEMA_DEPTH} levels of tables and arrays")
     try:
         return Parameters.model_validate(data)
     except ValidationError as exc:
         err = exc.errors(include_url=False)[0]
         ctx_err = (err.get("ctx") or {}).get("error")
         if isinstance(ctx_err, _ModelError):
-            raise InputError(
-                f"{origin}: {ctx_err.key} = {ctx_err.value}: {ctx_err.reason}") from None
+            key = _format_loc([*err["loc"], ctx_err.key])
+            raise InputError(f"{origin}: {key} = {ctx_err.value}: {ctx_err.reason}") from None
         loc = [p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-"))]
         key = _format_loc(loc) or "(top level)"
         msg = err["msg"]
@@ -292,7 +439,7 @@ def validate(data: dict[str, Any], origin: str) -> Parameters:
             raise InputError(f"{origin}: unknown key {key}") from None
         value = _lookup(data, loc)
         msg = msg.removeprefix("Value error, ")
-        raise InputError(f"{origin}: {key} = {value!r}: {msg}") from None
+        raise InputError(f"{origin}: {key} = {_short(value)}: {msg}") from None
 
 
 def load_params(path: str | Path | None = None, overrides: Sequence[str] = ()) -> LoadedParams:
@@ -313,6 +460,9 @@ def load_params(path: str | Path | None = None, overrides: Sequence[str] = ()) -
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{origin}: malformed TOML: {exc}") from None
+    except RecursionError:  # the parser recurses once per level of nesting
+        raise InputError(f"{origin}: {_deepest_line(text)}: arrays or inline tables nested "
+                         f"deeper than the schema's {SCHEMA_DEPTH} levels") from None
     for item in overrides:
         name, value = parse_override(item)
         _set_dotted(data, name, value)
@@ -390,7 +540,13 @@ def flatten(params: Parameters) -> list[ParamEntry]:
 
 def schema_rows() -> list[tuple[str, str, str, str]]:
     """(dotted key, unit, description, paper value) for every leaf of the schema."""
-    rows: list[tuple[str, str, str, str]] = []
+    return [row[:4] for row in schema_table()]
+
+
+def schema_table() -> list[tuple[str, str, str, str, str]]:
+    """(dotted key, unit, description, paper value, allowed values and why) for every leaf of
+    the schema, and the rule for array names (``arrays.<name>``)."""
+    rows: list[tuple[str, str, str, str, str]] = []
 
     def walk(model: type[BaseModel], prefix: str) -> None:
         for field, info in model.model_fields.items():
@@ -399,14 +555,47 @@ def schema_rows() -> list[tuple[str, str, str, str]]:
             if isinstance(ann, type) and issubclass(ann, BaseModel):
                 walk(ann, name + ".")
             elif field == "arrays":
+                rows.append((f"{name}.<name>", "", "the name of an array (a table key)", "",
+                             ARRAY_NAME_RULE.removeprefix("an array name must be ")))
                 walk(Array, name + ".<name>.")
             else:
                 extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
-                rows.append((name, str(extra.get("unit", "")), info.description or "",
-                             str(extra.get("paper", ""))))
+                unit = str(extra.get("unit", ""))
+                if "choices" in extra:
+                    rows.append((name, unit, info.description or "",
+                                 str(extra.get("paper", "")),
+                                 "one of " + ", ".join(extra["choices"])))
+                    continue
+                lo, hi, why = extra["limits"]
+                each = "each component in " if get_origin(ann) is list else "in "
+                rows.append((name, unit, info.description or "", str(extra.get("paper", "")),
+                             f"{each}{limits_text(lo, hi, unit)}: {why}"))
 
     walk(Parameters, "")
     return rows
+
+
+def check_option(option: str, value: float, lo: float, hi: float, unit: str, why: str) -> None:
+    """A command-line number inside [lo, hi], or a one-line InputError naming it."""
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise InputError(f"{option} {value:g}: outside the range {limits_text(lo, hi, unit)} "
+                         f"({why})")
+
+
+def check_key_option(option: str, value: float, key: str) -> None:
+    """A command-line number that stands for the schema's ``key``: inside its range."""
+    row = next(r for r in schema_table() if r[0] == key)
+    info = _model_field(key)
+    lo, hi, why = info.json_schema_extra["limits"]  # type: ignore[index]
+    check_option(option, value, lo, hi, row[1], why)
+
+
+def _model_field(key: str) -> Any:
+    model: Any = Parameters
+    *path, last = key.split(".")
+    for part in path:
+        model = model.model_fields[part].annotation
+    return model.model_fields[last]
 
 
 def annotate_with_units(text: str) -> str:

@@ -42,6 +42,7 @@ from .derive import conventions as cv
 from .derive.memo import memoized
 from .errors import InputError, MaglevError
 from .report_figures import force_figures
+from .texsetup import INSTALL_HINT, TEX_PACKAGES, find_tex  # noqa: F401  (re-exported)
 
 __all__ = [
     "SIMULATION_FIGURES",
@@ -60,15 +61,6 @@ __all__ = [
     "write_report",
 ]
 
-# Debian packages the PDF needs (README and .ci/run name the same list).
-TEX_PACKAGES: tuple[str, ...] = (
-    "latexmk",
-    "texlive-latex-base",
-    "texlive-latex-recommended",
-    "texlive-fonts-recommended",
-    "poppler-utils",
-)
-INSTALL_HINT = "apt-get install --no-install-recommends " + " ".join(TEX_PACKAGES)
 
 # PNGs written by `maglevgen simulate --out DIR`, with the paper's figures they correspond to.
 SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (
@@ -486,8 +478,8 @@ def display_symbol(name: str) -> sp.Symbol:
     ]
     for pattern, fmt in rules:
         m = re.fullmatch(pattern, name)
-        if m:
-            return sp.Symbol(fmt.format(**m.groupdict()))
+        if m:  # an array's name comes from the parameter file: escaped like all its text
+            return sp.Symbol(fmt.format(**{k: tex_escape(v) for k, v in m.groupdict().items()}))
     return sp.Symbol(r"\mathrm{" + name.replace("_", r"\_") + "}")
 
 
@@ -501,7 +493,8 @@ def display_key_symbol(key: str) -> str:
     }
     m = re.fullmatch(r"arrays\.([^.]+)\.(position|normal)", key)
     if m:
-        return (r"\mathbf{a}_{" if m.group(2) == "position" else r"\mathbf{n}_{") + m.group(1) + "}"
+        return ((r"\mathbf{a}_{" if m.group(2) == "position" else r"\mathbf{n}_{")
+                + tex_escape(m.group(1)) + "}")
     if key in vec:
         return vec[key]
     return ltx(display_symbol(key))
@@ -527,7 +520,8 @@ def to_display(model, expr: Any, numbers: dict[str, float] | None = None) -> Any
 
 
 def _array_labels(model) -> list[str]:
-    return [a.name for a in model.arrays]
+    """The arrays' names as LaTeX (names come from the parameter file)."""
+    return [tex_escape(a.name) for a in model.arrays]
 
 
 # =============================================================== parameters and provenance
@@ -1072,13 +1066,15 @@ def _geometry_displays(structure, gap_values: tuple[tuple[str, float], ...],
     gaps = []
     for i, arr in enumerate(model.arrays):
         gexpr = to_display(model, model.gaps[i], dict(gap_values)).xreplace(state_sym)
-        gaps += break_sum(rf"\delta_{{{arr.name}}}", round_floats(sp.expand(gexpr.xreplace(ab))))
+        gaps += break_sum(rf"\delta_{{{tex_escape(arr.name)}}}",
+                          round_floats(sp.expand(gexpr.xreplace(ab))))
     ex = sp.Matrix([-1, 0, 0])
     total = sp.zeros(5, 1)
     for name, position, normal in arrays:
         pos = sp.Matrix([sp.Float(c, 17) for c in position])
         nrm = sp.Matrix([sp.Float(c, 17) for c in normal])
-        FL, FD = sp.Symbol(f"F_{{L,{name}}}"), sp.Symbol(f"F_{{D,{name}}}")
+        label = tex_escape(name)
+        FL, FD = sp.Symbol(f"F_{{L,{label}}}"), sp.Symbol(f"F_{{D,{label}}}")
         total += generalized_wrench_row(pos, nrm) * FL + generalized_wrench_row(pos, ex) * FD
     labels = ("F_y", "F_z", "M_x", "M_y", "M_z")
     derived = eqs([(rf"\textstyle\sum {lab}", round_floats(sp.expand(total[i])))
@@ -1234,7 +1230,8 @@ def _damping_allocation(gains: dict) -> dict[str, Any]:
         "T": matrix_tex(T, lambda v: fnum(v, 4)),
         "E_T_residual": float(np.max(np.abs(E @ T - np.eye(E.shape[0])))),
         "T_pinv_residual": float(np.max(np.abs(T - np.linalg.pinv(E)))),
-        "forces": [ltx(sp.Symbol(f)) for f in alloc["forces"]],
+        # F_<axis><array name>: the name escaped, the axis a subscript as sympy prints F_y3
+        "forces": [ltx(sp.Symbol(f"F_{{{f[2]}{tex_escape(f[3:])}}}")) for f in alloc["forces"]],
         "controls": [ltx(sp.Symbol(c_)) for c_ in alloc["controls"]],
     }
 
@@ -1910,14 +1907,6 @@ class LatexBuild:
 
 
 _LATEX_FLAGS = ("-interaction=nonstopmode", "-halt-on-error", "-file-line-error")
-
-
-def find_tex() -> str | None:
-    """latexmk if installed, else pdflatex, else None."""
-    for tool in ("latexmk", "pdflatex"):
-        if shutil.which(tool):
-            return tool
-    return None
 
 
 def first_latex_error(log: str) -> str:

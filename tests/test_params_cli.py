@@ -119,7 +119,7 @@ BAD: list[tuple[str, str | bytes | None, list[str], list[str]]] = [
     ("vec-too-short", edited("arrays.3.position", [0.0, 0.0]), [],
      ["arrays.3.position = [0.0, 0.0]"]),
     *[
-        (f"{key}={value}", edited(key, value), [], [f"{key} = {value!r}:", "greater than 0"])
+        (f"{key}={value}", edited(key, value), [], [f"{key} = {value!r}:", "outside the range"])
         for key in ("vehicle.mass", "halbach.wavelength", "circuit.resistance",
                     "circuit.inductance", "halbach.width", "operation.speed")
         for value in (0, -5, 0.0, -1e-3)
