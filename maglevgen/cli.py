@@ -373,6 +373,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
+    if args.controller:  # the same as --set envelope.embedded_controller="NAME"
+        args.overrides = [*args.overrides, f'envelope.embedded_controller="{args.controller}"']
     from .build import BuildOptions, cached_result
 
     opts = BuildOptions(t_end=args.t_end, dt=args.dt, pdf=not args.no_pdf,
@@ -489,6 +491,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="output folder (default: ./build)")
     _run_options(bld)
     bld.add_argument("--no-pdf", action="store_true", help="write report.tex only")
+    bld.add_argument("--controller", choices=("damping", "lqr", "coupled"),
+                     help="the controller the firmware C embeds and the build verifies "
+                          "(default: envelope.embedded_controller, the coupled LQR)")
     bld.add_argument("--allow-unstable", action="store_true",
                      help="exit 0 with a warning (not 3) when the embedded controller is "
                           "unstable somewhere in the envelope")

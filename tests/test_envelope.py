@@ -277,7 +277,7 @@ def test_build_exits_3_when_the_embedded_controller_is_unstable(tmp_path) -> Non
     line; --allow-unstable turns it into a warning (exit 0)."""
     out = tmp_path / "b"
     args = [sys.executable, "-m", "maglevgen.cli", "build", "--no-pdf", "--t-end", "1",
-            "--out", str(out), "--set", 'envelope.embedded_controller="lqr"']
+            "--out", str(out), "--controller", "lqr"]
     proc = subprocess.run(args, capture_output=True, text=True)
     assert proc.returncode == 3, proc.stderr
     err = [line for line in proc.stderr.splitlines() if "error" in line]  # besides progress
