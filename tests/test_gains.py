@@ -15,7 +15,6 @@ from independent_reference import generalized_mass, lqr_reference_mp, reference_
 from maglevgen.carriage import Carriage
 from maglevgen.cli import main
 from maglevgen.controllers import (
-    allocation_matrix,
     axis_plants,
     carriage_gains,
     coupled_comparison,
@@ -69,20 +68,6 @@ def test_gains_json_plants_and_gains_equal_references(carriage: Carriage,
         np.testing.assert_allclose(a["K_closed_form"], [float(x) for x in K_ref], rtol=1e-13)
         np.testing.assert_allclose(a["P_closed_form"], np.array(P_ref.tolist(), dtype=float),
                                    rtol=1e-13)
-
-
-def test_allocation_is_pseudo_inverse_of_geometry(carriage: Carriage) -> None:
-    """T = pinv(E), with E built here from the array positions by cross products."""
-    cols = []
-    for arr, (_, comps) in zip(carriage.params.arrays.values(), carriage.structure.arrays,
-                               strict=True):
-        for ax in comps:
-            d = np.eye(3)["xyz".index(ax)]
-            m = np.cross(arr.position, d)
-            cols.append([d[1], d[2], *m])
-    E = np.array(cols).T
-    assert E.shape == (5, 10)
-    np.testing.assert_allclose(allocation_matrix(carriage), np.linalg.pinv(E), atol=1e-12)
 
 
 def test_schedule_is_lqr_of_trim_at_each_speed(carriage: Carriage) -> None:

@@ -206,3 +206,19 @@ def test_reference_wrench_balances_at_the_reference_trim(carriage: Carriage) -> 
     w = external_wrench(prm, ref.q, 20.0, ref.f_prop)
     assert np.max(np.abs(w)) < 1e-9 * prm.vehicle.mass * prm.vehicle.gravity
     assert ref.arrays.lift.sum() > prm.vehicle.mass * prm.vehicle.gravity  # lower arrays pull
+
+
+def test_control_effectiveness_equals_cross_products(carriage: Carriage) -> None:
+    """E (eqs 8-12 / 22-23): each column the wrench about O of a unit body-axis force at an
+    array's face centre, built here by numpy cross products."""
+    from maglevgen.controllers import allocation_matrix
+
+    cols = []
+    for arr, (_, comps) in zip(carriage.params.arrays.values(), carriage.structure.arrays,
+                               strict=True):
+        for ax in comps:
+            d = np.eye(3)["xyz".index(ax)]
+            cols.append([d[1], d[2], *np.cross(arr.position, d)])
+    E = np.array(cols).T
+    assert E.shape == (5, 10) and np.linalg.matrix_rank(E) == 5
+    np.testing.assert_allclose(allocation_matrix(carriage), np.linalg.pinv(E), atol=1e-12)
