@@ -281,6 +281,7 @@ def test_background_rendering_gives_the_files_of_an_in_process_run(good: Path, t
     assert built == alone
 
 
+@pytest.mark.slow
 def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carriage,
                                                           monkeypatch) -> None:
     """Every cache entry (generated C, compiled library, lambdified model) corrupted at once."""
@@ -311,6 +312,7 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
     assert tree(shutil_out) == ref
 
 
+@pytest.mark.slow
 def test_concurrent_builds_into_one_folder_end_consistent(tmp_path: Path, good: Path) -> None:
     out = tmp_path / "shared"
     env = {**os.environ}
