@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: setup run test lint bench clean
+.PHONY: setup run test lint bench clean mutation planted-faults
 
 $(BIN)/maglevgen: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +31,16 @@ lint: setup
 # bench/results.json.
 bench: setup
 	MAGLEV_BENCH_COMMAND="make bench" $(BIN)/python bench/run.py
+
+# Mutation testing of the paper's equations (cosmic-ray; 30-60 min on 2 cores, not part of
+# `make test`): mutation/report.txt, summarised in TESTING.md.
+mutation: setup
+	$(BIN)/pip install --quiet -e '.[test,mutation]'
+	PYTHON=$(abspath $(BIN))/python bash mutation/run.sh
+
+# The three faults of issue 23, planted one at a time: each must fail a numeric test.
+planted-faults: setup
+	$(BIN)/python mutation/planted_faults.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -1,18 +1,77 @@
-"""Shared fixtures: the default carriage, built once per test session.
+"""Shared fixtures: the default carriage, built once per test session; the tool markers.
 
 The derivation/compile cache goes to a per-session temporary folder, so the suite neither
 reads nor writes the user's cache and always exercises a cold build first.
+
+Tool markers (pyproject.toml): ``needs_cc`` (the C compiler, nm and size; extra tools as
+arguments, e.g. ``needs_cc("clang")``), ``needs_tex`` (latexmk and pdftotext), ``needs_arm``
+(arm-none-eabi-gcc). A test whose tool is missing is skipped with the install command in the
+reason and counted at the end of the run; when the environment variable CI is set (CI installs
+every tool, .ci/run) the same test fails instead, so CI cannot pass with a check left out.
+Tests that use a fixture compiling the generated C get ``needs_cc`` automatically.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 
 import pytest
 
 from maglevgen.carriage import Carriage
 from maglevgen.params import load_params
+
+_INSTALL = {
+    "needs_cc": "apt-get install -y gcc binutils (or set CC to an installed compiler)",
+    "needs_tex": "apt-get install -y --no-install-recommends latexmk texlive-latex-base "
+                 "texlive-latex-recommended texlive-fonts-recommended poppler-utils",
+    "needs_arm": "apt-get install -y gcc-arm-none-eabi",
+}
+# Fixtures that compile generated C: every test using one needs the compiler.
+_CC_FIXTURES = frozenset({"sim_lib", "op", "runtime_lib", "baked"})
+_tool_skips: list[str] = []
+
+
+def _in_ci() -> bool:
+    return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def _tools(marker: str, extra: tuple[str, ...]) -> tuple[str, ...]:
+    if marker == "needs_cc":
+        from maglevgen.runtime.compile import compiler_name
+
+        return (compiler_name(), "nm", "size", *extra)
+    return {"needs_tex": ("latexmk", "pdftotext"), "needs_arm": ("arm-none-eabi-gcc",)
+            }[marker] + extra
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if _CC_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.needs_cc)
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    for name, hint in _INSTALL.items():
+        extra = tuple(a for m in item.iter_markers(name) for a in m.args)
+        if item.get_closest_marker(name) is None:
+            continue
+        missing = [t for t in dict.fromkeys(_tools(name, extra)) if shutil.which(t) is None]
+        if not missing:
+            continue
+        msg = f"{name}: {', '.join(missing)} not installed; install: {hint}"
+        if _in_ci():
+            pytest.fail(f"{msg} (CI is set: CI installs every tool, so this is a failure)",
+                        pytrace=False)
+        _tool_skips.append(item.nodeid)
+        pytest.skip(f"TOOL MISSING, CHECK NOT RUN: {msg}")
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+    if _tool_skips:
+        terminalreporter.write_sep("!", f"{len(_tool_skips)} tests NOT RUN for a missing tool "
+                                   "(see the skip reasons; CI=true makes them fail)", red=True)
 
 
 @pytest.fixture(scope="session")

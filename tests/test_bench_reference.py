@@ -24,7 +24,7 @@ from maglevgen.derive.linearize import Q_STATES
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedLibrary
 
-pytestmark = pytest.mark.needs_cc
+pytestmark = [pytest.mark.needs_cc, pytest.mark.slow]
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench" / "reference" / "maglev_model.c"
 FLAGS = ["-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]

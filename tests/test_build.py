@@ -11,12 +11,20 @@ import hashlib
 import importlib
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from independent_reference import (
+    generalized_mass,
+    ise_optimal_damping,
+    lqr_reference_mp,
+    reference_trim,
+    stiffness_fd,
+)
 from test_params_cli import BAD, edited, write_input
 
 from maglevgen.build import STAMP, BuildOptions, run_build, up_to_date
@@ -69,18 +77,68 @@ def test_build_writes_every_stage_and_a_consistent_stamp(good: Path, carriage) -
     assert [p["value"] for p in manifest["parameter_vector"]] == list(carriage.p)
 
 
-def test_summary_numbers_match_independent_computations(good: Path, carriage, trim) -> None:
-    """Trim gaps from the SymPy/scipy trim; natural frequencies from the SymPy stiffness."""
-    text = (good / "SUMMARY.md").read_text()
-    for g in trim.gaps:
-        assert f"{g * 1e3:.3f}" in text
-    K = carriage.total_stiffness(trim)
-    M = carriage.generalized_mass()
-    for i, axis in enumerate(("lateral", "vertical", "roll", "pitch", "yaw")):
-        row = next(r for r in text.splitlines() if r.startswith(f"| {axis} |"))
-        fn = float(row.split("|")[4])
-        assert fn == pytest.approx(np.sqrt(K[i, i] / M[i]) / (2 * np.pi), abs=1.5e-3)
-    assert "eq 31 does not satisfy" in text
+def _paper_stiffness(prm, lift: np.ndarray) -> np.ndarray:
+    """The printed eqs 7 and 13-16 with the reference trim's array forces and the geometry."""
+    arrays = list(prm.arrays.values())
+    upper = [i for i, a in enumerate(arrays) if abs(a.normal[2]) > 1 - 1e-9]
+    lower = [i for i in range(len(arrays)) if i not in upper]
+    F = np.mean([lift[i] * abs(arrays[i].normal[1]) for i in lower])  # F_bncd_y
+    F_up = np.mean(lift[upper])
+    k = 2 * np.pi / prm.halbach.wavelength
+    Lz = np.mean([abs(arrays[i].position[2]) for i in lower])
+    Lx = np.mean([abs(arrays[i].position[0]) for i in upper])
+    Lxla = np.mean([abs(arrays[i].position[0]) for i in lower])
+    return np.array([8 * F * k, 2 * prm.vehicle.mass * prm.vehicle.gravity * k,
+                     8 * F * k * Lz**2, 0.12 * F_up * k * Lx**2, 8 * F * k * Lxla**2])
+
+
+def test_summary_numbers_match_independent_computations(good: Path, carriage) -> None:
+    """Every number of SUMMARY.md, row by row, against tests/independent_reference.py: the trim
+    (root of eq 3 and the static balance), stiffness (central differences), inertia (parallel
+    axes), f_n, the LQR gain (hand-solved ARE, mpmath), the ISE-optimal damping (numerical
+    minimum) and the printed stiffness of eqs 7, 13-16 with its difference from the derived."""
+    prm = carriage.params
+    v = prm.operation.speed
+    ref = reference_trim(prm, v)
+    lines = (good / "SUMMARY.md").read_text().splitlines()
+    (trim_line,) = [ln for ln in lines if ln.startswith("Trim at ")]
+    m = re.fullmatch(r"Trim at (\S+) m/s: heave (\S+) mm, pitch (\S+) mrad, F_prop (\S+) N; "
+                     r"gaps (.+) mm \(track.min_gap (\S+) mm\)\.", trim_line)
+    assert m, trim_line
+    speed, heave, pitch, f_prop, gaps, min_gap = m.groups()
+    assert float(speed) == v and float(min_gap) == pytest.approx(prm.track.min_gap * 1e3)
+    assert float(heave) == pytest.approx(ref.q[1] * 1e3, abs=1e-4)
+    assert float(pitch) == pytest.approx(ref.q[3] * 1e3, abs=1e-4)
+    assert float(f_prop) == pytest.approx(ref.f_prop, rel=1e-3)
+    np.testing.assert_allclose([float(g) for g in gaps.split(", ")], ref.arrays.gaps * 1e3,
+                               rtol=0, atol=6e-4)
+    k_tot = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop))
+    k_mag = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop, other=False))
+    mass = generalized_mass(prm)
+    paper = _paper_stiffness(prm, ref.arrays.lift)
+    header = next(i for i, ln in enumerate(lines) if ln.startswith("| axis |"))
+    assert [c.strip() for c in lines[header].strip("|").split("|")] == [
+        "axis", "k", "m", "f_n [Hz]", "LQR K (pos, rate)", "damping c", "paper k (printed)"]
+    rows = lines[header + 2: header + 7]
+    for i, (axis, row) in enumerate(zip(("lateral", "vertical", "roll", "pitch", "yaw"), rows,
+                                        strict=True)):
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[0] == axis
+        k_txt, unit = cells[1].split()
+        assert unit == ("N/m" if i < 2 else "N*m/rad")
+        assert float(k_txt) == pytest.approx(k_tot[i], rel=1e-4)
+        assert float(cells[2]) == pytest.approx(mass[i], rel=1e-3)
+        fn = np.sqrt(max(k_tot[i], 0.0) / mass[i]) / (2 * np.pi)
+        assert float(cells[3]) == pytest.approx(fn, abs=6e-4)
+        K_ref, _ = lqr_reference_mp(k_tot[i], mass[i])
+        K_txt = [float(x) for x in cells[4].split(",")]
+        np.testing.assert_allclose(K_txt, [float(x) for x in K_ref], rtol=1e-3)
+        c_ref = ise_optimal_damping(k_tot[i], mass[i]) if k_tot[i] > 0 else 0.0
+        assert float(cells[5]) == pytest.approx(c_ref, rel=1e-3)
+        pm = re.fullmatch(r"(\S+) \(([+-]\d+)%\)", cells[6])
+        assert pm, cells[6]
+        assert float(pm[1]) == pytest.approx(paper[i], rel=1e-4)
+        assert int(pm[2]) == round(100 * (paper[i] - k_mag[i]) / k_mag[i])
 
 
 def test_unchanged_rebuild_regenerates_nothing(good: Path, capsys) -> None:
@@ -223,6 +281,7 @@ def test_background_rendering_gives_the_files_of_an_in_process_run(good: Path, t
     assert built == alone
 
 
+@pytest.mark.slow
 def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carriage,
                                                           monkeypatch) -> None:
     """Every cache entry (generated C, compiled library, lambdified model) corrupted at once."""
@@ -253,6 +312,7 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
     assert tree(shutil_out) == ref
 
 
+@pytest.mark.slow
 def test_concurrent_builds_into_one_folder_end_consistent(tmp_path: Path, good: Path) -> None:
     out = tmp_path / "shared"
     env = {**os.environ}

@@ -7,7 +7,6 @@ casadi.Function evaluated in Python, a second generation run, and regexes writte
 from __future__ import annotations
 
 import re
-import shutil
 import subprocess
 import tempfile
 from pathlib import Path
@@ -92,10 +91,8 @@ def generated(functions: list[ca.Function]) -> dict[str, dict[str, str]]:
 
 def _compilers() -> list:
     return [
-        "gcc",
-        pytest.param("clang", marks=pytest.mark.skipif(
-            shutil.which("clang") is None,
-            reason="clang NOT INSTALLED: clang warnings untested (apt-get install -y clang)")),
+        pytest.param("gcc", marks=pytest.mark.needs_cc("gcc")),
+        pytest.param("clang", marks=pytest.mark.needs_cc("clang")),
     ]
 
 

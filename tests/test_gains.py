@@ -10,11 +10,11 @@ import control
 import numpy as np
 import pytest
 import scipy.linalg
+from independent_reference import generalized_mass, lqr_reference_mp, reference_trim, stiffness_fd
 
 from maglevgen.carriage import Carriage
 from maglevgen.cli import main
 from maglevgen.controllers import (
-    allocation_matrix,
     axis_plants,
     carriage_gains,
     coupled_comparison,
@@ -52,24 +52,22 @@ def test_gains_json_shape_and_lqr(gains_json: dict) -> None:
         assert a["relative_difference"]["paper_vs_closed_form"] > 0.1
 
 
-def test_gains_match_trim_stiffness(carriage: Carriage, trim, gains_json: dict) -> None:
-    K = carriage.total_stiffness(trim)
+def test_gains_json_plants_and_gains_equal_references(carriage: Carriage,
+                                                      gains_json: dict) -> None:
+    """`gains --json` (k, m, K, P) against the reference trim, central-difference stiffness,
+    parallel-axis inertia and hand-solved Riccati equation (tests/independent_reference.py)."""
+    prm = carriage.params
+    ref = reference_trim(prm, prm.operation.speed)
+    k_ref = np.diag(stiffness_fd(prm, ref.q, prm.operation.speed, ref.f_prop))
+    m_ref = generalized_mass(prm)
     for i, axis in enumerate(cv.AXES):
-        assert gains_json["axes"][axis]["stiffness"] == pytest.approx(K[i, i], rel=1e-12)
-
-
-def test_allocation_is_pseudo_inverse_of_geometry(carriage: Carriage) -> None:
-    """T = pinv(E), with E built here from the array positions by cross products."""
-    cols = []
-    for arr, (_, comps) in zip(carriage.params.arrays.values(), carriage.structure.arrays,
-                               strict=True):
-        for ax in comps:
-            d = np.eye(3)["xyz".index(ax)]
-            m = np.cross(arr.position, d)
-            cols.append([d[1], d[2], *m])
-    E = np.array(cols).T
-    assert E.shape == (5, 10)
-    np.testing.assert_allclose(allocation_matrix(carriage), np.linalg.pinv(E), atol=1e-12)
+        a = gains_json["axes"][axis]
+        assert a["stiffness"] == pytest.approx(k_ref[i], rel=1e-6)
+        assert a["inertia"] == pytest.approx(m_ref[i], rel=1e-12)
+        K_ref, P_ref = lqr_reference_mp(a["stiffness"], a["inertia"])
+        np.testing.assert_allclose(a["K_closed_form"], [float(x) for x in K_ref], rtol=1e-13)
+        np.testing.assert_allclose(a["P_closed_form"], np.array(P_ref.tolist(), dtype=float),
+                                   rtol=1e-13)
 
 
 def test_schedule_is_lqr_of_trim_at_each_speed(carriage: Carriage) -> None:

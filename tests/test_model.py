@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from independent_reference import reference_trim
 
 from maglevgen.carriage import Carriage
 from maglevgen.cli import main
@@ -56,8 +57,13 @@ def test_trim_is_equilibrium_at_nominal_gap(carriage: Carriage, trim) -> None:
     assert np.max(np.abs(xdot[1:6])) < 1e-9
     upper = [i for i, a in enumerate(carriage.params.arrays.values()) if a.normal[2] == 1.0]
     assert np.mean(trim.gaps[upper]) == pytest.approx(0.015, abs=1e-4)
-    # propulsion balances the drag of every array
-    assert trim.u[0] == pytest.approx(trim.drag.sum(), rel=1e-3)
+    # propulsion balances the drag: eq 3's drag at the trim gaps, summed here (the gaps are
+    # checked against an independent root solve in test_independent.py)
+    h, c = carriage.params.halbach, carriage.params.circuit
+    ratio = c.resistance / (2 * np.pi / h.wavelength * trim.speed * c.inductance)
+    assert trim.u[0] == pytest.approx(ratio * trim.lift.sum(), rel=1e-3)
+    assert trim.u[0] == pytest.approx(reference_trim(carriage.params, trim.speed).f_prop,
+                                      rel=1e-9)
 
 
 def test_trim_forces_balance_weight_independently(carriage: Carriage, trim) -> None:

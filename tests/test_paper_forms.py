@@ -7,6 +7,8 @@ are numpy rank and least squares, python-control's lqr and SymPy derivatives.
 
 from __future__ import annotations
 
+import re
+
 import control
 import numpy as np
 import pytest
@@ -60,8 +62,23 @@ def test_eq22_minimum_norm_solution_differs_from_printed():
     np.testing.assert_allclose(T @ _rhs22(u), F_ls, atol=1e-12)
 
 
+def _coefficient_rows(exprs, names) -> np.ndarray:
+    """d expr / d F of paper.py's printed expressions, as floats (the arms set to numbers)."""
+    arms = dict(zip(sp.symbols("L_x L_y L_xlat", positive=True), (LX, LY, LXLA), strict=True))
+    F = [paper.PAPER_FORCES[n] for n in names]
+    return np.array(sp.Matrix(exprs).jacobian(F).xreplace(arms), dtype=float)
+
+
+def test_printed_constraints_are_the_transcribed_rows():
+    """paper.py's constraint builder against the rows typed above from the paper's text."""
+    eq22, eq23 = paper.paper_allocation_constraints()
+    np.testing.assert_array_equal(_coefficient_rows(eq22, Z_ORDER), EQ22)
+    np.testing.assert_array_equal(_coefficient_rows(eq23, Y_ORDER), EQ23)
+
+
 def test_eq23_constraints_have_rank_one():
-    assert np.linalg.matrix_rank(EQ23) == 1
+    _, eq23 = paper.paper_allocation_constraints()
+    assert np.linalg.matrix_rank(_coefficient_rows(eq23, Y_ORDER)) == 1
 
     def misfit(u):
         F_ls = np.linalg.lstsq(EQ23, _rhs23(u), rcond=None)[0]
@@ -91,11 +108,16 @@ def test_printed_allocation_ignores_yaw_command():
 
 
 def test_eq10_eq11_are_multiples_of_eq9_eq8():
-    # Rows of eqs 8 and 11 over (F_z3, F_z1, F_z2, F_z6, F_z4, F_z5); eqs 9, 10 over Y_ORDER.
-    heave = np.array([1, -1, -1, 1, -1, -1])
-    assert np.linalg.matrix_rank(np.vstack([heave, 0.26 * heave])) == 1
-    lateral = np.array([1, -1, 1, -1])
-    assert np.linalg.matrix_rank(np.vstack([lateral, 0.119 * lateral])) == 1
+    """paper.py's printed sums: eq 11 = 0.26 x eq 8 and eq 10 = 0.119 x eq 9 (transcribed)."""
+    sums = paper.paper_force_sums()
+    heave = np.array([1, -1, -1, 1, -1, -1])  # eq 8 over Z_ORDER
+    lateral = np.array([1, -1, 1, -1])  # eq 9 over Y_ORDER
+    np.testing.assert_array_equal(_coefficient_rows([sums["F_z"]], Z_ORDER)[0], heave)
+    np.testing.assert_allclose(_coefficient_rows([sums["M_z"]], Z_ORDER)[0], 0.26 * heave)
+    np.testing.assert_array_equal(_coefficient_rows([sums["F_y"]], Y_ORDER)[0], lateral)
+    np.testing.assert_allclose(_coefficient_rows([sums["M_x"]], Y_ORDER)[0], 0.119 * lateral)
+    rows = _coefficient_rows([sums["F_z"], sums["M_z"]], Z_ORDER)
+    assert np.linalg.matrix_rank(rows) == 1
     # The geometry's E makes heave and pitch independent (rows u_z, u_theta of E on F_z).
     E = np.array(allocation.paper_effectiveness(), dtype=float)
     z_cols = [1, 3, 4, 6, 8, 9]
@@ -103,8 +125,15 @@ def test_eq10_eq11_are_multiples_of_eq9_eq8():
 
 
 def test_eq22_pitch_and_eq11_pitch_disagree():
-    eq11 = 0.26 * np.array([1, -1, -1, 1, -1, -1])  # eq 11 over Z_ORDER (F_z4, F_z5 symmetric)
-    assert np.linalg.matrix_rank(np.vstack([eq11, EQ22[1]])) == 2
+    """Eq 22's pitch constraint and eq 11's pitch moment, both from paper.py, are not parallel:
+    the finding names the coefficient rows, which must be those rows."""
+    eq22, _ = paper.paper_allocation_constraints()
+    rows = _coefficient_rows([eq22[1], paper.paper_force_sums()["M_z"]], Z_ORDER)
+    assert np.linalg.matrix_rank(rows) == 2
+    (found,) = [s for s in paper.paper_discrepancies_allocation() if s.startswith("eq 22's")]
+    printed = [[float(sp.Rational(x)) for x in part.split(", ")]
+               for part in re.findall(r"\[([^\]]*)\]", found)]
+    np.testing.assert_allclose(printed, rows)
 
 
 def test_discrepancy_report_names_each_inconsistency():
@@ -118,12 +147,18 @@ def test_discrepancy_report_names_each_inconsistency():
 
 
 def test_eq21_units():
-    # u_phi = L_y * sum M_x: length * force * length; eq 20's I_xx phi'': mass length^2 / time^2.
+    """The module's finding names the unit ratio of eq 21 to eq 20; the dimensional analysis
+    here: u_phi = L_y * sum M_x is length * force * length, eq 20's I_xx phi'' is
+    mass length^2 / time^2, so the ratio is a length (meter)."""
     eq21 = dimsys_SI.get_dimensional_dependencies(
         units.length * units.force * units.length)
     eq20 = dimsys_SI.get_dimensional_dependencies(
         units.mass * units.length**2 / units.time**2)
-    assert eq21 != eq20
+    ratio = {d: eq21.get(d, 0) - eq20.get(d, 0) for d in set(eq21) | set(eq20)}
+    assert {d: e for d, e in ratio.items() if e} == \
+        dimsys_SI.get_dimensional_dependencies(units.length)
+    (found,) = [s for s in paper.paper_discrepancies_allocation() if s.startswith("eq 21")]
+    assert re.search(r"units of (\S+) times", found)[1] == "meter"
 
 
 def test_printed_K_follows_from_printed_P_but_is_not_the_lqr_gain():
@@ -160,7 +195,18 @@ def test_printed_lateral_and_vertical_stiffness_follow_from_the_exponential_law(
 
 
 def test_riccati_discrepancy_report():
+    """The residual the report prints equals eq 30 at eq 31's P, both typed here (numpy)."""
     found = paper.paper_discrepancies_riccati()
-    assert any("does not satisfy eq 30" in s for s in found)
+    (first,) = [s for s in found if s.startswith("eq 31 does not satisfy eq 30")]
+    k, m = 2000.0, 9.3
+    s_, w = np.sqrt(k**2 + 1), np.sqrt(1 + 2 * m * (np.sqrt(k**2 + 1) - 1))
+    P = np.array([[w * (s_ - 1) + k, m * (s_ - 1)], [m * (s_ - 1), m * w]])  # eq 31 as printed
+    A, B = np.array([[0.0, 1.0], [-k / m, 0.0]]), np.array([[0.0], [1.0 / m]])
+    res = A.T @ P + P @ A - P @ B @ B.T @ P + np.eye(2)
+    printed = np.array([float(x) for x in re.findall(r"-?\d+\.?\d*(?:e-?\d+)?",
+                                                     first.split(" is ")[1])]).reshape(2, 2)
+    np.testing.assert_allclose(printed, res, rtol=1e-9, atol=1e-6)
+    # eq 32's K1 = sqrt(k^2+1) - 1 meets the LQR K1 = sqrt(k^2+1) - k where 1 = k only
+    (last,) = [s for s in found if s.startswith("eq 32's K1")]
+    assert last.endswith("only at k = [1]")
     assert any("no degenerate case" in s for s in found)
-    assert any("only at k = [1]" in s for s in found)

@@ -222,6 +222,7 @@ def test_parameter_change_needs_no_regeneration_or_recompile(carriage, sim_lib,
     assert heavy_op.x_trim[2] < carriage.trim().x[2]
 
 
+@pytest.mark.slow
 def test_corrupted_cache_entries_are_rebuilt(carriage, tmp_path) -> None:
     cache = tmp_path / "cache"
     folder = runtime_sources(carriage.structure, cache_dir=cache)

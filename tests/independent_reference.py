@@ -1,0 +1,169 @@
+"""Reference computations written for the tests, from the paper's equations and the geometry.
+
+Nothing here imports the derivation (maglevgen.derive) or the code generator: the force law is
+eq 3 as printed (with 1/(1 + (R/(omega L))^2) and the drag ratio R/(omega L) of ref [5]), the
+rigid body is the static balance of eqs 1-2 (no motion but the steady speed: force and moment
+about O both zero), the stiffness is a central difference, and the LQR gains come from the
+Riccati equation of eq 30 solved by hand in mpmath at 60 digits. The tests compare every derived
+number the toolchain prints or generates with these.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mpmath
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from maglevgen.params import Parameters
+
+
+def rotation(phi: float, theta: float, psi: float) -> np.ndarray:
+    """Z-Y-X Euler rotation, body to inertial."""
+    c, s = np.cos, np.sin
+    Rz = np.array([[c(psi), -s(psi), 0], [s(psi), c(psi), 0], [0, 0, 1]])
+    Ry = np.array([[c(theta), 0, s(theta)], [0, 1, 0], [-s(theta), 0, c(theta)]])
+    Rx = np.array([[1, 0, 0], [0, c(phi), -s(phi)], [0, s(phi), c(phi)]])
+    return Rz @ Ry @ Rx
+
+
+@dataclass(frozen=True)
+class ArrayState:
+    """Gap, lift and drag of every array at a pose, from eq 3 as printed."""
+
+    gaps: np.ndarray
+    lift: np.ndarray
+    drag: np.ndarray
+
+
+def array_state(prm: Parameters, q: np.ndarray, speed: float) -> ArrayState:
+    """Each array's gap (plane of the track through its design-pose face) and eq 3 forces."""
+    h, c = prm.halbach, prm.circuit
+    k = 2 * np.pi / h.wavelength
+    M = h.magnets_per_wavelength
+    B0 = h.remanence * (1 - np.exp(-k * h.thickness)) * np.sin(np.pi / M) / (np.pi / M)  # eq 4
+    omega = k * speed
+    R = rotation(*q[2:5])
+    X = np.array([0.0, q[0], q[1]])
+    gaps, lift, drag = [], [], []
+    for arr in prm.arrays.values():
+        a, n = np.array(arr.position), np.array(arr.normal)
+        gap = arr.nominal_gap + n @ (X + (R - np.eye(3)) @ a)
+        F = (arr.circuits * B0**2 * h.width**2 / (2 * k * c.inductance)
+             / (1 + (c.resistance / (omega * c.inductance)) ** 2) * np.exp(-2 * k * gap))
+        gaps.append(gap)
+        lift.append(F)
+        drag.append(F * c.resistance / (omega * c.inductance))  # opposes the motion
+    return ArrayState(np.array(gaps), np.array(lift), np.array(drag))
+
+
+def external_wrench(prm: Parameters, q: np.ndarray, speed: float, f_prop: float,
+                    magnetic: bool = True, other: bool = True) -> np.ndarray:
+    """(F_x, F_y, F_z, M_x, M_y, M_z), inertial axes, moments about O, of the external forces.
+
+    Lift along each array's normal, drag along -x at its face centre; gravity -m g z at the
+    CG; propulsion +x at the propulsion point. ``magnetic`` / ``other`` select the parts.
+    """
+    R = rotation(*q[2:5])
+    total = np.zeros(6)
+    if magnetic:
+        st = array_state(prm, q, speed)
+        for arr, fl, fd in zip(prm.arrays.values(), st.lift, st.drag, strict=True):
+            f = fl * np.array(arr.normal) - fd * np.array([1.0, 0.0, 0.0])
+            total += np.concatenate([f, np.cross(R @ np.array(arr.position), f)])
+    if other:
+        v = prm.vehicle
+        f_g = np.array([0.0, 0.0, -v.mass * v.gravity])
+        f_p = np.array([f_prop, 0.0, 0.0])
+        total += np.concatenate([f_g, np.cross(R @ np.array(v.cg_offset), f_g)])
+        total += np.concatenate([f_p, np.cross(R @ np.array(prm.operation.propulsion_point),
+                                               f_p)])
+    return total
+
+
+@dataclass(frozen=True)
+class ReferenceTrim:
+    """The equilibrium found here: pose q = (y, z, phi, theta, psi), propulsion, array forces."""
+
+    q: np.ndarray
+    f_prop: float
+    arrays: ArrayState
+
+
+def reference_trim(prm: Parameters, speed: float) -> ReferenceTrim:
+    """Root of the six static balances (eqs 1-2 at rest in the moving frame) with eq 3.
+
+    Starts from the design pose with the propulsion equal to the drag there; MINPACK's
+    hybrid Powell method, the scaled residual (N and N m) below 1e-9 of the weight.
+    """
+    weight = prm.vehicle.mass * prm.vehicle.gravity
+
+    def residual(unknowns: np.ndarray) -> np.ndarray:
+        return external_wrench(prm, unknowns[:5], speed, unknowns[5]) / weight
+
+    start = np.zeros(6)
+    start[5] = array_state(prm, np.zeros(5), speed).drag.sum()
+    sol = scipy.optimize.root(residual, start, method="hybr", tol=1e-15)
+    assert np.max(np.abs(residual(sol.x))) < 1e-11, sol.message
+    return ReferenceTrim(sol.x[:5], float(sol.x[5]), array_state(prm, sol.x[:5], speed))
+
+
+def stiffness_fd(prm: Parameters, q0: np.ndarray, speed: float, f_prop: float,
+                 magnetic: bool = True, other: bool = True, h: float = 1e-6) -> np.ndarray:
+    """K = -d(F_y, F_z, M_x, M_y, M_z)/dq by central differences (speed and F_prop held)."""
+    K = np.zeros((5, 5))
+    for j in range(5):
+        e = np.zeros(5)
+        e[j] = h
+        plus = external_wrench(prm, q0 + e, speed, f_prop, magnetic, other)
+        minus = external_wrench(prm, q0 - e, speed, f_prop, magnetic, other)
+        K[:, j] = -(plus - minus)[1:] / (2 * h)
+    return K
+
+
+def generalized_mass(prm: Parameters) -> np.ndarray:
+    """(m, m, I_O,xx, I_O,yy, I_O,zz): parallel-axis theorem about O from the CG inertia."""
+    v, i = prm.vehicle, prm.vehicle.inertia_cg
+    I_G = np.array([[i.xx, i.xy, i.xz], [i.xy, i.yy, i.yz], [i.xz, i.yz, i.zz]])
+    r = np.array(v.cg_offset)
+    I_O = I_G + v.mass * (r @ r * np.eye(3) - np.outer(r, r))
+    return np.array([v.mass, v.mass, *np.diag(I_O)])
+
+
+def lqr_reference_mp(k: float, m: float, q1: float = 1.0, q2: float = 1.0, r: float = 1.0,
+                     dps: int = 60) -> tuple[list[mpmath.mpf], mpmath.matrix]:
+    """(K, P) of the axis LQR (eqs 27-30) at ``dps`` digits, solved here by hand.
+
+    With A = [[0, 1], [-k/m, 0]], B = [0, 1/m], K = (p12, p22)/(m r): the (1,1) entry of eq 30
+    is K1^2 + 2 k K1 - q1/r = 0, whose root with k + K1 > 0 stabilizes; the (2,2) entry gives
+    K2^2 = 2 m K1 + q2/r; the (1,2) entry gives p11 = p22 (k + K1)/m. The ARE residual of the
+    result is asserted to vanish at the working precision.
+    """
+    with mpmath.workdps(dps):
+        k, m, q1, q2, r = (mpmath.mpf(v) for v in (k, m, q1, q2, r))
+        K1 = mpmath.sqrt(k**2 + q1 / r) - k
+        K2 = mpmath.sqrt(2 * m * K1 + q2 / r)
+        p12, p22 = m * r * K1, m * r * K2
+        P = mpmath.matrix([[p22 * (k + K1) / m, p12], [p12, p22]])
+        A = mpmath.matrix([[0, 1], [-k / m, 0]])
+        B = mpmath.matrix([[0], [1 / m]])
+        res = A.T * P + P * A - P * B * B.T * P / r + mpmath.diag([q1, q2])
+        scale = mpmath.mnorm(P, "inf") * (1 + abs(k) / m) + q1 + q2
+        assert mpmath.mnorm(res, "inf") <= scale * mpmath.mpf(10) ** (10 - dps)
+        assert k + K1 > 0 and K2 > 0  # Hurwitz: s^2 + (K2/m) s + (k + K1)/m
+        return [K1, K2], P
+
+
+def ise_optimal_damping(k: float, m: float) -> float:
+    """c minimizing integral x^2 dt of m x'' + c x' + k x = 0 from (1, 0) (eqs 20-21), found
+    numerically: the cost from a Lyapunov solve, minimized by bounded Brent."""
+    def cost(c: float) -> float:
+        A = np.array([[0.0, 1.0], [-k / m, -c / m]])
+        return float(scipy.linalg.solve_continuous_lyapunov(A.T, -np.diag([1.0, 0.0]))[0, 0])
+
+    c0 = np.sqrt(k * m)
+    res = scipy.optimize.minimize_scalar(cost, bounds=(1e-3 * c0, 1e3 * c0), method="bounded",
+                                         options={"xatol": 1e-10 * c0})
+    return float(res.x)

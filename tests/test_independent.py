@@ -1,0 +1,224 @@
+"""Every derived number against a reference written in the tests (independent_reference.py).
+
+The trim against a root solve of eq 3 and the static balance; the full axis stiffness (array
+forces, gravity and propulsion moments) against central differences; the axis plants, gains
+and damping against the hand-solved Riccati equation in mpmath and a numerical ISE minimum;
+the closed-form gains by evaluating the very SymPy expression the C is generated from, in
+float64 and float32, on both branches of its stable form.
+"""
+
+from __future__ import annotations
+
+import mpmath
+import numpy as np
+import pytest
+import sympy as sp
+from independent_reference import (
+    external_wrench,
+    generalized_mass,
+    ise_optimal_damping,
+    lqr_reference_mp,
+    reference_trim,
+    stiffness_fd,
+)
+
+from maglevgen.carriage import Carriage
+from maglevgen.controllers import axis_plants, carriage_gains
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.riccati import lqr_gain_mp, riccati_stable_form
+from maglevgen.params import load_params
+
+SPEEDS = (20.0, 45.0)
+
+
+@pytest.fixture(scope="module")
+def heavy() -> Carriage:
+    """A second carriage: heavier, CG further off O (a larger gravity stiffness)."""
+    return Carriage(load_params(overrides=["vehicle.mass=10.5",
+                                           "vehicle.cg_offset=[0.02, 0.0, 0.03]"]))
+
+
+def _q(trim) -> np.ndarray:
+    return np.array([trim.x[cv.STATE_INDEX[s]] for s in cv.Q_STATES])
+
+
+def _cases(carriage: Carriage, heavy: Carriage):
+    return [(c, v) for c in (carriage, heavy) for v in SPEEDS]
+
+
+def _assert_stiffness(K: np.ndarray, K_ref: np.ndarray, rel: float = 1e-6) -> None:
+    """Entrywise, relative to the geometric mean of the diagonal scales of row and column."""
+    scale = np.abs(np.diag(K_ref))
+    for i in range(5):
+        for j in range(5):
+            tol = rel * np.sqrt(scale[i] * scale[j]) + 1e-9
+            assert abs(K[i, j] - K_ref[i, j]) < tol, (i, j, K[i, j], K_ref[i, j])
+
+
+def test_trim_equals_root_of_eq3_and_static_balance(carriage: Carriage, heavy: Carriage) -> None:
+    """Pose, propulsion and every array's gap, lift and drag against the root found here."""
+    for c, v in _cases(carriage, heavy):
+        trim, ref = c.trim(v), reference_trim(c.params, v)
+        np.testing.assert_allclose(_q(trim), ref.q, rtol=0, atol=1e-10)
+        assert trim.u[0] == pytest.approx(ref.f_prop, rel=1e-9)
+        assert ref.f_prop > 0  # the drag opposes the motion: propulsion pushes forward
+        np.testing.assert_allclose(trim.gaps, ref.arrays.gaps, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(trim.lift, ref.arrays.lift, rtol=1e-9)
+        np.testing.assert_allclose(trim.drag, ref.arrays.drag, rtol=1e-9)
+        # the trim state moves at the speed along the track (inertial x)
+        assert trim.x[0] == 0 and np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
+
+
+def test_full_axis_stiffness_equals_central_difference(carriage: Carriage,
+                                                       heavy: Carriage) -> None:
+    """K_st0 + gravity and propulsion terms = -dW/dq of every external force (5x5)."""
+    for c, v in _cases(carriage, heavy):
+        trim = c.trim(v)
+        q0, fp = _q(trim), float(trim.u[0])
+        _assert_stiffness(c.total_stiffness(trim), stiffness_fd(c.params, q0, v, fp))
+        _assert_stiffness(c.magnetic_stiffness(trim),
+                          stiffness_fd(c.params, q0, v, fp, other=False))
+
+
+def test_gravity_and_propulsion_stiffness_equals_central_difference(
+        carriage: Carriage, heavy: Carriage) -> None:
+    """The K_other part alone: its own scale, so a sign error cannot hide in the magnetic one."""
+    from maglevgen.derive.linearize import other_stiffness
+
+    for c, v in _cases(carriage, heavy):
+        trim = c.trim(v)
+        K = other_stiffness(c.functions, trim, c.p)
+        K_fd = stiffness_fd(c.params, _q(trim), v, float(trim.u[0]), magnetic=False)
+        weight_arm = c.params.vehicle.mass * c.params.vehicle.gravity * 0.01
+        assert np.max(np.abs(K_fd)) > weight_arm  # not a vacuous comparison of zeros
+        np.testing.assert_allclose(K, K_fd, rtol=0, atol=1e-7 * np.max(np.abs(K_fd)))
+
+
+def test_axis_plants_and_gains_equal_references(carriage: Carriage, heavy: Carriage) -> None:
+    """(k, m) of each axis, its LQR gain (mpmath, by hand) and damping (numerical ISE minimum)."""
+    for c in (carriage, heavy):
+        trim = c.trim()
+        K_fd = stiffness_fd(c.params, _q(trim), trim.speed, float(trim.u[0]))
+        M = generalized_mass(c.params)
+        plants = axis_plants(c, trim)
+        gains = carriage_gains(c, trim)
+        w = c.params.control
+        for i, ((axis, k, m), g) in enumerate(zip(plants, gains, strict=True)):
+            assert axis == g.axis == cv.AXES[i]
+            assert k == pytest.approx(K_fd[i, i], rel=1e-6)
+            assert g.stiffness == pytest.approx(K_fd[i, i], rel=1e-6)
+            assert m == pytest.approx(M[i], rel=1e-13)
+            assert g.inertia == pytest.approx(M[i], rel=1e-13)
+            K_ref, P_ref = lqr_reference_mp(k, m, *w.state_weights, w.input_weight)
+            np.testing.assert_allclose(np.ravel(g.K_closed_form), [float(x) for x in K_ref],
+                                       rtol=1e-13)
+            np.testing.assert_allclose(g.P_closed_form, np.array(P_ref.tolist(), dtype=float),
+                                       rtol=1e-13)
+            if k > 0:
+                assert g.damping_gain == pytest.approx(ise_optimal_damping(k, m), rel=1e-5)
+            else:
+                assert g.damping_gain is None
+
+
+@pytest.mark.needs_cc
+def test_generated_c_operating_point_equals_references(carriage: Carriage, op,
+                                                       sim_lib) -> None:
+    """The compiled C's trim, axis plants, gains and damping against the references here."""
+    v = carriage.params.operation.speed
+    ref = reference_trim(carriage.params, v)
+    np.testing.assert_allclose(op.x_trim[[cv.STATE_INDEX[s] for s in cv.Q_STATES]], ref.q,
+                               rtol=0, atol=1e-10)
+    assert op.f_prop == pytest.approx(ref.f_prop, rel=1e-9)
+    np.testing.assert_allclose(np.ravel(op.gaps), ref.arrays.gaps, rtol=0, atol=1e-10)
+    k, m = (np.ravel(a) for a in sim_lib.function("maglev_axis_plants")(v, carriage.p))
+    K_fd = np.diag(stiffness_fd(carriage.params, ref.q, v, ref.f_prop))
+    M = generalized_mass(carriage.params)
+    np.testing.assert_allclose(k, K_fd, rtol=1e-6)
+    np.testing.assert_allclose(m, M, rtol=1e-13)
+    w = carriage.params.control
+    for i in range(5):
+        K_ref, _ = lqr_reference_mp(k[i], m[i], *w.state_weights, w.input_weight)
+        np.testing.assert_allclose(op.K[i], [float(x) for x in K_ref], rtol=1e-12)
+        if k[i] > 0:
+            assert op.c_damping[i] == pytest.approx(ise_optimal_damping(k[i], m[i]), rel=1e-5)
+        else:
+            assert op.c_damping[i] == 0
+
+
+# --- the closed-form gains: the very expressions the C is generated from --------------------
+
+# (k, m, q1, q2, r) on both sides of k = 0, with |k| up to 1e7 so that the wrong branch of the
+# stable form cancels catastrophically (sigma - k for k >> 0, sigma + k for k << 0).
+GAIN_POINTS = [(s * k, m, q1, 1.0, r) for s in (1, -1) for k in (1e-3, 0.7, 40.0, 3e3, 1e7)
+               for m in (1e-3, 9.3, 1e4) for q1, r in ((1.0, 1.0), (4.0, 0.01))]
+
+
+@pytest.fixture(scope="module")
+def stable_gain_functions():
+    """K = (K1, K2) of riccati_stable_form (a Piecewise on k >= 0), lambdified as generated."""
+    k, m = sp.Symbol("k", real=True), sp.Symbol("m", positive=True)
+    w = sp.symbols("q1 q2 r", positive=True)
+    stable = riccati_stable_form(k, m, *w)  # codegen/functions.py converts exactly this K
+    return (sp.lambdify((k, m, *w), list(stable.K), "numpy"),
+            sp.lambdify((k, m, *w), stable.P.tolist(), "mpmath"))
+
+
+@pytest.mark.parametrize("dtype, rtol", [(np.float64, 8e-15), (np.float32, 4e-6)])
+def test_stable_form_gains_equal_mpmath_reference(stable_gain_functions, dtype, rtol) -> None:
+    f_K, _ = stable_gain_functions
+    worst = 0.0
+    for pt in GAIN_POINTS:
+        with np.errstate(divide="ignore"):  # numpy.select evaluates the unused branch too
+            K = np.array(f_K(*(dtype(x) for x in pt)))
+        assert K.dtype == dtype, pt  # evaluated in that precision, no float64 constant
+        K_ref, _ = lqr_reference_mp(*pt)
+        with mpmath.workdps(30):
+            err = max(float(abs(mpmath.mpf(float(a)) - b) / b)
+                      for a, b in zip(K, K_ref, strict=True))
+        assert err < rtol, (pt, K, [float(x) for x in K_ref])
+        worst = max(worst, err)
+    assert worst > 0 or dtype is np.float64  # float32 rounding shows: the check is live
+
+
+def test_stable_form_riccati_solution_equals_mpmath_reference(stable_gain_functions) -> None:
+    _, f_P = stable_gain_functions
+    with mpmath.workdps(60):
+        for pt in GAIN_POINTS:
+            P = mpmath.matrix(f_P(*(mpmath.mpf(x) for x in pt)))
+            _, P_ref = lqr_reference_mp(*pt)
+            assert mpmath.mnorm(P - P_ref, "inf") <= mpmath.mpf(10) ** -40 * \
+                mpmath.mnorm(P_ref, "inf"), pt
+
+
+def test_closed_form_mpmath_gain_equals_hand_solution() -> None:
+    """lqr_gain_mp (the reference the accuracy sweep uses) against the hand-solved ARE."""
+    for pt in GAIN_POINTS[::3]:
+        K = lqr_gain_mp(*pt, dps=40)
+        K_ref, _ = lqr_reference_mp(*pt)
+        for a, b in zip(K, K_ref, strict=True):
+            assert abs(a - b) <= mpmath.mpf(10) ** -38 * abs(b), pt
+
+
+def test_reference_wrench_balances_at_the_reference_trim(carriage: Carriage) -> None:
+    """The reference's own root really is an equilibrium, and not the trivial one."""
+    prm = carriage.params
+    ref = reference_trim(prm, 20.0)
+    w = external_wrench(prm, ref.q, 20.0, ref.f_prop)
+    assert np.max(np.abs(w)) < 1e-9 * prm.vehicle.mass * prm.vehicle.gravity
+    assert ref.arrays.lift.sum() > prm.vehicle.mass * prm.vehicle.gravity  # lower arrays pull
+
+
+def test_control_effectiveness_equals_cross_products(carriage: Carriage) -> None:
+    """E (eqs 8-12 / 22-23): each column the wrench about O of a unit body-axis force at an
+    array's face centre, built here by numpy cross products."""
+    from maglevgen.controllers import allocation_matrix
+
+    cols = []
+    for arr, (_, comps) in zip(carriage.params.arrays.values(), carriage.structure.arrays,
+                               strict=True):
+        for ax in comps:
+            d = np.eye(3)["xyz".index(ax)]
+            cols.append([d[1], d[2], *np.cross(arr.position, d)])
+    E = np.array(cols).T
+    assert E.shape == (5, 10) and np.linalg.matrix_rank(E) == 5
+    np.testing.assert_allclose(allocation_matrix(carriage), np.linalg.pinv(E), atol=1e-12)
