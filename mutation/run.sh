@@ -18,6 +18,6 @@ export PYTHONPATH=$WORK PATH=$BIN:$PATH
 "$BIN/cosmic-ray" init mutation/cosmic-ray.toml session.sqlite
 "$PY" mutation/filter.py session.sqlite
 "$BIN/cosmic-ray" exec mutation/cosmic-ray.toml session.sqlite
-"$BIN/cr-report" --show-output session.sqlite > "$ROOT/mutation/report.txt" || true
+"$BIN/cr-report" --show-diff --surviving-only session.sqlite > "$ROOT/mutation/report.txt" || true
 "$BIN/cr-report" session.sqlite | tail -3
 cp session.sqlite "$ROOT/mutation/session.sqlite"
