@@ -39,6 +39,27 @@ static int all_finite(const casadi_real* v, int n) {
     return 1;
 }
 
+/* the sample's status from its gaps: not finite, contact (a gap below gap_min), or OK */
+static int gap_status(const casadi_real* gaps, casadi_real gap_min) {
+    int i;
+    if (!all_finite(gaps, NG)) return MAGLEV_SIM_NONFINITE;
+    for (i = 0; i < NG; ++i) {
+        if (gaps[i] < gap_min) return MAGLEV_SIM_CONTACT;
+    }
+    return MAGLEV_SIM_OK;
+}
+
+/* x_next = x + dt/6 (k1 + 2 k2 + 2 k3 + k4), the last part of every RK4 step here */
+static void rk4_combine(const casadi_real* x, const casadi_real* k1, const casadi_real* k2,
+                        const casadi_real* k3, const casadi_real* k4, casadi_real sixth,
+                        casadi_real* x_next) {
+    int i;
+    for (i = 0; i < NX; ++i) {
+        x_next[i] = x[i] + sixth * (k1[i] + (casadi_real)2 * k2[i] + (casadi_real)2 * k3[i]
+                                    + k4[i]);
+    }
+}
+
 /* xdot (and, when u and gaps are not NULL, the inputs and the gaps) of the closed loop at x,
    from the constants c that maglev_closed_loop_prepare computed once */
 static int closed_loop(work* ws, const casadi_real* x, const casadi_real* c, casadi_real* xdot,
@@ -92,16 +113,7 @@ long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_ste
             *status = MAGLEV_SIM_ERROR;
             return k;
         }
-        if (!all_finite(gaps, NG)) {
-            *status = MAGLEV_SIM_NONFINITE;
-            return k;
-        }
-        for (i = 0; i < NG; ++i) {
-            if (gaps[i] < gap_min) {
-                *status = MAGLEV_SIM_CONTACT;
-                return k;
-            }
-        }
+        if ((*status = gap_status(gaps, gap_min)) != MAGLEV_SIM_OK) return k;
         if (k == n_steps) break;
         {
             casadi_real* x_next = x_traj + (k + 1) * NX;
@@ -116,10 +128,7 @@ long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_ste
                 *status = MAGLEV_SIM_ERROR;
                 return k;
             }
-            for (i = 0; i < NX; ++i) {
-                x_next[i] = x[i] + sixth * (k1[i] + (casadi_real)2 * k2[i]
-                                            + (casadi_real)2 * k3[i] + k4[i]);
-            }
+            rk4_combine(x, k1, k2, k3, k4, sixth, x_next);
         }
     }
     *status = MAGLEV_SIM_OK;
@@ -226,16 +235,7 @@ long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps
             *status = MAGLEV_SIM_ERROR;
             return k;
         }
-        if (!all_finite(gaps, NG)) {
-            *status = MAGLEV_SIM_NONFINITE;
-            return k;
-        }
-        for (i = 0; i < NG; ++i) {
-            if (gaps[i] < gap_min) {
-                *status = MAGLEV_SIM_CONTACT;
-                return k;
-            }
-        }
+        if ((*status = gap_status(gaps, gap_min)) != MAGLEV_SIM_OK) return k;
         if (k == n_steps || SPEED(x) >= v_end) break;
         {
             casadi_real* x_next = x_traj + (k + 1) * NX;
@@ -250,10 +250,7 @@ long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps
                 *status = MAGLEV_SIM_ERROR;
                 return k;
             }
-            for (i = 0; i < NX; ++i) {
-                x_next[i] = x[i] + sixth * (k1[i] + (casadi_real)2 * k2[i]
-                                            + (casadi_real)2 * k3[i] + k4[i]);
-            }
+            rk4_combine(x, k1, k2, k3, k4, sixth, x_next);
         }
     }
     *status = MAGLEV_SIM_OK;

@@ -173,7 +173,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
         files.update(stability_map)
     files.update({f"report/{n}": b for n, b in report.items()})
-    files["c/maglev_schedule.c"] = _schedule_c(carriage, lib)
+    files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
     summary = summary_text(carriage, run, lib, env, report_outputs(report, opts))
@@ -190,17 +190,17 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     return BuildResult(out_dir, True, summary, tuple(sorted(files)), verification)
 
 
-def _schedule_c(carriage, lib) -> str:
-    """c/maglev_schedule.c: the embedded controller's gain schedule over the envelope."""
+def _schedule_c(carriage, lib, env) -> str:
+    """c/maglev_schedule.c: the embedded controller's gain schedule over ``env``'s range."""
     import numpy as np
 
-    from .envelope import envelope_points, resolve_range
+    from .envelope import envelope_points
     from .schedule import Schedule, schedule_c_source
 
-    env = carriage.params.envelope
-    v_lo, v_hi = resolve_range(carriage, lib)
-    points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi, env.schedule_nodes))
-    return schedule_c_source(Schedule.from_points(points, env.embedded_controller))
+    nodes = np.linspace(env.v_min, env.v_max, carriage.params.envelope.schedule_nodes)
+    points = envelope_points(carriage, lib, nodes)
+    return schedule_c_source(Schedule.from_points(points,
+                                                  carriage.params.envelope.embedded_controller))
 
 
 def _stability_map(env) -> dict[str, bytes]:

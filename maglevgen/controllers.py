@@ -25,6 +25,13 @@ from .derive.memo import memoized
 from .derive.paper import paper_riccati
 from .derive.riccati import lqr_gain_mp, lqr_gain_numeric, riccati_solution_mp
 from .derive.trim import Trim
+from .operating import (
+    REDUCED_STATES,
+    Weights,
+    coupled_lqr,
+    coupled_weights,
+    numerical_lqr,
+)
 
 
 @dataclass(frozen=True)
@@ -82,17 +89,6 @@ def axis_plants(carriage: Carriage, trim: Trim) -> list[tuple[str, float, float]
     return [(axis, float(K[i, i]), float(M[i])) for i, axis in enumerate(cv.AXES)]
 
 
-def numerical_lqr(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """The numerical LQR gain K = R^-1 B^T P, P from scipy's Schur-method CARE solver.
-
-    The same solver python-control's ``lqr`` calls without slycot; used here directly so that
-    a build does not import python-control (and scipy.signal, ~1 s). The tests check the
-    closed forms against python-control itself.
-    """
-    P = scipy.linalg.solve_continuous_are(A, B, Q, R)
-    return np.linalg.solve(R, B.T @ P)
-
-
 def axis_gains(axis: str, k: float, m: float, q1: float, q2: float, r: float) -> AxisGains:
     A = np.array([[0.0, 1.0], [-k / m, 0.0]])
     B = np.array([[0.0], [1.0 / m]])
@@ -148,10 +144,8 @@ def _minimum_norm(E: tuple[tuple[float, ...], ...]) -> np.ndarray:
 
 
 # -------------------------------------------------------------------------- coupled model
-
-# The reduced state of the coupled model: lateral/vertical/attitude positions and the body
-# velocities that carry their rates (the along-track x and u are not controlled by the arrays).
-REDUCED_STATES: tuple[str, ...] = ("y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r")
+# The reduced state and the coupled LQR's weights are those of maglevgen.operating (the
+# envelope's), here on the lambdified model.
 
 
 @dataclass(frozen=True)
@@ -195,11 +189,9 @@ def coupled_comparison(carriage: Carriage, trim: Trim,
                        gains: list[AxisGains]) -> CoupledComparison:
     """Numerical LQR of the coupled model vs the per-axis closed forms applied to it."""
     Ar, Bg, C_rate = reduced_model(carriage, trim)
-    (q1, q2), r = carriage.params.control.state_weights, carriage.params.control.input_weight
-    C_pos = np.hstack([np.eye(5), np.zeros((5, 5))])
-    Q = q1 * C_pos.T @ C_pos + q2 * C_rate.T @ C_rate
-    R = r * np.eye(5)
-    K_c = numerical_lqr(Ar, Bg, Q, R)
+    w = Weights.of(carriage.params)
+    Q, R = coupled_weights(C_rate, w)
+    K_c = coupled_lqr(Ar, Bg, C_rate, w)
     K_a = _feedback(gains, C_rate)
     K_d = _feedback(gains, C_rate, damping=True)
 

@@ -29,6 +29,7 @@ allocation T (eqs 22-23).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -74,7 +75,17 @@ class OperatingPoint:
     allocation: np.ndarray  # T (n_array_forces x 5)
     A: np.ndarray  # (12, 12) df/dx at trim
     B: np.ndarray  # (12, n_u) df/du at trim
-    K_coupled: np.ndarray  # (5, 10) the coupled LQR on REDUCED_STATES
+    weights: Weights
+
+    @cached_property
+    def K_coupled(self) -> np.ndarray:
+        """(5, 10) the coupled LQR on REDUCED_STATES; NaN where the Riccati equation has no
+        stabilizing solution. Solved when first asked for (the other controllers never do)."""
+        A_r, B_g = self.reduced
+        try:
+            return coupled_lqr(A_r, B_g, self.rate_map, self.weights)
+        except (np.linalg.LinAlgError, ValueError):
+            return np.full((N_AXES, len(REDUCED_INDEX)), np.nan)
 
     @property
     def a_trim(self) -> np.ndarray:
@@ -149,15 +160,30 @@ def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
     return x_trim, f_prop, gaps
 
 
-def coupled_lqr(A_r: np.ndarray, B_g: np.ndarray, C_rate: np.ndarray,
-                w: Weights) -> np.ndarray:
-    """K (5 x 10) of the coupled LQR: Q = q1 S^T S + q2 C_rate^T C_rate, R = r I (scipy CARE)."""
+def coupled_weights(C_rate: np.ndarray, w: Weights) -> tuple[np.ndarray, np.ndarray]:
+    """(Q, R) of the coupled LQR on the reduced state: the per-axis design's weights, q1 on
+    every axis position, q2 on every axis rate (C_rate x_r), r on every generalized force."""
+    S = np.eye(N_AXES, C_rate.shape[1])
+    return w.q1 * S.T @ S + w.q2 * C_rate.T @ C_rate, w.r * np.eye(N_AXES)
+
+
+def numerical_lqr(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The numerical LQR gain K = R^-1 B^T P, P from scipy's Schur-method CARE solver.
+
+    The same solver python-control's ``lqr`` calls without slycot; used here directly so that
+    a build does not import python-control (and scipy.signal, ~1 s). The tests check the
+    closed forms and the coupled LQR against python-control itself.
+    """
     import scipy.linalg  # local: importing the simulation path stays SciPy-free
 
-    S = np.eye(N_AXES, A_r.shape[0])
-    Q = w.q1 * S.T @ S + w.q2 * C_rate.T @ C_rate
-    P = scipy.linalg.solve_continuous_are(A_r, B_g, Q, w.r * np.eye(N_AXES))
-    return B_g.T @ P / w.r
+    P = scipy.linalg.solve_continuous_are(A, B, Q, R)
+    return np.linalg.solve(R, B.T @ P)
+
+
+def coupled_lqr(A_r: np.ndarray, B_g: np.ndarray, C_rate: np.ndarray,
+                w: Weights) -> np.ndarray:
+    """K (5 x 10) of the coupled LQR with `coupled_weights`."""
+    return numerical_lqr(A_r, B_g, *coupled_weights(C_rate, w))
 
 
 def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float, min_gap: float,
@@ -169,13 +195,7 @@ def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float, min_gap
     u = np.zeros(T.shape[0] + 1)
     u[0] = f_prop
     A, B = lib.function("maglev_jacobians")(x_trim, u, p)
-    idx = list(REDUCED_INDEX)
-    C_rate = A[np.ix_(list(AXIS_STATES), idx)]
-    try:
-        K_c = coupled_lqr(A[np.ix_(idx, idx)], B[idx, 1:] @ T, C_rate, weights)
-    except (np.linalg.LinAlgError, ValueError):  # no stabilizing solution: not controllable
-        K_c = np.full((N_AXES, len(idx)), np.nan)
-    return OperatingPoint(float(speed), x_trim, f_prop, gaps, K, c.ravel(), T, A, B, K_c)
+    return OperatingPoint(float(speed), x_trim, f_prop, gaps, K, c.ravel(), T, A, B, weights)
 
 
 def stability(eigenvalues: np.ndarray) -> tuple[float, float]:

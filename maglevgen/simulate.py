@@ -49,12 +49,6 @@ CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between c
 Progress = Callable[[float], None]
 
 
-def closed_loop_matrix(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
-                       controller: str) -> np.ndarray:
-    """A_cl (12 x 12) of the closed loop linearised at trim (from the generated Jacobians)."""
-    return op.full_closed_loop(controller)
-
-
 def rk4_stability_limit(eigenvalues: np.ndarray) -> float:
     """Largest step for which RK4 keeps every mode with Re(lambda) <= 0 bounded.
 
@@ -215,9 +209,8 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
         x0 = x[-1]
     x, u, g = np.concatenate(xs), np.concatenate(us), np.concatenate(gs)
     t = np.arange(x.shape[0]) * dt
-    speed_end = float(np.linalg.norm(x[-1, 6:9]))
-    traj = Trajectory(controller, op, dt, t, x, u, g, status,
-                      _contact_event(t, g, speed_end, min_gap, status), dict(disturbance))
+    traj = Trajectory(controller, op, dt, t, x, u, g, status, None, dict(disturbance))
+    traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
     traj.equilibrium = moving_equilibrium(lib, p, op, traj.speed, min_gap)
     return traj
 
@@ -240,13 +233,11 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
                                        schedule, p, min_gap, op.allocation.shape[0] + 1,
                                        op.gaps.size)
     t = np.arange(x.shape[0]) * dt
-    speed = np.linalg.norm(x[:, 6:9], axis=1)
-    traj = Trajectory(schedule.controller, op, dt, t, x, u, g, status,
-                      _contact_event(t, g, float(speed[-1]), min_gap, status),
+    traj = Trajectory(schedule.controller, op, dt, t, x, u, g, status, None,
                       dict(disturbance), scenario="launch")
-    spline = schedule.spline
-    traj.equilibrium = spline(np.clip(speed, schedule.speeds[0], schedule.speeds[-1]))[
-        :, 1:1 + len(AXIS_STATES)]
+    traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
+    # deviations from the scheduled reference (the trim at each sample's speed)
+    traj.equilibrium = np.array([Schedule.unpack(schedule.at(v))[1] for v in traj.speed])
     return traj
 
 
