@@ -351,12 +351,11 @@ def cmd_fmu(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from . import progress
-    from .report import INSTALL_HINT, ReportOptions, params_text_of, write_report
+    from .report import INSTALL_HINT, ReportOptions, write_report
 
     carriage = _carriage(args)
     opts = ReportOptions(simulation=Path(args.simulation) if args.simulation else None)
-    res = write_report(carriage, params_text_of(carriage.loaded), Path(args.out), opts,
-                       progress=progress.step)
+    res = write_report(carriage, Path(args.out), opts, progress=progress.step)
     if res.latex.tool is None:
         progress.step(f"no LaTeX found: wrote report.tex without report.pdf; to build the PDF "
                       f"install TeX ({INSTALL_HINT}) and rerun")

@@ -244,7 +244,26 @@ class Envelope(_Section):
 
 
 # sections of the file that are not model parameters (not in the parameter vector p)
-NOT_IN_MODEL: tuple[str, ...] = ("envelope",)
+NOT_IN_MODEL: tuple[str, ...] = ("envelope", "provenance")
+PROVENANCE_SOURCES = ("paper", "assumed")
+
+
+class Provenance(BaseModel):
+    """Where a value comes from: the paper gives it ("paper", with where), or it does not
+    ("assumed", with the reason). The report's parameter table reads it."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+    source: str = Field(description="paper or assumed", json_schema_extra={
+        "unit": "-", "choices": list(PROVENANCE_SOURCES)})
+    why: str = Field(min_length=1, description="where in the paper, or why this value")
+
+    @field_validator("source")
+    @classmethod
+    def _known_source(cls, source: str) -> str:
+        if source not in PROVENANCE_SOURCES:
+            raise ValueError(f"expected one of {', '.join(PROVENANCE_SOURCES)}")
+        return source
 
 
 class Parameters(_Section):
@@ -258,6 +277,8 @@ class Parameters(_Section):
     control: Control
     track: Track
     envelope: Envelope
+    # parameter key or table ("arrays.3", "vehicle.inertia_cg") -> where its value comes from
+    provenance: dict[str, Provenance] = Field(default_factory=dict)
 
     @field_validator("arrays", mode="before")
     @classmethod
@@ -293,6 +314,11 @@ class Parameters(_Section):
             if arr.nominal_gap <= self.track.min_gap:
                 raise _ModelError(f"arrays.{name}.nominal_gap", f"{arr.nominal_gap:g}",
                                   f"is not above track.min_gap = {self.track.min_gap:g}")
+        keys = [lf.key for lf in schema_leaves(self)] + [f"envelope.{f}"
+                                                          for f in Envelope.model_fields]
+        for key in self.provenance:
+            if not any(k == key or k.startswith(key + ".") for k in keys):
+                raise _ModelError("provenance", _short(key), "names no parameter or table")
         return self
 
     @property
@@ -552,7 +578,10 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
         for field, info in model.model_fields.items():
             ann = info.annotation
             name = prefix + field
-            if isinstance(ann, type) and issubclass(ann, BaseModel):
+            if field == "provenance":
+                rows.append(("provenance.<key>", "", "where the value of <key> (a parameter "
+                             "or table) comes from", "", "source = paper or assumed, and why"))
+            elif isinstance(ann, type) and issubclass(ann, BaseModel):
                 walk(ann, name + ".")
             elif field == "arrays":
                 rows.append((f"{name}.<name>", "", "the name of an array (a table key)", "",
