@@ -528,7 +528,7 @@ def test_summary_says_why_the_pdf_was_skipped(good: Path, tmp_path: Path, monkey
     import maglevgen.report as report
 
     monkeypatch.setattr(build, "_find_tex", lambda: None)
-    monkeypatch.setattr(report, "find_tex", lambda: None)
+    monkeypatch.setattr(report.latex, "find_tex", lambda: None)
     out = tmp_path / "out"
     assert main(["build", "--out", str(out), "--t-end", "1"]) == 0
     summary = (out / "SUMMARY.md").read_text()

@@ -257,7 +257,7 @@ _FUNCTIONS = {"sqrt": sp.sqrt, "Eq": sp.Eq}
 
 
 def _as_math(span: str) -> str | None:
-    """LaTeX of a span of SymPy's string output (rounded), or None when it is not math."""
+    """LaTeX text of a span of SymPy's string output (rounded), or None when not math."""
     if not re.search(r"[_*/^\[]|sqrt|Eq|\.\d", span):
         return None  # words, and integers such as equation numbers, stay text
     from sympy.parsing.sympy_parser import parse_expr
@@ -270,10 +270,11 @@ def _as_math(span: str) -> str | None:
         return None
     if isinstance(value, list | tuple):
         if value and all(isinstance(v, list | tuple) for v in value):
-            return matrix_tex([[round_floats(x, 6) for x in row] for row in value])
-        return r"\left[" + r",\ ".join(ltx(round_floats(v, 6)) for v in value) + r"\right]"
+            return "$" + matrix_tex([[round_floats(x, 6) for x in row] for row in value]) + "$"
+        # each element its own formula, so that a long list breaks between them
+        return "[" + ", ".join(f"${ltx(round_floats(v, 6))}$" for v in value) + "]"
     if isinstance(value, sp.Basic):
-        return ltx(round_floats(value, 6))
+        return f"${ltx(round_floats(value, 6))}$"
     return None
 
 
@@ -293,7 +294,7 @@ def math_prose(text: str) -> str:
         if tex is None:
             continue
         out.append(tex_escape(text[last:start]))
-        out.append(f"${tex}$")
+        out.append(tex)
         last = end
     out.append(tex_escape(text[last:]))
     return "".join(out)
