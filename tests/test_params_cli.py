@@ -99,7 +99,7 @@ def file_keys(text: str) -> list[tuple[str, str]]:
 # (id, file text (bytes written as they are; None: the default file), extra argv,
 #  substrings the one stderr line must contain)
 BAD: list[tuple[str, str | bytes | None, list[str], list[str]]] = [
-    ("malformed-toml", replaced("mass = 9.3 ", "mass = = 9.3 "), [],
+    ("malformed-toml", replaced("mass = 9.3\n", "mass = = 9.3\n"), [],
      ["malformed TOML", "line 8"]),
     ("malformed-unclosed-table", replaced("[track]", "[track"), [], ["malformed TOML"]),
     ("unknown-top-level", 'colour = "red"\n' + DEFAULT_TEXT, [], ["unknown key colour"]),
