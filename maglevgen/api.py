@@ -599,7 +599,7 @@ class Carriage:
         Returns
         -------
         control.StateSpace
-            Named states, inputs and outputs; the system's name says the speed.
+            Named states, inputs and outputs; named ``maglev`` or ``maglev_reduced``.
 
         Raises
         ------
@@ -634,7 +634,7 @@ class Carriage:
         n = A.shape[0]
         return control.ss(A, B, np.eye(n), np.zeros((n, B.shape[1])), states=states,
                           inputs=inputs, outputs=states,
-                          name=f"maglev_{model}_{op.speed:g}")
+                          name="maglev" if model == "full" else "maglev_reduced")
 
     def axis_plant(self, axis: str, speed: float | None = None) -> control.StateSpace:
         """One axis' plant m a'' + k a = u of the per-axis design (eqs 24-27).
@@ -688,7 +688,7 @@ class Carriage:
         q = cv.Q_STATES[i]
         return control.ss([[0.0, 1.0], [-k / m, 0.0]], [[0.0], [1.0 / m]], [[1.0, 0.0]], 0.0,
                           states=[q, f"{q}_dot"], inputs=[cv.CONTROLS[i].name], outputs=[q],
-                          name=f"{name}_{v:g}")
+                          name=name)
 
     # ---------------------------------------------------------------- time domain
 
@@ -867,9 +867,10 @@ class Carriage:
         Examples
         --------
         >>> import tempfile, maglevgen
-        >>> paths = maglevgen.load().generate(tempfile.mkdtemp())
-        >>> sorted(p.name for p in paths if p.suffix == ".h")[:1]
-        ['maglev.h']
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     names = [p.name for p in maglevgen.load().generate(out)]
+        >>> "maglev.h" in names and "manifest.json" in names
+        True
         """
         from .codegen.generate import GenerateOptions, render, write_output
 
@@ -908,8 +909,9 @@ class Carriage:
         Examples
         --------
         >>> import tempfile, maglevgen
-        >>> paths = maglevgen.load().report(tempfile.mkdtemp())  # doctest: +SKIP
-        >>> "report.tex" in [p.name for p in paths]  # doctest: +SKIP
+        >>> with tempfile.TemporaryDirectory() as out:  # doctest: +SKIP
+        ...     names = [p.name for p in maglevgen.load().report(out)]
+        >>> "report.tex" in names  # doctest: +SKIP
         True
         """
         from .report import INSTALL_HINT, ReportOptions, params_text_of, write_report
@@ -951,9 +953,11 @@ class Carriage:
         Examples
         --------
         >>> import tempfile, maglevgen
-        >>> path = maglevgen.load().fmu(tempfile.mkdtemp(), kind="cs")
-        >>> path.name
-        'maglev.fmu'
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     path = maglevgen.load().fmu(out, kind="cs")
+        ...     size = path.stat().st_size
+        >>> path.name, size > 0
+        ('maglev.fmu', True)
         """
         from .fmu import FMU_NAME, build_fmu
         from .output import write_output
