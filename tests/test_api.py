@@ -233,47 +233,56 @@ def test_gains_are_control_lqr(default: maglevgen.Carriage,
 # ----------------------------------------------------------------------- docstrings
 
 
-def _public_callables() -> list[tuple[str, object]]:
-    out: list[tuple[str, object]] = []
+def _public_names() -> list[tuple[str, object, str]]:
+    """(name, object, kind) of every public name of maglevgen.api and of its classes."""
+    out: list[tuple[str, object, str]] = []
     for name in api.__all__:
         obj = getattr(api, name)
-        out.append((name, obj))
+        out.append((name, obj, "class" if inspect.isclass(obj) else "function"))
         if inspect.isclass(obj):
             for attr, member in vars(obj).items():
                 if attr.startswith("_"):
                     continue
-                fn = member.fget if isinstance(member, property) else member
-                if callable(fn):
-                    out.append((f"{name}.{attr}", fn))
+                if isinstance(member, property):
+                    out.append((f"{name}.{attr}", member.fget, "property"))
+                elif callable(member):
+                    out.append((f"{name}.{attr}", member, "function"))
     return out
 
 
-@pytest.mark.parametrize(("name", "obj"), _public_callables(), ids=lambda v: str(v)[:40])
-def test_docstrings_document_every_parameter(name: str, obj: object) -> None:
-    """numpydoc's docscrape (as python-control's docstring test): every argument documented,
-    a Returns section where something is returned, a running example on every function."""
-    if inspect.isclass(obj):
-        doc = ClassDoc(obj)
-        documented = {n for p in doc["Attributes"] for n in p.name.split(", ")}
-        fields = getattr(obj, "__dataclass_fields__", {})
-        assert set(fields) <= documented, f"{name}: undocumented attributes"
-        sig = inspect.signature(obj.__init__)
-        assert doc["Examples"] or fields, f"{name}: no example"
-    else:
-        doc = FunctionDoc(obj)
-        sig = inspect.signature(obj)
+def _signature_names(fn: object) -> list[str]:
+    return [("*" if p.kind is p.VAR_POSITIONAL else "**" if p.kind is p.VAR_KEYWORD else "")
+            + p.name for p in inspect.signature(fn).parameters.values() if p.name != "self"]
+
+
+def _documented(section: list) -> list[str]:
+    return [n.strip() for p in section for n in p.name.split(",")]
+
+
+PUBLIC = _public_names()
+
+
+@pytest.mark.parametrize(("name", "obj", "kind"), PUBLIC, ids=[n for n, _, _ in PUBLIC])
+def test_docstrings_document_every_parameter(name: str, obj: object, kind: str) -> None:
+    """numpydoc's docscrape (as python-control's docstring test): every argument of every
+    public function documented in order, a Returns section where something is returned, an
+    Examples section; every field of a result class among its Attributes."""
+    if kind == "property":
+        assert FunctionDoc(obj)["Summary"], f"{name}: no summary"
+        return
+    doc = ClassDoc(obj) if kind == "class" else FunctionDoc(obj)
     assert doc["Summary"], f"{name}: no summary"
-    if not isinstance(inspect.getattr_static(getattr(api, name.split(".")[0]),
-                                             name.split(".")[-1], None), property):
-        params = [("*" if p.kind is p.VAR_POSITIONAL else "**" if p.kind is p.VAR_KEYWORD
-                   else "") + p.name for p in sig.parameters.values() if p.name != "self"]
-        if not inspect.isclass(obj) or not getattr(obj, "__dataclass_fields__", None):
-            documented = [n.strip() for p in doc["Parameters"] for n in p.name.split(",")]
-            assert documented == params, f"{name}: documented {documented}, signature {params}"
-        if not inspect.isclass(obj):
-            assert doc["Examples"], f"{name}: no Examples section"
-            if sig.return_annotation not in ("None", None):
-                assert doc["Returns"], f"{name}: no Returns section"
+    fields = getattr(obj, "__dataclass_fields__", None)
+    if fields is not None:  # a result class: its fields are its attributes
+        assert list(fields) == _documented(doc["Attributes"]), f"{name}: attributes"
+        return
+    fn = obj.__init__ if kind == "class" else obj
+    assert _documented(doc["Parameters"]) == _signature_names(fn), f"{name}: parameters"
+    assert doc["Examples"], f"{name}: no Examples section"
+    if kind == "function" and inspect.signature(obj).return_annotation != "None":
+        assert doc["Returns"], f"{name}: no Returns section"
+    assert doc["Raises"] or name.startswith(("TrimResult", "EnvelopeResult")), \
+        f"{name}: no Raises section"
 
 
 def test_docstring_examples_run() -> None:
