@@ -34,6 +34,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -421,9 +422,7 @@ class Carriage:
 
     @cached_property
     def _lib(self) -> SimulationLibrary:
-        from .cli import _library
-
-        return _library(self._carriage)
+        return _commands()._library(self._carriage)
 
     # ----------------------------------------------------------------------- checks
 
@@ -473,10 +472,8 @@ class Carriage:
         >>> bool(trim.lift_off_speed < 20.0 and trim.gaps.min() > 0)
         True
         """
-        from .cli import trim_report
-
         v = self._speed(speed)
-        rep = trim_report(self._carriage, v)
+        rep = _commands().trim_report(self._carriage, v)
         arrays = rep["arrays"]
         names = tuple(arrays)
         return TrimResult(
@@ -522,9 +519,7 @@ class Carriage:
         >>> len(rep["axes"]["vertical"]["K_closed_form"])
         2
         """
-        from .cli import gains_report
-
-        return gains_report(self._carriage, self._speed(speed))
+        return _commands().gains_report(self._carriage, self._speed(speed))
 
     def gains(self, speed: float | None = None, controller: str = "lqr") -> Gains:
         """A controller's gains at a speed, as the compiled simulation and the FMU use them.
@@ -737,13 +732,12 @@ class Carriage:
         >>> run.metrics["axes"]["vertical"]["unit"]
         'm'
         """
-        from .cli import _check_run_options
         from .simulate import run_scenarios
 
         _check_controller(controller)
         if speed is not None:
             self._speed(speed)
-        _check_run_options(t_end, dt)
+        _commands()._check_run_options(t_end, dt)
         run = run_scenarios(self._carriage, (controller,), t_end, dt, speed, lib=self._lib,
                             scenario=scenario)
         return _simulation_result(run)
@@ -783,9 +777,7 @@ class Carriage:
         >>> env.verdicts["coupled"][:6]
         'stable'
         """
-        from .cli import envelope_of
-
-        env = envelope_of(self._carriage, n_speeds)
+        env = _commands().envelope_of(self._carriage, n_speeds)
         rep = env.to_json()
         paths: tuple[Path, ...] = ()
         if out is not None:
@@ -909,9 +901,11 @@ class Carriage:
         Examples
         --------
         >>> import tempfile, maglevgen
-        >>> with tempfile.TemporaryDirectory() as out:  # doctest: +SKIP
+        >>> import warnings
+        >>> with tempfile.TemporaryDirectory() as out, warnings.catch_warnings():
+        ...     warnings.simplefilter("ignore")  # the per-axis LQR's failed envelope check
         ...     names = [p.name for p in maglevgen.load().report(out)]
-        >>> "report.tex" in names  # doctest: +SKIP
+        >>> "report.tex" in names
         True
         """
         from .report import INSTALL_HINT, ReportOptions, params_text_of, write_report
@@ -965,6 +959,14 @@ class Carriage:
         data = build_fmu(self._carriage, kind, controller)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
+
+
+def _commands() -> ModuleType:
+    """The module holding the functions behind the commands (trim_report, gains_report,
+    envelope_of, _library, _check_run_options): the one place this API names it."""
+    from . import cli
+
+    return cli
 
 
 def _check_controller(controller: str) -> None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import doctest
 import inspect
 import json
+import warnings
 from pathlib import Path
 
 import control
@@ -114,6 +115,34 @@ def test_simulation_is_the_cli_run(default: maglevgen.Carriage, controller: str,
     df = run.to_dataframe()
     assert list(df.columns) == cols and np.array_equal(df.to_numpy(), table)
     assert list(run.units) == cols
+
+
+def test_launch_is_the_cli_launch(default: maglevgen.Carriage,
+                                  capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["simulate", "--controller", "coupled", "--scenario", "launch",
+                 "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    run = default.simulate(controller="coupled", scenario="launch")
+    with np.load(tmp_path / "trajectories.npz") as npz:
+        assert np.array_equal(np.column_stack([run.t, run.x, run.u, run.gaps]), npz["coupled"])
+    assert run.scenario == "launch" and run.metrics["scenario"] == "launch"
+    # it accelerated from v_min to v_max (the envelope's ends)
+    env = json.loads((tmp_path / "metrics.json").read_text())
+    assert run.metrics["speed_end"] >= env["release_speed"] > run.metrics["speed_start"]
+
+
+def test_report_is_the_cli_report(default: maglevgen.Carriage,
+                                  capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["report", "--out", str(tmp_path / "cli")]) == 0
+    cli_warnings = [line.split("warning: ", 1)[1] for line in capsys.readouterr().err.splitlines()
+                    if "warning: verification failed" in line]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        paths = default.report(tmp_path / "api")
+    assert [str(w.message) for w in caught if w.category is UserWarning] == cli_warnings
+    assert sorted(p.name for p in paths) == sorted(p.name for p in (tmp_path / "cli").iterdir())
+    assert (tmp_path / "api" / "report.tex").read_bytes() == \
+        (tmp_path / "cli" / "report.tex").read_bytes()
 
 
 def _cli_error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> tuple[int, str]:
