@@ -139,9 +139,9 @@ class TrimResult:
     lift: np.ndarray
     drag: np.ndarray
     stiffness_matrix: np.ndarray
-    report: dict = field(repr=False)
+    report: dict[str, Any] = field(repr=False)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """The report as plain JSON data (a copy).
 
         Returns
@@ -241,11 +241,11 @@ class SimulationResult:
     gaps: np.ndarray
     status: str
     event: str | None
-    metrics: dict
+    metrics: dict[str, Any]
     state_names: tuple[str, ...]
     input_names: tuple[str, ...]
     gap_names: tuple[str, ...]
-    units: dict
+    units: dict[str, str]
     dt_limit: float
 
     def to_dataframe(self) -> pandas.DataFrame:
@@ -310,16 +310,16 @@ class EnvelopeResult:
     speeds: np.ndarray
     v_min: float
     v_max: float
-    max_real: dict
-    min_damping: dict
-    stable: dict
-    unstable_ranges: dict
-    verdicts: dict
+    max_real: dict[str, np.ndarray]
+    min_damping: dict[str, np.ndarray]
+    stable: dict[str, np.ndarray]
+    unstable_ranges: dict[str, tuple[tuple[float, float], ...]]
+    verdicts: dict[str, str]
     speed_pole: np.ndarray
     paths: tuple[Path, ...]
-    report: dict = field(repr=False)
+    report: dict[str, Any] = field(repr=False)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """The envelope as plain JSON data (a copy).
 
         Returns
@@ -485,7 +485,7 @@ class Carriage:
             drag=np.array([arrays[n]["drag"] for n in names]),
             stiffness_matrix=np.array(rep["stiffness_matrix"]), report=rep)
 
-    def gains_report(self, speed: float | None = None) -> dict:
+    def gains_report(self, speed: float | None = None) -> dict[str, Any]:
         """The per-axis LQR report of ``maglevgen gains --json`` (eqs 24-33).
 
         Per axis the plant m a'' + k a = u, the closed-form LQR gain, the numerical one

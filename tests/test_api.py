@@ -15,6 +15,8 @@ from __future__ import annotations
 import doctest
 import inspect
 import json
+import re
+import sys
 import warnings
 from pathlib import Path
 
@@ -99,13 +101,16 @@ def test_envelope_is_the_cli_envelope(which: str, request: pytest.FixtureRequest
     assert {p.name for p in env.paths} == {"envelope.json", "envelope.md", "stability_map.png"}
 
 
-@pytest.mark.parametrize("controller", ["lqr", "none"])
-def test_simulation_is_the_cli_run(default: maglevgen.Carriage, controller: str,
+@pytest.mark.parametrize(("which", "controller"),
+                         [("default", "lqr"), ("default", "none"), ("changed", "coupled")])
+def test_simulation_is_the_cli_run(which: str, controller: str,
+                                   request: pytest.FixtureRequest,
                                    capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    carriage = request.getfixturevalue(which)
     assert main(["simulate", "--controller", controller, "--t-end", "2", "--speed", str(SPEED),
-                 "--out", str(tmp_path)]) == 0
+                 *sets(CHANGED if which == "changed" else ()), "--out", str(tmp_path)]) == 0
     capsys.readouterr()
-    run = default.simulate(controller=controller, speed=SPEED, t_end=2.0)
+    run = carriage.simulate(controller=controller, speed=SPEED, t_end=2.0)
     with np.load(tmp_path / "trajectories.npz") as npz:
         table, cols = npz[controller], [str(c) for c in npz["columns"]]
     assert np.array_equal(np.column_stack([run.t, run.x, run.u, run.gaps]), table)
@@ -184,6 +189,20 @@ def test_api_rejects_unknown_names(default: maglevgen.Carriage) -> None:
             call()
     with pytest.raises(NotImplementedError, match="issue 19"):
         default.montecarlo()
+
+
+def test_dataframe_without_pandas_says_what_to_install(default: maglevgen.Carriage,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    run = default.simulate(t_end=0.01)
+    monkeypatch.setitem(sys.modules, "pandas", None)  # import pandas now fails
+    with pytest.raises(ImportError, match="pip install pandas"):
+        run.to_dataframe()
+
+
+# the physics a docstring describes cites the paper's equations
+CITES_PAPER = ("Carriage.trim", "Carriage.gains_report", "Carriage.gains", "Carriage.linearize",
+               "Carriage.axis_plant", "Carriage.simulate", "Carriage.generate", "Gains",
+               "TrimResult")
 
 
 # ------------------------------------------------------------- against python-control
@@ -296,6 +315,8 @@ def test_docstrings_document_every_parameter(name: str, obj: object, kind: str) 
     """numpydoc's docscrape (as python-control's docstring test): every argument of every
     public function documented in order, a Returns section where something is returned, an
     Examples section; every field of a result class among its Attributes."""
+    if name in CITES_PAPER:
+        assert re.search(r"\b(eqs?|figs?) \d+", inspect.getdoc(obj) or ""), f"{name}: no eq"
     if kind == "property":
         assert FunctionDoc(obj)["Summary"], f"{name}: no summary"
         return
@@ -324,7 +345,6 @@ def test_docstring_examples_run() -> None:
 
 def test_public_names_are_exported_lazily() -> None:
     import subprocess
-    import sys
 
     code = ("import sys, maglevgen; assert 'maglevgen.api' not in sys.modules; "
             "assert 'numpy' not in sys.modules; c = maglevgen.Carriage; "
