@@ -30,6 +30,9 @@ from maglevgen import api
 from maglevgen.cli import main
 from maglevgen.params import flatten
 
+# every test runs the compiled library (the API's, or the CLI's)
+pytestmark = pytest.mark.needs_cc
+
 CHANGED = ("vehicle.mass=10.5", "control.state_weights=[2.0, 0.5]")
 SPEED = 15.0
 
