@@ -908,11 +908,10 @@ class Carriage:
         >>> "report.tex" in names
         True
         """
-        from .report import INSTALL_HINT, ReportOptions, params_text_of, write_report
+        from .report import INSTALL_HINT, ReportOptions, write_report
 
         opts = ReportOptions(simulation=Path(simulation) if simulation else None)
-        res = write_report(self._carriage, params_text_of(self._carriage.loaded), Path(out),
-                           opts)
+        res = write_report(self._carriage, Path(out), opts)
         if res.latex.tool is None:
             warnings.warn(f"no LaTeX found: wrote report.tex without report.pdf; to build "
                           f"the PDF install TeX ({INSTALL_HINT})", stacklevel=2)
