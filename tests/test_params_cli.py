@@ -45,13 +45,18 @@ def _toml_value(v: Any) -> str:
     raise TypeError(type(v))
 
 
+def _toml_key(k: str) -> str:
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)  # "vehicle.mass"
+
+
 def dump_toml(data: dict[str, Any], prefix: str = "") -> str:
     """A tiny TOML writer: scalars and arrays first, then one [table] per nested dict."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in data.items()
+             if not isinstance(v, dict)]
     out = "\n".join(lines) + ("\n" if lines else "")
     for k, v in data.items():
         if isinstance(v, dict):
-            name = f"{prefix}{k}"
+            name = f"{prefix}{_toml_key(k)}"
             out += f"\n[{name}]\n" + dump_toml(v, name + ".")
     return out
 
