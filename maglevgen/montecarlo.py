@@ -322,7 +322,10 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
                                  f"of the {c} controller at {v:g} m/s")
     keys = tuple(tol.parameters)
     return Study(
-        origin=carriage.loaded.source, data=params.model_dump(), structure=carriage.structure,
+        origin=carriage.loaded.source,
+        # the samples are validated without the tolerances (drawn about the file's values)
+        data={k: v for k, v in params.model_dump().items() if k != "tolerances"},
+        structure=carriage.structure,
         names=tuple(e.name for e in carriage.entries), p=tuple(map(float, carriage.p)),
         keys=keys,
         sigma=tuple(math.nan if t.normal is None else float(t.normal)
