@@ -211,3 +211,36 @@ def test_command_writes_table_report_and_plots(tmp_path: Path, capsys) -> None:
     t = pq.read_table(out / "samples.parquet")
     assert t.num_rows == 16
     assert (out / "histograms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_chunk_whose_worker_dies_is_retried_once(small, tmp_path: Path, monkeypatch) -> None:
+    """The first worker to run sample 3 dies (os._exit); the retry gives the same table. A
+    worker that always dies is reported after the retry. (Worker processes are forked, so
+    they see the patched function.)"""
+    import multiprocessing
+    import os
+
+    from maglevgen import montecarlo
+
+    if multiprocessing.get_start_method() != "fork":
+        pytest.skip("needs forked workers to patch run_sample")  # Linux default
+    _, study, one = small
+    original = montecarlo.run_sample
+    marker = tmp_path / "died"
+
+    def dies_once(study, index, lib=None):
+        if index == 3 and not marker.exists():
+            marker.write_text("x")
+            os._exit(1)
+        return original(study, index, lib)
+
+    monkeypatch.setattr(montecarlo, "run_sample", dies_once)
+    _same(one, table(run_local(study, 6, workers=2, chunk=2)))
+    assert marker.exists()
+
+    def always_dies(study, index, lib=None):
+        os._exit(1)
+
+    monkeypatch.setattr(montecarlo, "run_sample", always_dies)
+    with pytest.raises(montecarlo.ChunkFailedError, match="died twice"):
+        run_local(study, 4, workers=2, chunk=2)
