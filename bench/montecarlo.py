@@ -64,9 +64,13 @@ def _python_sample(carriage: Carriage, study, lib, i: int) -> float:
         u[1:] = op.allocation @ (-(K_pos @ (x[idx] - op.a_trim) + K_rate @ rates))
         return fns.xdot(x, u, p).ravel()
 
+    def contact(_t: float, x: np.ndarray) -> float:  # as the C loop: stop at contact
+        return float(np.min(fns.gaps(x, p))) - study.min_gap
+
+    contact.terminal = True
     t0 = time.perf_counter()
     solve_ivp(rhs, (0.0, T_END), x0, method="RK45", rtol=1e-6, atol=1e-9,
-              t_eval=np.arange(0.0, T_END + DT / 2, DT))
+              t_eval=np.arange(0.0, T_END + DT / 2, DT), events=contact)
     return t_trim + time.perf_counter() - t0
 
 
@@ -74,6 +78,7 @@ def run(quick: bool = False, big: int | None = None) -> dict:
     carriage = Carriage(load_params())
     lib = simulation_library(carriage.structure)
     study = make_study(carriage, lib, (CONTROLLER,), T_END, DT, seed=1)
+    load_start = os.getloadavg()
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     n = 40 if quick else 200
     repeats = 2 if quick else 3
@@ -108,6 +113,7 @@ def run(quick: bool = False, big: int | None = None) -> dict:
         many.append(time.perf_counter() - t0)
     per_run = summary(np.array(one) / n)
     out = {
+        "loadavg_start": load_start,
         "t_end": T_END, "dt": DT, "controller": CONTROLLER, "cores": cores, "samples": n,
         "c_loop_s": summary(c_loop), "single_simulate_s": summary(single),
         "batch_per_run_1_s": per_run,
@@ -127,6 +133,7 @@ def run(quick: bool = False, big: int | None = None) -> dict:
     py = [_python_sample(carriage, study, lib, i) for i in range(n_py)]
     out["python_per_run_s"] = summary(py)
     out["python_ratio"] = summary(py)["median"] / per_run["median"]
+    out["loadavg_end"] = os.getloadavg()
     return out
 
 
@@ -137,7 +144,10 @@ def markdown(r: dict) -> list[str]:
         f"Each run: {r['t_end']:g} s at {1 / r['dt']:g} Hz (RK4 in the generated C), the "
         f"{r['controller']} controller, one sample of the default `[tolerances]` (its trim, "
         "gains and coupled-LQR Riccati solve per sample, the status and per-axis metrics). "
-        f"Medians [quartiles] on {r['cores']} cores.", "",
+        f"Medians [quartiles] on {r['cores']} cores"
+        + (f" (load average {r['loadavg_start'][0]:.1f} at the start, "
+           f"{r['loadavg_end'][0]:.1f} at the end: the scaling needs idle cores)"
+           if "loadavg_start" in r else "") + ".", "",
         "| what | time |", "| --- | --- |",
         f"| a single run's C loop (`maglev_simulate`) | {c['median'] * 1e3:.2f} ms "
         f"[{c['q1'] * 1e3:.2f}, {c['q3'] * 1e3:.2f}] |",
