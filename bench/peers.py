@@ -26,7 +26,7 @@ from maglevgen.carriage import Carriage
 from maglevgen.library import runtime_sources
 from maglevgen.params import load_params
 
-FLAGS = ["-O2", "-std=c99", "-fno-math-errno"]
+FLAGS = ["-std=c99", "-O2"]  # bench/native.py SPEED_FLAGS: the same as the other C figures
 N_SAMPLES = 64
 
 
@@ -42,7 +42,7 @@ def sympy_c(carriage: Carriage) -> tuple[str, float]:
             names[s] = sp.Symbol(f"{arr}[{i}]")
     expr = expr.xreplace(names)
     subs, (reduced,) = sp.cse([expr], symbols=sp.numbered_symbols("t"))
-    lines = ["#include <math.h>", "",
+    lines = ["#define _DEFAULT_SOURCE /* M_PI, M_1_PI under -std=c99 */", "#include <math.h>", "",
              "void sympy_dynamics(const double *x, const double *u, const double *p, "
              "double *xdot) {"]
     for sym, e in subs:
@@ -66,7 +66,7 @@ def samples(carriage: Carriage, lib) -> tuple[np.ndarray, np.ndarray]:
     return X, U
 
 
-def run_peers(reps: int = 21, calls: int = 20000) -> dict:
+def run_peers(reps: int = 21, calls: int = 200_000) -> dict:
     from maglevgen.library import simulation_library
 
     carriage = Carriage(load_params())
@@ -99,8 +99,10 @@ def run_peers(reps: int = 21, calls: int = 20000) -> dict:
     out = {"sympy_codegen_s": sympy_s, "compile_s": compile_s, "sympy_c_lines": src.count("\n"),
            "agreement_sympy_vs_generated": r["max_rel_diff_sympy"],
            "agreement_reference_vs_generated": r["max_rel_diff_ref"],
-           "symforce": "not measured: SymForce builds its expressions with its own symbolic "
-                       "API (symengine), so the SymPy model would have to be rebuilt in it"}
+           "symforce": "not measured yet: `pip install symforce` resolves for this Python, "
+                       "but its code generator takes functions written in its own symbolic API "
+                       "(symengine, or SymPy as a backend) and emits C++; wiring the SymPy "
+                       "model through it into this C driver was not done (issue 19)"}
     for k in ("generated", "reference", "sympy"):
         out[f"{k}_ns"] = summary(r[f"{k}_ns"])
     out["reference_over_generated"] = paired_ratios(r["reference_ns"], r["generated_ns"])
@@ -120,7 +122,7 @@ def markdown(r: dict) -> list[str]:
         "(SymPy -> CasADi SX -> C), by SymPy's own C printer (`sympy.cse` then `sympy.ccode` "
         f"of the composed expression: {r['sympy_c_lines']} lines, {r['sympy_codegen_s']:.1f} s "
         "of SymPy) and by hand (bench/reference), in one driver (bench/c/bench_peers.c; gcc "
-        "-O2 -fno-math-errno, each its own translation unit, the contenders alternating "
+        "-std=c99 -O2, each its own translation unit, the contenders alternating "
         "within each repeat, 64 states and inputs near trim in turn).", "",
         "| implementation | time per call | x generated C | agreement with generated C |",
         "| --- | --- | --- | --- |",

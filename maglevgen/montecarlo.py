@@ -432,8 +432,19 @@ def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
     return out
 
 
+def _json_safe(o: Any) -> Any:
+    """NaN and infinities (a diverged run's gap) as null: strict JSON."""
+    if isinstance(o, dict):
+        return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
 def summary_json(study: Study, n: int, agg: dict, timing: dict) -> dict:
-    return {
+    return _json_safe({
         "parameter_file": study.origin, "samples": n, "seed": study.seed,
         "t_end": study.t_end, "dt": study.dt, "speed_range": list(study.speed),
         "disturbance_amplitudes": dict(study.disturbance),
@@ -442,7 +453,7 @@ def summary_json(study: Study, n: int, agg: dict, timing: dict) -> dict:
         "per_sample_seed": "numpy SeedSequence(seed, spawn_key=(sample,))",
         "confidence": "95 % Wilson score interval",
         "controllers": agg, "timing": timing,
-    }
+    })
 
 
 def markdown(summary: dict) -> str:
@@ -479,7 +490,8 @@ def markdown(summary: dict) -> str:
                       "| sample | status | min gap [m] | inputs |", "| --- | --- | --- | --- |"]
             for w in a["worst"]:
                 inputs = ", ".join(f"{k} = {v:.5g}" for k, v in w["inputs"].items())
-                lines.append(f"| {w['sample']} | {w['status']} | {w['min_gap']:.4g} | "
+                gap = "-" if w["min_gap"] is None else f"{w['min_gap']:.4g}"
+                lines.append(f"| {w['sample']} | {w['status']} | {gap} | "
                              f"{inputs} |")
     return "\n".join(lines) + "\n"
 
