@@ -191,18 +191,25 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     return rows
 
 
-def run_chunk(study: Study, indices: Sequence[int]) -> list[dict]:
-    """The rows of a chunk of samples (what a worker process or a Dask task runs)."""
+def run_chunk(study: Study, indices: Sequence[int]) -> Columns:
+    """The table of a chunk of samples (what a worker process or a Dask task runs): columns,
+    so that what travels back and what a large study holds stay small."""
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # overflow in a diverging sample: its status says so
-        return [r for i in indices for r in run_sample(study, int(i))]
+        return table([r for i in indices for r in run_sample(study, int(i))])
 
 
 # ------------------------------------------------------------------------------ execution
 
 Tick = Callable[[int], None]
+Columns = dict[str, np.ndarray]  # a table: one array per column, one row per run
+
+
+def concat(tables: list[Columns]) -> Columns:
+    """Tables of consecutive chunks as one."""
+    return {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
 
 
 def _chunks(n: int, size: int) -> list[range]:
@@ -220,18 +227,18 @@ class ChunkFailedError(MaglevError):
 
 
 def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
-              tick: Tick | None = None) -> list[dict]:
+              tick: Tick | None = None) -> Columns:
     """Samples 0..n-1 on ``workers`` processes of this machine (1: in this process)."""
     size = chunk or default_chunk(n, workers)
     chunks = _chunks(n, size)
-    results: dict[int, list[dict]] = {}
+    results: dict[int, Columns] = {}
     if workers <= 1:
         lib = _library(study.structure)
         for k, c in enumerate(chunks):
-            results[k] = [r for i in c for r in run_sample(study, i, lib)]
+            results[k] = table([r for i in c for r in run_sample(study, i, lib)])
             if tick:
                 tick(len(c))
-        return [r for k in range(len(chunks)) for r in results[k]]
+        return concat([results[k] for k in range(len(chunks))])
     tries = dict.fromkeys(range(len(chunks)), 0)
     pending = list(range(len(chunks)))
     while pending:
@@ -252,7 +259,7 @@ def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
                 raise ChunkFailedError(f"samples {c.start} to {c.stop - 1}: the worker running "
                                        "them died twice (out of memory? a crash in the C?)")
         pending = failed
-    return [r for k in range(len(chunks)) for r in results[k]]
+    return concat([results[k] for k in range(len(chunks))])
 
 
 def dask_client(scheduler: str, workers: int):
@@ -279,7 +286,7 @@ def dask_client(scheduler: str, workers: int):
 
 
 def run_dask(study: Study, n: int, client, chunk: int | None = None,
-             tick: Tick | None = None) -> list[dict]:
+             tick: Tick | None = None) -> Columns:
     """Samples 0..n-1 as chunk tasks on a Dask cluster; each task is retried once."""
     from distributed import as_completed
 
@@ -287,7 +294,7 @@ def run_dask(study: Study, n: int, client, chunk: int | None = None,
     chunks = _chunks(n, chunk or default_chunk(n, workers))
     futures = [client.submit(run_chunk, study, list(c), retries=1, pure=False) for c in chunks]
     where = {f.key: k for k, f in enumerate(futures)}
-    results: dict[int, list[dict]] = {}
+    results: dict[int, Columns] = {}
     for fut in as_completed(futures):
         k = where[fut.key]
         try:
@@ -298,7 +305,7 @@ def run_dask(study: Study, n: int, client, chunk: int | None = None,
                                    f"Dask cluster: {type(exc).__name__}: {exc}") from None
         if tick:
             tick(len(chunks[k]))
-    return [r for k in range(len(chunks)) for r in results[k]]
+    return concat([results[k] for k in range(len(chunks))])
 
 
 # ------------------------------------------------------------------------------ the study
@@ -345,7 +352,7 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
         min_gap=float(params.track.min_gap), weights=w, seed=int(seed))
 
 
-def table(rows: list[dict]) -> dict[str, np.ndarray]:
+def table(rows: list[dict]) -> Columns:
     """Rows as columns (numbers as float64, the rest as str), in sample then controller order."""
     if not rows:
         return {}
@@ -587,13 +594,13 @@ def run_study(study: Study, n: int, workers: int, scheduler: str | None = None,
         raise InputError(f"--workers {workers}: expected at least 1")
     t0 = time.perf_counter()
     if scheduler is None:
-        rows = run_local(study, n, workers, chunk, tick)
+        cols = run_local(study, n, workers, chunk, tick)
         where = f"{workers} local process{'es' if workers > 1 else ''}"
     else:
         client = dask_client(scheduler, workers)
         try:
             n_workers = len(client.scheduler_info().get("workers", {}))
-            rows = run_dask(study, n, client, chunk, tick)
+            cols = run_dask(study, n, client, chunk, tick)
         finally:
             cluster = client.cluster if scheduler == "local" else None
             client.close()
@@ -601,8 +608,7 @@ def run_study(study: Study, n: int, workers: int, scheduler: str | None = None,
                 cluster.close()
         where = f"{n_workers} Dask workers ({scheduler})"
     seconds = time.perf_counter() - t0
-    cols = table(rows)
-    runs = len(rows)
+    runs = len(cols["sample"])
     timing = {"seconds": seconds, "runs": runs, "runs_per_s": runs / seconds if seconds else 0,
               "workers": where}
     agg = aggregate(study, cols)

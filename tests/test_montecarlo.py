@@ -20,7 +20,7 @@ from scipy.stats import binomtest
 from maglevgen.carriage import Carriage
 from maglevgen.cli import main
 from maglevgen.derive import conventions as cv
-from maglevgen.montecarlo import make_study, run_dask, run_local, run_study, table, wilson
+from maglevgen.montecarlo import make_study, run_dask, run_local, run_study, wilson
 from maglevgen.params import load_params
 
 SPEEDS = "tolerances.speed=[8.0, 16.0]"  # across the per-axis designs' unstable range
@@ -39,7 +39,7 @@ def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
 def small(sim_lib):
     carriage = Carriage(load_params(None, [SPEEDS]))
     study = make_study(carriage, sim_lib, ("damping", "coupled"), t_end=0.4, dt=1e-3, seed=7)
-    return carriage, study, table(run_local(study, 6, workers=1))
+    return carriage, study, run_local(study, 6, workers=1)
 
 
 def test_per_sample_streams_are_the_seed_sequences_children(small) -> None:
@@ -54,8 +54,8 @@ def test_per_sample_streams_are_the_seed_sequences_children(small) -> None:
 
 def test_results_do_not_depend_on_workers_or_chunks(small) -> None:
     _, study, one = small
-    _same(one, table(run_local(study, 6, workers=2, chunk=2)))
-    _same(one, table(run_local(study, 6, workers=2, chunk=5)))
+    _same(one, run_local(study, 6, workers=2, chunk=2))
+    _same(one, run_local(study, 6, workers=2, chunk=5))
 
 
 def test_dask_local_cluster_gives_the_same_results(small) -> None:
@@ -64,7 +64,7 @@ def test_dask_local_cluster_gives_the_same_results(small) -> None:
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
-        _same(one, table(run_dask(study, 6, client, chunk=2)))
+        _same(one, run_dask(study, 6, client, chunk=2))
 
 
 def test_a_sample_equals_maglevgen_simulate(small, tmp_path: Path) -> None:
@@ -172,7 +172,7 @@ def test_samples_breaking_a_cross_key_rule_are_rejected_and_counted(sim_lib) -> 
     carriage = Carriage(load_params(None, [
         'tolerances.parameters={"arrays.3.nominal_gap" = {uniform = 0.0135}}', SPEEDS]))
     study = make_study(carriage, sim_lib, ("coupled",), t_end=0.02, dt=1e-3, seed=3)
-    cols = table(run_local(study, 40, workers=1))
+    cols = run_local(study, 40, workers=1)
     below = cols["arrays.3.nominal_gap"] <= carriage.params.track.min_gap
     assert below.any() and not below.all()
     assert (cols["status"] == "rejected").tolist() == below.tolist()
@@ -235,7 +235,7 @@ def test_a_chunk_whose_worker_dies_is_retried_once(small, tmp_path: Path, monkey
         return original(study, index, lib)
 
     monkeypatch.setattr(montecarlo, "run_sample", dies_once)
-    _same(one, table(run_local(study, 6, workers=2, chunk=2)))
+    _same(one, run_local(study, 6, workers=2, chunk=2))
     assert marker.exists()
 
     def always_dies(study, index, lib=None):
