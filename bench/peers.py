@@ -53,6 +53,50 @@ def sympy_c(carriage: Carriage) -> tuple[str, float]:
     return "\n".join(lines) + "\n", time.perf_counter() - t0
 
 
+SYMFORCE_WRAPPER = """// C entry point around SymForce's generated C++ (bench/peers.py)
+#include <Eigen/Core>
+
+#include "symforce_dynamics.h"
+
+extern "C" void symforce_dynamics(const double *x, const double *u, const double *p,
+                                  double *xdot) {
+    // SymForce's signature takes Eigen matrices by const reference: the maps are copied
+    const Eigen::Matrix<double, 12, 1> X = Eigen::Map<const Eigen::Matrix<double, 12, 1>>(x);
+    const Eigen::Matrix<double, NU, 1> U = Eigen::Map<const Eigen::Matrix<double, NU, 1>>(u);
+    const Eigen::Matrix<double, NP, 1> P = Eigen::Map<const Eigen::Matrix<double, NP, 1>>(p);
+    Eigen::Map<Eigen::Matrix<double, 12, 1>> out(xdot);
+    out = sym::SymforceDynamics<double>(X, U, P);
+}
+"""
+
+
+def symforce_cpp(carriage: Carriage, out: Path) -> float | str:
+    """SymForce's C++ for xdot (its code generator with SymPy as the symbolic backend, fed
+    the composed expression) in ``out``; the seconds it took, or why it is not there."""
+    try:
+        import symforce
+
+        symforce.set_symbolic_api("sympy")
+        import symforce.symbolic as sf
+        from symforce import codegen
+        from symforce.values import Values
+    except Exception as exc:  # not installed, or another backend already chosen
+        return f"not measured: SymForce unavailable ({type(exc).__name__}: {exc})"
+    t0 = time.perf_counter()
+    m = carriage.model
+    x, u, p = (sf.Matrix(v.shape[0], 1).symbolic(n) for v, n in ((m.x, "x"), (m.u, "u"),
+                                                                  (m.p, "p")))
+    sub = {}
+    for vec, new in ((m.x, x), (m.u, u), (m.p, p)):
+        sub.update({s: new[i] for i, s in enumerate(vec)})
+    cg = codegen.Codegen(inputs=Values(x=x, u=u, p=p),
+                         outputs=Values(xdot=sf.Matrix(m.compose().xreplace(sub))),
+                         config=codegen.CppConfig(), name="symforce_dynamics",
+                         return_key="xdot")
+    cg.generate_function(output_dir=out, skip_directory_nesting=True)
+    return time.perf_counter() - t0
+
+
 def samples(carriage: Carriage, lib) -> tuple[np.ndarray, np.ndarray]:
     """N_SAMPLES states and inputs near the trim at the default speed."""
     x_trim, f_prop = (a.ravel() for a in lib.function("maglev_trim")(
@@ -83,30 +127,44 @@ def run_peers(reps: int = 21, calls: int = 200_000) -> dict:
         rows += [" ".join(repr(float(v)) for v in np.concatenate([x, u]))
                  for x, u in zip(X, U, strict=True)]
         inp.write_text("\n".join(rows) + "\n")
+        log("peers: SymForce (SymPy backend) C++ of the composed xdot")
+        symforce_s = symforce_cpp(carriage, work)
+        have_sf = not isinstance(symforce_s, str)
         objs = []
-        t0 = time.perf_counter()
         for s in (gen / "maglev_functions.c", REFERENCE_DIR / "maglev_model.c",
                   work / "peer_sympy.c", DRIVER_DIR / "bench_peers.c"):
             o = work / (s.stem + ".o")
-            run(["gcc", *FLAGS, f"-I{gen}", f"-I{REFERENCE_DIR}", f"-I{DRIVER_DIR}", "-c", s,
-                 "-o", o])
+            run(["gcc", *FLAGS, *(["-DHAVE_SYMFORCE"] if have_sf else []), f"-I{gen}",
+                 f"-I{REFERENCE_DIR}", f"-I{DRIVER_DIR}", "-c", s, "-o", o])
             objs.append(o)
-        compile_s = time.perf_counter() - t0
+        if have_sf:
+            import casadi
+
+            eigen = Path(casadi.__file__).parent / "include" / "eigen3"  # CasADi ships Eigen
+            (work / "symforce_wrapper.cpp").write_text(SYMFORCE_WRAPPER)
+            o = work / "symforce_wrapper.o"
+            run(["g++", "-std=c++14", "-O2", f"-DNU={U.shape[1]}",
+                 f"-DNP={carriage.p.size}", f"-I{eigen}", f"-I{work}", "-c",
+                 work / "symforce_wrapper.cpp", "-o", o])
+            objs.append(o)
         exe = work / "bench_peers"
-        run(["gcc", *map(str, objs), "-o", exe, "-lm"])
+        run(["g++" if have_sf else "gcc", *map(str, objs), "-o", exe, "-lm"])
         log(f"peers: timing ({reps} repeats of {calls} calls)")
         r = json.loads(run([exe, inp, str(reps), str(calls)]))
-    out = {"sympy_codegen_s": sympy_s, "compile_s": compile_s, "sympy_c_lines": src.count("\n"),
+    out = {"sympy_codegen_s": sympy_s, "sympy_c_lines": src.count("\n"),
            "agreement_sympy_vs_generated": r["max_rel_diff_sympy"],
-           "agreement_reference_vs_generated": r["max_rel_diff_ref"],
-           "symforce": "not measured yet: `pip install symforce` resolves for this Python, "
-                       "but its code generator takes functions written in its own symbolic API "
-                       "(symengine, or SymPy as a backend) and emits C++; wiring the SymPy "
-                       "model through it into this C driver was not done (issue 19)"}
-    for k in ("generated", "reference", "sympy"):
+           "agreement_reference_vs_generated": r["max_rel_diff_ref"]}
+    names = ["generated", "reference", "sympy"]
+    if have_sf:
+        out["symforce_codegen_s"] = symforce_s
+        out["agreement_symforce_vs_generated"] = r["max_rel_diff_symforce"]
+        names.append("symforce")
+    else:
+        out["symforce"] = symforce_s
+    for k in names:
         out[f"{k}_ns"] = summary(r[f"{k}_ns"])
-    out["reference_over_generated"] = paired_ratios(r["reference_ns"], r["generated_ns"])
-    out["sympy_over_generated"] = paired_ratios(r["sympy_ns"], r["generated_ns"])
+        if k != "generated":
+            out[f"{k}_over_generated"] = paired_ratios(r[f"{k}_ns"], r["generated_ns"])
     return out
 
 
@@ -115,7 +173,15 @@ def markdown(r: dict) -> list[str]:
         s = r[f"{k}_ns"]
         return f"{s['median']:.0f} [{s['q1']:.0f}-{s['q3']:.0f}] ns"
 
-    rg, sg = r["reference_over_generated"], r["sympy_over_generated"]
+    def row(k: str, label: str) -> str:
+        g = r[f"{k}_over_generated"]
+        return (f"| {label} | {t(k)} | {g['median']:.2f}x [{g['q1']:.2f}-{g['q3']:.2f}] | "
+                f"{r[f'agreement_{k}_vs_generated']:.1e} |")
+
+    sf_row = ([row("symforce", "SymForce (SymPy backend, C++ with Eigen, behind a C wrapper "
+                   "that copies the inputs; g++ -O2)")] if "symforce_ns" in r else [])
+    sf_note = ([f"SymForce: {r['symforce']}.", ""] if "symforce" in r else
+               [f"SymForce generated its C++ in {r['symforce_codegen_s']:.1f} s.", ""])
     return [
         "## Peers for the generated C (bench/peers.py)", "",
         "`maglev_dynamics` (xdot = f(x, u, p), run-time p) as generated by the toolchain "
@@ -127,12 +193,11 @@ def markdown(r: dict) -> list[str]:
         "| implementation | time per call | x generated C | agreement with generated C |",
         "| --- | --- | --- | --- |",
         f"| generated C (CasADi) | {t('generated')} | 1 | - |",
-        f"| hand-written C | {t('reference')} | {rg['median']:.2f}x "
-        f"[{rg['q1']:.2f}-{rg['q3']:.2f}] | {r['agreement_reference_vs_generated']:.1e} |",
-        f"| SymPy cse + ccode | {t('sympy')} | {sg['median']:.2f}x "
-        f"[{sg['q1']:.2f}-{sg['q3']:.2f}] | {r['agreement_sympy_vs_generated']:.1e} |",
+        row("reference", "hand-written C"),
+        row("sympy", "SymPy cse + ccode"),
+        *sf_row,
         "",
-        f"SymForce: {r['symforce']}.", "",
+        *sf_note,
     ]
 
 

@@ -1,7 +1,8 @@
 /*
  * Bench driver for the peers of the generated C (bench/peers.py): the generated
  * maglev_dynamics (CasADi), the hand-written ref_dynamics (bench/reference) and
- * sympy_dynamics (sympy.cse + sympy.ccode), each its own translation unit.
+ * sympy_dynamics (sympy.cse + sympy.ccode) and, built with -DHAVE_SYMFORCE,
+ * symforce_dynamics (SymForce's C++ behind a C wrapper), each its own translation unit.
  *
  *   bench_peers INPUT REPS CALLS   ns per call of each, as JSON
  *
@@ -21,6 +22,13 @@
 #define NS_MAX 1024
 
 void sympy_dynamics(const double *x, const double *u, const double *p, double *xdot);
+#ifdef HAVE_SYMFORCE
+/* SymForce's C++ (sym::SymforceDynamics, Eigen) behind a C wrapper (bench/peers.py) */
+void symforce_dynamics(const double *x, const double *u, const double *p, double *xdot);
+#define N_CONTENDERS 4
+#else
+#define N_CONTENDERS 3
+#endif
 
 static double P[REF_NP];
 static long N_SAMPLES;
@@ -70,9 +78,14 @@ static double time_one(int which, long calls) {
             generated(XS[k], US[k], xdot);
         } else if (which == 1) {
             ref_dynamics(XS[k], US[k], P, xdot);
-        } else {
+        } else if (which == 2) {
             sympy_dynamics(XS[k], US[k], P, xdot);
         }
+#ifdef HAVE_SYMFORCE
+        else {
+            symforce_dynamics(XS[k], US[k], P, xdot);
+        }
+#endif
         acc += xdot[i % NX];
     }
     t0 = now_ns() - t0;
@@ -88,9 +101,14 @@ static double max_rel_diff(int which) {
         generated(XS[k], US[k], a);
         if (which == 1) {
             ref_dynamics(XS[k], US[k], P, b);
-        } else {
+        } else if (which == 2) {
             sympy_dynamics(XS[k], US[k], P, b);
         }
+#ifdef HAVE_SYMFORCE
+        else {
+            symforce_dynamics(XS[k], US[k], P, b);
+        }
+#endif
         for (i = 0; i < NX; ++i) {
             double d = fabs(a[i] - b[i]) / (fabs(a[i]) > 1e-12 ? fabs(a[i]) : 1.0);
             if (d > worst) worst = d;
@@ -100,7 +118,7 @@ static double max_rel_diff(int which) {
 }
 
 int main(int argc, char **argv) {
-    double *t[3];
+    double *t[N_CONTENDERS];
     int reps, k, j;
     long calls;
     if (argc != 4) {
@@ -110,13 +128,13 @@ int main(int argc, char **argv) {
     read_input(argv[1]);
     reps = atoi(argv[2]);
     calls = atol(argv[3]);
-    for (j = 0; j < 3; ++j) {
+    for (j = 0; j < N_CONTENDERS; ++j) {
         t[j] = xmalloc(sizeof(double) * reps);
         time_one(j, calls / 4); /* warm up */
     }
     for (k = 0; k < reps; ++k) {
-        for (j = 0; j < 3; ++j) {
-            int which = (j + k) % 3;
+        for (j = 0; j < N_CONTENDERS; ++j) {
+            int which = (j + k) % N_CONTENDERS;
             t[which][k] = time_one(which, calls);
         }
     }
@@ -125,6 +143,10 @@ int main(int argc, char **argv) {
            max_rel_diff(2));
     print_list("generated_ns", t[0], reps, 0);
     print_list("reference_ns", t[1], reps, 0);
+#ifdef HAVE_SYMFORCE
+    printf("\"max_rel_diff_symforce\": %.3g,\n", max_rel_diff(3));
+    print_list("symforce_ns", t[3], reps, 0);
+#endif
     print_list("sympy_ns", t[2], reps, 1);
     printf("}\n");
     return 0;
