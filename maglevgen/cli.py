@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 import warnings
@@ -300,6 +301,25 @@ def cmd_generate(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------- simulate
 
 
+def _disturbance(items: Sequence[str]) -> dict[str, float] | None:
+    """--disturbance STATE=VALUE items (None: the default disturbance)."""
+    if not items:
+        return None
+    out = {}
+    for item in items:
+        name, _, raw = item.partition("=")
+        try:
+            value = float(raw)
+        except ValueError:
+            value = math.nan
+        if name.strip() not in cv.STATE_INDEX or not (math.isfinite(value)
+                                                       and abs(value) <= 0.1):
+            raise InputError(f"--disturbance {item!r}: expected STATE=VALUE with a state of "
+                             f"{', '.join(cv.STATE_INDEX)} and |VALUE| <= 0.1")
+        out[name.strip()] = value
+    return out
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from . import progress
     from .codegen.generate import write_output
@@ -309,7 +329,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
     carriage = _carriage(args)
     run = run_scenarios(carriage, controllers, args.t_end, args.dt, args.speed,
-                        announce=progress.step, bar=progress.bar, scenario=args.scenario)
+                        announce=progress.step, bar=progress.bar, scenario=args.scenario,
+                        disturbance=_disturbance(args.disturbance))
     files = render_results(run.trajectories, run.input_names, run.header(carriage.loaded.sha256))
     paths = write_output(files, Path(args.out))
     print(f"Simulated {args.t_end:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
@@ -328,6 +349,52 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                   f"{worst[0]} {worst[1]['max_abs']:.3g} ({worst[1]['relative_to_peak']:.2g} "
                   "of its peak)")
     print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (metrics.md: the tables)")
+    return 0
+
+
+# -------------------------------------------------------------------------------- montecarlo
+
+
+def cmd_montecarlo(args: argparse.Namespace) -> int:
+    from . import progress
+    from .montecarlo import CONTROLLERS, make_study, output_files, run_study
+    from .output import check_writable, write_output
+
+    if args.samples <= 0:
+        raise InputError(f"--samples {args.samples}: expected a positive number of samples")
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers {args.workers}: expected at least 1")
+    carriage = _carriage(args)
+    controllers = (CONTROLLERS if args.controller == "all" else
+                   (args.controller or carriage.params.envelope.embedded_controller,))
+    if args.out:
+        check_writable(Path(args.out))
+    study = make_study(carriage, _library(carriage), controllers, args.t_end, args.dt,
+                       args.seed)
+    from .montecarlo import default_workers
+
+    workers = args.workers or default_workers()
+    k = len(controllers)
+    with progress.rate_bar("Monte Carlo", args.samples * k) as tick:
+        result = run_study(study, args.samples, workers, args.scheduler,
+                           tick=lambda n: tick(n * k))
+    if args.out:
+        paths = write_output(output_files(result), Path(args.out))
+    if args.json:
+        print(json.dumps(result.summary, indent=1))
+    else:
+        t = result.summary["timing"]
+        print(f"{args.samples} samples x {k} controller(s): {t['runs']} runs in "
+              f"{t['seconds']:.3g} s ({t['runs_per_s']:.4g} runs/s, {t['workers']})")
+        for c, a in result.summary["controllers"].items():
+            lo, hi = a["contact_ci95"]
+            p = a["contact_probability"]
+            rate = "no run" if p is None else f"{p:.4f} (95 % CI [{lo:.4f}, {hi:.4f}])"
+            counts = ", ".join(f"{s} {n}" for s, n in a["status_counts"].items() if n)
+            print(f"  {c:<8} contact probability {rate}; {counts}")
+    if args.out:
+        print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (montecarlo.md)",
+              file=sys.stderr if args.json else sys.stdout)
     return 0
 
 
@@ -453,12 +520,36 @@ def build_parser() -> argparse.ArgumentParser:
                           "envelope.v_min to v_max with the gains scheduled in the C loop")
     _run_options(sim)
     sim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
+    sim.add_argument("--disturbance", metavar="STATE=VALUE", action="append", default=[],
+                     help="initial deviation of a state from trim (repeatable; given: only "
+                          "these, default: 1 mm / 2 mrad on each axis)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
     sim.add_argument("--check", action="store_true",
                      help="also integrate each run with scipy's adaptive DOP853 on the SymPy "
                           "model and report the largest deviation (slow: seconds per run)")
     sim.set_defaults(func=cmd_simulate)
+
+    mc = sub.add_parser("montecarlo", help="Monte-Carlo robustness over the file's "
+                                           "[tolerances]: batch runs in the C, local or Dask")
+    _common(mc)
+    mc.add_argument("--samples", type=int, default=1000, metavar="N",
+                    help="samples to draw (default 1000)")
+    mc.add_argument("--seed", type=int, default=0, metavar="S",
+                    help="seed; sample i draws from SeedSequence(S, spawn_key=(i,)) (default 0)")
+    mc.add_argument("--controller", choices=("none", "damping", "lqr", "coupled", "all"),
+                    help="default: envelope.embedded_controller")
+    _run_options(mc)
+    mc.add_argument("--workers", type=int, metavar="K",
+                    help="worker processes (default: every core); with --scheduler local, "
+                         "the LocalCluster's workers")
+    mc.add_argument("--scheduler", metavar="ADDRESS",
+                    help="run the chunks on Dask: tcp://HOST:PORT of a running scheduler, or "
+                         "'local' for a LocalCluster")
+    mc.add_argument("--out", metavar="DIR", default="build/montecarlo",
+                    help="output folder (default: ./build/montecarlo)")
+    mc.add_argument("--json", action="store_true", help="print montecarlo.json on stdout")
+    mc.set_defaults(func=cmd_montecarlo)
 
     env = sub.add_parser("envelope", help="closed-loop stability of each controller across "
                                           "the speed envelope, with verdicts")

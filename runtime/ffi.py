@@ -74,6 +74,11 @@ class GeneratedLibrary:
         self.path = Path(path)
         self._lib = ctypes.CDLL(str(self.path))
         self._real = np.float32 if precision == "single" else np.float64
+        self._functions: dict[str, GeneratedFunction] = {}
 
     def function(self, name: str) -> GeneratedFunction:
-        return GeneratedFunction(self._lib, name, self._real)
+        """The function, set up once (its sparsity and work sizes are read through ctypes:
+        per call, that would cost more than a trim)."""
+        if name not in self._functions:
+            self._functions[name] = GeneratedFunction(self._lib, name, self._real)
+        return self._functions[name]

@@ -173,6 +173,9 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
         if key == "arrays.<name>":
             assert "1 to 16 ASCII letters, digits or underscores" in line
             continue
+        if key == "tolerances.parameters.<key>":  # a name: an entry of the parameter vector
+            assert "an entry of the parameter vector" in line
+            continue
         if key == "envelope.embedded_controller":  # a name, not a number: its choices
             assert line.endswith("one of damping, lqr, coupled"), line
             continue
@@ -187,11 +190,16 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
     ranges = {line.split()[0]: tuple(map(float, re.search(r"in \[(\S+), (\S+)\]", line).groups()))
               for line in lines
               if line.split()[0] not in ("arrays.<name>", "envelope.embedded_controller",
-                                         "provenance.<key>")}
+                                         "provenance.<key>",
+                                         "tolerances.parameters.<key>")}
 
     def leaves(data: Any, prefix: str = "") -> Any:
         for k, v in data.items():
             key = re.sub(r"^arrays\.[^.]+\.", "arrays.<name>.", f"{prefix}{k}")
+            if prefix.startswith("tolerances.parameters."):
+                key = f"tolerances.parameters.<key>.{k}"
+            if prefix == "tolerances.disturbance.":
+                key = "tolerances.disturbance"
             if isinstance(v, dict):
                 yield from leaves(v, f"{prefix}{k}.")
             else:
