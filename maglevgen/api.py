@@ -798,34 +798,77 @@ class Carriage:
             verdicts={n: e.verdict for n, e in c.items()}, speed_pole=env.speed_pole,
             paths=paths, report=rep)
 
-    def montecarlo(self, *args: Any, **kwargs: Any) -> None:
-        """Monte-Carlo study over parameter uncertainty: not available yet.
+    def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
+                   t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
+                   scheduler: str | None = None, out: str | Path | None = None) -> dict:
+        """Monte-Carlo robustness over the parameter file's ``[tolerances]``, as
+        ``maglevgen montecarlo``.
 
-        Reserved for ``maglevgen montecarlo`` (issue 19), which this version does not have;
-        the method will take that command's options as arguments once it lands.
+        Each sample draws the toleranced parameters, a speed and an initial disturbance from
+        its own ``numpy.random.SeedSequence(seed, spawn_key=(i,))``, so the results do not
+        depend on the worker count; the compiled C trims (eqs 1-4, 8-12), computes the gains
+        (eqs 20-33) and runs the closed loop (RK4) of every controller asked for.
 
         Parameters
         ----------
-        *args : Any
-            Reserved.
-        **kwargs : Any
-            Reserved.
+        samples : int, optional
+            Number of sampled carriages (default 1000).
+        seed : int, optional
+            Seed of the study (default 0).
+        controller : str, optional
+            ``"none"``, ``"damping"``, ``"lqr"``, ``"coupled"`` or ``"all"``; default the
+            embedded controller (``envelope.embedded_controller``).
+        t_end : float, optional
+            Length of each run in s (default 10).
+        dt : float, optional
+            RK4 step in s (default 1e-3).
+        workers : int, optional
+            Local processes (default every core) or Dask workers of a ``"local"`` cluster.
+        scheduler : str, optional
+            ``None`` (local processes), ``"local"`` (a Dask LocalCluster) or the address of
+            an existing Dask scheduler (``"tcp://host:8786"``).
+        out : str or pathlib.Path, optional
+            Folder for ``samples.parquet``, ``montecarlo.md``/``.json`` and the plots.
+
+        Returns
+        -------
+        dict
+            The summary ``maglevgen montecarlo --json`` prints: per controller the contact
+            probability with its 95 % Wilson interval, status counts, per-axis quantiles,
+            the worst samples and the inputs the failures correlate with.
 
         Raises
         ------
-        NotImplementedError
-            Always, in this version.
+        maglevgen.InputError
+            A bad option (the CLI's one-line message), or an unreachable scheduler.
 
         Examples
         --------
         >>> import maglevgen
-        >>> maglevgen.load().montecarlo()
-        Traceback (most recent call last):
-        ...
-        NotImplementedError: Carriage.montecarlo: ...
+        >>> s = maglevgen.load().montecarlo(samples=4, seed=1, t_end=0.5, workers=1)
+        >>> sorted(s["controllers"])
+        ['coupled']
         """
-        raise NotImplementedError("Carriage.montecarlo: this version of maglevgen has no "
-                                  "Monte-Carlo study (`maglevgen montecarlo`, issue 19)")
+        from .montecarlo import CONTROLLERS, default_workers, make_study, output_files, run_study
+        from .output import check_writable, write_output
+
+        choice = controller or self._carriage.params.envelope.embedded_controller
+        if choice != "all":
+            _check_controller(choice)
+        if not isinstance(samples, int) or samples <= 0:
+            raise InputError(f"--samples {samples}: expected a positive number of samples")
+        if workers is not None and workers < 1:
+            raise InputError(f"--workers {workers}: expected at least 1")
+        _commands()._check_run_options(t_end, dt)
+        if out is not None:
+            check_writable(Path(out))
+        controllers = CONTROLLERS if choice == "all" else (choice,)
+        study = make_study(self._carriage, _commands()._library(self._carriage), controllers,
+                           t_end, dt, seed)
+        result = run_study(study, samples, workers or default_workers(), scheduler)
+        if out is not None:
+            write_output(output_files(result), Path(out))
+        return result.summary
 
     # -------------------------------------------------------------------- writers
 

@@ -187,11 +187,22 @@ def test_errors_are_the_cli_errors(call, argv: list[str], capsys: pytest.Capture
 def test_api_rejects_unknown_names(default: maglevgen.Carriage) -> None:
     for call in (lambda: default.gains(controller="pid"), lambda: default.axis_plant("surge"),
                  lambda: default.linearize(model="half"),
-                 lambda: default.simulate(controller="pid")):
+                 lambda: default.simulate(controller="pid"),
+                 lambda: default.montecarlo(controller="pid"),
+                 lambda: default.montecarlo(samples=0)):
         with pytest.raises(maglevgen.InputError):
             call()
-    with pytest.raises(NotImplementedError, match="issue 19"):
-        default.montecarlo()
+
+
+def test_montecarlo_is_the_cli_study(default: maglevgen.Carriage, capsys) -> None:
+    """The same seed gives the CLI's per-controller results (the timing aside)."""
+    opts = dict(samples=6, seed=3, t_end=0.5, workers=1)
+    api = default.montecarlo(controller="all", **opts)
+    assert main(["montecarlo", "--json", "--controller", "all", "--samples", "6", "--seed",
+                 "3", "--t-end", "0.5", "--workers", "1"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    assert api["controllers"] == cli["controllers"]
+    assert set(api["controllers"]) == {"none", "damping", "lqr", "coupled"}
 
 
 def test_dataframe_without_pandas_says_what_to_install(default: maglevgen.Carriage,
