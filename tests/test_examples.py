@@ -21,6 +21,8 @@ OUTPUTS = {
     "regenerate_c.py": ("default/maglev.h", "heavier/maglev.h", "heavier/manifest.json"),
     "linearization.py": ("bode_heave.png", "step_heave.png"),
     "lqr_across_speed.py": ("lqr_across_speed.csv", "lqr_across_speed.png"),
+    "montecarlo_study.py": ("lqr/montecarlo.md", "coupled/montecarlo.json",
+                            "coupled/histograms.png"),
     "fmu_fmpy.py": ("maglev.fmu", "fmu_heave.png"),
 }
 
