@@ -37,7 +37,10 @@ def test_example_runs(name: str, tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, str(EXAMPLES / name), str(out)], cwd=tmp_path,
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip() and not proc.stderr.strip(), proc.stderr
+    # stderr: nothing but the one-time progress of a fresh cache (the test's private one)
+    noise = [ln for ln in proc.stderr.splitlines()
+             if not (ln.startswith("maglevgen: ") and "error" not in ln and "warning" not in ln)]
+    assert proc.stdout.strip() and not noise, proc.stderr
     for rel in OUTPUTS[name]:
         data = (out / rel).read_bytes()
         assert data, rel
