@@ -11,13 +11,3 @@ __version__ = "0.1.0"
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-
-def _install_derivation_store() -> None:
-    """Share the derivation's memoised steps across processes (derive/ itself does no I/O)."""
-    from .cache import STORE
-    from .derive.memo import set_store
-
-    set_store(STORE)
-
-
-_install_derivation_store()

@@ -9,7 +9,6 @@ file's checksum, so an unchanged rebuild verifies the tree and does nothing else
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 from collections.abc import Mapping
@@ -22,6 +21,7 @@ from typing import TYPE_CHECKING
 from . import __version__
 from .background import Job, PendingFiles, Shared, Worker
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
+from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import check_writable, clean_stale_siblings, write_output
 
 if TYPE_CHECKING:
@@ -53,12 +53,10 @@ def build_key(params_sha256: str, overrides: tuple[str, ...], opts: BuildOptions
               tex: str | None) -> str:
     """Everything a build's output depends on, hashed (the parameters by their text's digest:
     the same text always validates the same way, and the validator is part of the toolchain)."""
-    h = hashlib.sha256()
-    h.update(json.dumps({"params_sha256": params_sha256, "overrides": list(overrides),
-                         "options": opts.as_dict(), "compiler": _compiler_identity(),
-                         "tex": tex}, sort_keys=True).encode())
-    h.update(toolchain_fingerprint().encode())
-    return h.hexdigest()
+    return ContentHash(json.dumps({"params_sha256": params_sha256, "overrides": list(overrides),
+                                   "options": opts.as_dict(), "compiler": _compiler_identity(),
+                                   "tex": tex}, sort_keys=True),
+                       toolchain_fingerprint()).hexdigest()
 
 
 def up_to_date(out_dir: Path, key: str) -> bool:
@@ -67,7 +65,7 @@ def up_to_date(out_dir: Path, key: str) -> bool:
         stamp = json.loads((out_dir / STAMP).read_text())
         if stamp.get("key") != key:
             return False
-        return all(hashlib.sha256((out_dir / name).read_bytes()).hexdigest() == digest
+        return all(file_sha256(out_dir / name) == digest
                    for name, digest in stamp["files"].items())
     except (OSError, ValueError, KeyError, AttributeError, TypeError):
         return False
@@ -179,8 +177,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     summary = summary_text(carriage, run, lib, env, report_outputs(report, opts))
     files[SUMMARY] = summary
     verification = embedded_verification(carriage, env)
-    digests = {n: hashlib.sha256(b.encode() if isinstance(b, str) else b).hexdigest()
-               for n, b in sorted(files.items())}
+    digests = {n: sha256_hex(b) for n, b in sorted(files.items())}
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,
                                "params_sha256": loaded.sha256,
                                "overrides": list(loaded.overrides), "options": opts.as_dict(),

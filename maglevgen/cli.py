@@ -92,37 +92,13 @@ def cmd_params_schema(args: argparse.Namespace) -> int:
 # -------------------------------------------------------------------------------------- trim
 
 
-def trim_report(carriage, speed: float | None) -> dict:
-    """Everything `maglevgen trim` prints, as plain data."""
-    trim = carriage.trim(speed)
-    rows = carriage.stiffness_table(trim)
-    names = list(carriage.params.arrays)
-    return {
-        "speed": trim.speed,
-        "params_sha256": carriage.loaded.sha256,
-        "state": {s.name: float(v) for s, v in zip(cv.STATES, trim.x, strict=True)},
-        "state_units": {s.name: s.unit for s in cv.STATES},
-        "propulsion_force": float(trim.u[0]),
-        "residual": trim.residual,
-        "lift_off_speed": carriage.lift_off_speed(),
-        "arrays": {n: {"gap": float(g), "lift": float(fl), "drag": float(fd)}
-                   for n, g, fl, fd in zip(names, trim.gaps, trim.lift, trim.drag, strict=True)},
-        "stiffness": {
-            r.axis: {"unit": r.unit, "derived": r.derived_magnetic,
-                     "derived_with_gravity": r.derived_total, "paper_formula": r.paper_formula,
-                     "paper": r.paper_value, "paper_relative_difference": r.relative_difference}
-            for r in rows
-        },
-        "stiffness_matrix": carriage.magnetic_stiffness(trim).tolist(),
-        "paper_inputs": carriage.paper_stiffness_inputs(trim),
-    }
-
-
 def _verdicts(carriage, rep: dict) -> list[str]:
     """Add the envelope's verdicts to a report (under "envelope"); the lines to print first.
     A carriage whose envelope has no trim still gets its trim and gains, with the reason."""
+    from . import summary
+
     try:
-        env = envelope_of(carriage)
+        env = summary.envelope_of(carriage)
     except InputError as exc:
         rep["envelope"] = {"error": str(exc)}
         return [f"Envelope not computed: {exc}"]
@@ -130,12 +106,14 @@ def _verdicts(carriage, rep: dict) -> list[str]:
     rep["envelope"] = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
                        "verdicts": {n: c.verdict for n, c in env.controllers.items()},
                        "stable": {n: c.ok for n, c in env.controllers.items()}}
-    return verdict_lines(env, embedded)
+    return summary.verdict_lines(env, embedded)
 
 
 def cmd_trim(args: argparse.Namespace) -> int:
+    from . import summary
+
     carriage = _carriage(args)
-    rep = trim_report(carriage, args.speed)
+    rep = summary.trim_report(carriage, args.speed)
     verdicts = _verdicts(carriage, rep)
     if args.json:
         print(json.dumps(rep, indent=2, sort_keys=False))
@@ -165,47 +143,11 @@ def cmd_trim(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------- gains
 
 
-def gains_report(carriage, speed: float | None) -> dict:
-    """Everything `maglevgen gains` prints, as plain data."""
-    from .controllers import allocation_matrix, carriage_gains, coupled_comparison, effectiveness
-
-    trim = carriage.trim(speed)
-    gains = carriage_gains(carriage, trim)
-    ctl = carriage.params.control
-    Q, R = tuple(ctl.state_weights), ctl.input_weight
-    cc = coupled_comparison(carriage, trim, gains)
-    poles = lambda ev: [[float(e.real), float(e.imag)] for e in sorted(ev, key=_pole_key)]  # noqa: E731
-    return {
-        "speed": trim.speed,
-        "Q": [[Q[0], 0.0], [0.0, Q[1]]],
-        "R": R,
-        "params_sha256": carriage.loaded.sha256,
-        "convention": "u = -K x, x = (position, rate), A = [[0, 1], [-k/m, 0]], B = [0, 1/m]",
-        "axes": {g.axis: g.to_json(Q, R) for g in gains},
-        "coupled": {
-            "states": ["y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r"],
-            "cost_per_axis_design": cc.cost_per_axis,
-            "cost_coupled_lqr": cc.cost_coupled,
-            "poles_per_axis_design": poles(cc.poles_per_axis),
-            "poles_coupled_lqr": poles(cc.poles_coupled),
-            "poles_damping": poles(cc.poles_damping),
-        },
-        "allocation": {
-            "forces": list(carriage.model.input_names[1:]),
-            "controls": [c.name for c in cv.CONTROLS],
-            "effectiveness": effectiveness(carriage).tolist(),
-            "minimum_norm": allocation_matrix(carriage).tolist(),
-        },
-    }
-
-
-def _pole_key(e: complex) -> tuple[float, float]:
-    return (float(e.real), float(e.imag))
-
-
 def cmd_gains(args: argparse.Namespace) -> int:
+    from . import summary
+
     carriage = _carriage(args)
-    rep = gains_report(carriage, args.speed)
+    rep = summary.gains_report(carriage, args.speed)
     verdicts = _verdicts(carriage, rep)
     if args.json:
         print(json.dumps(rep, indent=2))
@@ -236,34 +178,11 @@ def cmd_gains(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------- envelope
 
 
-def _library(carriage):
-    from . import progress
-    from .library import simulation_library
-
-    return simulation_library(carriage.structure, progress=progress.step)
-
-
-def envelope_of(carriage, n_speeds: int | None = None):
-    """The envelope of a carriage through its compiled library (maglevgen.envelope)."""
-    from .envelope import DEFAULT_SPEEDS, compute_envelope
-
-    return compute_envelope(carriage, _library(carriage), n_speeds or DEFAULT_SPEEDS)
-
-
-def verdict_lines(env, embedded: str) -> list[str]:
-    """One line per controller, the embedded one marked."""
-    from .operating import CONTROLLER_TITLES
-
-    out = [f"Envelope {env.v_min:.4g} to {env.v_max:.4g} m/s (maglevgen envelope):"]
-    for name, c in env.controllers.items():
-        mark = " [embedded]" if name == embedded else ""
-        out.append(f"  {CONTROLLER_TITLES[name] + mark:<28} {c.verdict}")
-    return out
-
-
 def cmd_envelope(args: argparse.Namespace) -> int:
+    from . import summary
+
     carriage = _carriage(args)
-    env = envelope_of(carriage, args.speeds)
+    env = summary.envelope_of(carriage, args.speeds)
     if args.out:
         from .envelope import envelope_markdown, stability_map_png
         from .output import write_output
@@ -274,7 +193,7 @@ def cmd_envelope(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(env.to_json(), indent=1))
         return 0
-    print("\n".join(verdict_lines(env, carriage.params.envelope.embedded_controller)))
+    print("\n".join(summary.verdict_lines(env, carriage.params.envelope.embedded_controller)))
     print("Ten-state closed loop (y z phi theta psi v w p q r) at the trim at each of "
           f"{env.speeds.size} speeds; x drops out, the speed is held by the propulsion.")
     if args.out:

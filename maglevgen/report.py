@@ -1769,7 +1769,7 @@ def build_context(
     has them drawn already (`maglevgen build`: `force_figures` of `force_curves`, by the
     worker that drew the simulation's), else by a child of their own.
     """
-    from .cli import gains_report, trim_report
+    from .summary import gains_report, trim_report
 
     sim, sim_files = _simulation(options.simulation)  # bad input fails before the slow steps
     progress("report: envelope (stability across speed, in the compiled library)")

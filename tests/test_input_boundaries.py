@@ -221,16 +221,16 @@ def test_floating_point_warnings_never_reach_the_terminal(monkeypatch, capsys) -
     the command's own."""
     import numpy as np
 
-    from maglevgen import cli
+    from maglevgen import summary
 
-    real = cli.trim_report
+    real = summary.trim_report
 
     def overflowing(carriage, speed):
         np.exp(np.array([1e3]))  # RuntimeWarning: overflow
         warnings.warn("a library's own warning", UserWarning, stacklevel=1)
         return real(carriage, speed)
 
-    monkeypatch.setattr(cli, "trim_report", overflowing)
+    monkeypatch.setattr(summary, "trim_report", overflowing)
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         rc = main(["trim", "--json"])
