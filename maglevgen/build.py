@@ -12,17 +12,17 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from . import __version__
-from .background import Job, PendingFiles, Shared, Worker
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import check_writable, clean_stale_siblings, write_output
+from .workers import Job, PendingFiles, Shared, child, submit
 
 if TYPE_CHECKING:
     from .params import LoadedParams
@@ -152,17 +152,17 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # and builds the report's context. Its jobs in the order they are needed: the simulation
     # figures, the report's figures (as soon as the trim is known), then the trajectories,
     # which it already holds (forked with them) and nothing reads before the end.
-    with Worker("drawing the figures", render_figures, run.trajectories,
-                shared={"trajectories": run.trajectories}) as drawing:
+    with child(shared={"trajectories": run.trajectories}) as drawing:
+        figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
         report_figures = _draw_report_figures(drawing, carriage)
-        mapping = drawing.submit("drawing the stability map", _stability_map, env)
-        writing = drawing.submit("writing the trajectories", render_trajectories,
-                                 Shared("trajectories"), run.input_names)
+        mapping = submit(drawing, "drawing the stability map", _stability_map, env)
+        writing = submit(drawing, "writing the trajectories", render_trajectories,
+                         Shared("trajectories"), run.input_names)
         sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
-                                 {**dict.fromkeys(FIGURE_NAMES, drawing.first),
+                                 {**dict.fromkeys(FIGURE_NAMES, figures),
                                   **dict.fromkeys(trajectory_names(run.trajectories), writing)})
         # the report (and its PDF where TeX is installed)
         stability_map = mapping.result()
@@ -231,14 +231,14 @@ def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
     return files
 
 
-def _draw_report_figures(drawing: Worker, carriage) -> Job:
+def _draw_report_figures(drawing: Executor, carriage) -> Job:
     """Have ``drawing`` draw the report's force figures (they need the trim, so this imports
     the symbolic layers)."""
     from .report import force_curves
     from .report_figures import force_figures
 
-    return drawing.submit("drawing the report figures", force_figures,
-                          force_curves(carriage, carriage.trim()))
+    return submit(drawing, "drawing the report figures", force_figures,
+                  force_curves(carriage, carriage.trim()))
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,

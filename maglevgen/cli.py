@@ -7,7 +7,6 @@ shows the traceback.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import sys
@@ -462,6 +461,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("maglevgen: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        _reader_gone()
+        return 0
     except Exception as exc:  # internal failure: one line unless --debug
         if debug:
             raise
@@ -476,18 +478,22 @@ def one_line(exc: BaseException) -> str:
 
 
 def run() -> None:
-    """The console entry point: `main`, then a fast exit.
-
-    Every output is written (atomically) and flushed by the time `main` returns, so the
-    interpreter's teardown, which frees SymPy's caches object by object (about 0.3 s after a
-    build), is skipped.
-    """
+    """The console entry point: `main`, its exit code, and a normal interpreter exit
+    (atexit handlers and buffered output included)."""
     code = main()
-    for stream in (sys.stdout, sys.stderr):
-        # a reader that went away, or a closed stream, has nothing left to receive
-        with contextlib.suppress(BrokenPipeError, ValueError):
-            stream.flush()
-    os._exit(code)
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _reader_gone()
+    except ValueError:  # a closed stream
+        pass
+    sys.exit(code)
+
+
+def _reader_gone() -> None:
+    """The reader of stdout went away (`| head`): nothing left to say to it. Python's recipe
+    (the signal module's "Note on SIGPIPE"): stdout goes to devnull for the exit's flush."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 if __name__ == "__main__":

@@ -37,12 +37,12 @@ import numpy as np
 import sympy as sp
 
 from . import __version__
-from .background import Background, PendingResult
 from .derive import conventions as cv
 from .derive.memo import memoized
 from .errors import InputError, MaglevError
 from .report_figures import force_figures
 from .texsetup import INSTALL_HINT, TEX_PACKAGES, find_tex  # noqa: F401  (re-exported)
+from .workers import Background, PendingResult
 
 __all__ = [
     "SIMULATION_FIGURES",

@@ -303,3 +303,28 @@ def test_a_memo_key_covers_the_modules_imports(module: str) -> None:
             todo.append(t)
     # (it may hold more: annotation-only imports count there, a safe excess)
     assert {p.resolve() for p in source_closure(module)} >= {MODULES[m].resolve() for m in seen}
+
+
+# --------------------------------------------------------------------- the console script
+
+def test_the_console_script_exits_normally() -> None:
+    """No os._exit: atexit handlers run, and the exit code is main's."""
+    code = ("import atexit, sys; atexit.register(lambda: print('atexit ran', file=sys.stderr));"
+            "sys.argv = ['maglevgen', 'params', 'schema']; from maglevgen.cli import run; run()")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and "vehicle.mass" in out.stdout
+    assert out.stderr.strip() == "atexit ran"
+    bad = code.replace("'params', 'schema'", "'trim', '--set', 'vehicle.mass=-1'")
+    out = subprocess.run([sys.executable, "-c", bad], capture_output=True, text=True)
+    assert out.returncode == 2 and out.stderr.splitlines()[-1] == "atexit ran"
+
+
+def test_a_reader_that_goes_away_is_no_error() -> None:
+    """`maglevgen params schema | head -1`: exit 0, nothing on stderr."""
+    proc = subprocess.Popen([sys.executable, "-m", "maglevgen.cli", "params", "schema"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.readline()
+    proc.stdout.close()  # before the command has written everything
+    err = proc.stderr.read()
+    assert proc.wait() == 0 and err == b""
