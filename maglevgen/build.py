@@ -268,12 +268,12 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
     import numpy as np
 
     from .derive import conventions as cv
+    from .operating import CONTROLLER_TITLES
+    from .summary import stiffness_table
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
-    trim = carriage.trim(op.speed)
-    rows = carriage.stiffness_table(trim)
-    from .operating import CONTROLLER_TITLES
+    rows = stiffness_table(carriage, lib, op.speed)
 
     embedded = carriage.params.envelope.embedded_controller
     lines = [f"# maglevgen build: {carriage.loaded.source}", "",

@@ -145,18 +145,24 @@ class Carriage:
 
     def stiffness_table(self, trim: Trim) -> list[StiffnessRow]:
         """Per-axis stiffness: derived K_st0 diagonal (and with gravity) beside eqs 13-19."""
-        import sympy as sp
+        return stiffness_rows(self.paper_stiffness_inputs(trim), self.magnetic_stiffness(trim),
+                              self.total_stiffness(trim))
 
-        from .derive.paper import paper_stiffness
 
-        kin = self.paper_stiffness_inputs(trim)
-        syms = {name: sp.Symbol(name) for name in kin}
-        printed = paper_stiffness(**syms)
-        K_mag, K_tot = self.magnetic_stiffness(trim), self.total_stiffness(trim)
-        rows = []
-        for i, axis in enumerate(cv.AXES):
-            expr = printed[axis]
-            rows.append(StiffnessRow(axis, _STIFFNESS_UNITS[axis], float(K_mag[i, i]),
-                                     float(K_tot[i, i]), sp.sstr(expr),
-                                     float(expr.xreplace({syms[n]: v for n, v in kin.items()}))))
-        return rows
+def stiffness_rows(kin: dict[str, float], K_mag: np.ndarray,
+                   K_tot: np.ndarray) -> list[StiffnessRow]:
+    """Per-axis rows of K_st0 (magnetic) and of the total stiffness beside the paper's printed
+    eqs 13-19 evaluated at ``kin`` (`Carriage.paper_stiffness_inputs`)."""
+    import sympy as sp
+
+    from .derive.paper import paper_stiffness
+
+    syms = {name: sp.Symbol(name) for name in kin}
+    printed = paper_stiffness(**syms)
+    rows = []
+    for i, axis in enumerate(cv.AXES):
+        expr = printed[axis]
+        rows.append(StiffnessRow(axis, _STIFFNESS_UNITS[axis], float(K_mag[i, i]),
+                                 float(K_tot[i, i]), sp.sstr(expr),
+                                 float(expr.xreplace({syms[n]: v for n, v in kin.items()}))))
+    return rows

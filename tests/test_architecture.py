@@ -41,8 +41,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
          "maglevgen.derive.conventions", "maglevgen.envelope", "maglevgen.library",
          "maglevgen.operating", "maglevgen.runtime.compile", "maglevgen.schedule",
-         "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.texsetup",
-         "maglevgen.report", "maglevgen.report_figures", "numpy")),
+         "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
+         "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
         "symbolic layers load when a carriage first needs them",
