@@ -84,9 +84,14 @@ def write_atomic(path: Path, data: bytes) -> bool:
 
 
 @cache
+def _memo_versions() -> str:
+    return ContentHash().versions(MEMO_LIBS).text("maglevgen", __version__).hexdigest()
+
+
+@cache
 def _module_key(module: str) -> str:
     """The part of a memo key that covers the computing module's source closure."""
-    return closure_hash(module).versions(MEMO_LIBS).text("maglevgen", __version__).hexdigest()
+    return closure_hash(module).text("versions", _memo_versions()).hexdigest()
 
 
 class DiskStore:

@@ -12,8 +12,8 @@ Imports only the standard library: `maglevgen build` computes its key before any
 
 from __future__ import annotations
 
-import ast
 import hashlib
+import re
 import sys
 from collections.abc import Iterable
 from functools import cache
@@ -95,23 +95,37 @@ def module_files() -> dict[str, Path]:
     return out
 
 
-def imported_modules(module: str) -> set[str]:
-    """The maglevgen modules ``module`` imports (anywhere in it, functions included)."""
+_IMPORT = re.compile(r"^[ \t]*import[ \t]+([\w. \t,]+)", re.MULTILINE)
+_FROM = re.compile(r"^[ \t]*from[ \t]+(\.*)([\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)",
+                   re.MULTILINE)
+
+
+@cache
+def imported_modules(module: str) -> frozenset[str]:
+    """The maglevgen modules ``module`` imports (anywhere in it, functions included).
+
+    A scan of the import statements' text (ast would cost ten times more, on every process
+    that reads the memo store); an import-like line in a docstring only adds a dependency,
+    which errs on the safe side."""
     mods = module_files()
     path = mods[module]
+    text = path.read_text(encoding="utf-8")
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_bytes(), str(path))):
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = module.split(".") if path.stem == "__init__" else module.split(".")[:-1]
-                parts = parts[:len(parts) - node.level + 1]
-                base = ".".join([*parts, *([node.module] if node.module else [])])
-            found.update(f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base
-                         for a in node.names)
-    return {m for m in found if m in mods and m != module}
+    for m in _IMPORT.finditer(text):
+        found.update(n.split()[0] for n in m.group(1).split(",") if n.strip())
+    for m in _FROM.finditer(text):
+        dots, name, names = m.groups()
+        base = name
+        if dots:
+            parts = module.split(".") if path.stem == "__init__" else module.split(".")[:-1]
+            parts = parts[:len(parts) - len(dots) + 1]
+            base = ".".join([*parts, *([name] if name else [])])
+        for item in names.strip("()").replace("\\", " ").split(","):
+            item = item.split("#")[0].split()
+            if item:
+                full = f"{base}.{item[0]}"
+                found.add(full if full in mods else base)
+    return frozenset(m for m in found if m in mods and m != module)
 
 
 @cache
@@ -126,6 +140,15 @@ def source_closure(module: str) -> tuple[Path, ...]:
     return tuple(files[m] for m in sorted(seen))
 
 
+@cache
+def _source_digest(path: Path) -> str:
+    return file_sha256(path)
+
+
 def closure_hash(module: str) -> ContentHash:
-    """A ContentHash over ``module``'s source closure, labelled by module file."""
-    return ContentHash().files((f"{p.parent.name}/{p.name}", p) for p in source_closure(module))
+    """A ContentHash over ``module``'s source closure (each file's sha256, labelled by its
+    folder and name)."""
+    h = ContentHash()
+    for p in source_closure(module):
+        h.text(f"{p.parent.name}/{p.name}", _source_digest(p))
+    return h
