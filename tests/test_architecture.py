@@ -290,10 +290,11 @@ def test_editing_a_memoised_modules_source_misses_the_cache(tmp_path: Path) -> N
     assert misses() == 0
 
 
-@pytest.mark.parametrize("module", ["maglevgen.controllers", "maglevgen.derive.numeric"])
+@pytest.mark.parametrize("module", sorted(MODULES))
 def test_a_memo_key_covers_the_modules_imports(module: str) -> None:
-    """The memo key's source closure holds every module the memoising module imports,
-    directly or not (this file's walker as the reference)."""
+    """The source closure a cache key hashes (maglevgen.hashing: a scan of the import
+    statements) holds every module ``module`` imports, directly or not (this file's ast
+    walker as the reference)."""
     from maglevgen.hashing import source_closure
 
     graph, seen, todo = _graph(), {module}, [module]
@@ -328,3 +329,28 @@ def test_a_reader_that_goes_away_is_no_error() -> None:
     proc.stdout.close()  # before the command has written everything
     err = proc.stderr.read()
     assert proc.wait() == 0 and err == b""
+
+
+def test_the_cached_c_is_keyed_by_the_generators_sources(tmp_path: Path) -> None:
+    """The derivation's C folder key (library.derivation_key) changes with an edit to the
+    code generator or to a module it imports, and to its C templates; not with an edit to a
+    module the generator does not use."""
+    top = _installed_copy(tmp_path / "src")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "src")}
+    code = ("import sys, maglevgen; assert maglevgen.__file__.startswith(sys.argv[1]); "
+            "from maglevgen.cache import derivation_fingerprint; print(derivation_fingerprint())")
+
+    def key() -> str:
+        out = subprocess.run([sys.executable, "-c", code, str(top)], capture_output=True,
+                             text=True, env=env, cwd=tmp_path)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip()
+
+    keys = [key()]
+    for rel in ("codegen/functions.py", "derive/geometry.py",
+                "templates/maglev_simulate.c.j2", "sim_output.py"):
+        with (top / rel).open("a") as f:
+            f.write("\n" + ("{# an edit #}" if rel.endswith(".j2") else "# an edit") + "\n")
+        keys.append(key())
+    assert len(set(keys[:4])) == 4  # every edit the C depends on: a new key
+    assert keys[4] == keys[3]  # sim_output.py: not the generator's
