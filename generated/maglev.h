@@ -362,6 +362,44 @@ int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casa
 int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
     int mem);
 
+/*
+ * maglev_array_forces: lift and drag of each array at state x (eqs 3-4 at the exact gaps)
+ *   in  x[12x1]  state, MAGLEV_X_* order
+ *   out lift[6x1]  [N] lift of each array, in the parameter file's array order
+ *   out drag[6x1]  [N] drag of each array, in the parameter file's array order
+ */
+#define MAGLEV_ARRAY_FORCES_SZ_ARG 1
+#define MAGLEV_ARRAY_FORCES_SZ_RES 2
+#define MAGLEV_ARRAY_FORCES_SZ_IW 0
+#define MAGLEV_ARRAY_FORCES_SZ_W 45
+int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
+ * maglev_stiffness: at state x and propulsion F_prop: the magnetic stiffness K_st0 = -dW/dq of the array forces (5 x 5, eqs 13-19 derived) and that of the gravity and propulsion moments (K_other)
+ *   in  x[12x1]  state, MAGLEV_X_* order
+ *   in  F_prop[1x1]  [N] propulsion force
+ *   out K_magnetic[5x5]  magnetic stiffness K_st0 (5 x 5, MAGLEV_AXIS_* order, column-major)
+ *   out K_other[5x5]  stiffness of the gravity and propulsion moments (5 x 5, column-major)
+ */
+#define MAGLEV_STIFFNESS_SZ_ARG 2
+#define MAGLEV_STIFFNESS_SZ_RES 2
+#define MAGLEV_STIFFNESS_SZ_IW 0
+#define MAGLEV_STIFFNESS_SZ_W 103
+int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
+/*
+ * maglev_effectiveness: E (5 x arrays' forces): the generalized forces about O that unit array control forces produce (eqs 22-23; T is its minimum-norm inverse)
+ *   out E[5x10]  control effectiveness (5 x array forces, column-major): u_gen = E F_arrays
+ */
+#define MAGLEV_EFFECTIVENESS_SZ_ARG 0
+#define MAGLEV_EFFECTIVENESS_SZ_RES 1
+#define MAGLEV_EFFECTIVENESS_SZ_IW 0
+#define MAGLEV_EFFECTIVENESS_SZ_W 7
+int maglev_effectiveness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+    int mem);
+
 #ifdef __cplusplus
 }
 #endif

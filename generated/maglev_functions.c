@@ -54,6 +54,9 @@ extern "C" {
 #define casadi_f21 CASADI_PREFIX(f21)
 #define casadi_f22 CASADI_PREFIX(f22)
 #define casadi_f23 CASADI_PREFIX(f23)
+#define casadi_f24 CASADI_PREFIX(f24)
+#define casadi_f25 CASADI_PREFIX(f25)
+#define casadi_f26 CASADI_PREFIX(f26)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -82,6 +85,7 @@ extern "C" {
 #define casadi_s13 CASADI_PREFIX(s13)
 #define casadi_s14 CASADI_PREFIX(s14)
 #define casadi_s15 CASADI_PREFIX(s15)
+#define casadi_s16 CASADI_PREFIX(s16)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -408,6 +412,7 @@ static const casadi_int casadi_s12[3] = {10, 1, 1};
 static const casadi_int casadi_s13[3] = {10, 5, 1};
 static const casadi_int casadi_s14[3] = {6, 1, 1};
 static const casadi_int casadi_s15[3] = {193, 1, 1};
+static const casadi_int casadi_s16[3] = {5, 10, 1};
 
 static const casadi_real casadi_c0[75] = 
   {9.3000000000000007e+00, 6.5000000000000002e-01, 7.9399999999999998e-02, 3.5799999999999998e-01, 3.7600000000000000e-01, 0., -4.0000000000000001e-03, 0.,
@@ -15583,6 +15588,1607 @@ CASADI_SYMBOL_EXPORT int maglev_gaps_work(casadi_int *sz_arg, casadi_int* sz_res
 
 CASADI_SYMBOL_EXPORT int maglev_gaps_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg!=0) *sz_arg = 1*sizeof(const casadi_real*);
+  if (sz_res!=0) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w!=0) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* maglev_array_forces:(x[12])->(lift[6],drag[6]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44;
+  (void)iw; (void)w; (void)mem;
+  a00=4.9999999999999989e-01;
+  a01=2.4865182915968206e-05;
+  a02=arg[0]? arg[0][3] : 0;
+  a03=sin(a02);
+  a04=arg[0]? arg[0][5] : 0;
+  a05=sin(a04);
+  a06=(a03*a05);
+  a02=cos(a02);
+  a04=cos(a04);
+  a07=(a02*a04);
+  a08=arg[0]? arg[0][4] : 0;
+  a09=sin(a08);
+  a10=(a07*a09);
+  a10=(a06+a10);
+  a11=arg[0]? arg[0][8] : 0;
+  a12=8.9999999999999997e-02;
+  a13=arg[0]? arg[0][9] : 0;
+  a14=(a12*a13);
+  a14=(a11+a14);
+  a15=2.6000000000000001e-01;
+  a16=arg[0]? arg[0][10] : 0;
+  a17=(a15*a16);
+  a18=(a14-a17);
+  a18=(a10*a18);
+  a19=(a04*a03);
+  a20=(a19*a09);
+  a21=(a02*a05);
+  a20=(a20-a21);
+  a22=arg[0]? arg[0][7] : 0;
+  a23=arg[0]? arg[0][11] : 0;
+  a24=(a15*a23);
+  a24=(a22+a24);
+  a25=-1.1899999999999999e-01;
+  a26=(a25*a13);
+  a27=(a24-a26);
+  a27=(a20*a27);
+  a18=(a18+a27);
+  a28=arg[0]? arg[0][6] : 0;
+  a29=(a25*a16);
+  a29=(a28+a29);
+  a30=(a12*a23);
+  a30=(a29-a30);
+  a30=(a30*a04);
+  a08=cos(a08);
+  a30=(a30*a08);
+  a18=(a18+a30);
+  a31=casadi_sq(a18);
+  a32=(a01*a31);
+  a33=2.2500000000000001e-06;
+  a34=2.6687410300545621e-08;
+  a31=(a34*a31);
+  a31=(a33+a31);
+  a32=(a32/a31);
+  a32=(a00*a32);
+  a35=-1.2566370614359172e+02;
+  a36=2.9999999999999999e-02;
+  a37=7.0710678118654746e-01;
+  a38=arg[0]? arg[0][1] : 0;
+  a06=(a06*a09);
+  a07=(a07+a06);
+  a06=1.;
+  a07=(a07-a06);
+  a39=(a12*a07);
+  a39=(a38+a39);
+  a21=(a21*a09);
+  a21=(a21-a19);
+  a21=(a25*a21);
+  a39=(a39+a21);
+  a19=(a15*a08);
+  a19=(a19*a05);
+  a40=(a39+a19);
+  a40=(a37*a40);
+  a40=(a36+a40);
+  a41=-7.0710678118654746e-01;
+  a42=arg[0]? arg[0][2] : 0;
+  a02=(a02*a08);
+  a02=(a02-a06);
+  a25=(a25*a02);
+  a25=(a42+a25);
+  a12=(a12*a08);
+  a12=(a12*a03);
+  a12=(a25+a12);
+  a15=(a15*a09);
+  a06=(a12-a15);
+  a06=(a41*a06);
+  a40=(a40+a06);
+  a40=(a35*a40);
+  a40=exp(a40);
+  a32=(a32*a40);
+  if (res[0]!=0) res[0][0]=a32;
+  a32=-8.9999999999999997e-02;
+  a06=(a32*a13);
+  a06=(a11+a06);
+  a43=(a06-a17);
+  a43=(a10*a43);
+  a43=(a43+a27);
+  a27=(a32*a23);
+  a29=(a29-a27);
+  a29=(a29*a04);
+  a29=(a29*a08);
+  a43=(a43+a29);
+  a27=casadi_sq(a43);
+  a44=(a01*a27);
+  a27=(a34*a27);
+  a27=(a33+a27);
+  a44=(a44/a27);
+  a44=(a00*a44);
+  a07=(a32*a07);
+  a38=(a38+a07);
+  a38=(a38+a21);
+  a19=(a38+a19);
+  a19=(a41*a19);
+  a19=(a36+a19);
+  a32=(a32*a08);
+  a32=(a32*a03);
+  a25=(a25+a32);
+  a32=(a25-a15);
+  a32=(a41*a32);
+  a19=(a19+a32);
+  a19=(a35*a19);
+  a19=exp(a19);
+  a44=(a44*a19);
+  if (res[0]!=0) res[0][1]=a44;
+  a17=(a11-a17);
+  a17=(a10*a17);
+  a44=-2.9999999999999999e-02;
+  a13=(a44*a13);
+  a24=(a24-a13);
+  a24=(a20*a24);
+  a17=(a17+a24);
+  a24=(a44*a16);
+  a28=(a28+a24);
+  a28=(a28*a04);
+  a28=(a28*a08);
+  a17=(a17+a28);
+  a04=casadi_sq(a17);
+  a24=(a01*a04);
+  a04=(a34*a04);
+  a04=(a33+a04);
+  a24=(a24/a04);
+  a24=(a00*a24);
+  a32=1.4999999999999999e-02;
+  a44=(a44*a02);
+  a42=(a42+a44);
+  a15=(a42-a15);
+  a15=(a32+a15);
+  a15=(a35*a15);
+  a15=exp(a15);
+  a24=(a24*a15);
+  if (res[0]!=0) res[0][2]=a24;
+  a24=-2.6000000000000001e-01;
+  a16=(a24*a16);
+  a14=(a14-a16);
+  a14=(a10*a14);
+  a23=(a24*a23);
+  a22=(a22+a23);
+  a26=(a22-a26);
+  a26=(a20*a26);
+  a14=(a14+a26);
+  a14=(a14+a30);
+  a30=casadi_sq(a14);
+  a23=(a01*a30);
+  a30=(a34*a30);
+  a30=(a33+a30);
+  a23=(a23/a30);
+  a23=(a00*a23);
+  a08=(a24*a08);
+  a08=(a08*a05);
+  a39=(a39+a08);
+  a37=(a37*a39);
+  a37=(a36+a37);
+  a24=(a24*a09);
+  a12=(a12-a24);
+  a12=(a41*a12);
+  a37=(a37+a12);
+  a37=(a35*a37);
+  a37=exp(a37);
+  a23=(a23*a37);
+  if (res[0]!=0) res[0][3]=a23;
+  a06=(a06-a16);
+  a06=(a10*a06);
+  a06=(a06+a26);
+  a06=(a06+a29);
+  a29=casadi_sq(a06);
+  a26=(a01*a29);
+  a29=(a34*a29);
+  a29=(a33+a29);
+  a26=(a26/a29);
+  a26=(a00*a26);
+  a38=(a38+a08);
+  a38=(a41*a38);
+  a36=(a36+a38);
+  a25=(a25-a24);
+  a41=(a41*a25);
+  a36=(a36+a41);
+  a36=(a35*a36);
+  a36=exp(a36);
+  a26=(a26*a36);
+  if (res[0]!=0) res[0][4]=a26;
+  a11=(a11-a16);
+  a10=(a10*a11);
+  a22=(a22-a13);
+  a20=(a20*a22);
+  a10=(a10+a20);
+  a10=(a10+a28);
+  a28=casadi_sq(a10);
+  a01=(a01*a28);
+  a34=(a34*a28);
+  a33=(a33+a34);
+  a01=(a01/a33);
+  a01=(a00*a01);
+  a42=(a42-a24);
+  a32=(a32+a42);
+  a35=(a35*a32);
+  a35=exp(a35);
+  a01=(a01*a35);
+  if (res[0]!=0) res[0][5]=a01;
+  a01=2.2831250607464350e-04;
+  a18=(a01*a18);
+  a18=(a18/a31);
+  a18=(a00*a18);
+  a18=(a18*a40);
+  if (res[1]!=0) res[1][0]=a18;
+  a43=(a01*a43);
+  a43=(a43/a27);
+  a43=(a00*a43);
+  a43=(a43*a19);
+  if (res[1]!=0) res[1][1]=a43;
+  a17=(a01*a17);
+  a17=(a17/a04);
+  a17=(a00*a17);
+  a17=(a17*a15);
+  if (res[1]!=0) res[1][2]=a17;
+  a14=(a01*a14);
+  a14=(a14/a30);
+  a14=(a00*a14);
+  a14=(a14*a37);
+  if (res[1]!=0) res[1][3]=a14;
+  a06=(a01*a06);
+  a06=(a06/a29);
+  a06=(a00*a06);
+  a06=(a06*a36);
+  if (res[1]!=0) res[1][4]=a06;
+  a01=(a01*a10);
+  a01=(a01/a33);
+  a00=(a00*a01);
+  a00=(a00*a35);
+  if (res[1]!=0) res[1][5]=a00;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f24(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int maglev_array_forces_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_array_forces_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_array_forces_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void maglev_array_forces_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_array_forces_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_array_forces_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real maglev_array_forces_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_array_forces_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_array_forces_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "lift";
+    case 1: return "drag";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_array_forces_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_array_forces_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s14;
+    case 1: return casadi_s14;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int maglev_array_forces_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 1;
+  if (sz_res!=0) *sz_res = 2;
+  if (sz_iw!=0) *sz_iw = 0;
+  if (sz_w!=0) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_array_forces_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 1*sizeof(const casadi_real*);
+  if (sz_res!=0) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w!=0) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* maglev_stiffness:(x[12],F_prop)->(K_magnetic[5x5],K_other[5x5]) */
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
+  casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
+  casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
+  casadi_real a036, a037, a038, a039, a040, a041, a042, a043, a044, a045, a046, a047;
+  casadi_real a048, a049, a050, a051, a052, a053, a054, a055, a056, a057, a058, a059;
+  casadi_real a060, a061, a062, a063, a064, a065, a066, a067, a068, a069, a070, a071;
+  casadi_real a072, a073, a074, a075, a076, a077, a078, a079, a080, a081, a082, a083;
+  casadi_real a084, a085, a086, a087, a088, a089, a090, a091, a092, a093, a094, a095;
+  casadi_real a096, a097, a098, a099, a100, a101, a102;
+  (void)iw; (void)w; (void)mem;
+  a000=6.2831853071795845e+00;
+  a001=4.9999999999999989e-01;
+  a002=2.4865182915968206e-05;
+  a003=arg[0]? arg[0][3] : 0;
+  a004=sin(a003);
+  a005=arg[0]? arg[0][5] : 0;
+  a006=sin(a005);
+  a007=(a004*a006);
+  a003=cos(a003);
+  a005=cos(a005);
+  a008=(a003*a005);
+  a009=arg[0]? arg[0][4] : 0;
+  a010=sin(a009);
+  a011=(a008*a010);
+  a011=(a007+a011);
+  a012=arg[0]? arg[0][8] : 0;
+  a013=8.9999999999999997e-02;
+  a014=arg[0]? arg[0][9] : 0;
+  a015=(a013*a014);
+  a015=(a012+a015);
+  a016=2.6000000000000001e-01;
+  a017=arg[0]? arg[0][10] : 0;
+  a018=(a016*a017);
+  a019=(a015-a018);
+  a019=(a011*a019);
+  a020=(a005*a004);
+  a021=(a020*a010);
+  a022=(a003*a006);
+  a023=(a021-a022);
+  a024=arg[0]? arg[0][7] : 0;
+  a025=arg[0]? arg[0][11] : 0;
+  a026=(a016*a025);
+  a026=(a024+a026);
+  a027=-1.1899999999999999e-01;
+  a028=(a027*a014);
+  a029=(a026-a028);
+  a029=(a023*a029);
+  a019=(a019+a029);
+  a030=arg[0]? arg[0][6] : 0;
+  a031=(a027*a017);
+  a031=(a030+a031);
+  a032=(a013*a025);
+  a032=(a031-a032);
+  a032=(a032*a005);
+  a009=cos(a009);
+  a032=(a032*a009);
+  a019=(a019+a032);
+  a033=casadi_sq(a019);
+  a034=(a002*a033);
+  a035=2.2500000000000001e-06;
+  a036=2.6687410300545621e-08;
+  a033=(a036*a033);
+  a033=(a035+a033);
+  a034=(a034/a033);
+  a034=(a001*a034);
+  a037=-1.2566370614359172e+02;
+  a038=2.9999999999999999e-02;
+  a039=7.0710678118654746e-01;
+  a040=arg[0]? arg[0][1] : 0;
+  a007=(a007*a010);
+  a008=(a008+a007);
+  a007=1.;
+  a041=(a008-a007);
+  a042=(a013*a041);
+  a042=(a040+a042);
+  a043=(a022*a010);
+  a044=(a043-a020);
+  a045=(a027*a044);
+  a042=(a042+a045);
+  a046=(a016*a009);
+  a047=(a046*a006);
+  a048=(a042+a047);
+  a048=(a039*a048);
+  a048=(a038+a048);
+  a049=-7.0710678118654746e-01;
+  a050=arg[0]? arg[0][2] : 0;
+  a051=(a003*a009);
+  a051=(a051-a007);
+  a007=(a027*a051);
+  a007=(a050+a007);
+  a052=(a013*a009);
+  a052=(a052*a004);
+  a053=(a007+a052);
+  a054=(a016*a010);
+  a055=(a053-a054);
+  a055=(a049*a055);
+  a048=(a048+a055);
+  a048=(a037*a048);
+  a048=exp(a048);
+  a034=(a034*a048);
+  a055=(a000*a034);
+  a056=1.0000000000000001e-01;
+  a055=(a055/a056);
+  a057=-8.9999999999999997e-02;
+  a058=(a057*a014);
+  a058=(a012+a058);
+  a059=(a058-a018);
+  a059=(a011*a059);
+  a059=(a059+a029);
+  a029=(a057*a025);
+  a031=(a031-a029);
+  a031=(a031*a005);
+  a031=(a031*a009);
+  a059=(a059+a031);
+  a029=casadi_sq(a059);
+  a060=(a002*a029);
+  a029=(a036*a029);
+  a029=(a035+a029);
+  a060=(a060/a029);
+  a060=(a001*a060);
+  a041=(a057*a041);
+  a040=(a040+a041);
+  a040=(a040+a045);
+  a041=(a040+a047);
+  a041=(a049*a041);
+  a041=(a038+a041);
+  a061=(a057*a009);
+  a061=(a061*a004);
+  a007=(a007+a061);
+  a062=(a007-a054);
+  a062=(a049*a062);
+  a041=(a041+a062);
+  a041=(a037*a041);
+  a041=exp(a041);
+  a060=(a060*a041);
+  a062=(a000*a060);
+  a062=(a062/a056);
+  a063=(a055+a062);
+  a064=-2.6000000000000001e-01;
+  a065=(a064*a017);
+  a015=(a015-a065);
+  a015=(a011*a015);
+  a025=(a064*a025);
+  a024=(a024+a025);
+  a028=(a024-a028);
+  a028=(a023*a028);
+  a015=(a015+a028);
+  a015=(a015+a032);
+  a032=casadi_sq(a015);
+  a025=(a002*a032);
+  a032=(a036*a032);
+  a032=(a035+a032);
+  a025=(a025/a032);
+  a025=(a001*a025);
+  a066=(a064*a009);
+  a067=(a066*a006);
+  a042=(a042+a067);
+  a042=(a039*a042);
+  a042=(a038+a042);
+  a068=(a064*a010);
+  a053=(a053-a068);
+  a053=(a049*a053);
+  a042=(a042+a053);
+  a042=(a037*a042);
+  a042=exp(a042);
+  a025=(a025*a042);
+  a053=(a000*a025);
+  a053=(a053/a056);
+  a069=(a063+a053);
+  a058=(a058-a065);
+  a058=(a011*a058);
+  a058=(a058+a028);
+  a058=(a058+a031);
+  a031=casadi_sq(a058);
+  a028=(a002*a031);
+  a031=(a036*a031);
+  a031=(a035+a031);
+  a028=(a028/a031);
+  a028=(a001*a028);
+  a040=(a040+a067);
+  a040=(a049*a040);
+  a038=(a038+a040);
+  a007=(a007-a068);
+  a007=(a049*a007);
+  a038=(a038+a007);
+  a038=(a037*a038);
+  a038=exp(a038);
+  a028=(a028*a038);
+  a000=(a000*a028);
+  a000=(a000/a056);
+  a069=(a069+a000);
+  if (res[0]!=0) res[0][0]=a069;
+  a069=-6.2831853071795853e+00;
+  a007=(a069*a034);
+  a007=(a007/a056);
+  a040=6.2831853071795853e+00;
+  a070=(a040*a060);
+  a070=(a070/a056);
+  a071=(a007+a070);
+  a069=(a069*a025);
+  a069=(a069/a056);
+  a071=(a071+a069);
+  a040=(a040*a028);
+  a040=(a040/a056);
+  a071=(a071+a040);
+  if (res[0]!=0) res[0][1]=a071;
+  a072=(a013*a008);
+  a073=(a072+a045);
+  a074=(a073+a047);
+  a075=(a007*a074);
+  a076=(a057*a008);
+  a045=(a076+a045);
+  a077=(a045+a047);
+  a078=(a070*a077);
+  a075=(a075+a078);
+  a073=(a073+a067);
+  a078=(a069*a073);
+  a075=(a075+a078);
+  a045=(a045+a067);
+  a078=(a040*a045);
+  a075=(a075+a078);
+  a078=(a027*a003);
+  a079=(a078*a009);
+  a080=(a052+a079);
+  a081=(a080-a054);
+  a082=(a055*a081);
+  a075=(a075-a082);
+  a082=(a061+a079);
+  a083=(a082-a054);
+  a084=(a062*a083);
+  a075=(a075-a084);
+  a080=(a080-a068);
+  a084=(a053*a080);
+  a075=(a075-a084);
+  a082=(a082-a068);
+  a084=(a000*a082);
+  a075=(a075-a084);
+  if (res[0]!=0) res[0][2]=a075;
+  a075=8.8857658763167322e+00;
+  a084=2.2831250607464350e-04;
+  a019=(a084*a019);
+  a019=(a019/a033);
+  a019=(a001*a019);
+  a019=(a019*a048);
+  a048=(a075*a019);
+  a048=(a048/a056);
+  a033=(a048*a081);
+  a085=-8.8857658763167322e+00;
+  a059=(a084*a059);
+  a059=(a059/a029);
+  a059=(a001*a059);
+  a059=(a059*a041);
+  a041=(a085*a059);
+  a041=(a041/a056);
+  a029=(a041*a083);
+  a033=(a033+a029);
+  a015=(a084*a015);
+  a015=(a015/a032);
+  a015=(a001*a015);
+  a015=(a015*a042);
+  a042=(a075*a015);
+  a042=(a042/a056);
+  a032=(a042*a080);
+  a033=(a033+a032);
+  a058=(a084*a058);
+  a058=(a058/a031);
+  a058=(a001*a058);
+  a058=(a058*a038);
+  a038=(a085*a058);
+  a038=(a038/a056);
+  a031=(a038*a082);
+  a033=(a033+a031);
+  a032=(a013*a023);
+  a086=(a027*a011);
+  a032=(a032+a086);
+  a087=(a016*a005);
+  a088=(a087*a009);
+  a089=(a032+a088);
+  a090=(a007*a089);
+  a033=(a033+a090);
+  a091=(a057*a023);
+  a091=(a091+a086);
+  a086=(a091+a088);
+  a092=(a070*a086);
+  a033=(a033+a092);
+  a093=(a064*a005);
+  a094=(a093*a009);
+  a032=(a032+a094);
+  a095=(a069*a032);
+  a033=(a033+a095);
+  a091=(a091+a094);
+  a096=(a040*a091);
+  a033=(a033+a096);
+  a033=(-a033);
+  if (res[0]!=0) res[0][3]=a033;
+  a048=(a048*a074);
+  a041=(a041*a077);
+  a048=(a048+a041);
+  a042=(a042*a073);
+  a048=(a048+a042);
+  a038=(a038*a045);
+  a048=(a048+a038);
+  a042=(a055*a089);
+  a048=(a048+a042);
+  a033=(a062*a086);
+  a048=(a048+a033);
+  a097=(a053*a032);
+  a048=(a048+a097);
+  a098=(a000*a091);
+  a048=(a048+a098);
+  if (res[0]!=0) res[0][4]=a048;
+  if (res[0]!=0) res[0][5]=a071;
+  a071=1.2566370614359172e+01;
+  a018=(a012-a018);
+  a018=(a011*a018);
+  a048=-2.9999999999999999e-02;
+  a014=(a048*a014);
+  a026=(a026-a014);
+  a026=(a023*a026);
+  a018=(a018+a026);
+  a017=(a048*a017);
+  a030=(a030+a017);
+  a030=(a030*a005);
+  a030=(a030*a009);
+  a018=(a018+a030);
+  a017=casadi_sq(a018);
+  a026=(a002*a017);
+  a017=(a036*a017);
+  a017=(a035+a017);
+  a026=(a026/a017);
+  a026=(a001*a026);
+  a099=1.4999999999999999e-02;
+  a051=(a048*a051);
+  a050=(a050+a051);
+  a051=(a050-a054);
+  a051=(a099+a051);
+  a051=(a037*a051);
+  a051=exp(a051);
+  a026=(a026*a051);
+  a100=(a071*a026);
+  a100=(a100/a056);
+  a063=(a063+a100);
+  a063=(a063+a053);
+  a063=(a063+a000);
+  a012=(a012-a065);
+  a012=(a011*a012);
+  a024=(a024-a014);
+  a023=(a023*a024);
+  a012=(a012+a023);
+  a012=(a012+a030);
+  a030=casadi_sq(a012);
+  a002=(a002*a030);
+  a036=(a036*a030);
+  a035=(a035+a036);
+  a002=(a002/a035);
+  a002=(a001*a002);
+  a050=(a050-a068);
+  a050=(a099+a050);
+  a037=(a037*a050);
+  a037=exp(a037);
+  a002=(a002*a037);
+  a050=(a071*a002);
+  a050=(a050/a056);
+  a063=(a063+a050);
+  if (res[0]!=0) res[0][6]=a063;
+  a055=(a055*a074);
+  a062=(a062*a077);
+  a055=(a055+a062);
+  a062=(a048*a044);
+  a063=(a062+a047);
+  a036=(a100*a063);
+  a055=(a055+a036);
+  a053=(a053*a073);
+  a055=(a055+a053);
+  a000=(a000*a045);
+  a055=(a055+a000);
+  a062=(a062+a067);
+  a000=(a050*a062);
+  a055=(a055+a000);
+  a007=(a007*a081);
+  a055=(a055-a007);
+  a070=(a070*a083);
+  a055=(a055-a070);
+  a069=(a069*a080);
+  a055=(a055-a069);
+  a040=(a040*a082);
+  a055=(a055-a040);
+  if (res[0]!=0) res[0][7]=a055;
+  a055=(a085*a019);
+  a055=(a055/a056);
+  a040=(a055*a081);
+  a040=(a040+a029);
+  a018=(a084*a018);
+  a018=(a018/a017);
+  a018=(a001*a018);
+  a018=(a018*a051);
+  a051=(a071*a018);
+  a051=(a051/a056);
+  a017=(a048*a003);
+  a029=(a017*a009);
+  a054=(a029-a054);
+  a069=(a051*a054);
+  a040=(a040+a069);
+  a069=(a085*a015);
+  a069=(a069/a056);
+  a070=(a069*a080);
+  a040=(a040+a070);
+  a040=(a040+a031);
+  a084=(a084*a012);
+  a084=(a084/a035);
+  a001=(a001*a084);
+  a001=(a001*a037);
+  a037=(a071*a001);
+  a037=(a037/a056);
+  a068=(a029-a068);
+  a084=(a037*a068);
+  a040=(a040+a084);
+  a040=(a040+a042);
+  a040=(a040+a033);
+  a033=(a048*a011);
+  a088=(a033+a088);
+  a042=(a100*a088);
+  a040=(a040+a042);
+  a040=(a040+a097);
+  a040=(a040+a098);
+  a033=(a033+a094);
+  a094=(a050*a033);
+  a040=(a040+a094);
+  a040=(-a040);
+  if (res[0]!=0) res[0][8]=a040;
+  a055=(a055*a074);
+  a055=(a055+a041);
+  a041=(a051*a063);
+  a055=(a055+a041);
+  a069=(a069*a073);
+  a055=(a055+a069);
+  a055=(a055+a038);
+  a038=(a037*a062);
+  a055=(a055+a038);
+  a055=(a055+a090);
+  a055=(a055+a092);
+  a055=(a055+a095);
+  a055=(a055+a096);
+  if (res[0]!=0) res[0][9]=a055;
+  a055=(a075*a034);
+  a055=(a055/a056);
+  a096=(a013*a044);
+  a095=(a027*a008);
+  a096=(a096-a095);
+  a092=(a039*a096);
+  a090=(a013*a003);
+  a090=(a090*a009);
+  a038=(a027*a009);
+  a038=(a038*a004);
+  a090=(a090-a038);
+  a069=(a049*a090);
+  a092=(a092+a069);
+  a069=(a055*a092);
+  a041=(a085*a060);
+  a041=(a041/a056);
+  a044=(a057*a044);
+  a044=(a044-a095);
+  a095=(a049*a044);
+  a040=(a057*a003);
+  a040=(a040*a009);
+  a040=(a040-a038);
+  a038=(a049*a040);
+  a095=(a095+a038);
+  a038=(a041*a095);
+  a094=(a069+a038);
+  a075=(a075*a025);
+  a075=(a075/a056);
+  a098=(a075*a092);
+  a094=(a094+a098);
+  a097=(a085*a028);
+  a097=(a097/a056);
+  a042=(a097*a095);
+  a094=(a094+a042);
+  if (res[0]!=0) res[0][10]=a094;
+  a094=(a085*a034);
+  a094=(a094/a056);
+  a084=(a094*a092);
+  a035=(a084+a038);
+  a012=(a048*a009);
+  a012=(a012*a004);
+  a031=(a100*a012);
+  a035=(a035-a031);
+  a085=(a085*a025);
+  a085=(a085/a056);
+  a070=(a085*a092);
+  a035=(a035+a070);
+  a035=(a035+a042);
+  a007=(a050*a012);
+  a035=(a035-a007);
+  if (res[0]!=0) res[0][11]=a035;
+  a035=(a039*a034);
+  a000=(a035*a090);
+  a060=(a049*a060);
+  a053=(a060*a040);
+  a000=(a000+a053);
+  a053=(a039*a025);
+  a036=(a053*a090);
+  a000=(a000+a036);
+  a028=(a049*a028);
+  a036=(a028*a040);
+  a000=(a000+a036);
+  a036=(a084*a074);
+  a000=(a000+a036);
+  a036=(a038*a077);
+  a000=(a000+a036);
+  a036=(a031*a063);
+  a000=(a000-a036);
+  a036=(a070*a073);
+  a000=(a000+a036);
+  a036=(a042*a045);
+  a000=(a000+a036);
+  a036=(a007*a062);
+  a000=(a000-a036);
+  a034=(a049*a034);
+  a036=(a034*a096);
+  a000=(a000-a036);
+  a036=(a060*a044);
+  a000=(a000-a036);
+  a036=(a048*a008);
+  a030=(a026*a036);
+  a000=(a000+a030);
+  a025=(a049*a025);
+  a030=(a025*a096);
+  a000=(a000-a030);
+  a030=(a028*a044);
+  a000=(a000-a030);
+  a030=(a002*a036);
+  a000=(a000+a030);
+  a030=(a069*a081);
+  a000=(a000-a030);
+  a030=(a038*a083);
+  a000=(a000-a030);
+  a030=(a098*a080);
+  a000=(a000-a030);
+  a030=(a042*a082);
+  a000=(a000-a030);
+  if (res[0]!=0) res[0][12]=a000;
+  a000=(a013*a011);
+  a022=(a022-a021);
+  a021=(a027*a022);
+  a000=(a000+a021);
+  a030=(a034*a000);
+  a023=(a057*a011);
+  a023=(a023+a021);
+  a021=(a060*a023);
+  a030=(a030+a021);
+  a024=(a048*a022);
+  a014=(a026*a024);
+  a030=(a030+a014);
+  a014=(a025*a000);
+  a030=(a030+a014);
+  a023=(a028*a023);
+  a030=(a030+a023);
+  a024=(a002*a024);
+  a030=(a030+a024);
+  a024=(a019*a090);
+  a030=(a030+a024);
+  a024=(a059*a040);
+  a030=(a030+a024);
+  a024=(a018*a012);
+  a030=(a030-a024);
+  a090=(a015*a090);
+  a030=(a030+a090);
+  a040=(a058*a040);
+  a030=(a030+a040);
+  a040=(a001*a012);
+  a030=(a030-a040);
+  a040=(a071*a019);
+  a040=(a040/a056);
+  a090=(a040*a092);
+  a024=(a090*a081);
+  a030=(a030-a024);
+  a024=(a071*a059);
+  a024=(a024/a056);
+  a014=(a024*a095);
+  a065=(a014*a083);
+  a030=(a030-a065);
+  a065=(a051*a012);
+  a101=(a065*a054);
+  a030=(a030+a101);
+  a101=(a071*a015);
+  a101=(a101/a056);
+  a092=(a101*a092);
+  a102=(a092*a080);
+  a030=(a030-a102);
+  a071=(a071*a058);
+  a071=(a071/a056);
+  a095=(a071*a095);
+  a056=(a095*a082);
+  a030=(a030-a056);
+  a012=(a037*a012);
+  a056=(a012*a068);
+  a030=(a030+a056);
+  a084=(a084*a089);
+  a030=(a030-a084);
+  a038=(a038*a086);
+  a030=(a030-a038);
+  a031=(a031*a088);
+  a030=(a030+a031);
+  a070=(a070*a032);
+  a030=(a030-a070);
+  a042=(a042*a091);
+  a030=(a030-a042);
+  a007=(a007*a033);
+  a030=(a030+a007);
+  if (res[0]!=0) res[0][13]=a030;
+  a030=(a018*a036);
+  a007=(a019*a096);
+  a070=(a059*a044);
+  a007=(a007+a070);
+  a030=(a030-a007);
+  a096=(a015*a096);
+  a030=(a030-a096);
+  a044=(a058*a044);
+  a030=(a030-a044);
+  a036=(a001*a036);
+  a030=(a030+a036);
+  a090=(a090*a074);
+  a030=(a030+a090);
+  a014=(a014*a077);
+  a030=(a030+a014);
+  a065=(a065*a063);
+  a030=(a030-a065);
+  a092=(a092*a073);
+  a030=(a030+a092);
+  a095=(a095*a045);
+  a030=(a030+a095);
+  a012=(a012*a062);
+  a030=(a030-a012);
+  a069=(a069*a089);
+  a030=(a030+a069);
+  a030=(a030+a038);
+  a098=(a098*a032);
+  a030=(a030+a098);
+  a030=(a030+a042);
+  a042=(a035*a000);
+  a030=(a030-a042);
+  a030=(a030-a021);
+  a000=(a053*a000);
+  a030=(a030-a000);
+  a030=(a030-a023);
+  if (res[0]!=0) res[0][14]=a030;
+  a052=(a052*a006);
+  a079=(a079*a006);
+  a052=(a052+a079);
+  a016=(a016*a006);
+  a016=(a016*a010);
+  a030=(a052-a016);
+  a023=(a039*a030);
+  a000=(a013*a004);
+  a000=(a000*a010);
+  a021=(a046+a000);
+  a042=(a078*a010);
+  a021=(a021+a042);
+  a098=(a049*a021);
+  a023=(a023-a098);
+  a098=(a055*a023);
+  a061=(a061*a006);
+  a061=(a061+a079);
+  a079=(a061-a016);
+  a038=(a049*a079);
+  a069=(a057*a004);
+  a069=(a069*a010);
+  a012=(a046+a069);
+  a012=(a012+a042);
+  a095=(a049*a012);
+  a038=(a038-a095);
+  a095=(a041*a038);
+  a092=(a098+a095);
+  a064=(a064*a006);
+  a064=(a064*a010);
+  a052=(a052-a064);
+  a065=(a039*a052);
+  a000=(a066+a000);
+  a000=(a000+a042);
+  a014=(a049*a000);
+  a065=(a065-a014);
+  a014=(a075*a065);
+  a092=(a092+a014);
+  a061=(a061-a064);
+  a090=(a049*a061);
+  a069=(a066+a069);
+  a069=(a069+a042);
+  a042=(a049*a069);
+  a090=(a090-a042);
+  a042=(a097*a090);
+  a092=(a092+a042);
+  if (res[0]!=0) res[0][15]=a092;
+  a092=(a094*a023);
+  a036=(a092+a095);
+  a044=(a017*a010);
+  a046=(a046+a044);
+  a100=(a100*a046);
+  a036=(a036-a100);
+  a096=(a085*a065);
+  a036=(a036+a096);
+  a036=(a036+a042);
+  a066=(a066+a044);
+  a050=(a050*a066);
+  a036=(a036-a050);
+  if (res[0]!=0) res[0][16]=a036;
+  a036=(a092*a074);
+  a044=(a035*a021);
+  a007=(a060*a012);
+  a044=(a044+a007);
+  a007=(a053*a000);
+  a044=(a044+a007);
+  a007=(a028*a069);
+  a044=(a044+a007);
+  a036=(a036-a044);
+  a044=(a095*a077);
+  a036=(a036+a044);
+  a044=(a100*a063);
+  a036=(a036-a044);
+  a044=(a096*a073);
+  a036=(a036+a044);
+  a044=(a042*a045);
+  a036=(a036+a044);
+  a044=(a050*a062);
+  a036=(a036-a044);
+  a044=(a034*a030);
+  a036=(a036-a044);
+  a044=(a060*a079);
+  a036=(a036-a044);
+  a029=(a029*a006);
+  a016=(a029-a016);
+  a044=(a026*a016);
+  a036=(a036-a044);
+  a044=(a025*a052);
+  a036=(a036-a044);
+  a044=(a028*a061);
+  a036=(a036-a044);
+  a029=(a029-a064);
+  a064=(a002*a029);
+  a036=(a036-a064);
+  a064=(a098*a081);
+  a036=(a036-a064);
+  a064=(a095*a083);
+  a036=(a036-a064);
+  a064=(a014*a080);
+  a036=(a036-a064);
+  a064=(a042*a082);
+  a036=(a036-a064);
+  if (res[0]!=0) res[0][17]=a036;
+  a013=(a013*a005);
+  a013=(a013*a009);
+  a013=(a013*a004);
+  a078=(a078*a005);
+  a078=(a078*a009);
+  a013=(a013+a078);
+  a087=(a087*a010);
+  a036=(a013-a087);
+  a064=(a034*a036);
+  a057=(a057*a005);
+  a057=(a057*a009);
+  a057=(a057*a004);
+  a057=(a057+a078);
+  a078=(a057-a087);
+  a078=(a060*a078);
+  a064=(a064+a078);
+  a017=(a017*a005);
+  a017=(a017*a009);
+  a087=(a017-a087);
+  a087=(a026*a087);
+  a064=(a064+a087);
+  a093=(a093*a010);
+  a013=(a013-a093);
+  a087=(a025*a013);
+  a064=(a064+a087);
+  a057=(a057-a093);
+  a057=(a028*a057);
+  a064=(a064+a057);
+  a017=(a017-a093);
+  a017=(a002*a017);
+  a064=(a064+a017);
+  a021=(a019*a021);
+  a064=(a064-a021);
+  a012=(a059*a012);
+  a064=(a064-a012);
+  a012=(a018*a046);
+  a064=(a064-a012);
+  a000=(a015*a000);
+  a064=(a064-a000);
+  a069=(a058*a069);
+  a064=(a064-a069);
+  a069=(a001*a066);
+  a064=(a064-a069);
+  a023=(a040*a023);
+  a069=(a023*a081);
+  a064=(a064-a069);
+  a038=(a024*a038);
+  a069=(a038*a083);
+  a064=(a064-a069);
+  a051=(a051*a046);
+  a054=(a051*a054);
+  a064=(a064+a054);
+  a065=(a101*a065);
+  a054=(a065*a080);
+  a064=(a064-a054);
+  a090=(a071*a090);
+  a054=(a090*a082);
+  a064=(a064-a054);
+  a037=(a037*a066);
+  a068=(a037*a068);
+  a064=(a064+a068);
+  a092=(a092*a089);
+  a064=(a064-a092);
+  a095=(a095*a086);
+  a064=(a064-a095);
+  a100=(a100*a088);
+  a064=(a064+a100);
+  a096=(a096*a032);
+  a064=(a064-a096);
+  a042=(a042*a091);
+  a064=(a064-a042);
+  a050=(a050*a033);
+  a064=(a064+a050);
+  if (res[0]!=0) res[0][18]=a064;
+  a023=(a023*a074);
+  a030=(a019*a030);
+  a079=(a059*a079);
+  a030=(a030+a079);
+  a016=(a018*a016);
+  a030=(a030+a016);
+  a052=(a015*a052);
+  a030=(a030+a052);
+  a061=(a058*a061);
+  a030=(a030+a061);
+  a029=(a001*a029);
+  a030=(a030+a029);
+  a023=(a023-a030);
+  a038=(a038*a077);
+  a023=(a023+a038);
+  a051=(a051*a063);
+  a023=(a023-a051);
+  a065=(a065*a073);
+  a023=(a023+a065);
+  a090=(a090*a045);
+  a023=(a023+a090);
+  a037=(a037*a062);
+  a023=(a023-a037);
+  a098=(a098*a089);
+  a023=(a023+a098);
+  a023=(a023+a095);
+  a014=(a014*a032);
+  a023=(a023+a014);
+  a023=(a023+a042);
+  a036=(a035*a036);
+  a023=(a023-a036);
+  a023=(a023-a078);
+  a013=(a053*a013);
+  a023=(a023-a013);
+  a023=(a023-a057);
+  if (res[0]!=0) res[0][19]=a023;
+  a023=(a039*a089);
+  a055=(a055*a023);
+  a057=(a049*a086);
+  a041=(a041*a057);
+  a013=(a055+a041);
+  a039=(a039*a032);
+  a075=(a075*a039);
+  a013=(a013+a075);
+  a049=(a049*a091);
+  a097=(a097*a049);
+  a013=(a013+a097);
+  if (res[0]!=0) res[0][20]=a013;
+  a094=(a094*a023);
+  a013=(a094+a041);
+  a085=(a085*a039);
+  a013=(a013+a085);
+  a013=(a013+a097);
+  if (res[0]!=0) res[0][21]=a013;
+  a013=(a094*a074);
+  a078=(a041*a077);
+  a013=(a013+a078);
+  a078=(a085*a073);
+  a013=(a013+a078);
+  a078=(a097*a045);
+  a013=(a013+a078);
+  a078=(a034*a089);
+  a013=(a013-a078);
+  a078=(a060*a086);
+  a013=(a013-a078);
+  a078=(a026*a088);
+  a013=(a013-a078);
+  a078=(a025*a032);
+  a013=(a013-a078);
+  a078=(a028*a091);
+  a013=(a013-a078);
+  a078=(a002*a033);
+  a013=(a013-a078);
+  a078=(a055*a081);
+  a013=(a013-a078);
+  a078=(a041*a083);
+  a013=(a013-a078);
+  a078=(a075*a080);
+  a013=(a013-a078);
+  a078=(a097*a082);
+  a013=(a013-a078);
+  if (res[0]!=0) res[0][22]=a013;
+  a020=(a020-a043);
+  a027=(a027*a020);
+  a072=(a027-a072);
+  a043=(a072-a047);
+  a034=(a034*a043);
+  a027=(a027-a076);
+  a076=(a027-a047);
+  a060=(a060*a076);
+  a034=(a034+a060);
+  a048=(a048*a020);
+  a047=(a048-a047);
+  a026=(a026*a047);
+  a034=(a034+a026);
+  a072=(a072-a067);
+  a025=(a025*a072);
+  a034=(a034+a025);
+  a027=(a027-a067);
+  a028=(a028*a027);
+  a034=(a034+a028);
+  a048=(a048-a067);
+  a002=(a002*a048);
+  a034=(a034+a002);
+  a040=(a040*a023);
+  a081=(a040*a081);
+  a034=(a034-a081);
+  a024=(a024*a057);
+  a083=(a024*a083);
+  a034=(a034-a083);
+  a101=(a101*a039);
+  a080=(a101*a080);
+  a034=(a034-a080);
+  a071=(a071*a049);
+  a082=(a071*a082);
+  a034=(a034-a082);
+  a094=(a094*a089);
+  a034=(a034-a094);
+  a041=(a041*a086);
+  a034=(a034-a041);
+  a085=(a085*a032);
+  a034=(a034-a085);
+  a097=(a097*a091);
+  a034=(a034-a097);
+  if (res[0]!=0) res[0][23]=a034;
+  a040=(a040*a074);
+  a019=(a019*a089);
+  a059=(a059*a086);
+  a019=(a019+a059);
+  a018=(a018*a088);
+  a019=(a019+a018);
+  a015=(a015*a032);
+  a019=(a019+a015);
+  a058=(a058*a091);
+  a019=(a019+a058);
+  a001=(a001*a033);
+  a019=(a019+a001);
+  a040=(a040-a019);
+  a024=(a024*a077);
+  a040=(a040+a024);
+  a101=(a101*a073);
+  a040=(a040+a101);
+  a071=(a071*a045);
+  a040=(a040+a071);
+  a055=(a055*a089);
+  a040=(a040+a055);
+  a040=(a040+a041);
+  a075=(a075*a032);
+  a040=(a040+a075);
+  a040=(a040+a097);
+  a035=(a035*a043);
+  a040=(a040-a035);
+  a040=(a040-a060);
+  a053=(a053*a072);
+  a040=(a040-a053);
+  a040=(a040-a028);
+  if (res[0]!=0) res[0][24]=a040;
+  a040=0.;
+  if (res[1]!=0) res[1][0]=a040;
+  if (res[1]!=0) res[1][1]=a040;
+  if (res[1]!=0) res[1][2]=a040;
+  if (res[1]!=0) res[1][3]=a040;
+  if (res[1]!=0) res[1][4]=a040;
+  if (res[1]!=0) res[1][5]=a040;
+  if (res[1]!=0) res[1][6]=a040;
+  if (res[1]!=0) res[1][7]=a040;
+  if (res[1]!=0) res[1][8]=a040;
+  if (res[1]!=0) res[1][9]=a040;
+  if (res[1]!=0) res[1][10]=a040;
+  if (res[1]!=0) res[1][11]=a040;
+  a028=1.3684950000000002e+00;
+  a053=(a028*a008);
+  a053=(-a053);
+  if (res[1]!=0) res[1][12]=a053;
+  a028=(a028*a022);
+  a022=arg[1]? arg[1][0] : 0;
+  a053=-7.4999999999999997e-02;
+  a072=(a053*a009);
+  a072=(a072*a004);
+  a072=(a022*a072);
+  a028=(a028-a072);
+  a028=(-a028);
+  if (res[1]!=0) res[1][13]=a028;
+  a008=(a053*a008);
+  a008=(a022*a008);
+  a008=(-a008);
+  if (res[1]!=0) res[1][14]=a008;
+  if (res[1]!=0) res[1][15]=a040;
+  if (res[1]!=0) res[1][16]=a040;
+  a008=9.1233000000000018e+01;
+  a028=(a099*a003);
+  a072=(a028*a009);
+  a072=(a072*a006);
+  a004=5.0000000000000001e-03;
+  a060=(a004*a006);
+  a060=(a060*a010);
+  a072=(a072-a060);
+  a072=(a008*a072);
+  if (res[1]!=0) res[1][17]=a072;
+  a003=(a053*a003);
+  a072=(a003*a010);
+  a072=(a022*a072);
+  a028=(a028*a005);
+  a028=(a028*a009);
+  a005=(a004*a005);
+  a010=(a005*a010);
+  a028=(a028-a010);
+  a028=(a008*a028);
+  a072=(a072-a028);
+  if (res[1]!=0) res[1][18]=a072;
+  a003=(a003*a009);
+  a003=(a003*a006);
+  a003=(a022*a003);
+  if (res[1]!=0) res[1][19]=a003;
+  if (res[1]!=0) res[1][20]=a040;
+  if (res[1]!=0) res[1][21]=a040;
+  a040=(a099*a011);
+  a005=(a005*a009);
+  a040=(a040+a005);
+  a040=(a008*a040);
+  if (res[1]!=0) res[1][22]=a040;
+  a099=(a099*a020);
+  a004=(a004*a009);
+  a004=(a004*a006);
+  a099=(a099-a004);
+  a008=(a008*a099);
+  a008=(-a008);
+  if (res[1]!=0) res[1][23]=a008;
+  a053=(a053*a011);
+  a022=(a022*a053);
+  if (res[1]!=0) res[1][24]=a022;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f25(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int maglev_stiffness_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_stiffness_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_stiffness_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void maglev_stiffness_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_stiffness_n_in(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_stiffness_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real maglev_stiffness_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_stiffness_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "F_prop";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_stiffness_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "K_magnetic";
+    case 1: return "K_other";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_stiffness_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s8;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_stiffness_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s11;
+    case 1: return casadi_s11;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int maglev_stiffness_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 2;
+  if (sz_res!=0) *sz_res = 2;
+  if (sz_iw!=0) *sz_iw = 0;
+  if (sz_w!=0) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_stiffness_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res!=0) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w!=0) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* maglev_effectiveness:()->(E[5x10]) */
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6;
+  (void)arg; (void)iw; (void)w; (void)mem;
+  a0=1.;
+  if (res[0]!=0) res[0][0]=a0;
+  a1=0.;
+  if (res[0]!=0) res[0][1]=a1;
+  a2=1.1899999999999999e-01;
+  if (res[0]!=0) res[0][2]=a2;
+  if (res[0]!=0) res[0][3]=a1;
+  a3=2.6000000000000001e-01;
+  if (res[0]!=0) res[0][4]=a3;
+  if (res[0]!=0) res[0][5]=a1;
+  if (res[0]!=0) res[0][6]=a0;
+  a4=8.9999999999999997e-02;
+  if (res[0]!=0) res[0][7]=a4;
+  a5=-2.6000000000000001e-01;
+  if (res[0]!=0) res[0][8]=a5;
+  if (res[0]!=0) res[0][9]=a1;
+  if (res[0]!=0) res[0][10]=a0;
+  if (res[0]!=0) res[0][11]=a1;
+  if (res[0]!=0) res[0][12]=a2;
+  if (res[0]!=0) res[0][13]=a1;
+  if (res[0]!=0) res[0][14]=a3;
+  if (res[0]!=0) res[0][15]=a1;
+  if (res[0]!=0) res[0][16]=a0;
+  a6=-8.9999999999999997e-02;
+  if (res[0]!=0) res[0][17]=a6;
+  if (res[0]!=0) res[0][18]=a5;
+  if (res[0]!=0) res[0][19]=a1;
+  if (res[0]!=0) res[0][20]=a1;
+  if (res[0]!=0) res[0][21]=a0;
+  if (res[0]!=0) res[0][22]=a1;
+  if (res[0]!=0) res[0][23]=a5;
+  if (res[0]!=0) res[0][24]=a1;
+  if (res[0]!=0) res[0][25]=a0;
+  if (res[0]!=0) res[0][26]=a1;
+  if (res[0]!=0) res[0][27]=a2;
+  if (res[0]!=0) res[0][28]=a1;
+  if (res[0]!=0) res[0][29]=a5;
+  if (res[0]!=0) res[0][30]=a1;
+  if (res[0]!=0) res[0][31]=a0;
+  if (res[0]!=0) res[0][32]=a4;
+  if (res[0]!=0) res[0][33]=a3;
+  if (res[0]!=0) res[0][34]=a1;
+  if (res[0]!=0) res[0][35]=a0;
+  if (res[0]!=0) res[0][36]=a1;
+  if (res[0]!=0) res[0][37]=a2;
+  if (res[0]!=0) res[0][38]=a1;
+  if (res[0]!=0) res[0][39]=a5;
+  if (res[0]!=0) res[0][40]=a1;
+  if (res[0]!=0) res[0][41]=a0;
+  if (res[0]!=0) res[0][42]=a6;
+  if (res[0]!=0) res[0][43]=a3;
+  if (res[0]!=0) res[0][44]=a1;
+  if (res[0]!=0) res[0][45]=a1;
+  if (res[0]!=0) res[0][46]=a0;
+  if (res[0]!=0) res[0][47]=a1;
+  if (res[0]!=0) res[0][48]=a3;
+  if (res[0]!=0) res[0][49]=a1;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_effectiveness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f26(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int maglev_effectiveness_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_effectiveness_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void maglev_effectiveness_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void maglev_effectiveness_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_effectiveness_n_in(void) { return 0;}
+
+CASADI_SYMBOL_EXPORT casadi_int maglev_effectiveness_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real maglev_effectiveness_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_effectiveness_name_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* maglev_effectiveness_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "E";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_effectiveness_sparsity_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* maglev_effectiveness_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s16;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int maglev_effectiveness_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 0;
+  if (sz_res!=0) *sz_res = 1;
+  if (sz_iw!=0) *sz_iw = 0;
+  if (sz_w!=0) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_effectiveness_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg!=0) *sz_arg = 0*sizeof(const casadi_real*);
   if (sz_res!=0) *sz_res = 1*sizeof(casadi_real*);
   if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w!=0) *sz_w = 0*sizeof(casadi_real);

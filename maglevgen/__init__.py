@@ -10,8 +10,7 @@ import os
 from typing import Any
 
 from .errors import InputError, MaglevError, NoTrimError, VerificationError
-
-__version__ = "0.1.0"
+from .version import __version__
 
 __all__ = [
     "Carriage",
@@ -49,13 +48,3 @@ def __dir__() -> list[str]:
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-
-def _install_derivation_store() -> None:
-    """Share the derivation's memoised steps across processes (derive/ itself does no I/O)."""
-    from .cache import STORE
-    from .derive.memo import set_store
-
-    set_store(STORE)
-
-
-_install_derivation_store()

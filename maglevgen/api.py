@@ -737,7 +737,7 @@ class Carriage:
         _check_controller(controller)
         if speed is not None:
             self._speed(speed)
-        _commands()._check_run_options(t_end, dt)
+        _check_run_options(t_end, dt)
         run = run_scenarios(self._carriage, (controller,), t_end, dt, speed, lib=self._lib,
                             scenario=scenario)
         return _simulation_result(run)
@@ -859,7 +859,7 @@ class Carriage:
             raise InputError(f"--samples {samples}: expected a positive number of samples")
         if workers is not None and workers < 1:
             raise InputError(f"--workers {workers}: expected at least 1")
-        _commands()._check_run_options(t_end, dt)
+        _check_run_options(t_end, dt)
         if out is not None:
             check_writable(Path(out))
         controllers = CONTROLLERS if choice == "all" else (choice,)
@@ -1005,10 +1005,16 @@ class Carriage:
 
 def _commands() -> ModuleType:
     """The module holding the functions behind the commands (trim_report, gains_report,
-    envelope_of, _library, _check_run_options): the one place this API names it."""
-    from . import cli
+    envelope_of, _library): the one place this API names it."""
+    from . import summary
 
-    return cli
+    return summary
+
+
+def _check_run_options(t_end: float, dt: float) -> None:
+    from .params import check_run_options
+
+    check_run_options(t_end, dt)
 
 
 def _check_controller(controller: str) -> None:

@@ -25,10 +25,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import __version__
 from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .errors import InputError
+from .version import __version__
 
 # Imported by the command-line parser: nothing heavier than the conventions at module level.
 

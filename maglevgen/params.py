@@ -719,6 +719,15 @@ def check_option(option: str, value: float, lo: float, hi: float, unit: str, why
                          f"({why})")
 
 
+def check_run_options(t_end: float, dt: float) -> None:
+    """--t-end and --dt inside ranges the simulation can hold (its trajectories in memory)."""
+    check_option("--t-end", t_end, 1e-3, 1e4, "s", "a millisecond to nearly three hours")
+    check_option("--dt", dt, 1e-7, 1.0, "s", "RK4 steps; the stability limit is checked too")
+    if t_end / dt > 1e7:
+        raise InputError(f"--t-end {t_end:g} s / --dt {dt:g} s = {t_end / dt:.3g} "
+                         "steps: more than 1e7 (the trajectories are held in memory)")
+
+
 def check_key_option(option: str, value: float, key: str) -> None:
     """A command-line number that stands for the schema's ``key``: inside its range."""
     row = next(r for r in schema_table() if r[0] == key)

@@ -13,7 +13,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .background import Background
 from .derive import conventions as cv
 from .simulate import (
     CONTROLLER_TITLES,
@@ -23,6 +22,7 @@ from .simulate import (
     disturbance_doc,
     metrics,
 )
+from .workers import Shared, child, submit
 
 # The paper's figures: (file, title, [(state, scale, axis label)], figures reproduced)
 FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = (
@@ -213,10 +213,11 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
 def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],
                    header: dict) -> dict[str, bytes]:
     """Every output file of a simulation run; the figures are drawn in a child process
-    (maglevgen.background) while this one writes the trajectories and metrics."""
-    with Background("drawing the figures", render_figures, trajs) as drawing:
+    (maglevgen.workers) while this one writes the trajectories and metrics."""
+    with child(shared={"trajectories": trajs}) as drawing:
+        figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         files = {**render_metrics(trajs, header), **render_trajectories(trajs, input_names)}
-        return {**files, **drawing.result()}
+        return {**files, **figures.result()}
 
 
 NPZ_FILE = "trajectories.npz"

@@ -215,8 +215,14 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
 # ------------------------------------------------------------------------------ one line
 
 def test_a_libraries_multi_line_message_stays_one_line(monkeypatch, capsys) -> None:
-    """SciPy's root() message (several lines in some versions) inside the no-trim error."""
+    """SciPy's root() message (several lines in some versions) inside the no-trim error of
+    the lambdified trim (the report's), raised where `maglevgen trim` meets a no-trim error
+    (its own trim is the C's, which has no such message)."""
+    from maglevgen import summary
+    from maglevgen.carriage import Carriage
     from maglevgen.derive import trim as trim_mod
+    from maglevgen.errors import NoTrimError
+    from maglevgen.params import load_params
 
     def failing_root(fun, x0, **_k):
         return types.SimpleNamespace(x=x0 + 0.01, success=False,
@@ -224,6 +230,13 @@ def test_a_libraries_multi_line_message_stays_one_line(monkeypatch, capsys) -> N
                                              "  as measured by the\n improvement")
 
     monkeypatch.setattr(trim_mod, "root", failing_root)
+    with pytest.raises(NoTrimError) as raised:
+        Carriage(load_params(overrides=["vehicle.mass=9.31"])).trim()
+
+    def no_trim(*_a):
+        raise raised.value
+
+    monkeypatch.setattr(summary, "trim_point", no_trim)
     rc = main(["trim", "--set", "vehicle.mass=9.31"])
     out, err = capsys.readouterr()
     assert_one_line_error(rc, out, err, ["did not converge", "not making good progress, as "
@@ -235,16 +248,16 @@ def test_floating_point_warnings_never_reach_the_terminal(monkeypatch, capsys) -
     the command's own."""
     import numpy as np
 
-    from maglevgen import cli
+    from maglevgen import summary
 
-    real = cli.trim_report
+    real = summary.trim_report
 
     def overflowing(carriage, speed):
         np.exp(np.array([1e3]))  # RuntimeWarning: overflow
         warnings.warn("a library's own warning", UserWarning, stacklevel=1)
         return real(carriage, speed)
 
-    monkeypatch.setattr(cli, "trim_report", overflowing)
+    monkeypatch.setattr(summary, "trim_report", overflowing)
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         rc = main(["trim", "--json"])

@@ -20,12 +20,13 @@ import pytest
 
 from maglevgen import report as rp
 from maglevgen.carriage import Carriage
-from maglevgen.cli import gains_report, main
+from maglevgen.cli import main
 from maglevgen.errors import InputError, MaglevError
 from maglevgen.params import default_params_text, load_params
 from maglevgen.report import display, latex, render
 from maglevgen.report import format as fmt
 from maglevgen.report.sections import parameters, simulation, stiffness
+from maglevgen.summary import gains_report
 
 OVERFULL_BOUND_PT = 10.0  # widest overfull box the PDF may have
 RTOL = 1e-4  # the report prints 6 significant digits

@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING
 
 import jinja2
 
-from maglevgen import __version__
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
+from maglevgen.version import __version__
 
 if TYPE_CHECKING:
     from maglevgen.carriage import Carriage
@@ -52,6 +52,11 @@ IO_DOCS: dict[str, str] = {
     "x_next": "state after the step", "x0": "state",
     "gaps": "[m] gap of each array, in the parameter file's array order",
     "T": "minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix",
+    "lift": "[N] lift of each array, in the parameter file's array order",
+    "drag": "[N] drag of each array, in the parameter file's array order",
+    "K_magnetic": "magnetic stiffness K_st0 (5 x 5, MAGLEV_AXIS_* order, column-major)",
+    "K_other": "stiffness of the gravity and propulsion moments (5 x 5, column-major)",
+    "E": "control effectiveness (5 x array forces, column-major): u_gen = E F_arrays",
 }
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -11,6 +10,8 @@ from typing import Any
 
 import numpy as np
 import sympy as sp
+
+from ..hashing import sha256_hex
 
 __all__ = ["LINE_WIDTH", "REPORT_SOURCE", "Display", "abbreviate_radicals", "break_sum", "eq",
            "eqs", "ltx", "matrix_tex", "round_floats", "trig_abbrev"]
@@ -23,8 +24,8 @@ FLOAT_DIGITS = 4  # significant digits of numbers printed inside symbolic expres
 # source) take the report package's digest as an argument, so an edit here renders them again.
 _PHI, _THETA, _PSI = sp.symbols("phi theta psi")  # the Euler angles as displayed
 
-REPORT_SOURCE = hashlib.sha256(b"".join(
-    p.read_bytes() for p in sorted(Path(__file__).parent.rglob("*.py")))).hexdigest()[:16]
+REPORT_SOURCE = sha256_hex(b"".join(
+    p.read_bytes() for p in sorted(Path(__file__).parent.rglob("*.py"))))[:16]
 
 def ltx(expr: Any) -> str:
     """sympy.latex with the report's settings."""

@@ -22,11 +22,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from .. import __version__
-from ..cli import gains_report, trim_report  # the CLI's numbers, printed by the report
 from ..errors import MaglevError
 from ..output import write_output
 from ..report_figures import force_figures, pole_map
+from ..summary import gains_report, trim_report  # the CLI's numbers, from the C
+from ..version import __version__
 from . import latex
 from .latex import LatexBuild, latex_env
 from .sections.conventions import _conventions
