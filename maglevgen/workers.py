@@ -64,8 +64,18 @@ def _stop(pool: Executor) -> None:
     if terminate is not None:
         terminate()
     else:
-        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        for proc in procs:
             proc.terminate()
+        for proc in procs:
+            proc.join()
+        # A worker killed while it sends a result leaves half a message in the result pipe,
+        # and the executor's thread would wait for the rest for ever (shutdown, and the
+        # interpreter's exit, join that thread). With the parent's own copy of the pipe's
+        # writing end closed, that thread reads end-of-file instead and marks the pool broken.
+        results = getattr(pool, "_result_queue", None)
+        if results is not None:
+            results._writer.close()
     pool.shutdown(wait=True, cancel_futures=True)
 
 
