@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import __version__
+from .codegen.checks import ERROR_CODES
 from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .errors import InputError
@@ -244,6 +245,7 @@ def render_files(model: FmuModel, guid: str) -> dict[str, str]:
         "xml": _xml_escape, "c_comment": _c_comment,
         "params_source": man["params_source"], "params_sha256": man["params_sha256"],
         "overrides": man["overrides"],
+        "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
     }
     env = template_env()
     return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in (

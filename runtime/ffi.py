@@ -14,6 +14,17 @@ import numpy as np
 _INT = ctypes.c_longlong  # casadi_int as generated (long long int)
 
 
+class GeneratedFunctionError(RuntimeError):
+    """A generated function returned a non-zero MAGLEV_ERR_* code (maglev.h)."""
+
+    def __init__(self, function: str, code: int) -> None:
+        from maglevgen.codegen.checks import ERROR_CODES, error_name
+
+        self.function, self.code, self.code_name = function, code, error_name(code)
+        meaning = ERROR_CODES.get(self.code_name, (code, "unknown code"))[1]
+        super().__init__(f"{function} returned {self.code_name} ({code}): {meaning}")
+
+
 class GeneratedFunction:
     """One function of a generated library; call it with array-likes, get dense arrays."""
 
@@ -62,8 +73,9 @@ class GeneratedFunction:
         res = (P * self._sz_res)(*[o.ctypes.data_as(P) for o in outs])
         iw = (_INT * self._sz_iw)()
         w = (self._creal * self._sz_w)()
-        if self._fn(arg, res, iw, w, 0):
-            raise RuntimeError(f"{self.name} returned an error")
+        rc = self._fn(arg, res, iw, w, 0)
+        if rc:
+            raise GeneratedFunctionError(self.name, rc)
         return [o.reshape(s, order="F") for o, s in zip(outs, self.shapes_out, strict=True)]
 
 

@@ -21,6 +21,8 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
 
+from .checks import error_defines
+
 if TYPE_CHECKING:
     from maglevgen.carriage import Carriage
 
@@ -121,7 +123,7 @@ def render_interface(carriage: Carriage, opts: GenerateOptions,
         "real_type": "float" if opts.precision == "single" else "double",
         "states": cv.STATES, "inputs": inputs, "controls": cv.CONTROLS, "params": params,
         "functions": table, "speed": _c_literal(carriage.params.operation.speed, "double"),
-        "dt": "1e-3", "n_steps": 2000,
+        "dt": "1e-3", "n_steps": 2000, "error_defines": error_defines(),
     }
     env = template_env()
     files = {name: env.get_template(f"{name}.j2").render(ctx)
