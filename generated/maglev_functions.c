@@ -15617,11 +15617,10 @@ static void maglev_zero(casadi_real* a, int n) {
 /* the trim at *v into x and *F_prop: v and p finite, v > 0, the accelerations at the
    trim within 1e-8 (the Newton solve converged), every gap >= track.min_gap */
 static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
-                               casadi_real* F_prop) {
+                               casadi_real* F_prop, casadi_int* iw, casadi_real* w) {
   const casadi_real* arg[8];
   casadi_real* res[8];
-  casadi_int iw[1];
-  casadi_real w[633], u[11], xdot[12], gaps[6];
+  casadi_real u[11], xdot[12], gaps[6];
   int i;
   (void)p;
   if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;
@@ -15656,7 +15655,7 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
 CASADI_SYMBOL_EXPORT int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
   int rc = maglev_trim_checked(arg[0], 0, res[0] != 0 ? res[0] : x,
-                               res[1] != 0 ? res[1] : &F_prop);
+                               res[1] != 0 ? res[1] : &F_prop, iw, w);
   (void)iw; (void)w; (void)mem;
   if (rc == MAGLEV_OK) return MAGLEV_OK;
   maglev_zero(res[0], 12);
@@ -15666,7 +15665,7 @@ CASADI_SYMBOL_EXPORT int maglev_trim(const casadi_real** arg, casadi_real** res,
 
 CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
-  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop);
+  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
   if (rc == MAGLEV_OK) {
     if (maglev_axis_plants_unchecked(arg, res, iw, w, mem) != 0) {
       rc = MAGLEV_ERR_INTERNAL;
@@ -15684,7 +15683,7 @@ CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
-  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop);
+  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
   if (rc == MAGLEV_OK) {
     if (maglev_lqr_gains_unchecked(arg, res, iw, w, mem) != 0) {
       rc = MAGLEV_ERR_INTERNAL;

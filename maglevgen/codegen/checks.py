@@ -4,8 +4,9 @@ CasADi's generated functions return 0 whatever their inputs: the trim's Newton i
 after their count at any speed (all NaN at v = 0, a nonsensical pose below lift-off) and a NaN
 state passes through a control tick into the array forces. :func:`check_entries` renames the
 CasADi entry point of each function listed below to a ``static`` ``NAME_unchecked`` and defines
-``NAME`` around it with the checks; the work sizes (``NAME_work``) stay CasADi's, since the
-checks use their own stack arrays.
+``NAME`` around it with the checks; the work sizes (``NAME_work``) stay CasADi's: the trim's
+checks evaluate the dynamics and the gaps in the caller's work arrays, which the Newton solve's
+sizes cover (checked at generation, else the checks get their own on the stack).
 
 * schedule functions (``TRIM_KIND``, each runs the trim Newton solve): the speed and p finite,
   v > 0 (the Newton trim has no speed range of its own: [v_min, v_max] is the build's and is
@@ -101,7 +102,7 @@ def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...
                  precision: str, runtime: bool, min_gap: str) -> str:
     """``maglev_trim_checked``: the trim at v into x and F_prop, with its checks."""
     used = ("maglev_trim", "maglev_dynamics", "maglev_gaps")
-    sz = [max(work[f][k] for f in used) + 1 for k in range(4)]
+    sz = [max(work[f][k] for f in used) + 1 for k in range(2)]
     nx = table["maglev_dynamics"]["inputs"][0]["rows"]
     nu = table["maglev_dynamics"]["inputs"][1]["rows"]
     ng = table["maglev_gaps"]["outputs"][0]["rows"]
@@ -112,11 +113,10 @@ def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...
     return f"""/* the trim at *v into x and *F_prop: v and p finite, v > 0, the accelerations at the
    trim within {tol} (the Newton solve converged), every gap >= track.min_gap */
 static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
-                               casadi_real* F_prop) {{
+                               casadi_real* F_prop, casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz[0]}];
   casadi_real* res[{sz[1]}];
-  casadi_int iw[{sz[2]}];
-  casadi_real w[{sz[3]}], u[{nu}], xdot[{nx}], gaps[{ng}];
+  casadi_real u[{nu}], xdot[{nx}], gaps[{ng}];
   int i;
   (void)p;
   if (!maglev_all_finite(v, 1){p_check}) return MAGLEV_ERR_NONFINITE;
@@ -151,19 +151,33 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
 """
 
 
-def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool) -> str:
+def _work_args(name: str, work: Mapping[str, tuple[int, ...]]) -> tuple[str, str]:
+    """(declarations, ``iw, w`` arguments) for maglev_trim_checked inside ``name``: the
+    caller's work arrays where ``name``'s own work sizes cover the trim, the dynamics and the
+    gaps (they do: the Newton solve evaluates the dynamics), else arrays on the stack."""
+    need = [max(work[f][k] for f in ("maglev_trim", "maglev_dynamics", "maglev_gaps"))
+            for k in (2, 3)]
+    if work[name][2] >= need[0] and work[name][3] >= need[1]:
+        return "", "iw, w"
+    return (f"  casadi_int iw_trim[{need[0] + 1}];\n  casadi_real w_trim[{need[1] + 1}];\n",
+            "iw_trim, w_trim")
+
+
+def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
+               work: Mapping[str, tuple[int, ...]]) -> str:
     name, outs = fn["name"], _sizes(fn["outputs"])
     nx = table["maglev_dynamics"]["inputs"][0]["rows"]
     p = "arg[1]" if runtime else "0"
+    decl, iw_w = _work_args(name, work)
     if name == "maglev_trim":
-        body = (f"  casadi_real x[{nx}], F_prop;\n"
+        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}"
                 f"  int rc = maglev_trim_checked(arg[0], {p}, res[0] != 0 ? res[0] : x,\n"
-                "                               res[1] != 0 ? res[1] : &F_prop);\n"
+                f"                               res[1] != 0 ? res[1] : &F_prop, {iw_w});\n"
                 "  (void)iw; (void)w; (void)mem;\n"
                 "  if (rc == MAGLEV_OK) return MAGLEV_OK;\n")
     else:
-        body = (f"  casadi_real x[{nx}], F_prop;\n"
-                f"  int rc = maglev_trim_checked(arg[0], {p}, x, &F_prop);\n"
+        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}"
+                f"  int rc = maglev_trim_checked(arg[0], {p}, x, &F_prop, {iw_w});\n"
                 "  if (rc == MAGLEV_OK) {\n"
                 f"    if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
                 "      rc = MAGLEV_ERR_INTERNAL;\n"
@@ -202,7 +216,7 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
     if any(n in TRIM_KIND for n in wanted):
         block.append(_trim_helper(by_name, work, precision, runtime, min_gap))
     for name in wanted:
-        block.append(_trim_kind(by_name[name], by_name, runtime) if name in TRIM_KIND
+        block.append(_trim_kind(by_name[name], by_name, runtime, work) if name in TRIM_KIND
                      else _tick(by_name[name]))
     tail = "\n#ifdef __cplusplus\n} /* extern \"C\" */\n#endif\n"
     if not source.endswith(tail):
