@@ -81,7 +81,7 @@ def _worst_stack(ci: str, root: str) -> int:
 
 
 def _sources(carriage: Carriage, folder: Path) -> GainTable:
-    write_output(render(carriage, GenerateOptions("single", "baked")), folder)
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), folder)
     lib = simulation_library(carriage.structure)
     v_min, v_max = resolve_range(carriage, lib)
     table = GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
@@ -166,7 +166,7 @@ def section(r: dict) -> list[str]:
     t = r["x86"]
     lines = [BEGIN, "## 8. Firmware (issue 16): Cortex-M4F footprint, schedule table, MISRA", "",
              f"Measured by `python bench/firmware.py` ({r['date_utc']} UTC; raw figures: "
-             "bench/firmware_results.json). Single precision, baked parameters; "
+             "bench/firmware_results.json). Single precision, baked parameters, `--int int32`; "
              "arm-none-eabi-gcc -Os with the README's firmware flags (`-fno-math-errno` "
              "included). Bytes that the linker keeps for a program referencing only the "
              "group, newlib's libm (sinf, cosf, expf) included, minus an empty program; worst "

@@ -2,7 +2,8 @@
 /*
  * maglev.h: the interface of the generated Inductrack carriage code.
  *
- * Precision: double (casadi_real is double); parameters: baked.
+ * Precision: double (casadi_real is double, casadi_int long long int);
+ * parameters: baked.
  * Every function follows CasADi's generated-code API, declared in maglev_functions.h:
  *   int NAME(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
  *            int mem);

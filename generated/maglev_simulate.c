@@ -138,7 +138,7 @@ long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_ste
 /* ------------------------------------------------------------------------------------------
    Gain schedule: natural cubic spline over uniformly spaced speeds (see maglev_simulate.h) */
 
-int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* out) {
+int maglev_schedule_eval(const maglev_spline_schedule* s, casadi_real v, casadi_real* out) {
     const casadi_real v_last = s->v0 + (casadi_real)(s->n - 1) * s->dv;
     casadi_real a, b, h2, pos;
     int j, i, rc = MAGLEV_SCHEDULE_OK;
@@ -168,7 +168,7 @@ int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* o
 
 /* xdot, u and gaps of the closed loop at x with the gains, reference and drag scheduled at
    the speed |(u, v, w)| of x (or, when sched is not NULL, the values held in sched) */
-static int launch_stage(work* ws, const casadi_real* x, const maglev_schedule* s,
+static int launch_stage(work* ws, const casadi_real* x, const maglev_spline_schedule* s,
                         casadi_real F_extra, const casadi_real* T,
                         const casadi_real* held, casadi_real* xdot, casadi_real* u,
                         casadi_real* gaps) {
@@ -194,7 +194,7 @@ static int launch_stage(work* ws, const casadi_real* x, const maglev_schedule* s
 
 long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps,
                         casadi_real v_end, casadi_real F_extra, long long hold_steps,
-                        const maglev_schedule* schedule,
+                        const maglev_spline_schedule* schedule,
                         casadi_real gap_min, casadi_real* x_traj, casadi_real* u_traj,
                         casadi_real* gap_traj, int* status) {
     work ws;

@@ -59,9 +59,9 @@ typedef struct {
     casadi_real v0, dv;       /* [m/s] first node and spacing */
     const casadi_real* y;     /* n x MAGLEV_SCHEDULE_NY */
     const casadi_real* d2y;   /* n x MAGLEV_SCHEDULE_NY */
-} maglev_schedule;
+} maglev_spline_schedule;
 
-int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* out);
+int maglev_schedule_eval(const maglev_spline_schedule* s, casadi_real v, casadi_real* out);
 
 /*
  * The launch run: from x0 the carriage accelerates under the propulsion
@@ -74,7 +74,7 @@ int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* o
  */
 long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps,
                         casadi_real v_end, casadi_real F_extra, long long hold_steps,
-                        const maglev_schedule* schedule,
+                        const maglev_spline_schedule* schedule,
                         casadi_real gap_min, casadi_real* x_traj, casadi_real* u_traj,
                         casadi_real* gap_traj, int* status);
 

@@ -72,7 +72,7 @@ class Schedule:
 
 def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
     """C for the firmware: the schedule's node values and second derivatives as static const
-    tables and a `maglev_schedule` (maglev_simulate.h) named ``maglev_embedded_schedule`` for
+    tables and a `maglev_spline_schedule` (maglev_simulate.h) named ``maglev_embedded_schedule`` for
     `maglev_schedule_eval`. Deterministic text (repr of each double)."""
     suffix = "f" if precision == "single" else ""
 
@@ -92,7 +92,7 @@ def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
         '#include "maglev_simulate.h"\n\n'
         + table("maglev_schedule_y", schedule.values) + "\n"
         + table("maglev_schedule_d2y", schedule.second_derivatives) + "\n"
-        + f"const maglev_schedule maglev_embedded_schedule = {{{n}, {v0!r}{suffix}, "
+        + f"const maglev_spline_schedule maglev_embedded_schedule = {{{n}, {v0!r}{suffix}, "
         f"{dv!r}{suffix}, maglev_schedule_y, maglev_schedule_d2y}};\n")
 
 

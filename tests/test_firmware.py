@@ -330,7 +330,7 @@ def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path)
 
     table, table_dir, table_libs, _ = gain_table
     src = tmp_path / "m4"
-    write_output(render(carriage, GenerateOptions("single", "baked")), src)
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), src)
     for name in ("maglev_gain_table.c", "maglev_gain_table.h"):
         (src / name).write_text((table_dir / name).read_text())
     objs = []
@@ -432,3 +432,28 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carria
     assert {rule for file, rule in rules if file.startswith("maglev_gain_table")} <= {"2.5"}
     listed = deviation_list()
     assert all(f"| {rule} |" in listed for _, rule in rules)
+
+
+# ------------------------------------------------------------------------------ --int int32
+
+
+@pytest.mark.needs_cc
+def test_int32_build_gives_the_int64_results(carriage: Carriage, tmp_path: Path) -> None:
+    """`--int int32` (casadi_int = int for 32-bit MCUs): the header says so, and the trim and
+    a tick called through the int32 ABI equal the default int64 build's bit for bit (the
+    integer type only indexes sparsity and work)."""
+    libs = {}
+    for int_type in ("int64", "int32"):
+        out = tmp_path / int_type
+        write_output(render(carriage, GenerateOptions("double", "runtime", int_type)), out)
+        text = (out / "maglev_functions.h").read_text()
+        want = "int" if int_type == "int32" else "long long int"
+        assert f"#define casadi_int {want}\n" in text
+        libs[int_type] = GeneratedLibrary(
+            compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache"), "double",
+            int_type)
+    for name, args in (("maglev_trim", ([20.0], carriage.p)),
+                       ("maglev_lqr_gains", ([15.0], carriage.p))):
+        a, b = (libs[k].function(name)(*args) for k in ("int64", "int32"))
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_array_equal(x, y)

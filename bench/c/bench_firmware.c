@@ -1,4 +1,4 @@
-/* x86 time per call of the firmware functions (single precision, baked; bench/firmware.py):
+/* x86 time per call of the firmware functions (single precision, baked, --int int32; bench/firmware.py):
    the ticks, the table schedule maglev_schedule and the Newton schedule (maglev_trim then
    maglev_lqr_gains) at the same speeds, in the same run. Prints JSON: ns per call, per round. */
 #include "bench_util.h"

@@ -21,6 +21,7 @@ from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
 from .interface import (
     C_NAME,
     FUNCTION_TABLE,
+    INT_TYPES,
     IO_DOCS,
     SIMULATE_FILES,
     GenerateOptions,
@@ -68,7 +69,7 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
              model: CarriageModel, p_value: np.ndarray | None = None) -> dict[str, str]:
     """The C sources: the CasADi functions (post-processed, with the checked entry points of
     maglevgen.codegen.checks) and the simulation loop."""
-    sources = generate_c(functions, C_NAME, opts.precision)
+    sources = generate_c(functions, C_NAME, opts.precision, int_type=INT_TYPES[opts.int_type])
     sources[f"{C_NAME}.c"] = check_entries(sources[f"{C_NAME}.c"], function_table(functions),
                                            opts.precision, opts.parameters == "runtime",
                                            _min_gap_c(model, opts, p_value))
