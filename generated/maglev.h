@@ -2,14 +2,16 @@
 /*
  * maglev.h: the interface of the generated Inductrack carriage code.
  *
- * Precision: double (casadi_real is double, casadi_int long long int);
+ * Precision: double (maglev_real is double, maglev_int long long int: the
+ * header's own types, casadi_real and casadi_int of maglev_functions.c; the header defines
+ * no casadi_* macro, so other CasADi-generated code in the same translation unit keeps its own);
  * parameters: baked.
  * Every function follows CasADi's generated-code API, declared in maglev_functions.h:
- *   int NAME(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+ *   int NAME(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
  *            int mem);
  * arg[i] points at input i and res[i] at output i (dense, column-major); a NULL res[i] skips
  * output i. arg and res must each hold at least NAME_SZ_ARG and NAME_SZ_RES pointers (CasADi
- * uses the slots past the inputs and outputs as scratch: `const casadi_real* arg[2]` for a
+ * uses the slots past the inputs and outputs as scratch: `const maglev_real* arg[2]` for a
  * two-input function is too small when NAME_SZ_ARG is larger); iw and w are work arrays of at
  * least NAME_SZ_IW and NAME_SZ_W elements (the counts NAME_work() reports).
  *
@@ -168,7 +170,7 @@ extern "C" {
 #define MAGLEV_DYNAMICS_SZ_RES 1
 #define MAGLEV_DYNAMICS_SZ_IW 0
 #define MAGLEV_DYNAMICS_SZ_W 0
-int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_dynamics(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -182,7 +184,7 @@ int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_JACOBIANS_SZ_RES 2
 #define MAGLEV_JACOBIANS_SZ_IW 0
 #define MAGLEV_JACOBIANS_SZ_W 0
-int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_jacobians(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -195,7 +197,7 @@ int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 #define MAGLEV_TRIM_SZ_RES 7
 #define MAGLEV_TRIM_SZ_IW 0
 #define MAGLEV_TRIM_SZ_W 632
-int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -208,7 +210,7 @@ int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casa
 #define MAGLEV_AXIS_PLANTS_SZ_RES 7
 #define MAGLEV_AXIS_PLANTS_SZ_IW 0
 #define MAGLEV_AXIS_PLANTS_SZ_W 645
-int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -222,7 +224,7 @@ int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_AXIS_GAINS_SZ_RES 2
 #define MAGLEV_AXIS_GAINS_SZ_IW 0
 #define MAGLEV_AXIS_GAINS_SZ_W 0
-int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -235,7 +237,7 @@ int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw
 #define MAGLEV_LQR_GAINS_SZ_RES 7
 #define MAGLEV_LQR_GAINS_SZ_IW 0
 #define MAGLEV_LQR_GAINS_SZ_W 660
-int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_lqr_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -249,7 +251,7 @@ int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 #define MAGLEV_LQR_CONTROL_SZ_RES 1
 #define MAGLEV_LQR_CONTROL_SZ_IW 0
 #define MAGLEV_LQR_CONTROL_SZ_W 0
-int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_lqr_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -262,7 +264,7 @@ int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_DAMPING_CONTROL_SZ_RES 1
 #define MAGLEV_DAMPING_CONTROL_SZ_IW 0
 #define MAGLEV_DAMPING_CONTROL_SZ_W 0
-int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_damping_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -277,7 +279,7 @@ int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_in
 #define MAGLEV_COUPLED_CONTROL_SZ_RES 1
 #define MAGLEV_COUPLED_CONTROL_SZ_IW 0
 #define MAGLEV_COUPLED_CONTROL_SZ_W 0
-int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -289,7 +291,7 @@ int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_in
 #define MAGLEV_ALLOCATE_SZ_RES 1
 #define MAGLEV_ALLOCATE_SZ_IW 0
 #define MAGLEV_ALLOCATE_SZ_W 0
-int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_allocate(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -300,7 +302,7 @@ int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_ALLOCATION_MATRIX_SZ_RES 1
 #define MAGLEV_ALLOCATION_MATRIX_SZ_IW 0
 #define MAGLEV_ALLOCATION_MATRIX_SZ_W 0
-int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_allocation_matrix(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -318,7 +320,7 @@ int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_
 #define MAGLEV_RK4_STEP_SZ_RES 5
 #define MAGLEV_RK4_STEP_SZ_IW 0
 #define MAGLEV_RK4_STEP_SZ_W 150
-int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_rk4_step(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -337,7 +339,7 @@ int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_CLOSED_LOOP_SZ_RES 3
 #define MAGLEV_CLOSED_LOOP_SZ_IW 0
 #define MAGLEV_CLOSED_LOOP_SZ_W 0
-int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_closed_loop(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -353,7 +355,7 @@ int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_RES 1
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_IW 0
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_W 0
-int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_closed_loop_prepare(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -368,7 +370,7 @@ int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casad
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_RES 3
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_IW 0
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_W 0
-int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_closed_loop_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -380,7 +382,7 @@ int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casa
 #define MAGLEV_GAPS_SZ_RES 1
 #define MAGLEV_GAPS_SZ_IW 0
 #define MAGLEV_GAPS_SZ_W 0
-int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+int maglev_gaps(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 #ifdef __cplusplus

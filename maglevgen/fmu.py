@@ -329,7 +329,7 @@ def _with_coupled_gains(wrapper: str, carriage, cache_dir: Path | None, cc: str 
     K_pos, K_rate = op.gains("coupled")
 
     def table(name: str, K) -> str:
-        return (f"static const casadi_real {name}[NA * NA] = {{"
+        return (f"static const maglev_real {name}[NA * NA] = {{"
                 + ", ".join(repr(float(v)) for v in K.ravel(order="F")) + "};\n")
 
     consts = table("COUPLED_K_POS", K_pos) + table("COUPLED_K_RATE", K_rate)

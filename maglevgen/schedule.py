@@ -78,7 +78,7 @@ def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
 
     def table(name: str, data: np.ndarray) -> str:
         rows = [", ".join(f"{float(v)!r}{suffix}" for v in row) for row in data]
-        return (f"static const casadi_real {name}[{data.size}] = {{\n    "
+        return (f"static const maglev_real {name}[{data.size}] = {{\n    "
                 + ",\n    ".join(rows) + "\n};\n")
 
     n = len(schedule.speeds)

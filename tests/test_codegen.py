@@ -321,7 +321,7 @@ def test_sanitizers_on_random_inputs(baked: dict[str, Path], tmp_path: Path) -> 
         body += [f"    arg[{i}] = in{i};" for i in range(len(nin))]
         body += [f"    res[{i}] = out{i};" for i in range(len(nout))]
         body.append(f"    long long iw[{f['sz_iw'] + 1}]; double w[{f['sz_w'] + 1}];")
-        body.append(f"    (void){f['name']}(arg, res, (casadi_int*)iw, w, 0); }}")
+        body.append(f"    (void){f['name']}(arg, res, (maglev_int*)iw, w, 0); }}")
         calls.append("\n".join(body))
     driver = tmp_path / "driver.c"
     driver.write_text(

@@ -448,7 +448,7 @@ def test_int32_build_gives_the_int64_results(carriage: Carriage, tmp_path: Path)
         write_output(render(carriage, GenerateOptions("double", "runtime", int_type)), out)
         text = (out / "maglev_functions.h").read_text()
         want = "int" if int_type == "int32" else "long long int"
-        assert f"#define casadi_int {want}\n" in text
+        assert f"typedef {want} maglev_int;" in text
         libs[int_type] = GeneratedLibrary(
             compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache"), "double",
             int_type)
@@ -457,3 +457,22 @@ def test_int32_build_gives_the_int64_results(carriage: Carriage, tmp_path: Path)
         a, b = (libs[k].function(name)(*args) for k in ("int64", "int32"))
         for x, y in zip(a, b, strict=True):
             np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.needs_cc
+def test_header_leaves_casadi_real_alone(carriage: Carriage, tmp_path: Path) -> None:
+    """maglev.h (single precision) included after another CasADi module's
+    ``#define casadi_real double``: casadi_real stays double (8 bytes) and the header's own
+    maglev_real is float (4 bytes); the compiler checks both sizes."""
+    import subprocess
+
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), tmp_path)
+    (tmp_path / "other.c").write_text(
+        "#define casadi_real double\n#define casadi_int long long int\n#include \"maglev.h\"\n"
+        "typedef char real_kept[sizeof(casadi_real) == 8 ? 1 : -1];\n"
+        "typedef char int_kept[sizeof(casadi_int) == 8 ? 1 : -1];\n"
+        "typedef char own_real[sizeof(maglev_real) == 4 ? 1 : -1];\n"
+        "typedef char own_int[sizeof(maglev_int) == sizeof(int) ? 1 : -1];\n"
+        "int use(void) { return (int)sizeof(real_kept) + (int)sizeof(int_kept)\n"
+        "    + (int)sizeof(own_real) + (int)sizeof(own_int); }\n")
+    subprocess.run(["cc", *WARN, "-c", "other.c", "-o", "other.o"], cwd=tmp_path, check=True)

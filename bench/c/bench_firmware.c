@@ -10,7 +10,7 @@
 
 static const float* arg[64];
 static float* res[64];
-static casadi_int iw[SZ];
+static maglev_int iw[SZ];
 static float w[SZ];
 static volatile float sink;
 

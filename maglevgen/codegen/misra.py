@@ -47,7 +47,7 @@ DEVIATIONS: dict[str, tuple[str, str]] = {
              "a query with one input has one case; the switch is CasADi's uniform template"),
     "17.8": ("CasADi's runtime helpers that advance their pointer parameters (`*y++ = *x++`)",
              "CasADi's runtime library text, kept verbatim"),
-    "20.5": ("`#undef casadi_real` / `#undef casadi_int` in the generated header and .c",
+    "20.5": ("`#undef casadi_real` / `#undef casadi_int` in maglev_functions.c",
              "the precision and integer type are fixed at generation time (maglevgen.codegen."
              "cpass); #undef makes a conflicting earlier definition impossible to miss"),
     "20.10": ("CasADi's CASADI_PREFIX(ID) namespace macro (`##`)",

@@ -29,7 +29,7 @@ static void put_rc(int rc) {
 int main(void) {
     const float* arg[MAGLEV_LQR_CONTROL_SZ_ARG + MAGLEV_ALLOCATE_SZ_ARG + 8];
     float* res[MAGLEV_LQR_CONTROL_SZ_RES + MAGLEV_ALLOCATE_SZ_RES + 8];
-    casadi_int iw[4];
+    maglev_int iw[4];
     float w[MAGLEV_LQR_CONTROL_SZ_W + MAGLEV_ALLOCATE_SZ_W + MAGLEV_DAMPING_CONTROL_SZ_W + 1];
     static const float speeds[] = {SPEEDS};
     float x[12] = {X};
