@@ -1003,4 +1003,9 @@ def markdown(r: dict) -> str:
         import fmu
 
         out += ["", *fmu.section(json.loads(fmu_results.read_text()))]
+    firmware_results = Path(__file__).with_name("firmware_results.json")
+    if firmware_results.exists():  # measured separately by bench/firmware.py: kept likewise
+        import firmware
+
+        out += ["", *firmware.section(json.loads(firmware_results.read_text()))]
     return "\n".join(out).rstrip() + "\n"

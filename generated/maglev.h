@@ -2,12 +2,26 @@
 /*
  * maglev.h: the interface of the generated Inductrack carriage code.
  *
- * Precision: double (casadi_real is double); parameters: baked.
+ * Precision: double (maglev_real is double, maglev_int long long int: the
+ * header's own types, casadi_real and casadi_int of maglev_functions.c; the header defines
+ * no casadi_* macro, so other CasADi-generated code in the same translation unit keeps its own);
+ * parameters: baked.
  * Every function follows CasADi's generated-code API, declared in maglev_functions.h:
- *   int NAME(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+ *   int NAME(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
  *            int mem);
- * arg[i] points at input i and res[i] at output i (dense, column-major); iw and w are work
- * arrays of at least the sizes below. The code allocates nothing and has no writable globals:
+ * arg[i] points at input i and res[i] at output i (dense, column-major); a NULL res[i] skips
+ * output i. arg and res must each hold at least NAME_SZ_ARG and NAME_SZ_RES pointers (CasADi
+ * uses the slots past the inputs and outputs as scratch: `const maglev_real* arg[2]` for a
+ * two-input function is too small when NAME_SZ_ARG is larger); iw and w are work arrays of at
+ * least NAME_SZ_IW and NAME_SZ_W elements (the counts NAME_work() reports).
+ *
+ * Return codes: 0 on success, else one of the MAGLEV_ERR_* below. The schedule functions
+ * (maglev_trim, maglev_axis_plants, maglev_lqr_gains: each solves the trim by Newton
+ * iterations) check that v and p are finite, v > 0, the accelerations at the trim are within
+ * the Newton tolerance and every gap is at or above track.min_gap; the tick functions
+ * (maglev_lqr_control, maglev_damping_control, maglev_coupled_control, maglev_allocate,
+ * maglev_axis_gains) that every input and output is finite. On an error every requested
+ * output is set to zero (the tick's safe state: no control force). The code allocates nothing and has no writable globals:
  * it is reentrant as long as each caller passes its own work arrays.
  */
 #ifndef MAGLEV_H
@@ -18,6 +32,15 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
+
+/* Return codes (maglevgen.codegen.checks) */
+#define MAGLEV_OK 0  /* success */
+#define MAGLEV_ERR_NONFINITE 1  /* an input is NaN or infinite (outputs zeroed) */
+#define MAGLEV_ERR_SPEED 2  /* speed outside the function's range: v <= 0 for the Newton trim, outside [v_min, v_max] for maglev_schedule (outputs zeroed; maglev_schedule: the end node's values) */
+#define MAGLEV_ERR_NOT_CONVERGED 3  /* the trim's Newton iteration did not reach its tolerance (no trim: below lift-off?) (outputs zeroed) */
+#define MAGLEV_ERR_CONTACT 4  /* the trim has a gap below track.min_gap (outputs zeroed) */
+#define MAGLEV_ERR_NONFINITE_OUTPUT 5  /* an output came out NaN or infinite (outputs zeroed) */
+#define MAGLEV_ERR_INTERNAL 6  /* the CasADi function itself returned an error (outputs zeroed) */
 
 /* Dimensions */
 #define MAGLEV_NX 12  /* states */
@@ -146,8 +169,8 @@ extern "C" {
 #define MAGLEV_DYNAMICS_SZ_ARG 2
 #define MAGLEV_DYNAMICS_SZ_RES 1
 #define MAGLEV_DYNAMICS_SZ_IW 0
-#define MAGLEV_DYNAMICS_SZ_W 70
-int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_DYNAMICS_SZ_W 0
+int maglev_dynamics(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -160,8 +183,8 @@ int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_JACOBIANS_SZ_ARG 2
 #define MAGLEV_JACOBIANS_SZ_RES 2
 #define MAGLEV_JACOBIANS_SZ_IW 0
-#define MAGLEV_JACOBIANS_SZ_W 202
-int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_JACOBIANS_SZ_W 0
+int maglev_jacobians(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -173,8 +196,8 @@ int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 #define MAGLEV_TRIM_SZ_ARG 7
 #define MAGLEV_TRIM_SZ_RES 7
 #define MAGLEV_TRIM_SZ_IW 0
-#define MAGLEV_TRIM_SZ_W 709
-int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_TRIM_SZ_W 632
+int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -186,8 +209,8 @@ int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casa
 #define MAGLEV_AXIS_PLANTS_SZ_ARG 7
 #define MAGLEV_AXIS_PLANTS_SZ_RES 7
 #define MAGLEV_AXIS_PLANTS_SZ_IW 0
-#define MAGLEV_AXIS_PLANTS_SZ_W 721
-int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_AXIS_PLANTS_SZ_W 645
+int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -200,8 +223,8 @@ int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_AXIS_GAINS_SZ_ARG 2
 #define MAGLEV_AXIS_GAINS_SZ_RES 2
 #define MAGLEV_AXIS_GAINS_SZ_IW 0
-#define MAGLEV_AXIS_GAINS_SZ_W 14
-int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_AXIS_GAINS_SZ_W 0
+int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -213,8 +236,8 @@ int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw
 #define MAGLEV_LQR_GAINS_SZ_ARG 7
 #define MAGLEV_LQR_GAINS_SZ_RES 7
 #define MAGLEV_LQR_GAINS_SZ_IW 0
-#define MAGLEV_LQR_GAINS_SZ_W 736
-int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_LQR_GAINS_SZ_W 660
+int maglev_lqr_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -227,8 +250,8 @@ int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 #define MAGLEV_LQR_CONTROL_SZ_ARG 3
 #define MAGLEV_LQR_CONTROL_SZ_RES 1
 #define MAGLEV_LQR_CONTROL_SZ_IW 0
-#define MAGLEV_LQR_CONTROL_SZ_W 15
-int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_LQR_CONTROL_SZ_W 0
+int maglev_lqr_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -240,8 +263,8 @@ int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_DAMPING_CONTROL_SZ_ARG 2
 #define MAGLEV_DAMPING_CONTROL_SZ_RES 1
 #define MAGLEV_DAMPING_CONTROL_SZ_IW 0
-#define MAGLEV_DAMPING_CONTROL_SZ_W 11
-int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_DAMPING_CONTROL_SZ_W 0
+int maglev_damping_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -255,8 +278,8 @@ int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_in
 #define MAGLEV_COUPLED_CONTROL_SZ_ARG 4
 #define MAGLEV_COUPLED_CONTROL_SZ_RES 1
 #define MAGLEV_COUPLED_CONTROL_SZ_IW 0
-#define MAGLEV_COUPLED_CONTROL_SZ_W 19
-int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_COUPLED_CONTROL_SZ_W 0
+int maglev_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -267,8 +290,8 @@ int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_in
 #define MAGLEV_ALLOCATE_SZ_ARG 1
 #define MAGLEV_ALLOCATE_SZ_RES 1
 #define MAGLEV_ALLOCATE_SZ_IW 0
-#define MAGLEV_ALLOCATE_SZ_W 9
-int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_ALLOCATE_SZ_W 0
+int maglev_allocate(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -278,8 +301,8 @@ int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_ALLOCATION_MATRIX_SZ_ARG 0
 #define MAGLEV_ALLOCATION_MATRIX_SZ_RES 1
 #define MAGLEV_ALLOCATION_MATRIX_SZ_IW 0
-#define MAGLEV_ALLOCATION_MATRIX_SZ_W 4
-int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_ALLOCATION_MATRIX_SZ_W 0
+int maglev_allocation_matrix(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -296,8 +319,8 @@ int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_
 #define MAGLEV_RK4_STEP_SZ_ARG 12
 #define MAGLEV_RK4_STEP_SZ_RES 5
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 254
-int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_RK4_STEP_SZ_W 150
+int maglev_rk4_step(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -315,8 +338,8 @@ int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, 
 #define MAGLEV_CLOSED_LOOP_SZ_ARG 6
 #define MAGLEV_CLOSED_LOOP_SZ_RES 3
 #define MAGLEV_CLOSED_LOOP_SZ_IW 0
-#define MAGLEV_CLOSED_LOOP_SZ_W 86
-int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_CLOSED_LOOP_SZ_W 0
+int maglev_closed_loop(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -331,8 +354,8 @@ int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* i
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_ARG 5
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_RES 1
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_IW 0
-#define MAGLEV_CLOSED_LOOP_PREPARE_SZ_W 11
-int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_CLOSED_LOOP_PREPARE_SZ_W 0
+int maglev_closed_loop_prepare(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -346,8 +369,8 @@ int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casad
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_ARG 2
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_RES 3
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_IW 0
-#define MAGLEV_CLOSED_LOOP_PREPARED_SZ_W 139
-int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_CLOSED_LOOP_PREPARED_SZ_W 0
+int maglev_closed_loop_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -358,8 +381,8 @@ int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casa
 #define MAGLEV_GAPS_SZ_ARG 1
 #define MAGLEV_GAPS_SZ_RES 1
 #define MAGLEV_GAPS_SZ_IW 0
-#define MAGLEV_GAPS_SZ_W 19
-int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_GAPS_SZ_W 0
+int maglev_gaps(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*

@@ -9222,7 +9222,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_trim_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f2(arg, res, iw, w, mem);
 }
 
@@ -10905,7 +10905,7 @@ static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_axis_plants_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f7(arg, res, iw, w, mem);
 }
 
@@ -11114,7 +11114,7 @@ static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_axis_gains_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f10(arg, res, iw, w, mem);
 }
 
@@ -11423,7 +11423,7 @@ static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_lqr_gains_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f11(arg, res, iw, w, mem);
 }
 
@@ -11597,7 +11597,7 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_lqr_control_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f14(arg, res, iw, w, mem);
 }
 
@@ -11745,7 +11745,7 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_damping_control_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f15(arg, res, iw, w, mem);
 }
 
@@ -12039,7 +12039,7 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_coupled_control_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f16(arg, res, iw, w, mem);
 }
 
@@ -12184,7 +12184,7 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_allocate_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f17(arg, res, iw, w, mem);
 }
 
@@ -17193,6 +17193,200 @@ CASADI_SYMBOL_EXPORT int maglev_effectiveness_work_bytes(casadi_int *sz_arg, cas
   if (sz_iw!=0) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w!=0) *sz_w = 0*sizeof(casadi_real);
   return 0;
+}
+
+
+/* Checked entry points (maglevgen.codegen.checks): MAGLEV_ERR_* as in maglev.h. */
+#define MAGLEV_OK 0  /* success */
+#define MAGLEV_ERR_NONFINITE 1  /* an input is NaN or infinite (outputs zeroed) */
+#define MAGLEV_ERR_SPEED 2  /* speed outside the function's range: v <= 0 for the Newton trim, outside [v_min, v_max] for maglev_schedule (outputs zeroed; maglev_schedule: the end node's values) */
+#define MAGLEV_ERR_NOT_CONVERGED 3  /* the trim's Newton iteration did not reach its tolerance (no trim: below lift-off?) (outputs zeroed) */
+#define MAGLEV_ERR_CONTACT 4  /* the trim has a gap below track.min_gap (outputs zeroed) */
+#define MAGLEV_ERR_NONFINITE_OUTPUT 5  /* an output came out NaN or infinite (outputs zeroed) */
+#define MAGLEV_ERR_INTERNAL 6  /* the CasADi function itself returned an error (outputs zeroed) */
+
+static int maglev_all_finite(const casadi_real* a, int n) {
+  int i;
+  if (a == 0) return 1;
+  for (i = 0; i < n; ++i) {
+    if (!isfinite(a[i])) return 0;
+  }
+  return 1;
+}
+
+static void maglev_zero(casadi_real* a, int n) {
+  int i;
+  if (a == 0) return;
+  for (i = 0; i < n; ++i) a[i] = 0;
+}
+
+/* the trim at *v into x and *F_prop: v and p finite, v > 0, the accelerations at the
+   trim within 1e-8 (the Newton solve converged), every gap >= track.min_gap */
+static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
+                               casadi_real* F_prop, casadi_int* iw, casadi_real* w) {
+  const casadi_real* arg[8];
+  casadi_real* res[8];
+  casadi_real u[11], xdot[12], gaps[6];
+  int i;
+  (void)p;
+  if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;
+  if (!(*v > 0)) return MAGLEV_ERR_SPEED;
+  arg[0] = v;
+  arg[1] = 0;
+  res[0] = x;
+  res[1] = F_prop;
+  if (maglev_trim_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  if (!maglev_all_finite(x, 12) || !maglev_all_finite(F_prop, 1)) {
+    return MAGLEV_ERR_NOT_CONVERGED;
+  }
+  for (i = 0; i < 11; ++i) u[i] = 0;
+  u[0] = *F_prop;
+  arg[0] = x;
+  arg[1] = u;
+  arg[2] = 0;
+  res[0] = xdot;
+  if (maglev_dynamics(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  for (i = 6; i < 12; ++i) {
+    if (!(xdot[i] <= 1e-8 && xdot[i] >= -1e-8)) return MAGLEV_ERR_NOT_CONVERGED;
+  }
+  arg[1] = 0;
+  res[0] = gaps;
+  if (maglev_gaps(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  for (i = 0; i < 6; ++i) {
+    if (!(gaps[i] >= 0.002)) return MAGLEV_ERR_CONTACT;
+  }
+  return MAGLEV_OK;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real x[12], F_prop;
+  int rc = maglev_trim_checked(arg[0], 0, res[0] != 0 ? res[0] : x,
+                               res[1] != 0 ? res[1] : &F_prop, iw, w);
+  (void)iw; (void)w; (void)mem;
+  if (rc == MAGLEV_OK) return MAGLEV_OK;
+  maglev_zero(res[0], 12);
+  maglev_zero(res[1], 1);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real x[12], F_prop;
+  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
+  if (rc == MAGLEV_OK) {
+    if (maglev_axis_plants_unchecked(arg, res, iw, w, mem) != 0) {
+      rc = MAGLEV_ERR_INTERNAL;
+    } else if (!maglev_all_finite(res[0], 5) ||
+        !maglev_all_finite(res[1], 5)) {
+      rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+    } else {
+      return MAGLEV_OK;
+    }
+  }
+  maglev_zero(res[0], 5);
+  maglev_zero(res[1], 5);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real x[12], F_prop;
+  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
+  if (rc == MAGLEV_OK) {
+    if (maglev_lqr_gains_unchecked(arg, res, iw, w, mem) != 0) {
+      rc = MAGLEV_ERR_INTERNAL;
+    } else if (!maglev_all_finite(res[0], 10) ||
+        !maglev_all_finite(res[1], 5)) {
+      rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+    } else {
+      return MAGLEV_OK;
+    }
+  }
+  maglev_zero(res[0], 10);
+  maglev_zero(res[1], 5);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (!maglev_all_finite(arg[0], 12) ||
+        !maglev_all_finite(arg[1], 10) ||
+        !maglev_all_finite(arg[2], 5)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_lqr_control_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 5)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  maglev_zero(res[0], 5);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (!maglev_all_finite(arg[0], 12) ||
+        !maglev_all_finite(arg[1], 5)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_damping_control_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 5)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  maglev_zero(res[0], 5);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (!maglev_all_finite(arg[0], 12) ||
+        !maglev_all_finite(arg[1], 25) ||
+        !maglev_all_finite(arg[2], 25) ||
+        !maglev_all_finite(arg[3], 5)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_coupled_control_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 5)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  maglev_zero(res[0], 5);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (!maglev_all_finite(arg[0], 5)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_allocate_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 10)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  maglev_zero(res[0], 10);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (!maglev_all_finite(arg[0], 5) ||
+        !maglev_all_finite(arg[1], 5)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_axis_gains_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 10) ||
+        !maglev_all_finite(res[1], 5)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  maglev_zero(res[0], 10);
+  maglev_zero(res[1], 5);
+  return rc;
 }
 
 

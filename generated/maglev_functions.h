@@ -13,298 +13,296 @@
 extern "C" {
 #endif
 
-/* Fixed at generation time (maglevgen cpass): the code depends on it. */
-#undef casadi_real
-#define casadi_real double
+/* casadi_real of the .c, fixed at generation time (maglevgen cpass) */
+typedef double maglev_real;
 
-/* Fixed at generation time (maglevgen cpass): the code depends on it. */
-#undef casadi_int
-#define casadi_int long long int
+/* casadi_int of the .c, fixed at generation time (maglevgen cpass) */
+typedef long long int maglev_int;
 
-int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_dynamics(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_dynamics_checkout(void);
 void maglev_dynamics_release(int mem);
 void maglev_dynamics_incref(void);
 void maglev_dynamics_decref(void);
-casadi_int maglev_dynamics_n_in(void);
-casadi_int maglev_dynamics_n_out(void);
-casadi_real maglev_dynamics_default_in(casadi_int i);
-const char* maglev_dynamics_name_in(casadi_int i);
-const char* maglev_dynamics_name_out(casadi_int i);
-const casadi_int* maglev_dynamics_sparsity_in(casadi_int i);
-const casadi_int* maglev_dynamics_sparsity_out(casadi_int i);
-int maglev_dynamics_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_dynamics_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_dynamics_n_in(void);
+maglev_int maglev_dynamics_n_out(void);
+maglev_real maglev_dynamics_default_in(maglev_int i);
+const char* maglev_dynamics_name_in(maglev_int i);
+const char* maglev_dynamics_name_out(maglev_int i);
+const maglev_int* maglev_dynamics_sparsity_in(maglev_int i);
+const maglev_int* maglev_dynamics_sparsity_out(maglev_int i);
+int maglev_dynamics_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_dynamics_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_dynamics_SZ_ARG 2
 #define maglev_dynamics_SZ_RES 1
 #define maglev_dynamics_SZ_IW 0
 #define maglev_dynamics_SZ_W 0
-int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_jacobians(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_jacobians_checkout(void);
 void maglev_jacobians_release(int mem);
 void maglev_jacobians_incref(void);
 void maglev_jacobians_decref(void);
-casadi_int maglev_jacobians_n_in(void);
-casadi_int maglev_jacobians_n_out(void);
-casadi_real maglev_jacobians_default_in(casadi_int i);
-const char* maglev_jacobians_name_in(casadi_int i);
-const char* maglev_jacobians_name_out(casadi_int i);
-const casadi_int* maglev_jacobians_sparsity_in(casadi_int i);
-const casadi_int* maglev_jacobians_sparsity_out(casadi_int i);
-int maglev_jacobians_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_jacobians_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_jacobians_n_in(void);
+maglev_int maglev_jacobians_n_out(void);
+maglev_real maglev_jacobians_default_in(maglev_int i);
+const char* maglev_jacobians_name_in(maglev_int i);
+const char* maglev_jacobians_name_out(maglev_int i);
+const maglev_int* maglev_jacobians_sparsity_in(maglev_int i);
+const maglev_int* maglev_jacobians_sparsity_out(maglev_int i);
+int maglev_jacobians_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_jacobians_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_jacobians_SZ_ARG 2
 #define maglev_jacobians_SZ_RES 2
 #define maglev_jacobians_SZ_IW 0
 #define maglev_jacobians_SZ_W 0
-int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_trim_checkout(void);
 void maglev_trim_release(int mem);
 void maglev_trim_incref(void);
 void maglev_trim_decref(void);
-casadi_int maglev_trim_n_in(void);
-casadi_int maglev_trim_n_out(void);
-casadi_real maglev_trim_default_in(casadi_int i);
-const char* maglev_trim_name_in(casadi_int i);
-const char* maglev_trim_name_out(casadi_int i);
-const casadi_int* maglev_trim_sparsity_in(casadi_int i);
-const casadi_int* maglev_trim_sparsity_out(casadi_int i);
-int maglev_trim_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_trim_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_trim_n_in(void);
+maglev_int maglev_trim_n_out(void);
+maglev_real maglev_trim_default_in(maglev_int i);
+const char* maglev_trim_name_in(maglev_int i);
+const char* maglev_trim_name_out(maglev_int i);
+const maglev_int* maglev_trim_sparsity_in(maglev_int i);
+const maglev_int* maglev_trim_sparsity_out(maglev_int i);
+int maglev_trim_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_trim_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_trim_SZ_ARG 7
 #define maglev_trim_SZ_RES 7
 #define maglev_trim_SZ_IW 0
 #define maglev_trim_SZ_W 632
-int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_axis_plants_checkout(void);
 void maglev_axis_plants_release(int mem);
 void maglev_axis_plants_incref(void);
 void maglev_axis_plants_decref(void);
-casadi_int maglev_axis_plants_n_in(void);
-casadi_int maglev_axis_plants_n_out(void);
-casadi_real maglev_axis_plants_default_in(casadi_int i);
-const char* maglev_axis_plants_name_in(casadi_int i);
-const char* maglev_axis_plants_name_out(casadi_int i);
-const casadi_int* maglev_axis_plants_sparsity_in(casadi_int i);
-const casadi_int* maglev_axis_plants_sparsity_out(casadi_int i);
-int maglev_axis_plants_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_axis_plants_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_axis_plants_n_in(void);
+maglev_int maglev_axis_plants_n_out(void);
+maglev_real maglev_axis_plants_default_in(maglev_int i);
+const char* maglev_axis_plants_name_in(maglev_int i);
+const char* maglev_axis_plants_name_out(maglev_int i);
+const maglev_int* maglev_axis_plants_sparsity_in(maglev_int i);
+const maglev_int* maglev_axis_plants_sparsity_out(maglev_int i);
+int maglev_axis_plants_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_axis_plants_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_axis_plants_SZ_ARG 7
 #define maglev_axis_plants_SZ_RES 7
 #define maglev_axis_plants_SZ_IW 0
 #define maglev_axis_plants_SZ_W 645
-int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_axis_gains_checkout(void);
 void maglev_axis_gains_release(int mem);
 void maglev_axis_gains_incref(void);
 void maglev_axis_gains_decref(void);
-casadi_int maglev_axis_gains_n_in(void);
-casadi_int maglev_axis_gains_n_out(void);
-casadi_real maglev_axis_gains_default_in(casadi_int i);
-const char* maglev_axis_gains_name_in(casadi_int i);
-const char* maglev_axis_gains_name_out(casadi_int i);
-const casadi_int* maglev_axis_gains_sparsity_in(casadi_int i);
-const casadi_int* maglev_axis_gains_sparsity_out(casadi_int i);
-int maglev_axis_gains_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_axis_gains_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_axis_gains_n_in(void);
+maglev_int maglev_axis_gains_n_out(void);
+maglev_real maglev_axis_gains_default_in(maglev_int i);
+const char* maglev_axis_gains_name_in(maglev_int i);
+const char* maglev_axis_gains_name_out(maglev_int i);
+const maglev_int* maglev_axis_gains_sparsity_in(maglev_int i);
+const maglev_int* maglev_axis_gains_sparsity_out(maglev_int i);
+int maglev_axis_gains_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_axis_gains_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_axis_gains_SZ_ARG 2
 #define maglev_axis_gains_SZ_RES 2
 #define maglev_axis_gains_SZ_IW 0
 #define maglev_axis_gains_SZ_W 0
-int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_lqr_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_lqr_gains_checkout(void);
 void maglev_lqr_gains_release(int mem);
 void maglev_lqr_gains_incref(void);
 void maglev_lqr_gains_decref(void);
-casadi_int maglev_lqr_gains_n_in(void);
-casadi_int maglev_lqr_gains_n_out(void);
-casadi_real maglev_lqr_gains_default_in(casadi_int i);
-const char* maglev_lqr_gains_name_in(casadi_int i);
-const char* maglev_lqr_gains_name_out(casadi_int i);
-const casadi_int* maglev_lqr_gains_sparsity_in(casadi_int i);
-const casadi_int* maglev_lqr_gains_sparsity_out(casadi_int i);
-int maglev_lqr_gains_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_lqr_gains_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_lqr_gains_n_in(void);
+maglev_int maglev_lqr_gains_n_out(void);
+maglev_real maglev_lqr_gains_default_in(maglev_int i);
+const char* maglev_lqr_gains_name_in(maglev_int i);
+const char* maglev_lqr_gains_name_out(maglev_int i);
+const maglev_int* maglev_lqr_gains_sparsity_in(maglev_int i);
+const maglev_int* maglev_lqr_gains_sparsity_out(maglev_int i);
+int maglev_lqr_gains_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_lqr_gains_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_lqr_gains_SZ_ARG 7
 #define maglev_lqr_gains_SZ_RES 7
 #define maglev_lqr_gains_SZ_IW 0
 #define maglev_lqr_gains_SZ_W 660
-int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_lqr_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_lqr_control_checkout(void);
 void maglev_lqr_control_release(int mem);
 void maglev_lqr_control_incref(void);
 void maglev_lqr_control_decref(void);
-casadi_int maglev_lqr_control_n_in(void);
-casadi_int maglev_lqr_control_n_out(void);
-casadi_real maglev_lqr_control_default_in(casadi_int i);
-const char* maglev_lqr_control_name_in(casadi_int i);
-const char* maglev_lqr_control_name_out(casadi_int i);
-const casadi_int* maglev_lqr_control_sparsity_in(casadi_int i);
-const casadi_int* maglev_lqr_control_sparsity_out(casadi_int i);
-int maglev_lqr_control_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_lqr_control_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_lqr_control_n_in(void);
+maglev_int maglev_lqr_control_n_out(void);
+maglev_real maglev_lqr_control_default_in(maglev_int i);
+const char* maglev_lqr_control_name_in(maglev_int i);
+const char* maglev_lqr_control_name_out(maglev_int i);
+const maglev_int* maglev_lqr_control_sparsity_in(maglev_int i);
+const maglev_int* maglev_lqr_control_sparsity_out(maglev_int i);
+int maglev_lqr_control_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_lqr_control_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_lqr_control_SZ_ARG 3
 #define maglev_lqr_control_SZ_RES 1
 #define maglev_lqr_control_SZ_IW 0
 #define maglev_lqr_control_SZ_W 0
-int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_damping_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_damping_control_checkout(void);
 void maglev_damping_control_release(int mem);
 void maglev_damping_control_incref(void);
 void maglev_damping_control_decref(void);
-casadi_int maglev_damping_control_n_in(void);
-casadi_int maglev_damping_control_n_out(void);
-casadi_real maglev_damping_control_default_in(casadi_int i);
-const char* maglev_damping_control_name_in(casadi_int i);
-const char* maglev_damping_control_name_out(casadi_int i);
-const casadi_int* maglev_damping_control_sparsity_in(casadi_int i);
-const casadi_int* maglev_damping_control_sparsity_out(casadi_int i);
-int maglev_damping_control_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_damping_control_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_damping_control_n_in(void);
+maglev_int maglev_damping_control_n_out(void);
+maglev_real maglev_damping_control_default_in(maglev_int i);
+const char* maglev_damping_control_name_in(maglev_int i);
+const char* maglev_damping_control_name_out(maglev_int i);
+const maglev_int* maglev_damping_control_sparsity_in(maglev_int i);
+const maglev_int* maglev_damping_control_sparsity_out(maglev_int i);
+int maglev_damping_control_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_damping_control_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_damping_control_SZ_ARG 2
 #define maglev_damping_control_SZ_RES 1
 #define maglev_damping_control_SZ_IW 0
 #define maglev_damping_control_SZ_W 0
-int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_coupled_control_checkout(void);
 void maglev_coupled_control_release(int mem);
 void maglev_coupled_control_incref(void);
 void maglev_coupled_control_decref(void);
-casadi_int maglev_coupled_control_n_in(void);
-casadi_int maglev_coupled_control_n_out(void);
-casadi_real maglev_coupled_control_default_in(casadi_int i);
-const char* maglev_coupled_control_name_in(casadi_int i);
-const char* maglev_coupled_control_name_out(casadi_int i);
-const casadi_int* maglev_coupled_control_sparsity_in(casadi_int i);
-const casadi_int* maglev_coupled_control_sparsity_out(casadi_int i);
-int maglev_coupled_control_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_coupled_control_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_coupled_control_n_in(void);
+maglev_int maglev_coupled_control_n_out(void);
+maglev_real maglev_coupled_control_default_in(maglev_int i);
+const char* maglev_coupled_control_name_in(maglev_int i);
+const char* maglev_coupled_control_name_out(maglev_int i);
+const maglev_int* maglev_coupled_control_sparsity_in(maglev_int i);
+const maglev_int* maglev_coupled_control_sparsity_out(maglev_int i);
+int maglev_coupled_control_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_coupled_control_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_coupled_control_SZ_ARG 4
 #define maglev_coupled_control_SZ_RES 1
 #define maglev_coupled_control_SZ_IW 0
 #define maglev_coupled_control_SZ_W 0
-int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_allocate(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_allocate_checkout(void);
 void maglev_allocate_release(int mem);
 void maglev_allocate_incref(void);
 void maglev_allocate_decref(void);
-casadi_int maglev_allocate_n_in(void);
-casadi_int maglev_allocate_n_out(void);
-casadi_real maglev_allocate_default_in(casadi_int i);
-const char* maglev_allocate_name_in(casadi_int i);
-const char* maglev_allocate_name_out(casadi_int i);
-const casadi_int* maglev_allocate_sparsity_in(casadi_int i);
-const casadi_int* maglev_allocate_sparsity_out(casadi_int i);
-int maglev_allocate_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_allocate_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_allocate_n_in(void);
+maglev_int maglev_allocate_n_out(void);
+maglev_real maglev_allocate_default_in(maglev_int i);
+const char* maglev_allocate_name_in(maglev_int i);
+const char* maglev_allocate_name_out(maglev_int i);
+const maglev_int* maglev_allocate_sparsity_in(maglev_int i);
+const maglev_int* maglev_allocate_sparsity_out(maglev_int i);
+int maglev_allocate_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_allocate_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_allocate_SZ_ARG 1
 #define maglev_allocate_SZ_RES 1
 #define maglev_allocate_SZ_IW 0
 #define maglev_allocate_SZ_W 0
-int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_allocation_matrix(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_allocation_matrix_checkout(void);
 void maglev_allocation_matrix_release(int mem);
 void maglev_allocation_matrix_incref(void);
 void maglev_allocation_matrix_decref(void);
-casadi_int maglev_allocation_matrix_n_in(void);
-casadi_int maglev_allocation_matrix_n_out(void);
-casadi_real maglev_allocation_matrix_default_in(casadi_int i);
-const char* maglev_allocation_matrix_name_in(casadi_int i);
-const char* maglev_allocation_matrix_name_out(casadi_int i);
-const casadi_int* maglev_allocation_matrix_sparsity_in(casadi_int i);
-const casadi_int* maglev_allocation_matrix_sparsity_out(casadi_int i);
-int maglev_allocation_matrix_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_allocation_matrix_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_allocation_matrix_n_in(void);
+maglev_int maglev_allocation_matrix_n_out(void);
+maglev_real maglev_allocation_matrix_default_in(maglev_int i);
+const char* maglev_allocation_matrix_name_in(maglev_int i);
+const char* maglev_allocation_matrix_name_out(maglev_int i);
+const maglev_int* maglev_allocation_matrix_sparsity_in(maglev_int i);
+const maglev_int* maglev_allocation_matrix_sparsity_out(maglev_int i);
+int maglev_allocation_matrix_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_allocation_matrix_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_allocation_matrix_SZ_ARG 0
 #define maglev_allocation_matrix_SZ_RES 1
 #define maglev_allocation_matrix_SZ_IW 0
 #define maglev_allocation_matrix_SZ_W 0
-int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_rk4_step(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_rk4_step_checkout(void);
 void maglev_rk4_step_release(int mem);
 void maglev_rk4_step_incref(void);
 void maglev_rk4_step_decref(void);
-casadi_int maglev_rk4_step_n_in(void);
-casadi_int maglev_rk4_step_n_out(void);
-casadi_real maglev_rk4_step_default_in(casadi_int i);
-const char* maglev_rk4_step_name_in(casadi_int i);
-const char* maglev_rk4_step_name_out(casadi_int i);
-const casadi_int* maglev_rk4_step_sparsity_in(casadi_int i);
-const casadi_int* maglev_rk4_step_sparsity_out(casadi_int i);
-int maglev_rk4_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_rk4_step_n_in(void);
+maglev_int maglev_rk4_step_n_out(void);
+maglev_real maglev_rk4_step_default_in(maglev_int i);
+const char* maglev_rk4_step_name_in(maglev_int i);
+const char* maglev_rk4_step_name_out(maglev_int i);
+const maglev_int* maglev_rk4_step_sparsity_in(maglev_int i);
+const maglev_int* maglev_rk4_step_sparsity_out(maglev_int i);
+int maglev_rk4_step_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_rk4_step_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_rk4_step_SZ_ARG 12
 #define maglev_rk4_step_SZ_RES 5
 #define maglev_rk4_step_SZ_IW 0
 #define maglev_rk4_step_SZ_W 150
-int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_closed_loop(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_closed_loop_checkout(void);
 void maglev_closed_loop_release(int mem);
 void maglev_closed_loop_incref(void);
 void maglev_closed_loop_decref(void);
-casadi_int maglev_closed_loop_n_in(void);
-casadi_int maglev_closed_loop_n_out(void);
-casadi_real maglev_closed_loop_default_in(casadi_int i);
-const char* maglev_closed_loop_name_in(casadi_int i);
-const char* maglev_closed_loop_name_out(casadi_int i);
-const casadi_int* maglev_closed_loop_sparsity_in(casadi_int i);
-const casadi_int* maglev_closed_loop_sparsity_out(casadi_int i);
-int maglev_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_closed_loop_n_in(void);
+maglev_int maglev_closed_loop_n_out(void);
+maglev_real maglev_closed_loop_default_in(maglev_int i);
+const char* maglev_closed_loop_name_in(maglev_int i);
+const char* maglev_closed_loop_name_out(maglev_int i);
+const maglev_int* maglev_closed_loop_sparsity_in(maglev_int i);
+const maglev_int* maglev_closed_loop_sparsity_out(maglev_int i);
+int maglev_closed_loop_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_closed_loop_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_closed_loop_SZ_ARG 6
 #define maglev_closed_loop_SZ_RES 3
 #define maglev_closed_loop_SZ_IW 0
 #define maglev_closed_loop_SZ_W 0
-int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_closed_loop_prepare(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_closed_loop_prepare_checkout(void);
 void maglev_closed_loop_prepare_release(int mem);
 void maglev_closed_loop_prepare_incref(void);
 void maglev_closed_loop_prepare_decref(void);
-casadi_int maglev_closed_loop_prepare_n_in(void);
-casadi_int maglev_closed_loop_prepare_n_out(void);
-casadi_real maglev_closed_loop_prepare_default_in(casadi_int i);
-const char* maglev_closed_loop_prepare_name_in(casadi_int i);
-const char* maglev_closed_loop_prepare_name_out(casadi_int i);
-const casadi_int* maglev_closed_loop_prepare_sparsity_in(casadi_int i);
-const casadi_int* maglev_closed_loop_prepare_sparsity_out(casadi_int i);
-int maglev_closed_loop_prepare_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_closed_loop_prepare_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_closed_loop_prepare_n_in(void);
+maglev_int maglev_closed_loop_prepare_n_out(void);
+maglev_real maglev_closed_loop_prepare_default_in(maglev_int i);
+const char* maglev_closed_loop_prepare_name_in(maglev_int i);
+const char* maglev_closed_loop_prepare_name_out(maglev_int i);
+const maglev_int* maglev_closed_loop_prepare_sparsity_in(maglev_int i);
+const maglev_int* maglev_closed_loop_prepare_sparsity_out(maglev_int i);
+int maglev_closed_loop_prepare_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_closed_loop_prepare_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_closed_loop_prepare_SZ_ARG 5
 #define maglev_closed_loop_prepare_SZ_RES 1
 #define maglev_closed_loop_prepare_SZ_IW 0
 #define maglev_closed_loop_prepare_SZ_W 0
-int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_closed_loop_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_closed_loop_prepared_checkout(void);
 void maglev_closed_loop_prepared_release(int mem);
 void maglev_closed_loop_prepared_incref(void);
 void maglev_closed_loop_prepared_decref(void);
-casadi_int maglev_closed_loop_prepared_n_in(void);
-casadi_int maglev_closed_loop_prepared_n_out(void);
-casadi_real maglev_closed_loop_prepared_default_in(casadi_int i);
-const char* maglev_closed_loop_prepared_name_in(casadi_int i);
-const char* maglev_closed_loop_prepared_name_out(casadi_int i);
-const casadi_int* maglev_closed_loop_prepared_sparsity_in(casadi_int i);
-const casadi_int* maglev_closed_loop_prepared_sparsity_out(casadi_int i);
-int maglev_closed_loop_prepared_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_closed_loop_prepared_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_closed_loop_prepared_n_in(void);
+maglev_int maglev_closed_loop_prepared_n_out(void);
+maglev_real maglev_closed_loop_prepared_default_in(maglev_int i);
+const char* maglev_closed_loop_prepared_name_in(maglev_int i);
+const char* maglev_closed_loop_prepared_name_out(maglev_int i);
+const maglev_int* maglev_closed_loop_prepared_sparsity_in(maglev_int i);
+const maglev_int* maglev_closed_loop_prepared_sparsity_out(maglev_int i);
+int maglev_closed_loop_prepared_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_closed_loop_prepared_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_closed_loop_prepared_SZ_ARG 2
 #define maglev_closed_loop_prepared_SZ_RES 3
 #define maglev_closed_loop_prepared_SZ_IW 0
 #define maglev_closed_loop_prepared_SZ_W 0
-int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_gaps(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_gaps_checkout(void);
 void maglev_gaps_release(int mem);
 void maglev_gaps_incref(void);
 void maglev_gaps_decref(void);
-casadi_int maglev_gaps_n_in(void);
-casadi_int maglev_gaps_n_out(void);
-casadi_real maglev_gaps_default_in(casadi_int i);
-const char* maglev_gaps_name_in(casadi_int i);
-const char* maglev_gaps_name_out(casadi_int i);
-const casadi_int* maglev_gaps_sparsity_in(casadi_int i);
-const casadi_int* maglev_gaps_sparsity_out(casadi_int i);
-int maglev_gaps_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_gaps_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_gaps_n_in(void);
+maglev_int maglev_gaps_n_out(void);
+maglev_real maglev_gaps_default_in(maglev_int i);
+const char* maglev_gaps_name_in(maglev_int i);
+const char* maglev_gaps_name_out(maglev_int i);
+const maglev_int* maglev_gaps_sparsity_in(maglev_int i);
+const maglev_int* maglev_gaps_sparsity_out(maglev_int i);
+int maglev_gaps_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_gaps_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_gaps_SZ_ARG 1
 #define maglev_gaps_SZ_RES 1
 #define maglev_gaps_SZ_IW 0

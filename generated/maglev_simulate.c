@@ -25,13 +25,13 @@
 #define NC 193 /* the closed loop's prepared constants */
 
 typedef struct {
-    const casadi_real* arg[SZ_ARG + 1];
-    casadi_real* res[SZ_RES + 1];
-    casadi_int iw[SZ_IW + 1];
-    casadi_real w[SZ_W + 1];
+    const maglev_real* arg[SZ_ARG + 1];
+    maglev_real* res[SZ_RES + 1];
+    maglev_int iw[SZ_IW + 1];
+    maglev_real w[SZ_W + 1];
 } work;
 
-static int all_finite(const casadi_real* v, int n) {
+static int all_finite(const maglev_real* v, int n) {
     int i;
     for (i = 0; i < n; ++i) {
         if (!isfinite(v[i])) return 0;
@@ -40,7 +40,7 @@ static int all_finite(const casadi_real* v, int n) {
 }
 
 /* the sample's status from its gaps: not finite, contact (a gap below gap_min), or OK */
-static int gap_status(const casadi_real* gaps, casadi_real gap_min) {
+static int gap_status(const maglev_real* gaps, maglev_real gap_min) {
     int i;
     if (!all_finite(gaps, NG)) return MAGLEV_SIM_NONFINITE;
     for (i = 0; i < NG; ++i) {
@@ -50,20 +50,20 @@ static int gap_status(const casadi_real* gaps, casadi_real gap_min) {
 }
 
 /* x_next = x + dt/6 (k1 + 2 k2 + 2 k3 + k4), the last part of every RK4 step here */
-static void rk4_combine(const casadi_real* x, const casadi_real* k1, const casadi_real* k2,
-                        const casadi_real* k3, const casadi_real* k4, casadi_real sixth,
-                        casadi_real* x_next) {
+static void rk4_combine(const maglev_real* x, const maglev_real* k1, const maglev_real* k2,
+                        const maglev_real* k3, const maglev_real* k4, maglev_real sixth,
+                        maglev_real* x_next) {
     int i;
     for (i = 0; i < NX; ++i) {
-        x_next[i] = x[i] + sixth * (k1[i] + (casadi_real)2 * k2[i] + (casadi_real)2 * k3[i]
+        x_next[i] = x[i] + sixth * (k1[i] + (maglev_real)2 * k2[i] + (maglev_real)2 * k3[i]
                                     + k4[i]);
     }
 }
 
 /* xdot (and, when u and gaps are not NULL, the inputs and the gaps) of the closed loop at x,
    from the constants c that maglev_closed_loop_prepare computed once */
-static int closed_loop(work* ws, const casadi_real* x, const casadi_real* c, casadi_real* xdot,
-                       casadi_real* u, casadi_real* gaps) {
+static int closed_loop(work* ws, const maglev_real* x, const maglev_real* c, maglev_real* xdot,
+                       maglev_real* u, maglev_real* gaps) {
     ws->arg[0] = x;
     ws->arg[1] = c;
     ws->res[0] = xdot;
@@ -72,14 +72,14 @@ static int closed_loop(work* ws, const casadi_real* x, const casadi_real* c, cas
     return maglev_closed_loop_prepared(ws->arg, ws->res, ws->iw, ws->w, 0);
 }
 
-long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_steps,
-                          casadi_real F_prop, const casadi_real* K_pos,
-                          const casadi_real* K_rate, const casadi_real* a_ref,
-                          casadi_real gap_min, casadi_real* x_traj, casadi_real* u_traj,
-                          casadi_real* gap_traj, int* status) {
+long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_steps,
+                          maglev_real F_prop, const maglev_real* K_pos,
+                          const maglev_real* K_rate, const maglev_real* a_ref,
+                          maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
+                          maglev_real* gap_traj, int* status) {
     work ws;
-    casadi_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], T[NT], c[NC];
-    const casadi_real half = dt / (casadi_real)2, sixth = dt / (casadi_real)6;
+    maglev_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], T[NT], c[NC];
+    const maglev_real half = dt / (maglev_real)2, sixth = dt / (maglev_real)6;
     long long k;
     int i;
 
@@ -102,8 +102,8 @@ long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_ste
     }
     for (i = 0; i < NX; ++i) x_traj[i] = x0[i];
     for (k = 0;; ++k) {
-        const casadi_real* x = x_traj + k * NX;
-        casadi_real* gaps = gap_traj + k * NG;
+        const maglev_real* x = x_traj + k * NX;
+        maglev_real* gaps = gap_traj + k * NG;
         if (!all_finite(x, NX)) {
             *status = MAGLEV_SIM_NONFINITE;
             return k;
@@ -116,7 +116,7 @@ long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_ste
         if ((*status = gap_status(gaps, gap_min)) != MAGLEV_SIM_OK) return k;
         if (k == n_steps) break;
         {
-            casadi_real* x_next = x_traj + (k + 1) * NX;
+            maglev_real* x_next = x_traj + (k + 1) * NX;
             int err = 0;
             for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k1[i];
             err |= closed_loop(&ws, xt, c, k2, 0, 0);
@@ -138,9 +138,9 @@ long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_ste
 /* ------------------------------------------------------------------------------------------
    Gain schedule: natural cubic spline over uniformly spaced speeds (see maglev_simulate.h) */
 
-int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* out) {
-    const casadi_real v_last = s->v0 + (casadi_real)(s->n - 1) * s->dv;
-    casadi_real a, b, h2, pos;
+int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_real* out) {
+    const maglev_real v_last = s->v0 + (maglev_real)(s->n - 1) * s->dv;
+    maglev_real a, b, h2, pos;
     int j, i, rc = MAGLEV_SCHEDULE_OK;
     if (!isfinite(v)) return MAGLEV_SCHEDULE_NONFINITE;
     if (v < s->v0) {
@@ -153,14 +153,14 @@ int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* o
     pos = (v - s->v0) / s->dv;
     j = (int)pos;
     if (j > s->n - 2) j = s->n - 2;
-    b = pos - (casadi_real)j;
-    a = (casadi_real)1 - b;
-    h2 = s->dv * s->dv / (casadi_real)6;
+    b = pos - (maglev_real)j;
+    a = (maglev_real)1 - b;
+    h2 = s->dv * s->dv / (maglev_real)6;
     for (i = 0; i < MAGLEV_SCHEDULE_NY; ++i) {
-        const casadi_real y0 = s->y[j * MAGLEV_SCHEDULE_NY + i];
-        const casadi_real y1 = s->y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
-        const casadi_real m0 = s->d2y[j * MAGLEV_SCHEDULE_NY + i];
-        const casadi_real m1 = s->d2y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
+        const maglev_real y0 = s->y[j * MAGLEV_SCHEDULE_NY + i];
+        const maglev_real y1 = s->y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
+        const maglev_real m0 = s->d2y[j * MAGLEV_SCHEDULE_NY + i];
+        const maglev_real m1 = s->d2y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
         out[i] = a * y0 + b * y1 + ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h2;
     }
     return rc;
@@ -168,14 +168,14 @@ int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* o
 
 /* xdot, u and gaps of the closed loop at x with the gains, reference and drag scheduled at
    the speed |(u, v, w)| of x (or, when sched is not NULL, the values held in sched) */
-static int launch_stage(work* ws, const casadi_real* x, const maglev_schedule* s,
-                        casadi_real F_extra, const casadi_real* T,
-                        const casadi_real* held, casadi_real* xdot, casadi_real* u,
-                        casadi_real* gaps) {
-    casadi_real sched[MAGLEV_SCHEDULE_NY], F_prop;
-    const casadi_real* g = held;
+static int launch_stage(work* ws, const maglev_real* x, const maglev_spline_schedule* s,
+                        maglev_real F_extra, const maglev_real* T,
+                        const maglev_real* held, maglev_real* xdot, maglev_real* u,
+                        maglev_real* gaps) {
+    maglev_real sched[MAGLEV_SCHEDULE_NY], F_prop;
+    const maglev_real* g = held;
     if (g == 0) {
-        const casadi_real speed = SPEED(x);
+        const maglev_real speed = SPEED(x);
         if (maglev_schedule_eval(s, speed, sched) == MAGLEV_SCHEDULE_NONFINITE) return 1;
         g = sched;
     }
@@ -192,16 +192,16 @@ static int launch_stage(work* ws, const casadi_real* x, const maglev_schedule* s
     return maglev_closed_loop(ws->arg, ws->res, ws->iw, ws->w, 0);
 }
 
-long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps,
-                        casadi_real v_end, casadi_real F_extra, long long hold_steps,
-                        const maglev_schedule* schedule,
-                        casadi_real gap_min, casadi_real* x_traj, casadi_real* u_traj,
-                        casadi_real* gap_traj, int* status) {
+long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps,
+                        maglev_real v_end, maglev_real F_extra, long long hold_steps,
+                        const maglev_spline_schedule* schedule,
+                        maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
+                        maglev_real* gap_traj, int* status) {
     work ws;
-    casadi_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], T[NT], held[MAGLEV_SCHEDULE_NY];
-    casadi_real u_stage[NU], g_stage[NG];
-    const casadi_real half = dt / (casadi_real)2, sixth = dt / (casadi_real)6;
-    const casadi_real* hold = 0;
+    maglev_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], T[NT], held[MAGLEV_SCHEDULE_NY];
+    maglev_real u_stage[NU], g_stage[NG];
+    const maglev_real half = dt / (maglev_real)2, sixth = dt / (maglev_real)6;
+    const maglev_real* hold = 0;
     long long k;
     int i;
 
@@ -216,15 +216,15 @@ long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps
     }
     for (i = 0; i < NX; ++i) x_traj[i] = x0[i];
     for (k = 0;; ++k) {
-        const casadi_real* x = x_traj + k * NX;
-        casadi_real* gaps = gap_traj + k * NG;
+        const maglev_real* x = x_traj + k * NX;
+        maglev_real* gaps = gap_traj + k * NG;
         if (!all_finite(x, NX)) {
             *status = MAGLEV_SIM_NONFINITE;
             return k;
         }
         if (hold_steps > 0 && k % hold_steps == 0) {
             /* a control period starts: schedule at the measured speed, held until the next */
-            const casadi_real speed = SPEED(x);
+            const maglev_real speed = SPEED(x);
             if (maglev_schedule_eval(schedule, speed, held) == MAGLEV_SCHEDULE_NONFINITE) {
                 *status = MAGLEV_SIM_NONFINITE;
                 return k;
@@ -238,7 +238,7 @@ long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps
         if ((*status = gap_status(gaps, gap_min)) != MAGLEV_SIM_OK) return k;
         if (k == n_steps || SPEED(x) >= v_end) break;
         {
-            casadi_real* x_next = x_traj + (k + 1) * NX;
+            maglev_real* x_next = x_traj + (k + 1) * NX;
             int err = 0;
             for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k1[i];
             err |= launch_stage(&ws, xt, schedule, F_extra, T, hold, k2, u_stage, g_stage);

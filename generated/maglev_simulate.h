@@ -31,11 +31,11 @@ extern "C" {
 #define MAGLEV_SIM_NONFINITE 2    /* the state or a gap at the last sample is not finite */
 #define MAGLEV_SIM_ERROR 3        /* a generated function returned an error */
 
-long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_steps,
-                          casadi_real F_prop, const casadi_real* K_pos,
-                          const casadi_real* K_rate, const casadi_real* a_ref,
-                          casadi_real gap_min, casadi_real* x_traj, casadi_real* u_traj,
-                          casadi_real* gap_traj, int* status);
+long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_steps,
+                          maglev_real F_prop, const maglev_real* K_pos,
+                          const maglev_real* K_rate, const maglev_real* a_ref,
+                          maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
+                          maglev_real* gap_traj, int* status);
 
 /*
  * Gain schedule over speed: MAGLEV_SCHEDULE_NY values per node, a natural cubic spline in the
@@ -56,12 +56,12 @@ long long maglev_simulate(const casadi_real* x0, casadi_real dt, long long n_ste
 
 typedef struct {
     int n;                    /* nodes, >= 2 */
-    casadi_real v0, dv;       /* [m/s] first node and spacing */
-    const casadi_real* y;     /* n x MAGLEV_SCHEDULE_NY */
-    const casadi_real* d2y;   /* n x MAGLEV_SCHEDULE_NY */
-} maglev_schedule;
+    maglev_real v0, dv;       /* [m/s] first node and spacing */
+    const maglev_real* y;     /* n x MAGLEV_SCHEDULE_NY */
+    const maglev_real* d2y;   /* n x MAGLEV_SCHEDULE_NY */
+} maglev_spline_schedule;
 
-int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* out);
+int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_real* out);
 
 /*
  * The launch run: from x0 the carriage accelerates under the propulsion
@@ -72,11 +72,11 @@ int maglev_schedule_eval(const maglev_schedule* s, casadi_real v, casadi_real* o
  * hold_steps * dt). Stops at the first sample with v >= v_end (status MAGLEV_SIM_OK), after
  * n_steps, or as maglev_simulate does (contact, non-finite). Returns the last sample's index.
  */
-long long maglev_launch(const casadi_real* x0, casadi_real dt, long long n_steps,
-                        casadi_real v_end, casadi_real F_extra, long long hold_steps,
-                        const maglev_schedule* schedule,
-                        casadi_real gap_min, casadi_real* x_traj, casadi_real* u_traj,
-                        casadi_real* gap_traj, int* status);
+long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps,
+                        maglev_real v_end, maglev_real F_extra, long long hold_steps,
+                        const maglev_spline_schedule* schedule,
+                        maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
+                        maglev_real* gap_traj, int* status);
 
 #ifdef __cplusplus
 }

@@ -19,15 +19,15 @@
 #define SZ_RES MAX2(MAX2(MAGLEV_TRIM_SZ_RES, MAGLEV_LQR_GAINS_SZ_RES), MAGLEV_RK4_STEP_SZ_RES)
 
 int main(void) {
-    casadi_int iw[SZ_IW + 1];
-    casadi_real w[SZ_W + 1];
-    const casadi_real* arg[SZ_ARG + 1];
-    casadi_real* res[SZ_RES + 1];
-    casadi_real v = (casadi_real)SPEED, dt = (casadi_real)DT;
-    casadi_real x[MAGLEV_NX], x_next[MAGLEV_NX], u[MAGLEV_NU], f_prop;
-    casadi_real K[2 * MAGLEV_NAXES], c_damp[MAGLEV_NAXES], a_ref[MAGLEV_NAXES];
+    maglev_int iw[SZ_IW + 1];
+    maglev_real w[SZ_W + 1];
+    const maglev_real* arg[SZ_ARG + 1];
+    maglev_real* res[SZ_RES + 1];
+    maglev_real v = (maglev_real)SPEED, dt = (maglev_real)DT;
+    maglev_real x[MAGLEV_NX], x_next[MAGLEV_NX], u[MAGLEV_NU], f_prop;
+    maglev_real K[2 * MAGLEV_NAXES], c_damp[MAGLEV_NAXES], a_ref[MAGLEV_NAXES];
     /* the per-axis LQR as the diagonal 5 x 5 gain matrices the closed loop takes */
-    casadi_real K_pos[MAGLEV_NAXES * MAGLEV_NAXES], K_rate[MAGLEV_NAXES * MAGLEV_NAXES];
+    maglev_real K_pos[MAGLEV_NAXES * MAGLEV_NAXES], K_rate[MAGLEV_NAXES * MAGLEV_NAXES];
     const int axis_state[MAGLEV_NAXES] = {MAGLEV_X_Y, MAGLEV_X_Z, MAGLEV_X_PHI, MAGLEV_X_THETA,
                                           MAGLEV_X_PSI};
     int i, k;
@@ -40,18 +40,18 @@ int main(void) {
     res[1] = c_damp;
     if (maglev_lqr_gains(arg, res, iw, w, 0)) return 1;
     for (i = 0; i < MAGLEV_NAXES; ++i) a_ref[i] = x[axis_state[i]];
-    for (i = 0; i < MAGLEV_NAXES * MAGLEV_NAXES; ++i) K_pos[i] = K_rate[i] = (casadi_real)0;
+    for (i = 0; i < MAGLEV_NAXES * MAGLEV_NAXES; ++i) K_pos[i] = K_rate[i] = (maglev_real)0;
     for (i = 0; i < MAGLEV_NAXES; ++i) {
         K_pos[i * (MAGLEV_NAXES + 1)] = K[i];                /* column 0 of K: position */
         K_rate[i * (MAGLEV_NAXES + 1)] = K[MAGLEV_NAXES + i]; /* column 1: rate */
     }
 
     /* disturbance: 1 mm heave, 1 mm lateral, 5 mrad roll/pitch/yaw */
-    x[MAGLEV_X_Z] += (casadi_real)1e-3;
-    x[MAGLEV_X_Y] += (casadi_real)1e-3;
-    x[MAGLEV_X_PHI] += (casadi_real)5e-3;
-    x[MAGLEV_X_THETA] += (casadi_real)5e-3;
-    x[MAGLEV_X_PSI] += (casadi_real)5e-3;
+    x[MAGLEV_X_Z] += (maglev_real)1e-3;
+    x[MAGLEV_X_Y] += (maglev_real)1e-3;
+    x[MAGLEV_X_PHI] += (maglev_real)5e-3;
+    x[MAGLEV_X_THETA] += (maglev_real)5e-3;
+    x[MAGLEV_X_PSI] += (maglev_real)5e-3;
 
     for (k = 0; k < N_STEPS; ++k) {
         arg[0] = x;

@@ -172,6 +172,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files.update(stability_map)
     files.update({f"report/{n}": b for n, b in report.items()})
     files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
+    files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
     summary = summary_text(carriage, run, lib, env, report_outputs(report, opts))
@@ -198,6 +199,23 @@ def _schedule_c(carriage, lib, env) -> str:
     points = envelope_points(carriage, lib, nodes)
     return schedule_c_source(Schedule.from_points(points,
                                                   carriage.params.envelope.embedded_controller))
+
+
+def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
+    """c/maglev_gain_table.{c,h}: the firmware's table schedule over ``env``'s range, and its
+    measured worst error added to c/manifest.json (``gain_table``)."""
+    import numpy as np
+
+    from .envelope import envelope_points
+    from .schedule import GainTable, gain_table_row, gain_table_sources
+
+    table = GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
+                                               envelope_points(carriage, lib, vs)]),
+                          env.v_min, env.v_max)
+    data = json.loads(manifest)
+    data["gain_table"] = table.manifest()
+    return {**{f"c/{n}": t for n, t in gain_table_sources(table).items()},
+            "c/manifest.json": json.dumps(data, indent=2) + "\n"}
 
 
 def _stability_map(env) -> dict[str, bytes]:

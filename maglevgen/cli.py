@@ -197,7 +197,7 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     from .codegen.generate import GenerateOptions, render, write_output
 
-    opts = GenerateOptions(args.precision, args.parameters)
+    opts = GenerateOptions(args.precision, args.parameters, args.int)
     carriage = _carriage(args)
     paths = write_output(render(carriage, opts), Path(args.out))
     print(f"wrote {len(paths)} files to {Path(args.out).resolve()} ({opts.command})")
@@ -417,6 +417,9 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--precision", choices=("double", "single"), default="double")
     gen.add_argument("--parameters", choices=("baked", "runtime"), default="baked",
                      help="fold the parameter values in, or take them as an input vector p")
+    gen.add_argument("--int", choices=("int64", "int32"), default="int64",
+                     help="casadi_int: int64 (long long, as casadi.external expects) or int32 "
+                          "(int, for 32-bit MCUs)")
     gen.add_argument("--out", default="generated", metavar="DIR",
                      help="output folder (default: ./generated)")
     gen.set_defaults(func=cmd_generate)

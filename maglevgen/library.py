@@ -85,7 +85,7 @@ class SimulationLibrary(GeneratedLibrary):
         self._simulate = fn
         real_ptr = ptr
 
-        class _Schedule(ctypes.Structure):  # maglev_schedule (maglev_simulate.h)
+        class _Schedule(ctypes.Structure):  # maglev_spline_schedule (maglev_simulate.h)
             _fields_ = [("n", ctypes.c_int), ("v0", real), ("dv", real), ("y", real_ptr),
                         ("d2y", real_ptr)]
 
