@@ -394,8 +394,8 @@ int maglev_gaps(const maglev_real** arg, maglev_real** res, maglev_int* iw, magl
 #define MAGLEV_ARRAY_FORCES_SZ_ARG 1
 #define MAGLEV_ARRAY_FORCES_SZ_RES 2
 #define MAGLEV_ARRAY_FORCES_SZ_IW 0
-#define MAGLEV_ARRAY_FORCES_SZ_W 45
-int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_ARRAY_FORCES_SZ_W 0
+int maglev_array_forces(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -408,8 +408,8 @@ int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* 
 #define MAGLEV_STIFFNESS_SZ_ARG 2
 #define MAGLEV_STIFFNESS_SZ_RES 2
 #define MAGLEV_STIFFNESS_SZ_IW 0
-#define MAGLEV_STIFFNESS_SZ_W 103
-int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_STIFFNESS_SZ_W 0
+int maglev_stiffness(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -419,8 +419,8 @@ int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 #define MAGLEV_EFFECTIVENESS_SZ_ARG 0
 #define MAGLEV_EFFECTIVENESS_SZ_RES 1
 #define MAGLEV_EFFECTIVENESS_SZ_IW 0
-#define MAGLEV_EFFECTIVENESS_SZ_W 7
-int maglev_effectiveness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+#define MAGLEV_EFFECTIVENESS_SZ_W 0
+int maglev_effectiveness(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 #ifdef __cplusplus

@@ -307,56 +307,56 @@ int maglev_gaps_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *s
 #define maglev_gaps_SZ_RES 1
 #define maglev_gaps_SZ_IW 0
 #define maglev_gaps_SZ_W 0
-int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_array_forces(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_array_forces_checkout(void);
 void maglev_array_forces_release(int mem);
 void maglev_array_forces_incref(void);
 void maglev_array_forces_decref(void);
-casadi_int maglev_array_forces_n_in(void);
-casadi_int maglev_array_forces_n_out(void);
-casadi_real maglev_array_forces_default_in(casadi_int i);
-const char* maglev_array_forces_name_in(casadi_int i);
-const char* maglev_array_forces_name_out(casadi_int i);
-const casadi_int* maglev_array_forces_sparsity_in(casadi_int i);
-const casadi_int* maglev_array_forces_sparsity_out(casadi_int i);
-int maglev_array_forces_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_array_forces_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_array_forces_n_in(void);
+maglev_int maglev_array_forces_n_out(void);
+maglev_real maglev_array_forces_default_in(maglev_int i);
+const char* maglev_array_forces_name_in(maglev_int i);
+const char* maglev_array_forces_name_out(maglev_int i);
+const maglev_int* maglev_array_forces_sparsity_in(maglev_int i);
+const maglev_int* maglev_array_forces_sparsity_out(maglev_int i);
+int maglev_array_forces_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_array_forces_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_array_forces_SZ_ARG 1
 #define maglev_array_forces_SZ_RES 2
 #define maglev_array_forces_SZ_IW 0
 #define maglev_array_forces_SZ_W 0
-int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_stiffness(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_stiffness_checkout(void);
 void maglev_stiffness_release(int mem);
 void maglev_stiffness_incref(void);
 void maglev_stiffness_decref(void);
-casadi_int maglev_stiffness_n_in(void);
-casadi_int maglev_stiffness_n_out(void);
-casadi_real maglev_stiffness_default_in(casadi_int i);
-const char* maglev_stiffness_name_in(casadi_int i);
-const char* maglev_stiffness_name_out(casadi_int i);
-const casadi_int* maglev_stiffness_sparsity_in(casadi_int i);
-const casadi_int* maglev_stiffness_sparsity_out(casadi_int i);
-int maglev_stiffness_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_stiffness_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_stiffness_n_in(void);
+maglev_int maglev_stiffness_n_out(void);
+maglev_real maglev_stiffness_default_in(maglev_int i);
+const char* maglev_stiffness_name_in(maglev_int i);
+const char* maglev_stiffness_name_out(maglev_int i);
+const maglev_int* maglev_stiffness_sparsity_in(maglev_int i);
+const maglev_int* maglev_stiffness_sparsity_out(maglev_int i);
+int maglev_stiffness_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_stiffness_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_stiffness_SZ_ARG 2
 #define maglev_stiffness_SZ_RES 2
 #define maglev_stiffness_SZ_IW 0
 #define maglev_stiffness_SZ_W 0
-int maglev_effectiveness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int maglev_effectiveness(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_effectiveness_checkout(void);
 void maglev_effectiveness_release(int mem);
 void maglev_effectiveness_incref(void);
 void maglev_effectiveness_decref(void);
-casadi_int maglev_effectiveness_n_in(void);
-casadi_int maglev_effectiveness_n_out(void);
-casadi_real maglev_effectiveness_default_in(casadi_int i);
-const char* maglev_effectiveness_name_in(casadi_int i);
-const char* maglev_effectiveness_name_out(casadi_int i);
-const casadi_int* maglev_effectiveness_sparsity_in(casadi_int i);
-const casadi_int* maglev_effectiveness_sparsity_out(casadi_int i);
-int maglev_effectiveness_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int maglev_effectiveness_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+maglev_int maglev_effectiveness_n_in(void);
+maglev_int maglev_effectiveness_n_out(void);
+maglev_real maglev_effectiveness_default_in(maglev_int i);
+const char* maglev_effectiveness_name_in(maglev_int i);
+const char* maglev_effectiveness_name_out(maglev_int i);
+const maglev_int* maglev_effectiveness_sparsity_in(maglev_int i);
+const maglev_int* maglev_effectiveness_sparsity_out(maglev_int i);
+int maglev_effectiveness_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_effectiveness_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
 #define maglev_effectiveness_SZ_ARG 0
 #define maglev_effectiveness_SZ_RES 1
 #define maglev_effectiveness_SZ_IW 0
