@@ -31,8 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import BENCH, ROOT, log, paired_ratios, run, summary
 
 from maglevgen.carriage import Carriage
-from maglevgen.codegen.generate import GenerateOptions, render, write_output
-from maglevgen.codegen.misra import render_tick_sources
+from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
 from maglevgen.envelope import envelope_points, resolve_range
 from maglevgen.library import simulation_library
 from maglevgen.params import load_params

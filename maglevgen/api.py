@@ -670,16 +670,17 @@ class Carriage:
         """
         import control
 
-        from .controllers import axis_plants
-
         coords = dict(zip(cv.Q_STATES, AXES, strict=True))
         name = coords.get(axis, axis)
         if name not in AXES:
             raise InputError(f"axis {axis!r}: expected one of {', '.join(AXES)} "
                              f"(or {', '.join(cv.Q_STATES)})")
         i = AXES.index(name)
-        v = self._speed(speed)
-        _, k, m = axis_plants(self._carriage, self._carriage.trim(v))[i]
+        summary = _commands()
+        lib = summary._library(self._carriage)
+        v = summary.trim_point(self._carriage, lib, self._speed(speed)).speed  # or no trim
+        k, m = (float(a.ravel()[i]) for a in lib.function("maglev_axis_plants")(
+            v, self._carriage.p))
         q = cv.Q_STATES[i]
         return control.ss([[0.0, 1.0], [-k / m, 0.0]], [[0.0], [1.0 / m]], [[1.0, 0.0]], 0.0,
                           states=[q, f"{q}_dot"], inputs=[cv.CONTROLS[i].name], outputs=[q],

@@ -79,6 +79,9 @@ class ContentHash:
 
 @cache
 def package_root(pkg: str) -> Path:
+    parent, _, leaf = pkg.rpartition(".")
+    if "." in parent:  # find_spec would import the parent package (report/ imports SymPy)
+        return package_root(parent) / leaf
     spec = util.find_spec(pkg)
     if spec is None or not spec.submodule_search_locations:
         raise RuntimeError(f"package {pkg} not found")

@@ -56,7 +56,10 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.library": ("a cached library is loaded without SymPy or CasADi",
                           ("maglevgen.codegen.generate", "maglevgen.derive.model")),
     "maglevgen.operating": ("the simulation path stays SciPy-free", ("scipy",)),
-    "maglevgen.schedule": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
+                           "only when written", ("scipy", "maglevgen.codegen.checks", "numpy")),
+    "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
+                              ("maglevgen.codegen.checks",)),
     "maglevgen.simulate": (
         "a hold run needs neither the envelope nor SciPy (the launch and --check do)",
         ("maglevgen.envelope", "maglevgen.library", "scipy")),
@@ -78,7 +81,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.api": (
         "each method imports the stage it runs, as the CLI's commands do (a script that only "
         "simulates loads no SymPy); pandas and python-control only where they are returned",
-        ("control", "maglevgen.carriage", "maglevgen.codegen.generate", "maglevgen.controllers",
+        ("control", "maglevgen.carriage", "maglevgen.codegen.generate",
          "maglevgen.derive.structure", "maglevgen.envelope", "maglevgen.fmu",
          "maglevgen.montecarlo", "maglevgen.operating", "maglevgen.output", "maglevgen.params",
          "maglevgen.report", "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",

@@ -110,3 +110,16 @@ def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
     return files
 
 
+TICK_FUNCTIONS = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
+                  "maglev_allocate")
+
+
+def render_tick_sources(carriage, precision: str = "single") -> dict[str, str]:
+    """maglev_tick.c/.h: the per-tick functions alone, baked, as maglev_functions.c has them."""
+    fns = bake_all(tuple(build_functions(carriage.model, precision=precision).functions),
+                   carriage.p)
+    tick = [f for f in fns if f.name() in TICK_FUNCTIONS]
+    src = generate_c(tick, "maglev_tick", precision)
+    src["maglev_tick.c"] = check_entries(src["maglev_tick.c"], function_table(tick), precision,
+                                         False, "0")
+    return src

@@ -65,23 +65,3 @@ def deviation_list() -> str:
     lines += [f"| {rule} | {where} | {why} |" for rule, (where, why) in
               sorted(DEVIATIONS.items(), key=lambda kv: tuple(int(x) for x in kv[0].split(".")))]
     return "\n".join(lines) + "\n"
-
-
-TICK_FUNCTIONS = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
-                  "maglev_allocate")
-
-
-def render_tick_sources(carriage, precision: str = "single") -> dict[str, str]:
-    """maglev_tick.c/.h: the per-tick functions alone, baked, as maglev_functions.c has them."""
-    from .checks import check_entries
-    from .cpass import generate_c
-    from .functions import bake_all, build_functions
-    from .generate import function_table
-
-    fns = bake_all(tuple(build_functions(carriage.model, precision=precision).functions),
-                   carriage.p)
-    tick = [f for f in fns if f.name() in TICK_FUNCTIONS]
-    src = generate_c(tick, "maglev_tick", precision)
-    src["maglev_tick.c"] = check_entries(src["maglev_tick.c"], function_table(tick), precision,
-                                         False, "0")
-    return src
