@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import sympy as sp
@@ -20,8 +20,15 @@ from .linearize import generalized_mass_expr, stiffness_form
 from .memo import memoized
 from .model import CarriageModel, Structure, build_model
 
-if TYPE_CHECKING:  # trim imports this module
-    from .trim import Trim
+
+class Equilibrium(Protocol):
+    """What the evaluations at trim read of a trim (derive.trim.Trim has it; trim imports this
+    module, so the dependency is this protocol, not that class)."""
+
+    x: np.ndarray
+    u: np.ndarray
+    lift: np.ndarray
+    drag: np.ndarray
 
 
 def _fn(args: list, expr: sp.Matrix) -> Callable[..., np.ndarray]:
@@ -129,23 +136,23 @@ def model_functions(structure: Structure) -> ModelFunctions:
 # ------------------------------------------------ the linearisation at trim (eqs 5-19)
 
 
-def magnetic_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
+def magnetic_stiffness(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray) -> np.ndarray:
     """K_st0 evaluated at the trim pose and array forces."""
     return np.asarray(mf.stiffness_magnetic(_trim_q(trim), trim.lift, trim.drag, p),
                       dtype=float)
 
 
-def other_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
+def other_stiffness(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray) -> np.ndarray:
     """Stiffness of the gravity and propulsion moments about O at trim (CG offset terms)."""
     return np.asarray(mf.stiffness_other(_trim_q(trim), trim.u[0], p), dtype=float)
 
 
-def total_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
+def total_stiffness(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray) -> np.ndarray:
     """K_st0 plus the gravity and propulsion terms: -dW/dq of every external force."""
     return magnetic_stiffness(mf, trim, p) + other_stiffness(mf, trim, p)
 
 
-def _trim_q(trim: Trim) -> np.ndarray:
+def _trim_q(trim: Equilibrium) -> np.ndarray:
     return np.array([trim.x[cv.STATE_INDEX[s]] for s in Q_STATES])
 
 
@@ -164,6 +171,7 @@ def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:
     return np.array([float(e) for e in generalized_mass_expr(model).xreplace(val)])
 
 
-def linearize(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def linearize(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
     """A (12x12) and B (12 x n_inputs) of the full model at trim."""
     return mf.jacobians(trim.x, trim.u, p)

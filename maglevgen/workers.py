@@ -107,26 +107,6 @@ class PendingResult(Protocol):
     def result(self) -> Mapping[str, bytes]: ...
 
 
-class Background:
-    """``fn(*args)`` in a child of its own; ``result()`` waits for it.
-
-    Kept for report.py's one use until issue 20 part B restructures the report (`child` and
-    `submit` are the interface)."""
-
-    def __init__(self, what: str, fn: Callable[..., Any], *args: Any) -> None:
-        self._child = child()
-        self._job = submit(self._child.__enter__(), what, fn, *args)
-
-    def result(self) -> Any:
-        return self._job.result()
-
-    def __enter__(self) -> Background:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self._child.__exit__(*exc)
-
-
 class PendingFiles(Mapping[str, bytes]):
     """Files in memory, some of which jobs are still producing: reading one of those waits
     for its job; listing and testing names does not."""

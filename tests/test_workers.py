@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from maglevgen.errors import MaglevError
-from maglevgen.workers import Background, PendingFiles, Shared, child, submit
+from maglevgen.workers import PendingFiles, Shared, child, submit
 
 
 def _pid_and_sum(values: np.ndarray) -> tuple[int, float]:
@@ -138,13 +138,6 @@ def test_without_fork_a_shared_argument_is_the_data_itself(monkeypatch) -> None:
 def test_a_job_that_cannot_be_sent_fails_naming_itself() -> None:
     with child() as pool, pytest.raises(MaglevError, match=r"^sending a lambda failed: "):
         submit(pool, "sending a lambda", _apply, lambda: 1).result()
-
-
-def test_background_is_a_one_job_child() -> None:
-    data = np.arange(5.0)
-    with Background("summing", _pid_and_sum, data) as job:
-        pid, total = job.result()
-    assert pid != os.getpid() and total == 10.0
 
 
 def test_pending_files_wait_for_the_job_only_when_a_pending_file_is_read(monkeypatch) -> None:

@@ -71,7 +71,10 @@ def fcomplex(z: complex, digits: int = 4) -> str:
 
 
 def fpct(x: float) -> str:
-    """A relative difference as a signed percentage (LaTeX text)."""
+    """A relative difference as a signed percentage (LaTeX text); from 1000 % on, as the
+    ratio it stands for (x = 5.7e8 reads "5.7 x 10^8 times", not a 12-digit percentage)."""
+    if abs(x) >= 10:
+        return f"${fnum(1 + x, 2)}$ times"
     return f"${x * 100:+.1f}\\,\\%$"
 
 

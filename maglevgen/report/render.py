@@ -22,12 +22,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import maglevgen.report.latex as latex  # a module (tests patch its find_tex)
+
 from ..errors import MaglevError
 from ..output import write_output
 from ..report_figures import force_figures, pole_map
 from ..summary import gains_report, trim_report  # the CLI's numbers, from the C
 from ..version import __version__
-from . import latex
 from .latex import LatexBuild, latex_env
 from .sections.conventions import _conventions
 from .sections.damping import _damping_allocation
