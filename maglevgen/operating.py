@@ -148,8 +148,9 @@ def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
     try:
         x_trim, f_prop = lib.function("maglev_trim")(speed, p)
     except GeneratedFunctionError as exc:
-        raise NoTrimError(f"no trim at {speed:g} m/s: {exc} (below lift-off speed?); see "
-                          "`maglevgen trim`") from None
+        raise NoTrimError(f"no trim at {speed:g} m/s: the Newton trim in C returned "
+                          f"{exc.code_name} (below lift-off speed?); see `maglevgen trim`"
+                          ) from None
     x_trim, f_prop = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)
