@@ -322,8 +322,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
               "LQR gain; the toolchain uses the derived closed form (stable in float32);",
               "- with Q = diag(state_weights), R = input_weight as in the paper the LQR damps "
               "heave and pitch less than the optimized damping (see simulation/metrics.md);",
-              f"- under a steady propulsion force the speed is unstable (pole "
-              f"{run.fastest_growth:+.3f} 1/s: the drag falls with speed).", ""]
+              f"- the speed mode: {run.speed_mode.explanation()}.", ""]
     for traj in run.trajectories:
         lines.append(f"Simulation `{traj.controller}`: {traj.status}"
                      + (f" ({traj.event})" if traj.event else ""))

@@ -210,3 +210,102 @@ def stability(eigenvalues: np.ndarray) -> tuple[float, float]:
     mag = np.abs(ev)
     zeta = np.where(mag > 1e-12, -ev.real / np.where(mag > 1e-12, mag, 1.0), 1.0)
     return float(np.max(ev.real)), float(np.min(zeta))
+
+
+@dataclass(frozen=True)
+class SpeedMode:
+    """The forward-speed mode under the constant trim propulsion, and the two parts of it.
+
+    Along the track m V' = F_prop - F_D(V) (eqs 1-2 along x; lift acts along the track normal
+    and drag along -x). With the propulsion held at its trim value and every other axis
+    following the trim as the speed changes (they are orders of magnitude faster), the pole is
+
+        lambda = -(1/m) dF_D,trim/dV
+               = -(1/m) sum_i (dF_D,i/dV|_gaps + dF_D,i/d(gap_i) d(gap_i)/dV),
+
+    the trim drag's total slope along the trim curve: the drag law's slope at fixed gaps (eq 3;
+    negative above the characteristic speed v_c = R/(kL), where the drag falls with speed,
+    positive below it) plus the re-trim (lift rises with speed, the carriage rises: the upper
+    arrays' gaps open, the lower arrays' close, and as the upper arrays carry most of the drag,
+    exp(-2 k gap), the trim drag falls, below v_c as well). Numbers from the generated C: the
+    trim drag's slope by the implicit-function theorem on the trim's six balances with
+    maglev_jacobians, the fixed-gap slope from eq 3 at the C's array forces, the eigenvalue of
+    `full_closed_loop`.
+    """
+
+    speed: float  # V [m/s]
+    mass: float  # m [kg]
+    drag_slope_trim: float  # dF_D,trim/dV along the trim curve (re-trim included) [N s/m]
+    drag_slope_fixed_gaps: float  # sum_i dF_D,i/dV at the trim's gaps (eq 3) [N s/m]
+    characteristic_speed: float  # v_c = R/(k L), where eq 3's drag equals its lift [m/s]
+    eigenvalue: float  # the speed mode's eigenvalue of the 12-state closed loop [1/s]
+    controller: str  # whose closed loop gave ``eigenvalue``
+
+    @property
+    def pole_trim(self) -> float:
+        """-(dF_D,trim/dV)/m: the speed pole from the trim drag's total slope [1/s]."""
+        return -self.drag_slope_trim / self.mass
+
+    @property
+    def pole_fixed_gaps(self) -> float:
+        """-(sum_i dF_D,i/dV|_gaps)/m: the drag law's part of the pole [1/s]."""
+        return -self.drag_slope_fixed_gaps / self.mass
+
+    @property
+    def pole_retrim(self) -> float:
+        """pole_trim - pole_fixed_gaps: the part from the gaps following the trim [1/s]."""
+        return self.pole_trim - self.pole_fixed_gaps
+
+    @property
+    def dominant(self) -> str:
+        """"drag law" or "re-trim": the part with the larger magnitude."""
+        return "drag law" if abs(self.pole_fixed_gaps) >= abs(self.pole_retrim) else "re-trim"
+
+    def to_json(self) -> dict:
+        """As plain data: the slopes, the two parts of the pole, the eigenvalue, the sentence."""
+        return {"speed": self.speed, "mass": self.mass, "controller": self.controller,
+                "drag_slope_trim": self.drag_slope_trim,
+                "drag_slope_fixed_gaps": self.drag_slope_fixed_gaps,
+                "characteristic_speed": self.characteristic_speed,
+                "pole_trim": self.pole_trim, "pole_fixed_gaps": self.pole_fixed_gaps,
+                "pole_retrim": self.pole_retrim, "eigenvalue": self.eigenvalue,
+                "dominant": self.dominant, "explanation": self.explanation()}
+
+    def explanation(self) -> str:
+        """One sentence (plain ASCII) for SUMMARY.md, metrics.md and the messages."""
+        side = "above" if self.speed > self.characteristic_speed else "below"
+        law = "falls" if self.drag_slope_fixed_gaps < 0 else "rises"
+        state = "unstable" if self.eigenvalue > 0 else "stable"
+        return (f"under the constant trim propulsion the speed is {state} (12-state pole "
+                f"{self.eigenvalue:+.4f} 1/s); the trim drag's total slope with speed gives "
+                f"-(dF_D,trim/dV)/m = {self.pole_trim:+.4f} 1/s: {self.pole_fixed_gaps:+.4f} "
+                f"1/s from the drag law at fixed gaps ({side} the characteristic speed "
+                f"{self.characteristic_speed:.4g} m/s the drag {law} with speed) and "
+                f"{self.pole_retrim:+.4f} 1/s from the re-trim (lift rises with speed, the "
+                f"upper gaps open and the trim drag falls); the {self.dominant} dominates")
+
+
+def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: float,
+               controller: str = "lqr") -> SpeedMode:
+    """`SpeedMode` at ``op`` from the generated C, the eigenvalue that of ``controller``'s
+    12-state closed loop (`OperatingPoint.full_closed_loop`)."""
+    V = op.speed
+    # Trim: acc(x(V, q), F_prop) = 0 in the six unknowns (q, F_prop). The body velocity at
+    # trim is R^T (V, 0, 0); turning it with q leaves every array's along-track speed at V, so
+    # d acc/dq at fixed V is A's position columns, and d acc/dV is A's velocity columns along
+    # the trim's velocity direction.
+    acc = slice(6, 12)
+    J = np.column_stack([op.A[acc, 1:6], op.B[acc, 0]])
+    dacc_dV = op.A[acc, 6:9] @ (op.x_trim[6:9] / V)
+    d_unknowns = -np.linalg.solve(J, dacc_dV)
+    # eq 3 at a fixed gap: F_D = F_L r, r = R/(omega L) = v_c/V, F_D ~ r/(1 + r^2), so
+    # dF_D/dV = -F_D (1 - r^2) / ((1 + r^2) V); r from the C's drag/lift of each array.
+    lift, drag = (a.ravel() for a in lib.function("maglev_array_forces")(op.x_trim, p))
+    r = drag / lift
+    fixed = float(-np.sum(drag * (1 - r**2) / ((1 + r**2) * V)))
+    # the speed mode: the eigenvector with the largest share in u (x, a pure integrator, aside)
+    ev, vec = np.linalg.eig(op.full_closed_loop(controller)[1:, 1:])
+    iu = cv.STATE_INDEX["u"] - 1
+    share = np.abs(vec[iu]) / np.linalg.norm(vec, axis=0)
+    return SpeedMode(V, float(mass), float(d_unknowns[5]), fixed, float(np.median(r)) * V,
+                     float(ev[np.argmax(share)].real), controller)

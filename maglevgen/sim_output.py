@@ -126,8 +126,11 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
     return buf.getvalue()
 
 
-def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE_DOC) -> str:
-    """One table per controller: settling time, peak deviation, RMS control per axis."""
+def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE_DOC,
+                     speed_mode: dict | None = None) -> str:
+    """One table per controller: settling time, peak deviation, RMS control per axis;
+    ``speed_mode``: `SpeedMode.to_json` at the run's speed, whose sentence says why the speed
+    drifts under the held propulsion."""
     launch = bool(all_metrics) and all_metrics[0].get("scenario") == "launch"
     scenario = (
         "Launch: from the trim at the envelope's v_min the carriage accelerates to v_max under "
@@ -138,8 +141,8 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
         "the proportional controllers do not remove."
         if launch else
         "The propulsion force is held at its trim value; the along-track speed is not "
-        "controlled and drifts (under a steady force the speed equilibrium is unstable: the "
-        "trim drag falls as the speed rises).")
+        "controlled and drifts"
+        + (f": {speed_mode['explanation']}." if speed_mode else "."))
     lines = ["# Closed-loop simulation metrics", "",
              f"Initial disturbance: {disturbance}. {scenario} Deviations are measured "
              "from the trim at the current speed. Status: 'contact' (a gap reached "
@@ -242,7 +245,8 @@ def render_metrics(trajs: Sequence[Trajectory], header: dict) -> dict[str, bytes
     doc = disturbance_doc(trajs[0].disturbance) if trajs else DISTURBANCE_DOC
     return {"metrics.json": (json.dumps({**header, "disturbance": doc, "runs": all_metrics},
                                         indent=2) + "\n").encode(),
-            "metrics.md": (metrics_markdown(all_metrics, doc) + "\n").encode()}
+            "metrics.md": (metrics_markdown(all_metrics, doc, header.get("speed_mode"))
+                           + "\n").encode()}
 
 
 def trajectory_names(trajs: Sequence[Trajectory]) -> tuple[str, ...]:

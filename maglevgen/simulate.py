@@ -25,9 +25,11 @@ from .operating import (
     CONTROLLER_TITLES,
     CONTROLLERS,
     OperatingPoint,
+    SpeedMode,
     Weights,
     checked_trim,
     operating_point,
+    speed_mode,
 )
 from .schedule import Schedule
 
@@ -108,7 +110,7 @@ class Trajectory:
         """(n, 5) deviation of y, z, phi, theta, psi from the trim at the current speed.
 
         The speed changes during a run (the launch accelerates; under the trim propulsion of
-        the hold scenario the speed mode drifts slowly, see `OperatingPoint.speed_pole`) and
+        the hold scenario the speed mode drifts slowly, see `SpeedMode`) and
         the trim moves with it; deviations are measured from that moving equilibrium.
         """
         ref = self.op.a_trim if self.equilibrium is None else self.equilibrium
@@ -366,16 +368,18 @@ class SimulationRun:
     trajectories: tuple[Trajectory, ...]
     dt_limit: float
     input_names: tuple[str, ...]
-    fastest_growth: float  # largest real part of the closed-loop poles [1/s] (the speed mode)
+    fastest_growth: float  # largest real part of the closed-loop poles [1/s]
     scenario: str = "hold"
     v_end: float | None = None  # the launch's release speed
+    speed_mode: SpeedMode | None = None  # the forward-speed mode at the start speed, explained
 
     def header(self, params_sha256: str) -> dict:
         """What metrics.json states about the runs besides the per-run metrics."""
         return {"params_sha256": params_sha256, "scenario": self.scenario,
                 "speed": self.op.speed, "release_speed": self.v_end,
                 "propulsion_force": self.op.f_prop, "rk4_stability_limit": self.dt_limit,
-                "fastest_closed_loop_growth": self.fastest_growth}
+                "fastest_closed_loop_growth": self.fastest_growth,
+                "speed_mode": None if self.speed_mode is None else self.speed_mode.to_json()}
 
 
 def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: float,
@@ -438,5 +442,8 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
             trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
                                   progress=update))
     growth = max(float(np.max(e.real)) for e in eig.values())
+    embedded = carriage.params.envelope.embedded_controller
+    mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,
+                      embedded if embedded in controllers else controllers[0])
     return SimulationRun(op, tuple(trajs), limits[worst], input_names_of(carriage.structure),
-                         growth, scenario, v_end)
+                         growth, scenario, v_end, mode)

@@ -36,6 +36,7 @@ from .operating import (
     checked_trim,
     numerical_lqr,
     operating_point,
+    speed_mode,
 )
 
 
@@ -100,6 +101,35 @@ def stiffness_table(carriage: Carriage, lib: SimulationLibrary, speed: float | N
                           tp.K_magnetic + tp.K_other)
 
 
+def pitch_paper_form(carriage: Carriage, tp: TrimPoint, printed: float) -> dict[str, float]:
+    """Eq 15's pitch stiffness as printed, with its net front force replaced by the sum of the
+    arrays' stiffness contributions, and derived (K_st0's pitch entry from the C) [N m/rad].
+
+    Eq 15 expands the front net force F_z3 - F_z1 - F_z2 as 0.06 F_z3 (1 + 2 k L_x theta): the
+    printed K = 0.12 F_upper k L_x^2 = 2 k L_x^2 (0.06 F_upper) takes the net force's slope as
+    2k times the net force. But each array's force F_i exp(-2 k gap_i) (eq 3) changes by
+    -2k F_i per metre of its own gap, and pitch moves array i's gap by -n_z,i x_i theta, so its
+    moment -x_i n_z,i F_i changes by 2k F_i n_z,i^2 x_i^2 theta whatever the sign of n_z,i:
+    the lower arrays' stiffness adds to the upper arrays' instead of subtracting. With the sum
+    K = 2k sum_i F_i n_z,i^2 x_i^2 (the arm L_x = |x_i| is right); what the derived value has
+    beyond it are the moment arms turning with the carriage and the drag's gap slope at the
+    arrays' heights. ``printed``: eq 15 at this trim (`stiffness_rows`).
+    """
+    k = carriage.params.wavenumber
+    arrays = list(carriage.params.arrays.values())
+    x = np.array([a.position[0] for a in arrays])
+    n_z = np.array([a.normal[2] for a in arrays])
+    front = x > 0
+    return {
+        "printed": float(printed),
+        "sum_of_contributions": float(2 * k * np.sum(tp.lift * n_z**2 * x**2)),
+        "derived": float(tp.K_magnetic[3, 3]),
+        # eq 15's ratio (F_z3 - F_z1 - F_z2)/F_z3, printed 0.06, at this trim
+        "net_front_ratio": float(np.sum((tp.lift * n_z)[front])
+                                 / np.sum((tp.lift * np.maximum(n_z, 0))[front])),
+    }
+
+
 def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None
                 ) -> dict:
     """Everything `maglevgen trim` prints, as plain data."""
@@ -126,6 +156,8 @@ def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary 
         },
         "stiffness_matrix": tp.K_magnetic.tolist(),
         "paper_inputs": kin,
+        "pitch_paper_form": pitch_paper_form(
+            carriage, tp, next(r.paper_value for r in rows if r.axis == "pitch")),
     }
 
 
@@ -156,6 +188,8 @@ def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary
              for i, axis in enumerate(cv.AXES)]
     Q, R = (w.q1, w.q2), w.r
     cc = coupled_comparison(op)
+    mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,
+                      carriage.params.envelope.embedded_controller)
     poles = lambda ev: [[float(e.real), float(e.imag)] for e in sorted(ev, key=_pole_key)]  # noqa: E731
     return {
         "speed": v,
@@ -178,7 +212,9 @@ def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary
             "effectiveness": lib.function("maglev_effectiveness")(carriage.p)[0].tolist(),
             "minimum_norm": op.allocation.tolist(),
         },
+        "speed_mode": mode.to_json(),
     }
+
 
 
 def coupled_comparison(op: OperatingPoint):

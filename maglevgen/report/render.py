@@ -169,7 +169,7 @@ def build_context(
         "checks": checks,
         "envelope": envelope,
         "simulation": sim,
-        "poles": {"figure": POLE_FIGURE, "sets": poles},
+        "poles": {"figure": POLE_FIGURE, "sets": poles, "speed_mode": gains["speed_mode"]},
         "summary": summary(trep, gains, paper, checks, envelope, sections["stiffness"]),
         "figures": sorted(f for f in files if f.startswith("fig_")),
     }

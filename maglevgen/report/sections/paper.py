@@ -91,6 +91,7 @@ def _paper_comparison(gains: dict, trep: dict) -> dict[str, Any]:
         "cost_coupled": coupled["cost_coupled_lqr"],
         "riccati_notes": riccati_notes,
         "allocation_notes": paper_discrepancies_allocation(),
+        "pitch": trep["pitch_paper_form"],
     }
 
 

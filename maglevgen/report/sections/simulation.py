@@ -36,6 +36,7 @@ def _simulation(source: Simulation, params_sha256: str | None = None
         "runs": [],
         "disturbance": "",
         "growth": None,
+        "speed_mode": None,
     }
     if source is None:
         return empty, _Deferred({}, {})
@@ -126,15 +127,30 @@ def _metrics(data: Any) -> dict[str, Any]:
                 "axes": rows,
             }
         )
-    scalars = {k: v for k, v in data.items() if k not in ("runs", "disturbance")}
+    scalars = {k: v for k, v in data.items() if k not in ("runs", "disturbance", "speed_mode")}
     disturbance = data.get("disturbance")
     growth = data.get("fastest_closed_loop_growth")
     return {
+        "speed_mode": _speed_mode(data.get("speed_mode")),
         "metrics": _flatten_metrics(scalars)[:40],
         "runs": runs,
         "disturbance": disturbance if isinstance(disturbance, str) else "",
         "growth": float(growth) if isinstance(growth, int | float) else None,
     }
+
+
+_SPEED_MODE_NUMBERS = ("speed", "eigenvalue", "pole_trim", "pole_fixed_gaps", "pole_retrim")
+
+
+def _speed_mode(mode: Any) -> dict[str, Any] | None:
+    """The speed mode of metrics.json (`SpeedMode.to_json`), when it has every number shown."""
+    if not (isinstance(mode, dict) and all(isinstance(mode.get(k), int | float)
+                                           and not isinstance(mode.get(k), bool)
+                                           for k in _SPEED_MODE_NUMBERS)):
+        return None
+    return {**{k: float(mode[k]) for k in _SPEED_MODE_NUMBERS},
+            "controller": str(mode.get("controller", "")),
+            "dominant": str(mode.get("dominant", ""))}
 
 
 def _speeds(run: Any) -> tuple[float, float] | None:

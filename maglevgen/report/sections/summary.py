@@ -37,6 +37,7 @@ def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
                    "poles": [complex(*p) for p in a["closed_loop_poles"]]}
                   for axis, a in gains["axes"].items()],
         "discrepancies": _discrepancies(trep, gains),
+        "speed_mode": gains["speed_mode"],
         "passed": status.count("pass"), "failed": status.count("FAIL"),
         "not_run": status.count("not run"),
         "failed_checks": [c.what for c in checks if c.status == "FAIL"],  # LaTeX text
