@@ -287,11 +287,13 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
 
     from .derive import conventions as cv
     from .operating import CONTROLLER_TITLES
-    from .summary import stiffness_table
+    from .summary import pitch_paper_form, stiffness_table, trim_point
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
     rows = stiffness_table(carriage, lib, op.speed)
+    pitch = pitch_paper_form(carriage, trim_point(carriage, lib, op.speed),
+                             next(r.paper_value for r in rows if r.axis == "pitch"))
 
     embedded = carriage.params.envelope.embedded_controller
     lines = [f"# maglevgen build: {carriage.loaded.source}", "",
@@ -318,6 +320,10 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
     lines += ["", "Paper discrepancies found (details and evidence in the report):",
               "- printed stiffnesses (eqs 13-19) differ from the derived ones: "
               + ", ".join(f"{r.axis} {r.relative_difference:+.0%}" for r in rows) + ";",
+              "- pitch (eq 15): the error is the net front force F_z3 - F_z1 - F_z2 where the "
+              "upper and lower arrays' stiffnesses add (the arm L_x is right): printed "
+              f"{pitch['printed']:.5g}, with the sum 2k sum_i F_i n_z,i^2 x_i^2 "
+              f"{pitch['sum_of_contributions']:.5g}, derived {pitch['derived']:.5g} N*m/rad;",
               "- eq 31 does not satisfy the Riccati equation eq 30, and eq 32's gain is not the "
               "LQR gain; the toolchain uses the derived closed form (stable in float32);",
               "- with Q = diag(state_weights), R = input_weight as in the paper the LQR damps "

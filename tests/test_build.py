@@ -371,7 +371,7 @@ def test_report_lists_each_runs_speed_drift_from_the_trajectories(good: Path) ->
     import re
 
     tex = (good / "report/report.tex").read_text()
-    assert "speed equilibrium is unstable" in tex
+    assert "Under the held propulsion the speed mode (section~\\ref{sec:speed-mode})" in tex
     found = re.findall(r"\\texttt\{(\w+)\}: [^\n]*\\\\\n\\multicolumn\{6\}\{l\}\{\\quad speed "
                        r"\$([-0-9.e]+)\$ to \$([-0-9.e]+)\$", tex)
     npz = np.load(good / "simulation/trajectories.npz")
@@ -381,3 +381,43 @@ def test_report_lists_each_runs_speed_drift_from_the_trajectories(good: Path) ->
         u = np.linalg.norm(npz[controller][:, cols], axis=1)  # the speed |(u, v, w)|
         assert float(start) == pytest.approx(u[0], rel=1e-5)
         assert float(end) == pytest.approx(u[-1], rel=1e-5)
+
+
+def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage) -> None:
+    """SUMMARY.md's speed-mode and pitch lines, parsed, against tests/test_explanations.py's
+    references: the pole from root-solved trims at v +- h and from eq 3 at fixed gaps, the
+    corrected eq 15 and central differences of the pitch moment."""
+    from test_explanations import _references
+
+    prm = carriage.params
+    v = prm.operation.speed
+    ref = _references(prm, v)
+    text = (good / "SUMMARY.md").read_text()
+    m = re.search(r"- the speed mode: under the constant trim propulsion the speed is unstable "
+                  r"\(12-state pole (\S+) 1/s\); .* = (\S+) 1/s: (\S+) 1/s from the drag law at "
+                  r"fixed gaps .* and (\S+) 1/s from the re-trim .*; the (drag law|re-trim) "
+                  r"dominates\.", text)
+    assert m, text
+    eig, trim, fixed, retrim, dominant = m.groups()
+    assert float(trim) == pytest.approx(ref["trim"], abs=6e-5)
+    assert float(fixed) == pytest.approx(ref["fixed"], abs=6e-5)
+    assert float(retrim) == pytest.approx(ref["retrim"], abs=6e-5)
+    assert float(eig) == pytest.approx(ref["trim"], rel=5e-3)
+    assert dominant == ("drag law" if abs(ref["fixed"]) > abs(ref["retrim"]) else "re-trim")
+    tex = (good / "report/report.tex").read_text()
+    for row, key in (("speed pole from the trim drag's total slope", "trim"),
+                     ("\\quad of which the drag law at fixed gaps", "fixed"),
+                     ("\\quad of which the re-trim", "retrim")):
+        t = re.search(re.escape(row) + r" & \$([-0-9.]+)\$ & 1/s", tex)
+        assert t, row
+        assert float(t[1]) == pytest.approx(ref[key], rel=1e-3)
+    assert f"The {dominant} dominates." in tex
+    p = re.search(r"- pitch \(eq 15\): .* printed (\S+), with the sum .* (\S+), derived (\S+) "
+                  r"N\*m/rad;", text)
+    assert p, text
+    rt = reference_trim(prm, v)
+    K_fd = stiffness_fd(prm, rt.q, v, rt.f_prop, other=False)[3, 3]
+    printed, corrected, derived = (float(g) for g in p.groups())
+    assert derived == pytest.approx(K_fd, rel=1e-4)
+    assert corrected == pytest.approx(K_fd, rel=5e-3)
+    assert abs(printed / K_fd - 1) > 0.5
