@@ -300,7 +300,8 @@ class EnvelopeResult:
     verdicts : dict of str to str
         Per controller: the verdict line the CLI prints.
     speed_pole : numpy.ndarray
-        d(u')/du at trim under the trim propulsion [1/s] per speed (the forward-speed mode).
+        The forward-speed mode under the trim propulsion [1/s] per speed: the speed eigenvalue
+        of the embedded controller's 12-state closed loop (``maglevgen.operating.SpeedMode``).
     paths : tuple of pathlib.Path
         The files written (``out``), else empty.
     report : dict

@@ -6,7 +6,8 @@ generated C (maglevgen.operating); the coupled LQR is solved there by SciPy's CA
 eigenvalues are those of the ten-state closed loop (y, z, phi, theta, psi, v, w, p, q, r) with
 the controller and the allocation closed around it: x drops out (nothing depends on it) and
 the forward speed u is the scheduling variable held by the propulsion (its own mode under a
-constant force is reported apart, as ``speed_pole``). See maglevgen/operating.py.
+constant force is reported apart, as ``speed_pole``: `operating.SpeedMode`). See
+maglevgen/operating.py.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from .operating import (
     Weights,
     checked_trim,
     operating_point,
+    speed_mode,
     stability,
 )
 
@@ -121,7 +123,9 @@ class Envelope:
     v_min: float
     v_max: float
     controllers: dict[str, ControllerEnvelope]
-    speed_pole: np.ndarray  # d(u')/du at trim under the trim propulsion [1/s], per speed
+    # the forward-speed mode under the trim propulsion [1/s], per speed: the speed eigenvalue
+    # of the embedded controller's 12-state closed loop (`operating.SpeedMode`)
+    speed_pole: np.ndarray
 
     def to_json(self) -> dict:
         return {"speeds": self.speeds.tolist(), "v_min": self.v_min, "v_max": self.v_max,
@@ -200,7 +204,9 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
         ranges = unstable_ranges(carriage, lib, c, speeds, stable)
         out[c] = ControllerEnvelope(c, max_real, min_damping, stable, ranges,
                                     verdict_text(c, speeds, max_real, ranges))
-    return Envelope(speeds, v_min, v_max, out, np.array([op.speed_pole for op in points]))
+    mass, embedded = carriage.params.vehicle.mass, carriage.params.envelope.embedded_controller
+    speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
+    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles))
 
 
 def envelope_markdown(env: Envelope) -> str:

@@ -21,9 +21,9 @@ The coupled linearisation: the 12-state Jacobian at trim restricted to the ten s
 (y, z, phi, theta, psi, v, w, p, q, r). The along-track position x is dropped because nothing
 depends on it (a pure integrator); the forward speed u is dropped because the propulsion
 holds it (it is the scheduling variable, not a state the arrays control; its own slow mode
-under a constant force, the drag's slope with speed, is reported beside, not as part of the
-controller's stability). The inputs are the five generalized forces through the minimum-norm
-allocation T (eqs 22-23).
+under a constant force, the trim drag's slope with speed, is reported beside as `SpeedMode`,
+not as part of the controller's stability). The inputs are the five generalized forces
+through the minimum-norm allocation T (eqs 22-23).
 """
 
 from __future__ import annotations
@@ -133,12 +133,6 @@ class OperatingPoint:
         select[range(N_AXES), AXIS_STATES] = 1.0
         d_ugen = -(K_pos @ select + K_rate @ (select @ self.A))
         return self.A + self.B[:, 1:] @ self.allocation @ d_ugen
-
-    @property
-    def speed_pole(self) -> float:
-        """The forward-speed mode under the constant trim propulsion: d(u')/du at trim [1/s]."""
-        iu = cv.STATE_INDEX["u"]
-        return float(self.A[iu, iu])
 
 
 def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
@@ -275,14 +269,17 @@ class SpeedMode:
         """One sentence (plain ASCII) for SUMMARY.md, metrics.md and the messages."""
         side = "above" if self.speed > self.characteristic_speed else "below"
         law = "falls" if self.drag_slope_fixed_gaps < 0 else "rises"
-        state = "unstable" if self.eigenvalue > 0 else "stable"
+        state = ("unstable" if self.eigenvalue > 0 else "stable" if self.eigenvalue <= 0
+                 else "of unknown stability")  # NaN: no closed loop for the controller
+        retrim = ("lift rises with speed, the upper gaps open and the trim drag falls"
+                  if self.pole_retrim > 0 else "the gaps follow the trim and the drag rises")
         return (f"under the constant trim propulsion the speed is {state} (12-state pole "
                 f"{self.eigenvalue:+.4f} 1/s); the trim drag's total slope with speed gives "
                 f"-(dF_D,trim/dV)/m = {self.pole_trim:+.4f} 1/s: {self.pole_fixed_gaps:+.4f} "
                 f"1/s from the drag law at fixed gaps ({side} the characteristic speed "
                 f"{self.characteristic_speed:.4g} m/s the drag {law} with speed) and "
-                f"{self.pole_retrim:+.4f} 1/s from the re-trim (lift rises with speed, the "
-                f"upper gaps open and the trim drag falls); the {self.dominant} dominates")
+                f"{self.pole_retrim:+.4f} 1/s from the re-trim ({retrim}); the "
+                f"{self.dominant} dominates")
 
 
 def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: float,
@@ -304,8 +301,11 @@ def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: 
     r = drag / lift
     fixed = float(-np.sum(drag * (1 - r**2) / ((1 + r**2) * V)))
     # the speed mode: the eigenvector with the largest share in u (x, a pure integrator, aside)
-    ev, vec = np.linalg.eig(op.full_closed_loop(controller)[1:, 1:])
-    iu = cv.STATE_INDEX["u"] - 1
-    share = np.abs(vec[iu]) / np.linalg.norm(vec, axis=0)
+    A_cl = op.full_closed_loop(controller)[1:, 1:]
+    eigenvalue = float("nan")  # the coupled LQR where its Riccati equation has no solution
+    if np.all(np.isfinite(A_cl)):
+        ev, vec = np.linalg.eig(A_cl)
+        share = np.abs(vec[cv.STATE_INDEX["u"] - 1]) / np.linalg.norm(vec, axis=0)
+        eigenvalue = float(ev[np.argmax(share)].real)
     return SpeedMode(V, float(mass), float(d_unknowns[5]), fixed, float(np.median(r)) * V,
-                     float(ev[np.argmax(share)].real), controller)
+                     eigenvalue, controller)
