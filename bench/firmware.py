@@ -32,7 +32,7 @@ from common import BENCH, ROOT, log, paired_ratios, run, summary
 
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
-from maglevgen.envelope import envelope_points, resolve_range
+from maglevgen.envelope import envelope_points, resolve_range, speed_range
 from maglevgen.library import simulation_library
 from maglevgen.params import load_params
 from maglevgen.schedule import GainTable, gain_table_row, gain_table_sources
@@ -80,7 +80,8 @@ def _worst_stack(ci: str, root: str) -> int:
 
 
 def _sources(carriage: Carriage, folder: Path) -> GainTable:
-    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), folder)
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
+                        speed_range(carriage)), folder)
     lib = simulation_library(carriage.structure)
     v_min, v_max = resolve_range(carriage, lib)
     table = GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError, NoTrimError
-from .library import SimulationLibrary
+from .library import SimulationLibrary, simulation_library
 from .operating import (
     CONTROLLER_TITLES,
     CONTROLLERS,
@@ -78,6 +78,12 @@ def resolve_range(carriage, lib: SimulationLibrary) -> tuple[float, float]:
         raise InputError(f"envelope.v_max = {env.v_max:g}: not above the default v_min "
                          f"{v_min:.4g} m/s ((1 + lift_off_margin) x lift-off {v_lift:.4g} m/s)")
     return v_min, float(env.v_max)
+
+
+def speed_range(carriage) -> tuple[float, float]:
+    """`resolve_range` through the carriage's compiled simulation library (cached on disk):
+    what `maglevgen generate` bakes into the trim's checks and the firmware table spans."""
+    return resolve_range(carriage, simulation_library(carriage.structure))
 
 
 def envelope_points(carriage, lib: SimulationLibrary,
