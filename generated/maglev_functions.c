@@ -17217,7 +17217,9 @@ static int maglev_all_finite(const casadi_real* a, int n) {
 static void maglev_zero(casadi_real* a, int n) {
   int i;
   if (a == 0) return;
-  for (i = 0; i < n; ++i) a[i] = 0;
+  for (i = 0; i < n; ++i) {
+    a[i] = 0;
+  }
 }
 
 /* the trim at *v into x and *F_prop: v and p finite, v in [6.2840187549591064, 40.0] (the envelope),

@@ -226,7 +226,7 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
         "  int i;\n  if (a == 0) return 1;\n"
         "  for (i = 0; i < n; ++i) {\n    if (!isfinite(a[i])) return 0;\n  }\n  return 1;\n}\n\n"
         "static void maglev_zero(casadi_real* a, int n) {\n  int i;\n  if (a == 0) return;\n"
-        "  for (i = 0; i < n; ++i) a[i] = 0;\n}\n\n",
+        "  for (i = 0; i < n; ++i) {\n    a[i] = 0;\n  }\n}\n\n",
     ]
     if any(n in TRIM_KIND for n in wanted):
         block.append(_trim_helper(by_name, work, precision, runtime, min_gap, speed_range))
