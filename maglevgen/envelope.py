@@ -28,6 +28,7 @@ from .operating import (
     operating_point,
     stability,
 )
+from .schedule import GainTable, gain_table_row
 
 DEFAULT_SPEEDS = 50
 # a closed loop is called stable when every eigenvalue's real part is below -STABILITY_MARGIN
@@ -84,6 +85,15 @@ def speed_range(carriage) -> tuple[float, float]:
     """`resolve_range` through the carriage's compiled simulation library (cached on disk):
     what `maglevgen generate` bakes into the trim's checks and the firmware table spans."""
     return resolve_range(carriage, simulation_library(carriage.structure))
+
+
+def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float) -> GainTable:
+    """The firmware's table schedule over [v_min, v_max] fitted to the exact schedule (the
+    operating points' trim and gains, `gain_table_row`); its manifest() is what
+    c/manifest.json and the report show."""
+    return GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
+                                              envelope_points(carriage, lib, vs)]),
+                         v_min, v_max)
 
 
 def envelope_points(carriage, lib: SimulationLibrary,
