@@ -43,6 +43,7 @@ from maglevgen.carriage import Carriage
 from maglevgen.codegen.functions import build_functions
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
 from maglevgen.controllers import allocation_matrix
+from maglevgen.envelope import speed_range
 from maglevgen.params import load_params
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedLibrary
@@ -207,7 +208,8 @@ def prepare(work: Path) -> Setup:
     gen = {}
     for precision, params in (("double", "runtime"), ("double", "baked"), ("single", "baked")):
         out = work / f"gen_{precision}_{params}"
-        write_output(render(carriage, GenerateOptions(precision, params)), out)
+        write_output(render(carriage, GenerateOptions(precision, params),
+                            speed_range(carriage)), out)
         gen[f"{precision}_{params}"] = out
     rt = gen["double_runtime"]
     if not (rt / "maglev_simulate.c").exists():

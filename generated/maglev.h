@@ -17,7 +17,8 @@
  *
  * Return codes: 0 on success, else one of the MAGLEV_ERR_* below. The schedule functions
  * (maglev_trim, maglev_axis_plants, maglev_lqr_gains: each solves the trim by Newton
- * iterations) check that v and p are finite, v > 0, the accelerations at the trim are within
+ * iterations) check that v and p are finite, v within [MAGLEV_V_MIN, MAGLEV_V_MAX]
+ * (the envelope's range, baked with the parameters), the accelerations at the trim are within
  * the Newton tolerance and every gap is at or above track.min_gap; the tick functions
  * (maglev_lqr_control, maglev_damping_control, maglev_coupled_control, maglev_allocate,
  * maglev_axis_gains) that every input and output is finite. On an error every requested
@@ -36,11 +37,15 @@ extern "C" {
 /* Return codes (maglevgen.codegen.checks) */
 #define MAGLEV_OK 0  /* success */
 #define MAGLEV_ERR_NONFINITE 1  /* an input is NaN or infinite (outputs zeroed) */
-#define MAGLEV_ERR_SPEED 2  /* speed outside the function's range: v <= 0 for the Newton trim, outside [v_min, v_max] for maglev_schedule (outputs zeroed; maglev_schedule: the end node's values) */
+#define MAGLEV_ERR_SPEED 2  /* speed outside the function's range: outside the envelope's [v_min, v_max] for the baked Newton trim and maglev_schedule, v <= 0 for the run-time-parameter trim (outputs zeroed; maglev_schedule: the end node's values) */
 #define MAGLEV_ERR_NOT_CONVERGED 3  /* the trim's Newton iteration did not reach its tolerance (no trim: below lift-off?) (outputs zeroed) */
 #define MAGLEV_ERR_CONTACT 4  /* the trim has a gap below track.min_gap (outputs zeroed) */
 #define MAGLEV_ERR_NONFINITE_OUTPUT 5  /* an output came out NaN or infinite (outputs zeroed) */
 #define MAGLEV_ERR_INTERNAL 6  /* the CasADi function itself returned an error (outputs zeroed) */
+
+/* Speeds [m/s] the schedule functions accept (the envelope's v_min, v_max; else MAGLEV_ERR_SPEED) */
+#define MAGLEV_V_MIN 6.2840187549591064
+#define MAGLEV_V_MAX 40.0
 
 /* Dimensions */
 #define MAGLEV_NX 12  /* states */

@@ -17199,7 +17199,7 @@ CASADI_SYMBOL_EXPORT int maglev_effectiveness_work_bytes(casadi_int *sz_arg, cas
 /* Checked entry points (maglevgen.codegen.checks): MAGLEV_ERR_* as in maglev.h. */
 #define MAGLEV_OK 0  /* success */
 #define MAGLEV_ERR_NONFINITE 1  /* an input is NaN or infinite (outputs zeroed) */
-#define MAGLEV_ERR_SPEED 2  /* speed outside the function's range: v <= 0 for the Newton trim, outside [v_min, v_max] for maglev_schedule (outputs zeroed; maglev_schedule: the end node's values) */
+#define MAGLEV_ERR_SPEED 2  /* speed outside the function's range: outside the envelope's [v_min, v_max] for the baked Newton trim and maglev_schedule, v <= 0 for the run-time-parameter trim (outputs zeroed; maglev_schedule: the end node's values) */
 #define MAGLEV_ERR_NOT_CONVERGED 3  /* the trim's Newton iteration did not reach its tolerance (no trim: below lift-off?) (outputs zeroed) */
 #define MAGLEV_ERR_CONTACT 4  /* the trim has a gap below track.min_gap (outputs zeroed) */
 #define MAGLEV_ERR_NONFINITE_OUTPUT 5  /* an output came out NaN or infinite (outputs zeroed) */
@@ -17217,11 +17217,14 @@ static int maglev_all_finite(const casadi_real* a, int n) {
 static void maglev_zero(casadi_real* a, int n) {
   int i;
   if (a == 0) return;
-  for (i = 0; i < n; ++i) a[i] = 0;
+  for (i = 0; i < n; ++i) {
+    a[i] = 0;
+  }
 }
 
-/* the trim at *v into x and *F_prop: v and p finite, v > 0, the accelerations at the
-   trim within 1e-8 (the Newton solve converged), every gap >= track.min_gap */
+/* the trim at *v into x and *F_prop: v and p finite, v in [6.2840187549591064, 40.0] (the envelope),
+   the accelerations at the trim within 1e-8 (the Newton solve converged),
+   every gap >= track.min_gap */
 static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
                                casadi_real* F_prop, casadi_int* iw, casadi_real* w) {
   const casadi_real* arg[8];
@@ -17230,7 +17233,7 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
   int i;
   (void)p;
   if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;
-  if (!(*v > 0)) return MAGLEV_ERR_SPEED;
+  if (!((*v >= 6.2840187549591064) && (*v <= 40.0))) return MAGLEV_ERR_SPEED;
   arg[0] = v;
   arg[1] = 0;
   res[0] = x;

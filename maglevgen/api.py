@@ -916,7 +916,12 @@ class Carriage:
         if parameters not in ("baked", "runtime"):
             raise InputError(f"--parameters {parameters!r}: expected baked or runtime")
         opts = GenerateOptions(precision, parameters)
-        return list(write_output(render(self._carriage, opts), Path(out)))
+        speeds = None
+        if parameters == "baked":
+            from .envelope import speed_range
+
+            speeds = speed_range(self._carriage)
+        return list(write_output(render(self._carriage, opts, speeds), Path(out)))
 
     def report(self, out: str | Path, simulation: str | Path | None = None) -> list[Path]:
         """Write the derivation report, as ``maglevgen report``.

@@ -155,6 +155,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     with child(shared={"trajectories": run.trajectories}) as drawing:
         figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
+        files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
         report_figures = _draw_report_figures(drawing, carriage)
@@ -167,12 +168,12 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         # the report (and its PDF where TeX is installed)
         stability_map = mapping.result()
         report = _report_files(carriage, sim_files, opts, step, report_figures,
-                               (env, stability_map["envelope/stability_map.png"]))
+                               (env, stability_map["envelope/stability_map.png"]),
+                               json.loads(files["c/manifest.json"])["gain_table"])
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
         files.update(stability_map)
     files.update({f"report/{n}": b for n, b in report.items()})
     files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
-    files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
     summary = summary_text(carriage, run, lib, env, report_outputs(report, opts))
@@ -204,14 +205,10 @@ def _schedule_c(carriage, lib, env) -> str:
 def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
     """c/maglev_gain_table.{c,h}: the firmware's table schedule over ``env``'s range, and its
     measured worst error added to c/manifest.json (``gain_table``)."""
-    import numpy as np
+    from .envelope import gain_table
+    from .schedule import gain_table_sources
 
-    from .envelope import envelope_points
-    from .schedule import GainTable, gain_table_row, gain_table_sources
-
-    table = GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
-                                               envelope_points(carriage, lib, vs)]),
-                          env.v_min, env.v_max)
+    table = gain_table(carriage, lib, env.v_min, env.v_max)
     data = json.loads(manifest)
     data["gain_table"] = table.manifest()
     return {**{f"c/{n}": t for n, t in gain_table_sources(table).items()},
@@ -260,12 +257,13 @@ def _draw_report_figures(drawing: Executor, carriage) -> Job:
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
-                  step, figures: Job, envelope) -> dict[str, bytes]:
-    """report.tex (+ report.pdf) with the simulation figures and its own ``figures``."""
+                  step, figures: Job, envelope, gain_table: Mapping) -> dict[str, bytes]:
+    """report.tex (+ report.pdf) with the simulation figures and its own ``figures``;
+    ``gain_table``: c/manifest.json's entry (the report shows its numbers)."""
     from .report import report_files
 
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,
-                        envelope=envelope)
+                        envelope=envelope, gain_table=gain_table)
 
 
 def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:

@@ -197,9 +197,14 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     from .codegen.generate import GenerateOptions, render, write_output
 
-    opts = GenerateOptions(args.precision, args.parameters, args.int)
+    opts = GenerateOptions(args.precision, args.parameters, args.int, args.single_file)
     carriage = _carriage(args)
-    paths = write_output(render(carriage, opts), Path(args.out))
+    speeds = None
+    if opts.parameters == "baked":  # the trim's accepted speeds are baked with the parameters
+        from .envelope import speed_range
+
+        speeds = speed_range(carriage)
+    paths = write_output(render(carriage, opts, speeds), Path(args.out))
     print(f"wrote {len(paths)} files to {Path(args.out).resolve()} ({opts.command})")
     for path in paths:
         print(f"  {path.name}")
@@ -420,6 +425,8 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--int", choices=("int64", "int32"), default="int64",
                      help="casadi_int: int64 (long long, as casadi.external expects) or int32 "
                           "(int, for 32-bit MCUs)")
+    gen.add_argument("--single-file", action="store_true",
+                     help="one translation unit (maglev.c) with only the headers' API external")
     gen.add_argument("--out", default="generated", metavar="DIR",
                      help="output folder (default: ./generated)")
     gen.set_defaults(func=cmd_generate)

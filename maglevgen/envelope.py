@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError, NoTrimError
-from .library import SimulationLibrary
+from .library import SimulationLibrary, simulation_library
 from .operating import (
     CONTROLLER_TITLES,
     CONTROLLERS,
@@ -30,6 +30,7 @@ from .operating import (
     speed_mode,
     stability,
 )
+from .schedule import GainTable, gain_table_row
 
 DEFAULT_SPEEDS = 50
 # a closed loop is called stable when every eigenvalue's real part is below -STABILITY_MARGIN
@@ -80,6 +81,21 @@ def resolve_range(carriage, lib: SimulationLibrary) -> tuple[float, float]:
         raise InputError(f"envelope.v_max = {env.v_max:g}: not above the default v_min "
                          f"{v_min:.4g} m/s ((1 + lift_off_margin) x lift-off {v_lift:.4g} m/s)")
     return v_min, float(env.v_max)
+
+
+def speed_range(carriage) -> tuple[float, float]:
+    """`resolve_range` through the carriage's compiled simulation library (cached on disk):
+    what `maglevgen generate` bakes into the trim's checks and the firmware table spans."""
+    return resolve_range(carriage, simulation_library(carriage.structure))
+
+
+def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float) -> GainTable:
+    """The firmware's table schedule over [v_min, v_max] fitted to the exact schedule (the
+    operating points' trim and gains, `gain_table_row`); its manifest() is what
+    c/manifest.json and the report show."""
+    return GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
+                                              envelope_points(carriage, lib, vs)]),
+                         v_min, v_max)
 
 
 def envelope_points(carriage, lib: SimulationLibrary,

@@ -77,6 +77,85 @@ def test_build_writes_every_stage_and_a_consistent_stamp(good: Path, carriage) -
     assert [p["value"] for p in manifest["parameter_vector"]] == list(carriage.p)
 
 
+def _tex_number(text: str) -> float:
+    """A number as the report prints it (maglevgen.report.format.fnum): 1.5, 1.5 \\times 10^{-4}."""
+    m = re.fullmatch(r"\s*(-?[\d.]+)(?: \\times 10\^\{(-?\d+)\})?\s*", text)
+    assert m, text
+    return float(m.group(1)) * 10.0 ** int(m.group(2) or 0)
+
+
+def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
+                                                          sim_lib) -> None:
+    """The firmware table's worst relative error: the report prints c/manifest.json's value
+    (to its six digits), and that value is reproduced here on the manifest's dense grid: the
+    built table (c/maglev_gain_table.c compiled in double) against the exact schedule computed
+    in this test, the Newton trim and plants of the C with the per-axis and the coupled LQR
+    from python-control's lqr and the damping from the numerical ISE minimum
+    (tests/independent_reference.py); each field's error relative to its largest magnitude."""
+    import ctypes
+    import math
+
+    import control
+    from independent_reference import ise_optimal_damping
+
+    from maglevgen.derive import conventions as cv
+    from maglevgen.runtime.compile import compile_shared
+
+    gt = json.loads((good / "c/manifest.json").read_text())["gain_table"]
+    tex = (good / "report/report.tex").read_text()
+    m = re.search(r"worst error relative to each field's largest magnitude is\s*\$([^$]+)\$",
+                  tex)
+    assert m, "the report does not state the table's error"
+    assert math.isclose(_tex_number(m.group(1)), float(f"{gt['worst_relative_error']:.6g}"),
+                        rel_tol=1e-12)
+
+    lib_c = compile_shared([good / "c/maglev_gain_table.c"], cache_dir=good.parent / "gt",
+                           flags=("-std=c99", "-O2", "-fPIC", "-shared",
+                                  "-DMAGLEV_GAIN_TABLE_DOUBLE"))
+    schedule = ctypes.CDLL(str(lib_c)).maglev_schedule
+    schedule.argtypes = [ctypes.c_double, ctypes.POINTER(ctypes.c_double)]
+    fields = (("F_prop", 1), ("a_ref", 5), ("K", 10), ("c_damping", 5), ("K_pos", 25),
+              ("K_rate", 25))
+    p = carriage.p
+    (q1, q2), r = carriage.params.control.state_weights, carriage.params.control.input_weight
+    axes = [cv.STATE_INDEX[a] for a in ("y", "z", "phi", "theta", "psi")]
+    reduced = [i for i, s in enumerate(cv.STATES) if s.name not in ("x", "u")]
+    (T,) = sim_lib.function("maglev_allocation_matrix")(p)
+    table, exact = [], []
+    for v in np.linspace(gt["v_min"], gt["v_max"], gt["dense_grid"]):
+        out = (ctypes.c_double * 71)()
+        assert schedule(v, out) == 0
+        table.append(np.array(out[:]))
+        x, f_prop = (np.ravel(a) for a in sim_lib.function("maglev_trim")(v, p))
+        k, mass = (np.ravel(a) for a in sim_lib.function("maglev_axis_plants")(v, p))
+        K = np.array([control.lqr([[0, 1], [-k[i] / mass[i], 0]], [[0], [1 / mass[i]]],
+                                  np.diag([q1, q2]), [[r]])[0].ravel() for i in range(5)])
+        # no damping gain on an axis without restoring stiffness (maglev.h: c = 0 where k <= 0)
+        c = [ise_optimal_damping(k[i], mass[i]) if k[i] > 0 else 0.0 for i in range(5)]
+        u = np.zeros(T.shape[0] + 1)
+        u[0] = f_prop[0]
+        A, B = sim_lib.function("maglev_jacobians")(x, u, p)
+        A_r, B_g = A[np.ix_(reduced, reduced)], B[reduced, 1:] @ T
+        S = np.eye(5, len(reduced))
+        C_rate = A[np.ix_(axes, reduced)]
+        K_c = control.lqr(A_r, B_g, q1 * S.T @ S + q2 * C_rate.T @ C_rate, r * np.eye(5))[0]
+        K_prime = K_c @ np.linalg.inv(np.vstack([S, C_rate]))  # on (a, a')
+        exact.append(np.concatenate([f_prop, x[axes], K.ravel(order="F"), c,
+                                     K_prime[:, :5].ravel(order="F"),
+                                     K_prime[:, 5:].ravel(order="F")]))
+    table, exact = np.array(table), np.array(exact)
+    errors, i = {}, 0
+    for name, n in fields:
+        errors[name] = (np.max(np.abs(table[:, i:i + n] - exact[:, i:i + n]))
+                        / np.max(np.abs(exact[:, i:i + n])))
+        i += n
+    for name, value in errors.items():
+        assert math.isclose(value, gt["relative_error_by_field"][name], rel_tol=1e-3), \
+            (name, value, gt["relative_error_by_field"][name])
+    assert math.isclose(max(errors.values()), gt["worst_relative_error"], rel_tol=1e-3)
+    assert gt["worst_relative_error"] <= gt["bound"]
+
+
 def _paper_stiffness(prm, lift: np.ndarray) -> np.ndarray:
     """The printed eqs 7 and 13-16 with the reference trim's array forces and the geometry."""
     arrays = list(prm.arrays.values())

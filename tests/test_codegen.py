@@ -18,6 +18,7 @@ from maglevgen.codegen.generate import GenerateOptions, render, write_output
 from maglevgen.controllers import axis_plants
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import lqr_gain_mp
+from maglevgen.envelope import speed_range
 from maglevgen.params import load_params
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedLibrary
@@ -161,7 +162,8 @@ def baked(carriage: Carriage, tmp_path_factory) -> dict[str, Path]:
     out = {}
     for precision in ("double", "single"):
         d = tmp_path_factory.mktemp(f"baked_{precision}")
-        write_output(render(carriage, GenerateOptions(precision, "baked")), d)
+        write_output(render(carriage, GenerateOptions(precision, "baked"),
+                            speed_range(carriage)), d)
         out[precision] = d
     return out
 
@@ -194,7 +196,8 @@ def _closed_loop_reference(carriage: Carriage, f_prop: float, k_pos: np.ndarray,
 
 def _double_library(carriage: Carriage, parameters: str, tmp_path: Path) -> GeneratedLibrary:
     """The double-precision generated C (run-time or baked parameters), compiled."""
-    write_output(render(carriage, GenerateOptions("double", parameters)), tmp_path / "gen")
+    write_output(render(carriage, GenerateOptions("double", parameters),
+                        speed_range(carriage)), tmp_path / "gen")
     return GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"],
                                            cache_dir=tmp_path / "cache"), "double")
 

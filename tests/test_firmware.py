@@ -8,6 +8,7 @@ library's own ``NAME_work()`` (what the C reports at run time) for the header's 
 from __future__ import annotations
 
 import ctypes
+import json
 import re
 from pathlib import Path
 
@@ -17,6 +18,7 @@ import pytest
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.checks import ERROR_CODES
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
+from maglevgen.envelope import speed_range
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedFunctionError, GeneratedLibrary
 
@@ -78,6 +80,45 @@ def test_schedule_functions_refuse_bad_speeds(gen, carriage: Carriage, name: str
         rc, outs = _code(gen, name, [v], carriage.p)
         assert rc == 0, (v, rc)
         assert all(np.all(np.isfinite(o)) for o in outs)
+
+
+@pytest.fixture(scope="module", params=["double", "single"])
+def baked_gen(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path, Path]:
+    """(precision, generated folder, compiled library) with baked parameters (and range)."""
+    out = tmp_path_factory.mktemp(f"fw_baked_{request.param}")
+    write_output(render(carriage, GenerateOptions(request.param, "baked"),
+                        speed_range(carriage)), out)
+    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    return request.param, out, lib
+
+
+@pytest.mark.parametrize("name", TRIM_KIND)
+def test_baked_schedule_functions_keep_to_the_envelope(baked_gen, carriage: Carriage,
+                                                       name: str) -> None:
+    """Baked parameters bake the envelope's [v_min, v_max]: just below v_min (from the
+    derivation's lift-off speed, SymPy/SciPy, times 1 + envelope.lift_off_margin), just above
+    the file's v_max, far outside, NaN and +-inf give their code with zeroed outputs; just
+    inside both ends and between them the function succeeds with finite outputs (a trim
+    exists there: above lift-off). maglev.h states the range it checks."""
+    env = carriage.params.envelope
+    v_min = (1 + env.lift_off_margin) * carriage.lift_off_speed()
+    v_max = env.v_max
+    refused = [(v_min * (1 - 1e-4), "MAGLEV_ERR_SPEED"), (v_max * (1 + 1e-4), "MAGLEV_ERR_SPEED"),
+               (0.5 * v_min, "MAGLEV_ERR_SPEED"), (3 * v_max, "MAGLEV_ERR_SPEED"),
+               (0.0, "MAGLEV_ERR_SPEED"), (np.nan, "MAGLEV_ERR_NONFINITE"),
+               (np.inf, "MAGLEV_ERR_NONFINITE"), (-np.inf, "MAGLEV_ERR_NONFINITE")]
+    for v, want in refused:
+        rc, outs = _code(baked_gen, name, [v])
+        assert rc == ERR[want], (v, rc)
+        assert all(np.all(o == 0) for o in outs), (v, outs)
+    for v in (v_min * (1 + 1e-4), 0.5 * (v_min + v_max), v_max * (1 - 1e-4)):
+        rc, outs = _code(baked_gen, name, [v])
+        assert rc == 0, (v, rc)
+        assert all(np.all(np.isfinite(o)) and np.any(o != 0) for o in outs), (v, outs)
+    header = (baked_gen[1] / "maglev.h").read_text()
+    lo, hi = (float(re.search(rf"#define MAGLEV_V_{k} (\S+)", header).group(1))
+              for k in ("MIN", "MAX"))
+    assert abs(lo - v_min) <= 1e-5 * v_min and hi == v_max
 
 
 def test_runtime_names_the_code(gen, carriage: Carriage) -> None:
@@ -330,7 +371,8 @@ def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path)
 
     table, table_dir, table_libs, _ = gain_table
     src = tmp_path / "m4"
-    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), src)
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
+                        speed_range(carriage)), src)
     for name in ("maglev_gain_table.c", "maglev_gain_table.h"):
         (src / name).write_text((table_dir / name).read_text())
     objs = []
@@ -372,6 +414,22 @@ def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path)
     run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
                           "-kernel", "m4.elf"], cwd=src, capture_output=True, text=True,
                          timeout=120, check=True)
+    # `--single-file`: maglev.c with the same flags (and -Wmissing-prototypes: every external
+    # function declared by the headers), linked with the same driver: the same output bits
+    one = tmp_path / "m4_single"
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32", single_file=True),
+                        speed_range(carriage)), one)
+    subprocess.run(["arm-none-eabi-gcc", *M4_FLAGS, "-Wmissing-prototypes", "-ffunction-sections",
+                    "-fdata-sections", "-c", "maglev.c", "-o", "maglev.o"], cwd=one, check=True)
+    assert _external(["arm-none-eabi-nm", str(one / "maglev.o")]) == _declared(one)
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
+                    "-Wl,--gc-sections", "startup.o", "m4main.o", str(one / "maglev.o"),
+                    "maglev_gain_table.o", "-lm", "-lc", "-o", "m4_single.elf"], cwd=src,
+                   check=True)
+    run_one = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic",
+                              "-semihosting", "-kernel", "m4_single.elf"], cwd=src,
+                             capture_output=True, text=True, timeout=120, check=True)
+    assert run_one.stderr == run.stderr
     lines = run.stderr.split()  # QEMU writes semihosting output to stderr
     pos = 0
 
@@ -384,7 +442,7 @@ def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path)
 
     # the host double build
     host = tmp_path / "host"
-    write_output(render(carriage, GenerateOptions("double", "baked")), host)
+    write_output(render(carriage, GenerateOptions("double", "baked"), speed_range(carriage)), host)
     lib = GeneratedLibrary(compile_shared([host / "maglev_functions.c"],
                                           cache_dir=host / "cache"), "double")
     x = np.array(M4_INPUTS["X"])
@@ -400,20 +458,140 @@ def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path)
         assert np.max(np.abs(have - want)) <= 1e-5 * np.max(np.abs(want)), (want, have)
 
 
+def _declared(folder: Path) -> set[str]:
+    """The functions maglev_functions.h and maglev_simulate.h declare (the documented API)."""
+    decl = re.compile(r"^(?:\w+ )*\w+[ *]+(\w+)\([^;{)]*\);", re.M)
+    return {m.group(1) for h in ("maglev_functions.h", "maglev_simulate.h")
+            for m in decl.finditer((folder / h).read_text())}
+
+
+def _external(nm: list[str]) -> set[str]:
+    """The symbols an object file defines with external linkage (nm's upper-case types)."""
+    import subprocess
+
+    out = subprocess.run(nm, check=True, capture_output=True, text=True).stdout
+    return {ln.split()[-1] for ln in out.splitlines() if re.match(r"^[0-9a-f]+ [TDRBC] ", ln)}
+
+
+@pytest.mark.needs_cc
+def test_single_file_is_the_two_file_build(carriage: Carriage, tmp_path: Path) -> None:
+    """`generate --single-file`: one translation unit, maglev.c, that compiles warning-free
+    for the host with the issue's flags plus -Wmissing-prototypes (an external function
+    without a header prototype fails), defines exactly the functions the headers declare (every
+    helper static), and gives the two-file build's results bit for bit (the trim, the gain
+    schedule, a tick and maglev_simulate's trajectory)."""
+    import subprocess
+
+    from maglevgen.cli import main
+
+    libs = {}
+    for name, flag in (("two", []), ("one", ["--single-file"])):
+        out = tmp_path / name
+        assert main(["generate", "--out", str(out), *flag]) == 0
+        sources = sorted(p.name for p in out.glob("*.c"))
+        assert sources == (["maglev.c", "main.c"] if flag else
+                           ["maglev_functions.c", "maglev_simulate.c", "main.c"])
+        c_files = [out / s for s in sources if s != "main.c"]
+        libs[name] = compile_shared(c_files, cache_dir=out / "cache")
+        if flag:
+            assert json.loads((out / "manifest.json").read_text())["files"]["c"] == ["maglev.c"]
+            subprocess.run(["cc", *WARN, "-Wmissing-prototypes", "-O2", "-c", "maglev.c",
+                            "-o", "maglev.o"], cwd=out, check=True)
+            declared = _declared(out)
+            assert {"maglev_trim", "maglev_simulate", "maglev_lqr_control"} <= declared
+            assert _external(["nm", str(out / "maglev.o")]) == declared
+            # the example builds through its CMake file from the one source
+            subprocess.run(["cmake", "-S", ".", "-B", "build"], cwd=out, check=True,
+                           capture_output=True)
+            subprocess.run(["cmake", "--build", "build"], cwd=out, check=True,
+                           capture_output=True)
+    two, one = (GeneratedLibrary(libs[k], "double") for k in ("two", "one"))
+    x = np.array(M4_INPUTS["X"])
+    for name, args in (("maglev_trim", ([20.0],)), ("maglev_lqr_gains", ([31.0],)),
+                       ("maglev_lqr_control", (x, np.ones((5, 2)), np.zeros(5))),
+                       ("maglev_dynamics", (x, np.linspace(-1, 1, 11)))):
+        for a, b in zip(two.function(name)(*args), one.function(name)(*args), strict=True):
+            np.testing.assert_array_equal(a, b)
+    trajectories = []
+    for lib in (libs["two"], libs["one"]):
+        sim = ctypes.CDLL(str(lib)).maglev_simulate
+        sim.restype = ctypes.c_longlong
+        D = ctypes.POINTER(ctypes.c_double)
+        n = 200
+        bufs = [np.zeros((n + 1) * k) for k in (12, 11, 6)]
+        x0 = np.array(two.function("maglev_trim")([20.0])[0]).ravel()
+        x0[2] += 1e-3
+        K = np.diag([2e4, 2e4, 5e3, 5e3, 5e3]).ravel()
+        status = ctypes.c_int()
+        last = sim(x0.ctypes.data_as(D), ctypes.c_double(1e-3), ctypes.c_longlong(n),
+                   ctypes.c_double(0.0), K.ctypes.data_as(D), (K / 50).ctypes.data_as(D),
+                   np.zeros(5).ctypes.data_as(D), ctypes.c_double(0.0),
+                   *[b.ctypes.data_as(D) for b in bufs], ctypes.byref(status))
+        trajectories.append((last, status.value, bufs))
+    assert trajectories[0][0] == n
+    np.testing.assert_array_equal(np.concatenate(trajectories[0][2]),
+                                  np.concatenate(trajectories[1][2]))
+
+
+@pytest.mark.needs_arm("arm-none-eabi-objdump", "arm-none-eabi-nm")
+def test_m4_square_root_is_the_fpu_instruction(carriage: Carriage, tmp_path: Path) -> None:
+    """With -fno-math-errno (the README's firmware flags) the Cortex-M4F object computes
+    square roots with the FPU's vsqrt.f32 and calls no sqrtf (newlib's errno-setting
+    wrapper); without the flag it does call sqrtf: the check can see the difference."""
+    import subprocess
+
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
+                        speed_range(carriage)), tmp_path)
+    found = {}
+    for name, flags in (("fast", M4_FLAGS), ("errno", [f for f in M4_FLAGS
+                                                       if f != "-fno-math-errno"])):
+        subprocess.run(["arm-none-eabi-gcc", *flags, "-c", "maglev_functions.c", "-o",
+                        f"{name}.o"], cwd=tmp_path, check=True)
+        asm = subprocess.run(["arm-none-eabi-objdump", "-d", f"{name}.o"], cwd=tmp_path,
+                             check=True, capture_output=True, text=True).stdout
+        syms = subprocess.run(["arm-none-eabi-nm", "-u", f"{name}.o"], cwd=tmp_path,
+                              check=True, capture_output=True, text=True).stdout.split()
+        found[name] = (len(re.findall(r"\bvsqrt\.f32\b", asm)), "sqrtf" in syms)
+    assert found["fast"][0] > 0 and not found["fast"][1], found
+    assert found["errno"][1], found  # newlib's sqrtf wrapper is called without the flag
+
+
 # ------------------------------------------------------------------------------ MISRA C:2012
+
+
+def test_enclosing_functions_on_a_planted_file() -> None:
+    """The line -> function map the deviation places are matched with, on C written here
+    with known answers: signatures over two lines, nested braces, braces in comments and
+    strings, a static array initializer and a macro at file scope, CasADi's extern "C"."""
+    from maglevgen.codegen.misra import enclosing_functions
+
+    source = "\n".join([
+        '#ifdef __cplusplus', 'extern "C" {', '#endif',             # 1-3
+        'static const int casadi_s0[3] = {1, 2, 3};',               # 4: file scope
+        '#define M(x) { x }',                                       # 5
+        'static int f(const double* a,', '             int n) {',   # 6-7: f
+        '  /* } not a brace */ const char* s = "{";',               # 8: f
+        '  if (n) { return 1; }', '  return 0;', '}',               # 9-11: f
+        'int g(void) { return 2; }',                                # 12: g
+        'int h(int);',                                              # 13: file scope
+        '#ifdef __cplusplus', '} /* extern "C" */', '#endif', ''])  # 14-16
+    assert enclosing_functions(source) == {6: "f", 7: "f", 8: "f", 9: "f", 10: "f", 11: "f",
+                                           12: "g"}
 
 
 @pytest.mark.needs_arm("cppcheck")
 def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carriage,
                                                     tmp_path: Path) -> None:
-    """cppcheck's MISRA C:2012 addon on the per-tick functions (single precision, baked) and
-    the table schedule: every finding's rule is in the deviation list written beside the code
-    (MISRA_DEVIATIONS.md, maglevgen.codegen.misra), and the schedule itself has none but
-    2.5 (its header's interface macros)."""
+    """cppcheck's MISRA C:2012 addon on the per-tick functions (single precision, baked;
+    maglev_tick.c, whose text is maglev_functions.c's for them) and the table schedule: every
+    finding lies in a listed place of the deviation list written beside the code
+    (maglevgen.codegen.misra: its file, its rule, its enclosing function matching one of the
+    place's patterns) and every pattern of every place holds a finding (no stale place); the
+    list in generated/MISRA_DEVIATIONS.md names every place."""
     import subprocess
 
     from maglevgen.codegen.generate import render_tick_sources
-    from maglevgen.codegen.misra import DEVIATIONS, deviation_list
+    from maglevgen.codegen.misra import DEVIATIONS, FILE_SCOPE, enclosing_functions
 
     _, table_dir, _, _ = gain_table
     for name, text in render_tick_sources(carriage).items():
@@ -424,15 +602,28 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carria
                           "--template={file}:{line}:{id}", "maglev_tick.c",
                           "maglev_gain_table.c"], cwd=tmp_path, capture_output=True,
                          text=True, timeout=300, check=True)
-    findings = [ln.rsplit(":", 1) for ln in run.stderr.splitlines()
-                if "misra-c2012-" in ln]
+    findings = [ln.split(":") for ln in run.stderr.splitlines() if "misra-c2012-" in ln]
     assert findings, run.stderr  # the addon ran (CasADi's code has known deviations)
-    rules = {(place.split(":")[0], rule.removeprefix("misra-c2012-")) for place, rule in findings}
-    unjustified = {r for r in rules if r[1] not in DEVIATIONS}
-    assert not unjustified, unjustified
-    assert {rule for file, rule in rules if file.startswith("maglev_gain_table")} <= {"2.5"}
-    listed = deviation_list()
-    assert all(f"| {rule} |" in listed for _, rule in rules)
+    functions = {}
+    used, uncovered = set(), []
+    for file, line, rule in findings:
+        if file not in functions:
+            functions[file] = enclosing_functions((tmp_path / file).read_text())
+        function = functions[file].get(int(line), FILE_SCOPE)
+        place = ("maglev_functions.c" if file == "maglev_tick.c" else file, function,
+                 rule.removeprefix("misra-c2012-"))
+        hits = [(i, d.covers(*place)) for i, d in enumerate(DEVIATIONS)]
+        hits = [(i, p) for i, p in hits if p is not None]
+        if not hits:
+            uncovered.append((file, line, *place[1:]))
+        used.update(hits)
+    assert not uncovered, uncovered
+    listed = {(i, p) for i, d in enumerate(DEVIATIONS) for p in d.functions}
+    assert listed == used, sorted(listed - used)
+    md = (REPO / "generated" / "MISRA_DEVIATIONS.md").read_text()
+    for d in DEVIATIONS:
+        assert any(ln.startswith(f"| {d.rule} | {d.file} |") and d.what in ln
+                   for ln in md.splitlines()), d
 
 
 # ------------------------------------------------------------------------------ --int int32
@@ -467,7 +658,8 @@ def test_header_leaves_casadi_real_alone(carriage: Carriage, tmp_path: Path) -> 
     maglev_real is float (4 bytes); the compiler checks both sizes."""
     import subprocess
 
-    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), tmp_path)
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
+                        speed_range(carriage)), tmp_path)
     (tmp_path / "other.c").write_text(
         "#define casadi_real double\n#define casadi_int long long int\n#include \"maglev.h\"\n"
         "typedef char real_kept[sizeof(casadi_real) == 8 ? 1 : -1];\n"

@@ -9,8 +9,9 @@ checks evaluate the dynamics and the gaps in the caller's work arrays, which the
 sizes cover (checked at generation, else the checks get their own on the stack).
 
 * schedule functions (``TRIM_KIND``, each runs the trim Newton solve): the speed and p finite,
-  v > 0 (the Newton trim has no speed range of its own: [v_min, v_max] is the build's and is
-  checked by the table schedule, maglev_schedule), the trim's accelerations within
+  v in the envelope's [v_min, v_max] when the parameters are baked (the range is baked with
+  them, the same as the table schedule's), v > 0 with run-time parameters (the simulation
+  library bisects the lift-off speed through it, below any v_min), the trim's accelerations within
   ``TRIM_TOLERANCES`` (the Newton solve converged) and every gap at or above the track's
   minimum gap (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
 * tick functions (``TICK_KIND``): every input finite, then every output finite.
@@ -30,8 +31,9 @@ from collections.abc import Mapping, Sequence
 ERROR_CODES: dict[str, tuple[int, str]] = {
     "MAGLEV_OK": (0, "success"),
     "MAGLEV_ERR_NONFINITE": (1, "an input is NaN or infinite (outputs zeroed)"),
-    "MAGLEV_ERR_SPEED": (2, "speed outside the function's range: v <= 0 for the Newton trim, "
-                            "outside [v_min, v_max] for maglev_schedule (outputs zeroed; "
+    "MAGLEV_ERR_SPEED": (2, "speed outside the function's range: outside the envelope's "
+                            "[v_min, v_max] for the baked Newton trim and maglev_schedule, "
+                            "v <= 0 for the run-time-parameter trim (outputs zeroed; "
                             "maglev_schedule: the end node's values)"),
     "MAGLEV_ERR_NOT_CONVERGED": (3, "the trim's Newton iteration did not reach its tolerance "
                                     "(no trim: below lift-off?) (outputs zeroed)"),
@@ -98,8 +100,18 @@ def _tick(fn: Mapping) -> str:
         + _zero_outputs(outs).replace("    ", "  ") + "  return rc;\n}\n\n")
 
 
+def _speed_check(speed_range: tuple[str, str] | None) -> tuple[str, str]:
+    """(comment, C statement) of the speed check: [v_min, v_max] (C literals), else v > 0."""
+    if speed_range is None:
+        return "v > 0", "if (!(*v > 0)) return MAGLEV_ERR_SPEED;"
+    lo, hi = speed_range
+    return (f"v in [{lo}, {hi}] (the envelope)",
+            f"if (!((*v >= {lo}) && (*v <= {hi}))) return MAGLEV_ERR_SPEED;")
+
+
 def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...]],
-                 precision: str, runtime: bool, min_gap: str) -> str:
+                 precision: str, runtime: bool, min_gap: str,
+                 speed_range: tuple[str, str] | None) -> str:
     """``maglev_trim_checked``: the trim at v into x and F_prop, with its checks."""
     used = ("maglev_trim", "maglev_dynamics", "maglev_gaps")
     sz = [max(work[f][k] for f in used) + 1 for k in range(2)]
@@ -110,8 +122,10 @@ def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...
     p_arg = "p" if runtime else "0"
     tol = TRIM_TOLERANCES[precision]
     p_check = f" || !maglev_all_finite(p, {n_p})" if runtime else ""
-    return f"""/* the trim at *v into x and *F_prop: v and p finite, v > 0, the accelerations at the
-   trim within {tol} (the Newton solve converged), every gap >= track.min_gap */
+    speed_doc, speed_check = _speed_check(speed_range)
+    return f"""/* the trim at *v into x and *F_prop: v and p finite, {speed_doc},
+   the accelerations at the trim within {tol} (the Newton solve converged),
+   every gap >= track.min_gap */
 static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
                                casadi_real* F_prop, casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz[0]}];
@@ -120,7 +134,7 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
   int i;
   (void)p;
   if (!maglev_all_finite(v, 1){p_check}) return MAGLEV_ERR_NONFINITE;
-  if (!(*v > 0)) return MAGLEV_ERR_SPEED;
+  {speed_check}
   arg[0] = v;
   arg[1] = {p_arg};
   res[0] = x;
@@ -192,10 +206,11 @@ def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
 
 
 def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime: bool,
-                  min_gap: str) -> str:
+                  min_gap: str, speed_range: tuple[str, str] | None = None) -> str:
     """``source`` (post-processed CasADi C) with the checked entry points of TRIM_KIND and
     TICK_KIND. ``min_gap`` is the C expression of track.min_gap (``arg[..]`` is not in scope:
-    with run-time parameters ``p[index]``, else a literal)."""
+    with run-time parameters ``p[index]``, else a literal); ``speed_range``: (v_min, v_max) as
+    C literals, the trim's accepted speeds (None: v > 0)."""
     by_name = {f["name"]: f for f in table}
     wanted = [n for n in (*TRIM_KIND, *TICK_KIND) if n in by_name]
     for name in wanted:
@@ -211,10 +226,10 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
         "  int i;\n  if (a == 0) return 1;\n"
         "  for (i = 0; i < n; ++i) {\n    if (!isfinite(a[i])) return 0;\n  }\n  return 1;\n}\n\n"
         "static void maglev_zero(casadi_real* a, int n) {\n  int i;\n  if (a == 0) return;\n"
-        "  for (i = 0; i < n; ++i) a[i] = 0;\n}\n\n",
+        "  for (i = 0; i < n; ++i) {\n    a[i] = 0;\n  }\n}\n\n",
     ]
     if any(n in TRIM_KIND for n in wanted):
-        block.append(_trim_helper(by_name, work, precision, runtime, min_gap))
+        block.append(_trim_helper(by_name, work, precision, runtime, min_gap, speed_range))
     for name in wanted:
         block.append(_trim_kind(by_name[name], by_name, runtime, work) if name in TRIM_KIND
                      else _tick(by_name[name]))

@@ -6,6 +6,7 @@ Writers return (file name, text) pairs; `write_output` alone touches the disk, a
 from __future__ import annotations
 
 import json
+import re
 
 import casadi as ca
 import numpy as np
@@ -24,6 +25,7 @@ from .interface import (
     INT_TYPES,
     IO_DOCS,
     SIMULATE_FILES,
+    SINGLE_FILE,
     GenerateOptions,
     banner,
     render_interface,
@@ -65,14 +67,26 @@ def _min_gap_c(model: CarriageModel, opts: GenerateOptions, p_value: np.ndarray 
     return float_literal(value) if opts.precision == "single" else repr(value)
 
 
+def _speed_range_c(opts: GenerateOptions,
+                   speed_range: tuple[float, float] | None) -> tuple[str, str] | None:
+    """The baked trim's [v_min, v_max] as C literals of the precision."""
+    if speed_range is None:
+        return None
+    return tuple(float_literal(v) if opts.precision == "single" else repr(float(v))
+                 for v in speed_range)  # type: ignore[return-value]
+
+
 def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: str,
-             model: CarriageModel, p_value: np.ndarray | None = None) -> dict[str, str]:
+             model: CarriageModel, p_value: np.ndarray | None = None,
+             speed_range: tuple[float, float] | None = None) -> dict[str, str]:
     """The C sources: the CasADi functions (post-processed, with the checked entry points of
-    maglevgen.codegen.checks) and the simulation loop."""
+    maglevgen.codegen.checks) and the simulation loop; ``speed_range``: the trim's accepted
+    [v_min, v_max] (None: v > 0)."""
     sources = generate_c(functions, C_NAME, opts.precision, int_type=INT_TYPES[opts.int_type])
     sources[f"{C_NAME}.c"] = check_entries(sources[f"{C_NAME}.c"], function_table(functions),
                                            opts.precision, opts.parameters == "runtime",
-                                           _min_gap_c(model, opts, p_value))
+                                           _min_gap_c(model, opts, p_value),
+                                           _speed_range_c(opts, speed_range))
     files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
     prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
     ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
@@ -82,7 +96,48 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
     env = template_env()
     for name in SIMULATE_FILES:
         files[name] = env.get_template(f"{name}.j2").render(ctx)
+    if opts.single_file:
+        files[SINGLE_FILE] = single_translation_unit(files.pop(f"{C_NAME}.c"),
+                                                     files.pop("maglev_simulate.c"), text_banner)
     return files
+
+
+#: a definition of one of CasADi's runtime helpers at the start of a line, not yet static
+_CASADI_HELPER = re.compile(r"^((?:casadi_real|casadi_int|void|int) (casadi_\w+)\()", re.M)
+
+
+def _static_helpers(text: str) -> str:
+    """CasADi's runtime helpers (casadi_copy, casadi_qr, ...), external in its own output,
+    made static; those no function calls (CasADi emits the QR solve's whole family) removed,
+    as a static function nobody calls is a warning."""
+    while True:
+        unused = [m for m in _CASADI_HELPER.finditer(text)
+                  if len(re.findall(rf"\b{m.group(2)}\(", text)) == 1]
+        if not unused:
+            break
+        for m in reversed(unused):  # the definition runs to the first "}" alone on a line
+            end = text.index("\n}\n", m.start()) + 3
+            text = text[:m.start()] + text[end:].lstrip("\n")
+    return _CASADI_HELPER.sub(r"static \1", text)
+
+
+def single_translation_unit(functions_c: str, simulate_c: str, text_banner: str) -> str:
+    """maglev.c (`--single-file`): the functions and the simulation loop as one translation
+    unit behind maglev.h and maglev_simulate.h, so every external function has its documented
+    prototype in view (gcc's -Wmissing-prototypes checks it); CasADi's runtime helpers, external
+    in the two-file build, are made static. Nothing else changes: the text is the two files'."""
+    def body(text: str) -> str:
+        return text.split("\n", 1)[1]  # without the banner line
+
+    includes = '#include "maglev_simulate.h"\n'
+    functions_c = _static_helpers(functions_c)
+    if simulate_c.count(includes) != 1:
+        raise ValueError("maglev_simulate.c does not include its header once")
+    return (f"/* {text_banner} */\n/* {SINGLE_FILE}: maglev_functions.c and maglev_simulate.c "
+            "as one translation unit (`--single-file`); the API is declared in maglev.h "
+            "(maglev_functions.h) and maglev_simulate.h. */\n"
+            '#include "maglev.h"\n' + includes + "\n" + body(functions_c)
+            + "\n/* ---- maglev_simulate.c ---- */\n" + body(simulate_c).replace(includes, ""))
 
 
 def render_runtime_sources(model: CarriageModel, precision: str = "double") -> dict[str, str]:
@@ -96,16 +151,24 @@ def render_runtime_sources(model: CarriageModel, precision: str = "double") -> d
     return files
 
 
-def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
-    """Every output file's name and text (nothing written)."""
+def render(carriage: Carriage, opts: GenerateOptions,
+           speed_range: tuple[float, float] | None = None) -> dict[str, str]:
+    """Every output file's name and text (nothing written). ``speed_range``: the envelope's
+    (v_min, v_max) (maglevgen.envelope.speed_range), baked into the trim's checks with the
+    parameters; required with baked parameters."""
+    if opts.parameters == "baked" and speed_range is None:
+        raise ValueError("baked parameters need the envelope's speed range")
     built = build_functions(carriage.model, precision=opts.precision)
     fns = list(built.functions)
     if opts.parameters == "baked":
         fns = bake_all(tuple(fns), carriage.p)
     text_banner = banner(opts, carriage.loaded.sha256 if opts.parameters == "baked" else None)
-    files = render_c(fns, opts, text_banner, carriage.model,
-                     carriage.p if opts.parameters == "baked" else None)
-    files.update(render_interface(carriage, opts, function_table(fns, files[f"{C_NAME}.c"])))
+    baked = opts.parameters == "baked"
+    files = render_c(fns, opts, text_banner, carriage.model, carriage.p if baked else None,
+                     speed_range if baked else None)
+    c_text = files[SINGLE_FILE if opts.single_file else f"{C_NAME}.c"]
+    files.update(render_interface(carriage, opts, function_table(fns, c_text),
+                                  speed_range if baked else None))
     files["MISRA_DEVIATIONS.md"] = deviation_list()
     return files
 

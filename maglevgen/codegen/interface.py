@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 
 C_NAME = "maglev_functions"
 SIMULATE_FILES = ("maglev_simulate.c", "maglev_simulate.h")
+SINGLE_FILE = "maglev.c"  # --single-file: the one translation unit
 FUNCTION_TABLE = "functions.json"
 PRECISIONS = ("double", "single")
 PARAMETER_MODES = ("baked", "runtime")
@@ -70,6 +71,7 @@ class GenerateOptions:
     precision: str = "double"
     parameters: str = "baked"
     int_type: str = "int64"
+    single_file: bool = False  # one translation unit (maglev.c) instead of two .c files
 
     def __post_init__(self) -> None:
         if self.int_type not in INT_TYPES:
@@ -83,6 +85,7 @@ class GenerateOptions:
     @property
     def command(self) -> str:
         extra = "" if self.int_type == "int64" else f" --int {self.int_type}"
+        extra += " --single-file" if self.single_file else ""
         return (f"maglevgen generate --precision {self.precision} --parameters "
                 f"{self.parameters}{extra}")
 
@@ -121,9 +124,15 @@ def banner(opts: GenerateOptions, params_sha256: str | None) -> str:
 
 
 
-def render_interface(carriage: Carriage, opts: GenerateOptions,
-                     table: list[dict]) -> dict[str, str]:
-    """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest."""
+def c_sources(opts: GenerateOptions) -> list[str]:
+    """The .c files of a generation (what CMake and the manifest list)."""
+    return [SINGLE_FILE] if opts.single_file else [f"{C_NAME}.c", "maglev_simulate.c"]
+
+
+def render_interface(carriage: Carriage, opts: GenerateOptions, table: list[dict],
+                     speed_range: tuple[float, float] | None = None) -> dict[str, str]:
+    """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest.
+    ``speed_range``: the baked trim's [v_min, v_max] (None: v > 0)."""
     header_banner = banner(opts, carriage.loaded.sha256)
     params = [{"name": e.name, "macro": _macro(e.name), "unit": e.unit or "1",
                "description": e.description, "value": e.value, "value_repr": repr(e.value),
@@ -138,12 +147,17 @@ def render_interface(carriage: Carriage, opts: GenerateOptions,
         "states": cv.STATES, "inputs": inputs, "controls": cv.CONTROLS, "params": params,
         "functions": table, "speed": _c_literal(carriage.params.operation.speed, "double"),
         "dt": "1e-3", "n_steps": 2000, "error_defines": error_defines(),
+        "c_sources": c_sources(opts),
+        "speed_range": None if speed_range is None
+        else [_c_literal(v, "double") for v in speed_range],
     }
     env = template_env()
     files = {name: env.get_template(f"{name}.j2").render(ctx)
              for name in ("maglev.h", "main.c", "CMakeLists.txt", "README.md")}
-    files["manifest.json"] = json.dumps(_manifest(carriage, opts, table, params, inputs),
-                                        indent=2) + "\n"
+    manifest = _manifest(carriage, opts, table, params, inputs)
+    if speed_range is not None:
+        manifest["trim_speed_range"] = [float(v) for v in speed_range]
+    files["manifest.json"] = json.dumps(manifest, indent=2) + "\n"
     return files
 
 
@@ -160,7 +174,7 @@ def _manifest(carriage: Carriage, opts: GenerateOptions, table: list[dict], para
         "overrides": list(carriage.loaded.overrides),
         "versions": {"maglevgen": __version__,
                      **{lib: metadata.version(lib) for lib in ("casadi", "sympy", "numpy")}},
-        "files": {"c": [f"{C_NAME}.c", "maglev_simulate.c"], "casadi_header": f"{C_NAME}.h",
+        "files": {"c": c_sources(opts), "casadi_header": f"{C_NAME}.h",
                   "header": "maglev.h", "simulate_header": "maglev_simulate.h"},
         "states": [{"name": s.name, "unit": s.unit, "description": s.description}
                    for s in cv.STATES],

@@ -58,6 +58,7 @@ class ReportOptions:
     verify_c: bool = True  # compile the generated C and compare it with the SymPy model
     build_pdf: bool = True  # run LaTeX when it is installed
     envelope: tuple[Any, bytes] | None = None  # (Envelope, stability map PNG) when computed
+    gain_table: Mapping[str, Any] | None = None  # c/manifest.json's "gain_table" when built
 
 
 class Pending(Protocol):
@@ -149,7 +150,7 @@ def build_context(
     files[ENVELOPE_FIGURE] = env_png
     files[POLE_FIGURE] = pole_map(poles)
     rows, notes = parameter_rows(loaded)
-    envelope = _envelope_context(carriage, env)
+    envelope = _envelope_context(carriage, env, options.gain_table)
     ctx: dict[str, Any] = {
         "version": __version__,
         "titles": SECTION_TITLES,
@@ -264,13 +265,16 @@ def report_files(
     progress: Callable[[str], None] = _quiet,
     figures: Pending | None = None,
     envelope: tuple[Any, bytes] | None = None,
+    gain_table: Mapping[str, Any] | None = None,
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
     ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
-    ``figures``: the report's figures being drawn already (see `build_context`).
+    ``figures``: the report's figures being drawn already (see `build_context`);
+    ``gain_table``: c/manifest.json's entry of the firmware table (else fitted here).
     """
-    options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope)
+    options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope,
+                            gain_table=gain_table)
     return render_report(carriage, options, progress, figures=figures).files
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,7 @@ from ...envelope import (
     closed_loop_stability,
     compute_envelope,
     envelope_points,
+    gain_table,
     stability_map_png,
 )
 from ...library import simulation_library
@@ -52,7 +54,12 @@ def _envelope_checks(carriage, env) -> list[Check]:
     return out
 
 
-def _envelope_context(carriage, env) -> dict[str, Any]:
+def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The section's numbers; ``table``: the firmware table's manifest entry (c/manifest.json's
+    ``gain_table``, which the build passes), else the same entry fitted here."""
+    if table is None:
+        table = gain_table(carriage, simulation_library(carriage.structure), env.v_min,
+                           env.v_max).manifest()
 
     embedded = carriage.params.envelope.embedded_controller
     pick = np.unique(np.linspace(0, env.speeds.size - 1, min(9, env.speeds.size)).astype(int))
@@ -64,6 +71,8 @@ def _envelope_context(carriage, env) -> dict[str, Any]:
         "rows": [{"title": CONTROLLER_TITLES[n], "name": n, "verdict": c.verdict,
                   "ok": c.ok, "embedded": n == embedded} for n, c in env.controllers.items()],
         "names": [CONTROLLER_TITLES[n] for n in names],
+        "gain_table": {"nodes": table["nodes"], "dense_grid": table["dense_grid"],
+                       "bound": table["bound"], "worst": table["worst_relative_error"]},
         "table": [{"speed": float(env.speeds[i]),
                    "cells": [float(env.controllers[n].max_real[i]) for n in names]}
                   for i in pick],
