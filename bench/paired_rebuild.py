@@ -67,6 +67,7 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="maglevgen-paired-"))
+    load_start = os.getloadavg()  # the machine is shared: the load is part of the result
     try:
         variants = {
             "base": _layout(_checkout(args.base, work / "base-src"), work / "base"),
@@ -94,7 +95,7 @@ def main() -> None:
                 f"unchanged {unchanged['base'][-1]:.3f} / {unchanged['new'][-1]:.3f} s")
         result = {
             "base": args.base, "repeats": args.repeats, "cpus": os.cpu_count(),
-            "load_average_end": os.getloadavg(),
+            "load_average_start": load_start, "load_average_end": os.getloadavg(),
             "parameter_edit_s": {n: summary(v) for n, v in times.items()},
             "parameter_edit_ratio_new_over_base": paired_ratios(times["new"], times["base"]),
             "unchanged_s": {n: summary(v) for n, v in unchanged.items()},

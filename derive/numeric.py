@@ -100,6 +100,13 @@ class ModelFunctions:
 
 
 @memoized
+def symbolic_model(structure: Structure) -> CarriageModel:
+    """`build_model`, kept across processes: unpickling it takes a tenth of deriving it (what
+    the report displays needs the model, not its lambdified layers)."""
+    return build_model(structure)
+
+
+@memoized
 def model_functions(structure: Structure) -> ModelFunctions:
     """Lambdify the layers of the model of ``structure`` and their partial derivatives."""
     m = build_model(structure)

@@ -158,7 +158,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
-        report_figures = _draw_report_figures(drawing, carriage)
+        report_figures = _draw_report_figures(drawing, carriage, lib)
         mapping = submit(drawing, "drawing the stability map", _stability_map, env)
         writing = submit(drawing, "writing the trajectories", render_trajectories,
                          Shared("trajectories"), run.input_names)
@@ -246,14 +246,15 @@ def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
     return files
 
 
-def _draw_report_figures(drawing: Executor, carriage) -> Job:
-    """Have ``drawing`` draw the report's force figures (they need the trim, so this imports
-    the symbolic layers)."""
+def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
+    """Have ``drawing`` draw the report's force figures at the compiled library's trim (the
+    curves are eq 3's SymPy form, so this imports the symbolic layers)."""
     from .report import force_curves
     from .report_figures import force_figures
+    from .summary import trim_point
 
     return submit(drawing, "drawing the report figures", force_figures,
-                  force_curves(carriage, carriage.trim()))
+                  force_curves(carriage, trim_point(carriage, lib, None)))
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,

@@ -68,14 +68,20 @@ class Carriage:
 
     @cached_property
     def functions(self) -> ModelFunctions:
-        """The lambdified model (memoised across processes: derive.memo, maglevgen.cache)."""
+        """The lambdified model: an independent reference for the compiled library (the
+        report's verification table, `simulate --check`, the tests), never the source of a
+        printed number (maglevgen.summary reads those from the C). Memoised across processes
+        (derive.memo, maglevgen.cache) under a content hash of derive/'s sources."""
         from .derive.numeric import model_functions
 
         return model_functions(self.structure)
 
     @property
     def model(self) -> CarriageModel:
-        return self.functions.model
+        """The symbolic model (what the report displays): SymPy only, nothing lambdified."""
+        from .derive.numeric import symbolic_model
+
+        return symbolic_model(self.structure)
 
     def trim(self, speed: float | None = None) -> Trim:
         """The equilibrium at ``speed`` (default: operation.speed), solved once per speed."""

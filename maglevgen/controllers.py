@@ -6,6 +6,12 @@ the total stiffness at trim (magnetic K_st0 plus the gravity and propulsion mome
 offset) and m the diagonal of the generalized mass about O. The gains depend on the speed only
 through k (the trim moves with speed), so `gain_schedule` gives them in closed form along a
 speed sweep.
+
+The functions of a `Carriage` and a `Trim` here (axis_plants, carriage_gains, gain_schedule,
+reduced_model, coupled_comparison) work on the lambdified SymPy model: they are the
+independent references the tests hold the compiled library against. What the CLI, SUMMARY.md
+and the report print comes from the library (maglevgen.summary), which uses only the pieces
+of plain numbers here (AxisGains, compare_designs).
 """
 
 from __future__ import annotations

@@ -525,17 +525,21 @@ def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, byt
     with plt.rc_context({"font.size": 8}):
         fig, axs = plt.subplots(2, len(cv.AXES), figsize=(13, 5))
         for j, axis in enumerate(cv.AXES):
-            for row, (key, label) in enumerate((("settling_time", "settling time [s]"),
-                                                ("peak", "peak deviation"))):
+            unit = "m" if j < 2 else "rad"  # cv.AXES: lateral, vertical, then the angles
+            for row, (key, label) in enumerate((("settling_time", r"settling time $t_s$ / s"),
+                                                ("peak", f"peak deviation / {unit}"))):
                 ax = axs[row, j]
                 for c in study.controllers:
                     v = cols[f"{key}.{axis}"][cols["controller"] == c]
                     v = v[np.isfinite(v)]
                     if v.size:
                         ax.hist(v, bins=30, alpha=0.5, label=CONTROLLER_TITLES[c])
-                ax.set_xlabel(f"{axis}: {label}")
-        axs[0, 0].legend(fontsize=7)
-        fig.tight_layout()
+                ax.set_xlabel(label)
+                ax.set_title(axis)
+        handles, labels = axs[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="upper center", ncol=max(1, len(labels)), fontsize=7,
+                   bbox_to_anchor=(0.5, 1.0))  # above the panels, not over the bars
+        fig.tight_layout(rect=(0, 0, 1, 0.93))
         files["histograms.png"] = _png(fig)
         n = len(study.controllers)
         fig, axs = plt.subplots(1, n, figsize=(4.5 * n, 4), squeeze=False)
@@ -551,8 +555,10 @@ def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, byt
             ax.set_xlabel(kx)
             ax.set_ylabel(ky)
             ax.set_title(CONTROLLER_TITLES[c])
-            ax.legend(fontsize=7)
-        fig.tight_layout()
+        handles, labels = axs[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=7,
+                   bbox_to_anchor=(0.5, 1.0))  # above the panels, not over the points
+        fig.tight_layout(rect=(0, 0, 1, 0.9))
         files["failures.png"] = _png(fig)
     return files
 

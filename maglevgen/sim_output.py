@@ -27,12 +27,12 @@ from .workers import Shared, child, submit
 # The paper's figures: (file, title, [(state, scale, axis label)], figures reproduced)
 FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = (
     ("levitation_pitch.png", "Levitation height and pitch",
-     (("z", 1e3, "heave z - z_trim [mm]"), ("theta", 1e3, "pitch - pitch_trim [mrad]")),
+     (("z", 1e3, r"heave $z - z_0$ / mm"), ("theta", 1e3, r"pitch $\theta - \theta_0$ / mrad")),
      "figs 3, 5, 7"),
     ("travel_roll.png", "Travel distance and roll",
-     (("x", 1.0, "travel x [m]"), ("phi", 1e3, "roll [mrad]")), "fig 4"),
+     (("x", 1.0, r"travel $x$ / m"), ("phi", 1e3, r"roll $\phi - \phi_0$ / mrad")), "fig 4"),
     ("lateral_pitch.png", "Lateral position and pitch",
-     (("y", 1e3, "lateral y [mm]"), ("theta", 1e3, "pitch - pitch_trim [mrad]")),
+     (("y", 1e3, r"lateral $y - y_0$ / mm"), ("theta", 1e3, r"pitch $\theta - \theta_0$ / mrad")),
      "figs 6, 8"),
 )
 PLOT_POINTS = 4000  # samples per line at most (decimated evenly; the run keeps every step)
@@ -116,10 +116,11 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
                 ax.plot(t, y * scale, lw=0.9, label=name)
             ax.set_ylabel(label)
             ax.grid(True, lw=0.3)
-        axes[0].legend(loc="upper right", fontsize=8)
-        axes[-1].set_xlabel("time [s]")
+        # beside the axes, not over the responses
+        axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+        axes[-1].set_xlabel(r"time $t$ / s")
         fig.suptitle(f"{title} (paper {figs})")
-        fig.subplots_adjust(left=0.12, right=0.97, bottom=0.1, top=0.91, hspace=0.12)
+        fig.subplots_adjust(left=0.12, right=0.74, bottom=0.1, top=0.91, hspace=0.12)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
         plt.close(fig)
@@ -190,9 +191,9 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = (("z", 1e3, r"$z - z_{trim}$ [mm]"),
-              ("theta", 1e3, r"$\theta - \theta_{trim}$ [mrad]"),
-              ("phi", 1e3, r"$\phi - \phi_{trim}$ [mrad]"))
+    panels = (("z", 1e3, r"$z - z_0$ / mm"),
+              ("theta", 1e3, r"$\theta - \theta_0$ / mrad"),
+              ("phi", 1e3, r"$\phi - \phi_0$ / mrad"))
     with plt.rc_context({"font.size": 9}):
         fig, axes = plt.subplots(len(panels), 1, figsize=(7, 6), sharex=True)
         for ax, (state, scale, label) in zip(axes, panels, strict=True):
@@ -204,7 +205,7 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
             ax.set_ylabel(label)
             ax.grid(True, lw=0.3)
         axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-        axes[-1].set_xlabel("speed $v$ [m/s]")
+        axes[-1].set_xlabel("speed $v$ / (m/s)")
         fig.suptitle("Launch: deviations from the scheduled trim against speed")
         fig.subplots_adjust(left=0.12, right=0.78, bottom=0.08, top=0.93, hspace=0.12)
         buf = io.BytesIO()

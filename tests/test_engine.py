@@ -122,3 +122,49 @@ def test_no_trim_names_the_lift_off_speed(sim_lib, carriage: Carriage) -> None:
         summary.trim_point(carriage, sim_lib, 1.0)
     assert float(str(err.value).rsplit("needs ", 1)[1].split()[0]) == pytest.approx(v_off,
                                                                                     rel=1e-3)
+
+
+def test_report_stiffness_and_trim_are_the_librarys(monkeypatch, sim_lib) -> None:
+    """The report's trim, stiffness, A matrix and generalized masses are the compiled
+    library's numbers (bit for bit: the lambdified model and SciPy's trim differ from them in
+    the last digits) and agree with those references, computed here first; building the
+    report's context (the verification's reference rows off) never touches the lambdified
+    model."""
+    from maglevgen import report as rp
+    from maglevgen.derive.numeric import total_stiffness
+    from maglevgen.params import load_params
+
+    fresh = Carriage(load_params(overrides=["vehicle.mass=9.7"]))
+    ref_trim = fresh.trim()  # SciPy on the lambdified model: the references
+    K_ref = total_stiffness(fresh.functions, ref_trim, fresh.p)
+    A_ref, _ = fresh.linearize(ref_trim)
+    M_ref = fresh.generalized_mass()
+
+    def forbidden(self, *_a):
+        raise AssertionError("the report used the lambdified model")
+
+    monkeypatch.setattr(Carriage, "functions", property(forbidden))
+    for name in ("trim", "linearize", "magnetic_stiffness", "total_stiffness",
+                 "generalized_mass", "lift_off_speed"):
+        monkeypatch.setattr(Carriage, name, forbidden)
+    ctx, _ = rp.build_context(fresh, rp.ReportOptions(verify_c=False, build_pdf=False))
+
+    tp = summary.trim_point(fresh, sim_lib, None)
+    assert [v for _, _, v, _, _ in ctx["trim"]["states"]] == tp.x.tolist()
+    assert ctx["trim"]["F_prop"] == tp.f_prop
+    np.testing.assert_allclose(tp.x, ref_trim.x, rtol=1e-9, atol=1e-12)
+    K_tot = tp.K_magnetic + tp.K_other
+    for i, row in enumerate(ctx["stiffness"]["rows"]):
+        assert (row["derived"], row["total"]) == (tp.K_magnetic[i, i], K_tot[i, i]), row["axis"]
+    np.testing.assert_allclose(np.diag(K_tot), np.diag(K_ref), rtol=1e-8)
+    _, m = (a.ravel() for a in sim_lib.function("maglev_axis_plants")(tp.speed, fresh.p))
+    assert ctx["stiffness"]["mass_values"] == m.tolist()
+    np.testing.assert_allclose(m, M_ref, rtol=1e-12)
+    jac = sim_lib.function("maglev_jacobians")
+    u = np.zeros(jac.shapes_in[1][0])
+    u[0] = tp.f_prop
+    A, _ = jac(tp.x, u, fresh.p)
+    shown = [float(A[i, j]) for i in range(12) for j in range(12)
+             if abs(A[i, j]) > 1e-13 * np.abs(A).max()]  # the section's nonzero entries
+    assert [v for _, _, v in ctx["stiffness"]["A_entries"]] == shown
+    np.testing.assert_allclose(A, A_ref, rtol=1e-7, atol=1e-7 * np.abs(A_ref).max())

@@ -404,3 +404,130 @@ def test_provenance_key_that_names_nothing_is_bad_input(tmp_path: Path) -> None:
                     'why = "typo"\n')
     with pytest.raises(InputError, match=r"provenance = 'vehicle.mas': names no parameter"):
         load_params(path)
+
+
+# ------------------------------------------------------ one engine: the report = the CLI
+
+_TEX_NUM = re.compile(r"(-?\d+(?:\.\d+)?)(?:\s*\\times\s*10\^\{(-?\d+)\})?")
+
+
+def _tex_values(cell: str) -> list[complex]:
+    """The numbers of one table cell or matrix of the .tex, as fnum/ffixed/fcomplex write
+    them (``a \\times 10^{e}``, ``a + b\\,j``)."""
+    out: list[complex] = []
+    for part in re.split(r",\s(?![^{]*\})", cell):  # a list of poles: one complex each
+        nums = [float(m) * 10 ** int(e or 0) for m, e in _TEX_NUM.findall(part)]
+        if r"\,j" in part and len(nums) == 2:
+            out.append(complex(nums[0], nums[1] * (-1 if re.search(r"\d\s-\s", part) else 1)))
+        else:
+            out += [complex(v) for v in nums]
+    return out
+
+
+def _section(tex: str, key: str) -> str:
+    """The text of the report's section ``key`` (a key of SECTION_TITLES)."""
+    start = tex.index(rf"\section{{{rp.SECTION_TITLES[key]}}}")
+    end = tex.find(r"\section", start + 1)
+    return tex[start:end if end > 0 else None]
+
+
+def _axis_rows(section: str, axis: str) -> list[list[str]]:
+    """The cells of every table row of ``section`` that starts with ``axis``."""
+    return [[c.strip() for c in m.group(1).split("&")]
+            for m in re.finditer(rf"^{axis} & (.*?)\\\\\s*$", section, re.MULTILINE)]
+
+
+def _close(got: list[complex], want: list, rtol: float, what: str) -> None:
+    want = [complex(*w) if isinstance(w, list | tuple) else complex(w) for w in want]
+    assert len(got) == len(want), (what, got, want)
+    for g, w in zip(got, want, strict=True):
+        assert abs(g - w) <= rtol * abs(w) + 1e-300, (what, g, w)
+
+
+@pytest.mark.needs_cc
+def test_every_number_the_report_and_gains_json_both_print_agrees(default_report: Path,
+                                                                  capsys) -> None:
+    """The report's .tex read back number by number against `maglevgen gains --json` (a
+    separate command): the Riccati tables (k, m, K closed form, poles, K numerical, K eq 32,
+    P), the damping table (k, m, c*, and its poles against the roots of m s^2 + c s + k
+    computed here), the generalized masses and the allocation's E and T."""
+    assert main(["gains", "--json"]) == 0
+    ref = json.loads(capsys.readouterr().out)
+    tex = (default_report / "report.tex").read_text(encoding="utf-8")
+    ric, damp = _section(tex, "riccati"), _section(tex, "damping")
+    for axis, a in ref["axes"].items():
+        gains, numerical, riccati = _axis_rows(ric, axis)
+        vals = [v for c in gains for v in _tex_values(c)]
+        _close(vals[:4], [a["stiffness"], a["inertia"], *a["K_closed_form"]], 1e-5, axis)
+        got = sorted(vals[4:], key=lambda z: (z.real, z.imag))
+        want = sorted((complex(*p) for p in a["closed_loop_poles"]),
+                      key=lambda z: (z.real, z.imag))
+        _close(got, want, 1e-3, f"{axis} poles")
+        num = [_tex_values(c) for c in numerical]
+        _close([num[0][0], num[1][0]], a["K_numerical"], 1e-5, f"{axis} K numerical")
+        _close([num[3][0], num[4][0]], a["K_paper"], 1e-5, f"{axis} K eq 32")
+        P = a["P_closed_form"]
+        _close([v for c in riccati for v in _tex_values(c)], [P[0][0], P[0][1], P[1][1]],
+               1e-5, f"{axis} P")
+        (row,) = _axis_rows(damp, axis)
+        k, m, c = a["stiffness"], a["inertia"], a["damping_gain"]
+        _close(_tex_values(row[0]) + _tex_values(row[1]), [k, m], 1e-5, f"{axis} damping k, m")
+        if c is None:
+            assert row[2] == "---", (axis, row)
+        else:
+            _close(_tex_values(row[2]), [c], 1e-5, f"{axis} c*")
+            got = sorted(_tex_values(row[3]), key=lambda z: (z.real, z.imag))
+            roots = sorted(np.roots([m, c, k]), key=lambda z: (z.real, z.imag))
+            _close(got, list(roots), 1e-3, f"{axis} damping poles")
+    masses = re.search(r"with values \$\((.*?)\)\$ in kg", _section(tex, "stiffness")).group(1)
+    _close(_tex_values(masses), [a["inertia"] for a in ref["axes"].values()], 1e-5, "masses")
+    for name, key in (("E", "effectiveness"), ("T", "minimum_norm")):
+        mat = re.search(rf"\\\[ {name} = \\begin\{{bmatrix\}}(.*?)\\end\{{bmatrix\}}", damp)
+        want = np.array(ref["allocation"][key])
+        got = [v for c in re.split(r"&|\\\\", mat.group(1)) for v in _tex_values(c)]
+        assert len(got) == want.size, name
+        np.testing.assert_allclose(np.real(got), want.ravel(), rtol=1e-3,
+                                   atol=1e-12 * np.abs(want).max(), err_msg=name)
+
+
+def test_simulation_metrics_are_named_with_units_and_every_figure_is_referenced(
+    default_context, tmp_path: Path, capsys
+) -> None:
+    """The report with a real `maglevgen simulate` folder: the metrics table names each
+    quantity in words with its unit (no raw JSON key such as ``rk4_stability_limit``) and
+    shows metrics.json's values (read here); every figure has a label that the text
+    references with \\ref."""
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--t-end", "0.05"]) == 0
+    capsys.readouterr()
+    data = json.loads((sim / "metrics.json").read_text())
+    ctx, _ = default_context
+    sim_ctx, _ = simulation._simulation(sim, ctx["sha256"])
+    tex = rp.render_tex({**ctx, "simulation": sim_ctx})
+    section = _section(tex, "simulation")
+    table = section[section.index("quantity [unit]"):]
+    table = table[: table.index(r"\end{longtable}")]
+    keys = [k for k in data if "_" in k]  # those a reader would see as code
+    assert "rk4_stability_limit" in keys
+    for key in keys:
+        assert tex_key_escaped(key) not in table and key not in table, key
+    assert not re.search(r"[a-z0-9]\\_[a-z]", table), "a raw key in the metrics table"
+    for words, unit, key in (("trim speed", "m/s", "speed"), ("RK4 step", "s",
+                             "rk4_stability_limit"), ("propulsion force", "N",
+                             "propulsion_force")):
+        row = re.search(rf"^[^\n]*{words}[^\n&]*\[{re.escape(unit)}\] & \$([^$]+)\$", table,
+                        re.MULTILINE)
+        assert row, (words, unit)
+        assert _tex_values(row.group(1))[0].real == pytest.approx(data[key], rel=1e-5), key
+
+    figures = re.findall(r"\\begin\{figure\}(.*?)\\end\{figure\}", tex, re.DOTALL)
+    assert tex.count(r"\includegraphics") == sum(f.count(r"\includegraphics") for f in figures)
+    assert len(figures) >= 5  # force, envelope, poles and the simulation's
+    outside = re.sub(r"\\begin\{figure\}.*?\\end\{figure\}", "", tex, flags=re.DOTALL)
+    for fig in figures:
+        (label,) = re.findall(r"\\label\{([^}]+)\}", fig)
+        assert rf"\ref{{{label}}}" in outside, f"figure {label} is not referenced"
+
+
+def tex_key_escaped(key: str) -> str:
+    return key.replace("_", r"\_")

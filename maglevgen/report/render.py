@@ -1,9 +1,10 @@
 """The report assembled: the context of every section, report.tex, the PDF, the files written.
 
 Every equation in the report is a SymPy object from ``derive/`` (or built from its functions)
-printed with ``sympy.latex``; every number comes from the same code paths as ``maglevgen trim``
-and ``maglevgen gains`` (their reports, imported in one place below). The jinja2 templates in
-``templates/report*`` only place them.
+printed with ``sympy.latex``; every number comes from the compiled library through the same code
+paths as ``maglevgen trim`` and ``maglevgen gains`` (their reports, imported in one place below);
+the lambdified SymPy model, SciPy and mpmath appear only as references in the verification table.
+The jinja2 templates in ``templates/report*`` only place them.
 
 The output is written atomically: everything is rendered into a temporary folder, LaTeX runs
 there, and only a successful build replaces the previous output. The .tex is deterministic: no
@@ -25,9 +26,10 @@ from typing import Any, Protocol
 import maglevgen.report.latex as latex  # a module (tests patch its find_tex)
 
 from ..errors import MaglevError
+from ..library import simulation_library
 from ..output import write_output
 from ..report_figures import force_figures, pole_map
-from ..summary import gains_report, trim_report  # the CLI's numbers, from the C
+from ..summary import gains_report, trim_point, trim_report  # the CLI's numbers, from the C
 from ..version import __version__
 from .latex import LatexBuild, latex_env
 from .sections.conventions import _conventions
@@ -110,16 +112,17 @@ def build_context(
     progress("report: envelope (stability across speed, in the compiled library)")
     env, env_png = _envelope(carriage, options.envelope)
     progress("report: trim and stiffness")
-    trim = carriage.trim()
+    lib = simulation_library(carriage.structure, progress=progress)
+    trim = trim_point(carriage, lib, None)  # the compiled library's trim, as `maglevgen trim`
     pool = None
     if figures is None:
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"))
         own: Future = pool.submit(force_figures, force_curves(carriage, trim))
         figures = own
     try:
-        trep = trim_report(carriage, None)
+        trep = trim_report(carriage, None, lib)
         progress("report: LQR gains, coupled comparison and allocation")
-        gains = gains_report(carriage, None)
+        gains = gains_report(carriage, None, lib)
         progress("report: symbolic forms")
         force = _force_law(carriage, trim, trep)
         rigid = _rigid_body()
@@ -130,7 +133,7 @@ def build_context(
             "force_law": force,
             "geometry": _geometry(carriage, gains),
             "trim": _trim(trep),
-            "stiffness": _stiffness(carriage, trim, trep),
+            "stiffness": _stiffness(carriage, trim, trep, gains, lib),
             "damping": alloc,
             "riccati": _riccati(gains),
         }
@@ -138,7 +141,7 @@ def build_context(
         paper = _paper_comparison(gains, trep)
         progress("report: verification")
         checks = _verification(
-            carriage, trim, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
+            carriage, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
         ) + _envelope_checks(carriage, env)
         progress("report: figures")
         poles = pole_sets(gains)

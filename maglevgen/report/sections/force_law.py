@@ -43,6 +43,7 @@ def _force_numbers(carriage) -> dict[sp.Symbol, float]:
 
 
 def force_curves(carriage, trim) -> dict[str, Any]:
+    # ``trim``: summary.TrimPoint (speed, gaps, lift of every array, from the compiled library)
     """What the force figures draw, as plain numbers (they are drawn in another process):
     F_L and F_D (eq 3) of one upper array against the gap at the trim speed and against the
     speed at the nominal gap, and every array's point at trim."""
@@ -73,7 +74,6 @@ def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
     forms, num = _force_law_forms(REPORT_SOURCE), _force_numbers(carriage)
     B0_expr, FL, FD = forms["B0"], forms["FL"], forms["FD"]
     ratio, slope, v_c = forms["ratio"], forms["slope"], forms["v_c"]
-    v = _FORCE_SYMBOLS[8]
     pr = carriage.params
     B0_val = num[_FORCE_SYMBOLS[6]]
     v_c_val = float(v_c.xreplace(num))
@@ -111,7 +111,8 @@ def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
         "B0_rel": (0.9 - B0_val) / B0_val,
         "k_value": pr.wavenumber,
         "v_c_value": v_c_val,
-        "ratio_at_trim": float(ratio.xreplace({**num, v: trim.speed})),
+        # F_D/F_L of the first array at trim, from the compiled library's forces (trep)
+        "ratio_at_trim": arrays[0]["drag"] / arrays[0]["lift"],
         "arrays": arrays,
     }
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from ...errors import InputError
-from ..format import fnum, tex_breakable, tex_escape
+from ..format import fnum, tex_breakable, tex_escape, tex_unit
 
 # PNGs written by `maglevgen simulate --out DIR`, with the paper's figures they correspond to.
 SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (
@@ -19,6 +19,29 @@ SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (
 )
 
 Simulation = Path | Mapping[str, bytes | str] | None
+
+# metrics.json's keys (maglevgen.simulate.ScenarioRun.header, simulate.metrics) as the report
+# names them: (LaTeX text, unit). A key not listed is shown in words, without its underscores.
+METRIC_LABELS: dict[str, tuple[str, str]] = {
+    "params_sha256": ("parameters (SHA-256 of the file and overrides)", ""),
+    "scenario": ("scenario", ""),
+    "speed": ("trim speed $V$", "m/s"),
+    "release_speed": ("release speed of a launch", "m/s"),
+    "propulsion_force": (r"propulsion force at trim $F_\mathrm{prop}$", "N"),
+    "rk4_stability_limit": (r"largest stable RK4 step $\Delta t_\mathrm{max}$", "s"),
+    "fastest_closed_loop_growth": ("fastest growing closed-loop pole (speed drift)", "1/s"),
+    "growth_rate": ("growth rate of the run", "1/s"),
+    "t_end": (r"simulated time $t_\mathrm{end}$", "s"),
+    "dt": (r"time step $\Delta t$", "s"),
+    "steps": ("time steps", ""),
+    "min_gap": (r"smallest gap $\min \delta$", "m"),
+    "speed_start": ("speed at the start", "m/s"),
+    "speed_end": ("speed at the end", "m/s"),
+    "speed_at_contact": ("speed at contact", "m/s"),
+    "rms_array_force": ("RMS array control force", "N"),
+    "max_abs": ("largest deviation", ""),
+    "relative_to_peak": ("relative to its peak", ""),
+}
 
 
 def _simulation(source: Simulation, params_sha256: str | None = None
@@ -124,6 +147,8 @@ def _metrics(data: Any) -> dict[str, Any]:
                 "status": str(run.get("status", "")),
                 "event": str(run.get("event") or ""),
                 "speeds": _speeds(run),
+                "min_gap": _number(run.get("min_gap")),
+                "rms_force": _number(run.get("rms_array_force")),
                 "axes": rows,
             }
         )
@@ -137,6 +162,10 @@ def _metrics(data: Any) -> dict[str, Any]:
         "disturbance": disturbance if isinstance(disturbance, str) else "",
         "growth": float(growth) if isinstance(growth, int | float) else None,
     }
+
+
+def _number(v: Any) -> float | None:
+    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
 
 
 _SPEED_MODE_NUMBERS = ("speed", "eigenvalue", "pole_trim", "pole_fixed_gaps", "pole_retrim")
@@ -160,21 +189,32 @@ def _speeds(run: Any) -> tuple[float, float] | None:
         else None
 
 
+def metric_label(key: str) -> str:
+    """The LaTeX name of a dotted metrics.json key: each part by METRIC_LABELS (or in words),
+    the unit of the last one in brackets."""
+    parts = [p for p in key.split(".") if p]
+    names = [METRIC_LABELS.get(p, (tex_escape(p.replace("_", " ")), ""))[0] for p in parts]
+    unit = METRIC_LABELS.get(parts[-1], ("", ""))[1] if parts else ""
+    return ", ".join(names) + (f" [{tex_unit(unit)}]" if unit else "")
+
+
 def _flatten_metrics(data: Any, prefix: str = "") -> list[tuple[str, str]]:
-    """(dotted key, LaTeX value) of the scalar leaves of a JSON document, in its order."""
+    """(LaTeX name with unit, LaTeX value) of the scalar leaves of a JSON document, in its
+    order (`metric_label` names them)."""
     if isinstance(data, dict):
         return [row for k, v in data.items() for row in _flatten_metrics(v, f"{prefix}{k}.")]
+    key = metric_label(prefix.rstrip("."))
     if isinstance(data, list):
         if (
             all(isinstance(v, int | float) and not isinstance(v, bool) for v in data)
             and len(data) <= 6
         ):
-            return [(prefix.rstrip("."), "$(" + ",\\ ".join(fnum(v, 4) for v in data) + ")$")]
+            return [(key, "$(" + ",\\ ".join(fnum(v, 4) for v in data) + ")$")]
         return [row for i, v in enumerate(data) for row in _flatten_metrics(v, f"{prefix}{i}.")]
-    if isinstance(data, bool) or data is None:
-        return [(prefix.rstrip("."), tex_escape(json.dumps(data)))]
+    if data is None:
+        return [(key, "---")]
+    if isinstance(data, bool):
+        return [(key, "yes" if data else "no")]
     if isinstance(data, int | float):
-        return [(prefix.rstrip("."), f"${fnum(data, 6)}$")]
-    return [(prefix.rstrip("."), tex_breakable(data))]
-
-
+        return [(key, f"${fnum(data, 6)}$")]
+    return [(key, tex_breakable(data))]

@@ -55,13 +55,16 @@ def _stiffness_display(structure, values: tuple[tuple[str, float], ...],
     return Display(tuple(lines)), mass_lines
 
 
-def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
+def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
+    """The section's numbers, all from the compiled library (as `maglevgen trim` and `gains`
+    print them): K_st0 and the gravity terms of ``trim`` (summary.TrimPoint, maglev_stiffness),
+    A and B (maglev_jacobians at the trim), the generalized masses (maglev_axis_plants)."""
 
     model = carriage.model
     lines, mass_lines = _stiffness_display(model.structure, _shown_values(carriage),
                                            REPORT_SOURCE)
     K_mag = np.array(trep["stiffness_matrix"])
-    K_tot = carriage.total_stiffness(trim)
+    K_tot = trim.K_magnetic + trim.K_other
     # entries below 1e-12 of the largest are rounding noise of a structural zero
     K_mag = np.where(np.abs(K_mag) < 1e-12 * np.max(np.abs(K_mag)), 0.0, K_mag)
     K_tot = np.where(np.abs(K_tot) < 1e-12 * np.max(np.abs(K_tot)), 0.0, K_tot)
@@ -92,7 +95,9 @@ def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
             }
         )
     inputs = [(ltx(syms[n]), v) for n, v in trep["paper_inputs"].items()]
-    A, B = carriage.linearize(trim)
+    u = np.zeros(lib.function("maglev_jacobians").shapes_in[1][0])
+    u[0] = trim.f_prop
+    A, B = lib.function("maglev_jacobians")(trim.x, u, carriage.p)
     scale = np.max(np.abs(A))
     a_entries = [
         (
@@ -107,7 +112,7 @@ def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
     return {
         "K_symbolic": lines,
         "mass": mass_lines,
-        "mass_values": carriage.generalized_mass().tolist(),
+        "mass_values": [a["inertia"] for a in gains["axes"].values()],
         "K_mag": matrix_tex(K_mag, lambda v: fnum(v, 5)),
         "K_tot": matrix_tex(K_tot, lambda v: fnum(v, 5)),
         "rows": rows,
