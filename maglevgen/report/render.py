@@ -30,6 +30,7 @@ from ..report_figures import force_figures, pole_map
 from ..summary import gains_report, trim_report  # the CLI's numbers, from the C
 from ..version import __version__
 from .latex import LatexBuild, latex_env
+from .sections.actuators import _actuator_comparison
 from .sections.conventions import _conventions
 from .sections.damping import _damping_allocation
 from .sections.envelope import ENVELOPE_FIGURE, _envelope, _envelope_checks, _envelope_context
@@ -123,6 +124,7 @@ def build_context(
         force = _force_law(carriage, trim, trep)
         rigid = _rigid_body()
         alloc = _damping_allocation(gains)
+        alloc["actuators"] = _actuator_comparison(carriage, progress)
         sections = {
             "conventions": _conventions(carriage.model),
             "rigid_body": rigid,
