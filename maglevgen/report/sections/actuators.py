@@ -11,6 +11,10 @@ import numpy as np
 import scipy.linalg
 import sympy as sp
 
+from ...carriage import Carriage
+from ...library import simulation_library
+from ...params import ACTUATOR_MODELS, LoadedParams
+from ...simulate import metrics, run_scenarios
 from ..display import ltx, matrix_tex
 from ..format import fnum, tex_escape
 
@@ -28,9 +32,6 @@ ACTUATOR_TEXT = {
 
 def with_actuators(carriage, actuators: str):
     """The same carriage with another actuator model (its parameters otherwise unchanged)."""
-    from ...carriage import Carriage
-    from ...params import LoadedParams
-
     if carriage.params.control.actuators == actuators:
         return carriage
     params = carriage.params.model_copy(update={
@@ -42,10 +43,6 @@ def with_actuators(carriage, actuators: str):
 
 def _actuator_comparison(carriage, progress: Callable[[str], None]) -> dict[str, Any]:
     """E, T, rank and peak array forces of every actuator model, from their generated C."""
-    from ...library import simulation_library
-    from ...params import ACTUATOR_MODELS
-    from ...simulate import metrics, run_scenarios
-
     models = []
     peaks: dict[str, dict[str, dict]] = {}
     arrays: list[str] = list(carriage.params.arrays)
