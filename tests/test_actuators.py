@@ -217,3 +217,16 @@ def test_box_keeps_the_parameter_vector_free_of_the_tensor() -> None:
     assert not any(n.startswith("vehicle.inertia_cg") for n in names)
     default = [e.name for e in Carriage(load_params()).entries]
     assert "vehicle.width" not in default and "vehicle.inertia_cg.xz" in default
+
+
+def test_api_gains_use_the_selected_actuators(normal_lib) -> None:
+    """maglevgen.Carriage(...).gains() allocates with the file's actuator model."""
+    import maglevgen
+
+    api = maglevgen.Carriage(overrides=[NORMAL])
+    assert api.input_names[1:] == tuple(f"F_n{i}" for i in range(1, 7))
+    g = api.gains(controller="coupled")
+    np.testing.assert_allclose(g.allocation, np.linalg.pinv(effectiveness("normal")), atol=1e-12)
+    paper = maglevgen.Carriage().gains(controller="coupled")
+    np.testing.assert_allclose(paper.allocation, np.linalg.pinv(effectiveness("paper")),
+                               atol=1e-12)
