@@ -37,7 +37,7 @@ from .sections.envelope import ENVELOPE_FIGURE, _envelope, _envelope_checks, _en
 from .sections.force_law import _force_law, force_curves
 from .sections.geometry import _geometry
 from .sections.paper import _paper_comparison
-from .sections.parameters import parameter_rows
+from .sections.parameters import model_choices, parameter_rows
 from .sections.poles import POLE_FIGURE, pole_sets
 from .sections.riccati import _riccati
 from .sections.rigid_body import _rigid_body
@@ -162,6 +162,7 @@ def build_context(
         "parameters": {
             "rows": rows,
             "notes": notes,
+            "choices": model_choices(loaded.params),
             "B0": force["B0_value"],
             "B0_paper": force["B0_paper"],
             "B0_rel": force["B0_rel"],
