@@ -9,6 +9,13 @@ one minimizing sum F^2 (eqs 22-23), from the stationarity of
 
 The paper writes eqs 22-23 for a subset of the constraints; here all five are used with the
 geometry's E. When E has full row rank the answer is T = E^T (E E^T)^-1, the pseudoinverse.
+
+Two actuator models (``control.actuators``) give E its columns. "paper" (eqs 22-23): each
+array has a body-z force and, where its normal has a y part (the lower 45-degree arrays), an
+independent body-y force: ten forces for the paper's six arrays. "normal": an array pushes
+along its normal only, one force F_n per array: six forces for the five generalized forces,
+so E is 5 x 6 and its column j is the wrench of the unit normal n_j at the face centre a_j,
+(n_y, n_z, a x n). The same Lagrangian gives the minimum-norm forces for either.
 """
 
 from __future__ import annotations
@@ -27,6 +34,8 @@ __all__ = [
     "minimum_norm_allocation",
     "paper_array_layout",
     "paper_effectiveness",
+    "paper_normal_effectiveness",
+    "paper_normals",
 ]
 
 
@@ -58,13 +67,24 @@ def minimum_norm_allocation(E: sp.Matrix) -> sp.Matrix:
     """T (n x rows) with F = T u minimizing sum F^2 subject to E F = u (eqs 22-23).
 
     Solves the stationarity equations dL/dF = 0, dL/dlambda = 0 of the Lagrangian in the module
-    docstring, a linear system, with ``sympy.linsolve``. Raises ``ValueError`` if E is rank
-    deficient (then E F = u has no solution for some u).
+    docstring, a linear system, with ``sympy.linsolve``. When E is rank deficient (the normal
+    actuators of the paper's geometry: every line of action meets the x axis at the lower
+    normals' crossing, so u_phi and u_y are tied) E F = u has no solution for some u; T then
+    gives the forces of least |E F - u| and, among them, least sum F^2, from a rank
+    factorization E = C R (C full column rank, R full row rank): E F - u is least where
+    R F = C^+ u = (C^T C)^-1 C^T u, a full-row-rank constraint for the same Lagrangian. Either
+    way T is the Moore-Penrose pseudoinverse of E.
     """
     E = sp.Matrix(E)
     report = allocation_rank_report(E)
     if not report.full_row_rank:
-        raise ValueError(f"{report}; the constraints E F = u are not all independent")
+        C, R = E.rank_decomposition(simplify=True)
+        return (_lagrange_allocation(R) * (C.T * C).inv() * C.T).applyfunc(sp.simplify)
+    return _lagrange_allocation(E)
+
+
+def _lagrange_allocation(E: sp.Matrix) -> sp.Matrix:
+    """T of least sum F^2 subject to E F = u, E of full row rank (the module's Lagrangian)."""
     F = sp.Matrix(sp.symbols(f"F_1:{E.cols + 1}"))
     lam = sp.Matrix(sp.symbols(f"lambda_1:{E.rows + 1}"))
     u = sp.Matrix(sp.symbols(f"u_1:{E.rows + 1}"))
@@ -105,6 +125,22 @@ def paper_array_layout(x_arm: sp.Expr = _X_ARM, y_arm: sp.Expr = _Y_ARM,
 def paper_effectiveness(**layout: sp.Expr) -> sp.Matrix:
     """E (5 x 10) of the paper's geometry, columns F_y1, F_z1, F_y2, F_z2, F_z3, F_y4, ..."""
     return control_effectiveness(*paper_array_layout(**layout))
+
+
+def paper_normals() -> list[sp.Matrix]:
+    """Unit normals of arrays 1-6 of the paper (exact): the lower arrays at 45 degrees pushed
+    down and outward, (0, +-1, -1)/sqrt(2); the upper ones up, (0, 0, 1)."""
+    s2 = 1 / sp.sqrt(2)
+    lower_p, lower_m, up = (sp.Matrix([0, s2, -s2]), sp.Matrix([0, -s2, -s2]),
+                            sp.Matrix([0, 0, 1]))
+    return [lower_p, lower_m, up, lower_p, lower_m, up]
+
+
+def paper_normal_effectiveness(**layout: sp.Expr) -> sp.Matrix:
+    """E (5 x 6) of the paper's geometry with one force along each array's normal
+    (control.actuators = "normal"), columns F_n1..F_n6."""
+    positions, _ = paper_array_layout(**layout)
+    return control_effectiveness(positions, [("n",)] * 6, paper_normals())
 
 
 def column_names(components: Sequence[Sequence[str]]) -> list[str]:

@@ -17,10 +17,11 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from .structure import CONTROL_AXES, control_components
+from .structure import CONTROL_AXES, NORMAL_AXIS, control_components
 
-__all__ = ["CONTROL_AXES", "ArraySymbols", "array_gap", "array_speed", "array_wrench",
-           "control_components", "control_effectiveness", "generalized_wrench_row"]
+__all__ = ["CONTROL_AXES", "NORMAL_AXIS", "ArraySymbols", "array_gap", "array_speed",
+           "array_wrench", "control_components", "control_direction", "control_effectiveness",
+           "generalized_wrench_row"]
 
 _AXIS_VECTOR = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}
 
@@ -60,15 +61,27 @@ def generalized_wrench_row(position: sp.Matrix, direction: sp.Matrix) -> sp.Matr
     return sp.Matrix([direction[1], direction[2], m[0], m[1], m[2]])
 
 
-def control_effectiveness(positions: Sequence[sp.Matrix], components: Sequence[Sequence[str]]
-                          ) -> sp.Matrix:
+def control_direction(component: str, normal: sp.Matrix | None = None) -> sp.Matrix:
+    """Body-frame unit direction of a control force component: a body axis (y, z) of eqs
+    22-23, or the array's unit normal for NORMAL_AXIS (control.actuators = "normal")."""
+    if component == NORMAL_AXIS:
+        if normal is None:
+            raise ValueError("a force along the normal needs the array's normal")
+        return sp.Matrix(normal)
+    return sp.Matrix(_AXIS_VECTOR[component])
+
+
+def control_effectiveness(positions: Sequence[sp.Matrix], components: Sequence[Sequence[str]],
+                          normals: Sequence[sp.Matrix] | None = None) -> sp.Matrix:
     """E (5 x n): generalized forces (u_y, u_z, u_phi, u_theta, u_psi) from array forces.
 
-    Column j is the wrench about O of a unit body-axis force component of one array at its
-    face centre, at the design pose; columns are ordered array by array, y before z.
+    Column j is the wrench about O of a unit control force component of one array at its
+    face centre, at the design pose; columns are ordered array by array, y before z. A
+    component along the normal (NORMAL_AXIS) needs ``normals`` (unit, body frame).
     """
     cols = []
-    for pos, comps in zip(positions, components, strict=True):
+    for i, (pos, comps) in enumerate(zip(positions, components, strict=True)):
         for ax in comps:
-            cols.append(generalized_wrench_row(pos, sp.Matrix(_AXIS_VECTOR[ax])))
+            d = control_direction(ax, normals[i] if normals is not None else None)
+            cols.append(generalized_wrench_row(pos, d))
     return sp.Matrix.hstack(*cols)

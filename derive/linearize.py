@@ -17,7 +17,7 @@ import sympy as sp
 from . import conventions as cv
 from .geometry import array_wrench
 from .memo import memoized
-from .model import CarriageModel, Structure, build_model
+from .model import CarriageModel, Structure, build_model, inertia_cg_matrix
 from .rigid_body import inertia_about_origin
 
 GENERALIZED_FORCES: tuple[str, ...] = ("F_y", "F_z", "M_x", "M_y", "M_z")
@@ -70,7 +70,6 @@ def design_pose_stiffness(structure: Structure) -> sp.Matrix:
 def generalized_mass_expr(model: CarriageModel) -> sp.Matrix:
     """Diagonal of M_RB (eq 17) at O: (m, m, I_O,xx, I_O,yy, I_O,zz), symbolic."""
     m = model.param("vehicle.mass")
-    keys = ("xx", "xy", "xz", "xy", "yy", "yz", "xz", "yz", "zz")
-    inertia = sp.Matrix(3, 3, lambda i, j: model.param("vehicle.inertia_cg." + keys[3 * i + j]))
+    inertia = inertia_cg_matrix(model.param, model.structure.param_names)
     I_O = inertia_about_origin(m, inertia, model.vec("vehicle.cg_offset"))
     return sp.Matrix([m, m, I_O[0, 0], I_O[1, 1], I_O[2, 2]])

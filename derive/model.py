@@ -9,18 +9,20 @@ and which control force components each has), so a structure is its cache key.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
 import sympy as sp
 
 from . import conventions as cv
-from .geometry import ArraySymbols, array_gap, array_speed, array_wrench
+from .geometry import ArraySymbols, array_gap, array_speed, array_wrench, control_direction
 from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
-from .structure import Structure, input_names_of
+from .structure import Structure, box_principal_moments, explicit_inertia, input_names_of
 
-__all__ = ["CarriageModel", "Structure", "build_model", "input_names_of", "symbol_name"]
+__all__ = ["CarriageModel", "Structure", "build_model", "inertia_cg_matrix", "input_names_of",
+           "symbol_name"]
 
 
 def symbol_name(param_name: str) -> str:
@@ -92,7 +94,7 @@ def build_model(structure: Structure) -> CarriageModel:
     u = sp.Matrix(sp.symbols(" ".join(input_names), real=True))
 
     m, g = sym["vehicle.mass"], sym["vehicle.gravity"]
-    inertia = sp.Matrix(3, 3, lambda i, j: sym["vehicle.inertia_cg." + _INERTIA_KEYS[i][j]])
+    inertia = inertia_cg_matrix(sym.__getitem__, structure.param_names)
     r_G = vec("vehicle.cg_offset")
     k = 2 * sp.pi / sym["halbach.wavelength"]
     B0 = halbach_surface_field(sym["halbach.remanence"], sym["halbach.thickness"],
@@ -136,7 +138,8 @@ def _wrench(structure: Structure, arrays: list[ArraySymbols], u: sp.Matrix, lift
     """Total external force and moment about O, body axes (eqs 8-12 come out of this sum).
 
     Lift acts along the track normal n_i and drag along -x (inertial); gravity at the CG;
-    propulsion along the track at ``a_prop``; control components along body axes at a_i.
+    propulsion along the track at ``a_prop``; control components along body axes at a_i
+    (eqs 22-23), or along the array's normal n_i (control.actuators = "normal").
     """
     ex = sp.Matrix([1, 0, 0])
     force_in, moment_in = sp.zeros(3, 1), sp.zeros(3, 1)
@@ -154,8 +157,7 @@ def _wrench(structure: Structure, arrays: list[ArraySymbols], u: sp.Matrix, lift
     j = 1
     for a, (_name, comps) in zip(arrays, structure.arrays, strict=True):
         for ax in comps:
-            fc = sp.zeros(3, 1)
-            fc["xyz".index(ax)] = u[j]
+            fc = u[j] * control_direction(ax, a.normal)
             force_b += fc
             moment_b += a.position.cross(fc)
             j += 1
@@ -163,3 +165,14 @@ def _wrench(structure: Structure, arrays: list[ArraySymbols], u: sp.Matrix, lift
 
 
 _INERTIA_KEYS = (("xx", "xy", "xz"), ("xy", "yy", "yz"), ("xz", "yz", "zz"))
+
+
+def inertia_cg_matrix(param: Callable[[str], sp.Expr], param_names: Sequence[str]
+                      ) -> sp.Matrix:
+    """I about the CG, body axes: the tensor's entries where the parameter vector holds them,
+    else the uniform box of the mass, length, width and height (vehicle.inertia_cg = "box"),
+    so that the inertia follows the mass."""
+    if explicit_inertia(param_names):
+        return sp.Matrix(3, 3, lambda i, j: param("vehicle.inertia_cg." + _INERTIA_KEYS[i][j]))
+    return sp.diag(*box_principal_moments(*(param(f"vehicle.{k}") for k in
+                                            ("mass", "length", "width", "height"))))

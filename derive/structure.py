@@ -9,11 +9,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from . import conventions as cv
 
 # Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).
 CONTROL_AXES: tuple[str, ...] = ("y", "z")
+# The component of an array's one actuator along its own normal (control.actuators = "normal").
+NORMAL_AXIS = "n"
 
 
 @dataclass(frozen=True)
@@ -28,12 +31,17 @@ class Structure:
     arrays: tuple[tuple[str, tuple[str, ...]], ...]
 
 
-def control_components(normal_values: Sequence[float], tol: float = 1e-12) -> tuple[str, ...]:
-    """Control force components an array has: the body axes (y, z) its normal has a part along.
+def control_components(normal_values: Sequence[float], actuators: str = "paper",
+                       tol: float = 1e-12) -> tuple[str, ...]:
+    """Control force components an array has.
 
-    Arrays facing up have a z component only; the 45-degree arrays have both, which gives the
-    ten array forces of the paper (F_z1..F_z6 and F_y1, F_y2, F_y4, F_y5) for its geometry.
+    "paper" (eqs 22-23): the body axes (y, z) its normal has a part along. Arrays facing up
+    have a z component only; the 45-degree arrays have both, which gives the ten array forces
+    of the paper (F_z1..F_z6 and F_y1, F_y2, F_y4, F_y5) for its geometry. "normal": one
+    force along the array's normal, F_n<array> (six for the paper's six arrays).
     """
+    if actuators == "normal":
+        return (NORMAL_AXIS,)
     return tuple(ax for ax in CONTROL_AXES if abs(normal_values["xyz".index(ax)]) > tol)
 
 
@@ -43,3 +51,17 @@ def input_names_of(structure: Structure) -> tuple[str, ...]:
     for name, comps in structure.arrays:
         names += [f"F_{ax}{name}" for ax in comps]
     return tuple(names)
+
+
+def box_principal_moments(mass: Any, length: Any, width: Any, height: Any
+                          ) -> tuple[Any, Any, Any]:
+    """Principal moments about the centre of a uniform box (numbers or SymPy expressions),
+    vehicle.inertia_cg = "box": m/12 (w^2 + h^2), m/12 (l^2 + h^2), m/12 (l^2 + w^2) about x
+    (the length), y (the width) and z (the height)."""
+    return (mass * (width**2 + height**2) / 12, mass * (length**2 + height**2) / 12,
+            mass * (length**2 + width**2) / 12)
+
+
+def explicit_inertia(param_names: Sequence[str]) -> bool:
+    """Whether the parameter vector holds the inertia tensor (else the box's dimensions)."""
+    return "vehicle.inertia_cg.xx" in param_names

@@ -179,7 +179,9 @@ class Gains:
         (5, 10) the same law on the reduced state; NaN where the coupled LQR's Riccati
         equation has no stabilizing solution.
     allocation : numpy.ndarray
-        T (n_array_forces, 5).
+        T (n_array_forces, 5) of the parameter file's ``control.actuators``: (10, 5) for the
+        paper's y and z forces (eqs 22-23), (6, 5) for one force along each normal (then of
+        rank 4 with the LLNL geometry: the pseudoinverse of E).
     poles : numpy.ndarray
         The ten closed-loop poles [1/s] of the reduced linearisation with this controller:
         the eigenvalues ``Carriage.envelope`` judges.
@@ -411,7 +413,8 @@ class Carriage:
 
     @property
     def input_names(self) -> tuple[str, ...]:
-        """F_prop and the force component of each array (F_y1, F_z1, ...) [N]."""
+        """F_prop and the force component of each array [N]: F_y1, F_z1, ... (eqs 22-23,
+        control.actuators = "paper") or F_n1, ... along the normals ("normal")."""
         from .derive.structure import input_names_of
 
         return tuple(input_names_of(self._carriage.structure))

@@ -27,7 +27,8 @@ if TYPE_CHECKING:  # the symbolic layers are imported when first used: running t
 
 def structure_of(params: Parameters) -> Structure:
     """The structure of a validated parameter set (what the derivation depends on)."""
-    arrays = tuple((name, control_components(arr.normal)) for name, arr in params.arrays.items())
+    arrays = tuple((name, control_components(arr.normal, params.control.actuators))
+                   for name, arr in params.arrays.items())
     return Structure(tuple(e.name for e in flatten(params)), arrays)
 
 

@@ -132,7 +132,8 @@ def effectiveness(carriage: Carriage) -> np.ndarray:
     """E (5 x n_array_forces): generalized forces about O from the array control forces."""
     arrays = list(carriage.params.arrays.values())
     comps = [c for _, c in carriage.structure.arrays]
-    E = control_effectiveness([sp.Matrix(a.position) for a in arrays], comps)
+    E = control_effectiveness([sp.Matrix(a.position) for a in arrays], comps,
+                              [sp.Matrix(a.normal) for a in arrays])
     return np.array(E.evalf(), dtype=float)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .cache import DEFAULT_PARAMS_NAME, params_digest
+from .derive.structure import box_principal_moments
 from .errors import InputError
 
 if sys.version_info >= (3, 11):
@@ -109,15 +110,63 @@ class Inertia(_Section):
         )
 
 
+INERTIA_BOX = "box"
+# the box's dimensions: in the parameter vector only where inertia_cg = "box" uses them
+BOX_DIMENSIONS = ("width", "height")
+
+
 class Vehicle(_Section):
     mass: float = _f("kg", "carriage mass", paper="9.3 kg",
                      limits=(1e-3, 1e6, "a gram-scale model to a 1000 t train"))
     length: float = _f("m", "carriage (cradle) length", paper="65 cm", limits=(1e-3, 1e3, _SIZE))
-    inertia_cg: Inertia
+    inertia_cg: Inertia | str = Field(
+        description="the inertia tensor about the CG: a table (xx, yy, zz, xy, xz, yz) given "
+        f"explicitly, or \"{INERTIA_BOX}\": a uniform box of the mass, length, width and "
+        "height, I = m/12 diag(w^2 + h^2, l^2 + h^2, l^2 + w^2), which follows the mass",
+        json_schema_extra={"unit": "kg*m^2", "choices": ["a table", INERTIA_BOX]})
+    width: float | None = Field(default=None, description="carriage width (body y), for "
+                                "inertia_cg = \"box\"", json_schema_extra={
+                                    "unit": "m", "limits": [1e-3, 1e3, _SIZE]})
+    height: float | None = Field(default=None, description="carriage height (body z), for "
+                                 "inertia_cg = \"box\"", json_schema_extra={
+                                     "unit": "m", "limits": [1e-3, 1e3, _SIZE]})
     cg_offset: Vec3 = _f("m", "r_G: centre of gravity relative to the body origin O, body axes",
                          limits=_OFFSET)
     gravity: float = _f("m/s^2", "gravitational acceleration",
                         limits=(0.1, 100.0, "a small moon's 0.1 to a 10 g test rig"))
+
+    @field_validator("inertia_cg", mode="before")
+    @classmethod
+    def _inertia_table_or_box(cls, value: Any) -> Any:
+        if isinstance(value, str) and value != INERTIA_BOX:
+            raise ValueError(f"expected a table (xx, yy, zz, xy, xz, yz) or \"{INERTIA_BOX}\"")
+        return value
+
+    @model_validator(mode="after")
+    def _box_dimensions(self) -> Vehicle:
+        if self.inertia_cg == INERTIA_BOX:
+            for dim in BOX_DIMENSIONS:
+                if getattr(self, dim) is None:
+                    raise _ModelError(dim, "(missing)", f"inertia_cg = \"{INERTIA_BOX}\" "
+                                      "computes the inertia from the length, width and height")
+        return self
+
+    @property
+    def box(self) -> bool:
+        """Whether the inertia is the uniform box's (computed from the mass)."""
+        return self.inertia_cg == INERTIA_BOX
+
+    def unused_fields(self) -> tuple[str, ...]:
+        """Fields outside the parameter vector: the box's dimensions with an explicit tensor,
+        the tensor's table with the box."""
+        return ("inertia_cg",) if self.box else BOX_DIMENSIONS
+
+    def inertia_matrix(self) -> np.ndarray:
+        """I about the CG, body axes: the table's, or the uniform box's (box_inertia)."""
+        if isinstance(self.inertia_cg, Inertia):
+            return self.inertia_cg.matrix()
+        return np.diag(box_principal_moments(self.mass, self.length, float(self.width or 0),
+                                   float(self.height or 0)))
 
 
 class Halbach(_Section):
@@ -175,11 +224,27 @@ class Operation(_Section):
                                 limits=_OFFSET)
 
 
+# the array control forces: eqs 22-23's body y and z components, or one along each normal
+ACTUATOR_MODELS = ("paper", "normal")
+
+
 class Control(_Section):
     state_weights: Annotated[list[float], Field(min_length=2, max_length=2)] = _f(
         "1", "diagonal of Q per axis: [position, rate] (paper: Q = I)", paper="Q = I",
         limits=_WEIGHT)
     input_weight: float = _f("1", "R per axis (paper: R = 1)", paper="R = 1", limits=_WEIGHT)
+    actuators: str = Field(
+        default="paper", description="the array control forces: \"paper\" gives each array a "
+        "force along body z and each array whose normal has a y part one along body y too "
+        "(eqs 22-23); \"normal\" one force along each array's normal (what an array can push)",
+        json_schema_extra={"unit": "-", "choices": list(ACTUATOR_MODELS)})
+
+    @field_validator("actuators")
+    @classmethod
+    def _known_actuators(cls, name: str) -> str:
+        if name not in ACTUATOR_MODELS:
+            raise ValueError(f"expected one of {', '.join(ACTUATOR_MODELS)}")
+        return name
 
     @field_validator("state_weights")
     @classmethod
@@ -374,9 +439,10 @@ class Parameters(_Section):
 
     @model_validator(mode="after")
     def _physical_inertia(self) -> Parameters:
-        eig = np.linalg.eigvalsh(self.vehicle.inertia_cg.matrix())
         i = self.vehicle.inertia_cg
-        value = f"[xx={i.xx:g}, yy={i.yy:g}, zz={i.zz:g}, xy={i.xy:g}, xz={i.xz:g}, yz={i.yz:g}]"
+        eig = np.linalg.eigvalsh(self.vehicle.inertia_matrix())
+        value = ("" if isinstance(i, str) else  # a box's moments are physical by construction
+                 f"[xx={i.xx:g}, yy={i.yy:g}, zz={i.zz:g}, xy={i.xy:g}, xz={i.xz:g}, yz={i.yz:g}]")
         if eig[0] <= 0:
             raise _ModelError("vehicle.inertia_cg", value, "is not positive definite "
                               f"(principal moments {', '.join(f'{e:.4g}' for e in eig)})")
@@ -389,8 +455,9 @@ class Parameters(_Section):
                 raise _ModelError(f"arrays.{name}.nominal_gap", f"{arr.nominal_gap:g}",
                                   f"is not above track.min_gap = {self.track.min_gap:g}")
         self._tolerances_within_limits()
-        keys = [lf.key for lf in schema_leaves(self)] + [f"envelope.{f}"
-                                                          for f in Envelope.model_fields]
+        keys = [lf.key for lf in schema_leaves(self)] + [
+            f"{t}.{f}" for t, m in (("envelope", Envelope), ("vehicle", Vehicle),
+                                    ("control", Control)) for f in m.model_fields]
         for key in self.provenance:
             if not any(k == key or k.startswith(key + ".") for k in keys):
                 raise _ModelError("provenance", _short(key), "names no parameter or table")
@@ -551,9 +618,11 @@ def validate(data: dict[str, Any], origin: str) -> Parameters:
         err = exc.errors(include_url=False)[0]
         ctx_err = (err.get("ctx") or {}).get("error")
         if isinstance(ctx_err, _ModelError):
-            key = _format_loc([*err["loc"], ctx_err.key])
+            key = _format_loc([p for p in [*err["loc"], ctx_err.key] if p != "Inertia"])
             raise InputError(f"{origin}: {key} = {ctx_err.value}: {ctx_err.reason}") from None
         loc = [p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-"))]
+        if loc[:2] == ["vehicle", "inertia_cg"] and loc[2:3] in (["Inertia"], ["str"]):
+            del loc[2]  # the member of ``Inertia | str`` pydantic names
         key = _format_loc(loc) or "(top level)"
         msg = err["msg"]
         if err["type"] == "missing":
@@ -628,10 +697,13 @@ class SchemaLeaf:
 
 def schema_leaves(obj: BaseModel, prefix: str = "") -> Iterator[SchemaLeaf]:
     """Every leaf field in file order (vectors as one leaf); the one walk over the schema."""
+    unused = obj.unused_fields() if isinstance(obj, Vehicle) else ()
     for field, info in type(obj).model_fields.items():
-        if not prefix and field in NOT_IN_MODEL:
+        if (not prefix and field in NOT_IN_MODEL) or field in unused:
             continue
         value = getattr(obj, field)
+        if isinstance(value, str):
+            continue  # a choice (control.actuators): it selects the model, no number of it
         key = f"{prefix}{field}"
         if isinstance(value, BaseModel):
             yield from schema_leaves(value, key + ".")
@@ -680,6 +752,10 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
                              "or table) comes from", "", "source = paper or assumed, and why"))
             elif isinstance(ann, type) and issubclass(ann, BaseModel):
                 walk(ann, name + ".")
+            elif model is Vehicle and field == "inertia_cg":
+                rows.append((name, "", info.description or "", "",
+                             f"a table, or \"{INERTIA_BOX}\""))
+                walk(Inertia, name + ".")
             elif model is Tolerances and field in ("parameters", "disturbance"):
                 extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
                 if field == "disturbance":
@@ -750,17 +826,26 @@ def _leaf_limits(entry: str) -> tuple[float, float, str]:
         if model is Array and info is None and part not in Array.model_fields:
             continue  # the array's name
         info = model.model_fields[part]
-        if isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel):
-            model, info = info.annotation, None
+        table = _table_of(info.annotation)
+        if table is not None:
+            model, info = table, None
     lo, hi, why = info.json_schema_extra["limits"]
     return float(lo), float(hi), str(why)
+
+
+def _table_of(ann: Any) -> type[BaseModel] | None:
+    """The table type of a field's annotation (``Inertia`` of ``Inertia | str``), or None."""
+    for tp in (ann, *get_args(ann)):
+        if isinstance(tp, type) and issubclass(tp, BaseModel):
+            return tp
+    return None
 
 
 def _model_field(key: str) -> Any:
     model: Any = Parameters
     *path, last = key.split(".")
     for part in path:
-        model = model.model_fields[part].annotation
+        model = _table_of(model.model_fields[part].annotation)
     return model.model_fields[last]
 
 

@@ -158,7 +158,7 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
                   + f"; {m['steps']} steps of {m['dt']:g} s to t = {m['t_end']:g} s; smallest "
                   f"gap {m['min_gap'] * 1e3:.3f} mm; speed {m['speed_start']:.4f} -> "
                   f"{m['speed_end']:.4f} m/s; RMS array control force "
-                  f"{m['rms_array_force']:.4g} N.", "",
+                  f"{m['rms_array_force']:.4g} N" + _peak_forces(m) + ".", "",
                   "| axis | settling time [s] | peak deviation | final deviation | "
                   "RMS control force/moment |", "| --- | --- | --- | --- | --- |"]
         for axis, a in m["axes"].items():
@@ -212,6 +212,13 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
         fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
         plt.close(fig)
     return buf.getvalue()
+
+
+def _peak_forces(m: dict) -> str:
+    """'; peak array force 3: 1.2 N, ...' of a run's metrics ('' without them)."""
+    peaks = m.get("peak_array_force") or {}
+    return ("; peak array control force " + ", ".join(f"{a}: {f:.4g} N" for a, f in
+                                                      peaks.items())) if peaks else ""
 
 
 def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],

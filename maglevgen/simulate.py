@@ -99,6 +99,7 @@ class Trajectory:
     disturbance: dict[str, float] = field(default_factory=dict)
     scenario: str = "hold"
     equilibrium: np.ndarray | None = None  # (n, 5) trim axis positions at each sample's speed
+    input_names: tuple[str, ...] = ()  # F_prop, F_<axis><array>...: groups u by array
 
     @property
     def speed(self) -> np.ndarray:
@@ -118,10 +119,18 @@ class Trajectory:
 
     @property
     def generalized_forces(self) -> np.ndarray:
-        """(n, 5) u_gen produced by the array control forces: E F with E = (T^T T)^-1 T^T."""
-        T = self.op.allocation
-        E = np.linalg.solve(T.T @ T, T.T)
-        return self.u[:, 1:] @ E.T
+        """(n, 5) u_gen produced by the array control forces: E F with E = pinv(T) (T = E's
+        pseudoinverse, of rank 4 with the paper's geometry's normal actuators)."""
+        return self.u[:, 1:] @ np.linalg.pinv(self.op.allocation).T
+
+    @property
+    def array_forces(self) -> dict[str, np.ndarray]:
+        """(n,) magnitude of each array's control force [N]: |(F_y, F_z)| of eqs 22-23's
+        components, |F_n| along the normal; by array name (empty without input_names)."""
+        groups: dict[str, list[int]] = {}
+        for j, name in enumerate(self.input_names[1:], start=1):
+            groups.setdefault(name[3:], []).append(j)  # F_<axis><array>
+        return {a: np.linalg.norm(self.u[:, cols], axis=1) for a, cols in groups.items()}
 
     @property
     def growth_rate(self) -> float | None:
@@ -353,6 +362,7 @@ def metrics(traj: Trajectory) -> dict:
         "speed_start": float(speed[0]), "speed_end": float(speed[-1]),
         "speed_at_contact": float(speed[-1]) if traj.status == "contact" else None,
         "rms_array_force": float(np.sqrt(np.mean(traj.u[:, 1:] ** 2))),
+        "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
         "axes": axes,
     }
 
@@ -445,5 +455,7 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     embedded = carriage.params.envelope.embedded_controller
     mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,
                       embedded if embedded in controllers else controllers[0])
-    return SimulationRun(op, tuple(trajs), limits[worst], input_names_of(carriage.structure),
-                         growth, scenario, v_end, mode)
+    names = input_names_of(carriage.structure)
+    for traj in trajs:
+        traj.input_names = names
+    return SimulationRun(op, tuple(trajs), limits[worst], names, growth, scenario, v_end, mode)

@@ -32,13 +32,14 @@ from ..report_figures import force_figures, pole_map
 from ..summary import gains_report, trim_point, trim_report  # the CLI's numbers, from the C
 from ..version import __version__
 from .latex import LatexBuild, latex_env
+from .sections.actuators import _actuator_comparison
 from .sections.conventions import _conventions
 from .sections.damping import _damping_allocation
 from .sections.envelope import ENVELOPE_FIGURE, _envelope, _envelope_checks, _envelope_context
 from .sections.force_law import _force_law, force_curves
 from .sections.geometry import _geometry
 from .sections.paper import _paper_comparison
-from .sections.parameters import parameter_rows
+from .sections.parameters import model_choices, parameter_rows
 from .sections.poles import POLE_FIGURE, pole_sets
 from .sections.riccati import _riccati
 from .sections.rigid_body import _rigid_body
@@ -127,6 +128,7 @@ def build_context(
         force = _force_law(carriage, trim, trep)
         rigid = _rigid_body()
         alloc = _damping_allocation(gains)
+        alloc["actuators"] = _actuator_comparison(carriage, progress)
         sections = {
             "conventions": _conventions(carriage.model),
             "rigid_body": rigid,
@@ -164,6 +166,7 @@ def build_context(
         "parameters": {
             "rows": rows,
             "notes": notes,
+            "choices": model_choices(loaded.params),
             "B0": force["B0_value"],
             "B0_paper": force["B0_paper"],
             "B0_rel": force["B0_rel"],

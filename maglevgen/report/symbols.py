@@ -20,6 +20,8 @@ def display_symbol(name: str) -> sp.Symbol:
     fixed = {
         "vehicle.mass": "m",
         "vehicle.length": r"\ell",
+        "vehicle.width": r"w_c",
+        "vehicle.height": r"h_c",
         "vehicle.gravity": "g",
         "halbach.remanence": "B_r",
         "halbach.thickness": "d",

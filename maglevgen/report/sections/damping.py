@@ -32,7 +32,11 @@ def _damping_allocation(gains: dict) -> dict[str, Any]:
         "axes": axes,
         "E": matrix_tex(E, lambda v: fnum(v, 4)),
         "T": matrix_tex(T, lambda v: fnum(v, 4)),
-        "E_T_residual": float(np.max(np.abs(E @ T - np.eye(E.shape[0])))),
+        # E T = I where every u is reachable; else the Penrose condition E T E = E
+        "full_rank": bool(np.linalg.matrix_rank(E) == E.shape[0]),
+        "E_T_residual": float(np.max(np.abs(E @ T - np.eye(E.shape[0])))
+                              if np.linalg.matrix_rank(E) == E.shape[0]
+                              else np.max(np.abs(E @ T @ E - E))),
         "T_pinv_residual": float(np.max(np.abs(T - np.linalg.pinv(E)))),
         # F_<axis><array name>: the name escaped, the axis a subscript as sympy prints F_y3
         "forces": [ltx(sp.Symbol(f"F_{{{f[2]}{tex_escape(f[3:])}}}")) for f in alloc["forces"]],

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 
 from ...params import schema_leaves
 from ..symbols import display_key_symbol
@@ -106,3 +109,11 @@ def parameter_rows(loaded) -> tuple[list[ParamRow], list[Note]]:
         rows.append(ParamRow(lf.key, display_key_symbol(lf.key), lf.values, lf.unit,
                              lf.description, source, lf.paper, idx, override))
     return rows, used
+
+
+def model_choices(params) -> dict[str, Any]:
+    """The file's choices that are no number of the parameter vector: where the inertia comes
+    from (vehicle.inertia_cg: a table, or "box" with its moments) and control.actuators."""
+    v = params.vehicle
+    return {"inertia_box": v.box, "inertia_diag": [float(d) for d in np.diag(v.inertia_matrix())],
+            "actuators": params.control.actuators}

@@ -158,7 +158,9 @@ def _verification(
             float(rigid["exact_residual_nonzero"]),
             0.0,
         ),
-        Check("Allocation: $E\\,T - I$", "zero", alloc["E_T_residual"], 1e-12),
+        Check("Allocation: $E\\,T - I$" if alloc["full_rank"] else
+              "Allocation: $E\\,T\\,E - E$ ($E$ rank deficient)", "zero",
+              alloc["E_T_residual"], 1e-12),
         Check(
             "Allocation: $T$ from the Lagrangian vs $E^{+}$",
             "numpy pinv",

@@ -1,0 +1,86 @@
+"""Section part: the two actuator models (control.actuators) side by side, in the damping and
+allocation section: each one's E and T from its generated C, and the peak array control
+forces of the same closed-loop runs (the hold of `maglevgen simulate`) under each."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import sympy as sp
+
+from ...carriage import Carriage
+from ...library import simulation_library
+from ...params import ACTUATOR_MODELS, LoadedParams
+from ...simulate import metrics, run_scenarios
+from ..display import ltx, matrix_tex
+from ..format import fnum, tex_escape
+
+# the runs compared: `maglevgen simulate`'s hold (its default length and step) per controller
+# that applies forces
+RUN_CONTROLLERS = ("damping", "lqr", "coupled")
+RUN_T_END, RUN_DT = 10.0, 1e-3
+
+ACTUATOR_TEXT = {
+    "paper": "eqs 22--23: a body-$z$ force on every array and an independent body-$y$ force on "
+             "each array whose normal has a $y$ part (the lower 45-degree arrays)",
+    "normal": "one force along each array's normal, all a real array can push with",
+}
+
+
+def with_actuators(carriage, actuators: str):
+    """The same carriage with another actuator model (its parameters otherwise unchanged)."""
+    if carriage.params.control.actuators == actuators:
+        return carriage
+    params = carriage.params.model_copy(update={
+        "control": carriage.params.control.model_copy(update={"actuators": actuators})})
+    loaded = carriage.loaded
+    return Carriage(LoadedParams(params, loaded.source, loaded.sha256,
+                                 (*loaded.overrides, f'control.actuators="{actuators}"')))
+
+
+def _actuator_comparison(carriage, progress: Callable[[str], None]) -> dict[str, Any]:
+    """E, T, rank and peak array forces of every actuator model, from their generated C."""
+    models = []
+    peaks: dict[str, dict[str, dict]] = {}
+    arrays: list[str] = list(carriage.params.arrays)
+    for name in ACTUATOR_MODELS:
+        progress(f"report: actuator model {name!r} (its library and runs)")
+        c = with_actuators(carriage, name)
+        lib = simulation_library(c.structure, progress=progress)
+        (E,) = lib.function("maglev_effectiveness")(c.p)
+        (T,) = lib.function("maglev_allocation_matrix")(c.p)
+        E, T = np.asarray(E), np.asarray(T)
+        rank = int(np.linalg.matrix_rank(E))
+        forces = c.model.input_names[1:]
+        models.append({
+            "name": name, "text": ACTUATOR_TEXT[name], "selected": c is carriage,
+            "forces": [ltx(sp.Symbol(f"F_{{{f[2]}{tex_escape(f[3:])}}}")) for f in forces],
+            "n_forces": len(forces), "rank": rank,
+            "E": matrix_tex(E, lambda v: fnum(v, 4)), "T": matrix_tex(T, lambda v: fnum(v, 4)),
+            "T_pinv_residual": float(np.max(np.abs(T - np.linalg.pinv(E)))),
+            "lost": _lost_direction(E) if rank < E.shape[0] else None,
+        })
+        run = run_scenarios(c, RUN_CONTROLLERS, RUN_T_END, RUN_DT, lib=lib)
+        for traj in run.trajectories:
+            m = metrics(traj)
+            peaks.setdefault(traj.controller, {})[name] = {
+                "status": m["status"], "roll": fnum(m["axes"]["roll"]["peak_deviation"], 3),
+                "forces": [fnum(m["peak_array_force"][a], 4) for a in arrays]}
+    return {"models": models, "arrays": [tex_escape(a) for a in arrays],
+            "runs": [{"controller": k, **v} for k, v in peaks.items()],
+            "t_end": RUN_T_END, "dt": RUN_DT, "speed": carriage.params.operation.speed}
+
+
+def _lost_direction(E: np.ndarray) -> dict[str, Any]:
+    """The generalized-force combination w^T u no array force makes (w^T E = 0), scaled to a
+    unit roll entry; where w involves only u_y and u_phi, the height z0 of the x axis about
+    which the roll moment u_phi + z0 u_y is lost (every line of action meets that axis)."""
+    w = scipy.linalg.null_space(E.T)[:, 0]
+    k = int(np.argmax(np.abs(w)))
+    w = w / (w[2] if abs(w[2]) > 1e-9 else w[k])
+    only_y_roll = bool(np.all(np.abs(w[[1, 3, 4]]) < 1e-9))
+    return {"w": matrix_tex(w[None, :], lambda v: fnum(v, 4)),
+            "z0": float(w[0]) if only_y_roll and abs(w[2]) > 0 else None}
