@@ -151,6 +151,8 @@ def test_generated_c_operating_point_equals_references(carriage: Carriage, op,
 # stable form cancels catastrophically (sigma - k for k >> 0, sigma + k for k << 0).
 GAIN_POINTS = [(s * k, m, q1, 1.0, r) for s in (1, -1) for k in (1e-3, 0.7, 40.0, 3e3, 1e7)
                for m in (1e-3, 9.3, 1e4) for q1, r in ((1.0, 1.0), (4.0, 0.01))]
+# |k| < 1 with a small q1/r: the wrong branch cancels there too (the switch is at k = 0, not 1).
+GAIN_POINTS += [(s * k, 9.3, 1e-6, 1.0, 1.0) for s in (1, -1) for k in (0.3, 0.7)]
 
 
 @pytest.fixture(scope="module")
