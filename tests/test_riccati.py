@@ -208,3 +208,27 @@ def test_paper_eq31_has_no_degenerate_solution_case():
     r12 = sp.lambdify(m, res[0, 1].subs(k, 1), "mpmath")
     with mpmath.workdps(30):
         assert all(abs(r12(mpmath.mpf(v))) > 1e-6 for v in np.logspace(-3, 4, 15))
+
+
+def test_defaults_are_the_papers_weights():
+    """Weights left out are the paper's Q = I, R = 1 (eq 25), for the mpmath forms and the
+    numpy one alike; the accuracy sweep carries those weights over m in [1e-3, 1e4] and |k| in
+    [1e-3, 1e7] (a point a decade, 8 masses x 11 stiffnesses), both signs of k."""
+    from independent_reference import lqr_reference_mp
+
+    k, m = -37.5, 2.5
+    K_ref, P_ref = lqr_reference_mp(k, m, 1.0, 1.0, 1.0, dps=60)
+    with mpmath.workdps(60):
+        K, P = rc.lqr_gain_mp(k, m), rc.riccati_solution_mp(k, m)
+        assert all(abs(a - b) < mpmath.mpf(10) ** -45 * abs(b) for a, b in zip(K, K_ref, strict=True))
+        tol = mpmath.mpf(10) ** -45
+        assert mpmath.mnorm(P - P_ref, "inf") < tol * mpmath.mnorm(P_ref, "inf")
+    K_num = rc.lqr_gain_numeric(k, m)
+    assert K_num.dtype == np.float64
+    np.testing.assert_allclose(K_num, [float(x) for x in K_ref], rtol=1e-14)
+    sweep = rc.default_sweep()
+    assert {pt[2:] for pt in sweep} == {(1.0, 1.0, 1.0)} and len(sweep) == 8 * 11 * 2
+    ks, ms = np.array([pt[0] for pt in sweep]), np.array([pt[1] for pt in sweep])
+    assert (np.abs(ks).min(), np.abs(ks).max(), ms.min(), ms.max()) == \
+        pytest.approx((1e-3, 1e7, 1e-3, 1e4), rel=1e-12)
+    assert sorted(ks[ks > 0]) == pytest.approx(sorted(-ks[ks < 0]), rel=0)
