@@ -220,8 +220,8 @@ def test_defaults_are_the_papers_weights():
     K_ref, P_ref = lqr_reference_mp(k, m, 1.0, 1.0, 1.0, dps=60)
     with mpmath.workdps(60):
         K, P = rc.lqr_gain_mp(k, m), rc.riccati_solution_mp(k, m)
-        assert all(abs(a - b) < mpmath.mpf(10) ** -45 * abs(b) for a, b in zip(K, K_ref, strict=True))
         tol = mpmath.mpf(10) ** -45
+        assert all(abs(a - b) < tol * abs(b) for a, b in zip(K, K_ref, strict=True))
         assert mpmath.mnorm(P - P_ref, "inf") < tol * mpmath.mnorm(P_ref, "inf")
     K_num = rc.lqr_gain_numeric(k, m)
     assert K_num.dtype == np.float64
