@@ -232,3 +232,21 @@ def test_defaults_are_the_papers_weights():
     assert (np.abs(ks).min(), np.abs(ks).max(), ms.min(), ms.max()) == \
         pytest.approx((1e-3, 1e7, 1e-3, 1e4), rel=1e-12)
     assert sorted(ks[ks > 0]) == pytest.approx(sorted(-ks[ks < 0]), rel=0)
+
+
+def test_residual_of_float_arrays_equals_eq28_written_here():
+    """The numpy branch of riccati_residual: zero at scipy's CARE solution, and at any other
+    symmetric P the four terms of eq 28 written out here with numpy."""
+    rng = np.random.default_rng(5)
+    k, m, q1, q2, r = -40.0, 2.0, 3.0, 0.5, 0.2
+    A, B = np.array([[0.0, 1.0], [-k / m, 0.0]]), np.array([[0.0], [1.0 / m]])
+    Q, R = np.diag([q1, q2]), np.array([[r]])
+    P = scipy.linalg.solve_continuous_are(A, B, Q, R)
+    scale = np.abs(A.T @ P).max() + np.abs(Q).max()
+    assert np.abs(rc.riccati_residual(A, B, Q, R, P)).max() < 1e-12 * scale
+    X = rng.normal(size=(2, 2))
+    P = X + X.T
+    expected = A.T @ P + P @ A - P @ B @ B.T @ P / r + Q
+    np.testing.assert_allclose(rc.riccati_residual(A, B, Q, R, P), expected, rtol=1e-13)
+    np.testing.assert_allclose(rc.riccati_residual(A.tolist(), B, Q, [[r]], P), expected,
+                               rtol=1e-13)  # nested lists are arrays too
