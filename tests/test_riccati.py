@@ -250,3 +250,28 @@ def test_residual_of_float_arrays_equals_eq28_written_here():
     np.testing.assert_allclose(rc.riccati_residual(A, B, Q, R, P), expected, rtol=1e-13)
     np.testing.assert_allclose(rc.riccati_residual(A.tolist(), B, Q, [[r]], P), expected,
                                rtol=1e-13)  # nested lists are arrays too
+
+
+def test_closed_loop_poles_equal_eigenvalues_of_control_lqr():
+    """The poles riccati_closed_form returns are those of A - B K (python-control's lqr)."""
+    for k, m, q1, q2, r in [(2000.0, 9.3, 1.0, 1.0, 1.0), (-40.0, 2.0, 3.0, 0.5, 0.2)]:
+        A, B = np.array([[0.0, 1.0], [-k / m, 0.0]]), np.array([[0.0], [1.0 / m]])
+        _, _, eig = control.lqr(A, B, np.diag([q1, q2]), np.array([[r]]))
+        g = rc.riccati_closed_form(*(sp.Float(x) for x in (k, m, q1, q2, r)))
+        poles = sorted((complex(sp.N(p)) for p in g.poles), key=lambda z: (z.real, z.imag))
+        ref = sorted(np.asarray(eig, dtype=complex), key=lambda z: (z.real, z.imag))
+        np.testing.assert_allclose(poles, ref, rtol=1e-9)
+
+
+@pytest.mark.parametrize("pt", [(1e15, 1.0, 1.0, 1.0, 1.0), (1e9, 1.0, 1.0, 1.0, 1e6),
+                                (1e5, 1.0, 1e-10, 1.0, 1.0)])
+def test_mp_gain_keeps_the_digits_asked_for_under_cancellation(pt):
+    """lqr_gain_mp's promise, dps correct digits, where sigma - k cancels log10(k^2 r/q1)
+    digits (24 to 30 here), against the hand-solved ARE at 100 digits."""
+    from independent_reference import lqr_reference_mp
+
+    K_ref, _ = lqr_reference_mp(*pt, dps=100)
+    K = rc.lqr_gain_mp(*pt, dps=20)
+    with mpmath.workdps(100):
+        for a, b in zip(K, K_ref, strict=True):
+            assert abs(a - b) < mpmath.mpf(10) ** -20 * abs(b), (pt, a, b)
