@@ -275,3 +275,15 @@ def test_mp_gain_keeps_the_digits_asked_for_under_cancellation(pt):
     with mpmath.workdps(100):
         for a, b in zip(K, K_ref, strict=True):
             assert abs(a - b) < mpmath.mpf(10) ** -20 * abs(b), (pt, a, b)
+
+
+def test_relative_residual_keeps_sympy_entries_to_working_precision():
+    """SymPy entries (radicals of the exact P) are read at the caller's mpmath precision: at 40
+    digits the exact solution's eq 28 residual is at the 40-digit rounding level."""
+    k, m = sp.Integer(2000), sp.Rational("9.3")
+    s = sp.sqrt(k**2 + 1)  # the hand solution: K1 = s - k, K2 = sqrt(2 m K1 + 1), P = m K ...
+    K1, K2 = s - k, sp.sqrt(2 * m * (s - k) + 1)
+    P = sp.Matrix([[K2 * s, m * K1], [m * K1, m * K2]])
+    A, B = sp.Matrix([[0, 1], [-k / m, 0]]), sp.Matrix([[0], [1 / m]])
+    with mpmath.workdps(40):
+        assert rc.riccati_relative_residual(A, B, sp.eye(2), sp.Matrix([[1]]), P) < 1e-38
