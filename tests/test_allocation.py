@@ -32,6 +32,21 @@ def test_layout_columns_and_rank(paper_E):
     assert list(paper_E[:, 1]) == [0, 1, sp.Rational("0.09"), sp.Rational("-0.26"), 0]
 
 
+def test_paper_effectiveness_equals_cross_products(paper_E):
+    """Every column of E against (e_y, e_z, r x e) with r the paper's array positions, typed
+    here (m): arrays 1, 2 front lower at x = +0.26, y = +/-0.09, z = -0.119; 3 front upper on
+    the centre line at z = -0.03; 4, 5 and 6 the same at the rear, x = -0.26 (eqs 8-12)."""
+    positions = {1: (0.26, 0.09, -0.119), 2: (0.26, -0.09, -0.119), 3: (0.26, 0.0, -0.03),
+                 4: (-0.26, 0.09, -0.119), 5: (-0.26, -0.09, -0.119), 6: (-0.26, 0.0, -0.03)}
+    unit = {"y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
+    columns = []
+    for name in ("F_y1", "F_z1", "F_y2", "F_z2", "F_z3", "F_y4", "F_z4", "F_y5", "F_z5", "F_z6"):
+        e = unit[name[2]]
+        columns.append([e[1], e[2], *np.cross(positions[int(name[3])], e)])
+    np.testing.assert_allclose(np.array(paper_E, dtype=float), np.array(columns).T,
+                               rtol=0, atol=1e-15)
+
+
 def test_equals_numpy_pinv(paper_E, paper_T):
     T_np = np.linalg.pinv(np.array(paper_E, dtype=float))
     np.testing.assert_allclose(np.array(paper_T, dtype=float), T_np, rtol=1e-12, atol=1e-12)

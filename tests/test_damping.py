@@ -25,14 +25,14 @@ def _cost_lyapunov(c: float, k: float, m: float) -> float:
     return float(P[0, 0])
 
 
-def _cost_integrated(c: float, k: float, m: float) -> float:
-    """J by integrating the free response and the running cost x^2."""
+def _cost_integrated(c: float, k: float, m: float, x0: float) -> float:
+    """J by integrating the free response from (x0, 0) and the running cost x^2."""
     def rhs(_t, s):
         x, v, _ = s
         return [v, -(c * v + k * x) / m, x * x]
 
     t_end = 40.0 * max(m / c, c / k)  # many times the slowest time constant
-    sol = scipy.integrate.solve_ivp(rhs, (0.0, t_end), [1.0, 0.0, 0.0], method="LSODA",
+    sol = scipy.integrate.solve_ivp(rhs, (0.0, t_end), [x0, 0.0, 0.0], method="LSODA",
                                     rtol=1e-10, atol=1e-14)
     return float(sol.y[2, -1])
 
@@ -52,9 +52,11 @@ def test_gain_minimizes_lyapunov_cost(k, m):
 def test_cost_formula_matches_integration(k, m):
     for factor in (0.3, 1.0, 3.0):
         c = factor * np.sqrt(k * m)
-        J_sym = float(damping.square_error_cost(sp.Float(c), sp.Float(k), sp.Float(m), 1))
-        assert J_sym == pytest.approx(_cost_integrated(c, k, m), rel=1e-6)
-        assert J_sym == pytest.approx(_cost_lyapunov(c, k, m), rel=1e-10)
+        x0 = 0.3  # not 1: the cost's x0^2 factor is checked too
+        J_sym = float(damping.square_error_cost(sp.Float(c), sp.Float(k), sp.Float(m),
+                                                sp.Float(x0)))
+        assert J_sym == pytest.approx(_cost_integrated(c, k, m, x0), rel=1e-6)
+        assert J_sym == pytest.approx(x0**2 * _cost_lyapunov(c, k, m), rel=1e-10)
 
 
 def test_optimal_damping_ratio_is_one_half():

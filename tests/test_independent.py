@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import sympy as sp
 from independent_reference import (
+    array_state,
     external_wrench,
     generalized_mass,
     ise_optimal_damping,
@@ -67,6 +68,22 @@ def test_trim_equals_root_of_eq3_and_static_balance(carriage: Carriage, heavy: C
         np.testing.assert_allclose(trim.drag, ref.arrays.drag, rtol=1e-9)
         # the trim state moves at the speed along the track (inertial x)
         assert trim.x[0] == 0 and np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
+
+
+def test_heave_range_equals_gap_limits_written_here(carriage: Carriage, heavy: Carriage) -> None:
+    """The trim's heave bracket: at zero attitude each gap is linear in z (slope n_z, from the
+    reference gaps at z = 0 and 1 mm); the range keeping every gap >= track.min_gap, solved
+    here, is the one the solver brackets the vertical balance in."""
+    from maglevgen.derive.trim import _heave_limits
+
+    for c in (carriage, heavy):
+        min_gap, speed = c.params.track.min_gap, c.params.operation.speed
+        g0 = array_state(c.params, np.zeros(5), speed).gaps
+        slope = (array_state(c.params, np.array([0, 1e-3, 0, 0, 0]), speed).gaps - g0) / 1e-3
+        bounds = (min_gap - g0) / slope
+        z_ref = (bounds[slope > 0].max(), bounds[slope < 0].min())
+        np.testing.assert_allclose(_heave_limits(c.functions, c.p, min_gap), z_ref,
+                                   rtol=0, atol=1e-12)
 
 
 def test_full_axis_stiffness_equals_central_difference(carriage: Carriage,
@@ -151,6 +168,8 @@ def test_generated_c_operating_point_equals_references(carriage: Carriage, op,
 # stable form cancels catastrophically (sigma - k for k >> 0, sigma + k for k << 0).
 GAIN_POINTS = [(s * k, m, q1, 1.0, r) for s in (1, -1) for k in (1e-3, 0.7, 40.0, 3e3, 1e7)
                for m in (1e-3, 9.3, 1e4) for q1, r in ((1.0, 1.0), (4.0, 0.01))]
+# |k| < 1 with a small q1/r: the wrong branch cancels there too (the switch is at k = 0, not 1).
+GAIN_POINTS += [(s * k, 9.3, 1e-6, 1.0, 1.0) for s in (1, -1) for k in (0.3, 0.7)]
 
 
 @pytest.fixture(scope="module")

@@ -208,3 +208,82 @@ def test_paper_eq31_has_no_degenerate_solution_case():
     r12 = sp.lambdify(m, res[0, 1].subs(k, 1), "mpmath")
     with mpmath.workdps(30):
         assert all(abs(r12(mpmath.mpf(v))) > 1e-6 for v in np.logspace(-3, 4, 15))
+
+
+def test_defaults_are_the_papers_weights():
+    """Weights left out are the paper's Q = I, R = 1 (eq 25), for the mpmath forms and the
+    numpy one alike; the accuracy sweep carries those weights over m in [1e-3, 1e4] and |k| in
+    [1e-3, 1e7] (a point a decade, 8 masses x 11 stiffnesses), both signs of k."""
+    from independent_reference import lqr_reference_mp
+
+    k, m = -37.5, 2.5
+    K_ref, P_ref = lqr_reference_mp(k, m, 1.0, 1.0, 1.0, dps=60)
+    with mpmath.workdps(60):
+        K, P = rc.lqr_gain_mp(k, m), rc.riccati_solution_mp(k, m)
+        tol = mpmath.mpf(10) ** -45
+        assert all(abs(a - b) < tol * abs(b) for a, b in zip(K, K_ref, strict=True))
+        assert mpmath.mnorm(P - P_ref, "inf") < tol * mpmath.mnorm(P_ref, "inf")
+    K_num = rc.lqr_gain_numeric(k, m)
+    assert K_num.dtype == np.float64
+    np.testing.assert_allclose(K_num, [float(x) for x in K_ref], rtol=1e-14)
+    sweep = rc.default_sweep()
+    assert {pt[2:] for pt in sweep} == {(1.0, 1.0, 1.0)} and len(sweep) == 8 * 11 * 2
+    ks, ms = np.array([pt[0] for pt in sweep]), np.array([pt[1] for pt in sweep])
+    assert (np.abs(ks).min(), np.abs(ks).max(), ms.min(), ms.max()) == \
+        pytest.approx((1e-3, 1e7, 1e-3, 1e4), rel=1e-12)
+    assert sorted(ks[ks > 0]) == pytest.approx(sorted(-ks[ks < 0]), rel=0)
+
+
+def test_residual_of_float_arrays_equals_eq28_written_here():
+    """The numpy branch of riccati_residual: zero at scipy's CARE solution, and at any other
+    symmetric P the four terms of eq 28 written out here with numpy."""
+    rng = np.random.default_rng(5)
+    k, m, q1, q2, r = -40.0, 2.0, 3.0, 0.5, 0.2
+    A, B = np.array([[0.0, 1.0], [-k / m, 0.0]]), np.array([[0.0], [1.0 / m]])
+    Q, R = np.diag([q1, q2]), np.array([[r]])
+    P = scipy.linalg.solve_continuous_are(A, B, Q, R)
+    scale = np.abs(A.T @ P).max() + np.abs(Q).max()
+    assert np.abs(rc.riccati_residual(A, B, Q, R, P)).max() < 1e-12 * scale
+    X = rng.normal(size=(2, 2))
+    P = X + X.T
+    expected = A.T @ P + P @ A - P @ B @ B.T @ P / r + Q
+    np.testing.assert_allclose(rc.riccati_residual(A, B, Q, R, P), expected, rtol=1e-13)
+    np.testing.assert_allclose(rc.riccati_residual(A.tolist(), B, Q, [[r]], P), expected,
+                               rtol=1e-13)  # nested lists are arrays too
+
+
+def test_closed_loop_poles_equal_eigenvalues_of_control_lqr():
+    """The poles riccati_closed_form returns are those of A - B K (python-control's lqr)."""
+    for k, m, q1, q2, r in [(2000.0, 9.3, 1.0, 1.0, 1.0), (-40.0, 2.0, 3.0, 0.5, 0.2)]:
+        A, B = np.array([[0.0, 1.0], [-k / m, 0.0]]), np.array([[0.0], [1.0 / m]])
+        _, _, eig = control.lqr(A, B, np.diag([q1, q2]), np.array([[r]]))
+        g = rc.riccati_closed_form(*(sp.Float(x) for x in (k, m, q1, q2, r)))
+        poles = sorted((complex(sp.N(p)) for p in g.poles), key=lambda z: (z.real, z.imag))
+        ref = sorted(np.asarray(eig, dtype=complex), key=lambda z: (z.real, z.imag))
+        np.testing.assert_allclose(poles, ref, rtol=1e-9)
+
+
+@pytest.mark.parametrize("pt", [(1e15, 1.0, 1.0, 1.0, 1.0), (1e9, 1.0, 1.0, 1.0, 1e6),
+                                (1e5, 1.0, 1e-10, 1.0, 1.0)])
+def test_mp_gain_keeps_the_digits_asked_for_under_cancellation(pt):
+    """lqr_gain_mp's promise, dps correct digits, where sigma - k cancels log10(k^2 r/q1)
+    digits (24 to 30 here), against the hand-solved ARE at 100 digits."""
+    from independent_reference import lqr_reference_mp
+
+    K_ref, _ = lqr_reference_mp(*pt, dps=100)
+    K = rc.lqr_gain_mp(*pt, dps=20)
+    with mpmath.workdps(100):
+        for a, b in zip(K, K_ref, strict=True):
+            assert abs(a - b) < mpmath.mpf(10) ** -20 * abs(b), (pt, a, b)
+
+
+def test_relative_residual_keeps_sympy_entries_to_working_precision():
+    """SymPy entries (radicals of the exact P) are read at the caller's mpmath precision: at 40
+    digits the exact solution's eq 28 residual is at the 40-digit rounding level."""
+    k, m = sp.Integer(2000), sp.Rational("9.3")
+    s = sp.sqrt(k**2 + 1)  # the hand solution: K1 = s - k, K2 = sqrt(2 m K1 + 1), P = m K ...
+    K1, K2 = s - k, sp.sqrt(2 * m * (s - k) + 1)
+    P = sp.Matrix([[K2 * s, m * K1], [m * K1, m * K2]])
+    A, B = sp.Matrix([[0, 1], [-k / m, 0]]), sp.Matrix([[0], [1 / m]])
+    with mpmath.workdps(40):
+        assert rc.riccati_relative_residual(A, B, sp.eye(2), sp.Matrix([[1]]), P) < 1e-38
