@@ -41,27 +41,144 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import mpmath
 import sympy as sp
 
 __all__ = ["SERIES_BELOW", "DistributedLoad", "distributed_load", "face_axes", "langevin",
-           "sinhc"]
+           "langevin_slope", "sinhc"]
 
-SERIES_BELOW = 0.25  # |u| below which sinhc and L use their series
-
-
-def sinhc(u: sp.Expr) -> sp.Expr:
-    """sinh(u)/u, with its value 1 at u = 0 (series to u^10 below SERIES_BELOW)."""
-    series = 1 + u**2 / 6 + u**4 / 120 + u**6 / 5040 + u**8 / 362880 + u**10 / 39916800
-    return sp.Piecewise((series, sp.Abs(u) < SERIES_BELOW), (sp.sinh(u) / u, True))
+SERIES_BELOW = 0.25  # |u| below which sinhc, L and L' use their series
 
 
-def langevin(u: sp.Expr) -> sp.Expr:
-    """L(u) = coth(u) - 1/u, with L(0) = 0 (series to u^13 below SERIES_BELOW).
+class _RemovableSingularity(sp.Function):
+    """A real function with a removable singularity at 0, kept opaque in the derivation.
+
+    Opaque, the model's Jacobians stay the size of the point model's (expanded, the two
+    branches of each Piecewise multiply through every derivative: 40x the operations). The
+    code printers and the CasADi conversion see ``rewrite(Piecewise)``: the Taylor series
+    below SERIES_BELOW, the closed form above; evalf uses the closed form in mpmath with the
+    working precision raised past its cancellation."""
+
+    removable_singularity = True  # the CasADi conversion rewrites these as their Piecewise
+    at_zero: sp.Expr
+
+    @classmethod
+    def eval(cls, u):
+        if u.is_zero:
+            return cls.at_zero
+        return None
+
+    @staticmethod
+    def series(u: sp.Expr) -> sp.Expr:
+        raise NotImplementedError
+
+    @staticmethod
+    def closed(u: sp.Expr) -> sp.Expr:
+        raise NotImplementedError
+
+    @staticmethod
+    def exact(u: mpmath.mpf) -> mpmath.mpf:
+        raise NotImplementedError
+
+    def _eval_is_real(self) -> bool | None:
+        return self.args[0].is_real
+
+    def _eval_rewrite_as_Piecewise(self, u: sp.Expr, **_kwargs) -> sp.Expr:
+        return sp.Piecewise((self.series(u), sp.Abs(u) < SERIES_BELOW), (self.closed(u), True))
+
+    def _eval_evalf(self, prec: int) -> sp.Float | None:
+        u = self.args[0]._eval_evalf(prec)
+        if u is None or not u.is_Float:
+            return None
+        if u == 0:
+            return sp.Float(self.at_zero, precision=prec)
+        extra = 64 + 2 * max(0, -int(mpmath.floor(mpmath.log(abs(u._to_mpmath(prec)), 2))))
+        with mpmath.workprec(prec + extra):
+            value = self.exact(u._to_mpmath(prec + extra))
+        return sp.Float(value, precision=prec)
+
+    def _numpycode(self, printer) -> str:
+        return printer._print(self.rewrite(sp.Piecewise))
+
+    _pythoncode = _mpmathcode = _ccode = _numpycode
+
+    def _latex(self, printer) -> str:
+        return rf"\operatorname{{{self.latex_name}}}\left({printer._print(self.args[0])}\right)"
+
+
+class sinhc(_RemovableSingularity):  # noqa: N801  (a function, named as SymPy's are)
+    """sinh(u)/u, 1 at u = 0 (series to u^10 below SERIES_BELOW); sinhc' = sinhc L."""
+
+    at_zero = sp.S.One
+    latex_name = "sinhc"
+
+    @staticmethod
+    def series(u: sp.Expr) -> sp.Expr:
+        return 1 + u**2 / 6 + u**4 / 120 + u**6 / 5040 + u**8 / 362880 + u**10 / 39916800
+
+    @staticmethod
+    def closed(u: sp.Expr) -> sp.Expr:
+        return sp.sinh(u) / u
+
+    @staticmethod
+    def exact(u: mpmath.mpf) -> mpmath.mpf:
+        return mpmath.sinh(u) / u
+
+    def fdiff(self, argindex: int = 1) -> sp.Expr:
+        u = self.args[0]
+        return sinhc(u) * langevin(u)
+
+
+class langevin(_RemovableSingularity):  # noqa: N801
+    """L(u) = coth(u) - 1/u, 0 at u = 0 (series to u^13 below SERIES_BELOW); L' = langevin_slope.
 
     The centroid of exp(-2u s/w) over s in [-w/2, w/2] sits at -(w/2) L(u)."""
-    series = (u / 3 - u**3 / 45 + 2 * u**5 / 945 - u**7 / 4725 + 2 * u**9 / 93555
-              - 1382 * u**11 / 638512875 + 4 * u**13 / 18243225)
-    return sp.Piecewise((series, sp.Abs(u) < SERIES_BELOW), (1 / sp.tanh(u) - 1 / u, True))
+
+    at_zero = sp.S.Zero
+    latex_name = "L"
+
+    @staticmethod
+    def series(u: sp.Expr) -> sp.Expr:
+        return (u / 3 - u**3 / 45 + 2 * u**5 / 945 - u**7 / 4725 + 2 * u**9 / 93555
+                - 1382 * u**11 / 638512875 + 4 * u**13 / 18243225)
+
+    @staticmethod
+    def closed(u: sp.Expr) -> sp.Expr:
+        return 1 / sp.tanh(u) - 1 / u
+
+    @staticmethod
+    def exact(u: mpmath.mpf) -> mpmath.mpf:
+        return mpmath.coth(u) - 1 / u
+
+    def fdiff(self, argindex: int = 1) -> sp.Expr:
+        return langevin_slope(self.args[0])
+
+
+class langevin_slope(_RemovableSingularity):  # noqa: N801
+    """L'(u) = 1/u^2 - 1/sinh(u)^2, 1/3 at u = 0 (series to u^12 below SERIES_BELOW)."""
+
+    at_zero = sp.Rational(1, 3)
+    latex_name = "L'"
+
+    @staticmethod
+    def series(u: sp.Expr) -> sp.Expr:
+        return (sp.Rational(1, 3) - u**2 / 15 + 2 * u**4 / 189 - u**6 / 675
+                + 2 * u**8 / 10395 - 1382 * u**10 / 58046625 + 4 * u**12 / 1403325)
+
+    @staticmethod
+    def closed(u: sp.Expr) -> sp.Expr:
+        return 1 / u**2 - 1 / sp.sinh(u) ** 2
+
+    @staticmethod
+    def exact(u: mpmath.mpf) -> mpmath.mpf:
+        return 1 / u**2 - 1 / mpmath.sinh(u) ** 2
+
+    def fdiff(self, argindex: int = 1) -> sp.Expr:
+        u = self.args[0]
+        series = (-2 * u / 15 + 8 * u**3 / 189 - 2 * u**5 / 225 + 16 * u**7 / 10395
+                  - 2764 * u**9 / 11609325 + 16 * u**11 / 467775)
+        closed = -2 / u**3 + 2 * sp.cosh(u) / sp.sinh(u) ** 3
+        return sp.Piecewise((series, sp.Abs(u) < SERIES_BELOW), (closed, True))
 
 
 def face_axes(normal: sp.Matrix) -> tuple[sp.Matrix, sp.Matrix]:

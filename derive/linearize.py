@@ -43,20 +43,27 @@ class StiffnessForm:
 
 @memoized
 def stiffness_form(structure: Structure) -> StiffnessForm:
-    """K_st0 = -dW/dq of the array wrench with lift_i = F_L_i exp(-2k (gap_i(q) - gap_i*))."""
+    """K_st0 = -dW/dq of the array wrench with lift_i = F_L_i exp(-2k (gap_i(q) - gap_i*)),
+    times f_i(q) / f_i* for the distributed model (its load factor, derive/distributed.py),
+    acting at the array's point of action."""
     m = build_model(structure)
     q = sp.Matrix([m.x[cv.STATE_INDEX[s]] for s in Q_STATES])
     trim_gap = sp.Matrix(sp.symbols(f"G0:{len(m.arrays)}", real=True))
+    trim_factor = sp.Matrix(sp.symbols(f"LF0:{len(m.arrays)}", real=True))
     ex = sp.Matrix([1, 0, 0])
     W = sp.zeros(6, 1)
     for i, a in enumerate(m.arrays):
         scale = sp.exp(-2 * m.wavenumber * (m.gaps[i] - trim_gap[i]))
-        f, moment = array_wrench(a, scale * m.lift_sym[i], scale * m.drag_sym[i], m.R)
+        if m.load_factor[i] != 1:
+            scale = scale * m.load_factor[i] / trim_factor[i]
+        f, moment = array_wrench(a, scale * m.lift_sym[i], scale * m.drag_sym[i], m.R,
+                                 m.arms[i])
         W[0:3, 0] += f
         W[3:6, 0] += moment
     rows = W[1:6, 0]  # F_y, F_z, M_x, M_y, M_z
     K = -rows.jacobian(q)
     K = K.xreplace({g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})
+    K = K.xreplace({f: lf for f, lf in zip(trim_factor, m.load_factor, strict=True)})
     mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
     f_prop = m.u[0] * ex
     other = ((m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))
