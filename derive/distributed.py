@@ -50,6 +50,15 @@ __all__ = ["SERIES_BELOW", "DistributedLoad", "distributed_load", "face_axes", "
 SERIES_BELOW = 0.25  # |u| below which sinhc, L and L' use their series
 
 
+def _branches(u: sp.Expr, series, closed) -> sp.Expr:
+    """series(u) below SERIES_BELOW, else closed(u); the closed form's argument is 1 where the
+    series is taken, so neither numpy's select nor CasADi's if_else (which evaluate both
+    branches) ever divides by zero."""
+    small = sp.Abs(u) < SERIES_BELOW
+    safe = sp.Piecewise((sp.S.One, small), (u, True))
+    return sp.Piecewise((series(u), small), (closed(safe), True))
+
+
 class _RemovableSingularity(sp.Function):
     """A real function with a removable singularity at 0, kept opaque in the derivation.
 
@@ -84,7 +93,7 @@ class _RemovableSingularity(sp.Function):
         return self.args[0].is_real
 
     def _eval_rewrite_as_Piecewise(self, u: sp.Expr, **_kwargs) -> sp.Expr:
-        return sp.Piecewise((self.series(u), sp.Abs(u) < SERIES_BELOW), (self.closed(u), True))
+        return _branches(u, self.series, self.closed)
 
     def _eval_evalf(self, prec: int) -> sp.Float | None:
         u = self.args[0]._eval_evalf(prec)
@@ -176,9 +185,10 @@ class langevin_slope(_RemovableSingularity):  # noqa: N801
     def fdiff(self, argindex: int = 1) -> sp.Expr:
         u = self.args[0]
         series = (-2 * u / 15 + 8 * u**3 / 189 - 2 * u**5 / 225 + 16 * u**7 / 10395
-                  - 2764 * u**9 / 11609325 + 16 * u**11 / 467775)
-        closed = -2 / u**3 + 2 * sp.cosh(u) / sp.sinh(u) ** 3
-        return sp.Piecewise((series, sp.Abs(u) < SERIES_BELOW), (closed, True))
+                  - 2764 * u**9 / 11609325 + 16 * u**11 / 467775 - 7234 * u**13 / 1550674125
+                  + 1403744 * u**15 / 2292899734125)
+        return _branches(u, lambda _v: series,
+                         lambda v: -2 / v**3 + 2 * sp.cosh(v) / sp.sinh(v) ** 3)
 
 
 def face_axes(normal: sp.Matrix) -> tuple[sp.Matrix, sp.Matrix]:

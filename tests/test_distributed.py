@@ -114,3 +114,26 @@ def test_closest_corner_gap():
                        for a in (-1, 1) for b in (-1, 1)]
             _, _, load = _closed_form(normal, R, 0.015, 13)
             assert float(load.closest_gap) == pytest.approx(min(corners), rel=1e-12)
+
+
+@pytest.mark.parametrize("u", [0.0, 1e-3, 0.2, SERIES_BELOW * 1.01, 0.9, -2.0])
+def test_derivatives_against_mpmath_differentiation(u):
+    """The opaque functions' fdiff (sinhc' = sinhc L, L' = langevin_slope, and its own), first
+    and second derivatives, against mpmath's numerical differentiation of the closed forms."""
+    import mpmath
+
+    from maglevgen.derive.distributed import langevin_slope
+
+    mpmath.mp.dps = 40
+    closed = {sinhc: lambda v: mpmath.sinh(v) / v if v != 0 else mpmath.mpf(1),
+              langevin: lambda v: mpmath.coth(v) - 1 / v if v != 0 else mpmath.mpf(0),
+              langevin_slope: lambda v: 1 / v**2 - 1 / mpmath.sinh(v) ** 2 if v != 0
+              else mpmath.mpf(1) / 3}
+    x = sp.Symbol("x", real=True)
+    at = mpmath.mpf(u) if u != 0 else mpmath.mpf("1e-20")  # the closed forms' limit at 0
+    for fn, ref in closed.items():
+        for order in (1, 2):
+            got = sp.diff(fn(x), x, order).subs(x, sp.Float(u, 40))
+            got = float(got.rewrite(sp.Piecewise).evalf(30))
+            want = float(mpmath.diff(ref, at, order))
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-14), (fn, order)
