@@ -45,7 +45,8 @@ LAZY_MODULES = (
     "maglevgen.carriage",
     "maglevgen.codegen.interface",
     "maglevgen.library",
-    "maglevgen.background",
+    "maglevgen.workers",
+    "maglevgen.summary",
     "maglevgen.sim_output",
     "maglevgen.simulate",
     "maglevgen.report",
@@ -69,12 +70,12 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("c_simulate", "maglevgen.library:SimulationLibrary.simulate"),
     ("render_metrics", "maglevgen.sim_output:render_metrics"),
     # trajectories, simulation figures and report figures are drawn in forked children
-    # (maglevgen.background): this process only sees the time it waits for them
-    ("background_wait", "maglevgen.background:Job.result"),
+    # (maglevgen.workers): this process only sees the time it waits for them
+    ("background_wait", "maglevgen.workers:Job.result"),
     ("report_files", "maglevgen.build:_report_files"),
     ("build_context", "maglevgen.report:build_context"),
-    ("trim_report", "maglevgen.cli:trim_report"),
-    ("gains_report", "maglevgen.cli:gains_report"),
+    ("trim_report", "maglevgen.summary:trim_report"),
+    ("gains_report", "maglevgen.summary:gains_report"),
     ("verification", "maglevgen.report:_verification"),
     ("render_tex", "maglevgen.report:render_tex"),
     ("run_latex", "maglevgen.report:run_latex"),

@@ -31,7 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import alternatives as alt
 import envelope as envelope_bench
+import montecarlo as montecarlo_bench
 import native
+import peers as peers_bench
 import workflow
 import writeup
 from common import BENCH, ROOT, log, paired_ratios, run, summary, time_calls
@@ -679,6 +681,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         results["precision"] = precision(s, reps)
         results["envelope"] = envelope_bench.run(3 if args.quick else 5)
+        results["montecarlo"] = montecarlo_bench.run(quick=args.quick)
+        results["peers"] = peers_bench.run_peers(7 if args.quick else 21)
     results["machine"]["loadavg_end"] = os.getloadavg()
     # the toolchain's source (what keys every cache) must not change while the suite runs
     results["meta"]["toolchain_changed_during_run"] = toolchain_fingerprint() != fingerprint_start

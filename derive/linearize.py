@@ -11,9 +11,7 @@ sketch with small-angle arguments); it is derived here from the geometry for any
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
-import numpy as np
 import sympy as sp
 
 from . import conventions as cv
@@ -21,10 +19,6 @@ from .geometry import array_wrench
 from .memo import memoized
 from .model import CarriageModel, Structure, build_model
 from .rigid_body import inertia_about_origin
-
-if TYPE_CHECKING:  # numeric imports this module to lambdify the stiffness
-    from .numeric import ModelFunctions
-    from .trim import Trim
 
 GENERALIZED_FORCES: tuple[str, ...] = ("F_y", "F_z", "M_x", "M_y", "M_z")
 Q_STATES = cv.Q_STATES  # re-exported: the axis coordinates live in conventions
@@ -80,35 +74,6 @@ def design_pose_stiffness(structure: Structure) -> sp.Matrix:
     return sf.K.xreplace(zero)
 
 
-def magnetic_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
-    """K_st0 evaluated at the trim pose and array forces."""
-    return np.asarray(mf.stiffness_magnetic(_trim_q(trim), trim.lift, trim.drag, p),
-                      dtype=float)
-
-
-def other_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
-    """Stiffness of the gravity and propulsion moments about O at trim (CG offset terms)."""
-    return np.asarray(mf.stiffness_other(_trim_q(trim), trim.u[0], p), dtype=float)
-
-
-def total_stiffness(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> np.ndarray:
-    """K_st0 plus the gravity and propulsion terms: -dW/dq of every external force."""
-    return magnetic_stiffness(mf, trim, p) + other_stiffness(mf, trim, p)
-
-
-def _trim_q(trim: Trim) -> np.ndarray:
-    return np.array([trim.x[cv.STATE_INDEX[s]] for s in Q_STATES])
-
-
-def lambdify_stiffness(structure: Structure):
-    """(K_st0(q, F_L, F_D, p), K_other(q, F_prop, p)) as numpy functions."""
-    sf = stiffness_form(structure)
-    m = build_model(structure)
-    mag = sp.lambdify([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K, modules="numpy", cse=True)
-    other = sp.lambdify([sf.q, m.u[0], m.p], sf.K_other, modules="numpy", cse=True)
-    return mag, other
-
-
 def generalized_mass_expr(model: CarriageModel) -> sp.Matrix:
     """Diagonal of M_RB (eq 17) at O: (m, m, I_O,xx, I_O,yy, I_O,zz), symbolic."""
     m = model.param("vehicle.mass")
@@ -116,14 +81,3 @@ def generalized_mass_expr(model: CarriageModel) -> sp.Matrix:
     inertia = sp.Matrix(3, 3, lambda i, j: model.param("vehicle.inertia_cg." + keys[3 * i + j]))
     I_O = inertia_about_origin(m, inertia, model.vec("vehicle.cg_offset"))
     return sp.Matrix([m, m, I_O[0, 0], I_O[1, 1], I_O[2, 2]])
-
-
-def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:
-    """`generalized_mass_expr` evaluated at the parameter values ``p``."""
-    val = dict(zip(model.p, p, strict=True))
-    return np.array([float(e) for e in generalized_mass_expr(model).xreplace(val)])
-
-
-def linearize(mf: ModelFunctions, trim: Trim, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A (12x12) and B (12 x n_inputs) of the full model at trim."""
-    return mf.jacobians(trim.x, trim.u, p)

@@ -4,7 +4,8 @@ The derivation depends on the carriage's structure, never on parameter values, s
 steps (differentiating the wrench, solving the Riccati equation, lambdifying) are pure
 functions of hashable arguments. ``memoized`` keeps their results in the process and, when a
 store is installed, across processes. derive/ does no I/O itself: the application installs
-the store (maglevgen.cache.DiskStore), which must key entries by the derivation's source.
+the store (maglevgen.cache.DiskStore), which must key an entry by the source of everything
+the computing module (passed with the key) depends on.
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ MISSING = object()
 
 
 class Store(Protocol):
-    def get(self, key: str) -> Any: ...  # MISSING when absent or unreadable
+    def get(self, module: str, key: str) -> Any: ...  # MISSING when absent or unreadable
 
-    def put(self, key: str, value: Any) -> None: ...
+    def put(self, module: str, key: str, value: Any) -> None: ...
 
 
 _store: Store | None = None
@@ -41,11 +42,12 @@ def memoized(fn: F) -> F:
         if args in results:
             return results[args]
         key = f"{fn.__module__}.{fn.__qualname__}{args!r}"
-        value = _store.get(key) if _store is not None else MISSING
+        store = _store
+        value = store.get(fn.__module__, key) if store is not None else MISSING
         if value is MISSING:
             value = fn(*args)
-            if _store is not None:
-                _store.put(key, value)
+            if store is not None:
+                store.put(fn.__module__, key, value)
         results[args] = value
         return value
 

@@ -19,10 +19,9 @@ from .distributed import distributed_load
 from .geometry import ArraySymbols, array_gap, array_speed, array_wrench
 from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
-from .structure import Structure, input_names_of, structure_of
+from .structure import Structure, input_names_of
 
-__all__ = ["CarriageModel", "Structure", "build_model", "input_names_of", "structure_of",
-           "symbol_name"]
+__all__ = ["CarriageModel", "Structure", "build_model", "input_names_of", "symbol_name"]
 
 
 def symbol_name(param_name: str) -> str:

@@ -9,12 +9,26 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import sympy as sp
 
+from . import conventions as cv
+from .conventions import Q_STATES
+from .linearize import generalized_mass_expr, stiffness_form
 from .memo import memoized
 from .model import CarriageModel, Structure, build_model
+
+
+class Equilibrium(Protocol):
+    """What the evaluations at trim read of a trim (derive.trim.Trim has it; trim imports this
+    module, so the dependency is this protocol, not that class)."""
+
+    x: np.ndarray
+    u: np.ndarray
+    lift: np.ndarray
+    drag: np.ndarray
 
 
 def _fn(args: list, expr: sp.Matrix) -> Callable[..., np.ndarray]:
@@ -88,8 +102,6 @@ class ModelFunctions:
 @memoized
 def model_functions(structure: Structure) -> ModelFunctions:
     """Lambdify the layers of the model of ``structure`` and their partial derivatives."""
-    from .linearize import lambdify_stiffness  # it imports this module's types
-
     m = build_model(structure)
     stiffness_magnetic, stiffness_other = lambdify_stiffness(structure)
     x, u, s = list(m.x), list(m.u), list(m.speed_sym)
@@ -119,3 +131,47 @@ def model_functions(structure: Structure) -> ModelFunctions:
         stiffness_magnetic=stiffness_magnetic,
         stiffness_other=stiffness_other,
     )
+
+
+# ------------------------------------------------ the linearisation at trim (eqs 5-19)
+
+
+def magnetic_stiffness(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray) -> np.ndarray:
+    """K_st0 evaluated at the trim pose and array forces."""
+    return np.asarray(mf.stiffness_magnetic(_trim_q(trim), trim.lift, trim.drag, p),
+                      dtype=float)
+
+
+def other_stiffness(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray) -> np.ndarray:
+    """Stiffness of the gravity and propulsion moments about O at trim (CG offset terms)."""
+    return np.asarray(mf.stiffness_other(_trim_q(trim), trim.u[0], p), dtype=float)
+
+
+def total_stiffness(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray) -> np.ndarray:
+    """K_st0 plus the gravity and propulsion terms: -dW/dq of every external force."""
+    return magnetic_stiffness(mf, trim, p) + other_stiffness(mf, trim, p)
+
+
+def _trim_q(trim: Equilibrium) -> np.ndarray:
+    return np.array([trim.x[cv.STATE_INDEX[s]] for s in Q_STATES])
+
+
+def lambdify_stiffness(structure: Structure):
+    """(K_st0(q, F_L, F_D, p), K_other(q, F_prop, p)) as numpy functions."""
+    sf = stiffness_form(structure)
+    m = build_model(structure)
+    mag = sp.lambdify([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K, modules="numpy", cse=True)
+    other = sp.lambdify([sf.q, m.u[0], m.p], sf.K_other, modules="numpy", cse=True)
+    return mag, other
+
+
+def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:
+    """`generalized_mass_expr` evaluated at the parameter values ``p``."""
+    val = dict(zip(model.p, p, strict=True))
+    return np.array([float(e) for e in generalized_mass_expr(model).xreplace(val)])
+
+
+def linearize(mf: ModelFunctions, trim: Equilibrium, p: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """A (12x12) and B (12 x n_inputs) of the full model at trim."""
+    return mf.jacobians(trim.x, trim.u, p)

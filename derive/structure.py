@@ -40,19 +40,6 @@ def control_components(normal_values: Sequence[float], tol: float = 1e-12) -> tu
     return tuple(ax for ax in CONTROL_AXES if abs(normal_values["xyz".index(ax)]) > tol)
 
 
-def structure_of(params) -> Structure:  # params: maglevgen.params.Parameters (no import: pure)
-    """The structure of a validated parameter set."""
-    from_names = tuple(e.name for e in _flatten(params))
-    arrays = tuple((name, control_components(arr.normal)) for name, arr in params.arrays.items())
-    return Structure(from_names, arrays, params.model.array_force)
-
-
-def _flatten(params):
-    from maglevgen.params import flatten  # local: derive/ stays free of I/O at import time
-
-    return flatten(params)
-
-
 def input_names_of(structure: Structure) -> tuple[str, ...]:
     """Input order: F_prop, then F_<axis><array> for each array's control components."""
     names = [cv.PROPULSION.name]

@@ -15,9 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq, root
 
-from maglevgen.errors import NoTrimError
-
 from .numeric import ModelFunctions
+
+
+class NoTrimError(ValueError):
+    """No equilibrium at the requested speed (the application reports it as bad input:
+    maglevgen.errors.NoTrimError, exit 2)."""
 
 _TRIM_UNKNOWNS = ("y", "z", "phi", "theta", "psi")
 

@@ -1,8 +1,45 @@
-"""maglevgen: Inductrack maglev carriage dynamics and control, derived symbolically, as C."""
+"""maglevgen: Inductrack maglev carriage dynamics and control, derived symbolically, as C.
+
+The Python API (maglevgen/api.py): ``maglevgen.load(params, overrides)`` returns a
+`Carriage` whose methods mirror the commands (trim, gains, linearize, simulate, envelope,
+generate, report, fmu). It is imported when first used, so ``import maglevgen`` (and the
+command line) stays light.
+"""
 
 import os
+from typing import Any
 
-__version__ = "0.1.0"
+from .errors import InputError, MaglevError, NoTrimError, VerificationError
+from .version import __version__
+
+__all__ = [
+    "Carriage",
+    "EnvelopeResult",
+    "Gains",
+    "InputError",
+    "MaglevError",
+    "NoTrimError",
+    "SimulationResult",
+    "TrimResult",
+    "VerificationError",
+    "__version__",
+    "load",
+]
+_API = frozenset({"Carriage", "EnvelopeResult", "Gains", "SimulationResult", "TrimResult",
+                  "load"})
+
+
+def __getattr__(name: str) -> Any:
+    """The API's names, imported from maglevgen.api when first asked for (PEP 562)."""
+    if name in _API:
+        from . import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'maglevgen' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
 
 # Every matrix the toolchain factors is small (at most 24 x 24: Jacobians, Riccati
 # Hamiltonians); there OpenBLAS's threads cost far more than they give, most of all on a busy
@@ -11,13 +48,3 @@ __version__ = "0.1.0"
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-
-def _install_derivation_store() -> None:
-    """Share the derivation's memoised steps across processes (derive/ itself does no I/O)."""
-    from .cache import STORE
-    from .derive.memo import set_store
-
-    set_store(STORE)
-
-
-_install_derivation_store()

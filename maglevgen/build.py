@@ -9,20 +9,20 @@ file's checksum, so an unchanged rebuild verifies the tree and does nothing else
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from . import __version__
-from .background import Job, PendingFiles, Shared, Worker
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
+from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import check_writable, clean_stale_siblings, write_output
+from .version import __version__
+from .workers import Job, PendingFiles, Shared, child, submit
 
 if TYPE_CHECKING:
     from .params import LoadedParams
@@ -53,12 +53,10 @@ def build_key(params_sha256: str, overrides: tuple[str, ...], opts: BuildOptions
               tex: str | None) -> str:
     """Everything a build's output depends on, hashed (the parameters by their text's digest:
     the same text always validates the same way, and the validator is part of the toolchain)."""
-    h = hashlib.sha256()
-    h.update(json.dumps({"params_sha256": params_sha256, "overrides": list(overrides),
-                         "options": opts.as_dict(), "compiler": _compiler_identity(),
-                         "tex": tex}, sort_keys=True).encode())
-    h.update(toolchain_fingerprint().encode())
-    return h.hexdigest()
+    return ContentHash(json.dumps({"params_sha256": params_sha256, "overrides": list(overrides),
+                                   "options": opts.as_dict(), "compiler": _compiler_identity(),
+                                   "tex": tex}, sort_keys=True),
+                       toolchain_fingerprint()).hexdigest()
 
 
 def up_to_date(out_dir: Path, key: str) -> bool:
@@ -67,7 +65,7 @@ def up_to_date(out_dir: Path, key: str) -> bool:
         stamp = json.loads((out_dir / STAMP).read_text())
         if stamp.get("key") != key:
             return False
-        return all(hashlib.sha256((out_dir / name).read_bytes()).hexdigest() == digest
+        return all(file_sha256(out_dir / name) == digest
                    for name, digest in stamp["files"].items())
     except (OSError, ValueError, KeyError, AttributeError, TypeError):
         return False
@@ -154,17 +152,17 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # and builds the report's context. Its jobs in the order they are needed: the simulation
     # figures, the report's figures (as soon as the trim is known), then the trajectories,
     # which it already holds (forked with them) and nothing reads before the end.
-    with Worker("drawing the figures", render_figures, run.trajectories,
-                shared={"trajectories": run.trajectories}) as drawing:
+    with child(shared={"trajectories": run.trajectories}) as drawing:
+        figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
         report_figures = _draw_report_figures(drawing, carriage)
-        mapping = drawing.submit("drawing the stability map", _stability_map, env)
-        writing = drawing.submit("writing the trajectories", render_trajectories,
-                                 Shared("trajectories"), run.input_names)
+        mapping = submit(drawing, "drawing the stability map", _stability_map, env)
+        writing = submit(drawing, "writing the trajectories", render_trajectories,
+                         Shared("trajectories"), run.input_names)
         sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
-                                 {**dict.fromkeys(FIGURE_NAMES, drawing.first),
+                                 {**dict.fromkeys(FIGURE_NAMES, figures),
                                   **dict.fromkeys(trajectory_names(run.trajectories), writing)})
         # the report (and its PDF where TeX is installed)
         stability_map = mapping.result()
@@ -174,13 +172,13 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files.update(stability_map)
     files.update({f"report/{n}": b for n, b in report.items()})
     files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
+    files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
     summary = summary_text(carriage, run, lib, env, report_outputs(report, opts))
     files[SUMMARY] = summary
     verification = embedded_verification(carriage, env)
-    digests = {n: hashlib.sha256(b.encode() if isinstance(b, str) else b).hexdigest()
-               for n, b in sorted(files.items())}
+    digests = {n: sha256_hex(b) for n, b in sorted(files.items())}
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,
                                "params_sha256": loaded.sha256,
                                "overrides": list(loaded.overrides), "options": opts.as_dict(),
@@ -201,6 +199,23 @@ def _schedule_c(carriage, lib, env) -> str:
     points = envelope_points(carriage, lib, nodes)
     return schedule_c_source(Schedule.from_points(points,
                                                   carriage.params.envelope.embedded_controller))
+
+
+def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
+    """c/maglev_gain_table.{c,h}: the firmware's table schedule over ``env``'s range, and its
+    measured worst error added to c/manifest.json (``gain_table``)."""
+    import numpy as np
+
+    from .envelope import envelope_points
+    from .schedule import GainTable, gain_table_row, gain_table_sources
+
+    table = GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
+                                               envelope_points(carriage, lib, vs)]),
+                          env.v_min, env.v_max)
+    data = json.loads(manifest)
+    data["gain_table"] = table.manifest()
+    return {**{f"c/{n}": t for n, t in gain_table_sources(table).items()},
+            "c/manifest.json": json.dumps(data, indent=2) + "\n"}
 
 
 def _stability_map(env) -> dict[str, bytes]:
@@ -234,14 +249,14 @@ def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
     return files
 
 
-def _draw_report_figures(drawing: Worker, carriage) -> Job:
+def _draw_report_figures(drawing: Executor, carriage) -> Job:
     """Have ``drawing`` draw the report's force figures (they need the trim, so this imports
     the symbolic layers)."""
     from .report import force_curves
     from .report_figures import force_figures
 
-    return drawing.submit("drawing the report figures", force_figures,
-                          force_curves(carriage, carriage.trim()))
+    return submit(drawing, "drawing the report figures", force_figures,
+                  force_curves(carriage, carriage.trim()))
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
@@ -271,12 +286,12 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
     import numpy as np
 
     from .derive import conventions as cv
+    from .operating import CONTROLLER_TITLES
+    from .summary import stiffness_table
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
-    trim = carriage.trim(op.speed)
-    rows = carriage.stiffness_table(trim)
-    from .operating import CONTROLLER_TITLES
+    rows = stiffness_table(carriage, lib, op.speed)
 
     embedded = carriage.params.envelope.embedded_controller
     lines = [f"# maglevgen build: {carriage.loaded.source}", "",

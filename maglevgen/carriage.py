@@ -12,15 +12,23 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .cache import install_store
 from .derive import conventions as cv
-from .derive.structure import Structure, structure_of
-from .params import LoadedParams, flatten
+from .derive.structure import Structure, control_components
+from .errors import NoTrimError
+from .params import LoadedParams, Parameters, flatten
 
 if TYPE_CHECKING:  # the symbolic layers are imported when first used: running the compiled
     # model (maglevgen simulate, the build's simulations) needs only the parameters
     from .derive.model import CarriageModel
     from .derive.numeric import ModelFunctions
     from .derive.trim import Trim
+
+
+def structure_of(params: Parameters) -> Structure:
+    """The structure of a validated parameter set (what the derivation depends on)."""
+    arrays = tuple((name, control_components(arr.normal)) for name, arr in params.arrays.items())
+    return Structure(tuple(e.name for e in flatten(params)), arrays, params.model.array_force)
 
 
 @dataclass(frozen=True)
@@ -52,6 +60,7 @@ class Carriage:
         self.entries = flatten(self.params)
         self.p = np.array([e.value for e in self.entries])
         self._trims: dict[float, Trim] = {}
+        install_store()  # the derivation's memoised steps, shared across processes
 
     @cached_property
     def structure(self) -> Structure:
@@ -70,11 +79,15 @@ class Carriage:
 
     def trim(self, speed: float | None = None) -> Trim:
         """The equilibrium at ``speed`` (default: operation.speed), solved once per speed."""
-        from .derive.trim import solve_trim
+        from .derive import trim
 
         v = float(self.params.operation.speed if speed is None else speed)
         if v not in self._trims:
-            self._trims[v] = solve_trim(self.functions, self.p, v, self.params.track.min_gap)
+            try:
+                self._trims[v] = trim.solve_trim(self.functions, self.p, v,
+                                                 self.params.track.min_gap)
+            except trim.NoTrimError as exc:  # derive/'s, reported as bad input (exit 2)
+                raise NoTrimError(str(exc)) from None
         return self._trims[v]
 
     def lift_off_speed(self) -> float:
@@ -88,22 +101,22 @@ class Carriage:
         return lift_off_speed(self.functions, self.p, self.params.track.min_gap)
 
     def linearize(self, trim: Trim) -> tuple[np.ndarray, np.ndarray]:
-        from .derive.linearize import linearize
+        from .derive.numeric import linearize
 
         return linearize(self.functions, trim, self.p)
 
     def magnetic_stiffness(self, trim: Trim) -> np.ndarray:
-        from .derive.linearize import magnetic_stiffness
+        from .derive.numeric import magnetic_stiffness
 
         return magnetic_stiffness(self.functions, trim, self.p)
 
     def total_stiffness(self, trim: Trim) -> np.ndarray:
-        from .derive.linearize import other_stiffness
+        from .derive.numeric import other_stiffness
 
         return self.magnetic_stiffness(trim) + other_stiffness(self.functions, trim, self.p)
 
     def generalized_mass(self) -> np.ndarray:
-        from .derive.linearize import generalized_mass
+        from .derive.numeric import generalized_mass
 
         return generalized_mass(self.model, self.p)
 
@@ -132,18 +145,24 @@ class Carriage:
 
     def stiffness_table(self, trim: Trim) -> list[StiffnessRow]:
         """Per-axis stiffness: derived K_st0 diagonal (and with gravity) beside eqs 13-19."""
-        import sympy as sp
+        return stiffness_rows(self.paper_stiffness_inputs(trim), self.magnetic_stiffness(trim),
+                              self.total_stiffness(trim))
 
-        from .derive.paper import paper_stiffness
 
-        kin = self.paper_stiffness_inputs(trim)
-        syms = {name: sp.Symbol(name) for name in kin}
-        printed = paper_stiffness(**syms)
-        K_mag, K_tot = self.magnetic_stiffness(trim), self.total_stiffness(trim)
-        rows = []
-        for i, axis in enumerate(cv.AXES):
-            expr = printed[axis]
-            rows.append(StiffnessRow(axis, _STIFFNESS_UNITS[axis], float(K_mag[i, i]),
-                                     float(K_tot[i, i]), sp.sstr(expr),
-                                     float(expr.xreplace({syms[n]: v for n, v in kin.items()}))))
-        return rows
+def stiffness_rows(kin: dict[str, float], K_mag: np.ndarray,
+                   K_tot: np.ndarray) -> list[StiffnessRow]:
+    """Per-axis rows of K_st0 (magnetic) and of the total stiffness beside the paper's printed
+    eqs 13-19 evaluated at ``kin`` (`Carriage.paper_stiffness_inputs`)."""
+    import sympy as sp
+
+    from .derive.paper import paper_stiffness
+
+    syms = {name: sp.Symbol(name) for name in kin}
+    printed = paper_stiffness(**syms)
+    rows = []
+    for i, axis in enumerate(cv.AXES):
+        expr = printed[axis]
+        rows.append(StiffnessRow(axis, _STIFFNESS_UNITS[axis], float(K_mag[i, i]),
+                                 float(K_tot[i, i]), sp.sstr(expr),
+                                 float(expr.xreplace({syms[n]: v for n, v in kin.items()}))))
+    return rows

@@ -187,13 +187,20 @@ def _feedback(gains: list[AxisGains], C_rate: np.ndarray, damping: bool = False)
 
 def coupled_comparison(carriage: Carriage, trim: Trim,
                        gains: list[AxisGains]) -> CoupledComparison:
-    """Numerical LQR of the coupled model vs the per-axis closed forms applied to it."""
+    """Numerical LQR of the coupled model vs the per-axis closed forms applied to it (on the
+    lambdified model: the reference for the generated C's, `compare_designs`)."""
     Ar, Bg, C_rate = reduced_model(carriage, trim)
     w = Weights.of(carriage.params)
-    Q, R = coupled_weights(C_rate, w)
     K_c = coupled_lqr(Ar, Bg, C_rate, w)
-    K_a = _feedback(gains, C_rate)
-    K_d = _feedback(gains, C_rate, damping=True)
+    return compare_designs(Ar, Bg, C_rate, w, _feedback(gains, C_rate), K_c,
+                           _feedback(gains, C_rate, damping=True))
+
+
+def compare_designs(Ar: np.ndarray, Bg: np.ndarray, C_rate: np.ndarray, w: Weights,
+                    K_a: np.ndarray, K_c: np.ndarray, K_d: np.ndarray) -> CoupledComparison:
+    """Poles and LQR costs of the per-axis (K_a), coupled (K_c) and damping (K_d) feedbacks
+    (5 x 10 on REDUCED_STATES) closed around the reduced linearisation (Ar, Bg)."""
+    Q, R = coupled_weights(C_rate, w)
 
     def cost(K: np.ndarray) -> float:
         Acl = Ar - Bg @ K

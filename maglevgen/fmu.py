@@ -25,10 +25,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import __version__
+from .codegen.checks import ERROR_CODES
 from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .errors import InputError
+from .version import __version__
 
 # Imported by the command-line parser: nothing heavier than the conventions at module level.
 
@@ -244,6 +245,7 @@ def render_files(model: FmuModel, guid: str) -> dict[str, str]:
         "xml": _xml_escape, "c_comment": _c_comment,
         "params_source": man["params_source"], "params_sha256": man["params_sha256"],
         "overrides": man["overrides"],
+        "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
     }
     env = template_env()
     return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in (
@@ -327,7 +329,7 @@ def _with_coupled_gains(wrapper: str, carriage, cache_dir: Path | None, cc: str 
     K_pos, K_rate = op.gains("coupled")
 
     def table(name: str, K) -> str:
-        return (f"static const casadi_real {name}[NA * NA] = {{"
+        return (f"static const maglev_real {name}[NA * NA] = {{"
                 + ", ".join(repr(float(v)) for v in K.ravel(order="F")) + "};\n")
 
     consts = table("COUPLED_K_POS", K_pos) + table("COUPLED_K_RATE", K_rate)

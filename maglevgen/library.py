@@ -14,7 +14,6 @@ source, never on parameter values. Both caches are keyed accordingly:
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 
 from .cache import default_cache_dir, derivation_fingerprint
 from .derive.structure import Structure
+from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import write_output
 from .runtime.compile import cached_shared, compile_shared
 from .runtime.ffi import GeneratedLibrary
@@ -37,14 +37,11 @@ def _quiet(_: str) -> None:
 
 
 def derivation_key(structure: Structure, precision: str) -> str:
-    h = hashlib.sha256()
-    h.update(derivation_fingerprint().encode())
-    h.update(repr(structure).encode() + precision.encode())
-    return h.hexdigest()[:24]
+    return ContentHash(derivation_fingerprint(), repr(structure), precision).hexdigest(24)
 
 
 def _checksums(files: dict[str, bytes]) -> str:
-    sums = {name: hashlib.sha256(data).hexdigest() for name, data in sorted(files.items())}
+    sums = {name: sha256_hex(data) for name, data in sorted(files.items())}
     return json.dumps(sums, indent=1, sort_keys=True) + "\n"
 
 
@@ -52,7 +49,7 @@ def _intact(folder: Path) -> bool:
     """True when every file listed in the folder's checksum file is present and unchanged."""
     try:
         listed = json.loads((folder / CHECKSUMS).read_text())
-        return all(hashlib.sha256((folder / n).read_bytes()).hexdigest() == s
+        return all(file_sha256(folder / n) == s
                    for n, s in listed.items()) and bool(listed)
     except (OSError, ValueError, AttributeError):
         return False
@@ -88,7 +85,7 @@ class SimulationLibrary(GeneratedLibrary):
         self._simulate = fn
         real_ptr = ptr
 
-        class _Schedule(ctypes.Structure):  # maglev_schedule (maglev_simulate.h)
+        class _Schedule(ctypes.Structure):  # maglev_spline_schedule (maglev_simulate.h)
             _fields_ = [("n", ctypes.c_int), ("v0", real), ("dv", real), ("y", real_ptr),
                         ("d2y", real_ptr)]
 

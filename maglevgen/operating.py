@@ -37,6 +37,7 @@ from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .errors import InputError, NoTrimError
 from .library import SimulationLibrary
+from .runtime.ffi import GeneratedFunctionError
 
 CONTROLLERS: tuple[str, ...] = ("none", "damping", "lqr", "coupled")
 CONTROLLER_TITLES: dict[str, str] = {"none": "no control", "damping": "optimized damping",
@@ -144,7 +145,12 @@ def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
                  min_gap: float) -> tuple[np.ndarray, float, np.ndarray]:
     """(x_trim, F_prop, gaps): the Newton trim in C, checked against the dynamics and the
     track; NoTrimError when there is none."""
-    x_trim, f_prop = lib.function("maglev_trim")(speed, p)
+    try:
+        x_trim, f_prop = lib.function("maglev_trim")(speed, p)
+    except GeneratedFunctionError as exc:
+        raise NoTrimError(f"no trim at {speed:g} m/s: the Newton trim in C returned "
+                          f"{exc.code_name} (below lift-off speed?); see `maglevgen trim`"
+                          ) from None
     x_trim, f_prop = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)

@@ -266,8 +266,100 @@ class ModelChoices(_Section):
         return name
 
 
+_SPREAD = (0.0, 1e6, "an absolute spread in the key's unit; the sampled values must also stay "
+                    "inside the key's own range (checked against the file's value)")
+# a normal tolerance is truncated at this many sigma, so its support is bounded and checked
+NORMAL_TRUNCATION = 4.0
+
+
+class Tolerance(_Section):
+    """One parameter's spread about its value in the file, absolute, in the key's unit: a
+    normal distribution (sigma, truncated at +-NORMAL_TRUNCATION sigma) or a uniform one
+    (+- half-width). Exactly one of the two."""
+
+    normal: float | None = Field(default=None, description="sigma of a normal distribution "
+                                 f"truncated at +-{NORMAL_TRUNCATION:g} sigma",
+                                 json_schema_extra={"unit": "key's", "limits": list(_SPREAD)})
+    uniform: float | None = Field(default=None, description="half-width of a uniform "
+                                  "distribution", json_schema_extra={"unit": "key's",
+                                                                     "limits": list(_SPREAD)})
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Tolerance:
+        if (self.normal is None) == (self.uniform is None):
+            raise _ModelError("normal", f"{self.normal}, uniform = {self.uniform}",
+                              "give exactly one of normal (sigma) or uniform (half-width)")
+        return self
+
+    @property
+    def half_width(self) -> float:
+        """The support's half-width: every sample lies within value +- this."""
+        return NORMAL_TRUNCATION * self.normal if self.normal is not None else float(self.uniform)
+
+
+# the initial disturbance amplitudes of `maglevgen simulate` (maglevgen.simulate.DISTURBANCE)
+_DEFAULT_DISTURBANCE = {"y": 1e-3, "z": 1e-3, "phi": 2e-3, "theta": 2e-3, "psi": 2e-3}
+
+
+class Tolerances(_Section):
+    """What `maglevgen montecarlo` samples: not part of the model's parameter vector."""
+
+    speed: Annotated[list[float], Field(min_length=2, max_length=2)] | None = Field(
+        default=None, description="[lo, hi]: the hold speed drawn uniformly in it (omitted: "
+        "the envelope's [v_min, v_max])", json_schema_extra={
+            "unit": "m/s", "limits": [0.01, 1e3, _ENVELOPE_SPEED]})
+    disturbance: dict[str, float] = Field(
+        default_factory=lambda: dict(_DEFAULT_DISTURBANCE), description="per state (x, y, z, "
+        "phi, theta, psi, u, v, w, p, q, r): the initial deviation from trim drawn uniformly "
+        "in +- this amplitude", json_schema_extra={
+            "unit": "m, rad, m/s or rad/s", "limits": [0.0, 0.1, "a disturbance from trim, "
+                                                       "below the gaps' scale"]})
+    parameters: dict[str, Tolerance] = Field(
+        default_factory=dict, description="per entry of the parameter vector (its dotted name, "
+        "as `maglevgen params show` prints it, e.g. \"vehicle.mass\", \"vehicle.cg_offset.z\")")
+
+    @field_validator("disturbance")
+    @classmethod
+    def _known_states(cls, amps: dict[str, float]) -> dict[str, float]:
+        from .derive.conventions import STATE_INDEX
+
+        for name, amp in amps.items():
+            if name not in STATE_INDEX:
+                raise _ModelError(name, _short(amp), "not a state: expected one of "
+                                  + ", ".join(STATE_INDEX))
+            if not (_number(amp) and 0.0 <= amp <= 0.1):
+                raise _ModelError(name, _short(amp), "outside the range [0, 0.1] (a "
+                                  "disturbance from trim, below the gaps' scale)")
+        return amps
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Tolerances:
+        if self.speed is not None and not self.speed[0] < self.speed[1]:
+            raise _ModelError("speed", _short(self.speed), "expected [lo, hi] with lo < hi")
+        return self
+
+
 # sections of the file that are not model parameters (not in the parameter vector p)
-NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model")
+NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model", "provenance", "tolerances")
+PROVENANCE_SOURCES = ("paper", "assumed")
+
+
+class Provenance(BaseModel):
+    """Where a value comes from: the paper gives it ("paper", with where), or it does not
+    ("assumed", with the reason). The report's parameter table reads it."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+    source: str = Field(description="paper or assumed", json_schema_extra={
+        "unit": "-", "choices": list(PROVENANCE_SOURCES)})
+    why: str = Field(min_length=1, description="where in the paper, or why this value")
+
+    @field_validator("source")
+    @classmethod
+    def _known_source(cls, source: str) -> str:
+        if source not in PROVENANCE_SOURCES:
+            raise ValueError(f"expected one of {', '.join(PROVENANCE_SOURCES)}")
+        return source
 
 
 class Parameters(_Section):
@@ -282,6 +374,9 @@ class Parameters(_Section):
     track: Track
     envelope: Envelope
     model: ModelChoices = Field(default_factory=ModelChoices)
+    # parameter key or table ("arrays.3", "vehicle.inertia_cg") -> where its value comes from
+    provenance: dict[str, Provenance] = Field(default_factory=dict)
+    tolerances: Tolerances = Field(default_factory=Tolerances)
 
     @field_validator("arrays", mode="before")
     @classmethod
@@ -317,7 +412,35 @@ class Parameters(_Section):
             if arr.nominal_gap <= self.track.min_gap:
                 raise _ModelError(f"arrays.{name}.nominal_gap", f"{arr.nominal_gap:g}",
                                   f"is not above track.min_gap = {self.track.min_gap:g}")
+        self._tolerances_within_limits()
+        keys = [lf.key for lf in schema_leaves(self)] + [f"envelope.{f}"
+                                                          for f in Envelope.model_fields]
+        for key in self.provenance:
+            if not any(k == key or k.startswith(key + ".") for k in keys):
+                raise _ModelError("provenance", _short(key), "names no parameter or table")
         return self
+
+    def _tolerances_within_limits(self) -> None:
+        """The file is refused when a tolerance can draw a value outside its key's range:
+        every sample then passes the key checks (the cross-key rules are checked per sample,
+        maglevgen.montecarlo)."""
+        values = {e.name: e.value for e in flatten(self)}
+        for key, tol in self.tolerances.parameters.items():
+            where = f"tolerances.parameters.{key}"
+            if key not in values:
+                raise _ModelError(where, _short(tol.model_dump(exclude_none=True)),
+                                  "not an entry of the parameter vector (see `maglevgen "
+                                  "params show`)")
+            if key.startswith("arrays.") and ".normal." in key:
+                raise _ModelError(where, _short(tol.model_dump(exclude_none=True)),
+                                  "an array's normal is a direction (normalised on load); "
+                                  "tolerance its position instead")
+            lo, hi, why = _leaf_limits(key)
+            a, b = values[key] - tol.half_width, values[key] + tol.half_width
+            if not lo <= a <= b <= hi:
+                raise _ModelError(where, _short(tol.model_dump(exclude_none=True)),
+                                  f"draws values in [{a:.6g}, {b:.6g}], outside the key's range "
+                                  f"[{lo:g}, {hi:g}] ({why})")
 
     @property
     def wavenumber(self) -> float:
@@ -576,8 +699,22 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
         for field, info in model.model_fields.items():
             ann = info.annotation
             name = prefix + field
-            if isinstance(ann, type) and issubclass(ann, BaseModel):
+            if field == "provenance":
+                rows.append(("provenance.<key>", "", "where the value of <key> (a parameter "
+                             "or table) comes from", "", "source = paper or assumed, and why"))
+            elif isinstance(ann, type) and issubclass(ann, BaseModel):
                 walk(ann, name + ".")
+            elif model is Tolerances and field in ("parameters", "disturbance"):
+                extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+                if field == "disturbance":
+                    lo, hi, why = extra["limits"]
+                    rows.append((name, str(extra["unit"]), info.description or "",
+                                 "", f"in {limits_text(lo, hi, '')}: {why}"))
+                    continue
+                rows.append((f"{name}.<key>", "", info.description or "", "",
+                             "an entry of the parameter vector; its values +- the spread "
+                             "inside the key's range"))
+                walk(Tolerance, name + ".<key>.")
             elif field == "arrays":
                 rows.append((f"{name}.<name>", "", "the name of an array (a table key)", "",
                              ARRAY_NAME_RULE.removeprefix("an array name must be ")))
@@ -606,12 +743,41 @@ def check_option(option: str, value: float, lo: float, hi: float, unit: str, why
                          f"({why})")
 
 
+def check_run_options(t_end: float, dt: float) -> None:
+    """--t-end and --dt inside ranges the simulation can hold (its trajectories in memory)."""
+    check_option("--t-end", t_end, 1e-3, 1e4, "s", "a millisecond to nearly three hours")
+    check_option("--dt", dt, 1e-7, 1.0, "s", "RK4 steps; the stability limit is checked too")
+    if t_end / dt > 1e7:
+        raise InputError(f"--t-end {t_end:g} s / --dt {dt:g} s = {t_end / dt:.3g} "
+                         "steps: more than 1e7 (the trajectories are held in memory)")
+
+
 def check_key_option(option: str, value: float, key: str) -> None:
     """A command-line number that stands for the schema's ``key``: inside its range."""
     row = next(r for r in schema_table() if r[0] == key)
     info = _model_field(key)
     lo, hi, why = info.json_schema_extra["limits"]  # type: ignore[index]
     check_option(option, value, lo, hi, row[1], why)
+
+
+def _leaf_limits(entry: str) -> tuple[float, float, str]:
+    """(lo, hi, why) of an entry of the parameter vector (``arrays.3.position.z``)."""
+    parts = entry.split(".")
+    model: Any = Parameters
+    info: Any = None
+    for part in parts:
+        if info is not None and get_origin(info.annotation) is list:
+            break  # a vector's component suffix
+        if model is Parameters and part == "arrays":
+            model, info = Array, None
+            continue
+        if model is Array and info is None and part not in Array.model_fields:
+            continue  # the array's name
+        info = model.model_fields[part]
+        if isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel):
+            model, info = info.annotation, None
+    lo, hi, why = info.json_schema_extra["limits"]
+    return float(lo), float(hi), str(why)
 
 
 def _model_field(key: str) -> Any:

@@ -35,3 +35,41 @@ def _console():
     from rich.console import Console
 
     return Console(stderr=True)
+
+
+@contextmanager
+def rate_bar(description: str, total: int, unit: str = "runs") -> Iterator[Callable[[int], None]]:
+    """A progress bar fed with completed counts, showing the rate (``unit``/s); without a
+    terminal, one line at the end with the count and the rate."""
+    import time
+
+    if not sys.stderr.isatty():
+        done = [0]
+        t0 = time.perf_counter()
+        yield lambda k: done.__setitem__(0, done[0] + k)
+        dt = time.perf_counter() - t0
+        step(f"{description}: {done[0]} of {total} in {dt:.3g} s "
+             f"({done[0] / dt if dt > 0 else 0:.4g} {unit}/s)")
+        return
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    with Progress("[progress.description]{task.description}", BarColumn(),
+                  MofNCompleteColumn(), TextColumn("{task.fields[rate]}"),
+                  TimeRemainingColumn(), transient=True, console=_console()) as prog:
+        task = prog.add_task(description, total=total, rate="")
+        t0 = time.perf_counter()
+        count = [0]
+
+        def advance(k: int) -> None:
+            count[0] += k
+            dt = time.perf_counter() - t0
+            prog.update(task, advance=k,
+                        rate=f"{count[0] / dt:.4g} {unit}/s" if dt > 0 else "")
+
+        yield advance

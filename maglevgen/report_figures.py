@@ -1,7 +1,8 @@
 """The report's own figures (matplotlib, PNG bytes), drawn from plain numbers.
 
 Kept apart from maglevgen.report so that the process that draws them (`maglevgen build`'s
-drawing worker, maglevgen.background) imports matplotlib and numpy only, not SymPy.
+drawing worker, or the report's own child process) imports matplotlib and numpy only, not
+SymPy. Axis labels are symbol and unit; legends sit outside the data.
 """
 
 from __future__ import annotations
@@ -50,10 +51,10 @@ def force_figures(curves: dict[str, Any]) -> dict[str, bytes]:
             ax.plot(*xy, "k.", ms=6)
         for xy, label in c["labels"]:
             ax.annotate(label, xy, textcoords="offset points", xytext=(6, 6), fontsize=7)
-        ax.set_xlabel("gap [mm]")
-        ax.set_ylabel("force per array [N]")
+        ax.set_xlabel(r"gap $\delta$ [mm]")
+        ax.set_ylabel(r"force per array $F$ [N]")
         ax.set_title(f"Eq 3 at {speed:g} m/s; dots: arrays at trim")
-        ax.legend()
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
         fig.tight_layout()
         out["fig_force_gap.png"] = _png(fig)
 
@@ -65,10 +66,46 @@ def force_figures(curves: dict[str, Any]) -> dict[str, bytes]:
         ax.axvline(speed, color="0.4", ls="--", lw=1)
         ax.annotate(r"$v_c$", (v_c, 0), textcoords="offset points", xytext=(3, 3), fontsize=8)
         ax.annotate("V", (speed, 0), textcoords="offset points", xytext=(3, 3), fontsize=8)
-        ax.set_xlabel("speed [m/s]")
-        ax.set_ylabel("force per array [N]")
+        ax.set_xlabel(r"speed $v$ [m/s]")
+        ax.set_ylabel(r"force per array $F$ [N]")
         ax.set_title(f"Eq 3 at the nominal gap {c['nominal_gap'] * 1e3:g} mm, {n_c:g} circuits")
-        ax.legend()
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
         fig.tight_layout()
         out["fig_force_speed.png"] = _png(fig)
     return out
+
+
+_POLE_STYLE = {"open loop (per axis)": ("x", "#7f7f7f"), "damping control": ("s", "#2ca02c"),
+               "per-axis LQR": ("o", "#1f77b4"), "coupled LQR": ("^", "#d62728")}
+
+
+def pole_map(sets: dict[str, list[tuple[float, float]]]) -> bytes:
+    """The poles of each set in the complex plane (PNG bytes), with lines of constant damping
+    ratio; the legend outside the axes."""
+    import math
+
+    import matplotlib as mpl
+    from matplotlib.figure import Figure
+
+    with mpl.rc_context({k: v for k, v in _RC.items() if k != "axes.prop_cycle"}):
+        fig = Figure(figsize=(6.4, 3.8))
+        ax = fig.add_subplot()
+        reach = max((math.hypot(*p) for ps in sets.values() for p in ps), default=1.0) * 1.1
+        for zeta in (0.2, 0.5, 0.707, 0.9):
+            ang = math.acos(zeta)
+            for sgn in (1, -1):
+                ax.plot([0, -reach * zeta], [0, sgn * reach * math.sin(ang)], color="0.8",
+                        lw=0.8, ls="--", zorder=0)
+            ax.annotate(f"$\\zeta$={zeta:g}", (-reach * zeta, reach * math.sin(ang)),
+                        fontsize=6, color="0.5")
+        for name, ps in sets.items():
+            marker, color = _POLE_STYLE.get(name, ("o", "k"))
+            ax.plot([p[0] for p in ps], [p[1] for p in ps], marker, color=color, ms=5,
+                    ls="none", label=name, mfc="none" if marker in "os^" else color)
+        ax.axhline(0, color="0.5", lw=0.6)
+        ax.axvline(0, color="0.5", lw=0.6)
+        ax.set_xlabel(r"real part $\mathrm{Re}\,s$ [1/s]")
+        ax.set_ylabel(r"imaginary part $\mathrm{Im}\,s$ [1/s]")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        fig.tight_layout()
+        return _png(fig)

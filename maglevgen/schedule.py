@@ -72,13 +72,13 @@ class Schedule:
 
 def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
     """C for the firmware: the schedule's node values and second derivatives as static const
-    tables and a `maglev_schedule` (maglev_simulate.h) named ``maglev_embedded_schedule`` for
+    tables and a `maglev_spline_schedule` (maglev_simulate.h) named ``maglev_embedded_schedule`` for
     `maglev_schedule_eval`. Deterministic text (repr of each double)."""
     suffix = "f" if precision == "single" else ""
 
     def table(name: str, data: np.ndarray) -> str:
         rows = [", ".join(f"{float(v)!r}{suffix}" for v in row) for row in data]
-        return (f"static const casadi_real {name}[{data.size}] = {{\n    "
+        return (f"static const maglev_real {name}[{data.size}] = {{\n    "
                 + ",\n    ".join(rows) + "\n};\n")
 
     n = len(schedule.speeds)
@@ -92,5 +92,197 @@ def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
         '#include "maglev_simulate.h"\n\n'
         + table("maglev_schedule_y", schedule.values) + "\n"
         + table("maglev_schedule_d2y", schedule.second_derivatives) + "\n"
-        + f"const maglev_schedule maglev_embedded_schedule = {{{n}, {v0!r}{suffix}, "
+        + f"const maglev_spline_schedule maglev_embedded_schedule = {{{n}, {v0!r}{suffix}, "
         f"{dv!r}{suffix}, maglev_schedule_y, maglev_schedule_d2y}};\n")
+
+
+# ------------------------------------------------------------------------------------------
+# The firmware's gain table: maglev_schedule(v) from static const Chebyshev coefficients
+
+#: one row of the firmware table: (name, number of values), in this order
+GAIN_TABLE_FIELDS = (("F_prop", 1), ("a_ref", N_AXES), ("K", 2 * N_AXES),
+                     ("c_damping", N_AXES), ("K_pos", N_AXES**2), ("K_rate", N_AXES**2))
+GAIN_TABLE_NY = sum(n for _, n in GAIN_TABLE_FIELDS)
+#: the stated bound: each field's worst error over the envelope, relative to the field's
+#: largest magnitude over the envelope (a gain matrix is judged as a whole: its entries that
+#: are zero by symmetry are not divided by themselves)
+GAIN_TABLE_BOUND = 1e-3
+GAIN_TABLE_NODES = tuple(range(8, 41, 2))  # node counts tried, the smallest within the bound
+DENSE_GRID = 601
+ZERO_VALUE = 1e-9  # relative to the field's scale: a value this small everywhere is zero
+
+
+def _field_slices() -> list[tuple[int, int]]:
+    """(first index, size) of each field of a row."""
+    out, i = [], 0
+    for _, n in GAIN_TABLE_FIELDS:
+        out.append((i, n))
+        i += n
+    return out
+
+
+def gain_table_row(op: OperatingPoint, controller: str = "coupled") -> np.ndarray:
+    """(F_prop, a_ref, K column-major, c_damping, K_pos, K_rate column-major) at a speed."""
+    K_pos, K_rate = op.gains(controller)
+    return np.concatenate([[op.f_prop], op.a_trim, op.K.ravel(order="F"), op.c_damping,
+                           K_pos.ravel(order="F"), K_rate.ravel(order="F")])
+
+
+def field_errors(approx: np.ndarray, exact: np.ndarray) -> dict[str, float]:
+    """Each field's worst |approx - exact| over the rows, relative to the field's largest
+    |exact| (GAIN_TABLE_BOUND's measure)."""
+    out, i = {}, 0
+    for name, n in GAIN_TABLE_FIELDS:
+        scale = float(np.max(np.abs(exact[:, i:i + n])))
+        err = float(np.max(np.abs(approx[:, i:i + n] - exact[:, i:i + n])))
+        out[name] = err / scale if scale > 0 else err
+        i += n
+    return out
+
+
+@dataclass(frozen=True)
+class GainTable:
+    """Chebyshev series of the gain table's row in t, an affine map of 1/v onto [-1, 1] over
+    [v_min, v_max]: the trim's lift and drag go as rational functions of v (eqs 5-7), which a
+    polynomial in 1/v approximates with fewer terms than one in v (measured: F_prop to 1e-7
+    with 12 terms in 1/v, 8e-5 in v)."""
+
+    v_min: float
+    v_max: float
+    coeffs: np.ndarray  # (n, GAIN_TABLE_NY); zero columns for the values not stored
+    errors: dict[str, float]  # field_errors on the dense grid
+    stored: tuple[int, ...]  # the values stored; the others are zero over the envelope
+
+    @staticmethod
+    def t_of(v: np.ndarray | float, v_min: float, v_max: float) -> np.ndarray:
+        a, b = 1.0 / v_max, 1.0 / v_min
+        return (2.0 / np.asarray(v, dtype=float) - (a + b)) / (b - a)
+
+    @staticmethod
+    def nodes(n: int, v_min: float, v_max: float) -> np.ndarray:
+        """The n Chebyshev points (first kind) as speeds, increasing."""
+        t = np.cos(np.pi * (np.arange(n) + 0.5) / n)
+        a, b = 1.0 / v_max, 1.0 / v_min
+        return np.sort(1.0 / ((a + b) / 2 + (b - a) / 2 * t))
+
+    def __call__(self, v: np.ndarray | float) -> np.ndarray:
+        from numpy.polynomial import chebyshev
+
+        v = np.clip(v, self.v_min, self.v_max)
+        return chebyshev.chebval(self.t_of(v, self.v_min, self.v_max), self.coeffs).T
+
+    @classmethod
+    def fit(cls, row_at, v_min: float, v_max: float) -> GainTable:
+        """The smallest table of GAIN_TABLE_NODES within GAIN_TABLE_BOUND on a dense grid
+        (the largest when none is); ``row_at(speeds)`` gives the exact rows."""
+        from numpy.polynomial import chebyshev
+
+        dense = np.linspace(v_min, v_max, DENSE_GRID)
+        exact = row_at(dense)
+        # values that vanish over the envelope (by the carriage's symmetry: the lateral and
+        # vertical axes' cross gains, the trim's y, phi, psi) are not stored: a zero output
+        # within ZERO_VALUE of each field's scale, counted in the errors like any other
+        scale = np.concatenate([np.full(n, np.max(np.abs(exact[:, i:i + n])) or 1.0)
+                                for i, n in _field_slices()])
+        stored = tuple(int(j) for j in np.flatnonzero(np.max(np.abs(exact), axis=0)
+                                                      > ZERO_VALUE * scale))
+        table = None
+        for n in GAIN_TABLE_NODES:
+            nodes = cls.nodes(n, v_min, v_max)
+            coeffs = chebyshev.chebfit(cls.t_of(nodes, v_min, v_max), row_at(nodes), n - 1)
+            mask = np.zeros(GAIN_TABLE_NY, dtype=bool)
+            mask[list(stored)] = True
+            coeffs[:, ~mask] = 0.0
+            table = cls(v_min, v_max, coeffs, {}, stored)
+            errors = field_errors(table(dense), exact)
+            table = cls(v_min, v_max, coeffs, errors, stored)
+            if max(errors.values()) <= GAIN_TABLE_BOUND:
+                break
+        assert table is not None
+        return table
+
+    def manifest(self, precision_bytes: int = 4) -> dict:
+        return {"interpolation": "Chebyshev series in 1/v (Clenshaw)",
+                "v_min": self.v_min, "v_max": self.v_max, "nodes": len(self.coeffs),
+                "bound": GAIN_TABLE_BOUND, "dense_grid": DENSE_GRID,
+                "worst_relative_error": max(self.errors.values()),
+                "relative_error_by_field": self.errors,
+                "values_stored": len(self.stored),
+                "table_bytes_single": int(len(self.coeffs) * len(self.stored)
+                                          * precision_bytes + len(self.stored))}
+
+
+def gain_table_sources(table: GainTable) -> dict[str, str]:
+    """maglev_gain_table.h and .c: ``maglev_schedule(v, out)`` from static const tables.
+
+    Single precision unless MAGLEV_GAIN_TABLE_DOUBLE is defined; no libm call, no writable
+    data. Returns 0, MAGLEV_ERR_NONFINITE (out zeroed) or MAGLEV_ERR_SPEED (v outside
+    [v_min, v_max]: out holds the nearer end's values).
+    """
+    from .codegen.checks import ERROR_CODES
+
+    n, ny = table.coeffs.shape
+    a, b = 1.0 / table.v_max, 1.0 / table.v_min
+    offsets, i = [], 0
+    for name, size in GAIN_TABLE_FIELDS:
+        offsets.append(f"#define MAGLEV_SCHEDULE_OUT_{name.upper()} {i}  /* {size} values */\n")
+        i += size
+    errs = ", ".join(f"{k} {v:.2e}" for k, v in table.errors.items())
+    header = (
+        "/* maglev_gain_table.h: the firmware's gain schedule (generated by maglevgen build from "
+        "the parameter file; do not edit). */\n"
+        "#ifndef MAGLEV_GAIN_TABLE_H\n#define MAGLEV_GAIN_TABLE_H\n\n"
+        "#ifdef MAGLEV_GAIN_TABLE_DOUBLE\ntypedef double maglev_real;\n#else\n"
+        "typedef float maglev_real;\n#endif\n\n"
+        + "".join(f"#define {k} {v}\n" for k, (v, _) in ERROR_CODES.items()
+                  if k in ("MAGLEV_OK", "MAGLEV_ERR_NONFINITE", "MAGLEV_ERR_SPEED"))
+        + f"\n#define MAGLEV_SCHEDULE_V_MIN {table.v_min!r}  /* [m/s] */\n"
+        f"#define MAGLEV_SCHEDULE_V_MAX {table.v_max!r}  /* [m/s] */\n"
+        f"#define MAGLEV_SCHEDULE_NOUT {ny}\n" + "".join(offsets) +
+        "\n/*\n * maglev_schedule: at speed v [m/s] in"
+        "\n * [MAGLEV_SCHEDULE_V_MIN, MAGLEV_SCHEDULE_V_MAX],"
+        "\n * out[MAGLEV_SCHEDULE_NOUT] = F_prop [N] (trim propulsion), a_ref (trim y, z, phi,"
+        "\n * theta, psi), K (per-axis LQR, 5 x 2 column-major), c_damping (5), K_pos and K_rate"
+        "\n * (coupled LQR, 5 x 5 column-major each), at the offsets above."
+        f"\n * A Chebyshev series in 1/v of {n} terms; worst error on a {DENSE_GRID}-speed grid,"
+        f"\n * relative to each field's largest magnitude (bound {GAIN_TABLE_BOUND:g}):"
+        f"\n *   {errs}."
+        "\n * Returns MAGLEV_OK, MAGLEV_ERR_NONFINITE (v NaN or infinite: out zeroed) or"
+        "\n * MAGLEV_ERR_SPEED (v outside the range: out holds the nearer end's values).\n */\n"
+        "int maglev_schedule(maglev_real v, maglev_real* out);\n\n"
+        "#endif /* MAGLEV_GAIN_TABLE_H */\n")
+    rows = ",\n        ".join(", ".join(f"R({float(row[j])!r})" for j in table.stored)
+                            for row in table.coeffs)
+    index = ", ".join(str(j) for j in table.stored)
+    # one statement per line, braces everywhere, no parameter modified, no ## (MISRA C:2012
+    # 12.3, 15.6, 17.8, 20.10); the constants are doubles cast once to maglev_real
+    source = (
+        "/* maglev_gain_table.c: see maglev_gain_table.h (generated by maglevgen build; do not "
+        "edit). */\n#include \"maglev_gain_table.h\"\n\n"
+        "#define R(x) ((maglev_real)(x))\n"
+        f"#define NTERMS {n}\n#define V_MIN R({table.v_min!r})\n#define V_MAX R({table.v_max!r})\n"
+        "/* t = T_SCALE / v - T_OFFSET maps 1/v over [1/v_max, 1/v_min] onto [-1, 1] */\n"
+        f"#define T_SCALE R({2.0 / (b - a)!r})\n#define T_OFFSET R({(a + b) / (b - a)!r})\n"
+        f"#define NSTORED {len(table.stored)}\n\n"
+        "int maglev_schedule(maglev_real v, maglev_real* out) {\n"
+        "    /* the outputs stored; the others are zero over the envelope */\n"
+        f"    static const unsigned char stored[NSTORED] = {{{index}}};\n"
+        f"    static const maglev_real coeffs[NTERMS * NSTORED] = {{\n        {rows}\n    }};\n"
+        "    int rc = MAGLEV_OK;\n    int i;\n    int k;\n"
+        "    maglev_real vc;\n    maglev_real t;\n    maglev_real t2;\n"
+        "    for (i = 0; i < MAGLEV_SCHEDULE_NOUT; ++i) {\n        out[i] = R(0);\n    }\n"
+        "    if (!((v - v) == R(0))) { /* NaN or infinite */\n"
+        "        rc = MAGLEV_ERR_NONFINITE;\n"
+        "    } else if (v < V_MIN) {\n        vc = V_MIN;\n        rc = MAGLEV_ERR_SPEED;\n"
+        "    } else if (v > V_MAX) {\n        vc = V_MAX;\n        rc = MAGLEV_ERR_SPEED;\n"
+        "    } else {\n        vc = v;\n    }\n"
+        "    if (rc != MAGLEV_ERR_NONFINITE) {\n"
+        "        t = (T_SCALE / vc) - T_OFFSET;\n        t2 = t + t;\n"
+        "        for (i = 0; i < NSTORED; ++i) { /* Clenshaw */\n"
+        "            maglev_real b1 = R(0);\n            maglev_real b2 = R(0);\n"
+        "            for (k = NTERMS - 1; k > 0; --k) {\n"
+        "                const maglev_real b0 = ((t2 * b1) - b2) + coeffs[(k * NSTORED) + i];\n"
+        "                b2 = b1;\n                b1 = b0;\n            }\n"
+        "            out[stored[i]] = ((t * b1) - b2) + coeffs[i];\n        }\n    }\n"
+        "    return rc;\n}\n")
+    return {"maglev_gain_table.h": header, "maglev_gain_table.c": source}

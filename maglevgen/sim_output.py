@@ -13,15 +13,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .background import Background
 from .derive import conventions as cv
 from .simulate import (
     CONTROLLER_TITLES,
     DISTURBANCE_DOC,
     SETTLING_BAND,
     Trajectory,
+    disturbance_doc,
     metrics,
 )
+from .workers import Shared, child, submit
 
 # The paper's figures: (file, title, [(state, scale, axis label)], figures reproduced)
 FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = (
@@ -56,7 +57,7 @@ def trajectory_csv(traj: Trajectory, input_names: Sequence[str]) -> bytes:
     buf.write(f"# maglevgen simulate: controller {traj.controller} "
               f"({CONTROLLER_TITLES[traj.controller]}), dt {traj.dt:g} s, status {traj.status}"
               f"{'; ' + traj.event if traj.event else ''}\n")
-    buf.write(f"# initial disturbance: {DISTURBANCE_DOC}\n")
+    buf.write(f"# initial disturbance: {disturbance_doc(traj.disturbance)}\n")
     buf.write(",".join(f"{n} [{u}]" for n, u in cols) + "\n")
     buf.write(csv_rows(table(traj)))
     return buf.getvalue().encode()
@@ -125,7 +126,7 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
     return buf.getvalue()
 
 
-def metrics_markdown(all_metrics: Sequence[dict]) -> str:
+def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE_DOC) -> str:
     """One table per controller: settling time, peak deviation, RMS control per axis."""
     launch = bool(all_metrics) and all_metrics[0].get("scenario") == "launch"
     scenario = (
@@ -140,7 +141,7 @@ def metrics_markdown(all_metrics: Sequence[dict]) -> str:
         "controlled and drifts (under a steady force the speed equilibrium is unstable: the "
         "trim drag falls as the speed rises).")
     lines = ["# Closed-loop simulation metrics", "",
-             f"Initial disturbance: {DISTURBANCE_DOC}. {scenario} Deviations are measured "
+             f"Initial disturbance: {disturbance}. {scenario} Deviations are measured "
              "from the trim at the current speed. Status: 'contact' (a gap reached "
              "track.min_gap), 'diverging' (non-finite, or the peak deviation grows from the "
              "first quarter of the run to the last), 'settled' (every axis within "
@@ -212,10 +213,11 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
 def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],
                    header: dict) -> dict[str, bytes]:
     """Every output file of a simulation run; the figures are drawn in a child process
-    (maglevgen.background) while this one writes the trajectories and metrics."""
-    with Background("drawing the figures", render_figures, trajs) as drawing:
+    (maglevgen.workers) while this one writes the trajectories and metrics."""
+    with child(shared={"trajectories": trajs}) as drawing:
+        figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         files = {**render_metrics(trajs, header), **render_trajectories(trajs, input_names)}
-        return {**files, **drawing.result()}
+        return {**files, **figures.result()}
 
 
 NPZ_FILE = "trajectories.npz"
@@ -237,9 +239,10 @@ def render_trajectories(trajs: Sequence[Trajectory], input_names: Sequence[str]
 def render_metrics(trajs: Sequence[Trajectory], header: dict) -> dict[str, bytes]:
     """metrics.json and metrics.md: settling time, peak deviation and RMS control per axis."""
     all_metrics = [metrics(t) for t in trajs]
-    return {"metrics.json": (json.dumps({**header, "disturbance": DISTURBANCE_DOC,
-                                         "runs": all_metrics}, indent=2) + "\n").encode(),
-            "metrics.md": (metrics_markdown(all_metrics) + "\n").encode()}
+    doc = disturbance_doc(trajs[0].disturbance) if trajs else DISTURBANCE_DOC
+    return {"metrics.json": (json.dumps({**header, "disturbance": doc, "runs": all_metrics},
+                                        indent=2) + "\n").encode(),
+            "metrics.md": (metrics_markdown(all_metrics, doc) + "\n").encode()}
 
 
 def trajectory_names(trajs: Sequence[Trajectory]) -> tuple[str, ...]:

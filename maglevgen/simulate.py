@@ -38,6 +38,15 @@ DISTURBANCE: dict[str, float] = {"y": 1e-3, "z": 1e-3, "phi": 2e-3, "theta": 2e-
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "
                    "2 mrad yaw from trim; body velocities at trim")
 
+
+
+def disturbance_doc(disturbance: dict[str, float]) -> str:
+    """DISTURBANCE_DOC for the default disturbance, else the values (--disturbance)."""
+    if disturbance == DISTURBANCE:
+        return DISTURBANCE_DOC
+    return ", ".join(f"{k} {v:+.6g}" for k, v in disturbance.items()) + " from trim"
+
+
 SCENARIOS: tuple[str, ...] = ("hold", "launch")
 # what maglev_simulate / maglev_launch report (MAGLEV_SIM_*); a run that took every step gets
 # its status from its trajectory (run_status)
@@ -373,7 +382,8 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                   speed: float | None = None, lib: SimulationLibrary | None = None,
                   announce: Callable[[str], None] | None = None,
                   bar: Callable[[str], object] | None = None,
-                  scenario: str = "hold") -> SimulationRun:
+                  scenario: str = "hold",
+                  disturbance: dict[str, float] | None = None) -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
 
     ``hold``: from the disturbed trim at ``speed`` (default operation.speed) for ``t_end``
@@ -418,13 +428,15 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
             a = carriage.params.envelope.launch_acceleration
             trajs.append(launch(lib, carriage.p, Schedule.from_points(points, c), op, v_end,
                                 carriage.params.vehicle.mass * a, dt, min_gap,
-                                max_time=1.5 * (v_end - op.speed) / a + 1.0))
+                                max_time=1.5 * (v_end - op.speed) / a + 1.0,
+                                disturbance=disturbance))
             continue
         if bar is None:
-            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap))
+            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance))
             continue
         with bar(f"simulating {CONTROLLER_TITLES[c]}") as update:
-            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, progress=update))
+            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
+                                  progress=update))
     growth = max(float(np.max(e.real)) for e in eig.values())
     return SimulationRun(op, tuple(trajs), limits[worst], input_names_of(carriage.structure),
                          growth, scenario, v_end)

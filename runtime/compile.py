@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import subprocess
@@ -12,6 +11,7 @@ from pathlib import Path
 
 from maglevgen.cache import default_cache_dir, write_atomic
 from maglevgen.errors import InputError, MaglevError
+from maglevgen.hashing import ContentHash, file_sha256
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
 
@@ -64,7 +64,7 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
         os.unlink(tmp)
         first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
         raise CompileError(f"compiling {sources[0].name} failed: {first}")
-    digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()
+    digest = file_sha256(Path(tmp))
     write_atomic(_checksum_path(lib), (digest + "\n").encode())
     os.replace(tmp, lib)
     return lib
@@ -85,13 +85,12 @@ def _library_path(compiler: str, sources: Sequence[Path], flags: Sequence[str],
                   cache_dir: Path | None) -> Path:
     """Where the library of these sources, flags and compiler is cached: its key hashes the
     compiler path, the flags and every source's and header's bytes."""
-    h = hashlib.sha256()
-    h.update(compiler.encode() + b"\0" + "\0".join(flags).encode())
+    h = ContentHash(compiler, *flags)
     for src in sources:
-        for f in sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c" else [src]:
-            h.update(f.name.encode() + b"\0" + f.read_bytes())
+        h.files((f.name, f) for f in (sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c"
+                                      else [src]))
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    return cache / f"lib{h.hexdigest()[:24]}.so"
+    return cache / f"lib{h.hexdigest(24)}.so"
 
 
 def _checksum_path(lib: Path) -> Path:
@@ -106,7 +105,7 @@ def _intact(lib: Path) -> bool:
         recorded = _checksum_path(lib).read_text().strip()
     except OSError:
         return False
-    return hashlib.sha256(lib.read_bytes()).hexdigest() == recorded
+    return file_sha256(lib) == recorded
 
 
 def _looks_like_elf(path: Path) -> bool:

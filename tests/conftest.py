@@ -26,7 +26,7 @@ _INSTALL = {
     "needs_cc": "apt-get install -y gcc binutils (or set CC to an installed compiler)",
     "needs_tex": "apt-get install -y --no-install-recommends latexmk texlive-latex-base "
                  "texlive-latex-recommended texlive-fonts-recommended poppler-utils",
-    "needs_arm": "apt-get install -y gcc-arm-none-eabi",
+    "needs_arm": "apt-get install -y gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm",
 }
 # Fixtures that compile generated C: every test using one needs the compiler.
 _CC_FIXTURES = frozenset({"sim_lib", "op", "runtime_lib", "baked"})

@@ -83,7 +83,7 @@ def test_full_axis_stiffness_equals_central_difference(carriage: Carriage,
 def test_gravity_and_propulsion_stiffness_equals_central_difference(
         carriage: Carriage, heavy: Carriage) -> None:
     """The K_other part alone: its own scale, so a sign error cannot hide in the magnetic one."""
-    from maglevgen.derive.linearize import other_stiffness
+    from maglevgen.derive.numeric import other_stiffness
 
     for c, v in _cases(carriage, heavy):
         trim = c.trim(v)

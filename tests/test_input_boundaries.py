@@ -49,8 +49,10 @@ INJECTED_NAMES = [
 
 
 def renamed(old: str, new: str) -> str:
-    """The default file with array ``old``'s table named ``new`` (a TOML quoted key)."""
-    return replaced(f"[arrays.{old}]", f"[arrays.{json.dumps(new)}]")
+    """The default file with array ``old``'s table named ``new`` (a TOML quoted key), and its
+    [provenance] entries following it (a provenance key that names nothing is refused)."""
+    text = replaced(f"[arrays.{old}]", f"[arrays.{json.dumps(new)}]")
+    return text.replace(f'"arrays.{old}.', json.dumps(f"arrays.{new}.")[:-1])
 
 
 def nested(depth: int, open_: str = "[", close: str = "]") -> str:
@@ -87,7 +89,7 @@ CASES: list[tuple[str, str, list[str]]] = [
     # nesting deeper than the schema (4 levels: document, arrays, an array, its position)
     ("nested-array-10", replaced("position = [0.26, 0.0, -0.03]", "position = " + nested(10)),
      ["arrays.3.position.0 = ", "nested deeper than the schema's 4 levels"]),
-    ("nested-array-5000", replaced("mass = 9.3 ", "mass = " + nested(5000) + " "),
+    ("nested-array-5000", replaced("mass = 9.3\n", "mass = " + nested(5000) + "\n"),
      ["line 8 (key 'mass')", "nested deeper than the schema's 4 levels"]),
     ("nested-inline-table-5000", DEFAULT_TEXT.replace("[track]\n", "[track]\nx = "
                                                       + nested(5000, "{a = ", "}") + "\n"),
@@ -171,8 +173,14 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
         if key == "arrays.<name>":
             assert "1 to 16 ASCII letters, digits or underscores" in line
             continue
+        if key == "tolerances.parameters.<key>":  # a name: an entry of the parameter vector
+            assert "an entry of the parameter vector" in line
+            continue
         if key == "envelope.embedded_controller":  # a name, not a number: its choices
             assert line.endswith("one of damping, lqr, coupled"), line
+            continue
+        if key == "provenance.<key>":  # text about a value, not a number
+            assert "paper or assumed" in line, line
             continue
         m = re.search(r"in \[(\S+), (\S+)\][^:]*: (.+)$", line)
         assert m, line
@@ -181,18 +189,24 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
     # the default carriage's values lie inside the ranges it lists
     ranges = {line.split()[0]: tuple(map(float, re.search(r"in \[(\S+), (\S+)\]", line).groups()))
               for line in lines
-              if line.split()[0] not in ("arrays.<name>", "envelope.embedded_controller")}
+              if line.split()[0] not in ("arrays.<name>", "envelope.embedded_controller",
+                                         "provenance.<key>",
+                                         "tolerances.parameters.<key>")}
 
     def leaves(data: Any, prefix: str = "") -> Any:
         for k, v in data.items():
             key = re.sub(r"^arrays\.[^.]+\.", "arrays.<name>.", f"{prefix}{k}")
+            if prefix.startswith("tolerances.parameters."):
+                key = f"tolerances.parameters.<key>.{k}"
+            if prefix == "tolerances.disturbance.":
+                key = "tolerances.disturbance"
             if isinstance(v, dict):
                 yield from leaves(v, f"{prefix}{k}.")
             else:
                 yield key, v if isinstance(v, list) else [v]
 
     for key, values in leaves(DEFAULT_DATA):
-        if key == "envelope.embedded_controller":
+        if key == "envelope.embedded_controller" or key.startswith("provenance."):
             continue
         lo, hi = ranges[key]
         assert all(lo <= c <= hi for c in values), key
@@ -201,8 +215,14 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
 # ------------------------------------------------------------------------------ one line
 
 def test_a_libraries_multi_line_message_stays_one_line(monkeypatch, capsys) -> None:
-    """SciPy's root() message (several lines in some versions) inside the no-trim error."""
+    """SciPy's root() message (several lines in some versions) inside the no-trim error of
+    the lambdified trim (the report's), raised where `maglevgen trim` meets a no-trim error
+    (its own trim is the C's, which has no such message)."""
+    from maglevgen import summary
+    from maglevgen.carriage import Carriage
     from maglevgen.derive import trim as trim_mod
+    from maglevgen.errors import NoTrimError
+    from maglevgen.params import load_params
 
     def failing_root(fun, x0, **_k):
         return types.SimpleNamespace(x=x0 + 0.01, success=False,
@@ -210,6 +230,13 @@ def test_a_libraries_multi_line_message_stays_one_line(monkeypatch, capsys) -> N
                                              "  as measured by the\n improvement")
 
     monkeypatch.setattr(trim_mod, "root", failing_root)
+    with pytest.raises(NoTrimError) as raised:
+        Carriage(load_params(overrides=["vehicle.mass=9.31"])).trim()
+
+    def no_trim(*_a):
+        raise raised.value
+
+    monkeypatch.setattr(summary, "trim_point", no_trim)
     rc = main(["trim", "--set", "vehicle.mass=9.31"])
     out, err = capsys.readouterr()
     assert_one_line_error(rc, out, err, ["did not converge", "not making good progress, as "
@@ -221,16 +248,16 @@ def test_floating_point_warnings_never_reach_the_terminal(monkeypatch, capsys) -
     the command's own."""
     import numpy as np
 
-    from maglevgen import cli
+    from maglevgen import summary
 
-    real = cli.trim_report
+    real = summary.trim_report
 
     def overflowing(carriage, speed):
         np.exp(np.array([1e3]))  # RuntimeWarning: overflow
         warnings.warn("a library's own warning", UserWarning, stacklevel=1)
         return real(carriage, speed)
 
-    monkeypatch.setattr(cli, "trim_report", overflowing)
+    monkeypatch.setattr(summary, "trim_report", overflowing)
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         rc = main(["trim", "--json"])
@@ -528,7 +555,7 @@ def test_summary_says_why_the_pdf_was_skipped(good: Path, tmp_path: Path, monkey
     import maglevgen.report as report
 
     monkeypatch.setattr(build, "_find_tex", lambda: None)
-    monkeypatch.setattr(report, "find_tex", lambda: None)
+    monkeypatch.setattr(report.latex, "find_tex", lambda: None)
     out = tmp_path / "out"
     assert main(["build", "--out", str(out), "--t-end", "1"]) == 0
     summary = (out / "SUMMARY.md").read_text()

@@ -20,9 +20,13 @@ import pytest
 
 from maglevgen import report as rp
 from maglevgen.carriage import Carriage
-from maglevgen.cli import gains_report, main
+from maglevgen.cli import main
 from maglevgen.errors import InputError, MaglevError
 from maglevgen.params import default_params_text, load_params
+from maglevgen.report import display, latex, render
+from maglevgen.report import format as fmt
+from maglevgen.report.sections import parameters, simulation, stiffness
+from maglevgen.summary import gains_report
 
 OVERFULL_BOUND_PT = 10.0  # widest overfull box the PDF may have
 RTOL = 1e-4  # the report prints 6 significant digits
@@ -48,7 +52,7 @@ def mass_report(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def default_context(carriage: Carriage):
-    return rp.build_context(carriage, default_params_text())
+    return rp.build_context(carriage)
 
 
 def _pdf_text(pdf: Path) -> str:
@@ -123,7 +127,7 @@ def test_changed_mass_changes_the_report(mass_report: Path, default_report: Path
     default_rows = _gain_rows(_pdf_text(default_report / "report.pdf"), "")
     assert rows["vertical"][1] == MASS and default_rows["vertical"][1] == 9.3
     assert rows["vertical"][3] != default_rows["vertical"][3]
-    mass_line = re.search(r"^\s*vehicle\.mass\s.*$", text, re.MULTILINE).group(0)
+    mass_line = re.search(r"^\s*mass\s+m\s.*$", text, re.MULTILINE).group(0)
     assert re.search(rf"\b{MASS:g}\b", mass_line) and "set" in mass_line, mass_line
     tex = (mass_report / "report.tex").read_text()
     _assert_gains_match(_gain_rows(tex, "&"), ref)
@@ -142,7 +146,9 @@ def test_tex_is_deterministic(default_report: Path, default_context, tmp_path: P
 def test_tex_shows_every_equation_from_the_context(default_report: Path) -> None:
     tex = (default_report / "report.tex").read_text(encoding="utf-8")
     for tag in ("1", "2", "3", "4", "8", "9", "10", "11", "12", "13", "22", "23", "30", "31", "32"):
-        assert f"\\tag{{{tag}}}" in tex or f"& {tag} &" in tex, f"eq {tag} missing"
+        assert f"\\tag{{{tag}" in tex or f"& {tag} &" in tex, f"eq {tag} missing"
+    for tag in ("8", "12", "22", "23", "31", "32"):  # the printed forms, tagged apart
+        assert f"\\tag{{{tag}, paper}}" in tex, f"eq {tag} as printed: not tagged (N, paper)"
     assert "\\date{}" in tex and "\\VAR{" not in tex and "\\BLOCK{" not in tex
 
 
@@ -153,7 +159,7 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
     png = b"\x89PNG\r\n\x1a\n" + b"0" * 16  # copied as bytes, never decoded
     (sim / "levitation_pitch.png").write_bytes(png)
     (sim / "metrics.json").write_text('{"lqr": {"settling_time": 1.5, "ok": true}}')
-    sim_ctx, files = rp._simulation(sim)
+    sim_ctx, files = simulation._simulation(sim)
     assert files.read() == {"sim_levitation_pitch.png": png}
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     assert (
@@ -162,7 +168,7 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
     )
     assert "figs 3, 5 and 7" in tex and "travel\\_roll.png" in tex and "settling" in tex
     with pytest.raises(InputError, match="none of"):
-        rp._simulation(tmp_path)
+        simulation._simulation(tmp_path)
     # in memory, as `maglevgen build` passes a simulate run's files, with its metrics format
     run = {
         "controller": "lqr",
@@ -181,13 +187,13 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
         },
     }
     metrics = json.dumps({"speed": 20.0, "disturbance": "1 mm heave", "runs": [run]})
-    sim_ctx, files = rp._simulation({"travel_roll.png": png, "metrics.json": metrics})
+    sim_ctx, files = simulation._simulation({"travel_roll.png": png, "metrics.json": metrics})
     assert list(files.read()) == ["sim_travel_roll.png"]
     assert sim_ctx["runs"][0]["controller"] == "lqr"
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     assert "not settled" in tex and "1 mm heave" in tex and "\\texttt{lqr}: ok" in tex
     with pytest.raises(InputError, match="not a folder"):
-        rp._simulation(tmp_path / "nowhere")
+        simulation._simulation(tmp_path / "nowhere")
 
 
 # ------------------------------------------------------------------- failure and no TeX
@@ -200,9 +206,9 @@ def test_latex_failure_leaves_the_previous_output(
     out = tmp_path / "out"
     out.mkdir()
     (out / "report.tex").write_text("previous")
-    monkeypatch.setattr(rp, "build_context", lambda *a, **k: default_context)
+    monkeypatch.setattr(render, "build_context", lambda *a, **k: default_context)
     monkeypatch.setattr(
-        rp,
+        render,
         "render_tex",
         lambda ctx: "\\documentclass{article}\\begin{document}\\undefinedmacro\\end{document}\n",
     )
@@ -211,7 +217,7 @@ def test_latex_failure_leaves_the_previous_output(
         match=r"LaTeX failed: .*report\.tex:1: Undefined control "
         r"sequence.*\.out\.failed/report\.log",
     ):
-        rp.write_report(carriage, default_params_text(), out)
+        rp.write_report(carriage, out)
     assert [p.name for p in out.iterdir()] == ["report.tex"]
     assert (out / "report.tex").read_text() == "previous"
 
@@ -219,8 +225,8 @@ def test_latex_failure_leaves_the_previous_output(
 def test_without_tex_the_tex_is_written_and_the_install_named(
     default_context, tmp_path: Path, monkeypatch, capsys
 ) -> None:
-    monkeypatch.setattr(rp, "build_context", lambda *a, **k: default_context)
-    monkeypatch.setattr(rp, "find_tex", lambda: None)
+    monkeypatch.setattr(render, "build_context", lambda *a, **k: default_context)
+    monkeypatch.setattr(latex, "find_tex", lambda: None)
     assert main(["report", "--out", str(tmp_path / "r")]) == 0
     out = capsys.readouterr()
     assert "report.tex" in out.out and "report.pdf" not in out.out
@@ -229,6 +235,7 @@ def test_without_tex_the_tex_is_written_and_the_install_named(
         "envelope_stability_map.png",
         "fig_force_gap.png",
         "fig_force_speed.png",
+        "pole_map.png",
         "report.tex",
     ]
 
@@ -246,9 +253,7 @@ def test_missing_simulation_folder_is_bad_input(tmp_path: Path, capsys) -> None:
 
 
 def test_parameter_sources_and_reasons_come_from_the_file() -> None:
-    rows, notes = rp.parameter_rows(
-        load_params(None, [f"vehicle.mass={MASS}"]), default_params_text()
-    )
+    rows, notes = parameters.parameter_rows(load_params(None, [f"vehicle.mass={MASS}"]))
     by_key = {r.key: r for r in rows}
     assert by_key["vehicle.mass"].source == "set"
     assert by_key["vehicle.length"].source == "paper"
@@ -264,10 +269,10 @@ def test_parameter_sources_and_reasons_come_from_the_file() -> None:
 
 
 def test_changed_value_in_a_file_is_marked(tmp_path: Path) -> None:
-    text = default_params_text().replace("mass = 9.3 ", "mass = 11.0")
+    text = default_params_text().replace("mass = 9.3\n", "mass = 11.0\n")
     path = tmp_path / "c.toml"
     path.write_text(text)
-    rows, _ = rp.parameter_rows(load_params(path), text)
+    rows, _ = parameters.parameter_rows(load_params(path))
     mass = next(r for r in rows if r.key == "vehicle.mass")
     assert mass.source == "changed" and mass.values == (11.0,) and mass.paper == "9.3 kg"
 
@@ -276,24 +281,24 @@ def test_changed_value_in_a_file_is_marked(tmp_path: Path) -> None:
 
 
 def test_number_formats() -> None:
-    assert rp.fnum(9.3) == "9.3"
-    assert rp.fnum(2.23521e-4) == r"2.23521 \times 10^{-4}"
-    assert rp.fnum(-1.5e7, 3) == r"-1.5 \times 10^{7}"
-    assert rp.ffixed(2.9647e-5) == "0.000029647"
-    assert rp.ffixed(16865.1234) == "16865.1"
-    assert rp.fcomplex(-1.5 + 0j) == "-1.5"
+    assert fmt.fnum(9.3) == "9.3"
+    assert fmt.fnum(2.23521e-4) == r"2.23521 \times 10^{-4}"
+    assert fmt.fnum(-1.5e7, 3) == r"-1.5 \times 10^{7}"
+    assert fmt.ffixed(2.9647e-5) == "0.000029647"
+    assert fmt.ffixed(16865.1234) == "16865.1"
+    assert fmt.fcomplex(-1.5 + 0j) == "-1.5"
 
 
 def test_escape_and_long_sums_are_broken() -> None:
-    assert rp.tex_escape("a_b & 50% #1 {x} ~ ^") == (
+    assert fmt.tex_escape("a_b & 50% #1 {x} ~ ^") == (
         r"a\_b \& 50\% \#1 \{x\} \textasciitilde{} \^{}"
     )
     import sympy as sp
 
     x = sp.symbols("x0:40")
-    lines = rp.break_sum("S", sum(xi * sp.Symbol("y") for xi in x))
+    lines = display.break_sum("S", sum(xi * sp.Symbol("y") for xi in x))
     assert len(lines) > 3 and lines[0].startswith("S &=")
-    assert all(rp._tex_width(line) <= rp.LINE_WIDTH + 10 for line in lines)
+    assert all(display._tex_width(line) <= display.LINE_WIDTH + 10 for line in lines)
 
 
 def test_stiffness_display_is_keyed_by_the_geometry_it_shows() -> None:
@@ -302,22 +307,100 @@ def test_stiffness_display_is_keyed_by_the_geometry_it_shows() -> None:
     base = Carriage(load_params(overrides=[]))
     heavier = Carriage(load_params(overrides=["vehicle.mass=12.5"]))
     moved = Carriage(load_params(overrides=["arrays.3.position=[0.26, 0.0, -0.031]"]))
-    assert rp._shown_values(heavier) == rp._shown_values(base)
-    assert rp._shown_values(moved) != rp._shown_values(base)
-    assert ("arrays.3.position.z", -0.031) in rp._shown_values(moved)
-    shown = rp._stiffness_display(moved.structure, rp._shown_values(moved), rp._REPORT_SOURCE)
-    assert shown != rp._stiffness_display(base.structure, rp._shown_values(base),
-                                          rp._REPORT_SOURCE)
+    assert stiffness._shown_values(heavier) == stiffness._shown_values(base)
+    assert stiffness._shown_values(moved) != stiffness._shown_values(base)
+    assert ("arrays.3.position.z", -0.031) in stiffness._shown_values(moved)
+    shown = stiffness._stiffness_display(moved.structure, stiffness._shown_values(moved),
+                                         display.REPORT_SOURCE)
+    assert shown != stiffness._stiffness_display(base.structure, stiffness._shown_values(base),
+                                          display.REPORT_SOURCE)
     assert "0.031" in " ".join(shown[0].lines)  # the moved array's z arm, in the display
-    rp._stiffness_display.cache_clear()  # in-process entries; the disk store is bypassed below
+    stiffness._stiffness_display.cache_clear()  # in-process entries; the disk store bypassed below
     from maglevgen.derive import memo
 
     memo.set_store(None)
     try:
-        fresh = rp._stiffness_display(moved.structure, rp._shown_values(moved),
-                                      rp._REPORT_SOURCE)
+        fresh = stiffness._stiffness_display(moved.structure, stiffness._shown_values(moved),
+                                      display.REPORT_SOURCE)
     finally:
         from maglevgen.cache import STORE
 
         memo.set_store(STORE)
     assert fresh == shown
+
+
+# ------------------------------------------------------------------- the reviewer's page
+
+
+@pytest.mark.needs_cc
+@pytest.mark.needs_tex
+def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
+                                                         carriage: Carriage) -> None:
+    """Page 1 names every controller's verdict (from `maglevgen envelope`'s data, computed here
+    by envelope.compute_envelope) and the count of checks; nowhere a SymPy/Python repr."""
+    from maglevgen.envelope import compute_envelope
+    from maglevgen.library import simulation_library
+    from maglevgen.operating import CONTROLLER_TITLES
+
+    pdf = str(default_report / "report.pdf")
+    page1 = subprocess.run(["pdftotext", "-f", "1", "-l", "1", pdf, "-"], check=True,
+                           capture_output=True, text=True).stdout
+    flat = re.sub(r"\s+", " ", unicodedata.normalize("NFKC", page1).replace("\u2212", "-"))
+    env = compute_envelope(carriage, simulation_library(carriage.structure))
+    for name, c in env.controllers.items():
+        verdict = re.sub(r"\s+", " ", c.verdict.replace("\u2212", "-"))
+        assert f"{CONTROLLER_TITLES[name]}" in flat and verdict[:40] in flat, (name, verdict)
+    assert re.search(r"Verification .*\d+ checks passed, \d+ failed", flat)
+    text = _pdf_text(default_report / "report.pdf")
+    for raw in ("Eq(", "sqrt(", "[["):
+        assert raw not in text, f"raw Python/SymPy output {raw!r} in the PDF"
+
+
+@pytest.mark.needs_cc
+@pytest.mark.needs_tex
+def test_summary_gain_rows_agree_with_gains_json(default_report: Path, carriage: Carriage,
+                                                 capsys) -> None:
+    """Every number of the summary's gains table (K1, K2, the poles) equals `gains --json`'s,
+    parsed row by row from the PDF's text."""
+    assert main(["gains", "--json"]) == 0
+    ref = json.loads(capsys.readouterr().out)
+    text = _pdf_text(default_report / "report.pdf")
+    page = text[: text.index("Paper discrepancies")]
+    num = r"-?\d+(?:\.\d+)?(?:\s*[x×]\s*10-?\d+)?"
+    for axis, a in ref["axes"].items():
+        m = re.search(rf"^\s*{axis}\s+({num})\s+({num})\s+(.*)$", page, re.MULTILINE)
+        assert m, f"no summary row for {axis}"
+        np.testing.assert_allclose([float(m.group(1)), float(m.group(2))], a["K_closed_form"],
+                                   rtol=RTOL, err_msg=axis)
+        pole = r"(-?\d+(?:\.\d+)?)\s*([+-])\s*(\d+(?:\.\d+)?)\s*j|(-?\d+(?:\.\d+)?)"
+        parts = re.findall(pole, m.group(3))
+        poles = [complex(float(re_), float(im) * (1 if sg == "+" else -1)) if im else
+                 complex(float(re_only), 0) for re_, sg, im, re_only in parts]
+        want = [complex(*p) for p in a["closed_loop_poles"]]
+        got = sorted(poles, key=lambda z: (z.real, z.imag))
+        want = sorted(want, key=lambda z: (z.real, z.imag))
+        assert len(got) == len(want), (axis, m.group(3))
+        for g, w in zip(got, want, strict=True):
+            assert abs(g - w) <= 1e-3 * abs(w), (axis, g, w)
+
+
+def test_simulation_made_with_other_parameters_is_refused(tmp_path: Path, capsys) -> None:
+    """`report --simulation DIR` with a folder simulated for another mass: exit 2, one line
+    naming the folder and why, nothing written."""
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--t-end", "0.05",
+                 "--set", "vehicle.mass=9.5"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "r"
+    assert main(["report", "--simulation", str(sim), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(sim) in err[0] and "other parameters" in err[0], err
+    assert not out.exists()
+
+
+def test_provenance_key_that_names_nothing_is_bad_input(tmp_path: Path) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text(default_params_text() + '\n[provenance."vehicle.mas"]\nsource = "paper"\n'
+                    'why = "typo"\n')
+    with pytest.raises(InputError, match=r"provenance = 'vehicle.mas': names no parameter"):
+        load_params(path)

@@ -1,6 +1,6 @@
 /*
  * Bench driver for the firmware functions of a baked-parameter build, in the build's precision
- * (casadi_real is float or double), timed from C.
+ * (maglev_real is float or double), timed from C.
  *
  *   bench_controller INPUT time REPS MS     ns per call of each kind (JSON)
  *   bench_controller INPUT schedule V...    the schedule at each speed V (JSON): trim, its
@@ -61,12 +61,12 @@ extern long bench_newton_iterations;
 #define NEWTON_RESET() ((void)0)
 #endif
 
-static casadi_real SPEED, XS[NS_MAX][NX];
+static maglev_real SPEED, XS[NS_MAX][NX];
 static long N_SAMPLES;
-static casadi_real W[SZ_W + 1];
-static casadi_int IW[SZ_IW + 1];
+static maglev_real W[SZ_W + 1];
+static maglev_int IW[SZ_IW + 1];
 /* the schedule at SPEED: what the ticks use */
-static casadi_real K_S[2 * NA], C_S[NA], A_REF[NA], K_AX[NA], M_AX[NA];
+static maglev_real K_S[2 * NA], C_S[NA], A_REF[NA], K_AX[NA], M_AX[NA];
 
 enum { TRIM, PLANTS, LQR_GAINS, AXIS_GAINS, LQR, DAMPING, ALLOCATE, TICK, N_KINDS };
 static const char *const NAMES[N_KINDS] = {
@@ -83,7 +83,7 @@ static void read_input(const char *path) {
         exit(2);
     }
     read_doubles(f, &v, 1, "speed");
-    SPEED = (casadi_real)v;
+    SPEED = (maglev_real)v;
     read_doubles(f, &v, 1, "n_samples");
     N_SAMPLES = (long)v;
     if (N_SAMPLES < 1 || N_SAMPLES > NS_MAX) {
@@ -92,33 +92,33 @@ static void read_input(const char *path) {
     }
     for (i = 0; i < N_SAMPLES; ++i) {
         read_doubles(f, x, NX, "x samples");
-        for (j = 0; j < NX; ++j) XS[i][j] = (casadi_real)x[j];
+        for (j = 0; j < NX; ++j) XS[i][j] = (maglev_real)x[j];
     }
     fclose(f);
 }
 
-static void trim(const casadi_real *v, casadi_real *x_trim, casadi_real *f_prop) {
-    const casadi_real *arg[ARGN];
-    casadi_real *res[ARGN];
+static void trim(const maglev_real *v, maglev_real *x_trim, maglev_real *f_prop) {
+    const maglev_real *arg[ARGN];
+    maglev_real *res[ARGN];
     arg[0] = v;
     res[0] = x_trim;
     res[1] = f_prop;
     maglev_trim(arg, res, IW, W, 0);
 }
 
-static void plants(const casadi_real *v, casadi_real *k, casadi_real *m) {
-    const casadi_real *arg[ARGN];
-    casadi_real *res[ARGN];
+static void plants(const maglev_real *v, maglev_real *k, maglev_real *m) {
+    const maglev_real *arg[ARGN];
+    maglev_real *res[ARGN];
     arg[0] = v;
     res[0] = k;
     res[1] = m;
     maglev_axis_plants(arg, res, IW, W, 0);
 }
 
-static void axis_gains(const casadi_real *k, const casadi_real *m, casadi_real *K,
-                       casadi_real *c) {
-    const casadi_real *arg[ARGN];
-    casadi_real *res[ARGN];
+static void axis_gains(const maglev_real *k, const maglev_real *m, maglev_real *K,
+                       maglev_real *c) {
+    const maglev_real *arg[ARGN];
+    maglev_real *res[ARGN];
     arg[0] = k;
     arg[1] = m;
     res[0] = K;
@@ -126,9 +126,9 @@ static void axis_gains(const casadi_real *k, const casadi_real *m, casadi_real *
     maglev_axis_gains(arg, res, IW, W, 0);
 }
 
-static void lqr_gains(const casadi_real *v, casadi_real *K, casadi_real *c) {
-    const casadi_real *arg[ARGN];
-    casadi_real *res[ARGN];
+static void lqr_gains(const maglev_real *v, maglev_real *K, maglev_real *c) {
+    const maglev_real *arg[ARGN];
+    maglev_real *res[ARGN];
     arg[0] = v;
     res[0] = K;
     res[1] = c;
@@ -136,11 +136,11 @@ static void lqr_gains(const casadi_real *v, casadi_real *K, casadi_real *c) {
 }
 
 /* The largest |acceleration| (xdot[6..11]) of the dynamics at a trim, in the build's precision. */
-static double trim_residual(const casadi_real *x_trim, casadi_real f_prop) {
-    const casadi_real *arg[ARGN];
-    casadi_real *res[ARGN];
-    casadi_real u[NU_MAX], xdot[NX];
-    const casadi_int *sp = maglev_dynamics_sparsity_in(1);
+static double trim_residual(const maglev_real *x_trim, maglev_real f_prop) {
+    const maglev_real *arg[ARGN];
+    maglev_real *res[ARGN];
+    maglev_real u[NU_MAX], xdot[NX];
+    const maglev_int *sp = maglev_dynamics_sparsity_in(1);
     double worst = 0.0;
     int j, nu = (int)sp[0];
     if (nu > NU_MAX) {
@@ -158,7 +158,7 @@ static double trim_residual(const casadi_real *x_trim, casadi_real f_prop) {
 }
 
 static void schedule_at_speed(void) {
-    casadi_real x_trim[NX], f_prop;
+    maglev_real x_trim[NX], f_prop;
     int j;
     trim(&SPEED, x_trim, &f_prop);
     for (j = 0; j < NA; ++j) A_REF[j] = x_trim[1 + j]; /* a = (y, z, phi, theta, psi) */
@@ -167,16 +167,16 @@ static void schedule_at_speed(void) {
 }
 
 static double time_kind(int kind, long calls) {
-    const casadi_real *arg[ARGN];
-    casadi_real *res[ARGN];
-    casadi_real K[2 * NA], c[NA], ug[NA], F[16], xt[NX], fp, k[NA], m[NA];
+    const maglev_real *arg[ARGN];
+    maglev_real *res[ARGN];
+    maglev_real K[2 * NA], c[NA], ug[NA], F[16], xt[NX], fp, k[NA], m[NA];
     double acc = 0.0, t0;
     long i;
     int j;
-    for (j = 0; j < NA; ++j) ug[j] = (casadi_real)(j + 1);
+    for (j = 0; j < NA; ++j) ug[j] = (maglev_real)(j + 1);
     t0 = now_ns();
     for (i = 0; i < calls; ++i) {
-        const casadi_real *x = XS[i % N_SAMPLES];
+        const maglev_real *x = XS[i % N_SAMPLES];
         switch (kind) {
         case TRIM:
             trim(&SPEED, xt, &fp);
@@ -192,7 +192,7 @@ static double time_kind(int kind, long calls) {
             break;
         case AXIS_GAINS: /* the plants of a sample's heave and attitude, perturbed per call */
             for (j = 0; j < NA; ++j) {
-                k[j] = K_AX[j] * (casadi_real)(1.0 + 0.01 * x[1 + j]);
+                k[j] = K_AX[j] * (maglev_real)(1.0 + 0.01 * x[1 + j]);
                 m[j] = M_AX[j];
             }
             axis_gains(k, m, K, c);
@@ -237,7 +237,7 @@ static double time_kind(int kind, long calls) {
     return t0 / (double)calls;
 }
 
-static void print_reals(const char *name, const casadi_real *v, int n, const char *end) {
+static void print_reals(const char *name, const maglev_real *v, int n, const char *end) {
     int i;
     printf("\"%s\": [", name);
     for (i = 0; i < n; ++i) printf("%s%.17g", i ? ", " : "", (double)v[i]);
@@ -246,9 +246,9 @@ static void print_reals(const char *name, const casadi_real *v, int n, const cha
 
 static int run_schedule(int n, char **speeds) {
     int s;
-    printf("{\"real_bytes\": %d, \"speeds\": [\n", (int)sizeof(casadi_real));
+    printf("{\"real_bytes\": %d, \"speeds\": [\n", (int)sizeof(maglev_real));
     for (s = 0; s < n; ++s) {
-        casadi_real v = (casadi_real)atof(speeds[s]), xt[NX], fp, k[NA], m[NA], K[2 * NA],
+        maglev_real v = (maglev_real)atof(speeds[s]), xt[NX], fp, k[NA], m[NA], K[2 * NA],
                     c[NA], K2[2 * NA], c2[NA];
         long iters;
         NEWTON_RESET();
@@ -300,7 +300,7 @@ int main(int argc, char **argv) {
             int which = (k % 2) ? N_KINDS - 1 - kind : kind;
             t[which][k] = time_kind(which, calls[which]);
         }
-    printf("{\"real_bytes\": %d,\n", (int)sizeof(casadi_real));
+    printf("{\"real_bytes\": %d,\n", (int)sizeof(maglev_real));
     for (kind = 0; kind < N_KINDS; ++kind) print_list(NAMES[kind], t[kind], reps, 0);
     printf("\"sz_w\": %d, \"sz_iw\": %d}\n", (int)SZ_W, (int)SZ_IW);
     return 0;

@@ -66,10 +66,10 @@ static void read_input(const char *path) {
 /* ---------------------------------------------------------------------- ns per call */
 
 static double time_generated(long calls) {
-    const casadi_real *arg[maglev_dynamics_SZ_ARG + 1];
-    casadi_real *res[maglev_dynamics_SZ_RES + 1];
-    casadi_int iw[maglev_dynamics_SZ_IW + 1];
-    casadi_real w[maglev_dynamics_SZ_W + 1];
+    const maglev_real *arg[maglev_dynamics_SZ_ARG + 1];
+    maglev_real *res[maglev_dynamics_SZ_RES + 1];
+    maglev_int iw[maglev_dynamics_SZ_IW + 1];
+    maglev_real w[maglev_dynamics_SZ_W + 1];
     double xdot[NX], acc = 0.0, t0;
     long i;
     t0 = now_ns();

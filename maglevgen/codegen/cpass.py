@@ -670,8 +670,25 @@ def generate_c(
                 raise ValueError("generated code contains the temporary directory path")
     source = _banner(name, precision, ".c") + postprocess(raw[".c"], precision)
     header = _banner(name, precision, ".h") + postprocess(raw[".h"], precision)
-    header = _include_guard(name, header)
+    header = _include_guard(name, _own_types(header))
     return {f"{name}.c": source, f"{name}.h": header}
+
+
+def _own_types(header: str) -> str:
+    """The header with its own types ``maglev_real``/``maglev_int`` (typedefs of the types the
+    .c pins casadi_real/casadi_int to) instead of redefining the global casadi_* macros, which
+    would silently switch any other CasADi-generated code in the same translation unit."""
+    for macro, own in (("casadi_real", "maglev_real"), ("casadi_int", "maglev_int")):
+        pattern = re.compile(rf"/\* Fixed at generation time \(maglevgen cpass\): the code "
+                             rf"depends on it\. \*/\n#undef {macro}\n#define {macro} ([^\n]+)\n")
+        header, n = pattern.subn(
+            lambda m, macro=macro, own=own: f"/* {macro} of the .c, fixed at generation time "
+            f"(maglevgen cpass) */\ntypedef {m.group(1)} {own};\n", header)
+        if n != 1:
+            raise ValueError(f"generated header does not pin {macro} once")
+        header = _map_code(header, lambda code, macro=macro, own=own:
+                           re.sub(rf"\b{macro}\b", own, code))
+    return header
 
 
 def _include_guard(name: str, header: str) -> str:

@@ -49,6 +49,12 @@ DESCRIPTIONS: dict[str, str] = {
                            "constant over a run: c, once per simulation",
     "closed_loop_prepared": "maglev_closed_loop's xdot, u and gaps from x and the prepared c",
     "gaps": "the gap of each array (exact pose geometry); contact when one reaches the track",
+    "array_forces": "lift and drag of each array at state x (eqs 3-4 at the exact gaps)",
+    "stiffness": "at state x and propulsion F_prop: the magnetic stiffness K_st0 = -dW/dq of "
+                 "the array forces (5 x 5, eqs 13-19 derived) and that of the gravity and "
+                 "propulsion moments (K_other)",
+    "effectiveness": "E (5 x arrays' forces): the generalized forces about O that unit array "
+                     "control forces produce (eqs 22-23; T is its minimum-norm inverse)",
 }
 
 
@@ -140,6 +146,18 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     q_of_x = ca.vertcat(*[xs[cv.STATE_INDEX[s]] for s in Q_STATES])
     plant = ca.Function("maglev_axis_plant", [xs, fprop_s, p],
                         [plant_qf(q_of_x, fl_t, fd_t, fprop_s, p)])
+    array_forces = ca.Function("maglev_array_forces", [xs, p], [fl_t, fd_t], ["x", "p"],
+                               ["lift", "drag"])
+    K_mag = ca.SX(5, 5)
+    K_oth = ca.SX(5, 5)
+    for i in range(5):
+        for j in range(5):
+            K_mag[i, j] = conv_k(sf.K[i, j])
+            K_oth[i, j] = conv_k(sf.K_other[i, j])
+    stiff_qf = ca.Function("maglev_stiffness_qf", [q_sx, fl, fd, fprop, p], [K_mag, K_oth])
+    stiffness = ca.Function("maglev_stiffness", [xs, fprop_s, p],
+                            list(stiff_qf(q_of_x, fl_t, fd_t, fprop_s, p)),
+                            ["x", "F_prop", "p"], ["K_magnetic", "K_other"])
     km_mx = plant(xt_mx, ut_mx[0], p_mx)
     K_mx, c_mx = K_fn(km_mx, p_mx)
     lqr_gains = ca.Function("maglev_lqr_gains", [v_mx, p_mx], [K_mx, c_mx], ["v", "p"],
@@ -177,6 +195,7 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     forces = E.T @ ca.solve(E @ E.T, u_gen)
     allocate = ca.Function("maglev_allocate", [u_gen, p], [forces], ["u_gen", "p"],
                            ["F_arrays"])
+    effectiveness = ca.Function("maglev_effectiveness", [p], [E], ["p"], ["E"])
 
     # --- the closed loop's right-hand side, with the allocation matrix T as an input:
     # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
@@ -205,7 +224,9 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     # the step calls the finished right-hand side, so the C holds one copy of it
     rk4 = _rk4_step(closed_loop, allocation_matrix)
     prepare, prepared = _prepared_closed_loop(closed_loop)
-    return Built((*fns, rk4, closed_loop, prepare, prepared, _finished(gaps_fn)), p.shape[0])
+    return Built((*fns, rk4, closed_loop, prepare, prepared, _finished(gaps_fn),
+                  _finished(array_forces), _finished(stiffness), _finished(effectiveness)),
+                 p.shape[0])
 
 
 def _finished(fn: ca.Function) -> ca.Function:

@@ -8,17 +8,20 @@ from __future__ import annotations
 import json
 
 import casadi as ca
+import numpy as np
 
 from maglevgen.carriage import Carriage
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.model import CarriageModel
 from maglevgen.output import write_output  # noqa: F401  (re-exported: the writers' API)
 
-from .cpass import generate_c
+from .checks import check_entries, work_sizes
+from .cpass import float_literal, generate_c
 from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
 from .interface import (
     C_NAME,
     FUNCTION_TABLE,
+    INT_TYPES,
     IO_DOCS,
     SIMULATE_FILES,
     GenerateOptions,
@@ -26,6 +29,7 @@ from .interface import (
     render_interface,
     template_env,
 )
+from .misra import deviation_list
 
 
 def _io(fn: ca.Function, out: bool) -> list[dict]:
@@ -36,19 +40,39 @@ def _io(fn: ca.Function, out: bool) -> list[dict]:
              "doc": IO_DOCS.get(name(i), "")} for i in range(n)]
 
 
-def function_table(functions: list[ca.Function]) -> list[dict]:
-    return [{
-        "name": f.name(),
-        "description": DESCRIPTIONS[f.name().removeprefix(PREFIX)],
-        "inputs": _io(f, False), "outputs": _io(f, True),
-        "sz_arg": f.sz_arg(), "sz_res": f.sz_res(), "sz_iw": f.sz_iw(), "sz_w": f.sz_w(),
-    } for f in functions]
+def function_table(functions: list[ca.Function], source: str | None = None) -> list[dict]:
+    """Name, description, inputs, outputs and work sizes of each function: those its generated
+    ``NAME_work`` reports when ``source`` (the C) is given, else CasADi's Function counts."""
+    work = work_sizes(source) if source is not None else {}
+    table = []
+    for f in functions:
+        sz = work.get(f.name(), (f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()))
+        table.append({
+            "name": f.name(),
+            "description": DESCRIPTIONS[f.name().removeprefix(PREFIX)],
+            "inputs": _io(f, False), "outputs": _io(f, True),
+            "sz_arg": sz[0], "sz_res": sz[1], "sz_iw": sz[2], "sz_w": sz[3],
+        })
+    return table
+
+
+def _min_gap_c(model: CarriageModel, opts: GenerateOptions, p_value: np.ndarray | None) -> str:
+    """track.min_gap as C inside maglev_trim_checked: p[i], or the baked value."""
+    i = model.structure.param_names.index("track.min_gap")
+    if p_value is None:
+        return f"p[{i}]"
+    value = float(p_value[i])
+    return float_literal(value) if opts.precision == "single" else repr(value)
 
 
 def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: str,
-             model: CarriageModel) -> dict[str, str]:
-    """The C sources: the CasADi functions (post-processed) and the simulation loop."""
-    sources = generate_c(functions, C_NAME, opts.precision)
+             model: CarriageModel, p_value: np.ndarray | None = None) -> dict[str, str]:
+    """The C sources: the CasADi functions (post-processed, with the checked entry points of
+    maglevgen.codegen.checks) and the simulation loop."""
+    sources = generate_c(functions, C_NAME, opts.precision, int_type=INT_TYPES[opts.int_type])
+    sources[f"{C_NAME}.c"] = check_entries(sources[f"{C_NAME}.c"], function_table(functions),
+                                           opts.precision, opts.parameters == "runtime",
+                                           _min_gap_c(model, opts, p_value))
     files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
     prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
     ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
@@ -67,7 +91,8 @@ def render_runtime_sources(model: CarriageModel, precision: str = "double") -> d
     opts = GenerateOptions(precision, "runtime")
     fns = list(build_functions(model, precision=precision).functions)
     files = render_c(fns, opts, banner(opts, None), model)
-    files[FUNCTION_TABLE] = json.dumps(function_table(fns), indent=1) + "\n"
+    files[FUNCTION_TABLE] = json.dumps(function_table(fns, files[f"{C_NAME}.c"]),
+                                       indent=1) + "\n"
     return files
 
 
@@ -78,8 +103,23 @@ def render(carriage: Carriage, opts: GenerateOptions) -> dict[str, str]:
     if opts.parameters == "baked":
         fns = bake_all(tuple(fns), carriage.p)
     text_banner = banner(opts, carriage.loaded.sha256 if opts.parameters == "baked" else None)
-    files = render_c(fns, opts, text_banner, carriage.model)
-    files.update(render_interface(carriage, opts, function_table(fns)))
+    files = render_c(fns, opts, text_banner, carriage.model,
+                     carriage.p if opts.parameters == "baked" else None)
+    files.update(render_interface(carriage, opts, function_table(fns, files[f"{C_NAME}.c"])))
+    files["MISRA_DEVIATIONS.md"] = deviation_list()
     return files
 
 
+TICK_FUNCTIONS = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
+                  "maglev_allocate")
+
+
+def render_tick_sources(carriage, precision: str = "single") -> dict[str, str]:
+    """maglev_tick.c/.h: the per-tick functions alone, baked, as maglev_functions.c has them."""
+    fns = bake_all(tuple(build_functions(carriage.model, precision=precision).functions),
+                   carriage.p)
+    tick = [f for f in fns if f.name() in TICK_FUNCTIONS]
+    src = generate_c(tick, "maglev_tick", precision)
+    src["maglev_tick.c"] = check_entries(src["maglev_tick.c"], function_table(tick), precision,
+                                         False, "0")
+    return src

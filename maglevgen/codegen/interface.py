@@ -16,10 +16,12 @@ from typing import TYPE_CHECKING
 
 import jinja2
 
-from maglevgen import __version__
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
+from maglevgen.version import __version__
+
+from .checks import error_defines
 
 if TYPE_CHECKING:
     from maglevgen.carriage import Carriage
@@ -52,15 +54,26 @@ IO_DOCS: dict[str, str] = {
     "x_next": "state after the step", "x0": "state",
     "gaps": "[m] gap of each array, in the parameter file's array order",
     "T": "minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix",
+    "lift": "[N] lift of each array, in the parameter file's array order",
+    "drag": "[N] drag of each array, in the parameter file's array order",
+    "K_magnetic": "magnetic stiffness K_st0 (5 x 5, MAGLEV_AXIS_* order, column-major)",
+    "K_other": "stiffness of the gravity and propulsion moments (5 x 5, column-major)",
+    "E": "control effectiveness (5 x array forces, column-major): u_gen = E F_arrays",
 }
+
+
+INT_TYPES = {"int64": "long long int", "int32": "int"}  # --int: the C type of casadi_int
 
 
 @dataclass(frozen=True)
 class GenerateOptions:
     precision: str = "double"
     parameters: str = "baked"
+    int_type: str = "int64"
 
     def __post_init__(self) -> None:
+        if self.int_type not in INT_TYPES:
+            raise InputError(f"--int {self.int_type!r}: expected one of {tuple(INT_TYPES)}")
         if self.precision not in PRECISIONS:
             raise InputError(f"--precision {self.precision!r}: expected one of {PRECISIONS}")
         if self.parameters not in PARAMETER_MODES:
@@ -69,7 +82,9 @@ class GenerateOptions:
 
     @property
     def command(self) -> str:
-        return f"maglevgen generate --precision {self.precision} --parameters {self.parameters}"
+        extra = "" if self.int_type == "int64" else f" --int {self.int_type}"
+        return (f"maglevgen generate --precision {self.precision} --parameters "
+                f"{self.parameters}{extra}")
 
 
 def _macro(name: str) -> str:
@@ -119,9 +134,10 @@ def render_interface(carriage: Carriage, opts: GenerateOptions,
     ctx = {
         "banner": header_banner, "precision": opts.precision, "parameters": opts.parameters,
         "real_type": "float" if opts.precision == "single" else "double",
+        "int_type": INT_TYPES[opts.int_type],
         "states": cv.STATES, "inputs": inputs, "controls": cv.CONTROLS, "params": params,
         "functions": table, "speed": _c_literal(carriage.params.operation.speed, "double"),
-        "dt": "1e-3", "n_steps": 2000,
+        "dt": "1e-3", "n_steps": 2000, "error_defines": error_defines(),
     }
     env = template_env()
     files = {name: env.get_template(f"{name}.j2").render(ctx)
@@ -138,6 +154,7 @@ def _manifest(carriage: Carriage, opts: GenerateOptions, table: list[dict], para
         "command": opts.command,
         "precision": opts.precision,
         "parameters": opts.parameters,
+        "casadi_int": INT_TYPES[opts.int_type],
         "params_sha256": carriage.loaded.sha256,
         "params_source": Path(carriage.loaded.source).name,
         "overrides": list(carriage.loaded.overrides),

@@ -1,0 +1,238 @@
+"""Firmware figures (issue 16): Cortex-M4F footprint, x86 time per call, MISRA counts.
+
+    python bench/firmware.py [--no-misra]
+
+Cortex-M4F (arm-none-eabi-gcc -Os, the README's firmware flags): for each group of entry
+points, the bytes of .text and .rodata that the linker keeps (a program that references only
+that group, --gc-sections, newlib's libm included) minus those of an empty program, and the
+worst stack from -fcallgraph-info=su (the generated code's own frames; libm's not included).
+x86-64 (gcc -O2, bench/c/bench_firmware.c): ns per call of the ticks, of the table schedule
+maglev_schedule and of the Newton schedule (maglev_trim + maglev_lqr_gains) at the same
+speeds, in the same run (median of 5 rounds). MISRA C:2012 (cppcheck --addon=misra, a few
+minutes): the findings of the whole maglev_functions.c and of the tick path, by rule.
+Writes bench/firmware_results.json and the firmware section of BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import BENCH, ROOT, log, paired_ratios, run, summary
+
+from maglevgen.carriage import Carriage
+from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
+from maglevgen.envelope import envelope_points, resolve_range
+from maglevgen.library import simulation_library
+from maglevgen.params import load_params
+from maglevgen.schedule import GainTable, gain_table_row, gain_table_sources
+
+RESULTS = BENCH / "firmware_results.json"
+BEGIN, END = "<!-- firmware benchmark: bench/firmware.py -->", "<!-- end of firmware benchmark -->"
+CPU = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16"]
+FLAGS = [*CPU, "-Os", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wdouble-promotion",
+         "-Wfloat-conversion", "-Werror", "-fno-math-errno", "-ffunction-sections",
+         "-fdata-sections"]
+GROUPS = {
+    "LQR tick (lqr_control + allocate)": ("maglev_lqr_control", "maglev_allocate"),
+    "coupled tick (coupled_control + allocate)": ("maglev_coupled_control", "maglev_allocate"),
+    "damping tick (damping_control + allocate)": ("maglev_damping_control", "maglev_allocate"),
+    "table schedule (maglev_schedule)": ("maglev_schedule",),
+    "Newton schedule (trim + lqr_gains)": ("maglev_trim", "maglev_lqr_gains"),
+    "dynamics": ("maglev_dynamics",),
+}
+LINK = """MEMORY { FLASH (rx) : ORIGIN = 0x0, LENGTH = 4M
+         RAM (rwx) : ORIGIN = 0x20000000, LENGTH = 4M }
+_estack = ORIGIN(RAM) + LENGTH(RAM);
+SECTIONS {
+  .text : { KEEP(*(.vectors)) *(.text*) } > FLASH
+  .rodata : { *(.rodata*) } > FLASH
+  .ARM.exidx : { *(.ARM.exidx*) } > FLASH
+  _sidata = LOADADDR(.data);
+  .data : { _sdata = .; *(.data*) _edata = .; } > RAM AT > FLASH
+  .bss : { _sbss = .; *(.bss*) *(COMMON) _ebss = .; } > RAM
+}
+"""
+
+
+def _worst_stack(ci: str, root: str) -> int:
+    own = {m.group(1): int(m.group(2)) for m in re.finditer(
+        r'node: \{ title: "([^"]+)" label: "[^"]*?(\d+) bytes \(static\)', ci)}
+    calls: dict[str, list[str]] = {}
+    for m in re.finditer(r'edge: \{ sourcename: "([^"]+)" targetname: "([^"]+)"', ci):
+        calls.setdefault(m.group(1), []).append(m.group(2))
+
+    def worst(f: str, seen: frozenset) -> int:
+        return own.get(f, 0) + max((worst(g, seen | {f}) for g in calls.get(f, ())
+                                    if g not in seen), default=0)
+
+    return worst(root, frozenset())
+
+
+def _sources(carriage: Carriage, folder: Path) -> GainTable:
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), folder)
+    lib = simulation_library(carriage.structure)
+    v_min, v_max = resolve_range(carriage, lib)
+    table = GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
+                                               envelope_points(carriage, lib, vs)]),
+                          v_min, v_max)
+    for name, text in gain_table_sources(table).items():
+        (folder / name).write_text(text)
+    return table
+
+
+def m4_footprint(folder: Path) -> dict:
+    """Bytes kept per group on Cortex-M4F and the worst stack."""
+    m4 = ROOT / "tests" / "c" / "m4"
+    (folder / "bench.ld").write_text(LINK)
+    objs = []
+    for name in ("maglev_functions", "maglev_gain_table"):
+        run(["arm-none-eabi-gcc", *FLAGS, "-fcallgraph-info=su", "-c", f"{name}.c", "-o",
+             f"{name}.o"], cwd=folder)
+        objs.append(f"{name}.o")
+    run(["arm-none-eabi-gcc", *CPU, "-Os", "-c", str(m4 / "startup.c"), "-o", "startup.o"],
+        cwd=folder)
+    ci = "".join((folder / f"{n}.ci").read_text() for n in ("maglev_functions",
+                                                             "maglev_gain_table"))
+
+    def image(names: tuple[str, ...]) -> tuple[int, int]:
+        decl = "".join(f"extern int {n}();\n" for n in names)
+        keep = ", ".join(f"(void (*)(void)){n}" for n in names) or "0"
+        (folder / "keep.c").write_text(
+            f"{decl}void (*volatile const keep[])(void) = {{{keep}}};\n"
+            "int main(void) { return keep[0] != 0; }\n")
+        run(["arm-none-eabi-gcc", *CPU, "-Os", "-std=gnu99", "-c", "keep.c", "-o", "keep.o"],
+            cwd=folder)
+        run(["arm-none-eabi-gcc", *CPU, "-nostartfiles", "-T", "bench.ld", "-Wl,--gc-sections",
+             "startup.o", "keep.o", *objs, "-lm", "-lc", "-o", "keep.elf"], cwd=folder)
+        sizes = run(["arm-none-eabi-size", "-A", "keep.elf"], cwd=folder)
+        got = {ln.split()[0]: int(ln.split()[1]) for ln in sizes.splitlines()
+               if ln.startswith(".")}
+        return got.get(".text", 0), got.get(".rodata", 0)
+
+    base = image(())
+    out = {}
+    for group, names in GROUPS.items():
+        text, rodata = image(names)
+        out[group] = {"functions": names, "text": text - base[0], "rodata": rodata - base[1],
+                      "stack": max(_worst_stack(ci, n) for n in names)}
+        log(f"M4 {group}: {out[group]}")
+    return out
+
+
+def x86_times(folder: Path) -> dict:
+    run(["gcc", "-O2", "-std=c99", f"-I{folder}", f"-I{BENCH / 'c'}",
+         str(BENCH / "c" / "bench_firmware.c"), str(folder / "maglev_functions.c"),
+         str(folder / "maglev_gain_table.c"), "-lm", "-o", str(folder / "bench_fw")])
+    raw = json.loads(run([folder / "bench_fw"]))
+    out = {k: summary(v) for k, v in raw.items()}
+    out["newton_vs_table"] = paired_ratios(raw["schedule_newton_ns"], raw["schedule_table_ns"])
+    return out
+
+
+def misra_counts(folder: Path, carriage: Carriage) -> dict:
+    def count(files: list[str], cwd: Path) -> dict[str, int]:
+        import subprocess
+
+        proc = subprocess.run(["cppcheck", "--addon=misra", "--std=c99", "--quiet",
+                               "--template={id}", *files], cwd=cwd, capture_output=True,
+                              text=True, check=False)
+        rules = Counter(ln.removeprefix("misra-c2012-") for ln in proc.stderr.split()
+                        if ln.startswith("misra-c2012-"))
+        return dict(sorted(rules.items(), key=lambda kv: -kv[1]))
+
+    for name, text in render_tick_sources(carriage).items():
+        (folder / name).write_text(text)
+    t0 = time.perf_counter()
+    whole = count(["maglev_functions.c"], folder)
+    log(f"MISRA whole file: {sum(whole.values())} findings in {time.perf_counter() - t0:.0f} s")
+    return {"whole_file": whole, "tick_path": count(["maglev_tick.c", "maglev_gain_table.c"],
+                                                    folder)}
+
+
+def section(r: dict) -> list[str]:
+    fp = r["m4"]
+    t = r["x86"]
+    lines = [BEGIN, "## 8. Firmware (issue 16): Cortex-M4F footprint, schedule table, MISRA", "",
+             f"Measured by `python bench/firmware.py` ({r['date_utc']} UTC; raw figures: "
+             "bench/firmware_results.json). Single precision, baked parameters, `--int int32`; "
+             "arm-none-eabi-gcc -Os with the README's firmware flags (`-fno-math-errno` "
+             "included). Bytes that the linker keeps for a program referencing only the "
+             "group, newlib's libm (sinf, cosf, expf) included, minus an empty program; worst "
+             "stack: the deepest static call path (-fcallgraph-info=su; libm's frames not "
+             "included).", "",
+             "| group | .text | .rodata | worst stack |", "| --- | --- | --- | --- |"]
+    lines += [f"| {g} | {v['text']} | {v['rodata']} | {v['stack']} |" for g, v in fp.items()]
+    gt = r["gain_table"]
+    lines += ["", f"The table schedule: a Chebyshev series in 1/v of {gt['nodes']} terms for "
+              f"{gt['values_stored']} stored values over [{gt['v_min']:.4g}, {gt['v_max']:g}] "
+              f"m/s; worst error on a {gt['dense_grid']}-speed grid relative to each field's "
+              f"largest magnitude {gt['worst_relative_error']:.2g} (bound {gt['bound']:g}); "
+              "tests/test_firmware.py bounds the ticks' and the schedule's stack at 256 B.", "",
+              "x86-64 (gcc -O2, median of 5 rounds, same run):", "",
+              "| call | time per call |", "| --- | --- |"]
+    for key, label in (("lqr_control_ns", "lqr_control tick"),
+                       ("coupled_control_ns", "coupled_control tick"),
+                       ("allocate_ns", "allocate"),
+                       ("schedule_table_ns", "maglev_schedule (table)"),
+                       ("schedule_newton_ns", "maglev_trim + maglev_lqr_gains (Newton)")):
+        lines.append(f"| {label} | {t[key]['median']:.3g} ns |")
+    lines += ["", f"Newton schedule / table schedule: {t['newton_vs_table']['median']:.3g}x.", ""]
+    if "misra" in r:
+        whole, tick = r["misra"]["whole_file"], r["misra"]["tick_path"]
+        lines += ["MISRA C:2012 (cppcheck --addon=misra): findings by rule; every rule of the "
+                  "tick path is justified in MISRA_DEVIATIONS.md (generated beside the code).",
+                  "", "| rule | whole maglev_functions.c | tick path + table schedule |",
+                  "| --- | --- | --- |"]
+        for rule in sorted(set(whole) | set(tick),
+                           key=lambda s: tuple(int(x) for x in s.split(".") if x.isdigit())):
+            lines.append(f"| {rule} | {whole.get(rule, 0)} | {tick.get(rule, 0)} |")
+        lines.append(f"| total | {sum(whole.values())} | {sum(tick.values())} |")
+    return [*lines, END]
+
+
+def write_section(r: dict, path: Path = ROOT / "BENCHMARKS.md") -> None:
+    block = "\n".join(section(r)) + "\n"
+    text = path.read_text()
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        text = head + block + rest.split(END, 1)[1].lstrip("\n")
+    else:
+        text = text.rstrip("\n") + "\n\n" + block
+    path.write_text(text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--no-misra", action="store_true",
+                    help="skip cppcheck (minutes): keep the last counts")
+    args = ap.parse_args(argv)
+    carriage = Carriage(load_params())
+    with tempfile.TemporaryDirectory(prefix="bench_fw_") as tmp:
+        folder = Path(tmp)
+        table = _sources(carriage, folder)
+        r = {"date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
+             "gain_table": table.manifest(), "m4": m4_footprint(folder),
+             "x86": x86_times(folder)}
+        if not args.no_misra:
+            r["misra"] = misra_counts(folder, carriage)
+        elif RESULTS.exists() and "misra" in json.loads(RESULTS.read_text()):
+            r["misra"] = json.loads(RESULTS.read_text())["misra"]  # the last counted
+    RESULTS.write_text(json.dumps(r, indent=1) + "\n")
+    write_section(r)
+    log(f"wrote {RESULTS.name} and BENCHMARKS.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1040 @@
+"""The Python API: a carriage as an object, its results as numpy arrays and python-control
+systems.
+
+Every method mirrors a command of ``maglevgen`` (the CLI) and calls the same functions, so the
+numbers are the ones the command prints, and bad input raises the same exception
+(`maglevgen.InputError`, exit code 2 on the command line) with the same one-line message
+(which names the command-line option, e.g. ``--speed``, that the argument stands for).
+
+========================  ===================================================
+``maglevgen.load``        ``--params FILE --set NAME=VALUE``
+``Carriage.trim``         ``maglevgen trim --json``
+``Carriage.gains_report`` ``maglevgen gains --json``
+``Carriage.gains``        the 5 x 5 gains the simulation, envelope and FMU use
+``Carriage.linearize``    the Jacobians of the compiled ``maglev_jacobians``
+``Carriage.axis_plant``   one axis of ``maglevgen gains`` (eqs 24-27)
+``Carriage.simulate``     ``maglevgen simulate``
+``Carriage.envelope``     ``maglevgen envelope``
+``Carriage.generate``     ``maglevgen generate``
+``Carriage.report``       ``maglevgen report``
+``Carriage.fmu``          ``maglevgen fmu``
+``Carriage.montecarlo``   not yet: waits for ``maglevgen montecarlo`` (issue 19)
+========================  ===================================================
+
+The state, input and output names of the python-control systems are those of the generated C
+(``manifest.json``): states x, y, z, phi, theta, psi (position of O and Z-Y-X Euler angles) and
+u, v, w, p, q, r (body velocities and rates); inputs F_prop and the array force components.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .derive import conventions as cv
+from .errors import InputError
+
+if TYPE_CHECKING:
+    import control
+    import pandas
+
+    from .library import SimulationLibrary
+    from .operating import OperatingPoint
+    from .params import Parameters
+    from .simulate import SimulationRun
+
+__all__ = ["Carriage", "EnvelopeResult", "Gains", "SimulationResult", "TrimResult", "load"]
+
+STATE_NAMES: tuple[str, ...] = tuple(s.name for s in cv.STATES)
+AXES: tuple[str, ...] = tuple(cv.AXES)
+CONTROLLERS: tuple[str, ...] = ("none", "damping", "lqr", "coupled")
+
+
+def load(params: str | Path | None = None, overrides: Sequence[str] = ()) -> Carriage:
+    """Load and validate a carriage's parameter file, as every command does.
+
+    Parameters
+    ----------
+    params : str or pathlib.Path, optional
+        The TOML parameter file (``--params``); None: the LLNL carriage shipped with
+        maglevgen (``maglevgen params show``).
+    overrides : sequence of str, optional
+        ``NAME=VALUE`` items (``--set``): dotted names as in the file, values in TOML syntax,
+        e.g. ``("vehicle.mass=12.5", "arrays.3.circuits=12")``.
+
+    Returns
+    -------
+    Carriage
+        The validated carriage.
+
+    Raises
+    ------
+    maglevgen.InputError
+        A file that cannot be read, malformed TOML, an unknown key, a value outside its
+        physical range; the message is the CLI's one line, naming the key and the value.
+
+    See Also
+    --------
+    Carriage : the same, as a constructor.
+
+    Examples
+    --------
+    >>> import maglevgen
+    >>> carriage = maglevgen.load(overrides=["vehicle.mass=12.5"])
+    >>> carriage.params.vehicle.mass
+    12.5
+    >>> maglevgen.load(overrides=["vehicle.mass=-1"])
+    Traceback (most recent call last):
+    ...
+    maglevgen.errors.InputError: carriage_llnl.toml: vehicle.mass = -1: ...
+    """
+    return Carriage(params, overrides)
+
+
+@dataclass(frozen=True)
+class TrimResult:
+    """The equilibrium at one speed: what ``maglevgen trim --json`` prints.
+
+    Attributes
+    ----------
+    speed : float
+        Forward speed [m/s].
+    x : numpy.ndarray
+        (12,) trim state in the order of `state_names` (units: m, rad, m/s, rad/s).
+    state_names : tuple of str
+        x, y, z, phi, theta, psi, u, v, w, p, q, r.
+    propulsion_force : float
+        F_prop [N] balancing the drag.
+    residual : float
+        Largest |acceleration| left by the Newton solve.
+    lift_off_speed : float
+        The lowest speed with an equilibrium [m/s].
+    array_names : tuple of str
+        The arrays in the parameter file's order.
+    gaps, lift, drag : numpy.ndarray
+        Per array: air gap [m], lift and drag [N] (eqs 4-5).
+    stiffness_matrix : numpy.ndarray
+        (5, 5) magnetic stiffness K_st0 on (y, z, phi, theta, psi) (eqs 13-19).
+    report : dict
+        The whole ``trim --json`` report (the stiffness table beside the paper's printed
+        forms, the paper's inputs), without the envelope's verdicts.
+    """
+
+    speed: float
+    x: np.ndarray
+    state_names: tuple[str, ...]
+    propulsion_force: float
+    residual: float
+    lift_off_speed: float
+    array_names: tuple[str, ...]
+    gaps: np.ndarray
+    lift: np.ndarray
+    drag: np.ndarray
+    stiffness_matrix: np.ndarray
+    report: dict[str, Any] = field(repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as plain JSON data (a copy).
+
+        Returns
+        -------
+        dict
+            What ``maglevgen trim --json`` prints, less its ``envelope`` entry.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> sorted(maglevgen.load().trim().to_dict())[:3]
+        ['arrays', 'lift_off_speed', 'paper_inputs']
+        """
+        return json.loads(json.dumps(self.report))
+
+
+@dataclass(frozen=True)
+class Gains:
+    """A controller's gains at one speed, in the law of the generated C (eqs 20-33).
+
+    u_gen = -(K_pos (a - a_trim) + K_rate a'), with a = (y, z, phi, theta, psi) and a' their
+    rates; equivalently u_gen = -K (x_r - x_r,trim) on the reduced state x_r (`states`).
+    The array forces are T u_gen (the minimum-norm allocation, eqs 22-23).
+
+    Attributes
+    ----------
+    controller : str
+        none, damping (eqs 20-21), lqr (per-axis LQR, eqs 24-33) or coupled (full-state LQR
+        of the ten-state linearisation with the per-axis weights).
+    speed : float
+        Forward speed [m/s].
+    K_pos, K_rate : numpy.ndarray
+        (5, 5) position and rate gains [N/m, N*m/rad; N*s/m, N*m*s/rad].
+    K : numpy.ndarray
+        (5, 10) the same law on the reduced state; NaN where the coupled LQR's Riccati
+        equation has no stabilizing solution.
+    allocation : numpy.ndarray
+        T (n_array_forces, 5).
+    poles : numpy.ndarray
+        The ten closed-loop poles [1/s] of the reduced linearisation with this controller:
+        the eigenvalues ``Carriage.envelope`` judges.
+    states : tuple of str
+        y, z, phi, theta, psi, v, w, p, q, r.
+    controls : tuple of str
+        u_y, u_z, u_phi, u_theta, u_psi.
+    """
+
+    controller: str
+    speed: float
+    K_pos: np.ndarray
+    K_rate: np.ndarray
+    K: np.ndarray
+    allocation: np.ndarray
+    poles: np.ndarray
+    states: tuple[str, ...]
+    controls: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """One closed-loop run of ``maglevgen simulate``, as named arrays.
+
+    Attributes
+    ----------
+    controller : str
+        The controller of the run.
+    scenario : str
+        hold or launch.
+    t : numpy.ndarray
+        (n,) time [s].
+    x : numpy.ndarray
+        (n, 12) state, columns `state_names`.
+    u : numpy.ndarray
+        (n, n_u) inputs [N], columns `input_names` (F_prop, then the array forces).
+    gaps : numpy.ndarray
+        (n, n_arrays) air gap of each array [m], columns `gap_names`.
+    status : str
+        settled, not settled, diverging, contact or generated code error.
+    event : str or None
+        What ended the run early (contact, a non-finite state), or None.
+    metrics : dict
+        The run's entry of metrics.json: settling time, peak and final deviation, RMS
+        control per axis, the smallest gap, the speeds.
+    state_names, input_names, gap_names : tuple of str
+        Column names (those of the CSV files the CLI writes).
+    units : dict
+        Unit of every column name, t included.
+    dt_limit : float
+        RK4's stability limit [s] for the stiffest closed-loop mode at the start.
+    """
+
+    controller: str
+    scenario: str
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    gaps: np.ndarray
+    status: str
+    event: str | None
+    metrics: dict[str, Any]
+    state_names: tuple[str, ...]
+    input_names: tuple[str, ...]
+    gap_names: tuple[str, ...]
+    units: dict[str, str]
+    dt_limit: float
+
+    def to_dataframe(self) -> pandas.DataFrame:
+        """The run as a pandas DataFrame: one row per sample, the CSV file's columns.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns t, the states, the inputs and the gaps (units in `units`), indexed by
+            sample.
+
+        Raises
+        ------
+        ImportError
+            pandas is not installed (``pip install pandas``; it is optional).
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> run = maglevgen.load().simulate(controller="lqr", t_end=0.1)
+        >>> df = run.to_dataframe()
+        >>> list(df.columns[:4]), len(df)
+        (['t', 'x', 'y', 'z'], 101)
+        """
+        try:
+            import pandas as pd
+        except ImportError as exc:
+            raise ImportError("SimulationResult.to_dataframe needs pandas: "
+                              "pip install pandas") from exc
+        cols = ("t", *self.state_names, *self.input_names, *self.gap_names)
+        return pd.DataFrame(np.column_stack([self.t, self.x, self.u, self.gaps]), columns=cols)
+
+
+@dataclass(frozen=True)
+class EnvelopeResult:
+    """Each controller's closed-loop stability across [v_min, v_max]: ``maglevgen envelope``.
+
+    Attributes
+    ----------
+    speeds : numpy.ndarray
+        The speeds [m/s], evenly spaced over [v_min, v_max].
+    v_min, v_max : float
+        The envelope [m/s] (v_min from the lift-off speed when the file omits it).
+    max_real : dict of str to numpy.ndarray
+        Per controller: the largest real part [1/s] of the ten-state closed loop per speed.
+    min_damping : dict of str to numpy.ndarray
+        Per controller: the smallest damping ratio per speed.
+    stable : dict of str to numpy.ndarray
+        Per controller: every real part below -1e-6 1/s, per speed.
+    unstable_ranges : dict of str to tuple
+        Per controller: the (low, high) speed intervals where it is unstable, edges bisected.
+    verdicts : dict of str to str
+        Per controller: the verdict line the CLI prints.
+    speed_pole : numpy.ndarray
+        d(u')/du at trim under the trim propulsion [1/s] per speed (the forward-speed mode).
+    paths : tuple of pathlib.Path
+        The files written (``out``), else empty.
+    report : dict
+        What ``maglevgen envelope --json`` prints.
+    """
+
+    speeds: np.ndarray
+    v_min: float
+    v_max: float
+    max_real: dict[str, np.ndarray]
+    min_damping: dict[str, np.ndarray]
+    stable: dict[str, np.ndarray]
+    unstable_ranges: dict[str, tuple[tuple[float, float], ...]]
+    verdicts: dict[str, str]
+    speed_pole: np.ndarray
+    paths: tuple[Path, ...]
+    report: dict[str, Any] = field(repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The envelope as plain JSON data (a copy).
+
+        Returns
+        -------
+        dict
+            What ``maglevgen envelope --json`` prints.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> env = maglevgen.load().envelope(n_speeds=5)
+        >>> len(env.to_dict()["speeds"])
+        5
+        """
+        return json.loads(json.dumps(self.report))
+
+
+class Carriage:
+    """A carriage: its validated parameters, model, compiled library and results.
+
+    The numbers come from the same functions as the ``maglevgen`` commands: trim and gains
+    reports from ``maglevgen trim`` / ``gains``; the linearisation, the gains the simulation
+    uses, the simulation and the envelope from the compiled run-time-parameter library
+    (``maglev_trim``, ``maglev_lqr_gains``, ``maglev_jacobians``, ``maglev_simulate``). The
+    library is generated and compiled once per carriage structure and cached
+    (``~/.cache/maglevgen`` or ``$MAGLEVGEN_CACHE``).
+
+    Parameters
+    ----------
+    params : str or pathlib.Path, optional
+        The TOML parameter file; None: the LLNL carriage shipped with maglevgen.
+    overrides : sequence of str, optional
+        ``NAME=VALUE`` items as ``--set`` takes them.
+
+    Raises
+    ------
+    maglevgen.InputError
+        An invalid parameter file or override (the CLI's one-line message).
+
+    See Also
+    --------
+    load : the same, as a function.
+
+    Examples
+    --------
+    >>> import maglevgen
+    >>> carriage = maglevgen.Carriage()
+    >>> carriage.state_names[:6]
+    ('x', 'y', 'z', 'phi', 'theta', 'psi')
+    >>> carriage.input_names[:3]
+    ('F_prop', 'F_y1', 'F_z1')
+    """
+
+    def __init__(self, params: str | Path | None = None, overrides: Sequence[str] = ()) -> None:
+        from .carriage import Carriage as _Carriage
+        from .params import load_params
+
+        if isinstance(overrides, str):  # one "NAME=VALUE" would iterate by character
+            overrides = (overrides,)
+        self._carriage = _Carriage(load_params(params, tuple(overrides)))
+
+    def __repr__(self) -> str:
+        loaded = self._carriage.loaded
+        extra = f", overrides={list(loaded.overrides)!r}" if loaded.overrides else ""
+        return f"maglevgen.Carriage({loaded.source!r}{extra})"
+
+    # ------------------------------------------------------------------------ properties
+
+    @property
+    def params(self) -> Parameters:
+        """The validated parameters (a pydantic model; ``maglevgen params schema``)."""
+        return self._carriage.params
+
+    @property
+    def sha256(self) -> str:
+        """SHA-256 of the parameter text and overrides (``params_sha256`` of every output)."""
+        return self._carriage.loaded.sha256
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """The 12 states: x, y, z [m], phi, theta, psi [rad], u, v, w [m/s], p, q, r [rad/s]."""
+        return STATE_NAMES
+
+    @property
+    def state_units(self) -> dict[str, str]:
+        """Unit of each state."""
+        return {s.name: s.unit for s in cv.STATES}
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """F_prop and the force component of each array (F_y1, F_z1, ...) [N]."""
+        from .derive.structure import input_names_of
+
+        return tuple(input_names_of(self._carriage.structure))
+
+    @property
+    def array_names(self) -> tuple[str, ...]:
+        """The arrays, in the parameter file's order."""
+        return tuple(self.params.arrays)
+
+    @cached_property
+    def _lib(self) -> SimulationLibrary:
+        return _commands()._library(self._carriage)
+
+    # ----------------------------------------------------------------------- checks
+
+    def _speed(self, speed: float | None) -> float:
+        """The speed asked for, checked as ``--speed`` is; None: operation.speed."""
+        from .params import check_key_option
+
+        if speed is None:
+            return float(self.params.operation.speed)
+        check_key_option("--speed", speed, "operation.speed")
+        return float(speed)
+
+    def _operating_point(self, speed: float | None) -> OperatingPoint:
+        from .operating import Weights, operating_point
+
+        return operating_point(self._lib, self._carriage.p, self._speed(speed),
+                               self.params.track.min_gap, Weights.of(self.params))
+
+    # --------------------------------------------------------------------- trim, gains
+
+    def trim(self, speed: float | None = None) -> TrimResult:
+        """The equilibrium at a speed: state, array gaps and forces, stiffness (eqs 4-19).
+
+        Parameters
+        ----------
+        speed : float, optional
+            Forward speed [m/s]; default ``operation.speed`` of the parameter file.
+
+        Returns
+        -------
+        TrimResult
+            The numbers ``maglevgen trim --json`` prints.
+
+        Raises
+        ------
+        maglevgen.InputError
+            A speed outside operation.speed's range (message names ``--speed``).
+        maglevgen.NoTrimError
+            No equilibrium at this speed (below lift-off) or a gap below track.min_gap.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> trim = maglevgen.load().trim(20.0)
+        >>> trim.speed, trim.x.shape, trim.array_names
+        (20.0, (12,), ('1', '2', '3', '4', '5', '6'))
+        >>> bool(trim.lift_off_speed < 20.0 and trim.gaps.min() > 0)
+        True
+        """
+        v = self._speed(speed)
+        rep = _commands().trim_report(self._carriage, v)
+        arrays = rep["arrays"]
+        names = tuple(arrays)
+        return TrimResult(
+            speed=rep["speed"], x=np.array([rep["state"][s] for s in STATE_NAMES]),
+            state_names=STATE_NAMES, propulsion_force=rep["propulsion_force"],
+            residual=rep["residual"], lift_off_speed=rep["lift_off_speed"], array_names=names,
+            gaps=np.array([arrays[n]["gap"] for n in names]),
+            lift=np.array([arrays[n]["lift"] for n in names]),
+            drag=np.array([arrays[n]["drag"] for n in names]),
+            stiffness_matrix=np.array(rep["stiffness_matrix"]), report=rep)
+
+    def gains_report(self, speed: float | None = None) -> dict[str, Any]:
+        """The per-axis LQR report of ``maglevgen gains --json`` (eqs 24-33).
+
+        Per axis the plant m a'' + k a = u, the closed-form LQR gain, the numerical one
+        (CARE), the paper's eq 32 gain and their accuracy against a 50-digit reference; the
+        per-axis design on the coupled linearisation beside the coupled LQR; the allocation
+        (eqs 22-23).
+
+        Parameters
+        ----------
+        speed : float, optional
+            Forward speed [m/s]; default ``operation.speed``.
+
+        Returns
+        -------
+        dict
+            What ``maglevgen gains --json`` prints, less its ``envelope`` entry.
+
+        Raises
+        ------
+        maglevgen.InputError
+            A speed outside operation.speed's range.
+        maglevgen.NoTrimError
+            No equilibrium at this speed.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> rep = maglevgen.load().gains_report(20.0)
+        >>> list(rep["axes"])
+        ['lateral', 'vertical', 'roll', 'pitch', 'yaw']
+        >>> len(rep["axes"]["vertical"]["K_closed_form"])
+        2
+        """
+        return _commands().gains_report(self._carriage, self._speed(speed))
+
+    def gains(self, speed: float | None = None, controller: str = "lqr") -> Gains:
+        """A controller's gains at a speed, as the compiled simulation and the FMU use them.
+
+        Per-axis LQR and damping gains from ``maglev_lqr_gains`` (closed forms of eqs 21
+        and 33 in the generated C); the coupled LQR from SciPy's CARE on the compiled
+        Jacobians with the per-axis weights.
+
+        Parameters
+        ----------
+        speed : float, optional
+            Forward speed [m/s]; default ``operation.speed``.
+        controller : {'lqr', 'coupled', 'damping', 'none'}, optional
+            The controller (default the paper's per-axis LQR).
+
+        Returns
+        -------
+        Gains
+            K_pos, K_rate (5 x 5), K on the reduced state (5 x 10), the allocation and the
+            closed-loop poles.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown controller, a speed outside operation.speed's range.
+        maglevgen.NoTrimError
+            No equilibrium at this speed.
+
+        Examples
+        --------
+        >>> import numpy as np, maglevgen
+        >>> g = maglevgen.load().gains(20.0, controller="lqr")
+        >>> g.K_pos.shape, g.K.shape
+        ((5, 5), (5, 10))
+        >>> bool(np.all(g.poles.real < 0))
+        True
+        """
+        from .operating import N_AXES, REDUCED_STATES
+
+        _check_controller(controller)
+        op = self._operating_point(speed)
+        K_pos, K_rate = op.gains(controller)
+        K = K_pos @ np.eye(N_AXES, len(REDUCED_STATES)) + K_rate @ op.rate_map
+        A_cl = op.reduced_closed_loop(controller)
+        poles = (np.linalg.eigvals(A_cl) if np.all(np.isfinite(A_cl))
+                 else np.full(len(REDUCED_STATES), np.nan + 0j))
+        return Gains(controller, op.speed, K_pos, K_rate, K, op.allocation.copy(), poles,
+                     REDUCED_STATES, tuple(c.name for c in cv.CONTROLS))
+
+    # ----------------------------------------------------------------- linear models
+
+    def linearize(self, speed: float | None = None, model: str = "full") -> control.StateSpace:
+        """The linearisation at the trim of a speed, as a python-control state space.
+
+        From the compiled ``maglev_jacobians`` (eqs 10-12 linearised; the stiffness of
+        eqs 13-19 is its magnetic part). Deviations from trim: dx' = A dx + B du, y = dx.
+
+        ``model='full'``: 12 states x, y, z [m], phi, theta, psi [rad], u, v, w [m/s],
+        p, q, r [rad/s]; inputs F_prop and the array forces [N] (`input_names`); the outputs
+        are the states. ``model='reduced'``: the ten states y, z, phi, theta, psi, v, w, p,
+        q, r (x drops out; u is held by the propulsion) driven by the generalized forces
+        u_y, u_z [N], u_phi, u_theta, u_psi [N*m] through the allocation T (eqs 22-23): the
+        plant the coupled LQR and ``envelope`` use.
+
+        Parameters
+        ----------
+        speed : float, optional
+            Forward speed [m/s]; default ``operation.speed``.
+        model : {'full', 'reduced'}, optional
+            Which model (default 'full').
+
+        Returns
+        -------
+        control.StateSpace
+            Named states, inputs and outputs; named ``maglev`` or ``maglev_reduced``.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown model, a speed outside operation.speed's range.
+        maglevgen.NoTrimError
+            No equilibrium at this speed.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> sys = maglevgen.load().linearize(20.0)
+        >>> sys.nstates, sys.ninputs, sys.noutputs
+        (12, 11, 12)
+        >>> sys.input_labels[:2], sys.state_labels[2]
+        (['F_prop', 'F_y1'], 'z')
+        >>> maglevgen.load().linearize(20.0, model="reduced").ninputs
+        5
+        """
+        import control
+
+        from .operating import REDUCED_STATES
+
+        if model not in ("full", "reduced"):
+            raise InputError(f"model {model!r}: expected 'full' or 'reduced'")
+        op = self._operating_point(speed)
+        if model == "full":
+            A, B, states, inputs = op.A, op.B, list(STATE_NAMES), list(self.input_names)
+        else:
+            (A, B), states = op.reduced, list(REDUCED_STATES)
+            inputs = [c.name for c in cv.CONTROLS]
+        n = A.shape[0]
+        return control.ss(A, B, np.eye(n), np.zeros((n, B.shape[1])), states=states,
+                          inputs=inputs, outputs=states,
+                          name="maglev" if model == "full" else "maglev_reduced")
+
+    def axis_plant(self, axis: str, speed: float | None = None) -> control.StateSpace:
+        """One axis' plant m a'' + k a = u of the per-axis design (eqs 24-27).
+
+        k: the axis' total stiffness at trim (magnetic K_st0 plus the gravity and propulsion
+        moments), m: its generalized mass, the numbers ``maglevgen gains`` prints
+        (``stiffness``, ``inertia``). State (a, a'), input the generalized force u, output a.
+
+        Parameters
+        ----------
+        axis : str
+            lateral, vertical, roll, pitch or yaw; or the coordinate y, z, phi, theta, psi.
+        speed : float, optional
+            Forward speed [m/s]; default ``operation.speed``.
+
+        Returns
+        -------
+        control.StateSpace
+            A = [[0, 1], [-k/m, 0]], B = [[0], [1/m]], C = [1, 0], D = 0; units m or rad,
+            N or N*m.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown axis, a speed outside operation.speed's range.
+        maglevgen.NoTrimError
+            No equilibrium at this speed.
+
+        Examples
+        --------
+        >>> import control, maglevgen
+        >>> heave = maglevgen.load().axis_plant("vertical", 20.0)
+        >>> heave.state_labels, heave.input_labels, heave.output_labels
+        (['z', 'z_dot'], ['u_z'], ['z'])
+        >>> K, _, _ = control.lqr(heave, [[1, 0], [0, 1]], 1)
+        >>> K.shape
+        (1, 2)
+        """
+        import control
+
+        coords = dict(zip(cv.Q_STATES, AXES, strict=True))
+        name = coords.get(axis, axis)
+        if name not in AXES:
+            raise InputError(f"axis {axis!r}: expected one of {', '.join(AXES)} "
+                             f"(or {', '.join(cv.Q_STATES)})")
+        i = AXES.index(name)
+        summary = _commands()
+        lib = summary._library(self._carriage)
+        v = summary.trim_point(self._carriage, lib, self._speed(speed)).speed  # or no trim
+        k, m = (float(a.ravel()[i]) for a in lib.function("maglev_axis_plants")(
+            v, self._carriage.p))
+        q = cv.Q_STATES[i]
+        return control.ss([[0.0, 1.0], [-k / m, 0.0]], [[0.0], [1.0 / m]], [[1.0, 0.0]], 0.0,
+                          states=[q, f"{q}_dot"], inputs=[cv.CONTROLS[i].name], outputs=[q],
+                          name=name)
+
+    # ---------------------------------------------------------------- time domain
+
+    def simulate(self, controller: str = "lqr", scenario: str = "hold",
+                 speed: float | None = None, t_end: float = 10.0,
+                 dt: float = 1e-3) -> SimulationResult:
+        """A closed-loop run in the compiled C, as ``maglevgen simulate`` (figs 3-8).
+
+        From the trim disturbed by 1 mm lateral and heave, 2 mrad roll, pitch and yaw; RK4
+        in ``maglev_simulate`` (``hold``: the propulsion at the trim drag, the gains of
+        ``speed``) or ``maglev_launch`` (``launch``: from envelope.v_min to v_max, the gains
+        scheduled with the measured speed).
+
+        Parameters
+        ----------
+        controller : {'lqr', 'coupled', 'damping', 'none'}, optional
+            The controller (default the paper's per-axis LQR).
+        scenario : {'hold', 'launch'}, optional
+            The run (default hold).
+        speed : float, optional
+            Forward speed of ``hold`` [m/s]; default ``operation.speed``. Not for ``launch``.
+        t_end : float, optional
+            Simulated time of ``hold`` [s] (default 10); ``launch`` runs until v_max.
+        dt : float, optional
+            RK4 step [s] (default 1e-3); refused above RK4's stability limit.
+
+        Returns
+        -------
+        SimulationResult
+            t, x, u, gaps, status, metrics and the column names.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown controller or scenario, t_end or dt outside their ranges, a step
+            above the stability limit, a speed with ``launch``.
+        maglevgen.NoTrimError
+            No equilibrium at the speed.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> run = maglevgen.load().simulate(controller="damping", t_end=10.0)
+        >>> run.status, run.x.shape, float(run.t[-1])
+        ('settled', (10001, 12), 10.0)
+        >>> run.metrics["axes"]["vertical"]["unit"]
+        'm'
+        """
+        from .simulate import run_scenarios
+
+        _check_controller(controller)
+        if speed is not None:
+            self._speed(speed)
+        _check_run_options(t_end, dt)
+        run = run_scenarios(self._carriage, (controller,), t_end, dt, speed, lib=self._lib,
+                            scenario=scenario)
+        return _simulation_result(run)
+
+    def envelope(self, n_speeds: int | None = None,
+                 out: str | Path | None = None) -> EnvelopeResult:
+        """Each controller's closed-loop stability across [v_min, v_max], with verdicts.
+
+        The eigenvalues of the ten-state linearisation (`linearize` with
+        ``model='reduced'``) with each controller closed around it (`gains`), at evenly
+        spaced speeds; the edges of an unstable range located by bisection.
+
+        Parameters
+        ----------
+        n_speeds : int, optional
+            Speeds spanning the envelope (``--speeds``; default 50).
+        out : str or pathlib.Path, optional
+            Also write envelope.json, envelope.md and stability_map.png there (``--out``).
+
+        Returns
+        -------
+        EnvelopeResult
+            Per controller the largest real part, smallest damping, verdict and unstable
+            ranges.
+
+        Raises
+        ------
+        maglevgen.InputError
+            n_speeds outside 2 to 100000, an envelope with no trim at one of its ends.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> env = maglevgen.load().envelope(n_speeds=10)
+        >>> env.speeds.size, sorted(env.verdicts)
+        (10, ['coupled', 'damping', 'lqr', 'none'])
+        >>> env.verdicts["coupled"][:6]
+        'stable'
+        """
+        env = _commands().envelope_of(self._carriage, n_speeds)
+        rep = env.to_json()
+        paths: tuple[Path, ...] = ()
+        if out is not None:
+            from .envelope import envelope_markdown, stability_map_png
+            from .output import write_output
+
+            paths = tuple(write_output({"envelope.json": json.dumps(rep, indent=1) + "\n",
+                                        "envelope.md": envelope_markdown(env),
+                                        "stability_map.png": stability_map_png(env)},
+                                       Path(out)))
+        c = env.controllers
+        return EnvelopeResult(
+            speeds=env.speeds, v_min=env.v_min, v_max=env.v_max,
+            max_real={n: e.max_real for n, e in c.items()},
+            min_damping={n: e.min_damping for n, e in c.items()},
+            stable={n: e.stable for n, e in c.items()},
+            unstable_ranges={n: e.unstable_ranges for n, e in c.items()},
+            verdicts={n: e.verdict for n, e in c.items()}, speed_pole=env.speed_pole,
+            paths=paths, report=rep)
+
+    def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
+                   t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
+                   scheduler: str | None = None, out: str | Path | None = None) -> dict:
+        """Monte-Carlo robustness over the parameter file's ``[tolerances]``, as
+        ``maglevgen montecarlo``.
+
+        Each sample draws the toleranced parameters, a speed and an initial disturbance from
+        its own ``numpy.random.SeedSequence(seed, spawn_key=(i,))``, so the results do not
+        depend on the worker count; the compiled C trims (eqs 1-4, 8-12), computes the gains
+        (eqs 20-33) and runs the closed loop (RK4) of every controller asked for.
+
+        Parameters
+        ----------
+        samples : int, optional
+            Number of sampled carriages (default 1000).
+        seed : int, optional
+            Seed of the study (default 0).
+        controller : str, optional
+            ``"none"``, ``"damping"``, ``"lqr"``, ``"coupled"`` or ``"all"``; default the
+            embedded controller (``envelope.embedded_controller``).
+        t_end : float, optional
+            Length of each run in s (default 10).
+        dt : float, optional
+            RK4 step in s (default 1e-3).
+        workers : int, optional
+            Local processes (default every core) or Dask workers of a ``"local"`` cluster.
+        scheduler : str, optional
+            ``None`` (local processes), ``"local"`` (a Dask LocalCluster) or the address of
+            an existing Dask scheduler (``"tcp://host:8786"``).
+        out : str or pathlib.Path, optional
+            Folder for ``samples.parquet``, ``montecarlo.md``/``.json`` and the plots.
+
+        Returns
+        -------
+        dict
+            The summary ``maglevgen montecarlo --json`` prints: per controller the contact
+            probability with its 95 % Wilson interval, status counts, per-axis quantiles,
+            the worst samples and the inputs the failures correlate with.
+
+        Raises
+        ------
+        maglevgen.InputError
+            A bad option (the CLI's one-line message), or an unreachable scheduler.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> s = maglevgen.load().montecarlo(samples=4, seed=1, t_end=0.5, workers=1)
+        >>> sorted(s["controllers"])
+        ['coupled']
+        """
+        from .montecarlo import CONTROLLERS, default_workers, make_study, output_files, run_study
+        from .output import check_writable, write_output
+
+        choice = controller or self._carriage.params.envelope.embedded_controller
+        if choice != "all":
+            _check_controller(choice)
+        if not isinstance(samples, int) or samples <= 0:
+            raise InputError(f"--samples {samples}: expected a positive number of samples")
+        if workers is not None and workers < 1:
+            raise InputError(f"--workers {workers}: expected at least 1")
+        _check_run_options(t_end, dt)
+        if out is not None:
+            check_writable(Path(out))
+        controllers = CONTROLLERS if choice == "all" else (choice,)
+        study = make_study(self._carriage, _commands()._library(self._carriage), controllers,
+                           t_end, dt, seed)
+        result = run_study(study, samples, workers or default_workers(), scheduler)
+        if out is not None:
+            write_output(output_files(result), Path(out))
+        return result.summary
+
+    # -------------------------------------------------------------------- writers
+
+    def generate(self, out: str | Path, precision: str = "double",
+                 parameters: str = "baked") -> list[Path]:
+        """Generate the carriage's C, as ``maglevgen generate``.
+
+        The dynamics (eqs 10-12), Jacobians, Newton trim, gain schedule, per-tick
+        controllers (eqs 20-33), allocation (eqs 22-23), RK4 step, ``maglev_simulate``;
+        ``maglev.h``, ``manifest.json``, a CMake file and an example ``main.c``.
+
+        Parameters
+        ----------
+        out : str or pathlib.Path
+            Output folder (written atomically; created if missing).
+        precision : {'double', 'single'}, optional
+            Floating-point type of the C (default double).
+        parameters : {'baked', 'runtime'}, optional
+            Fold the parameter values in, or take them as an input vector p.
+
+        Returns
+        -------
+        list of pathlib.Path
+            The files written.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown precision or parameters mode.
+
+        Examples
+        --------
+        >>> import tempfile, maglevgen
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     names = [p.name for p in maglevgen.load().generate(out)]
+        >>> "maglev.h" in names and "manifest.json" in names
+        True
+        """
+        from .codegen.generate import GenerateOptions, render, write_output
+
+        if precision not in ("double", "single"):
+            raise InputError(f"--precision {precision!r}: expected double or single")
+        if parameters not in ("baked", "runtime"):
+            raise InputError(f"--parameters {parameters!r}: expected baked or runtime")
+        opts = GenerateOptions(precision, parameters)
+        return list(write_output(render(self._carriage, opts), Path(out)))
+
+    def report(self, out: str | Path, simulation: str | Path | None = None) -> list[Path]:
+        """Write the derivation report, as ``maglevgen report``.
+
+        ``report.tex`` and, where TeX is installed, ``report.pdf``: every equation of the
+        paper re-derived beside its printed form, with numeric checks. A missing TeX, or a
+        verification whose error exceeds its bound, gives a `UserWarning` (the CLI's
+        message).
+
+        Parameters
+        ----------
+        out : str or pathlib.Path
+            Output folder.
+        simulation : str or pathlib.Path, optional
+            A folder written by ``maglevgen simulate --out``: include its figures.
+
+        Returns
+        -------
+        list of pathlib.Path
+            The files written.
+
+        Raises
+        ------
+        maglevgen.InputError
+            A simulation folder that does not hold a simulation's output.
+
+        Examples
+        --------
+        >>> import tempfile, maglevgen
+        >>> import warnings
+        >>> with tempfile.TemporaryDirectory() as out, warnings.catch_warnings():
+        ...     warnings.simplefilter("ignore")  # the per-axis LQR's failed envelope check
+        ...     names = [p.name for p in maglevgen.load().report(out)]
+        >>> "report.tex" in names
+        True
+        """
+        from .report import INSTALL_HINT, ReportOptions, write_report
+
+        opts = ReportOptions(simulation=Path(simulation) if simulation else None)
+        res = write_report(self._carriage, Path(out), opts)
+        if res.latex.tool is None:
+            warnings.warn(f"no LaTeX found: wrote report.tex without report.pdf; to build "
+                          f"the PDF install TeX ({INSTALL_HINT})", stacklevel=2)
+        for what in res.failed_checks:
+            warnings.warn(f"verification failed: {what} (see the report's Verification)",
+                          stacklevel=2)
+        return list(res.paths)
+
+    def fmu(self, out: str | Path, kind: str = "both", controller: str = "lqr") -> Path:
+        """Export an FMI 2.0 FMU of the carriage with its controller, as ``maglevgen fmu``.
+
+        Parameters
+        ----------
+        out : str or pathlib.Path
+            Output folder of ``maglev.fmu``.
+        kind : {'both', 'me', 'cs'}, optional
+            Model exchange, co-simulation or both (default).
+        controller : {'lqr', 'coupled', 'damping', 'none', 'external'}, optional
+            The controller inside the FMU; ``external``: the generalized forces are inputs.
+
+        Returns
+        -------
+        pathlib.Path
+            The FMU written.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown kind or controller, FMPy (its FMI headers) missing, no trim at
+            operation.speed.
+
+        Examples
+        --------
+        >>> import tempfile, maglevgen
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     path = maglevgen.load().fmu(out, kind="cs")
+        ...     size = path.stat().st_size
+        >>> path.name, size > 0
+        ('maglev.fmu', True)
+        """
+        from .fmu import FMU_NAME, build_fmu
+        from .output import write_output
+
+        data = build_fmu(self._carriage, kind, controller)
+        (path,) = write_output({FMU_NAME: data}, Path(out))
+        return path
+
+
+def _commands() -> ModuleType:
+    """The module holding the functions behind the commands (trim_report, gains_report,
+    envelope_of, _library): the one place this API names it."""
+    from . import summary
+
+    return summary
+
+
+def _check_run_options(t_end: float, dt: float) -> None:
+    from .params import check_run_options
+
+    check_run_options(t_end, dt)
+
+
+def _check_controller(controller: str) -> None:
+    if controller not in CONTROLLERS:
+        raise InputError(f"--controller {controller!r}: expected one of "
+                         f"{', '.join(CONTROLLERS)}")
+
+
+def _simulation_result(run: SimulationRun) -> SimulationResult:
+    """The single run of a `SimulationRun`, with the CSV file's column names."""
+    from .sim_output import columns
+    from .simulate import metrics
+
+    (traj,) = run.trajectories
+    cols = columns(run.input_names, traj.gaps.shape[1])
+    names = [n for n, _ in cols]
+    n_x, n_u = traj.x.shape[1], traj.u.shape[1]
+    return SimulationResult(
+        controller=traj.controller, scenario=traj.scenario, t=traj.t, x=traj.x, u=traj.u,
+        gaps=traj.gaps, status=traj.status, event=traj.event, metrics=metrics(traj),
+        state_names=tuple(names[1:1 + n_x]), input_names=tuple(names[1 + n_x:1 + n_x + n_u]),
+        gap_names=tuple(names[1 + n_x + n_u:]), units=dict(cols), dt_limit=run.dt_limit)

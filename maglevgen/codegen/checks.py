@@ -1,0 +1,224 @@
+"""Generated functions that report failure: the checked entry points and the MAGLEV_ERR_* codes.
+
+CasADi's generated functions return 0 whatever their inputs: the trim's Newton iterations end
+after their count at any speed (all NaN at v = 0, a nonsensical pose below lift-off) and a NaN
+state passes through a control tick into the array forces. :func:`check_entries` renames the
+CasADi entry point of each function listed below to a ``static`` ``NAME_unchecked`` and defines
+``NAME`` around it with the checks; the work sizes (``NAME_work``) stay CasADi's: the trim's
+checks evaluate the dynamics and the gaps in the caller's work arrays, which the Newton solve's
+sizes cover (checked at generation, else the checks get their own on the stack).
+
+* schedule functions (``TRIM_KIND``, each runs the trim Newton solve): the speed and p finite,
+  v > 0 (the Newton trim has no speed range of its own: [v_min, v_max] is the build's and is
+  checked by the table schedule, maglev_schedule), the trim's accelerations within
+  ``TRIM_TOLERANCES`` (the Newton solve converged) and every gap at or above the track's
+  minimum gap (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
+* tick functions (``TICK_KIND``): every input finite, then every output finite.
+
+On any error every output that the caller asked for (non-NULL ``res[i]``) is set to zero: the
+safe state of a tick is no control force, and a failed trim must not look like a pose.
+
+This module is imported by the ctypes runtime for the code names, so it imports nothing heavy.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+
+#: name -> (value, meaning): maglev.h documents them, the C returns them, the runtime names them.
+ERROR_CODES: dict[str, tuple[int, str]] = {
+    "MAGLEV_OK": (0, "success"),
+    "MAGLEV_ERR_NONFINITE": (1, "an input is NaN or infinite (outputs zeroed)"),
+    "MAGLEV_ERR_SPEED": (2, "speed outside the function's range: v <= 0 for the Newton trim, "
+                            "outside [v_min, v_max] for maglev_schedule (outputs zeroed; "
+                            "maglev_schedule: the end node's values)"),
+    "MAGLEV_ERR_NOT_CONVERGED": (3, "the trim's Newton iteration did not reach its tolerance "
+                                    "(no trim: below lift-off?) (outputs zeroed)"),
+    "MAGLEV_ERR_CONTACT": (4, "the trim has a gap below track.min_gap (outputs zeroed)"),
+    "MAGLEV_ERR_NONFINITE_OUTPUT": (5, "an output came out NaN or infinite (outputs zeroed)"),
+    "MAGLEV_ERR_INTERNAL": (6, "the CasADi function itself returned an error (outputs zeroed)"),
+}
+ERROR_NAMES: dict[int, str] = {v: k for k, (v, _) in ERROR_CODES.items()}
+
+TRIM_KIND = ("maglev_trim", "maglev_axis_plants", "maglev_lqr_gains")
+TICK_KIND = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
+             "maglev_allocate", "maglev_axis_gains")
+
+#: largest |acceleration| [m/s^2, rad/s^2] at an accepted trim, per precision: double as
+#: checked_trim; single a hundred times the Newton tolerance (float32 rounding of the
+#: accelerations at trim is 2e-6 to 1e-5, codegen.functions.NEWTON_TOLERANCES)
+TRIM_TOLERANCES = {"double": "1e-8", "single": "1e-3f"}
+
+
+def error_name(code: int) -> str:
+    """The MAGLEV_ERR_* name of a return code (``MAGLEV_ERR_<code>`` for an unknown one)."""
+    return ERROR_NAMES.get(code, f"MAGLEV_ERR_{code}")
+
+
+def error_defines() -> str:
+    """The ``#define MAGLEV_ERR_*`` lines (identical text in maglev.h and the C: a benign
+    redefinition in C)."""
+    return "".join(f"#define {name} {value}  /* {doc} */\n"
+                   for name, (value, doc) in ERROR_CODES.items())
+
+
+def work_sizes(source: str) -> dict[str, tuple[int, int, int, int]]:
+    """(sz_arg, sz_res, sz_iw, sz_w) of every function as its generated ``NAME_work`` reports
+    them (CasADi's codegen counts differently from ``Function.sz_w()``)."""
+    pat = re.compile(r"int (\w+)_work\(casadi_int \*sz_arg[^{]*\{\s*"
+                     r"if \(sz_arg!=0\) \*sz_arg = (\d+);\s*if \(sz_res!=0\) \*sz_res = (\d+);"
+                     r"\s*if \(sz_iw!=0\) \*sz_iw = (\d+);\s*if \(sz_w!=0\) \*sz_w = (\d+);")
+    return {m.group(1): tuple(int(g) for g in m.groups()[1:]) for m in pat.finditer(source)}
+
+
+def _sizes(io: Sequence[Mapping]) -> list[int]:
+    return [int(d["rows"]) * int(d["cols"]) for d in io]
+
+
+def _zero_outputs(outs: list[int]) -> str:
+    return "".join(f"    maglev_zero(res[{i}], {n});\n" for i, n in enumerate(outs))
+
+
+def _tick(fn: Mapping) -> str:
+    name, ins, outs = fn["name"], _sizes(fn["inputs"]), _sizes(fn["outputs"])
+    in_checks = " ||\n        ".join(f"!maglev_all_finite(arg[{i}], {n})"
+                                     for i, n in enumerate(ins))
+    out_checks = " ||\n        ".join(f"!maglev_all_finite(res[{i}], {n})"
+                                      for i, n in enumerate(outs))
+    return (
+        f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, "
+        "casadi_int* iw, casadi_real* w, int mem) {\n"
+        "  int rc = MAGLEV_OK;\n"
+        f"  if ({in_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE;\n"
+        f"  }} else if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
+        "    rc = MAGLEV_ERR_INTERNAL;\n"
+        f"  }} else if ({out_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE_OUTPUT;\n"
+        "  } else {\n    return MAGLEV_OK;\n  }\n"
+        + _zero_outputs(outs).replace("    ", "  ") + "  return rc;\n}\n\n")
+
+
+def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...]],
+                 precision: str, runtime: bool, min_gap: str) -> str:
+    """``maglev_trim_checked``: the trim at v into x and F_prop, with its checks."""
+    used = ("maglev_trim", "maglev_dynamics", "maglev_gaps")
+    sz = [max(work[f][k] for f in used) + 1 for k in range(2)]
+    nx = table["maglev_dynamics"]["inputs"][0]["rows"]
+    nu = table["maglev_dynamics"]["inputs"][1]["rows"]
+    ng = table["maglev_gaps"]["outputs"][0]["rows"]
+    n_p = table["maglev_trim"]["inputs"][1]["rows"] if runtime else 0
+    p_arg = "p" if runtime else "0"
+    tol = TRIM_TOLERANCES[precision]
+    p_check = f" || !maglev_all_finite(p, {n_p})" if runtime else ""
+    return f"""/* the trim at *v into x and *F_prop: v and p finite, v > 0, the accelerations at the
+   trim within {tol} (the Newton solve converged), every gap >= track.min_gap */
+static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
+                               casadi_real* F_prop, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz[0]}];
+  casadi_real* res[{sz[1]}];
+  casadi_real u[{nu}], xdot[{nx}], gaps[{ng}];
+  int i;
+  (void)p;
+  if (!maglev_all_finite(v, 1){p_check}) return MAGLEV_ERR_NONFINITE;
+  if (!(*v > 0)) return MAGLEV_ERR_SPEED;
+  arg[0] = v;
+  arg[1] = {p_arg};
+  res[0] = x;
+  res[1] = F_prop;
+  if (maglev_trim_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  if (!maglev_all_finite(x, {nx}) || !maglev_all_finite(F_prop, 1)) {{
+    return MAGLEV_ERR_NOT_CONVERGED;
+  }}
+  for (i = 0; i < {nu}; ++i) u[i] = 0;
+  u[0] = *F_prop;
+  arg[0] = x;
+  arg[1] = u;
+  arg[2] = {p_arg};
+  res[0] = xdot;
+  if (maglev_dynamics(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  for (i = 6; i < {nx}; ++i) {{
+    if (!(xdot[i] <= {tol} && xdot[i] >= -{tol})) return MAGLEV_ERR_NOT_CONVERGED;
+  }}
+  arg[1] = {p_arg};
+  res[0] = gaps;
+  if (maglev_gaps(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  for (i = 0; i < {ng}; ++i) {{
+    if (!(gaps[i] >= {min_gap})) return MAGLEV_ERR_CONTACT;
+  }}
+  return MAGLEV_OK;
+}}
+
+"""
+
+
+def _work_args(name: str, work: Mapping[str, tuple[int, ...]]) -> tuple[str, str]:
+    """(declarations, ``iw, w`` arguments) for maglev_trim_checked inside ``name``: the
+    caller's work arrays where ``name``'s own work sizes cover the trim, the dynamics and the
+    gaps (they do: the Newton solve evaluates the dynamics), else arrays on the stack."""
+    need = [max(work[f][k] for f in ("maglev_trim", "maglev_dynamics", "maglev_gaps"))
+            for k in (2, 3)]
+    if work[name][2] >= need[0] and work[name][3] >= need[1]:
+        return "", "iw, w"
+    return (f"  casadi_int iw_trim[{need[0] + 1}];\n  casadi_real w_trim[{need[1] + 1}];\n",
+            "iw_trim, w_trim")
+
+
+def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
+               work: Mapping[str, tuple[int, ...]]) -> str:
+    name, outs = fn["name"], _sizes(fn["outputs"])
+    nx = table["maglev_dynamics"]["inputs"][0]["rows"]
+    p = "arg[1]" if runtime else "0"
+    decl, iw_w = _work_args(name, work)
+    if name == "maglev_trim":
+        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}"
+                f"  int rc = maglev_trim_checked(arg[0], {p}, res[0] != 0 ? res[0] : x,\n"
+                f"                               res[1] != 0 ? res[1] : &F_prop, {iw_w});\n"
+                "  (void)iw; (void)w; (void)mem;\n"
+                "  if (rc == MAGLEV_OK) return MAGLEV_OK;\n")
+    else:
+        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}"
+                f"  int rc = maglev_trim_checked(arg[0], {p}, x, &F_prop, {iw_w});\n"
+                "  if (rc == MAGLEV_OK) {\n"
+                f"    if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
+                "      rc = MAGLEV_ERR_INTERNAL;\n"
+                "    } else if ("
+                + " ||\n        ".join(f"!maglev_all_finite(res[{i}], {n})"
+                                       for i, n in enumerate(outs))
+                + ") {\n      rc = MAGLEV_ERR_NONFINITE_OUTPUT;\n"
+                "    } else {\n      return MAGLEV_OK;\n    }\n  }\n")
+    return (f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, "
+            "casadi_int* iw, casadi_real* w, int mem) {\n" + body
+            + _zero_outputs(outs).replace("    ", "  ") + "  return rc;\n}\n\n")
+
+
+def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime: bool,
+                  min_gap: str) -> str:
+    """``source`` (post-processed CasADi C) with the checked entry points of TRIM_KIND and
+    TICK_KIND. ``min_gap`` is the C expression of track.min_gap (``arg[..]`` is not in scope:
+    with run-time parameters ``p[index]``, else a literal)."""
+    by_name = {f["name"]: f for f in table}
+    wanted = [n for n in (*TRIM_KIND, *TICK_KIND) if n in by_name]
+    for name in wanted:
+        head = f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg"
+        if source.count(head) != 1:
+            raise ValueError(f"entry point of {name} not found once in the generated C")
+        source = source.replace(head, f"static int {name}_unchecked(const casadi_real** arg")
+    work = work_sizes(source)
+    block = [
+        "/* Checked entry points (maglevgen.codegen.checks): MAGLEV_ERR_* as in maglev.h. */\n",
+        error_defines(), "\n",
+        "static int maglev_all_finite(const casadi_real* a, int n) {\n"
+        "  int i;\n  if (a == 0) return 1;\n"
+        "  for (i = 0; i < n; ++i) {\n    if (!isfinite(a[i])) return 0;\n  }\n  return 1;\n}\n\n"
+        "static void maglev_zero(casadi_real* a, int n) {\n  int i;\n  if (a == 0) return;\n"
+        "  for (i = 0; i < n; ++i) a[i] = 0;\n}\n\n",
+    ]
+    if any(n in TRIM_KIND for n in wanted):
+        block.append(_trim_helper(by_name, work, precision, runtime, min_gap))
+    for name in wanted:
+        block.append(_trim_kind(by_name[name], by_name, runtime, work) if name in TRIM_KIND
+                     else _tick(by_name[name]))
+    tail = "\n#ifdef __cplusplus\n} /* extern \"C\" */\n#endif\n"
+    if not source.endswith(tail):
+        raise ValueError("generated C does not end with its extern \"C\" block")
+    return source[: -len(tail)] + "\n" + "".join(block) + tail

@@ -1,0 +1,633 @@
+"""Monte-Carlo robustness over the carriage's tolerances (`maglevgen montecarlo`).
+
+Each sample draws the parameters listed in the file's ``[tolerances]`` (normal, truncated at
++-4 sigma, or uniform about the file's value), a hold speed and an initial disturbance; then,
+per controller, the trim, the gains and one closed-loop RK4 run (the hold scenario of
+`maglevgen simulate`) all in the compiled run-time-parameter C (the parameters are arguments
+of the C, so nothing is regenerated or recompiled), and the run's status and per-axis metrics
+(maglevgen.simulate.metrics).
+
+Reproducibility: sample i draws from ``SeedSequence(seed, spawn_key=(i,))`` (numpy's i-th
+child of the seed), so its result depends on (seed, i) alone, never on the worker count or
+the chunking. Chunks of samples run in worker processes (``concurrent.futures``; the C runs
+without the GIL but the per-sample Python, trim checks and metrics would serialise threads)
+or on a Dask cluster (``--scheduler tcp://host:port`` or ``local`` for a LocalCluster); a
+chunk whose worker died is retried once, then reported.
+
+Bad samples: the file is refused (exit 2) when a tolerance can draw a value outside its key's
+range (maglevgen.params); a sample that breaks a rule across keys (the inertia tensor's, a
+nominal gap not above track.min_gap) is rejected and counted (status ``rejected``), and one
+without a trim at its speed is counted as ``no trim``. Neither enters the contact rate.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .derive import conventions as cv
+from .errors import InputError, MaglevError, NoTrimError
+from .operating import CONTROLLER_TITLES, CONTROLLERS, Weights, operating_point
+
+# statuses of a sample's run: the simulation's (maglevgen.simulate.RUN_STATUSES) and two of
+# the sample itself
+RUN_STATUSES = ("settled", "not settled", "diverging", "contact", "generated code error")
+SAMPLE_STATUSES = ("rejected", "no trim")
+STATUSES = RUN_STATUSES + SAMPLE_STATUSES
+FAILURES = ("contact", "diverging", "generated code error")
+Z95 = 1.959963984540054  # the 0.975 quantile of the standard normal
+WORST = 5
+MAX_SAMPLES = 10_000_000
+
+
+@dataclass(frozen=True)
+class Study:
+    """Everything a worker needs to run any sample: small and picklable."""
+
+    origin: str
+    data: dict  # the validated parameter set (model_dump) the samples are drawn about
+    structure: Any  # maglevgen.derive.structure.Structure
+    names: tuple[str, ...]  # parameter vector entries
+    p: tuple[float, ...]  # nominal parameter vector
+    keys: tuple[str, ...]  # toleranced entries, in file order
+    sigma: tuple[float, ...]  # normal sigma, or NaN for a uniform one
+    half: tuple[float, ...]  # uniform half-width (or the truncation for a normal)
+    speed: tuple[float, float]
+    disturbance: tuple[tuple[str, float], ...]
+    controllers: tuple[str, ...]
+    t_end: float
+    dt: float
+    min_gap: float
+    weights: Weights
+    seed: int
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The sampled inputs, in draw order: speed, disturbances, parameters."""
+        return ("speed", *(f"disturbance.{s}" for s, _ in self.disturbance), *self.keys)
+
+
+def sample_inputs(study: Study, index: int) -> np.ndarray:
+    """Sample ``index``'s draws (speed, disturbances, parameters) from its own SeedSequence."""
+    from .params import NORMAL_TRUNCATION
+
+    rng = np.random.default_rng(np.random.SeedSequence(study.seed, spawn_key=(index,)))
+    lo, hi = study.speed
+    out = [rng.uniform(lo, hi)]
+    out += [rng.uniform(-a, a) for _, a in study.disturbance]
+    for name, sigma, half in zip(study.keys, study.sigma, study.half, strict=True):
+        nominal = study.p[study.names.index(name)]
+        if math.isnan(sigma):
+            out.append(nominal + rng.uniform(-half, half))
+            continue
+        z = rng.standard_normal()
+        while abs(z) > NORMAL_TRUNCATION:  # truncated normal by rejection
+            z = rng.standard_normal()
+        out.append(nominal + sigma * z)
+    return np.array(out)
+
+
+def _assign(data: dict, entry: str, value: float) -> None:
+    """Set a parameter vector entry (``vehicle.cg_offset.z``) in a model_dump dict."""
+    node: Any = data
+    parts = entry.split(".")
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        if isinstance(node, list):
+            j = "xyz".index(part) if part in ("x", "y", "z") and len(node) == 3 else int(part)
+            node[j] = value
+            return
+        if last:
+            node[part] = value
+            return
+        node = node[part]
+
+
+# entries that a rule across keys reads (maglevgen.params.Parameters._physical_inertia): a
+# sample that draws one of them is validated as a whole file would be; every other entry
+# stays in its own range by the check of the file (Parameters._tolerances_within_limits)
+CROSS_KEY_RULES = ("vehicle.inertia_cg.", "track.min_gap", ".nominal_gap")
+
+
+def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
+    """The sample's parameter vector; the reason when it is rejected (a rule across keys
+    broken)."""
+    from .params import validate
+
+    p = np.array(study.p)
+    values = draws[1 + len(study.disturbance):]
+    for name, value in zip(study.keys, values, strict=True):
+        p[study.names.index(name)] = value
+    if any(r in k for k in study.keys for r in CROSS_KEY_RULES):
+        data = json.loads(json.dumps(study.data))  # a deep copy
+        for name, value in zip(study.keys, values, strict=True):
+            _assign(data, name, float(value))
+        try:
+            validate(data, "sample")
+        except InputError as exc:
+            return str(exc).removeprefix("sample: ")
+    return p
+
+
+_LIBRARIES: dict[Any, Any] = {}
+
+
+def _library(structure):
+    """The compiled library in this process (generated and compiled on a worker where its
+    cache lacks it), loaded once."""
+    if structure not in _LIBRARIES:
+        from .library import simulation_library
+
+        _LIBRARIES[structure] = simulation_library(structure)
+    return _LIBRARIES[structure]
+
+
+def run_sample(study: Study, index: int, lib=None) -> list[dict]:
+    """One row per controller: the draws, the status and the per-axis metrics."""
+    from .simulate import metrics, simulate
+
+    lib = lib or _library(study.structure)
+    draws = sample_inputs(study, index)
+    base = {"sample": index, **dict(zip(study.columns, draws.tolist(), strict=True))}
+    disturbance = {s: float(d) for (s, _), d in
+                   zip(study.disturbance, draws[1:1 + len(study.disturbance)], strict=True)}
+    p = sample_parameters(study, draws)
+    rows = []
+
+    def row(controller: str, status: str, reason: str = "", m: dict | None = None) -> dict:
+        r = {**base, "controller": controller, "status": status, "reason": reason,
+             "min_gap": math.nan, "speed_at_contact": math.nan}
+        for axis in cv.AXES:
+            ax = (m or {}).get("axes", {}).get(axis, {})
+            st = ax.get("settling_time")
+            r[f"settling_time.{axis}"] = math.nan if st is None else float(st)
+            r[f"peak.{axis}"] = float(ax.get("peak_deviation", math.nan))
+        if m is not None:
+            r["min_gap"] = m["min_gap"]
+            r["speed_at_contact"] = (math.nan if m["speed_at_contact"] is None
+                                     else m["speed_at_contact"])
+        return r
+
+    if isinstance(p, str):
+        return [row(c, "rejected", p) for c in study.controllers]
+    try:
+        op = operating_point(lib, p, float(draws[0]), study.min_gap, study.weights)
+    except NoTrimError as exc:
+        return [row(c, "no trim", str(exc)) for c in study.controllers]
+    for c in study.controllers:
+        traj = simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance)
+        m = metrics(traj)
+        rows.append(row(c, m["status"], m["event"] or "", m))
+    return rows
+
+
+def run_chunk(study: Study, indices: Sequence[int]) -> Columns:
+    """The table of a chunk of samples (what a worker process or a Dask task runs): columns,
+    so that what travels back and what a large study holds stay small."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # overflow in a diverging sample: its status says so
+        return table([r for i in indices for r in run_sample(study, int(i))])
+
+
+# ------------------------------------------------------------------------------ execution
+
+Tick = Callable[[int], None]
+Columns = dict[str, np.ndarray]  # a table: one array per column, one row per run
+
+
+def concat(tables: list[Columns]) -> Columns:
+    """Tables of consecutive chunks as one."""
+    return {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
+
+
+def _chunks(n: int, size: int) -> list[range]:
+    return [range(i, min(n, i + size)) for i in range(0, n, size)]
+
+
+def default_chunk(n: int, workers: int) -> int:
+    """Enough chunks to balance the workers (8 per worker), few enough that the per-call
+    overhead stays small (at most 64 samples a chunk)."""
+    return max(1, min(64, math.ceil(n / (8 * max(1, workers)))))
+
+
+class ChunkFailedError(MaglevError):
+    """A chunk failed on its retry too (a worker that keeps dying): exit 1."""
+
+
+def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
+              tick: Tick | None = None) -> Columns:
+    """Samples 0..n-1 on ``workers`` processes of this machine (1: in this process)."""
+    size = chunk or default_chunk(n, workers)
+    chunks = _chunks(n, size)
+    results: dict[int, Columns] = {}
+    if workers <= 1:
+        lib = _library(study.structure)
+        for k, c in enumerate(chunks):
+            results[k] = table([r for i in c for r in run_sample(study, i, lib)])
+            if tick:
+                tick(len(c))
+        return concat([results[k] for k in range(len(chunks))])
+    tries = dict.fromkeys(range(len(chunks)), 0)
+    pending = list(range(len(chunks)))
+    while pending:
+        failed: list[int] = []
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(run_chunk, study, list(chunks[k])): k for k in pending}
+            for fut, k in futures.items():
+                try:
+                    results[k] = fut.result()
+                    if tick:
+                        tick(len(chunks[k]))
+                except BrokenProcessPool:
+                    failed.append(k)  # a worker died: every unfinished chunk of the pool
+        for k in failed:
+            tries[k] += 1
+            if tries[k] > 1:
+                c = chunks[k]
+                raise ChunkFailedError(f"samples {c.start} to {c.stop - 1}: the worker running "
+                                       "them died twice (out of memory? a crash in the C?)")
+        pending = failed
+    return concat([results[k] for k in range(len(chunks))])
+
+
+def dask_client(scheduler: str, workers: int):
+    """A dask.distributed Client: a LocalCluster for ``local``, else the scheduler at the
+    address; an InputError (exit 2) when it cannot be reached or Dask is missing."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise InputError("--scheduler: needs dask.distributed (pip install "
+                         "'maglevgen[montecarlo]')") from None
+    if scheduler == "local":
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        return Client(cluster)
+    import re
+
+    if not re.fullmatch(r"(tcp|tls)://[A-Za-z0-9_.\-\[\]:]+:\d{1,5}", scheduler):
+        raise InputError(f"--scheduler {scheduler!r}: expected 'local' or tcp://HOST:PORT")
+    try:
+        return Client(scheduler, timeout="5s")
+    except (OSError, TimeoutError) as exc:
+        raise InputError(f"--scheduler {scheduler}: unreachable ({' '.join(str(exc).split())})"
+                         ) from None
+
+
+def run_dask(study: Study, n: int, client, chunk: int | None = None,
+             tick: Tick | None = None) -> Columns:
+    """Samples 0..n-1 as chunk tasks on a Dask cluster; each task is retried once."""
+    from distributed import as_completed
+
+    workers = max(1, len(client.scheduler_info().get("workers", {})))
+    chunks = _chunks(n, chunk or default_chunk(n, workers))
+    futures = [client.submit(run_chunk, study, list(c), retries=1, pure=False) for c in chunks]
+    where = {f.key: k for k, f in enumerate(futures)}
+    results: dict[int, Columns] = {}
+    for fut in as_completed(futures):
+        k = where[fut.key]
+        try:
+            results[k] = fut.result()
+        except Exception as exc:
+            c = chunks[k]
+            raise ChunkFailedError(f"samples {c.start} to {c.stop - 1} failed twice on the "
+                                   f"Dask cluster: {type(exc).__name__}: {exc}") from None
+        if tick:
+            tick(len(chunks[k]))
+    return concat([results[k] for k in range(len(chunks))])
+
+
+# ------------------------------------------------------------------------------ the study
+
+
+def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: float,
+               seed: int) -> Study:
+    """The study of a carriage's [tolerances]; the speed range defaults to the envelope's.
+    Refuses a step above RK4's stability limit at the range's ends (nominal parameters)."""
+    from .simulate import rk4_stability_limit
+
+    params = carriage.params
+    tol = params.tolerances
+    if tol.speed is not None:
+        speed = (float(tol.speed[0]), float(tol.speed[1]))
+    else:
+        from .envelope import resolve_range
+
+        speed = resolve_range(carriage, lib)
+    w = Weights.of(params)
+    for v in speed:
+        try:
+            op = operating_point(lib, carriage.p, v, params.track.min_gap, w)
+        except NoTrimError as exc:
+            raise InputError(f"tolerances.speed: {exc}") from None
+        for c in controllers:
+            limit = rk4_stability_limit(np.linalg.eigvals(op.full_closed_loop(c)))
+            if dt > limit:
+                raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limit:.4g} s "
+                                 f"of the {c} controller at {v:g} m/s")
+    keys = tuple(tol.parameters)
+    return Study(
+        origin=carriage.loaded.source,
+        # the samples are validated without the tolerances (drawn about the file's values)
+        data={k: v for k, v in params.model_dump().items() if k != "tolerances"},
+        structure=carriage.structure,
+        names=tuple(e.name for e in carriage.entries), p=tuple(map(float, carriage.p)),
+        keys=keys,
+        sigma=tuple(math.nan if t.normal is None else float(t.normal)
+                    for t in tol.parameters.values()),
+        half=tuple(t.half_width for t in tol.parameters.values()),
+        speed=speed, disturbance=tuple((s, float(a)) for s, a in tol.disturbance.items()),
+        controllers=tuple(controllers), t_end=float(t_end), dt=float(dt),
+        min_gap=float(params.track.min_gap), weights=w, seed=int(seed))
+
+
+def table(rows: list[dict]) -> Columns:
+    """Rows as columns (numbers as float64, the rest as str), in sample then controller order."""
+    if not rows:
+        return {}
+    cols = {}
+    for name in rows[0]:
+        values = [r[name] for r in rows]
+        if isinstance(values[0], str):
+            cols[name] = np.array(values, dtype=str)
+        elif name == "sample":
+            cols[name] = np.array(values, dtype=np.int64)
+        else:
+            cols[name] = np.array(values, dtype=np.float64)
+    return cols
+
+
+def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion k/n (95 % by default)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _quantiles(values: np.ndarray) -> dict[str, float | None]:
+    v = values[np.isfinite(values)]
+    if v.size == 0:
+        return {"n": 0, "p5": None, "median": None, "p95": None, "max": None}
+    q = np.percentile(v, [5, 50, 95])
+    return {"n": int(v.size), "p5": float(q[0]), "median": float(q[1]), "p95": float(q[2]),
+            "max": float(v.max())}
+
+
+def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
+    """Per controller: the status counts, the contact probability with its 95 % Wilson
+    interval, settling time and peak deviation per axis, the worst samples and the
+    correlation of failures with each sampled input."""
+    out: dict[str, Any] = {}
+    for c in study.controllers:
+        sel = cols["controller"] == c
+        status = cols["status"][sel]
+        ran = np.isin(status, RUN_STATUSES)
+        n_run = int(ran.sum())
+        contact = int(np.sum(status == "contact"))
+        fail = np.isin(status, FAILURES)
+        lo, hi = wilson(contact, n_run)
+        axes = {}
+        for axis in cv.AXES:
+            axes[axis] = {"settling_time": _quantiles(cols[f"settling_time.{axis}"][sel][ran]),
+                          "peak_deviation": _quantiles(cols[f"peak.{axis}"][sel][ran])}
+        corr = {}
+        for name in study.columns:
+            x = cols[name][sel][ran]
+            y = fail[ran].astype(float)
+            r = (float(np.corrcoef(x, y)[0, 1]) if x.size > 2 and np.std(x) > 0
+                 and np.std(y) > 0 else 0.0)
+            corr[name] = r
+        ranked = sorted(corr, key=lambda k: -abs(corr[k]))
+        # worst: failures first, then by the smallest gap the run reached
+        gap = cols["min_gap"][sel]
+        order = np.lexsort((np.where(np.isfinite(gap), gap, np.inf), ~fail))
+        worst = []
+        idx = np.flatnonzero(sel)
+        for j in order[:WORST]:
+            if not ran[j]:
+                continue
+            i = idx[j]
+            worst.append({"sample": int(cols["sample"][i]), "status": str(cols["status"][i]),
+                          "reason": str(cols["reason"][i]),
+                          "min_gap": float(cols["min_gap"][i]),
+                          "inputs": {k: float(cols[k][i]) for k in study.columns}})
+        out[c] = {
+            "title": CONTROLLER_TITLES[c], "samples": int(sel.sum()), "runs": n_run,
+            "status_counts": {s: int(np.sum(status == s)) for s in STATUSES},
+            "contact_probability": contact / n_run if n_run else None,
+            "contact_ci95": [lo, hi],
+            "failure_probability": int(fail.sum()) / n_run if n_run else None,
+            "axes": axes,
+            "failure_correlation": {k: corr[k] for k in ranked},
+            "worst": worst,
+        }
+    return out
+
+
+def _json_safe(o: Any) -> Any:
+    """NaN and infinities (a diverged run's gap) as null: strict JSON."""
+    if isinstance(o, dict):
+        return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def summary_json(study: Study, n: int, agg: dict, timing: dict) -> dict:
+    return _json_safe({
+        "parameter_file": study.origin, "samples": n, "seed": study.seed,
+        "t_end": study.t_end, "dt": study.dt, "speed_range": list(study.speed),
+        "disturbance_amplitudes": dict(study.disturbance),
+        "tolerances": {k: ({"normal": s} if not math.isnan(s) else {"uniform": h})
+                       for k, s, h in zip(study.keys, study.sigma, study.half, strict=True)},
+        "per_sample_seed": "numpy SeedSequence(seed, spawn_key=(sample,))",
+        "confidence": "95 % Wilson score interval",
+        "controllers": agg, "timing": timing,
+    })
+
+
+def markdown(summary: dict) -> str:
+    lines = ["# Monte-Carlo robustness", "",
+             f"{summary['samples']} samples (seed {summary['seed']}) of {summary['t_end']:g} s "
+             f"at dt = {summary['dt']:g} s, speed uniform in [{summary['speed_range'][0]:.4g}, "
+             f"{summary['speed_range'][1]:.4g}] m/s; {summary['timing']['runs']} runs in "
+             f"{summary['timing']['seconds']:.3g} s ({summary['timing']['runs_per_s']:.4g} "
+             f"runs/s on {summary['timing']['workers']}).", "",
+             "| controller | runs | contact probability (95 % CI) | failures | statuses |",
+             "| --- | --- | --- | --- | --- |"]
+    for c, a in summary["controllers"].items():
+        p = a["contact_probability"]
+        lo, hi = a["contact_ci95"]
+        counts = ", ".join(f"{s} {k}" for s, k in a["status_counts"].items() if k)
+        pf = a["failure_probability"]
+        rate = "-" if p is None else f"{p:.4f} [{lo:.4f}, {hi:.4f}]"
+        fails = "-" if pf is None else f"{pf:.4f}"
+        lines.append(f"| {a['title']} (`{c}`) | {a['runs']} | {rate} | {fails} | {counts} |")
+    for c, a in summary["controllers"].items():
+        lines += ["", f"## {a['title']} (`{c}`)", "",
+                  "| axis | settling time p50 / p95 / max [s] | peak deviation p50 / p95 / max |",
+                  "| --- | --- | --- |"]
+        for axis, q in a["axes"].items():
+            def f(d: dict) -> str:
+                return " / ".join("-" if d[k] is None else f"{d[k]:.4g}"
+                                  for k in ("median", "p95", "max"))
+            lines.append(f"| {axis} | {f(q['settling_time'])} | {f(q['peak_deviation'])} |")
+        lines += ["", "Correlation of failure (contact, diverging) with each sampled input "
+                  "(Pearson, over the runs):", ""]
+        lines += [f"- `{k}`: {r:+.3f}" for k, r in a["failure_correlation"].items()]
+        if a["worst"]:
+            lines += ["", "Worst samples (failures first, then the smallest gap):", "",
+                      "| sample | status | min gap [m] | inputs |", "| --- | --- | --- | --- |"]
+            for w in a["worst"]:
+                inputs = ", ".join(f"{k} = {v:.5g}" for k, v in w["inputs"].items())
+                gap = "-" if w["min_gap"] is None else f"{w['min_gap']:.4g}"
+                lines.append(f"| {w['sample']} | {w['status']} | {gap} | "
+                             f"{inputs} |")
+    return "\n".join(lines) + "\n"
+
+
+def _png(fig) -> bytes:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, bytes]:
+    """histograms.png (settling time and peak deviation per axis, one colour per
+    controller) and failures.png (each controller's runs against its two inputs most
+    correlated with failure, failures marked)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = {}
+    with plt.rc_context({"font.size": 8}):
+        fig, axs = plt.subplots(2, len(cv.AXES), figsize=(13, 5))
+        for j, axis in enumerate(cv.AXES):
+            for row, (key, label) in enumerate((("settling_time", "settling time [s]"),
+                                                ("peak", "peak deviation"))):
+                ax = axs[row, j]
+                for c in study.controllers:
+                    v = cols[f"{key}.{axis}"][cols["controller"] == c]
+                    v = v[np.isfinite(v)]
+                    if v.size:
+                        ax.hist(v, bins=30, alpha=0.5, label=CONTROLLER_TITLES[c])
+                ax.set_xlabel(f"{axis}: {label}")
+        axs[0, 0].legend(fontsize=7)
+        fig.tight_layout()
+        files["histograms.png"] = _png(fig)
+        n = len(study.controllers)
+        fig, axs = plt.subplots(1, n, figsize=(4.5 * n, 4), squeeze=False)
+        for ax, c in zip(axs[0], study.controllers, strict=True):
+            sel = cols["controller"] == c
+            ranked = list(agg[c]["failure_correlation"])
+            kx, ky = [*ranked, "speed", "speed"][:2]
+            fail = np.isin(cols["status"][sel], FAILURES)
+            ax.scatter(cols[kx][sel][~fail], cols[ky][sel][~fail], s=6, c="tab:blue",
+                       label="settled / not settled")
+            ax.scatter(cols[kx][sel][fail], cols[ky][sel][fail], s=10, c="tab:red", marker="x",
+                       label="contact / diverging")
+            ax.set_xlabel(kx)
+            ax.set_ylabel(ky)
+            ax.set_title(CONTROLLER_TITLES[c])
+            ax.legend(fontsize=7)
+        fig.tight_layout()
+        files["failures.png"] = _png(fig)
+    return files
+
+
+def table_files(cols: dict[str, np.ndarray]) -> dict[str, bytes]:
+    """samples.parquet where pyarrow is installed, else samples.npz and samples.csv."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:
+        buf = io.BytesIO()
+        np.savez(buf, **cols)
+        names = list(cols)
+        lines = [",".join(names)]
+        for i in range(len(cols[names[0]])):
+            lines.append(",".join(
+                f'"{cols[k][i]}"' if cols[k].dtype.kind == "U" else repr(cols[k][i].item())
+                for k in names))
+        return {"samples.npz": buf.getvalue(), "samples.csv": ("\n".join(lines) + "\n").encode()}
+    buf = io.BytesIO()
+    pq.write_table(pa.table(cols), buf)
+    return {"samples.parquet": buf.getvalue()}
+
+
+@dataclass
+class Result:
+    study: Study
+    n: int
+    columns: dict[str, np.ndarray]
+    summary: dict
+
+
+def run_study(study: Study, n: int, workers: int, scheduler: str | None = None,
+              chunk: int | None = None, tick: Tick | None = None) -> Result:
+    """Run the n samples locally or on Dask and aggregate them."""
+    if not 1 <= n <= MAX_SAMPLES:
+        raise InputError(f"--samples {n}: expected 1 to {MAX_SAMPLES}")
+    if workers < 1:
+        raise InputError(f"--workers {workers}: expected at least 1")
+    t0 = time.perf_counter()
+    if scheduler is None:
+        cols = run_local(study, n, workers, chunk, tick)
+        where = f"{workers} local process{'es' if workers > 1 else ''}"
+    else:
+        client = dask_client(scheduler, workers)
+        try:
+            n_workers = len(client.scheduler_info().get("workers", {}))
+            cols = run_dask(study, n, client, chunk, tick)
+        finally:
+            cluster = client.cluster if scheduler == "local" else None
+            client.close()
+            if cluster is not None:
+                cluster.close()
+        where = f"{n_workers} Dask workers ({scheduler})"
+    seconds = time.perf_counter() - t0
+    runs = len(cols["sample"])
+    timing = {"seconds": seconds, "runs": runs, "runs_per_s": runs / seconds if seconds else 0,
+              "workers": where}
+    agg = aggregate(study, cols)
+    return Result(study, n, cols, summary_json(study, n, agg, timing))
+
+
+def output_files(result: Result) -> dict[str, str | bytes]:
+    files: dict[str, str | bytes] = {
+        "montecarlo.json": json.dumps(result.summary, indent=1) + "\n",
+        "montecarlo.md": markdown(result.summary)}
+    files.update(table_files(result.columns))
+    files.update(plots(result.study, result.columns, result.summary["controllers"]))
+    return files
+
+
+def default_workers() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+        os.cpu_count() or 1)
+
+
+__all__ = ["CONTROLLERS", "Result", "Study", "aggregate", "make_study", "run_study",
+           "sample_inputs", "wilson"]

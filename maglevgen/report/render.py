@@ -1,0 +1,293 @@
+"""The report assembled: the context of every section, report.tex, the PDF, the files written.
+
+Every equation in the report is a SymPy object from ``derive/`` (or built from its functions)
+printed with ``sympy.latex``; every number comes from the same code paths as ``maglevgen trim``
+and ``maglevgen gains`` (their reports, imported in one place below). The jinja2 templates in
+``templates/report*`` only place them.
+
+The output is written atomically: everything is rendered into a temporary folder, LaTeX runs
+there, and only a successful build replaces the previous output. The .tex is deterministic: no
+dates, fixed number formats, seeded random samples.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import re
+import shutil
+import tempfile
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import maglevgen.report.latex as latex  # a module (tests patch its find_tex)
+
+from ..errors import MaglevError
+from ..output import write_output
+from ..report_figures import force_figures, pole_map
+from ..summary import gains_report, trim_report  # the CLI's numbers, from the C
+from ..version import __version__
+from .latex import LatexBuild, latex_env
+from .sections.conventions import _conventions
+from .sections.damping import _damping_allocation
+from .sections.envelope import ENVELOPE_FIGURE, _envelope, _envelope_checks, _envelope_context
+from .sections.force_law import _force_law, force_curves
+from .sections.geometry import _geometry
+from .sections.paper import _paper_comparison
+from .sections.parameters import parameter_rows
+from .sections.poles import POLE_FIGURE, pole_sets
+from .sections.riccati import _riccati
+from .sections.rigid_body import _rigid_body
+from .sections.simulation import Simulation, _simulation
+from .sections.stiffness import _stiffness
+from .sections.summary import summary
+from .sections.trim import _trim
+from .sections.verification import _verification
+
+__all__ = ["SECTION_TITLES", "ReportFiles", "ReportOptions", "ReportResult", "build_context",
+           "render_report", "render_tex", "report_files", "write_report"]
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """What `write_report` does besides rendering the .tex."""
+
+    simulation: Simulation = None  # `maglevgen simulate` output: its folder or its files
+    verify_c: bool = True  # compile the generated C and compare it with the SymPy model
+    build_pdf: bool = True  # run LaTeX when it is installed
+    envelope: tuple[Any, bytes] | None = None  # (Envelope, stability map PNG) when computed
+
+
+class Pending(Protocol):
+    """Figures being drawn elsewhere (a concurrent.futures Future, or build's job)."""
+
+    def result(self) -> dict[str, bytes]: ...
+
+
+SECTION_TITLES: dict[str, str] = {
+    "summary": "Summary of findings",
+    "parameters": "Parameters",
+    "nomenclature": "Nomenclature",
+    "conventions": "Coordinate conventions and state order",
+    "rigid_body": "Rigid-body equations (eqs 1-2)",
+    "force_law": "Halbach field and force law (eqs 3-4)",
+    "geometry": "Geometry and force and moment sums (eqs 8-12)",
+    "trim": "Trim",
+    "stiffness": "Linearisation and stiffness (eqs 5-19)",
+    "damping": "Damping control and allocation (eqs 20-23)",
+    "riccati": "Riccati equations and LQR gains (eqs 24-33)",
+    "poles": "Pole map",
+    "paper": "Paper versus derivation",
+    "verification": "Verification",
+    "envelope": "Operating envelope",
+    "simulation": "Simulation",
+}
+
+
+def _quiet(_msg: str) -> None:
+    pass
+
+
+def build_context(
+    carriage,
+    options: ReportOptions = ReportOptions(),
+    progress: Callable[[str], None] = _quiet,
+    figures: Pending | None = None,
+) -> tuple[dict[str, Any], dict[str, bytes]]:
+    """Everything the templates show, and the binary files (figures) the report includes.
+
+    ``progress`` is called with a short message before each slow step. The force figures are
+    drawn in a child process (concurrent.futures, fork) while this one builds the context:
+    ``figures`` when the caller has them drawn already (`maglevgen build`), else here.
+    """
+    loaded = carriage.loaded
+    folder = isinstance(options.simulation, str | Path)
+    # bad input fails before the slow steps; a folder must come from these parameters
+    sim, sim_files = _simulation(options.simulation, loaded.sha256 if folder else None)
+    progress("report: envelope (stability across speed, in the compiled library)")
+    env, env_png = _envelope(carriage, options.envelope)
+    progress("report: trim and stiffness")
+    trim = carriage.trim()
+    pool = None
+    if figures is None:
+        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"))
+        own: Future = pool.submit(force_figures, force_curves(carriage, trim))
+        figures = own
+    try:
+        trep = trim_report(carriage, None)
+        progress("report: LQR gains, coupled comparison and allocation")
+        gains = gains_report(carriage, None)
+        progress("report: symbolic forms")
+        force = _force_law(carriage, trim, trep)
+        rigid = _rigid_body()
+        alloc = _damping_allocation(gains)
+        sections = {
+            "conventions": _conventions(carriage.model),
+            "rigid_body": rigid,
+            "force_law": force,
+            "geometry": _geometry(carriage, gains),
+            "trim": _trim(trep),
+            "stiffness": _stiffness(carriage, trim, trep),
+            "damping": alloc,
+            "riccati": _riccati(gains),
+        }
+        progress("report: comparison with the paper")
+        paper = _paper_comparison(gains, trep)
+        progress("report: verification")
+        checks = _verification(
+            carriage, trim, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
+        ) + _envelope_checks(carriage, env)
+        progress("report: figures")
+        poles = pole_sets(gains)
+        files = dict(figures.result())
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    files.update(sim_files.read())
+    files[ENVELOPE_FIGURE] = env_png
+    files[POLE_FIGURE] = pole_map(poles)
+    rows, notes = parameter_rows(loaded)
+    envelope = _envelope_context(carriage, env)
+    ctx: dict[str, Any] = {
+        "version": __version__,
+        "titles": SECTION_TITLES,
+        "source": Path(loaded.source).name,
+        "sha256": loaded.sha256,
+        "overrides": list(loaded.overrides),
+        "speed": trep["speed"],
+        "parameters": {
+            "rows": rows,
+            "notes": notes,
+            "B0": force["B0_value"],
+            "B0_paper": force["B0_paper"],
+            "B0_rel": force["B0_rel"],
+        },
+        **sections,
+        "paper": paper,
+        "checks": checks,
+        "envelope": envelope,
+        "simulation": sim,
+        "poles": {"figure": POLE_FIGURE, "sets": poles},
+        "summary": summary(trep, gains, paper, checks, envelope, sections["stiffness"]),
+        "figures": sorted(f for f in files if f.startswith("fig_")),
+    }
+    return ctx, files
+
+
+def render_tex(ctx: dict[str, Any]) -> str:
+    """report.tex from a context of `build_context`."""
+    return latex_env().get_template("report.tex.j2").render(ctx)
+
+
+@dataclass(frozen=True)
+class ReportResult:
+    """What `write_report` wrote."""
+
+    out_dir: Path
+    paths: list[Path]
+    latex: LatexBuild
+    failed_checks: list[str]  # verification rows whose error exceeds their bound
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """The report's files in memory, how LaTeX went and which checks failed."""
+
+    files: dict[str, bytes]
+    latex: LatexBuild
+    failed_checks: list[str]
+
+
+_KEEP = (".tex", ".pdf", ".log", ".png")
+
+
+def render_report(
+    carriage,
+    options: ReportOptions = ReportOptions(),
+    progress: Callable[[str], None] = _quiet,
+    failed_dir: Path | None = None,
+    figures: Pending | None = None,
+) -> ReportFiles:
+    """report.tex, its figures and, when ``options.build_pdf`` and TeX is installed,
+    report.pdf and report.log: every file in memory.
+
+    A LaTeX failure raises MaglevError naming the first error line and the log, kept with the
+    failed build in ``failed_dir`` (default: a new temporary folder). ``figures``: see
+    `build_context`.
+    """
+    ctx, files = build_context(carriage, options, progress, figures)
+    progress("report: rendering report.tex")
+    files["report.tex"] = render_tex(ctx).encode("utf-8")
+    failed = [
+        re.sub(r"\\texttt\{([^}]*)\}|\\", r"\1", c.what).replace("\\_", "_")
+        for c in ctx["checks"]
+        if c.status == "FAIL"
+    ]
+    result = LatexBuild(None, False, 0.0)
+    if not (options.build_pdf and latex.find_tex() is not None):
+        return ReportFiles(files, result, failed)
+    with tempfile.TemporaryDirectory(prefix="maglevgen-report.") as scratch:
+        build = Path(scratch)
+        for name, data in sorted(files.items()):
+            (build / name).write_bytes(data)
+        progress("report: LaTeX, building report.pdf")
+        result = latex.run_latex(build)
+        if not result.ok:
+            where = _keep_failed(build, failed_dir)
+            raise MaglevError(f"LaTeX failed: {result.error} (log: {where})")
+        files = {
+            p.name: p.read_bytes()
+            for p in sorted(build.iterdir())
+            if p.is_file() and p.suffix in _KEEP
+        }
+    return ReportFiles(files, result, failed)
+
+
+def _keep_failed(build: Path, failed_dir: Path | None) -> Path | str:
+    """Copy a failed LaTeX build where the user can read its log; the log's path."""
+    try:
+        if failed_dir is None:
+            failed_dir = Path(tempfile.mkdtemp(prefix="maglevgen-report-failed."))
+        shutil.rmtree(failed_dir, ignore_errors=True)
+        shutil.copytree(build, failed_dir)
+        return failed_dir / "report.log"
+    except OSError:
+        return "not kept: the failed build could not be copied"
+
+
+def report_files(
+    carriage,
+    simulation: Mapping[str, bytes | str] | None = None,
+    pdf: bool = True,
+    progress: Callable[[str], None] = _quiet,
+    figures: Pending | None = None,
+    envelope: tuple[Any, bytes] | None = None,
+) -> dict[str, bytes]:
+    """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
+
+    ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
+    ``figures``: the report's figures being drawn already (see `build_context`).
+    """
+    options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope)
+    return render_report(carriage, options, progress, figures=figures).files
+
+
+def write_report(
+    carriage,
+    out_dir: Path,
+    options: ReportOptions = ReportOptions(),
+    progress: Callable[[str], None] = _quiet,
+) -> ReportResult:
+    """Render the report (`render_report`) and write it to ``out_dir`` at once
+    (maglevgen.output.write_output swaps the folder in).
+
+    On a LaTeX failure ``out_dir`` is left as it was and the failed build is kept in
+    ``.<name>.failed`` beside it.
+    """
+    out_dir = Path(out_dir).resolve()
+    res = render_report(carriage, options, progress,
+                        failed_dir=out_dir.parent / f".{out_dir.name}.failed")
+    paths = write_output(res.files, out_dir)
+    return ReportResult(out_dir, paths, res.latex, res.failed_checks)

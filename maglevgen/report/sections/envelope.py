@@ -1,0 +1,72 @@
+"""Section: envelope."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ...envelope import (
+    STABILITY_MARGIN,
+    closed_loop_stability,
+    compute_envelope,
+    envelope_points,
+    stability_map_png,
+)
+from ...library import simulation_library
+from ...operating import CONTROLLER_TITLES
+from ..format import tex_escape
+from .verification import Check
+
+# ============================================================================ envelope
+
+ENVELOPE_FIGURE = "envelope_stability_map.png"
+
+
+def _envelope(carriage, given: tuple[Any, bytes] | None):
+    """The envelope (maglevgen.envelope, through the compiled library) and its stability map:
+    the caller's (``given``) when it has them (`maglevgen build`), else computed and drawn."""
+    if given is not None:
+        return given
+    env = compute_envelope(carriage, simulation_library(carriage.structure))
+    return env, stability_map_png(env)
+
+
+def _envelope_checks(carriage, env) -> list[Check]:
+    """Stability rows: each designed controller at the design speed and across the envelope
+    (a row fails when the closed loop has an eigenvalue with real part >= -margin)."""
+
+    speed = carriage.params.operation.speed
+    (op,) = envelope_points(carriage, simulation_library(carriage.structure), [speed])
+    out = []
+    for name in ("coupled", "lqr", "damping"):
+        title = tex_escape(CONTROLLER_TITLES[name])
+        out.append(Check(
+            f"{title}: closed loop at {speed:.4g} m/s (largest real part, 1/s)",
+            "eigenvalues (numpy) of the C Jacobians with the gains and allocation",
+            closed_loop_stability(op, name)[0], -STABILITY_MARGIN))
+        out.append(Check(
+            f"{title}: closed loop across [{env.v_min:.4g}, {env.v_max:.4g}] m/s (largest "
+            "real part, 1/s)", f"the same at {env.speeds.size} speeds",
+            float(np.max(env.controllers[name].max_real)), -STABILITY_MARGIN))
+    return out
+
+
+def _envelope_context(carriage, env) -> dict[str, Any]:
+
+    embedded = carriage.params.envelope.embedded_controller
+    pick = np.unique(np.linspace(0, env.speeds.size - 1, min(9, env.speeds.size)).astype(int))
+    names = list(env.controllers)
+    return {
+        "v_min": env.v_min, "v_max": env.v_max, "n": int(env.speeds.size),
+        "figure": ENVELOPE_FIGURE,
+        "launch_acceleration": carriage.params.envelope.launch_acceleration,
+        "rows": [{"title": CONTROLLER_TITLES[n], "name": n, "verdict": c.verdict,
+                  "ok": c.ok, "embedded": n == embedded} for n, c in env.controllers.items()],
+        "names": [CONTROLLER_TITLES[n] for n in names],
+        "table": [{"speed": float(env.speeds[i]),
+                   "cells": [float(env.controllers[n].max_real[i]) for n in names]}
+                  for i in pick],
+    }
+
+

@@ -1,0 +1,118 @@
+"""Section: force law."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import sympy as sp
+
+from ...derive.inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
+from ...derive.memo import memoized
+from ..display import REPORT_SOURCE, Display, eq, ltx
+from ..symbols import K_SYM
+
+# The force law's symbols: eq 4's B_r, d, M and eq 3's w, L, R, B_0, gap delta and speed v.
+_FORCE_SYMBOLS = sp.symbols("B_r d M w L R B_0 delta v")
+
+
+@memoized
+def _force_law_forms(_source: str) -> dict[str, Any]:
+    """Eqs 3-4 in display symbols and what follows from them (parameter independent, cached
+    across processes): B0, F_L, F_D, F_D/F_L, the gap slope and the characteristic speed."""
+
+    Br, d, M, w, L, R, B0, delta, v = _FORCE_SYMBOLS
+    k = K_SYM
+    FL = lift_per_circuit(B0, w, k, L, R, delta, v)
+    FD = drag_per_circuit(B0, w, k, L, R, delta, v)
+    ratio = sp.simplify(FD / FL)
+    (v_c,) = [s for s in sp.solve(sp.Eq(ratio, 1), v) if s.is_positive is not False]
+    return {"B0": halbach_surface_field(Br, d, M, k), "FL": FL, "FD": FD, "ratio": ratio,
+            "slope": sp.simplify(sp.diff(FL, delta) / FL), "v_c": v_c}
+
+
+def _force_numbers(carriage) -> dict[sp.Symbol, float]:
+    """The force law's symbols with the carriage's values (B0 from eq 4)."""
+    Br, d, M, w, L, R, B0, _delta, _v = _FORCE_SYMBOLS
+    pr = carriage.params
+    num = {Br: pr.halbach.remanence, d: pr.halbach.thickness,
+           M: pr.halbach.magnets_per_wavelength, K_SYM: pr.wavenumber, w: pr.halbach.width,
+           L: pr.circuit.inductance, R: pr.circuit.resistance}
+    num[B0] = float(_force_law_forms(REPORT_SOURCE)["B0"].xreplace(num))
+    return num
+
+
+def force_curves(carriage, trim) -> dict[str, Any]:
+    """What the force figures draw, as plain numbers (they are drawn in another process):
+    F_L and F_D (eq 3) of one upper array against the gap at the trim speed and against the
+    speed at the nominal gap, and every array's point at trim."""
+    forms, num = _force_law_forms(REPORT_SOURCE), _force_numbers(carriage)
+    delta, v = _FORCE_SYMBOLS[7:]
+    FL = sp.lambdify((delta, v), forms["FL"].xreplace(num), "numpy")
+    FD = sp.lambdify((delta, v), forms["FD"].xreplace(num), "numpy")
+    v_c = float(forms["v_c"].xreplace(num))
+    arrays = list(carriage.params.arrays.items())
+    upper = [a for _, a in arrays if abs(a.normal[2]) > 1 - 1e-9] or [a for _, a in arrays]
+    n_c, g0 = upper[0].circuits, upper[0].nominal_gap
+    gap = np.linspace(carriage.params.track.min_gap, 0.05, 400)
+    speed = np.linspace(0.0, max(3 * trim.speed, 3 * v_c), 400)
+    points: dict[tuple[float, float], list[str]] = {}
+    dots = []
+    for i, (name, a) in enumerate(arrays):
+        xy = (float(trim.gaps[i] * 1e3), float(trim.lift[i] * n_c / a.circuits))
+        dots.append(xy)
+        points.setdefault((round(xy[0]), round(xy[1], -1)), []).append(name)
+    return {"speed": trim.speed, "v_c": v_c, "circuits": n_c, "nominal_gap": g0,
+            "gap": gap, "lift_gap": n_c * FL(gap, trim.speed),
+            "drag_gap": n_c * FD(gap, trim.speed),
+            "v": speed, "lift_v": n_c * FL(g0, speed), "drag_v": n_c * FD(g0, speed),
+            "dots": dots, "labels": [(xy, ", ".join(names)) for xy, names in points.items()]}
+
+
+def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
+    forms, num = _force_law_forms(REPORT_SOURCE), _force_numbers(carriage)
+    B0_expr, FL, FD = forms["B0"], forms["FL"], forms["FD"]
+    ratio, slope, v_c = forms["ratio"], forms["slope"], forms["v_c"]
+    v = _FORCE_SYMBOLS[8]
+    pr = carriage.params
+    B0_val = num[_FORCE_SYMBOLS[6]]
+    v_c_val = float(v_c.xreplace(num))
+    FLi, FDi = sp.Function("F_L"), sp.Function("F_D")
+    Ni, di, si = sp.symbols("N_i delta_i s_i")
+    arrays = []
+    for name, a in trep["arrays"].items():
+        n_c = pr.arrays[name].circuits
+        arrays.append(
+            {
+                "name": name,
+                "gap_mm": a["gap"] * 1e3,
+                "lift": a["lift"],
+                "drag": a["drag"],
+                "circuits": n_c,
+                "lift_per_circuit": a["lift"] / n_c,
+                "speed": trim.speed,
+            }
+        )
+    return {
+        "B0": eq("B_0", B0_expr, tag="4"),
+        "lift": eq("F_L", FL, tag="3"),
+        "drag": eq("F_D", FD),
+        "ratio": eq(r"\frac{F_D}{F_L}", ratio),
+        "slope": eq(r"\frac{1}{F_L}\frac{\partial F_L}{\partial \delta}", slope, tag="5--6"),
+        "array_force": Display(
+            (
+                f"{ltx(sp.Symbol('F_{L,i}'))} &= {ltx(Ni * FLi(di, si))}, \\qquad "
+                f"{ltx(sp.Symbol('F_{D,i}'))} = {ltx(Ni * FDi(di, si))}",
+            )
+        ),
+        "v_c": eq("v_c", v_c),
+        "B0_value": B0_val,
+        "B0_paper": 0.9,
+        "B0_rel": (0.9 - B0_val) / B0_val,
+        "k_value": pr.wavenumber,
+        "v_c_value": v_c_val,
+        "ratio_at_trim": float(ratio.xreplace({**num, v: trim.speed})),
+        "arrays": arrays,
+    }
+
+

@@ -1,0 +1,120 @@
+"""Section: stiffness."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import sympy as sp
+
+from ...derive import conventions as cv
+from ...derive.linearize import design_pose_stiffness, generalized_mass_expr
+from ...derive.memo import memoized
+from ...derive.model import build_model
+from ...derive.paper import paper_stiffness
+from ..display import REPORT_SOURCE, Display, break_sum, eqs, ltx, matrix_tex, round_floats
+from ..format import fnum
+from ..symbols import K_SYM, array_labels, to_display
+
+_Q_LABELS = ("y", "z", r"\phi", r"\theta", r"\psi")
+_W_LABELS = ("F_y", "F_z", "M_x", "M_y", "M_z")
+
+
+def _shown_values(carriage) -> tuple[tuple[str, float], ...]:
+    """The parameter values the stiffness display substitutes: those of the symbols in K_st0
+    (the array geometry), so that editing any other parameter finds the display cached."""
+
+    model = carriage.model
+    free = design_pose_stiffness(model.structure).free_symbols
+    return tuple((e.name, float(e.value)) for e, s in zip(carriage.entries, model.p, strict=True)
+                 if s in free and e.name != "halbach.wavelength")
+
+
+@memoized
+def _stiffness_display(structure, values: tuple[tuple[str, float], ...],
+                       _source: str) -> tuple[Display, Display]:
+    """K_st0 at the design pose (eqs 13-19 derived) with ``values`` substituted, entry by
+    entry, and the generalized masses, as LaTeX lines."""
+
+    model = build_model(structure)
+    K = design_pose_stiffness(structure)
+    names = array_labels(model)
+    rep = {s: sp.Symbol(f"F_{{L,{n}}}") for s, n in zip(model.lift_sym, names, strict=True)}
+    rep.update({s: sp.Symbol(f"F_{{D,{n}}}") for s, n in zip(model.drag_sym, names, strict=True)})
+    Kd = to_display(model, K, dict(values)).xreplace(rep)
+    lines: list[str] = []
+    for i in range(5):
+        for j in range(5):
+            e = round_floats(sp.expand(Kd[i, j]))
+            if e != 0:
+                lines += break_sum(f"K_{{{_Q_LABELS[i]} {_Q_LABELS[j]}}}", e)
+    mass = generalized_mass_expr(model)
+    mass_lines = eqs(
+        [(f"M_{{{_Q_LABELS[i]} {_Q_LABELS[i]}}}", to_display(model, mass[i])) for i in range(5)]
+    )
+    return Display(tuple(lines)), mass_lines
+
+
+def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
+
+    model = carriage.model
+    lines, mass_lines = _stiffness_display(model.structure, _shown_values(carriage),
+                                           REPORT_SOURCE)
+    K_mag = np.array(trep["stiffness_matrix"])
+    K_tot = carriage.total_stiffness(trim)
+    # entries below 1e-12 of the largest are rounding noise of a structural zero
+    K_mag = np.where(np.abs(K_mag) < 1e-12 * np.max(np.abs(K_mag)), 0.0, K_mag)
+    K_tot = np.where(np.abs(K_tot) < 1e-12 * np.max(np.abs(K_tot)), 0.0, K_tot)
+    syms = {
+        "F_lat": sp.Symbol("F_{bncd,y}"),
+        "F_upper": sp.Symbol("F_{bncd,upper}"),
+        "m": sp.Symbol("m"),
+        "g": sp.Symbol("g"),
+        "k": K_SYM,
+        "Lz": sp.Symbol("L_z"),
+        "Lx": sp.Symbol("L_x"),
+        "Lxla": sp.Symbol("L_{xla}"),
+    }
+    printed = paper_stiffness(**syms)
+    tags = {"lateral": "13", "vertical": "7", "roll": "14", "pitch": "15", "yaw": "16"}
+    rows = []
+    for axis, r in trep["stiffness"].items():
+        rows.append(
+            {
+                "axis": axis,
+                "unit": r["unit"],
+                "formula": ltx(printed[axis]),
+                "eq": tags[axis],
+                "paper": r["paper"],
+                "derived": r["derived"],
+                "total": r["derived_with_gravity"],
+                "rel": r["paper_relative_difference"],
+            }
+        )
+    inputs = [(ltx(syms[n]), v) for n, v in trep["paper_inputs"].items()]
+    A, B = carriage.linearize(trim)
+    scale = np.max(np.abs(A))
+    a_entries = [
+        (
+            rf"\dot{{{ltx(sp.Symbol(cv.STATE_NAMES[i]))}}}",
+            ltx(sp.Symbol(cv.STATE_NAMES[j])),
+            float(A[i, j]),
+        )
+        for i in range(12)
+        for j in range(12)
+        if abs(A[i, j]) > 1e-13 * scale
+    ]
+    return {
+        "K_symbolic": lines,
+        "mass": mass_lines,
+        "mass_values": carriage.generalized_mass().tolist(),
+        "K_mag": matrix_tex(K_mag, lambda v: fnum(v, 5)),
+        "K_tot": matrix_tex(K_tot, lambda v: fnum(v, 5)),
+        "rows": rows,
+        "paper_inputs": inputs,
+        "A_entries": a_entries,
+        "B_shape": B.shape,
+        "B_nonzero": int(np.count_nonzero(np.abs(B) > 1e-13)),
+    }
+
+

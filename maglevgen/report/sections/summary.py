@@ -1,0 +1,43 @@
+"""Section: the summary of findings, the report's first page: the verdict of each controller
+across the envelope, the trim, the gains and closed-loop poles, the paper's discrepancies
+ranked by size, and the count of verification checks passed and failed."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:
+    """The paper's printed values against the derivation, largest relative difference first."""
+    rows = []
+    for axis, r in trep["stiffness"].items():
+        rows.append({"what": f"{axis} stiffness (printed eq)", "paper": r["paper"],
+                     "derived": r["derived"], "rel": r["paper_relative_difference"]})
+    for axis, a in gains["axes"].items():
+        if a["relative_difference"]["paper_vs_closed_form"] is None:
+            continue
+        # the gain component the printed form misses most (K1: position, K2: rate)
+        i = max((0, 1), key=lambda j: abs(a["K_paper"][j] / a["K_closed_form"][j] - 1))
+        paper, derived = a["K_paper"][i], a["K_closed_form"][i]
+        rows.append({"what": f"{axis} LQR gain K{i + 1} (eqs 31-32 as printed)",
+                     "paper": paper, "derived": derived, "rel": paper / derived - 1})
+    return sorted(rows, key=lambda r: -abs(r["rel"]))
+
+
+def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
+            stiffness: dict) -> dict[str, Any]:
+    """What the first page shows (plain data; the template formats it)."""
+    status = [c.status for c in checks]
+    return {
+        "verdicts": envelope["rows"],
+        "v_min": envelope["v_min"], "v_max": envelope["v_max"],
+        "trim": {"speed": trep["speed"], "lift_off": trep["lift_off_speed"],
+                 "F_prop": trep["propulsion_force"], "residual": trep["residual"]},
+        "gains": [{"axis": axis, "K": a["K_closed_form"],
+                   "poles": [complex(*p) for p in a["closed_loop_poles"]]}
+                  for axis, a in gains["axes"].items()],
+        "discrepancies": _discrepancies(trep, gains),
+        "passed": status.count("pass"), "failed": status.count("FAIL"),
+        "not_run": status.count("not run"),
+        "failed_checks": [c.what for c in checks if c.status == "FAIL"],  # LaTeX text
+    }

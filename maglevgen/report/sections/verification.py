@@ -1,0 +1,172 @@
+"""Section: verification."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import mpmath
+import numpy as np
+
+from ...derive.riccati import riccati_relative_residual
+from ...errors import MaglevError
+from ...library import simulation_library
+
+
+@dataclass(frozen=True)
+class Check:
+    """One row of the verification table."""
+
+    what: str  # LaTeX text
+    reference: str  # LaTeX text
+    error: float | None  # measured error (None: not run)
+    bound: float
+    note: str = ""  # why it was not run
+
+    @property
+    def status(self) -> str:
+        if self.error is None:
+            return "not run"
+        return "pass" if self.error <= self.bound else "FAIL"
+
+
+def _generated_c_checks(
+    carriage,
+    trim,
+    gains: dict,
+    progress: Callable[[str], None],
+    samples: int = 300,
+    seed: int = 20240607,
+) -> list[Check]:
+    """Generated C (double, run-time parameters) against the SymPy model and the gains."""
+
+    what = (
+        f"Generated C \\texttt{{maglev\\_dynamics}} vs SymPy model, {samples} states near trim",
+        "Generated C \\texttt{maglev\\_jacobians} vs chain-rule Jacobians, 20 states",
+        "Generated C \\texttt{maglev\\_trim} vs Python trim",
+        "Generated C \\texttt{maglev\\_lqr\\_gains} vs closed form",
+    )
+    refs = (
+        "lambdified model layers",
+        "lambdified partials",
+        "SciPy root (hybrd)",
+        "\\texttt{gains} closed form",
+    )
+    bounds = (1e-12, 1e-10, 1e-9, 1e-10)
+    try:
+        lib = simulation_library(carriage.structure, progress=progress)
+    except MaglevError as exc:
+        return [
+            Check(w, r_, None, b, f"not run: {exc}")
+            for w, r_, b in zip(what, refs, bounds, strict=True)
+        ]
+    mf, p = carriage.functions, carriage.p
+    rng = np.random.default_rng(seed)
+    n_u = carriage.model.u.shape[0]
+    X = trim.x + rng.normal(
+        scale=[0.5, 1e-3, 1e-3, 5e-3, 5e-3, 5e-3, 1.0, 0.02, 0.02, 0.05, 0.05, 0.05],
+        size=(samples, 12),
+    )
+    U = trim.u + rng.normal(scale=2.0, size=(samples, n_u))
+    dyn = lib.function("maglev_dynamics")
+    ref = np.array([mf.xdot(x, u, p) for x, u in zip(X, U, strict=True)])
+    got = np.array([dyn(x, u, p)[0].ravel() for x, u in zip(X, U, strict=True)])
+    scale = np.maximum(np.max(np.abs(ref), axis=0), 1e-300)
+    e_dyn = float(np.max(np.abs(got - ref) / scale))
+    jac = lib.function("maglev_jacobians")
+    e_jac = 0.0
+    for x, u in zip(X[:20], U[:20], strict=True):
+        A, B = mf.jacobians(x, u, p)
+        Ac, Bc = jac(x, u, p)
+        e_jac = max(
+            e_jac,
+            float(np.max(np.abs(Ac - A)) / np.max(np.abs(A))),
+            float(np.max(np.abs(Bc - B)) / np.max(np.abs(B))),
+        )
+    xt, fp = lib.function("maglev_trim")([trim.speed], p)
+    e_trim = max(
+        float(np.max(np.abs(xt.ravel() - trim.x))),
+        abs(float(fp.ravel()[0]) - trim.u[0]) / abs(trim.u[0]),
+    )
+    Kc, _c = lib.function("maglev_lqr_gains")([trim.speed], p)
+    K_ref = np.array([a["K_closed_form"] for a in gains["axes"].values()])
+    e_gain = float(np.max(np.abs(Kc - K_ref) / np.abs(K_ref)))
+    return [
+        Check(w, r_, e, b)
+        for w, r_, e, b in zip(what, refs, (e_dyn, e_jac, e_trim, e_gain), bounds, strict=True)
+    ]
+
+
+def _verification(
+    carriage,
+    trim,
+    gains: dict,
+    trep: dict,
+    rigid: dict,
+    alloc: dict,
+    paper: dict,
+    c_progress: Callable[[str], None] | None,
+) -> list[Check]:
+    """The verification table; the generated-C rows only when ``c_progress`` is given."""
+
+    axes = gains["axes"]
+    (q1, _), (_, q2) = gains["Q"]
+    r = gains["R"]
+    with mpmath.workdps(50):
+        are = max(
+            riccati_relative_residual(a["A"], a["B"], [[q1, 0], [0, q2]], [[r]], a["P_closed_form"])
+            for a in axes.values()
+        )
+    checks = [
+        Check(
+            "Closed-form $K$ (eq 32, stable form) vs numerical LQR, all axes",
+            "scipy CARE (Schur)",
+            max(a["relative_difference"]["numerical_vs_closed_form"] for a in axes.values()),
+            1e-6,
+        ),
+        Check(
+            "Closed-form $K$ in double precision",
+            "closed form in 50-digit mpmath",
+            max(a["accuracy_vs_50_digit_reference"]["closed_form"] for a in axes.values()),
+            1e-14,
+        ),
+        Check(
+            "Numerical LQR $K$ (scipy CARE)",
+            "closed form in 50-digit mpmath",
+            max(a["accuracy_vs_50_digit_reference"]["numerical"] for a in axes.values()),
+            1e-6,
+        ),
+        Check(
+            "Stable closed form in single precision",
+            "closed form in 50-digit mpmath",
+            max(a["stable32"] for a in paper["axes"]),
+            1e-5,
+        ),
+        Check("Closed-form $P$ in eq 28 (relative residual)", "zero", are, 1e-14),
+        Check(
+            "Trim: largest acceleration at the equilibrium",
+            "zero [m/s$^2$, rad/s$^2$]",
+            trep["residual"],
+            1e-8,
+        ),
+        Check(
+            "Eqs 1--2 at the model's accelerations (exact rationals, 3 bodies)",
+            "zero (count of nonzero residuals)",
+            float(rigid["exact_residual_nonzero"]),
+            0.0,
+        ),
+        Check("Allocation: $E\\,T - I$", "zero", alloc["E_T_residual"], 1e-12),
+        Check(
+            "Allocation: $T$ from the Lagrangian vs $E^{+}$",
+            "numpy pinv",
+            alloc["T_pinv_residual"],
+            1e-12,
+        ),
+    ]
+    if c_progress is not None:
+        checks += _generated_c_checks(carriage, trim, gains, c_progress)
+    return checks
+
+
+Simulation = Path | Mapping[str, bytes | str] | None

@@ -1,0 +1,220 @@
+"""The numbers `maglevgen trim`, `gains` and `envelope` print, as plain data (the report and
+SUMMARY.md read the same): no argument parsing, no printing.
+
+Every number printed for the carriage comes from the compiled library generated from the
+derivation (`maglev_trim`, `maglev_array_forces`, `maglev_stiffness`, `maglev_axis_plants`,
+`maglev_lqr_gains`, `maglev_jacobians`, `maglev_allocation_matrix`; maglevgen.operating), the
+same C the firmware embeds; numpy and SciPy only assemble and solve small dense problems from
+them (eigenvalues, the coupled LQR's CARE, the designs' costs). The comparison columns are
+references, labelled as such: the paper's printed forms (eqs 13-19, 31-32, SymPy), SciPy's
+numerical LQR of each axis and the 50-digit closed form (mpmath).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+
+from . import progress
+from .carriage import Carriage, stiffness_rows
+from .controllers import AxisGains, compare_designs
+from .derive import conventions as cv
+from .derive.paper import paper_riccati
+from .derive.riccati import lqr_gain_mp, riccati_solution_mp
+from .derive.structure import input_names_of
+from .envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
+from .errors import InputError, NoTrimError
+from .library import SimulationLibrary, simulation_library
+from .operating import (
+    CONTROLLER_TITLES,
+    N_AXES,
+    REDUCED_STATES,
+    OperatingPoint,
+    Weights,
+    checked_trim,
+    numerical_lqr,
+    operating_point,
+)
+
+
+@dataclass(frozen=True)
+class TrimPoint:
+    """The trim at one speed and the array forces and stiffness there, from the C."""
+
+    speed: float
+    x: np.ndarray
+    f_prop: float
+    gaps: np.ndarray
+    lift: np.ndarray
+    drag: np.ndarray
+    residual: float  # largest |acceleration| of maglev_dynamics at the trim
+    K_magnetic: np.ndarray  # K_st0 (5 x 5)
+    K_other: np.ndarray  # gravity and propulsion moments (5 x 5)
+
+
+def _speed(carriage: Carriage, speed: float | None) -> float:
+    return float(carriage.params.operation.speed if speed is None else speed)
+
+
+def _lift_off(carriage: Carriage, lib: SimulationLibrary) -> float:
+    """The lowest speed with a trim (bisection on the C's trim up to envelope.v_max, or
+    further where the carriage has no trim there); inf when none up to 1e4 m/s."""
+    v_hi = float(carriage.params.envelope.v_max)
+    while True:
+        try:
+            return lift_off_speed(lib, carriage.p, carriage.params.track.min_gap, v_hi)
+        except InputError:
+            if v_hi > 1e4:
+                return float("inf")
+            v_hi *= 4
+
+
+def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None) -> TrimPoint:
+    """The checked trim at ``speed`` (default operation.speed) and what the trim table shows;
+    NoTrimError naming the lift-off speed when there is none."""
+    v = _speed(carriage, speed)
+    p = carriage.p
+    try:
+        if not v > 0:
+            raise NoTrimError(f"no trim at speed {v!r} m/s: operation.speed must be > 0")
+        x, f_prop, gaps = checked_trim(lib, p, v, carriage.params.track.min_gap)
+    except NoTrimError as exc:
+        why = str(exc).split(": ", 1)[-1]
+        v_off = _lift_off(carriage, lib) if v > 0 else float("nan")
+        hint = f"; lift-off needs {v_off:.4g} m/s" if np.isfinite(v_off) else ""
+        raise NoTrimError(f"no trim at speed {v:g} m/s: {why}{hint}") from None
+    u = np.zeros(lib.function("maglev_dynamics").shapes_in[1][0])
+    u[0] = f_prop
+    acc = lib.function("maglev_dynamics")(x, u, p)[0].ravel()[6:]
+    lift, drag = (a.ravel() for a in lib.function("maglev_array_forces")(x, p))
+    K_mag, K_oth = lib.function("maglev_stiffness")(x, f_prop, p)
+    return TrimPoint(v, x, f_prop, gaps, lift, drag, float(np.max(np.abs(acc))), K_mag, K_oth)
+
+
+def stiffness_table(carriage: Carriage, lib: SimulationLibrary, speed: float | None):
+    """Per-axis stiffness at the C's trim: derived K_st0 (and with gravity) beside eqs 13-19."""
+    tp = trim_point(carriage, lib, speed)
+    return stiffness_rows(carriage.paper_stiffness_inputs(tp), tp.K_magnetic,
+                          tp.K_magnetic + tp.K_other)
+
+
+def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None
+                ) -> dict:
+    """Everything `maglevgen trim` prints, as plain data."""
+    lib = lib or _library(carriage)
+    tp = trim_point(carriage, lib, speed)
+    kin = carriage.paper_stiffness_inputs(tp)
+    rows = stiffness_rows(kin, tp.K_magnetic, tp.K_magnetic + tp.K_other)
+    names = list(carriage.params.arrays)
+    return {
+        "speed": tp.speed,
+        "params_sha256": carriage.loaded.sha256,
+        "state": {s.name: float(v) for s, v in zip(cv.STATES, tp.x, strict=True)},
+        "state_units": {s.name: s.unit for s in cv.STATES},
+        "propulsion_force": tp.f_prop,
+        "residual": tp.residual,
+        "lift_off_speed": _lift_off(carriage, lib),
+        "arrays": {n: {"gap": float(g), "lift": float(fl), "drag": float(fd)}
+                   for n, g, fl, fd in zip(names, tp.gaps, tp.lift, tp.drag, strict=True)},
+        "stiffness": {
+            r.axis: {"unit": r.unit, "derived": r.derived_magnetic,
+                     "derived_with_gravity": r.derived_total, "paper_formula": r.paper_formula,
+                     "paper": r.paper_value, "paper_relative_difference": r.relative_difference}
+            for r in rows
+        },
+        "stiffness_matrix": tp.K_magnetic.tolist(),
+        "paper_inputs": kin,
+    }
+
+
+def axis_gains(axis: str, k: float, m: float, K: np.ndarray, c: float,
+               w: Weights) -> AxisGains:
+    """One axis: the C's plant (k, m), closed-form gain K and damping c, beside SciPy's
+    numerical LQR, the paper's eq 32 and the 50-digit closed form (references)."""
+    A = np.array([[0.0, 1.0], [-k / m, 0.0]])
+    B = np.array([[0.0], [1.0 / m]])
+    K_num = numerical_lqr(A, B, np.diag([w.q1, w.q2]), np.array([[w.r]])).ravel()
+    P = np.array(riccati_solution_mp(k, m, w.q1, w.q2, w.r).tolist(), dtype=float)
+    _, Kp = paper_riccati(sp.Float(k, 30), sp.Float(m, 30))
+    K_ref = np.array([float(v) for v in lqr_gain_mp(k, m, w.q1, w.q2, w.r)])
+    return AxisGains(axis, k, m, A, B, P, np.asarray(K, dtype=float), K_num,
+                     np.array([float(v) for v in Kp], dtype=float), K_ref,
+                     float(c) if k > 0 else None)
+
+
+def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None
+                 ) -> dict:
+    """Everything `maglevgen gains` prints, as plain data."""
+    lib = lib or _library(carriage)
+    v = trim_point(carriage, lib, speed).speed  # the trim, or why there is none
+    w = Weights.of(carriage.params)
+    op = operating_point(lib, carriage.p, v, carriage.params.track.min_gap, w)
+    k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(v, carriage.p))
+    gains = [axis_gains(axis, float(k[i]), float(m[i]), op.K[i], op.c_damping[i], w)
+             for i, axis in enumerate(cv.AXES)]
+    Q, R = (w.q1, w.q2), w.r
+    cc = coupled_comparison(op)
+    poles = lambda ev: [[float(e.real), float(e.imag)] for e in sorted(ev, key=_pole_key)]  # noqa: E731
+    return {
+        "speed": v,
+        "Q": [[Q[0], 0.0], [0.0, Q[1]]],
+        "R": R,
+        "params_sha256": carriage.loaded.sha256,
+        "convention": "u = -K x, x = (position, rate), A = [[0, 1], [-k/m, 0]], B = [0, 1/m]",
+        "axes": {g.axis: g.to_json(Q, R) for g in gains},
+        "coupled": {
+            "states": list(REDUCED_STATES),
+            "cost_per_axis_design": cc.cost_per_axis,
+            "cost_coupled_lqr": cc.cost_coupled,
+            "poles_per_axis_design": poles(cc.poles_per_axis),
+            "poles_coupled_lqr": poles(cc.poles_coupled),
+            "poles_damping": poles(cc.poles_damping),
+        },
+        "allocation": {
+            "forces": list(input_names_of(carriage.structure)[1:]),
+            "controls": [c.name for c in cv.CONTROLS],
+            "effectiveness": lib.function("maglev_effectiveness")(carriage.p)[0].tolist(),
+            "minimum_norm": op.allocation.tolist(),
+        },
+    }
+
+
+def coupled_comparison(op: OperatingPoint):
+    """The per-axis LQR and the damping applied to the C's coupled linearisation, beside the
+    coupled LQR (controllers.compare_designs)."""
+    S = np.eye(N_AXES, len(REDUCED_STATES))
+
+    def feedback(name: str) -> np.ndarray:
+        K_pos, K_rate = op.gains(name)
+        return K_pos @ S + K_rate @ op.rate_map
+
+    A_r, B_g = op.reduced
+    return compare_designs(A_r, B_g, op.rate_map, op.weights, feedback("lqr"), op.K_coupled,
+                           feedback("damping"))
+
+
+def _pole_key(e: complex) -> tuple[float, float]:
+    return (float(e.real), float(e.imag))
+
+
+def _library(carriage: Carriage) -> SimulationLibrary:
+    return simulation_library(carriage.structure, progress=progress.step)
+
+
+def envelope_of(carriage: Carriage, n_speeds: int | None = None,
+                lib: SimulationLibrary | None = None):
+    """The envelope of a carriage through its compiled library (maglevgen.envelope)."""
+    return compute_envelope(carriage, lib or _library(carriage), n_speeds or DEFAULT_SPEEDS)
+
+
+def verdict_lines(env, embedded: str) -> list[str]:
+    """One line per controller, the embedded one marked."""
+    out = [f"Envelope {env.v_min:.4g} to {env.v_max:.4g} m/s (maglevgen envelope):"]
+    for name, c in env.controllers.items():
+        mark = " [embedded]" if name == embedded else ""
+        out.append(f"  {CONTROLLER_TITLES[name] + mark:<28} {c.verdict}")
+    return out
+
+

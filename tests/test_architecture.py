@@ -1,0 +1,374 @@
+"""The package's shape: imports flow one way (no cycle), derive/ imports nothing from the
+application, function-local imports only on the light paths listed here, one content-hash
+helper, and a cross-process cache that misses when any source it depends on changes.
+
+The import graph is read with `ast` from the source tree (this file's own walker: the layout
+is pyproject's package-dir), every import counted, function-local ones included; imports under
+``if TYPE_CHECKING:`` are annotations only and are not counted.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+# pyproject.toml [tool.setuptools.package-dir]
+LAYOUT = {"maglevgen": "maglevgen", "maglevgen.derive": "derive",
+          "maglevgen.runtime": "runtime", "maglevgen.codegen": "maglevgen/codegen",
+          "maglevgen.report": "maglevgen/report",
+          "maglevgen.report.sections": "maglevgen/report/sections"}
+
+# Function-local imports: allowed only where they keep a light path light, and listed here
+# (the one place). Keys: the importing module; values: why, and what it may import lazily.
+# First-party targets are module names, third-party ones their top-level package.
+_CLI_STAGES = ("maglevgen.build", "maglevgen.carriage", "maglevgen.codegen.generate",
+               "maglevgen.envelope", "maglevgen.fmu", "maglevgen.output", "maglevgen.params",
+               "maglevgen.progress", "maglevgen.sim_output", "maglevgen.simulate",
+               "maglevgen.summary", "maglevgen.report", "maglevgen.cache", "maglevgen.montecarlo",
+               "numpy")
+LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "maglevgen.cli": (
+        "start-up: a command imports its own stage only; an up-to-date `maglevgen build` "
+        "answers without the schema, numpy or the derivation", _CLI_STAGES),
+    "maglevgen.build": (
+        "the unchanged rebuild (< 0.5 s) reads the parameter text and BUILD.json only; the "
+        "stages are imported when something has to be built",
+        ("maglevgen.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
+         "maglevgen.derive.conventions", "maglevgen.envelope", "maglevgen.library",
+         "maglevgen.operating", "maglevgen.runtime.compile", "maglevgen.schedule",
+         "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
+         "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy")),
+    "maglevgen.carriage": (
+        "`simulate` and the build's simulations run the compiled C without SymPy: the "
+        "symbolic layers load when a carriage first needs them",
+        ("maglevgen.derive.numeric", "maglevgen.derive.trim", "maglevgen.derive.paper",
+         "sympy")),
+    "maglevgen.cache": ("hashing a key imports nothing heavy; cloudpickle reads an entry",
+                        ("cloudpickle",)),
+    "maglevgen.library": ("a cached library is loaded without SymPy or CasADi",
+                          ("maglevgen.codegen.generate", "maglevgen.derive.model")),
+    "maglevgen.operating": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
+                           "only when written", ("scipy", "maglevgen.codegen.checks", "numpy")),
+    "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
+                              ("maglevgen.codegen.checks",)),
+    "maglevgen.simulate": (
+        "a hold run needs neither the envelope nor SciPy (the launch and --check do)",
+        ("maglevgen.envelope", "maglevgen.library", "scipy")),
+    "maglevgen.fmu": (
+        "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
+        ("maglevgen.codegen.interface", "maglevgen.library", "maglevgen.operating",
+         "maglevgen.runtime.compile", "maglevgen.simulate", "fmpy")),
+    "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
+    "maglevgen.sim_output": ("matplotlib only when figures are drawn", ("matplotlib",)),
+    "maglevgen.report_figures": ("matplotlib only when figures are drawn",
+                                 ("matplotlib", "cycler", "math")),
+    "maglevgen.progress": ("rich (and the clock) only when a terminal shows progress",
+                           ("rich", "time")),
+    "maglevgen.derive.riccati": ("python-control is a reference only", ("control",)),
+    "maglevgen.derive.paper": ("sympy.physics.units for the paper's printed units",
+                               ("sympy",)),
+    "maglevgen": ("`import maglevgen` stays light: the Python API loads when first used "
+                  "(PEP 562)", ("maglevgen.api",)),
+    "maglevgen.api": (
+        "each method imports the stage it runs, as the CLI's commands do (a script that only "
+        "simulates loads no SymPy); pandas and python-control only where they are returned",
+        ("control", "maglevgen.carriage", "maglevgen.codegen.generate",
+         "maglevgen.derive.structure", "maglevgen.envelope", "maglevgen.fmu",
+         "maglevgen.montecarlo", "maglevgen.operating", "maglevgen.output", "maglevgen.params",
+         "maglevgen.report", "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
+         "pandas")),
+    "maglevgen.montecarlo": (
+        "a worker process imports the stages when its first chunk runs; Dask only with "
+        "--scheduler, pyarrow only for the Parquet table, matplotlib only for the plots",
+        ("distributed", "maglevgen.envelope", "maglevgen.library", "maglevgen.params",
+         "maglevgen.simulate", "matplotlib", "pyarrow", "re", "warnings")),
+    "maglevgen.params": ("the schema validates without the derivation's conventions unless a "
+                         "tolerance names a state", ("maglevgen.derive.conventions",)),
+    "maglevgen.report.display": ("SymPy and the number formats only when a display is built",
+                                 ("maglevgen.report.format", "sympy")),
+}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg, folder in LAYOUT.items():
+        for f in sorted((ROOT / folder).glob("*.py")):
+            out[pkg if f.stem == "__init__" else f"{pkg}.{f.stem}"] = f
+    return out
+
+
+MODULES = _modules()
+
+
+def _targets(module: str, node: ast.Import | ast.ImportFrom) -> list[str]:
+    """What an import statement imports: maglevgen module names, or third-party top levels."""
+    if isinstance(node, ast.Import):
+        names = [a.name for a in node.names]
+    else:
+        base = node.module or ""
+        if node.level:
+            parts = module.split(".")
+            if MODULES[module].stem != "__init__":
+                parts = parts[:-1]
+            parts = parts[:len(parts) - node.level + 1]
+            base = ".".join(parts + ([node.module] if node.module else []))
+        names = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base
+                 for a in node.names]
+    out = []
+    for name in names:
+        if name.split(".")[0] == "maglevgen":
+            while name not in MODULES:  # `import maglevgen.x.y` of a package attribute
+                name = name.rsplit(".", 1)[0]
+            out.append(name)
+        else:
+            out.append(name.split(".")[0])
+    return out
+
+
+def _imports(module: str) -> list[tuple[str, bool]]:
+    """(target, function_local) for every import of ``module`` outside TYPE_CHECKING."""
+    tree = ast.parse(MODULES[module].read_text())
+    skip: set[int] = set()
+    local: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip.update(id(n) for n in ast.walk(node))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            local.update(id(n) for n in ast.walk(node))
+    return [(t, id(node) in local) for node in ast.walk(tree)
+            if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in skip
+            for t in _targets(module, node)]
+
+
+def _graph() -> dict[str, set[str]]:
+    return {m: {t for t, _ in _imports(m) if t in MODULES and t != m} for m in MODULES}
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle (a path that comes back to its start), or None (depth-first search)."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: finished
+    path: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        path.append(m)
+        for t in sorted(graph[m]):
+            if state.get(t) == 1:
+                return [*path[path.index(t):], t]
+            if t not in state and (found := visit(t)):
+                return found
+        path.pop()
+        state[m] = 2
+        return None
+
+    for m in sorted(graph):
+        if m not in state and (found := visit(m)):
+            return found
+    return None
+
+
+def test_the_walker_finds_a_planted_cycle() -> None:
+    """The cycle search itself, on a graph with a known cycle and one without."""
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_the_walker_sees_every_kind_of_import() -> None:
+    """Relative, absolute and function-local imports all reach the graph."""
+    graph = _graph()
+    assert "maglevgen.derive.numeric" in graph["maglevgen.derive.trim"]  # from .numeric
+    assert "maglevgen.errors" in graph["maglevgen.runtime.compile"]  # from maglevgen.errors
+    assert "maglevgen.build" in graph["maglevgen.cli"]  # function-local
+    assert len(MODULES) > 40
+
+
+def test_no_import_cycles() -> None:
+    cycle = _cycle(_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+def test_derive_imports_nothing_from_the_application() -> None:
+    """derive/ is pure SymPy: it imports only derive/ and third-party libraries."""
+    bad = [(m, t) for m in MODULES if m.startswith("maglevgen.derive")
+           for t, _ in _imports(m)
+           if t.startswith("maglevgen") and not t.startswith("maglevgen.derive")]
+    assert bad == []
+
+
+def test_importing_the_package_has_no_side_effects() -> None:
+    """`import maglevgen` installs no disk store and imports no submodule but its exceptions
+    and its version (two dependency-free modules the package exports)."""
+    code = ("import sys, maglevgen; loaded = sorted(m for m in sys.modules "
+            "if m.startswith('maglevgen.')); from maglevgen.derive import memo; "
+            "print(memo._store is None, loaded)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split(None, 1)
+    assert out[0] == "True"
+    assert out[1].strip() == "['maglevgen.errors', 'maglevgen.version']"
+
+
+def test_function_local_imports_are_the_listed_light_paths() -> None:
+    """Every function-local import is listed in LAZY_IMPORTS, and every entry is used."""
+    unlisted, used = [], set()
+    for m in MODULES:
+        for t, local in _imports(m):
+            if not local:
+                continue
+            allowed = LAZY_IMPORTS.get(m, ("", ()))[1]
+            if t in allowed:
+                used.add((m, t))
+            else:
+                unlisted.append(f"{m} imports {t} in a function")
+    assert unlisted == []
+    stale = [(m, t) for m, (_, ts) in LAZY_IMPORTS.items() for t in ts if (m, t) not in used]
+    assert stale == [], "LAZY_IMPORTS entries no longer used"
+
+
+def test_one_content_hash_helper() -> None:
+    """hashlib is imported by maglevgen.hashing alone."""
+    users = sorted(m for m in MODULES for t, _ in _imports(m) if t == "hashlib")
+    assert users == ["maglevgen.hashing"]
+
+
+def test_content_hash_frames_its_parts() -> None:
+    """Parts are framed: moving a boundary or a label changes the key; the same parts in the
+    same order give the same key; a parameter file's digest is its plain sha256."""
+    import hashlib
+
+    from maglevgen.cache import params_digest
+    from maglevgen.hashing import ContentHash, sha256_hex
+
+    assert ContentHash("ab", "c").hexdigest() != ContentHash("a", "bc").hexdigest()
+    assert ContentHash().text("x", "1").hexdigest() != ContentHash().text("y", "1").hexdigest()
+    assert ContentHash("a", "b").hexdigest() == ContentHash("a", "b").hexdigest()
+    assert sha256_hex("maglev") == hashlib.sha256(b"maglev").hexdigest()
+    text = (ROOT / "maglevgen" / "carriage_llnl.toml").read_text()
+    assert params_digest(text, []) == hashlib.sha256(text.encode()).hexdigest()
+    assert params_digest(text, ["vehicle.mass=12"]) == hashlib.sha256(
+        text.encode() + b"\0vehicle.mass=12").hexdigest()
+
+
+# ----------------------------------------------------------------------- the stale cache
+
+_PROBE = textwrap.dedent("""
+    import sys
+    import maglevgen
+    assert maglevgen.__file__.startswith(sys.argv[1]), maglevgen.__file__
+    from maglevgen.cache import install_store
+    from maglevgen.controllers import _minimum_norm
+    store = install_store()
+    _minimum_norm(((1.0, 0.0, 1.0), (0.0, 1.0, 1.0)))
+    print(store.misses)
+""")
+
+
+def _installed_copy(dest: Path) -> Path:
+    """The package as it installs (pyproject's package-dir), copied under ``dest``."""
+    top = dest / "maglevgen"
+    shutil.copytree(ROOT / "maglevgen", top, ignore=shutil.ignore_patterns("__pycache__"))
+    for pkg, folder in (("derive", "derive"), ("runtime", "runtime"),
+                        ("templates", "templates")):
+        shutil.copytree(ROOT / folder, top / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    return top
+
+
+def test_editing_a_memoised_modules_source_misses_the_cache(tmp_path: Path) -> None:
+    """controllers.py memoises `_minimum_norm` across processes: an edit to it, or to a module
+    it imports, is a miss; an edit to a module it does not depend on is a hit."""
+    top = _installed_copy(tmp_path / "src")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "src"),
+           "MAGLEVGEN_CACHE": str(tmp_path / "cache")}
+
+    def misses() -> int:
+        out = subprocess.run([sys.executable, "-c", _PROBE, str(top)], capture_output=True,
+                             text=True, env=env, cwd=tmp_path)
+        assert out.returncode == 0, out.stderr
+        return int(out.stdout.strip())
+
+    assert misses() == 1  # cold
+    assert misses() == 0  # the same sources: read back from the disk store
+    with (top / "controllers.py").open("a") as f:
+        f.write("\n# an edit\n")
+    assert misses() == 1
+    assert misses() == 0
+    with (top / "derive" / "allocation.py").open("a") as f:  # imported by controllers
+        f.write("\n# an edit\n")
+    assert misses() == 1
+    with (top / "sim_output.py").open("a") as f:  # controllers does not depend on it
+        f.write("\n# an edit\n")
+    assert misses() == 0
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_a_memo_key_covers_the_modules_imports(module: str) -> None:
+    """The source closure a cache key hashes (maglevgen.hashing: a scan of the import
+    statements) holds every module ``module`` imports, directly or not (this file's ast
+    walker as the reference)."""
+    from maglevgen.hashing import source_closure
+
+    graph, seen, todo = _graph(), {module}, [module]
+    while todo:
+        for t in graph[todo.pop()] - seen:
+            seen.add(t)
+            todo.append(t)
+    # (it may hold more: annotation-only imports count there, a safe excess)
+    assert {p.resolve() for p in source_closure(module)} >= {MODULES[m].resolve() for m in seen}
+
+
+# --------------------------------------------------------------------- the console script
+
+def test_the_console_script_exits_normally() -> None:
+    """No os._exit: atexit handlers run, and the exit code is main's."""
+    code = ("import atexit, sys; atexit.register(lambda: print('atexit ran', file=sys.stderr));"
+            "sys.argv = ['maglevgen', 'params', 'schema']; from maglevgen.cli import run; run()")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and "vehicle.mass" in out.stdout
+    assert out.stderr.strip() == "atexit ran"
+    bad = code.replace("'params', 'schema'", "'trim', '--set', 'vehicle.mass=-1'")
+    out = subprocess.run([sys.executable, "-c", bad], capture_output=True, text=True)
+    assert out.returncode == 2 and out.stderr.splitlines()[-1] == "atexit ran"
+
+
+def test_a_reader_that_goes_away_is_no_error() -> None:
+    """`maglevgen params schema | head -1`: exit 0, nothing on stderr."""
+    proc = subprocess.Popen([sys.executable, "-m", "maglevgen.cli", "params", "schema"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.readline()
+    proc.stdout.close()  # before the command has written everything
+    err = proc.stderr.read()
+    assert proc.wait() == 0 and err == b""
+
+
+def test_the_cached_c_is_keyed_by_the_generators_sources(tmp_path: Path) -> None:
+    """The derivation's C folder key (library.derivation_key) changes with an edit to the
+    code generator or to a module it imports, and to its C templates; not with an edit to a
+    module the generator does not use."""
+    top = _installed_copy(tmp_path / "src")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "src")}
+    code = ("import sys, maglevgen; assert maglevgen.__file__.startswith(sys.argv[1]); "
+            "from maglevgen.cache import derivation_fingerprint; print(derivation_fingerprint())")
+
+    def key() -> str:
+        out = subprocess.run([sys.executable, "-c", code, str(top)], capture_output=True,
+                             text=True, env=env, cwd=tmp_path)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip()
+
+    keys = [key()]
+    for rel in ("codegen/functions.py", "derive/geometry.py",
+                "templates/maglev_simulate.c.j2", "sim_output.py"):
+        with (top / rel).open("a") as f:
+            f.write("\n" + ("{# an edit #}" if rel.endswith(".j2") else "# an edit") + "\n")
+        keys.append(key())
+    assert len(set(keys[:4])) == 4  # every edit the C depends on: a new key
+    assert keys[4] == keys[3]  # sim_output.py: not the generator's

@@ -1,0 +1,479 @@
+"""Firmware-grade generated C (issue 16): return codes, header work sizes.
+
+References: the lift-off speed of the SymPy/SciPy derivation (maglevgen.derive.trim, no
+generated C) for where a trim exists; numpy's isfinite for what is finite; the compiled
+library's own ``NAME_work()`` (what the C reports at run time) for the header's macros.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from maglevgen.carriage import Carriage
+from maglevgen.codegen.checks import ERROR_CODES
+from maglevgen.codegen.generate import GenerateOptions, render, write_output
+from maglevgen.runtime.compile import compile_shared
+from maglevgen.runtime.ffi import GeneratedFunctionError, GeneratedLibrary
+
+REPO = Path(__file__).resolve().parents[1]
+ERR = {name: value for name, (value, _) in ERROR_CODES.items()}
+TRIM_KIND = ("maglev_trim", "maglev_axis_plants", "maglev_lqr_gains")
+
+
+@pytest.fixture(scope="module", params=["double", "single"])
+def gen(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path, Path]:
+    """(precision, generated folder, compiled library) with run-time parameters."""
+    out = tmp_path_factory.mktemp(f"fw_{request.param}")
+    write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
+    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    return request.param, out, lib
+
+
+def _call(gen, name: str, *args):
+    precision, _, lib = gen
+    return GeneratedLibrary(lib, precision).function(name)(*args)
+
+
+def _code(gen, name: str, *args) -> tuple[int, list[np.ndarray]]:
+    """(return code, outputs) of a call; outputs as the C left them (zeros on an error)."""
+    precision, _, lib = gen
+    fn = GeneratedLibrary(lib, precision).function(name)
+    outs = [np.full(r * c, 7.0, dtype=fn.real) for r, c in fn.shapes_out]  # not zero before
+    P = ctypes.POINTER(fn._creal)
+    ins = [np.ascontiguousarray(np.ravel(a, order="F"), dtype=fn.real) for a in args]
+    arg = (P * fn._sz_arg)(*[a.ctypes.data_as(P) for a in ins])
+    res = (P * fn._sz_res)(*[o.ctypes.data_as(P) for o in outs])
+    iw = (ctypes.c_longlong * fn._sz_iw)()
+    w = (fn._creal * fn._sz_w)()
+    return fn._fn(arg, res, iw, w, 0), outs
+
+
+@pytest.mark.parametrize("name", TRIM_KIND)
+def test_schedule_functions_refuse_bad_speeds(gen, carriage: Carriage, name: str) -> None:
+    """v = 0, v < 0, NaN, +-inf and a NaN parameter give their MAGLEV_ERR_* code and zeroed
+    outputs; below the derivation's lift-off speed (SymPy/SciPy trim, no C) there is no trim,
+    above it (and far above the envelope's v_max) there is."""
+    v_lift = carriage.lift_off_speed()
+    p_nan = carriage.p.copy()
+    p_nan[0] = np.nan
+    cases = [(0.0, carriage.p, "MAGLEV_ERR_SPEED"), (-5.0, carriage.p, "MAGLEV_ERR_SPEED"),
+             (np.nan, carriage.p, "MAGLEV_ERR_NONFINITE"),
+             (np.inf, carriage.p, "MAGLEV_ERR_NONFINITE"),
+             (-np.inf, carriage.p, "MAGLEV_ERR_NONFINITE"),
+             (20.0, p_nan, "MAGLEV_ERR_NONFINITE")]
+    for v, p, want in cases:
+        rc, outs = _code(gen, name, [v], p)
+        assert rc == ERR[want], (v, rc)
+        assert all(np.all(o == 0) for o in outs), (v, outs)
+    for v in (0.5, 2.0, 0.9 * v_lift):  # no equilibrium with every gap above track.min_gap
+        rc, outs = _code(gen, name, [v], carriage.p)
+        assert rc in (ERR["MAGLEV_ERR_NOT_CONVERGED"], ERR["MAGLEV_ERR_CONTACT"]), (v, rc)
+        assert all(np.all(o == 0) for o in outs)
+    for v in (1.1 * v_lift, 20.0, 3 * carriage.params.envelope.v_max):
+        rc, outs = _code(gen, name, [v], carriage.p)
+        assert rc == 0, (v, rc)
+        assert all(np.all(np.isfinite(o)) for o in outs)
+
+
+def test_runtime_names_the_code(gen, carriage: Carriage) -> None:
+    """The ctypes runtime raises with the code's name."""
+    with pytest.raises(GeneratedFunctionError, match="MAGLEV_ERR_SPEED") as info:
+        _call(gen, "maglev_trim", [0.0], carriage.p)
+    assert info.value.code_name == "MAGLEV_ERR_SPEED"
+    assert info.value.code == ERR["MAGLEV_ERR_SPEED"]
+
+
+def test_tick_functions_refuse_non_finite_inputs(gen, carriage: Carriage) -> None:
+    """A NaN state (and an infinite gain) into each tick function: MAGLEV_ERR_NONFINITE and
+    every output zero (no control force); the same call with finite inputs returns 0 and
+    finite outputs."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(scale=1e-3, size=12)
+    x[6] = 20.0
+    ticks = {
+        "maglev_lqr_control": [x, rng.normal(size=(5, 2)), rng.normal(size=5)],
+        "maglev_damping_control": [x, rng.normal(size=5)],
+        "maglev_coupled_control": [x, rng.normal(size=(5, 5)), rng.normal(size=(5, 5)),
+                                   rng.normal(size=5)],
+        "maglev_allocate": [rng.normal(size=5)],
+        "maglev_axis_gains": [np.abs(rng.normal(size=5)) + 1, np.abs(rng.normal(size=5)) + 1],
+    }
+    for name, args in ticks.items():
+        rc, outs = _code(gen, name, *args, carriage.p)
+        assert rc == 0 and all(np.all(np.isfinite(o)) and np.any(o != 0) for o in outs), name
+        for bad in (np.nan, np.inf):
+            first = np.array(args[0], dtype=float)
+            first.flat[1] = bad  # the state's y, or u_gen / k
+            rc, outs = _code(gen, name, first, *args[1:], carriage.p)
+            assert rc == ERR["MAGLEV_ERR_NONFINITE"], (name, bad, rc)
+            assert all(np.all(o == 0) for o in outs), (name, outs)
+        if len(args) > 1:
+            gain = np.array(args[1], dtype=float)
+            gain.flat[0] = np.inf
+            rc, _ = _code(gen, name, args[0], gain, *args[2:], carriage.p)
+            assert rc == ERR["MAGLEV_ERR_NONFINITE"], (name, rc)
+
+
+def test_tick_output_overflow_is_reported(gen, carriage: Carriage) -> None:
+    """Finite inputs whose product overflows (a huge gain times a state offset): the output
+    would be infinite, so the tick returns MAGLEV_ERR_NONFINITE_OUTPUT with zeros."""
+    precision = gen[0]
+    big = 1e300 if precision == "double" else 1e38
+    x = np.zeros(12)
+    x[1] = 1e10  # y offset
+    rc, outs = _code(gen, "maglev_lqr_control", x, np.full((5, 2), big), np.zeros(5),
+                     carriage.p)
+    assert rc == ERR["MAGLEV_ERR_NONFINITE_OUTPUT"]
+    assert np.all(outs[0] == 0)
+
+
+def test_header_work_sizes_equal_work_functions(gen) -> None:
+    """Each NAME_SZ_{ARG,RES,IW,W} in maglev.h equals what the compiled NAME_work() reports."""
+    _, out, lib = gen
+    header = (out / "maglev.h").read_text()
+    macros = {m.group(1): int(m.group(2))
+              for m in re.finditer(r"#define (\w+_SZ_(?:ARG|RES|IW|W)) (\d+)", header)}
+    cdll = ctypes.CDLL(str(lib))
+    names = sorted({k.rsplit("_SZ_", 1)[0] for k in macros})
+    assert "MAGLEV_TRIM" in names and "MAGLEV_LQR_CONTROL" in names
+    for macro_name in names:
+        work = getattr(cdll, f"{macro_name.lower()}_work")
+        sz = [ctypes.c_longlong() for _ in range(4)]
+        assert work(*[ctypes.byref(s) for s in sz]) == 0
+        got = [s.value for s in sz]
+        want = [macros[f"{macro_name}_SZ_{k}"] for k in ("ARG", "RES", "IW", "W")]
+        assert got == want, (macro_name, got, want)
+
+
+# ------------------------------------------------------------------------------ table schedule
+
+WARN = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wdouble-promotion",
+        "-Wfloat-conversion", "-Wconversion"]
+
+
+@pytest.fixture(scope="module")
+def gain_table(carriage: Carriage, sim_lib, tmp_path_factory):
+    """(table, its C folder, host libraries by precision, exact rows at speeds) over the
+    envelope's range."""
+    import subprocess
+
+    from maglevgen.envelope import envelope_points, resolve_range
+    from maglevgen.schedule import GainTable, gain_table_row, gain_table_sources
+
+    v_min, v_max = resolve_range(carriage, sim_lib)
+
+    def rows(vs):
+        return np.array([gain_table_row(op) for op in envelope_points(carriage, sim_lib, vs)])
+
+    table = GainTable.fit(rows, v_min, v_max)
+    out = tmp_path_factory.mktemp("gain_table")
+    for name, text in gain_table_sources(table).items():
+        (out / name).write_text(text)
+    libs = {}
+    for precision, define in (("double", ["-DMAGLEV_GAIN_TABLE_DOUBLE"]), ("single", [])):
+        so = out / f"gt_{precision}.so"
+        subprocess.run(["cc", *WARN, *define, "-O2", "-fPIC", "-shared",
+                        "maglev_gain_table.c", "-o", str(so)], cwd=out, check=True)
+        libs[precision] = so
+    return table, out, libs, rows
+
+
+def _schedule_c(lib: Path, precision: str, v: float) -> tuple[int, np.ndarray]:
+    from maglevgen.schedule import GAIN_TABLE_NY
+
+    real = ctypes.c_double if precision == "double" else ctypes.c_float
+    fn = ctypes.CDLL(str(lib)).maglev_schedule
+    fn.argtypes = [real, ctypes.POINTER(real)]
+    out = (real * GAIN_TABLE_NY)(*([7.0] * GAIN_TABLE_NY))
+    rc = fn(v, out)
+    return rc, np.array(out[:], dtype=float)
+
+
+@pytest.mark.needs_cc
+@pytest.mark.parametrize("precision", ["double", "single"])
+def test_table_schedule_against_exact_schedule(gain_table, carriage: Carriage,
+                                               precision: str) -> None:
+    """maglev_schedule (C, static tables) at 200 random speeds of [v_min, v_max], none a node
+    nor a point of the fitting grid, against the exact schedule (Newton trim in C, closed-form
+    gains, SciPy's CARE for the coupled LQR): every field within GAIN_TABLE_BOUND of its
+    scale (single precision: plus float32 rounding); the per-axis gains also against the
+    50-digit Riccati solution (mpmath) at three speeds, with the same measure."""
+    from maglevgen.derive.riccati import lqr_gain_mp
+    from maglevgen.schedule import GAIN_TABLE_BOUND, GAIN_TABLE_FIELDS, field_errors
+
+    table, _, libs, rows = gain_table
+    speeds = np.random.default_rng(5).uniform(table.v_min, table.v_max, 200)
+    got = np.array([_schedule_c(libs[precision], precision, v) for v in speeds],
+                   dtype=object)
+    assert all(rc == 0 for rc in got[:, 0])
+    approx = np.array(list(got[:, 1]), dtype=float)
+    exact = rows(speeds)
+    errors = field_errors(approx, exact)
+    slack = 1.0 if precision == "double" else 1.05
+    assert set(errors) == {name for name, _ in GAIN_TABLE_FIELDS}
+    assert max(errors.values()) <= GAIN_TABLE_BOUND * slack, errors
+    # per-axis K (offset 6, 5 x 2 column-major) against mpmath's 50-digit LQR of the plants
+    q1, q2 = carriage.params.control.state_weights
+    r = carriage.params.control.input_weight
+    for v in speeds[:3]:
+        k, m = (np.ravel(a) for a in _plants(carriage, v))
+        K = approx[list(speeds).index(v), 6:16].reshape(5, 2, order="F")
+        ref = np.array([[float(g) for g in lqr_gain_mp(k[i], m[i], q1, q2, r)]
+                        for i in range(5)])
+        scale = np.max(np.abs(exact[:, 6:16]))  # the field's scale, as the bound's measure
+        assert np.max(np.abs(K - ref)) / scale <= GAIN_TABLE_BOUND * slack
+
+
+def _plants(carriage: Carriage, v: float):
+    from maglevgen.library import simulation_library
+
+    return simulation_library(carriage.structure).function("maglev_axis_plants")(v, carriage.p)
+
+
+@pytest.mark.needs_cc
+def test_table_schedule_return_codes(gain_table) -> None:
+    """NaN and +-inf: MAGLEV_ERR_NONFINITE, out zero; v = 0, below v_min, above v_max:
+    MAGLEV_ERR_SPEED with the nearer end's values (those at v_min / v_max themselves)."""
+    table, _, libs, _ = gain_table
+    for precision, lib in libs.items():
+        for v in (np.nan, np.inf, -np.inf):
+            rc, out = _schedule_c(lib, precision, v)
+            assert rc == ERR["MAGLEV_ERR_NONFINITE"] and np.all(out == 0)
+        rc_lo, at_lo = _schedule_c(lib, precision, table.v_min)
+        rc_hi, at_hi = _schedule_c(lib, precision, table.v_max)
+        assert rc_lo == rc_hi == 0
+        for v, end in ((0.0, at_lo), (table.v_min * 0.99, at_lo), (-3.0, at_lo),
+                       (table.v_max * 1.01, at_hi), (1e6, at_hi)):
+            rc, out = _schedule_c(lib, precision, v)
+            assert rc == ERR["MAGLEV_ERR_SPEED"], (precision, v)
+            np.testing.assert_array_equal(out, end)
+
+
+@pytest.mark.needs_cc
+def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: Carriage,
+                                                      sim_lib) -> None:
+    """Between the table's nodes (midpoints), the ten-state closed loop with the table's
+    coupled gains has eigenvalues within 1 % of |lambda| (and 1e-3 1/s) of those with the
+    exact gains (scipy CARE), and stays stable."""
+    from maglevgen.envelope import envelope_points
+    from maglevgen.schedule import GainTable
+
+    table, _, libs, _ = gain_table
+    nodes = GainTable.nodes(len(table.coeffs), table.v_min, table.v_max)
+    mids = 0.5 * (nodes[1:] + nodes[:-1])
+    for op in envelope_points(carriage, sim_lib, mids):
+        _, row = _schedule_c(libs["double"], "double", op.speed)
+        K_pos = row[21:46].reshape(5, 5, order="F")
+        K_rate = row[46:71].reshape(5, 5, order="F")
+        A_r, B_g = op.reduced
+        S = np.eye(5, A_r.shape[0])
+        ev_table = np.linalg.eigvals(A_r - B_g @ (K_pos @ S + K_rate @ op.rate_map))
+        ev_exact = np.linalg.eigvals(op.reduced_closed_loop("coupled"))
+        assert np.max(ev_table.real) < 0
+        for lam in ev_exact:  # each exact eigenvalue has a table one nearby
+            assert np.min(np.abs(ev_table - lam)) <= 1e-2 * abs(lam) + 1e-3, (op.speed, lam)
+
+
+# ------------------------------------------------------------------------------ Cortex-M4F
+
+M4_CPU = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16"]
+#: the issue's firmware flags (README, Firmware use)
+M4_FLAGS = [*M4_CPU, "-Os", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wdouble-promotion",
+            "-Wfloat-conversion", "-Werror", "-fno-math-errno"]
+#: worst stack [bytes] of a per-tick function or the schedule, callees included (measured at
+#: the default carriage: BENCHMARKS.md)
+M4_STACK_BOUND = 256
+M4_TICK = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
+           "maglev_allocate", "maglev_schedule")
+M4_INPUTS = {  # what the emulated M4 and the host build both evaluate
+    "X": [0.0, 1e-3, -5e-3, 2e-3, -1e-3, 3e-3, 20.0, 1e-2, -2e-2, 1e-2, 2e-2, -1e-2],
+    "K_GAINS": [1.0, 2.0, 0.5, 1.5, 0.2, 1.1, 1.2, 0.9, 1.4, 0.8],
+    "C_DAMPING": [3.0, 4.0, 0.5, 0.7, 0.2],
+    "A_REF": [0.0, -2e-3, 0.0, 1e-3, 0.0],
+}
+
+
+def _worst_stack(ci_text: str, root: str) -> int:
+    """Largest stack [bytes] on any call path from ``root`` in gcc's -fcallgraph-info=su graph
+    (a function outside the file, e.g. libm's sinf, counts 0)."""
+    own = {m.group(1): int(m.group(2)) for m in re.finditer(
+        r'node: \{ title: "([^"]+)" label: "[^"]*?(\d+) bytes \(static\)', ci_text)}
+    calls: dict[str, list[str]] = {}
+    for m in re.finditer(r'edge: \{ sourcename: "([^"]+)" targetname: "([^"]+)"', ci_text):
+        calls.setdefault(m.group(1), []).append(m.group(2))
+
+    def worst(f: str, seen: frozenset) -> int:
+        return own.get(f, 0) + max((worst(g, seen | {f}) for g in calls.get(f, ())
+                                    if g not in seen), default=0)
+
+    assert root in own, root
+    return worst(root, frozenset())
+
+
+@pytest.mark.needs_arm("qemu-system-arm", "arm-none-eabi-nm", "arm-none-eabi-size")
+def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path) -> None:
+    """The single-precision baked C and the table schedule cross-compiled for Cortex-M4F with
+    the firmware flags: no double arithmetic (__aeabi_d*, f2d, d2f) nor double libm call, no
+    .data/.bss, every external symbol maglev_*, the ticks' and the schedule's stack (callees
+    included) within M4_STACK_BOUND; then run on QEMU's mps2-an386 and compared with the host
+    double build (baked double C, double table) to 1e-5 of each output vector's largest
+    magnitude."""
+    import subprocess
+
+    from maglevgen.codegen.cpass import DOUBLE_MATH
+    from maglevgen.schedule import GAIN_TABLE_NY
+
+    table, table_dir, table_libs, _ = gain_table
+    src = tmp_path / "m4"
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), src)
+    for name in ("maglev_gain_table.c", "maglev_gain_table.h"):
+        (src / name).write_text((table_dir / name).read_text())
+    objs = []
+    for name in ("maglev_functions", "maglev_gain_table"):
+        subprocess.run(["arm-none-eabi-gcc", *M4_FLAGS, "-ffunction-sections", "-fdata-sections",
+                        "-fstack-usage", "-fcallgraph-info=su", "-c", f"{name}.c",
+                        "-o", f"{name}.o"], cwd=src, check=True)
+        objs.append(f"{name}.o")
+    symbols = subprocess.run(["arm-none-eabi-nm", *objs], cwd=src, check=True,
+                             capture_output=True, text=True).stdout
+    undefined = {ln.split()[-1] for ln in symbols.splitlines() if " U " in ln}
+    defined = {ln.split()[-1] for ln in symbols.splitlines()
+               if re.match(r"^[0-9a-f]+ [TDRB] ", ln)}
+    assert not {s for s in undefined if s.startswith(("__aeabi_d", "__aeabi_f2d",
+                                                      "__aeabi_d2f"))}, undefined
+    assert not undefined & DOUBLE_MATH, undefined & DOUBLE_MATH
+    assert all(s.startswith("maglev_") for s in defined), defined
+    sizes = subprocess.run(["arm-none-eabi-size", "-A", *objs], cwd=src, check=True,
+                           capture_output=True, text=True).stdout
+    writable = [ln for ln in sizes.splitlines()
+                if ln.startswith((".data", ".bss")) and int(ln.split()[1]) > 0]
+    assert not writable, writable
+    ci = "".join((src / f"{n}.ci").read_text() for n in ("maglev_functions", "maglev_gain_table"))
+    stacks = {f: _worst_stack(ci, f) for f in M4_TICK}
+    assert max(stacks.values()) <= M4_STACK_BOUND, stacks
+
+    # run on the emulated M4
+    m4 = REPO / "tests" / "c" / "m4"
+    speeds = [table.v_min, 0.5 * (table.v_min + table.v_max), table.v_max, 13.7]
+    defines = [f"-D{k}=" + ",".join(f"{v!r}f" for v in vals) for k, vals in M4_INPUTS.items()]
+    defines.append("-DSPEEDS=" + ",".join(f"{v!r}f" for v in speeds))
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-Os", "-std=gnu99", "-Wall", "-Werror",
+                    "-fno-math-errno", "-ffunction-sections", "-fdata-sections", *defines,
+                    f"-I{src}", "-c", str(m4 / "startup.c"), str(m4 / "m4main.c")],
+                   cwd=src, check=True)
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
+                    "-Wl,--gc-sections", "startup.o", "m4main.o", *objs, "-lm", "-lc",
+                    "-o", "m4.elf"], cwd=src, check=True)
+    run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
+                          "-kernel", "m4.elf"], cwd=src, capture_output=True, text=True,
+                         timeout=120, check=True)
+    lines = run.stderr.split()  # QEMU writes semihosting output to stderr
+    pos = 0
+
+    def take(n: int) -> np.ndarray:
+        nonlocal pos
+        assert lines[pos] == "r0", (pos, lines[pos])  # the call's return code
+        words = lines[pos + 1:pos + 1 + n]
+        pos += 1 + n
+        return np.array([np.uint32(int(h, 16)).view(np.float32) for h in words], dtype=float)
+
+    # the host double build
+    host = tmp_path / "host"
+    write_output(render(carriage, GenerateOptions("double", "baked")), host)
+    lib = GeneratedLibrary(compile_shared([host / "maglev_functions.c"],
+                                          cache_dir=host / "cache"), "double")
+    x = np.array(M4_INPUTS["X"])
+    K = np.array(M4_INPUTS["K_GAINS"]).reshape(5, 2, order="F")
+    u_gen = lib.function("maglev_lqr_control")(x, K, M4_INPUTS["A_REF"])[0].ravel()
+    forces = lib.function("maglev_allocate")(u_gen)[0].ravel()
+    damping = lib.function("maglev_damping_control")(x, M4_INPUTS["C_DAMPING"])[0].ravel()
+    expected = [u_gen, forces, damping]
+    expected += [_schedule_c(table_libs["double"], "double", v)[1] for v in speeds]
+    got = [take(5), take(len(forces)), take(5)] + [take(GAIN_TABLE_NY) for _ in speeds]
+    assert pos == len(lines)
+    for want, have in zip(expected, got, strict=True):
+        assert np.max(np.abs(have - want)) <= 1e-5 * np.max(np.abs(want)), (want, have)
+
+
+# ------------------------------------------------------------------------------ MISRA C:2012
+
+
+@pytest.mark.needs_arm("cppcheck")
+def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carriage,
+                                                    tmp_path: Path) -> None:
+    """cppcheck's MISRA C:2012 addon on the per-tick functions (single precision, baked) and
+    the table schedule: every finding's rule is in the deviation list written beside the code
+    (MISRA_DEVIATIONS.md, maglevgen.codegen.misra), and the schedule itself has none but
+    2.5 (its header's interface macros)."""
+    import subprocess
+
+    from maglevgen.codegen.generate import render_tick_sources
+    from maglevgen.codegen.misra import DEVIATIONS, deviation_list
+
+    _, table_dir, _, _ = gain_table
+    for name, text in render_tick_sources(carriage).items():
+        (tmp_path / name).write_text(text)
+    for name in ("maglev_gain_table.c", "maglev_gain_table.h"):
+        (tmp_path / name).write_text((table_dir / name).read_text())
+    run = subprocess.run(["cppcheck", "--addon=misra", "--std=c99", "--quiet",
+                          "--template={file}:{line}:{id}", "maglev_tick.c",
+                          "maglev_gain_table.c"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=300, check=True)
+    findings = [ln.rsplit(":", 1) for ln in run.stderr.splitlines()
+                if "misra-c2012-" in ln]
+    assert findings, run.stderr  # the addon ran (CasADi's code has known deviations)
+    rules = {(place.split(":")[0], rule.removeprefix("misra-c2012-")) for place, rule in findings}
+    unjustified = {r for r in rules if r[1] not in DEVIATIONS}
+    assert not unjustified, unjustified
+    assert {rule for file, rule in rules if file.startswith("maglev_gain_table")} <= {"2.5"}
+    listed = deviation_list()
+    assert all(f"| {rule} |" in listed for _, rule in rules)
+
+
+# ------------------------------------------------------------------------------ --int int32
+
+
+@pytest.mark.needs_cc
+def test_int32_build_gives_the_int64_results(carriage: Carriage, tmp_path: Path) -> None:
+    """`--int int32` (casadi_int = int for 32-bit MCUs): the header says so, and the trim and
+    a tick called through the int32 ABI equal the default int64 build's bit for bit (the
+    integer type only indexes sparsity and work)."""
+    libs = {}
+    for int_type in ("int64", "int32"):
+        out = tmp_path / int_type
+        write_output(render(carriage, GenerateOptions("double", "runtime", int_type)), out)
+        text = (out / "maglev_functions.h").read_text()
+        want = "int" if int_type == "int32" else "long long int"
+        assert f"typedef {want} maglev_int;" in text
+        libs[int_type] = GeneratedLibrary(
+            compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache"), "double",
+            int_type)
+    for name, args in (("maglev_trim", ([20.0], carriage.p)),
+                       ("maglev_lqr_gains", ([15.0], carriage.p))):
+        a, b = (libs[k].function(name)(*args) for k in ("int64", "int32"))
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.needs_cc
+def test_header_leaves_casadi_real_alone(carriage: Carriage, tmp_path: Path) -> None:
+    """maglev.h (single precision) included after another CasADi module's
+    ``#define casadi_real double``: casadi_real stays double (8 bytes) and the header's own
+    maglev_real is float (4 bytes); the compiler checks both sizes."""
+    import subprocess
+
+    write_output(render(carriage, GenerateOptions("single", "baked", "int32")), tmp_path)
+    (tmp_path / "other.c").write_text(
+        "#define casadi_real double\n#define casadi_int long long int\n#include \"maglev.h\"\n"
+        "typedef char real_kept[sizeof(casadi_real) == 8 ? 1 : -1];\n"
+        "typedef char int_kept[sizeof(casadi_int) == 8 ? 1 : -1];\n"
+        "typedef char own_real[sizeof(maglev_real) == 4 ? 1 : -1];\n"
+        "typedef char own_int[sizeof(maglev_int) == sizeof(int) ? 1 : -1];\n"
+        "int use(void) { return (int)sizeof(real_kept) + (int)sizeof(int_kept)\n"
+        "    + (int)sizeof(own_real) + (int)sizeof(own_int); }\n")
+    subprocess.run(["cc", *WARN, "-c", "other.c", "-o", "other.o"], cwd=tmp_path, check=True)

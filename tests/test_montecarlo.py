@@ -1,0 +1,246 @@
+"""Monte-Carlo robustness (maglevgen.montecarlo): reproducibility, agreement with `maglevgen
+simulate`, and the contact probability's confidence interval.
+
+References independent of the code under test: numpy's ``SeedSequence.spawn`` for the
+per-sample streams; the `maglevgen simulate` command for one sample; a loop written here over
+independently drawn samples, straight through the runtime (``maglev_trim``,
+``maglev_lqr_gains`` and ``maglev_simulate`` via ctypes) for the contact rate; SciPy's
+``binomtest(...).proportion_ci(method="wilson")`` for the interval.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import binomtest
+
+from maglevgen.carriage import Carriage
+from maglevgen.cli import main
+from maglevgen.derive import conventions as cv
+from maglevgen.montecarlo import make_study, run_dask, run_local, run_study, wilson
+from maglevgen.params import load_params
+
+SPEEDS = "tolerances.speed=[8.0, 16.0]"  # across the per-axis designs' unstable range
+
+
+def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
+    assert list(a) == list(b)
+    for k in a:
+        if a[k].dtype.kind == "f":
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)  # NaN == NaN here
+        else:
+            assert a[k].tolist() == b[k].tolist(), k
+
+
+@pytest.fixture(scope="module")
+def small(sim_lib):
+    carriage = Carriage(load_params(None, [SPEEDS]))
+    study = make_study(carriage, sim_lib, ("damping", "coupled"), t_end=0.4, dt=1e-3, seed=7)
+    return carriage, study, run_local(study, 6, workers=1)
+
+
+def test_per_sample_streams_are_the_seed_sequences_children(small) -> None:
+    """Sample i's first draw (the speed) comes from SeedSequence(seed).spawn(n)[i]."""
+    _, _, cols = small
+    children = np.random.SeedSequence(7).spawn(6)
+    expected = [np.random.default_rng(c).uniform(8.0, 16.0) for c in children]
+    speeds = cols["speed"][cols["controller"] == "coupled"]
+    np.testing.assert_array_equal(speeds, expected)
+    assert cols["sample"].tolist() == [i for i in range(6) for _ in range(2)]
+
+
+def test_results_do_not_depend_on_workers_or_chunks(small) -> None:
+    _, study, one = small
+    _same(one, run_local(study, 6, workers=2, chunk=2))
+    _same(one, run_local(study, 6, workers=2, chunk=5))
+
+
+def test_dask_local_cluster_gives_the_same_results(small) -> None:
+    distributed = pytest.importorskip("distributed")  # in the test extra: fails loudly in CI
+    _, study, one = small
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        _same(one, run_dask(study, 6, client, chunk=2))
+
+
+def test_a_sample_equals_maglevgen_simulate(small, tmp_path: Path) -> None:
+    """The sample's parameters, speed and disturbance given to `maglevgen simulate`."""
+    carriage, _, cols = small
+    rows = np.flatnonzero((cols["controller"] == "coupled")
+                          & np.isin(cols["status"], ["settled", "not settled", "diverging",
+                                                     "contact"]))
+    assert rows.size
+    i = int(rows[0])
+
+    def v(name: str) -> str:  # the exact double as text
+        return repr(float(cols[name][i]))
+
+    cg = [repr(float(c)) for c in carriage.params.vehicle.cg_offset]
+    cg[0], cg[2] = v("vehicle.cg_offset.x"), v("vehicle.cg_offset.z")
+    sets = [f"vehicle.mass={v('vehicle.mass')}", f"vehicle.cg_offset=[{', '.join(cg)}]",
+            f"halbach.remanence={v('halbach.remanence')}",
+            f"circuit.resistance={v('circuit.resistance')}"]
+    dist = [f"{s}={v(f'disturbance.{s}')}" for s in ("y", "z", "phi", "theta", "psi")]
+    argv = ["simulate", "--controller", "coupled", "--speed", v("speed"),
+            "--t-end", "0.4", "--dt", "1e-3", "--out", str(tmp_path / "sim")]
+    argv += [a for s in sets for a in ("--set", s)] + [a for d in dist
+                                                       for a in ("--disturbance", d)]
+    assert main(argv) == 0
+    run = json.loads((tmp_path / "sim" / "metrics.json").read_text())["runs"][0]
+    assert run["status"] == cols["status"][i]
+    assert run["min_gap"] == pytest.approx(cols["min_gap"][i], rel=1e-12)
+    for axis in cv.AXES:
+        ax = run["axes"][axis]
+        assert ax["peak_deviation"] == pytest.approx(cols[f"peak.{axis}"][i], rel=1e-12)
+        st = cols[f"settling_time.{axis}"][i]
+        assert (ax["settling_time"] is None) == bool(np.isnan(st))
+        if ax["settling_time"] is not None:
+            assert ax["settling_time"] == pytest.approx(st, rel=1e-12)
+
+
+def _direct_contact_rate(carriage: Carriage, lib, n: int, t_end: float, dt: float) -> float:
+    """Contacts over runs for the optimized damping, samples drawn here from the file's
+    tolerances and run through the runtime's ctypes functions alone."""
+    tol = carriage.params.tolerances
+    names = [e.name for e in carriage.entries]
+    rng = np.random.default_rng(2024)
+    trim_fn, gains_fn = lib.function("maglev_trim"), lib.function("maglev_lqr_gains")
+    dyn, gaps_fn = lib.function("maglev_dynamics"), lib.function("maglev_gaps")
+    n_u, n_g = dyn.shapes_in[1][0], gaps_fn.shapes_out[0][0]
+    axes = [cv.STATE_INDEX[s] for s in ("y", "z", "phi", "theta", "psi")]
+    min_gap = carriage.params.track.min_gap
+    runs = contacts = 0
+    for _ in range(n):
+        v = rng.uniform(*tol.speed)
+        x_dist = np.zeros(12)
+        for s, a in tol.disturbance.items():
+            x_dist[cv.STATE_INDEX[s]] = rng.uniform(-a, a)
+        p = carriage.p.copy()
+        for key, t in tol.parameters.items():
+            if t.normal is not None:
+                z = rng.standard_normal()
+                while abs(z) > 4:
+                    z = rng.standard_normal()
+                step = t.normal * z
+            else:
+                step = rng.uniform(-t.uniform, t.uniform)
+            p[names.index(key)] += step
+        x_trim, f_prop = (a.ravel() for a in trim_fn(v, p))
+        u = np.zeros(n_u)
+        u[0] = f_prop[0]
+        acc = dyn(x_trim, u, p)[0].ravel()[6:]
+        if not (np.all(np.isfinite(acc)) and np.max(np.abs(acc)) < 1e-8
+                and gaps_fn(x_trim, p)[0].min() >= min_gap):
+            continue  # no trim at this speed: not a run
+        _K, c = gains_fn(v, p)
+        K_pos, K_rate = np.zeros((5, 5)), np.diag(c.ravel())
+        x0 = x_trim + x_dist
+        _, status, *_ = lib.simulate(x0, dt, round(t_end / dt), f_prop[0], K_pos.ravel("F"),
+                                     K_rate.ravel("F"), x_trim[axes], p, min_gap, n_u, n_g)
+        runs += 1
+        contacts += status == 1  # MAGLEV_SIM_CONTACT
+    return contacts / runs
+
+
+def test_contact_interval_covers_an_independent_estimate(sim_lib) -> None:
+    carriage = Carriage(load_params(None, [SPEEDS]))
+    study = make_study(carriage, sim_lib, ("damping",), t_end=3.0, dt=1e-3, seed=11)
+    result = run_study(study, 80, workers=2)
+    agg = result.summary["controllers"]["damping"]
+    k = agg["status_counts"]["contact"]
+    lo, hi = agg["contact_ci95"]
+    ref = binomtest(k, agg["runs"]).proportion_ci(0.95, method="wilson")
+    assert (lo, hi) == pytest.approx((ref.low, ref.high), rel=1e-12)
+    assert 0.1 < agg["contact_probability"] < 0.9  # a rate worth an interval
+    rate = _direct_contact_rate(carriage, sim_lib, 300, 3.0, 1e-3)
+    print(f"direct {rate:.4f} in [{lo:.4f}, {hi:.4f}]")
+    assert lo <= rate <= hi, (rate, lo, hi)
+
+
+def test_wilson_interval_matches_scipy() -> None:
+    for k, n in ((0, 10), (3, 10), (10, 10), (517, 1000)):
+        ref = binomtest(k, n).proportion_ci(0.95, method="wilson")
+        assert wilson(k, n) == pytest.approx((ref.low, ref.high), rel=1e-12, abs=1e-15)
+
+
+def test_samples_breaking_a_cross_key_rule_are_rejected_and_counted(sim_lib) -> None:
+    """A nominal gap drawn at or below track.min_gap (2 mm) is rejected, not run."""
+    carriage = Carriage(load_params(None, [
+        'tolerances.parameters={"arrays.3.nominal_gap" = {uniform = 0.0135}}', SPEEDS]))
+    study = make_study(carriage, sim_lib, ("coupled",), t_end=0.02, dt=1e-3, seed=3)
+    cols = run_local(study, 40, workers=1)
+    below = cols["arrays.3.nominal_gap"] <= carriage.params.track.min_gap
+    assert below.any() and not below.all()
+    assert (cols["status"] == "rejected").tolist() == below.tolist()
+    assert all("nominal_gap" in r for r in cols["reason"][below])
+
+
+@pytest.mark.parametrize(("argv", "expected"), [
+    (["--samples", "0"], "--samples 0"),
+    (["--workers", "0"], "--workers 0"),
+    (["--scheduler", "nowhere"], "--scheduler 'nowhere'"),
+    (["--scheduler", "tcp://127.0.0.1:9"], "unreachable"),
+    (["--set", 'tolerances.parameters={"vehicle.mass" = {normal = 5.0}}'],
+     "tolerances.parameters.vehicle.mass"),
+])
+def test_bad_input_is_one_line_exit_2(argv, expected, capsys, tmp_path: Path) -> None:
+    rc = main(["montecarlo", "--samples", "2", "--t-end", "0.01", "--out",
+               str(tmp_path / "mc"), *argv])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    line = err.strip()
+    assert "\n" not in line and line.startswith("maglevgen: error:") and expected in line, line
+    assert not (tmp_path / "mc").exists()
+
+
+def test_command_writes_table_report_and_plots(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "mc"
+    assert main(["montecarlo", "--samples", "4", "--t-end", "0.05", "--workers", "1",
+                 "--controller", "all", "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert set(summary["controllers"]) == {"none", "damping", "lqr", "coupled"}
+    assert sorted(p.name for p in out.iterdir()) == [
+        "failures.png", "histograms.png", "montecarlo.json", "montecarlo.md",
+        "samples.parquet"]
+    import pyarrow.parquet as pq
+
+    t = pq.read_table(out / "samples.parquet")
+    assert t.num_rows == 16
+    assert (out / "histograms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_chunk_whose_worker_dies_is_retried_once(small, tmp_path: Path, monkeypatch) -> None:
+    """The first worker to run sample 3 dies (os._exit); the retry gives the same table. A
+    worker that always dies is reported after the retry. (Worker processes are forked, so
+    they see the patched function.)"""
+    import multiprocessing
+    import os
+
+    from maglevgen import montecarlo
+
+    if multiprocessing.get_start_method() != "fork":
+        pytest.skip("needs forked workers to patch run_sample")  # Linux default
+    _, study, one = small
+    original = montecarlo.run_sample
+    marker = tmp_path / "died"
+
+    def dies_once(study, index, lib=None):
+        if index == 3 and not marker.exists():
+            marker.write_text("x")
+            os._exit(1)
+        return original(study, index, lib)
+
+    monkeypatch.setattr(montecarlo, "run_sample", dies_once)
+    _same(one, run_local(study, 6, workers=2, chunk=2))
+    assert marker.exists()
+
+    def always_dies(study, index, lib=None):
+        os._exit(1)
+
+    monkeypatch.setattr(montecarlo, "run_sample", always_dies)
+    with pytest.raises(montecarlo.ChunkFailedError, match="died twice"):
+        run_local(study, 4, workers=2, chunk=2)
