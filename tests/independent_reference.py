@@ -98,6 +98,21 @@ def array_state(prm: Parameters, q: np.ndarray, speed: float) -> ArrayState:
                       np.array(arms))
 
 
+def contact_gaps(prm: Parameters, q: np.ndarray) -> np.ndarray:
+    """Each face's smallest gap: the least of its four corners' (face centre +- w/2 across,
+    +- circuits x pitch / 2 along), each corner's gap from the pose like the centre's."""
+    R = rotation(*q[2:5])
+    X = np.array([0.0, q[0], q[1]])
+    half_w, out = prm.halbach.width / 2, []
+    for arr in prm.arrays.values():
+        a, n = np.array(arr.position), np.array(arr.normal)
+        across, along = _face_axes(n)
+        half_l = arr.circuits * prm.circuit.pitch / 2
+        corners = [a + i * half_w * across + j * half_l * along for i in (-1, 1) for j in (-1, 1)]
+        out.append(min(arr.nominal_gap + n @ (X + (R - np.eye(3)) @ b) for b in corners))
+    return np.array(out)
+
+
 def external_wrench(prm: Parameters, q: np.ndarray, speed: float, f_prop: float,
                     magnetic: bool = True, other: bool = True) -> np.ndarray:
     """(F_x, F_y, F_z, M_x, M_y, M_z), inertial axes, moments about O, of the external forces.

@@ -86,6 +86,14 @@ CASES: list[tuple[str, str, list[str]]] = [
      ["arrays.3.position = [0.0, 0.0, 1e+308]:", "component 2", "[-1000, 1000] m"]),
     ("magnets-huge-int", edited("halbach.magnets_per_wavelength", 2**62),
      [f"halbach.magnets_per_wavelength = {2**62}:", "[2, 256]"]),
+    # a choice outside its list, and a number where a choice goes
+    *[(f"array-force-{i}", edited("model.array_force", value),
+       ["model.array_force = ", repr(value)[:12], "one of distributed, point"])
+      for i, value in enumerate(["Point", "distributed ", "", "sinhc"])],
+    ("array-force-number", edited("model.array_force", 1.0),
+     ["model.array_force = 1.0", "string"]),
+    ("circuit-pitch-0", edited("circuit.pitch", 0.0),
+     ["circuit.pitch = 0.0:", "outside the range [0.0001, 1] m"]),
     # nesting deeper than the schema (4 levels: document, arrays, an array, its position)
     ("nested-array-10", replaced("position = [0.26, 0.0, -0.03]", "position = " + nested(10)),
      ["arrays.3.position.0 = ", "nested deeper than the schema's 4 levels"]),
@@ -179,6 +187,9 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
         if key == "envelope.embedded_controller":  # a name, not a number: its choices
             assert line.endswith("one of damping, lqr, coupled"), line
             continue
+        if key == "model.array_force":  # a name, not a number: its choices
+            assert line.endswith("one of distributed, point"), line
+            continue
         if key == "provenance.<key>":  # text about a value, not a number
             assert "paper or assumed" in line, line
             continue
@@ -190,7 +201,7 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
     ranges = {line.split()[0]: tuple(map(float, re.search(r"in \[(\S+), (\S+)\]", line).groups()))
               for line in lines
               if line.split()[0] not in ("arrays.<name>", "envelope.embedded_controller",
-                                         "provenance.<key>",
+                                         "model.array_force", "provenance.<key>",
                                          "tolerances.parameters.<key>")}
 
     def leaves(data: Any, prefix: str = "") -> Any:
@@ -206,7 +217,8 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
                 yield key, v if isinstance(v, list) else [v]
 
     for key, values in leaves(DEFAULT_DATA):
-        if key == "envelope.embedded_controller" or key.startswith("provenance."):
+        if key in ("envelope.embedded_controller", "model.array_force") \
+                or key.startswith("provenance."):
             continue
         lo, hi = ranges[key]
         assert all(lo <= c <= hi for c in values), key
