@@ -166,9 +166,8 @@ def lambdify_stiffness(structure: Structure):
     """(K_st0(q, F_L, F_D, p), K_other(q, F_prop, p)) as numpy functions."""
     sf = stiffness_form(structure)
     m = build_model(structure)
-    mag = sp.lambdify([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K, modules="numpy", cse=True)
-    other = sp.lambdify([sf.q, m.u[0], m.p], sf.K_other, modules="numpy", cse=True)
-    return mag, other
+    return (_fn([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K),
+            _fn([sf.q, m.u[0], m.p], sf.K_other))
 
 
 @functools.lru_cache(maxsize=4)

@@ -8,7 +8,7 @@ import numpy as np
 import sympy as sp
 
 from ...derive import conventions as cv
-from ...derive.linearize import design_pose_stiffness, generalized_mass_expr
+from ...derive.linearize import STIFFNESS_PARTS, design_pose_stiffness, generalized_mass_expr
 from ...derive.memo import memoized
 from ...derive.model import build_model
 from ...derive.paper import paper_stiffness
@@ -19,6 +19,7 @@ from ..symbols import K_SYM, array_labels, to_display
 
 _Q_LABELS = ("y", "z", r"\phi", r"\theta", r"\psi")
 _W_LABELS = ("F_y", "F_z", "M_x", "M_y", "M_z")
+ROLL = cv.AXES.index("roll")
 
 
 def _shown_values(carriage) -> tuple[tuple[str, float], ...]:
@@ -120,8 +121,8 @@ def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
         "cg_height": float(carriage.params.vehicle.cg_offset[2]),
         "width": float(carriage.params.halbach.width),
         "parts": _parts_rows(laws),
-        "roll": {law: None if d is None else {n: float(v[2]) for n, v in d["parts"].items()}
-                 | {"total": float(d["total"][2])} for law, d in laws.items()},
+        "roll": {law: None if d is None else {n: float(v[ROLL]) for n, v in d["parts"].items()}
+                 | {"total": float(d["total"][ROLL])} for law, d in laws.items()},
         "paper_inputs": inputs,
         "A_entries": a_entries,
         "B_shape": B.shape,
@@ -129,18 +130,15 @@ def _stiffness(carriage, trim, trep: dict) -> dict[str, Any]:
     }
 
 
-
-
-ARRAY_FORCE_LAWS = ("point", "distributed")
-PART_TITLES = {"gap_slope": "gap slope", "rotating_arms": "rotating arms",
-               "tilt": "tilt across the face", "gravity": "gravity", "propulsion": "propulsion"}
+# the table's columns: every choice of params.ARRAY_FORCE_LAWS, the paper's first
+LAW_COLUMNS = ("point", "distributed")
 
 
 def _by_law(carriage, trim) -> dict[str, dict[str, Any] | None]:
     """Per array force law: the diagonal of K_st0, of K_st0 + K_other and of each of its parts
     (derive.linearize.STIFFNESS_PARTS) at that law's trim; None where it has no trim."""
     out: dict[str, dict[str, Any] | None] = {}
-    for law in ARRAY_FORCE_LAWS:
+    for law in LAW_COLUMNS:
         other = carriage.with_array_force(law)
         try:
             t = trim if other is carriage else other.trim()
@@ -161,6 +159,6 @@ def _parts_rows(laws: dict[str, dict[str, Any] | None]) -> list[dict[str, Any]]:
             if d is None:
                 continue
             rows.append({"axis": axis, "law": law,
-                         "parts": [float(d["parts"][n][i]) for n in PART_TITLES],
+                         "parts": [float(d["parts"][n][i]) for n in STIFFNESS_PARTS],
                          "total": float(d["total"][i])})
     return rows
