@@ -48,11 +48,13 @@ def array_speed(arr: ArraySymbols, R: sp.Matrix, velocity: sp.Matrix, omega: sp.
     return (R[0, :] * (velocity + omega.cross(arr.position)))[0]
 
 
-def array_wrench(arr: ArraySymbols, lift: sp.Expr, drag: sp.Expr, R: sp.Matrix
-                 ) -> tuple[sp.Matrix, sp.Matrix]:
-    """An array's force (lift along n_i, drag along -x) and its moment about O, inertial axes."""
+def array_wrench(arr: ArraySymbols, lift: sp.Expr, drag: sp.Expr, R: sp.Matrix,
+                 arm: sp.Matrix | None = None) -> tuple[sp.Matrix, sp.Matrix]:
+    """An array's force (lift along n_i, drag along -x) and its moment about O, inertial axes.
+
+    The force acts at ``arm`` (body axes; default the face centre a_i, the paper's model)."""
     force = lift * arr.normal - drag * sp.Matrix([1, 0, 0])
-    return force, (R * arr.position).cross(force)
+    return force, (R * (arr.position if arm is None else arm)).cross(force)
 
 
 def generalized_wrench_row(position: sp.Matrix, direction: sp.Matrix) -> sp.Matrix:

@@ -37,26 +37,91 @@ class StiffnessForm:
 
 @memoized
 def stiffness_form(structure: Structure) -> StiffnessForm:
-    """K_st0 = -dW/dq of the array wrench with lift_i = F_L_i exp(-2k (gap_i(q) - gap_i*))."""
+    """K_st0 = -dW/dq of the array wrench with lift_i = F_L_i exp(-2k (gap_i(q) - gap_i*)),
+    times f_i(q) / f_i* for the distributed model (its load factor, derive/distributed.py),
+    acting at the array's point of action."""
     m = build_model(structure)
     q = sp.Matrix([m.x[cv.STATE_INDEX[s]] for s in Q_STATES])
     trim_gap = sp.Matrix(sp.symbols(f"G0:{len(m.arrays)}", real=True))
+    trim_factor = sp.Matrix(sp.symbols(f"LF0:{len(m.arrays)}", real=True))
     ex = sp.Matrix([1, 0, 0])
     W = sp.zeros(6, 1)
     for i, a in enumerate(m.arrays):
         scale = sp.exp(-2 * m.wavenumber * (m.gaps[i] - trim_gap[i]))
-        f, moment = array_wrench(a, scale * m.lift_sym[i], scale * m.drag_sym[i], m.R)
+        if m.load_factor[i] != 1:
+            scale = scale * m.load_factor[i] / trim_factor[i]
+        f, moment = array_wrench(a, scale * m.lift_sym[i], scale * m.drag_sym[i], m.R,
+                                 m.arms[i])
         W[0:3, 0] += f
         W[3:6, 0] += moment
     rows = W[1:6, 0]  # F_y, F_z, M_x, M_y, M_z
     K = -rows.jacobian(q)
     K = K.xreplace({g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})
+    K = K.xreplace({f: lf for f, lf in zip(trim_factor, m.load_factor, strict=True)})
     mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
     f_prop = m.u[0] * ex
     other = ((m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))
              + (m.R * m.vec("operation.propulsion_point")).cross(f_prop))
     K_other = -sp.Matrix.vstack(sp.zeros(2, 1), other).jacobian(q)
     return StiffnessForm(K, K_other, q, m.lift_sym, m.drag_sym)
+
+
+# The parts of the derived stiffness, by where q enters the wrench (the product rule splits
+# -dW/dq exactly): the array's centre gap (eq 3's slope -2k), the rotation of the moment arms
+# R (a_i + offset_i), the tilt across the face (the distributed load's factor and point of
+# action; zero for the point model), gravity's moment of the CG offset and the propulsion's.
+STIFFNESS_PARTS: tuple[str, ...] = ("gap_slope", "rotating_arms", "tilt", "gravity",
+                                    "propulsion")
+
+
+@dataclass(frozen=True)
+class StiffnessParts:
+    """K_st0 + K_other split by the product rule: one 5x5 matrix per STIFFNESS_PARTS entry, in
+    (q, F_L, F_D, F_prop, p); their sum is K + K_other of ``stiffness_form``."""
+
+    parts: dict[str, sp.Matrix]
+    q: sp.Matrix
+    lift_sym: sp.Matrix
+    drag_sym: sp.Matrix
+    f_prop: sp.Symbol
+
+
+@memoized
+def stiffness_parts(structure: Structure) -> StiffnessParts:
+    """-dW/dq with each occurrence of q in the wrench differentiated on its own (a copy of q
+    for the gaps, for the rotation of the arms and for the tilt factors), then the copies set
+    back to q: the exact split of ``stiffness_form``'s K and K_other into STIFFNESS_PARTS."""
+    m = build_model(structure)
+    q = sp.Matrix([m.x[cv.STATE_INDEX[s]] for s in Q_STATES])
+    copies = {name: sp.Matrix(sp.symbols(f"{name}_q0:5", real=True))
+              for name in ("gap_slope", "rotating_arms", "tilt")}
+
+    def at(expr, name: str):
+        return expr.xreplace(dict(zip(q, copies[name], strict=True)))
+
+    trim_gap = sp.Matrix(sp.symbols(f"G0:{len(m.arrays)}", real=True))
+    trim_factor = sp.Matrix(sp.symbols(f"LF0:{len(m.arrays)}", real=True))
+    R_rot = at(m.R, "rotating_arms")
+    ex = sp.Matrix([1, 0, 0])
+    W = sp.zeros(5, 1)
+    for i, a in enumerate(m.arrays):
+        scale = sp.exp(-2 * m.wavenumber * (at(m.gaps[i], "gap_slope") - trim_gap[i]))
+        scale = scale * at(m.load_factor[i], "tilt") / trim_factor[i]
+        f = scale * m.lift_sym[i] * a.normal - scale * m.drag_sym[i] * ex
+        moment = (R_rot * at(m.arms[i], "tilt")).cross(f)
+        W += sp.Matrix([f[1], f[2], *moment])
+    back = {c: v for cs in copies.values() for c, v in zip(cs, q, strict=True)}
+    back.update(dict(zip(trim_gap, m.gaps, strict=True)))
+    back.update(dict(zip(trim_factor, m.load_factor, strict=True)))
+    parts = {name: (-W.jacobian(cs)).xreplace(back) for name, cs in copies.items()}
+    mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
+    f_prop = sp.Symbol("F_prop", real=True)
+    gravity = (m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))
+    propulsion = (m.R * m.vec("operation.propulsion_point")).cross(f_prop * ex)
+    parts["gravity"] = -sp.Matrix.vstack(sp.zeros(2, 1), gravity).jacobian(q)
+    parts["propulsion"] = -sp.Matrix.vstack(sp.zeros(2, 1), propulsion).jacobian(q)
+    return StiffnessParts({n: parts[n] for n in STIFFNESS_PARTS}, q, m.lift_sym, m.drag_sym,
+                          f_prop)
 
 
 @memoized

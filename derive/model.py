@@ -16,6 +16,7 @@ from functools import lru_cache
 import sympy as sp
 
 from . import conventions as cv
+from .distributed import distributed_load
 from .geometry import ArraySymbols, array_gap, array_speed, array_wrench, control_direction
 from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
@@ -49,7 +50,10 @@ class CarriageModel:
     wavenumber: sp.Expr
     B0: sp.Expr
     R: sp.Matrix
-    gaps: sp.Matrix  # exact gap of each array, in (x, p)
+    gaps: sp.Matrix  # exact face-centre gap of each array, in (x, p)
+    contact_gaps: sp.Matrix  # gap of each face's closest corner, in (x, p): contact
+    load_factor: sp.Matrix  # array force / (N eq 3 at the centre gap): 1 for "point"
+    arms: tuple[sp.Matrix, ...]  # point of action of each array's force, body axes, in (x, p)
     array_speeds: sp.Matrix  # along-track speed of each array face centre, in (x, p)
     lift: sp.Matrix  # total lift of each array (all its circuits), in (x, p)
     drag: sp.Matrix  # total drag of each array, in (x, p)
@@ -102,39 +106,48 @@ def build_model(structure: Structure) -> CarriageModel:
     w, L, Rc = sym["halbach.width"], sym["circuit.inductance"], sym["circuit.resistance"]
     R = rotation_body_to_inertial(phi, theta, psi)
 
-    arrays, gaps, speeds, lifts, drags = [], [], [], [], []
+    arrays, gaps, contact, factors, arms, speeds, lifts, drags = [], [], [], [], [], [], [], []
     speed_sym = sp.Matrix(sp.symbols(f"s0:{len(structure.arrays)}", real=True))
     for (name, _comps), s in zip(structure.arrays, speed_sym, strict=True):
         a = ArraySymbols(name, vec(f"arrays.{name}.position"), vec(f"arrays.{name}.normal"),
                          sym[f"arrays.{name}.nominal_gap"], sym[f"arrays.{name}.circuits"])
         gap = array_gap(a, pos, R)
+        load = distributed_load(a.normal, R, gap, k, w, sym["circuit.pitch"], a.circuits)
+        if structure.array_force == "distributed":
+            factor, arm = load.factor, a.position + load.offset
+        else:  # the paper's: eq 3 with the centre gap, at the face centre
+            factor, arm = sp.S.One, a.position
         arrays.append(a)
         gaps.append(gap)
+        contact.append(load.closest_gap)
+        factors.append(factor)
+        arms.append(arm)
         speeds.append(array_speed(a, R, vel, omega))
-        lifts.append(a.circuits * lift_per_circuit(B0, w, k, L, Rc, gap, s))
-        drags.append(a.circuits * drag_per_circuit(B0, w, k, L, Rc, gap, s))
+        lifts.append(a.circuits * factor * lift_per_circuit(B0, w, k, L, Rc, gap, s))
+        drags.append(a.circuits * factor * drag_per_circuit(B0, w, k, L, Rc, gap, s))
 
     n = len(arrays)
     at_speed = dict(zip(speed_sym, speeds, strict=True))
     lift_s, drag_s = sp.Matrix(lifts), sp.Matrix(drags)
     lift_sym = sp.Matrix(sp.symbols(f"F_L0:{n}", real=True))
     drag_sym = sp.Matrix(sp.symbols(f"F_D0:{n}", real=True))
-    wrench = _wrench(structure, arrays, u, lift_sym, drag_sym, R, m, g, r_G,
+    wrench = _wrench(structure, arrays, arms, u, lift_sym, drag_sym, R, m, g, r_G,
                      vec("operation.propulsion_point"))
     wrench_sym = sp.Matrix(sp.symbols("W_Fx W_Fy W_Fz W_Mx W_My W_Mz", real=True))
     v_dot, omega_dot = body_accelerations(m, inertia, r_G, vel, omega,
                                           wrench_sym[0:3, 0], wrench_sym[3:6, 0])
     kinematics = sp.Matrix.vstack(R * vel, euler_rates(phi, theta, omega))
     return CarriageModel(structure, p, x, u, input_names, tuple(arrays), k, B0, R,
-                         sp.Matrix(gaps), sp.Matrix(speeds), lift_s.xreplace(at_speed),
+                         sp.Matrix(gaps), sp.Matrix(contact), sp.Matrix(factors), tuple(arms),
+                         sp.Matrix(speeds), lift_s.xreplace(at_speed),
                          drag_s.xreplace(at_speed), speed_sym, lift_s, drag_s,
                          lift_sym, drag_sym, wrench, wrench_sym, kinematics,
                          sp.Matrix.vstack(v_dot, omega_dot))
 
 
-def _wrench(structure: Structure, arrays: list[ArraySymbols], u: sp.Matrix, lift: sp.Matrix,
-            drag: sp.Matrix, R: sp.Matrix, m: sp.Expr, g: sp.Expr, r_G: sp.Matrix,
-            a_prop: sp.Matrix) -> sp.Matrix:
+def _wrench(structure: Structure, arrays: list[ArraySymbols], arms: list[sp.Matrix],
+            u: sp.Matrix, lift: sp.Matrix, drag: sp.Matrix, R: sp.Matrix, m: sp.Expr,
+            g: sp.Expr, r_G: sp.Matrix, a_prop: sp.Matrix) -> sp.Matrix:
     """Total external force and moment about O, body axes (eqs 8-12 come out of this sum).
 
     Lift acts along the track normal n_i and drag along -x (inertial); gravity at the CG;
@@ -143,8 +156,8 @@ def _wrench(structure: Structure, arrays: list[ArraySymbols], u: sp.Matrix, lift
     """
     ex = sp.Matrix([1, 0, 0])
     force_in, moment_in = sp.zeros(3, 1), sp.zeros(3, 1)
-    for a, fl, fd in zip(arrays, lift, drag, strict=True):
-        f, mo = array_wrench(a, fl, fd, R)
+    for a, arm, fl, fd in zip(arrays, arms, lift, drag, strict=True):
+        f, mo = array_wrench(a, fl, fd, R, arm)
         force_in += f
         moment_in += mo
     f_prop = u[0] * ex

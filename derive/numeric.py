@@ -7,6 +7,7 @@ chain rule, which is exact: the symbolic linearisation is the product of symboli
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -16,7 +17,7 @@ import sympy as sp
 
 from . import conventions as cv
 from .conventions import Q_STATES
-from .linearize import generalized_mass_expr, stiffness_form
+from .linearize import generalized_mass_expr, stiffness_form, stiffness_parts
 from .memo import memoized
 from .model import CarriageModel, Structure, build_model
 
@@ -36,7 +37,10 @@ def _fn(args: list, expr: sp.Matrix) -> Callable[..., np.ndarray]:
     shape = expr.shape
 
     def call(*a: np.ndarray) -> np.ndarray:
-        return np.asarray(f(*a), dtype=float).reshape(shape)
+        # numpy's select evaluates every branch: the series' branch of sinhc/L (below
+        # derive.distributed.SERIES_BELOW) is taken where the closed one divides by zero
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.asarray(f(*a), dtype=float).reshape(shape)
 
     return call
 
@@ -49,7 +53,8 @@ class ModelFunctions:
     kin: Callable[..., np.ndarray]
     kin_x: Callable[..., np.ndarray]
     speeds: Callable[..., np.ndarray]
-    gaps: Callable[..., np.ndarray]
+    gaps: Callable[..., np.ndarray]  # face-centre gaps (x, p): the force law's
+    contact_gaps: Callable[..., np.ndarray]  # each face's closest corner (x, p): contact
     lift: Callable[..., np.ndarray]  # (x, s, p)
     drag: Callable[..., np.ndarray]
     lift_x: Callable[..., np.ndarray]
@@ -120,6 +125,7 @@ def model_functions(structure: Structure) -> ModelFunctions:
         kin_x=_fn(xs, m.kinematics.jacobian(x)),
         speeds=_fn([m.x, m.p], m.array_speeds),
         gaps=_fn([m.x, m.p], m.gaps),
+        contact_gaps=_fn([m.x, m.p], m.contact_gaps),
         lift=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed),
         drag=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed),
         lift_x=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed.jacobian(x)),
@@ -167,9 +173,25 @@ def lambdify_stiffness(structure: Structure):
     """(K_st0(q, F_L, F_D, p), K_other(q, F_prop, p)) as numpy functions."""
     sf = stiffness_form(structure)
     m = build_model(structure)
-    mag = sp.lambdify([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K, modules="numpy", cse=True)
-    other = sp.lambdify([sf.q, m.u[0], m.p], sf.K_other, modules="numpy", cse=True)
-    return mag, other
+    return (_fn([sf.q, sf.lift_sym, sf.drag_sym, m.p], sf.K),
+            _fn([sf.q, m.u[0], m.p], sf.K_other))
+
+
+@functools.lru_cache(maxsize=4)
+def _lambdified_parts(structure: Structure) -> dict[str, Callable[..., np.ndarray]]:
+    sp_parts = stiffness_parts(structure)
+    m = build_model(structure)
+    args = [sp_parts.q, sp_parts.lift_sym, sp_parts.drag_sym, sp_parts.f_prop, m.p]
+    return {name: _fn(args, K) for name, K in sp_parts.parts.items()}
+
+
+def stiffness_split(structure: Structure, trim: Equilibrium, p: np.ndarray
+                    ) -> dict[str, np.ndarray]:
+    """The derived stiffness K_st0 + K_other at trim split into STIFFNESS_PARTS (5x5 each):
+    gap slope, rotating arms, tilt across the face, gravity, propulsion."""
+    q = _trim_q(trim)
+    return {name: f(q, trim.lift, trim.drag, trim.u[0], p)
+            for name, f in _lambdified_parts(structure).items()}
 
 
 def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:

@@ -24,11 +24,14 @@ class Structure:
     """What the symbolic derivation depends on besides parameter values.
 
     ``param_names`` is the ordered parameter vector (from the schema, see params.flatten);
-    ``arrays`` pairs each array name with its control force components (e.g. ("y", "z")).
+    ``arrays`` pairs each array name with its control force components (e.g. ("y", "z"));
+    ``array_force`` is the array force law: "distributed" (the circuit model summed over the
+    tilted face, derive/distributed.py) or "point" (eq 3 at the face centre, the paper's).
     """
 
     param_names: tuple[str, ...]
     arrays: tuple[tuple[str, tuple[str, ...]], ...]
+    array_force: str = "point"
 
 
 def control_components(normal_values: Sequence[float], actuators: str = "paper",

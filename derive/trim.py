@@ -141,10 +141,11 @@ def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
     u = np.zeros(n_u)
     u[0] = sol.x[5]
     gaps, lift, drag = mf.forces(x, p)
-    if gaps.min() < min_gap:
-        i = int(np.argmin(gaps))
+    corners = mf.contact_gaps(x, p).ravel()  # contact: each face's closest corner
+    if corners.min() < min_gap:
+        i = int(np.argmin(corners))
         name = mf.model.arrays[i].name
         hint = f"; lift-off needs {lift_off_speed(mf, p, min_gap):.4g} m/s" if _explain else ""
         raise NoTrimError(f"no trim at speed {speed:g} m/s: array {name} would sit at gap "
-                          f"{gaps[i]:.4g} m, below track.min_gap = {min_gap:g} m{hint}")
+                          f"{corners[i]:.4g} m, below track.min_gap = {min_gap:g} m{hint}")
     return Trim(speed, x, u, gaps, lift, drag, res)

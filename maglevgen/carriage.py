@@ -16,7 +16,7 @@ from .cache import install_store
 from .derive import conventions as cv
 from .derive.structure import Structure, control_components
 from .errors import NoTrimError
-from .params import LoadedParams, Parameters, flatten
+from .params import LoadedParams, ModelChoices, Parameters, flatten
 
 if TYPE_CHECKING:  # the symbolic layers are imported when first used: running the compiled
     # model (maglevgen simulate, the build's simulations) needs only the parameters
@@ -29,7 +29,7 @@ def structure_of(params: Parameters) -> Structure:
     """The structure of a validated parameter set (what the derivation depends on)."""
     arrays = tuple((name, control_components(arr.normal, params.control.actuators))
                    for name, arr in params.arrays.items())
-    return Structure(tuple(e.name for e in flatten(params)), arrays)
+    return Structure(tuple(e.name for e in flatten(params)), arrays, params.model.array_force)
 
 
 @dataclass(frozen=True)
@@ -121,6 +121,21 @@ class Carriage:
         from .derive.numeric import other_stiffness
 
         return self.magnetic_stiffness(trim) + other_stiffness(self.functions, trim, self.p)
+
+    def stiffness_parts(self, trim: Trim) -> dict[str, np.ndarray]:
+        """K_st0 + K_other at trim split by where the pose enters the wrench (gap slope,
+        rotating arms, tilt across the face, gravity, propulsion: derive.linearize)."""
+        from .derive.numeric import stiffness_split
+
+        return stiffness_split(self.structure, trim, self.p)
+
+    def with_array_force(self, law: str) -> Carriage:
+        """This carriage with model.array_force = ``law`` (itself when it already has it)."""
+        if law == self.params.model.array_force:
+            return self
+        params = self.params.model_copy(update={"model": ModelChoices(array_force=law)})
+        return Carriage(LoadedParams(params, self.loaded.source, self.loaded.sha256,
+                                     (*self.loaded.overrides, f'model.array_force="{law}"')))
 
     def generalized_mass(self) -> np.ndarray:
         from .derive.numeric import generalized_mass

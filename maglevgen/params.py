@@ -191,6 +191,9 @@ class Circuit(_Section):
     inductance: float = _f("H", "L: inductance of one track circuit (loop)",
                            paper="2.6e-6 H/loop",
                            limits=(1e-12, 1.0, "a nanometre-scale loop to a many-turn coil"))
+    pitch: float = _f("m", "p: spacing of the track circuits along the track (an array covers "
+                           "circuits x pitch of it)",
+                      limits=(1e-4, 1.0, "a 0.1 mm litz ladder to 1 m coils"))
 
 
 class Array(_Section):
@@ -308,6 +311,26 @@ class Envelope(_Section):
         return self
 
 
+ARRAY_FORCE_LAWS = ("distributed", "point")
+
+
+class ModelChoices(_Section):
+    """Which physics the derivation uses: choices, not numbers of the parameter vector."""
+
+    array_force: str = Field(
+        default="distributed", description="force law of an array: 'distributed' sums the "
+        "Inductrack circuit model over the tilted face (each circuit at its own gap, acting "
+        "at the load's centroid); 'point' is the paper's eq 3 at the face centre with the "
+        "centre gap", json_schema_extra={"unit": "-", "choices": list(ARRAY_FORCE_LAWS)})
+
+    @field_validator("array_force")
+    @classmethod
+    def _known_law(cls, name: str) -> str:
+        if name not in ARRAY_FORCE_LAWS:
+            raise ValueError(f"expected one of {', '.join(ARRAY_FORCE_LAWS)}")
+        return name
+
+
 _SPREAD = (0.0, 1e6, "an absolute spread in the key's unit; the sampled values must also stay "
                     "inside the key's own range (checked against the file's value)")
 # a normal tolerance is truncated at this many sigma, so its support is bounded and checked
@@ -382,7 +405,7 @@ class Tolerances(_Section):
 
 
 # sections of the file that are not model parameters (not in the parameter vector p)
-NOT_IN_MODEL: tuple[str, ...] = ("envelope", "provenance", "tolerances")
+NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model", "provenance", "tolerances")
 PROVENANCE_SOURCES = ("paper", "assumed")
 
 
@@ -415,6 +438,7 @@ class Parameters(_Section):
     control: Control
     track: Track
     envelope: Envelope
+    model: ModelChoices = Field(default_factory=ModelChoices)
     # parameter key or table ("arrays.3", "vehicle.inertia_cg") -> where its value comes from
     provenance: dict[str, Provenance] = Field(default_factory=dict)
     tolerances: Tolerances = Field(default_factory=Tolerances)

@@ -1,7 +1,10 @@
 """Reference computations written for the tests, from the paper's equations and the geometry.
 
 Nothing here imports the derivation (maglevgen.derive) or the code generator: the force law is
-eq 3 as printed (with 1/(1 + (R/(omega L))^2) and the drag ratio R/(omega L) of ref [5]), the
+eq 3 as printed (with 1/(1 + (R/(omega L))^2) and the drag ratio R/(omega L) of ref [5]) at the
+face centre for ``model.array_force = "point"``, and for "distributed" the same circuit law summed
+circuit by circuit along the array with each circuit's flux and force integrated across the
+width at the local gaps by Gauss-Legendre quadrature (no closed form), acting where they act; the
 rigid body is the static balance of eqs 1-2 (no motion but the steady speed: force and moment
 about O both zero), the stiffness is a central difference, and the LQR gains come from the
 Riccati equation of eq 30 solved by hand in mpmath at 60 digits. The tests compare every derived
@@ -31,48 +34,100 @@ def rotation(phi: float, theta: float, psi: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ArrayState:
-    """Gap, lift and drag of every array at a pose, from eq 3 as printed."""
+    """Gap, lift and drag of every array at a pose, and where they act (body axes)."""
 
     gaps: np.ndarray
     lift: np.ndarray
     drag: np.ndarray
+    arms: np.ndarray  # point of action of each array's force, body axes (n_arrays x 3)
+
+
+_GL_S, _GL_W = np.polynomial.legendre.leggauss(24)  # exact for the smooth exp across a width
+
+
+def _face_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(across, along): the face's unit vectors, along = body x projected onto the face."""
+    along = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    along /= np.linalg.norm(along)
+    return np.cross(n, along), along
 
 
 def array_state(prm: Parameters, q: np.ndarray, speed: float) -> ArrayState:
-    """Each array's gap (plane of the track through its design-pose face) and eq 3 forces."""
+    """Each array's gap (plane of the track through its design-pose face) and its forces.
+
+    "point": eq 3 with N circuits at the face-centre gap, at the face centre. "distributed":
+    circuit j (of N, pitch p, centred on the face) links the flux of the field across its width
+    at the local gaps, Phi_j = int exp(-k g(s, t_j)) ds, and carries the force Phi_j times the
+    field along it, so eq 3's (w exp(-k g))^2 becomes Phi_j^2, acting at the field-weighted
+    point of the circuit; the array's force is the sum over its circuits."""
     h, c = prm.halbach, prm.circuit
     k = 2 * np.pi / h.wavelength
     M = h.magnets_per_wavelength
     B0 = h.remanence * (1 - np.exp(-k * h.thickness)) * np.sin(np.pi / M) / (np.pi / M)  # eq 4
     omega = k * speed
+    per_flux2 = B0**2 / (2 * k * c.inductance) / (1 + (c.resistance / (omega * c.inductance)) ** 2)
     R = rotation(*q[2:5])
     X = np.array([0.0, q[0], q[1]])
-    gaps, lift, drag = [], [], []
+    distributed = prm.model.array_force == "distributed"
+    gaps, lift, arms = [], [], []
     for arr in prm.arrays.values():
         a, n = np.array(arr.position), np.array(arr.normal)
         gap = arr.nominal_gap + n @ (X + (R - np.eye(3)) @ a)
-        F = (arr.circuits * B0**2 * h.width**2 / (2 * k * c.inductance)
-             / (1 + (c.resistance / (omega * c.inductance)) ** 2) * np.exp(-2 * k * gap))
         gaps.append(gap)
-        lift.append(F)
-        drag.append(F * c.resistance / (omega * c.inductance))  # opposes the motion
-    return ArrayState(np.array(gaps), np.array(lift), np.array(drag))
+        if not distributed:
+            lift.append(arr.circuits * per_flux2 * h.width**2 * np.exp(-2 * k * gap))
+            arms.append(a)
+            continue
+        across, along = _face_axes(n)
+        n_c = round(arr.circuits)
+        total, moment = 0.0, np.zeros(3)
+        for j in range(n_c):
+            t = (j - (n_c - 1) / 2) * c.pitch
+            s = _GL_S * h.width / 2
+            points = a + np.outer(s, across) + t * along  # body points across the circuit
+            # each point's own gap to the track plane (n . b = n . a on the face)
+            density = np.exp(-k * (arr.nominal_gap + (X + points @ R.T - points) @ n))
+            flux = (h.width / 2) * _GL_W @ density
+            f = flux * (h.width / 2) * (_GL_W * density)  # force per quadrature node
+            total += f.sum()
+            moment += f @ points
+        lift.append(per_flux2 * total)
+        arms.append(moment / total)
+    lift_a = np.array(lift)
+    return ArrayState(np.array(gaps), lift_a, lift_a * c.resistance / (omega * c.inductance),
+                      np.array(arms))
+
+
+def contact_gaps(prm: Parameters, q: np.ndarray) -> np.ndarray:
+    """Each face's smallest gap: the least of its four corners' (face centre +- w/2 across,
+    +- circuits x pitch / 2 along), each corner's gap from the pose like the centre's."""
+    R = rotation(*q[2:5])
+    X = np.array([0.0, q[0], q[1]])
+    half_w, out = prm.halbach.width / 2, []
+    for arr in prm.arrays.values():
+        a, n = np.array(arr.position), np.array(arr.normal)
+        across, along = _face_axes(n)
+        half_l = arr.circuits * prm.circuit.pitch / 2
+        corners = [a + i * half_w * across + j * half_l * along for i in (-1, 1) for j in (-1, 1)]
+        out.append(min(arr.nominal_gap + n @ (X + (R - np.eye(3)) @ b) for b in corners))
+    return np.array(out)
 
 
 def external_wrench(prm: Parameters, q: np.ndarray, speed: float, f_prop: float,
                     magnetic: bool = True, other: bool = True) -> np.ndarray:
     """(F_x, F_y, F_z, M_x, M_y, M_z), inertial axes, moments about O, of the external forces.
 
-    Lift along each array's normal, drag along -x at its face centre; gravity -m g z at the
+    Lift along each array's normal, drag along -x at its point of action; gravity -m g z at the
     CG; propulsion +x at the propulsion point. ``magnetic`` / ``other`` select the parts.
     """
     R = rotation(*q[2:5])
     total = np.zeros(6)
     if magnetic:
         st = array_state(prm, q, speed)
-        for arr, fl, fd in zip(prm.arrays.values(), st.lift, st.drag, strict=True):
+        for arr, fl, fd, arm in zip(prm.arrays.values(), st.lift, st.drag, st.arms,
+                                    strict=True):
             f = fl * np.array(arr.normal) - fd * np.array([1.0, 0.0, 0.0])
-            total += np.concatenate([f, np.cross(R @ np.array(arr.position), f)])
+            total += np.concatenate([f, np.cross(R @ arm, f)])
     if other:
         v = prm.vehicle
         f_g = np.array([0.0, 0.0, -v.mass * v.gravity])

@@ -205,6 +205,30 @@ def test_montecarlo_is_the_cli_study(default: maglevgen.Carriage, capsys) -> Non
     assert set(api["controllers"]) == {"none", "damping", "lqr", "coupled"}
 
 
+def test_both_array_force_laws_reach_the_api_and_the_study(default: maglevgen.Carriage,
+                                                             capsys) -> None:
+    """model.array_force = "point" through the API: its trim against the test's root solve of
+    eq 3 at the face centres (gaps at the closest corners); its Monte-Carlo study is the CLI's
+    and differs from the distributed law's (the choice reaches the workers)."""
+    from independent_reference import contact_gaps, reference_trim
+
+    from maglevgen.params import load_params
+
+    law = 'model.array_force="point"'
+    point = maglevgen.load(overrides=[law])
+    prm = load_params(overrides=[law]).params
+    ref = reference_trim(prm, SPEED)
+    np.testing.assert_allclose(point.trim(SPEED).gaps, contact_gaps(prm, ref.q), rtol=0,
+                               atol=1e-10)
+    opts = dict(samples=4, seed=5, t_end=0.3, workers=1)
+    api_point = point.montecarlo(controller="coupled", **opts)
+    cli = cli_json(capsys, "montecarlo", "--json", "--controller", "coupled", "--samples", "4",
+                   "--seed", "5", "--t-end", "0.3", "--workers", "1", "--set", law)
+    assert api_point["controllers"] == cli["controllers"]
+    assert default.montecarlo(controller="coupled", **opts)["controllers"] \
+        != api_point["controllers"]
+
+
 def test_dataframe_without_pandas_says_what_to_install(default: maglevgen.Carriage,
                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     run = default.simulate(t_end=0.01)

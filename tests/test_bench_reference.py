@@ -21,6 +21,7 @@ from maglevgen.codegen.functions import build_functions
 from maglevgen.controllers import allocation_matrix
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.linearize import Q_STATES
+from maglevgen.params import load_params
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedLibrary
 
@@ -36,6 +37,13 @@ _D = ctypes.POINTER(ctypes.c_double)
 
 def _ptr(a: np.ndarray) -> ctypes.POINTER:
     return a.ctypes.data_as(_D)
+
+
+@pytest.fixture(scope="module")
+def carriage() -> Carriage:
+    """The default carriage with the paper's point force law: the law the hand-written C
+    implements (the distributed law is checked against its own quadrature reference)."""
+    return Carriage(load_params(overrides=['model.array_force="point"']))
 
 
 @pytest.fixture(scope="module")

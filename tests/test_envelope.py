@@ -58,9 +58,31 @@ def _reference_eigenvalues(carriage: Carriage, v: float) -> dict[str, np.ndarray
     }
 
 
+POINT = 'model.array_force="point"'
+
+
 @pytest.fixture(scope="module")
 def envelope(carriage: Carriage, sim_lib):
     return compute_envelope(carriage, sim_lib, 12)
+
+
+@pytest.fixture(scope="module")
+def point_carriage(private_cache) -> Carriage:
+    """The paper's force law (eq 3 at each face centre): its per-axis LQR and damping control
+    lose stability in the low part of the range."""
+    return Carriage(load_params(None, [POINT]))
+
+
+@pytest.fixture(scope="module")
+def point_lib(point_carriage: Carriage):
+    from maglevgen.library import simulation_library
+
+    return simulation_library(point_carriage.structure)
+
+
+@pytest.fixture(scope="module")
+def point_envelope(point_carriage: Carriage, point_lib):
+    return compute_envelope(point_carriage, point_lib, 12)
 
 
 @pytest.mark.parametrize("index", [0, 3, 6, 11])
@@ -76,62 +98,76 @@ def test_eigenvalues_match_an_independent_assembly(carriage, envelope, index) ->
         assert bool(envelope.controllers[name].stable[index]) == (want < -STABILITY_MARGIN)
 
 
-def test_default_verdicts(envelope) -> None:
-    """The paper's per-axis LQR loses stability in the low part of the range; the coupled
-    LQR holds across it; no control is unstable everywhere."""
-    lqr, coupled, none = (envelope.controllers[n] for n in ("lqr", "coupled", "none"))
+def test_default_verdicts_follow_independent_eigenvalues(carriage, envelope) -> None:
+    """With the distributed array force (the default) each verdict is what the independently
+    assembled eigenvalues say at every speed of the envelope: the tilt across the faces makes
+    the roll stiff enough that every designed controller holds; without control the speed
+    mode stays unstable."""
+    worst = {name: max(float(np.max(_reference_eigenvalues(carriage, float(v))[name].real))
+                       for v in envelope.speeds) for name in envelope.controllers}
+    for name, c in envelope.controllers.items():
+        assert c.ok == (worst[name] < -STABILITY_MARGIN), name
+        assert c.verdict.startswith("stable across" if c.ok else "UNSTABLE"), name
+    assert envelope.controllers["coupled"].ok and envelope.controllers["lqr"].ok
+    assert not envelope.controllers["none"].ok
+
+
+def test_point_force_verdicts(point_envelope) -> None:
+    """The paper's point force: the per-axis LQR loses stability in the low part of the
+    range; the coupled LQR holds across it; no control is unstable everywhere."""
+    lqr, coupled, none = (point_envelope.controllers[n] for n in ("lqr", "coupled", "none"))
     assert coupled.ok and coupled.verdict.startswith("stable across")
     assert not lqr.ok and lqr.verdict.startswith("UNSTABLE for v in")
     (lo, hi), = lqr.unstable_ranges
-    assert envelope.v_min < lo < hi < 20.0
+    assert point_envelope.v_min < lo < hi < 20.0
     assert not none.ok and "UNSTABLE" in none.verdict
 
 
-def test_unstable_range_edges_are_where_the_sign_changes(carriage, envelope) -> None:
+def test_unstable_range_edges_are_where_the_sign_changes(point_carriage, point_envelope) -> None:
     """Just inside the reported range the reference has a positive real part, just outside
-    a negative one."""
-    (lo, hi), = envelope.controllers["lqr"].unstable_ranges
+    a negative one (point force law)."""
+    (lo, hi), = point_envelope.controllers["lqr"].unstable_ranges
     for v, sign in ((lo - 0.02, -1), (lo + 0.02, 1), (hi - 0.02, 1), (hi + 0.02, -1)):
-        worst = float(np.max(_reference_eigenvalues(carriage, v)["lqr"].real))
+        worst = float(np.max(_reference_eigenvalues(point_carriage, v)["lqr"].real))
         assert np.sign(worst) == sign, v
 
 
-def test_stable_range_gives_a_stable_verdict(private_cache) -> None:
+def test_stable_range_gives_a_stable_verdict(point_lib) -> None:
     """With the envelope above the per-axis LQR's unstable range its verdict is stable."""
-    from maglevgen.library import simulation_library
-
-    c = Carriage(load_params(None, ["envelope.v_min=17.0"]))
-    env = compute_envelope(c, simulation_library(c.structure), 8, ("lqr",))
+    c = Carriage(load_params(None, [POINT, "envelope.v_min=17.0"]))
+    env = compute_envelope(c, point_lib, 8, ("lqr",))
     assert env.controllers["lqr"].ok
     ev = _reference_eigenvalues(c, 17.0)["lqr"]
     assert np.max(ev.real) < 0
 
 
-def test_heavier_carriage_is_unstable_at_the_design_speed(private_cache) -> None:
-    """The issue's case: mass 12 kg makes the per-axis LQR unstable at 20 m/s."""
-    from maglevgen.library import simulation_library
-
-    c = Carriage(load_params(None, ["vehicle.mass=12"]))
-    env = compute_envelope(c, simulation_library(c.structure), 8, ("lqr", "coupled"))
+def test_heavier_carriage_is_unstable_at_the_design_speed(point_lib) -> None:
+    """The issue's case (point force law): mass 12 kg makes the per-axis LQR unstable at
+    20 m/s."""
+    c = Carriage(load_params(None, [POINT, "vehicle.mass=12"]))
+    env = compute_envelope(c, point_lib, 8, ("lqr", "coupled"))
     assert max(float(np.max(_reference_eigenvalues(c, 20.0)["lqr"].real)), 0) > 0
     assert any(lo <= 20.0 <= hi for lo, hi in env.controllers["lqr"].unstable_ranges)
     assert env.controllers["coupled"].ok
 
 
-@pytest.mark.parametrize(("controller", "speed", "stable"),
-                         [("lqr", 12.5, False), ("none", 8.0, False), ("damping", 30.0, True),
-                          ("coupled", 30.0, True)])
-def test_simulation_agrees_with_the_verdict(carriage, sim_lib, controller, speed,
-                                            stable) -> None:
+@pytest.mark.parametrize(("law", "controller", "speed", "stable"),
+                         [("point", "lqr", 12.5, False), ("point", "none", 8.0, False),
+                          ("distributed", "lqr", 12.5, True),
+                          ("distributed", "damping", 30.0, True),
+                          ("distributed", "coupled", 30.0, True)])
+def test_simulation_agrees_with_the_verdict(request, law, controller, speed, stable) -> None:
     """Where the envelope says unstable with margin, the nonlinear run does not settle (it
     diverges or hits the track); where it is stable with margin, the run decays. The speed is
     held as the envelope assumes: the propulsion follows the trim drag at the current speed
     (maglev_launch without the acceleration force) and the gains stay those of the speed."""
-    points = envelope_points(carriage, sim_lib, np.linspace(speed - 2.0, speed + 2.0, 5))
+    carriage, lib = (request.getfixturevalue(n) for n in (
+        ("point_carriage", "point_lib") if law == "point" else ("carriage", "sim_lib")))
+    points = envelope_points(carriage, lib, np.linspace(speed - 2.0, speed + 2.0, 5))
     op = points[2]
     worst = float(np.max(np.linalg.eigvals(op.reduced_closed_loop(controller)).real))
     assert (worst < -0.05) if stable else (worst > 0.2)
-    traj = launch(sim_lib, carriage.p, Schedule.from_points(points, controller), op, 1e3, 0.0,
+    traj = launch(lib, carriage.p, Schedule.from_points(points, controller), op, 1e3, 0.0,
                   1e-3, carriage.params.track.min_gap, max_time=10.0)
     assert abs(traj.speed[-1] - speed) < 1.0 or traj.status == "contact"
     if stable:
@@ -278,11 +314,11 @@ def test_bad_envelope_input_is_one_line_exit_2(tmp_path) -> None:
 
 
 def test_build_exits_3_when_the_embedded_controller_is_unstable(tmp_path) -> None:
-    """The per-axis LQR embedded: outputs written, SUMMARY says UNSTABLE, exit 3 with one
-    line; --allow-unstable turns it into a warning (exit 0)."""
+    """The per-axis LQR embedded with the point force law: outputs written, SUMMARY says
+    UNSTABLE, exit 3 with one line; --allow-unstable turns it into a warning (exit 0)."""
     out = tmp_path / "b"
     args = [sys.executable, "-m", "maglevgen.cli", "build", "--no-pdf", "--t-end", "1",
-            "--out", str(out), "--controller", "lqr"]
+            "--out", str(out), "--controller", "lqr", "--set", POINT]
     proc = subprocess.run(args, capture_output=True, text=True)
     assert proc.returncode == 3, proc.stderr
     err = [line for line in proc.stderr.splitlines() if "error" in line]  # besides progress

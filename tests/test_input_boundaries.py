@@ -86,6 +86,14 @@ CASES: list[tuple[str, str, list[str]]] = [
      ["arrays.3.position = [0.0, 0.0, 1e+308]:", "component 2", "[-1000, 1000] m"]),
     ("magnets-huge-int", edited("halbach.magnets_per_wavelength", 2**62),
      [f"halbach.magnets_per_wavelength = {2**62}:", "[2, 256]"]),
+    # a choice outside its list, and a number where a choice goes
+    *[(f"array-force-{i}", edited("model.array_force", value),
+       ["model.array_force = ", repr(value)[:12], "one of distributed, point"])
+      for i, value in enumerate(["Point", "distributed ", "", "sinhc"])],
+    ("array-force-number", edited("model.array_force", 1.0),
+     ["model.array_force = 1.0", "string"]),
+    ("circuit-pitch-0", edited("circuit.pitch", 0.0),
+     ["circuit.pitch = 0.0:", "outside the range [0.0001, 1] m"]),
     # nesting deeper than the schema (4 levels: document, arrays, an array, its position)
     ("nested-array-10", replaced("position = [0.26, 0.0, -0.03]", "position = " + nested(10)),
      ["arrays.3.position.0 = ", "nested deeper than the schema's 4 levels"]),
@@ -185,6 +193,9 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
         if key == "vehicle.inertia_cg":  # a table (its entries' ranges below) or "box"
             assert line.endswith('a table, or "box"'), line
             continue
+        if key == "model.array_force":  # a name, not a number: its choices
+            assert line.endswith("one of distributed, point"), line
+            continue
         if key == "provenance.<key>":  # text about a value, not a number
             assert "paper or assumed" in line, line
             continue
@@ -197,7 +208,7 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
               for line in lines
               if line.split()[0] not in ("arrays.<name>", "envelope.embedded_controller",
                                          "provenance.<key>", "control.actuators",
-                                         "vehicle.inertia_cg",
+                                         "vehicle.inertia_cg", "model.array_force",
                                          "tolerances.parameters.<key>")}
 
     def leaves(data: Any, prefix: str = "") -> Any:
@@ -213,8 +224,8 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
                 yield key, v if isinstance(v, list) else [v]
 
     for key, values in leaves(DEFAULT_DATA):
-        if key in ("envelope.embedded_controller", "control.actuators") or key.startswith(
-                "provenance."):
+        if key in ("envelope.embedded_controller", "control.actuators",
+                   "model.array_force") or key.startswith("provenance."):
             continue
         lo, hi = ranges[key]
         assert all(lo <= c <= hi for c in values), key

@@ -66,8 +66,16 @@ def test_trim_is_equilibrium_at_nominal_gap(carriage: Carriage, trim) -> None:
                                       rel=1e-9)
 
 
-def test_trim_forces_balance_weight_independently(carriage: Carriage, trim) -> None:
-    """The printed eq 3 with the trim pose reproduces the weight (independent force sum)."""
+@pytest.fixture(scope="module")
+def point() -> Carriage:
+    """The paper's force law: eq 3 at each face centre (model.array_force = "point")."""
+    return Carriage(load_params(overrides=['model.array_force="point"']))
+
+
+def test_trim_forces_balance_weight_independently(point: Carriage) -> None:
+    """The printed eq 3 with the point law's trim pose reproduces the weight (independent
+    force sum); the distributed law's trim is checked in test_independent.py."""
+    carriage, trim = point, point.trim()
     q = np.array([trim.x[cv.STATE_INDEX[s]] for s in ("y", "z", "phi", "theta", "psi")])
     w = _array_wrench_printed_eq3(carriage, q, trim.speed)
     weight = carriage.params.vehicle.mass * carriage.params.vehicle.gravity
@@ -75,8 +83,10 @@ def test_trim_forces_balance_weight_independently(carriage: Carriage, trim) -> N
     assert abs(w[0]) < 1e-9 * weight
 
 
-def test_stiffness_equals_central_difference(carriage: Carriage, trim) -> None:
-    """Each derived stiffness (closed form in the trim forces) equals -dW/dq by differences."""
+def test_stiffness_equals_central_difference(point: Carriage) -> None:
+    """Each derived stiffness of the point law (closed form in the trim forces) equals -dW/dq
+    of printed eq 3 by differences (the distributed law's: test_stiffness_parts.py)."""
+    carriage, trim = point, point.trim()
     q0 = np.array([trim.x[cv.STATE_INDEX[s]] for s in ("y", "z", "phi", "theta", "psi")])
     K = carriage.magnetic_stiffness(trim)
     K_fd = np.zeros((5, 5))

@@ -531,3 +531,30 @@ def test_simulation_metrics_are_named_with_units_and_every_figure_is_referenced(
 
 def tex_key_escaped(key: str) -> str:
     return key.replace("_", r"\_")
+
+
+def test_stiffness_table_has_both_laws_and_the_roll_text_names_its_terms(
+        default_context, default_report: Path) -> None:
+    """Three columns (paper as printed, point, distributed): each law's column against central
+    differences of the test's force sums; each parts row sums to the law's derived stiffness
+    with gravity; the roll paragraph names the rotating-arms and gravity terms."""
+    from independent_reference import reference_trim, stiffness_fd
+
+    ctx, _files = default_context
+    st = ctx["stiffness"]
+    for law in ("point", "distributed"):
+        prm = load_params(overrides=[f'model.array_force="{law}"']).params
+        ref = reference_trim(prm, prm.operation.speed)
+        k_mag = np.diag(stiffness_fd(prm, ref.q, prm.operation.speed, ref.f_prop, other=False))
+        k_tot = np.diag(stiffness_fd(prm, ref.q, prm.operation.speed, ref.f_prop))
+        for i, row in enumerate(st["rows"]):
+            assert row[law] == pytest.approx(k_mag[i], rel=1e-5), (law, row["axis"])
+        rows = [r for r in st["parts"] if r["law"] == law]
+        assert [r["axis"] for r in rows] == [r["axis"] for r in st["rows"]]
+        for i, r in enumerate(rows):
+            assert sum(r["parts"]) == pytest.approx(r["total"], rel=1e-12, abs=1e-12)
+            assert r["total"] == pytest.approx(k_tot[i], rel=1e-5), (law, r["axis"])
+    tex = (default_report / "report.tex").read_text(encoding="utf-8")
+    roll = tex[tex.index(r"\textbf{Roll.}"):]
+    roll = roll[:roll.index("\n\n")]
+    assert "rotating arms" in roll and "gravity's term" in roll and "tilt across" in roll

@@ -164,7 +164,7 @@ def test_contact_is_reported_at_the_first_sample_past_the_crossing(sim_lib, carr
     u[0] = op.f_prop
 
     def gap_event(_t: float, x: np.ndarray) -> float:
-        return float(np.min(fns.gaps(x, carriage.p)) - min_gap)
+        return float(np.min(fns.contact_gaps(x, carriage.p)) - min_gap)
 
     gap_event.terminal = True
     sol = solve_ivp(lambda _t, x: fns.xdot(x, u, carriage.p).ravel(), (0, 1.0),

@@ -22,9 +22,9 @@
 /* Offsets in p (the manifest's parameter_vector for the default carriage). */
 enum {
     P_MASS = 0, P_IXX = 2, P_IYY, P_IZZ, P_IXY, P_IXZ, P_IYZ, P_CG = 8, P_GRAVITY = 11,
-    P_BR = 12, P_THICKNESS, P_M, P_WAVELENGTH, P_WIDTH, P_RES, P_IND,
-    P_ARRAYS = 19, P_ARRAY_STRIDE = 8, /* position xyz, normal xyz, nominal_gap, circuits */
-    P_PROP = 68
+    P_BR = 12, P_THICKNESS, P_M, P_WAVELENGTH, P_WIDTH, P_RES, P_IND, P_PITCH,
+    P_ARRAYS = 20, P_ARRAY_STRIDE = 8, /* position xyz, normal xyz, nominal_gap, circuits */
+    P_PROP = 69
 };
 
 const char *const REF_PARAM_NAMES[REF_NP] = {
@@ -33,6 +33,7 @@ const char *const REF_PARAM_NAMES[REF_NP] = {
     "vehicle.inertia_cg.yz", "vehicle.cg_offset.x", "vehicle.cg_offset.y", "vehicle.cg_offset.z",
     "vehicle.gravity", "halbach.remanence", "halbach.thickness", "halbach.magnets_per_wavelength",
     "halbach.wavelength", "halbach.width", "circuit.resistance", "circuit.inductance",
+    "circuit.pitch", /* read by the distributed force law only: this is the paper's point law */
 #define ARRAY_NAMES(i)                                                                     \
     "arrays." #i ".position.x", "arrays." #i ".position.y", "arrays." #i ".position.z",    \
     "arrays." #i ".normal.x", "arrays." #i ".normal.y", "arrays." #i ".normal.z",          \

@@ -15,7 +15,7 @@
 
 #define REF_NX 12
 #define REF_NU 11
-#define REF_NP 75
+#define REF_NP 76
 #define REF_NARRAYS 6
 #define REF_NAXES 5
 

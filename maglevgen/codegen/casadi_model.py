@@ -17,7 +17,8 @@ class CasadiModel:
     u: ca.SX
     p: ca.SX
     xdot: ca.SX
-    gaps: ca.SX
+    gaps: ca.SX  # face-centre gaps (the force law's)
+    contact_gaps: ca.SX  # each face's closest corner (contact)
     lift: ca.SX
     drag: ca.SX
 
@@ -30,7 +31,7 @@ def casadi_model(model: CarriageModel) -> CasadiModel:
     mapping = {**_pairs(model.x, x), **_pairs(model.u, u), **_pairs(model.p, p)}
     conv = SympyToCasadi(mapping)
     speeds = conv(model.array_speeds)
-    gaps = conv(model.gaps)
+    gaps, contact_gaps = conv(model.gaps), conv(model.contact_gaps)
     conv = SympyToCasadi({**mapping, **_pairs(model.speed_sym, speeds)})
     lift, drag = conv(model.lift_at_speed), conv(model.drag_at_speed)
     conv = SympyToCasadi({**mapping, **_pairs(model.lift_sym, lift),
@@ -38,7 +39,7 @@ def casadi_model(model: CarriageModel) -> CasadiModel:
     wrench = conv(model.wrench)
     conv = SympyToCasadi({**mapping, **_pairs(model.wrench_sym, wrench)})
     xdot = ca.vertcat(conv(model.kinematics), conv(model.accelerations))
-    return CasadiModel(x, u, p, xdot, gaps, lift, drag)
+    return CasadiModel(x, u, p, xdot, gaps, contact_gaps, lift, drag)
 
 
 def _pairs(syms, sx: ca.SX) -> dict:

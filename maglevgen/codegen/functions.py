@@ -49,8 +49,10 @@ DESCRIPTIONS: dict[str, str] = {
     "closed_loop_prepare": "the part of maglev_closed_loop that depends only on the inputs "
                            "constant over a run: c, once per simulation",
     "closed_loop_prepared": "maglev_closed_loop's xdot, u and gaps from x and the prepared c",
-    "gaps": "the gap of each array (exact pose geometry); contact when one reaches the track",
-    "array_forces": "lift and drag of each array at state x (eqs 3-4 at the exact gaps)",
+    "gaps": "the gap of each array face's closest corner (exact pose geometry); contact when "
+            "one reaches track.min_gap",
+    "array_forces": "lift and drag of each array at state x (eqs 3-4 at the exact gaps, summed "
+                    "over the tilted face for model.array_force = distributed)",
     "stiffness": "at state x and propulsion F_prop: the magnetic stiffness K_st0 = -dW/dq of "
                  "the array forces (5 x 5, eqs 13-19 derived) and that of the gravity and "
                  "propulsion moments (K_other)",
@@ -214,7 +216,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     with casadi_rewriting_off():  # keep the model's shared reciprocals (sympy_casadi)
         a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
         u_cl = ca.vertcat(F_prop, T_in @ -(K_pos @ (a_cl - a_ref) + K_rate @ rates_fn(x0)))
-        gaps_fn = ca.Function("maglev_gaps", [x, p], [cm.gaps], ["x", "p"], ["gaps"])
+        # contact is judged at each face's closest corner, not its centre
+        gaps_fn = ca.Function("maglev_gaps", [x, p], [cm.contact_gaps], ["x", "p"], ["gaps"])
         closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, K_pos, K_rate, a_ref, T_in, p],
                                   [dynamics(x0, u_cl, p), u_cl, gaps_fn(x0, p)],
                                   ["x", "F_prop", "K_pos", "K_rate", "a_ref", "T", "p"],

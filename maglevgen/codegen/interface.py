@@ -53,7 +53,7 @@ IO_DOCS: dict[str, str] = {
     "K_rate": "rate gains (5 x 5, column-major; diagonal for the per-axis designs)",
     "a_ref": "per axis reference positions (y, z, phi, theta, psi)",
     "x_next": "state after the step", "x0": "state",
-    "gaps": "[m] gap of each array, in the parameter file's array order",
+    "gaps": "[m] gap of each array face's closest corner, in the parameter file's array order",
     "T": "minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix",
     "lift": "[N] lift of each array, in the parameter file's array order",
     "drag": "[N] drag of each array, in the parameter file's array order",

@@ -81,6 +81,8 @@ class SympyToCasadi:
             raise KeyError(f"symbol {e} has no CasADi counterpart")
         if e.is_Number or e in (sp.pi, sp.E):
             return ca.SX(float(e))
+        if getattr(e, "removable_singularity", False):  # derive/distributed.py's functions
+            return self._conv(e.rewrite(sp.Piecewise))
         if isinstance(e, sp.Piecewise):
             *branches, (last, _true) = e.args
             out = self._conv(last)

@@ -30,6 +30,7 @@ def display_symbol(name: str) -> sp.Symbol:
         "halbach.width": "w",
         "circuit.resistance": "R",
         "circuit.inductance": "L",
+        "circuit.pitch": "p_c",  # p is the roll rate
         "operation.speed": "V",
         "control.state_weights.0": "q_1",
         "control.state_weights.1": "q_2",

@@ -94,6 +94,7 @@ def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
             }
         )
     return {
+        "array_force_law": pr.model.array_force,
         "B0": eq("B_0", B0_expr, tag="4"),
         "lift": eq("F_L", FL, tag="3"),
         "drag": eq("F_D", FD),

@@ -8,16 +8,18 @@ import numpy as np
 import sympy as sp
 
 from ...derive import conventions as cv
-from ...derive.linearize import design_pose_stiffness, generalized_mass_expr
+from ...derive.linearize import STIFFNESS_PARTS, design_pose_stiffness, generalized_mass_expr
 from ...derive.memo import memoized
 from ...derive.model import build_model
 from ...derive.paper import paper_stiffness
+from ...errors import NoTrimError
 from ..display import REPORT_SOURCE, Display, break_sum, eqs, ltx, matrix_tex, round_floats
 from ..format import fnum
 from ..symbols import K_SYM, array_labels, to_display
 
 _Q_LABELS = ("y", "z", r"\phi", r"\theta", r"\psi")
 _W_LABELS = ("F_y", "F_z", "M_x", "M_y", "M_z")
+ROLL = cv.AXES.index("roll")
 
 
 def _shown_values(carriage) -> tuple[tuple[str, float], ...]:
@@ -94,6 +96,10 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
                 "rel": r["paper_relative_difference"],
             }
         )
+    laws = _by_law(carriage, trim)
+    for i, row in enumerate(rows):
+        for law, d in laws.items():
+            row[law] = None if d is None else float(d["magnetic"][i])
     inputs = [(ltx(syms[n]), v) for n, v in trep["paper_inputs"].items()]
     u = np.zeros(lib.function("maglev_jacobians").shapes_in[1][0])
     u[0] = trim.f_prop
@@ -116,6 +122,12 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
         "K_mag": matrix_tex(K_mag, lambda v: fnum(v, 5)),
         "K_tot": matrix_tex(K_tot, lambda v: fnum(v, 5)),
         "rows": rows,
+        "model": carriage.params.model.array_force,
+        "cg_height": float(carriage.params.vehicle.cg_offset[2]),
+        "width": float(carriage.params.halbach.width),
+        "parts": _parts_rows(laws),
+        "roll": {law: None if d is None else {n: float(v[ROLL]) for n, v in d["parts"].items()}
+                 | {"total": float(d["total"][ROLL])} for law, d in laws.items()},
         "paper_inputs": inputs,
         "A_entries": a_entries,
         "B_shape": B.shape,
@@ -123,3 +135,35 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
     }
 
 
+# the table's columns: every choice of params.ARRAY_FORCE_LAWS, the paper's first
+LAW_COLUMNS = ("point", "distributed")
+
+
+def _by_law(carriage, trim) -> dict[str, dict[str, Any] | None]:
+    """Per array force law: the diagonal of K_st0, of K_st0 + K_other and of each of its parts
+    (derive.linearize.STIFFNESS_PARTS) at that law's trim; None where it has no trim."""
+    out: dict[str, dict[str, Any] | None] = {}
+    for law in LAW_COLUMNS:
+        other = carriage.with_array_force(law)
+        try:
+            t = trim if other is carriage else other.trim()
+        except NoTrimError:
+            out[law] = None
+            continue
+        parts = {n: np.diag(K) for n, K in other.stiffness_parts(t).items()}
+        out[law] = {"magnetic": np.diag(other.magnetic_stiffness(t)),
+                    "total": np.diag(other.total_stiffness(t)), "parts": parts}
+    return out
+
+
+def _parts_rows(laws: dict[str, dict[str, Any] | None]) -> list[dict[str, Any]]:
+    """One row per axis and law: each part of the derived stiffness and their sum."""
+    rows = []
+    for i, axis in enumerate(cv.AXES):
+        for law, d in laws.items():
+            if d is None:
+                continue
+            rows.append({"axis": axis, "law": law,
+                         "parts": [float(d["parts"][n][i]) for n in STIFFNESS_PARTS],
+                         "total": float(d["total"][i])})
+    return rows
