@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import sympy as sp
 
+from ... import progress
 from ...derive import conventions as cv
 from ...derive.linearize import STIFFNESS_PARTS, design_pose_stiffness, generalized_mass_expr
 from ...derive.memo import memoized
 from ...derive.model import build_model
+from ...derive.numeric import stiffness_split
 from ...derive.paper import paper_stiffness
+from ...derive.structure import input_names_of
 from ...errors import NoTrimError
+from ...library import simulation_library
+from ...summary import trim_point
 from ..display import REPORT_SOURCE, Display, break_sum, eqs, ltx, matrix_tex, round_floats
 from ..format import fnum
 from ..symbols import K_SYM, array_labels, to_display
@@ -140,19 +146,24 @@ LAW_COLUMNS = ("point", "distributed")
 
 
 def _by_law(carriage, trim) -> dict[str, dict[str, Any] | None]:
-    """Per array force law: the diagonal of K_st0, of K_st0 + K_other and of each of its parts
-    (derive.linearize.STIFFNESS_PARTS) at that law's trim; None where it has no trim."""
+    """Per array force law: the diagonal of K_st0 and of K_st0 + K_other from that law's
+    compiled library at its trim, and of each part (derive.linearize.STIFFNESS_PARTS, the
+    derivation's split evaluated at that trim); None where it has no trim."""
     out: dict[str, dict[str, Any] | None] = {}
     for law in LAW_COLUMNS:
         other = carriage.with_array_force(law)
         try:
-            t = trim if other is carriage else other.trim()
+            t = trim if other is carriage else trim_point(
+                other, simulation_library(other.structure, progress=progress.step), None)
         except NoTrimError:
             out[law] = None
             continue
-        parts = {n: np.diag(K) for n, K in other.stiffness_parts(t).items()}
-        out[law] = {"magnetic": np.diag(other.magnetic_stiffness(t)),
-                    "total": np.diag(other.total_stiffness(t)), "parts": parts}
+        u = np.zeros(len(input_names_of(other.structure)))
+        u[0] = t.f_prop
+        at = SimpleNamespace(x=t.x, u=u, lift=t.lift, drag=t.drag)
+        parts = {n: np.diag(K) for n, K in stiffness_split(other.structure, at, other.p).items()}
+        out[law] = {"magnetic": np.diag(t.K_magnetic), "total": np.diag(t.K_magnetic + t.K_other),
+                    "parts": parts}
     return out
 
 
