@@ -305,7 +305,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
               "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
               f"{report}.", "",
              f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
-             f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; gaps "
+             f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gaps "
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "
              f"(track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
              "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | damping c | paper k (printed) |",

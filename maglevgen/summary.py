@@ -112,8 +112,9 @@ def pitch_paper_form(carriage: Carriage, tp: TrimPoint, printed: float) -> dict[
     moment -x_i n_z,i F_i changes by 2k F_i n_z,i^2 x_i^2 theta whatever the sign of n_z,i:
     the lower arrays' stiffness adds to the upper arrays' instead of subtracting. With the sum
     K = 2k sum_i F_i n_z,i^2 x_i^2 (the arm L_x = |x_i| is right); what the derived value has
-    beyond it are the moment arms turning with the carriage and the drag's gap slope at the
-    arrays' heights. ``printed``: eq 15 at this trim (`stiffness_rows`).
+    beyond it are the moment arms turning with the carriage, the drag's gap slope at the
+    arrays' heights and, with the distributed array force, the tilt across each face (eq 15
+    is a point-force argument). ``printed``: eq 15 at this trim (`stiffness_rows`).
     """
     k = carriage.params.wavenumber
     arrays = list(carriage.params.arrays.values())

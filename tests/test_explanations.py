@@ -3,11 +3,12 @@
 Speed mode: the pole from the trim drag's total slope (re-trim included) against central
 differences of trims solved by scipy.optimize.root on the force balance of
 independent_reference.py, and against the eigenvalue of the 12-state closed loop assembled here
-from the library's Jacobians; its drag-law part against central differences of eq 3-4 written
-here at fixed gaps; the sentence's numbers, parsed, against those references. Pitch: eq 15's
-form with the net front force replaced by the sum of the arrays' stiffness contributions
-against central differences of the pitch moment sum of independent_reference.py, the printed
-form against the same.
+from the library's Jacobians; its drag-law part against central differences of the drag law
+of independent_reference.py at the fixed trim pose; the sentence's numbers, parsed, against
+those references. Pitch: eq 15's form with the net front force replaced by the sum of the
+arrays' stiffness contributions against central differences of the point law's pitch moment
+sum of independent_reference.py (eq 15 is a point-force argument), the printed form against
+the same.
 """
 
 from __future__ import annotations
@@ -32,26 +33,15 @@ SPEEDS = (7.0, 20.0)
 EIG_REL = {7.0: 0.025, 20.0: 0.005}
 
 
-def _drag_eq3(prm, gaps: np.ndarray, speed: float) -> np.ndarray:
-    """Each array's drag, eq 3 with eq 4's B0 and Post's drag ratio R/(omega L), at ``gaps``."""
-    h, c = prm.halbach, prm.circuit
-    k = 2 * np.pi / h.wavelength
-    M = h.magnets_per_wavelength
-    B0 = h.remanence * (1 - np.exp(-k * h.thickness)) * np.sin(np.pi / M) / (np.pi / M)
-    n = np.array([a.circuits for a in prm.arrays.values()])
-    ratio = c.resistance / (k * speed * c.inductance)
-    lift = n * B0**2 * h.width**2 / (2 * k * c.inductance) / (1 + ratio**2) * np.exp(-2 * k * gaps)
-    return lift * ratio
-
-
 def _references(prm, v: float, h: float = 1e-3) -> dict[str, float]:
-    """Speed poles [1/s] from the independent trims and eq 3."""
+    """Speed poles [1/s] from the independent trims and the drag law at the fixed pose."""
     m = prm.vehicle.mass
     plus, minus, mid = (reference_trim(prm, s) for s in (v + h, v - h, v))
     slope_trim = (plus.f_prop - minus.f_prop) / (2 * h)  # the trim drag = the propulsion
-    gaps = mid.arrays.gaps
-    slope_fixed = float(np.sum(_drag_eq3(prm, gaps, v + h) - _drag_eq3(prm, gaps, v - h))
-                        / (2 * h))
+    # the drag law at the fixed trim pose: eq 3 at the face centres (point) or the circuit
+    # sums over the tilted faces (distributed), as independent_reference.array_state has them
+    slope_fixed = float(np.sum(array_state(prm, mid.q, v + h).drag
+                               - array_state(prm, mid.q, v - h).drag) / (2 * h))
     return {"trim": -slope_trim / m, "fixed": -slope_fixed / m,
             "retrim": -(slope_trim - slope_fixed) / m}
 
@@ -130,6 +120,13 @@ def test_speed_mode_sentence_names_the_dominant_part(case, carriage) -> None:
     assert dominant == ("drag law" if v == 20.0 else "re-trim")
 
 
+def point_pitch_fd(prm, q: np.ndarray, v: float, f_prop: float) -> float:
+    """K_st0's pitch entry of the point law (eq 3 at the face centres) at pose ``q``:
+    central differences of independent_reference.py's moment sum."""
+    point = prm.model_copy(update={"model": prm.model.model_copy(update={"array_force": "point"})})
+    return float(stiffness_fd(point, q, v, f_prop, other=False)[3, 3])
+
+
 def test_pitch_corrected_form_is_the_derived_stiffness_and_the_printed_is_not(carriage) -> None:
     """2k sum_i F_i n_z,i^2 x_i^2 (eq 15 with the net front force replaced by the sum of the
     stiffness contributions) against central differences of the magnetic pitch moment about O
@@ -146,10 +143,14 @@ def test_pitch_corrected_form_is_the_derived_stiffness_and_the_printed_is_not(ca
     corrected = 2 * k * np.sum(lift * n_z**2 * x**2)
     upper = [i for i, a in enumerate(arrays) if abs(n_z[i]) > 1 - 1e-9]
     printed = 0.12 * np.mean(lift[upper]) * k * np.mean(np.abs(x[upper])) ** 2
-    # what the derived value has beyond the corrected form: arms turning with the carriage and
-    # the drag's gap slope at the arrays' heights, 0.3 % here
-    assert corrected == pytest.approx(K_fd, rel=5e-3)
+    # eq 15 is a point-force argument: the corrected form is the point law's derived value at
+    # the same pose (beyond it: arms turning with the carriage and the drag's gap slope at the
+    # arrays' heights, 0.3 % here); the distributed law adds the tilt across each face
+    K_point = point_pitch_fd(prm, ref.q, v, ref.f_prop)
+    assert corrected == pytest.approx(K_point, rel=5e-3)
     assert abs(printed / K_fd - 1) > 0.5
+    if prm.model.array_force == "distributed":
+        assert (K_fd - K_point) / K_point > 0.01  # the tilt term (2 % here) is not round-off
     rep = trim_report(carriage, v)["pitch_paper_form"]
     assert rep["sum_of_contributions"] == pytest.approx(corrected, rel=1e-6)
     assert rep["derived"] == pytest.approx(K_fd, rel=1e-5)
