@@ -7,7 +7,6 @@ chain rule, which is exact: the symbolic linearisation is the product of symboli
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -177,8 +176,10 @@ def lambdify_stiffness(structure: Structure):
             _fn([sf.q, m.u[0], m.p], sf.K_other))
 
 
-@functools.lru_cache(maxsize=4)
-def _lambdified_parts(structure: Structure) -> dict[str, Callable[..., np.ndarray]]:
+@memoized
+def lambdified_parts(structure: Structure) -> dict[str, Callable[..., np.ndarray]]:
+    """The STIFFNESS_PARTS as numpy functions, kept across processes (lambdifying them takes
+    seconds: uncached they dominated a parameter-edit rebuild)."""
     sp_parts = stiffness_parts(structure)
     m = build_model(structure)
     args = [sp_parts.q, sp_parts.lift_sym, sp_parts.drag_sym, sp_parts.f_prop, m.p]
@@ -191,7 +192,7 @@ def stiffness_split(structure: Structure, trim: Equilibrium, p: np.ndarray
     gap slope, rotating arms, tilt across the face, gravity, propulsion."""
     q = _trim_q(trim)
     return {name: f(q, trim.lift, trim.drag, trim.u[0], p)
-            for name, f in _lambdified_parts(structure).items()}
+            for name, f in lambdified_parts(structure).items()}
 
 
 def generalized_mass(model: CarriageModel, p: np.ndarray) -> np.ndarray:

@@ -381,7 +381,8 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
             os.replace(cut, f)
     from maglevgen.derive import linearize, numeric, riccati
 
-    for fn in (numeric.model_functions, linearize.stiffness_form, riccati._generic_closed_form,
+    for fn in (numeric.model_functions, numeric.lambdified_parts, linearize.stiffness_form,
+               riccati._generic_closed_form,
                riccati._generic_stable_form, riccati._numpy_functions):
         fn.cache_clear()  # in-process results: force the (corrupted) disk store to be read
     steps: list[str] = []
