@@ -20,9 +20,14 @@ run: setup
 	$(BIN)/python -m maglevgen.texsetup
 	$(BIN)/maglevgen build
 
+# The suite in TEST_WORKERS processes (pytest-xdist, one file per worker at a time: the
+# module fixtures are built once; the workers share one derivation/compile cache).
+# TEST_WORKERS=2 matches CI's 2 cores; `make test TEST_WORKERS=0` runs in one process.
+TEST_WORKERS ?= 2
+
 test: setup
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 lint: setup
 	$(BIN)/ruff check .

@@ -1,7 +1,8 @@
 """Shared fixtures: the default carriage, built once per test session; the tool markers.
 
-The derivation/compile cache goes to a per-session temporary folder, so the suite neither
-reads nor writes the user's cache and always exercises a cold build first.
+The derivation/compile cache goes to a temporary folder made for the run (shared by the
+pytest-xdist workers), so the suite neither reads nor writes the user's cache and always
+exercises a cold build first.
 
 Tool markers (pyproject.toml): ``needs_cc`` (the C compiler, nm and size; extra tools as
 arguments, e.g. ``needs_cc("clang")``), ``needs_tex`` (latexmk and pdftotext), ``needs_arm``
@@ -84,13 +85,32 @@ def trim(carriage: Carriage):
     return carriage.trim()
 
 
+_SHARED_CACHE = "MAGLEVGEN_TEST_SHARED_CACHE"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """One cache folder for the run, made by the controlling process before pytest-xdist
+    starts its workers (they inherit the environment), so a derivation or a compiled
+    library built by one worker is read by the others (cache writes are atomic renames)."""
+    if hasattr(config, "workerinput") or _SHARED_CACHE in os.environ:
+        return
+    config._maglev_cache = tempfile.TemporaryDirectory(prefix="maglevgen-cache-")
+    os.environ[_SHARED_CACHE] = config._maglev_cache.name
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    folder = getattr(config, "_maglev_cache", None)
+    if folder is not None:
+        os.environ.pop(_SHARED_CACHE, None)
+        folder.cleanup()
+
+
 @pytest.fixture(scope="session", autouse=True)
 def private_cache():
-    """MAGLEVGEN_CACHE for the whole session (also seen by CLI subprocesses)."""
+    """MAGLEVGEN_CACHE for the whole run (also seen by CLI subprocesses), shared by workers."""
     old = os.environ.get("MAGLEVGEN_CACHE")
-    with tempfile.TemporaryDirectory(prefix="maglevgen-cache-") as d:
-        os.environ["MAGLEVGEN_CACHE"] = d
-        yield d
+    os.environ["MAGLEVGEN_CACHE"] = d = os.environ[_SHARED_CACHE]
+    yield d
     if old is None:
         os.environ.pop("MAGLEVGEN_CACHE", None)
     else:
