@@ -169,7 +169,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         stability_map = mapping.result()
         report = _report_files(carriage, sim_files, opts, step, report_figures,
                                (env, stability_map["envelope/stability_map.png"]),
-                               json.loads(files["c/manifest.json"])["gain_table"])
+                               json.loads(files["c/manifest.json"])["gain_table"], run)
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
         files.update(stability_map)
     files.update({f"report/{n}": b for n, b in report.items()})
@@ -258,13 +258,17 @@ def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
-                  step, figures: Job, envelope, gain_table: Mapping) -> dict[str, bytes]:
+                  step, figures: Job, envelope, gain_table: Mapping, run) -> dict[str, bytes]:
     """report.tex (+ report.pdf) with the simulation figures and its own ``figures``;
-    ``gain_table``: c/manifest.json's entry (the report shows its numbers)."""
+    ``gain_table``: c/manifest.json's entry (the report shows its numbers); ``run``: the
+    build's hold runs, which the actuator comparison reuses when they have its length and step."""
     from .report import report_files
+    from .report.sections.actuators import RUN_DT, RUN_T_END
 
+    same = (opts.t_end, opts.dt) == (RUN_T_END, RUN_DT) and run.scenario == "hold"
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,
-                        envelope=envelope, gain_table=gain_table)
+                        envelope=envelope, gain_table=gain_table,
+                        hold_runs={t.controller: t for t in run.trajectories} if same else None)
 
 
 def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:

@@ -150,8 +150,11 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
         errors[name] = (np.max(np.abs(table[:, i:i + n] - exact[:, i:i + n]))
                         / np.max(np.abs(exact[:, i:i + n])))
         i += n
+    # to 1e-3 of each error, or 1e-4 of the bound where an error is far below it (there the
+    # two damping references' own differences, ~1e-8, are a visible part of the error)
     for name, value in errors.items():
-        assert math.isclose(value, gt["relative_error_by_field"][name], rel_tol=1e-3), \
+        assert math.isclose(value, gt["relative_error_by_field"][name], rel_tol=1e-3,
+                            abs_tol=1e-4 * gt["bound"]), \
             (name, value, gt["relative_error_by_field"][name])
     assert math.isclose(max(errors.values()), gt["worst_relative_error"], rel_tol=1e-3)
     assert gt["worst_relative_error"] <= gt["bound"]

@@ -62,6 +62,9 @@ class ReportOptions:
     build_pdf: bool = True  # run LaTeX when it is installed
     envelope: tuple[Any, bytes] | None = None  # (Envelope, stability map PNG) when computed
     gain_table: Mapping[str, Any] | None = None  # c/manifest.json's "gain_table" when built
+    # the build's own hold runs (by controller) when made at the actuator comparison's length
+    # and step: the comparison reuses them for the selected actuator model
+    hold_runs: Mapping[str, Any] | None = None
 
 
 class Pending(Protocol):
@@ -128,7 +131,7 @@ def build_context(
         force = _force_law(carriage, trim, trep)
         rigid = _rigid_body()
         alloc = _damping_allocation(gains)
-        alloc["actuators"] = _actuator_comparison(carriage, progress)
+        alloc["actuators"] = _actuator_comparison(carriage, progress, options.hold_runs)
         sections = {
             "conventions": _conventions(carriage.model),
             "rigid_body": rigid,
@@ -272,15 +275,17 @@ def report_files(
     figures: Pending | None = None,
     envelope: tuple[Any, bytes] | None = None,
     gain_table: Mapping[str, Any] | None = None,
+    hold_runs: Mapping[str, Any] | None = None,
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
     ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
     ``figures``: the report's figures being drawn already (see `build_context`);
-    ``gain_table``: c/manifest.json's entry of the firmware table (else fitted here).
+    ``gain_table``: c/manifest.json's entry of the firmware table (else fitted here);
+    ``hold_runs``: ReportOptions.hold_runs.
     """
     options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope,
-                            gain_table=gain_table)
+                            gain_table=gain_table, hold_runs=hold_runs)
     return render_report(carriage, options, progress, figures=figures).files
 
 

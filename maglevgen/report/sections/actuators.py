@@ -4,7 +4,7 @@ forces of the same closed-loop runs (the hold of `maglevgen simulate`) under eac
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -12,6 +12,7 @@ import scipy.linalg
 import sympy as sp
 
 from ...carriage import Carriage
+from ...derive.structure import input_names_of
 from ...library import simulation_library
 from ...params import ACTUATOR_MODELS, LoadedParams
 from ...simulate import metrics, run_scenarios
@@ -41,8 +42,11 @@ def with_actuators(carriage, actuators: str):
                                  (*loaded.overrides, f'control.actuators="{actuators}"')))
 
 
-def _actuator_comparison(carriage, progress: Callable[[str], None]) -> dict[str, Any]:
-    """E, T, rank and peak array forces of every actuator model, from their generated C."""
+def _actuator_comparison(carriage, progress: Callable[[str], None],
+                         hold_runs: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """E, T, rank and peak array forces of every actuator model, from their generated C;
+    ``hold_runs``: the selected model's runs (RUN_T_END, RUN_DT) by controller, when the
+    caller has made them already."""
     models = []
     peaks: dict[str, dict[str, dict]] = {}
     arrays: list[str] = list(carriage.params.arrays)
@@ -54,7 +58,7 @@ def _actuator_comparison(carriage, progress: Callable[[str], None]) -> dict[str,
         (T,) = lib.function("maglev_allocation_matrix")(c.p)
         E, T = np.asarray(E), np.asarray(T)
         rank = int(np.linalg.matrix_rank(E))
-        forces = c.model.input_names[1:]
+        forces = input_names_of(c.structure)[1:]  # not c.model: no second symbolic model
         models.append({
             "name": name, "text": ACTUATOR_TEXT[name], "selected": c is carriage,
             "forces": [ltx(sp.Symbol(f"F_{{{f[2]}{tex_escape(f[3:])}}}")) for f in forces],
@@ -63,8 +67,12 @@ def _actuator_comparison(carriage, progress: Callable[[str], None]) -> dict[str,
             "T_pinv_residual": float(np.max(np.abs(T - np.linalg.pinv(E)))),
             "lost": _lost_direction(E) if rank < E.shape[0] else None,
         })
-        run = run_scenarios(c, RUN_CONTROLLERS, RUN_T_END, RUN_DT, lib=lib)
-        for traj in run.trajectories:
+        if c is carriage and hold_runs is not None:
+            trajectories = tuple(hold_runs[k] for k in RUN_CONTROLLERS)
+        else:
+            trajectories = run_scenarios(c, RUN_CONTROLLERS, RUN_T_END, RUN_DT,
+                                         lib=lib).trajectories
+        for traj in trajectories:
             m = metrics(traj)
             peaks.setdefault(traj.controller, {})[name] = {
                 "status": m["status"], "roll": fnum(m["axes"]["roll"]["peak_deviation"], 3),

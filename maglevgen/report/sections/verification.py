@@ -35,7 +35,7 @@ def _generated_c_checks(
     carriage,
     gains: dict,
     progress: Callable[[str], None],
-    samples: int = 300,
+    samples: int = 100,
     seed: int = 20240607,
 ) -> list[Check]:
     """Generated C (double, run-time parameters) against the SymPy model and the gains.
