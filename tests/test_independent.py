@@ -75,6 +75,19 @@ def test_trim_equals_root_of_eq3_and_static_balance(carriage: Carriage, heavy: C
         assert trim.x[0] == 0 and np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
 
 
+def test_trim_of_an_asymmetric_carriage_equals_root_of_eq3_and_static_balance() -> None:
+    """CG 1 cm to the side: the equilibrium rolls and yaws (a symmetric carriage's trim has
+    zero roll and yaw, where the yaw's terms of the trim state's velocity vanish)."""
+    c = Carriage(load_params(overrides=["vehicle.cg_offset=[0.005, 0.01, 0.015]"]))
+    for v in SPEEDS:
+        trim, ref = c.trim(v), reference_trim(c.params, v)
+        assert min(abs(ref.q[2]), abs(ref.q[4])) > 1e-6  # rolled and yawed
+        np.testing.assert_allclose(_q(trim), ref.q, rtol=0, atol=1e-10)
+        assert trim.u[0] == pytest.approx(ref.f_prop, rel=1e-9)
+        np.testing.assert_allclose(trim.lift, ref.arrays.lift, rtol=1e-9)
+        assert np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
+
+
 def test_heave_range_equals_gap_limits_written_here(carriage: Carriage, heavy: Carriage) -> None:
     """The trim's heave bracket: at zero attitude each gap is linear in z (slope n_z, from the
     reference gaps at z = 0 and 1 mm); the range keeping every gap >= track.min_gap, solved
