@@ -26,7 +26,7 @@ EXPRESSIONS = [
     -(x + y) * z, x * y * z - 1, sp.pi * x + sp.E, -sp.pi - x,
     *[z**n for n in range(-6, 7)], *[(x + z) ** n for n in (-4, -1, 2, 3)],
     sp.sqrt(z), 1 / sp.sqrt(z), z ** sp.Rational(3, 2), z ** sp.Rational(-3, 2),
-    z ** sp.Rational(1, 3), z**sp.Float(0.7), sp.Abs(y),
+    z ** sp.Rational(1, 3), z ** sp.Rational(-1, 3), z**sp.Float(0.7), sp.Abs(y),
     *[f(x) if f in (sp.asin, sp.acos, sp.sign, sp.Abs) else f(z) for f in _UNARY],
     sp.Piecewise((x, x < y), (y, True)), sp.Piecewise((x, x <= y), (y, True)),
     sp.Piecewise((x, x > y), (y, True)), sp.Piecewise((x, x >= y), (y, True)),
