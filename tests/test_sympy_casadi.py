@@ -31,7 +31,8 @@ EXPRESSIONS = [
     sp.Piecewise((x, x < y), (y, True)), sp.Piecewise((x, x <= y), (y, True)),
     sp.Piecewise((x, x > y), (y, True)), sp.Piecewise((x, x >= y), (y, True)),
     sp.Piecewise((1, x < y), (2, x <= y), (3 + z, True)),
-    sp.Max(x, y, z - 1), sp.Min(x, y, z - 1), sp.Max(x, y), sp.Min(-x, y),
+    sp.Max(x, y, z - 1), sp.Min(x, y, z - 1), sp.Max(x, y), sp.Min(-x, y), sp.Max(x, -1),
+    sp.Min(-1, y),  # a node whose first argument is -1 but not a product
     sinhc(x - y), sinhc(z),
 ]
 
