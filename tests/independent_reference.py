@@ -222,3 +222,47 @@ def ise_optimal_damping(k: float, m: float) -> float:
     res = scipy.optimize.minimize_scalar(cost, bounds=(1e-3 * c0, 1e3 * c0), method="bounded",
                                          options={"xatol": 1e-10 * c0})
     return float(res.x)
+
+
+def zero_attitude_lift_off_bound(prm: Parameters) -> float:
+    """The speed at which the arrays' net vertical force balances the weight at zero attitude
+    with the heave at its lowest (each gap linear in z there; the first to reach
+    track.min_gap): a lower bound of the lift-off speed, the balance of the speed alone."""
+    g0 = array_state(prm, np.zeros(5), 1.0).gaps
+    slope = (array_state(prm, np.array([0, 1e-3, 0, 0, 0]), 1.0).gaps - g0) / 1e-3
+    z_lo = ((prm.track.min_gap - g0) / slope)[slope > 0].max()
+    q = np.array([0.0, z_lo, 0.0, 0.0, 0.0])
+    return float(scipy.optimize.brentq(lambda v: external_wrench(prm, q, v, 0.0)[2], 1e-3, 1e3,
+                                       xtol=1e-14, rtol=1e-14))
+
+
+def symmetric_lift_off_speed(prm: Parameters, v_start: float) -> float:
+    """The lowest speed whose equilibrium keeps every face's closest corner at track.min_gap,
+    for a carriage symmetric about its x-z plane (y = roll = yaw = 0 at the equilibrium).
+
+    The equilibrium: root of the x, z and pitch balances in (z, theta, F_prop), continued down
+    in speed from ``v_start`` (which must lift off) by steps of 10 % until the smallest corner
+    gap falls below min_gap, each solve starting from the last; then Brent's method on the
+    smallest corner gap in that last step. All six balances are asserted at every root.
+    """
+    weight = prm.vehicle.mass * prm.vehicle.gravity
+    pose = lambda u: np.array([0.0, u[0], 0.0, u[1], 0.0])  # noqa: E731
+    solved = {}
+
+    def clearance(v: float) -> float:
+        if solved:
+            start = solved[min(solved, key=lambda s: abs(s - v))]
+        else:  # design pose, propulsion equal to the drag there
+            start = np.array([0.0, 0.0, array_state(prm, np.zeros(5), v).drag.sum()])
+        sol = scipy.optimize.root(
+            lambda u: external_wrench(prm, pose(u), v, u[2])[[0, 2, 4]] / weight, start,
+            method="hybr", tol=1e-15)
+        assert np.max(np.abs(external_wrench(prm, pose(sol.x), v, sol.x[2]))) < 1e-11 * weight
+        solved[v] = sol.x
+        return float(contact_gaps(prm, pose(sol.x)).min() - prm.track.min_gap)
+
+    hi = v_start
+    assert clearance(hi) > 0, "v_start must lift off"
+    while clearance(0.9 * hi) > 0:
+        hi *= 0.9
+    return float(scipy.optimize.brentq(clearance, 0.9 * hi, hi, xtol=1e-14, rtol=1e-12))

@@ -9,6 +9,8 @@ float64 and float32, on both branches of its stable form.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mpmath
 import numpy as np
 import pytest
@@ -22,6 +24,8 @@ from independent_reference import (
     lqr_reference_mp,
     reference_trim,
     stiffness_fd,
+    symmetric_lift_off_speed,
+    zero_attitude_lift_off_bound,
 )
 
 from maglevgen.carriage import Carriage
@@ -71,6 +75,19 @@ def test_trim_equals_root_of_eq3_and_static_balance(carriage: Carriage, heavy: C
         assert trim.x[0] == 0 and np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
 
 
+def test_trim_of_an_asymmetric_carriage_equals_root_of_eq3_and_static_balance() -> None:
+    """CG 1 cm to the side: the equilibrium rolls and yaws (a symmetric carriage's trim has
+    zero roll and yaw, where the yaw's terms of the trim state's velocity vanish)."""
+    c = Carriage(load_params(overrides=["vehicle.cg_offset=[0.005, 0.01, 0.015]"]))
+    for v in SPEEDS:
+        trim, ref = c.trim(v), reference_trim(c.params, v)
+        assert min(abs(ref.q[2]), abs(ref.q[4])) > 1e-6  # rolled and yawed
+        np.testing.assert_allclose(_q(trim), ref.q, rtol=0, atol=1e-10)
+        assert trim.u[0] == pytest.approx(ref.f_prop, rel=1e-9)
+        np.testing.assert_allclose(trim.lift, ref.arrays.lift, rtol=1e-9)
+        assert np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
+
+
 def test_heave_range_equals_gap_limits_written_here(carriage: Carriage, heavy: Carriage) -> None:
     """The trim's heave bracket: at zero attitude each gap is linear in z (slope n_z, from the
     reference gaps at z = 0 and 1 mm); the range keeping every gap >= track.min_gap, solved
@@ -85,6 +102,29 @@ def test_heave_range_equals_gap_limits_written_here(carriage: Carriage, heavy: C
         z_ref = (bounds[slope > 0].max(), bounds[slope < 0].min())
         np.testing.assert_allclose(_heave_limits(c.functions, c.p, min_gap), z_ref,
                                    rtol=0, atol=1e-12)
+
+
+LOW_RESISTANCE = Path(__file__).parent / "data" / "carriage_low_resistance.toml"
+# pitched nose-up at low speed: the CG far aft and the propulsion well below the arrays' drag
+PITCHED = ("vehicle.cg_offset=[-0.22, 0.0, 0.015]", "operation.propulsion_point=[0.0, 0.0, -0.3]")
+
+
+@pytest.mark.parametrize("overrides", [(), PITCHED], ids=["low-resistance", "pitched"])
+def test_lift_off_speed_equals_reference_below_1_m_s_and_after_doubling(
+        overrides: tuple[str, ...]) -> None:
+    """The lift-off search of derive/trim.py against the continuation and Brent solve written
+    here (symmetric_lift_off_speed), on a carriage of a parameter file of its own: a tenth of
+    the loop resistance puts the zero-attitude bound below 1 m/s (the search's bracket must
+    start below it); pitched, the lift-off is more than twice that bound (the search must
+    double its upper end before it bisects)."""
+    c = Carriage(load_params(LOW_RESISTANCE, overrides=list(overrides)))
+    bound = zero_attitude_lift_off_bound(c.params)
+    ref = symmetric_lift_off_speed(c.params, v_start=8 * bound)
+    if overrides:  # the premise: no trim at twice the bound, so the search doubles
+        assert ref > 2 * bound
+    else:  # the premise: the search's bracket must start below 1 m/s
+        assert bound < ref < 1.0
+    assert c.lift_off_speed() == pytest.approx(ref, rel=2e-6)
 
 
 def test_full_axis_stiffness_equals_central_difference(carriage: Carriage,
