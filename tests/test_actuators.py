@@ -230,3 +230,81 @@ def test_api_gains_use_the_selected_actuators(normal_lib) -> None:
     paper = maglevgen.Carriage().gains(controller="coupled")
     np.testing.assert_allclose(paper.allocation, np.linalg.pinv(effectiveness("paper")),
                                atol=1e-12)
+
+
+# ------------------------------------------------------------------------------ firmware C
+
+#: the host flags under which the firmware's C must compile without a warning (tests/
+#: test_firmware.py's WARN)
+WARN = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wdouble-promotion",
+        "-Wfloat-conversion", "-Wconversion"]
+
+
+@pytest.fixture(scope="module")
+def normal_firmware(normal_carriage, normal_lib, tmp_path_factory):
+    """The single-precision baked C (`generate --precision single --params baked --int
+    int32`) with normal actuators, compiled for the host with WARN; its library."""
+    import subprocess
+
+    from maglevgen.codegen.generate import GenerateOptions, render, write_output
+    from maglevgen.envelope import resolve_range
+    from runtime.ffi import GeneratedLibrary
+
+    out = tmp_path_factory.mktemp("normal_firmware")
+    write_output(render(normal_carriage, GenerateOptions("single", "baked", "int32"),
+                        resolve_range(normal_carriage, normal_lib)), out)
+    cc = subprocess.run(["cc", *WARN, "-O1", "-fPIC", "-shared", "maglev_functions.c", "-o",
+                         "maglev.so", "-lm"], cwd=out, capture_output=True, text=True)
+    assert cc.returncode == 0 and not cc.stderr, cc.stderr[-3000:]
+    return GeneratedLibrary(out / "maglev.so", "single", "int32")
+
+
+@pytest.mark.needs_cc
+def test_firmware_allocation_with_normal_actuators(normal_firmware) -> None:
+    """The firmware's maglev_allocate (single, baked) gives one force per array, numpy's
+    pinv(E) u_gen to single precision; those forces, each along its array's normal, sum to
+    the commanded generalized forces (every reachable u_gen) or to its projection on E's
+    range (any other: the roll about the normals' crossing line is lost)."""
+    allocate = normal_firmware.function("maglev_allocate")
+    E = effectiveness("normal")
+    rng = np.random.default_rng(16)
+    for reachable in (True, True, True, False, False):
+        u = E @ rng.normal(scale=30.0, size=6) if reachable else rng.normal(scale=30.0, size=5)
+        (F,) = allocate(u)
+        F = np.ravel(F).astype(float)
+        assert F.shape == (6,)
+        np.testing.assert_allclose(F, np.linalg.pinv(E) @ u, rtol=0,
+                                   atol=1e-5 * np.abs(u).max())
+        total = sum(wrench(r, f * n) for r, n, f in zip(POSITIONS, NORMALS, F, strict=True))
+        target = u if reachable else E @ np.linalg.lstsq(E, u, rcond=None)[0]
+        np.testing.assert_allclose(total, target, rtol=0, atol=1e-5 * np.abs(u).max())
+
+
+@pytest.mark.needs_cc
+def test_firmware_dynamics_push_each_array_along_its_normal(normal_firmware, carriage,
+                                                            normal_carriage, sim_lib,
+                                                            op) -> None:
+    """The firmware's maglev_dynamics (normal actuators, single, baked) at a moving, rotating
+    state near the trim equals the paper-actuator model's (double, run-time parameters) given
+    each array's force split here into its normal's body y and z parts: the C applies each
+    F_n along its array's normal. A force applied along body z only would differ by
+    |F| (1 - 1/sqrt 2) / m ~ 2 m/s^2."""
+    np.testing.assert_array_equal(normal_carriage.p, carriage.p)
+    rng = np.random.default_rng(6)
+    x = np.asarray(op.x_trim, dtype=float).ravel().copy()
+    x[1:6] += rng.normal(scale=1e-3, size=5)  # pose
+    x[7:12] += rng.normal(scale=1e-2, size=5)  # velocity and rates
+    dyn = normal_firmware.function("maglev_dynamics")
+    paper = sim_lib.function("maglev_dynamics")
+    for _ in range(3):
+        F_n = rng.normal(scale=60.0, size=6)
+        u_normal = np.concatenate([[op.f_prop], F_n])
+        split = []  # F_y1, F_z1, F_y2, F_z2, F_z3, ... (the paper's order)
+        for n, f in zip(NORMALS, F_n, strict=True):
+            split += [f * n[1], f * n[2]] if n[1] != 0 else [f * n[2]]
+        u_paper = np.concatenate([[op.f_prop], split])
+        (got,) = dyn(x, u_normal)
+        (ref,) = paper(x, u_paper, carriage.p)
+        got, ref = np.ravel(got).astype(float), np.ravel(ref)
+        scale = np.abs(ref[6:]).max()
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-5 * scale)
