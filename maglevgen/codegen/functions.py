@@ -40,7 +40,9 @@ DESCRIPTIONS: dict[str, str] = {
     "damping_control": "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)",
     "coupled_control": "one control tick of a full-matrix feedback (the coupled LQR): "
                        "u_gen = -(K_pos (a - a_ref) + K_rate a_dot), K_pos and K_rate 5 x 5",
-    "allocate": "array forces of minimum norm that produce u_gen (eqs 22-23 derived)",
+    "allocate": "array forces T u_gen, T the pseudo-inverse of E: the least-norm forces that "
+                "produce u_gen (eqs 22-23 derived), or with normal actuators "
+                "(E of rank 4) its least-squares projection",
     "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
     "closed_loop": "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
                    "integrates), the array forces being T u_gen with T an input; and the gaps "
