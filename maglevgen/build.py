@@ -248,13 +248,13 @@ def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
 
 def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
     """Have ``drawing`` draw the report's force figures at the compiled library's trim (the
-    curves are eq 3's SymPy form, so this imports the symbolic layers)."""
+    curves are the library's array forces; v_c, eq 3's displayed form, imports SymPy)."""
     from .report import force_curves
     from .report_figures import force_figures
     from .summary import trim_point
 
     return submit(drawing, "drawing the report figures", force_figures,
-                  force_curves(carriage, trim_point(carriage, lib, None)))
+                  force_curves(carriage, trim_point(carriage, lib, None), lib))
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,

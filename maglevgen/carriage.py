@@ -124,7 +124,9 @@ class Carriage:
 
     def stiffness_parts(self, trim: Trim) -> dict[str, np.ndarray]:
         """K_st0 + K_other at trim split by where the pose enters the wrench (gap slope,
-        rotating arms, tilt across the face, gravity, propulsion: derive.linearize)."""
+        rotating arms, tilt across the face, gravity, propulsion: derive.linearize), from the
+        lambdified split: the tests' reference for the library's maglev_stiffness_parts (what
+        the report prints)."""
         from .derive.numeric import stiffness_split
 
         return stiffness_split(self.structure, trim, self.p)

@@ -512,6 +512,34 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
+_ANGLES = ("phi", "theta", "psi")
+
+
+def input_label(study: Study, name: str) -> str:
+    """A sampled input's axis label, symbol and unit as the other figures have them: the hold
+    speed, a state's initial deviation, or a parameter by its key (as the file's
+    [tolerances.parameters] names it) and the key's unit."""
+    if name == "speed":
+        return r"hold speed $v$ / (m/s)"
+    if name.startswith("disturbance."):
+        state = name.removeprefix("disturbance.")
+        sym = f"\\{state}" if state in _ANGLES else state
+        unit = cv.STATES[cv.STATE_INDEX[state]].unit
+        return rf"initial deviation $\Delta {sym}$ / {_unit_text(unit)}"
+    from .params import flatten, validate
+
+    units = {e.name: e.unit for e in flatten(validate(study.data, study.origin))}
+    unit = units.get(name, "")
+    return f"{name} / {_unit_text(unit)}" if unit and unit != "1" else name
+
+
+def _unit_text(unit: str) -> str:
+    """A unit for an axis label: a compound one in parentheses (m/s -> (m/s)), * as a
+    centred dot, ^2 as a superscript."""
+    text = unit.replace("ohm", r"$\Omega$").replace("*", r"$\cdot$").replace("^2", r"$^2$")
+    return f"({text})" if "/" in unit else text
+
+
 def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, bytes]:
     """histograms.png (settling time and peak deviation per axis, one colour per
     controller) and failures.png (each controller's runs against its two inputs most
@@ -552,8 +580,8 @@ def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, byt
                        label="settled / not settled")
             ax.scatter(cols[kx][sel][fail], cols[ky][sel][fail], s=10, c="tab:red", marker="x",
                        label="contact / diverging")
-            ax.set_xlabel(kx)
-            ax.set_ylabel(ky)
+            ax.set_xlabel(input_label(study, kx))
+            ax.set_ylabel(input_label(study, ky))
             ax.set_title(CONTROLLER_TITLES[c])
         handles, labels = axs[0, 0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=7,

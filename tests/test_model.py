@@ -165,3 +165,26 @@ def test_override_changes_trim() -> None:
     heavy = Carriage(load_params(overrides=["vehicle.mass=10.5"]))
     light = Carriage(load_params())
     assert heavy.trim().x[2] < light.trim().x[2]  # a heavier carriage rides lower
+
+
+def test_force_figure_curves_are_eq3_from_the_library(carriage: Carriage, sim_lib) -> None:
+    """The force figure's curves (report.force_curves: the compiled library's array forces at
+    zero attitude) against eq 3-4 as printed, written here: lift and drag of one upper array
+    per circuit count, against the gap at a speed and against the speed at a gap."""
+    from maglevgen.report.sections.force_law import array_force_curves
+
+    prm = carriage.params
+    h, c = prm.halbach, prm.circuit
+    k = 2 * np.pi / h.wavelength
+    M = h.magnets_per_wavelength
+    B0 = h.remanence * (1 - np.exp(-k * h.thickness)) * np.sin(np.pi / M) / (np.pi / M)
+    upper = next(i for i, a in enumerate(prm.arrays.values()) if a.normal[2] > 0.99)
+    arr = list(prm.arrays.values())[upper]
+    gaps = np.array([prm.track.min_gap, 0.01, 0.02, 0.05, 0.02, 0.02])
+    speeds = np.array([20.0, 20.0, 20.0, 20.0, 0.5, 80.0])
+    lift, drag = array_force_curves(carriage, sim_lib, upper, gaps, speeds)
+    ratio = c.resistance / (k * speeds * c.inductance)
+    F = (arr.circuits * B0**2 * h.width**2 / (2 * k * c.inductance) / (1 + ratio**2)
+         * np.exp(-2 * k * gaps))
+    np.testing.assert_allclose(lift, F, rtol=1e-12)
+    np.testing.assert_allclose(drag, F * ratio, rtol=1e-12)

@@ -20,7 +20,14 @@ from scipy.stats import binomtest
 from maglevgen.carriage import Carriage
 from maglevgen.cli import main
 from maglevgen.derive import conventions as cv
-from maglevgen.montecarlo import make_study, run_dask, run_local, run_study, wilson
+from maglevgen.montecarlo import (
+    input_label,
+    make_study,
+    run_dask,
+    run_local,
+    run_study,
+    wilson,
+)
 from maglevgen.params import load_params
 
 SPEEDS = "tolerances.speed=[8.0, 16.0]"  # across the per-axis designs' unstable range
@@ -249,3 +256,19 @@ def test_a_chunk_whose_worker_dies_is_retried_once(small, tmp_path: Path, monkey
     monkeypatch.setattr(montecarlo, "run_sample", always_dies)
     with pytest.raises(montecarlo.ChunkFailedError, match="died twice"):
         run_local(study, 4, workers=2, chunk=2)
+
+
+def test_scatter_axes_name_symbol_and_unit(small) -> None:
+    """failures.png's axes: every sampled input labelled with a symbol or its key and the
+    unit the schema gives it (vehicle.mass in kg, the resistance in ohm, a roll deviation in
+    rad), never the bare column name."""
+    _carriage, study, _ = small
+    labels = {name: input_label(study, name) for name in study.columns}
+    assert labels["speed"] == r"hold speed $v$ / (m/s)"
+    assert labels["disturbance.phi"] == r"initial deviation $\Delta \phi$ / rad"
+    assert labels["disturbance.y"] == r"initial deviation $\Delta y$ / m"
+    expected = {"vehicle.mass": "kg", "circuit.resistance": r"$\Omega$",
+                "vehicle.cg_offset.z": "m", "halbach.remanence": "T"}
+    for key, unit in expected.items():  # the default file's [tolerances.parameters]
+        assert labels[key] == f"{key} / {unit}"
+    assert all(label != name for name, label in labels.items())

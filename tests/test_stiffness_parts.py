@@ -1,5 +1,6 @@
-"""The derived stiffness of both array force laws and its parts against central differences of
-force sums written here (independent_reference.py's array loads: eq 3 at the face centre for
+"""The derived stiffness of both array force laws and its parts (the lambdified split and the
+compiled library's maglev_stiffness_parts, which the report prints) against central differences
+of force sums written here (independent_reference.py's array loads: eq 3 at the face centre for
 "point", the circuit model integrated by Gauss-Legendre quadrature over the face for
 "distributed").
 
@@ -18,7 +19,10 @@ from independent_reference import array_state, rotation, stiffness_fd
 
 from maglevgen.carriage import Carriage
 from maglevgen.derive import conventions as cv
+from maglevgen.derive.linearize import STIFFNESS_PARTS
+from maglevgen.library import simulation_library
 from maglevgen.params import Parameters, load_params
+from maglevgen.summary import trim_point
 
 H = 1e-6
 
@@ -142,3 +146,30 @@ def test_contact_gaps_are_the_closest_corners(carriage: Carriage, point: Carriag
                 gaps = [arr.nominal_gap + n @ (X + R @ b - b) for b in corners]
                 assert got[i] == pytest.approx(min(gaps), abs=1e-15)
                 assert got[i] < centre[i]
+
+
+def test_library_parts_are_the_derivations_split(carriage: Carriage, point: Carriage,
+                                                 private_cache) -> None:
+    """maglev_stiffness_parts (generated C, the report's parts table) at the C's trim equals
+    each part's central difference of the force sums written here, sums to maglev_stiffness's
+    K_st0 + K_other, and agrees with the lambdified split (the SymPy it is generated from)."""
+    for c in (carriage, point):
+        lib = simulation_library(c.structure)
+        tp = trim_point(c, lib, None)
+        got = dict(zip(STIFFNESS_PARTS, lib.function("maglev_stiffness_parts")(
+            tp.x, tp.f_prop, c.p), strict=True))
+        total = tp.K_magnetic + tp.K_other
+        scale = np.abs(np.diag(total))
+        _assert_close(sum(got.values()), total, scale, 1e-12)
+        q = np.array([tp.x[cv.STATE_INDEX[s]] for s in cv.Q_STATES])
+        refs = _part_references(c.params, q, tp.speed, tp.f_prop)
+        u = np.zeros(len(c.trim().u))
+        u[0] = tp.f_prop
+        at = type("At", (), {"x": tp.x, "u": u, "lift": tp.lift, "drag": tp.drag})
+        lambdified = c.stiffness_parts(at)
+        for name, K in got.items():
+            _assert_close(K, refs[name], scale, 1e-6)
+            _assert_close(K, lambdified[name], scale, 1e-12)
+        # the tilt part is what separates the laws: nonzero in roll only for the distributed
+        roll = cv.AXES.index("roll")
+        assert (got["tilt"][roll, roll] > 0.5 * total[roll, roll]) == (c is carriage)

@@ -16,7 +16,13 @@ import numpy as np
 import sympy as sp
 
 from maglevgen.derive import conventions as cv
-from maglevgen.derive.linearize import Q_STATES, generalized_mass_expr, stiffness_form
+from maglevgen.derive.linearize import (
+    Q_STATES,
+    STIFFNESS_PARTS,
+    generalized_mass_expr,
+    stiffness_form,
+    stiffness_parts,
+)
 from maglevgen.derive.model import CarriageModel
 from maglevgen.derive.riccati import riccati_stable_form
 from maglevgen.derive.structure import NORMAL_AXIS
@@ -60,15 +66,26 @@ DESCRIPTIONS: dict[str, str] = {
                  "propulsion moments (K_other)",
     "effectiveness": "E (5 x arrays' forces): the generalized forces about O that unit array "
                      "control forces produce (eqs 22-23; T is its minimum-norm inverse)",
+    "stiffness_parts": "at state x and propulsion F_prop: maglev_stiffness's K_magnetic + "
+                       "K_other split by where the pose enters the wrench (5 x 5 each): the "
+                       "gap slope of eq 3, the rotating moment arms, the tilt across the face, "
+                       "gravity's and the propulsion's moments (the report's parts table; "
+                       "run-time-parameter library only, not in the baked firmware)",
 }
+
+#: functions for the analysis (the report) that the run-time-parameter library has and
+#: `maglevgen generate` leaves out: the firmware needs none of them
+ANALYSIS_FUNCTIONS = ("maglev_stiffness_parts",)
 
 
 @dataclass(frozen=True)
 class Built:
-    """The generated functions (runtime parameters) and the parameter vector's size."""
+    """The generated functions (runtime parameters) and the parameter vector's size;
+    ``analysis``: the ANALYSIS_FUNCTIONS, built only when asked for."""
 
     functions: tuple[ca.Function, ...]
     n_p: int
+    analysis: tuple[ca.Function, ...] = ()
 
 
 def _pairs(syms, sx) -> dict:
@@ -83,8 +100,9 @@ NEWTON_TOLERANCES = {"double": (1e-13, 1e-12), "single": (1e-5, 1e-6)}
 
 
 def build_functions(model: CarriageModel, newton_iterations: int = 30,
-                    precision: str = "double") -> Built:
-    """All generated functions with the parameters as a run-time input."""
+                    precision: str = "double", analysis: bool = False) -> Built:
+    """All generated functions with the parameters as a run-time input (and, with
+    ``analysis``, the ANALYSIS_FUNCTIONS)."""
     cm = casadi_model(model)
     x, u, p = cm.x, cm.u, cm.p
     n_x, n_u = x.shape[0], u.shape[0]
@@ -233,9 +251,36 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     # the step calls the finished right-hand side, so the C holds one copy of it
     rk4 = _rk4_step(closed_loop, allocation_matrix)
     prepare, prepared = _prepared_closed_loop(closed_loop)
+    extra = (_finished(_stiffness_parts(model, base, xs, fprop_s, p, lift_fn)),) \
+        if analysis else ()
     return Built((*fns, rk4, closed_loop, prepare, prepared, _finished(gaps_fn),
                   _finished(array_forces), _finished(stiffness), _finished(effectiveness)),
-                 p.shape[0])
+                 p.shape[0], extra)
+
+
+def _stiffness_parts(model: CarriageModel, base: dict, xs: ca.SX, fprop: ca.SX, p: ca.SX,
+                     array_forces: ca.Function) -> ca.Function:
+    """maglev_stiffness_parts(x, F_prop, p): derive.linearize.stiffness_parts (the product
+    rule's exact split of K_st0 + K_other) at the pose of x, with the array forces at x."""
+    split = stiffness_parts(model.structure)
+    q_sx = ca.SX.sym("q", 5)
+    fl, fd = ca.SX.sym("FL", len(model.arrays)), ca.SX.sym("FD", len(model.arrays))
+    fp = ca.SX.sym("Fp")
+    conv = SympyToCasadi({**base, **_pairs(split.q, q_sx), **_pairs(split.lift_sym, fl),
+                          **_pairs(split.drag_sym, fd), split.f_prop: fp})
+    mats = []
+    for name in STIFFNESS_PARTS:
+        K = ca.SX(5, 5)
+        for i in range(5):
+            for j in range(5):
+                K[i, j] = conv(split.parts[name][i, j])
+        mats.append(K)
+    parts_qf = ca.Function("maglev_stiffness_parts_qf", [q_sx, fl, fd, fp, p], mats)
+    fl_x, fd_x = array_forces(xs, p)
+    q_of_x = ca.vertcat(*[xs[cv.STATE_INDEX[s]] for s in Q_STATES])
+    return ca.Function("maglev_stiffness_parts", [xs, fprop, p],
+                       list(parts_qf(q_of_x, fl_x, fd_x, fprop, p)),
+                       ["x", "F_prop", "p"], list(STIFFNESS_PARTS))
 
 
 def _finished(fn: ca.Function) -> ca.Function:

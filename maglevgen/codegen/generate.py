@@ -144,7 +144,8 @@ def render_runtime_sources(model: CarriageModel, precision: str = "double") -> d
     """The parameter-independent C of a carriage structure (what the simulation compiles) and
     the table of its functions (FUNCTION_TABLE, JSON) that the interface files are made from."""
     opts = GenerateOptions(precision, "runtime")
-    fns = list(build_functions(model, precision=precision).functions)
+    built = build_functions(model, precision=precision, analysis=True)
+    fns = [*built.functions, *built.analysis]
     files = render_c(fns, opts, banner(opts, None), model)
     files[FUNCTION_TABLE] = json.dumps(function_table(fns, files[f"{C_NAME}.c"]),
                                        indent=1) + "\n"

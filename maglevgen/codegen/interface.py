@@ -60,6 +60,12 @@ IO_DOCS: dict[str, str] = {
     "K_magnetic": "magnetic stiffness K_st0 (5 x 5, MAGLEV_AXIS_* order, column-major)",
     "K_other": "stiffness of the gravity and propulsion moments (5 x 5, column-major)",
     "E": "control effectiveness (5 x array forces, column-major): u_gen = E F_arrays",
+    # maglev_stiffness_parts' outputs: K_magnetic + K_other = their sum
+    "gap_slope": "stiffness part: eq 3's gap slope -2k (5 x 5, column-major)",
+    "rotating_arms": "stiffness part: the rotation of the moment arms (5 x 5, column-major)",
+    "tilt": "stiffness part: the tilt across the face (5 x 5; zero for the point force)",
+    "gravity": "stiffness part: gravity's moment of the CG offset (5 x 5, column-major)",
+    "propulsion": "stiffness part: the propulsion force's moment (5 x 5, column-major)",
 }
 
 

@@ -121,7 +121,7 @@ def build_context(
     pool = None
     if figures is None:
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"))
-        own: Future = pool.submit(force_figures, force_curves(carriage, trim))
+        own: Future = pool.submit(force_figures, force_curves(carriage, trim, lib))
         figures = own
     try:
         trep = trim_report(carriage, None, lib)

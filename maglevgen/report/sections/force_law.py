@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
+from ...derive import conventions as cv
 from ...derive.inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from ...derive.memo import memoized
 from ..display import REPORT_SOURCE, Display, eq, ltx
@@ -32,7 +33,12 @@ def _force_law_forms(_source: str) -> dict[str, Any]:
 
 
 def _force_numbers(carriage) -> dict[sp.Symbol, float]:
-    """The force law's symbols with the carriage's values (B0 from eq 4)."""
+    """The force law's symbols with the carriage's values (B0 from eq 4).
+
+    B0 and v_c (`_force_law`) are the values of displayed closed forms of the parameters
+    (eq 4, and F_D/F_L = 1 of eq 3), printed beside their equations; they are not a model
+    result, so they are evaluated here from the same SymPy form that is displayed (xreplace,
+    no lambdify). Every force the report prints or draws comes from the compiled library."""
     Br, d, M, w, L, R, B0, _delta, _v = _FORCE_SYMBOLS
     pr = carriage.params
     num = {Br: pr.halbach.remanence, d: pr.halbach.thickness,
@@ -42,21 +48,42 @@ def _force_numbers(carriage) -> dict[sp.Symbol, float]:
     return num
 
 
-def force_curves(carriage, trim) -> dict[str, Any]:
+def array_force_curves(carriage, lib, array: int, gaps: np.ndarray, speeds: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Lift and drag of array ``array`` from the compiled library (maglev_array_forces) at
+    zero attitude, its face-centre gap ``gaps[i]`` (the carriage moved along the array's
+    normal) and forward speed ``speeds[i]``: eq 3 times the array's circuits for either force
+    law (at zero attitude the distributed face has one gap across it)."""
+    arr = list(carriage.params.arrays.values())[array]
+    n_z = arr.normal[2]  # gap = nominal gap + n . (0, y, z) at zero attitude
+    fn = lib.function("maglev_array_forces")
+    x = np.zeros(len(cv.STATES))
+    out = np.zeros((2, len(gaps)))
+    for i, (g, v) in enumerate(zip(gaps, speeds, strict=True)):
+        x[cv.STATE_INDEX["z"]] = (g - arr.nominal_gap) / n_z
+        x[cv.STATE_INDEX["u"]] = v
+        lift, drag = fn(x, carriage.p)
+        out[:, i] = lift.ravel()[array], drag.ravel()[array]
+    return out[0], out[1]
+
+
+def force_curves(carriage, trim, lib) -> dict[str, Any]:
     # ``trim``: summary.TrimPoint (speed, gaps, lift of every array, from the compiled library)
     """What the force figures draw, as plain numbers (they are drawn in another process):
     F_L and F_D (eq 3) of one upper array against the gap at the trim speed and against the
-    speed at the nominal gap, and every array's point at trim."""
-    forms, num = _force_law_forms(REPORT_SOURCE), _force_numbers(carriage)
-    delta, v = _FORCE_SYMBOLS[7:]
-    FL = sp.lambdify((delta, v), forms["FL"].xreplace(num), "numpy")
-    FD = sp.lambdify((delta, v), forms["FD"].xreplace(num), "numpy")
-    v_c = float(forms["v_c"].xreplace(num))
+    speed at the nominal gap (`array_force_curves`, the compiled library ``lib``), and every
+    array's point at trim."""
+    v_c = float(_force_law_forms(REPORT_SOURCE)["v_c"].xreplace(_force_numbers(carriage)))
     arrays = list(carriage.params.arrays.items())
-    upper = [a for _, a in arrays if abs(a.normal[2]) > 1 - 1e-9] or [a for _, a in arrays]
-    n_c, g0 = upper[0].circuits, upper[0].nominal_gap
+    upper = [i for i, (_, a) in enumerate(arrays) if abs(a.normal[2]) > 1 - 1e-9]
+    i_up = upper[0] if upper else 0
+    a_up = arrays[i_up][1]
+    n_c, g0 = a_up.circuits, a_up.nominal_gap
     gap = np.linspace(carriage.params.track.min_gap, 0.05, 400)
     speed = np.linspace(0.0, max(3 * trim.speed, 3 * v_c), 400)
+    lift_gap, drag_gap = array_force_curves(carriage, lib, i_up, gap,
+                                            np.full_like(gap, trim.speed))
+    lift_v, drag_v = array_force_curves(carriage, lib, i_up, np.full_like(speed, g0), speed)
     points: dict[tuple[float, float], list[str]] = {}
     dots = []
     for i, (name, a) in enumerate(arrays):
@@ -64,9 +91,8 @@ def force_curves(carriage, trim) -> dict[str, Any]:
         dots.append(xy)
         points.setdefault((round(xy[0]), round(xy[1], -1)), []).append(name)
     return {"speed": trim.speed, "v_c": v_c, "circuits": n_c, "nominal_gap": g0,
-            "gap": gap, "lift_gap": n_c * FL(gap, trim.speed),
-            "drag_gap": n_c * FD(gap, trim.speed),
-            "v": speed, "lift_v": n_c * FL(g0, speed), "drag_v": n_c * FD(g0, speed),
+            "gap": gap, "lift_gap": lift_gap, "drag_gap": drag_gap,
+            "v": speed, "lift_v": lift_v, "drag_v": drag_v,
             "dots": dots, "labels": [(xy, ", ".join(names)) for xy, names in points.items()]}
 
 

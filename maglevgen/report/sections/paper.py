@@ -47,6 +47,11 @@ def _paper_comparison(gains: dict, trep: dict) -> dict[str, Any]:
                     )
                 )
 
+            # a study of the printed and the stable closed forms' rounding, not a model
+            # result: both forms (the naive one is not in the C) in numpy's float32 and
+            # float64 (derive.riccati.lqr_gain_numeric, lambdified once and memoized across
+            # processes) against the 50-digit reference; the firmware's float32 gains are
+            # checked against it in tests/test_codegen.py's single-precision build
             with np.errstate(all="ignore"):
                 naive32 = rel(lqr_gain_numeric(k, m, q1, q2, r, np.float32, "closed"))
                 stable32 = rel(lqr_gain_numeric(k, m, q1, q2, r, np.float32, "stable"))

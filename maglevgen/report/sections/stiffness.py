@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -13,9 +12,7 @@ from ...derive import conventions as cv
 from ...derive.linearize import STIFFNESS_PARTS, design_pose_stiffness, generalized_mass_expr
 from ...derive.memo import memoized
 from ...derive.model import build_model
-from ...derive.numeric import stiffness_split
 from ...derive.paper import paper_stiffness
-from ...derive.structure import input_names_of
 from ...errors import NoTrimError
 from ...library import simulation_library
 from ...summary import trim_point
@@ -102,7 +99,7 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
                 "rel": r["paper_relative_difference"],
             }
         )
-    laws = _by_law(carriage, trim)
+    laws = _by_law(carriage, trim, lib)
     for i, row in enumerate(rows):
         for law, d in laws.items():
             row[law] = None if d is None else float(d["magnetic"][i])
@@ -145,23 +142,23 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
 LAW_COLUMNS = ("point", "distributed")
 
 
-def _by_law(carriage, trim) -> dict[str, dict[str, Any] | None]:
+def _by_law(carriage, trim, lib) -> dict[str, dict[str, Any] | None]:
     """Per array force law: the diagonal of K_st0 and of K_st0 + K_other from that law's
-    compiled library at its trim, and of each part (derive.linearize.STIFFNESS_PARTS, the
-    derivation's split evaluated at that trim); None where it has no trim."""
+    compiled library at its trim, and of each part (maglev_stiffness_parts: the derivation's
+    split, derive.linearize.STIFFNESS_PARTS, generated into that library); None where it has
+    no trim. ``lib``: the carriage's own library."""
     out: dict[str, dict[str, Any] | None] = {}
     for law in LAW_COLUMNS:
         other = carriage.with_array_force(law)
+        law_lib = lib if other is carriage else simulation_library(other.structure,
+                                                                   progress=progress.step)
         try:
-            t = trim if other is carriage else trim_point(
-                other, simulation_library(other.structure, progress=progress.step), None)
+            t = trim if other is carriage else trim_point(other, law_lib, None)
         except NoTrimError:
             out[law] = None
             continue
-        u = np.zeros(len(input_names_of(other.structure)))
-        u[0] = t.f_prop
-        at = SimpleNamespace(x=t.x, u=u, lift=t.lift, drag=t.drag)
-        parts = {n: np.diag(K) for n, K in stiffness_split(other.structure, at, other.p).items()}
+        split = law_lib.function("maglev_stiffness_parts")(t.x, t.f_prop, other.p)
+        parts = {n: np.diag(K) for n, K in zip(STIFFNESS_PARTS, split, strict=True)}
         out[law] = {"magnetic": np.diag(t.K_magnetic), "total": np.diag(t.K_magnetic + t.K_other),
                     "parts": parts}
     return out
