@@ -289,7 +289,7 @@ int maglev_coupled_control(const maglev_real** arg, maglev_real** res, maglev_in
     int mem);
 
 /*
- * maglev_allocate: array forces of minimum norm that produce u_gen (eqs 22-23 derived)
+ * maglev_allocate: array forces T u_gen, T the pseudo-inverse of E: the least-norm forces that produce u_gen (eqs 22-23 derived), or with normal actuators (E of rank 4) its least-squares projection
  *   in  u_gen[5x1]  generalized forces/moments, MAGLEV_AXIS_* order
  *   out F_arrays[10x1]  [N] array control forces, MAGLEV_U_* order from index 1
  */
