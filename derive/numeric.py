@@ -179,7 +179,8 @@ def lambdify_stiffness(structure: Structure):
 @memoized
 def lambdified_parts(structure: Structure) -> dict[str, Callable[..., np.ndarray]]:
     """The STIFFNESS_PARTS as numpy functions, kept across processes (lambdifying them takes
-    seconds: uncached they dominated a parameter-edit rebuild)."""
+    seconds): the tests' reference for the generated maglev_stiffness_parts, which the report
+    prints."""
     sp_parts = stiffness_parts(structure)
     m = build_model(structure)
     args = [sp_parts.q, sp_parts.lift_sym, sp_parts.drag_sym, sp_parts.f_prop, m.p]
