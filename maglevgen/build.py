@@ -262,8 +262,7 @@ def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
     """report.tex (+ report.pdf) with the simulation figures and its own ``figures``;
     ``gain_table``: c/manifest.json's entry (the report shows its numbers); ``run``: the
     build's hold runs, which the actuator comparison reuses when they have its length and step."""
-    from .report import report_files
-    from .report.sections.actuators import RUN_DT, RUN_T_END
+    from .report import RUN_DT, RUN_T_END, report_files
 
     same = (opts.t_end, opts.dt) == (RUN_T_END, RUN_DT) and run.scenario == "hold"
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,

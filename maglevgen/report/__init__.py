@@ -21,10 +21,12 @@ from .render import (
     report_files,
     write_report,
 )
+from .sections.actuators import RUN_DT, RUN_T_END
 from .sections.force_law import force_curves
 from .sections.simulation import SIMULATION_FIGURES
 
-__all__ = ["INSTALL_HINT", "SECTION_TITLES", "SIMULATION_FIGURES", "TEX_PACKAGES", "LatexBuild",
+__all__ = ["INSTALL_HINT", "RUN_DT", "RUN_T_END", "SECTION_TITLES", "SIMULATION_FIGURES",
+           "TEX_PACKAGES", "LatexBuild",
            "ReportFiles", "ReportOptions", "ReportResult", "build_context", "first_latex_error",
            "force_curves", "overfull_boxes", "render_report", "render_tex", "report_files",
            "write_report"]
