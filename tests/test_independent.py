@@ -37,11 +37,23 @@ from maglevgen.params import load_params
 SPEEDS = (20.0, 45.0)
 
 
+# Both force laws, the point law first: its model derives in seconds, so a mutant of derive/
+# that a reference here catches fails fast under `pytest -x` (make mutation).
+LAWS = ("point", "distributed")
+
+
+@pytest.fixture(scope="module", params=LAWS, ids=[f"{law}law" for law in LAWS])
+def carriage(request: pytest.FixtureRequest) -> Carriage:
+    """The default carriage with each force law (model.array_force)."""
+    return Carriage(load_params(overrides=[f'model.array_force="{request.param}"']))
+
+
 @pytest.fixture(scope="module")
-def heavy() -> Carriage:
+def heavy(carriage: Carriage) -> Carriage:
     """A second carriage: heavier, CG further off O (a larger gravity stiffness)."""
-    return Carriage(load_params(overrides=["vehicle.mass=10.5",
-                                           "vehicle.cg_offset=[0.02, 0.0, 0.03]"]))
+    return Carriage(load_params(overrides=[
+        "vehicle.mass=10.5", "vehicle.cg_offset=[0.02, 0.0, 0.03]",
+        f'model.array_force="{carriage.params.model.array_force}"']))
 
 
 def _q(trim) -> np.ndarray:
