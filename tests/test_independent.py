@@ -265,8 +265,9 @@ def test_stable_form_riccati_solution_equals_mpmath_reference(stable_gain_functi
 
 
 def test_closed_form_mpmath_gain_equals_hand_solution() -> None:
-    """lqr_gain_mp (the reference the accuracy sweep uses) against the hand-solved ARE."""
-    for pt in GAIN_POINTS[::3]:
+    """lqr_gain_mp (the reference the accuracy sweep uses) against the hand-solved ARE; also
+    at k = 0 exactly (a neutral axis: no cancellation, and no digits to guard)."""
+    for pt in [*GAIN_POINTS[::3], (0.0, 9.3, 1.0, 1.0, 1.0), (0.0, 0.4, 3e3, 2.0, 1e-2)]:
         K = lqr_gain_mp(*pt, dps=40)
         K_ref, _ = lqr_reference_mp(*pt)
         for a, b in zip(K, K_ref, strict=True):

@@ -287,3 +287,19 @@ def test_relative_residual_keeps_sympy_entries_to_working_precision():
     A, B = sp.Matrix([[0, 1], [-k / m, 0]]), sp.Matrix([[0], [1 / m]])
     with mpmath.workdps(40):
         assert rc.riccati_relative_residual(A, B, sp.eye(2), sp.Matrix([[1]]), P) < 1e-38
+
+
+def test_sign_prover_decides_signs_known_by_hand() -> None:
+    """The prover behind the stabilizing-root choice and the positive-definite P (for every real
+    k): sigma = sqrt(k^2 + q1/r) exceeds |k|, so sigma - k and sigma + k are positive; k, 1 - k
+    and k^2 - 1 change sign."""
+    k, q1, r = rc._k, rc._q1, rc._r
+    sigma = sp.sqrt(k**2 + q1 / r)
+    assert rc._sign_over_all_k(k**2 + q1 / r) is True
+    assert rc._sign_over_all_k(sigma - k) is True
+    assert rc._sign_over_all_k(sigma + k) is True
+    assert rc._sign_over_all_k(k - sigma) is False
+    assert rc._sign_over_all_k(-(k**2 + q1 / r)) is False
+    for changes_sign in (k, 1 - k, k**2 - 1):
+        assert rc._sign_over_all_k(changes_sign) is None, changes_sign
+
