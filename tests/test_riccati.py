@@ -303,3 +303,17 @@ def test_sign_prover_decides_signs_known_by_hand() -> None:
     for changes_sign in (k, 1 - k, k**2 - 1):
         assert rc._sign_over_all_k(changes_sign) is None, changes_sign
 
+
+
+@pytest.mark.parametrize("k, q1", [(0.7, 1e-6), (0.3, 1e-8), (1e-3, 1e-12), (40.0, 1e-3)])
+def test_stable_form_has_no_cancellation_for_positive_k(k: float, q1: float) -> None:
+    """k >= 0 with q1/r << k^2: sigma - k would cancel (sigma ~ k); the stable form's K1 =
+    (q1/r)/(sigma + k) keeps float64 and float32 within a few ulps of the hand-solved ARE
+    (independent_reference.lqr_reference_mp, 60 digits)."""
+    from independent_reference import lqr_reference_mp
+
+    K_ref, _ = lqr_reference_mp(k, 2.5, q1, 1.0, 1.0)
+    for dtype, rtol in ((np.float64, 1e-14), (np.float32, 2e-6)):
+        K = rc.lqr_gain_numeric(k, 2.5, q1, 1.0, 1.0, dtype=dtype)
+        for got, ref in zip(K, K_ref, strict=True):
+            assert abs(float(got) - float(ref)) <= rtol * float(ref), (dtype, k, q1, got, ref)
