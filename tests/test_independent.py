@@ -104,16 +104,28 @@ def test_heave_range_equals_gap_limits_written_here(carriage: Carriage, heavy: C
     """The trim's heave bracket: at zero attitude each gap is linear in z (slope n_z, from the
     reference gaps at z = 0 and 1 mm); the range keeping every gap >= track.min_gap, solved
     here, is the one the solver brackets the vertical balance in."""
+    for c in (carriage, heavy):
+        _assert_heave_range(c)
+
+
+def test_heave_range_with_tilted_upper_arrays_equals_gap_limits_written_here() -> None:
+    """Arrays 3 and 6 tilted 11 degrees about x: the slope of their gaps in heave is 0.98, not
+    1, where dividing the gap margin by the slope and multiplying by it would agree."""
+    _assert_heave_range(Carriage(load_params(overrides=[
+        'model.array_force="point"', "arrays.3.normal=[0.0, 0.2, 1.0]",
+        "arrays.6.normal=[0.0, -0.2, 1.0]"])))
+
+
+def _assert_heave_range(c: Carriage) -> None:
     from maglevgen.derive.trim import _heave_limits
 
-    for c in (carriage, heavy):
-        min_gap, speed = c.params.track.min_gap, c.params.operation.speed
-        g0 = array_state(c.params, np.zeros(5), speed).gaps
-        slope = (array_state(c.params, np.array([0, 1e-3, 0, 0, 0]), speed).gaps - g0) / 1e-3
-        bounds = (min_gap - g0) / slope
-        z_ref = (bounds[slope > 0].max(), bounds[slope < 0].min())
-        np.testing.assert_allclose(_heave_limits(c.functions, c.p, min_gap), z_ref,
-                                   rtol=0, atol=1e-12)
+    min_gap, speed = c.params.track.min_gap, c.params.operation.speed
+    g0 = array_state(c.params, np.zeros(5), speed).gaps
+    slope = (array_state(c.params, np.array([0, 1e-3, 0, 0, 0]), speed).gaps - g0) / 1e-3
+    bounds = (min_gap - g0) / slope
+    z_ref = (bounds[slope > 0].max(), bounds[slope < 0].min())
+    np.testing.assert_allclose(_heave_limits(c.functions, c.p, min_gap), z_ref,
+                               rtol=0, atol=1e-12)
 
 
 LOW_RESISTANCE = Path(__file__).parent / "data" / "carriage_low_resistance.toml"

@@ -305,11 +305,13 @@ def test_sign_prover_decides_signs_known_by_hand() -> None:
 
 
 
-@pytest.mark.parametrize("k, q1", [(0.7, 1e-6), (0.3, 1e-8), (1e-3, 1e-12), (40.0, 1e-3)])
-def test_stable_form_has_no_cancellation_for_positive_k(k: float, q1: float) -> None:
-    """k >= 0 with q1/r << k^2: sigma - k would cancel (sigma ~ k); the stable form's K1 =
-    (q1/r)/(sigma + k) keeps float64 and float32 within a few ulps of the hand-solved ARE
-    (independent_reference.lqr_reference_mp, 60 digits)."""
+@pytest.mark.parametrize("k, q1", [(0.7, 1e-6), (0.3, 1e-8), (1e-3, 1e-12), (40.0, 1e-3),
+                                   (-0.7, 1e-6), (-0.3, 1e-8), (-1e-3, 1e-12)])
+def test_stable_form_has_no_cancellation_for_either_sign_of_k(k: float, q1: float) -> None:
+    """|k| small but q1/r << k^2, so sigma ~ |k|: for k >= 0, sigma - k would cancel and the
+    stable form takes K1 = (q1/r)/(sigma + k); for k < 0 the reverse. Each branch keeps float64
+    and float32 within a few ulps of the hand-solved ARE (independent_reference's
+    lqr_reference_mp, 60 digits), so the branch must switch at k = 0, not at some other k."""
     from independent_reference import lqr_reference_mp
 
     K_ref, _ = lqr_reference_mp(k, 2.5, q1, 1.0, 1.0)
