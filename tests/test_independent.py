@@ -151,6 +151,22 @@ def test_lift_off_speed_equals_reference_below_1_m_s_and_after_doubling(
     assert c.lift_off_speed() == pytest.approx(ref, rel=2e-6)
 
 
+def test_no_lift_off_when_the_lift_at_the_search_limit_is_short_of_the_weight() -> None:
+    """A carriage 0.5 N heavier than the arrays' vertical force at the lift-off search's upper
+    speed (10^4 m/s, zero attitude, heave at its lower gap limit; eq 3's sums written here):
+    no speed up to that limit holds it, so the lowest speed with an equilibrium is inf."""
+    law = 'model.array_force="point"'
+    prm = load_params(overrides=[law]).params
+    min_gap, v_search = prm.track.min_gap, 1e4
+    g0 = array_state(prm, np.zeros(5), v_search).gaps
+    slope = (array_state(prm, np.array([0, 1e-3, 0, 0, 0]), v_search).gaps - g0) / 1e-3
+    z_lo = ((min_gap - g0) / slope)[slope > 0].max()
+    lift = external_wrench(prm, np.array([0.0, z_lo, 0, 0, 0]), v_search, 0.0, other=False)[2]
+    mass = float((lift + 0.5) / prm.vehicle.gravity)
+    c = Carriage(load_params(overrides=[law, f"vehicle.mass={mass!r}"]))
+    assert c.lift_off_speed() == float("inf")
+
+
 def test_full_axis_stiffness_equals_central_difference(carriage: Carriage,
                                                        heavy: Carriage) -> None:
     """K_st0 + gravity and propulsion terms = -dW/dq of every external force (5x5)."""
