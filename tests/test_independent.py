@@ -43,17 +43,17 @@ LAWS = ("point", "distributed")
 
 
 @pytest.fixture(scope="module", params=LAWS, ids=[f"{law}law" for law in LAWS])
-def carriage(request: pytest.FixtureRequest) -> Carriage:
+def law_carriage(request: pytest.FixtureRequest) -> Carriage:
     """The default carriage with each force law (model.array_force)."""
     return Carriage(load_params(overrides=[f'model.array_force="{request.param}"']))
 
 
 @pytest.fixture(scope="module")
-def heavy(carriage: Carriage) -> Carriage:
+def heavy(law_carriage: Carriage) -> Carriage:
     """A second carriage: heavier, CG further off O (a larger gravity stiffness)."""
     return Carriage(load_params(overrides=[
         "vehicle.mass=10.5", "vehicle.cg_offset=[0.02, 0.0, 0.03]",
-        f'model.array_force="{carriage.params.model.array_force}"']))
+        f'model.array_force="{law_carriage.params.model.array_force}"']))
 
 
 def _q(trim) -> np.ndarray:
@@ -73,9 +73,10 @@ def _assert_stiffness(K: np.ndarray, K_ref: np.ndarray, rel: float = 1e-6) -> No
             assert abs(K[i, j] - K_ref[i, j]) < tol, (i, j, K[i, j], K_ref[i, j])
 
 
-def test_trim_equals_root_of_eq3_and_static_balance(carriage: Carriage, heavy: Carriage) -> None:
+def test_trim_equals_root_of_eq3_and_static_balance(law_carriage: Carriage,
+                                                    heavy: Carriage) -> None:
     """Pose, propulsion and every array's gap, lift and drag against the root found here."""
-    for c, v in _cases(carriage, heavy):
+    for c, v in _cases(law_carriage, heavy):
         trim, ref = c.trim(v), reference_trim(c.params, v)
         np.testing.assert_allclose(_q(trim), ref.q, rtol=0, atol=1e-10)
         assert trim.u[0] == pytest.approx(ref.f_prop, rel=1e-9)
@@ -100,11 +101,12 @@ def test_trim_of_an_asymmetric_carriage_equals_root_of_eq3_and_static_balance() 
         assert np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
 
 
-def test_heave_range_equals_gap_limits_written_here(carriage: Carriage, heavy: Carriage) -> None:
+def test_heave_range_equals_gap_limits_written_here(law_carriage: Carriage,
+                                                    heavy: Carriage) -> None:
     """The trim's heave bracket: at zero attitude each gap is linear in z (slope n_z, from the
     reference gaps at z = 0 and 1 mm); the range keeping every gap >= track.min_gap, solved
     here, is the one the solver brackets the vertical balance in."""
-    for c in (carriage, heavy):
+    for c in (law_carriage, heavy):
         _assert_heave_range(c)
 
 
@@ -167,10 +169,10 @@ def test_no_lift_off_when_the_lift_at_the_search_limit_is_short_of_the_weight() 
     assert c.lift_off_speed() == float("inf")
 
 
-def test_full_axis_stiffness_equals_central_difference(carriage: Carriage,
+def test_full_axis_stiffness_equals_central_difference(law_carriage: Carriage,
                                                        heavy: Carriage) -> None:
     """K_st0 + gravity and propulsion terms = -dW/dq of every external force (5x5)."""
-    for c, v in _cases(carriage, heavy):
+    for c, v in _cases(law_carriage, heavy):
         trim = c.trim(v)
         q0, fp = _q(trim), float(trim.u[0])
         _assert_stiffness(c.total_stiffness(trim), stiffness_fd(c.params, q0, v, fp))
@@ -179,11 +181,11 @@ def test_full_axis_stiffness_equals_central_difference(carriage: Carriage,
 
 
 def test_gravity_and_propulsion_stiffness_equals_central_difference(
-        carriage: Carriage, heavy: Carriage) -> None:
+        law_carriage: Carriage, heavy: Carriage) -> None:
     """The K_other part alone: its own scale, so a sign error cannot hide in the magnetic one."""
     from maglevgen.derive.numeric import other_stiffness
 
-    for c, v in _cases(carriage, heavy):
+    for c, v in _cases(law_carriage, heavy):
         trim = c.trim(v)
         K = other_stiffness(c.functions, trim, c.p)
         K_fd = stiffness_fd(c.params, _q(trim), v, float(trim.u[0]), magnetic=False)
@@ -192,9 +194,9 @@ def test_gravity_and_propulsion_stiffness_equals_central_difference(
         np.testing.assert_allclose(K, K_fd, rtol=0, atol=1e-7 * np.max(np.abs(K_fd)))
 
 
-def test_axis_plants_and_gains_equal_references(carriage: Carriage, heavy: Carriage) -> None:
+def test_axis_plants_and_gains_equal_references(law_carriage: Carriage, heavy: Carriage) -> None:
     """(k, m) of each axis, its LQR gain (mpmath, by hand) and damping (numerical ISE minimum)."""
-    for c in (carriage, heavy):
+    for c in (law_carriage, heavy):
         trim = c.trim()
         K_fd = stiffness_fd(c.params, _q(trim), trim.speed, float(trim.u[0]))
         M = generalized_mass(c.params)
@@ -302,26 +304,26 @@ def test_closed_form_mpmath_gain_equals_hand_solution() -> None:
             assert abs(a - b) <= mpmath.mpf(10) ** -38 * abs(b), pt
 
 
-def test_reference_wrench_balances_at_the_reference_trim(carriage: Carriage) -> None:
+def test_reference_wrench_balances_at_the_reference_trim(law_carriage: Carriage) -> None:
     """The reference's own root really is an equilibrium, and not the trivial one."""
-    prm = carriage.params
+    prm = law_carriage.params
     ref = reference_trim(prm, 20.0)
     w = external_wrench(prm, ref.q, 20.0, ref.f_prop)
     assert np.max(np.abs(w)) < 1e-9 * prm.vehicle.mass * prm.vehicle.gravity
     assert ref.arrays.lift.sum() > prm.vehicle.mass * prm.vehicle.gravity  # lower arrays pull
 
 
-def test_control_effectiveness_equals_cross_products(carriage: Carriage) -> None:
+def test_control_effectiveness_equals_cross_products(law_carriage: Carriage) -> None:
     """E (eqs 8-12 / 22-23): each column the wrench about O of a unit body-axis force at an
     array's face centre, built here by numpy cross products."""
     from maglevgen.controllers import allocation_matrix
 
     cols = []
-    for arr, (_, comps) in zip(carriage.params.arrays.values(), carriage.structure.arrays,
+    for arr, (_, comps) in zip(law_carriage.params.arrays.values(), law_carriage.structure.arrays,
                                strict=True):
         for ax in comps:
             d = np.eye(3)["xyz".index(ax)]
             cols.append([d[1], d[2], *np.cross(arr.position, d)])
     E = np.array(cols).T
     assert E.shape == (5, 10) and np.linalg.matrix_rank(E) == 5
-    np.testing.assert_allclose(allocation_matrix(carriage), np.linalg.pinv(E), atol=1e-12)
+    np.testing.assert_allclose(allocation_matrix(law_carriage), np.linalg.pinv(E), atol=1e-12)
