@@ -313,6 +313,27 @@ def test_reference_wrench_balances_at_the_reference_trim(law_carriage: Carriage)
     assert ref.arrays.lift.sum() > prm.vehicle.mass * prm.vehicle.gravity  # lower arrays pull
 
 
+def test_each_control_input_pushes_along_its_axis_at_its_array(law_carriage: Carriage) -> None:
+    """The model's wrench (eqs 8-12 with eqs 22-23's inputs): setting one control input to 1 N
+    adds, in body axes, a unit force along that input's body axis at its array's face centre
+    and its moment about O, built here by numpy cross products (at the trim pose)."""
+    c = law_carriage
+    x = c.trim().x
+    u0 = np.zeros(c.functions.model.u.shape[0])
+    base = np.ravel(c.functions.body_wrench(x, u0, c.p))
+    j = 1
+    for arr, (_, comps) in zip(c.params.arrays.values(), c.structure.arrays, strict=True):
+        for ax in comps:
+            u = u0.copy()
+            u[j] = 1.0
+            d = np.eye(3)["xyz".index(ax)]
+            expected = np.concatenate([d, np.cross(arr.position, d)])
+            np.testing.assert_allclose(np.ravel(c.functions.body_wrench(x, u, c.p)) - base,
+                                       expected, rtol=0, atol=1e-9)
+            j += 1
+    assert j == u0.size  # every input checked
+
+
 def test_control_effectiveness_equals_cross_products(law_carriage: Carriage) -> None:
     """E (eqs 8-12 / 22-23): each column the wrench about O of a unit body-axis force at an
     array's face centre, built here by numpy cross products."""
