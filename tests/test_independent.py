@@ -32,7 +32,7 @@ from maglevgen.carriage import Carriage
 from maglevgen.controllers import axis_plants, carriage_gains
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import lqr_gain_mp, riccati_stable_form
-from maglevgen.params import load_params
+from maglevgen.params import Parameters, load_params
 
 SPEEDS = (20.0, 45.0)
 
@@ -118,15 +118,20 @@ def test_heave_range_with_tilted_upper_arrays_equals_gap_limits_written_here() -
         "arrays.6.normal=[0.0, -0.2, 1.0]"])))
 
 
+def _reference_heave_range(prm: Parameters, speed: float) -> tuple[float, float]:
+    """Heave range keeping every gap >= track.min_gap at zero attitude: each gap is linear in
+    z, its slope taken from the reference gaps at z = 0 and 1 mm."""
+    g0 = array_state(prm, np.zeros(5), speed).gaps
+    slope = (array_state(prm, np.array([0, 1e-3, 0, 0, 0]), speed).gaps - g0) / 1e-3
+    bounds = (prm.track.min_gap - g0) / slope
+    return bounds[slope > 0].max(), bounds[slope < 0].min()
+
+
 def _assert_heave_range(c: Carriage) -> None:
     from maglevgen.derive.trim import _heave_limits
 
-    min_gap, speed = c.params.track.min_gap, c.params.operation.speed
-    g0 = array_state(c.params, np.zeros(5), speed).gaps
-    slope = (array_state(c.params, np.array([0, 1e-3, 0, 0, 0]), speed).gaps - g0) / 1e-3
-    bounds = (min_gap - g0) / slope
-    z_ref = (bounds[slope > 0].max(), bounds[slope < 0].min())
-    np.testing.assert_allclose(_heave_limits(c.functions, c.p, min_gap), z_ref,
+    np.testing.assert_allclose(_heave_limits(c.functions, c.p, c.params.track.min_gap),
+                               _reference_heave_range(c.params, c.params.operation.speed),
                                rtol=0, atol=1e-12)
 
 
@@ -159,10 +164,8 @@ def test_no_lift_off_when_the_lift_at_the_search_limit_is_short_of_the_weight() 
     no speed up to that limit holds it, so the lowest speed with an equilibrium is inf."""
     law = 'model.array_force="point"'
     prm = load_params(overrides=[law]).params
-    min_gap, v_search = prm.track.min_gap, 1e4
-    g0 = array_state(prm, np.zeros(5), v_search).gaps
-    slope = (array_state(prm, np.array([0, 1e-3, 0, 0, 0]), v_search).gaps - g0) / 1e-3
-    z_lo = ((min_gap - g0) / slope)[slope > 0].max()
+    v_search = 1e4
+    z_lo, _ = _reference_heave_range(prm, v_search)
     lift = external_wrench(prm, np.array([0.0, z_lo, 0, 0, 0]), v_search, 0.0, other=False)[2]
     mass = float((lift + 0.5) / prm.vehicle.gravity)
     c = Carriage(load_params(overrides=[law, f"vehicle.mass={mass!r}"]))
