@@ -32,7 +32,7 @@ from maglevgen.carriage import Carriage
 from maglevgen.controllers import axis_plants, carriage_gains
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import lqr_gain_mp, riccati_stable_form
-from maglevgen.params import Parameters, load_params
+from maglevgen.params import Parameters, default_params_path, load_params
 
 SPEEDS = (20.0, 45.0)
 
@@ -170,6 +170,58 @@ def test_no_lift_off_when_the_lift_at_the_search_limit_is_short_of_the_weight() 
     mass = float((lift + 0.5) / prm.vehicle.gravity)
     c = Carriage(load_params(overrides=[law, f"vehicle.mass={mass!r}"]))
     assert c.lift_off_speed() == float("inf")
+
+
+@pytest.mark.parametrize("speed", [0.0, -0.5, -1e-9, float("nan")])
+def test_trim_refuses_a_speed_that_is_not_positive(speed: float) -> None:
+    """The trim is asked for a speed along +x only: zero, a negative or a NaN speed is refused
+    before any solve, saying so (a slow negative speed would otherwise reach the lift-off
+    search, whose error names a cause that is not the input's)."""
+    from maglevgen.derive.trim import NoTrimError, solve_trim
+
+    c = Carriage(load_params(overrides=['model.array_force="point"']))
+    with pytest.raises(NoTrimError, match=r"^operation\.speed = .*: must be > 0$"):
+        solve_trim(c.functions, c.p, speed, c.params.track.min_gap)
+
+
+def test_no_trim_below_the_zero_attitude_bound_names_the_lift_off_speed() -> None:
+    """Below the zero-attitude bound (eq 3's vertical balance, written here) the arrays cannot
+    lift the carriage; the error names the lift-off speed, equal to the continuation and Brent
+    solve written here to the 4 digits printed."""
+    from maglevgen.derive.trim import NoTrimError, solve_trim
+
+    c = Carriage(load_params(overrides=['model.array_force="point"']))
+    bound = zero_attitude_lift_off_bound(c.params)
+    ref = symmetric_lift_off_speed(c.params, v_start=8 * bound)
+    with pytest.raises(NoTrimError, match="cannot lift the carriage off the track") as err:
+        solve_trim(c.functions, c.p, 0.5 * bound, c.params.track.min_gap)
+    named = float(str(err.value).rsplit("lift-off needs ", 1)[1].split()[0])
+    assert named == pytest.approx(ref, rel=1e-3)
+
+
+def test_upper_contact_is_blamed_only_when_the_arrays_push_up_there(tmp_path: Path) -> None:
+    """A 10 g carriage at 0.2 m/s: at the top of the heave range (the lower arrays at
+    track.min_gap) the net vertical force, eq 3's sums and the weight written here, is
+    downward by less than 1 N. The lift does not push the lower arrays into the track, so
+    whatever the solver concludes, it must not give that as the reason."""
+    from maglevgen.derive.trim import NoTrimError, solve_trim
+
+    text = default_params_path().read_text()
+    text = text.replace("\nmass = 9.3\n", "\nmass = 0.01\n").replace(
+        '"vehicle.mass" = { normal = 0.3 }', '"vehicle.mass" = { normal = 0.001 }')
+    light = tmp_path / "carriage_light.toml"
+    light.write_text(text)
+    c = Carriage(load_params(light, overrides=['model.array_force="point"']))
+    prm, speed = c.params, 0.2
+    assert prm.vehicle.mass == 0.01
+    _, z_hi = _reference_heave_range(prm, speed)
+    net = (external_wrench(prm, np.array([0.0, z_hi, 0, 0, 0]), speed, 0.0, other=False)[2]
+           - prm.vehicle.mass * prm.vehicle.gravity)
+    assert -1.0 < net < 0.0  # the premise: downward, within 1 N of balance
+    try:
+        solve_trim(c.functions, c.p, speed, prm.track.min_gap)
+    except NoTrimError as err:
+        assert "into the track" not in str(err)
 
 
 def test_full_axis_stiffness_equals_central_difference(law_carriage: Carriage,
