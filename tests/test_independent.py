@@ -188,23 +188,32 @@ def test_no_trim_below_the_zero_attitude_bound_names_the_lift_off_speed() -> Non
     """Below the zero-attitude bound (eq 3's vertical balance, written here) the arrays cannot
     lift the carriage, also a hair below it (the net force short of the weight by less than
     1 N); the error names the lift-off speed, equal to the continuation and Brent solve
-    written here to the 4 digits printed."""
+    written here to the 4 digits printed. A hair above the bound they do lift it."""
     from maglevgen.derive.trim import NoTrimError, solve_trim
 
     c = Carriage(load_params(overrides=['model.array_force="point"']))
     prm = c.params
     bound = zero_attitude_lift_off_bound(prm)
     ref = symmetric_lift_off_speed(prm, v_start=8 * bound)
-    for speed in (0.5 * bound, (1 - 1e-4) * bound):
+
+    def net_up(speed: float) -> float:  # at zero attitude, the heave at its lower limit
         z_lo, _ = _reference_heave_range(prm, speed)
-        net = (external_wrench(prm, np.array([0.0, z_lo, 0, 0, 0]), speed, 0.0, other=False)[2]
-               - prm.vehicle.mass * prm.vehicle.gravity)
-        assert net < 0  # the premise (just below the bound: short of the weight by < 1 N)
+        return (external_wrench(prm, np.array([0.0, z_lo, 0, 0, 0]), speed, 0.0, other=False)[2]
+                - prm.vehicle.mass * prm.vehicle.gravity)
+
+    for speed in (0.5 * bound, (1 - 1e-4) * bound):
+        assert net_up(speed) < 0  # the premise
         with pytest.raises(NoTrimError, match="cannot lift the carriage off the track") as err:
             solve_trim(c.functions, c.p, speed, prm.track.min_gap)
         named = float(str(err.value).rsplit("lift-off needs ", 1)[1].split()[0])
         assert named == pytest.approx(ref, rel=1e-3)
-    assert net > -1  # the second speed: within 1 N of the weight
+    assert net_up((1 - 1e-4) * bound) > -1  # a hair below: short of the weight by < 1 N
+    # a hair above, the arrays lift it (by < 1 N): pitched, the corners may still touch, but
+    # the error must not say the arrays cannot lift it
+    assert 0 < net_up((1 + 1e-4) * bound) < 1
+    with pytest.raises(NoTrimError) as err:
+        solve_trim(c.functions, c.p, (1 + 1e-4) * bound, prm.track.min_gap)
+    assert "cannot lift" not in str(err.value)
 
 
 def test_upper_contact_is_blamed_only_when_the_arrays_push_up_there(tmp_path: Path) -> None:
