@@ -23,6 +23,7 @@ from independent_reference import (
     ise_optimal_damping,
     lqr_reference_mp,
     reference_trim,
+    rotation,
     stiffness_fd,
     symmetric_lift_off_speed,
     zero_attitude_lift_off_bound,
@@ -394,7 +395,16 @@ def test_each_control_input_pushes_along_its_axis_at_its_array(law_carriage: Car
     """The model's wrench (eqs 8-12 with eqs 22-23's inputs): setting one control input to 1 N
     adds, in body axes, a unit force along that input's body axis at its array's face centre
     and its moment about O, built here by numpy cross products (at the trim pose)."""
-    c = law_carriage
+    _assert_unit_inputs(law_carriage)
+
+
+def test_each_normal_actuator_pushes_along_its_arrays_unit_normal() -> None:
+    """control.actuators = "normal": one input per array, a force along its unit normal."""
+    _assert_unit_inputs(Carriage(load_params(overrides=[
+        'model.array_force="point"', 'control.actuators="normal"'])))
+
+
+def _assert_unit_inputs(c: Carriage) -> None:
     x = c.trim().x
     u0 = np.zeros(c.functions.model.u.shape[0])
     base = np.ravel(c.functions.body_wrench(x, u0, c.p))
@@ -403,12 +413,33 @@ def test_each_control_input_pushes_along_its_axis_at_its_array(law_carriage: Car
         for ax in comps:
             u = u0.copy()
             u[j] = 1.0
-            d = np.eye(3)["xyz".index(ax)]
+            n = np.asarray(arr.normal, dtype=float)
+            d = n / np.linalg.norm(n) if ax == "n" else np.eye(3)["xyz".index(ax)]
             expected = np.concatenate([d, np.cross(arr.position, d)])
             np.testing.assert_allclose(np.ravel(c.functions.body_wrench(x, u, c.p)) - base,
                                        expected, rtol=0, atol=1e-9)
             j += 1
     assert j == u0.size  # every input checked
+
+
+def test_array_speed_includes_the_body_rates(law_carriage: Carriage) -> None:
+    """Each array's along-track speed is (R (v + w x a_i))_x: at the trim pose with body rates
+    and a sideways body velocity, every array's gap, lift and drag equal eq 3's at that speed
+    (array_state, one array at a time), the speed built here with numpy."""
+    c = law_carriage
+    x = c.trim().x.copy()
+    x[7:9] += (0.4, -0.1)  # body velocity
+    omega = np.array([0.6, -0.9, 1.2])  # rad/s: moves the arrays by up to about 0.3 m/s
+    x[9:12] = omega
+    q = x[1:6]
+    R = rotation(*q[2:5])
+    gaps, lift, drag = (np.ravel(a) for a in c.functions.forces(x, c.p))
+    for i, arr in enumerate(c.params.arrays.values()):
+        speed = float((R @ (x[6:9] + np.cross(omega, arr.position)))[0])
+        ref = array_state(c.params, q, speed)
+        assert gaps[i] == pytest.approx(ref.gaps[i], abs=1e-12)
+        assert lift[i] == pytest.approx(ref.lift[i], rel=1e-9)
+        assert drag[i] == pytest.approx(ref.drag[i], rel=1e-9)
 
 
 def test_control_effectiveness_equals_cross_products(law_carriage: Carriage) -> None:
@@ -420,7 +451,8 @@ def test_control_effectiveness_equals_cross_products(law_carriage: Carriage) -> 
     for arr, (_, comps) in zip(law_carriage.params.arrays.values(), law_carriage.structure.arrays,
                                strict=True):
         for ax in comps:
-            d = np.eye(3)["xyz".index(ax)]
+            n = np.asarray(arr.normal, dtype=float)
+            d = n / np.linalg.norm(n) if ax == "n" else np.eye(3)["xyz".index(ax)]
             cols.append([d[1], d[2], *np.cross(arr.position, d)])
     E = np.array(cols).T
     assert E.shape == (5, 10) and np.linalg.matrix_rank(E) == 5
