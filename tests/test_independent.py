@@ -128,6 +128,13 @@ def _reference_heave_range(prm: Parameters, speed: float) -> tuple[float, float]
     return bounds[slope > 0].max(), bounds[slope < 0].min()
 
 
+def _array_lift_at_heave_limit(prm: Parameters, speed: float, limit: str) -> float:
+    """The arrays' net vertical force (eq 3's sums) at zero attitude, the heave at its
+    "lower" or "upper" limit."""
+    z = _reference_heave_range(prm, speed)[("lower", "upper").index(limit)]
+    return float(external_wrench(prm, np.array([0.0, z, 0, 0, 0]), speed, 0.0, other=False)[2])
+
+
 def _assert_heave_range(c: Carriage) -> None:
     from maglevgen.derive.trim import _heave_limits
 
@@ -165,9 +172,7 @@ def test_no_lift_off_when_the_lift_at_the_search_limit_is_short_of_the_weight() 
     no speed up to that limit holds it, so the lowest speed with an equilibrium is inf."""
     law = 'model.array_force="point"'
     prm = load_params(overrides=[law]).params
-    v_search = 1e4
-    z_lo, _ = _reference_heave_range(prm, v_search)
-    lift = external_wrench(prm, np.array([0.0, z_lo, 0, 0, 0]), v_search, 0.0, other=False)[2]
+    lift = _array_lift_at_heave_limit(prm, 1e4, "lower")
     mass = float((lift + 0.5) / prm.vehicle.gravity)
     c = Carriage(load_params(overrides=[law, f"vehicle.mass={mass!r}"]))
     assert c.lift_off_speed() == float("inf")
@@ -197,10 +202,9 @@ def test_no_trim_below_the_zero_attitude_bound_names_the_lift_off_speed() -> Non
     bound = zero_attitude_lift_off_bound(prm)
     ref = symmetric_lift_off_speed(prm, v_start=8 * bound)
 
-    def net_up(speed: float) -> float:  # at zero attitude, the heave at its lower limit
-        z_lo, _ = _reference_heave_range(prm, speed)
-        return (external_wrench(prm, np.array([0.0, z_lo, 0, 0, 0]), speed, 0.0, other=False)[2]
-                - prm.vehicle.mass * prm.vehicle.gravity)
+    def net_up(speed: float) -> float:
+        weight = prm.vehicle.mass * prm.vehicle.gravity
+        return _array_lift_at_heave_limit(prm, speed, "lower") - weight
 
     for speed in (0.5 * bound, (1 - 1e-4) * bound):
         assert net_up(speed) < 0  # the premise
@@ -233,8 +237,7 @@ def test_upper_contact_is_blamed_only_when_the_arrays_push_up_there(tmp_path: Pa
     c = Carriage(load_params(light, overrides=['model.array_force="point"']))
     prm, speed = c.params, 0.2
     assert prm.vehicle.mass == 0.01
-    _, z_hi = _reference_heave_range(prm, speed)
-    net = (external_wrench(prm, np.array([0.0, z_hi, 0, 0, 0]), speed, 0.0, other=False)[2]
+    net = (_array_lift_at_heave_limit(prm, speed, "upper")
            - prm.vehicle.mass * prm.vehicle.gravity)
     assert -1.0 < net < 0.0  # the premise: downward, within 1 N of balance
     try:
