@@ -250,6 +250,57 @@ def test_upper_contact_is_blamed_only_when_the_arrays_push_up_there(tmp_path: Pa
         assert np.abs(balance).max() < 1e-6 * weight
 
 
+def test_lift_off_found_when_the_lift_at_the_search_limit_exceeds_the_weight_by_half_a_newton(
+        ) -> None:
+    """The search limit's other edge: at v_max the arrays' vertical force (zero attitude,
+    heave at its lower gap limit; eq 3's sums written here) exceeds the weight by 0.5 N. The
+    carriage has its CG on O and its propulsion at the height of the drag there (written
+    here), so its equilibrium at v_max has no pitch and clears every gap: the search must
+    return the lift-off speed, equal to the continuation and Brent solve written here."""
+    import scipy.optimize
+
+    from maglevgen.derive.trim import lift_off_speed
+
+    level = ['model.array_force="point"', "vehicle.cg_offset=[0.0, 0.0, 0.0]"]
+    prm = load_params(overrides=level).params
+    weight = prm.vehicle.mass * prm.vehicle.gravity
+    v_max = scipy.optimize.brentq(
+        lambda v: _array_lift_at_heave_limit(prm, v, "lower") - weight - 0.5, 1e-3, 1e3,
+        xtol=1e-14, rtol=1e-14)
+    st = array_state(prm, np.array([0.0, _reference_heave_range(prm, v_max)[0], 0, 0, 0]),
+                     v_max)
+    z_prop = float(st.drag @ st.arms[:, 2] / st.drag.sum())  # no drag pitch moment
+    c = Carriage(load_params(overrides=[
+        *level, f"operation.propulsion_point=[0.0, 0.0, {z_prop!r}]"]))
+    ref = symmetric_lift_off_speed(c.params, v_start=v_max)  # asserts a lift-off at v_max
+    assert lift_off_speed(c.functions, c.p, c.params.track.min_gap, v_max=v_max) == (
+        pytest.approx(ref, rel=2e-6))
+
+
+def test_lift_at_the_top_of_the_heave_range_pushes_the_lower_arrays_into_the_track(
+        tmp_path: Path) -> None:
+    """A carriage with weak lower arrays (1 circuit each, 4 mm from the track) at 10 m/s whose
+    weight is 0.5 N short of the arrays' vertical force at the top of the heave range (the
+    lower arrays at track.min_gap; eq 3's sums written here): nothing holds it down, so there
+    is no equilibrium, and the trim gives that reason with that net force, not a solver
+    error."""
+    from maglevgen.derive.trim import NoTrimError, solve_trim
+
+    weak = ['model.array_force="point"', *(f"arrays.{i}.{key}"
+                                            for i in (1, 2, 4, 5)
+                                            for key in ("circuits=1", "nominal_gap=0.004"))]
+    prm, speed = load_params(overrides=weak).params, 10.0
+    mass = (_array_lift_at_heave_limit(prm, speed, "upper") - 0.5) / prm.vehicle.gravity
+    assert 0 < mass < prm.vehicle.mass  # the premise: a lighter carriage, still a carriage
+    light = tmp_path / "carriage_light.toml"  # the mass tolerance scaled to the mass
+    light.write_text(default_params_path().read_text().replace(
+        '"vehicle.mass" = { normal = 0.3 }', '"vehicle.mass" = { normal = 0.03 }'))
+    c = Carriage(load_params(light, overrides=[*weak, f"vehicle.mass={mass!r}"]))
+    assert c.params.tolerances != prm.tolerances
+    with pytest.raises(NoTrimError, match=r"into the track \(net vertical force 0\.5 N at"):
+        solve_trim(c.functions, c.p, speed, c.params.track.min_gap)
+
+
 def test_full_axis_stiffness_equals_central_difference(law_carriage: Carriage,
                                                        heavy: Carriage) -> None:
     """K_st0 + gravity and propulsion terms = -dW/dq of every external force (5x5)."""
