@@ -326,6 +326,22 @@ def test_gravity_and_propulsion_stiffness_equals_central_difference(
         np.testing.assert_allclose(K, K_fd, rtol=0, atol=1e-7 * np.max(np.abs(K_fd)))
 
 
+def test_design_pose_stiffness_equals_central_difference(law_carriage: Carriage) -> None:
+    """The closed form the report prints beside eqs 13-19 (K_st0 at zero attitude, in the
+    arrays' lift and drag symbols) with eq 3's lift and drag at the design pose (written here)
+    against central differences of the arrays' force sum there."""
+    from maglevgen.derive.linearize import design_pose_stiffness
+
+    c, speed = law_carriage, SPEEDS[0]
+    m, st = c.model, array_state(c.params, np.zeros(5), speed)
+    values = {**dict(zip(m.p, c.p, strict=True)), **dict(zip(m.lift_sym, st.lift, strict=True)),
+              **dict(zip(m.drag_sym, st.drag, strict=True))}
+    K = design_pose_stiffness(m.structure).xreplace(
+        {s: sp.Float(float(v)) for s, v in values.items()})
+    _assert_stiffness(np.array(K.evalf(), dtype=float),
+                      stiffness_fd(c.params, np.zeros(5), speed, 0.0, other=False))
+
+
 def test_axis_plants_and_gains_equal_references(law_carriage: Carriage, heavy: Carriage) -> None:
     """(k, m) of each axis, its LQR gain (mpmath, by hand) and damping (numerical ISE minimum)."""
     for c in (law_carriage, heavy):
