@@ -148,7 +148,9 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
              f"Initial disturbance: {disturbance}. {scenario} Deviations are measured "
              "from the trim at the current speed. Status: 'contact' (a gap reached "
              "track.min_gap), 'diverging' (non-finite, or the peak deviation grows from the "
-             "first quarter of the run to the last), 'settled' (every axis within "
+             "first quarter of the run to the last where the linearised closed loop is not "
+             "stable: a stable one's growth over a short run is its transient), 'settled' "
+             "(every axis within "
              f"{SETTLING_BAND:.0%} of its peak for the rest of the run) or 'not settled'. "
              "Settling time: the first time after which the deviation stays within "
              f"{SETTLING_BAND:.0%} of its peak; 'not settled' when it never does.", ""]
