@@ -23,19 +23,17 @@ from .library import SimulationLibrary, simulation_library
 from .operating import (
     CONTROLLER_TITLES,
     CONTROLLERS,
+    STABILITY_MARGIN,
     OperatingPoint,
     Weights,
     checked_trim,
+    closed_loop_stability,
     operating_point,
     speed_mode,
-    stability,
 )
 from .schedule import GainTable, gain_table_row
 
 DEFAULT_SPEEDS = 50
-# a closed loop is called stable when every eigenvalue's real part is below -STABILITY_MARGIN
-# (1/s): a mode closer to the axis than this neither decays nor grows visibly in a launch
-STABILITY_MARGIN = 1e-6
 _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
 
 
@@ -149,14 +147,6 @@ class Envelope:
                 "states": "y z phi theta psi v w p q r (x dropped; u held by the propulsion)",
                 "controllers": {n: c.to_json() for n, c in self.controllers.items()},
                 "speed_pole": self.speed_pole.tolist()}
-
-
-def closed_loop_stability(op: OperatingPoint, controller: str) -> tuple[float, float]:
-    """(largest real part, smallest damping ratio) of the ten-state closed loop at ``op``."""
-    A_cl = op.reduced_closed_loop(controller)
-    if not np.all(np.isfinite(A_cl)):
-        return float("inf"), float("nan")
-    return stability(np.linalg.eigvals(A_cl))
 
 
 def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,

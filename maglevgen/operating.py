@@ -198,12 +198,25 @@ def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float, min_gap
     return OperatingPoint(float(speed), x_trim, f_prop, gaps, K, c.ravel(), T, A, B, weights)
 
 
+# a closed loop is called stable when every eigenvalue's real part is below -STABILITY_MARGIN
+# (1/s): a mode closer to the axis than this neither decays nor grows visibly in a launch
+STABILITY_MARGIN = 1e-6
+
+
 def stability(eigenvalues: np.ndarray) -> tuple[float, float]:
     """(largest real part [1/s], smallest damping ratio) of a set of eigenvalues."""
     ev = np.asarray(eigenvalues)
     mag = np.abs(ev)
     zeta = np.where(mag > 1e-12, -ev.real / np.where(mag > 1e-12, mag, 1.0), 1.0)
     return float(np.max(ev.real)), float(np.min(zeta))
+
+
+def closed_loop_stability(op: OperatingPoint, controller: str) -> tuple[float, float]:
+    """(largest real part, smallest damping ratio) of the ten-state closed loop at ``op``."""
+    A_cl = op.reduced_closed_loop(controller)
+    if not np.all(np.isfinite(A_cl)):
+        return float("inf"), float("nan")
+    return stability(np.linalg.eigvals(A_cl))
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,12 @@ from .operating import (
     AXIS_STATES,
     CONTROLLER_TITLES,
     CONTROLLERS,
+    STABILITY_MARGIN,
     OperatingPoint,
     SpeedMode,
     Weights,
     checked_trim,
+    closed_loop_stability,
     operating_point,
     speed_mode,
 )
@@ -177,12 +179,10 @@ def run_status(traj: Trajectory) -> str:
 
 
 def linearly_stable_hold(traj: Trajectory) -> bool:
-    """Whether ``traj`` holds one speed with gains whose linearised closed loop (10 states,
-    `OperatingPoint.reduced_closed_loop`) has every eigenvalue in the open left half-plane."""
-    if traj.scenario != "hold":
-        return False
-    eig = np.linalg.eigvals(traj.op.reduced_closed_loop(traj.controller))
-    return bool(np.all(np.isfinite(eig)) and eig.real.max() < 0)
+    """Whether ``traj`` holds one speed with gains whose linearised closed loop is stable,
+    as the envelope calls it (`closed_loop_stability` below -STABILITY_MARGIN)."""
+    return (traj.scenario == "hold"
+            and closed_loop_stability(traj.op, traj.controller)[0] < -STABILITY_MARGIN)
 
 
 def initial_state(op: OperatingPoint, disturbance: dict[str, float]) -> np.ndarray:

@@ -8,15 +8,13 @@ from typing import Any
 import numpy as np
 
 from ...envelope import (
-    STABILITY_MARGIN,
-    closed_loop_stability,
     compute_envelope,
     envelope_points,
     gain_table,
     stability_map_png,
 )
 from ...library import simulation_library
-from ...operating import CONTROLLER_TITLES
+from ...operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
 from ..format import tex_escape
 from .verification import Check
 
