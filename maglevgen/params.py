@@ -836,6 +836,13 @@ def check_key_option(option: str, value: float, key: str) -> None:
     check_option(option, value, lo, hi, row[1], why)
 
 
+def entry_limits(entry: str) -> tuple[float, float]:
+    """(lo, hi) of an entry of the parameter vector: the range the run-time-parameter C
+    checks p against (MAGLEV_ERR_PARAMETER), the same as a parameter file's."""
+    lo, hi, _ = _leaf_limits(entry)
+    return lo, hi
+
+
 def _leaf_limits(entry: str) -> tuple[float, float, str]:
     """(lo, hi, why) of an entry of the parameter vector (``arrays.3.position.z``)."""
     parts = entry.split(".")

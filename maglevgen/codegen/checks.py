@@ -1,20 +1,32 @@
 """Generated functions that report failure: the checked entry points and the MAGLEV_ERR_* codes.
 
 CasADi's generated functions return 0 whatever their inputs: the trim's Newton iterations end
-after their count at any speed (all NaN at v = 0, a nonsensical pose below lift-off) and a NaN
-state passes through a control tick into the array forces. :func:`check_entries` renames the
-CasADi entry point of each function listed below to a ``static`` ``NAME_unchecked`` and defines
-``NAME`` around it with the checks; the work sizes (``NAME_work``) stay CasADi's: the trim's
-checks evaluate the dynamics and the gaps in the caller's work arrays, which the Newton solve's
-sizes cover (checked at generation, else the checks get their own on the stack).
+after their count at any speed (all NaN at v = 0, a nonsensical pose below lift-off), a NaN
+state passes through a control tick into the array forces and a zero mass gives infinite
+accelerations. :func:`check_entries` renames the CasADi entry point of *every* generated
+function to a ``static`` ``NAME_unchecked`` and defines ``NAME`` around it with the checks, so
+that no exported function returns 0 with a NaN or an infinity in an output; the work sizes
+(``NAME_work``) stay CasADi's: the trim's checks evaluate the dynamics and the gaps in the
+caller's work arrays, which the Newton solve's sizes cover (checked at generation, else the
+checks get their own on the stack).
 
-* schedule functions (``TRIM_KIND``, each runs the trim Newton solve): the speed and p finite,
-  v in the envelope's [v_min, v_max] when the parameters are baked (the range is baked with
-  them, the same as the table schedule's), v > 0 with run-time parameters (the simulation
-  library bisects the lift-off speed through it, below any v_min), the trim's accelerations within
+Every function, in this order (``ENTRY_CHECKS``, which maglev.h states next to each one):
+
+* ``arg`` and ``res`` not NULL, ``iw`` and ``w`` not NULL where the function uses them
+  (``MAGLEV_ERR_ARGUMENT``; a NULL ``arg[i]`` is CasADi's zero input and a NULL ``res[i]``
+  skips output i, as CasADi's API has it);
+* every input finite (``MAGLEV_ERR_NONFINITE``);
+* with run-time parameters, every entry of p inside its range of the parameter schema
+  (maglevgen.params: a positive mass, wavelength, resistance, inductance, ...;
+  ``MAGLEV_ERR_PARAMETER``);
+* schedule functions (``TRIM_KIND``, each runs the trim Newton solve): v in the envelope's
+  [v_min, v_max] when the parameters are baked (the range is baked with them, the same as the
+  table schedule's), v > 0 with run-time parameters (the simulation library bisects the
+  lift-off speed through it, below any v_min), the trim's accelerations within
   ``TRIM_TOLERANCES`` (the Newton solve converged) and every gap at or above the track's
   minimum gap (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
-* tick functions (``TICK_KIND``): every input finite, then every output finite.
+* the CasADi function's own return code (``MAGLEV_ERR_INTERNAL``), then every output finite
+  (``MAGLEV_ERR_NONFINITE_OUTPUT``).
 
 On any error every output that the caller asked for (non-NULL ``res[i]``) is set to zero: the
 safe state of a tick is no control force, and a failed trim must not look like a pose.
@@ -40,6 +52,13 @@ ERROR_CODES: dict[str, tuple[int, str]] = {
     "MAGLEV_ERR_CONTACT": (4, "the trim has a gap below track.min_gap (outputs zeroed)"),
     "MAGLEV_ERR_NONFINITE_OUTPUT": (5, "an output came out NaN or infinite (outputs zeroed)"),
     "MAGLEV_ERR_INTERNAL": (6, "the CasADi function itself returned an error (outputs zeroed)"),
+    "MAGLEV_ERR_PARAMETER": (7, "an entry of the run-time parameter vector p is outside its "
+                                "range in the parameter schema (`maglevgen params schema`: "
+                                "e.g. a mass, wavelength, resistance or inductance not "
+                                "positive) (outputs zeroed)"),
+    "MAGLEV_ERR_ARGUMENT": (8, "a required pointer is NULL (arg, res, a work array the "
+                               "function uses, a table), or a count, size or step is out of "
+                               "range (outputs zeroed where they can be reached)"),
 }
 ERROR_NAMES: dict[int, str] = {v: k for k, (v, _) in ERROR_CODES.items()}
 
@@ -79,25 +98,69 @@ def _sizes(io: Sequence[Mapping]) -> list[int]:
 
 
 def _zero_outputs(outs: list[int]) -> str:
-    return "".join(f"    maglev_zero(res[{i}], {n});\n" for i, n in enumerate(outs))
+    return "".join(f"  maglev_zero(res[{i}], {n});\n" for i, n in enumerate(outs))
 
 
-def _tick(fn: Mapping) -> str:
+def _p_index(fn: Mapping, runtime: bool) -> int | None:
+    """The position of the parameter vector p among ``fn``'s inputs (None: none, or baked)."""
+    names = [io["name"] for io in fn["inputs"]]
+    return names.index("p") if runtime and "p" in names else None
+
+
+def _pointer_check(name: str, work: Mapping[str, tuple[int, ...]]) -> str:
+    """The C condition that a required pointer is NULL: arg, res, and the work arrays that
+    ``name``'s work sizes say it uses."""
+    conds = ["arg == 0", "res == 0"]
+    sz = work.get(name, (0, 0, 0, 0))
+    if sz[2] > 0:
+        conds.append("iw == 0")
+    if sz[3] > 0:
+        conds.append("w == 0")
+    return " || ".join(conds)
+
+
+def entry_checks(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]) -> str:
+    """What the checked entry point of ``fn`` verifies, in its order (maglev.h's text)."""
+    used = [w for w, k in (("iw", 2), ("w", 3)) if work.get(fn["name"], (0,) * 4)[k] > 0]
+    steps = ["arg, res" + "".join(f", {w}" for w in used) + " not NULL (MAGLEV_ERR_ARGUMENT)"]
+    if fn["inputs"]:
+        steps.append("every input finite (MAGLEV_ERR_NONFINITE)")
+    if _p_index(fn, runtime) is not None:
+        steps.append("p[i] in [MAGLEV_P_MIN[i], MAGLEV_P_MAX[i]], the schema's ranges "
+                     "(MAGLEV_ERR_PARAMETER)")
+    if fn["name"] in TRIM_KIND:
+        steps.append("v in range (MAGLEV_ERR_SPEED), a converged trim "
+                     "(MAGLEV_ERR_NOT_CONVERGED) with every gap >= track.min_gap "
+                     "(MAGLEV_ERR_CONTACT)")
+    steps.append("every output finite (MAGLEV_ERR_NONFINITE_OUTPUT)")
+    return "; ".join(steps) + "; on an error the requested outputs are zero"
+
+
+def _checked(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]) -> str:
+    """The checked entry point of a function that is not of TRIM_KIND."""
     name, ins, outs = fn["name"], _sizes(fn["inputs"]), _sizes(fn["outputs"])
-    in_checks = " ||\n        ".join(f"!maglev_all_finite(arg[{i}], {n})"
-                                     for i, n in enumerate(ins))
-    out_checks = " ||\n        ".join(f"!maglev_all_finite(res[{i}], {n})"
-                                      for i, n in enumerate(outs))
+    in_checks = " ||\n      ".join(f"!maglev_all_finite(arg[{i}], {n})"
+                                   for i, n in enumerate(ins))
+    out_checks = " ||\n      ".join(f"!maglev_all_finite(res[{i}], {n})"
+                                    for i, n in enumerate(outs))
+    ip = _p_index(fn, runtime)
+    body = ""
+    if in_checks:
+        body += f"  }} else if ({in_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE;\n"
+    if ip is not None:
+        body += f"  }} else if (!maglev_params_ok(arg[{ip}])) {{\n    rc = MAGLEV_ERR_PARAMETER;\n"
     return (
         f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, "
         "casadi_int* iw, casadi_real* w, int mem) {\n"
         "  int rc = MAGLEV_OK;\n"
-        f"  if ({in_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE;\n"
+        f"  if ({_pointer_check(name, work)}) {{\n    rc = MAGLEV_ERR_ARGUMENT;\n"
+        + body +
         f"  }} else if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
         "    rc = MAGLEV_ERR_INTERNAL;\n"
         f"  }} else if ({out_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE_OUTPUT;\n"
         "  } else {\n    return MAGLEV_OK;\n  }\n"
-        + _zero_outputs(outs).replace("    ", "  ") + "  return rc;\n}\n\n")
+        "  if (res == 0) return rc;\n"
+        + _zero_outputs(outs) + "  return rc;\n}\n\n")
 
 
 def _speed_check(speed_range: tuple[str, str] | None) -> tuple[str, str]:
@@ -107,6 +170,22 @@ def _speed_check(speed_range: tuple[str, str] | None) -> tuple[str, str]:
     lo, hi = speed_range
     return (f"v in [{lo}, {hi}] (the envelope)",
             f"if (!((*v >= {lo}) && (*v <= {hi}))) return MAGLEV_ERR_SPEED;")
+
+
+def _params_helper(limits: Sequence[tuple[str, str]]) -> str:
+    """``maglev_params_ok``: every p[i] inside [lo_i, hi_i] (C literals; NaN fails)."""
+    n = len(limits)
+    lo = ",\n  ".join(a for a, _ in limits)
+    hi = ",\n  ".join(b for _, b in limits)
+    return (f"/* the ranges of the parameter schema (maglevgen.params), MAGLEV_P_* order */\n"
+            f"static const casadi_real maglev_p_min[{n}] = {{\n  {lo}\n}};\n"
+            f"static const casadi_real maglev_p_max[{n}] = {{\n  {hi}\n}};\n\n"
+            "/* p inside the schema's ranges (a NULL p is CasADi's zero vector: no mass) */\n"
+            "static int maglev_params_ok(const casadi_real* p) {\n  int i;\n"
+            "  if (p == 0) return 0;\n"
+            f"  for (i = 0; i < {n}; ++i) {{\n"
+            "    if (!(p[i] >= maglev_p_min[i] && p[i] <= maglev_p_max[i])) return 0;\n"
+            "  }\n  return 1;\n}\n\n")
 
 
 def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...]],
@@ -121,10 +200,13 @@ def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...
     n_p = table["maglev_trim"]["inputs"][1]["rows"] if runtime else 0
     p_arg = "p" if runtime else "0"
     tol = TRIM_TOLERANCES[precision]
-    p_check = f" || !maglev_all_finite(p, {n_p})" if runtime else ""
+    p_check = (f"  if (!maglev_all_finite(v, 1) || !maglev_all_finite(p, {n_p})) "
+               "return MAGLEV_ERR_NONFINITE;\n"
+               "  if (!maglev_params_ok(p)) return MAGLEV_ERR_PARAMETER;\n" if runtime else
+               "  if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;\n")
     speed_doc, speed_check = _speed_check(speed_range)
-    return f"""/* the trim at *v into x and *F_prop: v and p finite, {speed_doc},
-   the accelerations at the trim within {tol} (the Newton solve converged),
+    return f"""/* the trim at *v into x and *F_prop: v and p finite{", p in range" if runtime else ""},
+   {speed_doc}, the accelerations at the trim within {tol} (the Newton solve converged),
    every gap >= track.min_gap */
 static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
                                casadi_real* F_prop, casadi_int* iw, casadi_real* w) {{
@@ -133,8 +215,8 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
   casadi_real u[{nu}], xdot[{nx}], gaps[{ng}];
   int i;
   (void)p;
-  if (!maglev_all_finite(v, 1){p_check}) return MAGLEV_ERR_NONFINITE;
-  {speed_check}
+  if (v == 0) return MAGLEV_ERR_ARGUMENT;
+{p_check}  {speed_check}
   arg[0] = v;
   arg[1] = {p_arg};
   res[0] = x;
@@ -149,13 +231,13 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
   arg[1] = u;
   arg[2] = {p_arg};
   res[0] = xdot;
-  if (maglev_dynamics(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  if (maglev_dynamics_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
   for (i = 6; i < {nx}; ++i) {{
     if (!(xdot[i] <= {tol} && xdot[i] >= -{tol})) return MAGLEV_ERR_NOT_CONVERGED;
   }}
   arg[1] = {p_arg};
   res[0] = gaps;
-  if (maglev_gaps(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  if (maglev_gaps_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
   for (i = 0; i < {ng}; ++i) {{
     if (!(gaps[i] >= {min_gap})) return MAGLEV_ERR_CONTACT;
   }}
@@ -183,15 +265,19 @@ def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
     nx = table["maglev_dynamics"]["inputs"][0]["rows"]
     p = "arg[1]" if runtime else "0"
     decl, iw_w = _work_args(name, work)
+    pointers = (f"  if ({_pointer_check(name, work)}) {{\n"
+                "    if (res != 0) {\n"
+                + _zero_outputs(outs).replace("  maglev", "      maglev")
+                + "    }\n    return MAGLEV_ERR_ARGUMENT;\n  }\n")
     if name == "maglev_trim":
-        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}"
-                f"  int rc = maglev_trim_checked(arg[0], {p}, res[0] != 0 ? res[0] : x,\n"
-                f"                               res[1] != 0 ? res[1] : &F_prop, {iw_w});\n"
+        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}  int rc;\n" + pointers +
+                f"  rc = maglev_trim_checked(arg[0], {p}, res[0] != 0 ? res[0] : x,\n"
+                f"                           res[1] != 0 ? res[1] : &F_prop, {iw_w});\n"
                 "  (void)iw; (void)w; (void)mem;\n"
                 "  if (rc == MAGLEV_OK) return MAGLEV_OK;\n")
     else:
-        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}"
-                f"  int rc = maglev_trim_checked(arg[0], {p}, x, &F_prop, {iw_w});\n"
+        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}  int rc;\n" + pointers +
+                f"  rc = maglev_trim_checked(arg[0], {p}, x, &F_prop, {iw_w});\n"
                 "  if (rc == MAGLEV_OK) {\n"
                 f"    if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
                 "      rc = MAGLEV_ERR_INTERNAL;\n"
@@ -202,17 +288,21 @@ def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
                 "    } else {\n      return MAGLEV_OK;\n    }\n  }\n")
     return (f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, "
             "casadi_int* iw, casadi_real* w, int mem) {\n" + body
-            + _zero_outputs(outs).replace("    ", "  ") + "  return rc;\n}\n\n")
+            + _zero_outputs(outs) + "  return rc;\n}\n\n")
 
 
 def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime: bool,
-                  min_gap: str, speed_range: tuple[str, str] | None = None) -> str:
-    """``source`` (post-processed CasADi C) with the checked entry points of TRIM_KIND and
-    TICK_KIND. ``min_gap`` is the C expression of track.min_gap (``arg[..]`` is not in scope:
-    with run-time parameters ``p[index]``, else a literal); ``speed_range``: (v_min, v_max) as
-    C literals, the trim's accepted speeds (None: v > 0)."""
+                  min_gap: str, speed_range: tuple[str, str] | None = None,
+                  p_limits: Sequence[tuple[str, str]] | None = None) -> str:
+    """``source`` (post-processed CasADi C) with a checked entry point for every function of
+    ``table`` (TRIM_KIND's with the trim's checks). ``min_gap`` is the C expression of
+    track.min_gap (``arg[..]`` is not in scope: with run-time parameters ``p[index]``, else a
+    literal); ``speed_range``: (v_min, v_max) as C literals, the trim's accepted speeds (None:
+    v > 0); ``p_limits``: with run-time parameters, each entry's (lo, hi) as C literals."""
     by_name = {f["name"]: f for f in table}
-    wanted = [n for n in (*TRIM_KIND, *TICK_KIND) if n in by_name]
+    wanted = [f["name"] for f in table]
+    if runtime and p_limits is None:
+        raise ValueError("run-time parameters need the schema's ranges of p (p_limits)")
     for name in wanted:
         head = f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg"
         if source.count(head) != 1:
@@ -228,11 +318,13 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
         "static void maglev_zero(casadi_real* a, int n) {\n  int i;\n  if (a == 0) return;\n"
         "  for (i = 0; i < n; ++i) {\n    a[i] = 0;\n  }\n}\n\n",
     ]
+    if runtime and any(_p_index(f, runtime) is not None for f in table):
+        block.append(_params_helper(p_limits or ()))
     if any(n in TRIM_KIND for n in wanted):
         block.append(_trim_helper(by_name, work, precision, runtime, min_gap, speed_range))
     for name in wanted:
         block.append(_trim_kind(by_name[name], by_name, runtime, work) if name in TRIM_KIND
-                     else _tick(by_name[name]))
+                     else _checked(by_name[name], runtime, work))
     tail = "\n#ifdef __cplusplus\n} /* extern \"C\" */\n#endif\n"
     if not source.endswith(tail):
         raise ValueError("generated C does not end with its extern \"C\" block")

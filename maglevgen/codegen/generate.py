@@ -76,6 +76,22 @@ def _speed_range_c(opts: GenerateOptions,
                  for v in speed_range)  # type: ignore[return-value]
 
 
+def _p_limits_c(model: CarriageModel, opts: GenerateOptions) -> list[tuple[str, str]] | None:
+    """With run-time parameters, each entry of p's schema range as C literals (the checked
+    entry points refuse a p outside them: MAGLEV_ERR_PARAMETER)."""
+    if opts.parameters != "runtime":
+        return None
+    from maglevgen.params import entry_limits
+
+    def lit(v: float) -> str:
+        if opts.precision == "double":
+            return repr(float(v))
+        return f"-{float_literal(-v)}" if v < 0 else float_literal(v)
+
+    return [tuple(lit(v) for v in entry_limits(n))  # type: ignore[misc]
+            for n in model.structure.param_names]
+
+
 def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: str,
              model: CarriageModel, p_value: np.ndarray | None = None,
              speed_range: tuple[float, float] | None = None) -> dict[str, str]:
@@ -86,7 +102,8 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
     sources[f"{C_NAME}.c"] = check_entries(sources[f"{C_NAME}.c"], function_table(functions),
                                            opts.precision, opts.parameters == "runtime",
                                            _min_gap_c(model, opts, p_value),
-                                           _speed_range_c(opts, speed_range))
+                                           _speed_range_c(opts, speed_range),
+                                           _p_limits_c(model, opts))
     files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
     prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
     ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
