@@ -235,7 +235,8 @@ def gain_table_sources(table: GainTable) -> dict[str, str]:
         "#ifdef MAGLEV_GAIN_TABLE_DOUBLE\ntypedef double maglev_real;\n#else\n"
         "typedef float maglev_real;\n#endif\n\n"
         + "".join(f"#define {k} {v}\n" for k, (v, _) in ERROR_CODES.items()
-                  if k in ("MAGLEV_OK", "MAGLEV_ERR_NONFINITE", "MAGLEV_ERR_SPEED"))
+                  if k in ("MAGLEV_OK", "MAGLEV_ERR_NONFINITE", "MAGLEV_ERR_SPEED",
+                           "MAGLEV_ERR_ARGUMENT"))
         + f"\n#define MAGLEV_SCHEDULE_V_MIN {table.v_min!r}  /* [m/s] */\n"
         f"#define MAGLEV_SCHEDULE_V_MAX {table.v_max!r}  /* [m/s] */\n"
         f"#define MAGLEV_SCHEDULE_NOUT {ny}\n" + "".join(offsets) +
@@ -247,8 +248,10 @@ def gain_table_sources(table: GainTable) -> dict[str, str]:
         f"\n * A Chebyshev series in 1/v of {n} terms; worst error on a {DENSE_GRID}-speed grid,"
         f"\n * relative to each field's largest magnitude (bound {GAIN_TABLE_BOUND:g}):"
         f"\n *   {errs}."
-        "\n * Returns MAGLEV_OK, MAGLEV_ERR_NONFINITE (v NaN or infinite: out zeroed) or"
-        "\n * MAGLEV_ERR_SPEED (v outside the range: out holds the nearer end's values).\n */\n"
+        "\n * Returns MAGLEV_OK, MAGLEV_ERR_NONFINITE (v NaN or infinite: out zeroed),"
+        "\n * MAGLEV_ERR_SPEED (v outside the range: out holds the nearer end's values) or"
+        "\n * MAGLEV_ERR_ARGUMENT (out is NULL: nothing written). Any finite v is accepted."
+        "\n * The caller's part: out holds MAGLEV_SCHEDULE_NOUT values.\n */\n"
         "int maglev_schedule(maglev_real v, maglev_real* out);\n\n"
         "#endif /* MAGLEV_GAIN_TABLE_H */\n")
     rows = ",\n        ".join(", ".join(f"R({float(row[j])!r})" for j in table.stored)
@@ -270,13 +273,16 @@ def gain_table_sources(table: GainTable) -> dict[str, str]:
         f"    static const maglev_real coeffs[NTERMS * NSTORED] = {{\n        {rows}\n    }};\n"
         "    int rc = MAGLEV_OK;\n    int i;\n    int k;\n"
         "    maglev_real vc;\n    maglev_real t;\n    maglev_real t2;\n"
-        "    for (i = 0; i < MAGLEV_SCHEDULE_NOUT; ++i) {\n        out[i] = R(0);\n    }\n"
-        "    if (!((v - v) == R(0))) { /* NaN or infinite */\n"
+        "    if (out == 0) {\n        rc = MAGLEV_ERR_ARGUMENT;\n    } else {\n"
+        "        for (i = 0; i < MAGLEV_SCHEDULE_NOUT; ++i) {\n            out[i] = R(0);\n"
+        "        }\n    }\n"
+        "    if (rc != MAGLEV_OK) {\n        /* out is NULL: nothing to write */\n"
+        "    } else if (!((v - v) == R(0))) { /* NaN or infinite */\n"
         "        rc = MAGLEV_ERR_NONFINITE;\n"
         "    } else if (v < V_MIN) {\n        vc = V_MIN;\n        rc = MAGLEV_ERR_SPEED;\n"
         "    } else if (v > V_MAX) {\n        vc = V_MAX;\n        rc = MAGLEV_ERR_SPEED;\n"
         "    } else {\n        vc = v;\n    }\n"
-        "    if (rc != MAGLEV_ERR_NONFINITE) {\n"
+        "    if ((rc == MAGLEV_OK) || (rc == MAGLEV_ERR_SPEED)) {\n"
         "        t = (T_SCALE / vc) - T_OFFSET;\n        t2 = t + t;\n"
         "        for (i = 0; i < NSTORED; ++i) { /* Clenshaw */\n"
         "            maglev_real b1 = R(0);\n            maglev_real b2 = R(0);\n"

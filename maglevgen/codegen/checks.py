@@ -126,8 +126,8 @@ def entry_checks(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]
     if fn["inputs"]:
         steps.append("every input finite (MAGLEV_ERR_NONFINITE)")
     if _p_index(fn, runtime) is not None:
-        steps.append("p[i] in [MAGLEV_P_MIN[i], MAGLEV_P_MAX[i]], the schema's ranges "
-                     "(MAGLEV_ERR_PARAMETER)")
+        steps.append("every p[i] in the range its MAGLEV_P_* line states (the schema's; "
+                     "MAGLEV_ERR_PARAMETER)")
     if fn["name"] in TRIM_KIND:
         steps.append("v in range (MAGLEV_ERR_SPEED), a converged trim "
                      "(MAGLEV_ERR_NOT_CONVERGED) with every gap >= track.min_gap "

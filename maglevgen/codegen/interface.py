@@ -21,7 +21,7 @@ from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
 from maglevgen.version import __version__
 
-from .checks import error_defines
+from .checks import entry_checks, error_defines
 
 if TYPE_CHECKING:
     from maglevgen.carriage import Carriage
@@ -109,6 +109,14 @@ def _c_literal(value: float, precision: str) -> str:
 
 
 
+def _checked_range(name: str) -> str:
+    """A parameter's range that the run-time-parameter C checks p against, for maglev.h."""
+    from maglevgen.params import entry_limits
+
+    lo, hi = entry_limits(name)
+    return f"; checked range [{lo!r}, {hi!r}]"
+
+
 def template_env() -> jinja2.Environment:
     path = resources.files("maglevgen.templates")
     return jinja2.Environment(loader=jinja2.FileSystemLoader(str(path)),
@@ -140,9 +148,13 @@ def render_interface(carriage: Carriage, opts: GenerateOptions, table: list[dict
     """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest.
     ``speed_range``: the baked trim's [v_min, v_max] (None: v > 0)."""
     header_banner = banner(opts, carriage.loaded.sha256)
+    runtime = opts.parameters == "runtime"
     params = [{"name": e.name, "macro": _macro(e.name), "unit": e.unit or "1",
                "description": e.description, "value": e.value, "value_repr": repr(e.value),
-               "value_c": _c_literal(e.value, opts.precision)} for e in carriage.entries]
+               "value_c": _c_literal(e.value, opts.precision),
+               "checked_range": _checked_range(e.name) if runtime else ""}
+              for e in carriage.entries]
+    work = {f["name"]: (f["sz_arg"], f["sz_res"], f["sz_iw"], f["sz_w"]) for f in table}
     inputs = [cv.PROPULSION] + [
         cv.Signal(n, "N", f"control force of array {n[3:]} along body {n[2]}")
         for n in input_names_of(carriage.structure)[1:]]
@@ -151,7 +163,8 @@ def render_interface(carriage: Carriage, opts: GenerateOptions, table: list[dict
         "real_type": "float" if opts.precision == "single" else "double",
         "int_type": INT_TYPES[opts.int_type],
         "states": cv.STATES, "inputs": inputs, "controls": cv.CONTROLS, "params": params,
-        "functions": table, "speed": _c_literal(carriage.params.operation.speed, "double"),
+        "functions": [{**f, "checks": entry_checks(f, runtime, work)} for f in table],
+        "speed": _c_literal(carriage.params.operation.speed, "double"),
         "dt": "1e-3", "n_steps": 2000, "error_defines": error_defines(),
         "c_sources": c_sources(opts),
         "speed_range": None if speed_range is None
