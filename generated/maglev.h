@@ -15,13 +15,19 @@
  * two-input function is too small when NAME_SZ_ARG is larger); iw and w are work arrays of at
  * least NAME_SZ_IW and NAME_SZ_W elements (the counts NAME_work() reports).
  *
+ * Preconditions the C cannot check (it cannot see an array's length): arg and res hold the
+ * pointers above, each non-NULL arg[i] and res[i] points at the rows x cols values its line
+ * below gives, iw and w hold NAME_SZ_IW and NAME_SZ_W elements. Everything else is checked
+ * at entry (each function's "checks" line, in order): no input makes a function crash, and
+ * none returns 0 with a NaN or an infinity in an output.
+ *
  * Return codes: 0 on success, else one of the MAGLEV_ERR_* below. The schedule functions
  * (maglev_trim, maglev_axis_plants, maglev_lqr_gains: each solves the trim by Newton
  * iterations) check that v and p are finite, v within [MAGLEV_V_MIN, MAGLEV_V_MAX]
  * (the envelope's range, baked with the parameters), the accelerations at the trim are within
- * the Newton tolerance and every gap is at or above track.min_gap; the tick functions
- * (maglev_lqr_control, maglev_damping_control, maglev_coupled_control, maglev_allocate,
- * maglev_axis_gains) that every input and output is finite. On an error every requested
+ * the Newton tolerance and every gap is at or above track.min_gap; every function (the
+ * ticks maglev_lqr_control, maglev_damping_control, maglev_coupled_control, maglev_allocate,
+ * maglev_axis_gains among them) that every input and output is finite. On an error every requested
  * output is set to zero (the tick's safe state: no control force). The code allocates nothing and has no writable globals:
  * it is reentrant as long as each caller passes its own work arrays.
  */
@@ -42,6 +48,8 @@ extern "C" {
 #define MAGLEV_ERR_CONTACT 4  /* the trim has a gap below track.min_gap (outputs zeroed) */
 #define MAGLEV_ERR_NONFINITE_OUTPUT 5  /* an output came out NaN or infinite (outputs zeroed) */
 #define MAGLEV_ERR_INTERNAL 6  /* the CasADi function itself returned an error (outputs zeroed) */
+#define MAGLEV_ERR_PARAMETER 7  /* an entry of the run-time parameter vector p is outside its range in the parameter schema (`maglevgen params schema`: e.g. a mass, wavelength, resistance or inductance not positive) (outputs zeroed) */
+#define MAGLEV_ERR_ARGUMENT 8  /* a required pointer is NULL (arg, res, a work array the function uses, a table), or a count, size or step is out of range (outputs zeroed where they can be reached) */
 
 /* Speeds [m/s] the schedule functions accept (the envelope's v_min, v_max; else MAGLEV_ERR_SPEED) */
 #define MAGLEV_V_MIN 6.5434277057647705
@@ -171,6 +179,9 @@ extern "C" {
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   in  u[11x1]  inputs, MAGLEV_U_* order
  *   out xdot[12x1]  state derivative
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_DYNAMICS_SZ_ARG 2
 #define MAGLEV_DYNAMICS_SZ_RES 1
@@ -185,6 +196,9 @@ int maglev_dynamics(const maglev_real** arg, maglev_real** res, maglev_int* iw, 
  *   in  u[11x1]  inputs, MAGLEV_U_* order
  *   out A[12x12]  df/dx
  *   out B[12x11]  df/du
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_JACOBIANS_SZ_ARG 2
 #define MAGLEV_JACOBIANS_SZ_RES 2
@@ -198,6 +212,10 @@ int maglev_jacobians(const maglev_real** arg, maglev_real** res, maglev_int* iw,
  *   in  v[1x1]  [m/s] forward speed
  *   out x_trim[12x1]  trim state
  *   out F_prop[1x1]  [N] propulsion force
+ *   checks: arg, res, w not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE); v
+ *     in range (MAGLEV_ERR_SPEED), a converged trim (MAGLEV_ERR_NOT_CONVERGED) with every gap
+ *     >= track.min_gap (MAGLEV_ERR_CONTACT); every output finite
+ *     (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are zero
  */
 #define MAGLEV_TRIM_SZ_ARG 7
 #define MAGLEV_TRIM_SZ_RES 7
@@ -211,6 +229,10 @@ int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, magl
  *   in  v[1x1]  [m/s] forward speed
  *   out k[5x1]  per axis stiffness [N/m or N*m/rad], MAGLEV_AXIS_* order
  *   out m[5x1]  per axis mass or inertia [kg or kg*m^2], MAGLEV_AXIS_* order
+ *   checks: arg, res, w not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE); v
+ *     in range (MAGLEV_ERR_SPEED), a converged trim (MAGLEV_ERR_NOT_CONVERGED) with every gap
+ *     >= track.min_gap (MAGLEV_ERR_CONTACT); every output finite
+ *     (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are zero
  */
 #define MAGLEV_AXIS_PLANTS_SZ_ARG 7
 #define MAGLEV_AXIS_PLANTS_SZ_RES 7
@@ -225,6 +247,9 @@ int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* i
  *   in  m[5x1]  per axis mass or inertia [kg or kg*m^2], MAGLEV_AXIS_* order
  *   out K[5x2]  per axis (row, MAGLEV_AXIS_* order): position gain, rate gain
  *   out c_damping[5x1]  per axis: damping gain of the optimized damping controller
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_AXIS_GAINS_SZ_ARG 2
 #define MAGLEV_AXIS_GAINS_SZ_RES 2
@@ -238,6 +263,10 @@ int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw
  *   in  v[1x1]  [m/s] forward speed
  *   out K[5x2]  per axis (row, MAGLEV_AXIS_* order): position gain, rate gain
  *   out c_damping[5x1]  per axis: damping gain of the optimized damping controller
+ *   checks: arg, res, w not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE); v
+ *     in range (MAGLEV_ERR_SPEED), a converged trim (MAGLEV_ERR_NOT_CONVERGED) with every gap
+ *     >= track.min_gap (MAGLEV_ERR_CONTACT); every output finite
+ *     (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are zero
  */
 #define MAGLEV_LQR_GAINS_SZ_ARG 7
 #define MAGLEV_LQR_GAINS_SZ_RES 7
@@ -252,6 +281,9 @@ int maglev_lqr_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw,
  *   in  K[5x2]  per axis (row, MAGLEV_AXIS_* order): position gain, rate gain
  *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
  *   out u_gen[5x1]  generalized forces/moments, MAGLEV_AXIS_* order
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_LQR_CONTROL_SZ_ARG 3
 #define MAGLEV_LQR_CONTROL_SZ_RES 1
@@ -265,6 +297,9 @@ int maglev_lqr_control(const maglev_real** arg, maglev_real** res, maglev_int* i
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   in  c_damping[5x1]  per axis: damping gain of the optimized damping controller
  *   out u_gen[5x1]  generalized forces/moments, MAGLEV_AXIS_* order
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_DAMPING_CONTROL_SZ_ARG 2
 #define MAGLEV_DAMPING_CONTROL_SZ_RES 1
@@ -280,6 +315,9 @@ int maglev_damping_control(const maglev_real** arg, maglev_real** res, maglev_in
  *   in  K_rate[5x5]  rate gains (5 x 5, column-major; diagonal for the per-axis designs)
  *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
  *   out u_gen[5x1]  generalized forces/moments, MAGLEV_AXIS_* order
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_COUPLED_CONTROL_SZ_ARG 4
 #define MAGLEV_COUPLED_CONTROL_SZ_RES 1
@@ -292,6 +330,9 @@ int maglev_coupled_control(const maglev_real** arg, maglev_real** res, maglev_in
  * maglev_allocate: array forces T u_gen, T the pseudo-inverse of E: the least-norm forces that produce u_gen (eqs 22-23 derived), or with normal actuators (E of rank 4) its least-squares projection
  *   in  u_gen[5x1]  generalized forces/moments, MAGLEV_AXIS_* order
  *   out F_arrays[10x1]  [N] array control forces, MAGLEV_U_* order from index 1
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_ALLOCATE_SZ_ARG 1
 #define MAGLEV_ALLOCATE_SZ_RES 1
@@ -303,6 +344,8 @@ int maglev_allocate(const maglev_real** arg, maglev_real** res, maglev_int* iw, 
 /*
  * maglev_allocation_matrix: T (arrays' forces x 5): the minimum-norm allocation as a matrix
  *   out T[10x5]  minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every output finite
+ *     (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are zero
  */
 #define MAGLEV_ALLOCATION_MATRIX_SZ_ARG 0
 #define MAGLEV_ALLOCATION_MATRIX_SZ_RES 1
@@ -321,6 +364,9 @@ int maglev_allocation_matrix(const maglev_real** arg, maglev_real** res, maglev_
  *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
  *   out x_next[12x1]  state after the step
  *   out u[11x1]  inputs, MAGLEV_U_* order
+ *   checks: arg, res, w not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_RK4_STEP_SZ_ARG 12
 #define MAGLEV_RK4_STEP_SZ_RES 5
@@ -340,6 +386,9 @@ int maglev_rk4_step(const maglev_real** arg, maglev_real** res, maglev_int* iw, 
  *   out xdot[12x1]  state derivative
  *   out u[11x1]  inputs, MAGLEV_U_* order
  *   out gaps[6x1]  [m] gap of each array face's closest corner, in the parameter file's array order
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_CLOSED_LOOP_SZ_ARG 6
 #define MAGLEV_CLOSED_LOOP_SZ_RES 3
@@ -356,6 +405,9 @@ int maglev_closed_loop(const maglev_real** arg, maglev_real** res, maglev_int* i
  *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
  *   in  T[10x5]  minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix
  *   out c[392x1]
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_ARG 5
 #define MAGLEV_CLOSED_LOOP_PREPARE_SZ_RES 1
@@ -371,6 +423,9 @@ int maglev_closed_loop_prepare(const maglev_real** arg, maglev_real** res, magle
  *   out xdot[12x1]  state derivative
  *   out u[11x1]  inputs, MAGLEV_U_* order
  *   out gaps[6x1]  [m] gap of each array face's closest corner, in the parameter file's array order
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_ARG 2
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_RES 3
@@ -383,6 +438,9 @@ int maglev_closed_loop_prepared(const maglev_real** arg, maglev_real** res, magl
  * maglev_gaps: the gap of each array face's closest corner (exact pose geometry); contact when one reaches track.min_gap
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   out gaps[6x1]  [m] gap of each array face's closest corner, in the parameter file's array order
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_GAPS_SZ_ARG 1
 #define MAGLEV_GAPS_SZ_RES 1
@@ -396,6 +454,9 @@ int maglev_gaps(const maglev_real** arg, maglev_real** res, maglev_int* iw, magl
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   out lift[6x1]  [N] lift of each array, in the parameter file's array order
  *   out drag[6x1]  [N] drag of each array, in the parameter file's array order
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_ARRAY_FORCES_SZ_ARG 1
 #define MAGLEV_ARRAY_FORCES_SZ_RES 2
@@ -410,6 +471,9 @@ int maglev_array_forces(const maglev_real** arg, maglev_real** res, maglev_int* 
  *   in  F_prop[1x1]  [N] propulsion force
  *   out K_magnetic[5x5]  magnetic stiffness K_st0 (5 x 5, MAGLEV_AXIS_* order, column-major)
  *   out K_other[5x5]  stiffness of the gravity and propulsion moments (5 x 5, column-major)
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
+ *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
+ *     zero
  */
 #define MAGLEV_STIFFNESS_SZ_ARG 2
 #define MAGLEV_STIFFNESS_SZ_RES 2
@@ -421,6 +485,8 @@ int maglev_stiffness(const maglev_real** arg, maglev_real** res, maglev_int* iw,
 /*
  * maglev_effectiveness: E (5 x arrays' forces): the generalized forces about O that unit array control forces produce (eqs 22-23; T is its minimum-norm inverse)
  *   out E[5x10]  control effectiveness (5 x array forces, column-major): u_gen = E F_arrays
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every output finite
+ *     (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are zero
  */
 #define MAGLEV_EFFECTIVENESS_SZ_ARG 0
 #define MAGLEV_EFFECTIVENESS_SZ_RES 1

@@ -375,9 +375,9 @@ int casadi_newton(const struct casadi_newton_mem* m) {
 
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void maglev_functions_casadi_version(int* major, int* minor, int* patch) {
-  *major = 3;
-  *minor = 8;
-  *patch = 2;
+  if (major != 0) *major = 3;
+  if (minor != 0) *minor = 8;
+  if (patch != 0) *patch = 2;
 }
 CASADI_SYMBOL_EXPORT int maglev_functions_casadi_int_size(void) { return (int) sizeof(casadi_int); }
 CASADI_SYMBOL_EXPORT int maglev_functions_casadi_real_size(void) { return (int) sizeof(casadi_real); }
@@ -1768,7 +1768,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_dynamics_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f0(arg, res, iw, w, mem);
 }
 
@@ -8350,7 +8350,7 @@ static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_jacobians_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f1(arg, res, iw, w, mem);
 }
 
@@ -33419,7 +33419,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_allocation_matrix_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f18(arg, res, iw, w, mem);
 }
 
@@ -35235,7 +35235,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_rk4_step_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f19(arg, res, iw, w, mem);
 }
 
@@ -35319,7 +35319,7 @@ CASADI_SYMBOL_EXPORT int maglev_rk4_step_work_bytes(casadi_int *sz_arg, casadi_i
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_closed_loop_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f20(arg, res, iw, w, mem);
 }
 
@@ -35999,7 +35999,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_closed_loop_prepare_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f21(arg, res, iw, w, mem);
 }
 
@@ -39019,7 +39019,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_closed_loop_prepared_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f22(arg, res, iw, w, mem);
 }
 
@@ -39248,7 +39248,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_gaps_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f23(arg, res, iw, w, mem);
 }
 
@@ -39983,7 +39983,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_array_forces_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f24(arg, res, iw, w, mem);
 }
 
@@ -43115,7 +43115,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_stiffness_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f25(arg, res, iw, w, mem);
 }
 
@@ -43255,7 +43255,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_effectiveness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+static int maglev_effectiveness_unchecked(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f26(arg, res, iw, w, mem);
 }
 
@@ -43334,6 +43334,8 @@ CASADI_SYMBOL_EXPORT int maglev_effectiveness_work_bytes(casadi_int *sz_arg, cas
 #define MAGLEV_ERR_CONTACT 4  /* the trim has a gap below track.min_gap (outputs zeroed) */
 #define MAGLEV_ERR_NONFINITE_OUTPUT 5  /* an output came out NaN or infinite (outputs zeroed) */
 #define MAGLEV_ERR_INTERNAL 6  /* the CasADi function itself returned an error (outputs zeroed) */
+#define MAGLEV_ERR_PARAMETER 7  /* an entry of the run-time parameter vector p is outside its range in the parameter schema (`maglevgen params schema`: e.g. a mass, wavelength, resistance or inductance not positive) (outputs zeroed) */
+#define MAGLEV_ERR_ARGUMENT 8  /* a required pointer is NULL (arg, res, a work array the function uses, a table), or a count, size or step is out of range (outputs zeroed where they can be reached) */
 
 static int maglev_all_finite(const casadi_real* a, int n) {
   int i;
@@ -43352,8 +43354,8 @@ static void maglev_zero(casadi_real* a, int n) {
   }
 }
 
-/* the trim at *v into x and *F_prop: v and p finite, v in [6.5434277057647705, 40.0] (the envelope),
-   the accelerations at the trim within 1e-8 (the Newton solve converged),
+/* the trim at *v into x and *F_prop: v and p finite,
+   v in [6.5434277057647705, 40.0] (the envelope), the accelerations at the trim within 1e-8 (the Newton solve converged),
    every gap >= track.min_gap */
 static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
                                casadi_real* F_prop, casadi_int* iw, casadi_real* w) {
@@ -43362,6 +43364,7 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
   casadi_real u[11], xdot[12], gaps[6];
   int i;
   (void)p;
+  if (v == 0) return MAGLEV_ERR_ARGUMENT;
   if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;
   if (!((*v >= 6.5434277057647705) && (*v <= 40.0))) return MAGLEV_ERR_SPEED;
   arg[0] = v;
@@ -43378,23 +43381,71 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
   arg[1] = u;
   arg[2] = 0;
   res[0] = xdot;
-  if (maglev_dynamics(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  if (maglev_dynamics_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
   for (i = 6; i < 12; ++i) {
     if (!(xdot[i] <= 1e-8 && xdot[i] >= -1e-8)) return MAGLEV_ERR_NOT_CONVERGED;
   }
   arg[1] = 0;
   res[0] = gaps;
-  if (maglev_gaps(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  if (maglev_gaps_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
   for (i = 0; i < 6; ++i) {
     if (!(gaps[i] >= 0.002)) return MAGLEV_ERR_CONTACT;
   }
   return MAGLEV_OK;
 }
 
+CASADI_SYMBOL_EXPORT int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 11)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_dynamics_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 12)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 12);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 11)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_jacobians_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 144) ||
+      !maglev_all_finite(res[1], 132)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 144);
+  maglev_zero(res[1], 132);
+  return rc;
+}
+
 CASADI_SYMBOL_EXPORT int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
-  int rc = maglev_trim_checked(arg[0], 0, res[0] != 0 ? res[0] : x,
-                               res[1] != 0 ? res[1] : &F_prop, iw, w);
+  int rc;
+  if (arg == 0 || res == 0 || w == 0) {
+    if (res != 0) {
+      maglev_zero(res[0], 12);
+      maglev_zero(res[1], 1);
+    }
+    return MAGLEV_ERR_ARGUMENT;
+  }
+  rc = maglev_trim_checked(arg[0], 0, res[0] != 0 ? res[0] : x,
+                           res[1] != 0 ? res[1] : &F_prop, iw, w);
   (void)iw; (void)w; (void)mem;
   if (rc == MAGLEV_OK) return MAGLEV_OK;
   maglev_zero(res[0], 12);
@@ -43404,7 +43455,15 @@ CASADI_SYMBOL_EXPORT int maglev_trim(const casadi_real** arg, casadi_real** res,
 
 CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
-  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
+  int rc;
+  if (arg == 0 || res == 0 || w == 0) {
+    if (res != 0) {
+      maglev_zero(res[0], 5);
+      maglev_zero(res[1], 5);
+    }
+    return MAGLEV_ERR_ARGUMENT;
+  }
+  rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
   if (rc == MAGLEV_OK) {
     if (maglev_axis_plants_unchecked(arg, res, iw, w, mem) != 0) {
       rc = MAGLEV_ERR_INTERNAL;
@@ -43420,9 +43479,38 @@ CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real
   return rc;
 }
 
+CASADI_SYMBOL_EXPORT int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 5) ||
+      !maglev_all_finite(arg[1], 5)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_axis_gains_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 10) ||
+      !maglev_all_finite(res[1], 5)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 10);
+  maglev_zero(res[1], 5);
+  return rc;
+}
+
 CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
-  int rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
+  int rc;
+  if (arg == 0 || res == 0 || w == 0) {
+    if (res != 0) {
+      maglev_zero(res[0], 10);
+      maglev_zero(res[1], 5);
+    }
+    return MAGLEV_ERR_ARGUMENT;
+  }
+  rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
   if (rc == MAGLEV_OK) {
     if (maglev_lqr_gains_unchecked(arg, res, iw, w, mem) != 0) {
       rc = MAGLEV_ERR_INTERNAL;
@@ -43440,9 +43528,11 @@ CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real**
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (!maglev_all_finite(arg[0], 12) ||
-        !maglev_all_finite(arg[1], 10) ||
-        !maglev_all_finite(arg[2], 5)) {
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 10) ||
+      !maglev_all_finite(arg[2], 5)) {
     rc = MAGLEV_ERR_NONFINITE;
   } else if (maglev_lqr_control_unchecked(arg, res, iw, w, mem) != 0) {
     rc = MAGLEV_ERR_INTERNAL;
@@ -43451,14 +43541,17 @@ CASADI_SYMBOL_EXPORT int maglev_lqr_control(const casadi_real** arg, casadi_real
   } else {
     return MAGLEV_OK;
   }
+  if (res == 0) return rc;
   maglev_zero(res[0], 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (!maglev_all_finite(arg[0], 12) ||
-        !maglev_all_finite(arg[1], 5)) {
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 5)) {
     rc = MAGLEV_ERR_NONFINITE;
   } else if (maglev_damping_control_unchecked(arg, res, iw, w, mem) != 0) {
     rc = MAGLEV_ERR_INTERNAL;
@@ -43467,16 +43560,19 @@ CASADI_SYMBOL_EXPORT int maglev_damping_control(const casadi_real** arg, casadi_
   } else {
     return MAGLEV_OK;
   }
+  if (res == 0) return rc;
   maglev_zero(res[0], 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (!maglev_all_finite(arg[0], 12) ||
-        !maglev_all_finite(arg[1], 25) ||
-        !maglev_all_finite(arg[2], 25) ||
-        !maglev_all_finite(arg[3], 5)) {
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 25) ||
+      !maglev_all_finite(arg[2], 25) ||
+      !maglev_all_finite(arg[3], 5)) {
     rc = MAGLEV_ERR_NONFINITE;
   } else if (maglev_coupled_control_unchecked(arg, res, iw, w, mem) != 0) {
     rc = MAGLEV_ERR_INTERNAL;
@@ -43485,13 +43581,16 @@ CASADI_SYMBOL_EXPORT int maglev_coupled_control(const casadi_real** arg, casadi_
   } else {
     return MAGLEV_OK;
   }
+  if (res == 0) return rc;
   maglev_zero(res[0], 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (!maglev_all_finite(arg[0], 5)) {
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 5)) {
     rc = MAGLEV_ERR_NONFINITE;
   } else if (maglev_allocate_unchecked(arg, res, iw, w, mem) != 0) {
     rc = MAGLEV_ERR_INTERNAL;
@@ -43500,25 +43599,196 @@ CASADI_SYMBOL_EXPORT int maglev_allocate(const casadi_real** arg, casadi_real** 
   } else {
     return MAGLEV_OK;
   }
+  if (res == 0) return rc;
   maglev_zero(res[0], 10);
   return rc;
 }
 
-CASADI_SYMBOL_EXPORT int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+CASADI_SYMBOL_EXPORT int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (!maglev_all_finite(arg[0], 5) ||
-        !maglev_all_finite(arg[1], 5)) {
-    rc = MAGLEV_ERR_NONFINITE;
-  } else if (maglev_axis_gains_unchecked(arg, res, iw, w, mem) != 0) {
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (maglev_allocation_matrix_unchecked(arg, res, iw, w, mem) != 0) {
     rc = MAGLEV_ERR_INTERNAL;
-  } else if (!maglev_all_finite(res[0], 10) ||
-        !maglev_all_finite(res[1], 5)) {
+  } else if (!maglev_all_finite(res[0], 50)) {
     rc = MAGLEV_ERR_NONFINITE_OUTPUT;
   } else {
     return MAGLEV_OK;
   }
-  maglev_zero(res[0], 10);
-  maglev_zero(res[1], 5);
+  if (res == 0) return rc;
+  maglev_zero(res[0], 50);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0 || w == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 1) ||
+      !maglev_all_finite(arg[2], 1) ||
+      !maglev_all_finite(arg[3], 25) ||
+      !maglev_all_finite(arg[4], 25) ||
+      !maglev_all_finite(arg[5], 5)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_rk4_step_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 12) ||
+      !maglev_all_finite(res[1], 11)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 12);
+  maglev_zero(res[1], 11);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 1) ||
+      !maglev_all_finite(arg[2], 25) ||
+      !maglev_all_finite(arg[3], 25) ||
+      !maglev_all_finite(arg[4], 5) ||
+      !maglev_all_finite(arg[5], 50)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_closed_loop_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 12) ||
+      !maglev_all_finite(res[1], 11) ||
+      !maglev_all_finite(res[2], 6)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 12);
+  maglev_zero(res[1], 11);
+  maglev_zero(res[2], 6);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 1) ||
+      !maglev_all_finite(arg[1], 25) ||
+      !maglev_all_finite(arg[2], 25) ||
+      !maglev_all_finite(arg[3], 5) ||
+      !maglev_all_finite(arg[4], 50)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_closed_loop_prepare_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 392)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 392);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 392)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_closed_loop_prepared_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 12) ||
+      !maglev_all_finite(res[1], 11) ||
+      !maglev_all_finite(res[2], 6)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 12);
+  maglev_zero(res[1], 11);
+  maglev_zero(res[2], 6);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_gaps_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 6)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 6);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_array_forces_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 6) ||
+      !maglev_all_finite(res[1], 6)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 6);
+  maglev_zero(res[1], 6);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (!maglev_all_finite(arg[0], 12) ||
+      !maglev_all_finite(arg[1], 1)) {
+    rc = MAGLEV_ERR_NONFINITE;
+  } else if (maglev_stiffness_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 25) ||
+      !maglev_all_finite(res[1], 25)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 25);
+  maglev_zero(res[1], 25);
+  return rc;
+}
+
+CASADI_SYMBOL_EXPORT int maglev_effectiveness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int rc = MAGLEV_OK;
+  if (arg == 0 || res == 0) {
+    rc = MAGLEV_ERR_ARGUMENT;
+  } else if (maglev_effectiveness_unchecked(arg, res, iw, w, mem) != 0) {
+    rc = MAGLEV_ERR_INTERNAL;
+  } else if (!maglev_all_finite(res[0], 50)) {
+    rc = MAGLEV_ERR_NONFINITE_OUTPUT;
+  } else {
+    return MAGLEV_OK;
+  }
+  if (res == 0) return rc;
+  maglev_zero(res[0], 50);
   return rc;
 }
 

@@ -39,6 +39,36 @@ static int all_finite(const maglev_real* v, int n) {
     return 1;
 }
 
+/* ---- argument checks at entry (one place for maglev_simulate and maglev_launch) ---- */
+
+/* what both runs require: the pointers, a finite positive step, a step count >= 0 whose
+   trajectories are addressable, a finite gap_min */
+static int run_arguments_ok(const maglev_real* x0, maglev_real dt, long long n_steps,
+                            maglev_real gap_min, const maglev_real* x_traj,
+                            const maglev_real* u_traj, const maglev_real* gap_traj) {
+    return x0 != 0 && x_traj != 0 && u_traj != 0 && gap_traj != 0 && isfinite(dt)
+        && dt > 0 && n_steps >= 0 && n_steps <= MAGLEV_SIM_MAX_STEPS && isfinite(gap_min);
+}
+
+/* a vector argument that must be given and finite */
+static int finite_vector(const maglev_real* v, int n) {
+    return v != 0 && all_finite(v, n);
+}
+
+/* a gain schedule maglev_schedule_eval can evaluate: its pointers, 2 to
+   MAGLEV_SCHEDULE_MAX_NODES nodes, finite v0 and last node, a finite positive spacing */
+static int schedule_ok(const maglev_spline_schedule* s) {
+    return s != 0 && s->y != 0 && s->d2y != 0 && s->n >= 2 && s->n <= MAGLEV_SCHEDULE_MAX_NODES
+        && isfinite(s->v0) && isfinite(s->dv) && s->dv > 0
+        && isfinite(s->v0 + (maglev_real)(s->n - 1) * s->dv);
+}
+
+/* the run's answer to an invalid argument: nothing written, status MAGLEV_SIM_ARGUMENT */
+static long long refuse(int* status) {
+    if (status != 0) *status = MAGLEV_SIM_ARGUMENT;
+    return -1;
+}
+
 /* the sample's status from its gaps: not finite, contact (a gap below gap_min), or OK */
 static int gap_status(const maglev_real* gaps, maglev_real gap_min) {
     int i;
@@ -83,6 +113,11 @@ long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_ste
     long long k;
     int i;
 
+    if (status == 0 || !run_arguments_ok(x0, dt, n_steps, gap_min, x_traj, u_traj, gap_traj)
+        || !isfinite(F_prop) || !finite_vector(K_pos, 25) || !finite_vector(K_rate, 25)
+        || !finite_vector(a_ref, 5)) {
+        return refuse(status);
+    }
     /* what does not change during the run, once: the allocation matrix, then everything in
        the closed loop that depends on the run's inputs alone */
     ws.res[0] = T;
@@ -139,10 +174,16 @@ long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_ste
    Gain schedule: natural cubic spline over uniformly spaced speeds (see maglev_simulate.h) */
 
 int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_real* out) {
-    const maglev_real v_last = s->v0 + (maglev_real)(s->n - 1) * s->dv;
-    maglev_real a, b, h2, pos;
+    maglev_real v_last, a, b, h2, pos;
     int j, i, rc = MAGLEV_SCHEDULE_OK;
+    if (out == 0 || !schedule_ok(s)) {
+        if (out != 0) {
+            for (i = 0; i < MAGLEV_SCHEDULE_NY; ++i) out[i] = 0;
+        }
+        return MAGLEV_SCHEDULE_INVALID;
+    }
     if (!isfinite(v)) return MAGLEV_SCHEDULE_NONFINITE;
+    v_last = s->v0 + (maglev_real)(s->n - 1) * s->dv;
     if (v < s->v0) {
         v = s->v0;
         rc = MAGLEV_SCHEDULE_CLAMPED;
@@ -151,8 +192,9 @@ int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_
         rc = MAGLEV_SCHEDULE_CLAMPED;
     }
     pos = (v - s->v0) / s->dv;
-    j = (int)pos;
-    if (j > s->n - 2) j = s->n - 2;
+    /* the interval: pos is at most n - 1 up to rounding; compared before the conversion so
+       that no rounding makes an index past the table */
+    j = pos >= (maglev_real)(s->n - 2) ? s->n - 2 : (int)pos;
     b = pos - (maglev_real)j;
     a = (maglev_real)1 - b;
     h2 = s->dv * s->dv / (maglev_real)6;
@@ -163,8 +205,15 @@ int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_
         const maglev_real m1 = s->d2y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
         out[i] = a * y0 + b * y1 + ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h2;
     }
+    if (!all_finite(out, MAGLEV_SCHEDULE_NY)) {  /* non-finite table values, or an overflow */
+        for (i = 0; i < MAGLEV_SCHEDULE_NY; ++i) out[i] = 0;
+        return MAGLEV_SCHEDULE_INVALID;
+    }
     return rc;
 }
+
+/* the evaluation gave no values: v not finite, or the table invalid */
+#define SCHEDULE_FAILED(rc) ((rc) != MAGLEV_SCHEDULE_OK && (rc) != MAGLEV_SCHEDULE_CLAMPED)
 
 /* xdot, u and gaps of the closed loop at x with the gains, reference and drag scheduled at
    the speed |(u, v, w)| of x (or, when sched is not NULL, the values held in sched) */
@@ -176,7 +225,7 @@ static int launch_stage(work* ws, const maglev_real* x, const maglev_spline_sche
     const maglev_real* g = held;
     if (g == 0) {
         const maglev_real speed = SPEED(x);
-        if (maglev_schedule_eval(s, speed, sched) == MAGLEV_SCHEDULE_NONFINITE) return 1;
+        if (SCHEDULE_FAILED(maglev_schedule_eval(s, speed, sched))) return 1;
         g = sched;
     }
     F_prop = g[MAGLEV_SCHEDULE_F_DRAG] + F_extra;
@@ -205,9 +254,11 @@ long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps
     long long k;
     int i;
 
-    if (schedule == 0 || schedule->n < 2 || !(schedule->dv > 0) || hold_steps < 0) {
-        *status = MAGLEV_SIM_ERROR;
-        return 0;
+    if (status == 0 || !run_arguments_ok(x0, dt, n_steps, gap_min, x_traj, u_traj, gap_traj)
+        || isnan(v_end) || !isfinite(F_extra) || hold_steps < 0 || !schedule_ok(schedule)
+        || !finite_vector(schedule->y, schedule->n * MAGLEV_SCHEDULE_NY)
+        || !finite_vector(schedule->d2y, schedule->n * MAGLEV_SCHEDULE_NY)) {
+        return refuse(status);
     }
     ws.res[0] = T;
     if (maglev_allocation_matrix(ws.arg, ws.res, ws.iw, ws.w, 0)) {
@@ -225,7 +276,7 @@ long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps
         if (hold_steps > 0 && k % hold_steps == 0) {
             /* a control period starts: schedule at the measured speed, held until the next */
             const maglev_real speed = SPEED(x);
-            if (maglev_schedule_eval(schedule, speed, held) == MAGLEV_SCHEDULE_NONFINITE) {
+            if (SCHEDULE_FAILED(maglev_schedule_eval(schedule, speed, held))) {
                 *status = MAGLEV_SIM_NONFINITE;
                 return k;
             }

@@ -16,9 +16,22 @@
  * The run stops early at the first sample whose state is not finite or where a gap is below
  * gap_min (contact with the track). Returns the index of the last sample written (n_steps when
  * the run completed) and sets *status to one of the MAGLEV_SIM_* codes.
+ *
+ * Checked at entry (else nothing is written, *status = MAGLEV_SIM_ARGUMENT and the return
+ * value is -1): status, x0, x_traj, u_traj, gap_traj (and the gains, a_ref, the
+ * schedule) not NULL; dt finite and > 0; 0 <= n_steps <= MAGLEV_SIM_MAX_STEPS; gap_min, F_prop,
+ * F_extra and every gain, reference and schedule value finite; v_end not NaN; hold_steps >= 0;
+ * a schedule that maglev_schedule_eval accepts. x0 itself may be anything (a non-finite x0 ends
+ * the run at sample 0, MAGLEV_SIM_NONFINITE).
+ * The caller's part (a C function cannot see an array's length): x_traj, u_traj and gap_traj
+ * hold (n_steps + 1) rows as above, x0 12 values, K_pos and K_rate 25, a_ref 5.
  */
 #ifndef MAGLEV_SIMULATE_H
 #define MAGLEV_SIMULATE_H
+
+#include <limits.h>
+#include <stddef.h>
+#include <stdint.h>
 
 #include "maglev_functions.h"
 
@@ -30,6 +43,9 @@ extern "C" {
 #define MAGLEV_SIM_CONTACT 1      /* a gap fell below gap_min at the last sample */
 #define MAGLEV_SIM_NONFINITE 2    /* the state or a gap at the last sample is not finite */
 #define MAGLEV_SIM_ERROR 3        /* a generated function returned an error */
+#define MAGLEV_SIM_ARGUMENT 4     /* an argument is invalid (see above): nothing written, -1 */
+/* the largest n_steps: every index of the trajectories a valid pointer offset */
+#define MAGLEV_SIM_MAX_STEPS ((long long)(PTRDIFF_MAX / (ptrdiff_t)(12 * sizeof(maglev_real))) - 2)
 
 long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_steps,
                           maglev_real F_prop, const maglev_real* K_pos,
@@ -53,14 +69,24 @@ long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_ste
 #define MAGLEV_SCHEDULE_OK 0          /* v inside [v0, v0 + (n - 1) dv] */
 #define MAGLEV_SCHEDULE_CLAMPED 1     /* v outside: the end node's values */
 #define MAGLEV_SCHEDULE_NONFINITE 2   /* v is not finite: out untouched */
+#define MAGLEV_SCHEDULE_INVALID 3     /* s or out NULL, or the table invalid (below): out zeroed */
+/* the most nodes: every index j * MAGLEV_SCHEDULE_NY + i of the table fits an int */
+#define MAGLEV_SCHEDULE_MAX_NODES (INT_MAX / MAGLEV_SCHEDULE_NY - 1)
 
 typedef struct {
-    int n;                    /* nodes, >= 2 */
+    int n;                    /* nodes, 2 to MAGLEV_SCHEDULE_MAX_NODES */
     maglev_real v0, dv;       /* [m/s] first node and spacing */
     const maglev_real* y;     /* n x MAGLEV_SCHEDULE_NY */
     const maglev_real* d2y;   /* n x MAGLEV_SCHEDULE_NY */
 } maglev_spline_schedule;
 
+/*
+ * maglev_schedule_eval: out[MAGLEV_SCHEDULE_NY] = the spline at v (clamped to the nodes).
+ * Checks s and out not NULL, s->y and s->d2y not NULL, 2 <= s->n <= MAGLEV_SCHEDULE_MAX_NODES,
+ * s->v0, s->dv and the last node v0 + (n - 1) dv finite, dv > 0, and that the values it
+ * computes are finite (else MAGLEV_SCHEDULE_INVALID, out zeroed); v finite (else
+ * MAGLEV_SCHEDULE_NONFINITE). The caller's part: y and d2y hold n rows.
+ */
 int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_real* out);
 
 /*

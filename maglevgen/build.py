@@ -110,6 +110,18 @@ def _find_tex() -> str | None:
     return shutil.which("latexmk") or shutil.which("pdflatex")
 
 
+def check_build_inputs(loaded: LoadedParams) -> None:
+    """The checks of a build's input that need the compiled library, before anything slow
+    is announced: the envelope's speed range has a trim (envelope.v_min above lift-off);
+    an InputError naming the key otherwise. The library is cached for run_build."""
+    from .carriage import Carriage
+    from .envelope import resolve_range
+    from .library import simulation_library
+
+    carriage = Carriage(loaded)
+    resolve_range(carriage, simulation_library(carriage.structure))
+
+
 def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=print,
               bar=None) -> BuildResult:
     """Bring ``out_dir`` up to date for the parameters ``loaded``."""

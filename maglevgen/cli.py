@@ -15,6 +15,7 @@ import sys
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from .derive import conventions as cv
 from .errors import InputError, MaglevError, VerificationError
@@ -275,6 +276,8 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
 
     if args.samples <= 0:
         raise InputError(f"--samples {args.samples}: expected a positive number of samples")
+    if args.seed < 0:  # numpy's SeedSequence takes non-negative integers only
+        raise InputError(f"--seed {args.seed}: expected a non-negative integer")
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers {args.workers}: expected at least 1")
     carriage = _carriage(args)
@@ -363,11 +366,13 @@ def cmd_build(args: argparse.Namespace) -> int:
     res = cached_result(args.params, args.overrides, Path(args.out), opts)
     if res is None:  # not up to date: validate the parameters and build
         from . import progress
-        from .build import run_build
+        from .build import check_build_inputs, run_build
         from .params import check_run_options, load_params
 
-        loaded = load_params(args.params, args.overrides)
-        check_run_options(args.t_end, args.dt)
+        with progress.held():  # bad input found here is the only line on stderr
+            loaded = load_params(args.params, args.overrides)
+            check_run_options(args.t_end, args.dt)
+            check_build_inputs(loaded)
         res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
     if not res.rebuilt:
         print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")
@@ -388,8 +393,18 @@ def cmd_build(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------- main
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the CLI's one-line errors: the message and where to read the usage
+    (no usage block), exit 2; the subcommands' parsers are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"maglevgen: error: {' '.join(message.split())} "
+                         f"(see `{self.prog} --help`)\n")
+        sys.exit(2)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="maglevgen",
         description="Inductrack maglev carriage: symbolic dynamics and control, generated C.")
     parser.add_argument("--version", action="version", version=f"maglevgen {__version__}")

@@ -55,8 +55,12 @@ def _f(unit: str, description: str, *, limits: tuple[float, float, str],
 
 
 def _short(value: Any, limit: int = 60) -> str:
-    """repr of a value for a one-line message, cut at ``limit`` characters."""
-    text = repr(value)
+    """repr of a value for a one-line message, cut at ``limit`` characters (a table or array
+    nested too deep for repr's recursion shown by its brackets only)."""
+    try:
+        text = repr(value)
+    except RecursionError:
+        text = "{...}" if isinstance(value, dict) else "[...]"
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

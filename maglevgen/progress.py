@@ -10,10 +10,37 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+#: the lines announced inside `held` (None: print them as they come)
+_held: list[str] | None = None
+
 
 def step(message: str) -> None:
-    """Announce a slow step."""
-    print(f"maglevgen: {message}", file=sys.stderr, flush=True)
+    """Announce a slow step (held back inside `held`)."""
+    line = f"maglevgen: {message}"
+    if _held is not None:
+        _held.append(line)
+        return
+    print(line, file=sys.stderr, flush=True)
+
+
+@contextmanager
+def held() -> Iterator[None]:
+    """Hold back the steps announced inside the block while a command validates its input:
+    printed when the block ends normally, dropped when it raises, so that a one-line error
+    for bad input is the only line on stderr (the CLI's contract)."""
+    global _held
+    if _held is not None:  # nested: the outer block decides
+        yield
+        return
+    _held = []
+    try:
+        yield
+    except BaseException:
+        _held = None
+        raise
+    lines, _held = _held, None
+    for line in lines:
+        print(line, file=sys.stderr, flush=True)
 
 
 @contextmanager

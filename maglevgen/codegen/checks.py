@@ -205,7 +205,8 @@ def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...
                "  if (!maglev_params_ok(p)) return MAGLEV_ERR_PARAMETER;\n" if runtime else
                "  if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;\n")
     speed_doc, speed_check = _speed_check(speed_range)
-    return f"""/* the trim at *v into x and *F_prop: v and p finite{", p in range" if runtime else ""},
+    p_range = ", p in range" if runtime else ""
+    return f"""/* the trim at *v into x and *F_prop: v and p finite{p_range},
    {speed_doc}, the accelerations at the trim within {tol} (the Newton solve converged),
    every gap >= track.min_gap */
 static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
@@ -291,6 +292,24 @@ def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
             + _zero_outputs(outs) + "  return rc;\n}\n\n")
 
 
+_VERSION = re.compile(r"(CASADI_SYMBOL_EXPORT void \w+_casadi_version\(int\* major, int\* minor, "
+                      r"int\* patch\) \{\n)((?:  \*\w+ = \d+;\n)+)\}")
+
+
+def _version_null_safe(source: str) -> str:
+    """CasADi's NAME_casadi_version(major, minor, patch) writes through its pointers
+    unconditionally: a NULL one (which its type allows) must skip that number instead."""
+    found = _VERSION.findall(source)
+    if len(found) != 1:
+        raise ValueError("the CasADi version function not found once in the generated C")
+
+    def guard(m: re.Match) -> str:
+        body = re.sub(r"  \*(\w+) = (\d+);", r"  if (\1 != 0) *\1 = \2;", m.group(2))
+        return m.group(1) + body + "}"
+
+    return _VERSION.sub(guard, source)
+
+
 def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime: bool,
                   min_gap: str, speed_range: tuple[str, str] | None = None,
                   p_limits: Sequence[tuple[str, str]] | None = None) -> str:
@@ -308,6 +327,7 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
         if source.count(head) != 1:
             raise ValueError(f"entry point of {name} not found once in the generated C")
         source = source.replace(head, f"static int {name}_unchecked(const casadi_real** arg")
+    source = _version_null_safe(source)
     work = work_sizes(source)
     block = [
         "/* Checked entry points (maglevgen.codegen.checks): MAGLEV_ERR_* as in maglev.h. */\n",
