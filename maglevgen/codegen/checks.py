@@ -98,7 +98,7 @@ def _sizes(io: Sequence[Mapping]) -> list[int]:
 
 
 def _zero_outputs(outs: list[int]) -> str:
-    return "".join(f"  maglev_zero(res[{i}], {n});\n" for i, n in enumerate(outs))
+    return "".join(f"  maglev_zero_res(res, {i}, {n});\n" for i, n in enumerate(outs))
 
 
 def _p_index(fn: Mapping, runtime: bool) -> int | None:
@@ -110,13 +110,8 @@ def _p_index(fn: Mapping, runtime: bool) -> int | None:
 def _pointer_check(name: str, work: Mapping[str, tuple[int, ...]]) -> str:
     """The C condition that a required pointer is NULL: arg, res, and the work arrays that
     ``name``'s work sizes say it uses."""
-    conds = ["arg == 0", "res == 0"]
     sz = work.get(name, (0, 0, 0, 0))
-    if sz[2] > 0:
-        conds.append("iw == 0")
-    if sz[3] > 0:
-        conds.append("w == 0")
-    return " || ".join(conds)
+    return f"!maglev_pointers_ok(arg, res, iw, w, {int(sz[2] > 0)}, {int(sz[3] > 0)})"
 
 
 def entry_checks(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]) -> str:
@@ -159,7 +154,6 @@ def _checked(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]) ->
         "    rc = MAGLEV_ERR_INTERNAL;\n"
         f"  }} else if ({out_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE_OUTPUT;\n"
         "  } else {\n    return MAGLEV_OK;\n  }\n"
-        "  if (res == 0) return rc;\n"
         + _zero_outputs(outs) + "  return rc;\n}\n\n")
 
 
@@ -267,9 +261,8 @@ def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
     p = "arg[1]" if runtime else "0"
     decl, iw_w = _work_args(name, work)
     pointers = (f"  if ({_pointer_check(name, work)}) {{\n"
-                "    if (res != 0) {\n"
-                + _zero_outputs(outs).replace("  maglev", "      maglev")
-                + "    }\n    return MAGLEV_ERR_ARGUMENT;\n  }\n")
+                + _zero_outputs(outs).replace("  maglev", "    maglev")
+                + "    return MAGLEV_ERR_ARGUMENT;\n  }\n")
     if name == "maglev_trim":
         body = (f"  casadi_real x[{nx}], F_prop;\n{decl}  int rc;\n" + pointers +
                 f"  rc = maglev_trim_checked(arg[0], {p}, res[0] != 0 ? res[0] : x,\n"
@@ -304,7 +297,8 @@ def _version_null_safe(source: str) -> str:
         raise ValueError("the CasADi version function not found once in the generated C")
 
     def guard(m: re.Match) -> str:
-        body = re.sub(r"  \*(\w+) = (\d+);", r"  if (\1 != 0) *\1 = \2;", m.group(2))
+        body = re.sub(r"  \*(\w+) = (\d+);", r"  if (\1 != 0) {\n    *\1 = \2;\n  }",
+                      m.group(2))
         return m.group(1) + body + "}"
 
     return _VERSION.sub(guard, source)
@@ -336,7 +330,19 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
         "  int i;\n  if (a == 0) return 1;\n"
         "  for (i = 0; i < n; ++i) {\n    if (!isfinite(a[i])) return 0;\n  }\n  return 1;\n}\n\n"
         "static void maglev_zero(casadi_real* a, int n) {\n  int i;\n  if (a == 0) return;\n"
-        "  for (i = 0; i < n; ++i) {\n    a[i] = 0;\n  }\n}\n\n",
+        "  for (i = 0; i < n; ++i) {\n    a[i] = 0;\n  }\n}\n\n"
+        "/* output i zeroed, when res and res[i] are given */\n"
+        "static void maglev_zero_res(casadi_real** res, int i, int n) {\n"
+        "  if (res != 0) {\n    maglev_zero(res[i], n);\n  }\n}\n\n"
+        "/* the pointers a function needs: arg and res, iw and w where it uses them */\n"
+        "static int maglev_pointers_ok(const casadi_real** arg, casadi_real** res, "
+        "const casadi_int* iw,\n"
+        "                              const casadi_real* w, int need_iw, int need_w) {\n"
+        "  int ok = 1;\n"
+        "  if ((arg == 0) || (res == 0)) {\n    ok = 0;\n  }\n"
+        "  if ((need_iw != 0) && (iw == 0)) {\n    ok = 0;\n  }\n"
+        "  if ((need_w != 0) && (w == 0)) {\n    ok = 0;\n  }\n"
+        "  return ok;\n}\n\n",
     ]
     if runtime and any(_p_index(f, runtime) is not None for f in table):
         block.append(_params_helper(p_limits or ()))

@@ -80,9 +80,15 @@ DEVIATIONS: tuple[Deviation, ...] = (
               "meaning to NULL, which needs <stddef.h>): " + _KEPT),
     Deviation("11.9", _C, ("maglev_*_work",),
               "`if (sz_arg!=0)` tests of the optional size outputs", _KEPT),
-    Deviation("11.9", _C, ("maglev_all_finite", "maglev_zero"),
-              "`if (a == 0)`: an output not requested, in the checks' helpers",
+    Deviation("11.9", _C, ("maglev_all_finite", "maglev_zero", "maglev_zero_res",
+                           "maglev_pointers_ok", "maglev_*_casadi_version"),
+              "`if (a == 0)`: an output not requested or a NULL pointer refused, in the "
+              "checks' helpers and CasADi's version query",
               "the same 0 as CasADi's convention above, so that one file uses one form"),
+    Deviation("11.9", "maglev_gain_table.c", ("maglev_schedule",),
+              "`if (out == 0)`: a NULL output refused (MAGLEV_ERR_ARGUMENT)",
+              "the same 0 as the generated functions' checks, so that the firmware's C uses "
+              "one form (NULL needs <stddef.h>)"),
     Deviation("12.3", _C, ("casadi_f*",),
               "`casadi_real a0, a1, ...;` work variables declared in one statement",
               "declarations at the top of a generated function: " + _KEPT),
