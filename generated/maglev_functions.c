@@ -375,9 +375,15 @@ int casadi_newton(const struct casadi_newton_mem* m) {
 
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void maglev_functions_casadi_version(int* major, int* minor, int* patch) {
-  if (major != 0) *major = 3;
-  if (minor != 0) *minor = 8;
-  if (patch != 0) *patch = 2;
+  if (major != 0) {
+    *major = 3;
+  }
+  if (minor != 0) {
+    *minor = 8;
+  }
+  if (patch != 0) {
+    *patch = 2;
+  }
 }
 CASADI_SYMBOL_EXPORT int maglev_functions_casadi_int_size(void) { return (int) sizeof(casadi_int); }
 CASADI_SYMBOL_EXPORT int maglev_functions_casadi_real_size(void) { return (int) sizeof(casadi_real); }
@@ -43354,6 +43360,29 @@ static void maglev_zero(casadi_real* a, int n) {
   }
 }
 
+/* output i zeroed, when res and res[i] are given */
+static void maglev_zero_res(casadi_real** res, int i, int n) {
+  if (res != 0) {
+    maglev_zero(res[i], n);
+  }
+}
+
+/* the pointers a function needs: arg and res, iw and w where it uses them */
+static int maglev_pointers_ok(const casadi_real** arg, casadi_real** res, const casadi_int* iw,
+                              const casadi_real* w, int need_iw, int need_w) {
+  int ok = 1;
+  if ((arg == 0) || (res == 0)) {
+    ok = 0;
+  }
+  if ((need_iw != 0) && (iw == 0)) {
+    ok = 0;
+  }
+  if ((need_w != 0) && (w == 0)) {
+    ok = 0;
+  }
+  return ok;
+}
+
 /* the trim at *v into x and *F_prop: v and p finite,
    v in [6.5434277057647705, 40.0] (the envelope), the accelerations at the trim within 1e-8 (the Newton solve converged),
    every gap >= track.min_gap */
@@ -43396,7 +43425,7 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
 
 CASADI_SYMBOL_EXPORT int maglev_dynamics(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 11)) {
@@ -43408,14 +43437,13 @@ CASADI_SYMBOL_EXPORT int maglev_dynamics(const casadi_real** arg, casadi_real** 
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 12);
+  maglev_zero_res(res, 0, 12);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_jacobians(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 11)) {
@@ -43428,39 +43456,34 @@ CASADI_SYMBOL_EXPORT int maglev_jacobians(const casadi_real** arg, casadi_real**
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 144);
-  maglev_zero(res[1], 132);
+  maglev_zero_res(res, 0, 144);
+  maglev_zero_res(res, 1, 132);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_trim(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
   int rc;
-  if (arg == 0 || res == 0 || w == 0) {
-    if (res != 0) {
-      maglev_zero(res[0], 12);
-      maglev_zero(res[1], 1);
-    }
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 1)) {
+    maglev_zero_res(res, 0, 12);
+    maglev_zero_res(res, 1, 1);
     return MAGLEV_ERR_ARGUMENT;
   }
   rc = maglev_trim_checked(arg[0], 0, res[0] != 0 ? res[0] : x,
                            res[1] != 0 ? res[1] : &F_prop, iw, w);
   (void)iw; (void)w; (void)mem;
   if (rc == MAGLEV_OK) return MAGLEV_OK;
-  maglev_zero(res[0], 12);
-  maglev_zero(res[1], 1);
+  maglev_zero_res(res, 0, 12);
+  maglev_zero_res(res, 1, 1);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
   int rc;
-  if (arg == 0 || res == 0 || w == 0) {
-    if (res != 0) {
-      maglev_zero(res[0], 5);
-      maglev_zero(res[1], 5);
-    }
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 1)) {
+    maglev_zero_res(res, 0, 5);
+    maglev_zero_res(res, 1, 5);
     return MAGLEV_ERR_ARGUMENT;
   }
   rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
@@ -43474,14 +43497,14 @@ CASADI_SYMBOL_EXPORT int maglev_axis_plants(const casadi_real** arg, casadi_real
       return MAGLEV_OK;
     }
   }
-  maglev_zero(res[0], 5);
-  maglev_zero(res[1], 5);
+  maglev_zero_res(res, 0, 5);
+  maglev_zero_res(res, 1, 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_axis_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 5) ||
       !maglev_all_finite(arg[1], 5)) {
@@ -43494,20 +43517,17 @@ CASADI_SYMBOL_EXPORT int maglev_axis_gains(const casadi_real** arg, casadi_real*
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 10);
-  maglev_zero(res[1], 5);
+  maglev_zero_res(res, 0, 10);
+  maglev_zero_res(res, 1, 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real x[12], F_prop;
   int rc;
-  if (arg == 0 || res == 0 || w == 0) {
-    if (res != 0) {
-      maglev_zero(res[0], 10);
-      maglev_zero(res[1], 5);
-    }
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 1)) {
+    maglev_zero_res(res, 0, 10);
+    maglev_zero_res(res, 1, 5);
     return MAGLEV_ERR_ARGUMENT;
   }
   rc = maglev_trim_checked(arg[0], 0, x, &F_prop, iw, w);
@@ -43521,14 +43541,14 @@ CASADI_SYMBOL_EXPORT int maglev_lqr_gains(const casadi_real** arg, casadi_real**
       return MAGLEV_OK;
     }
   }
-  maglev_zero(res[0], 10);
-  maglev_zero(res[1], 5);
+  maglev_zero_res(res, 0, 10);
+  maglev_zero_res(res, 1, 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_lqr_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 10) ||
@@ -43541,14 +43561,13 @@ CASADI_SYMBOL_EXPORT int maglev_lqr_control(const casadi_real** arg, casadi_real
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 5);
+  maglev_zero_res(res, 0, 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_damping_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 5)) {
@@ -43560,14 +43579,13 @@ CASADI_SYMBOL_EXPORT int maglev_damping_control(const casadi_real** arg, casadi_
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 5);
+  maglev_zero_res(res, 0, 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_coupled_control(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 25) ||
@@ -43581,14 +43599,13 @@ CASADI_SYMBOL_EXPORT int maglev_coupled_control(const casadi_real** arg, casadi_
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 5);
+  maglev_zero_res(res, 0, 5);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_allocate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 5)) {
     rc = MAGLEV_ERR_NONFINITE;
@@ -43599,14 +43616,13 @@ CASADI_SYMBOL_EXPORT int maglev_allocate(const casadi_real** arg, casadi_real** 
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 10);
+  maglev_zero_res(res, 0, 10);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_allocation_matrix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (maglev_allocation_matrix_unchecked(arg, res, iw, w, mem) != 0) {
     rc = MAGLEV_ERR_INTERNAL;
@@ -43615,14 +43631,13 @@ CASADI_SYMBOL_EXPORT int maglev_allocation_matrix(const casadi_real** arg, casad
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 50);
+  maglev_zero_res(res, 0, 50);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_rk4_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0 || w == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 1)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 1) ||
@@ -43639,15 +43654,14 @@ CASADI_SYMBOL_EXPORT int maglev_rk4_step(const casadi_real** arg, casadi_real** 
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 12);
-  maglev_zero(res[1], 11);
+  maglev_zero_res(res, 0, 12);
+  maglev_zero_res(res, 1, 11);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 1) ||
@@ -43665,16 +43679,15 @@ CASADI_SYMBOL_EXPORT int maglev_closed_loop(const casadi_real** arg, casadi_real
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 12);
-  maglev_zero(res[1], 11);
-  maglev_zero(res[2], 6);
+  maglev_zero_res(res, 0, 12);
+  maglev_zero_res(res, 1, 11);
+  maglev_zero_res(res, 2, 6);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepare(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 1) ||
       !maglev_all_finite(arg[1], 25) ||
@@ -43689,14 +43702,13 @@ CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepare(const casadi_real** arg, cas
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 392);
+  maglev_zero_res(res, 0, 392);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepared(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 392)) {
@@ -43710,16 +43722,15 @@ CASADI_SYMBOL_EXPORT int maglev_closed_loop_prepared(const casadi_real** arg, ca
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 12);
-  maglev_zero(res[1], 11);
-  maglev_zero(res[2], 6);
+  maglev_zero_res(res, 0, 12);
+  maglev_zero_res(res, 1, 11);
+  maglev_zero_res(res, 2, 6);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_gaps(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12)) {
     rc = MAGLEV_ERR_NONFINITE;
@@ -43730,14 +43741,13 @@ CASADI_SYMBOL_EXPORT int maglev_gaps(const casadi_real** arg, casadi_real** res,
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 6);
+  maglev_zero_res(res, 0, 6);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_array_forces(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12)) {
     rc = MAGLEV_ERR_NONFINITE;
@@ -43749,15 +43759,14 @@ CASADI_SYMBOL_EXPORT int maglev_array_forces(const casadi_real** arg, casadi_rea
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 6);
-  maglev_zero(res[1], 6);
+  maglev_zero_res(res, 0, 6);
+  maglev_zero_res(res, 1, 6);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (!maglev_all_finite(arg[0], 12) ||
       !maglev_all_finite(arg[1], 1)) {
@@ -43770,15 +43779,14 @@ CASADI_SYMBOL_EXPORT int maglev_stiffness(const casadi_real** arg, casadi_real**
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 25);
-  maglev_zero(res[1], 25);
+  maglev_zero_res(res, 0, 25);
+  maglev_zero_res(res, 1, 25);
   return rc;
 }
 
 CASADI_SYMBOL_EXPORT int maglev_effectiveness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int rc = MAGLEV_OK;
-  if (arg == 0 || res == 0) {
+  if (!maglev_pointers_ok(arg, res, iw, w, 0, 0)) {
     rc = MAGLEV_ERR_ARGUMENT;
   } else if (maglev_effectiveness_unchecked(arg, res, iw, w, mem) != 0) {
     rc = MAGLEV_ERR_INTERNAL;
@@ -43787,8 +43795,7 @@ CASADI_SYMBOL_EXPORT int maglev_effectiveness(const casadi_real** arg, casadi_re
   } else {
     return MAGLEV_OK;
   }
-  if (res == 0) return rc;
-  maglev_zero(res[0], 50);
+  maglev_zero_res(res, 0, 50);
   return rc;
 }
 
