@@ -28,6 +28,8 @@ from .runtime.compile import cached_shared, compile_shared
 from .runtime.ffi import GeneratedLibrary
 
 CHECKSUMS = "checksums.json"
+#: MAGLEV_SIM_ARGUMENT (maglev_simulate.h): the run refused an argument and wrote nothing
+SIM_ARGUMENT = 4
 
 Progress = Callable[[str], None]
 
@@ -117,6 +119,7 @@ class SimulationLibrary(GeneratedLibrary):
                             ctypes.byref(sched), pc.ctypes.data_as(P), gap_min,
                             x.ctypes.data_as(P), u.ctypes.data_as(P), g.ctypes.data_as(P),
                             ctypes.byref(status))
+        _refused("maglev_launch", status.value)
         n = int(last) + 1
         return int(last), status.value, x[:n], u[:n], g[:n]
 
@@ -138,8 +141,17 @@ class SimulationLibrary(GeneratedLibrary):
 
         last = self._simulate(c(ins[0]), dt, n_steps, f_prop, c(ins[1]), c(ins[2]), c(ins[3]),
                               c(ins[4]), gap_min, c(x), c(u), c(g), ctypes.byref(status))
+        _refused("maglev_simulate", status.value)
         n = int(last) + 1
         return int(last), status.value, x[:n], u[:n], g[:n]
+
+
+def _refused(name: str, status: int) -> None:
+    """An internal error when the C refused the arguments this module passed it (the
+    callers validate every input first, so this is a bug, not bad input)."""
+    if status == SIM_ARGUMENT:
+        raise RuntimeError(f"{name} refused its arguments (MAGLEV_SIM_ARGUMENT): a step, "
+                           "count, gain or pointer out of its range (maglev_simulate.h)")
 
 
 def simulation_library(structure: Structure, precision: str = "double",

@@ -706,11 +706,17 @@ cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
 addLoggerProxy(byref(cb))
 bad = []
 
+slave = FMU2Slave(guid=md.guid, unzipDirectory=unzipped,
+                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="h")
+
 def new():
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="h")
-    fmu.instantiate(callbacks=cb)
-    return fmu
+    """a fresh instance of the one loaded FMU"""
+    slave.instantiate(callbacks=cb)
+    return slave
+
+def drop(fmu):
+    """free the instance, keep the library loaded (FMPy's freeInstance also unloads it)"""
+    fmu.fmi2FreeInstance(fmu.component)
 
 def refused(call):
     try:
@@ -730,7 +736,7 @@ def finish(fmu, what):
     except FMICallException:
         pass
     fmu.terminate()
-    fmu.freeInstance()
+    drop(fmu)
 
 n = 0
 for v in settable:
@@ -741,7 +747,8 @@ for v in settable:
         n += 1
         if refused(lambda: fmu.setReal([v.valueReference], [value])):
             if not math.isfinite(value):
-                fmu.terminate(); fmu.freeInstance()
+                fmu.terminate()
+                drop(fmu)
                 continue
         elif not math.isfinite(value):
             bad.append(f"{v.name} = {value}: accepted")
