@@ -685,7 +685,7 @@ def test_hostile_inputs_under_sanitizers(harnesses, kind: str) -> None:
 # ------------------------------------------------------------------------------------- FMU
 
 _FMU_DRIVER = r'''
-import json, math, sys
+import ctypes, json, math, sys
 from ctypes import byref
 from fmpy import calloc, extract, free, read_model_description
 from fmpy.fmi1 import FMICallException
@@ -782,6 +782,35 @@ if not all(math.isfinite(v) for v in values):
     bad.append("non-finite outputs after refused steps")
 fmu.terminate()
 fmu.freeInstance()
+# model exchange: hostile states and times
+from fmpy.fmi2 import FMU2Model
+me = FMU2Model(guid=md.guid, unzipDirectory=unzipped,
+               modelIdentifier=md.modelExchange.modelIdentifier, instanceName="m")
+me.instantiate(callbacks=cb)
+me.setupExperiment(startTime=0.0)
+me.enterInitializationMode()
+me.exitInitializationMode()
+me.enterContinuousTimeMode()
+nx = md.numberOfContinuousStates
+Vec = ctypes.c_double * nx
+for value in HOSTILE:
+    n += 2
+    if not math.isfinite(value):
+        if not refused(lambda: me.setContinuousStates(Vec(*[value] * nx), nx)):
+            bad.append(f"ME states = {value} accepted")
+        if not refused(lambda: me.setTime(value)):
+            bad.append(f"ME time = {value} accepted")
+        continue
+    try:
+        me.setContinuousStates(Vec(*[value] * nx), nx)
+        dx = Vec()
+        me.getDerivatives(dx, nx)
+        if not all(math.isfinite(v) for v in dx):
+            bad.append(f"ME states = {value}: OK with non-finite derivatives")
+    except FMICallException:
+        pass
+me.terminate()
+me.freeInstance()
 print(json.dumps({"calls": n, "bad": bad}))
 '''
 
@@ -792,14 +821,15 @@ def test_fmu_hostile_values_and_out_of_order_calls(carriage: Carriage, sim_lib,
     """Through FMPy (in a child process, so that a crash is a failure, not the end of the
     run): NaN, +-inf, +-1e30, denormals, zero and -1 into every real parameter and input
     before initialization, and out-of-order calls (a step before initialization, entering
-    it twice, NaN/inf/negative/zero/huge communication steps and times): each is refused
-    (fmi2Error or fmi2Discard) or followed by OK calls with every real finite."""
+    it twice, NaN/inf/negative/zero/huge communication steps and times; model exchange:
+    the hostile values as every state and as the time): each is refused (fmi2Error or
+    fmi2Discard) or followed by OK calls with every real finite."""
     import sys
 
     from maglevgen.fmu import build_fmu
 
     path = tmp_path / "m.fmu"
-    path.write_bytes(build_fmu(carriage, "cs", "lqr"))
+    path.write_bytes(build_fmu(carriage, "both", "lqr"))
     hostile = [float("nan"), float("inf"), float("-inf"), 1e30, -1e30, 5e-324, 0.0, -1.0]
     driver = _FMU_DRIVER.replace("HOSTILE", repr(hostile).replace("nan", "float('nan')")
                                  .replace("inf", "float('inf')"))
