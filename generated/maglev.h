@@ -423,9 +423,9 @@ int maglev_closed_loop_prepare(const maglev_real** arg, maglev_real** res, magle
  *   out xdot[12x1]  state derivative
  *   out u[11x1]  inputs, MAGLEV_U_* order
  *   out gaps[6x1]  [m] gap of each array face's closest corner, in the parameter file's array order
- *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
- *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
- *     zero
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input but c (checked where it is made)
+ *     finite (MAGLEV_ERR_NONFINITE); every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an
+ *     error the requested outputs are zero
  */
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_ARG 2
 #define MAGLEV_CLOSED_LOOP_PREPARED_SZ_RES 3
