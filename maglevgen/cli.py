@@ -367,11 +367,13 @@ def cmd_build(args: argparse.Namespace) -> int:
     if res is None:  # not up to date: validate the parameters and build
         from . import progress
         from .build import check_build_inputs, run_build
+        from .output import check_writable
         from .params import check_run_options, load_params
 
         with progress.held():  # bad input found here is the only line on stderr
             loaded = load_params(args.params, args.overrides)
             check_run_options(args.t_end, args.dt)
+            check_writable(Path(args.out))  # before any work (the library, the model)
             check_build_inputs(loaded)
         res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
     if not res.rebuilt:
