@@ -222,14 +222,18 @@ def _stability_map(env) -> dict[str, bytes]:
 
 
 def embedded_verification(carriage, env) -> str | None:
-    """None when the embedded controller is stable across the envelope, else the one-line
-    reason `build` exits 3 with."""
+    """None when the embedded controller is stable and meets ``[control.spec]`` across the
+    envelope, else the one-line reason `build` exits 3 with."""
     name = carriage.params.envelope.embedded_controller
     c = env.controllers[name]
-    if c.ok:
-        return None
-    return (f"verification failed: the embedded controller envelope.embedded_controller = "
-            f"{name!r} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)")
+    if not c.ok:
+        return (f"verification failed: the embedded controller envelope.embedded_controller = "
+                f"{name!r} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)")
+    if not c.meets_spec:
+        return (f"verification failed: the embedded controller envelope.embedded_controller = "
+                f"{name!r} {c.spec_verdict}, {env.checked_on()} (maglevgen envelope; "
+                "--allow-unstable to accept)")
+    return None
 
 
 def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:

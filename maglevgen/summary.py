@@ -252,6 +252,8 @@ def verdict_lines(env, embedded: str) -> list[str]:
     for name, c in env.controllers.items():
         mark = " [embedded]" if name == embedded else ""
         out.append(f"  {CONTROLLER_TITLES[name] + mark:<28} {c.verdict}")
+        out.append(f"  {'':<28} specification: {c.spec_verdict}")
+    out.append(f"  (specification checked {env.checked_on()})")
     return out
 
 

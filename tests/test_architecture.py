@@ -21,7 +21,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 # pyproject.toml [tool.setuptools.package-dir]
-LAYOUT = {"maglevgen": "maglevgen", "maglevgen.derive": "derive",
+LAYOUT = {"maglevgen": "maglevgen", "maglevgen.laws": "maglevgen/laws",
+          "maglevgen.derive": "derive",
           "maglevgen.runtime": "runtime", "maglevgen.codegen": "maglevgen/codegen",
           "maglevgen.report": "maglevgen/report",
           "maglevgen.report.sections": "maglevgen/report/sections"}
@@ -56,6 +57,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.library": ("a cached library is loaded without SymPy or CasADi",
                           ("maglevgen.codegen.generate", "maglevgen.derive.model")),
     "maglevgen.operating": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.laws.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
                            "only when written", ("scipy", "maglevgen.codegen.checks", "numpy")),
     "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
