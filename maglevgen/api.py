@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from . import laws
 from .derive import conventions as cv
 from .errors import InputError
 
@@ -55,7 +56,7 @@ __all__ = ["Carriage", "EnvelopeResult", "Gains", "SimulationResult", "TrimResul
 
 STATE_NAMES: tuple[str, ...] = tuple(s.name for s in cv.STATES)
 AXES: tuple[str, ...] = tuple(cv.AXES)
-CONTROLLERS: tuple[str, ...] = ("none", "damping", "lqr", "coupled")
+CONTROLLERS: tuple[str, ...] = laws.names()
 
 
 def load(params: str | Path | None = None, overrides: Sequence[str] = ()) -> Carriage:

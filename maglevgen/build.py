@@ -306,7 +306,9 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
              f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
              "(envelope/envelope.md, envelope/stability_map.png):", ""]
     lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
-              f": {c.verdict}" for n, c in env.controllers.items()]
+              f": {c.verdict}; specification: {c.spec_verdict}"
+              for n, c in env.controllers.items()]
+    lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}."]
     lines += ["",
               "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
               "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "

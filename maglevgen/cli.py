@@ -162,6 +162,22 @@ def cmd_gains(args: argparse.Namespace) -> int:
           f"{max(p[0] for p in c['poles_coupled_lqr']):.4g} 1/s")
     print("The paper's eq 31-32 gain (K1 = sqrt(k^2+1) - 1) is not the LQR gain: its P does "
           "not solve eq 30.")
+    e = rep["embedded"]
+    print(f"\nEmbedded controller ({e['title']}, `{e['controller']}`) at {e['speed']:g} m/s: "
+          "u_gen = -(K_pos (a - a_ref) + K_rate a'), rows "
+          f"{', '.join(e['forces'])}, columns {', '.join(e['axes'])}")
+    for label, K in (("K_pos", e["K_pos"]), ("K_rate", e["K_rate"])):
+        # entries below 1e-9 of the matrix's largest are round-off of the LQR solve: 0
+        scale = max((abs(v) for row in K for v in row), default=0.0)
+        print(f"  {label}:")
+        for name, row in zip(e["forces"], K, strict=True):
+            print(f"    {name:<8}" + "".join(f"{v if abs(v) > 1e-9 * scale else 0.0:12.4g}"
+                                         for v in row))
+    if "weights" in e:
+        w = e["weights"]
+        print(f"  weights (design damping ratio {w['design_damping_ratio']:g}): "
+              + "; ".join(f"{a} q1 {q1:.4g}, q2 {q2:.4g}, r {r:.4g}" for a, q1, q2, r in
+                          zip(e["axes"], w["q1"], w["q2"], w["r"], strict=True)))
     return 0
 
 
@@ -388,6 +404,25 @@ def cmd_build(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------- main
 
 
+class _Controllers:
+    """The registry's controller names as argparse choices, read when argparse first asks (a
+    command line without --controller imports neither the registry nor numpy)."""
+
+    def __init__(self, embeddable_only: bool = False, extra: tuple[str, ...] = ()) -> None:
+        self.embeddable_only, self.extra = embeddable_only, extra
+
+    def _names(self) -> tuple[str, ...]:
+        from . import laws
+
+        return (laws.embeddable() if self.embeddable_only else laws.names()) + self.extra
+
+    def __iter__(self):
+        return iter(self._names())
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._names()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="maglevgen",
@@ -433,8 +468,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
     _common(sim)
-    sim.add_argument("--controller", choices=("none", "damping", "lqr", "coupled", "all"),
-                     default="all")
+    sim.add_argument("--controller", choices=_Controllers(extra=("all",)), default="all")
     sim.add_argument("--scenario", choices=("hold", "launch"), default="hold",
                      help="hold: the trim drag at one speed (default); launch: accelerate from "
                           "envelope.v_min to v_max with the gains scheduled in the C loop")
@@ -457,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="samples to draw (default 1000)")
     mc.add_argument("--seed", type=int, default=0, metavar="S",
                     help="seed; sample i draws from SeedSequence(S, spawn_key=(i,)) (default 0)")
-    mc.add_argument("--controller", choices=("none", "damping", "lqr", "coupled", "all"),
+    mc.add_argument("--controller", choices=_Controllers(extra=("all",)),
                     help="default: envelope.embedded_controller")
     _run_options(mc)
     mc.add_argument("--workers", type=int, metavar="K",
@@ -501,9 +535,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="output folder (default: ./build)")
     _run_options(bld)
     bld.add_argument("--no-pdf", action="store_true", help="write report.tex only")
-    bld.add_argument("--controller", choices=("damping", "lqr", "coupled"),
+    bld.add_argument("--controller", choices=_Controllers(embeddable_only=True),
                      help="the controller the firmware C embeds and the build verifies "
-                          "(default: envelope.embedded_controller, the coupled LQR)")
+                          "(default: envelope.embedded_controller, the spec design)")
     bld.add_argument("--allow-unstable", action="store_true",
                      help="exit 0 with a warning (not 3) when the embedded controller is "
                           "unstable somewhere in the envelope")

@@ -91,9 +91,11 @@ def speed_range(carriage) -> tuple[float, float]:
 
 def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float) -> GainTable:
     """The firmware's table schedule over [v_min, v_max] fitted to the exact schedule (the
-    operating points' trim and gains, `gain_table_row`); its manifest() is what
+    operating points' trim and the embedded controller's gains, `gain_table_row`); its
+    manifest() is what
     c/manifest.json and the report show."""
-    return GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
+    embedded = carriage.params.envelope.embedded_controller
+    return GainTable.fit(lambda vs: np.array([gain_table_row(op, embedded) for op in
                                               envelope_points(carriage, lib, vs)]),
                          v_min, v_max)
 

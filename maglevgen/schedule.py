@@ -121,7 +121,7 @@ def _field_slices() -> list[tuple[int, int]]:
     return out
 
 
-def gain_table_row(op: OperatingPoint, controller: str = "coupled") -> np.ndarray:
+def gain_table_row(op: OperatingPoint, controller: str) -> np.ndarray:
     """(F_prop, a_ref, K column-major, c_damping, K_pos, K_rate column-major) at a speed."""
     K_pos, K_rate = op.gains(controller)
     return np.concatenate([[op.f_prop], op.a_trim, op.K.ravel(order="F"), op.c_damping,

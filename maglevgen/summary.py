@@ -26,6 +26,7 @@ from .derive.riccati import lqr_gain_mp, riccati_solution_mp
 from .derive.structure import input_names_of
 from .envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
 from .errors import InputError, NoTrimError
+from .laws.spec import spec_weights
 from .library import SimulationLibrary, simulation_library
 from .operating import (
     CONTROLLER_TITLES,
@@ -214,7 +215,24 @@ def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary
             "minimum_norm": op.allocation.tolist(),
         },
         "speed_mode": mode.to_json(),
+        "embedded": embedded_gains(carriage, op),
     }
+
+
+def embedded_gains(carriage: Carriage, op: OperatingPoint) -> dict:
+    """The embedded controller's gains at ``op``: u_gen = -(K_pos (a - a_ref) + K_rate a'),
+    rows the generalized forces (F_y, F_z, M_x, M_y, M_z), columns the axes; and for the
+    `spec` design its per-axis weights."""
+    name = carriage.params.envelope.embedded_controller
+    K_pos, K_rate = op.gains(name)
+    out = {"controller": name, "title": CONTROLLER_TITLES[name], "speed": op.speed,
+           "axes": list(cv.AXES), "forces": [c.name for c in cv.CONTROLS],
+           "a_ref": op.a_trim.tolist(), "K_pos": K_pos.tolist(), "K_rate": K_rate.tolist()}
+    if name == "spec":
+        q1, q2, r = spec_weights(op)
+        out["weights"] = {"q1": q1.tolist(), "q2": q2.tolist(), "r": r.tolist(),
+                          "design_damping_ratio": op.weights.spec.zeta}
+    return out
 
 
 

@@ -34,7 +34,7 @@ _CLI_STAGES = ("maglevgen.build", "maglevgen.carriage", "maglevgen.codegen.gener
                "maglevgen.envelope", "maglevgen.fmu", "maglevgen.output", "maglevgen.params",
                "maglevgen.progress", "maglevgen.sim_output", "maglevgen.simulate",
                "maglevgen.summary", "maglevgen.report", "maglevgen.cache", "maglevgen.montecarlo",
-               "numpy")
+               "maglevgen.laws", "numpy")
 LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.cli": (
         "start-up: a command imports its own stage only; an up-to-date `maglevgen build` "
@@ -56,8 +56,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
                         ("cloudpickle",)),
     "maglevgen.library": ("a cached library is loaded without SymPy or CasADi",
                           ("maglevgen.codegen.generate", "maglevgen.derive.model")),
-    "maglevgen.operating": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.laws.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
                            "only when written", ("scipy", "maglevgen.codegen.checks", "numpy")),
     "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",

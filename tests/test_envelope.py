@@ -50,12 +50,44 @@ def _reference_eigenvalues(carriage: Carriage, v: float) -> dict[str, np.ndarray
         Kp[i], Kr[i] = np.asarray(K).ravel()
     c = np.where(k > 0, np.sqrt(np.maximum(k, 0) * m), 0.0)  # optimized damping sqrt(k m)
     K_c, _, _ = control.lqr(Ar, Bg, q1 * S.T @ S + q2 * C.T @ C, r * np.eye(5))
+    q1s, q2s, rs = _reference_spec_weights(carriage, k, m, T)
+    K_s, _, _ = control.lqr(Ar, Bg, S.T @ np.diag(q1s) @ S + C.T @ np.diag(q2s) @ C,
+                            np.diag(rs))
     return {
         "none": np.linalg.eigvals(Ar),
         "damping": np.linalg.eigvals(Ar - Bg @ (np.diag(c) @ C)),
         "lqr": np.linalg.eigvals(Ar - Bg @ (np.diag(Kp) @ S + np.diag(Kr) @ C)),
         "coupled": np.linalg.eigvals(Ar - Bg @ np.asarray(K_c)),
+        "spec": np.linalg.eigvals(Ar - Bg @ np.asarray(K_s)),
     }
+
+
+def _axis_zeta(k: float, m: float, q1: float, q2: float, r: float) -> float:
+    _, _, E = control.lqr([[0, 1], [-k / m, 0]], [[0], [1 / m]], np.diag([q1, q2]), [[r]])
+    E = np.asarray(E)
+    return float(np.min(-E.real / np.abs(E)))
+
+
+def _reference_spec_weights(carriage: Carriage, k, m, T):
+    """The spec design's weights from [control.spec]: Bryson's q1 and r (the budget over the
+    largest allocation entry of each axis), q2 by a root search on python-control's damping
+    ratio (where the position weight alone already damps more, the design's stated floor
+    1e-6 q1 m / sigma)."""
+    from scipy.optimize import brentq
+
+    spec = carriage.params.control.spec
+    a_max = np.array([getattr(spec.max_deviation, a) for a in ("y", "z", "phi", "theta",
+                                                                 "psi")])
+    q1, r = 1 / a_max**2, (np.max(np.abs(T), axis=0) / spec.force_budget) ** 2
+    zeta = spec.min_damping_ratio + spec.damping_margin
+    q2 = np.empty(5)
+    for i in range(5):
+        sigma = np.sqrt(k[i] ** 2 + q1[i] / r[i])
+        floor = 1e-6 * q1[i] * m[i] / sigma
+        f = lambda w, i=i: _axis_zeta(k[i], m[i], q1[i], w, r[i]) - zeta  # noqa: E731
+        q2[i] = floor if f(floor) >= 0 else brentq(f, floor, 1e6 * q1[i] * m[i] / sigma,
+                                                   rtol=1e-13)
+    return q1, q2, r
 
 
 POINT = 'model.array_force="point"'
@@ -109,6 +141,7 @@ def test_default_verdicts_follow_independent_eigenvalues(carriage, envelope) -> 
         assert c.ok == (worst[name] < -STABILITY_MARGIN), name
         assert c.verdict.startswith("stable across" if c.ok else "UNSTABLE"), name
     assert envelope.controllers["coupled"].ok and envelope.controllers["lqr"].ok
+    assert envelope.controllers["spec"].ok
     assert not envelope.controllers["none"].ok
 
 
@@ -295,7 +328,7 @@ def test_envelope_cli_json_and_files(tmp_path, capsys) -> None:
     assert main(["envelope", "--speeds", "6", "--json", "--out", str(out)]) == 0
     data = json.loads(capsys.readouterr().out)
     assert len(data["speeds"]) == 6
-    assert set(data["controllers"]) == {"none", "damping", "lqr", "coupled"}
+    assert set(data["controllers"]) == {"none", "damping", "lqr", "coupled", "spec"}
     for c in data["controllers"].values():
         assert c["stable"] == [r < -STABILITY_MARGIN for r in c["max_real"]]
     assert (out / "stability_map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

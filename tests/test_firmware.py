@@ -209,7 +209,9 @@ def gain_table(carriage: Carriage, sim_lib, tmp_path_factory):
     v_min, v_max = resolve_range(carriage, sim_lib)
 
     def rows(vs):
-        return np.array([gain_table_row(op) for op in envelope_points(carriage, sim_lib, vs)])
+        embedded = carriage.params.envelope.embedded_controller
+        return np.array([gain_table_row(op, embedded)
+                         for op in envelope_points(carriage, sim_lib, vs)])
 
     table = GainTable.fit(rows, v_min, v_max)
     out = tmp_path_factory.mktemp("gain_table")

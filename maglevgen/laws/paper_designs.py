@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import Controller, register
+from .registry import Controller, register
 
 if TYPE_CHECKING:
     from ..operating import OperatingPoint

@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import Controller, register
 from .lqr import numerical_lqr, weighted_qr
+from .registry import Controller, register
 
 if TYPE_CHECKING:
     from ..operating import OperatingPoint

@@ -30,6 +30,7 @@ def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
     status = [c.status for c in checks]
     return {
         "verdicts": envelope["rows"],
+        "spec_checked_on": envelope["spec_checked_on"],
         "v_min": envelope["v_min"], "v_max": envelope["v_max"],
         "trim": {"speed": trep["speed"], "lift_off": trep["lift_off_speed"],
                  "F_prop": trep["propulsion_force"], "residual": trep["residual"]},
