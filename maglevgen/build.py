@@ -233,6 +233,11 @@ def embedded_verification(carriage, env) -> str | None:
         return (f"verification failed: the embedded controller envelope.embedded_controller = "
                 f"{name!r} {c.spec_verdict}, {env.checked_on()} (maglevgen envelope; "
                 "--allow-unstable to accept)")
+    if not env.robust:
+        return (f"verification failed: the embedded controller envelope.embedded_controller = "
+                f"{name!r} meets the specification on the carriage's model but its gains fail "
+                f"it {env.robustness_verdict()} (maglevgen envelope; --allow-unstable to "
+                "accept)")
     return None
 
 
@@ -309,6 +314,9 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
               f": {c.verdict}; specification: {c.spec_verdict}"
               for n, c in env.controllers.items()]
     lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}."]
+    if env.other_models:
+        lines += [f"The embedded controller's gains on the other models: "
+                  f"{env.robustness_verdict()}."]
     lines += ["",
               "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
               "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "

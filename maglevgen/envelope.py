@@ -32,6 +32,7 @@ from .operating import (
     speed_mode,
     stability,
 )
+from .params import ARRAY_FORCE_LAWS
 from .sampled import Tick, loop_gain, loop_model, sampled_eigenvalues, speed_gain
 from .schedule import GainTable, gain_table_row
 
@@ -181,11 +182,24 @@ class Envelope:
     speed_pole: np.ndarray
     loop: LoopSetting | None = None  # how the sampled-data verdicts ran the controllers
     force_law: str = ""  # model.array_force of the linearisation
+    # the embedded controller's gains on the alternate models (`model_checks`)
+    other_models: tuple[ModelCheck, ...] = ()
 
     def checked_on(self) -> str:
         """The model and loop the specification verdicts were computed on, in words."""
         loop = "" if self.loop is None else f"; {self.loop.text()}"
-        return f"on the linearisation with the {self.force_law} force law{loop}"
+        others = ", ".join(c.model for c in self.other_models)
+        also = (f"; the embedded controller's gains also on the same loop with {others}"
+                if others else "")
+        return f"on the linearisation with the {self.force_law} force law{loop}{also}"
+
+    def robustness_verdict(self) -> str:
+        """The embedded controller's gains on the other models, in one sentence."""
+        return "; ".join(c.text() for c in self.other_models)
+
+    @property
+    def robust(self) -> bool:
+        return all(c.ok for c in self.other_models)
 
     def to_json(self) -> dict:
         return {"speeds": self.speeds.tolist(), "v_min": self.v_min, "v_max": self.v_max,
@@ -196,7 +210,9 @@ class Envelope:
                 "spec_checked_on": self.checked_on(),
                 "speed_loop_gain": None if self.loop is None else self.loop.speed_gain,
                 "tick_rate": None if self.loop is None else self.loop.tick.rate,
-                "delay_ticks": None if self.loop is None else self.loop.tick.delay}
+                "delay_ticks": None if self.loop is None else self.loop.tick.delay,
+                "other_models": [{"model": c.model, "ok": c.ok, "verdict": c.text()}
+                                 for c in self.other_models]}
 
 
 def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,
@@ -282,11 +298,12 @@ def loop_setting(carriage, points: Sequence[OperatingPoint]) -> LoopSetting:
     return LoopSetting(Tick.of(carriage.params), k_v, float(spec.speed_bandwidth))
 
 
-def sampled_stability(op: OperatingPoint, controller: str,
-                      setting: LoopSetting) -> tuple[float, float]:
-    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op``."""
+def sampled_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
+                      design: OperatingPoint | None = None) -> tuple[float, float]:
+    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op``, with
+    the gains of ``design`` (default ``op``)."""
     A, B = loop_model(op)
-    K = loop_gain(op, controller, setting.speed_gain)
+    K = loop_gain(op, controller, setting.speed_gain, design)
     if not np.all(np.isfinite(K)):
         return float("inf"), float("nan")
     s = sampled_eigenvalues(A, B, K, setting.tick)
@@ -325,10 +342,74 @@ def spec_verdict_text(speeds: np.ndarray, failures: tuple[SpecFailure, ...],
             f"{-np.max(max_real):.4g} 1/s)")
 
 
+@dataclass(frozen=True)
+class ModelCheck:
+    """The embedded controller's gains (designed on the carriage's model) on another model
+    of the same carriage: the specification's failures there."""
+
+    model: str  # e.g. "model.array_force = point"
+    failures: tuple[SpecFailure, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+    def text(self) -> str:
+        if self.ok:
+            return f"meets it with {self.model}"
+        return f"with {self.model}: " + "; ".join(f.text() for f in self.failures)
+
+
+# the model choices the embedded controller's gains are also checked on (model.<key>)
+MODEL_CHOICES: tuple[tuple[str, tuple[str, ...]], ...] = (("array_force", ARRAY_FORCE_LAWS),)
+
+
+def alternate_models(carriage) -> list[tuple[str, object]]:
+    """(label, carriage) for each other value of each model choice, one change at a time."""
+    from .carriage import Carriage
+    from .params import LoadedParams
+
+    params, out = carriage.params, []
+    for key, choices in MODEL_CHOICES:
+        for value in choices:
+            if value == getattr(params.model, key):
+                continue
+            changed = params.model_copy(update={"model": params.model.model_copy(
+                update={key: value})})
+            loaded = carriage.loaded
+            out.append((f"model.{key} = {value}", Carriage(LoadedParams(
+                changed, loaded.source, loaded.sha256,
+                (*loaded.overrides, f'model.{key}="{value}"')))))
+    return out
+
+
+def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
+                 setting: LoopSetting) -> tuple[ModelCheck, ...]:
+    """``controller``'s gains at ``points`` on each alternate model's sampled-data loop at the
+    same speeds (each model's own trim and Jacobians, from its own compiled library)."""
+    speeds = np.array([op.speed for op in points])
+    out = []
+    for label, alt in alternate_models(carriage):
+        try:
+            alt_points = envelope_points(alt, simulation_library(alt.structure), speeds)
+        except InputError as exc:
+            out.append(ModelCheck(label, (SpecFailure(f"a trim ({exc})", ((speeds[0],
+                                                                          speeds[-1]),),
+                                                      float("nan"), float(speeds[0])),)))
+            continue
+        sd = np.array([sampled_stability(a, controller, setting, design=op)
+                       for a, op in zip(alt_points, points, strict=True)])
+        out.append(ModelCheck(label, spec_failures(carriage, speeds, sd[:, 0], sd[:, 1])))
+    return tuple(out)
+
+
 def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_SPEEDS,
-                     controllers: Sequence[str] = CONTROLLERS) -> Envelope:
+                     controllers: Sequence[str] = CONTROLLERS,
+                     other_models: bool = True) -> Envelope:
     """Each controller's stability at ``n_speeds`` speeds spanning [v_min, v_max], on the
-    continuous linearisation and, against ``[control.spec]``, on the sampled-data loop."""
+    continuous linearisation and, against ``[control.spec]``, on the sampled-data loop;
+    ``other_models``: the embedded controller's gains also on each alternate model
+    (`model_checks`)."""
     if not 2 <= n_speeds <= 100_000:
         raise InputError(f"--speeds {n_speeds}: expected 2 to 100000 speeds")
     v_min, v_max = resolve_range(carriage, lib)
@@ -349,8 +430,10 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
                                     spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1]))
     mass, embedded = carriage.params.vehicle.mass, carriage.params.envelope.embedded_controller
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
+    checks = (model_checks(carriage, embedded, points, setting)
+              if other_models and embedded in controllers else ())
     return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting,
-                    carriage.params.model.array_force)
+                    carriage.params.model.array_force, checks)
 
 
 def envelope_markdown(env: Envelope) -> str:

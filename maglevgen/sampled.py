@@ -64,12 +64,15 @@ def speed_gain(op: OperatingPoint, mass: float, bandwidth: float) -> float:
     return float(mass * bandwidth - op.trim_drag_slope)
 
 
-def loop_gain(op: OperatingPoint, controller: str, k_v: float) -> np.ndarray:
+def loop_gain(op: OperatingPoint, controller: str, k_v: float,
+              design: OperatingPoint | None = None) -> np.ndarray:
     """K (6 x 11): w = -K x on LOOP_STATES; rows 0-4 the controller's generalized forces,
-    row 5 the propulsion's speed feedback k_v dV (dV = (u du + v dv + w dw)/V at trim)."""
+    row 5 the propulsion's speed feedback k_v dV (dV = (u du + v dv + w dw)/V at trim).
+    ``design``: the operating point whose gains the controller uses (another model's, to
+    check them on this one); default ``op``."""
     A, _ = loop_model(op)
     n = len(LOOP_INDEX)
-    K_pos, K_rate = op.gains(controller)
+    K_pos, K_rate = (design or op).gains(controller)
     S = np.zeros((N_AXES, n))
     S[range(N_AXES), range(N_AXES)] = 1.0
     axis_rows = [LOOP_INDEX.index(i) for i in AXIS_STATES]

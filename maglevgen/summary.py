@@ -271,6 +271,9 @@ def verdict_lines(env, embedded: str) -> list[str]:
         mark = " [embedded]" if name == embedded else ""
         out.append(f"  {CONTROLLER_TITLES[name] + mark:<28} {c.verdict}")
         out.append(f"  {'':<28} specification: {c.spec_verdict}")
+        if name == embedded and env.other_models:
+            out.append(f"  {'':<28} its gains on the other models: "
+                       f"{env.robustness_verdict()}")
     out.append(f"  (specification checked {env.checked_on()})")
     return out
 

@@ -83,6 +83,7 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
                   "ok": c.ok, "embedded": n == embedded, "spec_verdict": c.spec_verdict,
                   "meets_spec": c.meets_spec} for n, c in env.controllers.items()],
         "spec_checked_on": env.checked_on(),
+        "robustness": env.robustness_verdict(), "robust": env.robust,
         "spec": _spec_context(carriage),
         "names": [CONTROLLER_TITLES[n] for n in names],
         "gain_table": {"nodes": table["nodes"], "dense_grid": table["dense_grid"],
