@@ -26,6 +26,7 @@ from maglevgen.derive.linearize import (
 from maglevgen.derive.model import CarriageModel
 from maglevgen.derive.riccati import riccati_stable_form
 from maglevgen.derive.structure import NORMAL_AXIS
+from maglevgen.derive.trim import along_track_acceleration
 
 from .casadi_model import casadi_model
 from .sympy_casadi import SympyToCasadi, casadi_rewriting_off
@@ -38,6 +39,11 @@ DESCRIPTIONS: dict[str, str] = {
     "dynamics": "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, 8-12)",
     "jacobians": "(A, B) = (df/dx, df/du) of maglev_dynamics",
     "trim": "equilibrium at speed v (Newton iterations in C): trim state and propulsion force",
+    "trim_accelerating": "equilibrium at speed v accelerating at accel along the track "
+                         "(Newton iterations in C): eqs 1-2 with the d'Alembert load -m accel "
+                         "at the CG and the propulsion at operation.propulsion_point "
+                         "(derive/trim.py); trim state and propulsion force (drag + m accel); "
+                         "accel = 0 gives maglev_trim",
     "axis_plants": "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed v",
     "lqr_gains": "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim",
     "axis_gains": "per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form "
@@ -132,6 +138,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     xt_mx, ut_mx = trim_state_fn(v_mx, z_sol)
     trim = ca.Function("maglev_trim", [v_mx, p_mx], [xt_mx, ut_mx[0]], ["v", "p"],
                        ["x_trim", "F_prop"])
+    trim_accelerating = _accelerating_trim(model, dynamics, p, n_u, newton_iterations,
+                                           (abstol, abstol_step), trim_state_fn)
 
     # --- per-axis plants at trim and their closed-form gains
     sf = stiffness_form(model.structure)
@@ -244,7 +252,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                                   ["xdot", "u", "gaps"])
         T_out = T_normal if normal else E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))
         allocation_matrix = ca.Function("maglev_allocation_matrix", [p], [T_out], ["p"], ["T"])
-    fns = [_finished(f) for f in (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains,
+    fns = [_finished(f) for f in (dynamics, jacobians, trim, trim_accelerating, axis_plants,
+                                  axis_gains, lqr_gains,
                                   lqr_control, damping_control, coupled_control, allocate,
                                   allocation_matrix)]
     closed_loop, allocation_matrix = _finished(closed_loop), fns[-1]
@@ -256,6 +265,35 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     return Built((*fns, rk4, closed_loop, prepare, prepared, _finished(gaps_fn),
                   _finished(array_forces), _finished(stiffness), _finished(effectiveness)),
                  p.shape[0], extra)
+
+
+def _accelerating_trim(model: CarriageModel, dynamics: ca.Function, p: ca.SX, n_u: int,
+                       newton_iterations: int, tolerances: tuple[float, float],
+                       trim_state_fn: ca.Function) -> ca.Function:
+    """maglev_trim_accelerating(v, accel, p): Newton on the six accelerations minus those of
+    a pure translation at ``accel`` along the track (derive.trim.along_track_acceleration:
+    eqs 1-2 with the d'Alembert load at the CG), from the same start as maglev_trim; at
+    accel = 0 the residual and its Jacobian are maglev_trim's."""
+    v, accel = ca.SX.sym("v"), ca.SX.sym("accel")
+    z6 = ca.SX.sym("z", 6)
+    x_trim = _trim_state(v, z6)
+    u_trim = ca.vertcat(z6[5], ca.SX.zeros(n_u - 1))
+    phi, theta, psi = (model.x[cv.STATE_INDEX[s]] for s in ("phi", "theta", "psi"))
+    a_sym = sp.Symbol("a_track", real=True)
+    target = SympyToCasadi({phi: z6[2], theta: z6[3], psi: z6[4], a_sym: accel})(
+        along_track_acceleration(model.R, a_sym))
+    residual = dynamics(x_trim, u_trim, p)[6:12] - target
+    res_fn = ca.Function("maglev_trim_accelerating_residual", [z6, ca.vertcat(v, accel, p)],
+                         [residual])
+    abstol, abstol_step = tolerances
+    newton = ca.rootfinder("maglev_trim_accelerating_newton", "fast_newton", res_fn,
+                           {"max_iter": newton_iterations, "abstol": abstol,
+                            "abstolStep": abstol_step})
+    v_mx, a_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("accel"), ca.MX.sym("p", p.shape[0])
+    z_sol = newton(ca.DM.zeros(6), ca.vertcat(v_mx, a_mx, p_mx))
+    xt_mx, ut_mx = trim_state_fn(v_mx, z_sol)
+    return ca.Function("maglev_trim_accelerating", [v_mx, a_mx, p_mx], [xt_mx, ut_mx[0]],
+                       ["v", "accel", "p"], ["x_trim", "F_prop"])
 
 
 def _stiffness_parts(model: CarriageModel, base: dict, xs: ca.SX, fprop: ca.SX, p: ca.SX,
