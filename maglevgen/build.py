@@ -190,16 +190,18 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 
 
 def _schedule_c(carriage, lib, env) -> str:
-    """c/maglev_schedule.c: the embedded controller's gain schedule over ``env``'s range."""
+    """c/maglev_schedule.c: the embedded controller's launch schedule over ``env``'s range
+    (what maglev_launch runs: the accelerating trim's reference and drag at
+    envelope.launch_acceleration, the constant-speed gains; envelope.launch_schedule)."""
     import numpy as np
 
-    from .envelope import envelope_points
-    from .schedule import Schedule, schedule_c_source
+    from .envelope import envelope_points, launch_schedule
+    from .schedule import schedule_c_source
 
     nodes = np.linspace(env.v_min, env.v_max, carriage.params.envelope.schedule_nodes)
     points = envelope_points(carriage, lib, nodes)
-    return schedule_c_source(Schedule.from_points(points,
-                                                  carriage.params.envelope.embedded_controller))
+    return schedule_c_source(launch_schedule(carriage, lib, points,
+                                             carriage.params.envelope.embedded_controller))
 
 
 def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:

@@ -33,6 +33,7 @@ from .operating import (
     REDUCED_STATES,
     OperatingPoint,
     Weights,
+    checked_accelerating_trim,
     checked_trim,
     numerical_lqr,
     operating_point,
@@ -53,6 +54,7 @@ class TrimPoint:
     residual: float  # largest |acceleration| of maglev_dynamics at the trim
     K_magnetic: np.ndarray  # K_st0 (5 x 5)
     K_other: np.ndarray  # gravity and propulsion moments (5 x 5)
+    acceleration: float = 0.0  # along-track acceleration of the trim [m/s^2]
 
 
 def _speed(carriage: Carriage, speed: float | None) -> float:
@@ -72,26 +74,34 @@ def _lift_off(carriage: Carriage, lib: SimulationLibrary) -> float:
             v_hi *= 4
 
 
-def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None) -> TrimPoint:
+def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None,
+               acceleration: float = 0.0) -> TrimPoint:
     """The checked trim at ``speed`` (default operation.speed) and what the trim table shows;
-    NoTrimError naming the lift-off speed when there is none."""
+    NoTrimError naming the lift-off speed when there is none. ``acceleration`` [m/s^2]: the
+    accelerating trim (`checked_accelerating_trim`: eqs 1-2 with the d'Alembert load at the
+    CG); its residual is the accelerations' departure from the translation at a."""
     v = _speed(carriage, speed)
     p = carriage.p
     try:
         if not v > 0:
             raise NoTrimError(f"no trim at speed {v!r} m/s: operation.speed must be > 0")
-        x, f_prop, gaps = checked_trim(lib, p, v, carriage.params.track.min_gap)
+        min_gap = carriage.params.track.min_gap
+        x, f_prop, gaps = (checked_trim(lib, p, v, min_gap) if acceleration == 0 else
+                           checked_accelerating_trim(lib, p, v, acceleration, min_gap))
     except NoTrimError as exc:
         why = str(exc).split(": ", 1)[-1]
         v_off = _lift_off(carriage, lib) if v > 0 else float("nan")
         hint = f"; lift-off needs {v_off:.4g} m/s" if np.isfinite(v_off) else ""
-        raise NoTrimError(f"no trim at speed {v:g} m/s: {why}{hint}") from None
+        moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
+        raise NoTrimError(f"no trim at speed {v:g} m/s{moving}: {why}{hint}") from None
     u = np.zeros(lib.function("maglev_dynamics").shapes_in[1][0])
     u[0] = f_prop
     acc = lib.function("maglev_dynamics")(x, u, p)[0].ravel()[6:]
+    acc[:3] -= x[6:9] * (acceleration / v)  # the translation's R^T (a, 0, 0) (derive/trim.py)
     lift, drag = (a.ravel() for a in lib.function("maglev_array_forces")(x, p))
     K_mag, K_oth = lib.function("maglev_stiffness")(x, f_prop, p)
-    return TrimPoint(v, x, f_prop, gaps, lift, drag, float(np.max(np.abs(acc))), K_mag, K_oth)
+    return TrimPoint(v, x, f_prop, gaps, lift, drag, float(np.max(np.abs(acc))), K_mag, K_oth,
+                     float(acceleration))
 
 
 def stiffness_table(carriage: Carriage, lib: SimulationLibrary, speed: float | None):
@@ -131,16 +141,18 @@ def pitch_paper_form(carriage: Carriage, tp: TrimPoint, printed: float) -> dict[
     }
 
 
-def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None
-                ) -> dict:
-    """Everything `maglevgen trim` prints, as plain data."""
+def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None,
+                acceleration: float = 0.0) -> dict:
+    """Everything `maglevgen trim` prints, as plain data; ``acceleration`` [m/s^2]: of the
+    accelerating trim (`trim_point`)."""
     lib = lib or _library(carriage)
-    tp = trim_point(carriage, lib, speed)
+    tp = trim_point(carriage, lib, speed, acceleration)
     kin = carriage.paper_stiffness_inputs(tp)
     rows = stiffness_rows(kin, tp.K_magnetic, tp.K_magnetic + tp.K_other)
     names = list(carriage.params.arrays)
     return {
         "speed": tp.speed,
+        "acceleration": tp.acceleration,
         "params_sha256": carriage.loaded.sha256,
         "state": {s.name: float(v) for s, v in zip(cv.STATES, tp.x, strict=True)},
         "state_units": {s.name: s.unit for s in cv.STATES},

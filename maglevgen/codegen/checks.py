@@ -14,8 +14,8 @@ sizes cover (checked at generation, else the checks get their own on the stack).
   them, the same as the table schedule's), v > 0 with run-time parameters (the simulation
   library bisects the lift-off speed through it, below any v_min), the trim's accelerations within
   ``TRIM_TOLERANCES`` (the Newton solve converged; for the accelerating trim the accelerations
-  less those of the translation at a, a/v times the trim's body velocity) and every gap at or above the track's
-  minimum gap (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
+  less those of the translation at a, a/v times the trim's body velocity) and every gap at or
+  above the track's minimum gap (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
 * tick functions (``TICK_KIND``): every input finite, then every output finite.
 
 On any error every output that the caller asked for (non-NULL ``res[i]``) is set to zero: the
