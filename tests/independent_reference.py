@@ -6,7 +6,8 @@ face centre for ``model.array_force = "point"``, and for "distributed" the same 
 circuit by circuit along the array with each circuit's flux and force integrated across the
 width at the local gaps by Gauss-Legendre quadrature (no closed form), acting where they act; the
 rigid body is the static balance of eqs 1-2 (no motion but the steady speed: force and moment
-about O both zero), the stiffness is a central difference, and the LQR gains come from the
+about O both zero; accelerating along the track, with the d'Alembert load -m a at the CG), the
+stiffness is a central difference, and the LQR gains come from the
 Riccati equation of eq 30 solved by hand in mpmath at 60 digits. The tests compare every derived
 number the toolchain prints or generates with these.
 """
