@@ -291,7 +291,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
 
     from .derive import conventions as cv
     from .operating import CONTROLLER_TITLES
-    from .summary import pitch_paper_form, stiffness_table, trim_point
+    from .summary import accelerating_margins, pitch_paper_form, stiffness_table, trim_point
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
@@ -313,6 +313,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gaps "
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "
              f"(track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
+             accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), "",
              "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | damping c | paper k (printed) |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for i, axis in enumerate(cv.AXES):

@@ -12,6 +12,7 @@ numerical LQR of each axis and the 50-digit closed form (mpmath).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,6 +103,61 @@ def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None,
     K_mag, K_oth = lib.function("maglev_stiffness")(x, f_prop, p)
     return TrimPoint(v, x, f_prop, gaps, lift, drag, float(np.max(np.abs(acc))), K_mag, K_oth,
                      float(acceleration))
+
+
+@dataclass(frozen=True)
+class AcceleratingMargin:
+    """The accelerating trim beside the constant-speed one at a speed (the launch's reference:
+    `trim_point` with and without the acceleration, from the C)."""
+
+    speed: float  # [m/s]
+    acceleration: float  # [m/s^2]
+    pitch: float  # constant-speed trim pitch [rad]
+    pitch_accelerating: float  # [rad]
+    heave: float  # [m]
+    heave_accelerating: float  # [m]
+    gap: float  # smallest closest-corner gap at constant speed [m]
+    gap_accelerating: float  # [m]
+    gap_array: str  # the array with the smallest gap when accelerating
+    f_prop: float  # [N]
+    f_prop_accelerating: float  # [N]
+    min_gap: float  # track.min_gap [m]
+
+    @property
+    def pitch_offset(self) -> float:
+        """pitch_accelerating - pitch [rad]: nose down when the CG is above the thrust."""
+        return self.pitch_accelerating - self.pitch
+
+    @property
+    def gap_margin(self) -> float:
+        """gap_accelerating - track.min_gap [m]."""
+        return self.gap_accelerating - self.min_gap
+
+    def sentence(self) -> str:
+        """One line (plain ASCII) for SUMMARY.md."""
+        return (f"Accelerating trim at {self.speed:.4g} m/s and {self.acceleration:g} m/s^2 "
+                f"(the launch's reference): pitch {self.pitch_accelerating * 1e3:+.3f} mrad "
+                f"({self.pitch_offset * 1e3:+.3f} mrad from the constant-speed trim), smallest "
+                f"corner gap {self.gap_accelerating * 1e3:.3f} mm (array {self.gap_array}; "
+                f"{self.gap * 1e3:.3f} mm at constant speed; track.min_gap "
+                f"{self.min_gap * 1e3:g} mm), F_prop {self.f_prop_accelerating:.4g} N.")
+
+
+def accelerating_margins(carriage: Carriage, lib: SimulationLibrary, speeds: Sequence[float],
+                         acceleration: float | None = None) -> list[AcceleratingMargin]:
+    """`AcceleratingMargin` at each speed, at ``acceleration`` (default
+    envelope.launch_acceleration)."""
+    a = carriage.params.envelope.launch_acceleration if acceleration is None else acceleration
+    names = list(carriage.params.arrays)
+    out = []
+    for v in speeds:
+        still, moving = (trim_point(carriage, lib, v, acc) for acc in (0.0, a))
+        i = int(np.argmin(moving.gaps))
+        out.append(AcceleratingMargin(
+            float(v), float(a), float(still.x[4]), float(moving.x[4]), float(still.x[2]),
+            float(moving.x[2]), float(np.min(still.gaps)), float(moving.gaps[i]), names[i],
+            still.f_prop, moving.f_prop, carriage.params.track.min_gap))
+    return out
 
 
 def stiffness_table(carriage: Carriage, lib: SimulationLibrary, speed: float | None):

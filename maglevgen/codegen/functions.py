@@ -120,26 +120,35 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                             [ca.jacobian(cm.xdot, x), ca.jacobian(cm.xdot, u)],
                             ["x", "u", "p"], ["A", "B"])
 
-    # --- trim: Newton on the six accelerations in (y, z, phi, theta, psi, F_prop)
-    v = ca.SX.sym("v")
+    # --- trim: Newton on the six accelerations in (y, z, phi, theta, psi, F_prop), less those
+    # of a pure translation at accel along the track (derive.trim.along_track_acceleration:
+    # eqs 1-2 with the d'Alembert load at the CG). One solver serves maglev_trim (accel = 0,
+    # where the target and its Jacobian are exactly zero: the same iterations as without it)
+    # and maglev_trim_accelerating, so the C holds one copy of the Newton solve's model.
+    v, accel = ca.SX.sym("v"), ca.SX.sym("accel")
     z6 = ca.SX.sym("z", 6)
     x_trim = _trim_state(v, z6)
     u_trim = ca.vertcat(z6[5], ca.SX.zeros(n_u - 1))
-    residual = dynamics(x_trim, u_trim, p)[6:12]
-    res_fn = ca.Function("maglev_trim_residual", [z6, ca.vertcat(v, p)], [residual])
+    phi, theta, psi = (model.x[cv.STATE_INDEX[s]] for s in ("phi", "theta", "psi"))
+    a_sym = sp.Symbol("a_track", real=True)
+    target = SympyToCasadi({phi: z6[2], theta: z6[3], psi: z6[4], a_sym: accel})(
+        along_track_acceleration(model.R, a_sym))
+    residual = dynamics(x_trim, u_trim, p)[6:12] - target
+    res_fn = ca.Function("maglev_trim_residual", [z6, ca.vertcat(v, accel, p)], [residual])
     abstol, abstol_step = NEWTON_TOLERANCES[precision]
     newton = ca.rootfinder("maglev_trim_newton", "fast_newton", res_fn,
                            {"max_iter": newton_iterations, "abstol": abstol,
                             "abstolStep": abstol_step})
-    v_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("p", p.shape[0])
+    v_mx, a_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("accel"), ca.MX.sym("p", p.shape[0])
     guess = ca.vertcat(0, 0, 0, 0, 0, 0)
-    z_sol = newton(guess, ca.vertcat(v_mx, p_mx))
     trim_state_fn = ca.Function("maglev_trim_state", [v, z6], [x_trim, u_trim])
-    xt_mx, ut_mx = trim_state_fn(v_mx, z_sol)
+    xt_mx, ut_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, 0, p_mx)))
     trim = ca.Function("maglev_trim", [v_mx, p_mx], [xt_mx, ut_mx[0]], ["v", "p"],
                        ["x_trim", "F_prop"])
-    trim_accelerating = _accelerating_trim(model, dynamics, p, n_u, newton_iterations,
-                                           (abstol, abstol_step), trim_state_fn)
+    xa_mx, ua_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, a_mx, p_mx)))
+    trim_accelerating = ca.Function("maglev_trim_accelerating", [v_mx, a_mx, p_mx],
+                                    [xa_mx, ua_mx[0]], ["v", "accel", "p"],
+                                    ["x_trim", "F_prop"])
 
     # --- per-axis plants at trim and their closed-form gains
     sf = stiffness_form(model.structure)
@@ -265,35 +274,6 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     return Built((*fns, rk4, closed_loop, prepare, prepared, _finished(gaps_fn),
                   _finished(array_forces), _finished(stiffness), _finished(effectiveness)),
                  p.shape[0], extra)
-
-
-def _accelerating_trim(model: CarriageModel, dynamics: ca.Function, p: ca.SX, n_u: int,
-                       newton_iterations: int, tolerances: tuple[float, float],
-                       trim_state_fn: ca.Function) -> ca.Function:
-    """maglev_trim_accelerating(v, accel, p): Newton on the six accelerations minus those of
-    a pure translation at ``accel`` along the track (derive.trim.along_track_acceleration:
-    eqs 1-2 with the d'Alembert load at the CG), from the same start as maglev_trim; at
-    accel = 0 the residual and its Jacobian are maglev_trim's."""
-    v, accel = ca.SX.sym("v"), ca.SX.sym("accel")
-    z6 = ca.SX.sym("z", 6)
-    x_trim = _trim_state(v, z6)
-    u_trim = ca.vertcat(z6[5], ca.SX.zeros(n_u - 1))
-    phi, theta, psi = (model.x[cv.STATE_INDEX[s]] for s in ("phi", "theta", "psi"))
-    a_sym = sp.Symbol("a_track", real=True)
-    target = SympyToCasadi({phi: z6[2], theta: z6[3], psi: z6[4], a_sym: accel})(
-        along_track_acceleration(model.R, a_sym))
-    residual = dynamics(x_trim, u_trim, p)[6:12] - target
-    res_fn = ca.Function("maglev_trim_accelerating_residual", [z6, ca.vertcat(v, accel, p)],
-                         [residual])
-    abstol, abstol_step = tolerances
-    newton = ca.rootfinder("maglev_trim_accelerating_newton", "fast_newton", res_fn,
-                           {"max_iter": newton_iterations, "abstol": abstol,
-                            "abstolStep": abstol_step})
-    v_mx, a_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("accel"), ca.MX.sym("p", p.shape[0])
-    z_sol = newton(ca.DM.zeros(6), ca.vertcat(v_mx, a_mx, p_mx))
-    xt_mx, ut_mx = trim_state_fn(v_mx, z_sol)
-    return ca.Function("maglev_trim_accelerating", [v_mx, a_mx, p_mx], [xt_mx, ut_mx[0]],
-                       ["v", "accel", "p"], ["x_trim", "F_prop"])
 
 
 def _stiffness_parts(model: CarriageModel, base: dict, xs: ca.SX, fprop: ca.SX, p: ca.SX,
