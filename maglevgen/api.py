@@ -711,8 +711,9 @@ class Carriage:
 
         From the trim disturbed by 1 mm lateral and heave, 2 mrad roll, pitch and yaw; RK4
         in ``maglev_simulate`` (``hold``: the propulsion at the trim drag, the gains of
-        ``speed``) or ``maglev_launch`` (``launch``: from envelope.v_min to v_max, the gains
-        scheduled with the measured speed).
+        ``speed``) or ``maglev_launch`` (``launch``: from the accelerating trim at
+        envelope.v_min to v_max, the gains scheduled with the measured speed, the reference
+        and the propulsion those of the accelerating trim at envelope.launch_acceleration).
 
         Parameters
         ----------
