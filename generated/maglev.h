@@ -16,10 +16,11 @@
  * least NAME_SZ_IW and NAME_SZ_W elements (the counts NAME_work() reports).
  *
  * Return codes: 0 on success, else one of the MAGLEV_ERR_* below. The schedule functions
- * (maglev_trim, maglev_axis_plants, maglev_lqr_gains: each solves the trim by Newton
- * iterations) check that v and p are finite, v within [MAGLEV_V_MIN, MAGLEV_V_MAX]
- * (the envelope's range, baked with the parameters), the accelerations at the trim are within
- * the Newton tolerance and every gap is at or above track.min_gap; the tick functions
+ * (maglev_trim, maglev_trim_accelerating, maglev_axis_plants, maglev_lqr_gains: each solves
+ * the trim by Newton iterations) check that v (and accel) and p are finite, v within [MAGLEV_V_MIN, MAGLEV_V_MAX]
+ * (the envelope's range, baked with the parameters), the accelerations at the trim (less
+ * those of the accelerating translation) are within the Newton tolerance and every gap is at
+ * or above track.min_gap; the tick functions
  * (maglev_lqr_control, maglev_damping_control, maglev_coupled_control, maglev_allocate,
  * maglev_axis_gains) that every input and output is finite. On an error every requested
  * output is set to zero (the tick's safe state: no control force). The code allocates nothing and has no writable globals:
@@ -202,8 +203,22 @@ int maglev_jacobians(const maglev_real** arg, maglev_real** res, maglev_int* iw,
 #define MAGLEV_TRIM_SZ_ARG 7
 #define MAGLEV_TRIM_SZ_RES 7
 #define MAGLEV_TRIM_SZ_IW 0
-#define MAGLEV_TRIM_SZ_W 1836
+#define MAGLEV_TRIM_SZ_W 1839
 int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
+    int mem);
+
+/*
+ * maglev_trim_accelerating: equilibrium at speed v accelerating at accel along the track (Newton iterations in C): eqs 1-2 with the d'Alembert load -m accel at the CG and the propulsion at operation.propulsion_point (derive/trim.py); trim state and propulsion force (drag + m accel); accel = 0 gives maglev_trim
+ *   in  v[1x1]  [m/s] forward speed
+ *   in  accel[1x1]  [m/s^2] along-track acceleration (0: the constant-speed trim)
+ *   out x_trim[12x1]  trim state
+ *   out F_prop[1x1]  [N] propulsion force
+ */
+#define MAGLEV_TRIM_ACCELERATING_SZ_ARG 9
+#define MAGLEV_TRIM_ACCELERATING_SZ_RES 7
+#define MAGLEV_TRIM_ACCELERATING_SZ_IW 0
+#define MAGLEV_TRIM_ACCELERATING_SZ_W 1839
+int maglev_trim_accelerating(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
 /*
@@ -215,7 +230,7 @@ int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, magl
 #define MAGLEV_AXIS_PLANTS_SZ_ARG 7
 #define MAGLEV_AXIS_PLANTS_SZ_RES 7
 #define MAGLEV_AXIS_PLANTS_SZ_IW 0
-#define MAGLEV_AXIS_PLANTS_SZ_W 1849
+#define MAGLEV_AXIS_PLANTS_SZ_W 1852
 int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
@@ -242,7 +257,7 @@ int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw
 #define MAGLEV_LQR_GAINS_SZ_ARG 7
 #define MAGLEV_LQR_GAINS_SZ_RES 7
 #define MAGLEV_LQR_GAINS_SZ_IW 0
-#define MAGLEV_LQR_GAINS_SZ_W 1864
+#define MAGLEV_LQR_GAINS_SZ_W 1867
 int maglev_lqr_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 

@@ -72,7 +72,25 @@ int maglev_trim_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *s
 #define maglev_trim_SZ_ARG 7
 #define maglev_trim_SZ_RES 7
 #define maglev_trim_SZ_IW 0
-#define maglev_trim_SZ_W 1836
+#define maglev_trim_SZ_W 1839
+int maglev_trim_accelerating(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
+int maglev_trim_accelerating_checkout(void);
+void maglev_trim_accelerating_release(int mem);
+void maglev_trim_accelerating_incref(void);
+void maglev_trim_accelerating_decref(void);
+maglev_int maglev_trim_accelerating_n_in(void);
+maglev_int maglev_trim_accelerating_n_out(void);
+maglev_real maglev_trim_accelerating_default_in(maglev_int i);
+const char* maglev_trim_accelerating_name_in(maglev_int i);
+const char* maglev_trim_accelerating_name_out(maglev_int i);
+const maglev_int* maglev_trim_accelerating_sparsity_in(maglev_int i);
+const maglev_int* maglev_trim_accelerating_sparsity_out(maglev_int i);
+int maglev_trim_accelerating_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_trim_accelerating_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+#define maglev_trim_accelerating_SZ_ARG 9
+#define maglev_trim_accelerating_SZ_RES 7
+#define maglev_trim_accelerating_SZ_IW 0
+#define maglev_trim_accelerating_SZ_W 1839
 int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_axis_plants_checkout(void);
 void maglev_axis_plants_release(int mem);
@@ -90,7 +108,7 @@ int maglev_axis_plants_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev
 #define maglev_axis_plants_SZ_ARG 7
 #define maglev_axis_plants_SZ_RES 7
 #define maglev_axis_plants_SZ_IW 0
-#define maglev_axis_plants_SZ_W 1849
+#define maglev_axis_plants_SZ_W 1852
 int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_axis_gains_checkout(void);
 void maglev_axis_gains_release(int mem);
@@ -126,7 +144,7 @@ int maglev_lqr_gains_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_i
 #define maglev_lqr_gains_SZ_ARG 7
 #define maglev_lqr_gains_SZ_RES 7
 #define maglev_lqr_gains_SZ_IW 0
-#define maglev_lqr_gains_SZ_W 1864
+#define maglev_lqr_gains_SZ_W 1867
 int maglev_lqr_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_lqr_control_checkout(void);
 void maglev_lqr_control_release(int mem);

@@ -113,7 +113,7 @@ class TrimResult:
     state_names : tuple of str
         x, y, z, phi, theta, psi, u, v, w, p, q, r.
     propulsion_force : float
-        F_prop [N] balancing the drag.
+        F_prop [N] balancing the drag (and m a when accelerating).
     residual : float
         Largest |acceleration| left by the Newton solve.
     lift_off_speed : float
@@ -127,6 +127,8 @@ class TrimResult:
     report : dict
         The whole ``trim --json`` report (the stiffness table beside the paper's printed
         forms, the paper's inputs), without the envelope's verdicts.
+    acceleration : float
+        Along-track acceleration a [m/s^2] of the equilibrium (0: constant speed).
     """
 
     speed: float
@@ -141,6 +143,7 @@ class TrimResult:
     drag: np.ndarray
     stiffness_matrix: np.ndarray
     report: dict[str, Any] = field(repr=False)
+    acceleration: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """The report as plain JSON data (a copy).
@@ -154,7 +157,7 @@ class TrimResult:
         --------
         >>> import maglevgen
         >>> sorted(maglevgen.load().trim().to_dict())[:3]
-        ['arrays', 'lift_off_speed', 'paper_inputs']
+        ['acceleration', 'arrays', 'lift_off_speed']
         """
         return json.loads(json.dumps(self.report))
 
@@ -448,13 +451,17 @@ class Carriage:
 
     # --------------------------------------------------------------------- trim, gains
 
-    def trim(self, speed: float | None = None) -> TrimResult:
+    def trim(self, speed: float | None = None, acceleration: float = 0.0) -> TrimResult:
         """The equilibrium at a speed: state, array gaps and forces, stiffness (eqs 4-19).
 
         Parameters
         ----------
         speed : float, optional
             Forward speed [m/s]; default ``operation.speed`` of the parameter file.
+        acceleration : float, optional
+            Along-track acceleration a [m/s^2] (default 0, constant speed): the accelerating
+            trim, eqs 1-2 with the d'Alembert load -m a at the CG and the propulsion
+            (drag + m a) at operation.propulsion_point (``maglev_trim_accelerating``).
 
         Returns
         -------
@@ -464,7 +471,8 @@ class Carriage:
         Raises
         ------
         maglevgen.InputError
-            A speed outside operation.speed's range (message names ``--speed``).
+            A speed outside operation.speed's range (message names ``--speed``), a non-finite
+            acceleration (``--acceleration``).
         maglevgen.NoTrimError
             No equilibrium at this speed (below lift-off) or a gap below track.min_gap.
 
@@ -476,9 +484,12 @@ class Carriage:
         (20.0, (12,), ('1', '2', '3', '4', '5', '6'))
         >>> bool(trim.lift_off_speed < 20.0 and trim.gaps.min() > 0)
         True
+        >>> launch = maglevgen.load().trim(20.0, acceleration=5.0)  # nose down, more thrust
+        >>> bool(launch.x[4] < trim.x[4] and launch.propulsion_force > trim.propulsion_force)
+        True
         """
         v = self._speed(speed)
-        rep = _commands().trim_report(self._carriage, v)
+        rep = _commands().trim_report(self._carriage, v, acceleration=float(acceleration))
         arrays = rep["arrays"]
         names = tuple(arrays)
         return TrimResult(
@@ -488,7 +499,8 @@ class Carriage:
             gaps=np.array([arrays[n]["gap"] for n in names]),
             lift=np.array([arrays[n]["lift"] for n in names]),
             drag=np.array([arrays[n]["drag"] for n in names]),
-            stiffness_matrix=np.array(rep["stiffness_matrix"]), report=rep)
+            stiffness_matrix=np.array(rep["stiffness_matrix"]), report=rep,
+            acceleration=rep["acceleration"])
 
     def gains_report(self, speed: float | None = None) -> dict[str, Any]:
         """The per-axis LQR report of ``maglevgen gains --json`` (eqs 24-33).
@@ -700,8 +712,9 @@ class Carriage:
 
         From the trim disturbed by 1 mm lateral and heave, 2 mrad roll, pitch and yaw; RK4
         in ``maglev_simulate`` (``hold``: the propulsion at the trim drag, the gains of
-        ``speed``) or ``maglev_launch`` (``launch``: from envelope.v_min to v_max, the gains
-        scheduled with the measured speed).
+        ``speed``) or ``maglev_launch`` (``launch``: from the accelerating trim at
+        envelope.v_min to v_max, the gains scheduled with the measured speed, the reference
+        and the propulsion those of the accelerating trim at envelope.launch_acceleration).
 
         Parameters
         ----------

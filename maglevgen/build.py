@@ -190,16 +190,18 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 
 
 def _schedule_c(carriage, lib, env) -> str:
-    """c/maglev_schedule.c: the embedded controller's gain schedule over ``env``'s range."""
+    """c/maglev_schedule.c: the embedded controller's launch schedule over ``env``'s range
+    (what maglev_launch runs: the accelerating trim's reference and drag at
+    envelope.launch_acceleration, the constant-speed gains; envelope.launch_schedule)."""
     import numpy as np
 
-    from .envelope import envelope_points
-    from .schedule import Schedule, schedule_c_source
+    from .envelope import envelope_points, launch_schedule
+    from .schedule import schedule_c_source
 
     nodes = np.linspace(env.v_min, env.v_max, carriage.params.envelope.schedule_nodes)
     points = envelope_points(carriage, lib, nodes)
-    return schedule_c_source(Schedule.from_points(points,
-                                                  carriage.params.envelope.embedded_controller))
+    return schedule_c_source(launch_schedule(carriage, lib, points,
+                                             carriage.params.envelope.embedded_controller))
 
 
 def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
@@ -298,7 +300,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
 
     from .derive import conventions as cv
     from .operating import CONTROLLER_TITLES
-    from .summary import pitch_paper_form, stiffness_table, trim_point
+    from .summary import accelerating_margins, pitch_paper_form, stiffness_table, trim_point
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
@@ -325,6 +327,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gaps "
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "
              f"(track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
+             accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), "",
              "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | damping c | paper k (printed) |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for i, axis in enumerate(cv.AXES):

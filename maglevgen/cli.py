@@ -103,17 +103,20 @@ def cmd_trim(args: argparse.Namespace) -> int:
     from . import summary
 
     carriage = _carriage(args)
-    rep = summary.trim_report(carriage, args.speed)
+    rep = summary.trim_report(carriage, args.speed, acceleration=args.acceleration)
     verdicts = _verdicts(carriage, rep)
     if args.json:
         print(json.dumps(rep, indent=2, sort_keys=False))
         return 0
+    a = rep["acceleration"]
+    moving = f" accelerating at {a:g} m/s^2 (d'Alembert load -m a at the CG)" if a else ""
     print("\n".join(verdicts) + "\n")
-    print(f"Trim at {rep['speed']:g} m/s (lift-off at {rep['lift_off_speed']:.3f} m/s; "
-          f"residual {rep['residual']:.2e})")
+    print(f"Trim at {rep['speed']:g} m/s{moving} (lift-off at {rep['lift_off_speed']:.3f} "
+          f"m/s; residual {rep['residual']:.2e})")
     for s in cv.STATES:
         print(f"  {s.name:>6} = {rep['state'][s.name]: .6e} {s.unit:<6} {s.description}")
-    print(f"  F_prop = {rep['propulsion_force']: .6e} N      propulsion balancing the drag")
+    print(f"  F_prop = {rep['propulsion_force']: .6e} N      propulsion balancing the drag"
+          + (f" and m a = {carriage.params.vehicle.mass * a:.6g} N" if a else ""))
     print("\nArray   gap [mm]   lift [N]   drag [N]")
     for n, a in rep["arrays"].items():
         print(f"  {n:>4} {a['gap'] * 1e3:9.4f} {a['lift']:10.4f} {a['drag']:10.4f}")
@@ -443,6 +446,9 @@ def build_parser() -> argparse.ArgumentParser:
     trim = sub.add_parser("trim", help="equilibrium, array gaps and forces, stiffness table")
     _common(trim)
     trim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
+    trim.add_argument("--acceleration", type=float, default=0.0,
+                      help="along-track acceleration [m/s^2] (default 0: constant speed): the "
+                      "accelerating trim, d'Alembert load -m a at the CG, F_prop = drag + m a")
     trim.add_argument("--json", action="store_true", help="machine-readable output")
     trim.set_defaults(func=cmd_trim)
 

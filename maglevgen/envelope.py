@@ -34,7 +34,7 @@ from .operating import (
 )
 from .params import ARRAY_FORCE_LAWS
 from .sampled import Tick, loop_gain, loop_model, sampled_eigenvalues, speed_gain
-from .schedule import GainTable, gain_table_row
+from .schedule import GainTable, Reference, Schedule, accelerating_references, gain_table_row
 
 DEFAULT_SPEEDS = 50
 _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
@@ -110,6 +110,29 @@ def envelope_points(carriage, lib: SimulationLibrary,
         return [operating_point(lib, carriage.p, float(v), min_gap, w) for v in speeds]
     except NoTrimError as exc:
         raise InputError(f"envelope: {exc}") from None
+
+
+def launch_schedule(carriage, lib: SimulationLibrary, points: Sequence[OperatingPoint],
+                    controller: str, references: list[Reference] | None = None) -> Schedule:
+    """The launch's schedule of ``controller`` at ``points``: the reference and the
+    propulsion feedforward of the accelerating trim at envelope.launch_acceleration
+    (`launch_references`), the gains of the constant-speed linearisation (the points')."""
+    a = carriage.params.envelope.launch_acceleration
+    refs = launch_references(carriage, lib, points) if references is None else references
+    return Schedule.from_points(list(points), controller, refs, a)
+
+
+def launch_references(carriage, lib: SimulationLibrary,
+                      points: Sequence[OperatingPoint]) -> list[Reference]:
+    """`accelerating_references` at envelope.launch_acceleration for ``points``; InputError
+    (naming the key) where the carriage has no accelerating trim."""
+    prm = carriage.params
+    a = prm.envelope.launch_acceleration
+    try:
+        return accelerating_references(lib, carriage.p, list(points), a, prm.vehicle.mass,
+                                       prm.track.min_gap)
+    except NoTrimError as exc:
+        raise InputError(f"envelope.launch_acceleration = {a:g}: {exc}") from None
 
 
 @dataclass(frozen=True)

@@ -173,18 +173,47 @@ def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
         raise NoTrimError(f"no trim at {speed:g} m/s: the Newton trim in C returned "
                           f"{exc.code_name} (below lift-off speed?); see `maglevgen trim`"
                           ) from None
+    return _checked(lib, p, speed, 0.0, min_gap, x_trim, f_prop)
+
+
+def checked_accelerating_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
+                              acceleration: float, min_gap: float
+                              ) -> tuple[np.ndarray, float, np.ndarray]:
+    """(x_trim, F_prop, gaps) of the carriage at ``speed`` accelerating at ``acceleration``
+    [m/s^2] along the track: `maglev_trim_accelerating` in C (eqs 1-2 with the d'Alembert
+    load -m a at the CG, derive/trim.py), checked like `checked_trim` with the model's
+    accelerations less the translation's, R^T (a, 0, 0) = (a / V) (u, v, w); F_prop is the
+    drag plus m a. NoTrimError when there is none; zero acceleration gives `checked_trim`."""
+    if not np.isfinite(acceleration):
+        raise InputError(f"--acceleration {acceleration!r}: must be a finite number in m/s^2")
+    try:
+        x_trim, f_prop = lib.function("maglev_trim_accelerating")(speed, acceleration, p)
+    except GeneratedFunctionError as exc:
+        raise NoTrimError(f"no trim at {speed:g} m/s accelerating at {acceleration:g} m/s^2: "
+                          f"the Newton trim in C returned {exc.code_name} (below lift-off "
+                          "speed?); see `maglevgen trim --acceleration`") from None
+    return _checked(lib, p, speed, float(acceleration), min_gap, x_trim, f_prop)
+
+
+def _checked(lib: SimulationLibrary, p: np.ndarray, speed: float, acceleration: float,
+             min_gap: float, x_trim: np.ndarray, f_prop: np.ndarray
+             ) -> tuple[np.ndarray, float, np.ndarray]:
+    """The C's trim checked here as well: the accelerations of maglev_dynamics at it less those
+    of the translation at ``acceleration`` below 1e-8, every gap above ``min_gap``."""
     x_trim, f_prop = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)
     u[0] = f_prop
     acc = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()[6:]
+    acc[:3] -= x_trim[6:9] * (acceleration / speed)
     gaps = lib.function("maglev_gaps")(x_trim, p)[0].ravel()
+    moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
     if not (np.all(np.isfinite(acc)) and np.max(np.abs(acc)) < 1e-8):
-        raise NoTrimError(f"no trim at {speed:g} m/s: the Newton solve in C did not converge "
-                          "(below lift-off speed?); see `maglevgen trim`")
+        raise NoTrimError(f"no trim at {speed:g} m/s{moving}: the Newton solve in C did not "
+                          "converge (below lift-off speed?); see `maglevgen trim`")
     if np.min(gaps) < min_gap:
-        raise NoTrimError(f"no trim at {speed:g} m/s with every gap above track.min_gap = "
-                          f"{min_gap:g} m (smallest {np.min(gaps):.4g} m)")
+        raise NoTrimError(f"no trim at {speed:g} m/s{moving} with every gap above "
+                          f"track.min_gap = {min_gap:g} m (smallest {np.min(gaps):.4g} m)")
     return x_trim, f_prop, gaps
 
 

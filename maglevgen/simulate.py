@@ -28,6 +28,7 @@ from .operating import (
     OperatingPoint,
     SpeedMode,
     Weights,
+    checked_accelerating_trim,
     checked_trim,
     closed_loop_stability,
     operating_point,
@@ -185,8 +186,10 @@ def linearly_stable_hold(traj: Trajectory) -> bool:
             and closed_loop_stability(traj.op, traj.controller)[0] < -STABILITY_MARGIN)
 
 
-def initial_state(op: OperatingPoint, disturbance: dict[str, float]) -> np.ndarray:
-    x0 = op.x_trim.copy()
+def initial_state(op: OperatingPoint, disturbance: dict[str, float],
+                  x_start: np.ndarray | None = None) -> np.ndarray:
+    """``x_start`` (default the trim of ``op``) plus the disturbance."""
+    x0 = (op.x_trim if x_start is None else np.asarray(x_start, dtype=float)).copy()
     for name, value in disturbance.items():
         if name not in cv.STATE_INDEX:
             raise InputError(f"disturbance on unknown state {name!r}")
@@ -253,17 +256,19 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
 def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: OperatingPoint,
            v_end: float, accel_force: float, dt: float, min_gap: float,
            max_time: float, hold_steps: int = 1,
-           disturbance: dict[str, float] | None = None) -> Trajectory:
+           disturbance: dict[str, float] | None = None,
+           x_start: np.ndarray | None = None) -> Trajectory:
     """The launch run in C (`maglev_launch`): from the disturbed trim at the schedule's first
     speed the carriage accelerates under F_drag(v) + ``accel_force`` until ``v_end``, the
     controller's gains, reference and the drag following ``schedule`` at the measured speed
     (every ``hold_steps`` steps, held between; 0: at every RK4 stage); ``max_time`` bounds
-    the run."""
+    the run. ``x_start``: the state the disturbance is added to (default op's trim; the
+    accelerating trim for a schedule at an acceleration, `run_scenarios`)."""
     disturbance = DISTURBANCE if disturbance is None else disturbance
     if not accel_force >= 0:  # 0: the propulsion follows the trim drag (the speed is held)
         raise InputError(f"launch thrust {accel_force:g} N must not be negative")
     n_steps = _check_steps(max_time, dt)
-    x0 = initial_state(op, disturbance)
+    x0 = initial_state(op, disturbance, x_start)
     _last, status, x, u, g = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps,
                                        schedule, p, min_gap, op.allocation.shape[0] + 1,
                                        op.gaps.size)
@@ -271,7 +276,8 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
     traj = Trajectory(schedule.controller, op, dt, t, x, u, g, status, None,
                       dict(disturbance), scenario="launch")
     traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
-    # deviations from the scheduled reference (the trim at each sample's speed)
+    # deviations from the scheduled reference (the trim at each sample's speed; the
+    # accelerating trim for a schedule at the launch's acceleration)
     traj.equilibrium = np.array([Schedule.unpack(schedule.at(v))[1] for v in traj.speed])
     return traj
 
@@ -417,11 +423,14 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
 
     ``hold``: from the disturbed trim at ``speed`` (default operation.speed) for ``t_end``
     with the propulsion at the trim drag and the gains of that speed. ``launch``: from the
-    disturbed trim at the envelope's v_min to v_max under the steady acceleration force
-    m * envelope.launch_acceleration, the gains scheduled (`launch`). Refuses a step above
-    RK4's stability limit for the stiffest closed-loop mode at the start speed.
+    disturbed accelerating trim at the envelope's v_min to v_max under the propulsion of the
+    accelerating trim at envelope.launch_acceleration (its drag plus m a), the reference that
+    trim's pose and the gains those of the constant-speed linearisation, scheduled
+    (`launch`, `envelope.launch_schedule`): the runs are judged against the accelerating
+    trim. Refuses a step above RK4's stability limit for the stiffest closed-loop mode at
+    the start speed.
     """
-    from .envelope import envelope_points, resolve_range
+    from .envelope import envelope_points, launch_references, launch_schedule, resolve_range
     from .library import simulation_library
 
     for c in controllers:
@@ -440,6 +449,10 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
         points = envelope_points(carriage, lib, np.linspace(v_lo, v_end, carriage.params
                                                             .envelope.schedule_nodes))
         op = points[0]
+        refs = launch_references(carriage, lib, points)
+        a = carriage.params.envelope.launch_acceleration
+        # the start: the accelerating trim at v_min (the pose of refs[0], the speed along x)
+        x_start = checked_accelerating_trim(lib, carriage.p, op.speed, a, min_gap)[0]
     else:
         v = carriage.params.operation.speed if speed is None else speed
         if not (np.isfinite(v) and v > 0):
@@ -454,11 +467,10 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     trajs = []
     for c in controllers:
         if scenario == "launch":
-            a = carriage.params.envelope.launch_acceleration
-            trajs.append(launch(lib, carriage.p, Schedule.from_points(points, c), op, v_end,
-                                carriage.params.vehicle.mass * a, dt, min_gap,
+            trajs.append(launch(lib, carriage.p, launch_schedule(carriage, lib, points, c, refs),
+                                op, v_end, carriage.params.vehicle.mass * a, dt, min_gap,
                                 max_time=1.5 * (v_end - op.speed) / a + 1.0,
-                                disturbance=disturbance))
+                                disturbance=disturbance, x_start=x_start))
             continue
         if bar is None:
             trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance))

@@ -6,7 +6,8 @@ face centre for ``model.array_force = "point"``, and for "distributed" the same 
 circuit by circuit along the array with each circuit's flux and force integrated across the
 width at the local gaps by Gauss-Legendre quadrature (no closed form), acting where they act; the
 rigid body is the static balance of eqs 1-2 (no motion but the steady speed: force and moment
-about O both zero), the stiffness is a central difference, and the LQR gains come from the
+about O both zero; accelerating along the track, with the d'Alembert load -m a at the CG), the
+stiffness is a central difference, and the LQR gains come from the
 Riccati equation of eq 30 solved by hand in mpmath at 60 digits. The tests compare every derived
 number the toolchain prints or generates with these.
 """
@@ -147,19 +148,30 @@ class ReferenceTrim:
     arrays: ArrayState
 
 
-def reference_trim(prm: Parameters, speed: float) -> ReferenceTrim:
-    """Root of the six static balances (eqs 1-2 at rest in the moving frame) with eq 3.
+def dalembert_wrench(prm: Parameters, q: np.ndarray, acceleration: float) -> np.ndarray:
+    """(F_x, F_y, F_z, M_x, M_y, M_z), inertial axes, moments about O, of the d'Alembert
+    load of a carriage translating at ``acceleration`` along the track: -m a e_x at the CG."""
+    v = prm.vehicle
+    f = np.array([-v.mass * acceleration, 0.0, 0.0])
+    return np.concatenate([f, np.cross(rotation(*q[2:5]) @ np.array(v.cg_offset), f)])
 
-    Starts from the design pose with the propulsion equal to the drag there; MINPACK's
-    hybrid Powell method, the scaled residual (N and N m) below 1e-9 of the weight.
+
+def reference_trim(prm: Parameters, speed: float, acceleration: float = 0.0) -> ReferenceTrim:
+    """Root of the six static balances (eqs 1-2 at rest in the moving frame) with eq 3; with
+    ``acceleration`` a != 0 the frame accelerates at a along the track and the balances hold
+    the d'Alembert load -m a e_x at the CG as well (`dalembert_wrench`).
+
+    Starts from the design pose with the propulsion equal to the drag there (plus m a);
+    MINPACK's hybrid Powell method, the scaled residual (N and N m) below 1e-9 of the weight.
     """
     weight = prm.vehicle.mass * prm.vehicle.gravity
 
     def residual(unknowns: np.ndarray) -> np.ndarray:
-        return external_wrench(prm, unknowns[:5], speed, unknowns[5]) / weight
+        return (external_wrench(prm, unknowns[:5], speed, unknowns[5])
+                + dalembert_wrench(prm, unknowns[:5], acceleration)) / weight
 
     start = np.zeros(6)
-    start[5] = array_state(prm, np.zeros(5), speed).drag.sum()
+    start[5] = array_state(prm, np.zeros(5), speed).drag.sum() + prm.vehicle.mass * acceleration
     sol = scipy.optimize.root(residual, start, method="hybr", tol=1e-15)
     assert np.max(np.abs(residual(sol.x))) < 1e-11, sol.message
     return ReferenceTrim(sol.x[:5], float(sol.x[5]), array_state(prm, sol.x[:5], speed))

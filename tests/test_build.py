@@ -196,6 +196,24 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
     np.testing.assert_allclose([float(g) for g in gaps.split(", ")],
                                contact_gaps(prm, ref.q) * 1e3,
                                rtol=0, atol=6e-4)
+    # the accelerating trim at v_min: the root with the d'Alembert load -m a at the CG
+    (acc_line,) = [ln for ln in lines if ln.startswith("Accelerating trim at ")]
+    m = re.fullmatch(r"Accelerating trim at (\S+) m/s and (\S+) m/s\^2 \(the launch's "
+                     r"reference\): pitch (\S+) mrad \((\S+) mrad from the constant-speed "
+                     r"trim\), smallest corner gap (\S+) mm \(array (\S+); (\S+) mm at "
+                     r"constant speed; track.min_gap (\S+) mm\), F_prop (\S+) N\.", acc_line)
+    assert m, acc_line
+    v_lo, a, pitch_a, offset, gap_a, array, gap_0, _, f_prop_a = m.groups()
+    assert float(a) == prm.envelope.launch_acceleration
+    v_lo = float(v_lo)
+    ref_a, ref_0 = (reference_trim(prm, v_lo, acc) for acc in (float(a), 0.0))
+    assert float(pitch_a) == pytest.approx(ref_a.q[3] * 1e3, abs=2e-3)  # printed to 4 digits
+    assert float(offset) == pytest.approx((ref_a.q[3] - ref_0.q[3]) * 1e3, abs=2e-3)
+    gaps_a = contact_gaps(prm, ref_a.q)
+    assert float(gap_a) == pytest.approx(gaps_a.min() * 1e3, abs=2e-3)
+    assert array == list(prm.arrays)[int(np.argmin(gaps_a))]
+    assert float(gap_0) == pytest.approx(contact_gaps(prm, ref_0.q).min() * 1e3, abs=2e-3)
+    assert float(f_prop_a) == pytest.approx(ref_a.f_prop, rel=1e-3)
     k_tot = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop))
     k_mag = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop, other=False))
     mass = generalized_mass(prm)

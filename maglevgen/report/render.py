@@ -29,7 +29,12 @@ from ..errors import MaglevError
 from ..library import simulation_library
 from ..output import write_output
 from ..report_figures import force_figures, pole_map
-from ..summary import gains_report, trim_point, trim_report  # the CLI's numbers, from the C
+from ..summary import (  # the CLI's numbers, from the C
+    accelerating_margins,
+    gains_report,
+    trim_point,
+    trim_report,
+)
 from ..version import __version__
 from .latex import LatexBuild, latex_env
 from .sections.actuators import _actuator_comparison
@@ -97,6 +102,13 @@ def _quiet(_msg: str) -> None:
     pass
 
 
+def _margin_speeds(carriage, env) -> list[float]:
+    """v_min, the design speed (where it lies inside the envelope) and v_max: where the
+    report shows the accelerating trim."""
+    v = carriage.params.operation.speed
+    return [env.v_min, *([v] if env.v_min < v < env.v_max else []), env.v_max]
+
+
 def build_context(
     carriage,
     options: ReportOptions = ReportOptions(),
@@ -137,7 +149,7 @@ def build_context(
             "rigid_body": rigid,
             "force_law": force,
             "geometry": _geometry(carriage, gains),
-            "trim": _trim(trep),
+            "trim": _trim(trep, accelerating_margins(carriage, lib, _margin_speeds(carriage, env))),
             "stiffness": _stiffness(carriage, trim, trep, gains, lib),
             "damping": alloc,
             "riccati": _riccati(gains),
