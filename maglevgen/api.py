@@ -114,7 +114,7 @@ class TrimResult:
     propulsion_force : float
         F_prop [N] balancing the drag.
     residual : float
-        Largest |acceleration| left by the Newton solve.
+        Largest absolute acceleration left by the Newton solve.
     lift_off_speed : float
         The lowest speed with an equilibrium [m/s].
     array_names : tuple of str
