@@ -973,8 +973,10 @@ class Carriage:
                           stacklevel=2)
         return list(res.paths)
 
-    def fmu(self, out: str | Path, kind: str = "both", controller: str = "lqr") -> Path:
-        """Export an FMI 2.0 FMU of the carriage with its controller, as ``maglevgen fmu``.
+    def fmu(self, out: str | Path, kind: str = "both", controller: str = "lqr",
+            fmi: str = "2") -> Path:
+        """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
+        fmu``.
 
         Parameters
         ----------
@@ -984,6 +986,8 @@ class Carriage:
             Model exchange, co-simulation or both (default).
         controller : {'lqr', 'coupled', 'damping', 'none', 'external'}, optional
             The controller inside the FMU; ``external``: the generalized forces are inputs.
+        fmi : {'2', '3'}, optional
+            The FMI version (``--fmi``): 2.0 (default) or 3.0, the same variables.
 
         Returns
         -------
@@ -993,8 +997,8 @@ class Carriage:
         Raises
         ------
         maglevgen.InputError
-            An unknown kind or controller, FMPy (its FMI headers) missing, no trim at
-            operation.speed.
+            An unknown kind, controller or FMI version, FMPy (its FMI headers) missing, no
+            trim at operation.speed.
 
         Examples
         --------
@@ -1008,7 +1012,7 @@ class Carriage:
         from .fmu import FMU_NAME, build_fmu
         from .output import write_output
 
-        data = build_fmu(self._carriage, kind, controller)
+        data = build_fmu(self._carriage, kind, controller, fmi=fmi)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
 

@@ -1,0 +1,228 @@
+"""`maglevgen fmu --fmi 3`: the FMI 3.0 FMU, checked with FMPy as the client.
+
+References: FMPy's FMI 3.0 validator (its schema and rules) and solvers (CVode),
+`maglevgen simulate`'s run in the compiled simulation library, scipy's DOP853 on the
+lambdified SymPy model (reference_trajectory), the parameter file read with tomllib, the
+conventions' state units, and SymPy's SI dimension system (sympy.physics.units) for the FMI
+3.0 unit definitions.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree
+
+import numpy as np
+import pytest
+from fmpy import read_model_description, simulate_fmu
+from fmpy.validation import validate_fmu
+
+from maglevgen.carriage import Carriage
+from maglevgen.derive import conventions as cv
+from maglevgen.fmu import FMI_VERSIONS, build_fmu
+from maglevgen.simulate import AXIS_STATES, DISTURBANCE, reference_trajectory, run_scenarios
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+REPO = Path(__file__).resolve().parents[1]
+STATES = [s.name for s in cv.STATES]
+pytestmark = pytest.mark.needs_cc
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory, carriage: Carriage, sim_lib):
+    """FMI 3.0 FMUs of the default carriage by kind (controller lqr), built on first use."""
+    folder = tmp_path_factory.mktemp("fmu3")
+    made: dict[str, Path] = {}
+
+    def get(kind: str) -> Path:
+        if kind not in made:
+            path = folder / f"{kind}.fmu"
+            path.write_bytes(build_fmu(carriage, kind, "lqr", fmi="3"))
+            made[kind] = path
+        return made[kind]
+
+    return get
+
+
+def _states(res) -> np.ndarray:
+    return np.column_stack([res[n] for n in STATES])
+
+
+def _assert_close(x: np.ndarray, ref: np.ndarray, rtol: float) -> None:
+    """Each state within rtol of its largest magnitude over the run."""
+    scale = np.maximum(np.abs(ref).max(axis=0), 1e-300)
+    worst = (np.abs(x - ref) / scale).max(axis=0)
+    assert np.all(worst <= rtol), dict(zip(STATES, worst, strict=True))
+
+
+@pytest.mark.parametrize("kind", ["me", "cs", "both"])
+def test_fmpy_validates_the_fmi3_fmu(fmus, kind: str) -> None:
+    path = fmus(kind)
+    assert validate_fmu(str(path)) == []
+    md = read_model_description(str(path))
+    assert md.fmiVersion == "3.0"
+    assert (md.modelExchange is not None) == (kind in ("me", "both"))
+    assert (md.coSimulation is not None) == (kind in ("cs", "both"))
+    with zipfile.ZipFile(path) as zf:
+        names = set(zf.namelist())
+        build = ElementTree.fromstring(zf.read("sources/buildDescription.xml"))
+    assert "binaries/x86_64-linux/maglev.so" in names  # FMI 3.0's platform tuple
+    listed = {f"sources/{e.get('name')}" for e in build.iter("SourceFile")}
+    assert listed <= names and "sources/maglev_fmu.c" in listed
+    assert not any(re.search(r"fmi[23]\w*\.h$", n) for n in names)  # headers stay FMPy's
+
+
+def test_variables_start_values_and_units(fmus) -> None:
+    md = read_model_description(str(fmus("both")))
+    var = {v.name: v for v in md.modelVariables}
+    raw = tomllib.loads((REPO / "maglevgen" / "carriage_llnl.toml").read_text())
+    assert float(var["vehicle.mass"].start) == raw["vehicle"]["mass"]
+    assert var["vehicle.mass"].unit == "kg" and var["vehicle.mass"].variability == "fixed"
+    assert var["track.min_gap"].variability == "tunable"
+    assert float(var["operation.speed"].start) == raw["operation"]["speed"]
+    for s in cv.STATES:
+        assert var[s.name].unit == s.unit and var[s.name].type == "Float64"
+        assert var[f"der({s.name})"].derivative is var[s.name]
+        assert float(var[f"disturbance.{s.name}"].start) == DISTURBANCE.get(s.name, 0.0)
+    assert [u.variable.name for u in md.derivatives] == [f"der({s})" for s in STATES]
+    assert {v.name for v in md.modelVariables if v.causality == "input"} == {
+        "dF_prop", "ref.y", "ref.z", "ref.phi", "ref.theta", "ref.psi"}
+    (time,) = [v for v in md.modelVariables if v.causality == "independent"]
+    assert time.name == "time" and time.unit == "s"
+    refs = [v.valueReference for v in md.modelVariables]
+    assert refs == list(range(len(refs)))
+
+
+def _sympy_dimensions(unit: str) -> dict[str, int]:
+    """The unit's SI dimensions from SymPy, plus the radian's exponent (SymPy counts angles
+    as dimensionless; FMI keeps rad as a base unit)."""
+    import sympy
+    from sympy.physics import units as su
+    from sympy.physics.units.systems.si import SI, dimsys_SI
+
+    names = {"kg": su.kilogram, "m": su.meter, "s": su.second, "N": su.newton, "ohm": su.ohm,
+             "H": su.henry, "T": su.tesla, "rad": su.radian, "A": su.ampere}
+    expr = 1 if unit in ("1", "-") else sympy.sympify(unit.replace("^", "**"), locals=names)
+    dims = dimsys_SI.get_dimensional_dependencies(SI.get_dimensional_expr(expr))
+    base = {"mass": "kg", "length": "m", "time": "s", "current": "A"}
+    out = {base[d.name.name]: int(e) for d, e in dims.items()}
+    rad = sum((-1 if sign == "/" else 1) * int(exp or 1)
+              for sign, exp in re.findall(r"(^|[*/])rad(?:\^(-?\d+))?", unit))
+    if rad:
+        out["rad"] = rad
+    return out
+
+
+def test_unit_definitions_are_the_si_dimensions(fmus) -> None:
+    md = read_model_description(str(fmus("both")))
+    used = {v.unit for v in md.modelVariables}
+    defined = {u.name: u for u in md.unitDefinitions}
+    assert used <= set(defined)
+    assert {"kg", "m", "m/s", "rad/s", "N", "kg*m^2", "ohm", "H", "T"} <= used
+    for name, unit in defined.items():
+        got = {k: int(getattr(unit.baseUnit, k)) for k in
+               ("kg", "m", "s", "A", "K", "mol", "cd", "rad") if getattr(unit.baseUnit, k)}
+        assert got == _sympy_dimensions(name), name
+
+
+def test_cs_reproduces_maglevgen_simulate(fmus, carriage: Carriage, sim_lib) -> None:
+    """Same RK4 arithmetic as `maglevgen simulate`: the trajectory bit for bit, at one
+    internal step per communication step and at ten."""
+    ref = run_scenarios(carriage, ("lqr",), 1.0, 1e-3, lib=sim_lib).trajectories[0]
+    res = simulate_fmu(str(fmus("both")), fmi_type="CoSimulation", stop_time=1.0,
+                       output_interval=1e-3, output=STATES)
+    assert np.array_equal(res["time"], ref.t)
+    assert np.array_equal(_states(res), ref.x)
+    res10 = simulate_fmu(str(fmus("both")), fmi_type="CoSimulation", stop_time=1.0,
+                         output_interval=1e-2, output=STATES)
+    assert np.array_equal(_states(res10), ref.x[::10])
+
+
+def test_me_with_cvode_agrees_with_dop853_on_the_sympy_model(fmus, carriage: Carriage,
+                                                             op) -> None:
+    t_end, rtol = 0.5, 1e-10
+    res = simulate_fmu(str(fmus("me")), fmi_type="ModelExchange", solver="CVode",
+                       relative_tolerance=rtol, stop_time=t_end, output_interval=1e-3,
+                       output=STATES, record_events=False)
+    ref = reference_trajectory(carriage.functions, carriage.p, op, "lqr", res["time"])
+    x = _states(res)
+    idx = list(AXIS_STATES)
+    peak = np.abs(ref[:, idx] - op.a_trim).max(axis=0)
+    dev = np.abs(x[:, idx] - ref[:, idx]).max(axis=0)
+    assert np.all(dev <= 1e-5 * peak), dev / peak
+    _assert_close(x, ref, 1e-6)
+
+
+def test_contact_ends_the_cs_run_where_maglevgen_simulate_ends_it(fmus, carriage, sim_lib,
+                                                                   op) -> None:
+    from maglevgen.simulate import simulate
+
+    push = {**DISTURBANCE, "w": -1.0}
+    ref = simulate(sim_lib, carriage.p, op, "lqr", 0.5, 1e-3, carriage.params.track.min_gap,
+                   disturbance=push)
+    assert ref.status == "contact"
+    messages: list[str] = []
+    res = simulate_fmu(str(fmus("both")), fmi_type="CoSimulation", stop_time=0.5,
+                       output_interval=1e-3, output=STATES,
+                       start_values={"disturbance.w": -1.0},
+                       logger=lambda *a: messages.append(a[-1].decode()))
+    assert res["time"][-1] == pytest.approx(ref.t[-1], abs=1e-12)
+    _assert_close(_states(res), ref.x, 1e-12)
+    assert any(m.startswith("contact at t = ") for m in messages)
+
+
+def test_errors_are_status_codes_with_a_message(fmus) -> None:
+    from fmpy import extract
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi3 import FMU3Slave
+
+    messages: list[str] = []
+    with pytest.raises(FMICallException, match="fmi3ExitInitializationMode"):
+        simulate_fmu(str(fmus("both")), fmi_type="CoSimulation", stop_time=0.01,
+                     start_values={"operation.speed": 0.1},
+                     logger=lambda *a: messages.append(a[-1].decode()))
+    assert any("no trim at 0.1 m/s" in m for m in messages)
+
+    path = fmus("both")
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    messages.clear()
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="x")
+    fmu.instantiate(logMessage=lambda env, status, cat, msg: messages.append(msg.decode()))
+    with pytest.raises(FMICallException):  # a NaN is refused, and changes nothing
+        fmu.setFloat64([vr["vehicle.mass"], vr["dF_prop"]], [9.0, float("nan")])
+    assert any("not a finite number" in m for m in messages)
+    assert fmu.getFloat64([vr["vehicle.mass"]]) == [9.3]
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
+    fmu.setFloat64([vr["track.min_gap"]], [0.001])  # tunable
+    with pytest.raises(FMICallException):
+        fmu.setFloat64([vr["vehicle.mass"]], [10.0])
+    assert any("fixed parameter" in m for m in messages)
+    with pytest.raises(FMICallException):  # 1.5 internal steps
+        fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1.5e-3)
+    assert any("not a multiple of rk4_step" in m for m in messages)
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_cli_writes_fmi3_and_rejects_an_unknown_version(tmp_path: Path, sim_lib) -> None:
+    out = tmp_path / "out"
+    ok = subprocess.run([sys.executable, "-m", "maglevgen.cli", "fmu", "--fmi", "3", "--kind",
+                         "cs", "--out", str(out)], capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    assert "FMI 3.0" in ok.stdout
+    assert read_model_description(str(out / "maglev.fmu")).fmiVersion == "3.0"
+    bad = subprocess.run([sys.executable, "-m", "maglevgen.cli", "fmu", "--fmi", "4", "--out",
+                          str(out)], capture_output=True, text=True)
+    assert bad.returncode == 2 and "--fmi" in bad.stderr
+    assert tuple(FMI_VERSIONS) == ("2", "3")
