@@ -41,6 +41,7 @@ import numpy as np
 
 from .derive import conventions as cv
 from .errors import InputError
+from .fmu import DEFAULT_FMI
 
 if TYPE_CHECKING:
     import control
@@ -974,7 +975,7 @@ class Carriage:
         return list(res.paths)
 
     def fmu(self, out: str | Path, kind: str = "both", controller: str = "lqr",
-            fmi: str = "2") -> Path:
+            fmi: str = DEFAULT_FMI) -> Path:
         """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
         fmu``.
 
@@ -987,7 +988,8 @@ class Carriage:
         controller : {'lqr', 'coupled', 'damping', 'none', 'external'}, optional
             The controller inside the FMU; ``external``: the generalized forces are inputs.
         fmi : {'2', '3'}, optional
-            The FMI version (``--fmi``): 2.0 (default) or 3.0, the same variables.
+            The FMI version (``--fmi``): 2.0 (default, ``maglevgen.fmu.DEFAULT_FMI``) or 3.0,
+            the same variables.
 
         Returns
         -------
