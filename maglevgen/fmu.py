@@ -345,7 +345,7 @@ def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
     FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU."""
     from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
     from .library import _cache, runtime_sources
-    from .runtime.compile import compile_shared
+    from .runtime.compile import compile_object, compile_shared
 
     if fmi not in FMI_VERSIONS:
         raise InputError(f"--fmi {fmi!r}: expected one of {tuple(FMI_VERSIONS)}")
@@ -380,8 +380,13 @@ def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
         path = build / name
         if not path.exists() or path.read_bytes() != data:
             path.write_bytes(data)
+    # the carriage functions (most of the compile time) once per derivation, shared by every
+    # FMU of it; each FMU links them with its own wrapper
+    functions = compile_object(folder / "maglev_functions.c", cc=cc,
+                               cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
     flags = ("-std=c99", "-O2", "-fPIC", "-shared", f"-I{headers}")
-    lib = compile_shared(sorted(build.glob("*.c")), flags=flags, cc=cc,
+    lib = compile_shared([*sorted(p for p in build.glob("*.c") if p.name != "maglev_functions.c"),
+                          functions], flags=flags, cc=cc,
                          cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
     return _zip({"modelDescription.xml": files["modelDescription.xml"].encode(),
                  f"binaries/{version.platform}/{MODEL_IDENTIFIER}.so": lib.read_bytes(),
