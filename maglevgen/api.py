@@ -974,7 +974,7 @@ class Carriage:
                           stacklevel=2)
         return list(res.paths)
 
-    def fmu(self, out: str | Path, kind: str = "both", controller: str = "lqr",
+    def fmu(self, out: str | Path, kind: str = "both", controller: str | None = None,
             fmi: str = DEFAULT_FMI) -> Path:
         """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
         fmu``.
@@ -985,8 +985,9 @@ class Carriage:
             Output folder of ``maglev.fmu``.
         kind : {'both', 'me', 'cs'}, optional
             Model exchange, co-simulation or both (default).
-        controller : {'lqr', 'coupled', 'damping', 'none', 'external'}, optional
-            The controller inside the FMU; ``external``: the generalized forces are inputs.
+        controller : {'coupled', 'lqr', 'damping', 'none', 'external'}, optional
+            The controller inside the FMU (default: ``envelope.embedded_controller``, the
+            one the firmware embeds); ``external``: the generalized forces are inputs.
         fmi : {'2', '3'}, optional
             The FMI version (``--fmi``): 2.0 (default, ``maglevgen.fmu.DEFAULT_FMI``) or 3.0,
             the same variables.

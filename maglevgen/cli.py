@@ -321,11 +321,12 @@ def cmd_fmu(args: argparse.Namespace) -> int:
     from .fmu import FMI_VERSIONS, FMU_NAME, build_fmu
     from .output import write_output
 
-    data = build_fmu(_carriage(args), args.kind, args.controller, progress=progress.step,
-                     fmi=args.fmi)
+    carriage = _carriage(args)
+    controller = args.controller or carriage.params.envelope.embedded_controller
+    data = build_fmu(carriage, args.kind, controller, progress=progress.step, fmi=args.fmi)
     (path,) = write_output({FMU_NAME: data}, Path(args.out))
     print(f"wrote {path.resolve()} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
-          f"controller {args.controller}, {len(data)} bytes)")
+          f"controller {controller}, {len(data)} bytes)")
     return 0
 
 
@@ -490,9 +491,10 @@ def build_parser() -> argparse.ArgumentParser:
     _common(fmu)
     fmu.add_argument("--kind", choices=FMU_KINDS, default="both",
                      help="model exchange, co-simulation or both (default)")
-    fmu.add_argument("--controller", choices=tuple(FMU_CONTROLLERS), default="lqr",
+    fmu.add_argument("--controller", choices=tuple(FMU_CONTROLLERS),
                      help="controller inside the FMU, or 'external': the generalized control "
-                          "forces are inputs (default: lqr)")
+                          "forces are inputs (default: envelope.embedded_controller, the one "
+                          "the firmware embeds: the coupled LQR)")
     fmu.add_argument("--fmi", choices=tuple(FMI_VERSIONS), default=DEFAULT_FMI,
                      help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
                           "(3.0); the same variables, controllers and start values")

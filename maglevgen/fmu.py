@@ -338,15 +338,18 @@ def _quiet(_: str) -> None:
     pass
 
 
-def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
+def build_fmu(carriage, kind: str = "both", controller: str | None = None,
               cache_dir: Path | None = None, cc: str | None = None,
               progress: Progress = _quiet, fmi: str = DEFAULT_FMI) -> bytes:
     """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
-    FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU."""
+    FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
+    embeds (``envelope.embedded_controller``)."""
     from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
     from .library import _cache, runtime_sources
     from .runtime.compile import compile_object, compile_shared
 
+    if controller is None:
+        controller = carriage.params.envelope.embedded_controller
     if fmi not in FMI_VERSIONS:
         raise InputError(f"--fmi {fmi!r}: expected one of {tuple(FMI_VERSIONS)}")
     version = FMI_VERSIONS[fmi]

@@ -38,16 +38,16 @@ pytestmark = pytest.mark.needs_cc
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory, carriage: Carriage, sim_lib):
-    """FMI 3.0 FMUs of the default carriage by kind (controller lqr), built on first use."""
+    """FMI 3.0 FMUs of the default carriage by kind and controller, built on first use."""
     folder = tmp_path_factory.mktemp("fmu3")
-    made: dict[str, Path] = {}
+    made: dict[tuple[str, str], Path] = {}
 
-    def get(kind: str) -> Path:
-        if kind not in made:
-            path = folder / f"{kind}.fmu"
-            path.write_bytes(build_fmu(carriage, kind, "lqr", fmi="3"))
-            made[kind] = path
-        return made[kind]
+    def get(kind: str, controller: str = "lqr") -> Path:
+        if (kind, controller) not in made:
+            path = folder / f"{kind}_{controller}.fmu"
+            path.write_bytes(build_fmu(carriage, kind, controller, fmi="3"))
+            made[kind, controller] = path
+        return made[kind, controller]
 
     return get
 
@@ -146,6 +146,29 @@ def test_cs_reproduces_maglevgen_simulate(fmus, carriage: Carriage, sim_lib) -> 
     assert np.array_equal(_states(res10), ref.x[::10])
 
 
+@pytest.mark.parametrize("controller", ["damping", "none"])
+def test_cs_other_controllers_reproduce_maglevgen_simulate(fmus, carriage: Carriage, sim_lib,
+                                                           controller: str) -> None:
+    ref = run_scenarios(carriage, (controller,), 0.3, 1e-3, lib=sim_lib).trajectories[0]
+    res = simulate_fmu(str(fmus("cs", controller)), fmi_type="CoSimulation", stop_time=0.3,
+                       output_interval=1e-3, output=STATES)
+    assert np.array_equal(_states(res), ref.x)
+
+
+def test_external_controller_with_zero_forces_is_the_open_loop(fmus, carriage: Carriage,
+                                                               sim_lib, op) -> None:
+    md = read_model_description(str(fmus("cs", "external")))
+    assert {v.name for v in md.modelVariables if v.causality == "input"} == {
+        "dF_prop", *(c.name for c in cv.CONTROLS)}
+    ref = run_scenarios(carriage, ("none",), 0.3, 1e-3, lib=sim_lib).trajectories[0]
+    res = simulate_fmu(str(fmus("cs", "external")), fmi_type="CoSimulation", stop_time=0.3,
+                       output_interval=1e-3, output=STATES)
+    _assert_close(_states(res), ref.x, 1e-9)
+    push = simulate_fmu(str(fmus("cs", "external")), fmi_type="CoSimulation", stop_time=0.3,
+                        output_interval=1e-3, output=["z", "F_z3"], start_values={"u_z": 5.0})
+    assert push["F_z3"][0] == pytest.approx(5.0 * op.allocation[4, 1], rel=1e-12)
+
+
 def test_me_with_cvode_agrees_with_dop853_on_the_sympy_model(fmus, carriage: Carriage,
                                                              op) -> None:
     t_end, rtol = 0.5, 1e-10
@@ -215,13 +238,21 @@ def test_errors_are_status_codes_with_a_message(fmus) -> None:
     fmu.freeInstance()
 
 
-def test_cli_writes_fmi3_and_rejects_an_unknown_version(tmp_path: Path, sim_lib) -> None:
+def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: Carriage,
+                                                     sim_lib) -> None:
+    """The default controller is the one the firmware embeds (the coupled LQR of the default
+    file): the CLI's FMU follows `maglevgen simulate --controller coupled` bit for bit."""
     out = tmp_path / "out"
     ok = subprocess.run([sys.executable, "-m", "maglevgen.cli", "fmu", "--fmi", "3", "--kind",
                          "cs", "--out", str(out)], capture_output=True, text=True)
     assert ok.returncode == 0, ok.stderr
-    assert "FMI 3.0" in ok.stdout
+    embedded = carriage.params.envelope.embedded_controller
+    assert "FMI 3.0" in ok.stdout and f"controller {embedded}" in ok.stdout
     assert read_model_description(str(out / "maglev.fmu")).fmiVersion == "3.0"
+    ref = run_scenarios(carriage, (embedded,), 0.5, 1e-3, lib=sim_lib).trajectories[0]
+    res = simulate_fmu(str(out / "maglev.fmu"), fmi_type="CoSimulation", stop_time=0.5,
+                       output_interval=1e-3, output=STATES)
+    assert np.array_equal(_states(res), ref.x)
     bad = subprocess.run([sys.executable, "-m", "maglevgen.cli", "fmu", "--fmi", "4", "--out",
                           str(out)], capture_output=True, text=True)
     assert bad.returncode == 2 and "--fmi" in bad.stderr
