@@ -57,6 +57,8 @@ def _provenance(key: str, provenance: dict) -> str:
 
 
 class _Rst(SphinxDirective):
+    """A directive that writes reST lines and returns what they parse to."""
+
     def _parse(self, lines: list[str]) -> list[nodes.Node]:
         node = nodes.container()
         self.state.nested_parse(StringList(lines, source=self.get_source_info()[0]),
@@ -126,8 +128,7 @@ def _markdown_to_rst(text: str) -> list[str]:
         if m:
             out += [f".. rubric:: {m.group(2)}", ""]
             continue
-        line = re.sub(r"`([^`]+)`", r"``\1``", line)
-        out.append(re.sub(r"\*\*([^*]+)\*\*", r"**\1**", line))
+        out.append(re.sub(r"`([^`]+)`", r"``\1``", line))  # bold (**x**) reads the same
     return [*out, ""]
 
 
