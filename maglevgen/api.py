@@ -42,6 +42,7 @@ import numpy as np
 from . import laws
 from .derive import conventions as cv
 from .errors import InputError
+from .fmu import DEFAULT_FMI
 
 if TYPE_CHECKING:
     import control
@@ -115,7 +116,7 @@ class TrimResult:
     propulsion_force : float
         F_prop [N] balancing the drag (and m a when accelerating).
     residual : float
-        Largest |acceleration| left by the Newton solve.
+        Largest absolute acceleration left by the Newton solve.
     lift_off_speed : float
         The lowest speed with an equilibrium [m/s].
     array_names : tuple of str
@@ -987,8 +988,10 @@ class Carriage:
                           stacklevel=2)
         return list(res.paths)
 
-    def fmu(self, out: str | Path, kind: str = "both", controller: str = "lqr") -> Path:
-        """Export an FMI 2.0 FMU of the carriage with its controller, as ``maglevgen fmu``.
+    def fmu(self, out: str | Path, kind: str = "both", controller: str | None = None,
+            fmi: str = DEFAULT_FMI) -> Path:
+        """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
+        fmu``.
 
         Parameters
         ----------
@@ -996,8 +999,12 @@ class Carriage:
             Output folder of ``maglev.fmu``.
         kind : {'both', 'me', 'cs'}, optional
             Model exchange, co-simulation or both (default).
-        controller : {'lqr', 'coupled', 'damping', 'none', 'external'}, optional
-            The controller inside the FMU; ``external``: the generalized forces are inputs.
+        controller : {'coupled', 'lqr', 'damping', 'none', 'external'}, optional
+            The controller inside the FMU (default: ``envelope.embedded_controller``, the
+            one the firmware embeds); ``external``: the generalized forces are inputs.
+        fmi : {'2', '3'}, optional
+            The FMI version (``--fmi``): 2.0 (default, ``maglevgen.fmu.DEFAULT_FMI``) or 3.0,
+            the same variables.
 
         Returns
         -------
@@ -1007,8 +1014,8 @@ class Carriage:
         Raises
         ------
         maglevgen.InputError
-            An unknown kind or controller, FMPy (its FMI headers) missing, no trim at
-            operation.speed.
+            An unknown kind, controller or FMI version, FMPy (its FMI headers) missing, no
+            trim at operation.speed.
 
         Examples
         --------
@@ -1022,7 +1029,7 @@ class Carriage:
         from .fmu import FMU_NAME, build_fmu
         from .output import write_output
 
-        data = build_fmu(self._carriage, kind, controller)
+        data = build_fmu(self._carriage, kind, controller, fmi=fmi)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
 

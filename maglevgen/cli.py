@@ -337,13 +337,15 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
 
 def cmd_fmu(args: argparse.Namespace) -> int:
     from . import progress
-    from .fmu import FMU_NAME, build_fmu
+    from .fmu import FMI_VERSIONS, FMU_NAME, build_fmu
     from .output import write_output
 
-    data = build_fmu(_carriage(args), args.kind, args.controller, progress=progress.step)
+    carriage = _carriage(args)
+    controller = args.controller or carriage.params.envelope.embedded_controller
+    data = build_fmu(carriage, args.kind, controller, progress=progress.step, fmi=args.fmi)
     (path,) = write_output({FMU_NAME: data}, Path(args.out))
-    print(f"wrote {path.resolve()} (FMI 2.0, {args.kind}, controller {args.controller}, "
-          f"{len(data)} bytes)")
+    print(f"wrote {path.resolve()} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
+          f"controller {controller}, {len(data)} bytes)")
     return 0
 
 
@@ -521,15 +523,21 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also write envelope.json, envelope.md and stability_map.png")
     env.set_defaults(func=cmd_envelope)
     from .fmu import CONTROLLERS as FMU_CONTROLLERS
+    from .fmu import DEFAULT_FMI, FMI_VERSIONS
     from .fmu import KINDS as FMU_KINDS
 
-    fmu = sub.add_parser("fmu", help="FMI 2.0 FMU (model exchange, co-simulation) of the carriage")
+    fmu = sub.add_parser("fmu", help="FMI 2.0 or 3.0 FMU (model exchange, co-simulation) of the "
+                                     "carriage")
     _common(fmu)
     fmu.add_argument("--kind", choices=FMU_KINDS, default="both",
                      help="model exchange, co-simulation or both (default)")
-    fmu.add_argument("--controller", choices=tuple(FMU_CONTROLLERS), default="lqr",
+    fmu.add_argument("--controller", choices=tuple(FMU_CONTROLLERS),
                      help="controller inside the FMU, or 'external': the generalized control "
-                          "forces are inputs (default: lqr)")
+                          "forces are inputs (default: envelope.embedded_controller, the one "
+                          "the firmware embeds: the coupled LQR)")
+    fmu.add_argument("--fmi", choices=tuple(FMI_VERSIONS), default=DEFAULT_FMI,
+                     help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
+                          "(3.0); the same variables, controllers and start values")
     fmu.add_argument("--out", default="build/fmu", metavar="DIR",
                      help="output folder of maglev.fmu (default: ./build/fmu)")
     fmu.set_defaults(func=cmd_fmu)

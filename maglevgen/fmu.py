@@ -1,14 +1,16 @@
-"""`maglevgen fmu`: the generated carriage as an FMI 2.0 FMU (model exchange, co-simulation or
-both), for Simulink, Dymola, OpenModelica, FMPy and the like.
+"""`maglevgen fmu`: the generated carriage as an FMI 2.0 or FMI 3.0 FMU (model exchange,
+co-simulation or both), for Simulink, Dymola, OpenModelica, FMPy and the like.
 
 Everything in modelDescription.xml and in the wrapper's value-reference table comes from one
-list of `FmuVariable` built from the manifest (names, units, descriptions, start values), and
-both files are rendered from it by the templates fmu_model_description.xml.j2 and
-fmu_wrapper.c.j2. The model is the run-time-parameter C of the carriage's structure (the cached
-derivation of maglevgen.library): every function takes the parameter vector p, so a parameter
-set through fmi2SetReal before initialization behaves like ``--set``: the trim (maglev_trim at
-``operation.speed``), the gains (maglev_lqr_gains) and the allocation are computed from it when
-the FMU leaves initialization mode.
+list of `FmuVariable` built from the manifest (names, units, descriptions, start values), the
+same for both FMI versions, and both files are rendered from it by the templates of the
+version (`FMI_VERSIONS`: fmu_model_description.xml.j2 and fmu_wrapper.c.j2 for 2.0,
+fmu3_model_description.xml.j2 and fmu3_wrapper.c.j2 with the version-independent model core
+fmu_core.c.j2 for 3.0). The model is the run-time-parameter C of the carriage's structure
+(the cached derivation of maglevgen.library): every function takes the parameter vector p, so
+a parameter set through fmi2SetReal (fmi3SetFloat64) before initialization behaves like
+``--set``: the trim (maglev_trim at ``operation.speed``), the gains (maglev_lqr_gains) and the
+allocation are computed from it when the FMU leaves initialization mode.
 
 Controllers are looked up in ``CONTROLLERS``: one entry per controller says how the wrapper
 gets the generalized forces u_gen (eqs 20-33) and which inputs it adds.
@@ -41,6 +43,59 @@ FMU_NAME = "maglev.fmu"
 # enters the trim, the gains or the allocation, computed once at initialization ("fixed").
 TUNABLE_PARAMETERS = frozenset({"track.min_gap"})
 DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s default
+
+
+@dataclass(frozen=True)
+class FmiVersion:
+    """What differs between the FMI versions: the templates, the header the wrapper includes
+    (FMPy's copy), the binaries' platform folder and the files beside modelDescription.xml."""
+
+    name: str
+    label: str
+    model_description: str
+    wrapper: str
+    header: str
+    platform: str
+    build_description: str = ""  # FMI 3.0: sources/buildDescription.xml lists the sources
+
+
+FMI_VERSIONS: dict[str, FmiVersion] = {v.name: v for v in (
+    FmiVersion("2", "2.0", "fmu_model_description.xml", "fmu_wrapper.c", "fmi2Functions.h",
+               "linux64"),
+    FmiVersion("3", "3.0", "fmu3_model_description.xml", "fmu3_wrapper.c", "fmi3Functions.h",
+               "x86_64-linux", build_description="fmu3_build_description.xml"),
+)}
+# FMI 2.0 by default: every FMI importer in use reads it (Simulink's and Dymola's older
+# releases, OpenModelica's, libcosim, FMPy), while 3.0 importers are still arriving; `--fmi 3`
+# gives the same model, controllers, start values and units as an FMI 3.0 FMU.
+DEFAULT_FMI = "2"
+
+# FMI 3.0 unit definitions: each symbol of the schema's and the conventions' units as powers
+# of FMI's base units (kg, m, s, A, K, mol, cd, rad; the SI derived units by definition)
+FMI3_BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+_UNIT_SYMBOLS: dict[str, dict[str, int]] = {
+    "1": {}, "-": {}, "kg": {"kg": 1}, "m": {"m": 1}, "s": {"s": 1}, "A": {"A": 1},
+    "K": {"K": 1}, "mol": {"mol": 1}, "cd": {"cd": 1}, "rad": {"rad": 1},
+    "Hz": {"s": -1}, "N": {"kg": 1, "m": 1, "s": -2}, "Pa": {"kg": 1, "m": -1, "s": -2},
+    "J": {"kg": 1, "m": 2, "s": -2}, "W": {"kg": 1, "m": 2, "s": -3},
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1}, "ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
+    "H": {"kg": 1, "m": 2, "s": -2, "A": -2}, "T": {"kg": 1, "s": -2, "A": -1},
+    "Wb": {"kg": 1, "m": 2, "s": -2, "A": -1},
+}
+
+
+def fmi3_base_unit(unit: str) -> tuple[tuple[str, int], ...]:
+    """The exponents of FMI 3.0's base units of ``unit`` ("kg*m^2", "m/s^2", "N*m"; each
+    ``/`` divides by the factor after it), in FMI's attribute order, zeros left out."""
+    powers = dict.fromkeys(FMI3_BASE_UNITS, 0)
+    for sign, factor in re.findall(r"(^|[*/])\s*([^*/]+)", unit.strip()):
+        sym, _, exp = factor.strip().partition("^")
+        if sym not in _UNIT_SYMBOLS or (exp and not re.fullmatch(r"-?\d+", exp)):
+            raise ValueError(f"unit {unit!r}: {factor!r} is not a known unit symbol")
+        n = (int(exp) if exp else 1) * (-1 if sign == "/" else 1)
+        for base, e in _UNIT_SYMBOLS[sym].items():
+            powers[base] += n * e
+    return tuple((b, e) for b, e in powers.items() if e)
 
 
 @dataclass(frozen=True)
@@ -211,8 +266,9 @@ def _function(manifest: dict, name: str) -> dict:
     return next(f for f in manifest["functions"] if f["name"] == name)
 
 
-def render_files(model: FmuModel, guid: str) -> dict[str, str]:
-    """modelDescription.xml, the wrapper C and the sources' note, as text."""
+def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI) -> dict[str, str]:
+    """modelDescription.xml, the wrapper C, the sources' note and (FMI 3.0) the build
+    description, as text, for FMI version ``fmi`` ("2" or "3")."""
     from .codegen.interface import template_env
 
     man = model.manifest
@@ -221,6 +277,7 @@ def render_files(model: FmuModel, guid: str) -> dict[str, str]:
             "maglev_closed_loop_prepare", "maglev_closed_loop_prepared", "maglev_gaps"]
     sizes = {k: max(_function(man, f)[k] for f in used)
              for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")}
+    version = FMI_VERSIONS[fmi]
     units = sorted({v.unit for v in model.variables})
     sources = [*man["files"]["c"], WRAPPER_C]
     groups = ("state", "derivative", "gap", "force", "input", "cinput", "parameter",
@@ -246,24 +303,31 @@ def render_files(model: FmuModel, guid: str) -> dict[str, str]:
         "params_source": man["params_source"], "params_sha256": man["params_sha256"],
         "overrides": man["overrides"],
         "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
+        "fmi": version,
+        # FMI 3.0: the independent variable time (unit s) beside the list's units
+        "units3": [(u, fmi3_base_unit(u)) for u in sorted({*units, "s"})],
     }
     env = template_env()
-    return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in (
-        ("modelDescription.xml", "fmu_model_description.xml"),
-        (WRAPPER_C, "fmu_wrapper.c"),
-        ("README.txt", "fmu_sources_README.txt"))}
+    outputs = [("modelDescription.xml", version.model_description), (WRAPPER_C, version.wrapper),
+               ("README.txt", "fmu_sources_README.txt")]
+    if version.build_description:
+        outputs.append(("buildDescription.xml", version.build_description))
+    return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in outputs}
 
 
-def fmi_headers() -> Path:
-    """The folder of FMI 2.0's fmi2Functions.h as shipped by FMPy (never copied here)."""
+def fmi_headers(fmi: str = DEFAULT_FMI) -> Path:
+    """The folder of the FMI headers (fmi2Functions.h, fmi3Functions.h) as shipped by FMPy
+    (never copied here)."""
+    version = FMI_VERSIONS[fmi]
     try:
         import fmpy
     except ImportError:
-        raise InputError("the FMI 2.0 headers come from FMPy: pip install 'maglevgen[fmu]'"
-                         ) from None
+        raise InputError(f"the FMI {version.label} headers come from FMPy: pip install "
+                         "'maglevgen[fmu]'") from None
     folder = Path(fmpy.__file__).parent / "c-code"
-    if not (folder / "fmi2Functions.h").is_file():
-        raise InputError(f"FMPy at {folder.parent} has no c-code/fmi2Functions.h")
+    if not (folder / version.header).is_file():
+        raise InputError(f"FMPy at {folder.parent} has no c-code/{version.header} (FMI "
+                         f"{version.label}): pip install 'fmpy>=0.3.20'")
     return folder
 
 
@@ -274,15 +338,22 @@ def _quiet(_: str) -> None:
     pass
 
 
-def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
+def build_fmu(carriage, kind: str = "both", controller: str | None = None,
               cache_dir: Path | None = None, cc: str | None = None,
-              progress: Progress = _quiet) -> bytes:
-    """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation)."""
+              progress: Progress = _quiet, fmi: str = DEFAULT_FMI) -> bytes:
+    """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
+    FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
+    embeds (``envelope.embedded_controller``)."""
     from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
     from .library import _cache, runtime_sources
-    from .runtime.compile import compile_shared
+    from .runtime.compile import compile_object, compile_shared
 
-    headers = fmi_headers()  # before any slow work: FMPy missing is bad input
+    if controller is None:
+        controller = carriage.params.envelope.embedded_controller
+    if fmi not in FMI_VERSIONS:
+        raise InputError(f"--fmi {fmi!r}: expected one of {tuple(FMI_VERSIONS)}")
+    version = FMI_VERSIONS[fmi]
+    headers = fmi_headers(fmi)  # before any slow work: FMPy missing is bad input
     _check_trim(carriage, cache_dir, cc, progress)
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
@@ -292,8 +363,9 @@ def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
     # the GUID names the model's content: same carriage, controller and kind, same GUID
     guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "maglevgen:" + json.dumps(
         [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
-         json.loads(json.dumps([v.__dict__ for v in model.variables]))]))) + "}"
-    files = render_files(model, guid)
+         json.loads(json.dumps([v.__dict__ for v in model.variables]))]
+        + ([] if fmi == "2" else [f"fmi{fmi}"])))) + "}"  # FMI 2.0's GUID as before
+    files = render_files(model, guid, fmi)
     if controller == "coupled":
         files[WRAPPER_C] = _with_coupled_gains(files[WRAPPER_C], carriage, cache_dir, cc)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
@@ -301,6 +373,8 @@ def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
     sources[WRAPPER_C] = files[WRAPPER_C].encode()
     sources["manifest.json"] = interface["manifest.json"].encode()
     sources["README.txt"] = files["README.txt"].encode()
+    if version.build_description:
+        sources["buildDescription.xml"] = files["buildDescription.xml"].encode()
     # the wrapper's C is rendered per carriage (start values): compiled in its own folder,
     # cached by content like the simulation library
     build = _cache(cache_dir) / "fmu" / guid.strip("{}")
@@ -309,11 +383,16 @@ def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
         path = build / name
         if not path.exists() or path.read_bytes() != data:
             path.write_bytes(data)
+    # the carriage functions (most of the compile time) once per derivation, shared by every
+    # FMU of it; each FMU links them with its own wrapper
+    functions = compile_object(folder / "maglev_functions.c", cc=cc,
+                               cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
     flags = ("-std=c99", "-O2", "-fPIC", "-shared", f"-I{headers}")
-    lib = compile_shared(sorted(build.glob("*.c")), flags=flags, cc=cc,
+    lib = compile_shared([*sorted(p for p in build.glob("*.c") if p.name != "maglev_functions.c"),
+                          functions], flags=flags, cc=cc,
                          cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
     return _zip({"modelDescription.xml": files["modelDescription.xml"].encode(),
-                 f"binaries/linux64/{MODEL_IDENTIFIER}.so": lib.read_bytes(),
+                 f"binaries/{version.platform}/{MODEL_IDENTIFIER}.so": lib.read_bytes(),
                  **{f"sources/{n}": d for n, d in sources.items()}})
 
 
