@@ -522,7 +522,6 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--out", metavar="DIR",
                      help="also write envelope.json, envelope.md and stability_map.png")
     env.set_defaults(func=cmd_envelope)
-    from .fmu import CONTROLLERS as FMU_CONTROLLERS
     from .fmu import DEFAULT_FMI, FMI_VERSIONS
     from .fmu import KINDS as FMU_KINDS
 
@@ -531,10 +530,10 @@ def build_parser() -> argparse.ArgumentParser:
     _common(fmu)
     fmu.add_argument("--kind", choices=FMU_KINDS, default="both",
                      help="model exchange, co-simulation or both (default)")
-    fmu.add_argument("--controller", choices=tuple(FMU_CONTROLLERS),
+    fmu.add_argument("--controller", choices=_Controllers(extra=("external",)),
                      help="controller inside the FMU, or 'external': the generalized control "
                           "forces are inputs (default: envelope.embedded_controller, the one "
-                          "the firmware embeds: the coupled LQR)")
+                          "the firmware embeds)")
     fmu.add_argument("--fmi", choices=tuple(FMI_VERSIONS), default=DEFAULT_FMI,
                      help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
                           "(3.0); the same variables, controllers and start values")

@@ -12,8 +12,9 @@ a parameter set through fmi2SetReal (fmi3SetFloat64) before initialization behav
 ``--set``: the trim (maglev_trim at ``operation.speed``), the gains (maglev_lqr_gains) and the
 allocation are computed from it when the FMU leaves initialization mode.
 
-Controllers are looked up in ``CONTROLLERS``: one entry per controller says how the wrapper
-gets the generalized forces u_gen (eqs 20-33) and which inputs it adds.
+Controllers come from the registry (maglevgen.laws) through `fmu_controllers`: one entry per
+controller says how the wrapper gets the generalized forces u_gen (eqs 20-33) and which inputs
+it adds.
 """
 
 from __future__ import annotations
@@ -121,27 +122,39 @@ class FmuController:
     gain_slots: int = 1
 
 
-CONTROLLERS: dict[str, FmuController] = {c.name: c for c in (
-    FmuController("none", "no control: the array forces are zero", "axis"),
-    FmuController("damping", "optimized damping (eqs 20-21), gains at operation.speed", "axis",
-                  gains_c="for (i = 0; i < NA; ++i) m->k_rate[i * (NA + 1)] = m->c_damping[i];"),
-    FmuController("lqr", "per-axis LQR (eqs 24-33), gains at operation.speed", "axis",
-                  inputs="references",
-                  gains_c="for (i = 0; i < NA; ++i) { m->k_pos[i * (NA + 1)] = m->K[i]; "
-                          "m->k_rate[i * (NA + 1)] = m->K[NA + i]; }"),
-    # the coupled LQR's gains need a Riccati solve the C does not hold: the toolchain solves
-    # it at export (maglevgen.operating, at operation.speed for the file's parameters) and
-    # the wrapper carries them as constants (COUPLED_GAINS below); a parameter set through
-    # FMI changes the trim but not these gains
-    FmuController("coupled", "coupled LQR (full-state, maglev_coupled_control's law), gains "
-                  "solved at export for the parameter file at operation.speed", "axis",
-                  inputs="references",
-                  gains_c="for (i = 0; i < NA * NA; ++i) { m->k_pos[i] = COUPLED_K_POS[i]; "
-                          "m->k_rate[i] = COUPLED_K_RATE[i]; }"),
-    FmuController("external", "generalized control forces are inputs (minimum-norm "
-                  "allocation, eqs 22-23)", "generic", inputs="controls",
-                  u_gen_c="for (i = 0; i < NA; ++i) u_gen[i] = in[i];"),
-)}
+# How the wrapper sets each registered controller's gains (maglevgen.laws, Controller.fmu_gains).
+# "matrix": the gains need a Riccati solve the C does not hold: the toolchain solves it at
+# export (maglevgen.operating, at operation.speed for the file's parameters) and the wrapper
+# carries them as constants (MATRIX_K_POS, MATRIX_K_RATE); a parameter set through FMI
+# changes the trim but not these gains.
+_GAINS_C = {
+    "none": ("", ""),
+    "damping": ("", "for (i = 0; i < NA; ++i) m->k_rate[i * (NA + 1)] = m->c_damping[i];"),
+    "axis": ("references", "for (i = 0; i < NA; ++i) { m->k_pos[i * (NA + 1)] = m->K[i]; "
+                           "m->k_rate[i * (NA + 1)] = m->K[NA + i]; }"),
+    "matrix": ("references", "for (i = 0; i < NA * NA; ++i) { m->k_pos[i] = MATRIX_K_POS[i]; "
+                             "m->k_rate[i] = MATRIX_K_RATE[i]; }"),
+}
+_GAINS_AT = {"none": "", "damping": ", gains at operation.speed",
+             "axis": ", gains at operation.speed",
+             "matrix": ", gains solved at export for the parameter file at operation.speed"}
+
+
+EXTERNAL = FmuController("external", "generalized control forces are inputs (minimum-norm "
+                         "allocation, eqs 22-23)", "generic", inputs="controls",
+                         u_gen_c="for (i = 0; i < NA; ++i) u_gen[i] = in[i];")
+
+
+def fmu_controllers() -> dict[str, FmuController]:
+    """Every registered controller (maglevgen.laws) as the wrapper runs it, and ``external``."""
+    from . import laws  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
+
+    out = {}
+    for c in laws.REGISTRY.values():
+        inputs, gains_c = _GAINS_C[c.fmu_gains]
+        out[c.name] = FmuController(c.name, c.description + _GAINS_AT[c.fmu_gains], "axis",
+                                    inputs=inputs, gains_c=gains_c)
+    return {**out, EXTERNAL.name: EXTERNAL}
 
 
 @dataclass(frozen=True)
@@ -247,9 +260,11 @@ def _per_second(unit: str) -> str:
 def build_model(manifest: dict, controller: str, kind: str) -> FmuModel:
     if kind not in KINDS:
         raise InputError(f"--kind {kind!r}: expected one of {KINDS}")
-    if controller not in CONTROLLERS:
-        raise InputError(f"--controller {controller!r}: expected one of {tuple(CONTROLLERS)}")
-    ctl = CONTROLLERS[controller]
+    controllers = fmu_controllers()
+    if controller not in controllers:
+        raise InputError(f"--controller {controller!r}: expected one of "
+                         f"{', '.join(controllers)}")
+    ctl = controllers[controller]
     return FmuModel(fmu_variables(manifest, ctl, kind), ctl, kind, manifest)
 
 
@@ -366,8 +381,9 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
          json.loads(json.dumps([v.__dict__ for v in model.variables]))]
         + ([] if fmi == "2" else [f"fmi{fmi}"])))) + "}"  # FMI 2.0's GUID as before
     files = render_files(model, guid, fmi)
-    if controller == "coupled":
-        files[WRAPPER_C] = _with_coupled_gains(files[WRAPPER_C], carriage, cache_dir, cc)
+    if "MATRIX_K_POS" in model.controller.gains_c:
+        files[WRAPPER_C] = _with_matrix_gains(files[WRAPPER_C], carriage, controller,
+                                              cache_dir, cc)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
         p.name for p in folder.iterdir() if p.suffix in (".c", ".h"))}
     sources[WRAPPER_C] = files[WRAPPER_C].encode()
@@ -396,8 +412,9 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
                  **{f"sources/{n}": d for n, d in sources.items()}})
 
 
-def _with_coupled_gains(wrapper: str, carriage, cache_dir: Path | None, cc: str | None) -> str:
-    """The wrapper's C with the coupled LQR's (K_pos, K_rate) at operation.speed as constants
+def _with_matrix_gains(wrapper: str, carriage, controller: str, cache_dir: Path | None,
+                       cc: str | None) -> str:
+    """The wrapper's C with ``controller``'s (K_pos, K_rate) at operation.speed as constants
     (column-major, repr of each double: deterministic)."""
     from .library import simulation_library
     from .operating import Weights, operating_point
@@ -405,13 +422,13 @@ def _with_coupled_gains(wrapper: str, carriage, cache_dir: Path | None, cc: str 
     lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
     op = operating_point(lib, carriage.p, carriage.params.operation.speed,
                          carriage.params.track.min_gap, Weights.of(carriage.params))
-    K_pos, K_rate = op.gains("coupled")
+    K_pos, K_rate = op.gains(controller)
 
     def table(name: str, K) -> str:
         return (f"static const maglev_real {name}[NA * NA] = {{"
                 + ", ".join(repr(float(v)) for v in K.ravel(order="F")) + "};\n")
 
-    consts = table("COUPLED_K_POS", K_pos) + table("COUPLED_K_RATE", K_rate)
+    consts = table("MATRIX_K_POS", K_pos) + table("MATRIX_K_RATE", K_rate)
     marker = "typedef struct {"
     return wrapper.replace(marker, consts + "\n" + marker, 1)
 

@@ -68,7 +68,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.fmu": (
         "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
         ("maglevgen.codegen.interface", "maglevgen.library", "maglevgen.operating",
-         "maglevgen.runtime.compile", "maglevgen.simulate", "fmpy")),
+         "maglevgen.runtime.compile", "maglevgen.simulate", "maglevgen.laws", "fmpy")),
     "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
     "maglevgen.sim_output": ("matplotlib only when figures are drawn", ("matplotlib",)),
     "maglevgen.report_figures": ("matplotlib only when figures are drawn",
