@@ -43,6 +43,11 @@ ERROR_CODES: dict[str, tuple[int, str]] = {
 }
 ERROR_NAMES: dict[int, str] = {v: k for k, (v, _) in ERROR_CODES.items()}
 
+#: the largest computation delay, in ticks, that the simulation loop's command buffer holds
+#: (maglev_simulate.h's MAGLEV_SIM_MAX_DELAY; maglevgen.simulate.Tick refuses more): a
+#: firmware's computation takes a tick or two, not more
+MAX_DELAY_TICKS = 4
+
 TRIM_KIND = ("maglev_trim", "maglev_axis_plants", "maglev_lqr_gains")
 TICK_KIND = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
              "maglev_allocate", "maglev_axis_gains")
