@@ -474,7 +474,10 @@ def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND) -
 
 
 def metrics(traj: Trajectory) -> dict:
-    """Per axis: settling time, peak deviation and RMS generalized control force."""
+    """Per axis: settling time, peak deviation and RMS generalized control force; for the
+    run: its status, gaps, speeds, the speed error after the first second
+    (`Trajectory.speed_error`), the time spent with an array at its force budget, and how
+    the controller ran."""
     dev = traj.axis_deviation
     ugen = traj.generalized_forces
     axes = {}
@@ -498,6 +501,10 @@ def metrics(traj: Trajectory) -> dict:
         "rms_array_force": float(np.sqrt(np.mean(traj.u[:, 1:] ** 2))),
         "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
         "speed_error": traj.speed_error, "saturated_time": traj.saturated_time,
+        # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
+        "tick": None if traj.tick is None else {"rate": traj.tick.rate,
+                                                "delay": traj.tick.delay},
+        "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
     }
 
