@@ -111,7 +111,8 @@ static int loop_valid(const maglev_control_loop* loop) {
                          && !isnan(loop->force_budget));
 }
 
-/* today's loop: the feedback at every stage, no speed feedback, no budget */
+/* the loop without a maglev_control_loop: the feedback at every stage, F_prop as given, no
+   budget (the arithmetic of maglev_rk4_step) */
 static int loop_plain(const maglev_control_loop* loop) {
     return loop == 0 || (loop->tick_steps == 0 && loop->k_v == 0
                          && !budget_active(loop->force_budget));
