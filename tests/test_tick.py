@@ -306,3 +306,22 @@ def test_tick_steps_is_the_period_in_steps() -> None:
         Tick(1000.0, 1).steps(3e-4)
     with pytest.raises(InputError, match=re.escape("tick rate 2000.0")):
         Tick(2000.0, 1).steps(1e-3)  # a period shorter than a step
+
+
+def test_montecarlo_samples_run_the_loop_they_are_given(carriage, sim_lib) -> None:
+    """A study's tick, speed gain and budget reach every sample's run: a budget far below
+    the forces saturates the whole run, none leaves it unsaturated; a bad tick is refused
+    when the study is made (before any sample)."""
+    from maglevgen.montecarlo import make_study, run_sample
+
+    rows = {}
+    for budget in (1e-6, None):
+        study = make_study(carriage, sim_lib, ("damping",), 0.2, DT, seed=3,
+                           tick=Tick(1000.0, 1), speed_gain=10.0, force_budget=budget)
+        assert (study.tick, study.speed_gain, study.force_budget) == (Tick(1000.0, 1), 10.0,
+                                                                      budget)
+        (rows[budget],) = run_sample(study, 0, sim_lib)
+    assert rows[1e-6]["saturated_time"] == pytest.approx(0.2)
+    assert rows[None]["saturated_time"] == 0.0
+    with pytest.raises(InputError, match=re.escape("tick rate 300.0")):
+        make_study(carriage, sim_lib, ("damping",), 0.2, DT, seed=3, tick=Tick(300.0, 1))
