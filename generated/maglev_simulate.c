@@ -15,14 +15,21 @@
 #define MAX2(a, b) ((a) > (b) ? (a) : (b))
 #define MAX3(a, b, c) MAX2(MAX2(a, b), c)
 #define MAX4(a, b, c, d) MAX2(MAX3(a, b, c), d)
-#define SZ(what) MAX4(maglev_closed_loop_prepared_SZ_##what, maglev_closed_loop_prepare_SZ_##what, \
-                      maglev_allocation_matrix_SZ_##what, maglev_closed_loop_SZ_##what)
+#define SZ(what) MAX4(MAX4(maglev_closed_loop_prepared_SZ_##what, maglev_closed_loop_prepare_SZ_##what, \
+                           maglev_allocation_matrix_SZ_##what, maglev_closed_loop_SZ_##what), \
+                      maglev_dynamics_SZ_##what, maglev_gaps_SZ_##what, maglev_coupled_control_SZ_##what)
 #define SZ_ARG SZ(ARG)
 #define SZ_RES SZ(RES)
 #define SZ_IW SZ(IW)
 #define SZ_W SZ(W)
 #define NT (11 - 1) * 5 /* allocation matrix entries */
 #define NC 392 /* the closed loop's prepared constants */
+#define NA 6 /* arrays */
+#define NY MAGLEV_SCHEDULE_NY
+#define SQRT(v) sqrt(v)
+
+/* the array (0 .. NA - 1) of each control force u[1 ..], in the MAGLEV_U_* order */
+static const int ARRAY_OF_FORCE[NU - 1] = { 0, 0, 1, 1, 2, 3, 3, 4, 4, 5 };
 
 typedef struct {
     const maglev_real* arg[SZ_ARG + 1];
@@ -72,23 +79,290 @@ static int closed_loop(work* ws, const maglev_real* x, const maglev_real* c, mag
     return maglev_closed_loop_prepared(ws->arg, ws->res, ws->iw, ws->w, 0);
 }
 
+/* ------------------------------------------------------------------------------------------
+   The controller as the firmware runs it (maglev_control_loop, see maglev_simulate.h): the
+   command computed at a tick, applied delay_ticks ticks later and held through the RK4 stages
+   until the next one; the speed loop on the propulsion; the per-array force budget. With
+   tick_steps == 0 the command is computed at every RK4 stage (the continuous loop). */
+
+/* what a run of the loop below needs besides the state: the gains (a schedule evaluated at
+   the measured speed, or the values of one speed), the propulsion's feedforward and the
+   speed reference, the allocation matrix and the parameters */
+typedef struct {
+    const maglev_spline_schedule* schedule; /* NULL: the fixed values */
+    const maglev_real* fixed;               /* NY values in the schedule's layout */
+    long long hold_steps;                   /* continuous loop only: see maglev_launch */
+    maglev_real F_extra;                    /* [N] added to the scheduled drag */
+    int launch;                             /* stop at v >= v_end, v_ref capped at v_end */
+    maglev_real v_end;
+    const maglev_control_loop* loop;
+    const maglev_real* T;
+} loop_run;
+
+/* a budget limits the array forces when it is positive and finite */
+static int budget_active(maglev_real budget) {
+    return budget > 0 && isfinite(budget);
+}
+
+static int loop_valid(const maglev_control_loop* loop) {
+    return loop == 0 || (loop->tick_steps >= 0 && loop->delay_ticks >= 0
+                         && loop->delay_ticks <= MAGLEV_SIM_MAX_DELAY && isfinite(loop->k_v)
+                         && isfinite(loop->v_ref) && isfinite(loop->accel)
+                         && !isnan(loop->force_budget));
+}
+
+/* the loop without a maglev_control_loop: the feedback at every stage, F_prop as given, no
+   budget (the arithmetic of maglev_rk4_step) */
+static int loop_plain(const maglev_control_loop* loop) {
+    return loop == 0 || (loop->tick_steps == 0 && loop->k_v == 0
+                         && !budget_active(loop->force_budget));
+}
+
+/* each array's control force (its components' vector) scaled down to the budget where its
+   norm exceeds it; returns 1 when an array saturated */
+static int saturate(maglev_real* F, maglev_real budget) {
+    maglev_real sq[NA], scale[NA];
+    int i, any = 0;
+    for (i = 0; i < NA; ++i) sq[i] = 0;
+    for (i = 0; i < NU - 1; ++i) sq[ARRAY_OF_FORCE[i]] += F[i] * F[i];
+    for (i = 0; i < NA; ++i) {
+        scale[i] = 1;
+        if (sq[i] > budget * budget) {
+            scale[i] = budget / SQRT(sq[i]);
+            any = 1;
+        }
+    }
+    for (i = 0; i < NU - 1; ++i) F[i] *= scale[ARRAY_OF_FORCE[i]];
+    return any;
+}
+
+/* the gains at x: the schedule at the speed of x, else the fixed values; 1 when the speed is
+   not finite */
+static int gains_at(const loop_run* r, const maglev_real* x, maglev_real* buf,
+                    const maglev_real** g) {
+    if (r->schedule == 0) {
+        *g = r->fixed;
+        return 0;
+    }
+    if (maglev_schedule_eval(r->schedule, SPEED(x), buf) == MAGLEV_SCHEDULE_NONFINITE) return 1;
+    *g = buf;
+    return 0;
+}
+
+/* the command at state x and time t with the gains g: the propulsion
+     F_prop = F_drag + F_extra + k_v (v_ref(t) - |(u, v, w)|),  v_ref(t) = v_ref + accel t
+   (capped at v_end in a launch), and the array forces T u_gen with
+     u_gen = -(K_pos (a - a_ref) + K_rate a_dot)  (maglev_coupled_control),
+   each array's scaled down to the budget. Returns -1 on a generated function's error, else 1
+   when an array saturated, 0 when none did. */
+static int command(work* ws, const loop_run* r, const maglev_real* x, maglev_real t,
+                   const maglev_real* g, maglev_real* u) {
+    const maglev_control_loop* loop = r->loop;
+    maglev_real u_gen[5], v_ref = loop->v_ref + loop->accel * t;
+    int i, j;
+    if (r->launch && v_ref > r->v_end) v_ref = r->v_end;
+    ws->arg[0] = x;
+    ws->arg[1] = g + MAGLEV_SCHEDULE_K_POS;
+    ws->arg[2] = g + MAGLEV_SCHEDULE_K_RATE;
+    ws->arg[3] = g + MAGLEV_SCHEDULE_A_REF;
+    ws->res[0] = u_gen;
+    if (maglev_coupled_control(ws->arg, ws->res, ws->iw, ws->w, 0)) return -1;
+    u[0] = g[MAGLEV_SCHEDULE_F_DRAG] + r->F_extra + loop->k_v * (v_ref - SPEED(x));
+    for (i = 0; i < NU - 1; ++i) {
+        maglev_real f = 0;
+        for (j = 0; j < 5; ++j) f += r->T[i + j * (NU - 1)] * u_gen[j];
+        u[1 + i] = f;
+    }
+    return budget_active(loop->force_budget) ? saturate(u + 1, loop->force_budget) : 0;
+}
+
+/* xdot = f(x, u) with the input held (maglev_dynamics) */
+static int held_rhs(work* ws, const loop_run* r, const maglev_real* x, const maglev_real* u,
+                    maglev_real* xdot) {
+    ws->arg[0] = x;
+    ws->arg[1] = u;
+    (void)r;
+    ws->res[0] = xdot;
+    return maglev_dynamics(ws->arg, ws->res, ws->iw, ws->w, 0);
+}
+
+/* the continuous loop's right-hand side at a stage (x, t): the command there, then f(x, u);
+   held: the gains held over the step, else those at x. Returns as command(), or 2 when the
+   stage's state (or its speed) is not finite: xdot is then NaN, and the next sample says so. */
+static int stage_rhs(work* ws, const loop_run* r, const maglev_real* x, maglev_real t,
+                     const maglev_real* held, maglev_real* u, maglev_real* xdot) {
+    maglev_real buf[NY];
+    const maglev_real* g = held;
+    int i, s;
+    if (!all_finite(x, NX) || (g == 0 && gains_at(r, x, buf, &g))) {
+        for (i = 0; i < NX; ++i) xdot[i] = (maglev_real)NAN;
+        return 2;
+    }
+    s = command(ws, r, x, t, g, u);
+    if (s < 0 || held_rhs(ws, r, x, u, xdot)) return -1;
+    return s;
+}
+
+static int sample_gaps(work* ws, const loop_run* r, const maglev_real* x, maglev_real* gaps) {
+    ws->arg[0] = x;
+    (void)r;
+    ws->res[0] = gaps;
+    return maglev_gaps(ws->arg, ws->res, ws->iw, ws->w, 0);
+}
+
+/* the run with r->loop not plain: the tick-held (tick_steps > 0) or the continuous loop */
+static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, maglev_real dt,
+                          long long n_steps, maglev_real gap_min, maglev_real* x_traj,
+                          maglev_real* u_traj, maglev_real* gap_traj, long long* saturated,
+                          int* status) {
+    /* the commands on their way (computed, not yet applied): a ring of delay_ticks + 1 */
+    maglev_real ring[(MAGLEV_SIM_MAX_DELAY + 1) * NU], applied[NU], u_stage[NU], buf[NY];
+    maglev_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], held[NY];
+    int ring_sat[MAGLEV_SIM_MAX_DELAY + 1];
+    const maglev_real half = dt / (maglev_real)2, sixth = dt / (maglev_real)6;
+    const long long tick = r->loop->tick_steps;
+    const int depth = r->loop->delay_ticks + 1;
+    const maglev_real* hold = 0;
+    int i, d, w = 0, sat = 0;
+    long long k, n_sat = 0;
+
+    for (i = 0; i < NX; ++i) x_traj[i] = x0[i];
+    for (k = 0;; ++k) {
+        const maglev_real* x = x_traj + k * NX;
+        const maglev_real t = (maglev_real)k * dt;
+        maglev_real* gaps = gap_traj + k * NG;
+        maglev_real* u = u_traj + k * NU;
+        int err = 0;
+        if (!all_finite(x, NX)) {
+            *status = MAGLEV_SIM_NONFINITE;
+            break;
+        }
+        if (tick > 0) {
+            if (k % tick == 0) {
+                /* a tick: sample x, compute the command, apply the one computed
+                   delay_ticks ticks ago (at the first ticks: the first command) */
+                const maglev_real* g;
+                maglev_real* slot = ring + w * NU;
+                int s;
+                if (gains_at(r, x, buf, &g)) {
+                    *status = MAGLEV_SIM_NONFINITE;
+                    break;
+                }
+                if ((s = command(ws, r, x, t, g, slot)) < 0) {
+                    *status = MAGLEV_SIM_ERROR;
+                    break;
+                }
+                ring_sat[w] = s;
+                if (k == 0) {
+                    for (d = 0; d < depth; ++d) {
+                        for (i = 0; i < NU; ++i) ring[d * NU + i] = slot[i];
+                        ring_sat[d] = s;
+                    }
+                }
+                w = (w + 1) % depth; /* the oldest command, and where the next one goes */
+                for (i = 0; i < NU; ++i) applied[i] = ring[w * NU + i];
+                sat = ring_sat[w];
+            }
+            for (i = 0; i < NU; ++i) u[i] = applied[i];
+            if (held_rhs(ws, r, x, applied, k1)) {
+                *status = MAGLEV_SIM_ERROR;
+                break;
+            }
+        } else {
+            int s;
+            if (r->schedule != 0 && r->hold_steps > 0 && k % r->hold_steps == 0) {
+                /* a control period starts: schedule at the measured speed, held until the next */
+                if (maglev_schedule_eval(r->schedule, SPEED(x), held)
+                    == MAGLEV_SCHEDULE_NONFINITE) {
+                    *status = MAGLEV_SIM_NONFINITE;
+                    break;
+                }
+                hold = held;
+            }
+            if ((s = stage_rhs(ws, r, x, t, hold, u, k1)) < 0) {
+                *status = MAGLEV_SIM_ERROR;
+                break;
+            }
+            sat = s == 1;
+        }
+        if (sample_gaps(ws, r, x, gaps)) {
+            *status = MAGLEV_SIM_ERROR;
+            break;
+        }
+        if ((*status = gap_status(gaps, gap_min)) != MAGLEV_SIM_OK) break;
+        if (k == n_steps || (r->launch && SPEED(x) >= r->v_end)) break;
+        {
+            maglev_real* x_next = x_traj + (k + 1) * NX;
+            for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k1[i];
+            if (tick > 0) {
+                err |= held_rhs(ws, r, xt, applied, k2);
+                for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k2[i];
+                err |= held_rhs(ws, r, xt, applied, k3);
+                for (i = 0; i < NX; ++i) xt[i] = x[i] + dt * k3[i];
+                err |= held_rhs(ws, r, xt, applied, k4);
+            } else {
+                err |= stage_rhs(ws, r, xt, t + half, hold, u_stage, k2) < 0;
+                for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k2[i];
+                err |= stage_rhs(ws, r, xt, t + half, hold, u_stage, k3) < 0;
+                for (i = 0; i < NX; ++i) xt[i] = x[i] + dt * k3[i];
+                err |= stage_rhs(ws, r, xt, t + dt, hold, u_stage, k4) < 0;
+            }
+            if (err) {
+                *status = MAGLEV_SIM_ERROR;
+                break;
+            }
+            rk4_combine(x, k1, k2, k3, k4, sixth, x_next);
+            n_sat += sat; /* the step ran with an array at its budget */
+        }
+    }
+    if (saturated != 0) *saturated = n_sat;
+    return k;
+}
+
 long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_steps,
                           maglev_real F_prop, const maglev_real* K_pos,
                           const maglev_real* K_rate, const maglev_real* a_ref,
+                          const maglev_control_loop* loop,
                           maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
-                          maglev_real* gap_traj, int* status) {
+                          maglev_real* gap_traj, long long* saturated, int* status) {
     work ws;
     maglev_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], T[NT], c[NC];
     const maglev_real half = dt / (maglev_real)2, sixth = dt / (maglev_real)6;
     long long k;
     int i;
 
+    if (saturated != 0) *saturated = 0;
+    if (!loop_valid(loop)) {
+        *status = MAGLEV_SIM_ERROR;
+        return 0;
+    }
     /* what does not change during the run, once: the allocation matrix, then everything in
        the closed loop that depends on the run's inputs alone */
     ws.res[0] = T;
     if (maglev_allocation_matrix(ws.arg, ws.res, ws.iw, ws.w, 0)) {
         *status = MAGLEV_SIM_ERROR;
         return 0;
+    }
+    if (!loop_plain(loop)) {
+        /* the gains of the one speed in the schedule's layout */
+        maglev_real fixed[NY];
+        loop_run r;
+        fixed[MAGLEV_SCHEDULE_F_DRAG] = F_prop;
+        for (i = 0; i < 5; ++i) fixed[MAGLEV_SCHEDULE_A_REF + i] = a_ref[i];
+        for (i = 0; i < 25; ++i) {
+            fixed[MAGLEV_SCHEDULE_K_POS + i] = K_pos[i];
+            fixed[MAGLEV_SCHEDULE_K_RATE + i] = K_rate[i];
+        }
+        r.schedule = 0;
+        r.fixed = fixed;
+        r.hold_steps = 0;
+        r.F_extra = 0;
+        r.launch = 0;
+        r.v_end = 0;
+        r.loop = loop;
+        r.T = T;
+        return run_loop(&ws, &r, x0, dt, n_steps, gap_min, x_traj, u_traj, gap_traj, saturated,
+                        status);
     }
     ws.arg[0] = &F_prop;
     ws.arg[1] = K_pos;
@@ -195,8 +469,9 @@ static int launch_stage(work* ws, const maglev_real* x, const maglev_spline_sche
 long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps,
                         maglev_real v_end, maglev_real F_extra, long long hold_steps,
                         const maglev_spline_schedule* schedule,
+                        const maglev_control_loop* loop,
                         maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
-                        maglev_real* gap_traj, int* status) {
+                        maglev_real* gap_traj, long long* saturated, int* status) {
     work ws;
     maglev_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], T[NT], held[MAGLEV_SCHEDULE_NY];
     maglev_real u_stage[NU], g_stage[NG];
@@ -205,7 +480,9 @@ long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps
     long long k;
     int i;
 
-    if (schedule == 0 || schedule->n < 2 || !(schedule->dv > 0) || hold_steps < 0) {
+    if (saturated != 0) *saturated = 0;
+    if (schedule == 0 || schedule->n < 2 || !(schedule->dv > 0) || hold_steps < 0
+        || !loop_valid(loop)) {
         *status = MAGLEV_SIM_ERROR;
         return 0;
     }
@@ -213,6 +490,19 @@ long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps
     if (maglev_allocation_matrix(ws.arg, ws.res, ws.iw, ws.w, 0)) {
         *status = MAGLEV_SIM_ERROR;
         return 0;
+    }
+    if (!loop_plain(loop)) {
+        loop_run r;
+        r.schedule = schedule;
+        r.fixed = 0;
+        r.hold_steps = hold_steps;
+        r.F_extra = F_extra;
+        r.launch = 1;
+        r.v_end = v_end;
+        r.loop = loop;
+        r.T = T;
+        return run_loop(&ws, &r, x0, dt, n_steps, gap_min, x_traj, u_traj, gap_traj, saturated,
+                        status);
     }
     for (i = 0; i < NX; ++i) x_traj[i] = x0[i];
     for (k = 0;; ++k) {

@@ -5,7 +5,9 @@
  * The loop integrates x' = f(x, u(x)) with fixed-step RK4 (maglev_rk4_step): the axis feedback
  *   u_gen = -(K_pos (a - a_ref) + K_rate a_dot),  a = (y, z, phi, theta, psi),
  * is evaluated at every RK4 stage and spread over the arrays by the minimum-norm allocation
- * (maglev_allocate); the propulsion force F_prop is constant. Zero gains give the open loop;
+ * (maglev_allocate); the propulsion force F_prop is constant. With a maglev_control_loop
+ * (below) the controller runs as the firmware runs it instead: at a tick, with a delay, the
+ * command held between ticks, a speed loop on F_prop and a force budget. Zero gains give the open loop;
  * with K_pos, K_rate 5 x 5 (column-major): zero gains give the open loop; K_pos = 0,
  * K_rate = diag(c_damping) the optimized damping; diag of the columns of K the per-axis LQR;
  * full matrices the coupled LQR.
@@ -15,7 +17,8 @@
  *   gap_traj[(n_steps+1) x 6] (array gaps, maglev_gaps).
  * The run stops early at the first sample whose state is not finite or where a gap is below
  * gap_min (contact with the track). Returns the index of the last sample written (n_steps when
- * the run completed) and sets *status to one of the MAGLEV_SIM_* codes.
+ * the run completed) and sets *status to one of the MAGLEV_SIM_* codes; *saturated (when not
+ * NULL) to the number of RK4 steps taken with an array's control force at the budget.
  */
 #ifndef MAGLEV_SIMULATE_H
 #define MAGLEV_SIMULATE_H
@@ -31,11 +34,41 @@ extern "C" {
 #define MAGLEV_SIM_NONFINITE 2    /* the state or a gap at the last sample is not finite */
 #define MAGLEV_SIM_ERROR 3        /* a generated function returned an error */
 
+/*
+ * How the controller runs (NULL, or tick_steps = 0, k_v = 0 and no budget: at every RK4 stage
+ * with the propulsion as given, the arithmetic of maglev_rk4_step):
+ * - tick_steps > 0: the controller's tick. At every tick_steps-th sample (a control period of
+ *   tick_steps dt) it samples the state and computes the command: the propulsion, the axis
+ *   feedback (with the gains of the schedule at the measured speed in maglev_launch) and its
+ *   allocation to the arrays. A command is applied delay_ticks ticks after its tick and held
+ *   (zero-order hold) through every RK4 stage until the next one is applied; until the first
+ *   delayed command arrives, the one computed from x0 is applied. The plant between ticks:
+ *   RK4 on maglev_dynamics with the input held. tick_steps = 0: the command at every stage.
+ * - The speed loop: F_prop = F_ff + k_v (v_ref(t) - |(u, v, w)|), |(u, v, w)| measured with
+ *   the command, v_ref(t) = v_ref + accel t (maglev_launch: at most v_end), F_ff the given
+ *   F_prop (maglev_simulate) or F_drag(v) + F_extra (maglev_launch). k_v = 0: F_ff alone.
+ * - The force budget: each array's control force (the vector of its components) is scaled
+ *   down to force_budget where its norm exceeds it; force_budget <= 0 or infinite: no limit.
+ * tick_steps < 0, delay_ticks outside [0, MAGLEV_SIM_MAX_DELAY] or a non-finite k_v, v_ref,
+ * accel or NaN budget: MAGLEV_SIM_ERROR before any step.
+ */
+#define MAGLEV_SIM_MAX_DELAY 4 /* the largest delay_ticks */
+
+typedef struct {
+    long long tick_steps;     /* RK4 steps per control tick; 0: the command at every stage */
+    int delay_ticks;          /* ticks from a command's computation to its application */
+    maglev_real k_v;          /* [N s/m] speed-loop gain */
+    maglev_real v_ref;        /* [m/s] the speed reference at t = 0 */
+    maglev_real accel;        /* [m/s^2] the speed reference's slope */
+    maglev_real force_budget; /* [N] per array: |control force| at most this */
+} maglev_control_loop;
+
 long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_steps,
                           maglev_real F_prop, const maglev_real* K_pos,
                           const maglev_real* K_rate, const maglev_real* a_ref,
+                          const maglev_control_loop* loop,
                           maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
-                          maglev_real* gap_traj, int* status);
+                          maglev_real* gap_traj, long long* saturated, int* status);
 
 /*
  * Gain schedule over speed: MAGLEV_SCHEDULE_NY values per node, a natural cubic spline in the
@@ -69,14 +102,17 @@ int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_
  * trim drag) while the gains, the reference and F_drag follow the schedule at the measured
  * speed v = |(u, v, w)|: evaluated at every RK4 stage when hold_steps == 0 (a continuous
  * schedule), else at every hold_steps-th sample and held in between (a control period of
- * hold_steps * dt). Stops at the first sample with v >= v_end (status MAGLEV_SIM_OK), after
- * n_steps, or as maglev_simulate does (contact, non-finite). Returns the last sample's index.
+ * hold_steps * dt); with loop->tick_steps > 0, at every tick with the rest of the command
+ * (hold_steps is then not used). Stops at the first sample with v >= v_end (status
+ * MAGLEV_SIM_OK), after n_steps, or as maglev_simulate does (contact, non-finite). Returns
+ * the last sample's index; loop and saturated as maglev_simulate's.
  */
 long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps,
                         maglev_real v_end, maglev_real F_extra, long long hold_steps,
                         const maglev_spline_schedule* schedule,
+                        const maglev_control_loop* loop,
                         maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
-                        maglev_real* gap_traj, int* status);
+                        maglev_real* gap_traj, long long* saturated, int* status);
 
 #ifdef __cplusplus
 }

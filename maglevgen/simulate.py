@@ -15,11 +15,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .codegen.checks import MAX_DELAY_TICKS
 from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .derive.structure import input_names_of
 from .errors import InputError, NoTrimError
-from .library import SimulationLibrary
+from .library import ControlLoop, SimulationLibrary
 from .operating import (
     AXIS_STATES,
     CONTROLLER_TITLES,
@@ -63,6 +64,77 @@ CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between c
 Progress = Callable[[float], None]
 
 
+@dataclass(frozen=True)
+class Tick:
+    """The controller's tick as the firmware runs it: ``rate`` [Hz] (the control period
+    1/rate a whole number of RK4 steps) and the computation ``delay`` [ticks] from sampling
+    the state to applying the command (0 to MAX_DELAY_TICKS), the command held in between."""
+
+    rate: float  # [Hz]
+    delay: int = 1  # [ticks]
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.rate, (int, float)) and np.isfinite(self.rate)
+                and self.rate > 0):
+            raise InputError(f"tick rate {self.rate!r} Hz: must be a positive number")
+        if not (isinstance(self.delay, (int, np.integer)) and not isinstance(self.delay, bool)
+                and 0 <= self.delay <= MAX_DELAY_TICKS):
+            raise InputError(f"tick delay {self.delay!r}: must be a whole number of ticks "
+                             f"from 0 to {MAX_DELAY_TICKS}")
+
+    def steps(self, dt: float) -> int:
+        """RK4 steps of ``dt`` per tick: the period 1/rate must be a whole multiple of dt
+        (within 1e-9 of a step)."""
+        ratio = 1.0 / (self.rate * dt)
+        n = round(ratio)
+        if n < 1 or abs(ratio - n) > 1e-9:
+            raise InputError(f"tick rate {self.rate!r} Hz: its period {1.0 / self.rate:.9g} s "
+                             f"is not a whole multiple of the step dt = {dt:g} s")
+        return n
+
+
+# The speed loop's default bandwidth [rad/s]: the closed speed pole at -omega_v, a 0.2 s time
+# constant, two decades below a 1 kHz tick. The default carriage's oscillatory levitation
+# modes lie at 6 to 60 rad/s (|lambda| of its closed loops over 7 to 40 m/s); from a speed
+# offset the nonlinear run's error decays at omega_v to 5 % (tests/test_tick.py), the modes
+# left alone. The ramp of a launch is followed by the feedforward m a, the loop taking the drag.
+SPEED_BANDWIDTH = 5.0
+
+
+def speed_loop_gain(mode: SpeedMode, bandwidth: float = SPEED_BANDWIDTH) -> float:
+    """k_v [N s/m] that puts the speed pole at -``bandwidth`` [rad/s].
+
+    Along the track m V' = F_ff + k_v (v_ref - V) - F_D,trim(V) (`SpeedMode`), linearised
+    at the trim: m dV' = -(k_v + dF_D,trim/dV) dV, so the pole -omega_v needs
+
+        k_v = m omega_v - dF_D,trim/dV,
+
+    the drag's total slope along the trim curve (re-trim included, ``mode.drag_slope_trim``;
+    negative where the drag falls with speed, which makes the open loop unstable).
+    """
+    if not (np.isfinite(bandwidth) and bandwidth > 0):
+        raise InputError(f"speed-loop bandwidth {bandwidth!r} rad/s: must be positive")
+    return float(mode.mass * bandwidth - mode.drag_slope_trim)
+
+
+def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: float | None,
+                 v_ref: float, accel: float = 0.0) -> ControlLoop | None:
+    """The C loop's settings (maglev_control_loop), or None for today's loop: the controller
+    at every RK4 stage, the propulsion without speed feedback, no budget. Validates them."""
+    if not (isinstance(speed_gain, (int, float)) and np.isfinite(speed_gain)
+            and speed_gain >= 0):
+        raise InputError(f"speed gain {speed_gain!r} N s/m: must be a finite number >= 0")
+    if force_budget is not None and not (isinstance(force_budget, (int, float))
+                                         and force_budget > 0):
+        raise InputError(f"force budget {force_budget!r} N: must be positive (None or inf: "
+                         "no limit)")
+    if tick is None and speed_gain == 0 and force_budget is None:
+        return None
+    budget = 0.0 if force_budget is None or np.isinf(force_budget) else float(force_budget)
+    return ControlLoop(0 if tick is None else tick.steps(dt), 0 if tick is None else tick.delay,
+                       float(speed_gain), float(v_ref), float(accel), budget)
+
+
 def rk4_stability_limit(eigenvalues: np.ndarray) -> float:
     """Largest step for which RK4 keeps every mode with Re(lambda) <= 0 bounded.
 
@@ -103,6 +175,22 @@ class Trajectory:
     scenario: str = "hold"
     equilibrium: np.ndarray | None = None  # (n, 5) trim axis positions at each sample's speed
     input_names: tuple[str, ...] = ()  # F_prop, F_<axis><array>...: groups u by array
+    speed_reference: np.ndarray | None = None  # (n,) v_ref of the speed loop [m/s]
+    saturated_time: float = 0.0  # [s] steps run with an array's control force at its budget
+    tick: Tick | None = None  # None: the controller at every RK4 stage
+    speed_gain: float = 0.0  # k_v of the speed loop [N s/m]
+    force_budget: float | None = None  # [N] per array, None: no limit
+
+    @property
+    def speed_error(self) -> float | None:
+        """max |V - v_ref| / v_ref after the first second (None for a run not longer)."""
+        ref = self.speed_reference
+        if ref is None:
+            ref = np.full(self.t.size, self.op.speed)
+        late = self.t > 1.0
+        if not np.any(late):
+            return None
+        return float(np.max(np.abs(self.speed[late] - ref[late]) / ref[late]))
 
     @property
     def speed(self) -> np.ndarray:
@@ -222,24 +310,37 @@ def _contact_event(t: np.ndarray, g: np.ndarray, speed: float, min_gap: float,
 def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controller: str,
              t_end: float, dt: float, min_gap: float,
              disturbance: dict[str, float] | None = None,
-             progress: Progress | None = None) -> Trajectory:
+             progress: Progress | None = None, tick: Tick | None = None,
+             speed_gain: float = 0.0, force_budget: float | None = None) -> Trajectory:
     """The hold scenario in C: RK4 from the disturbed trim to ``t_end`` or contact, the
-    propulsion held at the trim drag and the gains fixed at the trim speed's."""
+    propulsion at the trim drag and the gains fixed at the trim speed's.
+
+    ``tick``: the controller runs at the tick with its delay, the command held between ticks
+    (None: at every RK4 stage); ``speed_gain``: k_v of the speed loop F_prop = F_trim +
+    k_v (v_trim - V) (`speed_loop_gain`; 0: the propulsion held at the trim drag);
+    ``force_budget``: each array's control force limited to it [N] (None: no limit). The
+    defaults give the loop of maglev_simulate without a maglev_control_loop.
+    """
     n_steps = _check_steps(t_end, dt)
+    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed)
     disturbance = DISTURBANCE if disturbance is None else disturbance
     K_pos, K_rate = (k.ravel(order="F") for k in op.gains(controller))
     x0 = initial_state(op, disturbance)
     n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     xs, us, gs = [], [], []
-    done, status = 0, 0
+    done, status, saturated = 0, 0, 0
+    # a ticked run in one call: its command pipeline does not survive a chunk's end
+    chunk_steps = CHUNK_STEPS if loop is None or loop.tick_steps == 0 else n_steps
     while True:
-        chunk = min(CHUNK_STEPS, n_steps - done)
-        last, status, x, u, g = lib.simulate(x0, dt, chunk, op.f_prop, K_pos, K_rate,
-                                             op.a_trim, p, min_gap, n_u, n_g)
+        chunk = min(chunk_steps, n_steps - done)
+        run = lib.simulate(x0, dt, chunk, op.f_prop, K_pos, K_rate, op.a_trim, p, min_gap, n_u,
+                           n_g, loop)
+        status, x, u, g = run.status, run.x, run.u, run.gaps
+        saturated += run.saturated_steps
         final = status != 0 or done + chunk == n_steps
         keep = slice(None) if final else slice(None, -1)  # chunks share their end sample
         xs.append(x[keep]), us.append(u[keep]), gs.append(g[keep])
-        done += last
+        done += run.last
         if progress is not None:
             progress(done / n_steps)
         if final:
@@ -247,7 +348,9 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
         x0 = x[-1]
     x, u, g = np.concatenate(xs), np.concatenate(us), np.concatenate(gs)
     t = np.arange(x.shape[0]) * dt
-    traj = Trajectory(controller, op, dt, t, x, u, g, status, None, dict(disturbance))
+    traj = Trajectory(controller, op, dt, t, x, u, g, status, None, dict(disturbance),
+                      speed_reference=np.full(t.size, op.speed), saturated_time=saturated * dt,
+                      tick=tick, speed_gain=float(speed_gain), force_budget=force_budget)
     traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
     traj.equilibrium = moving_equilibrium(lib, p, op, traj.speed, min_gap)
     return traj
@@ -257,24 +360,41 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
            v_end: float, accel_force: float, dt: float, min_gap: float,
            max_time: float, hold_steps: int = 1,
            disturbance: dict[str, float] | None = None,
-           x_start: np.ndarray | None = None) -> Trajectory:
+           x_start: np.ndarray | None = None, tick: Tick | None = None,
+           speed_gain: float = 0.0, force_budget: float | None = None,
+           accel: float = 0.0) -> Trajectory:
     """The launch run in C (`maglev_launch`): from the disturbed trim at the schedule's first
     speed the carriage accelerates under F_drag(v) + ``accel_force`` until ``v_end``, the
     controller's gains, reference and the drag following ``schedule`` at the measured speed
     (every ``hold_steps`` steps, held between; 0: at every RK4 stage); ``max_time`` bounds
     the run. ``x_start``: the state the disturbance is added to (default op's trim; the
-    accelerating trim for a schedule at an acceleration, `run_scenarios`)."""
+    accelerating trim for a schedule at an acceleration, `run_scenarios`).
+
+    ``tick``, ``speed_gain``, ``force_budget`` as in `simulate` (with a tick the schedule is
+    evaluated at each tick, ``hold_steps`` unused); the speed loop tracks v_ref(t) =
+    v0 + ``accel`` t up to ``v_end`` (v0 the schedule's first speed, ``accel`` [m/s^2] the
+    commanded acceleration, of which ``accel_force`` = m ``accel`` is the feedforward).
+    """
     disturbance = DISTURBANCE if disturbance is None else disturbance
     if not accel_force >= 0:  # 0: the propulsion follows the trim drag (the speed is held)
         raise InputError(f"launch thrust {accel_force:g} N must not be negative")
+    if not (np.isfinite(accel) and accel >= 0):
+        raise InputError(f"launch acceleration {accel!r} m/s^2: must be a finite number >= 0")
+    if speed_gain and accel_force > 0 and accel == 0:
+        raise InputError("launch with a speed loop: the commanded acceleration (the speed "
+                         "reference's slope) is 0 while the thrust accelerates")
     n_steps = _check_steps(max_time, dt)
+    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed, accel)
     x0 = initial_state(op, disturbance, x_start)
-    _last, status, x, u, g = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps,
-                                       schedule, p, min_gap, op.allocation.shape[0] + 1,
-                                       op.gaps.size)
+    run = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps, schedule, p, min_gap,
+                     op.allocation.shape[0] + 1, op.gaps.size, loop)
+    status, x, u, g = run.status, run.x, run.u, run.gaps
     t = np.arange(x.shape[0]) * dt
     traj = Trajectory(schedule.controller, op, dt, t, x, u, g, status, None,
-                      dict(disturbance), scenario="launch")
+                      dict(disturbance), scenario="launch",
+                      speed_reference=np.minimum(op.speed + accel * t, v_end),
+                      saturated_time=run.saturated_steps * dt, tick=tick,
+                      speed_gain=float(speed_gain), force_budget=force_budget)
     traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
     # deviations from the scheduled reference (the trim at each sample's speed; the
     # accelerating trim for a schedule at the launch's acceleration)
@@ -361,7 +481,10 @@ def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND) -
 
 
 def metrics(traj: Trajectory) -> dict:
-    """Per axis: settling time, peak deviation and RMS generalized control force."""
+    """Per axis: settling time, peak deviation and RMS generalized control force; for the
+    run: its status, gaps, speeds, the speed error after the first second
+    (`Trajectory.speed_error`), the time spent with an array at its force budget, and how
+    the controller ran."""
     dev = traj.axis_deviation
     ugen = traj.generalized_forces
     axes = {}
@@ -384,6 +507,11 @@ def metrics(traj: Trajectory) -> dict:
         "speed_at_contact": float(speed[-1]) if traj.status == "contact" else None,
         "rms_array_force": float(np.sqrt(np.mean(traj.u[:, 1:] ** 2))),
         "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
+        "speed_error": traj.speed_error, "saturated_time": traj.saturated_time,
+        # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
+        "tick": None if traj.tick is None else {"rate": traj.tick.rate,
+                                                "delay": traj.tick.delay},
+        "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
     }
 
@@ -418,7 +546,9 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                   announce: Callable[[str], None] | None = None,
                   bar: Callable[[str], object] | None = None,
                   scenario: str = "hold",
-                  disturbance: dict[str, float] | None = None) -> SimulationRun:
+                  disturbance: dict[str, float] | None = None, tick: Tick | None = None,
+                  speed_gain: float = 0.0,
+                  force_budget: float | None = None) -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
 
     ``hold``: from the disturbed trim at ``speed`` (default operation.speed) for ``t_end``
@@ -427,8 +557,10 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     accelerating trim at envelope.launch_acceleration (its drag plus m a), the reference that
     trim's pose and the gains those of the constant-speed linearisation, scheduled
     (`launch`, `envelope.launch_schedule`): the runs are judged against the accelerating
-    trim. Refuses a step above RK4's stability limit for the stiffest closed-loop mode at
-    the start speed.
+    trim; the speed loop then tracks v_min + envelope.launch_acceleration t. ``tick``,
+    ``speed_gain`` and ``force_budget`` as in `simulate` (the defaults: the controller at
+    every RK4 stage, no speed loop, no budget). Refuses a step above RK4's stability limit
+    for the stiffest closed-loop mode at the start speed.
     """
     from .envelope import envelope_points, launch_references, launch_schedule, resolve_range
     from .library import simulation_library
@@ -464,20 +596,24 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
+    control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
+    loop = {"tick": tick, "speed_gain": speed_gain, "force_budget": force_budget}
     trajs = []
     for c in controllers:
         if scenario == "launch":
             trajs.append(launch(lib, carriage.p, launch_schedule(carriage, lib, points, c, refs),
                                 op, v_end, carriage.params.vehicle.mass * a, dt, min_gap,
                                 max_time=1.5 * (v_end - op.speed) / a + 1.0,
-                                disturbance=disturbance, x_start=x_start))
+                                disturbance=disturbance, x_start=x_start, accel=a,
+                                **loop))
             continue
         if bar is None:
-            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance))
+            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
+                                  **loop))
             continue
         with bar(f"simulating {CONTROLLER_TITLES[c]}") as update:
             trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
-                                  progress=update))
+                                  progress=update, **loop))
     growth = max(float(np.max(e.real)) for e in eig.values())
     embedded = carriage.params.envelope.embedded_controller
     mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,

@@ -557,8 +557,8 @@ def test_single_file_is_the_two_file_build(carriage: Carriage, tmp_path: Path) -
         status = ctypes.c_int()
         last = sim(x0.ctypes.data_as(D), ctypes.c_double(1e-3), ctypes.c_longlong(n),
                    ctypes.c_double(0.0), K.ctypes.data_as(D), (K / 50).ctypes.data_as(D),
-                   np.zeros(5).ctypes.data_as(D), ctypes.c_double(0.0),
-                   *[b.ctypes.data_as(D) for b in bufs], ctypes.byref(status))
+                   np.zeros(5).ctypes.data_as(D), None, ctypes.c_double(0.0),
+                   *[b.ctypes.data_as(D) for b in bufs], None, ctypes.byref(status))
         trajectories.append((last, status.value, bufs))
     assert trajectories[0][0] == n
     np.testing.assert_array_equal(np.concatenate(trajectories[0][2]),

@@ -194,7 +194,7 @@ def test_contact_is_reported_at_the_first_sample_past_the_crossing(sim_lib, carr
 def test_non_finite_parameters_stop_the_run(sim_lib, carriage, op) -> None:
     p = carriage.p.copy()
     p[0] = np.nan
-    last, status, x, _, g = sim_lib.simulate(initial_state(op, {}), 1e-3, 100, op.f_prop,
+    last, status, x, _, g, _ = sim_lib.simulate(initial_state(op, {}), 1e-3, 100, op.f_prop,
                                              np.zeros(25), np.zeros(25), op.a_trim, p, 0.002,
                                              op.allocation.shape[0] + 1, op.gaps.size)
     # stops at the first sample with a non-finite state or gap, not at the end, not silently

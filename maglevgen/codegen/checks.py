@@ -45,6 +45,11 @@ ERROR_CODES: dict[str, tuple[int, str]] = {
 }
 ERROR_NAMES: dict[int, str] = {v: k for k, (v, _) in ERROR_CODES.items()}
 
+#: the largest computation delay, in ticks, that the simulation loop's command buffer holds
+#: (maglev_simulate.h's MAGLEV_SIM_MAX_DELAY; maglevgen.simulate.Tick refuses more): a
+#: firmware's computation takes a tick or two, not more
+MAX_DELAY_TICKS = 4
+
 TRIM_KIND = ("maglev_trim", "maglev_trim_accelerating", "maglev_axis_plants",
              "maglev_lqr_gains")
 #: the Newton solves maglev_trim_checked calls: the constant-speed and the accelerating trim
