@@ -708,7 +708,7 @@ class Carriage:
 
     def simulate(self, controller: str = "lqr", scenario: str = "hold",
                  speed: float | None = None, t_end: float = 10.0,
-                 dt: float = 1e-3) -> SimulationResult:
+                 dt: float = 1e-3, loop: str = "firmware") -> SimulationResult:
         """A closed-loop run in the compiled C, as ``maglevgen simulate`` (figs 3-8).
 
         From the trim disturbed by 1 mm lateral and heave, 2 mrad roll, pitch and yaw; RK4
@@ -729,6 +729,10 @@ class Carriage:
             Simulated time of ``hold`` [s] (default 10); ``launch`` runs until v_max.
         dt : float, optional
             RK4 step [s] (default 1e-3); refused above RK4's stability limit.
+        loop : {'firmware', 'continuous'}, optional
+            ``firmware`` (default): the controller at the tick of ``[control.spec]`` with
+            its delay, the speed loop and the force budget (``--loop``); ``continuous``: the
+            paper's law at every RK4 stage under the trim propulsion.
 
         Returns
         -------
@@ -759,7 +763,7 @@ class Carriage:
             self._speed(speed)
         _check_run_options(t_end, dt)
         run = run_scenarios(self._carriage, (controller,), t_end, dt, speed, lib=self._lib,
-                            scenario=scenario)
+                            scenario=scenario, loop=loop)
         return _simulation_result(run)
 
     def envelope(self, n_speeds: int | None = None,

@@ -144,7 +144,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
             lib = compiling.result()
     # simulations (validates the speed's trim and the step against RK4's stability limit);
     # up to here a parameter edit has imported no SymPy, SciPy or CasADi
-    run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
+    run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar,
+                        loop="firmware")
     step("envelope: stability of each controller across the speed range")
     env = compute_envelope(carriage, lib)
     # One child draws every figure (one matplotlib import for the simulation's and the

@@ -259,13 +259,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import CONTROLLERS, run_scenarios
 
     controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
+    if args.check and args.loop != "continuous":
+        raise InputError("--check: the DOP853 reference integrates the continuous control law; "
+                         "add --loop continuous")
     carriage = _carriage(args)
     run = run_scenarios(carriage, controllers, args.t_end, args.dt, args.speed,
                         announce=progress.step, bar=progress.bar, scenario=args.scenario,
-                        disturbance=_disturbance(args.disturbance))
+                        disturbance=_disturbance(args.disturbance), loop=args.loop)
     files = render_results(run.trajectories, run.input_names, run.header(carriage.loaded.sha256))
     paths = write_output(files, Path(args.out))
-    print(f"Simulated {args.t_end:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
+    ran = max(float(t.t[-1]) for t in run.trajectories)
+    print(f"Simulated {ran:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
           f"limit {run.dt_limit:.3g} s) from trim at {run.op.speed:g} m/s, F_prop = "
           f"{run.op.f_prop:.4g} N")
     for traj in run.trajectories:
@@ -487,6 +491,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "these, default: 1 mm / 2 mrad on each axis)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
+    sim.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
+                     help="firmware (default): each controller at the tick of [control.spec] "
+                          "with its delay, the speed loop and the force budget; continuous: "
+                          "the paper's law at every RK4 stage under the trim propulsion")
     sim.add_argument("--check", action="store_true",
                      help="also integrate each run with scipy's adaptive DOP853 on the SymPy "
                           "model and report the largest deviation (slow: seconds per run)")

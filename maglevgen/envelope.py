@@ -317,7 +317,7 @@ def loop_setting(carriage, points: Sequence[OperatingPoint]) -> LoopSetting:
     points (`sampled.speed_gain`), so that the speed pole is at least as fast as
     control.spec.speed_bandwidth at every speed with one constant gain."""
     spec, mass = carriage.params.control.spec, carriage.params.vehicle.mass
-    k_v = max(speed_gain(op, mass, spec.speed_bandwidth) for op in points)
+    k_v = max(speed_gain(mass, op.trim_drag_slope, spec.speed_bandwidth) for op in points)
     return LoopSetting(Tick.of(carriage.params), k_v, float(spec.speed_bandwidth))
 
 

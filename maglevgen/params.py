@@ -281,7 +281,7 @@ class ControlSpec(_Section):
         "applied at the next (1) or at once (0)", json_schema_extra={
             "unit": "1", "limits": [0, 4, "at most four ticks late"]})
     speed_bandwidth: float = Field(
-        default=2.0, description="the speed loop's closed-loop pole (the propulsion's "
+        default=5.0, description="the speed loop's closed-loop pole (the propulsion's "
         "feedback on the forward speed, beside the feedforward of the trim drag and m a)",
         json_schema_extra={"unit": "1/s", "limits": list(_RATE)})
 

@@ -22,7 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .codegen.checks import MAX_DELAY_TICKS
 from .derive import conventions as cv
+from .errors import InputError
 from .operating import AXIS_STATES, N_AXES, REDUCED_STATES, OperatingPoint
 
 __all__ = ["LOOP_STATES", "Tick", "loop_gain", "loop_model", "sampled_eigenvalues",
@@ -34,17 +36,40 @@ LOOP_INDEX: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in LOOP_STATES)
 
 @dataclass(frozen=True)
 class Tick:
-    """The firmware's controller timing: ``rate`` [Hz] and ``delay`` [ticks]."""
+    """The controller's tick as the firmware runs it: ``rate`` [Hz] (in a simulation the
+    control period 1/rate a whole number of RK4 steps) and the computation ``delay`` [ticks]
+    from sampling the state to applying the command (0 to MAX_DELAY_TICKS), the command held
+    in between."""
 
-    rate: float
-    delay: int
+    rate: float  # [Hz]
+    delay: int = 1  # [ticks]
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.rate, (int, float)) and np.isfinite(self.rate)
+                and self.rate > 0):
+            raise InputError(f"tick rate {self.rate!r} Hz: must be a positive number")
+        if not (isinstance(self.delay, (int, np.integer)) and not isinstance(self.delay, bool)
+                and 0 <= self.delay <= MAX_DELAY_TICKS):
+            raise InputError(f"tick delay {self.delay!r}: must be a whole number of ticks "
+                             f"from 0 to {MAX_DELAY_TICKS}")
 
     @property
     def period(self) -> float:
         return 1.0 / self.rate
 
+    def steps(self, dt: float) -> int:
+        """RK4 steps of ``dt`` per tick: the period 1/rate must be a whole multiple of dt
+        (within 1e-9 of a step)."""
+        ratio = 1.0 / (self.rate * dt)
+        n = round(ratio)
+        if n < 1 or abs(ratio - n) > 1e-9:
+            raise InputError(f"tick rate {self.rate!r} Hz: its period {1.0 / self.rate:.9g} s "
+                             f"is not a whole multiple of the step dt = {dt:g} s")
+        return n
+
     @classmethod
     def of(cls, params) -> Tick:
+        """control.spec.tick_rate and delay_ticks."""
         s = params.control.spec
         return cls(float(s.tick_rate), int(s.delay_ticks))
 
@@ -57,11 +82,14 @@ def loop_model(op: OperatingPoint) -> tuple[np.ndarray, np.ndarray]:
     return A, B
 
 
-def speed_gain(op: OperatingPoint, mass: float, bandwidth: float) -> float:
-    """k_v [N s/m] that puts the speed pole at -bandwidth: along the trim curve
+def speed_gain(mass: float, drag_slope: float, bandwidth: float) -> float:
+    """k_v [N s/m] that puts the speed pole at -``bandwidth`` [1/s]: along the trim curve
     m V' = F_prop - F_D,trim(V), so with F_prop = F_ff - k_v (V - v_ref) the pole is
-    -(dF_D,trim/dV + k_v)/m (`OperatingPoint.trim_drag_slope`)."""
-    return float(mass * bandwidth - op.trim_drag_slope)
+    -(dF_D,trim/dV + k_v)/m, and k_v = m bandwidth - dF_D,trim/dV (``drag_slope``,
+    `OperatingPoint.trim_drag_slope`)."""
+    if not (np.isfinite(bandwidth) and bandwidth > 0):
+        raise InputError(f"speed-loop bandwidth {bandwidth!r} 1/s: must be positive")
+    return float(mass * bandwidth - drag_slope)
 
 
 def loop_gain(op: OperatingPoint, controller: str, k_v: float,

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .codegen.checks import MAX_DELAY_TICKS
 from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .derive.structure import input_names_of
@@ -35,6 +34,7 @@ from .operating import (
     operating_point,
     speed_mode,
 )
+from .sampled import Tick, speed_gain
 from .schedule import Schedule
 
 # The initial disturbance from trim (per axis): small against the gaps (15 mm upper, 30 mm
@@ -64,57 +64,28 @@ CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between c
 Progress = Callable[[float], None]
 
 
-@dataclass(frozen=True)
-class Tick:
-    """The controller's tick as the firmware runs it: ``rate`` [Hz] (the control period
-    1/rate a whole number of RK4 steps) and the computation ``delay`` [ticks] from sampling
-    the state to applying the command (0 to MAX_DELAY_TICKS), the command held in between."""
-
-    rate: float  # [Hz]
-    delay: int = 1  # [ticks]
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.rate, (int, float)) and np.isfinite(self.rate)
-                and self.rate > 0):
-            raise InputError(f"tick rate {self.rate!r} Hz: must be a positive number")
-        if not (isinstance(self.delay, (int, np.integer)) and not isinstance(self.delay, bool)
-                and 0 <= self.delay <= MAX_DELAY_TICKS):
-            raise InputError(f"tick delay {self.delay!r}: must be a whole number of ticks "
-                             f"from 0 to {MAX_DELAY_TICKS}")
-
-    def steps(self, dt: float) -> int:
-        """RK4 steps of ``dt`` per tick: the period 1/rate must be a whole multiple of dt
-        (within 1e-9 of a step)."""
-        ratio = 1.0 / (self.rate * dt)
-        n = round(ratio)
-        if n < 1 or abs(ratio - n) > 1e-9:
-            raise InputError(f"tick rate {self.rate!r} Hz: its period {1.0 / self.rate:.9g} s "
-                             f"is not a whole multiple of the step dt = {dt:g} s")
-        return n
+# how a run executes its controller: as the firmware does, or the paper's continuous law
+LOOPS: tuple[str, ...] = ("firmware", "continuous")
 
 
-# The speed loop's default bandwidth [rad/s]: the closed speed pole at -omega_v, a 0.2 s time
-# constant, two decades below a 1 kHz tick. The default carriage's oscillatory levitation
-# modes lie at 6 to 60 rad/s (|lambda| of its closed loops over 7 to 40 m/s); from a speed
-# offset the nonlinear run's error decays at omega_v to 5 % (tests/test_tick.py), the modes
-# left alone. The ramp of a launch is followed by the feedforward m a, the loop taking the drag.
-SPEED_BANDWIDTH = 5.0
+def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[Tick, float, float]:
+    """(tick, k_v, force budget) of [control.spec]: the tick and its delay, the speed loop's
+    one gain over the envelope (`envelope.loop_setting`, the gain the envelope's verdicts
+    used) and the per-array force budget."""
+    from .envelope import envelope_points, loop_setting, resolve_range
+
+    v_lo, v_hi = resolve_range(carriage, lib)
+    points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi, carriage.params
+                                                        .envelope.schedule_nodes))
+    setting = loop_setting(carriage, points)
+    return setting.tick, setting.speed_gain, float(carriage.params.control.spec.force_budget)
 
 
-def speed_loop_gain(mode: SpeedMode, bandwidth: float = SPEED_BANDWIDTH) -> float:
-    """k_v [N s/m] that puts the speed pole at -``bandwidth`` [rad/s].
-
-    Along the track m V' = F_ff + k_v (v_ref - V) - F_D,trim(V) (`SpeedMode`), linearised
-    at the trim: m dV' = -(k_v + dF_D,trim/dV) dV, so the pole -omega_v needs
-
-        k_v = m omega_v - dF_D,trim/dV,
-
-    the drag's total slope along the trim curve (re-trim included, ``mode.drag_slope_trim``;
-    negative where the drag falls with speed, which makes the open loop unstable).
-    """
-    if not (np.isfinite(bandwidth) and bandwidth > 0):
-        raise InputError(f"speed-loop bandwidth {bandwidth!r} rad/s: must be positive")
-    return float(mode.mass * bandwidth - mode.drag_slope_trim)
+def speed_loop_gain(mode: SpeedMode, bandwidth: float) -> float:
+    """k_v [N s/m] that puts the speed pole at -``bandwidth`` [rad/s] (`sampled.speed_gain`
+    with the drag's total slope along the trim curve, ``mode.drag_slope_trim``; negative where
+    the drag falls with speed, which makes the open loop unstable)."""
+    return speed_gain(mode.mass, mode.drag_slope_trim, bandwidth)
 
 
 def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: float | None,
@@ -548,8 +519,14 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                   scenario: str = "hold",
                   disturbance: dict[str, float] | None = None, tick: Tick | None = None,
                   speed_gain: float = 0.0,
-                  force_budget: float | None = None) -> SimulationRun:
+                  force_budget: float | None = None,
+                  loop: str = "continuous") -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
+
+    ``loop``: "firmware" runs every controller as the firmware does (`firmware_loop`: the
+    tick and delay of [control.spec], the speed loop at speed_bandwidth, the force budget);
+    "continuous" (the paper's) evaluates it at every RK4 stage under the trim propulsion,
+    unless ``tick``, ``speed_gain`` or ``force_budget`` say otherwise.
 
     ``hold``: from the disturbed trim at ``speed`` (default operation.speed) for ``t_end``
     with the propulsion at the trim drag and the gains of that speed. ``launch``: from the
@@ -596,6 +573,10 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
+    if loop not in LOOPS:
+        raise InputError(f"--loop {loop!r}: expected one of {', '.join(LOOPS)}")
+    if loop == "firmware":
+        tick, speed_gain, force_budget = firmware_loop(carriage, lib)
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
     loop = {"tick": tick, "speed_gain": speed_gain, "force_budget": force_budget}
     trajs = []

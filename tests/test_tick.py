@@ -128,7 +128,8 @@ def test_launch_with_tick_delay_and_speed_loop_matches_solve_ivp(carriage, sim_l
     points = envelope_points(carriage, sim_lib, np.linspace(7.0, 12.0, 11))
     sched = Schedule.from_points(points, "damping")
     op, mass, accel = points[0], carriage.params.vehicle.mass, 5.0
-    k_v = speed_loop_gain(speed_mode(sim_lib, carriage.p, op, mass, "damping"))
+    k_v = speed_loop_gain(speed_mode(sim_lib, carriage.p, op, mass, "damping"),
+                          carriage.params.control.spec.speed_bandwidth)
     t_end, steps = 0.3, 10
     traj = launch(sim_lib, carriage.p, sched, op, 40.0, mass * accel, DT,
                   carriage.params.track.min_gap, max_time=t_end, tick=Tick(100.0, 1),
@@ -163,7 +164,8 @@ def test_hold_with_tick_and_speed_loop_matches_solve_ivp(carriage, sim_lib, op) 
     and a force budget that the first ticks reach, against the same loop by DOP853 (and the
     held inputs against the commands from the run's own tick samples)."""
     mode = speed_mode(sim_lib, carriage.p, op, carriage.params.vehicle.mass, "damping")
-    k_v, budget, t_end, steps = speed_loop_gain(mode), 2.0, 0.2, 4
+    k_v = speed_loop_gain(mode, carriage.params.control.spec.speed_bandwidth)
+    budget, t_end, steps = 2.0, 0.2, 4
     traj = simulate(sim_lib, carriage.p, op, "damping", t_end, DT,
                     carriage.params.track.min_gap, tick=Tick(250.0, 2), speed_gain=k_v,
                     force_budget=budget)
