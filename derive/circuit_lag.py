@@ -63,6 +63,11 @@ Assumptions and validity:
   1e-4 for gap rates under 0.1 m/s; large transients (a touchdown) are outside its accuracy.
 - The couple of the distributed law is exact to first order in the rates (it is linear in
   them); the circuits are at the face centre's speed, as in derive/distributed.py.
+- The circuits under a face are taken at their positions t_j on it, as in
+  derive/distributed.py. A track circuit is fixed in the track, so as the face slides over it
+  with a slope beta along its length it also sees the convective rate k beta v; like the
+  face's end effects (which eq 3 and derive/distributed.py neglect) it is left out: at the
+  default trim (beta about 1e-3) it would change the lift by |tau_d k beta v| = 3e-4.
 At rest (all rates zero) every rate term vanishes identically: trim is eq 3's.
 """
 
