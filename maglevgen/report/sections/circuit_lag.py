@@ -68,6 +68,10 @@ def circuit_lag(carriage, lib, env, gains: dict) -> tuple[dict[str, Any], bytes]
     at_v = {n: damping_across_speed(c, lb, [V])[0]
             for n, c, lb in ((now, carriage, lib),
                              (other.params.model.circuit_dynamics, other, other_lib))}
+    # entries below 1e-12 of the largest are round-off of a structural zero (the quasi-static
+    # lateral: eq 3 has no lateral rate term at zero roll)
+    scale = max(float(np.max(np.abs(c))) for c in at_v.values())
+    at_v = {n: np.where(np.abs(c) < 1e-12 * scale, 0.0, c) for n, c in at_v.items()}
     axes = []
     for i, axis in enumerate(cv.AXES):
         g = gains["axes"][axis]
