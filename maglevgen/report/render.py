@@ -81,7 +81,7 @@ SECTION_TITLES: dict[str, str] = {
     "conventions": "Coordinate conventions and state order",
     "rigid_body": "Rigid-body equations (eqs 1-2)",
     "force_law": "Halbach field and force law (eqs 3-4)",
-    "circuit_lag": "The track circuits' lag: first-order circuit dynamics",
+    "circuit_lag": "Track circuit lag: first-order circuit dynamics",
     "geometry": "Geometry and force and moment sums (eqs 8-12)",
     "trim": "Trim",
     "stiffness": "Linearisation and stiffness (eqs 5-19)",
