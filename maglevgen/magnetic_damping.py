@@ -21,6 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .derive import conventions as cv
+from .envelope import envelope_points
 from .operating import OperatingPoint
 
 __all__ = ["AXIS_RATES", "axis_damping", "damping_across_speed"]
@@ -37,8 +38,6 @@ def axis_damping(op: OperatingPoint, axis_inertia: np.ndarray) -> np.ndarray:
 
 def damping_across_speed(carriage, lib, speeds: Sequence[float]) -> np.ndarray:
     """c (n_speeds, 5) at each speed's trim, from the compiled library ``lib``."""
-    from .envelope import envelope_points
-
     points = envelope_points(carriage, lib, speeds)
     plants = lib.function("maglev_axis_plants")
     return np.array([axis_damping(op, plants(op.speed, carriage.p)[1]) for op in points])

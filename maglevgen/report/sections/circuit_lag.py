@@ -4,7 +4,6 @@ without it."""
 
 from __future__ import annotations
 
-import io
 from typing import Any
 
 import numpy as np
@@ -16,9 +15,10 @@ from ...envelope import compute_envelope
 from ...library import simulation_library
 from ...magnetic_damping import damping_across_speed
 from ...operating import CONTROLLER_TITLES
+from ...report_figures import damping_figure
 from ..display import eq
 
-__all__ = ["CIRCUIT_LAG_FIGURE", "circuit_lag", "damping_figure"]
+__all__ = ["CIRCUIT_LAG_FIGURE", "circuit_lag"]
 
 CIRCUIT_LAG_FIGURE = "circuit_lag_damping.png"  # not fig_*: the force section takes those
 _N_SPEEDS = 40
@@ -92,49 +92,12 @@ def circuit_lag(carriage, lib, env, gains: dict) -> tuple[dict[str, Any], bytes]
     ctx = {"model": now, "figure": CIRCUIT_LAG_FIGURE, "speed": V, "axes": axes,
            "envelope": rows, "v_c_value": c.resistance / (k * c.inductance),
            "time_constant_ms": c.inductance / c.resistance * 1e3, **_forms()}
-    figure = damping_figure(speeds, curves, V, ctx["v_c_value"],
-                            {"first-order": envs["first-order"],
-                             "quasi-static": envs["quasi-static"]})
+    figure = damping_figure({
+        "speeds": speeds, "speed": V, "v_c": ctx["v_c_value"], "models": list(MODELS),
+        "axes": [f"{axis} ({_UNITS[axis]})" for axis in cv.AXES],
+        "damping": {n: curves[n] for n in MODELS},
+        "controllers": [CONTROLLER_TITLES[n] for n in env.controllers],
+        "envelope_speeds": {n: envs[n].speeds for n in MODELS},
+        "max_real": {n: [envs[n].controllers[c].max_real for c in env.controllers]
+                     for n in MODELS}})
     return ctx, figure
-
-
-def damping_figure(speeds: np.ndarray, curves: dict[str, np.ndarray], speed: float,
-                   v_c: float, envs: dict) -> bytes:
-    """Two panels: the magnetic damping of each axis against speed (solid first-order, dashed
-    quasi-static), and each controller's largest real part with and without the lag."""
-    import matplotlib as mpl
-    from matplotlib.figure import Figure
-
-    colors = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"]
-    with mpl.rc_context({"font.size": 8, "axes.grid": True, "grid.alpha": 0.3}):
-        fig = Figure(figsize=(7.0, 6.4))
-        ax, bx = fig.subplots(2, 1)
-        for i, axis in enumerate(cv.AXES):
-            for name, ls in (("first-order", "-"), ("quasi-static", "--")):
-                ax.plot(speeds, curves[name][:, i], ls=ls, color=colors[i],
-                        label=f"{axis} ({_UNITS[axis]}), {name}")
-        ax.axhline(0, color="k", lw=0.7)
-        for x, lab in ((v_c, "$v_c$"), (speed, "V")):
-            if speeds[0] <= x <= speeds[-1]:
-                ax.axvline(x, color="0.4", ls=":", lw=1)
-                ax.annotate(lab, (x, 0), textcoords="offset points", xytext=(3, 3))
-        ax.set_yscale("symlog", linthresh=1e-2)
-        ax.set_xlabel(r"speed $v$ / (m/s)")
-        ax.set_ylabel(r"magnetic damping $c_i = -m_i A_{ii}$")
-        ax.set_title("Magnetic damping per axis (generated C, Jacobian at trim)")
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, fontsize=6)
-        for j, n in enumerate(envs["first-order"].controllers):
-            for name, ls in (("first-order", "-"), ("quasi-static", "--")):
-                e = envs[name]
-                bx.plot(e.speeds, e.controllers[n].max_real, ls=ls, color=colors[j],
-                        label=f"{CONTROLLER_TITLES[n]}, {name}")
-        bx.axhline(0, color="k", lw=0.7)
-        bx.set_yscale("symlog", linthresh=1e-2)
-        bx.set_xlabel(r"speed $v$ / (m/s)")
-        bx.set_ylabel(r"largest $\mathrm{Re}\,s$ / s$^{-1}$")
-        bx.set_title("Envelope with (solid) and without (dashed) the circuits' lag")
-        bx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, fontsize=6)
-        fig.subplots_adjust(left=0.1, right=0.62, hspace=0.35, top=0.95, bottom=0.08)
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=150, metadata={"Software": None})
-    return buf.getvalue()
