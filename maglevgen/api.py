@@ -569,11 +569,14 @@ class Carriage:
         Examples
         --------
         >>> import numpy as np, maglevgen
-        >>> g = maglevgen.load().gains(20.0, controller="lqr")
+        >>> g = maglevgen.load().gains(20.0, controller="coupled")
         >>> g.K_pos.shape, g.K.shape
         ((5, 5), (5, 10))
         >>> bool(np.all(g.poles.real < 0))
         True
+        >>> lqr = maglevgen.load().gains(20.0, controller="lqr")  # the circuits' lag beats it
+        >>> bool(np.all(lqr.poles.real < 0))
+        False
         """
         from .operating import N_AXES, REDUCED_STATES
 

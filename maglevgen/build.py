@@ -300,11 +300,13 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
     import numpy as np
 
     from .derive import conventions as cv
+    from .magnetic_damping import axis_damping
     from .operating import CONTROLLER_TITLES
     from .summary import accelerating_margins, pitch_paper_form, stiffness_table, trim_point
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
+    c_mag = axis_damping(op, m)  # the circuits' lag in the Jacobian's velocity columns
     rows = stiffness_table(carriage, lib, op.speed)
     pitch = pitch_paper_form(carriage, trim_point(carriage, lib, op.speed),
                              next(r.paper_value for r in rows if r.axis == "pitch"))
@@ -329,13 +331,18 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "
              f"(track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
              accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), "",
-             "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | damping c | paper k (printed) |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+             f"Magnetic damping c_mag = -m A[rate, rate] at trim "
+             f"(model.circuit_dynamics = {carriage.params.model.circuit_dynamics}; negative "
+             "feeds the motion), beside the LQR rate gain:", "",
+             "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | magnetic c_mag | damping c "
+             "| paper k (printed) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for i, axis in enumerate(cv.AXES):
         fn = np.sqrt(max(k[i], 0.0) / m[i]) / (2 * np.pi)
         r = rows[i]
         lines.append(f"| {axis} | {k[i]:.5g} {r.unit} | {m[i]:.4g} | {fn:.3f} | "
-                     f"{op.K[i, 0]:.4g}, {op.K[i, 1]:.4g} | {op.c_damping[i]:.4g} | "
+                     f"{op.K[i, 0]:.4g}, {op.K[i, 1]:.4g} | {c_mag[i]:.4g} | "
+                     f"{op.c_damping[i]:.4g} | "
                      f"{r.paper_value:.5g} ({r.relative_difference:+.0%}) |")
     lines += ["", "Paper discrepancies found (details and evidence in the report):",
               "- printed stiffnesses (eqs 13-19) differ from the derived ones: "

@@ -32,7 +32,7 @@ from .operating import (
     speed_mode,
     stability,
 )
-from .params import ARRAY_FORCE_LAWS
+from .params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS
 from .sampled import Tick, loop_gain, loop_model, sampled_eigenvalues, speed_gain
 from .schedule import GainTable, Reference, Schedule, accelerating_references, gain_table_row
 
@@ -204,7 +204,7 @@ class Envelope:
     # of the embedded controller's 12-state closed loop (`operating.SpeedMode`)
     speed_pole: np.ndarray
     loop: LoopSetting | None = None  # how the sampled-data verdicts ran the controllers
-    force_law: str = ""  # model.array_force of the linearisation
+    model: str = ""  # the linearisation's model choices, in words
     # the embedded controller's gains on the alternate models (`model_checks`)
     other_models: tuple[ModelCheck, ...] = ()
 
@@ -214,7 +214,7 @@ class Envelope:
         others = ", ".join(c.model for c in self.other_models)
         also = (f"; the embedded controller's gains also on the same loop with {others}"
                 if others else "")
-        return f"on the linearisation with the {self.force_law} force law{loop}{also}"
+        return f"on the linearisation with {self.model}{loop}{also}"
 
     def robustness_verdict(self) -> str:
         """The embedded controller's gains on the other models, in one sentence."""
@@ -384,7 +384,8 @@ class ModelCheck:
 
 
 # the model choices the embedded controller's gains are also checked on (model.<key>)
-MODEL_CHOICES: tuple[tuple[str, tuple[str, ...]], ...] = (("array_force", ARRAY_FORCE_LAWS),)
+MODEL_CHOICES: tuple[tuple[str, tuple[str, ...]], ...] = (("array_force", ARRAY_FORCE_LAWS),
+                                                          ("circuit_dynamics", CIRCUIT_DYNAMICS))
 
 
 def alternate_models(carriage) -> list[tuple[str, object]]:
@@ -455,8 +456,9 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
     checks = (model_checks(carriage, embedded, points, setting)
               if other_models and embedded in controllers else ())
-    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting,
-                    carriage.params.model.array_force, checks)
+    m = carriage.params.model
+    model = f"the {m.array_force} force law and {m.circuit_dynamics} circuits"
+    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks)
 
 
 def envelope_markdown(env: Envelope) -> str:

@@ -130,13 +130,17 @@ class OperatingPoint:
         """dF_prop,trim/dV [N s/m]: the trim propulsion's slope along the trim curve.
 
         Trim: acc(x(V, q), F_prop) = 0 in the six unknowns (q, F_prop). The body velocity at
-        trim is R^T (V, 0, 0); turning it with q leaves every array's along-track speed at V,
-        so d acc/dq at fixed V is A's position columns, and d acc/dV is A's velocity columns
-        along the trim's velocity direction (the implicit-function theorem).
+        trim is R^T (V, 0, 0); turning it with q leaves every array's along-track speed at V
+        and its gaps still (the trim flies along the track), so d acc/dq at fixed V is A's
+        position columns plus its velocity columns along d(R^T (V, 0, 0))/dq (zero but for
+        the circuits' lag, which sees the gap rates n . R v), and d acc/dV is A's velocity
+        columns along the trim's velocity direction (the implicit-function theorem).
         """
         acc = slice(6, 12)
-        J = np.column_stack([self.A[acc, 1:6], self.B[acc, 0]])
-        dacc_dV = self.A[acc, 6:9] @ (self.x_trim[6:9] / self.speed)
+        V = self.speed
+        dv_dq = V * _track_direction_slopes(*self.x_trim[3:6])
+        J = np.column_stack([self.A[acc, 1:6] + self.A[acc, 6:9] @ dv_dq, self.B[acc, 0]])
+        dacc_dV = self.A[acc, 6:9] @ (self.x_trim[6:9] / V)
         return float(-np.linalg.solve(J, dacc_dV)[5])
 
     def axis_gains(self, K_reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -339,6 +343,17 @@ class SpeedMode:
                 f"{self.characteristic_speed:.4g} m/s the drag {law} with speed) and "
                 f"{self.pole_retrim:+.4f} 1/s from the re-trim ({retrim}); the "
                 f"{self.dominant} dominates")
+
+
+def _track_direction_slopes(phi: float, theta: float, psi: float) -> np.ndarray:
+    """d(R^T e_x)/d(y, z, phi, theta, psi) (3 x 5): how the track direction in body axes
+    turns with the attitude (R = Rz(psi) Ry(theta) Rx(phi); R^T e_x is R's first row)."""
+    cf, sf, ct, st, cp, sp_ = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta),
+                               np.cos(psi), np.sin(psi))
+    d_phi = [0.0, cf * st * cp + sf * sp_, -sf * st * cp + cf * sp_]
+    d_theta = [-st * cp, sf * ct * cp, cf * ct * cp]
+    d_psi = [-ct * sp_, -sf * st * sp_ - cf * cp, -cf * st * sp_ + sf * cp]
+    return np.column_stack([np.zeros(3), np.zeros(3), d_phi, d_theta, d_psi])
 
 
 def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: float,

@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .cache import DEFAULT_PARAMS_NAME, params_digest
-from .derive.structure import box_principal_moments
+from .derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
 from .errors import InputError
 from .laws import embeddable
 
@@ -380,11 +380,26 @@ class ModelChoices(_Section):
         "at the load's centroid); 'point' is the paper's eq 3 at the face centre with the "
         "centre gap", json_schema_extra={"unit": "-", "choices": list(ARRAY_FORCE_LAWS)})
 
+    circuit_dynamics: str = Field(
+        default="first-order", description="current of a track circuit: 'first-order' "
+        "follows the moving gap through L I' + R I = Phi' to first order in the gap rates "
+        "(the lag's rate term: damping below R/(k L), negative damping above it; "
+        "derive/circuit_lag.py); 'quasi-static' is the paper's eq 3, the steady state at "
+        "the instantaneous gap (no rate term), kept to reproduce the paper",
+        json_schema_extra={"unit": "-", "choices": list(CIRCUIT_DYNAMICS)})
+
     @field_validator("array_force")
     @classmethod
     def _known_law(cls, name: str) -> str:
         if name not in ARRAY_FORCE_LAWS:
             raise ValueError(f"expected one of {', '.join(ARRAY_FORCE_LAWS)}")
+        return name
+
+    @field_validator("circuit_dynamics")
+    @classmethod
+    def _known_dynamics(cls, name: str) -> str:
+        if name not in CIRCUIT_DYNAMICS:
+            raise ValueError(f"expected one of {', '.join(CIRCUIT_DYNAMICS)}")
         return name
 
 

@@ -44,7 +44,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "stages are imported when something has to be built",
         ("maglevgen.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
          "maglevgen.derive.conventions", "maglevgen.envelope", "maglevgen.library",
-         "maglevgen.operating", "maglevgen.runtime.compile", "maglevgen.schedule",
+         "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.runtime.compile",
+         "maglevgen.schedule",
          "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
          "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy")),
     "maglevgen.carriage": (

@@ -19,11 +19,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from independent_reference import (
+    array_loads,
     contact_gaps,
     generalized_mass,
     ise_optimal_damping,
     lqr_reference_mp,
     reference_trim,
+    rigid_body_xdot,
+    rotation,
     stiffness_fd,
 )
 from test_params_cli import BAD, edited, write_input
@@ -175,11 +178,30 @@ def _paper_stiffness(prm, lift: np.ndarray) -> np.ndarray:
                      8 * F * k * Lz**2, 0.12 * F_up * k * Lx**2, 8 * F * k * Lxla**2])
 
 
+def _magnetic_damping_reference(prm, ref, mass: np.ndarray) -> np.ndarray:
+    """-m_i d(rate_i')/d(rate_i) of the circuit-by-circuit force sum with the circuits' lag
+    (independent_reference.array_loads) and eqs 1-2, central differences at the reference
+    trim, for the axis body rates v, w, p, q, r."""
+    x = np.zeros(12)
+    x[1:6] = ref.q
+    x[6:9] = rotation(*ref.q[2:5]).T @ np.array([prm.operation.speed, 0.0, 0.0])
+    out = []
+    for i, j in enumerate((7, 8, 9, 10, 11)):
+        e = np.zeros(12)
+        e[j] = 1e-6
+        plus, minus = (rigid_body_xdot(prm, y, array_loads(prm, y, lag=True)[2], ref.f_prop)
+                       for y in (x + e, x - e))
+        out.append(-mass[i] * (plus[j] - minus[j]) / 2e-6)
+    return np.array(out)
+
+
 def test_summary_numbers_match_independent_computations(good: Path, carriage) -> None:
     """Every number of SUMMARY.md, row by row, against tests/independent_reference.py: the trim
     (root of eq 3 and the static balance), stiffness (central differences), inertia (parallel
     axes), f_n, the LQR gain (hand-solved ARE, mpmath), the ISE-optimal damping (numerical
-    minimum) and the printed stiffness of eqs 7, 13-16 with its difference from the derived."""
+    minimum), the magnetic damping of the circuits' lag (central differences of the lagged
+    circuit sum) and the printed stiffness of eqs 7, 13-16 with its difference from the
+    derived."""
     prm = carriage.params
     v = prm.operation.speed
     ref = reference_trim(prm, v)
@@ -218,9 +240,12 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
     k_mag = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop, other=False))
     mass = generalized_mass(prm)
     paper = _paper_stiffness(prm, ref.arrays.lift)
+    assert prm.model.circuit_dynamics == "first-order"
     header = next(i for i, ln in enumerate(lines) if ln.startswith("| axis |"))
     assert [c.strip() for c in lines[header].strip("|").split("|")] == [
-        "axis", "k", "m", "f_n [Hz]", "LQR K (pos, rate)", "damping c", "paper k (printed)"]
+        "axis", "k", "m", "f_n [Hz]", "LQR K (pos, rate)", "magnetic c_mag", "damping c",
+        "paper k (printed)"]
+    c_mag = _magnetic_damping_reference(prm, ref, mass)
     rows = lines[header + 2: header + 7]
     for i, (axis, row) in enumerate(zip(("lateral", "vertical", "roll", "pitch", "yaw"), rows,
                                         strict=True)):
@@ -235,10 +260,11 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
         K_ref, _ = lqr_reference_mp(k_tot[i], mass[i])
         K_txt = [float(x) for x in cells[4].split(",")]
         np.testing.assert_allclose(K_txt, [float(x) for x in K_ref], rtol=1e-3)
+        assert float(cells[5]) == pytest.approx(c_mag[i], rel=1e-3, abs=1e-6)
         c_ref = ise_optimal_damping(k_tot[i], mass[i]) if k_tot[i] > 0 else 0.0
-        assert float(cells[5]) == pytest.approx(c_ref, rel=1e-3)
-        pm = re.fullmatch(r"(\S+) \(([+-]\d+)%\)", cells[6])
-        assert pm, cells[6]
+        assert float(cells[6]) == pytest.approx(c_ref, rel=1e-3)
+        pm = re.fullmatch(r"(\S+) \(([+-]\d+)%\)", cells[7])
+        assert pm, cells[7]
         assert float(pm[1]) == pytest.approx(paper[i], rel=1e-4)
         assert int(pm[2]) == round(100 * (paper[i] - k_mag[i]) / k_mag[i])
 

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import sympy as sp
 from independent_reference import (
+    array_loads,
     array_state,
     contact_gaps,
     external_wrench,
@@ -548,9 +549,12 @@ def _assert_unit_inputs(c: Carriage) -> None:
 
 def test_array_speed_includes_the_body_rates(law_carriage: Carriage) -> None:
     """Each array's along-track speed is (R (v + w x a_i))_x: at the trim pose with body rates
-    and a sideways body velocity, every array's gap, lift and drag equal eq 3's at that speed
-    (array_state, one array at a time), the speed built here with numpy."""
+    and a sideways body velocity, every array's gap equals the reference's, and its lift and
+    drag equal eq 3's at that speed (array_state, one array at a time, the speed built here
+    with numpy) times the circuits' lag of the moving gaps (array_loads: the same circuit sum
+    with each circuit's rate term, model.circuit_dynamics = "first-order")."""
     c = law_carriage
+    assert c.params.model.circuit_dynamics == "first-order"
     x = c.trim().x.copy()
     x[7:9] += (0.4, -0.1)  # body velocity
     omega = np.array([0.6, -0.9, 1.2])  # rad/s: moves the arrays by up to about 0.3 m/s
@@ -558,12 +562,16 @@ def test_array_speed_includes_the_body_rates(law_carriage: Carriage) -> None:
     q = x[1:6]
     R = rotation(*q[2:5])
     gaps, lift, drag = (np.ravel(a) for a in c.functions.forces(x, c.p))
+    quasi_static, lagged = (array_loads(c.params, x, lag) for lag in (False, True))
     for i, arr in enumerate(c.params.arrays.values()):
         speed = float((R @ (x[6:9] + np.cross(omega, arr.position)))[0])
         ref = array_state(c.params, q, speed)
         assert gaps[i] == pytest.approx(ref.gaps[i], abs=1e-12)
-        assert lift[i] == pytest.approx(ref.lift[i], rel=1e-9)
-        assert drag[i] == pytest.approx(ref.drag[i], rel=1e-9)
+        assert quasi_static[0][i] == pytest.approx(ref.lift[i], rel=1e-12)
+        assert quasi_static[1][i] == pytest.approx(ref.drag[i], rel=1e-12)
+        assert lift[i] == pytest.approx(lagged[0][i], rel=1e-9)
+        assert drag[i] == pytest.approx(lagged[1][i], rel=1e-9)
+        assert abs(lift[i] / ref.lift[i] - 1) > 1e-6  # the lag is there
 
 
 def test_control_effectiveness_equals_cross_products(law_carriage: Carriage) -> None:

@@ -178,6 +178,9 @@ def test_spec_design_meets_the_spec_and_the_paper_designs_fail_it(envelope, carr
         assert not envelope.controllers[name].meets_spec
         assert "FAILS damping ratio >= 0.5" in envelope.controllers[name].spec_verdict
     assert "1000 Hz with 1 tick of delay" in envelope.checked_on()
+    assert "first-order circuits" in envelope.checked_on()
+    assert {c.model for c in envelope.other_models} == {"model.array_force = point",
+                                                        "model.circuit_dynamics = quasi-static"}
 
 
 def test_build_exits_3_naming_the_spec_the_embedded_design_fails(tmp_path) -> None:
@@ -205,8 +208,7 @@ def test_embedded_gains_on_the_point_force_law(envelope, carriage, sim_lib) -> N
     from maglevgen.library import simulation_library
     from maglevgen.params import load_params
 
-    (check,) = envelope.other_models
-    assert check.model == "model.array_force = point"
+    check = next(c for c in envelope.other_models if c.model == "model.array_force = point")
     point = Carriage(load_params(None, ['model.array_force="point"']))
     spec = carriage.params.control.spec
     tick = Tick(spec.tick_rate, spec.delay_ticks)
