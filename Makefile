@@ -4,12 +4,12 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: setup run test lint bench clean mutation planted-faults
+.PHONY: setup run test lint docs bench clean mutation planted-faults
 
 $(BIN)/maglevgen: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,docs]'
 	touch $@
 
 setup: $(BIN)/maglevgen
@@ -32,6 +32,11 @@ test: setup
 lint: setup
 	$(BIN)/ruff check .
 
+# The documentation site (Sphinx, warnings as errors) into docs/_build/html; tests/test_docs.py
+# builds the same in the suite.
+docs: setup
+	$(BIN)/python -m sphinx -W --keep-going -b html docs docs/_build/html
+
 # Benchmarks against the usual alternatives (a few minutes): writes BENCHMARKS.md and
 # bench/results.json.
 bench: setup
@@ -48,4 +53,4 @@ planted-faults: setup
 	$(BIN)/python mutation/planted_faults.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache docs/_build

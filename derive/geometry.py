@@ -19,7 +19,8 @@ import sympy as sp
 
 from .structure import CONTROL_AXES, NORMAL_AXIS, control_components
 
-__all__ = ["CONTROL_AXES", "NORMAL_AXIS", "ArraySymbols", "array_gap", "array_speed",
+__all__ = ["CONTROL_AXES", "NORMAL_AXIS", "ArraySymbols", "array_gap", "array_gap_rate",
+           "array_speed",
            "array_wrench", "control_components", "control_direction", "control_effectiveness",
            "generalized_wrench_row"]
 
@@ -40,6 +41,13 @@ class ArraySymbols:
 def array_gap(arr: ArraySymbols, position_O: sp.Matrix, R: sp.Matrix) -> sp.Expr:
     """Exact gap of an array at pose (X, R) (see the module docstring)."""
     return arr.nominal_gap + (arr.normal.T * (position_O + (R - sp.eye(3)) * arr.position))[0]
+
+
+def array_gap_rate(arr: ArraySymbols, R: sp.Matrix, velocity: sp.Matrix, omega: sp.Matrix
+                   ) -> sp.Expr:
+    """Rate of the exact gap along the motion: n_i . R (v + omega x a_i) (X' = R v and
+    R' = R [omega]x with body velocities; zero at trim, which moves along the track)."""
+    return (arr.normal.T * R * (velocity + omega.cross(arr.position)))[0]
 
 
 def array_speed(arr: ArraySymbols, R: sp.Matrix, velocity: sp.Matrix, omega: sp.Matrix

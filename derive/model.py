@@ -1,9 +1,11 @@
 """The nonlinear 12-state carriage model, symbolic in every parameter.
 
-Assembles the rigid-body equations (eqs 1-2), the Inductrack force law (eqs 3-4) and the array
-geometry (eqs 8-12) into xdot = f(x, u, p). The model depends on the parameter values only
-through the symbols of ``p``; it depends on the *structure* of the carriage (which arrays exist
-and which control force components each has), so a structure is its cache key.
+Assembles the rigid-body equations (eqs 1-2), the Inductrack force law (eqs 3-4, with the
+circuits' first-order lag of derive/circuit_lag.py for model.circuit_dynamics = "first-order")
+and the array geometry (eqs 8-12) into xdot = f(x, u, p). The model depends on the parameter
+values only through the symbols of ``p``; it depends on the *structure* of the carriage (which
+arrays exist, which control force components each has, the force law and the circuit
+dynamics), so a structure is its cache key.
 """
 
 from __future__ import annotations
@@ -16,8 +18,16 @@ from functools import lru_cache
 import sympy as sp
 
 from . import conventions as cv
-from .distributed import distributed_load
-from .geometry import ArraySymbols, array_gap, array_speed, array_wrench, control_direction
+from .circuit_lag import distributed_lag, drag_rate_per_circuit, lift_rate_per_circuit
+from .distributed import distributed_load, face_axes
+from .geometry import (
+    ArraySymbols,
+    array_gap,
+    array_gap_rate,
+    array_speed,
+    array_wrench,
+    control_direction,
+)
 from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
 from .structure import Structure, box_principal_moments, explicit_inertia, input_names_of
@@ -54,9 +64,12 @@ class CarriageModel:
     contact_gaps: sp.Matrix  # gap of each face's closest corner, in (x, p): contact
     load_factor: sp.Matrix  # array force / (N eq 3 at the centre gap): 1 for "point"
     arms: tuple[sp.Matrix, ...]  # point of action of each array's force, body axes, in (x, p)
+    gap_rates: sp.Matrix  # rate of each face-centre gap along the motion, in (x, p)
+    couples: tuple[sp.Matrix, ...]  # the lag's couple of each array, inertial, in (x, p)
     array_speeds: sp.Matrix  # along-track speed of each array face centre, in (x, p)
     lift: sp.Matrix  # total lift of each array (all its circuits), in (x, p)
     drag: sp.Matrix  # total drag of each array, in (x, p)
+    # (first-order circuit dynamics: both include the rate terms, zero at rest)
     speed_sym: sp.Matrix  # s_i standing for array_speeds[i] in lift_at_speed / drag_at_speed
     lift_at_speed: sp.Matrix  # lift in (x, s, p)
     drag_at_speed: sp.Matrix  # drag in (x, s, p)
@@ -107,59 +120,89 @@ def build_model(structure: Structure) -> CarriageModel:
     R = rotation_body_to_inertial(phi, theta, psi)
 
     arrays, gaps, contact, factors, arms, speeds, lifts, drags = [], [], [], [], [], [], [], []
+    gap_rates, couples = [], []
+    lagging = structure.circuit_dynamics == "first-order"
+    ex = sp.Matrix([1, 0, 0])
     speed_sym = sp.Matrix(sp.symbols(f"s0:{len(structure.arrays)}", real=True))
     for (name, _comps), s in zip(structure.arrays, speed_sym, strict=True):
         a = ArraySymbols(name, vec(f"arrays.{name}.position"), vec(f"arrays.{name}.normal"),
                          sym[f"arrays.{name}.nominal_gap"], sym[f"arrays.{name}.circuits"])
         gap = array_gap(a, pos, R)
+        gap_rate = array_gap_rate(a, R, vel, omega)
         load = distributed_load(a.normal, R, gap, k, w, sym["circuit.pitch"], a.circuits)
-        if structure.array_force == "distributed":
+        distributed = structure.array_force == "distributed"
+        if distributed:
             factor, arm = load.factor, a.position + load.offset
         else:  # the paper's: eq 3 with the centre gap, at the face centre
             factor, arm = sp.S.One, a.position
         arrays.append(a)
         gaps.append(gap)
+        gap_rates.append(gap_rate)
         contact.append(load.closest_gap)
         factors.append(factor)
         arms.append(arm)
         speeds.append(array_speed(a, R, vel, omega))
-        lifts.append(a.circuits * factor * lift_per_circuit(B0, w, k, L, Rc, gap, s))
-        drags.append(a.circuits * factor * drag_per_circuit(B0, w, k, L, Rc, gap, s))
+        lift = a.circuits * factor * lift_per_circuit(B0, w, k, L, Rc, gap, s)
+        drag = a.circuits * factor * drag_per_circuit(B0, w, k, L, Rc, gap, s)
+        couple = sp.zeros(3, 1)
+        if lagging:  # eq 3's term unchanged, plus the rate term (zero at rest): trim is eq 3's
+            if distributed:
+                lag = distributed_lag(a.normal, R, omega, load.alpha, load.beta, gap_rate, k, w,
+                                      sym["circuit.pitch"], a.circuits)
+                rho = lag.log_rate
+                spread = [a.circuits * factor * f(B0, w, k, L, Rc, gap, s, lag.spread)
+                          for f in (lift_rate_per_circuit, drag_rate_per_circuit)]
+                # the circuits' rate forces spread along the face: a couple about its
+                # across axis, (R e_t) x (spread lift n - spread drag x)
+                couple = (R * face_axes(a.normal)[1]).cross(spread[0] * a.normal
+                                                            - spread[1] * ex)
+            else:
+                rho = -k * gap_rate
+            lift = lift + a.circuits * factor * lift_rate_per_circuit(B0, w, k, L, Rc, gap, s,
+                                                                      rho)
+            drag = drag + a.circuits * factor * drag_rate_per_circuit(B0, w, k, L, Rc, gap, s,
+                                                                      rho)
+        lifts.append(lift)
+        drags.append(drag)
+        couples.append(couple)
 
     n = len(arrays)
     at_speed = dict(zip(speed_sym, speeds, strict=True))
+    couples = [c.xreplace(at_speed) for c in couples]
     lift_s, drag_s = sp.Matrix(lifts), sp.Matrix(drags)
     lift_sym = sp.Matrix(sp.symbols(f"F_L0:{n}", real=True))
     drag_sym = sp.Matrix(sp.symbols(f"F_D0:{n}", real=True))
     wrench = _wrench(structure, arrays, arms, u, lift_sym, drag_sym, R, m, g, r_G,
-                     vec("operation.propulsion_point"))
+                     vec("operation.propulsion_point"), couples)
     wrench_sym = sp.Matrix(sp.symbols("W_Fx W_Fy W_Fz W_Mx W_My W_Mz", real=True))
     v_dot, omega_dot = body_accelerations(m, inertia, r_G, vel, omega,
                                           wrench_sym[0:3, 0], wrench_sym[3:6, 0])
     kinematics = sp.Matrix.vstack(R * vel, euler_rates(phi, theta, omega))
     return CarriageModel(structure, p, x, u, input_names, tuple(arrays), k, B0, R,
                          sp.Matrix(gaps), sp.Matrix(contact), sp.Matrix(factors), tuple(arms),
-                         sp.Matrix(speeds), lift_s.xreplace(at_speed),
-                         drag_s.xreplace(at_speed), speed_sym, lift_s, drag_s,
-                         lift_sym, drag_sym, wrench, wrench_sym, kinematics,
+                         sp.Matrix(gap_rates), tuple(couples), sp.Matrix(speeds),
+                         lift_s.xreplace(at_speed), drag_s.xreplace(at_speed), speed_sym,
+                         lift_s, drag_s, lift_sym, drag_sym, wrench, wrench_sym, kinematics,
                          sp.Matrix.vstack(v_dot, omega_dot))
 
 
 def _wrench(structure: Structure, arrays: list[ArraySymbols], arms: list[sp.Matrix],
             u: sp.Matrix, lift: sp.Matrix, drag: sp.Matrix, R: sp.Matrix, m: sp.Expr,
-            g: sp.Expr, r_G: sp.Matrix, a_prop: sp.Matrix) -> sp.Matrix:
+            g: sp.Expr, r_G: sp.Matrix, a_prop: sp.Matrix, couples: list[sp.Matrix]
+            ) -> sp.Matrix:
     """Total external force and moment about O, body axes (eqs 8-12 come out of this sum).
 
-    Lift acts along the track normal n_i and drag along -x (inertial); gravity at the CG;
-    propulsion along the track at ``a_prop``; control components along body axes at a_i
+    Lift acts along the track normal n_i and drag along -x (inertial), plus each array's
+    couple (inertial; the circuit lag's spread along the face, zero otherwise); gravity at the
+    CG; propulsion along the track at ``a_prop``; control components along body axes at a_i
     (eqs 22-23), or along the array's normal n_i (control.actuators = "normal").
     """
     ex = sp.Matrix([1, 0, 0])
     force_in, moment_in = sp.zeros(3, 1), sp.zeros(3, 1)
-    for a, arm, fl, fd in zip(arrays, arms, lift, drag, strict=True):
+    for a, arm, fl, fd, couple in zip(arrays, arms, lift, drag, couples, strict=True):
         f, mo = array_wrench(a, fl, fd, R, arm)
         force_in += f
-        moment_in += mo
+        moment_in += mo + couple
     f_prop = u[0] * ex
     force_in += f_prop
     moment_in += (R * a_prop).cross(f_prop)

@@ -15,6 +15,9 @@ from . import conventions as cv
 
 # Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).
 CONTROL_AXES: tuple[str, ...] = ("y", "z")
+# model.circuit_dynamics: the circuits' first-order lag (derive/circuit_lag.py) or eq 3's
+# steady state (the paper's)
+CIRCUIT_DYNAMICS: tuple[str, ...] = ("first-order", "quasi-static")
 # The component of an array's one actuator along its own normal (control.actuators = "normal").
 NORMAL_AXIS = "n"
 
@@ -26,12 +29,15 @@ class Structure:
     ``param_names`` is the ordered parameter vector (from the schema, see params.flatten);
     ``arrays`` pairs each array name with its control force components (e.g. ("y", "z"));
     ``array_force`` is the array force law: "distributed" (the circuit model summed over the
-    tilted face, derive/distributed.py) or "point" (eq 3 at the face centre, the paper's).
+    tilted face, derive/distributed.py) or "point" (eq 3 at the face centre, the paper's);
+    ``circuit_dynamics`` is "first-order" (the circuits' electrical lag to first order in the
+    gap rates, derive/circuit_lag.py) or "quasi-static" (eq 3's steady state, the paper's).
     """
 
     param_names: tuple[str, ...]
     arrays: tuple[tuple[str, tuple[str, ...]], ...]
     array_force: str = "point"
+    circuit_dynamics: str = "quasi-static"
 
 
 def control_components(normal_values: Sequence[float], actuators: str = "paper",

@@ -1,10 +1,26 @@
-"""Trim: the equilibrium of the nonlinear model at a forward speed.
+"""Trim: the equilibrium of the nonlinear model at a forward speed, steady or accelerating.
 
 Unknowns: lateral offset y, heave z, roll, pitch, yaw and the propulsion force F_prop; the
 carriage moves at speed V along the track (inertial velocity (V, 0, 0), no rotation) with no
-control force. The equations are the six accelerations of eqs 1-2 set to zero. With upper and
-lower arrays both acting, the heave has no closed form, so the root is found numerically: a
-bracketed 1-D solve of the vertical balance gives the start, Newton (MINPACK hybrd) the rest.
+control force. The equations are the six accelerations of eqs 1-2 set to their value in a pure
+translation at the along-track acceleration a (`along_track_acceleration`; zero at constant
+speed). With upper and lower arrays both acting, the heave has no closed form, so the root is
+found numerically: a bracketed 1-D solve of the vertical balance gives the start, Newton
+(MINPACK hybrd) the rest.
+
+The accelerating trim (a != 0): the carriage keeps its pose (w = w' = 0) while O accelerates
+at a e_x (inertial). Its body-axis acceleration is then v' = R^T (a, 0, 0) and eqs 1-2 read
+
+    f_O = m R^T a e_x,        m_O = r_G x (m R^T a e_x),                       (1), (2)
+
+the six static balances of the moving frame with the d'Alembert load -m a e_x at the CG:
+f_O - m a R^T e_x = 0 and m_O - r_G x m a R^T e_x = 0. The propulsion F_prop (along the track
+at operation.propulsion_point, derive.model) balances the drag and m a: along the track
+F_prop = sum_i F_D,i + m a (lift acts along the track normals, which have no x component), and
+its moment arm below the CG, m a (z_cg - z_prop), pitches the carriage nose down against the
+pitch stiffness. Since eqs 1-2 are linear in (v', w') with an invertible mass matrix, setting
+the model's accelerations to (R^T a e_x, 0) is the same root as the static balances with the
+d'Alembert load; at a = 0 it is the constant-speed trim term by term.
 """
 
 from __future__ import annotations
@@ -13,6 +29,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import sympy as sp
 from scipy.optimize import brentq, root
 
 from .numeric import ModelFunctions
@@ -25,6 +42,27 @@ class NoTrimError(ValueError):
 _TRIM_UNKNOWNS = ("y", "z", "phi", "theta", "psi")
 
 
+def along_track_acceleration(R: sp.Matrix, accel: sp.Expr) -> sp.Matrix:
+    """(v', w') of a pure translation at ``accel`` along the track: the accelerating trim's
+    target for the model's six accelerations (eqs 1-2 with w = w' = 0).
+
+    Parameters
+    ----------
+    R : sympy.Matrix
+        Body-to-inertial rotation (3 x 3) at the trim pose (derive.rigid_body, Z-Y-X Euler).
+    accel : sympy.Expr
+        Along-track (inertial x) acceleration a [m/s^2].
+
+    Returns
+    -------
+    sympy.Matrix
+        (6, 1): R^T (a, 0, 0) (the body-axis acceleration of O), then (0, 0, 0). Eqs 1-2 equal
+        to these are the static balances with the d'Alembert load -m a e_x at the CG (module
+        docstring); zero at a = 0.
+    """
+    return sp.Matrix.vstack(R.T * sp.Matrix([accel, 0, 0]), sp.zeros(3, 1))
+
+
 @dataclass(frozen=True)
 class Trim:
     """An equilibrium: the state, the propulsion force, and every array's gap and forces."""
@@ -35,7 +73,8 @@ class Trim:
     gaps: np.ndarray
     lift: np.ndarray
     drag: np.ndarray
-    residual: float  # max |acceleration| at the root, m/s^2 or rad/s^2
+    residual: float  # max |acceleration - target| at the root, m/s^2 or rad/s^2
+    acceleration: float = 0.0  # along-track acceleration a [m/s^2] (0: constant speed)
 
 
 def trim_state(speed: float, q: np.ndarray) -> np.ndarray:
@@ -103,10 +142,16 @@ def _has_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float) -
 
 
 def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
-               _explain: bool = True) -> Trim:
-    """The equilibrium at ``speed``, or NoTrimError saying why there is none."""
+               _explain: bool = True, acceleration: float = 0.0) -> Trim:
+    """The equilibrium at ``speed``, or NoTrimError saying why there is none.
+
+    ``acceleration``: the along-track acceleration a [m/s^2] of the accelerating trim (module
+    docstring): the six accelerations equal `along_track_acceleration` instead of zero.
+    """
     if not speed > 0:
         raise NoTrimError(f"operation.speed = {speed!r}: must be > 0")
+    if not np.isfinite(acceleration):
+        raise NoTrimError(f"acceleration = {acceleration!r}: must be finite")
     n_u = mf.model.u.shape[0]
     z_lo, z_hi = _heave_limits(mf, p, min_gap)
     if not z_lo < z_hi:
@@ -129,9 +174,12 @@ def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
         x = trim_state(speed, unknowns[:5])
         u = np.zeros(n_u)
         u[0] = unknowns[5]
-        return mf.xdot(x, u, p)[6:12]
+        # along_track_acceleration: R^T e_x a is the trim state's velocity direction times a
+        return mf.xdot(x, u, p)[6:12] - np.concatenate([x[6:9] * (acceleration / speed),
+                                                        np.zeros(3)])
 
     drag0 = mf.forces(trim_state(speed, np.array([0.0, z0, 0, 0, 0])), p)[2].sum()
+    drag0 += _mass(mf, p) * acceleration
     sol = root(residual, np.array([0.0, z0, 0.0, 0.0, 0.0, drag0]), method="hybr", tol=1e-14)
     res = float(np.max(np.abs(residual(sol.x))))
     if not sol.success and res > 1e-8:
@@ -148,4 +196,9 @@ def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
         hint = f"; lift-off needs {lift_off_speed(mf, p, min_gap):.4g} m/s" if _explain else ""
         raise NoTrimError(f"no trim at speed {speed:g} m/s: array {name} would sit at gap "
                           f"{corners[i]:.4g} m, below track.min_gap = {min_gap:g} m{hint}")
-    return Trim(speed, x, u, gaps, lift, drag, res)
+    return Trim(speed, x, u, gaps, lift, drag, res, float(acceleration))
+
+
+def _mass(mf: ModelFunctions, p: np.ndarray) -> float:
+    """vehicle.mass from the parameter vector (the start of the accelerating trim's F_prop)."""
+    return float(p[mf.model.structure.param_names.index("vehicle.mass")])

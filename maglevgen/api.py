@@ -39,8 +39,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from . import laws
 from .derive import conventions as cv
 from .errors import InputError
+from .fmu import DEFAULT_FMI
 
 if TYPE_CHECKING:
     import control
@@ -55,7 +57,7 @@ __all__ = ["Carriage", "EnvelopeResult", "Gains", "SimulationResult", "TrimResul
 
 STATE_NAMES: tuple[str, ...] = tuple(s.name for s in cv.STATES)
 AXES: tuple[str, ...] = tuple(cv.AXES)
-CONTROLLERS: tuple[str, ...] = ("none", "damping", "lqr", "coupled")
+CONTROLLERS: tuple[str, ...] = laws.names()
 
 
 def load(params: str | Path | None = None, overrides: Sequence[str] = ()) -> Carriage:
@@ -112,9 +114,9 @@ class TrimResult:
     state_names : tuple of str
         x, y, z, phi, theta, psi, u, v, w, p, q, r.
     propulsion_force : float
-        F_prop [N] balancing the drag.
+        F_prop [N] balancing the drag (and m a when accelerating).
     residual : float
-        Largest |acceleration| left by the Newton solve.
+        Largest absolute acceleration left by the Newton solve.
     lift_off_speed : float
         The lowest speed with an equilibrium [m/s].
     array_names : tuple of str
@@ -126,6 +128,8 @@ class TrimResult:
     report : dict
         The whole ``trim --json`` report (the stiffness table beside the paper's printed
         forms, the paper's inputs), without the envelope's verdicts.
+    acceleration : float
+        Along-track acceleration a [m/s^2] of the equilibrium (0: constant speed).
     """
 
     speed: float
@@ -140,6 +144,7 @@ class TrimResult:
     drag: np.ndarray
     stiffness_matrix: np.ndarray
     report: dict[str, Any] = field(repr=False)
+    acceleration: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """The report as plain JSON data (a copy).
@@ -153,7 +158,7 @@ class TrimResult:
         --------
         >>> import maglevgen
         >>> sorted(maglevgen.load().trim().to_dict())[:3]
-        ['arrays', 'lift_off_speed', 'paper_inputs']
+        ['acceleration', 'arrays', 'lift_off_speed']
         """
         return json.loads(json.dumps(self.report))
 
@@ -447,13 +452,17 @@ class Carriage:
 
     # --------------------------------------------------------------------- trim, gains
 
-    def trim(self, speed: float | None = None) -> TrimResult:
+    def trim(self, speed: float | None = None, acceleration: float = 0.0) -> TrimResult:
         """The equilibrium at a speed: state, array gaps and forces, stiffness (eqs 4-19).
 
         Parameters
         ----------
         speed : float, optional
             Forward speed [m/s]; default ``operation.speed`` of the parameter file.
+        acceleration : float, optional
+            Along-track acceleration a [m/s^2] (default 0, constant speed): the accelerating
+            trim, eqs 1-2 with the d'Alembert load -m a at the CG and the propulsion
+            (drag + m a) at operation.propulsion_point (``maglev_trim_accelerating``).
 
         Returns
         -------
@@ -463,7 +472,8 @@ class Carriage:
         Raises
         ------
         maglevgen.InputError
-            A speed outside operation.speed's range (message names ``--speed``).
+            A speed outside operation.speed's range (message names ``--speed``), a non-finite
+            acceleration (``--acceleration``).
         maglevgen.NoTrimError
             No equilibrium at this speed (below lift-off) or a gap below track.min_gap.
 
@@ -475,9 +485,12 @@ class Carriage:
         (20.0, (12,), ('1', '2', '3', '4', '5', '6'))
         >>> bool(trim.lift_off_speed < 20.0 and trim.gaps.min() > 0)
         True
+        >>> launch = maglevgen.load().trim(20.0, acceleration=5.0)  # nose down, more thrust
+        >>> bool(launch.x[4] < trim.x[4] and launch.propulsion_force > trim.propulsion_force)
+        True
         """
         v = self._speed(speed)
-        rep = _commands().trim_report(self._carriage, v)
+        rep = _commands().trim_report(self._carriage, v, acceleration=float(acceleration))
         arrays = rep["arrays"]
         names = tuple(arrays)
         return TrimResult(
@@ -487,7 +500,8 @@ class Carriage:
             gaps=np.array([arrays[n]["gap"] for n in names]),
             lift=np.array([arrays[n]["lift"] for n in names]),
             drag=np.array([arrays[n]["drag"] for n in names]),
-            stiffness_matrix=np.array(rep["stiffness_matrix"]), report=rep)
+            stiffness_matrix=np.array(rep["stiffness_matrix"]), report=rep,
+            acceleration=rep["acceleration"])
 
     def gains_report(self, speed: float | None = None) -> dict[str, Any]:
         """The per-axis LQR report of ``maglevgen gains --json`` (eqs 24-33).
@@ -555,11 +569,14 @@ class Carriage:
         Examples
         --------
         >>> import numpy as np, maglevgen
-        >>> g = maglevgen.load().gains(20.0, controller="lqr")
+        >>> g = maglevgen.load().gains(20.0, controller="coupled")
         >>> g.K_pos.shape, g.K.shape
         ((5, 5), (5, 10))
         >>> bool(np.all(g.poles.real < 0))
         True
+        >>> lqr = maglevgen.load().gains(20.0, controller="lqr")  # the circuits' lag beats it
+        >>> bool(np.all(lqr.poles.real < 0))
+        False
         """
         from .operating import N_AXES, REDUCED_STATES
 
@@ -694,13 +711,14 @@ class Carriage:
 
     def simulate(self, controller: str = "lqr", scenario: str = "hold",
                  speed: float | None = None, t_end: float = 10.0,
-                 dt: float = 1e-3) -> SimulationResult:
+                 dt: float = 1e-3, loop: str = "firmware") -> SimulationResult:
         """A closed-loop run in the compiled C, as ``maglevgen simulate`` (figs 3-8).
 
         From the trim disturbed by 1 mm lateral and heave, 2 mrad roll, pitch and yaw; RK4
         in ``maglev_simulate`` (``hold``: the propulsion at the trim drag, the gains of
-        ``speed``) or ``maglev_launch`` (``launch``: from envelope.v_min to v_max, the gains
-        scheduled with the measured speed).
+        ``speed``) or ``maglev_launch`` (``launch``: from the accelerating trim at
+        envelope.v_min to v_max, the gains scheduled with the measured speed, the reference
+        and the propulsion those of the accelerating trim at envelope.launch_acceleration).
 
         Parameters
         ----------
@@ -714,6 +732,10 @@ class Carriage:
             Simulated time of ``hold`` [s] (default 10); ``launch`` runs until v_max.
         dt : float, optional
             RK4 step [s] (default 1e-3); refused above RK4's stability limit.
+        loop : {'firmware', 'continuous'}, optional
+            ``firmware`` (default): the controller at the tick of ``[control.spec]`` with
+            its delay, the speed loop and the force budget (``--loop``); ``continuous``: the
+            paper's law at every RK4 stage under the trim propulsion.
 
         Returns
         -------
@@ -744,7 +766,7 @@ class Carriage:
             self._speed(speed)
         _check_run_options(t_end, dt)
         run = run_scenarios(self._carriage, (controller,), t_end, dt, speed, lib=self._lib,
-                            scenario=scenario)
+                            scenario=scenario, loop=loop)
         return _simulation_result(run)
 
     def envelope(self, n_speeds: int | None = None,
@@ -973,8 +995,10 @@ class Carriage:
                           stacklevel=2)
         return list(res.paths)
 
-    def fmu(self, out: str | Path, kind: str = "both", controller: str = "lqr") -> Path:
-        """Export an FMI 2.0 FMU of the carriage with its controller, as ``maglevgen fmu``.
+    def fmu(self, out: str | Path, kind: str = "both", controller: str | None = None,
+            fmi: str = DEFAULT_FMI) -> Path:
+        """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
+        fmu``.
 
         Parameters
         ----------
@@ -982,8 +1006,12 @@ class Carriage:
             Output folder of ``maglev.fmu``.
         kind : {'both', 'me', 'cs'}, optional
             Model exchange, co-simulation or both (default).
-        controller : {'lqr', 'coupled', 'damping', 'none', 'external'}, optional
-            The controller inside the FMU; ``external``: the generalized forces are inputs.
+        controller : {'coupled', 'lqr', 'damping', 'none', 'external'}, optional
+            The controller inside the FMU (default: ``envelope.embedded_controller``, the
+            one the firmware embeds); ``external``: the generalized forces are inputs.
+        fmi : {'2', '3'}, optional
+            The FMI version (``--fmi``): 2.0 (default, ``maglevgen.fmu.DEFAULT_FMI``) or 3.0,
+            the same variables.
 
         Returns
         -------
@@ -993,8 +1021,8 @@ class Carriage:
         Raises
         ------
         maglevgen.InputError
-            An unknown kind or controller, FMPy (its FMI headers) missing, no trim at
-            operation.speed.
+            An unknown kind, controller or FMI version, FMPy (its FMI headers) missing, no
+            trim at operation.speed.
 
         Examples
         --------
@@ -1008,7 +1036,7 @@ class Carriage:
         from .fmu import FMU_NAME, build_fmu
         from .output import write_output
 
-        data = build_fmu(self._carriage, kind, controller)
+        data = build_fmu(self._carriage, kind, controller, fmi=fmi)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
 

@@ -156,7 +156,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
             lib = compiling.result()
     # simulations (validates the speed's trim and the step against RK4's stability limit);
     # up to here a parameter edit has imported no SymPy, SciPy or CasADi
-    run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar)
+    run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar,
+                        loop="firmware")
     step("envelope: stability of each controller across the speed range")
     env = compute_envelope(carriage, lib)
     # One child draws every figure (one matplotlib import for the simulation's and the
@@ -202,16 +203,18 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 
 
 def _schedule_c(carriage, lib, env) -> str:
-    """c/maglev_schedule.c: the embedded controller's gain schedule over ``env``'s range."""
+    """c/maglev_schedule.c: the embedded controller's launch schedule over ``env``'s range
+    (what maglev_launch runs: the accelerating trim's reference and drag at
+    envelope.launch_acceleration, the constant-speed gains; envelope.launch_schedule)."""
     import numpy as np
 
-    from .envelope import envelope_points
-    from .schedule import Schedule, schedule_c_source
+    from .envelope import envelope_points, launch_schedule
+    from .schedule import schedule_c_source
 
     nodes = np.linspace(env.v_min, env.v_max, carriage.params.envelope.schedule_nodes)
     points = envelope_points(carriage, lib, nodes)
-    return schedule_c_source(Schedule.from_points(points,
-                                                  carriage.params.envelope.embedded_controller))
+    return schedule_c_source(launch_schedule(carriage, lib, points,
+                                             carriage.params.envelope.embedded_controller))
 
 
 def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
@@ -234,14 +237,23 @@ def _stability_map(env) -> dict[str, bytes]:
 
 
 def embedded_verification(carriage, env) -> str | None:
-    """None when the embedded controller is stable across the envelope, else the one-line
-    reason `build` exits 3 with."""
+    """None when the embedded controller is stable and meets ``[control.spec]`` across the
+    envelope, else the one-line reason `build` exits 3 with."""
     name = carriage.params.envelope.embedded_controller
     c = env.controllers[name]
-    if c.ok:
-        return None
-    return (f"verification failed: the embedded controller envelope.embedded_controller = "
-            f"{name!r} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)")
+    if not c.ok:
+        return (f"verification failed: the embedded controller envelope.embedded_controller = "
+                f"{name!r} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)")
+    if not c.meets_spec:
+        return (f"verification failed: the embedded controller envelope.embedded_controller = "
+                f"{name!r} {c.spec_verdict}, {env.checked_on()} (maglevgen envelope; "
+                "--allow-unstable to accept)")
+    if not env.robust:
+        return (f"verification failed: the embedded controller envelope.embedded_controller = "
+                f"{name!r} meets the specification on the carriage's model but its gains fail "
+                f"it {env.robustness_verdict()} (maglevgen envelope; --allow-unstable to "
+                "accept)")
+    return None
 
 
 def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
@@ -300,11 +312,13 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
     import numpy as np
 
     from .derive import conventions as cv
+    from .magnetic_damping import axis_damping
     from .operating import CONTROLLER_TITLES
-    from .summary import pitch_paper_form, stiffness_table, trim_point
+    from .summary import accelerating_margins, pitch_paper_form, stiffness_table, trim_point
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
+    c_mag = axis_damping(op, m)  # the circuits' lag in the Jacobian's velocity columns
     rows = stiffness_table(carriage, lib, op.speed)
     pitch = pitch_paper_form(carriage, trim_point(carriage, lib, op.speed),
                              next(r.paper_value for r in rows if r.axis == "pitch"))
@@ -314,7 +328,12 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
              f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
              "(envelope/envelope.md, envelope/stability_map.png):", ""]
     lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
-              f": {c.verdict}" for n, c in env.controllers.items()]
+              f": {c.verdict}; specification: {c.spec_verdict}"
+              for n, c in env.controllers.items()]
+    lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}."]
+    if env.other_models:
+        lines += [f"The embedded controller's gains on the other models: "
+                  f"{env.robustness_verdict()}."]
     lines += ["",
               "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
               "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
@@ -323,13 +342,19 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gaps "
              + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "
              f"(track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
-             "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | damping c | paper k (printed) |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+             accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), "",
+             f"Magnetic damping c_mag = -m A[rate, rate] at trim "
+             f"(model.circuit_dynamics = {carriage.params.model.circuit_dynamics}; negative "
+             "feeds the motion), beside the LQR rate gain:", "",
+             "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | magnetic c_mag | damping c "
+             "| paper k (printed) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for i, axis in enumerate(cv.AXES):
         fn = np.sqrt(max(k[i], 0.0) / m[i]) / (2 * np.pi)
         r = rows[i]
         lines.append(f"| {axis} | {k[i]:.5g} {r.unit} | {m[i]:.4g} | {fn:.3f} | "
-                     f"{op.K[i, 0]:.4g}, {op.K[i, 1]:.4g} | {op.c_damping[i]:.4g} | "
+                     f"{op.K[i, 0]:.4g}, {op.K[i, 1]:.4g} | {c_mag[i]:.4g} | "
+                     f"{op.c_damping[i]:.4g} | "
                      f"{r.paper_value:.5g} ({r.relative_difference:+.0%}) |")
     lines += ["", "Paper discrepancies found (details and evidence in the report):",
               "- printed stiffnesses (eqs 13-19) differ from the derived ones: "

@@ -29,7 +29,8 @@ def structure_of(params: Parameters) -> Structure:
     """The structure of a validated parameter set (what the derivation depends on)."""
     arrays = tuple((name, control_components(arr.normal, params.control.actuators))
                    for name, arr in params.arrays.items())
-    return Structure(tuple(e.name for e in flatten(params)), arrays, params.model.array_force)
+    return Structure(tuple(e.name for e in flatten(params)), arrays, params.model.array_force,
+                     params.model.circuit_dynamics)
 
 
 @dataclass(frozen=True)
@@ -135,9 +136,20 @@ class Carriage:
         """This carriage with model.array_force = ``law`` (itself when it already has it)."""
         if law == self.params.model.array_force:
             return self
-        params = self.params.model_copy(update={"model": ModelChoices(array_force=law)})
+        return self._with_model("array_force", law)
+
+    def with_circuit_dynamics(self, dynamics: str) -> Carriage:
+        """This carriage with model.circuit_dynamics = ``dynamics`` (itself when it has it)."""
+        if dynamics == self.params.model.circuit_dynamics:
+            return self
+        return self._with_model("circuit_dynamics", dynamics)
+
+    def _with_model(self, key: str, value: str) -> Carriage:
+        """This carriage with model.<key> = ``value``, the other model choices kept."""
+        choices = ModelChoices(**{**self.params.model.model_dump(), key: value})
+        params = self.params.model_copy(update={"model": choices})
         return Carriage(LoadedParams(params, self.loaded.source, self.loaded.sha256,
-                                     (*self.loaded.overrides, f'model.array_force="{law}"')))
+                                     (*self.loaded.overrides, f'model.{key}="{value}"')))
 
     def generalized_mass(self) -> np.ndarray:
         from .derive.numeric import generalized_mass

@@ -104,17 +104,20 @@ def cmd_trim(args: argparse.Namespace) -> int:
     from . import summary
 
     carriage = _carriage(args)
-    rep = summary.trim_report(carriage, args.speed)
+    rep = summary.trim_report(carriage, args.speed, acceleration=args.acceleration)
     verdicts = _verdicts(carriage, rep)
     if args.json:
         print(json.dumps(rep, indent=2, sort_keys=False))
         return 0
+    a = rep["acceleration"]
+    moving = f" accelerating at {a:g} m/s^2 (d'Alembert load -m a at the CG)" if a else ""
     print("\n".join(verdicts) + "\n")
-    print(f"Trim at {rep['speed']:g} m/s (lift-off at {rep['lift_off_speed']:.3f} m/s; "
-          f"residual {rep['residual']:.2e})")
+    print(f"Trim at {rep['speed']:g} m/s{moving} (lift-off at {rep['lift_off_speed']:.3f} "
+          f"m/s; residual {rep['residual']:.2e})")
     for s in cv.STATES:
         print(f"  {s.name:>6} = {rep['state'][s.name]: .6e} {s.unit:<6} {s.description}")
-    print(f"  F_prop = {rep['propulsion_force']: .6e} N      propulsion balancing the drag")
+    print(f"  F_prop = {rep['propulsion_force']: .6e} N      propulsion balancing the drag"
+          + (f" and m a = {carriage.params.vehicle.mass * a:.6g} N" if a else ""))
     print("\nArray   gap [mm]   lift [N]   drag [N]")
     for n, a in rep["arrays"].items():
         print(f"  {n:>4} {a['gap'] * 1e3:9.4f} {a['lift']:10.4f} {a['drag']:10.4f}")
@@ -163,6 +166,22 @@ def cmd_gains(args: argparse.Namespace) -> int:
           f"{max(p[0] for p in c['poles_coupled_lqr']):.4g} 1/s")
     print("The paper's eq 31-32 gain (K1 = sqrt(k^2+1) - 1) is not the LQR gain: its P does "
           "not solve eq 30.")
+    e = rep["embedded"]
+    print(f"\nEmbedded controller ({e['title']}, `{e['controller']}`) at {e['speed']:g} m/s: "
+          "u_gen = -(K_pos (a - a_ref) + K_rate a'), rows "
+          f"{', '.join(e['forces'])}, columns {', '.join(e['axes'])}")
+    for label, K in (("K_pos", e["K_pos"]), ("K_rate", e["K_rate"])):
+        # entries below 1e-9 of the matrix's largest are round-off of the LQR solve: 0
+        scale = max((abs(v) for row in K for v in row), default=0.0)
+        print(f"  {label}:")
+        for name, row in zip(e["forces"], K, strict=True):
+            print(f"    {name:<8}" + "".join(f"{v if abs(v) > 1e-9 * scale else 0.0:12.4g}"
+                                         for v in row))
+    if "weights" in e:
+        w = e["weights"]
+        print(f"  weights (design damping ratio {w['design_damping_ratio']:g}): "
+              + "; ".join(f"{a} q1 {q1:.4g}, q2 {q2:.4g}, r {r:.4g}" for a, q1, q2, r in
+                          zip(e["axes"], w["q1"], w["q2"], w["r"], strict=True)))
     return 0
 
 
@@ -241,13 +260,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import CONTROLLERS, run_scenarios
 
     controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
+    if args.check and args.loop != "continuous":
+        raise InputError("--check: the DOP853 reference integrates the continuous control law; "
+                         "add --loop continuous")
     carriage = _carriage(args)
     run = run_scenarios(carriage, controllers, args.t_end, args.dt, args.speed,
                         announce=progress.step, bar=progress.bar, scenario=args.scenario,
-                        disturbance=_disturbance(args.disturbance))
+                        disturbance=_disturbance(args.disturbance), loop=args.loop)
     files = render_results(run.trajectories, run.input_names, run.header(carriage.loaded.sha256))
     paths = write_output(files, Path(args.out))
-    print(f"Simulated {args.t_end:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
+    ran = max(float(t.t[-1]) for t in run.trajectories)
+    print(f"Simulated {ran:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
           f"limit {run.dt_limit:.3g} s) from trim at {run.op.speed:g} m/s, F_prop = "
           f"{run.op.f_prop:.4g} N")
     for traj in run.trajectories:
@@ -321,13 +344,15 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
 
 def cmd_fmu(args: argparse.Namespace) -> int:
     from . import progress
-    from .fmu import FMU_NAME, build_fmu
+    from .fmu import FMI_VERSIONS, FMU_NAME, build_fmu
     from .output import write_output
 
-    data = build_fmu(_carriage(args), args.kind, args.controller, progress=progress.step)
+    carriage = _carriage(args)
+    controller = args.controller or carriage.params.envelope.embedded_controller
+    data = build_fmu(carriage, args.kind, controller, progress=progress.step, fmi=args.fmi)
     (path,) = write_output({FMU_NAME: data}, Path(args.out))
-    print(f"wrote {path.resolve()} (FMI 2.0, {args.kind}, controller {args.controller}, "
-          f"{len(data)} bytes)")
+    print(f"wrote {path.resolve()} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
+          f"controller {controller}, {len(data)} bytes)")
     return 0
 
 
@@ -405,6 +430,25 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+class _Controllers:
+    """The registry's controller names as argparse choices, read when argparse first asks (a
+    command line without --controller imports neither the registry nor numpy)."""
+
+    def __init__(self, embeddable_only: bool = False, extra: tuple[str, ...] = ()) -> None:
+        self.embeddable_only, self.extra = embeddable_only, extra
+
+    def _names(self) -> tuple[str, ...]:
+        from . import laws
+
+        return (laws.embeddable() if self.embeddable_only else laws.names()) + self.extra
+
+    def __iter__(self):
+        return iter(self._names())
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._names()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="maglevgen",
@@ -425,6 +469,9 @@ def build_parser() -> argparse.ArgumentParser:
     trim = sub.add_parser("trim", help="equilibrium, array gaps and forces, stiffness table")
     _common(trim)
     trim.add_argument("--speed", type=float, help="forward speed [m/s] (default: the file's)")
+    trim.add_argument("--acceleration", type=float, default=0.0,
+                      help="along-track acceleration [m/s^2] (default 0: constant speed): the "
+                      "accelerating trim, d'Alembert load -m a at the CG, F_prop = drag + m a")
     trim.add_argument("--json", action="store_true", help="machine-readable output")
     trim.set_defaults(func=cmd_trim)
 
@@ -450,8 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
     _common(sim)
-    sim.add_argument("--controller", choices=("none", "damping", "lqr", "coupled", "all"),
-                     default="all")
+    sim.add_argument("--controller", choices=_Controllers(extra=("all",)), default="all")
     sim.add_argument("--scenario", choices=("hold", "launch"), default="hold",
                      help="hold: the trim drag at one speed (default); launch: accelerate from "
                           "envelope.v_min to v_max with the gains scheduled in the C loop")
@@ -462,6 +508,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "these, default: 1 mm / 2 mrad on each axis)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
+    sim.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
+                     help="firmware (default): each controller at the tick of [control.spec] "
+                          "with its delay, the speed loop and the force budget; continuous: "
+                          "the paper's law at every RK4 stage under the trim propulsion")
     sim.add_argument("--check", action="store_true",
                      help="also integrate each run with scipy's adaptive DOP853 on the SymPy "
                           "model and report the largest deviation (slow: seconds per run)")
@@ -474,7 +524,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="samples to draw (default 1000)")
     mc.add_argument("--seed", type=int, default=0, metavar="S",
                     help="seed; sample i draws from SeedSequence(S, spawn_key=(i,)) (default 0)")
-    mc.add_argument("--controller", choices=("none", "damping", "lqr", "coupled", "all"),
+    mc.add_argument("--controller", choices=_Controllers(extra=("all",)),
                     help="default: envelope.embedded_controller")
     _run_options(mc)
     mc.add_argument("--workers", type=int, metavar="K",
@@ -497,16 +547,21 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--out", metavar="DIR",
                      help="also write envelope.json, envelope.md and stability_map.png")
     env.set_defaults(func=cmd_envelope)
-    from .fmu import CONTROLLERS as FMU_CONTROLLERS
+    from .fmu import DEFAULT_FMI, FMI_VERSIONS
     from .fmu import KINDS as FMU_KINDS
 
-    fmu = sub.add_parser("fmu", help="FMI 2.0 FMU (model exchange, co-simulation) of the carriage")
+    fmu = sub.add_parser("fmu", help="FMI 2.0 or 3.0 FMU (model exchange, co-simulation) of the "
+                                     "carriage")
     _common(fmu)
     fmu.add_argument("--kind", choices=FMU_KINDS, default="both",
                      help="model exchange, co-simulation or both (default)")
-    fmu.add_argument("--controller", choices=tuple(FMU_CONTROLLERS), default="lqr",
+    fmu.add_argument("--controller", choices=_Controllers(extra=("external",)),
                      help="controller inside the FMU, or 'external': the generalized control "
-                          "forces are inputs (default: lqr)")
+                          "forces are inputs (default: envelope.embedded_controller, the one "
+                          "the firmware embeds)")
+    fmu.add_argument("--fmi", choices=tuple(FMI_VERSIONS), default=DEFAULT_FMI,
+                     help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
+                          "(3.0); the same variables, controllers and start values")
     fmu.add_argument("--out", default="build/fmu", metavar="DIR",
                      help="output folder of maglev.fmu (default: ./build/fmu)")
     fmu.set_defaults(func=cmd_fmu)
@@ -518,9 +573,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="output folder (default: ./build)")
     _run_options(bld)
     bld.add_argument("--no-pdf", action="store_true", help="write report.tex only")
-    bld.add_argument("--controller", choices=("damping", "lqr", "coupled"),
+    bld.add_argument("--controller", choices=_Controllers(embeddable_only=True),
                      help="the controller the firmware C embeds and the build verifies "
-                          "(default: envelope.embedded_controller, the coupled LQR)")
+                          "(default: envelope.embedded_controller, the spec design)")
     bld.add_argument("--allow-unstable", action="store_true",
                      help="exit 0 with a warning (not 3) when the embedded controller is "
                           "unstable somewhere in the envelope")

@@ -30,8 +30,11 @@ from .operating import (
     closed_loop_stability,
     operating_point,
     speed_mode,
+    stability,
 )
-from .schedule import GainTable, gain_table_row
+from .params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS
+from .sampled import Tick, loop_gain, loop_model, sampled_eigenvalues, speed_gain
+from .schedule import GainTable, Reference, Schedule, accelerating_references, gain_table_row
 
 DEFAULT_SPEEDS = 50
 _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
@@ -89,9 +92,11 @@ def speed_range(carriage) -> tuple[float, float]:
 
 def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float) -> GainTable:
     """The firmware's table schedule over [v_min, v_max] fitted to the exact schedule (the
-    operating points' trim and gains, `gain_table_row`); its manifest() is what
+    operating points' trim and the embedded controller's gains, `gain_table_row`); its
+    manifest() is what
     c/manifest.json and the report show."""
-    return GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
+    embedded = carriage.params.envelope.embedded_controller
+    return GainTable.fit(lambda vs: np.array([gain_table_row(op, embedded) for op in
                                               envelope_points(carriage, lib, vs)]),
                          v_min, v_max)
 
@@ -107,10 +112,52 @@ def envelope_points(carriage, lib: SimulationLibrary,
         raise InputError(f"envelope: {exc}") from None
 
 
+def launch_schedule(carriage, lib: SimulationLibrary, points: Sequence[OperatingPoint],
+                    controller: str, references: list[Reference] | None = None) -> Schedule:
+    """The launch's schedule of ``controller`` at ``points``: the reference and the
+    propulsion feedforward of the accelerating trim at envelope.launch_acceleration
+    (`launch_references`), the gains of the constant-speed linearisation (the points')."""
+    a = carriage.params.envelope.launch_acceleration
+    refs = launch_references(carriage, lib, points) if references is None else references
+    return Schedule.from_points(list(points), controller, refs, a)
+
+
+def launch_references(carriage, lib: SimulationLibrary,
+                      points: Sequence[OperatingPoint]) -> list[Reference]:
+    """`accelerating_references` at envelope.launch_acceleration for ``points``; InputError
+    (naming the key) where the carriage has no accelerating trim."""
+    prm = carriage.params
+    a = prm.envelope.launch_acceleration
+    try:
+        return accelerating_references(lib, carriage.p, list(points), a, prm.vehicle.mass,
+                                       prm.track.min_gap)
+    except NoTrimError as exc:
+        raise InputError(f"envelope.launch_acceleration = {a:g}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class SpecFailure:
+    """One specification a controller misses: where (speed ranges of the grid) and how badly."""
+
+    spec: str  # e.g. "damping ratio >= 0.5"
+    ranges: tuple[tuple[float, float], ...]
+    worst: float  # the measured value at the worst speed
+    worst_speed: float
+    unit: str = ""
+
+    def text(self) -> str:
+        spans = " and ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in self.ranges)
+        unit = f" {self.unit}" if self.unit else ""
+        return (f"FAILS {self.spec} for v in {spans} m/s ({self.worst:.4g}{unit} at "
+                f"{self.worst_speed:.4g} m/s)")
+
+
 @dataclass(frozen=True)
 class ControllerEnvelope:
-    """One controller across the speeds: the largest real part, the smallest damping ratio,
-    stability, the unstable speed ranges and the verdict."""
+    """One controller across the speeds: the continuous linearisation's largest real part,
+    smallest damping ratio, stability, unstable speed ranges and verdict; and the sampled-data
+    loop's (`maglevgen.sampled`: the tick, its delay, the speed loop) against the
+    specification, with the specification's verdict."""
 
     controller: str
     max_real: np.ndarray
@@ -118,15 +165,31 @@ class ControllerEnvelope:
     stable: np.ndarray
     unstable_ranges: tuple[tuple[float, float], ...]
     verdict: str
+    sampled_max_real: np.ndarray
+    sampled_min_damping: np.ndarray
+    spec_failures: tuple[SpecFailure, ...]
+    spec_verdict: str
 
     @property
     def ok(self) -> bool:
+        """Stable on the continuous linearisation across the envelope."""
         return not self.unstable_ranges
+
+    @property
+    def meets_spec(self) -> bool:
+        """Every specification met on the sampled-data loop across the envelope."""
+        return not self.spec_failures
 
     def to_json(self) -> dict:
         return {"max_real": self.max_real.tolist(), "min_damping": self.min_damping.tolist(),
                 "stable": self.stable.tolist(), "verdict": self.verdict,
-                "unstable_ranges": [list(r) for r in self.unstable_ranges]}
+                "unstable_ranges": [list(r) for r in self.unstable_ranges],
+                "sampled_max_real": self.sampled_max_real.tolist(),
+                "sampled_min_damping": self.sampled_min_damping.tolist(),
+                "meets_spec": self.meets_spec, "spec_verdict": self.spec_verdict,
+                "spec_failures": [{"spec": f.spec, "ranges": [list(r) for r in f.ranges],
+                                   "worst": f.worst, "worst_speed": f.worst_speed}
+                                  for f in self.spec_failures]}
 
 
 @dataclass(frozen=True)
@@ -140,13 +203,39 @@ class Envelope:
     # the forward-speed mode under the trim propulsion [1/s], per speed: the speed eigenvalue
     # of the embedded controller's 12-state closed loop (`operating.SpeedMode`)
     speed_pole: np.ndarray
+    loop: LoopSetting | None = None  # how the sampled-data verdicts ran the controllers
+    model: str = ""  # the linearisation's model choices, in words
+    # the embedded controller's gains on the alternate models (`model_checks`)
+    other_models: tuple[ModelCheck, ...] = ()
+
+    def checked_on(self) -> str:
+        """The model and loop the specification verdicts were computed on, in words."""
+        loop = "" if self.loop is None else f"; {self.loop.text()}"
+        others = ", ".join(c.model for c in self.other_models)
+        also = (f"; the embedded controller's gains also on the same loop with {others}"
+                if others else "")
+        return f"on the linearisation with {self.model}{loop}{also}"
+
+    def robustness_verdict(self) -> str:
+        """The embedded controller's gains on the other models, in one sentence."""
+        return "; ".join(c.text() for c in self.other_models)
+
+    @property
+    def robust(self) -> bool:
+        return all(c.ok for c in self.other_models)
 
     def to_json(self) -> dict:
         return {"speeds": self.speeds.tolist(), "v_min": self.v_min, "v_max": self.v_max,
                 "stability_margin": STABILITY_MARGIN,
                 "states": "y z phi theta psi v w p q r (x dropped; u held by the propulsion)",
                 "controllers": {n: c.to_json() for n, c in self.controllers.items()},
-                "speed_pole": self.speed_pole.tolist()}
+                "speed_pole": self.speed_pole.tolist(),
+                "spec_checked_on": self.checked_on(),
+                "speed_loop_gain": None if self.loop is None else self.loop.speed_gain,
+                "tick_rate": None if self.loop is None else self.loop.tick.rate,
+                "delay_ticks": None if self.loop is None else self.loop.tick.delay,
+                "other_models": [{"model": c.model, "ok": c.ok, "verdict": c.text()}
+                                 for c in self.other_models]}
 
 
 def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,
@@ -194,25 +283,182 @@ def verdict_text(controller: str, speeds: np.ndarray, max_real: np.ndarray,
     return f"UNSTABLE for v in {spans} m/s ({where})"
 
 
+def grid_ranges(speeds: np.ndarray, bad: np.ndarray) -> tuple[tuple[float, float], ...]:
+    """The runs of consecutive grid speeds where ``bad`` holds, as (first, last) speeds."""
+    out, i, n = [], 0, len(speeds)
+    while i < n:
+        if not bad[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and bad[j + 1]:
+            j += 1
+        out.append((float(speeds[i]), float(speeds[j])))
+        i = j + 1
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class LoopSetting:
+    """How the firmware runs every controller: its tick and the speed loop's gain."""
+
+    tick: Tick
+    speed_gain: float  # k_v [N s/m], one value over the envelope
+    bandwidth: float  # the speed pole it guarantees at least [1/s]
+
+    def text(self) -> str:
+        delay = f"{self.tick.delay} tick{'s' if self.tick.delay != 1 else ''} of delay"
+        return (f"sampled-data loop at {self.tick.rate:g} Hz with {delay}, zero-order hold, "
+                f"speed loop k_v = {self.speed_gain:.4g} N s/m")
+
+
+def loop_setting(carriage, points: Sequence[OperatingPoint]) -> LoopSetting:
+    """The tick of ``[control.spec]`` and the speed loop's gain: the largest k_v over the
+    points (`sampled.speed_gain`), so that the speed pole is at least as fast as
+    control.spec.speed_bandwidth at every speed with one constant gain."""
+    spec, mass = carriage.params.control.spec, carriage.params.vehicle.mass
+    k_v = max(speed_gain(mass, op.trim_drag_slope, spec.speed_bandwidth) for op in points)
+    return LoopSetting(Tick.of(carriage.params), k_v, float(spec.speed_bandwidth))
+
+
+def sampled_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
+                      design: OperatingPoint | None = None) -> tuple[float, float]:
+    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op``, with
+    the gains of ``design`` (default ``op``)."""
+    A, B = loop_model(op)
+    K = loop_gain(op, controller, setting.speed_gain, design)
+    if not np.all(np.isfinite(K)):
+        return float("inf"), float("nan")
+    s = sampled_eigenvalues(A, B, K, setting.tick)
+    return stability(s[np.isfinite(s)])
+
+
+def spec_failures(carriage, speeds: np.ndarray, max_real: np.ndarray,
+                  min_damping: np.ndarray) -> tuple[SpecFailure, ...]:
+    """The specifications of ``[control.spec]`` that the loop misses, with their ranges."""
+    spec = carriage.params.control.spec
+    checks = (
+        ("stability", "largest real part", "1/s", max_real, ~(max_real < -STABILITY_MARGIN),
+         np.nanargmax),
+        (f"damping ratio >= {spec.min_damping_ratio:g}", "", "", min_damping,
+         ~(min_damping >= spec.min_damping_ratio), np.nanargmin),
+        (f"decay rate >= {spec.min_decay_rate:g} 1/s", "", "1/s", -max_real,
+         ~(-max_real >= spec.min_decay_rate), np.nanargmin))
+    out = []
+    for text, what, unit, values, bad, pick in checks:
+        if np.any(bad):
+            finite = np.where(np.isfinite(values), values, np.nan)
+            worst = int(pick(finite)) if np.any(np.isfinite(finite)) else int(np.argmax(bad))
+            out.append(SpecFailure(text, grid_ranges(speeds, bad), float(values[worst]),
+                                   float(speeds[worst]), f"{unit} {what}".strip()
+                                   if what else unit))
+    return tuple(out)
+
+
+def spec_verdict_text(speeds: np.ndarray, failures: tuple[SpecFailure, ...],
+                      max_real: np.ndarray, min_damping: np.ndarray) -> str:
+    """"meets the specification across [a, b] m/s (...)" or the failures, "; "-separated."""
+    if failures:
+        return "; ".join(f.text() for f in failures)
+    return (f"meets the specification across [{speeds[0]:.4g}, {speeds[-1]:.4g}] m/s "
+            f"(smallest damping ratio {np.nanmin(min_damping):.3g}, slowest decay "
+            f"{-np.max(max_real):.4g} 1/s)")
+
+
+@dataclass(frozen=True)
+class ModelCheck:
+    """The embedded controller's gains (designed on the carriage's model) on another model
+    of the same carriage: the specification's failures there."""
+
+    model: str  # e.g. "model.array_force = point"
+    failures: tuple[SpecFailure, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+    def text(self) -> str:
+        if self.ok:
+            return f"meets it with {self.model}"
+        return f"with {self.model}: " + "; ".join(f.text() for f in self.failures)
+
+
+# the model choices the embedded controller's gains are also checked on (model.<key>)
+MODEL_CHOICES: tuple[tuple[str, tuple[str, ...]], ...] = (("array_force", ARRAY_FORCE_LAWS),
+                                                          ("circuit_dynamics", CIRCUIT_DYNAMICS))
+
+
+def alternate_models(carriage) -> list[tuple[str, object]]:
+    """(label, carriage) for each other value of each model choice, one change at a time."""
+    from .carriage import Carriage
+    from .params import LoadedParams
+
+    params, out = carriage.params, []
+    for key, choices in MODEL_CHOICES:
+        for value in choices:
+            if value == getattr(params.model, key):
+                continue
+            changed = params.model_copy(update={"model": params.model.model_copy(
+                update={key: value})})
+            loaded = carriage.loaded
+            out.append((f"model.{key} = {value}", Carriage(LoadedParams(
+                changed, loaded.source, loaded.sha256,
+                (*loaded.overrides, f'model.{key}="{value}"')))))
+    return out
+
+
+def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
+                 setting: LoopSetting) -> tuple[ModelCheck, ...]:
+    """``controller``'s gains at ``points`` on each alternate model's sampled-data loop at the
+    same speeds (each model's own trim and Jacobians, from its own compiled library)."""
+    speeds = np.array([op.speed for op in points])
+    out = []
+    for label, alt in alternate_models(carriage):
+        try:
+            alt_points = envelope_points(alt, simulation_library(alt.structure), speeds)
+        except InputError as exc:
+            out.append(ModelCheck(label, (SpecFailure(f"a trim ({exc})", ((speeds[0],
+                                                                          speeds[-1]),),
+                                                      float("nan"), float(speeds[0])),)))
+            continue
+        sd = np.array([sampled_stability(a, controller, setting, design=op)
+                       for a, op in zip(alt_points, points, strict=True)])
+        out.append(ModelCheck(label, spec_failures(carriage, speeds, sd[:, 0], sd[:, 1])))
+    return tuple(out)
+
+
 def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_SPEEDS,
-                     controllers: Sequence[str] = CONTROLLERS) -> Envelope:
-    """Each controller's stability at ``n_speeds`` speeds spanning [v_min, v_max]."""
+                     controllers: Sequence[str] = CONTROLLERS,
+                     other_models: bool = True) -> Envelope:
+    """Each controller's stability at ``n_speeds`` speeds spanning [v_min, v_max], on the
+    continuous linearisation and, against ``[control.spec]``, on the sampled-data loop;
+    ``other_models``: the embedded controller's gains also on each alternate model
+    (`model_checks`)."""
     if not 2 <= n_speeds <= 100_000:
         raise InputError(f"--speeds {n_speeds}: expected 2 to 100000 speeds")
     v_min, v_max = resolve_range(carriage, lib)
     speeds = np.linspace(v_min, v_max, n_speeds)
     points = envelope_points(carriage, lib, speeds)
+    setting = loop_setting(carriage, points)
     out = {}
     for c in controllers:
         rows = np.array([closed_loop_stability(op, c) for op in points])
         max_real, min_damping = rows[:, 0], rows[:, 1]
         stable = max_real < -STABILITY_MARGIN
         ranges = unstable_ranges(carriage, lib, c, speeds, stable)
+        sd = np.array([sampled_stability(op, c, setting) for op in points])
+        failures = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1])
         out[c] = ControllerEnvelope(c, max_real, min_damping, stable, ranges,
-                                    verdict_text(c, speeds, max_real, ranges))
+                                    verdict_text(c, speeds, max_real, ranges), sd[:, 0],
+                                    sd[:, 1], failures,
+                                    spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1]))
     mass, embedded = carriage.params.vehicle.mass, carriage.params.envelope.embedded_controller
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
-    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles))
+    checks = (model_checks(carriage, embedded, points, setting)
+              if other_models and embedded in controllers else ())
+    m = carriage.params.model
+    model = f"the {m.array_force} force law and {m.circuit_dynamics} circuits"
+    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks)
 
 
 def envelope_markdown(env: Envelope) -> str:

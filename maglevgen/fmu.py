@@ -1,17 +1,20 @@
-"""`maglevgen fmu`: the generated carriage as an FMI 2.0 FMU (model exchange, co-simulation or
-both), for Simulink, Dymola, OpenModelica, FMPy and the like.
+"""`maglevgen fmu`: the generated carriage as an FMI 2.0 or FMI 3.0 FMU (model exchange,
+co-simulation or both), for Simulink, Dymola, OpenModelica, FMPy and the like.
 
 Everything in modelDescription.xml and in the wrapper's value-reference table comes from one
-list of `FmuVariable` built from the manifest (names, units, descriptions, start values), and
-both files are rendered from it by the templates fmu_model_description.xml.j2 and
-fmu_wrapper.c.j2. The model is the run-time-parameter C of the carriage's structure (the cached
-derivation of maglevgen.library): every function takes the parameter vector p, so a parameter
-set through fmi2SetReal before initialization behaves like ``--set``: the trim (maglev_trim at
-``operation.speed``), the gains (maglev_lqr_gains) and the allocation are computed from it when
-the FMU leaves initialization mode.
+list of `FmuVariable` built from the manifest (names, units, descriptions, start values), the
+same for both FMI versions, and both files are rendered from it by the templates of the
+version (`FMI_VERSIONS`: fmu_model_description.xml.j2 and fmu_wrapper.c.j2 for 2.0,
+fmu3_model_description.xml.j2 and fmu3_wrapper.c.j2 with the version-independent model core
+fmu_core.c.j2 for 3.0). The model is the run-time-parameter C of the carriage's structure
+(the cached derivation of maglevgen.library): every function takes the parameter vector p, so
+a parameter set through fmi2SetReal (fmi3SetFloat64) before initialization behaves like
+``--set``: the trim (maglev_trim at ``operation.speed``), the gains (maglev_lqr_gains) and the
+allocation are computed from it when the FMU leaves initialization mode.
 
-Controllers are looked up in ``CONTROLLERS``: one entry per controller says how the wrapper
-gets the generalized forces u_gen (eqs 20-33) and which inputs it adds.
+Controllers come from the registry (maglevgen.laws) through `fmu_controllers`: one entry per
+controller says how the wrapper gets the generalized forces u_gen (eqs 20-33) and which inputs
+it adds.
 """
 
 from __future__ import annotations
@@ -44,6 +47,59 @@ DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s defau
 
 
 @dataclass(frozen=True)
+class FmiVersion:
+    """What differs between the FMI versions: the templates, the header the wrapper includes
+    (FMPy's copy), the binaries' platform folder and the files beside modelDescription.xml."""
+
+    name: str
+    label: str
+    model_description: str
+    wrapper: str
+    header: str
+    platform: str
+    build_description: str = ""  # FMI 3.0: sources/buildDescription.xml lists the sources
+
+
+FMI_VERSIONS: dict[str, FmiVersion] = {v.name: v for v in (
+    FmiVersion("2", "2.0", "fmu_model_description.xml", "fmu_wrapper.c", "fmi2Functions.h",
+               "linux64"),
+    FmiVersion("3", "3.0", "fmu3_model_description.xml", "fmu3_wrapper.c", "fmi3Functions.h",
+               "x86_64-linux", build_description="fmu3_build_description.xml"),
+)}
+# FMI 2.0 by default: every FMI importer in use reads it (Simulink's and Dymola's older
+# releases, OpenModelica's, libcosim, FMPy), while 3.0 importers are still arriving; `--fmi 3`
+# gives the same model, controllers, start values and units as an FMI 3.0 FMU.
+DEFAULT_FMI = "2"
+
+# FMI 3.0 unit definitions: each symbol of the schema's and the conventions' units as powers
+# of FMI's base units (kg, m, s, A, K, mol, cd, rad; the SI derived units by definition)
+FMI3_BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+_UNIT_SYMBOLS: dict[str, dict[str, int]] = {
+    "1": {}, "-": {}, "kg": {"kg": 1}, "m": {"m": 1}, "s": {"s": 1}, "A": {"A": 1},
+    "K": {"K": 1}, "mol": {"mol": 1}, "cd": {"cd": 1}, "rad": {"rad": 1},
+    "Hz": {"s": -1}, "N": {"kg": 1, "m": 1, "s": -2}, "Pa": {"kg": 1, "m": -1, "s": -2},
+    "J": {"kg": 1, "m": 2, "s": -2}, "W": {"kg": 1, "m": 2, "s": -3},
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1}, "ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
+    "H": {"kg": 1, "m": 2, "s": -2, "A": -2}, "T": {"kg": 1, "s": -2, "A": -1},
+    "Wb": {"kg": 1, "m": 2, "s": -2, "A": -1},
+}
+
+
+def fmi3_base_unit(unit: str) -> tuple[tuple[str, int], ...]:
+    """The exponents of FMI 3.0's base units of ``unit`` ("kg*m^2", "m/s^2", "N*m"; each
+    ``/`` divides by the factor after it), in FMI's attribute order, zeros left out."""
+    powers = dict.fromkeys(FMI3_BASE_UNITS, 0)
+    for sign, factor in re.findall(r"(^|[*/])\s*([^*/]+)", unit.strip()):
+        sym, _, exp = factor.strip().partition("^")
+        if sym not in _UNIT_SYMBOLS or (exp and not re.fullmatch(r"-?\d+", exp)):
+            raise ValueError(f"unit {unit!r}: {factor!r} is not a known unit symbol")
+        n = (int(exp) if exp else 1) * (-1 if sign == "/" else 1)
+        for base, e in _UNIT_SYMBOLS[sym].items():
+            powers[base] += n * e
+    return tuple((b, e) for b, e in powers.items() if e)
+
+
+@dataclass(frozen=True)
 class FmuController:
     """One controller of the FMU.
 
@@ -66,27 +122,39 @@ class FmuController:
     gain_slots: int = 1
 
 
-CONTROLLERS: dict[str, FmuController] = {c.name: c for c in (
-    FmuController("none", "no control: the array forces are zero", "axis"),
-    FmuController("damping", "optimized damping (eqs 20-21), gains at operation.speed", "axis",
-                  gains_c="for (i = 0; i < NA; ++i) m->k_rate[i * (NA + 1)] = m->c_damping[i];"),
-    FmuController("lqr", "per-axis LQR (eqs 24-33), gains at operation.speed", "axis",
-                  inputs="references",
-                  gains_c="for (i = 0; i < NA; ++i) { m->k_pos[i * (NA + 1)] = m->K[i]; "
-                          "m->k_rate[i * (NA + 1)] = m->K[NA + i]; }"),
-    # the coupled LQR's gains need a Riccati solve the C does not hold: the toolchain solves
-    # it at export (maglevgen.operating, at operation.speed for the file's parameters) and
-    # the wrapper carries them as constants (COUPLED_GAINS below); a parameter set through
-    # FMI changes the trim but not these gains
-    FmuController("coupled", "coupled LQR (full-state, maglev_coupled_control's law), gains "
-                  "solved at export for the parameter file at operation.speed", "axis",
-                  inputs="references",
-                  gains_c="for (i = 0; i < NA * NA; ++i) { m->k_pos[i] = COUPLED_K_POS[i]; "
-                          "m->k_rate[i] = COUPLED_K_RATE[i]; }"),
-    FmuController("external", "generalized control forces are inputs (minimum-norm "
-                  "allocation, eqs 22-23)", "generic", inputs="controls",
-                  u_gen_c="for (i = 0; i < NA; ++i) u_gen[i] = in[i];"),
-)}
+# How the wrapper sets each registered controller's gains (maglevgen.laws, Controller.fmu_gains).
+# "matrix": the gains need a Riccati solve the C does not hold: the toolchain solves it at
+# export (maglevgen.operating, at operation.speed for the file's parameters) and the wrapper
+# carries them as constants (MATRIX_K_POS, MATRIX_K_RATE); a parameter set through FMI
+# changes the trim but not these gains.
+_GAINS_C = {
+    "none": ("", ""),
+    "damping": ("", "for (i = 0; i < NA; ++i) m->k_rate[i * (NA + 1)] = m->c_damping[i];"),
+    "axis": ("references", "for (i = 0; i < NA; ++i) { m->k_pos[i * (NA + 1)] = m->K[i]; "
+                           "m->k_rate[i * (NA + 1)] = m->K[NA + i]; }"),
+    "matrix": ("references", "for (i = 0; i < NA * NA; ++i) { m->k_pos[i] = MATRIX_K_POS[i]; "
+                             "m->k_rate[i] = MATRIX_K_RATE[i]; }"),
+}
+_GAINS_AT = {"none": "", "damping": ", gains at operation.speed",
+             "axis": ", gains at operation.speed",
+             "matrix": ", gains solved at export for the parameter file at operation.speed"}
+
+
+EXTERNAL = FmuController("external", "generalized control forces are inputs (minimum-norm "
+                         "allocation, eqs 22-23)", "generic", inputs="controls",
+                         u_gen_c="for (i = 0; i < NA; ++i) u_gen[i] = in[i];")
+
+
+def fmu_controllers() -> dict[str, FmuController]:
+    """Every registered controller (maglevgen.laws) as the wrapper runs it, and ``external``."""
+    from . import laws  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
+
+    out = {}
+    for c in laws.REGISTRY.values():
+        inputs, gains_c = _GAINS_C[c.fmu_gains]
+        out[c.name] = FmuController(c.name, c.description + _GAINS_AT[c.fmu_gains], "axis",
+                                    inputs=inputs, gains_c=gains_c)
+    return {**out, EXTERNAL.name: EXTERNAL}
 
 
 @dataclass(frozen=True)
@@ -192,9 +260,11 @@ def _per_second(unit: str) -> str:
 def build_model(manifest: dict, controller: str, kind: str) -> FmuModel:
     if kind not in KINDS:
         raise InputError(f"--kind {kind!r}: expected one of {KINDS}")
-    if controller not in CONTROLLERS:
-        raise InputError(f"--controller {controller!r}: expected one of {tuple(CONTROLLERS)}")
-    ctl = CONTROLLERS[controller]
+    controllers = fmu_controllers()
+    if controller not in controllers:
+        raise InputError(f"--controller {controller!r}: expected one of "
+                         f"{', '.join(controllers)}")
+    ctl = controllers[controller]
     return FmuModel(fmu_variables(manifest, ctl, kind), ctl, kind, manifest)
 
 
@@ -211,8 +281,9 @@ def _function(manifest: dict, name: str) -> dict:
     return next(f for f in manifest["functions"] if f["name"] == name)
 
 
-def render_files(model: FmuModel, guid: str) -> dict[str, str]:
-    """modelDescription.xml, the wrapper C and the sources' note, as text."""
+def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI) -> dict[str, str]:
+    """modelDescription.xml, the wrapper C, the sources' note and (FMI 3.0) the build
+    description, as text, for FMI version ``fmi`` ("2" or "3")."""
     from .codegen.interface import template_env
 
     man = model.manifest
@@ -221,6 +292,7 @@ def render_files(model: FmuModel, guid: str) -> dict[str, str]:
             "maglev_closed_loop_prepare", "maglev_closed_loop_prepared", "maglev_gaps"]
     sizes = {k: max(_function(man, f)[k] for f in used)
              for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")}
+    version = FMI_VERSIONS[fmi]
     units = sorted({v.unit for v in model.variables})
     sources = [*man["files"]["c"], WRAPPER_C]
     groups = ("state", "derivative", "gap", "force", "input", "cinput", "parameter",
@@ -246,24 +318,31 @@ def render_files(model: FmuModel, guid: str) -> dict[str, str]:
         "params_source": man["params_source"], "params_sha256": man["params_sha256"],
         "overrides": man["overrides"],
         "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
+        "fmi": version,
+        # FMI 3.0: the independent variable time (unit s) beside the list's units
+        "units3": [(u, fmi3_base_unit(u)) for u in sorted({*units, "s"})],
     }
     env = template_env()
-    return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in (
-        ("modelDescription.xml", "fmu_model_description.xml"),
-        (WRAPPER_C, "fmu_wrapper.c"),
-        ("README.txt", "fmu_sources_README.txt"))}
+    outputs = [("modelDescription.xml", version.model_description), (WRAPPER_C, version.wrapper),
+               ("README.txt", "fmu_sources_README.txt")]
+    if version.build_description:
+        outputs.append(("buildDescription.xml", version.build_description))
+    return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in outputs}
 
 
-def fmi_headers() -> Path:
-    """The folder of FMI 2.0's fmi2Functions.h as shipped by FMPy (never copied here)."""
+def fmi_headers(fmi: str = DEFAULT_FMI) -> Path:
+    """The folder of the FMI headers (fmi2Functions.h, fmi3Functions.h) as shipped by FMPy
+    (never copied here)."""
+    version = FMI_VERSIONS[fmi]
     try:
         import fmpy
     except ImportError:
-        raise InputError("the FMI 2.0 headers come from FMPy: pip install 'maglevgen[fmu]'"
-                         ) from None
+        raise InputError(f"the FMI {version.label} headers come from FMPy: pip install "
+                         "'maglevgen[fmu]'") from None
     folder = Path(fmpy.__file__).parent / "c-code"
-    if not (folder / "fmi2Functions.h").is_file():
-        raise InputError(f"FMPy at {folder.parent} has no c-code/fmi2Functions.h")
+    if not (folder / version.header).is_file():
+        raise InputError(f"FMPy at {folder.parent} has no c-code/{version.header} (FMI "
+                         f"{version.label}): pip install 'fmpy>=0.3.20'")
     return folder
 
 
@@ -274,15 +353,22 @@ def _quiet(_: str) -> None:
     pass
 
 
-def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
+def build_fmu(carriage, kind: str = "both", controller: str | None = None,
               cache_dir: Path | None = None, cc: str | None = None,
-              progress: Progress = _quiet) -> bytes:
-    """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation)."""
+              progress: Progress = _quiet, fmi: str = DEFAULT_FMI) -> bytes:
+    """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
+    FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
+    embeds (``envelope.embedded_controller``)."""
     from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
     from .library import _cache, runtime_sources
-    from .runtime.compile import compile_shared
+    from .runtime.compile import compile_object, compile_shared
 
-    headers = fmi_headers()  # before any slow work: FMPy missing is bad input
+    if controller is None:
+        controller = carriage.params.envelope.embedded_controller
+    if fmi not in FMI_VERSIONS:
+        raise InputError(f"--fmi {fmi!r}: expected one of {tuple(FMI_VERSIONS)}")
+    version = FMI_VERSIONS[fmi]
+    headers = fmi_headers(fmi)  # before any slow work: FMPy missing is bad input
     _check_trim(carriage, cache_dir, cc, progress)
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
@@ -292,15 +378,19 @@ def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
     # the GUID names the model's content: same carriage, controller and kind, same GUID
     guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "maglevgen:" + json.dumps(
         [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
-         json.loads(json.dumps([v.__dict__ for v in model.variables]))]))) + "}"
-    files = render_files(model, guid)
-    if controller == "coupled":
-        files[WRAPPER_C] = _with_coupled_gains(files[WRAPPER_C], carriage, cache_dir, cc)
+         json.loads(json.dumps([v.__dict__ for v in model.variables]))]
+        + ([] if fmi == "2" else [f"fmi{fmi}"])))) + "}"  # FMI 2.0's GUID as before
+    files = render_files(model, guid, fmi)
+    if "MATRIX_K_POS" in model.controller.gains_c:
+        files[WRAPPER_C] = _with_matrix_gains(files[WRAPPER_C], carriage, controller,
+                                              cache_dir, cc)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
         p.name for p in folder.iterdir() if p.suffix in (".c", ".h"))}
     sources[WRAPPER_C] = files[WRAPPER_C].encode()
     sources["manifest.json"] = interface["manifest.json"].encode()
     sources["README.txt"] = files["README.txt"].encode()
+    if version.build_description:
+        sources["buildDescription.xml"] = files["buildDescription.xml"].encode()
     # the wrapper's C is rendered per carriage (start values): compiled in its own folder,
     # cached by content like the simulation library
     build = _cache(cache_dir) / "fmu" / guid.strip("{}")
@@ -309,16 +399,22 @@ def build_fmu(carriage, kind: str = "both", controller: str = "lqr",
         path = build / name
         if not path.exists() or path.read_bytes() != data:
             path.write_bytes(data)
+    # the carriage functions (most of the compile time) once per derivation, shared by every
+    # FMU of it; each FMU links them with its own wrapper
+    functions = compile_object(folder / "maglev_functions.c", cc=cc,
+                               cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
     flags = ("-std=c99", "-O2", "-fPIC", "-shared", f"-I{headers}")
-    lib = compile_shared(sorted(build.glob("*.c")), flags=flags, cc=cc,
+    lib = compile_shared([*sorted(p for p in build.glob("*.c") if p.name != "maglev_functions.c"),
+                          functions], flags=flags, cc=cc,
                          cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
     return _zip({"modelDescription.xml": files["modelDescription.xml"].encode(),
-                 f"binaries/linux64/{MODEL_IDENTIFIER}.so": lib.read_bytes(),
+                 f"binaries/{version.platform}/{MODEL_IDENTIFIER}.so": lib.read_bytes(),
                  **{f"sources/{n}": d for n, d in sources.items()}})
 
 
-def _with_coupled_gains(wrapper: str, carriage, cache_dir: Path | None, cc: str | None) -> str:
-    """The wrapper's C with the coupled LQR's (K_pos, K_rate) at operation.speed as constants
+def _with_matrix_gains(wrapper: str, carriage, controller: str, cache_dir: Path | None,
+                       cc: str | None) -> str:
+    """The wrapper's C with ``controller``'s (K_pos, K_rate) at operation.speed as constants
     (column-major, repr of each double: deterministic)."""
     from .library import simulation_library
     from .operating import Weights, operating_point
@@ -326,13 +422,13 @@ def _with_coupled_gains(wrapper: str, carriage, cache_dir: Path | None, cc: str 
     lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
     op = operating_point(lib, carriage.p, carriage.params.operation.speed,
                          carriage.params.track.min_gap, Weights.of(carriage.params))
-    K_pos, K_rate = op.gains("coupled")
+    K_pos, K_rate = op.gains(controller)
 
     def table(name: str, K) -> str:
         return (f"static const maglev_real {name}[NA * NA] = {{"
                 + ", ".join(repr(float(v)) for v in K.ravel(order="F")) + "};\n")
 
-    consts = table("COUPLED_K_POS", K_pos) + table("COUPLED_K_RATE", K_rate)
+    consts = table("MATRIX_K_POS", K_pos) + table("MATRIX_K_RATE", K_rate)
     marker = "typedef struct {"
     return wrapper.replace(marker, consts + "\n" + marker, 1)
 

@@ -21,8 +21,9 @@ from importlib import metadata, util
 from pathlib import Path
 
 # The installed packages (pyproject's package-dir maps derive/, runtime/ under maglevgen.)
-PACKAGES = ("maglevgen", "maglevgen.derive", "maglevgen.runtime", "maglevgen.codegen",
-            "maglevgen.report", "maglevgen.report.sections", "maglevgen.templates")
+PACKAGES = ("maglevgen", "maglevgen.laws", "maglevgen.derive", "maglevgen.runtime",
+            "maglevgen.codegen", "maglevgen.report", "maglevgen.report.sections",
+            "maglevgen.templates")
 
 
 def sha256_hex(data: bytes | str) -> str:

@@ -16,7 +16,9 @@ from __future__ import annotations
 import ctypes
 import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -73,6 +75,37 @@ def runtime_sources(structure: Structure, precision: str = "double",
     return folder
 
 
+@dataclass(frozen=True)
+class ControlLoop:
+    """maglev_control_loop (maglev_simulate.h): how the C loop runs the controller.
+
+    ``tick_steps`` RK4 steps per control tick (0: the command at every RK4 stage), the command
+    applied ``delay_ticks`` ticks after its tick and held between; the speed loop
+    F_prop = F_ff + ``k_v`` (v_ref(t) - |(u, v, w)|), v_ref(t) = ``v_ref`` + ``accel`` t; each
+    array's control force limited to ``force_budget`` [N] (<= 0 or inf: no limit).
+    """
+
+    tick_steps: int = 0
+    delay_ticks: int = 0
+    k_v: float = 0.0  # [N s/m]
+    v_ref: float = 0.0  # [m/s]
+    accel: float = 0.0  # [m/s^2]
+    force_budget: float = 0.0  # [N]
+
+
+class Run(NamedTuple):
+    """What maglev_simulate / maglev_launch return: the last sample's index, the
+    MAGLEV_SIM_* status, the rows of x, u and the gaps up to it, the RK4 steps taken with an
+    array's control force at its budget."""
+
+    last: int
+    status: int
+    x: np.ndarray
+    u: np.ndarray
+    gaps: np.ndarray
+    saturated_steps: int
+
+
 class SimulationLibrary(GeneratedLibrary):
     """The compiled run-time-parameter library: every generated function and maglev_simulate."""
 
@@ -80,10 +113,18 @@ class SimulationLibrary(GeneratedLibrary):
         super().__init__(path, precision)
         real = ctypes.c_float if precision == "single" else ctypes.c_double
         ptr = ctypes.POINTER(real)
+
+        class _Loop(ctypes.Structure):  # maglev_control_loop (maglev_simulate.h)
+            _fields_ = [("tick_steps", ctypes.c_longlong), ("delay_ticks", ctypes.c_int),
+                        ("k_v", real), ("v_ref", real), ("accel", real),
+                        ("force_budget", real)]
+
+        self._Loop = _Loop
+        loop_ptr, count_ptr = ctypes.POINTER(_Loop), ctypes.POINTER(ctypes.c_longlong)
         fn = self._lib.maglev_simulate
         fn.restype = ctypes.c_longlong
-        fn.argtypes = [ptr, real, ctypes.c_longlong, real, ptr, ptr, ptr, ptr, real, ptr, ptr,
-                       ptr, ctypes.POINTER(ctypes.c_int)]
+        fn.argtypes = [ptr, real, ctypes.c_longlong, real, ptr, ptr, ptr, loop_ptr, ptr, real,
+                       ptr, ptr, ptr, count_ptr, ctypes.POINTER(ctypes.c_int)]
         self._simulate = fn
         real_ptr = ptr
 
@@ -95,13 +136,20 @@ class SimulationLibrary(GeneratedLibrary):
         fn = self._lib.maglev_launch
         fn.restype = ctypes.c_longlong
         fn.argtypes = [ptr, real, ctypes.c_longlong, real, real, ctypes.c_longlong,
-                       ctypes.POINTER(_Schedule), ptr, real, ptr, ptr, ptr,
-                       ctypes.POINTER(ctypes.c_int)]
+                       ctypes.POINTER(_Schedule), loop_ptr, ptr, real, ptr, ptr, ptr,
+                       count_ptr, ctypes.POINTER(ctypes.c_int)]
         self._launch = fn
+
+    def _loop(self, loop: ControlLoop | None):
+        """The maglev_control_loop of ``loop`` (a pointer), or NULL for None."""
+        if loop is None:
+            return None
+        return ctypes.byref(self._Loop(loop.tick_steps, loop.delay_ticks, loop.k_v, loop.v_ref,
+                                       loop.accel, loop.force_budget))
 
     def launch(self, x0: np.ndarray, dt: float, n_steps: int, v_end: float, f_extra: float,
                hold_steps: int, schedule, p: np.ndarray, gap_min: float, n_u: int,
-               n_gaps: int) -> tuple[int, int, np.ndarray, np.ndarray, np.ndarray]:
+               n_gaps: int, loop: ControlLoop | None = None) -> Run:
         """maglev_launch with ``schedule`` (maglevgen.schedule.Schedule): as ``simulate``."""
         real = self._real
         P = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
@@ -114,36 +162,37 @@ class SimulationLibrary(GeneratedLibrary):
         x = np.zeros((n_steps + 1, x0c.size), dtype=real)
         u = np.zeros((n_steps + 1, n_u), dtype=real)
         g = np.zeros((n_steps + 1, n_gaps), dtype=real)
-        status = ctypes.c_int(-1)
+        status, saturated = ctypes.c_int(-1), ctypes.c_longlong(0)
         last = self._launch(x0c.ctypes.data_as(P), dt, n_steps, v_end, f_extra, hold_steps,
-                            ctypes.byref(sched), pc.ctypes.data_as(P), gap_min,
-                            x.ctypes.data_as(P), u.ctypes.data_as(P), g.ctypes.data_as(P),
-                            ctypes.byref(status))
+                            ctypes.byref(sched), self._loop(loop), pc.ctypes.data_as(P),
+                            gap_min, x.ctypes.data_as(P), u.ctypes.data_as(P),
+                            g.ctypes.data_as(P), ctypes.byref(saturated), ctypes.byref(status))
         _refused("maglev_launch", status.value)
         n = int(last) + 1
-        return int(last), status.value, x[:n], u[:n], g[:n]
+        return Run(int(last), status.value, x[:n], u[:n], g[:n], saturated.value)
 
     def simulate(self, x0: np.ndarray, dt: float, n_steps: int, f_prop: float,
                  k_pos: np.ndarray, k_rate: np.ndarray, a_ref: np.ndarray, p: np.ndarray,
-                 gap_min: float, n_u: int, n_gaps: int) -> tuple[int, int, np.ndarray, np.ndarray,
-                                                                 np.ndarray]:
-        """maglev_simulate: (last sample, status, x rows, u rows, gap rows) up to that sample."""
+                 gap_min: float, n_u: int, n_gaps: int, loop: ControlLoop | None = None) -> Run:
+        """maglev_simulate: (last sample, status, x rows, u rows, gap rows up to that sample,
+        steps saturated); ``loop``: how the controller runs (None: at every RK4 stage)."""
         real = self._real
         ins = [np.ascontiguousarray(a, dtype=real) for a in (x0, k_pos, k_rate, a_ref, p)]
         x = np.zeros((n_steps + 1, ins[0].size), dtype=real)
         u = np.zeros((n_steps + 1, n_u), dtype=real)
         g = np.zeros((n_steps + 1, n_gaps), dtype=real)
-        status = ctypes.c_int(-1)
+        status, saturated = ctypes.c_int(-1), ctypes.c_longlong(0)
         ptr = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
 
         def c(a: np.ndarray):
             return a.ctypes.data_as(ptr)
 
         last = self._simulate(c(ins[0]), dt, n_steps, f_prop, c(ins[1]), c(ins[2]), c(ins[3]),
-                              c(ins[4]), gap_min, c(x), c(u), c(g), ctypes.byref(status))
+                              self._loop(loop), c(ins[4]), gap_min, c(x), c(u), c(g),
+                              ctypes.byref(saturated), ctypes.byref(status))
         _refused("maglev_simulate", status.value)
         n = int(last) + 1
-        return int(last), status.value, x[:n], u[:n], g[:n]
+        return Run(int(last), status.value, x[:n], u[:n], g[:n], saturated.value)
 
 
 def _refused(name: str, status: int) -> None:

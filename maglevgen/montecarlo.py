@@ -70,6 +70,12 @@ class Study:
     min_gap: float
     weights: Weights
     seed: int
+    # how the controller runs in every sample (maglevgen.simulate.simulate): its tick
+    # (maglevgen.simulate.Tick; None: at every RK4 stage), the speed loop's k_v [N s/m], the
+    # per-array force budget [N] (None: no limit)
+    tick: Any = None
+    speed_gain: float = 0.0
+    force_budget: float | None = None
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -166,7 +172,8 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
 
     def row(controller: str, status: str, reason: str = "", m: dict | None = None) -> dict:
         r = {**base, "controller": controller, "status": status, "reason": reason,
-             "min_gap": math.nan, "speed_at_contact": math.nan}
+             "min_gap": math.nan, "speed_at_contact": math.nan, "speed_error": math.nan,
+             "saturated_time": math.nan}
         for axis in cv.AXES:
             ax = (m or {}).get("axes", {}).get(axis, {})
             st = ax.get("settling_time")
@@ -176,6 +183,8 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
             r["min_gap"] = m["min_gap"]
             r["speed_at_contact"] = (math.nan if m["speed_at_contact"] is None
                                      else m["speed_at_contact"])
+            r["speed_error"] = math.nan if m["speed_error"] is None else m["speed_error"]
+            r["saturated_time"] = m["saturated_time"]
         return r
 
     if isinstance(p, str):
@@ -185,7 +194,9 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     except NoTrimError as exc:
         return [row(c, "no trim", str(exc)) for c in study.controllers]
     for c in study.controllers:
-        traj = simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance)
+        traj = simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance,
+                        tick=study.tick, speed_gain=study.speed_gain,
+                        force_budget=study.force_budget)
         m = metrics(traj)
         rows.append(row(c, m["status"], m["event"] or "", m))
     return rows
@@ -312,10 +323,16 @@ def run_dask(study: Study, n: int, client, chunk: int | None = None,
 
 
 def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: float,
-               seed: int) -> Study:
+               seed: int, tick=None, speed_gain: float = 0.0,
+               force_budget: float | None = None) -> Study:
     """The study of a carriage's [tolerances]; the speed range defaults to the envelope's.
-    Refuses a step above RK4's stability limit at the range's ends (nominal parameters)."""
-    from .simulate import rk4_stability_limit
+    Refuses a step above RK4's stability limit at the range's ends (nominal parameters).
+    ``tick`` (maglevgen.simulate.Tick), ``speed_gain``, ``force_budget``: how the controller
+    runs in every sample, as in maglevgen.simulate.simulate (the defaults: at every RK4
+    stage, no speed loop, no budget)."""
+    from .simulate import control_loop, rk4_stability_limit
+
+    control_loop(dt, tick, speed_gain, force_budget, 1.0)  # refused before any sample
 
     params = carriage.params
     tol = params.tolerances
@@ -349,7 +366,8 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
         half=tuple(t.half_width for t in tol.parameters.values()),
         speed=speed, disturbance=tuple((s, float(a)) for s, a in tol.disturbance.items()),
         controllers=tuple(controllers), t_end=float(t_end), dt=float(dt),
-        min_gap=float(params.track.min_gap), weights=w, seed=int(seed))
+        min_gap=float(params.track.min_gap), weights=w, seed=int(seed), tick=tick,
+        speed_gain=float(speed_gain), force_budget=force_budget)
 
 
 def table(rows: list[dict]) -> Columns:

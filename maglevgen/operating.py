@@ -15,7 +15,10 @@ a' (the Euler kinematics of the body velocities), with 5 x 5 gain matrices:
 - ``lqr``: the paper's per-axis LQR (eqs 24-33): K_pos = diag(K[:, 0]), K_rate = diag(K[:, 1]);
 - ``coupled``: a full-state LQR of the coupled 10-state linearisation (below), with the same
   weights as the per-axis design (Q = q1 on every axis position and q2 on every axis rate,
-  R = r on every generalized force), written in the same (a, a') coordinates.
+  R = r on every generalized force), written in the same (a, a') coordinates;
+- ``spec``: the same coupled LQR with weights from the specification (maglevgen/laws/spec.py).
+
+The controllers themselves are defined once, in the registry of maglevgen/laws.
 
 The coupled linearisation: the 12-state Jacobian at trim restricted to the ten states
 (y, z, phi, theta, psi, v, w, p, q, r). The along-track position x is dropped because nothing
@@ -28,7 +31,7 @@ through the minimum-norm allocation T (eqs 22-23).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -36,12 +39,15 @@ import numpy as np
 from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .errors import InputError, NoTrimError
+from .laws import controller as registered_controller
+from .laws import names, titles
+from .laws.lqr import numerical_lqr
+from .laws.spec import SpecWeights
 from .library import SimulationLibrary
 from .runtime.ffi import GeneratedFunctionError
 
-CONTROLLERS: tuple[str, ...] = ("none", "damping", "lqr", "coupled")
-CONTROLLER_TITLES: dict[str, str] = {"none": "no control", "damping": "optimized damping",
-                                     "lqr": "per-axis LQR", "coupled": "coupled LQR"}
+CONTROLLERS: tuple[str, ...] = names()
+CONTROLLER_TITLES: dict[str, str] = titles()
 AXIS_STATES: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in Q_STATES)
 # the coupled model's states (see the module docstring)
 REDUCED_STATES: tuple[str, ...] = ("y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r")
@@ -51,16 +57,18 @@ N_AXES = len(cv.AXES)
 
 @dataclass(frozen=True)
 class Weights:
-    """LQR weights per axis: q1 on the position, q2 on the rate, r on the force."""
+    """LQR weights per axis: q1 on the position, q2 on the rate, r on the force (the paper's
+    designs), and the specification the `spec` design derives its own from."""
 
     q1: float
     q2: float
     r: float
+    spec: SpecWeights | None = None
 
     @classmethod
     def of(cls, params) -> Weights:
         (q1, q2), r = params.control.state_weights, params.control.input_weight
-        return cls(float(q1), float(q2), float(r))
+        return cls(float(q1), float(q2), float(r), SpecWeights.of(params.control.spec))
 
 
 @dataclass(frozen=True)
@@ -77,6 +85,8 @@ class OperatingPoint:
     A: np.ndarray  # (12, 12) df/dx at trim
     B: np.ndarray  # (12, n_u) df/du at trim
     weights: Weights
+    plants: np.ndarray | None = None  # (5, 2) per-axis (k, m) of maglev_axis_plants
+    _gains: dict = field(default_factory=dict, compare=False, repr=False)  # by controller
 
     @cached_property
     def K_coupled(self) -> np.ndarray:
@@ -104,20 +114,42 @@ class OperatingPoint:
         return self.A[np.ix_(idx, idx)], self.B[idx, 1:] @ self.allocation
 
     def gains(self, controller: str) -> tuple[np.ndarray, np.ndarray]:
-        """(K_pos, K_rate), each 5 x 5, of a controller (module docstring)."""
-        zero = np.zeros((N_AXES, N_AXES))
-        if controller == "none":
-            return zero, zero.copy()
-        if controller == "damping":
-            return zero, np.diag(self.c_damping)
-        if controller == "lqr":
-            return np.diag(self.K[:, 0]), np.diag(self.K[:, 1])
-        if controller == "coupled":
-            # K_c x_r = K' [a; a'] with [a; a'] = M x_r, M = [S; C_rate] (invertible near trim)
-            M = np.vstack([np.eye(N_AXES, len(REDUCED_INDEX)), self.rate_map])
-            K_prime = np.linalg.solve(M.T, self.K_coupled.T).T
-            return K_prime[:, :N_AXES], K_prime[:, N_AXES:]
-        raise InputError(f"controller {controller!r}: expected one of {', '.join(CONTROLLERS)}")
+        """(K_pos, K_rate), each 5 x 5, of a registered controller (maglevgen.laws), computed
+        once per operating point."""
+        if controller not in self._gains:
+            try:
+                law = registered_controller(controller)
+            except KeyError as exc:
+                raise InputError(exc.args[0]) from None
+            self._gains[controller] = law.gains(self)
+        K_pos, K_rate = self._gains[controller]
+        return K_pos.copy(), K_rate.copy()
+
+    @property
+    def trim_drag_slope(self) -> float:
+        """dF_prop,trim/dV [N s/m]: the trim propulsion's slope along the trim curve.
+
+        Trim: acc(x(V, q), F_prop) = 0 in the six unknowns (q, F_prop). The body velocity at
+        trim is R^T (V, 0, 0); turning it with q leaves every array's along-track speed at V
+        and its gaps still (the trim flies along the track), so d acc/dq at fixed V is A's
+        position columns plus its velocity columns along d(R^T (V, 0, 0))/dq (zero but for
+        the circuits' lag, which sees the gap rates n . R v), and d acc/dV is A's velocity
+        columns along the trim's velocity direction (the implicit-function theorem).
+        """
+        acc = slice(6, 12)
+        V = self.speed
+        dv_dq = V * _track_direction_slopes(*self.x_trim[3:6])
+        J = np.column_stack([self.A[acc, 1:6] + self.A[acc, 6:9] @ dv_dq, self.B[acc, 0]])
+        dacc_dV = self.A[acc, 6:9] @ (self.x_trim[6:9] / V)
+        return float(-np.linalg.solve(J, dacc_dV)[5])
+
+    def axis_gains(self, K_reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K_pos, K_rate) of a full-state gain K_reduced (5 x 10) on REDUCED_STATES:
+        K_reduced x_r = K' [a; a'] with [a; a'] = M x_r, M = [S; C_rate] (invertible near
+        trim)."""
+        M = np.vstack([np.eye(N_AXES, len(REDUCED_INDEX)), self.rate_map])
+        K_prime = np.linalg.solve(M.T, K_reduced.T).T
+        return K_prime[:, :N_AXES], K_prime[:, N_AXES:]
 
     def reduced_closed_loop(self, controller: str) -> np.ndarray:
         """A_cl (10 x 10) of the coupled linearisation with the controller closed around it."""
@@ -145,18 +177,47 @@ def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
         raise NoTrimError(f"no trim at {speed:g} m/s: the Newton trim in C returned "
                           f"{exc.code_name} (below lift-off speed?); see `maglevgen trim`"
                           ) from None
+    return _checked(lib, p, speed, 0.0, min_gap, x_trim, f_prop)
+
+
+def checked_accelerating_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
+                              acceleration: float, min_gap: float
+                              ) -> tuple[np.ndarray, float, np.ndarray]:
+    """(x_trim, F_prop, gaps) of the carriage at ``speed`` accelerating at ``acceleration``
+    [m/s^2] along the track: `maglev_trim_accelerating` in C (eqs 1-2 with the d'Alembert
+    load -m a at the CG, derive/trim.py), checked like `checked_trim` with the model's
+    accelerations less the translation's, R^T (a, 0, 0) = (a / V) (u, v, w); F_prop is the
+    drag plus m a. NoTrimError when there is none; zero acceleration gives `checked_trim`."""
+    if not np.isfinite(acceleration):
+        raise InputError(f"--acceleration {acceleration!r}: must be a finite number in m/s^2")
+    try:
+        x_trim, f_prop = lib.function("maglev_trim_accelerating")(speed, acceleration, p)
+    except GeneratedFunctionError as exc:
+        raise NoTrimError(f"no trim at {speed:g} m/s accelerating at {acceleration:g} m/s^2: "
+                          f"the Newton trim in C returned {exc.code_name} (below lift-off "
+                          "speed?); see `maglevgen trim --acceleration`") from None
+    return _checked(lib, p, speed, float(acceleration), min_gap, x_trim, f_prop)
+
+
+def _checked(lib: SimulationLibrary, p: np.ndarray, speed: float, acceleration: float,
+             min_gap: float, x_trim: np.ndarray, f_prop: np.ndarray
+             ) -> tuple[np.ndarray, float, np.ndarray]:
+    """The C's trim checked here as well: the accelerations of maglev_dynamics at it less those
+    of the translation at ``acceleration`` below 1e-8, every gap above ``min_gap``."""
     x_trim, f_prop = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)
     u[0] = f_prop
     acc = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()[6:]
+    acc[:3] -= x_trim[6:9] * (acceleration / speed)
     gaps = lib.function("maglev_gaps")(x_trim, p)[0].ravel()
+    moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
     if not (np.all(np.isfinite(acc)) and np.max(np.abs(acc)) < 1e-8):
-        raise NoTrimError(f"no trim at {speed:g} m/s: the Newton solve in C did not converge "
-                          "(below lift-off speed?); see `maglevgen trim`")
+        raise NoTrimError(f"no trim at {speed:g} m/s{moving}: the Newton solve in C did not "
+                          "converge (below lift-off speed?); see `maglevgen trim`")
     if np.min(gaps) < min_gap:
-        raise NoTrimError(f"no trim at {speed:g} m/s with every gap above track.min_gap = "
-                          f"{min_gap:g} m (smallest {np.min(gaps):.4g} m)")
+        raise NoTrimError(f"no trim at {speed:g} m/s{moving} with every gap above "
+                          f"track.min_gap = {min_gap:g} m (smallest {np.min(gaps):.4g} m)")
     return x_trim, f_prop, gaps
 
 
@@ -165,19 +226,6 @@ def coupled_weights(C_rate: np.ndarray, w: Weights) -> tuple[np.ndarray, np.ndar
     every axis position, q2 on every axis rate (C_rate x_r), r on every generalized force."""
     S = np.eye(N_AXES, C_rate.shape[1])
     return w.q1 * S.T @ S + w.q2 * C_rate.T @ C_rate, w.r * np.eye(N_AXES)
-
-
-def numerical_lqr(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """The numerical LQR gain K = R^-1 B^T P, P from scipy's Schur-method CARE solver.
-
-    The same solver python-control's ``lqr`` calls without slycot; used here directly so that
-    a build does not import python-control (and scipy.signal, ~1 s). The tests check the
-    closed forms and the coupled LQR against python-control itself.
-    """
-    import scipy.linalg  # local: importing the simulation path stays SciPy-free
-
-    P = scipy.linalg.solve_continuous_are(A, B, Q, R)
-    return np.linalg.solve(R, B.T @ P)
 
 
 def coupled_lqr(A_r: np.ndarray, B_g: np.ndarray, C_rate: np.ndarray,
@@ -195,7 +243,9 @@ def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float, min_gap
     u = np.zeros(T.shape[0] + 1)
     u[0] = f_prop
     A, B = lib.function("maglev_jacobians")(x_trim, u, p)
-    return OperatingPoint(float(speed), x_trim, f_prop, gaps, K, c.ravel(), T, A, B, weights)
+    k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(speed, p))
+    return OperatingPoint(float(speed), x_trim, f_prop, gaps, K, c.ravel(), T, A, B, weights,
+                          np.column_stack([k, m]))
 
 
 # a closed loop is called stable when every eigenvalue's real part is below -STABILITY_MARGIN
@@ -295,19 +345,22 @@ class SpeedMode:
                 f"{self.dominant} dominates")
 
 
+def _track_direction_slopes(phi: float, theta: float, psi: float) -> np.ndarray:
+    """d(R^T e_x)/d(y, z, phi, theta, psi) (3 x 5): how the track direction in body axes
+    turns with the attitude (R = Rz(psi) Ry(theta) Rx(phi); R^T e_x is R's first row)."""
+    cf, sf, ct, st, cp, sp_ = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta),
+                               np.cos(psi), np.sin(psi))
+    d_phi = [0.0, cf * st * cp + sf * sp_, -sf * st * cp + cf * sp_]
+    d_theta = [-st * cp, sf * ct * cp, cf * ct * cp]
+    d_psi = [-ct * sp_, -sf * st * sp_ - cf * cp, -cf * st * sp_ + sf * cp]
+    return np.column_stack([np.zeros(3), np.zeros(3), d_phi, d_theta, d_psi])
+
+
 def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: float,
                controller: str = "lqr") -> SpeedMode:
     """`SpeedMode` at ``op`` from the generated C, the eigenvalue that of ``controller``'s
     12-state closed loop (`OperatingPoint.full_closed_loop`)."""
     V = op.speed
-    # Trim: acc(x(V, q), F_prop) = 0 in the six unknowns (q, F_prop). The body velocity at
-    # trim is R^T (V, 0, 0); turning it with q leaves every array's along-track speed at V, so
-    # d acc/dq at fixed V is A's position columns, and d acc/dV is A's velocity columns along
-    # the trim's velocity direction.
-    acc = slice(6, 12)
-    J = np.column_stack([op.A[acc, 1:6], op.B[acc, 0]])
-    dacc_dV = op.A[acc, 6:9] @ (op.x_trim[6:9] / V)
-    d_unknowns = -np.linalg.solve(J, dacc_dV)
     # eq 3 at a fixed gap: F_D = F_L r, r = R/(omega L) = v_c/V, F_D ~ r/(1 + r^2), so
     # dF_D/dV = -F_D (1 - r^2) / ((1 + r^2) V); r from the C's drag/lift of each array.
     lift, drag = (a.ravel() for a in lib.function("maglev_array_forces")(op.x_trim, p))
@@ -320,5 +373,5 @@ def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: 
         ev, vec = np.linalg.eig(A_cl)
         share = np.abs(vec[cv.STATE_INDEX["u"] - 1]) / np.linalg.norm(vec, axis=0)
         eigenvalue = float(ev[np.argmax(share)].real)
-    return SpeedMode(V, float(mass), float(d_unknowns[5]), fixed, float(np.median(r)) * V,
+    return SpeedMode(V, float(mass), op.trim_drag_slope, fixed, float(np.median(r)) * V,
                      eigenvalue, controller)

@@ -21,8 +21,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .cache import DEFAULT_PARAMS_NAME, params_digest
-from .derive.structure import box_principal_moments
+from .derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
 from .errors import InputError
+from .laws import embeddable
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -235,6 +236,60 @@ class Operation(_Section):
 ACTUATOR_MODELS = ("paper", "normal")
 
 
+class AxisDeviation(_Section):
+    """The largest deviation from trim allowed on each controlled axis (Bryson's rule)."""
+
+    y: float = _f("m", "lateral", limits=(1e-6, 0.1, "a micrometre to 10 cm"))
+    z: float = _f("m", "heave", limits=(1e-6, 0.1, "a micrometre to 10 cm"))
+    phi: float = _f("rad", "roll", limits=(1e-6, 0.5, "a microradian to about 30 degrees"))
+    theta: float = _f("rad", "pitch", limits=(1e-6, 0.5, "a microradian to about 30 degrees"))
+    psi: float = _f("rad", "yaw", limits=(1e-6, 0.5, "a microradian to about 30 degrees"))
+
+
+_RATE = (1e-3, 1e4, "a 1000 s time constant to 0.1 ms")
+
+
+class ControlSpec(_Section):
+    """What the embedded controller must achieve, and how the firmware runs it: the `spec`
+    controller is designed from it and every controller is verified against it. Not part of
+    the model's parameter vector (it changes no equation)."""
+
+    max_deviation: AxisDeviation = Field(default_factory=lambda: AxisDeviation(
+        y=1e-3, z=1e-3, phi=5e-3, theta=2e-3, psi=5e-3), description="allowed deviation "
+        "per axis (Bryson's rule: q1 = 1/a_max^2)")
+    force_budget: float = Field(
+        default=20.0, description="largest control force of one array (the norm of its "
+        "control components); Bryson's rule r = 1/F_max^2 with F_max the generalized force "
+        "that alone takes one array to this budget; the allocation saturates at it",
+        json_schema_extra={"unit": "N", "limits": [1e-6, 1e7, "a micronewton to 1000 t"]})
+    min_damping_ratio: float = Field(
+        default=0.5, description="smallest damping ratio of any closed-loop mode",
+        json_schema_extra={"unit": "1", "limits": [0.0, 0.99, "from undamped to almost "
+                                                   "critically damped"]})
+    damping_margin: float = Field(
+        default=0.1, description="the `spec` design's per-axis damping ratio above "
+        "min_damping_ratio (the coupling between axes, the tick and its delay take some)",
+        json_schema_extra={"unit": "1", "limits": [0.0, 0.5, "a design ratio below 1"]})
+    min_decay_rate: float = Field(
+        default=1.0, description="slowest allowed decay: every closed-loop eigenvalue's real "
+        "part below minus this", json_schema_extra={"unit": "1/s", "limits": list(_RATE)})
+    min_gap_margin: float = Field(
+        default=3e-3, description="smallest gap of a run above track.min_gap",
+        json_schema_extra={"unit": "m", "limits": [0.0, 0.1, "up to 10 cm"]})
+    tick_rate: float = Field(
+        default=1000.0, description="the controller's sampling rate in the firmware (zero-"
+        "order hold between ticks)", json_schema_extra={
+            "unit": "Hz", "limits": [1.0, 1e6, "1 Hz to 1 MHz"]})
+    delay_ticks: int = Field(
+        default=1, description="computation delay: a command computed at one tick is "
+        "applied at the next (1) or at once (0)", json_schema_extra={
+            "unit": "1", "limits": [0, 4, "at most four ticks late"]})
+    speed_bandwidth: float = Field(
+        default=5.0, description="the speed loop's closed-loop pole (the propulsion's "
+        "feedback on the forward speed, beside the feedforward of the trim drag and m a)",
+        json_schema_extra={"unit": "1/s", "limits": list(_RATE)})
+
+
 class Control(_Section):
     state_weights: Annotated[list[float], Field(min_length=2, max_length=2)] = _f(
         "1", "diagonal of Q per axis: [position, rate] (paper: Q = I)", paper="Q = I",
@@ -245,6 +300,8 @@ class Control(_Section):
         "force along body z and each array whose normal has a y part one along body y too "
         "(eqs 22-23); \"normal\" one force along each array's normal (what an array can push)",
         json_schema_extra={"unit": "-", "choices": list(ACTUATOR_MODELS)})
+    spec: ControlSpec = Field(default_factory=ControlSpec, description="the specification "
+                              "the controllers are designed to and verified against")
 
     @field_validator("actuators")
     @classmethod
@@ -266,7 +323,7 @@ class Track(_Section):
                         limits=(1e-6, 0.1, "a micrometre to 10 cm of mechanical clearance"))
 
 
-EMBEDDABLE_CONTROLLERS = ("damping", "lqr", "coupled")
+EMBEDDABLE_CONTROLLERS = embeddable()
 _ENVELOPE_SPEED = "a 1 cm/s crawl to 1 km/s, past any rail launcher"
 
 
@@ -296,7 +353,7 @@ class Envelope(_Section):
             "unit": "1", "limits": [4, 4096, "a cubic spline needs 4; 4096 x 56 values is "
                                    "past any controller's memory"]})
     embedded_controller: str = Field(
-        default="coupled", description="the controller the firmware C embeds and `build` "
+        default="spec", description="the controller the firmware C embeds and `build` "
         "verifies over the envelope", json_schema_extra={
             "unit": "-", "choices": list(EMBEDDABLE_CONTROLLERS)})
 
@@ -327,11 +384,26 @@ class ModelChoices(_Section):
         "at the load's centroid); 'point' is the paper's eq 3 at the face centre with the "
         "centre gap", json_schema_extra={"unit": "-", "choices": list(ARRAY_FORCE_LAWS)})
 
+    circuit_dynamics: str = Field(
+        default="first-order", description="current of a track circuit: 'first-order' "
+        "follows the moving gap through L I' + R I = Phi' to first order in the gap rates "
+        "(the lag's rate term: damping below R/(k L), negative damping above it; "
+        "derive/circuit_lag.py); 'quasi-static' is the paper's eq 3, the steady state at "
+        "the instantaneous gap (no rate term), kept to reproduce the paper",
+        json_schema_extra={"unit": "-", "choices": list(CIRCUIT_DYNAMICS)})
+
     @field_validator("array_force")
     @classmethod
     def _known_law(cls, name: str) -> str:
         if name not in ARRAY_FORCE_LAWS:
             raise ValueError(f"expected one of {', '.join(ARRAY_FORCE_LAWS)}")
+        return name
+
+    @field_validator("circuit_dynamics")
+    @classmethod
+    def _known_dynamics(cls, name: str) -> str:
+        if name not in CIRCUIT_DYNAMICS:
+            raise ValueError(f"expected one of {', '.join(CIRCUIT_DYNAMICS)}")
         return name
 
 
@@ -409,7 +481,8 @@ class Tolerances(_Section):
 
 
 # sections of the file that are not model parameters (not in the parameter vector p)
-NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model", "provenance", "tolerances")
+# sections and tables that are not part of the model's parameter vector (dotted keys)
+NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model", "provenance", "tolerances", "control.spec")
 PROVENANCE_SOURCES = ("paper", "assumed")
 
 
@@ -485,7 +558,8 @@ class Parameters(_Section):
         self._tolerances_within_limits()
         keys = [lf.key for lf in schema_leaves(self)] + [
             f"{t}.{f}" for t, m in (("envelope", Envelope), ("vehicle", Vehicle),
-                                    ("control", Control)) for f in m.model_fields]
+                                    ("control", Control), ("control.spec", ControlSpec))
+            for f in m.model_fields]
         for key in self.provenance:
             if not any(k == key or k.startswith(key + ".") for k in keys):
                 raise _ModelError("provenance", _short(key), "names no parameter or table")
@@ -727,7 +801,7 @@ def schema_leaves(obj: BaseModel, prefix: str = "") -> Iterator[SchemaLeaf]:
     """Every leaf field in file order (vectors as one leaf); the one walk over the schema."""
     unused = obj.unused_fields() if isinstance(obj, Vehicle) else ()
     for field, info in type(obj).model_fields.items():
-        if (not prefix and field in NOT_IN_MODEL) or field in unused:
+        if f"{prefix}{field}" in NOT_IN_MODEL or field in unused:
             continue
         value = getattr(obj, field)
         if isinstance(value, str):

@@ -109,3 +109,44 @@ def pole_map(sets: dict[str, list[tuple[float, float]]]) -> bytes:
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
         fig.tight_layout()
         return _png(fig)
+
+
+def damping_figure(d: dict[str, Any]) -> bytes:
+    """Two panels (PNG bytes): the magnetic damping of each axis against speed, one line style
+    per circuit model (solid the first, dashed the second of ``d["models"]``), and each
+    controller's largest closed-loop real part with either model; drawn from the circuit lag
+    section's plain numbers."""
+    import matplotlib as mpl
+    from matplotlib.figure import Figure
+
+    colors = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"]
+    styles = dict(zip(d["models"], ("-", "--"), strict=True))
+    with mpl.rc_context({k: v for k, v in _RC.items() if k != "axes.prop_cycle"}):
+        fig = Figure(figsize=(7.0, 6.4))
+        ax, bx = fig.subplots(2, 1)
+        for i, label in enumerate(d["axes"]):
+            for name, ls in styles.items():
+                ax.plot(d["speeds"], d["damping"][name][:, i], ls=ls, color=colors[i],
+                        label=f"{label}, {name}")
+        ax.axhline(0, color="k", lw=0.7)
+        for x, lab in ((d["v_c"], "$v_c$"), (d["speed"], "V")):
+            if d["speeds"][0] <= x <= d["speeds"][-1]:
+                ax.axvline(x, color="0.4", ls=":", lw=1)
+                ax.annotate(lab, (x, 0), textcoords="offset points", xytext=(3, 3))
+        ax.set_yscale("symlog", linthresh=1e-2)
+        ax.set_xlabel(r"speed $v$ / (m/s)")
+        ax.set_ylabel(r"magnetic damping $c_i = -m_i A_{ii}$")
+        ax.set_title("Magnetic damping per axis (generated C, Jacobian at trim)")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, fontsize=6)
+        for j, title in enumerate(d["controllers"]):
+            for name, ls in styles.items():
+                bx.plot(d["envelope_speeds"][name], d["max_real"][name][j], ls=ls,
+                        color=colors[j], label=f"{title}, {name}")
+        bx.axhline(0, color="k", lw=0.7)
+        bx.set_yscale("symlog", linthresh=1e-2)
+        bx.set_xlabel(r"speed $v$ / (m/s)")
+        bx.set_ylabel(r"largest $\mathrm{Re}\,s$ / s$^{-1}$")
+        bx.set_title("Envelope with (solid) and without (dashed) the circuits' lag")
+        bx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, fontsize=6)
+        fig.subplots_adjust(left=0.1, right=0.62, hspace=0.35, top=0.95, bottom=0.08)
+        return _png(fig)

@@ -14,10 +14,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .operating import N_AXES, OperatingPoint
+from .operating import AXIS_STATES, N_AXES, OperatingPoint, checked_accelerating_trim
 
 if TYPE_CHECKING:
     from scipy.interpolate import CubicSpline
+
+    from .library import SimulationLibrary
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give
 F_DRAG, A_REF, K_POS, K_RATE = 0, 1, 1 + N_AXES, 1 + N_AXES + N_AXES**2
@@ -25,27 +27,73 @@ NY = 1 + N_AXES + 2 * N_AXES**2
 DEFAULT_NODES = 64
 
 
-def node_values(op: OperatingPoint, controller: str) -> np.ndarray:
-    """(F_drag, a_ref, K_pos column-major, K_rate column-major) of a controller at a node."""
+@dataclass(frozen=True)
+class Reference:
+    """A node's reference and propulsion feedforward where they are not the constant-speed
+    trim's: a_ref (trim y, z, phi, theta, psi) and the F_DRAG value [N], to which the launch
+    adds F_extra = m a (maglev_launch: F_prop = F_DRAG + F_extra)."""
+
+    a_ref: np.ndarray
+    f_drag: float
+
+
+def accelerating_references(lib: SimulationLibrary, p: np.ndarray,
+                            points: list[OperatingPoint], acceleration: float, mass: float,
+                            min_gap: float) -> list[Reference]:
+    """The accelerating trim at each point's speed (`checked_accelerating_trim`: eqs 1-2 with
+    the d'Alembert load -m a at the CG): its pose as a_ref and its propulsion less m a as
+    F_DRAG, so that the launch's F_DRAG + m a is the accelerating trim's F_prop (its drag,
+    at its own gaps, plus m a)."""
+    refs = []
+    for op in points:
+        x, f_prop, _ = checked_accelerating_trim(lib, p, op.speed, acceleration, min_gap)
+        refs.append(Reference(x[list(AXIS_STATES)], f_prop - mass * acceleration))
+    return refs
+
+
+def node_values(op: OperatingPoint, controller: str,
+                reference: Reference | None = None) -> np.ndarray:
+    """(F_drag, a_ref, K_pos column-major, K_rate column-major) of a controller at a node; the
+    trim's F_drag and a_ref, or ``reference``'s."""
     K_pos, K_rate = op.gains(controller)
-    return np.concatenate([[op.f_prop], op.a_trim, K_pos.ravel(order="F"),
-                           K_rate.ravel(order="F")])
+    f_drag, a_ref = (op.f_prop, op.a_trim) if reference is None \
+        else (reference.f_drag, reference.a_ref)
+    return np.concatenate([[f_drag], a_ref, K_pos.ravel(order="F"), K_rate.ravel(order="F")])
 
 
 @dataclass(frozen=True)
 class Schedule:
-    """Node values of one controller on uniformly spaced speeds, and their spline."""
+    """Node values of one controller on uniformly spaced speeds, and their spline.
+
+    ``acceleration``: the along-track acceleration whose trim gives the reference and the
+    drag (0: the constant-speed trim). The gains are those of the constant-speed
+    linearisation in either case (the operating points')."""
 
     controller: str
     speeds: np.ndarray  # (n,) uniformly spaced
     values: np.ndarray  # (n, NY)
+    acceleration: float = 0.0
 
     @classmethod
-    def from_points(cls, points: list[OperatingPoint], controller: str) -> Schedule:
+    def from_points(cls, points: list[OperatingPoint], controller: str,
+                    references: list[Reference] | None = None,
+                    acceleration: float = 0.0) -> Schedule:
+        """The schedule of ``controller`` at the points' speeds; ``references`` (one per point,
+        `accelerating_references` at ``acceleration``): the reference and drag in place of
+        the constant-speed trim's."""
         speeds = np.array([op.speed for op in points])
         if len(speeds) < 2 or not np.allclose(np.diff(speeds), speeds[1] - speeds[0]):
             raise ValueError("a schedule needs two or more uniformly spaced nodes")
-        return cls(controller, speeds, np.array([node_values(op, controller) for op in points]))
+        if references is not None and len(references) != len(points):
+            raise ValueError("a schedule needs one reference per node")
+        if references is None and acceleration != 0:
+            raise ValueError("an accelerating schedule needs the accelerating trim's "
+                             "references")
+        refs = references if references is not None else [None] * len(points)
+        return cls(controller, speeds,
+                   np.array([node_values(op, controller, r)
+                             for op, r in zip(points, refs, strict=True)]),
+                   float(acceleration))
 
     @property
     def spline(self) -> CubicSpline:
@@ -83,12 +131,15 @@ def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
 
     n = len(schedule.speeds)
     v0, dv = float(schedule.speeds[0]), float(schedule.speeds[1] - schedule.speeds[0])
+    trim = ("the trim" if schedule.acceleration == 0 else
+            f"the accelerating trim at {schedule.acceleration:.6g} m/s^2: a_ref its pose, the "
+            "drag its propulsion less m a, which maglev_launch adds back as F_extra")
     return (
         f"/* Gain schedule of the {schedule.controller!s} controller over "
         f"[{schedule.speeds[0]:.6g}, {schedule.speeds[-1]:.6g}] m/s: {n} nodes of "
         f"MAGLEV_SCHEDULE_NY values (trim drag, a_ref, K_pos, K_rate) and their second "
-        "derivatives in v (natural cubic spline); evaluate with maglev_schedule_eval. "
-        "Generated by maglevgen from the parameter file. */\n"
+        f"derivatives in v (natural cubic spline); reference and drag of {trim}; evaluate "
+        "with maglev_schedule_eval. Generated by maglevgen from the parameter file. */\n"
         '#include "maglev_simulate.h"\n\n'
         + table("maglev_schedule_y", schedule.values) + "\n"
         + table("maglev_schedule_d2y", schedule.second_derivatives) + "\n"
@@ -121,7 +172,7 @@ def _field_slices() -> list[tuple[int, int]]:
     return out
 
 
-def gain_table_row(op: OperatingPoint, controller: str = "coupled") -> np.ndarray:
+def gain_table_row(op: OperatingPoint, controller: str) -> np.ndarray:
     """(F_prop, a_ref, K column-major, c_damping, K_pos, K_rate column-major) at a speed."""
     K_pos, K_rate = op.gains(controller)
     return np.concatenate([[op.f_prop], op.a_trim, op.K.ravel(order="F"), op.c_damping,

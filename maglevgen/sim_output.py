@@ -127,23 +127,44 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
     return buf.getvalue()
 
 
+def _loop_figures(m: dict) -> str:
+    """The speed error and the time at the force budget, where the run had them."""
+    out = ""
+    if m.get("speed_gain") and m.get("speed_error") is not None:
+        out += f"; largest speed error after 1 s {m['speed_error']:.3%}"
+    if m.get("force_budget"):
+        out += f"; {m.get('saturated_time', 0.0):.3g} s at the force budget"
+    return out
+
+
 def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE_DOC,
                      speed_mode: dict | None = None) -> str:
     """One table per controller: settling time, peak deviation, RMS control per axis;
     ``speed_mode``: `SpeedMode.to_json` at the run's speed, whose sentence says why the speed
     drifts under the held propulsion."""
     launch = bool(all_metrics) and all_metrics[0].get("scenario") == "launch"
-    scenario = (
-        "Launch: from the trim at the envelope's v_min the carriage accelerates to v_max under "
-        "the trim drag plus a steady acceleration force m a; the gains, the reference (the "
-        "trim at the current speed) and the drag follow the gain schedule at the measured "
-        "speed, updated in the C loop at every step. The trim is computed without "
-        "acceleration, so the thrust's moment about the CG leaves a steady pitch offset that "
-        "the proportional controllers do not remove."
+    first = all_metrics[0] if all_metrics else {}
+    speed_loop = bool(first.get("speed_gain"))
+    tick = first.get("tick")
+    how = (f"The controller runs at a {tick['rate']:g} Hz tick, its command applied "
+           f"{tick['delay']} tick(s) after sampling and held in between"
+           if tick else "The controller is evaluated at every RK4 stage (continuous)")
+    if first.get("force_budget"):
+        how += f"; each array's control force is limited to {first['force_budget']:g} N"
+    how += ". "
+    scenario = how + (
+        "Launch: from the accelerating trim at the envelope's v_min the carriage accelerates "
+        "to v_max under that trim's propulsion (its drag plus m a); the gains, the reference "
+        "(the accelerating trim at the current speed) and the drag follow the gain schedule "
+        "at the measured speed"
+        + (f", and a speed loop (k_v = {first['speed_gain']:.4g} N s/m) tracks the commanded "
+           "speed ramp." if speed_loop else ".")
         if launch else
-        "The propulsion force is held at its trim value; the along-track speed is not "
-        "controlled and drifts"
-        + (f": {speed_mode['explanation']}." if speed_mode else "."))
+        (f"The propulsion holds the speed: the trim drag as feedforward and a speed loop "
+         f"(k_v = {first['speed_gain']:.4g} N s/m) on the forward speed."
+         if speed_loop else
+         "The propulsion force is held at its trim value; the along-track speed is not "
+         "controlled and drifts" + (f": {speed_mode['explanation']}." if speed_mode else ".")))
     lines = ["# Closed-loop simulation metrics", "",
              f"Initial disturbance: {disturbance}. {scenario} Deviations are measured "
              "from the trim at the current speed. Status: 'contact' (a gap reached "
@@ -160,7 +181,8 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
                   + f"; {m['steps']} steps of {m['dt']:g} s to t = {m['t_end']:g} s; smallest "
                   f"gap {m['min_gap'] * 1e3:.3f} mm; speed {m['speed_start']:.4f} -> "
                   f"{m['speed_end']:.4f} m/s; RMS array control force "
-                  f"{m['rms_array_force']:.4g} N" + _peak_forces(m) + ".", "",
+                  f"{m['rms_array_force']:.4g} N" + _peak_forces(m) + _loop_figures(m)
+                  + ".", "",
                   "| axis | settling time [s] | peak deviation | final deviation | "
                   "RMS control force/moment |", "| --- | --- | --- | --- | --- |"]
         for axis, a in m["axes"].items():

@@ -19,7 +19,7 @@ from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .derive.structure import input_names_of
 from .errors import InputError, NoTrimError
-from .library import SimulationLibrary
+from .library import ControlLoop, SimulationLibrary
 from .operating import (
     AXIS_STATES,
     CONTROLLER_TITLES,
@@ -28,11 +28,13 @@ from .operating import (
     OperatingPoint,
     SpeedMode,
     Weights,
+    checked_accelerating_trim,
     checked_trim,
     closed_loop_stability,
     operating_point,
     speed_mode,
 )
+from .sampled import Tick, speed_gain
 from .schedule import Schedule
 
 # The initial disturbance from trim (per axis): small against the gaps (15 mm upper, 30 mm
@@ -60,6 +62,48 @@ RUN_STATUSES: tuple[str, ...] = ("settled", "not settled", "diverging", "contact
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls
 
 Progress = Callable[[float], None]
+
+
+# how a run executes its controller: as the firmware does, or the paper's continuous law
+LOOPS: tuple[str, ...] = ("firmware", "continuous")
+
+
+def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[Tick, float, float]:
+    """(tick, k_v, force budget) of [control.spec]: the tick and its delay, the speed loop's
+    one gain over the envelope (`envelope.loop_setting`, the gain the envelope's verdicts
+    used) and the per-array force budget."""
+    from .envelope import envelope_points, loop_setting, resolve_range
+
+    v_lo, v_hi = resolve_range(carriage, lib)
+    points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi, carriage.params
+                                                        .envelope.schedule_nodes))
+    setting = loop_setting(carriage, points)
+    return setting.tick, setting.speed_gain, float(carriage.params.control.spec.force_budget)
+
+
+def speed_loop_gain(mode: SpeedMode, bandwidth: float) -> float:
+    """k_v [N s/m] that puts the speed pole at -``bandwidth`` [rad/s] (`sampled.speed_gain`
+    with the drag's total slope along the trim curve, ``mode.drag_slope_trim``; negative where
+    the drag falls with speed, which makes the open loop unstable)."""
+    return speed_gain(mode.mass, mode.drag_slope_trim, bandwidth)
+
+
+def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: float | None,
+                 v_ref: float, accel: float = 0.0) -> ControlLoop | None:
+    """The C loop's settings (maglev_control_loop), or None for today's loop: the controller
+    at every RK4 stage, the propulsion without speed feedback, no budget. Validates them."""
+    if not (isinstance(speed_gain, (int, float)) and np.isfinite(speed_gain)
+            and speed_gain >= 0):
+        raise InputError(f"speed gain {speed_gain!r} N s/m: must be a finite number >= 0")
+    if force_budget is not None and not (isinstance(force_budget, (int, float))
+                                         and force_budget > 0):
+        raise InputError(f"force budget {force_budget!r} N: must be positive (None or inf: "
+                         "no limit)")
+    if tick is None and speed_gain == 0 and force_budget is None:
+        return None
+    budget = 0.0 if force_budget is None or np.isinf(force_budget) else float(force_budget)
+    return ControlLoop(0 if tick is None else tick.steps(dt), 0 if tick is None else tick.delay,
+                       float(speed_gain), float(v_ref), float(accel), budget)
 
 
 def rk4_stability_limit(eigenvalues: np.ndarray) -> float:
@@ -102,6 +146,22 @@ class Trajectory:
     scenario: str = "hold"
     equilibrium: np.ndarray | None = None  # (n, 5) trim axis positions at each sample's speed
     input_names: tuple[str, ...] = ()  # F_prop, F_<axis><array>...: groups u by array
+    speed_reference: np.ndarray | None = None  # (n,) v_ref of the speed loop [m/s]
+    saturated_time: float = 0.0  # [s] steps run with an array's control force at its budget
+    tick: Tick | None = None  # None: the controller at every RK4 stage
+    speed_gain: float = 0.0  # k_v of the speed loop [N s/m]
+    force_budget: float | None = None  # [N] per array, None: no limit
+
+    @property
+    def speed_error(self) -> float | None:
+        """max |V - v_ref| / v_ref after the first second (None for a run not longer)."""
+        ref = self.speed_reference
+        if ref is None:
+            ref = np.full(self.t.size, self.op.speed)
+        late = self.t > 1.0
+        if not np.any(late):
+            return None
+        return float(np.max(np.abs(self.speed[late] - ref[late]) / ref[late]))
 
     @property
     def speed(self) -> np.ndarray:
@@ -185,8 +245,10 @@ def linearly_stable_hold(traj: Trajectory) -> bool:
             and closed_loop_stability(traj.op, traj.controller)[0] < -STABILITY_MARGIN)
 
 
-def initial_state(op: OperatingPoint, disturbance: dict[str, float]) -> np.ndarray:
-    x0 = op.x_trim.copy()
+def initial_state(op: OperatingPoint, disturbance: dict[str, float],
+                  x_start: np.ndarray | None = None) -> np.ndarray:
+    """``x_start`` (default the trim of ``op``) plus the disturbance."""
+    x0 = (op.x_trim if x_start is None else np.asarray(x_start, dtype=float)).copy()
     for name, value in disturbance.items():
         if name not in cv.STATE_INDEX:
             raise InputError(f"disturbance on unknown state {name!r}")
@@ -219,24 +281,37 @@ def _contact_event(t: np.ndarray, g: np.ndarray, speed: float, min_gap: float,
 def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controller: str,
              t_end: float, dt: float, min_gap: float,
              disturbance: dict[str, float] | None = None,
-             progress: Progress | None = None) -> Trajectory:
+             progress: Progress | None = None, tick: Tick | None = None,
+             speed_gain: float = 0.0, force_budget: float | None = None) -> Trajectory:
     """The hold scenario in C: RK4 from the disturbed trim to ``t_end`` or contact, the
-    propulsion held at the trim drag and the gains fixed at the trim speed's."""
+    propulsion at the trim drag and the gains fixed at the trim speed's.
+
+    ``tick``: the controller runs at the tick with its delay, the command held between ticks
+    (None: at every RK4 stage); ``speed_gain``: k_v of the speed loop F_prop = F_trim +
+    k_v (v_trim - V) (`speed_loop_gain`; 0: the propulsion held at the trim drag);
+    ``force_budget``: each array's control force limited to it [N] (None: no limit). The
+    defaults give the loop of maglev_simulate without a maglev_control_loop.
+    """
     n_steps = _check_steps(t_end, dt)
+    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed)
     disturbance = DISTURBANCE if disturbance is None else disturbance
     K_pos, K_rate = (k.ravel(order="F") for k in op.gains(controller))
     x0 = initial_state(op, disturbance)
     n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     xs, us, gs = [], [], []
-    done, status = 0, 0
+    done, status, saturated = 0, 0, 0
+    # a ticked run in one call: its command pipeline does not survive a chunk's end
+    chunk_steps = CHUNK_STEPS if loop is None or loop.tick_steps == 0 else n_steps
     while True:
-        chunk = min(CHUNK_STEPS, n_steps - done)
-        last, status, x, u, g = lib.simulate(x0, dt, chunk, op.f_prop, K_pos, K_rate,
-                                             op.a_trim, p, min_gap, n_u, n_g)
+        chunk = min(chunk_steps, n_steps - done)
+        run = lib.simulate(x0, dt, chunk, op.f_prop, K_pos, K_rate, op.a_trim, p, min_gap, n_u,
+                           n_g, loop)
+        status, x, u, g = run.status, run.x, run.u, run.gaps
+        saturated += run.saturated_steps
         final = status != 0 or done + chunk == n_steps
         keep = slice(None) if final else slice(None, -1)  # chunks share their end sample
         xs.append(x[keep]), us.append(u[keep]), gs.append(g[keep])
-        done += last
+        done += run.last
         if progress is not None:
             progress(done / n_steps)
         if final:
@@ -244,7 +319,9 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
         x0 = x[-1]
     x, u, g = np.concatenate(xs), np.concatenate(us), np.concatenate(gs)
     t = np.arange(x.shape[0]) * dt
-    traj = Trajectory(controller, op, dt, t, x, u, g, status, None, dict(disturbance))
+    traj = Trajectory(controller, op, dt, t, x, u, g, status, None, dict(disturbance),
+                      speed_reference=np.full(t.size, op.speed), saturated_time=saturated * dt,
+                      tick=tick, speed_gain=float(speed_gain), force_budget=force_budget)
     traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
     traj.equilibrium = moving_equilibrium(lib, p, op, traj.speed, min_gap)
     return traj
@@ -253,25 +330,45 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
 def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: OperatingPoint,
            v_end: float, accel_force: float, dt: float, min_gap: float,
            max_time: float, hold_steps: int = 1,
-           disturbance: dict[str, float] | None = None) -> Trajectory:
+           disturbance: dict[str, float] | None = None,
+           x_start: np.ndarray | None = None, tick: Tick | None = None,
+           speed_gain: float = 0.0, force_budget: float | None = None,
+           accel: float = 0.0) -> Trajectory:
     """The launch run in C (`maglev_launch`): from the disturbed trim at the schedule's first
     speed the carriage accelerates under F_drag(v) + ``accel_force`` until ``v_end``, the
     controller's gains, reference and the drag following ``schedule`` at the measured speed
     (every ``hold_steps`` steps, held between; 0: at every RK4 stage); ``max_time`` bounds
-    the run."""
+    the run. ``x_start``: the state the disturbance is added to (default op's trim; the
+    accelerating trim for a schedule at an acceleration, `run_scenarios`).
+
+    ``tick``, ``speed_gain``, ``force_budget`` as in `simulate` (with a tick the schedule is
+    evaluated at each tick, ``hold_steps`` unused); the speed loop tracks v_ref(t) =
+    v0 + ``accel`` t up to ``v_end`` (v0 the schedule's first speed, ``accel`` [m/s^2] the
+    commanded acceleration, of which ``accel_force`` = m ``accel`` is the feedforward).
+    """
     disturbance = DISTURBANCE if disturbance is None else disturbance
     if not accel_force >= 0:  # 0: the propulsion follows the trim drag (the speed is held)
         raise InputError(f"launch thrust {accel_force:g} N must not be negative")
+    if not (np.isfinite(accel) and accel >= 0):
+        raise InputError(f"launch acceleration {accel!r} m/s^2: must be a finite number >= 0")
+    if speed_gain and accel_force > 0 and accel == 0:
+        raise InputError("launch with a speed loop: the commanded acceleration (the speed "
+                         "reference's slope) is 0 while the thrust accelerates")
     n_steps = _check_steps(max_time, dt)
-    x0 = initial_state(op, disturbance)
-    _last, status, x, u, g = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps,
-                                       schedule, p, min_gap, op.allocation.shape[0] + 1,
-                                       op.gaps.size)
+    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed, accel)
+    x0 = initial_state(op, disturbance, x_start)
+    run = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps, schedule, p, min_gap,
+                     op.allocation.shape[0] + 1, op.gaps.size, loop)
+    status, x, u, g = run.status, run.x, run.u, run.gaps
     t = np.arange(x.shape[0]) * dt
     traj = Trajectory(schedule.controller, op, dt, t, x, u, g, status, None,
-                      dict(disturbance), scenario="launch")
+                      dict(disturbance), scenario="launch",
+                      speed_reference=np.minimum(op.speed + accel * t, v_end),
+                      saturated_time=run.saturated_steps * dt, tick=tick,
+                      speed_gain=float(speed_gain), force_budget=force_budget)
     traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
-    # deviations from the scheduled reference (the trim at each sample's speed)
+    # deviations from the scheduled reference (the trim at each sample's speed; the
+    # accelerating trim for a schedule at the launch's acceleration)
     traj.equilibrium = np.array([Schedule.unpack(schedule.at(v))[1] for v in traj.speed])
     return traj
 
@@ -355,7 +452,10 @@ def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND) -
 
 
 def metrics(traj: Trajectory) -> dict:
-    """Per axis: settling time, peak deviation and RMS generalized control force."""
+    """Per axis: settling time, peak deviation and RMS generalized control force; for the
+    run: its status, gaps, speeds, the speed error after the first second
+    (`Trajectory.speed_error`), the time spent with an array at its force budget, and how
+    the controller ran."""
     dev = traj.axis_deviation
     ugen = traj.generalized_forces
     axes = {}
@@ -378,6 +478,11 @@ def metrics(traj: Trajectory) -> dict:
         "speed_at_contact": float(speed[-1]) if traj.status == "contact" else None,
         "rms_array_force": float(np.sqrt(np.mean(traj.u[:, 1:] ** 2))),
         "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
+        "speed_error": traj.speed_error, "saturated_time": traj.saturated_time,
+        # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
+        "tick": None if traj.tick is None else {"rate": traj.tick.rate,
+                                                "delay": traj.tick.delay},
+        "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
     }
 
@@ -412,16 +517,29 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                   announce: Callable[[str], None] | None = None,
                   bar: Callable[[str], object] | None = None,
                   scenario: str = "hold",
-                  disturbance: dict[str, float] | None = None) -> SimulationRun:
+                  disturbance: dict[str, float] | None = None, tick: Tick | None = None,
+                  speed_gain: float = 0.0,
+                  force_budget: float | None = None,
+                  loop: str = "continuous") -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
+
+    ``loop``: "firmware" runs every controller as the firmware does (`firmware_loop`: the
+    tick and delay of [control.spec], the speed loop at speed_bandwidth, the force budget);
+    "continuous" (the paper's) evaluates it at every RK4 stage under the trim propulsion,
+    unless ``tick``, ``speed_gain`` or ``force_budget`` say otherwise.
 
     ``hold``: from the disturbed trim at ``speed`` (default operation.speed) for ``t_end``
     with the propulsion at the trim drag and the gains of that speed. ``launch``: from the
-    disturbed trim at the envelope's v_min to v_max under the steady acceleration force
-    m * envelope.launch_acceleration, the gains scheduled (`launch`). Refuses a step above
-    RK4's stability limit for the stiffest closed-loop mode at the start speed.
+    disturbed accelerating trim at the envelope's v_min to v_max under the propulsion of the
+    accelerating trim at envelope.launch_acceleration (its drag plus m a), the reference that
+    trim's pose and the gains those of the constant-speed linearisation, scheduled
+    (`launch`, `envelope.launch_schedule`): the runs are judged against the accelerating
+    trim; the speed loop then tracks v_min + envelope.launch_acceleration t. ``tick``,
+    ``speed_gain`` and ``force_budget`` as in `simulate` (the defaults: the controller at
+    every RK4 stage, no speed loop, no budget). Refuses a step above RK4's stability limit
+    for the stiffest closed-loop mode at the start speed.
     """
-    from .envelope import envelope_points, resolve_range
+    from .envelope import envelope_points, launch_references, launch_schedule, resolve_range
     from .library import simulation_library
 
     for c in controllers:
@@ -440,6 +558,10 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
         points = envelope_points(carriage, lib, np.linspace(v_lo, v_end, carriage.params
                                                             .envelope.schedule_nodes))
         op = points[0]
+        refs = launch_references(carriage, lib, points)
+        a = carriage.params.envelope.launch_acceleration
+        # the start: the accelerating trim at v_min (the pose of refs[0], the speed along x)
+        x_start = checked_accelerating_trim(lib, carriage.p, op.speed, a, min_gap)[0]
     else:
         v = carriage.params.operation.speed if speed is None else speed
         if not (np.isfinite(v) and v > 0):
@@ -451,21 +573,28 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
+    if loop not in LOOPS:
+        raise InputError(f"--loop {loop!r}: expected one of {', '.join(LOOPS)}")
+    if loop == "firmware":
+        tick, speed_gain, force_budget = firmware_loop(carriage, lib)
+    control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
+    loop = {"tick": tick, "speed_gain": speed_gain, "force_budget": force_budget}
     trajs = []
     for c in controllers:
         if scenario == "launch":
-            a = carriage.params.envelope.launch_acceleration
-            trajs.append(launch(lib, carriage.p, Schedule.from_points(points, c), op, v_end,
-                                carriage.params.vehicle.mass * a, dt, min_gap,
+            trajs.append(launch(lib, carriage.p, launch_schedule(carriage, lib, points, c, refs),
+                                op, v_end, carriage.params.vehicle.mass * a, dt, min_gap,
                                 max_time=1.5 * (v_end - op.speed) / a + 1.0,
-                                disturbance=disturbance))
+                                disturbance=disturbance, x_start=x_start, accel=a,
+                                **loop))
             continue
         if bar is None:
-            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance))
+            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
+                                  **loop))
             continue
         with bar(f"simulating {CONTROLLER_TITLES[c]}") as update:
             trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
-                                  progress=update))
+                                  progress=update, **loop))
     growth = max(float(np.max(e.real)) for e in eig.values())
     embedded = carriage.params.envelope.embedded_controller
     mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,

@@ -12,6 +12,7 @@ numerical LQR of each axis and the 50-digit closed form (mpmath).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,7 @@ from .derive.riccati import lqr_gain_mp, riccati_solution_mp
 from .derive.structure import input_names_of
 from .envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
 from .errors import InputError, NoTrimError
+from .laws.spec import spec_weights
 from .library import SimulationLibrary, simulation_library
 from .operating import (
     CONTROLLER_TITLES,
@@ -33,6 +35,7 @@ from .operating import (
     REDUCED_STATES,
     OperatingPoint,
     Weights,
+    checked_accelerating_trim,
     checked_trim,
     numerical_lqr,
     operating_point,
@@ -53,6 +56,7 @@ class TrimPoint:
     residual: float  # largest |acceleration| of maglev_dynamics at the trim
     K_magnetic: np.ndarray  # K_st0 (5 x 5)
     K_other: np.ndarray  # gravity and propulsion moments (5 x 5)
+    acceleration: float = 0.0  # along-track acceleration of the trim [m/s^2]
 
 
 def _speed(carriage: Carriage, speed: float | None) -> float:
@@ -72,26 +76,89 @@ def _lift_off(carriage: Carriage, lib: SimulationLibrary) -> float:
             v_hi *= 4
 
 
-def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None) -> TrimPoint:
+def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None,
+               acceleration: float = 0.0) -> TrimPoint:
     """The checked trim at ``speed`` (default operation.speed) and what the trim table shows;
-    NoTrimError naming the lift-off speed when there is none."""
+    NoTrimError naming the lift-off speed when there is none. ``acceleration`` [m/s^2]: the
+    accelerating trim (`checked_accelerating_trim`: eqs 1-2 with the d'Alembert load at the
+    CG); its residual is the accelerations' departure from the translation at a."""
     v = _speed(carriage, speed)
     p = carriage.p
     try:
         if not v > 0:
             raise NoTrimError(f"no trim at speed {v!r} m/s: operation.speed must be > 0")
-        x, f_prop, gaps = checked_trim(lib, p, v, carriage.params.track.min_gap)
+        min_gap = carriage.params.track.min_gap
+        x, f_prop, gaps = (checked_trim(lib, p, v, min_gap) if acceleration == 0 else
+                           checked_accelerating_trim(lib, p, v, acceleration, min_gap))
     except NoTrimError as exc:
         why = str(exc).split(": ", 1)[-1]
         v_off = _lift_off(carriage, lib) if v > 0 else float("nan")
         hint = f"; lift-off needs {v_off:.4g} m/s" if np.isfinite(v_off) else ""
-        raise NoTrimError(f"no trim at speed {v:g} m/s: {why}{hint}") from None
+        moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
+        raise NoTrimError(f"no trim at speed {v:g} m/s{moving}: {why}{hint}") from None
     u = np.zeros(lib.function("maglev_dynamics").shapes_in[1][0])
     u[0] = f_prop
     acc = lib.function("maglev_dynamics")(x, u, p)[0].ravel()[6:]
+    acc[:3] -= x[6:9] * (acceleration / v)  # the translation's R^T (a, 0, 0) (derive/trim.py)
     lift, drag = (a.ravel() for a in lib.function("maglev_array_forces")(x, p))
     K_mag, K_oth = lib.function("maglev_stiffness")(x, f_prop, p)
-    return TrimPoint(v, x, f_prop, gaps, lift, drag, float(np.max(np.abs(acc))), K_mag, K_oth)
+    return TrimPoint(v, x, f_prop, gaps, lift, drag, float(np.max(np.abs(acc))), K_mag, K_oth,
+                     float(acceleration))
+
+
+@dataclass(frozen=True)
+class AcceleratingMargin:
+    """The accelerating trim beside the constant-speed one at a speed (the launch's reference:
+    `trim_point` with and without the acceleration, from the C)."""
+
+    speed: float  # [m/s]
+    acceleration: float  # [m/s^2]
+    pitch: float  # constant-speed trim pitch [rad]
+    pitch_accelerating: float  # [rad]
+    heave: float  # [m]
+    heave_accelerating: float  # [m]
+    gap: float  # smallest closest-corner gap at constant speed [m]
+    gap_accelerating: float  # [m]
+    gap_array: str  # the array with the smallest gap when accelerating
+    f_prop: float  # [N]
+    f_prop_accelerating: float  # [N]
+    min_gap: float  # track.min_gap [m]
+
+    @property
+    def pitch_offset(self) -> float:
+        """pitch_accelerating - pitch [rad]: nose down when the CG is above the thrust."""
+        return self.pitch_accelerating - self.pitch
+
+    @property
+    def gap_margin(self) -> float:
+        """gap_accelerating - track.min_gap [m]."""
+        return self.gap_accelerating - self.min_gap
+
+    def sentence(self) -> str:
+        """One line (plain ASCII) for SUMMARY.md."""
+        return (f"Accelerating trim at {self.speed:.4g} m/s and {self.acceleration:g} m/s^2 "
+                f"(the launch's reference): pitch {self.pitch_accelerating * 1e3:+.3f} mrad "
+                f"({self.pitch_offset * 1e3:+.3f} mrad from the constant-speed trim), smallest "
+                f"corner gap {self.gap_accelerating * 1e3:.3f} mm (array {self.gap_array}; "
+                f"{self.gap * 1e3:.3f} mm at constant speed; track.min_gap "
+                f"{self.min_gap * 1e3:g} mm), F_prop {self.f_prop_accelerating:.4g} N.")
+
+
+def accelerating_margins(carriage: Carriage, lib: SimulationLibrary, speeds: Sequence[float],
+                         acceleration: float | None = None) -> list[AcceleratingMargin]:
+    """`AcceleratingMargin` at each speed, at ``acceleration`` (default
+    envelope.launch_acceleration)."""
+    a = carriage.params.envelope.launch_acceleration if acceleration is None else acceleration
+    names = list(carriage.params.arrays)
+    out = []
+    for v in speeds:
+        still, moving = (trim_point(carriage, lib, v, acc) for acc in (0.0, a))
+        i = int(np.argmin(moving.gaps))
+        out.append(AcceleratingMargin(
+            float(v), float(a), float(still.x[4]), float(moving.x[4]), float(still.x[2]),
+            float(moving.x[2]), float(np.min(still.gaps)), float(moving.gaps[i]), names[i],
+            still.f_prop, moving.f_prop, carriage.params.track.min_gap))
+    return out
 
 
 def stiffness_table(carriage: Carriage, lib: SimulationLibrary, speed: float | None):
@@ -131,16 +198,18 @@ def pitch_paper_form(carriage: Carriage, tp: TrimPoint, printed: float) -> dict[
     }
 
 
-def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None
-                ) -> dict:
-    """Everything `maglevgen trim` prints, as plain data."""
+def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None,
+                acceleration: float = 0.0) -> dict:
+    """Everything `maglevgen trim` prints, as plain data; ``acceleration`` [m/s^2]: of the
+    accelerating trim (`trim_point`)."""
     lib = lib or _library(carriage)
-    tp = trim_point(carriage, lib, speed)
+    tp = trim_point(carriage, lib, speed, acceleration)
     kin = carriage.paper_stiffness_inputs(tp)
     rows = stiffness_rows(kin, tp.K_magnetic, tp.K_magnetic + tp.K_other)
     names = list(carriage.params.arrays)
     return {
         "speed": tp.speed,
+        "acceleration": tp.acceleration,
         "params_sha256": carriage.loaded.sha256,
         "state": {s.name: float(v) for s, v in zip(cv.STATES, tp.x, strict=True)},
         "state_units": {s.name: s.unit for s in cv.STATES},
@@ -214,7 +283,24 @@ def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary
             "minimum_norm": op.allocation.tolist(),
         },
         "speed_mode": mode.to_json(),
+        "embedded": embedded_gains(carriage, op),
     }
+
+
+def embedded_gains(carriage: Carriage, op: OperatingPoint) -> dict:
+    """The embedded controller's gains at ``op``: u_gen = -(K_pos (a - a_ref) + K_rate a'),
+    rows the generalized forces (F_y, F_z, M_x, M_y, M_z), columns the axes; and for the
+    `spec` design its per-axis weights."""
+    name = carriage.params.envelope.embedded_controller
+    K_pos, K_rate = op.gains(name)
+    out = {"controller": name, "title": CONTROLLER_TITLES[name], "speed": op.speed,
+           "axes": list(cv.AXES), "forces": [c.name for c in cv.CONTROLS],
+           "a_ref": op.a_trim.tolist(), "K_pos": K_pos.tolist(), "K_rate": K_rate.tolist()}
+    if name == "spec":
+        q1, q2, r = spec_weights(op)
+        out["weights"] = {"q1": q1.tolist(), "q2": q2.tolist(), "r": r.tolist(),
+                          "design_damping_ratio": op.weights.spec.zeta}
+    return out
 
 
 
@@ -252,6 +338,11 @@ def verdict_lines(env, embedded: str) -> list[str]:
     for name, c in env.controllers.items():
         mark = " [embedded]" if name == embedded else ""
         out.append(f"  {CONTROLLER_TITLES[name] + mark:<28} {c.verdict}")
+        out.append(f"  {'':<28} specification: {c.spec_verdict}")
+        if name == embedded and env.other_models:
+            out.append(f"  {'':<28} its gains on the other models: "
+                       f"{env.robustness_verdict()}")
+    out.append(f"  (specification checked {env.checked_on()})")
     return out
 
 

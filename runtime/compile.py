@@ -70,6 +70,43 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     return lib
 
 
+def compile_object(source: Path, flags: Sequence[str] = ("-std=c99", "-O2", "-fPIC"),
+                   cc: str | None = None, cache_dir: Path | None = None,
+                   progress: Callable[[str], None] | None = None) -> Path:
+    """Compile one C file to an object file (``-c``), or reuse it; returns its path.
+
+    For the large generated functions that several shared libraries link (the FMUs: one
+    wrapper each around the same carriage functions), so they are compiled once. Cached as
+    `compile_shared` caches: the key hashes the compiler path, the flags and the bytes of the
+    source and of every C file and header beside it; written to a temporary name, checked
+    against its recorded checksum when reused.
+    """
+    compiler = find_compiler(cc)
+    source = Path(source).resolve()
+    key = _library_path(compiler, [source], (*flags, "-c"), cache_dir)
+    obj = key.with_name(key.name.removeprefix("lib").removesuffix(".so") + ".o")
+    if _intact(obj):
+        return obj
+    if progress is not None:
+        progress(f"compiling {source.name} ({' '.join(flags)}; cached afterwards)")
+    try:
+        obj.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the cache folder {obj.parent}: {exc.strerror}"
+                         ) from None
+    fd, tmp = tempfile.mkstemp(prefix=f".{obj.stem}.", suffix=".o", dir=obj.parent)
+    os.close(fd)
+    proc = subprocess.run([compiler, *flags, "-c", str(source), "-o", tmp],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        os.unlink(tmp)
+        first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
+        raise CompileError(f"compiling {source.name} failed: {first}")
+    write_atomic(_checksum_path(obj), (file_sha256(Path(tmp)) + "\n").encode())
+    os.replace(tmp, obj)
+    return obj
+
+
 def cached_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,
                   cc: str | None = None, cache_dir: Path | None = None) -> Path | None:
     """The library `compile_shared` would return, when it is cached and intact; else None

@@ -6,7 +6,8 @@ face centre for ``model.array_force = "point"``, and for "distributed" the same 
 circuit by circuit along the array with each circuit's flux and force integrated across the
 width at the local gaps by Gauss-Legendre quadrature (no closed form), acting where they act; the
 rigid body is the static balance of eqs 1-2 (no motion but the steady speed: force and moment
-about O both zero), the stiffness is a central difference, and the LQR gains come from the
+about O both zero; accelerating along the track, with the d'Alembert load -m a at the CG), the
+stiffness is a central difference, and the LQR gains come from the
 Riccati equation of eq 30 solved by hand in mpmath at 60 digits. The tests compare every derived
 number the toolchain prints or generates with these.
 """
@@ -147,19 +148,30 @@ class ReferenceTrim:
     arrays: ArrayState
 
 
-def reference_trim(prm: Parameters, speed: float) -> ReferenceTrim:
-    """Root of the six static balances (eqs 1-2 at rest in the moving frame) with eq 3.
+def dalembert_wrench(prm: Parameters, q: np.ndarray, acceleration: float) -> np.ndarray:
+    """(F_x, F_y, F_z, M_x, M_y, M_z), inertial axes, moments about O, of the d'Alembert
+    load of a carriage translating at ``acceleration`` along the track: -m a e_x at the CG."""
+    v = prm.vehicle
+    f = np.array([-v.mass * acceleration, 0.0, 0.0])
+    return np.concatenate([f, np.cross(rotation(*q[2:5]) @ np.array(v.cg_offset), f)])
 
-    Starts from the design pose with the propulsion equal to the drag there; MINPACK's
-    hybrid Powell method, the scaled residual (N and N m) below 1e-9 of the weight.
+
+def reference_trim(prm: Parameters, speed: float, acceleration: float = 0.0) -> ReferenceTrim:
+    """Root of the six static balances (eqs 1-2 at rest in the moving frame) with eq 3; with
+    ``acceleration`` a != 0 the frame accelerates at a along the track and the balances hold
+    the d'Alembert load -m a e_x at the CG as well (`dalembert_wrench`).
+
+    Starts from the design pose with the propulsion equal to the drag there (plus m a);
+    MINPACK's hybrid Powell method, the scaled residual (N and N m) below 1e-9 of the weight.
     """
     weight = prm.vehicle.mass * prm.vehicle.gravity
 
     def residual(unknowns: np.ndarray) -> np.ndarray:
-        return external_wrench(prm, unknowns[:5], speed, unknowns[5]) / weight
+        return (external_wrench(prm, unknowns[:5], speed, unknowns[5])
+                + dalembert_wrench(prm, unknowns[:5], acceleration)) / weight
 
     start = np.zeros(6)
-    start[5] = array_state(prm, np.zeros(5), speed).drag.sum()
+    start[5] = array_state(prm, np.zeros(5), speed).drag.sum() + prm.vehicle.mass * acceleration
     sol = scipy.optimize.root(residual, start, method="hybr", tol=1e-15)
     assert np.max(np.abs(residual(sol.x))) < 1e-11, sol.message
     return ReferenceTrim(sol.x[:5], float(sol.x[5]), array_state(prm, sol.x[:5], speed))
@@ -266,3 +278,138 @@ def symmetric_lift_off_speed(prm: Parameters, v_start: float) -> float:
     while clearance(0.9 * hi) > 0:
         hi *= 0.9
     return float(scipy.optimize.brentq(clearance, 0.9 * hi, hi, xtol=1e-14, rtol=1e-12))
+
+
+# ------------------------------------------------- the circuits' lag and the rigid body
+
+
+def euler_rates(phi: float, theta: float, omega: np.ndarray) -> np.ndarray:
+    """Z-Y-X Euler angle rates from the body rates (p, q, r)."""
+    p, q, r = omega
+    return np.array([p + (q * np.sin(phi) + r * np.cos(phi)) * np.tan(theta),
+                     q * np.cos(phi) - r * np.sin(phi),
+                     (q * np.sin(phi) + r * np.cos(phi)) / np.cos(theta)])
+
+
+def lag_times(prm: Parameters, speed: float) -> tuple[float, float]:
+    """(tau_d, tau_D) of L I' + R I = Phi' driven by Phi = Re(A(t) e^{i omega t}), omega = k v:
+    to first order in A' the current amplitude is J = H0 A + H1 A', H0 = i omega/(R + i omega
+    L), H1 = dH0/domega = R/(R + i omega L)^2, so lift and drag are eq 3's times
+    (1 + tau A'/A) with tau_d = Re H1/Re H0 and tau_D = Re(-i H1)/Re(-i H0); written out:"""
+    R, L = prm.circuit.resistance, prm.circuit.inductance
+    w = 2 * np.pi / prm.halbach.wavelength * speed
+    D = R**2 + (w * L) ** 2
+    return R * (R**2 - (w * L) ** 2) / (D * w**2 * L), -2 * L * R / D
+
+
+def _log_flux_gradient(fn, pose: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """d ln(fn)/d pose (pose = X (3), phi, theta, psi) by central differences; fn returns an
+    array of fluxes (one per circuit)."""
+    grad = []
+    for j in range(6):
+        e = np.zeros(6)
+        e[j] = h
+        grad.append((np.log(fn(pose + e)) - np.log(fn(pose - e))) / (2 * h))
+    return np.array(grad)
+
+
+def array_loads(prm: Parameters, x: np.ndarray, lag: bool
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lift, drag, wrench): each array's lift and drag and the arrays' total (F, M about O),
+    inertial axes, at the 12-state ``x`` (body velocities), each array at its face centre's
+    along-track speed (R (v + w x a))_x.
+
+    The quasi-static force is `array_state`'s circuit sum (eq 3 at each circuit's flux, the
+    point law's face centre). With ``lag`` each circuit's force is that times (1 + tau rho_j),
+    `lag_times`, rho_j = d ln Phi_j / dt its flux amplitude's log rate along the motion: the
+    gradient of ln Phi_j in the pose (central differences) times the pose's rate from the body
+    velocities (X' = R v, Euler rates). Every quadrature node of a circuit shares its current,
+    so the circuit's factor applies to its whole force, where it acts."""
+    h, c = prm.halbach, prm.circuit
+    k = 2 * np.pi / h.wavelength
+    M = h.magnets_per_wavelength
+    B0 = h.remanence * (1 - np.exp(-k * h.thickness)) * np.sin(np.pi / M) / (np.pi / M)
+    pose, v, omega = x[0:6], x[6:9], x[9:12]
+    R = rotation(*pose[3:6])
+    pose_rate = np.concatenate([R @ v, euler_rates(pose[3], pose[4], omega)])
+    distributed = prm.model.array_force == "distributed"
+    s_nodes = _GL_S * h.width / 2
+    lifts, drags, wrench = [], [], np.zeros(6)
+    for arr in prm.arrays.values():
+        a, n = np.array(arr.position), np.array(arr.normal)
+        speed = (R @ (v + np.cross(omega, a)))[0]
+        omega_e = k * speed
+        ratio = c.resistance / (omega_e * c.inductance)
+        per_flux2 = B0**2 / (2 * k * c.inductance) / (1 + ratio**2)
+        tau_l, tau_d = lag_times(prm, speed) if lag else (0.0, 0.0)
+        n_c = round(arr.circuits)
+        across, along = _face_axes(n)
+        if distributed:
+            ts = (np.arange(n_c) - (n_c - 1) / 2) * c.pitch
+            points = a + s_nodes[None, :, None] * across + ts[:, None, None] * along
+        else:  # the point law: N circuits at the face centre, the field at the centre gap
+            points = np.broadcast_to(a, (1, 1, 3))
+
+        def density(ps: np.ndarray, ps_pose: np.ndarray, n: np.ndarray = n,
+                    g0: float = arr.nominal_gap) -> np.ndarray:
+            Rp = rotation(*ps_pose[3:6])
+            return np.exp(-k * (g0 + (ps_pose[0:3] + ps @ Rp.T - ps) @ n))
+
+        def fluxes(ps_pose: np.ndarray, points: np.ndarray = points, density=density
+                   ) -> np.ndarray:
+            if distributed:
+                return (h.width / 2) * density(points, ps_pose) @ _GL_W
+            return h.width * density(points, ps_pose)[:, 0]
+
+        rho = _log_flux_gradient(fluxes, pose).T @ pose_rate if lag else np.zeros(len(points))
+        dens = density(points, pose)
+        flux = fluxes(pose)
+        if distributed:
+            f_qs = per_flux2 * flux[:, None] * (h.width / 2) * (_GL_W[None, :] * dens)
+        else:
+            f_qs = per_flux2 * np.array([[arr.circuits * flux[0] ** 2]])
+        f_lift = f_qs * (1 + tau_l * rho)[:, None]
+        f_drag = f_qs * ratio * (1 + tau_d * rho)[:, None]
+        lifts.append(f_lift.sum())
+        drags.append(f_drag.sum())
+        forces = f_lift[..., None] * n - f_drag[..., None] * np.array([1.0, 0.0, 0.0])
+        arms = points @ R.T
+        wrench += np.concatenate([forces.sum(axis=(0, 1)),
+                                  np.cross(arms, forces).sum(axis=(0, 1))])
+    return np.array(lifts), np.array(drags), wrench
+
+
+def rigid_body_xdot(prm: Parameters, x: np.ndarray, wrench_inertial: np.ndarray,
+                    f_prop: float, body_wrench: np.ndarray | None = None) -> np.ndarray:
+    """xdot of the 12 states: X' = R v, Euler rates, and eqs 1-2 at O with the CG at r_G,
+
+        m (v' + w x v + w' x r_G + w x (w x r_G)) = F,
+        I_O w' + w x I_O w + m r_G x (v' + w x v) = M
+
+    solved as one 6 x 6 linear system, with gravity at the CG and the propulsion along the
+    track at its point added to ``wrench_inertial`` (moments about O), and ``body_wrench``
+    (F, M about O, body axes) added after the rotation to body axes."""
+    veh = prm.vehicle
+    R = rotation(*x[3:6])
+    v, omega = x[6:9], x[9:12]
+    f_g = np.array([0.0, 0.0, -veh.mass * veh.gravity])
+    f_p = np.array([f_prop, 0.0, 0.0])
+    r_G, r_p = np.array(veh.cg_offset), np.array(prm.operation.propulsion_point)
+    w_in = wrench_inertial + np.concatenate([f_g + f_p, np.cross(R @ r_G, f_g)
+                                             + np.cross(R @ r_p, f_p)])
+    F, Mo = R.T @ w_in[:3], R.T @ w_in[3:]
+    if body_wrench is not None:
+        F, Mo = F + body_wrench[:3], Mo + body_wrench[3:]
+    I_G = np.asarray(veh.inertia_matrix(), dtype=float)
+    I_O = I_G + veh.mass * (r_G @ r_G * np.eye(3) - np.outer(r_G, r_G))
+    m = veh.mass
+
+    def sk(r: np.ndarray) -> np.ndarray:
+        return np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
+
+    lhs = np.block([[m * np.eye(3), -m * sk(r_G)], [m * sk(r_G), I_O]])
+    rhs = np.concatenate([
+        F - m * np.cross(omega, v) - m * np.cross(omega, np.cross(omega, r_G)),
+        Mo - np.cross(omega, I_O @ omega) - m * np.cross(r_G, np.cross(omega, v))])
+    acc = np.linalg.solve(lhs, rhs)
+    return np.concatenate([R @ v, euler_rates(x[3], x[4], omega), acc])

@@ -79,6 +79,28 @@ def test_trim_and_gains_reports_are_the_cli_numbers(which: str, request: pytest.
         assert plant.A.tolist() == row["A"] and plant.B.tolist() == row["B"]
 
 
+def test_accelerating_trim_is_the_cli_trim_and_the_reference_root(
+        default: maglevgen.Carriage, capsys: pytest.CaptureFixture[str]) -> None:
+    """``Carriage.trim(V, acceleration=a)`` is ``maglevgen trim --acceleration a --json`` bit
+    for bit, and its pose and propulsion are the root of the static balances with the
+    d'Alembert load solved in tests/independent_reference.py; the text output names the
+    acceleration and the m a in the propulsion."""
+    from independent_reference import reference_trim
+
+    cli = cli_json(capsys, "trim", "--speed", str(SPEED), "--acceleration", "5", "--json")
+    assert cli.pop("envelope")
+    trim = default.trim(SPEED, acceleration=5.0)
+    assert trim.to_dict() == cli and trim.acceleration == cli["acceleration"] == 5.0
+    ref = reference_trim(default.params, SPEED, 5.0)
+    np.testing.assert_allclose(trim.x[1:6], ref.q, rtol=0, atol=1e-10)
+    assert trim.propulsion_force == pytest.approx(ref.f_prop, rel=1e-9)
+    assert trim.residual < 1e-8
+    assert main(["trim", "--speed", str(SPEED), "--acceleration", "5"]) == 0
+    out = capsys.readouterr().out
+    assert f"Trim at {SPEED:g} m/s accelerating at 5 m/s^2" in out
+    assert f"and m a = {default.params.vehicle.mass * 5:.6g} N" in out
+
+
 def test_changed_carriage_changes_the_numbers(default: maglevgen.Carriage,
                                               changed: maglevgen.Carriage) -> None:
     """The overrides reach the numbers (else the test above could pass on the default)."""
@@ -168,6 +190,8 @@ def _cli_error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> tuple[int
     (lambda: maglevgen.load("/nonexistent/carriage.toml"),
      ["trim", "--params", "/nonexistent/carriage.toml"]),
     (lambda: maglevgen.load().trim(1e9), ["trim", "--speed", "1e9"]),
+    (lambda: maglevgen.load().trim(20.0, acceleration=float("nan")),
+     ["trim", "--speed", "20", "--acceleration", "nan"]),
     (lambda: maglevgen.load().gains(0.05), ["simulate", "--speed", "0.05", "--out", "{tmp}"]),
     (lambda: maglevgen.load().simulate(dt=5.0), ["simulate", "--dt", "5", "--out", "{tmp}"]),
     (lambda: maglevgen.load().simulate(scenario="launch", speed=15.0),

@@ -21,7 +21,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 # pyproject.toml [tool.setuptools.package-dir]
-LAYOUT = {"maglevgen": "maglevgen", "maglevgen.derive": "derive",
+LAYOUT = {"maglevgen": "maglevgen", "maglevgen.laws": "maglevgen/laws",
+          "maglevgen.derive": "derive",
           "maglevgen.runtime": "runtime", "maglevgen.codegen": "maglevgen/codegen",
           "maglevgen.report": "maglevgen/report",
           "maglevgen.report.sections": "maglevgen/report/sections"}
@@ -33,7 +34,7 @@ _CLI_STAGES = ("maglevgen.build", "maglevgen.carriage", "maglevgen.codegen.gener
                "maglevgen.envelope", "maglevgen.fmu", "maglevgen.output", "maglevgen.params",
                "maglevgen.progress", "maglevgen.sim_output", "maglevgen.simulate",
                "maglevgen.summary", "maglevgen.report", "maglevgen.cache", "maglevgen.montecarlo",
-               "numpy")
+               "maglevgen.laws", "numpy")
 LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.cli": (
         "start-up: a command imports its own stage only; an up-to-date `maglevgen build` "
@@ -43,7 +44,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "stages are imported when something has to be built",
         ("maglevgen.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
          "maglevgen.derive.conventions", "maglevgen.envelope", "maglevgen.library",
-         "maglevgen.operating", "maglevgen.runtime.compile", "maglevgen.schedule",
+         "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.runtime.compile",
+         "maglevgen.schedule",
          "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
          "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy")),
     "maglevgen.carriage": (
@@ -55,7 +57,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
                         ("cloudpickle",)),
     "maglevgen.library": ("a cached library is loaded without SymPy or CasADi",
                           ("maglevgen.codegen.generate", "maglevgen.derive.model")),
-    "maglevgen.operating": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.laws.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
                            "only when written", ("scipy", "maglevgen.codegen.checks", "numpy")),
     "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
@@ -66,7 +69,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.fmu": (
         "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
         ("maglevgen.codegen.interface", "maglevgen.library", "maglevgen.operating",
-         "maglevgen.runtime.compile", "maglevgen.simulate", "fmpy")),
+         "maglevgen.runtime.compile", "maglevgen.simulate", "maglevgen.laws", "fmpy")),
     "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
     "maglevgen.sim_output": ("matplotlib only when figures are drawn", ("matplotlib",)),
     "maglevgen.report_figures": ("matplotlib only when figures are drawn",

@@ -41,9 +41,11 @@ def _ptr(a: np.ndarray) -> ctypes.POINTER:
 
 @pytest.fixture(scope="module")
 def carriage() -> Carriage:
-    """The default carriage with the paper's point force law: the law the hand-written C
-    implements (the distributed law is checked against its own quadrature reference)."""
-    return Carriage(load_params(overrides=['model.array_force="point"']))
+    """The default carriage with the paper's point force law and quasi-static circuits (eq 3):
+    the model the hand-written C implements (the distributed law is checked against its own
+    quadrature reference, the circuits' lag in test_circuit_lag.py)."""
+    return Carriage(load_params(overrides=['model.array_force="point"',
+                                           'model.circuit_dynamics="quasi-static"']))
 
 
 @pytest.fixture(scope="module")

@@ -19,11 +19,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from independent_reference import (
+    array_loads,
     contact_gaps,
     generalized_mass,
     ise_optimal_damping,
     lqr_reference_mp,
     reference_trim,
+    rigid_body_xdot,
+    rotation,
     stiffness_fd,
 )
 from test_params_cli import BAD, edited, write_input
@@ -175,11 +178,30 @@ def _paper_stiffness(prm, lift: np.ndarray) -> np.ndarray:
                      8 * F * k * Lz**2, 0.12 * F_up * k * Lx**2, 8 * F * k * Lxla**2])
 
 
+def _magnetic_damping_reference(prm, ref, mass: np.ndarray) -> np.ndarray:
+    """-m_i d(rate_i')/d(rate_i) of the circuit-by-circuit force sum with the circuits' lag
+    (independent_reference.array_loads) and eqs 1-2, central differences at the reference
+    trim, for the axis body rates v, w, p, q, r."""
+    x = np.zeros(12)
+    x[1:6] = ref.q
+    x[6:9] = rotation(*ref.q[2:5]).T @ np.array([prm.operation.speed, 0.0, 0.0])
+    out = []
+    for i, j in enumerate((7, 8, 9, 10, 11)):
+        e = np.zeros(12)
+        e[j] = 1e-6
+        plus, minus = (rigid_body_xdot(prm, y, array_loads(prm, y, lag=True)[2], ref.f_prop)
+                       for y in (x + e, x - e))
+        out.append(-mass[i] * (plus[j] - minus[j]) / 2e-6)
+    return np.array(out)
+
+
 def test_summary_numbers_match_independent_computations(good: Path, carriage) -> None:
     """Every number of SUMMARY.md, row by row, against tests/independent_reference.py: the trim
     (root of eq 3 and the static balance), stiffness (central differences), inertia (parallel
     axes), f_n, the LQR gain (hand-solved ARE, mpmath), the ISE-optimal damping (numerical
-    minimum) and the printed stiffness of eqs 7, 13-16 with its difference from the derived."""
+    minimum), the magnetic damping of the circuits' lag (central differences of the lagged
+    circuit sum) and the printed stiffness of eqs 7, 13-16 with its difference from the
+    derived."""
     prm = carriage.params
     v = prm.operation.speed
     ref = reference_trim(prm, v)
@@ -196,13 +218,34 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
     np.testing.assert_allclose([float(g) for g in gaps.split(", ")],
                                contact_gaps(prm, ref.q) * 1e3,
                                rtol=0, atol=6e-4)
+    # the accelerating trim at v_min: the root with the d'Alembert load -m a at the CG
+    (acc_line,) = [ln for ln in lines if ln.startswith("Accelerating trim at ")]
+    m = re.fullmatch(r"Accelerating trim at (\S+) m/s and (\S+) m/s\^2 \(the launch's "
+                     r"reference\): pitch (\S+) mrad \((\S+) mrad from the constant-speed "
+                     r"trim\), smallest corner gap (\S+) mm \(array (\S+); (\S+) mm at "
+                     r"constant speed; track.min_gap (\S+) mm\), F_prop (\S+) N\.", acc_line)
+    assert m, acc_line
+    v_lo, a, pitch_a, offset, gap_a, array, gap_0, _, f_prop_a = m.groups()
+    assert float(a) == prm.envelope.launch_acceleration
+    v_lo = float(v_lo)
+    ref_a, ref_0 = (reference_trim(prm, v_lo, acc) for acc in (float(a), 0.0))
+    assert float(pitch_a) == pytest.approx(ref_a.q[3] * 1e3, abs=2e-3)  # printed to 4 digits
+    assert float(offset) == pytest.approx((ref_a.q[3] - ref_0.q[3]) * 1e3, abs=2e-3)
+    gaps_a = contact_gaps(prm, ref_a.q)
+    assert float(gap_a) == pytest.approx(gaps_a.min() * 1e3, abs=2e-3)
+    assert array == list(prm.arrays)[int(np.argmin(gaps_a))]
+    assert float(gap_0) == pytest.approx(contact_gaps(prm, ref_0.q).min() * 1e3, abs=2e-3)
+    assert float(f_prop_a) == pytest.approx(ref_a.f_prop, rel=1e-3)
     k_tot = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop))
     k_mag = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop, other=False))
     mass = generalized_mass(prm)
     paper = _paper_stiffness(prm, ref.arrays.lift)
+    assert prm.model.circuit_dynamics == "first-order"
     header = next(i for i, ln in enumerate(lines) if ln.startswith("| axis |"))
     assert [c.strip() for c in lines[header].strip("|").split("|")] == [
-        "axis", "k", "m", "f_n [Hz]", "LQR K (pos, rate)", "damping c", "paper k (printed)"]
+        "axis", "k", "m", "f_n [Hz]", "LQR K (pos, rate)", "magnetic c_mag", "damping c",
+        "paper k (printed)"]
+    c_mag = _magnetic_damping_reference(prm, ref, mass)
     rows = lines[header + 2: header + 7]
     for i, (axis, row) in enumerate(zip(("lateral", "vertical", "roll", "pitch", "yaw"), rows,
                                         strict=True)):
@@ -217,10 +260,11 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
         K_ref, _ = lqr_reference_mp(k_tot[i], mass[i])
         K_txt = [float(x) for x in cells[4].split(",")]
         np.testing.assert_allclose(K_txt, [float(x) for x in K_ref], rtol=1e-3)
+        assert float(cells[5]) == pytest.approx(c_mag[i], rel=1e-3, abs=1e-6)
         c_ref = ise_optimal_damping(k_tot[i], mass[i]) if k_tot[i] > 0 else 0.0
-        assert float(cells[5]) == pytest.approx(c_ref, rel=1e-3)
-        pm = re.fullmatch(r"(\S+) \(([+-]\d+)%\)", cells[6])
-        assert pm, cells[6]
+        assert float(cells[6]) == pytest.approx(c_ref, rel=1e-3)
+        pm = re.fullmatch(r"(\S+) \(([+-]\d+)%\)", cells[7])
+        assert pm, cells[7]
         assert float(pm[1]) == pytest.approx(paper[i], rel=1e-4)
         assert int(pm[2]) == round(100 * (paper[i] - k_mag[i]) / k_mag[i])
 

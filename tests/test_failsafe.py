@@ -305,6 +305,8 @@ static maglev_real x0n[12], kpos[25], krate[25], aref[5];
 static maglev_real ys[3 * MAGLEV_SCHEDULE_NY], d2ys[3 * MAGLEV_SCHEDULE_NY];
 static maglev_real pbuf[MAXN];
 static const maglev_real* p_arg;
+static const maglev_control_loop* loop_arg;  /* NULL: the plain loop */
+static long long saturated_steps;
 
 static void run_nominal(void) {
   int i;
@@ -346,8 +348,8 @@ static void sim(const char* what, const maglev_real* x0, maglev_real dt, long lo
                 maglev_real gmin, maglev_real* x, maglev_real* u, maglev_real* g, int use_status,
                 int must_refuse) {
   int st = -7;
-  long long ret = maglev_simulate(x0, dt, n, F, kp, kr, ar,""" + p_sim + r""" gmin, x, u, g,
-                                  use_status ? &st : 0);
+  long long ret = maglev_simulate(x0, dt, n, F, kp, kr, ar, loop_arg,""" + p_sim + r""" gmin,
+                                  x, u, g, &saturated_steps, use_status ? &st : 0);
   check_run("maglev_simulate", what, ret, st, use_status, n, must_refuse);
 }
 
@@ -355,8 +357,9 @@ static void launch(const char* what, const maglev_real* x0, maglev_real dt, long
                    maglev_real v_end, maglev_real F_extra, long long hold,
                    const maglev_spline_schedule* s, maglev_real gmin, int must_refuse) {
   int st = -7;
-  long long ret = maglev_launch(x0, dt, n, v_end, F_extra, hold, s,""" + p_sim + r""" gmin,
-                                &xt[0][0], &ut[0][0], &gt[0][0], &st);
+  long long ret = maglev_launch(x0, dt, n, v_end, F_extra, hold, s, loop_arg,""" + p_sim
+                                + r""" gmin, &xt[0][0], &ut[0][0], &gt[0][0], &saturated_steps,
+                                &st);
   check_run("maglev_launch", what, ret, st, 1, n, must_refuse);
 }
 
@@ -486,6 +489,59 @@ static void run_simulations(void) {
   eval("nominal", &s, 20, out, 0);
   launch("nominal", x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, 0);
   launch("nominal held", x0n, (maglev_real)1e-3, NS, 30, 1, 2, &s, gmin, 0);
+  /* the control loop (maglev_control_loop): a valid tick-held loop runs, each field out of
+     its range is refused at entry */
+  {
+    static const maglev_control_loop good = {2, 1, (maglev_real)10, (maglev_real)20,
+                                             (maglev_real)0.5, (maglev_real)1e4};
+    maglev_control_loop bad_loop;
+    loop_arg = &good;
+    sim("loop tick", x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g, 1, 0);
+    launch("loop tick", x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, 0);
+    bad_loop = good;
+    bad_loop.tick_steps = -1;
+    loop_arg = &bad_loop;
+    sim("loop tick_steps -1", x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g,
+        1, 1);
+    launch("loop tick_steps -1", x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, 1);
+    bad_loop = good;
+    bad_loop.tick_steps = LLONG_MAX;
+    sim("loop tick_steps max", x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g,
+        1, 0);
+    launch("loop tick_steps max", x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, 0);
+    for (i = 0; i < 4; ++i) {
+      static const int delays[] = {-1, MAGLEV_SIM_MAX_DELAY + 1, INT_MAX, -2147483647 - 1};
+      bad_loop = good;
+      bad_loop.delay_ticks = delays[i];
+      sprintf(what, "loop delay_ticks %d", delays[i]);
+      sim(what, x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g, 1, 1);
+      launch(what, x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, 1);
+    }
+    for (h = 0; h < NH; ++h) {
+      const maglev_real v = (maglev_real)hostile[h];
+      bad_loop = good;
+      bad_loop.k_v = v;
+      sprintf(what, "loop k_v %g", hostile[h]);
+      sim(what, x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g, 1, !isfinite(v));
+      launch(what, x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, !isfinite(v));
+      bad_loop = good;
+      bad_loop.v_ref = v;
+      sprintf(what, "loop v_ref %g", hostile[h]);
+      sim(what, x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g, 1, !isfinite(v));
+      launch(what, x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, !isfinite(v));
+      bad_loop = good;
+      bad_loop.accel = v;
+      sprintf(what, "loop accel %g", hostile[h]);
+      sim(what, x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g, 1, !isfinite(v));
+      launch(what, x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, !isfinite(v));
+      bad_loop = good;
+      bad_loop.force_budget = v;
+      sprintf(what, "loop force_budget %g", hostile[h]);
+      sim(what, x0n, (maglev_real)1e-3, NS, 1, kpos, krate, aref, gmin, x, u, g, 1, isnan(v));
+      launch(what, x0n, (maglev_real)1e-3, NS, 30, 1, 0, &s, gmin, isnan(v));
+    }
+    loop_arg = 0;
+  }
   P_HOSTILE_CASES
 }
 """)

@@ -121,6 +121,36 @@ def test_baked_schedule_functions_keep_to_the_envelope(baked_gen, carriage: Carr
     assert abs(lo - v_min) <= 1e-5 * v_min and hi == v_max
 
 
+def test_accelerating_trim_refuses_bad_input_and_agrees_with_the_derivation(
+        gen, carriage: Carriage) -> None:
+    """maglev_trim_accelerating's checked entry point: a NaN or infinite acceleration gives
+    MAGLEV_ERR_NONFINITE, v <= 0 MAGLEV_ERR_SPEED, an acceleration that no equilibrium clear of
+    the track holds (20 g: its thrust moment tips the carriage onto the track)
+    NOT_CONVERGED or CONTACT, each with zeroed outputs; at the launch's acceleration and when
+    braking, the pose and propulsion are derive/trim.py's (SymPy/SciPy, no C)."""
+    from maglevgen.derive.trim import solve_trim
+
+    p = carriage.p
+    for v, a, want in ((20.0, np.nan, "MAGLEV_ERR_NONFINITE"),
+                       (20.0, np.inf, "MAGLEV_ERR_NONFINITE"),
+                       (np.nan, 5.0, "MAGLEV_ERR_NONFINITE"),
+                       (0.0, 5.0, "MAGLEV_ERR_SPEED"), (-3.0, 5.0, "MAGLEV_ERR_SPEED")):
+        rc, outs = _code(gen, "maglev_trim_accelerating", [v], [a], p)
+        assert rc == ERR[want], (v, a, rc)
+        assert all(np.all(o == 0) for o in outs)
+    rc, outs = _code(gen, "maglev_trim_accelerating", [20.0], [196.0], p)
+    assert rc in (ERR["MAGLEV_ERR_NOT_CONVERGED"], ERR["MAGLEV_ERR_CONTACT"]), rc
+    assert all(np.all(o == 0) for o in outs)
+    tol = 1e-10 if gen[0] == "double" else 2e-5  # float32: the Newton tolerance's pose
+    for v, a in ((20.0, carriage.params.envelope.launch_acceleration), (30.0, -4.0)):
+        rc, (x, f_prop) = _code(gen, "maglev_trim_accelerating", [v], [a], p)
+        ref = solve_trim(carriage.functions, p, v, carriage.params.track.min_gap,
+                         acceleration=a)
+        assert rc == 0
+        np.testing.assert_allclose(x, ref.x, rtol=0, atol=tol * max(1.0, v))
+        assert f_prop[0] == pytest.approx(ref.u[0], rel=tol * 10)
+
+
 def test_runtime_names_the_code(gen, carriage: Carriage) -> None:
     """The ctypes runtime raises with the code's name."""
     with pytest.raises(GeneratedFunctionError, match="MAGLEV_ERR_SPEED") as info:
@@ -209,7 +239,9 @@ def gain_table(carriage: Carriage, sim_lib, tmp_path_factory):
     v_min, v_max = resolve_range(carriage, sim_lib)
 
     def rows(vs):
-        return np.array([gain_table_row(op) for op in envelope_points(carriage, sim_lib, vs)])
+        embedded = carriage.params.envelope.embedded_controller
+        return np.array([gain_table_row(op, embedded)
+                         for op in envelope_points(carriage, sim_lib, vs)])
 
     table = GainTable.fit(rows, v_min, v_max)
     out = tmp_path_factory.mktemp("gain_table")
@@ -525,8 +557,8 @@ def test_single_file_is_the_two_file_build(carriage: Carriage, tmp_path: Path) -
         status = ctypes.c_int()
         last = sim(x0.ctypes.data_as(D), ctypes.c_double(1e-3), ctypes.c_longlong(n),
                    ctypes.c_double(0.0), K.ctypes.data_as(D), (K / 50).ctypes.data_as(D),
-                   np.zeros(5).ctypes.data_as(D), ctypes.c_double(0.0),
-                   *[b.ctypes.data_as(D) for b in bufs], ctypes.byref(status))
+                   np.zeros(5).ctypes.data_as(D), None, ctypes.c_double(0.0),
+                   *[b.ctypes.data_as(D) for b in bufs], None, ctypes.byref(status))
         trajectories.append((last, status.value, bufs))
     assert trajectories[0][0] == n
     np.testing.assert_array_equal(np.concatenate(trajectories[0][2]),

@@ -20,7 +20,7 @@ from fmpy.validation import validate_fmu
 
 from maglevgen.carriage import Carriage
 from maglevgen.derive import conventions as cv
-from maglevgen.fmu import CONTROLLERS, build_fmu, fmi_headers
+from maglevgen.fmu import build_fmu, fmi_headers, fmu_controllers
 from maglevgen.params import load_params
 from maglevgen.simulate import AXIS_STATES, reference_trajectory, run_scenarios
 
@@ -229,7 +229,7 @@ def test_controllers_are_one_table() -> None:
     sub = next(a for a in build_parser()._subparsers._group_actions)
     fmu = sub.choices["fmu"]
     opt = next(a for a in fmu._actions if "--controller" in a.option_strings)
-    assert tuple(opt.choices) == tuple(CONTROLLERS)
+    assert tuple(opt.choices) == tuple(fmu_controllers())
 
 
 def test_instantiate_free_1000_times_without_a_leak(fmus, tmp_path: Path) -> None:

@@ -85,16 +85,26 @@ def test_schedule_is_lqr_of_trim_at_each_speed(carriage: Carriage) -> None:
     assert sched["vertical"][0, 0] > sched["vertical"][-1, 0]
 
 
+@pytest.mark.parametrize("dynamics", ["quasi-static", "first-order"])
 def test_coupled_lqr_is_optimal_and_per_axis_design_stabilises(carriage: Carriage,
-                                                                trim) -> None:
-    gains = carriage_gains(carriage, trim)
-    cc = coupled_comparison(carriage, trim, gains)
-    assert np.max(cc.poles_per_axis.real) < 0
+                                                                dynamics: str) -> None:
+    """With eq 3's quasi-static circuits (the paper's model) both designs stabilise and the
+    coupled LQR minimises the per-axis design's cost; with the circuits' lag (the default)
+    the per-axis design's rate gains (about 1 N s/m) lose to the lag's negative damping at
+    20 m/s (about -2 N s/m on heave) while the coupled LQR, designed on the lagged model,
+    stabilises. Its gain solves the coupled Riccati equation (scipy as the reference)."""
+    c = carriage.with_circuit_dynamics(dynamics)
+    trim = c.trim()
+    gains = carriage_gains(c, trim)
+    cc = coupled_comparison(c, trim, gains)
     assert np.max(cc.poles_coupled.real) < 0
-    # the coupled LQR minimises the cost the per-axis design is measured with
-    assert cc.cost_coupled <= cc.cost_per_axis * (1 + 1e-9)
-    # and its gain solves the coupled Riccati equation (scipy as the reference)
-    Ar, Bg, C_rate = reduced_model(carriage, trim)
+    if dynamics == "quasi-static":
+        assert np.max(cc.poles_per_axis.real) < 0
+        # the coupled LQR minimises the cost the per-axis design is measured with
+        assert cc.cost_coupled <= cc.cost_per_axis * (1 + 1e-9)
+    else:
+        assert np.max(cc.poles_per_axis.real) > 0.02
+    Ar, Bg, C_rate = reduced_model(c, trim)
     C_pos = np.hstack([np.eye(5), np.zeros((5, 5))])
     Q = C_pos.T @ C_pos + C_rate.T @ C_rate
     P = scipy.linalg.solve_continuous_are(Ar, Bg, Q, np.eye(5))

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import sympy as sp
 from independent_reference import (
+    array_loads,
     array_state,
     contact_gaps,
     external_wrench,
@@ -87,6 +88,60 @@ def test_trim_equals_root_of_eq3_and_static_balance(law_carriage: Carriage,
         np.testing.assert_allclose(trim.drag, ref.arrays.drag, rtol=1e-9)
         # the trim state moves at the speed along the track (inertial x)
         assert trim.x[0] == 0 and np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
+
+
+ACCELERATIONS = (5.0, -3.0)  # m/s^2: the default launch, and braking
+
+
+def test_accelerating_trim_equals_root_of_static_balances_with_dalembert_load(
+        law_carriage: Carriage, heavy: Carriage) -> None:
+    """The accelerating trim, in C (maglev_trim_accelerating, checked) and by derive/trim.py,
+    against the root of the six static balances with the d'Alembert load -m a e_x at the CG
+    solved here (independent_reference): pose, propulsion and every array's gap, lift and
+    drag; along the track F_prop = drag + m a; accelerating pitches nose down (braking nose
+    up) by several mrad from the constant-speed trim: the CG sits above the thrust's line."""
+    from maglevgen.derive.trim import solve_trim
+    from maglevgen.library import simulation_library
+    from maglevgen.operating import checked_accelerating_trim
+
+    lib = simulation_library(law_carriage.structure)  # heavy has the same structure
+    for c, v in _cases(law_carriage, heavy):
+        min_gap, mass = c.params.track.min_gap, c.params.vehicle.mass
+        still = reference_trim(c.params, v)
+        for a in ACCELERATIONS:
+            ref = reference_trim(c.params, v, a)
+            x, f_prop, gaps = checked_accelerating_trim(lib, c.p, v, a, min_gap)
+            lift, drag = (f.ravel() for f in lib.function("maglev_array_forces")(x, c.p))
+            tr = solve_trim(c.functions, c.p, v, min_gap, acceleration=a)
+            for q, fp, fl, fd in ((x[1:6], f_prop, lift, drag),
+                                  (_q(tr), tr.u[0], tr.lift, tr.drag)):
+                np.testing.assert_allclose(q, ref.q, rtol=0, atol=1e-10)
+                assert fp == pytest.approx(ref.f_prop, rel=1e-9)
+                np.testing.assert_allclose(fl, ref.arrays.lift, rtol=1e-9)
+                np.testing.assert_allclose(fd, ref.arrays.drag, rtol=1e-9)
+            np.testing.assert_allclose(gaps, contact_gaps(c.params, ref.q), rtol=0, atol=1e-10)
+            assert ref.f_prop == pytest.approx(ref.arrays.drag.sum() + mass * a, rel=1e-9)
+            assert np.sign(a) * (ref.q[3] - still.q[3]) < -1e-3  # rad
+            # the trim state translates at v along the track, unrotated
+            assert np.linalg.norm(x[6:9]) == pytest.approx(v, rel=1e-12)
+            assert np.all(x[9:12] == 0) and x[0] == 0
+
+
+def test_accelerating_trim_at_zero_acceleration_is_the_constant_speed_trim(
+        law_carriage: Carriage) -> None:
+    """maglev_trim_accelerating(v, 0) gives maglev_trim(v) (to 1e-12: the same Newton
+    iterations on the same residual), both at the test's root of the static balances."""
+    from maglevgen.library import simulation_library
+
+    lib = simulation_library(law_carriage.structure)
+    for v in (7.0, *SPEEDS):
+        x0, f0 = (a.ravel() for a in lib.function("maglev_trim")(v, law_carriage.p))
+        xa, fa = (a.ravel() for a in lib.function("maglev_trim_accelerating")(
+            v, 0.0, law_carriage.p))
+        np.testing.assert_allclose(xa, x0, rtol=0, atol=1e-12)
+        assert fa[0] == pytest.approx(f0[0], rel=1e-12)
+        np.testing.assert_allclose(xa[1:6], reference_trim(law_carriage.params, v).q, rtol=0,
+                                   atol=1e-10)
 
 
 def test_trim_of_an_asymmetric_carriage_equals_root_of_eq3_and_static_balance() -> None:
@@ -494,9 +549,12 @@ def _assert_unit_inputs(c: Carriage) -> None:
 
 def test_array_speed_includes_the_body_rates(law_carriage: Carriage) -> None:
     """Each array's along-track speed is (R (v + w x a_i))_x: at the trim pose with body rates
-    and a sideways body velocity, every array's gap, lift and drag equal eq 3's at that speed
-    (array_state, one array at a time), the speed built here with numpy."""
+    and a sideways body velocity, every array's gap equals the reference's, and its lift and
+    drag equal eq 3's at that speed (array_state, one array at a time, the speed built here
+    with numpy) times the circuits' lag of the moving gaps (array_loads: the same circuit sum
+    with each circuit's rate term, model.circuit_dynamics = "first-order")."""
     c = law_carriage
+    assert c.params.model.circuit_dynamics == "first-order"
     x = c.trim().x.copy()
     x[7:9] += (0.4, -0.1)  # body velocity
     omega = np.array([0.6, -0.9, 1.2])  # rad/s: moves the arrays by up to about 0.3 m/s
@@ -504,12 +562,16 @@ def test_array_speed_includes_the_body_rates(law_carriage: Carriage) -> None:
     q = x[1:6]
     R = rotation(*q[2:5])
     gaps, lift, drag = (np.ravel(a) for a in c.functions.forces(x, c.p))
+    quasi_static, lagged = (array_loads(c.params, x, lag) for lag in (False, True))
     for i, arr in enumerate(c.params.arrays.values()):
         speed = float((R @ (x[6:9] + np.cross(omega, arr.position)))[0])
         ref = array_state(c.params, q, speed)
         assert gaps[i] == pytest.approx(ref.gaps[i], abs=1e-12)
-        assert lift[i] == pytest.approx(ref.lift[i], rel=1e-9)
-        assert drag[i] == pytest.approx(ref.drag[i], rel=1e-9)
+        assert quasi_static[0][i] == pytest.approx(ref.lift[i], rel=1e-12)
+        assert quasi_static[1][i] == pytest.approx(ref.drag[i], rel=1e-12)
+        assert lift[i] == pytest.approx(lagged[0][i], rel=1e-9)
+        assert drag[i] == pytest.approx(lagged[1][i], rel=1e-9)
+        assert abs(lift[i] / ref.lift[i] - 1) > 1e-6  # the lag is there
 
 
 def test_control_effectiveness_equals_cross_products(law_carriage: Carriage) -> None:

@@ -92,6 +92,11 @@ CASES: list[tuple[str, str, list[str]]] = [
       for i, value in enumerate(["Point", "distributed ", "", "sinhc"])],
     ("array-force-number", edited("model.array_force", 1.0),
      ["model.array_force = 1.0", "string"]),
+    *[(f"circuit-dynamics-{i}", edited("model.circuit_dynamics", value),
+       ["model.circuit_dynamics = ", repr(value)[:12], "one of first-order, quasi-static"])
+      for i, value in enumerate(["first order", "Quasi-static", "", "lagged"])],
+    ("circuit-dynamics-number", edited("model.circuit_dynamics", 1.0),
+     ["model.circuit_dynamics = 1.0", "string"]),
     ("circuit-pitch-0", edited("circuit.pitch", 0.0),
      ["circuit.pitch = 0.0:", "outside the range [0.0001, 1] m"]),
     # nesting deeper than the schema (4 levels: document, arrays, an array, its position)
@@ -196,6 +201,9 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
         if key == "model.array_force":  # a name, not a number: its choices
             assert line.endswith("one of distributed, point"), line
             continue
+        if key == "model.circuit_dynamics":
+            assert line.endswith("one of first-order, quasi-static"), line
+            continue
         if key == "provenance.<key>":  # text about a value, not a number
             assert "paper or assumed" in line, line
             continue
@@ -209,6 +217,7 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
               if line.split()[0] not in ("arrays.<name>", "envelope.embedded_controller",
                                          "provenance.<key>", "control.actuators",
                                          "vehicle.inertia_cg", "model.array_force",
+                                         "model.circuit_dynamics",
                                          "tolerances.parameters.<key>")}
 
     def leaves(data: Any, prefix: str = "") -> Any:
@@ -225,7 +234,8 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
 
     for key, values in leaves(DEFAULT_DATA):
         if key in ("envelope.embedded_controller", "control.actuators",
-                   "model.array_force") or key.startswith("provenance."):
+                   "model.array_force", "model.circuit_dynamics") or key.startswith(
+                       "provenance."):
             continue
         lo, hi = ranges[key]
         assert all(lo <= c <= hi for c in values), key

@@ -154,11 +154,13 @@ def _direct_contact_rate(carriage: Carriage, lib, n: int, t_end: float, dt: floa
 
 
 def test_contact_interval_covers_an_independent_estimate(private_cache) -> None:
-    """The point force law (the paper's), whose optimized damping loses roll stiffness at
-    low speed: a contact rate worth an interval (with the distributed law it holds)."""
+    """The point force law with quasi-static circuits (the paper's model), whose optimized
+    damping loses roll stiffness at low speed: a contact rate worth an interval (with the
+    distributed law it holds)."""
     from maglevgen.library import simulation_library
 
-    carriage = Carriage(load_params(None, [SPEEDS, 'model.array_force="point"']))
+    carriage = Carriage(load_params(None, [SPEEDS, 'model.array_force="point"',
+                                           'model.circuit_dynamics="quasi-static"']))
     sim_lib = simulation_library(carriage.structure)
     study = make_study(carriage, sim_lib, ("damping",), t_end=3.0, dt=1e-3, seed=11)
     result = run_study(study, 80, workers=2)

@@ -232,6 +232,7 @@ def test_without_tex_the_tex_is_written_and_the_install_named(
     assert "report.tex" in out.out and "report.pdf" not in out.out
     assert "apt-get install" in out.err and "latexmk" in out.err
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == [
+        "circuit_lag_damping.png",
         "envelope_stability_map.png",
         "fig_force_gap.png",
         "fig_force_speed.png",
@@ -361,25 +362,35 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
 def test_summary_gain_rows_agree_with_gains_json(default_report: Path, carriage: Carriage,
                                                  capsys) -> None:
     """Every number of the summary's gains table (K1, K2, the poles) equals `gains --json`'s,
-    parsed row by row from the PDF's text."""
+    parsed row by row from the PDF's text; the magnetic damping beside them equals central
+    differences of the circuit-by-circuit force sum with the circuits' lag (test_build's
+    reference)."""
+    from independent_reference import generalized_mass, reference_trim
+    from test_build import _magnetic_damping_reference
+
     assert main(["gains", "--json"]) == 0
     ref = json.loads(capsys.readouterr().out)
+    prm = carriage.params
+    c_mag = _magnetic_damping_reference(prm, reference_trim(prm, prm.operation.speed),
+                                        generalized_mass(prm))
     text = _pdf_text(default_report / "report.pdf")
     page = text[: text.index("Paper discrepancies")]
     num = r"-?\d+(?:\.\d+)?(?:\s*[x×]\s*10-?\d+)?"
-    for axis, a in ref["axes"].items():
-        m = re.search(rf"^\s*{axis}\s+({num})\s+({num})\s+(.*)$", page, re.MULTILINE)
+    for i, (axis, a) in enumerate(ref["axes"].items()):
+        m = re.search(rf"^\s*{axis}\s+({num})\s+({num})\s+({num})\s+(.*)$", page,
+                      re.MULTILINE)
         assert m, f"no summary row for {axis}"
         np.testing.assert_allclose([float(m.group(1)), float(m.group(2))], a["K_closed_form"],
                                    rtol=RTOL, err_msg=axis)
+        assert float(m.group(3)) == pytest.approx(c_mag[i], rel=RTOL, abs=1e-3), axis
         pole = r"(-?\d+(?:\.\d+)?)\s*([+-])\s*(\d+(?:\.\d+)?)\s*j|(-?\d+(?:\.\d+)?)"
-        parts = re.findall(pole, m.group(3))
+        parts = re.findall(pole, m.group(4))
         poles = [complex(float(re_), float(im) * (1 if sg == "+" else -1)) if im else
                  complex(float(re_only), 0) for re_, sg, im, re_only in parts]
         want = [complex(*p) for p in a["closed_loop_poles"]]
         got = sorted(poles, key=lambda z: (z.real, z.imag))
         want = sorted(want, key=lambda z: (z.real, z.imag))
-        assert len(got) == len(want), (axis, m.group(3))
+        assert len(got) == len(want), (axis, m.group(4))
         for g, w in zip(got, want, strict=True):
             assert abs(g - w) <= 1e-3 * abs(w), (axis, g, w)
 

@@ -161,8 +161,8 @@ static void traj_alloc(traj *t) {
 
 static double run_generated(traj *t) {
     double t0 = now_ns();
-    t->last = maglev_simulate(X0, DT, N_STEPS, F_PROP, K_POS, K_RATE, A_REF, P, GAP_MIN, t->x,
-                              t->u, t->g, &t->status);
+    t->last = maglev_simulate(X0, DT, N_STEPS, F_PROP, K_POS, K_RATE, A_REF, 0, P, GAP_MIN,
+                              t->x, t->u, t->g, 0, &t->status);
     return now_ns() - t0;
 }
 

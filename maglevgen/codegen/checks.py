@@ -19,12 +19,14 @@ Every function, in this order (``ENTRY_CHECKS``, which maglev.h states next to e
 * with run-time parameters, every entry of p inside its range of the parameter schema
   (maglevgen.params: a positive mass, wavelength, resistance, inductance, ...;
   ``MAGLEV_ERR_PARAMETER``);
-* schedule functions (``TRIM_KIND``, each runs the trim Newton solve): v in the envelope's
-  [v_min, v_max] when the parameters are baked (the range is baked with them, the same as the
-  table schedule's), v > 0 with run-time parameters (the simulation library bisects the
-  lift-off speed through it, below any v_min), the trim's accelerations within
-  ``TRIM_TOLERANCES`` (the Newton solve converged) and every gap at or above the track's
-  minimum gap (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
+* schedule functions (``TRIM_KIND``, each runs the trim Newton solve; the accelerating trim's
+  with its acceleration, also checked finite): v in the envelope's [v_min, v_max] when the
+  parameters are baked (the range is baked with them, the same as the table schedule's), v > 0
+  with run-time parameters (the simulation library bisects the lift-off speed through it,
+  below any v_min), the trim's accelerations within ``TRIM_TOLERANCES`` (the Newton solve
+  converged; for the accelerating trim the accelerations less those of the translation at a,
+  a/v times the trim's body velocity) and every gap at or above the track's minimum gap
+  (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
 * the CasADi function's own return code (``MAGLEV_ERR_INTERNAL``), then every output finite
   (``MAGLEV_ERR_NONFINITE_OUTPUT``).
 
@@ -62,7 +64,15 @@ ERROR_CODES: dict[str, tuple[int, str]] = {
 }
 ERROR_NAMES: dict[int, str] = {v: k for k, (v, _) in ERROR_CODES.items()}
 
-TRIM_KIND = ("maglev_trim", "maglev_axis_plants", "maglev_lqr_gains")
+#: the largest computation delay, in ticks, that the simulation loop's command buffer holds
+#: (maglev_simulate.h's MAGLEV_SIM_MAX_DELAY; maglevgen.simulate.Tick refuses more): a
+#: firmware's computation takes a tick or two, not more
+MAX_DELAY_TICKS = 4
+
+TRIM_KIND = ("maglev_trim", "maglev_trim_accelerating", "maglev_axis_plants",
+             "maglev_lqr_gains")
+#: the Newton solves maglev_trim_checked calls: the constant-speed and the accelerating trim
+TRIM_SOLVES = ("maglev_trim", "maglev_trim_accelerating")
 TICK_KIND = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
              "maglev_allocate", "maglev_axis_gains")
 
@@ -194,8 +204,9 @@ def _params_helper(limits: Sequence[tuple[str, str]]) -> str:
 def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...]],
                  precision: str, runtime: bool, min_gap: str,
                  speed_range: tuple[str, str] | None) -> str:
-    """``maglev_trim_checked``: the trim at v into x and F_prop, with its checks."""
-    used = ("maglev_trim", "maglev_dynamics", "maglev_gaps")
+    """``maglev_trim_checked``: the trim at v (accelerating at *a when a is not NULL) into x and
+    F_prop, with its checks."""
+    used = (*TRIM_SOLVES, "maglev_dynamics", "maglev_gaps")
     sz = [max(work[f][k] for f in used) + 1 for k in range(2)]
     nx = table["maglev_dynamics"]["inputs"][0]["rows"]
     nu = table["maglev_dynamics"]["inputs"][1]["rows"]
@@ -209,23 +220,33 @@ def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...
                "  if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;\n")
     speed_doc, speed_check = _speed_check(speed_range)
     p_range = ", p in range" if runtime else ""
-    return f"""/* the trim at *v into x and *F_prop: v and p finite{p_range},
-   {speed_doc}, the accelerations at the trim within {tol} (the Newton solve converged),
-   every gap >= track.min_gap */
-static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casadi_real* x,
-                               casadi_real* F_prop, casadi_int* iw, casadi_real* w) {{
+    return f"""/* the trim at *v into x and *F_prop (a NULL: maglev_trim; else the accelerating trim
+   at *a, maglev_trim_accelerating): v, a and p finite{p_range}, {speed_doc}, the
+   accelerations at the trim less those of the translation at a (a/v times the body velocity,
+   derive/trim.py) within {tol} (the Newton solve converged), every gap >= track.min_gap */
+static int maglev_trim_checked(const casadi_real* v, const casadi_real* a,
+                               const casadi_real* p, casadi_real* x, casadi_real* F_prop,
+                               casadi_int* iw, casadi_real* w) {{
   const casadi_real* arg[{sz[0]}];
   casadi_real* res[{sz[1]}];
-  casadi_real u[{nu}], xdot[{nx}], gaps[{ng}];
-  int i;
+  casadi_real u[{nu}], xdot[{nx}], gaps[{ng}], d;
+  int i, rc;
   (void)p;
   if (v == 0) return MAGLEV_ERR_ARGUMENT;
+  if (!maglev_all_finite(a, 1)) return MAGLEV_ERR_NONFINITE;
 {p_check}  {speed_check}
-  arg[0] = v;
-  arg[1] = {p_arg};
   res[0] = x;
   res[1] = F_prop;
-  if (maglev_trim_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
+  arg[0] = v;
+  if (a == 0) {{
+    arg[1] = {p_arg};
+    rc = maglev_trim_unchecked(arg, res, iw, w, 0);
+  }} else {{
+    arg[1] = a;
+    arg[2] = {p_arg};
+    rc = maglev_trim_accelerating_unchecked(arg, res, iw, w, 0);
+  }}
+  if (rc != 0) return MAGLEV_ERR_INTERNAL;
   if (!maglev_all_finite(x, {nx}) || !maglev_all_finite(F_prop, 1)) {{
     return MAGLEV_ERR_NOT_CONVERGED;
   }}
@@ -237,7 +258,9 @@ static int maglev_trim_checked(const casadi_real* v, const casadi_real* p, casad
   res[0] = xdot;
   if (maglev_dynamics_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
   for (i = 6; i < {nx}; ++i) {{
-    if (!(xdot[i] <= {tol} && xdot[i] >= -{tol})) return MAGLEV_ERR_NOT_CONVERGED;
+    d = xdot[i];
+    if (a != 0 && i < 9) d -= (*a / *v) * x[i];
+    if (!(d <= {tol} && d >= -{tol})) return MAGLEV_ERR_NOT_CONVERGED;
   }}
   arg[1] = {p_arg};
   res[0] = gaps;
@@ -255,7 +278,7 @@ def _work_args(name: str, work: Mapping[str, tuple[int, ...]]) -> tuple[str, str
     """(declarations, ``iw, w`` arguments) for maglev_trim_checked inside ``name``: the
     caller's work arrays where ``name``'s own work sizes cover the trim, the dynamics and the
     gaps (they do: the Newton solve evaluates the dynamics), else arrays on the stack."""
-    need = [max(work[f][k] for f in ("maglev_trim", "maglev_dynamics", "maglev_gaps"))
+    need = [max(work[f][k] for f in (*TRIM_SOLVES, "maglev_dynamics", "maglev_gaps"))
             for k in (2, 3)]
     if work[name][2] >= need[0] and work[name][3] >= need[1]:
         return "", "iw, w"
@@ -272,15 +295,18 @@ def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
     pointers = (f"  if ({_pointer_check(name, work)}) {{\n"
                 + _zero_outputs(outs).replace("  maglev", "    maglev")
                 + "    return MAGLEV_ERR_ARGUMENT;\n  }\n")
-    if name == "maglev_trim":
+    if name in TRIM_SOLVES:
+        accel, p = ("arg[1]", "arg[2]" if runtime else "0") if name != "maglev_trim" \
+            else ("0", p)
         body = (f"  casadi_real x[{nx}], F_prop;\n{decl}  int rc;\n" + pointers +
-                f"  rc = maglev_trim_checked(arg[0], {p}, res[0] != 0 ? res[0] : x,\n"
+                f"  rc = maglev_trim_checked(arg[0], {accel}, {p},\n"
+                "                           res[0] != 0 ? res[0] : x,\n"
                 f"                           res[1] != 0 ? res[1] : &F_prop, {iw_w});\n"
                 "  (void)iw; (void)w; (void)mem;\n"
                 "  if (rc == MAGLEV_OK) return MAGLEV_OK;\n")
     else:
         body = (f"  casadi_real x[{nx}], F_prop;\n{decl}  int rc;\n" + pointers +
-                f"  rc = maglev_trim_checked(arg[0], {p}, x, &F_prop, {iw_w});\n"
+                f"  rc = maglev_trim_checked(arg[0], 0, {p}, x, &F_prop, {iw_w});\n"
                 "  if (rc == MAGLEV_OK) {\n"
                 f"    if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
                 "      rc = MAGLEV_ERR_INTERNAL;\n"

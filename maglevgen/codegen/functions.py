@@ -26,6 +26,7 @@ from maglevgen.derive.linearize import (
 from maglevgen.derive.model import CarriageModel
 from maglevgen.derive.riccati import riccati_stable_form
 from maglevgen.derive.structure import NORMAL_AXIS
+from maglevgen.derive.trim import along_track_acceleration
 
 from .casadi_model import casadi_model
 from .sympy_casadi import SympyToCasadi, casadi_rewriting_off
@@ -38,6 +39,11 @@ DESCRIPTIONS: dict[str, str] = {
     "dynamics": "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, 8-12)",
     "jacobians": "(A, B) = (df/dx, df/du) of maglev_dynamics",
     "trim": "equilibrium at speed v (Newton iterations in C): trim state and propulsion force",
+    "trim_accelerating": "equilibrium at speed v accelerating at accel along the track "
+                         "(Newton iterations in C): eqs 1-2 with the d'Alembert load -m accel "
+                         "at the CG and the propulsion at operation.propulsion_point "
+                         "(derive/trim.py); trim state and propulsion force (drag + m accel); "
+                         "accel = 0 gives maglev_trim",
     "axis_plants": "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed v",
     "lqr_gains": "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim",
     "axis_gains": "per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form "
@@ -114,24 +120,35 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                             [ca.jacobian(cm.xdot, x), ca.jacobian(cm.xdot, u)],
                             ["x", "u", "p"], ["A", "B"])
 
-    # --- trim: Newton on the six accelerations in (y, z, phi, theta, psi, F_prop)
-    v = ca.SX.sym("v")
+    # --- trim: Newton on the six accelerations in (y, z, phi, theta, psi, F_prop), less those
+    # of a pure translation at accel along the track (derive.trim.along_track_acceleration:
+    # eqs 1-2 with the d'Alembert load at the CG). One solver serves maglev_trim (accel = 0,
+    # where the target and its Jacobian are exactly zero: the same iterations as without it)
+    # and maglev_trim_accelerating, so the C holds one copy of the Newton solve's model.
+    v, accel = ca.SX.sym("v"), ca.SX.sym("accel")
     z6 = ca.SX.sym("z", 6)
     x_trim = _trim_state(v, z6)
     u_trim = ca.vertcat(z6[5], ca.SX.zeros(n_u - 1))
-    residual = dynamics(x_trim, u_trim, p)[6:12]
-    res_fn = ca.Function("maglev_trim_residual", [z6, ca.vertcat(v, p)], [residual])
+    phi, theta, psi = (model.x[cv.STATE_INDEX[s]] for s in ("phi", "theta", "psi"))
+    a_sym = sp.Symbol("a_track", real=True)
+    target = SympyToCasadi({phi: z6[2], theta: z6[3], psi: z6[4], a_sym: accel})(
+        along_track_acceleration(model.R, a_sym))
+    residual = dynamics(x_trim, u_trim, p)[6:12] - target
+    res_fn = ca.Function("maglev_trim_residual", [z6, ca.vertcat(v, accel, p)], [residual])
     abstol, abstol_step = NEWTON_TOLERANCES[precision]
     newton = ca.rootfinder("maglev_trim_newton", "fast_newton", res_fn,
                            {"max_iter": newton_iterations, "abstol": abstol,
                             "abstolStep": abstol_step})
-    v_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("p", p.shape[0])
+    v_mx, a_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("accel"), ca.MX.sym("p", p.shape[0])
     guess = ca.vertcat(0, 0, 0, 0, 0, 0)
-    z_sol = newton(guess, ca.vertcat(v_mx, p_mx))
     trim_state_fn = ca.Function("maglev_trim_state", [v, z6], [x_trim, u_trim])
-    xt_mx, ut_mx = trim_state_fn(v_mx, z_sol)
+    xt_mx, ut_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, 0, p_mx)))
     trim = ca.Function("maglev_trim", [v_mx, p_mx], [xt_mx, ut_mx[0]], ["v", "p"],
                        ["x_trim", "F_prop"])
+    xa_mx, ua_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, a_mx, p_mx)))
+    trim_accelerating = ca.Function("maglev_trim_accelerating", [v_mx, a_mx, p_mx],
+                                    [xa_mx, ua_mx[0]], ["v", "accel", "p"],
+                                    ["x_trim", "F_prop"])
 
     # --- per-axis plants at trim and their closed-form gains
     sf = stiffness_form(model.structure)
@@ -244,7 +261,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                                   ["xdot", "u", "gaps"])
         T_out = T_normal if normal else E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))
         allocation_matrix = ca.Function("maglev_allocation_matrix", [p], [T_out], ["p"], ["T"])
-    fns = [_finished(f) for f in (dynamics, jacobians, trim, axis_plants, axis_gains, lqr_gains,
+    fns = [_finished(f) for f in (dynamics, jacobians, trim, trim_accelerating, axis_plants,
+                                  axis_gains, lqr_gains,
                                   lqr_control, damping_control, coupled_control, allocate,
                                   allocation_matrix)]
     closed_loop, allocation_matrix = _finished(closed_loop), fns[-1]

@@ -16,7 +16,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.model import CarriageModel
 from maglevgen.output import write_output  # noqa: F401  (re-exported: the writers' API)
 
-from .checks import check_entries, work_sizes
+from .checks import MAX_DELAY_TICKS, check_entries, work_sizes
 from .cpass import float_literal, generate_c
 from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
 from .interface import (
@@ -109,7 +109,11 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
     ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
            "nx": len(cv.STATES),
            "nu": len(model.input_names), "ng": len(model.arrays),
-           "n_prepared": prepare.numel_out(0)}
+           "n_prepared": prepare.numel_out(0), "n_arrays": len(model.structure.arrays),
+           # the array of each control force, in the input order (structure.input_names_of)
+           "array_of_force": [i for i, (_, comps) in enumerate(model.structure.arrays)
+                              for _ in comps],
+           "max_delay": MAX_DELAY_TICKS}
     env = template_env()
     for name in SIMULATE_FILES:
         files[name] = env.get_template(f"{name}.j2").render(ctx)

@@ -39,6 +39,7 @@ IO_DOCS: dict[str, str] = {
     "u": "inputs, MAGLEV_U_* order",
     "p": "parameters, MAGLEV_P_* order",
     "v": "[m/s] forward speed",
+    "accel": "[m/s^2] along-track acceleration (0: the constant-speed trim)",
     "xdot": "state derivative",
     "A": "df/dx", "B": "df/du",
     "x_trim": "trim state", "F_prop": "[N] propulsion force",

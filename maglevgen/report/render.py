@@ -29,10 +29,16 @@ from ..errors import MaglevError
 from ..library import simulation_library
 from ..output import write_output
 from ..report_figures import force_figures, pole_map
-from ..summary import gains_report, trim_point, trim_report  # the CLI's numbers, from the C
+from ..summary import (  # the CLI's numbers, from the C
+    accelerating_margins,
+    gains_report,
+    trim_point,
+    trim_report,
+)
 from ..version import __version__
 from .latex import LatexBuild, latex_env
 from .sections.actuators import _actuator_comparison
+from .sections.circuit_lag import CIRCUIT_LAG_FIGURE, circuit_lag
 from .sections.conventions import _conventions
 from .sections.damping import _damping_allocation
 from .sections.envelope import ENVELOPE_FIGURE, _envelope, _envelope_checks, _envelope_context
@@ -80,6 +86,7 @@ SECTION_TITLES: dict[str, str] = {
     "conventions": "Coordinate conventions and state order",
     "rigid_body": "Rigid-body equations (eqs 1-2)",
     "force_law": "Halbach field and force law (eqs 3-4)",
+    "circuit_lag": "Track circuit lag: first-order circuit dynamics",
     "geometry": "Geometry and force and moment sums (eqs 8-12)",
     "trim": "Trim",
     "stiffness": "Linearisation and stiffness (eqs 5-19)",
@@ -95,6 +102,13 @@ SECTION_TITLES: dict[str, str] = {
 
 def _quiet(_msg: str) -> None:
     pass
+
+
+def _margin_speeds(carriage, env) -> list[float]:
+    """v_min, the design speed (where it lies inside the envelope) and v_max: where the
+    report shows the accelerating trim."""
+    v = carriage.params.operation.speed
+    return [env.v_min, *([v] if env.v_min < v < env.v_max else []), env.v_max]
 
 
 def build_context(
@@ -129,6 +143,8 @@ def build_context(
         gains = gains_report(carriage, None, lib)
         progress("report: symbolic forms")
         force = _force_law(carriage, trim, trep)
+        progress("report: the circuits' lag (the other circuit model's library and envelope)")
+        lag, lag_png = circuit_lag(carriage, lib, env, gains)
         rigid = _rigid_body()
         alloc = _damping_allocation(gains)
         alloc["actuators"] = _actuator_comparison(carriage, progress, options.hold_runs)
@@ -136,8 +152,9 @@ def build_context(
             "conventions": _conventions(carriage.model),
             "rigid_body": rigid,
             "force_law": force,
+            "circuit_lag": lag,
             "geometry": _geometry(carriage, gains),
-            "trim": _trim(trep),
+            "trim": _trim(trep, accelerating_margins(carriage, lib, _margin_speeds(carriage, env))),
             "stiffness": _stiffness(carriage, trim, trep, gains, lib),
             "damping": alloc,
             "riccati": _riccati(gains),
@@ -157,6 +174,7 @@ def build_context(
     files.update(sim_files.read())
     files[ENVELOPE_FIGURE] = env_png
     files[POLE_FIGURE] = pole_map(poles)
+    files[CIRCUIT_LAG_FIGURE] = lag_png
     rows, notes = parameter_rows(loaded)
     envelope = _envelope_context(carriage, env, options.gain_table)
     ctx: dict[str, Any] = {
@@ -180,7 +198,7 @@ def build_context(
         "envelope": envelope,
         "simulation": sim,
         "poles": {"figure": POLE_FIGURE, "sets": poles, "speed_mode": gains["speed_mode"]},
-        "summary": summary(trep, gains, paper, checks, envelope, sections["stiffness"]),
+        "summary": summary(trep, gains, paper, checks, envelope, sections["stiffness"], lag),
         "figures": sorted(f for f in files if f.startswith("fig_")),
     }
     return ctx, files

@@ -52,6 +52,19 @@ def _envelope_checks(carriage, env) -> list[Check]:
     return out
 
 
+def _spec_context(carriage) -> dict[str, Any]:
+    """[control.spec] as the report states it."""
+    s = carriage.params.control.spec
+    d = s.max_deviation
+    return {"min_damping_ratio": s.min_damping_ratio, "min_decay_rate": s.min_decay_rate,
+            "design_damping_ratio": s.min_damping_ratio + s.damping_margin,
+            "force_budget": s.force_budget, "tick_rate": s.tick_rate,
+            "delay_ticks": s.delay_ticks, "speed_bandwidth": s.speed_bandwidth,
+            "min_gap_margin": s.min_gap_margin,
+            "deviation": {"y": d.y * 1e3, "z": d.z * 1e3, "phi": d.phi * 1e3,
+                          "theta": d.theta * 1e3, "psi": d.psi * 1e3}}
+
+
 def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The section's numbers; ``table``: the firmware table's manifest entry (c/manifest.json's
     ``gain_table``, which the build passes), else the same entry fitted here."""
@@ -67,7 +80,11 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
         "figure": ENVELOPE_FIGURE,
         "launch_acceleration": carriage.params.envelope.launch_acceleration,
         "rows": [{"title": CONTROLLER_TITLES[n], "name": n, "verdict": c.verdict,
-                  "ok": c.ok, "embedded": n == embedded} for n, c in env.controllers.items()],
+                  "ok": c.ok, "embedded": n == embedded, "spec_verdict": c.spec_verdict,
+                  "meets_spec": c.meets_spec} for n, c in env.controllers.items()],
+        "spec_checked_on": env.checked_on(),
+        "robustness": env.robustness_verdict(), "robust": env.robust,
+        "spec": _spec_context(carriage),
         "names": [CONTROLLER_TITLES[n] for n in names],
         "gain_table": {"nodes": table["nodes"], "dense_grid": table["dense_grid"],
                        "bound": table["bound"], "worst": table["worst_relative_error"]},

@@ -13,6 +13,7 @@ from ...derive.riccati import (
     riccati_residual,
     riccati_stable_form,
 )
+from ...derive.spec_design import damping_ratio_form, rate_weight_form
 from ..display import abbreviate_radicals, eqs, ltx
 
 
@@ -55,6 +56,9 @@ def _riccati(gains: dict) -> dict[str, Any]:
     printed = eqs(
         [("p_{11}", Pp[0, 0]), ("p_{12}", Pp[0, 1]), ("p_{22}", Pp[1, 1])], tag="31, paper"
     ) + eqs([("K_1", Kp[0]), ("K_2", Kp[1])], tag="32, paper")
+    form = rate_weight_form()
+    design = eqs([(r"\zeta", damping_ratio_form()), ("q_2", form.q2),
+                  (r"\zeta\big|_{q_2 = 0}", form.zeta_at_zero_rate_weight)])
     axes = []
     for axis, a in gains["axes"].items():
         axes.append(
@@ -81,6 +85,7 @@ def _riccati(gains: dict) -> dict[str, Any]:
         "gain": gain,
         "poles": poles,
         "stable": stable,
+        "design": design,
         "printed": printed,
         "axes": axes,
         "Q_values": gains["Q"],

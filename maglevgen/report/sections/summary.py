@@ -25,19 +25,23 @@ def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:
 
 
 def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
-            stiffness: dict) -> dict[str, Any]:
-    """What the first page shows (plain data; the template formats it)."""
+            stiffness: dict, lag: dict) -> dict[str, Any]:
+    """What the first page shows (plain data; the template formats it); ``lag``: the circuit
+    lag section's context (each axis's magnetic damping at the design speed)."""
     status = [c.status for c in checks]
+    magnetic = {a["axis"]: a[lag["model"].replace("-", "_")] for a in lag["axes"]}
     return {
         "verdicts": envelope["rows"],
+        "spec_checked_on": envelope["spec_checked_on"],
         "v_min": envelope["v_min"], "v_max": envelope["v_max"],
         "trim": {"speed": trep["speed"], "lift_off": trep["lift_off_speed"],
                  "F_prop": trep["propulsion_force"], "residual": trep["residual"]},
-        "gains": [{"axis": axis, "K": a["K_closed_form"],
+        "gains": [{"axis": axis, "K": a["K_closed_form"], "magnetic": magnetic[axis],
                    "poles": [complex(*p) for p in a["closed_loop_poles"]]}
                   for axis, a in gains["axes"].items()],
         "discrepancies": _discrepancies(trep, gains),
         "speed_mode": gains["speed_mode"],
+        "circuit_dynamics": lag["model"],
         "passed": status.count("pass"), "failed": status.count("FAIL"),
         "not_run": status.count("not run"),
         "failed_checks": [c.what for c in checks if c.status == "FAIL"],  # LaTeX text

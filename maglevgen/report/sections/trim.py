@@ -7,11 +7,22 @@ from typing import Any
 import sympy as sp
 
 from ...derive import conventions as cv
+from ...summary import AcceleratingMargin
 from ..display import ltx
 
 
-def _trim(trep: dict) -> dict[str, Any]:
+def _trim(trep: dict, accelerating: list[AcceleratingMargin] | None = None) -> dict[str, Any]:
+    """The trim table's context; ``accelerating``: the accelerating trim beside the
+    constant-speed one at v_min, the design speed and v_max (`accelerating_margins`)."""
+    rows = [{"speed": r.speed, "pitch": r.pitch * 1e3, "pitch_acc": r.pitch_accelerating * 1e3,
+             "offset": r.pitch_offset * 1e3, "heave_shift": (r.heave_accelerating - r.heave) * 1e3,
+             "gap": r.gap * 1e3, "gap_acc": r.gap_accelerating * 1e3, "array": r.gap_array,
+             "margin": r.gap_margin * 1e3, "F_prop": r.f_prop, "F_prop_acc": r.f_prop_accelerating}
+            for r in accelerating or []]
     return {
+        "accelerating": rows,
+        "acceleration": accelerating[0].acceleration if accelerating else 0.0,
+        "min_gap": accelerating[0].min_gap * 1e3 if accelerating else 0.0,
         "speed": trep["speed"],
         "lift_off": trep["lift_off_speed"],
         "residual": trep["residual"],

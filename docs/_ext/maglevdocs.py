@@ -1,0 +1,160 @@
+"""Sphinx directives that render maglevgen's facts from their one source.
+
+``maglev-parameters``
+    The parameter file's reference from the schema (maglevgen.params.schema_table: every key,
+    its unit, meaning, the paper's value, the allowed range and the reason for it), then the
+    default carriage's parameter vector (maglevgen.params.flatten) with each value's
+    provenance (the file's ``[provenance]`` table: "paper" with where, or "assumed" with why).
+``maglev-examples``
+    Every script of examples/ (its docstring and its source), in name order, so that a new
+    example appears without editing the page.
+``maglev-notebook``
+    A Jupyter notebook's cells (markdown as text, code as Python blocks), read with the
+    standard library's json so the documentation build needs no notebook package.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import re
+from pathlib import Path
+
+from docutils import nodes
+from docutils.statemachine import StringList
+from sphinx.application import Sphinx
+from sphinx.util.docutils import SphinxDirective
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLES = REPO / "examples"
+
+
+def _cell(text: str) -> str:
+    """A table cell on one line, with the characters reST would read as markup escaped."""
+    text = " ".join(str(text).split())
+    return re.sub(r"([*`|_\\])", r"\\\1", text) if text else ".."
+
+
+def _table(title: str, header: tuple[str, ...], rows: list[tuple[str, ...]],
+           widths: str) -> list[str]:
+    """A reST list-table; the first column is a key shown literally, the others escaped."""
+    out = [f".. list-table:: {title}", "   :header-rows: 1", f"   :widths: {widths}", ""]
+    for i, row in enumerate((header, *rows)):
+        first = _cell(row[0]) if i == 0 or not row[0] else f"``{row[0]}``"
+        out.append(f"   * - {first}")
+        out += [f"     - {_cell(c)}" for c in row[1:]]
+    return [*out, ""]
+
+
+def _provenance(key: str, provenance: dict) -> str:
+    """The provenance entry of ``key`` or of the nearest table that holds it."""
+    parts = key.split(".")
+    for n in range(len(parts), 0, -1):
+        entry = provenance.get(".".join(parts[:n]))
+        if entry is not None:
+            return f"{entry.source}: {entry.why}"
+    return ""
+
+
+class _Rst(SphinxDirective):
+    """A directive that writes reST lines and returns what they parse to."""
+
+    def _parse(self, lines: list[str]) -> list[nodes.Node]:
+        node = nodes.container()
+        self.state.nested_parse(StringList(lines, source=self.get_source_info()[0]),
+                                self.content_offset, node)
+        return node.children
+
+
+class ParametersDirective(_Rst):
+    """The schema's every key, then the default carriage's values with their provenance."""
+
+    has_content = False
+
+    def run(self) -> list[nodes.Node]:
+        from maglevgen.params import default_params_path, flatten, load_params, schema_table
+
+        self.env.note_dependency(str(REPO / "maglevgen" / "params.py"))
+        self.env.note_dependency(str(default_params_path()))
+        loaded = load_params()
+        values = [(e.name, repr(float(e.value)), e.unit,
+                   _provenance(e.name, loaded.params.provenance)) for e in flatten(loaded.params)]
+        lines = _table("Every key of the schema", ("key", "unit", "meaning", "paper",
+                                                   "allowed values and why"),
+                       schema_table(), "20 6 30 8 36")
+        lines += [".. _default-carriage-values:", ""]
+        lines += _table("The default carriage (maglevgen/carriage_llnl.toml): the parameter "
+                        "vector p in the generated C's order",
+                        ("entry", "value", "unit", "provenance"), values, "25 12 8 55")
+        names = {e.name for e in flatten(loaded.params)}
+        others = [(k, f"{v.source}: {v.why}") for k, v in loaded.params.provenance.items()
+                  if k not in names]
+        lines += _table("The default carriage: provenance of the choices and of the tables "
+                        "(an entry of p without its own line above takes its table's)",
+                        ("key or table", "provenance"), others, "25 75")
+        return self._parse(lines)
+
+
+class ExamplesDirective(_Rst):
+    """Each example script: a section with its docstring and its source."""
+
+    has_content = False
+
+    def run(self) -> list[nodes.Node]:
+        lines: list[str] = []
+        for path in sorted(EXAMPLES.glob("*.py")):
+            self.env.note_dependency(str(path))
+            doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+            rel = Path("..") / path.relative_to(REPO)
+            lines += [f".. rubric:: {path.name}", "", "::", ""]
+            lines += [f"    {line}" for line in doc.splitlines()]
+            lines += ["", f".. literalinclude:: {rel.as_posix()}", "   :language: python",
+                      "   :lines: " + f"{_after_docstring(path)}-", ""]
+        return self._parse(lines)
+
+
+def _after_docstring(path: Path) -> int:
+    """The first source line after the module docstring (1-based)."""
+    tree = ast.parse(path.read_text())
+    first = tree.body[0]
+    return (first.end_lineno or 0) + 1 if isinstance(first, ast.Expr) else 1
+
+
+def _markdown_to_rst(text: str) -> list[str]:
+    """The plain Markdown of the notebook's text cells: headings, paragraphs and `code`."""
+    out: list[str] = []
+    for line in text.splitlines():
+        m = re.match(r"^(#+)\s+(.*)$", line)
+        if m:
+            out += [f".. rubric:: {m.group(2)}", ""]
+            continue
+        out.append(re.sub(r"`([^`]+)`", r"``\1``", line))  # bold (**x**) reads the same
+    return [*out, ""]
+
+
+class NotebookDirective(_Rst):
+    """A notebook's cells in order."""
+
+    required_arguments = 1
+
+    def run(self) -> list[nodes.Node]:
+        path = (REPO / "docs" / self.arguments[0]).resolve()
+        self.env.note_dependency(str(path))
+        nb = json.loads(path.read_text())
+        lines: list[str] = []
+        for cell in nb["cells"]:
+            src = "".join(cell["source"])
+            if cell["cell_type"] == "markdown":
+                lines += _markdown_to_rst(src)
+            elif cell["cell_type"] == "code":
+                lines += [".. code-block:: python", ""]
+                lines += [f"   {line}" if line else "" for line in src.splitlines()]
+                lines.append("")
+        return self._parse(lines)
+
+
+def setup(app: Sphinx) -> dict:
+    app.add_directive("maglev-parameters", ParametersDirective)
+    app.add_directive("maglev-examples", ExamplesDirective)
+    app.add_directive("maglev-notebook", NotebookDirective)
+    return {"version": "1", "parallel_read_safe": True}

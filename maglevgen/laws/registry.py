@@ -1,0 +1,74 @@
+"""The registry of controllers: `Controller` and `register` (see maglevgen.laws)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from ..operating import OperatingPoint
+
+__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "titles"]
+
+GainsFn = Callable[["OperatingPoint"], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Controller:
+    """One controller: what every layer needs to know about it.
+
+    ``fmu_gains``: how the FMU's wrapper sets its gains: "none" (zero), "damping" (c of
+    maglev_lqr_gains on the rate diagonal), "axis" (the per-axis K of maglev_lqr_gains) or
+    "matrix" (K_pos and K_rate solved at export, carried as constants).
+    ``tick_function``: the generated C function the firmware calls every tick (None: none).
+    """
+
+    name: str
+    title: str
+    description: str
+    gains: GainsFn
+    embeddable: bool = True
+    paper: bool = False
+    tick_function: str | None = "maglev_coupled_control"
+    fmu_gains: str = "matrix"
+    style: dict = field(default_factory=dict)  # matplotlib line style
+
+
+REGISTRY: dict[str, Controller] = {}
+
+
+def register(c: Controller) -> Controller:
+    """Add ``c`` to the registry (in the order the modules register them)."""
+    if c.name in REGISTRY:
+        raise ValueError(f"controller {c.name!r} registered twice")
+    if not c.name.isidentifier() or not c.name.islower():
+        raise ValueError(f"controller name {c.name!r}: a lower-case identifier (it becomes "
+                         "part of C and file names)")
+    REGISTRY[c.name] = c
+    return c
+
+
+def names() -> tuple[str, ...]:
+    """Every controller, in registration order."""
+    return tuple(REGISTRY)
+
+
+def embeddable() -> tuple[str, ...]:
+    """The controllers the firmware may embed (and `build` may verify)."""
+    return tuple(n for n, c in REGISTRY.items() if c.embeddable)
+
+
+def titles() -> dict[str, str]:
+    """Name -> title, for tables and legends."""
+    return {n: c.title for n, c in REGISTRY.items()}
+
+
+def controller(name: str) -> Controller:
+    """The registered controller ``name``; KeyError naming the known ones otherwise."""
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise KeyError(f"controller {name!r}: expected one of {', '.join(REGISTRY)}") from None

@@ -1,0 +1,132 @@
+"""The documentation site (`make docs`): it builds with warnings as errors, and it documents
+everything the package exposes.
+
+References: the objects themselves, not the documentation's sources: ``maglevgen.__all__``
+and the public members of the API's classes (read by ``inspect``), every command and option
+of the argparse parser (walked here), every key of the schema (``params.schema_table``) and
+every entry of the default carriage's parameter vector, read back from the built HTML and
+from Sphinx's object inventory (``objects.inv``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import html
+import inspect
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import maglevgen
+from maglevgen.cli import build_parser
+from maglevgen.params import flatten, load_params, schema_table
+
+REPO = Path(__file__).resolve().parents[1]
+DOCS = REPO / "docs"
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    """The HTML site built as `make docs` builds it (-W: any warning fails the build)."""
+    out = tmp_path_factory.mktemp("docs")
+    proc = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-E", "-q",
+                           "-b", "html", "-d", str(out / "doctrees"), str(DOCS),
+                           str(out / "html")], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-5000:]
+    assert proc.stderr.strip() == "", proc.stderr[-5000:]
+    return out / "html"
+
+
+def _text(page: Path) -> str:
+    """A page's visible text, tags removed and entities decoded, whitespace collapsed."""
+    body = re.sub(r"<[^>]+>", "", page.read_text(encoding="utf-8"))
+    return " ".join(html.unescape(body).split())
+
+
+def _inventory(site: Path) -> set[str]:
+    from sphinx.util.inventory import InventoryFile
+
+    with open(site / "objects.inv", "rb") as f:
+        inv = InventoryFile.load(f, "", lambda base, uri: uri)
+    return {name for kind, entries in inv.items() if kind.startswith("py:") for name in entries}
+
+
+def _public_api() -> list[str]:
+    """Every public object: maglevgen.__all__ and the public members of its classes."""
+    names = [f"maglevgen.{n}" for n in maglevgen.__all__]
+    for n in maglevgen.__all__:
+        obj = getattr(maglevgen, n)
+        if inspect.isclass(obj) and not issubclass(obj, BaseException):
+            names += [f"maglevgen.{n}.{m}" for m, _ in inspect.getmembers(obj)
+                      if not m.startswith("_") and m in vars(obj)]
+    return names
+
+
+def _commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
+              ) -> list[tuple[tuple[str, ...], argparse.ArgumentParser]]:
+    out = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                out.append(((*path, name), sub))
+                out += _commands(sub, (*path, name))
+    return out
+
+
+def test_every_public_api_object_is_documented(site: Path) -> None:
+    documented = _inventory(site)
+    missing = [n for n in _public_api() if n not in documented]
+    assert not missing, missing
+    assert len(_public_api()) > len(maglevgen.__all__)  # the classes' methods were walked
+    page = _text(site / "api.html")
+    assert "Examples" in page and "Parameters" in page  # numpydoc's sections rendered
+
+
+def test_every_command_and_option_is_in_the_cli_reference(site: Path) -> None:
+    raw = (site / "cli.html").read_text(encoding="utf-8")
+    text = _text(site / "cli.html")
+    commands = _commands(build_parser())
+    assert {p[0] for p, _ in commands} >= {"trim", "gains", "fmu", "build", "params"}
+    for path, sub in commands:
+        assert f'id="maglevgen-{"-".join(path)}"' in raw, path
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue  # -h, which sphinx-argparse leaves out of every command
+            for opt in action.option_strings:
+                assert opt in text, (path, opt)
+            for choice in action.choices or ():
+                if not isinstance(action, argparse._SubParsersAction):
+                    assert str(choice) in text, (path, choice)
+
+
+def test_every_parameter_key_unit_and_range_is_in_the_reference(site: Path) -> None:
+    text = _text(site / "parameters.html")
+    for key, unit, _desc, _paper, allowed in schema_table():
+        assert key in text, key
+        assert " ".join(allowed.split()) in text, (key, allowed)
+        assert unit in text, (key, unit)
+    loaded = load_params()
+    for e in flatten(loaded.params):  # every entry of p with its value
+        assert f"{e.name} {float(e.value)!r}" in text, e.name
+    for key, prov in loaded.params.provenance.items():  # every reason the file gives
+        assert " ".join(prov.why.split()) in text, key
+
+
+def test_guides_theory_and_examples_are_rendered(site: Path) -> None:
+    start = _text(site / "getting_started.html")
+    assert "make run" in start and "make test" in start and "SUMMARY.md" in start
+    assert "maglevgen build" in start
+    assert "arm-none-eabi-gcc" in _text(site / "firmware.html")
+    assert "modelDescription.xml" in _text(site / "fmu.html")
+    theory = _text(site / "theory.html")
+    for eqs in ("eqs 1-2", "eqs 3-4", "eqs 8-12", "eqs 5-19", "eqs 20-23", "eqs 24-33"):
+        assert eqs in theory
+    examples = _text(site / "examples.html")
+    for script in sorted((REPO / "examples").glob("*.py")):
+        assert script.name in examples
+        last = [ln for ln in script.read_text().splitlines() if ln.strip()][-1].strip()
+        assert html.unescape(last) in examples, script.name  # the whole source is shown
+    assert "carriage.envelope(n_speeds=N_SPEEDS)" in examples  # the notebook's cells
