@@ -88,7 +88,7 @@ def _verdicts(carriage, rep: dict) -> list[str]:
     from . import summary
 
     try:
-        env = summary.envelope_of(carriage)
+        env = summary.envelope_of(carriage, other_models=False)  # `envelope` and `build` do
     except InputError as exc:
         rep["envelope"] = {"error": str(exc)}
         return [f"Envelope not computed: {exc}"]
