@@ -827,7 +827,8 @@ class Carriage:
 
     def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
                    t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
-                   scheduler: str | None = None, out: str | Path | None = None) -> dict:
+                   scheduler: str | None = None, out: str | Path | None = None,
+                   loop: str = "firmware") -> dict:
         """Monte-Carlo robustness over the parameter file's ``[tolerances]``, as
         ``maglevgen montecarlo``.
 
@@ -843,7 +844,7 @@ class Carriage:
         seed : int, optional
             Seed of the study (default 0).
         controller : str, optional
-            ``"none"``, ``"damping"``, ``"lqr"``, ``"coupled"`` or ``"all"``; default the
+            A registered controller (``"spec"``, ``"coupled"``, ...) or ``"all"``; default the
             embedded controller (``envelope.embedded_controller``).
         t_end : float, optional
             Length of each run in s (default 10).
@@ -856,6 +857,8 @@ class Carriage:
             an existing Dask scheduler (``"tcp://host:8786"``).
         out : str or pathlib.Path, optional
             Folder for ``samples.parquet``, ``montecarlo.md``/``.json`` and the plots.
+        loop : {'firmware', 'continuous'}, optional
+            How every run executes its controller (``--loop``; see `simulate`).
 
         Returns
         -------
@@ -874,10 +877,11 @@ class Carriage:
         >>> import maglevgen
         >>> s = maglevgen.load().montecarlo(samples=4, seed=1, t_end=0.5, workers=1)
         >>> sorted(s["controllers"])
-        ['coupled']
+        ['spec']
         """
         from .montecarlo import CONTROLLERS, default_workers, make_study, output_files, run_study
         from .output import check_writable, write_output
+        from .simulate import run_loop
 
         choice = controller or self._carriage.params.envelope.embedded_controller
         if choice != "all":
@@ -890,8 +894,9 @@ class Carriage:
         if out is not None:
             check_writable(Path(out))
         controllers = CONTROLLERS if choice == "all" else (choice,)
-        study = make_study(self._carriage, _commands()._library(self._carriage), controllers,
-                           t_end, dt, seed)
+        lib = _commands()._library(self._carriage)
+        study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
+                           *run_loop(self._carriage, lib, loop))
         result = run_study(study, samples, workers or default_workers(), scheduler)
         if out is not None:
             write_output(output_files(result), Path(out))

@@ -89,7 +89,7 @@ def _verdicts(carriage, rep: dict) -> list[str]:
     from . import summary
 
     try:
-        env = summary.envelope_of(carriage)
+        env = summary.envelope_of(carriage, other_models=False)  # `envelope` and `build` do
     except InputError as exc:
         rep["envelope"] = {"error": str(exc)}
         return [f"Envelope not computed: {exc}"]
@@ -296,6 +296,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     from . import progress
     from .montecarlo import CONTROLLERS, make_study, output_files, run_study
     from .output import check_writable, write_output
+    from .simulate import run_loop
 
     if args.samples <= 0:
         raise InputError(f"--samples {args.samples}: expected a positive number of samples")
@@ -310,8 +311,9 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
         check_writable(Path(args.out))
     from . import summary
 
-    study = make_study(carriage, summary._library(carriage), controllers, args.t_end, args.dt,
-                       args.seed)
+    lib = summary._library(carriage)
+    study = make_study(carriage, lib, controllers, args.t_end, args.dt, args.seed,
+                       *run_loop(carriage, lib, args.loop))
     from .montecarlo import default_workers
 
     workers = args.workers or default_workers()
@@ -527,6 +529,10 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--controller", choices=_Controllers(extra=("all",)),
                     help="default: envelope.embedded_controller")
     _run_options(mc)
+    mc.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
+                    help="firmware (default): each controller at the tick of [control.spec] "
+                         "with its delay, the speed loop and the force budget; continuous: "
+                         "the paper's law at every RK4 stage under the trim propulsion")
     mc.add_argument("--workers", type=int, metavar="K",
                     help="worker processes (default: every core); with --scheduler local, "
                          "the LocalCluster's workers")

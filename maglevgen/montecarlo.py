@@ -37,7 +37,7 @@ import numpy as np
 
 from .derive import conventions as cv
 from .errors import InputError, MaglevError, NoTrimError
-from .operating import CONTROLLER_TITLES, CONTROLLERS, Weights, operating_point
+from .operating import CONTROLLER_TITLES, CONTROLLERS, Weights, checked_trim, operating_point
 
 # statuses of a sample's run: the simulation's (maglevgen.simulate.RUN_STATUSES) and two of
 # the sample itself
@@ -172,6 +172,7 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
 
     def row(controller: str, status: str, reason: str = "", m: dict | None = None) -> dict:
         r = {**base, "controller": controller, "status": status, "reason": reason,
+             "contact_cause": "",
              "min_gap": math.nan, "speed_at_contact": math.nan, "speed_error": math.nan,
              "saturated_time": math.nan}
         for axis in cv.AXES:
@@ -198,8 +199,27 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
                         tick=study.tick, speed_gain=study.speed_gain,
                         force_budget=study.force_budget)
         m = metrics(traj)
-        rows.append(row(c, m["status"], m["event"] or "", m))
+        r = row(c, m["status"], m["event"] or "", m)
+        r["contact_cause"] = contact_cause(lib, p, study.min_gap, m)
+        rows.append(r)
     return rows
+
+
+# why a run touched the track: its speed fell below the sample's lift-off (no trim there: the
+# carriage slowed down and landed), or the levitation loop lost it at a flying speed
+CONTACT_CAUSES = ("below lift-off", "levitation")
+
+
+def contact_cause(lib, p, min_gap: float, m: dict) -> str:
+    """"" for a run without contact, else one of CONTACT_CAUSES: whether the sample has a
+    trim at its speed at contact (the Newton trim in C, `operating.checked_trim`)."""
+    if m["status"] != "contact" or m["speed_at_contact"] is None:
+        return ""
+    try:
+        checked_trim(lib, p, float(m["speed_at_contact"]), min_gap)
+    except NoTrimError:
+        return CONTACT_CAUSES[0]
+    return CONTACT_CAUSES[1]
 
 
 def run_chunk(study: Study, indices: Sequence[int]) -> Columns:
@@ -447,6 +467,9 @@ def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
         out[c] = {
             "title": CONTROLLER_TITLES[c], "samples": int(sel.sum()), "runs": n_run,
             "status_counts": {s: int(np.sum(status == s)) for s in STATUSES},
+            "contact_causes": {k: int(np.sum((status == "contact")
+                                             & (cols["contact_cause"][sel] == k)))
+                               for k in CONTACT_CAUSES},
             "contact_probability": contact / n_run if n_run else None,
             "contact_ci95": [lo, hi],
             "failure_probability": int(fail.sum()) / n_run if n_run else None,
@@ -493,7 +516,9 @@ def markdown(summary: dict) -> str:
     for c, a in summary["controllers"].items():
         p = a["contact_probability"]
         lo, hi = a["contact_ci95"]
-        counts = ", ".join(f"{s} {k}" for s, k in a["status_counts"].items() if k)
+        causes = ", ".join(f"{c} {k}" for c, k in a["contact_causes"].items() if k)
+        counts = ", ".join(f"{s} {k}" + (f" ({causes})" if s == "contact" and causes else "")
+                           for s, k in a["status_counts"].items() if k)
         pf = a["failure_probability"]
         rate = "-" if p is None else f"{p:.4f} [{lo:.4f}, {hi:.4f}]"
         fails = "-" if pf is None else f"{pf:.4f}"

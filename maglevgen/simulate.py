@@ -81,6 +81,15 @@ def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[Tick, float, float]
     return setting.tick, setting.speed_gain, float(carriage.params.control.spec.force_budget)
 
 
+def run_loop(carriage, lib: SimulationLibrary,
+             loop: str) -> tuple[Tick | None, float, float | None]:
+    """(tick, speed gain, force budget) of a run ``loop`` (LOOPS): `firmware_loop`, or the
+    paper's continuous law (None, 0, None)."""
+    if loop not in LOOPS:
+        raise InputError(f"--loop {loop!r}: expected one of {', '.join(LOOPS)}")
+    return firmware_loop(carriage, lib) if loop == "firmware" else (None, 0.0, None)
+
+
 def speed_loop_gain(mode: SpeedMode, bandwidth: float) -> float:
     """k_v [N s/m] that puts the speed pole at -``bandwidth`` [rad/s] (`sampled.speed_gain`
     with the drag's total slope along the trim curve, ``mode.drag_slope_trim``; negative where
@@ -573,10 +582,8 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
-    if loop not in LOOPS:
-        raise InputError(f"--loop {loop!r}: expected one of {', '.join(LOOPS)}")
-    if loop == "firmware":
-        tick, speed_gain, force_budget = firmware_loop(carriage, lib)
+    if loop != "continuous":
+        tick, speed_gain, force_budget = run_loop(carriage, lib, loop)
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
     loop = {"tick": tick, "speed_gain": speed_gain, "force_budget": force_budget}
     trajs = []

@@ -327,9 +327,10 @@ def _library(carriage: Carriage) -> SimulationLibrary:
 
 
 def envelope_of(carriage: Carriage, n_speeds: int | None = None,
-                lib: SimulationLibrary | None = None):
+                lib: SimulationLibrary | None = None, other_models: bool = True):
     """The envelope of a carriage through its compiled library (maglevgen.envelope)."""
-    return compute_envelope(carriage, lib or _library(carriage), n_speeds or DEFAULT_SPEEDS)
+    return compute_envelope(carriage, lib or _library(carriage), n_speeds or DEFAULT_SPEEDS,
+                            other_models=other_models)
 
 
 def verdict_lines(env, embedded: str) -> list[str]:

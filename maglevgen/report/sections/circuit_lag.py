@@ -58,7 +58,7 @@ def circuit_lag(carriage, lib, env, gains: dict) -> tuple[dict[str, Any], bytes]
     `summary.gains_report` (the controllers' rate gains at the design speed)."""
     other = _other(carriage)
     other_lib = simulation_library(other.structure)
-    other_env = compute_envelope(other, other_lib)
+    other_env = compute_envelope(other, other_lib, other_models=False)
     speeds = np.linspace(env.v_min, env.v_max, _N_SPEEDS)
     mine = damping_across_speed(carriage, lib, speeds)
     theirs = damping_across_speed(other, other_lib, speeds)
