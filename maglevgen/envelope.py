@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .carriage import Carriage
 from .errors import InputError, NoTrimError
 from .library import SimulationLibrary, simulation_library
 from .operating import (
@@ -32,7 +33,7 @@ from .operating import (
     speed_mode,
     stability,
 )
-from .params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS
+from .params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
 from .sampled import Tick, loop_gain, loop_model, sampled_eigenvalues, speed_gain
 from .schedule import GainTable, Reference, Schedule, accelerating_references, gain_table_row
 
@@ -388,11 +389,8 @@ MODEL_CHOICES: tuple[tuple[str, tuple[str, ...]], ...] = (("array_force", ARRAY_
                                                           ("circuit_dynamics", CIRCUIT_DYNAMICS))
 
 
-def alternate_models(carriage) -> list[tuple[str, object]]:
+def alternate_models(carriage) -> list[tuple[str, Carriage]]:
     """(label, carriage) for each other value of each model choice, one change at a time."""
-    from .carriage import Carriage
-    from .params import LoadedParams
-
     params, out = carriage.params, []
     for key, choices in MODEL_CHOICES:
         for value in choices:

@@ -331,8 +331,8 @@ def test_table_schedule_return_codes(gain_table) -> None:
 def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: Carriage,
                                                       sim_lib) -> None:
     """Between the table's nodes (midpoints), the ten-state closed loop with the table's
-    coupled gains has eigenvalues within 1 % of |lambda| (and 1e-3 1/s) of those with the
-    exact gains (scipy CARE), and stays stable."""
+    gains of the embedded controller has eigenvalues within 1 % of |lambda| (and 1e-3 1/s)
+    of those with the exact gains (scipy CARE), and stays stable."""
     from maglevgen.envelope import envelope_points
     from maglevgen.schedule import GainTable
 
@@ -346,7 +346,8 @@ def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: Carr
         A_r, B_g = op.reduced
         S = np.eye(5, A_r.shape[0])
         ev_table = np.linalg.eigvals(A_r - B_g @ (K_pos @ S + K_rate @ op.rate_map))
-        ev_exact = np.linalg.eigvals(op.reduced_closed_loop("coupled"))
+        ev_exact = np.linalg.eigvals(op.reduced_closed_loop(
+            carriage.params.envelope.embedded_controller))
         assert np.max(ev_table.real) < 0
         for lam in ev_exact:  # each exact eigenvalue has a table one nearby
             assert np.min(np.abs(ev_table - lam)) <= 1e-2 * abs(lam) + 1e-3, (op.speed, lam)
