@@ -15,6 +15,7 @@ from maglevgen.carriage import Carriage
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.model import CarriageModel
 from maglevgen.output import write_output  # noqa: F401  (re-exported: the writers' API)
+from maglevgen.params import entry_limits
 
 from .checks import MAX_DELAY_TICKS, check_entries, work_sizes
 from .cpass import float_literal, generate_c
@@ -81,7 +82,6 @@ def _p_limits_c(model: CarriageModel, opts: GenerateOptions) -> list[tuple[str, 
     entry points refuse a p outside them: MAGLEV_ERR_PARAMETER)."""
     if opts.parameters != "runtime":
         return None
-    from maglevgen.params import entry_limits
 
     def lit(v: float) -> str:
         if opts.precision == "double":

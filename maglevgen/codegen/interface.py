@@ -19,6 +19,7 @@ import jinja2
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
+from maglevgen.params import entry_limits
 from maglevgen.version import __version__
 
 from .checks import entry_checks, error_defines
@@ -112,7 +113,6 @@ def _c_literal(value: float, precision: str) -> str:
 
 def _checked_range(name: str) -> str:
     """A parameter's range that the run-time-parameter C checks p against, for maglev.h."""
-    from maglevgen.params import entry_limits
 
     lo, hi = entry_limits(name)
     return f"; checked range [{lo!r}, {hi!r}]"
