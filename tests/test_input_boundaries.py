@@ -190,7 +190,7 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
             assert "an entry of the parameter vector" in line
             continue
         if key == "envelope.embedded_controller":  # a name, not a number: its choices
-            assert line.endswith("one of damping, lqr, coupled"), line
+            assert line.endswith("one of damping, lqr, coupled, spec"), line
             continue
         if key == "control.actuators":
             assert line.endswith("one of paper, normal"), line
@@ -281,10 +281,10 @@ def test_floating_point_warnings_never_reach_the_terminal(monkeypatch, capsys) -
 
     real = summary.trim_report
 
-    def overflowing(carriage, speed):
+    def overflowing(carriage, speed, **options):
         np.exp(np.array([1e3]))  # RuntimeWarning: overflow
         warnings.warn("a library's own warning", UserWarning, stacklevel=1)
-        return real(carriage, speed)
+        return real(carriage, speed, **options)
 
     monkeypatch.setattr(summary, "trim_report", overflowing)
     with warnings.catch_warnings(record=True) as seen:
