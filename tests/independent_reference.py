@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import control
 import mpmath
 import numpy as np
 import scipy.linalg
@@ -413,3 +414,31 @@ def rigid_body_xdot(prm: Parameters, x: np.ndarray, wrench_inertial: np.ndarray,
         Mo - np.cross(omega, I_O @ omega) - m * np.cross(r_G, np.cross(omega, v))])
     acc = np.linalg.solve(lhs, rhs)
     return np.concatenate([R @ v, euler_rates(x[3], x[4], omega), acc])
+
+
+def axis_damping_ratio(k: float, m: float, q1: float, q2: float, r: float) -> float:
+    """The smallest damping ratio of one axis m a'' + k a = u under python-control's LQR."""
+    _, _, E = control.lqr([[0, 1], [-k / m, 0]], [[0], [1 / m]], np.diag([q1, q2]), [[r]])
+    E = np.asarray(E)
+    return float(np.min(-E.real / np.abs(E)))
+
+
+def spec_weights_reference(spec, k, m, T):
+    """The spec design's weights from [control.spec] (``spec``): Bryson's q1 and r (the
+    budget over the largest allocation entry of each axis), q2 by a root search on python-control's damping
+    ratio (where the position weight alone already damps more, the design's stated floor
+    1e-6 q1 m / sigma)."""
+    from scipy.optimize import brentq
+
+    a_max = np.array([getattr(spec.max_deviation, a) for a in ("y", "z", "phi", "theta",
+                                                                 "psi")])
+    q1, r = 1 / a_max**2, (np.max(np.abs(T), axis=0) / spec.force_budget) ** 2
+    zeta = spec.min_damping_ratio + spec.damping_margin
+    q2 = np.empty(5)
+    for i in range(5):
+        sigma = np.sqrt(k[i] ** 2 + q1[i] / r[i])
+        floor = 1e-6 * q1[i] * m[i] / sigma
+        f = lambda w, i=i: axis_damping_ratio(k[i], m[i], q1[i], w, r[i]) - zeta  # noqa: E731
+        q2[i] = floor if f(floor) >= 0 else brentq(f, floor, 1e6 * q1[i] * m[i] / sigma,
+                                                   rtol=1e-13)
+    return q1, q2, r

@@ -93,14 +93,14 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
     """The firmware table's worst relative error: the report prints c/manifest.json's value
     (to its six digits), and that value is reproduced here on the manifest's dense grid: the
     built table (c/maglev_gain_table.c compiled in double) against the exact schedule computed
-    in this test, the Newton trim and plants of the C with the per-axis and the coupled LQR
-    from python-control's lqr and the damping from the numerical ISE minimum
-    (tests/independent_reference.py); each field's error relative to its largest magnitude."""
+    in this test, the Newton trim and plants of the C with the per-axis LQR and the embedded
+    controller's coupled LQR (the spec design's weights) from python-control's lqr and the
+    damping from the numerical ISE minimum (tests/independent_reference.py); each field's error relative to its largest magnitude."""
     import ctypes
     import math
 
     import control
-    from independent_reference import ise_optimal_damping
+    from independent_reference import ise_optimal_damping, spec_weights_reference
 
     from maglevgen.derive import conventions as cv
     from maglevgen.runtime.compile import compile_shared
@@ -142,7 +142,12 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
         A_r, B_g = A[np.ix_(reduced, reduced)], B[reduced, 1:] @ T
         S = np.eye(5, len(reduced))
         C_rate = A[np.ix_(axes, reduced)]
-        K_c = control.lqr(A_r, B_g, q1 * S.T @ S + q2 * C_rate.T @ C_rate, r * np.eye(5))[0]
+        # the embedded controller (the spec design): its weights from [control.spec], q2 by a
+        # root search on python-control's damping ratio
+        assert carriage.params.envelope.embedded_controller == "spec"
+        q1s, q2s, rs = spec_weights_reference(carriage.params.control.spec, k, mass, T)
+        K_c = control.lqr(A_r, B_g, S.T @ np.diag(q1s) @ S + C_rate.T @ np.diag(q2s) @ C_rate,
+                          np.diag(rs))[0]
         K_prime = K_c @ np.linalg.inv(np.vstack([S, C_rate]))  # on (a, a')
         exact.append(np.concatenate([f_prop, x[axes], K.ravel(order="F"), c,
                                      K_prime[:, :5].ravel(order="F"),

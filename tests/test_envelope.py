@@ -16,6 +16,7 @@ import sys
 import control
 import numpy as np
 import pytest
+from independent_reference import spec_weights_reference
 from scipy.integrate import solve_ivp
 
 from maglevgen.carriage import Carriage
@@ -50,7 +51,7 @@ def _reference_eigenvalues(carriage: Carriage, v: float) -> dict[str, np.ndarray
         Kp[i], Kr[i] = np.asarray(K).ravel()
     c = np.where(k > 0, np.sqrt(np.maximum(k, 0) * m), 0.0)  # optimized damping sqrt(k m)
     K_c, _, _ = control.lqr(Ar, Bg, q1 * S.T @ S + q2 * C.T @ C, r * np.eye(5))
-    q1s, q2s, rs = _reference_spec_weights(carriage, k, m, T)
+    q1s, q2s, rs = spec_weights_reference(carriage.params.control.spec, k, m, T)
     K_s, _, _ = control.lqr(Ar, Bg, S.T @ np.diag(q1s) @ S + C.T @ np.diag(q2s) @ C,
                             np.diag(rs))
     return {
@@ -62,32 +63,6 @@ def _reference_eigenvalues(carriage: Carriage, v: float) -> dict[str, np.ndarray
     }
 
 
-def _axis_zeta(k: float, m: float, q1: float, q2: float, r: float) -> float:
-    _, _, E = control.lqr([[0, 1], [-k / m, 0]], [[0], [1 / m]], np.diag([q1, q2]), [[r]])
-    E = np.asarray(E)
-    return float(np.min(-E.real / np.abs(E)))
-
-
-def _reference_spec_weights(carriage: Carriage, k, m, T):
-    """The spec design's weights from [control.spec]: Bryson's q1 and r (the budget over the
-    largest allocation entry of each axis), q2 by a root search on python-control's damping
-    ratio (where the position weight alone already damps more, the design's stated floor
-    1e-6 q1 m / sigma)."""
-    from scipy.optimize import brentq
-
-    spec = carriage.params.control.spec
-    a_max = np.array([getattr(spec.max_deviation, a) for a in ("y", "z", "phi", "theta",
-                                                                 "psi")])
-    q1, r = 1 / a_max**2, (np.max(np.abs(T), axis=0) / spec.force_budget) ** 2
-    zeta = spec.min_damping_ratio + spec.damping_margin
-    q2 = np.empty(5)
-    for i in range(5):
-        sigma = np.sqrt(k[i] ** 2 + q1[i] / r[i])
-        floor = 1e-6 * q1[i] * m[i] / sigma
-        f = lambda w, i=i: _axis_zeta(k[i], m[i], q1[i], w, r[i]) - zeta  # noqa: E731
-        q2[i] = floor if f(floor) >= 0 else brentq(f, floor, 1e6 * q1[i] * m[i] / sigma,
-                                                   rtol=1e-13)
-    return q1, q2, r
 
 
 POINT = 'model.array_force="point"'
