@@ -425,9 +425,9 @@ def axis_damping_ratio(k: float, m: float, q1: float, q2: float, r: float) -> fl
 
 def spec_weights_reference(spec, k, m, T):
     """The spec design's weights from [control.spec] (``spec``): Bryson's q1 and r (the
-    budget over the largest allocation entry of each axis), q2 by a root search on python-control's damping
-    ratio (where the position weight alone already damps more, the design's stated floor
-    1e-6 q1 m / sigma)."""
+    budget over the largest allocation entry of each axis), q2 by a root search on
+    python-control's damping ratio (where the position weight alone already damps more, the
+    design's stated floor 1e-6 q1 m / sigma)."""
     from scipy.optimize import brentq
 
     a_max = np.array([getattr(spec.max_deviation, a) for a in ("y", "z", "phi", "theta",

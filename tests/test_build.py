@@ -95,7 +95,8 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
     built table (c/maglev_gain_table.c compiled in double) against the exact schedule computed
     in this test, the Newton trim and plants of the C with the per-axis LQR and the embedded
     controller's coupled LQR (the spec design's weights) from python-control's lqr and the
-    damping from the numerical ISE minimum (tests/independent_reference.py); each field's error relative to its largest magnitude."""
+    damping from the numerical ISE minimum (tests/independent_reference.py); each field's
+    error relative to its largest magnitude."""
     import ctypes
     import math
 
