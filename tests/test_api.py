@@ -226,7 +226,7 @@ def test_montecarlo_is_the_cli_study(default: maglevgen.Carriage, capsys) -> Non
                  "3", "--t-end", "0.5", "--workers", "1"]) == 0
     cli = json.loads(capsys.readouterr().out)
     assert api["controllers"] == cli["controllers"]
-    assert set(api["controllers"]) == {"none", "damping", "lqr", "coupled"}
+    assert set(api["controllers"]) == {"none", "damping", "lqr", "coupled", "spec"}
 
 
 def test_both_array_force_laws_reach_the_api_and_the_study(default: maglevgen.Carriage,

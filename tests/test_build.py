@@ -511,7 +511,7 @@ def test_report_lists_each_runs_speed_drift_from_the_trajectories(good: Path) ->
                        r"\$([-0-9.e]+)\$ to \$([-0-9.e]+)\$", tex)
     npz = np.load(good / "simulation/trajectories.npz")
     cols = [list(npz["columns"]).index(s) for s in ("u", "v", "w")]
-    assert {c for c, _, _ in found} == {"none", "damping", "lqr", "coupled"}
+    assert {c for c, _, _ in found} == {"none", "damping", "lqr", "coupled", "spec"}
     for controller, start, end in found:
         u = np.linalg.norm(npz[controller][:, cols], axis=1)  # the speed |(u, v, w)|
         assert float(start) == pytest.approx(u[0], rel=1e-5)

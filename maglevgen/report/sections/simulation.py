@@ -155,7 +155,14 @@ def _metrics(data: Any) -> dict[str, Any]:
     scalars = {k: v for k, v in data.items() if k not in ("runs", "disturbance", "speed_mode")}
     disturbance = data.get("disturbance")
     growth = data.get("fastest_closed_loop_growth")
+    raw = data.get("runs")
+    first = raw[0] if isinstance(raw, list) and raw and isinstance(raw[0], dict) else {}
+    tick = first.get("tick") if isinstance(first.get("tick"), dict) else None
     return {
+        "speed_gain": _number(first.get("speed_gain")) or None,
+        "tick_rate": _number(tick.get("rate")) if tick else None,
+        "delay_ticks": _number(tick.get("delay")) if tick else None,
+        "force_budget": _number(first.get("force_budget")),
         "speed_mode": _speed_mode(data.get("speed_mode")),
         "metrics": _flatten_metrics(scalars)[:40],
         "runs": runs,
