@@ -800,7 +800,7 @@ class Carriage:
         >>> import maglevgen
         >>> env = maglevgen.load().envelope(n_speeds=10)
         >>> env.speeds.size, sorted(env.verdicts)
-        (10, ['coupled', 'damping', 'lqr', 'none'])
+        (10, ['coupled', 'damping', 'lqr', 'none', 'spec'])
         >>> env.verdicts["coupled"][:6]
         'stable'
         """
