@@ -224,9 +224,10 @@ def test_non_finite_parameters_stop_the_run(sim_lib, carriage, op) -> None:
     last, status, x, _, g, _ = sim_lib.simulate(initial_state(op, {}), 1e-3, 100, op.f_prop,
                                              np.zeros(25), np.zeros(25), op.a_trim, p, 0.002,
                                              op.allocation.shape[0] + 1, op.gaps.size)
-    # stops at the first sample with a non-finite state or gap, not at the end, not silently
-    assert status == 2 and last <= 1 and x.shape[0] == last + 1
-    assert not (np.all(np.isfinite(x[-1])) and np.all(np.isfinite(g[-1])))
+    # refused before the first step (the checked entry points reject a non-finite p:
+    # MAGLEV_SIM_ERROR), not run to the end, not silently; nothing non-finite is written
+    assert status == 3 and last == 0 and x.shape[0] == 1
+    assert np.all(np.isfinite(x)) and np.all(np.isfinite(g))
 
 
 def test_settling_time_definition() -> None:
