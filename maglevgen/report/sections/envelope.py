@@ -81,6 +81,8 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
         "launch_acceleration": carriage.params.envelope.launch_acceleration,
         "rows": [{"title": CONTROLLER_TITLES[n], "name": n, "verdict": c.verdict,
                   "ok": c.ok, "embedded": n == embedded, "spec_verdict": c.spec_verdict,
+                  "spec_short": ("meets it" if c.meets_spec else "FAILS "
+                                 + ", ".join(f.spec for f in c.spec_failures)),
                   "meets_spec": c.meets_spec} for n, c in env.controllers.items()],
         "spec_checked_on": env.checked_on(),
         "robustness": env.robustness_verdict(), "robust": env.robust,
