@@ -144,7 +144,7 @@ class TrimResult:
     drag: np.ndarray
     stiffness_matrix: np.ndarray
     report: dict[str, Any] = field(repr=False)
-    acceleration: float = 0.0
+    acceleration: float
 
     def to_dict(self) -> dict[str, Any]:
         """The report as plain JSON data (a copy).

@@ -537,7 +537,11 @@ def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage
     assert float(trim) == pytest.approx(ref["trim"], abs=6e-5)
     assert float(fixed) == pytest.approx(ref["fixed"], abs=6e-5)
     assert float(retrim) == pytest.approx(ref["retrim"], abs=6e-5)
-    assert float(eig) == pytest.approx(ref["trim"], rel=5e-3)
+    # the embedded (spec) controller holds the attitude against the re-trim, so its 12-state
+    # speed pole lies between the fixed-gap pole and the trim curve's (a weak controller's is
+    # the latter: the gaps follow the trim)
+    lo, hi = sorted((ref["fixed"], ref["trim"]))
+    assert lo - 1e-3 <= float(eig) <= hi + 1e-3, (eig, ref)
     assert dominant == ("drag law" if abs(ref["fixed"]) > abs(ref["retrim"]) else "re-trim")
     tex = (good / "report/report.tex").read_text()
     for row, key in (("speed pole from the trim drag's total slope", "trim"),

@@ -92,7 +92,8 @@ def test_a_sample_equals_maglevgen_simulate(small, tmp_path: Path) -> None:
             f"halbach.remanence={v('halbach.remanence')}",
             f"circuit.resistance={v('circuit.resistance')}"]
     dist = [f"{s}={v(f'disturbance.{s}')}" for s in ("y", "z", "phi", "theta", "psi")]
-    argv = ["simulate", "--controller", "coupled", "--speed", v("speed"),
+    argv = ["simulate", "--controller", "coupled", "--loop", "continuous", "--speed",
+            v("speed"),
             "--t-end", "0.4", "--dt", "1e-3", "--out", str(tmp_path / "sim")]
     argv += [a for s in sets for a in ("--set", s)] + [a for d in dist
                                                        for a in ("--disturbance", d)]
@@ -216,7 +217,7 @@ def test_command_writes_table_report_and_plots(tmp_path: Path, capsys) -> None:
     assert main(["montecarlo", "--samples", "4", "--t-end", "0.05", "--workers", "1",
                  "--controller", "all", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert set(summary["controllers"]) == {"none", "damping", "lqr", "coupled"}
+    assert set(summary["controllers"]) == {"none", "damping", "lqr", "coupled", "spec"}
     assert sorted(p.name for p in out.iterdir()) == [
         "failures.png", "histograms.png", "montecarlo.json", "montecarlo.md",
         "samples.parquet"]
