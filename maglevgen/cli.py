@@ -434,7 +434,8 @@ class _Parser(argparse.ArgumentParser):
 
 class _Controllers:
     """The registry's controller names as argparse choices, read when argparse first asks (a
-    command line without --controller imports neither the registry nor numpy)."""
+    command line without --controller imports neither the registry nor numpy; the options
+    give a metavar, so that add_argument does not list the choices)."""
 
     def __init__(self, embeddable_only: bool = False, extra: tuple[str, ...] = ()) -> None:
         self.embeddable_only, self.extra = embeddable_only, extra
@@ -499,7 +500,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
     _common(sim)
-    sim.add_argument("--controller", choices=_Controllers(extra=("all",)), default="all")
+    sim.add_argument("--controller", choices=_Controllers(extra=("all",)), default="all",
+                     metavar="NAME")
     sim.add_argument("--scenario", choices=("hold", "launch"), default="hold",
                      help="hold: the trim drag at one speed (default); launch: accelerate from "
                           "envelope.v_min to v_max with the gains scheduled in the C loop")
@@ -526,7 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="samples to draw (default 1000)")
     mc.add_argument("--seed", type=int, default=0, metavar="S",
                     help="seed; sample i draws from SeedSequence(S, spawn_key=(i,)) (default 0)")
-    mc.add_argument("--controller", choices=_Controllers(extra=("all",)),
+    mc.add_argument("--controller", choices=_Controllers(extra=("all",)), metavar="NAME",
                     help="default: envelope.embedded_controller")
     _run_options(mc)
     mc.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
@@ -561,7 +563,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(fmu)
     fmu.add_argument("--kind", choices=FMU_KINDS, default="both",
                      help="model exchange, co-simulation or both (default)")
-    fmu.add_argument("--controller", choices=_Controllers(extra=("external",)),
+    fmu.add_argument("--controller", choices=_Controllers(extra=("external",)), metavar="NAME",
                      help="controller inside the FMU, or 'external': the generalized control "
                           "forces are inputs (default: envelope.embedded_controller, the one "
                           "the firmware embeds)")
@@ -579,7 +581,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="output folder (default: ./build)")
     _run_options(bld)
     bld.add_argument("--no-pdf", action="store_true", help="write report.tex only")
-    bld.add_argument("--controller", choices=_Controllers(embeddable_only=True),
+    bld.add_argument("--controller", choices=_Controllers(embeddable_only=True), metavar="NAME",
                      help="the controller the firmware C embeds and the build verifies "
                           "(default: envelope.embedded_controller, the spec design)")
     bld.add_argument("--allow-unstable", action="store_true",

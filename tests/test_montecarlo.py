@@ -20,6 +20,7 @@ from scipy.stats import binomtest
 from maglevgen.carriage import Carriage
 from maglevgen.cli import main
 from maglevgen.derive import conventions as cv
+from maglevgen.laws import names
 from maglevgen.montecarlo import (
     input_label,
     make_study,
@@ -224,7 +225,7 @@ def test_command_writes_table_report_and_plots(tmp_path: Path, capsys) -> None:
     import pyarrow.parquet as pq
 
     t = pq.read_table(out / "samples.parquet")
-    assert t.num_rows == 16
+    assert t.num_rows == 4 * len(names())  # every registered controller
     assert (out / "histograms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
