@@ -65,7 +65,6 @@ class CarriageModel:
     load_factor: sp.Matrix  # array force / (N eq 3 at the centre gap): 1 for "point"
     arms: tuple[sp.Matrix, ...]  # point of action of each array's force, body axes, in (x, p)
     gap_rates: sp.Matrix  # rate of each face-centre gap along the motion, in (x, p)
-    couples: tuple[sp.Matrix, ...]  # the lag's couple of each array, inertial, in (x, p)
     array_speeds: sp.Matrix  # along-track speed of each array face centre, in (x, p)
     lift: sp.Matrix  # total lift of each array (all its circuits), in (x, p)
     drag: sp.Matrix  # total drag of each array, in (x, p)
@@ -73,9 +72,16 @@ class CarriageModel:
     speed_sym: sp.Matrix  # s_i standing for array_speeds[i] in lift_at_speed / drag_at_speed
     lift_at_speed: sp.Matrix  # lift in (x, s, p)
     drag_at_speed: sp.Matrix  # drag in (x, s, p)
+    # the lag's spread lift and drag of each array (G_L_0.., G_D_0..; zero without the lag),
+    # whose couple about the face's across axis enters ``wrench`` through spread_sym: a layer
+    # of its own, like lift and drag, so that the wrench's derivatives stay small
+    spread: sp.Matrix  # in (x, p)
+    spread_at_speed: sp.Matrix  # in (x, s, p)
+    spread_sym: sp.Matrix  # G standing for spread[i] in ``wrench``
+    arm_sym: sp.Matrix  # A standing for the stacked ``arms`` in ``wrench`` (a layer too)
     lift_sym: sp.Matrix  # F_L_i standing for lift[i] in ``wrench``
     drag_sym: sp.Matrix  # F_D_i standing for drag[i] in ``wrench``
-    wrench: sp.Matrix  # (force, moment about O), body axes, in (x, u, F_L, F_D, p)
+    wrench: sp.Matrix  # (force, moment about O), body axes, in (x, u, F_L, F_D, G, A, p)
     wrench_sym: sp.Matrix  # W standing for ``wrench`` in ``accelerations``
     kinematics: sp.Matrix  # (R v, Euler rates), in x
     accelerations: sp.Matrix  # (v_dot, omega_dot), eqs 1-2, in (x, W, p)
@@ -90,6 +96,8 @@ class CarriageModel:
         """xdot as one expression in (x, u, p) (large: prefer the layers)."""
         sub = dict(zip(self.lift_sym, self.lift, strict=True))
         sub.update(zip(self.drag_sym, self.drag, strict=True))
+        sub.update(zip(self.spread_sym, self.spread, strict=True))
+        sub.update(zip(self.arm_sym, sp.Matrix.vstack(*self.arms), strict=True))
         wrench = self.wrench.xreplace(sub)
         acc = self.accelerations.xreplace(dict(zip(self.wrench_sym, wrench, strict=True)))
         return sp.Matrix.vstack(self.kinematics, acc)
@@ -120,8 +128,9 @@ def build_model(structure: Structure) -> CarriageModel:
     R = rotation_body_to_inertial(phi, theta, psi)
 
     arrays, gaps, contact, factors, arms, speeds, lifts, drags = [], [], [], [], [], [], [], []
-    gap_rates, couples = [], []
+    gap_rates, spread_lifts, spread_drags, across = [], [], [], []
     lagging = structure.circuit_dynamics == "first-order"
+    distributed = structure.array_force == "distributed"
     ex = sp.Matrix([1, 0, 0])
     speed_sym = sp.Matrix(sp.symbols(f"s0:{len(structure.arrays)}", real=True))
     for (name, _comps), s in zip(structure.arrays, speed_sym, strict=True):
@@ -130,7 +139,6 @@ def build_model(structure: Structure) -> CarriageModel:
         gap = array_gap(a, pos, R)
         gap_rate = array_gap_rate(a, R, vel, omega)
         load = distributed_load(a.normal, R, gap, k, w, sym["circuit.pitch"], a.circuits)
-        distributed = structure.array_force == "distributed"
         if distributed:
             factor, arm = load.factor, a.position + load.offset
         else:  # the paper's: eq 3 with the centre gap, at the face centre
@@ -144,7 +152,7 @@ def build_model(structure: Structure) -> CarriageModel:
         speeds.append(array_speed(a, R, vel, omega))
         lift = a.circuits * factor * lift_per_circuit(B0, w, k, L, Rc, gap, s)
         drag = a.circuits * factor * drag_per_circuit(B0, w, k, L, Rc, gap, s)
-        couple = sp.zeros(3, 1)
+        spread = [sp.S.Zero, sp.S.Zero]
         if lagging:  # eq 3's term unchanged, plus the rate term (zero at rest): trim is eq 3's
             if distributed:
                 lag = distributed_lag(a.normal, R, omega, load.alpha, load.beta, gap_rate, k, w,
@@ -152,10 +160,6 @@ def build_model(structure: Structure) -> CarriageModel:
                 rho = lag.log_rate
                 spread = [a.circuits * factor * f(B0, w, k, L, Rc, gap, s, lag.spread)
                           for f in (lift_rate_per_circuit, drag_rate_per_circuit)]
-                # the circuits' rate forces spread along the face: a couple about its
-                # across axis, (R e_t) x (spread lift n - spread drag x)
-                couple = (R * face_axes(a.normal)[1]).cross(spread[0] * a.normal
-                                                            - spread[1] * ex)
             else:
                 rho = -k * gap_rate
             lift = lift + a.circuits * factor * lift_rate_per_circuit(B0, w, k, L, Rc, gap, s,
@@ -164,15 +168,27 @@ def build_model(structure: Structure) -> CarriageModel:
                                                                       rho)
         lifts.append(lift)
         drags.append(drag)
-        couples.append(couple)
+        spread_lifts.append(spread[0])
+        spread_drags.append(spread[1])
+        across.append(face_axes(a.normal)[1])
 
     n = len(arrays)
     at_speed = dict(zip(speed_sym, speeds, strict=True))
-    couples = [c.xreplace(at_speed) for c in couples]
     lift_s, drag_s = sp.Matrix(lifts), sp.Matrix(drags)
+    spread_s = sp.Matrix([*spread_lifts, *spread_drags])
     lift_sym = sp.Matrix(sp.symbols(f"F_L0:{n}", real=True))
     drag_sym = sp.Matrix(sp.symbols(f"F_D0:{n}", real=True))
-    wrench = _wrench(structure, arrays, arms, u, lift_sym, drag_sym, R, m, g, r_G,
+    spread_sym = sp.Matrix(sp.symbols(f"G_L0:{n} G_D0:{n}", real=True))
+    # the circuits' rate forces spread along the face: a couple about its across axis,
+    # (R e_t) x (spread lift n - spread drag x), inertial
+    couples = [(R * e_t).cross(gl * a.normal - gd * ex) if lagging and distributed
+               else sp.zeros(3, 1)
+               for a, e_t, gl, gd in zip(arrays, across, spread_sym[:n], spread_sym[n:],
+                                         strict=True)]
+    arm_sym = sp.Matrix(sp.symbols(" ".join(f"A{i}_{c}" for i in range(n) for c in "xyz"),
+                                   real=True))
+    arm_of = [arm_sym[3 * i:3 * i + 3, 0] for i in range(n)]
+    wrench = _wrench(structure, arrays, arm_of, u, lift_sym, drag_sym, R, m, g, r_G,
                      vec("operation.propulsion_point"), couples)
     wrench_sym = sp.Matrix(sp.symbols("W_Fx W_Fy W_Fz W_Mx W_My W_Mz", real=True))
     v_dot, omega_dot = body_accelerations(m, inertia, r_G, vel, omega,
@@ -180,9 +196,11 @@ def build_model(structure: Structure) -> CarriageModel:
     kinematics = sp.Matrix.vstack(R * vel, euler_rates(phi, theta, omega))
     return CarriageModel(structure, p, x, u, input_names, tuple(arrays), k, B0, R,
                          sp.Matrix(gaps), sp.Matrix(contact), sp.Matrix(factors), tuple(arms),
-                         sp.Matrix(gap_rates), tuple(couples), sp.Matrix(speeds),
+                         sp.Matrix(gap_rates), sp.Matrix(speeds),
                          lift_s.xreplace(at_speed), drag_s.xreplace(at_speed), speed_sym,
-                         lift_s, drag_s, lift_sym, drag_sym, wrench, wrench_sym, kinematics,
+                         lift_s, drag_s, spread_s.xreplace(at_speed), spread_s, spread_sym,
+                         arm_sym,
+                         lift_sym, drag_sym, wrench, wrench_sym, kinematics,
                          sp.Matrix.vstack(v_dot, omega_dot))
 
 

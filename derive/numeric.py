@@ -61,11 +61,18 @@ class ModelFunctions:
     drag_x: Callable[..., np.ndarray]
     drag_s: Callable[..., np.ndarray]
     speeds_x: Callable[..., np.ndarray]
-    wrench: Callable[..., np.ndarray]  # (x, u, FL, FD, p)
+    spread: Callable[..., np.ndarray]  # the lag's spread forces (x, s, p)
+    spread_x: Callable[..., np.ndarray]
+    spread_s: Callable[..., np.ndarray]
+    arms: Callable[..., np.ndarray]  # each array's point of action, stacked (x, p)
+    arms_x: Callable[..., np.ndarray]
+    wrench: Callable[..., np.ndarray]  # (x, u, FL, FD, G, A, p)
     wrench_x: Callable[..., np.ndarray]
     wrench_u: Callable[..., np.ndarray]
     wrench_FL: Callable[..., np.ndarray]
     wrench_FD: Callable[..., np.ndarray]
+    wrench_G: Callable[..., np.ndarray]
+    wrench_A: Callable[..., np.ndarray]
     acc: Callable[..., np.ndarray]  # (x, W, p)
     acc_x: Callable[..., np.ndarray]
     acc_W: Callable[..., np.ndarray]
@@ -80,7 +87,8 @@ class ModelFunctions:
     def body_wrench(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Total external force and moment about O, body axes."""
         _, fl, fd = self.forces(x, p)
-        return self.wrench(x, u, fl, fd, p).ravel()
+        spread = self.spread(x, self.speeds(x, p).ravel(), p).ravel()
+        return self.wrench(x, u, fl, fd, spread, self.arms(x, p).ravel(), p).ravel()
 
     def xdot(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
         w = self.body_wrench(x, u, p)
@@ -94,12 +102,16 @@ class ModelFunctions:
         s_x = self.speeds_x(x, p)
         fl_x = self.lift_x(x, s, p) + self.lift_s(x, s, p) @ s_x
         fd_x = self.drag_x(x, s, p) + self.drag_s(x, s, p) @ s_x
-        w = self.wrench(x, u, fl, fd, p).ravel()
-        w_x = (self.wrench_x(x, u, fl, fd, p) + self.wrench_FL(x, u, fl, fd, p) @ fl_x
-               + self.wrench_FD(x, u, fl, fd, p) @ fd_x)
+        g = self.spread(x, s, p).ravel()
+        g_x = self.spread_x(x, s, p) + self.spread_s(x, s, p) @ s_x
+        layers = (x, u, fl, fd, g, self.arms(x, p).ravel(), p)
+        w = self.wrench(*layers).ravel()
+        w_x = (self.wrench_x(*layers) + self.wrench_FL(*layers) @ fl_x
+               + self.wrench_FD(*layers) @ fd_x + self.wrench_G(*layers) @ g_x
+               + self.wrench_A(*layers) @ self.arms_x(x, p))
         a_W = self.acc_W(x, w, p)
         A = np.vstack([self.kin_x(x), self.acc_x(x, w, p) + a_W @ w_x])
-        B = np.vstack([np.zeros((6, len(u))), a_W @ self.wrench_u(x, u, fl, fd, p)])
+        B = np.vstack([np.zeros((6, len(u))), a_W @ self.wrench_u(*layers)])
         return A, B
 
 
@@ -117,7 +129,9 @@ def model_functions(structure: Structure) -> ModelFunctions:
     stiffness_magnetic, stiffness_other = lambdify_stiffness(structure)
     x, u, s = list(m.x), list(m.u), list(m.speed_sym)
     fl, fd, w = list(m.lift_sym), list(m.drag_sym), list(m.wrench_sym)
-    xs, xups = [m.x], [m.x, m.u, m.lift_sym, m.drag_sym, m.p]
+    xs, xups = [m.x], [m.x, m.u, m.lift_sym, m.drag_sym, m.spread_sym, m.arm_sym, m.p]
+    arms = sp.Matrix.vstack(*m.arms)
+    xsp = [m.x, m.speed_sym, m.p]
     return ModelFunctions(
         model=m,
         kin=_fn(xs, m.kinematics),
@@ -132,11 +146,18 @@ def model_functions(structure: Structure) -> ModelFunctions:
         drag_x=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed.jacobian(x)),
         drag_s=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed.jacobian(s)),
         speeds_x=_fn([m.x, m.p], m.array_speeds.jacobian(x)),
+        spread=_fn(xsp, m.spread_at_speed),
+        spread_x=_fn(xsp, m.spread_at_speed.jacobian(x)),
+        spread_s=_fn(xsp, m.spread_at_speed.jacobian(s)),
+        arms=_fn([m.x, m.p], arms),
+        arms_x=_fn([m.x, m.p], arms.jacobian(x)),
         wrench=_fn(xups, m.wrench),
         wrench_x=_fn(xups, m.wrench.jacobian(x)),
         wrench_u=_fn(xups, m.wrench.jacobian(u)),
         wrench_FL=_fn(xups, m.wrench.jacobian(fl)),
         wrench_FD=_fn(xups, m.wrench.jacobian(fd)),
+        wrench_G=_fn(xups, m.wrench.jacobian(list(m.spread_sym))),
+        wrench_A=_fn(xups, m.wrench.jacobian(list(m.arm_sym))),
         acc=_fn([m.x, m.wrench_sym, m.p], m.accelerations),
         acc_x=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(x)),
         acc_W=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(w)),

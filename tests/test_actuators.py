@@ -130,7 +130,9 @@ def test_model_applies_each_normal_force_along_its_normal(normal_carriage) -> No
     along n_i (cross product zero, unit along it) and its moment a_i x n_i about O."""
     model = normal_carriage.model
     values = dict(zip(model.p, normal_carriage.p, strict=True))
-    zero = {s: 0 for s in (*model.x, *model.u, *model.lift_sym, *model.drag_sym)}
+    # the arrays' forces zero: their points of action (arm_sym) and spreads do not matter
+    zero = {s: 0 for s in (*model.x, *model.u, *model.lift_sym, *model.drag_sym,
+                           *model.spread_sym, *model.arm_sym)}
     base = np.array(model.wrench.xreplace({**values, **zero}).evalf(), dtype=float).ravel()
     for i, (r, n) in enumerate(zip(POSITIONS, NORMALS, strict=True)):
         unit = {**values, **zero, model.u[1 + i]: 1}

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import casadi as ca
+import sympy as sp
 
 from maglevgen.derive.model import CarriageModel
 
@@ -34,8 +35,10 @@ def casadi_model(model: CarriageModel) -> CasadiModel:
     gaps, contact_gaps = conv(model.gaps), conv(model.contact_gaps)
     conv = SympyToCasadi({**mapping, **_pairs(model.speed_sym, speeds)})
     lift, drag = conv(model.lift_at_speed), conv(model.drag_at_speed)
+    spread, arms = conv(model.spread_at_speed), conv(sp.Matrix.vstack(*model.arms))
     conv = SympyToCasadi({**mapping, **_pairs(model.lift_sym, lift),
-                          **_pairs(model.drag_sym, drag)})
+                          **_pairs(model.drag_sym, drag), **_pairs(model.spread_sym, spread),
+                          **_pairs(model.arm_sym, arms)})
     wrench = conv(model.wrench)
     conv = SympyToCasadi({**mapping, **_pairs(model.wrench_sym, wrench)})
     xdot = ca.vertcat(conv(model.kinematics), conv(model.accelerations))
