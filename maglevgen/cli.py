@@ -257,7 +257,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from . import progress
     from .codegen.generate import write_output
     from .sim_output import render_results
-    from .simulate import CONTROLLERS, run_scenarios
+    from .simulate import CONTROLLERS, run_scenarios, spec_verdict
 
     controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
     if args.check and args.loop != "continuous":
@@ -275,6 +275,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
           f"{run.op.f_prop:.4g} N")
     for traj in run.trajectories:
         print(f"  {traj.controller:<8} {traj.status}{': ' + traj.event if traj.event else ''}")
+        if (verdict := spec_verdict(traj)) is not None:
+            print(f"  {'':<8} specification: {verdict.text()}")
     if args.check:
         from .simulate import reference_check
 
