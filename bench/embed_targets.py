@@ -48,6 +48,30 @@ def sampled_loop(carriage: Carriage, lib) -> dict:
             "spec_verdict": c.spec_verdict, "other_models": env.robustness_verdict()}
 
 
+LOW_TICKS = (200.0, 100.0, 50.0)  # [Hz] below the default 1 kHz, one tick of delay
+
+
+def low_ticks(lib) -> list[dict]:
+    """The continuous spec design and the design at the tick (DARE on the ZOH model with the
+    delay) on the sampled-data loop at lower tick rates (9 speeds)."""
+    out = []
+    for rate in LOW_TICKS:
+        c = Carriage(load_params(overrides=[f"control.spec.tick_rate={rate:g}"]))
+        e = compute_envelope(c, lib, 9, controllers=("spec",), other_models=False)
+        spec = e.controllers["spec"]
+        row = {"rate": rate, "continuous_min_damping": float(np.nanmin(spec
+                                                                      .sampled_min_damping)),
+               "continuous_slowest_decay": float(-np.max(spec.sampled_max_real)),
+               "continuous_meets": spec.meets_spec}
+        if spec.tick_design is not None:
+            t = spec.tick_design
+            row.update(tick_min_damping=float(np.nanmin(t.min_damping)),
+                       tick_slowest_decay=float(-np.max(t.max_real)),
+                       tick_meets=t.meets_spec)
+        out.append(row)
+    return out
+
+
 def holds(carriage: Carriage, lib, v_min: float, v_max: float) -> list[dict]:
     out = []
     name = carriage.params.envelope.embedded_controller
@@ -136,6 +160,20 @@ def section(r: dict) -> list[str]:
                      f"tolerances): no contact | contact {p:.4f} [{lo:.4f}, {hi:.4f}] "
                      f"(statuses {_counts(c['status_counts'])}; {mc['date_utc']} UTC) | "
                      f"{yes[p == 0]} |")
+    if r.get("low_ticks"):
+        lines += ["", "Lower tick rates (one tick of delay, 9 speeds): the continuous `spec` "
+                  "design and the design at the tick (DARE on the ZOH model with the delay, the "
+                  "same weights; its feedback of the commands in flight included) on the "
+                  "sampled-data loop. The firmware C runs the continuous design.", "",
+                  "| tick | continuous: smallest damping ratio, slowest decay | at the tick: "
+                  "smallest damping ratio, slowest decay |", "| --- | --- | --- |"]
+        for t in r["low_ticks"]:
+            tick = ("-" if "tick_min_damping" not in t else
+                    f"{t['tick_min_damping']:.3f}, {t['tick_slowest_decay']:.3g} 1/s"
+                    f" ({'meets' if t['tick_meets'] else 'fails'} the spec)")
+            lines.append(f"| {t['rate']:g} Hz | {t['continuous_min_damping']:.3f}, "
+                         f"{t['continuous_slowest_decay']:.3g} 1/s ("
+                         f"{'meets' if t['continuous_meets'] else 'fails'}) | {tick} |")
     lines += ["", f"Envelope verdict: {s['spec_verdict']}. Other models: "
               f"{s['other_models'] or 'not checked'}.", "",
               "Run verdicts against [control.spec]: launch " + la["spec"] + "; holds: "
@@ -175,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     r = {"date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
          "controller": carriage.params.envelope.embedded_controller, "sampled": s,
          "holds": holds(carriage, lib, s["v_min"], s["v_max"])}
+    log("lower tick rates")
+    r["low_ticks"] = low_ticks(lib)
     log("launch run")
     r["launch"] = launch_run(carriage, lib)
     if args.montecarlo:

@@ -79,7 +79,7 @@ def test_cs_runs_the_firmware_loop_of_the_host(fmus, host, fmi) -> None:
     ref = host["ref"]
     assert ref.saturated_time > 0  # the budget acts in this run
     res = simulate_fmu(str(path), fmi_type="CoSimulation", stop_time=T_END,
-                       output_interval=1e-3, output=STATES + ["F_prop"])
+                       output_interval=1e-3, output=[*STATES, "F_prop"])
     assert np.array_equal(_states(res), ref.x)
     np.testing.assert_array_equal(res["F_prop"], ref.u[:, 0])
     res10 = simulate_fmu(str(path), fmi_type="CoSimulation", stop_time=T_END,
