@@ -265,9 +265,10 @@ def fmu_variables(manifest: dict, controller: FmuController, kind: str,
         t = tick or FmuTick()
         fixed = " (fixed: set before initialization)"
         out += [
-            FmuVariable("tick_rate", "parameter", "fixed", "exact", t.rate, "Hz",
-                        "the controller's tick: the command computed from the state sampled "
-                        "at each tick and held in between; 0: the continuous law" + fixed,
+            FmuVariable("tick_rate", "parameter", "fixed", "exact", t.rate, "1/s",
+                        "the controller's tick rate [Hz]: the command computed from the state "
+                        "sampled at each tick and held in between; 0: the continuous law"
+                        + fixed,
                         "tick"),
             FmuVariable("delay_ticks", "parameter", "fixed", "exact", float(t.delay), "1",
                         "ticks from a command's computation to its application (a whole "
