@@ -114,3 +114,24 @@ def test_the_limits_come_from_the_parameter_file() -> None:
     spec = RunSpec.of(prm, 0.05)
     assert spec.min_gap_margin == 0.004 and spec.min_gap == prm.track.min_gap
     assert spec.settling_time == pytest.approx(np.log(20.0) / 2.0)
+
+
+def test_summary_block_lists_each_runs_verdict(hold_run) -> None:
+    """SUMMARY.md's block: one line per run with its verdict, the failed checks' values
+    (recomputed here) in it."""
+    from types import SimpleNamespace
+
+    from maglevgen.build import _run_spec_lines
+
+    lines = _run_spec_lines(SimpleNamespace(scenario="hold", trajectories=(hold_run,)))
+    assert lines[1].startswith("The hold runs against [control.spec]")
+    (line,) = [ln for ln in lines if ln.startswith("- `spec`: ")]
+    peaks = np.max(np.abs(hold_run.x[:, list(AXIS_STATES)] - hold_run.equilibrium), axis=0)
+    limits = hold_run.run_spec.max_deviation
+    axes = ("lateral", "vertical", "roll", "pitch", "yaw")
+    failed = [(a, p) for a, p, lim in zip(axes, peaks, limits, strict=True)
+              if p > lim * (1 + 1e-9)]
+    assert line.startswith("- `spec`: FAILS" if failed else "- `spec`: meets")
+    for axis, peak in failed:
+        unit = "m" if axis in ("lateral", "vertical") else "rad"
+        assert f"peak {axis} deviation {peak:.4g} {unit}" in line
