@@ -1001,7 +1001,7 @@ class Carriage:
         return list(res.paths)
 
     def fmu(self, out: str | Path, kind: str = "both", controller: str | None = None,
-            fmi: str = DEFAULT_FMI) -> Path:
+            fmi: str = DEFAULT_FMI, loop: str = "firmware") -> Path:
         """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
         fmu``.
 
@@ -1017,6 +1017,10 @@ class Carriage:
         fmi : {'2', '3'}, optional
             The FMI version (``--fmi``): 2.0 (default, ``maglevgen.fmu.DEFAULT_FMI``) or 3.0,
             the same variables.
+        loop : {'firmware', 'continuous'}, optional
+            ``--loop``: the built-in controller at the tick of ``[control.spec]`` with its
+            delay, the speed loop and the force budget (default), or at every derivative
+            evaluation (the start values of the FMU's tick parameters).
 
         Returns
         -------
@@ -1041,7 +1045,7 @@ class Carriage:
         from .fmu import FMU_NAME, build_fmu
         from .output import write_output
 
-        data = build_fmu(self._carriage, kind, controller, fmi=fmi)
+        data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
 

@@ -371,4 +371,18 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
     for traj in run.trajectories:
         lines.append(f"Simulation `{traj.controller}`: {traj.status}"
                      + (f" ({traj.event})" if traj.event else ""))
+    lines += _run_spec_lines(run)
     return "\n".join(lines) + "\n"
+
+
+def _run_spec_lines(run) -> list[str]:
+    """The runs against [control.spec] (`simulate.spec_verdict`): a block of its own."""
+    from .simulate import spec_verdict
+
+    verdicts = [(t.controller, v) for t in run.trajectories
+                if (v := spec_verdict(t)) is not None]
+    if not verdicts:
+        return []
+    return ["", f"The {run.scenario} runs against [control.spec] (settling, peak deviation "
+            "per axis, gap margin, speed held; simulation/metrics.md):", "",
+            *(f"- `{c}`: {v.text()}" for c, v in verdicts)]

@@ -257,7 +257,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from . import progress
     from .codegen.generate import write_output
     from .sim_output import render_results
-    from .simulate import CONTROLLERS, run_scenarios
+    from .simulate import CONTROLLERS, run_scenarios, spec_verdict
 
     controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
     if args.check and args.loop != "continuous":
@@ -275,6 +275,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
           f"{run.op.f_prop:.4g} N")
     for traj in run.trajectories:
         print(f"  {traj.controller:<8} {traj.status}{': ' + traj.event if traj.event else ''}")
+        if (verdict := spec_verdict(traj)) is not None:
+            print(f"  {'':<8} specification: {verdict.text()}")
     if args.check:
         from .simulate import reference_check
 
@@ -351,10 +353,11 @@ def cmd_fmu(args: argparse.Namespace) -> int:
 
     carriage = _carriage(args)
     controller = args.controller or carriage.params.envelope.embedded_controller
-    data = build_fmu(carriage, args.kind, controller, progress=progress.step, fmi=args.fmi)
+    data = build_fmu(carriage, args.kind, controller, progress=progress.step, fmi=args.fmi,
+                     loop=args.loop)
     (path,) = write_output({FMU_NAME: data}, Path(args.out))
     print(f"wrote {path.resolve()} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
-          f"controller {controller}, {len(data)} bytes)")
+          f"controller {controller}, {args.loop} loop, {len(data)} bytes)")
     return 0
 
 
@@ -555,7 +558,7 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--out", metavar="DIR",
                      help="also write envelope.json, envelope.md and stability_map.png")
     env.set_defaults(func=cmd_envelope)
-    from .fmu import DEFAULT_FMI, FMI_VERSIONS
+    from .fmu import DEFAULT_FMI, FMI_VERSIONS, FMU_LOOPS
     from .fmu import KINDS as FMU_KINDS
 
     fmu = sub.add_parser("fmu", help="FMI 2.0 or 3.0 FMU (model exchange, co-simulation) of the "
@@ -570,6 +573,11 @@ def build_parser() -> argparse.ArgumentParser:
     fmu.add_argument("--fmi", choices=tuple(FMI_VERSIONS), default=DEFAULT_FMI,
                      help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
                           "(3.0); the same variables, controllers and start values")
+    fmu.add_argument("--loop", choices=FMU_LOOPS, default="firmware",
+                     help="firmware (default): the built-in controller at the tick of "
+                          "[control.spec] with its delay, the speed loop and the force budget "
+                          "(the start values of tick_rate, delay_ticks, speed_gain, "
+                          "force_budget); continuous: the law at every derivative evaluation")
     fmu.add_argument("--out", default="build/fmu", metavar="DIR",
                      help="output folder of maglev.fmu (default: ./build/fmu)")
     fmu.set_defaults(func=cmd_fmu)

@@ -34,7 +34,15 @@ from .operating import (
     stability,
 )
 from .params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
-from .sampled import Tick, loop_gain, loop_model, sampled_eigenvalues, speed_gain
+from .sampled import (
+    Tick,
+    loop_gain,
+    loop_model,
+    sampled_eigenvalues,
+    speed_gain,
+    tick_design,
+    tick_design_loop_gains,
+)
 from .schedule import GainTable, Reference, Schedule, accelerating_references, gain_table_row
 
 DEFAULT_SPEEDS = 50
@@ -170,6 +178,8 @@ class ControllerEnvelope:
     sampled_min_damping: np.ndarray
     spec_failures: tuple[SpecFailure, ...]
     spec_verdict: str
+    # where the continuous `spec` design fails on the sampled loop: the design at the tick
+    tick_design: TickDesignCheck | None = None
 
     @property
     def ok(self) -> bool:
@@ -190,7 +200,41 @@ class ControllerEnvelope:
                 "meets_spec": self.meets_spec, "spec_verdict": self.spec_verdict,
                 "spec_failures": [{"spec": f.spec, "ranges": [list(r) for r in f.ranges],
                                    "worst": f.worst, "worst_speed": f.worst_speed}
-                                  for f in self.spec_failures]}
+                                  for f in self.spec_failures],
+                "firmware_design": "continuous",
+                "tick_design": None if self.tick_design is None else self.tick_design.to_json()}
+
+
+@dataclass(frozen=True)
+class TickDesignCheck:
+    """The `spec` weights designed at the tick (`sampled.tick_design`: DARE on the ZOH model
+    with the delay) on the same sampled-data loop, where the continuous design fails it."""
+
+    max_real: np.ndarray
+    min_damping: np.ndarray
+    failures: tuple[SpecFailure, ...]
+    verdict: str  # `spec_verdict_text` of this design
+
+    @property
+    def meets_spec(self) -> bool:
+        return not self.failures
+
+    def text(self, tick: Tick) -> str:
+        """What the design at the tick achieves, and which design the firmware gets."""
+        how = (f"designed at the tick (DARE on the ZOH model with {tick.delay} tick(s) of "
+               "delay, the same weights)")
+        said = (f"{how} it {self.verdict}" if self.meets_spec
+                else f"{how} it also {self.verdict}")
+        return (f"{said}; that design feeds back the commands in flight, which the generated "
+                "loop (maglev_control_loop) does not: the firmware gets the continuous design")
+
+    def to_json(self) -> dict:
+        return {"method": "DARE on the ZOH model augmented with the delay, the spec weights",
+                "max_real": self.max_real.tolist(), "min_damping": self.min_damping.tolist(),
+                "meets_spec": self.meets_spec, "verdict": self.verdict,
+                "spec_failures": [{"spec": f.spec, "ranges": [list(r) for r in f.ranges],
+                                   "worst": f.worst, "worst_speed": f.worst_speed}
+                                  for f in self.failures]}
 
 
 @dataclass(frozen=True)
@@ -334,6 +378,29 @@ def sampled_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
     return stability(s[np.isfinite(s)])
 
 
+def tick_design_stability(op: OperatingPoint, setting: LoopSetting) -> tuple[float, float]:
+    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op`` with
+    the `spec` weights designed at the tick (`sampled.tick_design`, its feedback of the
+    commands in flight included); (inf, nan) where the DARE has no stabilizing solution."""
+    try:
+        design = tick_design(op, setting.tick)
+    except (np.linalg.LinAlgError, ValueError):
+        return float("inf"), float("nan")
+    A, B = loop_model(op)
+    K, K_delay = tick_design_loop_gains(op, design, setting.speed_gain)
+    s = sampled_eigenvalues(A, B, K, setting.tick, K_delay)
+    return stability(s[np.isfinite(s)])
+
+
+def tick_design_check(carriage, speeds: np.ndarray, points: Sequence[OperatingPoint],
+                      setting: LoopSetting) -> TickDesignCheck:
+    """`tick_design_stability` at ``points`` against ``[control.spec]``."""
+    sd = np.array([tick_design_stability(op, setting) for op in points])
+    failures = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1])
+    return TickDesignCheck(sd[:, 0], sd[:, 1], failures,
+                           spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1]))
+
+
 def spec_failures(carriage, speeds: np.ndarray, max_real: np.ndarray,
                   min_damping: np.ndarray) -> tuple[SpecFailure, ...]:
     """The specifications of ``[control.spec]`` that the loop misses, with their ranges."""
@@ -446,10 +513,16 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
         ranges = unstable_ranges(carriage, lib, c, speeds, stable)
         sd = np.array([sampled_stability(op, c, setting) for op in points])
         failures = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1])
+        said = spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1])
+        # the rule: where the continuous spec design loses the spec at the tick, design at
+        # the tick and say what that gives and which design the firmware runs
+        at_tick = (tick_design_check(carriage, speeds, points, setting)
+                   if c == "spec" and failures else None)
+        if at_tick is not None:
+            said += "; " + at_tick.text(setting.tick)
         out[c] = ControllerEnvelope(c, max_real, min_damping, stable, ranges,
                                     verdict_text(c, speeds, max_real, ranges), sd[:, 0],
-                                    sd[:, 1], failures,
-                                    spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1]))
+                                    sd[:, 1], failures, said, at_tick)
     mass, embedded = carriage.params.vehicle.mass, carriage.params.envelope.embedded_controller
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
     checks = (model_checks(carriage, embedded, points, setting)

@@ -28,7 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from .codegen.checks import ERROR_CODES
+from .codegen.checks import ERROR_CODES, MAX_DELAY_TICKS
 from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .errors import InputError
@@ -44,6 +44,21 @@ FMU_NAME = "maglev.fmu"
 # enters the trim, the gains or the allocation, computed once at initialization ("fixed").
 TUNABLE_PARAMETERS = frozenset({"track.min_gap"})
 DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s default
+# how the FMU's built-in controller runs (the fixed parameters tick_rate, delay_ticks,
+# speed_gain and force_budget; `build_fmu`'s ``loop``): "firmware" as the firmware runs it
+# (maglevgen.simulate.firmware_loop: the tick of [control.spec] with its delay, the speed
+# loop, the force budget), "continuous" the paper's law at every derivative evaluation
+FMU_LOOPS: tuple[str, ...] = ("firmware", "continuous")
+
+
+@dataclass(frozen=True)
+class FmuTick:
+    """The start values of the tick's parameters (0 everywhere: the continuous law)."""
+
+    rate: float = 0.0  # [Hz]
+    delay: int = 0  # [ticks]
+    speed_gain: float = 0.0  # [N s/m]
+    force_budget: float = 0.0  # [N], 0: no limit
 
 
 @dataclass(frozen=True)
@@ -203,9 +218,10 @@ def _array_names(manifest: dict) -> list[str]:
     return names
 
 
-def fmu_variables(manifest: dict, controller: FmuController, kind: str) -> tuple[FmuVariable,
-                                                                                   ...]:
-    """Every FMU variable, in value-reference order, from the manifest."""
+def fmu_variables(manifest: dict, controller: FmuController, kind: str,
+                  tick: FmuTick | None = None) -> tuple[FmuVariable, ...]:
+    """Every FMU variable, in value-reference order, from the manifest; ``tick``: the start
+    values of the tick's parameters (a built-in controller's only; default: continuous)."""
     from .simulate import DISTURBANCE, DISTURBANCE_DOC
 
     states = manifest["states"]
@@ -245,6 +261,24 @@ def fmu_variables(manifest: dict, controller: FmuController, kind: str) -> tuple
                                DISTURBANCE.get(s["name"], 0.0), s["unit"],
                                f"initial {s['name']} minus its trim value (default: "
                                f"{DISTURBANCE_DOC})", "disturbance"))
+    if controller.law == "axis":
+        t = tick or FmuTick()
+        fixed = " (fixed: set before initialization)"
+        out += [
+            FmuVariable("tick_rate", "parameter", "fixed", "exact", t.rate, "1/s",
+                        "the controller's tick rate [Hz]: the command computed from the state "
+                        "sampled at each tick and held in between; 0: the continuous law"
+                        + fixed,
+                        "tick"),
+            FmuVariable("delay_ticks", "parameter", "fixed", "exact", float(t.delay), "1",
+                        "ticks from a command's computation to its application (a whole "
+                        "number)" + fixed, "tick"),
+            FmuVariable("speed_gain", "parameter", "fixed", "exact", t.speed_gain, "N*s/m",
+                        "speed loop at the tick: F_prop = F_trim + dF_prop + speed_gain "
+                        "(operation.speed - |(u, v, w)|)" + fixed, "tick"),
+            FmuVariable("force_budget", "parameter", "fixed", "exact", t.force_budget, "N",
+                        "each array's control force limited to this at the tick; 0: no "
+                        "limit" + fixed, "tick")]
     if kind in ("cs", "both"):
         out.append(FmuVariable("rk4_step", "parameter", "fixed", "exact", DEFAULT_INTERNAL_STEP,
                                "s", "internal RK4 step of co-simulation; every communication "
@@ -257,7 +291,8 @@ def _per_second(unit: str) -> str:
                                                                                   f"{unit}/s")
 
 
-def build_model(manifest: dict, controller: str, kind: str) -> FmuModel:
+def build_model(manifest: dict, controller: str, kind: str,
+                tick: FmuTick | None = None) -> FmuModel:
     if kind not in KINDS:
         raise InputError(f"--kind {kind!r}: expected one of {KINDS}")
     controllers = fmu_controllers()
@@ -265,7 +300,7 @@ def build_model(manifest: dict, controller: str, kind: str) -> FmuModel:
         raise InputError(f"--controller {controller!r}: expected one of "
                          f"{', '.join(controllers)}")
     ctl = controllers[controller]
-    return FmuModel(fmu_variables(manifest, ctl, kind), ctl, kind, manifest)
+    return FmuModel(fmu_variables(manifest, ctl, kind, tick), ctl, kind, manifest)
 
 
 def _xml_escape(text: str) -> str:
@@ -289,14 +324,15 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI) -> dict[str
     man = model.manifest
     pnames = [e["name"] for e in man["parameter_vector"]]
     used = ["maglev_dynamics", "maglev_trim", "maglev_lqr_gains", "maglev_allocation_matrix",
-            "maglev_closed_loop_prepare", "maglev_closed_loop_prepared", "maglev_gaps"]
+            "maglev_closed_loop_prepare", "maglev_closed_loop_prepared", "maglev_gaps",
+            "maglev_coupled_control"]
     sizes = {k: max(_function(man, f)[k] for f in used)
              for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")}
     version = FMI_VERSIONS[fmi]
     units = sorted({v.unit for v in model.variables})
     sources = [*man["files"]["c"], WRAPPER_C]
     groups = ("state", "derivative", "gap", "force", "input", "cinput", "parameter",
-              "disturbance", "step")
+              "disturbance", "tick", "step")
     ctx = {
         "model": model, "variables": model.variables, "controller": model.controller,
         "kind": model.kind, "guid": guid, "version": __version__, "units": units,
@@ -319,6 +355,7 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI) -> dict[str
         "overrides": man["overrides"],
         "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
         "fmi": version,
+        "max_delay": MAX_DELAY_TICKS, "array_of_force": _array_of_force(man),
         # FMI 3.0: the independent variable time (unit s) beside the list's units
         "units3": [(u, fmi3_base_unit(u)) for u in sorted({*units, "s"})],
     }
@@ -328,6 +365,19 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI) -> dict[str
     if version.build_description:
         outputs.append(("buildDescription.xml", version.build_description))
     return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in outputs}
+
+
+def _array_of_force(manifest: dict) -> list[int]:
+    """The array (0-based, in the order of the arrays' first force) of each control force:
+    inputs after F_prop are F_<component><array>."""
+    arrays: list[str] = []
+    out = []
+    for u in manifest["inputs"][1:]:
+        name = u["name"][3:]
+        if name not in arrays:
+            arrays.append(name)
+        out.append(arrays.index(name))
+    return out
 
 
 def fmi_headers(fmi: str = DEFAULT_FMI) -> Path:
@@ -355,10 +405,13 @@ def _quiet(_: str) -> None:
 
 def build_fmu(carriage, kind: str = "both", controller: str | None = None,
               cache_dir: Path | None = None, cc: str | None = None,
-              progress: Progress = _quiet, fmi: str = DEFAULT_FMI) -> bytes:
+              progress: Progress = _quiet, fmi: str = DEFAULT_FMI,
+              loop: str = "continuous") -> bytes:
     """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
     FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
-    embeds (``envelope.embedded_controller``)."""
+    embeds (``envelope.embedded_controller``); ``loop`` (FMU_LOOPS): the start values of the
+    tick's parameters, "firmware" those of `maglevgen.simulate.firmware_loop`, "continuous"
+    zeros (the law at every derivative evaluation)."""
     from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
     from .library import _cache, runtime_sources
     from .runtime.compile import compile_object, compile_shared
@@ -368,13 +421,16 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     if fmi not in FMI_VERSIONS:
         raise InputError(f"--fmi {fmi!r}: expected one of {tuple(FMI_VERSIONS)}")
     version = FMI_VERSIONS[fmi]
+    if loop not in FMU_LOOPS:
+        raise InputError(f"--loop {loop!r}: expected one of {', '.join(FMU_LOOPS)}")
     headers = fmi_headers(fmi)  # before any slow work: FMPy missing is bad input
     _check_trim(carriage, cache_dir, cc, progress)
+    tick = _tick(carriage, cache_dir, cc) if loop == "firmware" else FmuTick()
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     interface = render_interface(carriage, GenerateOptions("double", "runtime"), table)
     manifest = json.loads(interface["manifest.json"])
-    model = build_model(manifest, controller, kind)
+    model = build_model(manifest, controller, kind, tick)
     # the GUID names the model's content: same carriage, controller and kind, same GUID
     guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "maglevgen:" + json.dumps(
         [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
@@ -431,6 +487,16 @@ def _with_matrix_gains(wrapper: str, carriage, controller: str, cache_dir: Path 
     consts = table("MATRIX_K_POS", K_pos) + table("MATRIX_K_RATE", K_rate)
     marker = "typedef struct {"
     return wrapper.replace(marker, consts + "\n" + marker, 1)
+
+
+def _tick(carriage, cache_dir: Path | None, cc: str | None) -> FmuTick:
+    """The firmware loop's settings (`simulate.firmware_loop`) as the tick's start values."""
+    from .library import simulation_library
+    from .simulate import firmware_loop
+
+    lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
+    tick, k_v, budget = firmware_loop(carriage, lib)
+    return FmuTick(float(tick.rate), int(tick.delay), float(k_v), float(budget))
 
 
 def _check_trim(carriage, cache_dir: Path | None, cc: str | None, progress: Progress) -> None:

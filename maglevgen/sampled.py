@@ -25,10 +25,12 @@ import numpy as np
 from .codegen.checks import MAX_DELAY_TICKS
 from .derive import conventions as cv
 from .errors import InputError
+from .laws.lqr import numerical_dlqr, weighted_qr
+from .laws.spec import spec_weights
 from .operating import AXIS_STATES, N_AXES, REDUCED_STATES, OperatingPoint
 
-__all__ = ["LOOP_STATES", "Tick", "loop_gain", "loop_model", "sampled_eigenvalues",
-           "speed_gain"]
+__all__ = ["LOOP_STATES", "Tick", "TickDesign", "delay_augmented", "loop_gain", "loop_model",
+           "sampled_eigenvalues", "speed_gain", "tick_design", "tick_design_loop_gains"]
 
 LOOP_STATES: tuple[str, ...] = (*REDUCED_STATES, "u")
 LOOP_INDEX: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in LOOP_STATES)
@@ -124,28 +126,94 @@ def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]
     return E[:n, :n], E[:n, n:]
 
 
-def sampled_closed_loop(A: np.ndarray, B: np.ndarray, K: np.ndarray,
-                        tick: Tick) -> np.ndarray:
-    """The discrete closed loop on (x, the commands in flight): x[k+1] = Phi x + Gamma w_k,
-    the oldest command applied, the newest -K x[k] entering the queue."""
-    Phi, Gamma = zoh(A, B, tick.period)
-    n, m, d = A.shape[0], B.shape[1], tick.delay
+def delay_augmented(Phi: np.ndarray, Gamma: np.ndarray,
+                    delay: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi_a, Gamma_a): the ZOH model with ``delay`` ticks of computation delay, on
+    z[k] = (x[k], w[k-1], ..., w[k-d]) (the commands in flight, newest first): x[k+1] =
+    Phi x[k] + Gamma w[k-d], the queue moves on by one tick and the command computed at tick
+    k, the input of z[k+1] = Phi_a z[k] + Gamma_a w[k], enters it."""
+    n, m, d = Phi.shape[0], Gamma.shape[1], delay
     if d == 0:
-        return Phi - Gamma @ K
+        return Phi, Gamma
     N = n + d * m
-    M = np.zeros((N, N))
-    M[:n, :n] = Phi
-    M[:n, n + (d - 1) * m:] = Gamma  # the command computed d ticks ago
-    M[n:n + m, :n] = -K  # the command computed now
+    Pa, Ga = np.zeros((N, N)), np.zeros((N, m))
+    Pa[:n, :n] = Phi
+    Pa[:n, n + (d - 1) * m:] = Gamma  # the command computed d ticks ago
     for j in range(1, d):  # the queue moves on by one tick
-        M[n + j * m:n + (j + 1) * m, n + (j - 1) * m:n + j * m] = np.eye(m)
-    return M
+        Pa[n + j * m:n + (j + 1) * m, n + (j - 1) * m:n + j * m] = np.eye(m)
+    Ga[n:n + m] = np.eye(m)  # the command computed now
+    return Pa, Ga
+
+
+def sampled_closed_loop(A: np.ndarray, B: np.ndarray, K: np.ndarray, tick: Tick,
+                        K_delay: np.ndarray | None = None) -> np.ndarray:
+    """The discrete closed loop on (x, the commands in flight): x[k+1] = Phi x + Gamma w_k,
+    the oldest command applied, the newest w[k] = -K x[k] - K_delay (w[k-1], ..., w[k-d])
+    entering the queue (``K_delay`` m x d m, None: no feedback of the commands in flight)."""
+    Phi, Gamma = zoh(A, B, tick.period)
+    Pa, Ga = delay_augmented(Phi, Gamma, tick.delay)
+    m, d = B.shape[1], tick.delay
+    K_full = np.hstack([K, np.zeros((m, d * m)) if K_delay is None else K_delay])
+    return Pa - Ga @ K_full
 
 
 def sampled_eigenvalues(A: np.ndarray, B: np.ndarray, K: np.ndarray,
-                        tick: Tick) -> np.ndarray:
-    """Continuous-equivalent eigenvalues ln(z)/h of the sampled-data closed loop."""
-    z = np.linalg.eigvals(sampled_closed_loop(A, B, K, tick)).astype(complex)
+                        tick: Tick, K_delay: np.ndarray | None = None) -> np.ndarray:
+    """Continuous-equivalent eigenvalues ln(z)/h of the sampled-data closed loop (with
+    ``K_delay`` as in `sampled_closed_loop`)."""
+    z = np.linalg.eigvals(sampled_closed_loop(A, B, K, tick, K_delay)).astype(complex)
     small = np.abs(z) < 1e-300
     s = np.log(np.where(small, 1.0, z)) / tick.period
     return np.where(small, -np.inf + 0j, s)
+
+
+@dataclass(frozen=True)
+class TickDesign:
+    """The `spec` design at the tick: the discrete LQR of the ZOH model augmented with the
+    delay (`tick_design`), as gains on the loop's state and on the commands in flight."""
+
+    K_pos: np.ndarray  # 5 x 5 on a - a_ref
+    K_rate: np.ndarray  # 5 x 5 on a'
+    K_delay: np.ndarray  # 5 x 5 d on the generalized forces in flight (w[k-1], ..., w[k-d])
+
+
+def tick_design(op: OperatingPoint, tick: Tick) -> TickDesign:
+    """The `spec` weights (q1, q2, r per axis, `laws.spec.spec_weights`) on the tick: the
+    reduced linearisation (A_r, B_gen) discretised exactly with ZOH over the period h
+    (Phi, Gamma), augmented with the delay's commands in flight (`delay_augmented`), and the
+    discrete LQR of that model, K = (R + Gamma_a' P Gamma_a)^-1 Gamma_a' P Phi_a with P from
+    SciPy's DARE, Q_a = blkdiag(Q, 0) and the same Q, R as the continuous design (the sum
+    h sum_k (z' Q_a z + w' R w) approximates the continuous cost; the factor h scales P,
+    not K). The commands in flight carry no weight of their own: each is weighed by R when
+    it is computed."""
+    A_r, B_g = op.reduced
+    q1, q2, r = spec_weights(op)
+    Q, R = weighted_qr(op.rate_map, q1, q2, r)
+    Phi, Gamma = zoh(A_r, B_g, tick.period)
+    Pa, Ga = delay_augmented(Phi, Gamma, tick.delay)
+    n = A_r.shape[0]
+    Qa = np.zeros_like(Pa)
+    Qa[:n, :n] = Q
+    K = numerical_dlqr(Pa, Ga, Qa, R)
+    K_pos, K_rate = op.axis_gains(K[:, :n])
+    return TickDesign(K_pos, K_rate, K[:, n:])
+
+
+def tick_design_loop_gains(op: OperatingPoint, design: TickDesign, k_v: float
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """(K, K_delay) of `tick_design` on the loop (LOOP_STATES, six inputs): rows 0-4 as
+    `loop_gain`'s with the design's (K_pos, K_rate), row 5 the speed loop; K_delay (6 x 6 d)
+    the design's feedback of the generalized forces in flight (the propulsion's in flight
+    not fed back)."""
+    A, _ = loop_model(op)
+    K = loop_gain(op, "spec", k_v)
+    S = np.zeros((N_AXES, len(LOOP_INDEX)))
+    S[range(N_AXES), range(N_AXES)] = 1.0
+    C_rate = A[[LOOP_INDEX.index(i) for i in AXIS_STATES], :]
+    K[:N_AXES] = design.K_pos @ S + design.K_rate @ C_rate
+    m = N_AXES + 1
+    d = design.K_delay.shape[1] // N_AXES
+    K_delay = np.zeros((m, d * m))
+    for j in range(d):
+        K_delay[:N_AXES, j * m:j * m + N_AXES] = design.K_delay[:, j * N_AXES:(j + 1) * N_AXES]
+    return K, K_delay

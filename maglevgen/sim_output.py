@@ -182,8 +182,10 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
                   f"gap {m['min_gap'] * 1e3:.3f} mm; speed {m['speed_start']:.4f} -> "
                   f"{m['speed_end']:.4f} m/s; RMS array control force "
                   f"{m['rms_array_force']:.4g} N" + _peak_forces(m) + _loop_figures(m)
-                  + ".", "",
-                  "| axis | settling time [s] | peak deviation | final deviation | "
+                  + ".", ""]
+        if m.get("spec"):
+            lines += [f"Against [control.spec]: {m['spec']['verdict']}.", ""]
+        lines += ["| axis | settling time [s] | peak deviation | final deviation | "
                   "RMS control force/moment |", "| --- | --- | --- | --- | --- |"]
         for axis, a in m["axes"].items():
             ts = "not settled" if a["settling_time"] is None else f"{a['settling_time']:.3f}"

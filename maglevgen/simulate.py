@@ -34,6 +34,7 @@ from .operating import (
     operating_point,
     speed_mode,
 )
+from .run_spec import RunSpec, RunVerdict, judge_run
 from .sampled import Tick, speed_gain
 from .schedule import Schedule
 
@@ -160,6 +161,7 @@ class Trajectory:
     tick: Tick | None = None  # None: the controller at every RK4 stage
     speed_gain: float = 0.0  # k_v of the speed loop [N s/m]
     force_budget: float | None = None  # [N] per array, None: no limit
+    run_spec: RunSpec | None = None  # the limits the run is judged against (`spec_verdict`)
 
     @property
     def speed_error(self) -> float | None:
@@ -223,6 +225,17 @@ class Trajectory:
     def status(self) -> str:
         """settled, not settled, diverging, contact (or generated code error): `run_status`."""
         return run_status(self)
+
+
+def spec_verdict(traj: Trajectory) -> RunVerdict | None:
+    """The run against its ``run_spec`` (`maglevgen.run_spec`); None without one."""
+    if traj.run_spec is None:
+        return None
+    dev = traj.axis_deviation
+    return judge_run(traj.run_spec, [settling_time(traj.t, dev[:, i]) for i in
+                                     range(dev.shape[1])],
+                     np.max(np.abs(dev), axis=0), float(np.min(traj.gaps)), traj.speed_error,
+                     bool(traj.speed_gain), traj.saturated_time, traj.force_budget)
 
 
 def run_status(traj: Trajectory) -> str:
@@ -493,6 +506,8 @@ def metrics(traj: Trajectory) -> dict:
                                                 "delay": traj.tick.delay},
         "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
+        # the run against [control.spec] (`spec_verdict`; None for a run without limits)
+        "spec": None if (verdict := spec_verdict(traj)) is None else verdict.to_json(),
     }
 
 
@@ -607,6 +622,8 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,
                       embedded if embedded in controllers else controllers[0])
     names = input_names_of(carriage.structure)
+    run_limits = RunSpec.of(carriage.params, SETTLING_BAND)
     for traj in trajs:
         traj.input_names = names
+        traj.run_spec = run_limits
     return SimulationRun(op, tuple(trajs), limits[worst], names, growth, scenario, v_end, mode)

@@ -240,8 +240,9 @@ def test_errors_are_status_codes_with_a_message(fmus) -> None:
 
 def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: Carriage,
                                                      sim_lib) -> None:
-    """The default controller is the one the firmware embeds (the coupled LQR of the default
-    file): the CLI's FMU follows `maglevgen simulate --controller coupled` bit for bit."""
+    """The default controller is the one the firmware embeds, run as the firmware runs it
+    (--loop firmware, the default): the CLI's FMU follows `maglevgen simulate` of that
+    controller in the firmware loop bit for bit."""
     out = tmp_path / "out"
     ok = subprocess.run([sys.executable, "-m", "maglevgen.cli", "fmu", "--fmi", "3", "--kind",
                          "cs", "--out", str(out)], capture_output=True, text=True)
@@ -249,7 +250,8 @@ def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: 
     embedded = carriage.params.envelope.embedded_controller
     assert "FMI 3.0" in ok.stdout and f"controller {embedded}" in ok.stdout
     assert read_model_description(str(out / "maglev.fmu")).fmiVersion == "3.0"
-    ref = run_scenarios(carriage, (embedded,), 0.5, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(carriage, (embedded,), 0.5, 1e-3, lib=sim_lib,
+                        loop="firmware").trajectories[0]
     res = simulate_fmu(str(out / "maglev.fmu"), fmi_type="CoSimulation", stop_time=0.5,
                        output_interval=1e-3, output=STATES)
     assert np.array_equal(_states(res), ref.x)
