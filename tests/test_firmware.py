@@ -860,9 +860,10 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Car
     The bound (per state, linear error propagation): the target's error obeys
     e[k+1] = Phi e[k] + d[k], Phi the one-tick map's Jacobian at the trim (state and the
     commands on their way, central differences of the reference), d the float32 rounding of
-    one tick: ROUNDINGS * u32 * (max |x| over the run + dt |f| + dt m g sum_j |B_ij|) for the state (m g sum |B|:
-    the size of the lift and weight terms that cancel in each acceleration, B from the host's
-    Jacobians) and ROUNDINGS * u32 * (|command| + budget) for the command. So
+    one tick: ROUNDINGS * u32 * (max |x| over the run + dt |f| + dt m g sum_j |B_ij|) for the
+    state (m g sum |B|: the size of the lift and weight terms that cancel in each
+    acceleration, B from the host's Jacobians) and ROUNDINGS * u32 * (|command| + budget) for
+    the command. So
     |e[n]| <= sum_{j<=n} |Phi^j| d, checked for every state at every sample; the disturbance's
     response is at least 100 times the bound on the heave (the check can tell a wrong
     controller). Then a NaN in the measured heave: the tick returns MAGLEV_ERR_NONFINITE and
@@ -997,3 +998,16 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Car
     # a NaN in the measured state, on the target: the code and a zero command
     assert tail["n"][0] == ERR["MAGLEV_ERR_NONFINITE"]
     assert tail["u"].size == nu and np.all(tail["u"] == 0), tail["u"]
+
+
+def test_firmware_readme_quotes_the_recorded_tick_cost() -> None:
+    """The tick's cost the folder's README quotes (maglevgen.codegen.firmware.MEASURED) is the
+    one bench/firmware_tick.py recorded (bench/firmware_tick_results.json), and the share of
+    the 1 kHz period is the cycles over 168 000 (recomputed here)."""
+    from maglevgen.codegen.firmware import MEASURED
+
+    recorded = json.loads((REPO / "bench" / "firmware_tick_results.json").read_text())
+    for key in ("instructions", "cycles", "clock_mhz", "stack_bytes"):
+        assert MEASURED[key] == recorded[key], key
+    assert MEASURED["share_percent"] == pytest.approx(
+        100 * recorded["cycles"] / (recorded["clock_mhz"] * 1e6 / 1000), abs=0.005)

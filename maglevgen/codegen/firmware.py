@@ -55,7 +55,12 @@ PLANT = "maglev_dynamics"  # --with-plant: the float32 plant in the image (HIL/S
 
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README
-MEASURED: dict = {}
+MEASURED: dict = {
+    "instructions": 4969, "cycles": 8084, "share_percent": 4.81, "clock_mhz": 168,
+    "stack_bytes": 528,
+    "method": "every instruction QEMU mps2-an386 executes, newlib's sinf/cosf included",
+    "cycle_model": "Cortex-M4/FPv4-SP instruction timings, zero wait states",
+}
 
 
 @dataclass(frozen=True)

@@ -169,8 +169,8 @@ def deviation_list() -> str:
              "schedule, and on every file of `maglevgen firmware`'s folder in every "
              "preprocessor configuration (tests/test_firmware.py): every finding lies in one "
              "of the places below (its file, its rule, its enclosing function matching a "
-             "listed pattern) and every listed pattern holds a finding. The whole file's findings are counted by rule in "
-             "BENCHMARKS.md (bench/firmware.py).", "",
+             "listed pattern) and every listed pattern holds a finding. The whole file's "
+             "findings are counted by rule in BENCHMARKS.md (bench/firmware.py).", "",
              "| rule | file | function | what | reason |", "| --- | --- | --- | --- | --- |"]
     order = sorted(DEVIATIONS, key=lambda d: tuple(int(x) for x in d.rule.split(".")))
     lines += [f"| {d.rule} | {d.file} | " + ", ".join(f"`{p}`" if p != FILE_SCOPE else p
