@@ -764,7 +764,8 @@ def test_firmware_headers_compile_together_in_any_order(firmware, tmp_path: Path
 def test_firmware_cmake_builds_for_cortex_m4f(firmware, tmp_path: Path) -> None:
     """The folder's CMake project configures and builds with its toolchain file
     (cortex-m4f.cmake): the example is an ARM ELF (its header's e_machine is 40, EM_ARM), and
-    the library calls no double-precision helper (__aeabi_d*), only libm's float functions."""
+    the library calls no double-precision helper (__aeabi_d*), only libm's float functions,
+    and defines only maglev_* symbols (maglev_tick among them)."""
     import shutil
     import subprocess
 
@@ -780,6 +781,11 @@ def test_firmware_cmake_builds_for_cortex_m4f(firmware, tmp_path: Path) -> None:
     nm = subprocess.run(["arm-none-eabi-nm", "-u", "build/libmaglev_firmware.a"], cwd=src,
                         check=True, capture_output=True, text=True).stdout
     assert "U sinf" in nm and not re.search(r"__aeabi_d|__aeabi_f2d", nm), nm
+    defined = subprocess.run(["arm-none-eabi-nm", "-g", "--defined-only",
+                              "build/libmaglev_firmware.a"], cwd=src, check=True,
+                             capture_output=True, text=True).stdout
+    names = {ln.split()[-1] for ln in defined.splitlines() if re.match(r"^[0-9a-f]+ ", ln)}
+    assert "maglev_tick" in names and all(n.startswith("maglev_") for n in names), names
 
 
 @pytest.mark.slow
