@@ -760,12 +760,13 @@ def test_firmware_headers_compile_together_in_any_order(firmware, tmp_path: Path
                 assert run.returncode == 0, (precision, cc, source, run.stderr)
 
 
+@pytest.mark.slow
 @pytest.mark.needs_arm("cmake", "arm-none-eabi-nm")
 def test_firmware_cmake_builds_for_cortex_m4f(firmware, tmp_path: Path) -> None:
     """The folder's CMake project configures and builds with its toolchain file
     (cortex-m4f.cmake): the example is an ARM ELF (its header's e_machine is 40, EM_ARM), and
     the library calls no double-precision helper (__aeabi_d*), only libm's float functions,
-    and defines only maglev_* symbols (maglev_tick among them)."""
+    and defines only maglev_* symbols (maglev_tick among them). About 15 s on a busy machine."""
     import shutil
     import subprocess
 
