@@ -7,7 +7,10 @@ coupled_control, allocate, with their checked entry points) as one small file, m
 whose text is maglev_functions.c's for those functions; tests/test_firmware.py checks it and
 the table schedule (maglev_gain_table.c/.h) with ``cppcheck --addon=misra`` (seconds, where the
 whole maglev_functions.c takes minutes: bench/firmware.py counts it by rule for BENCHMARKS.md).
-Every finding there must lie in a place of ``DEVIATIONS`` (its rule, its file, its enclosing
+The same test file checks every .c of `maglevgen firmware`'s folder (maglev_tick.c, main.c,
+the table and the controller's functions, with maglev.h and the other headers) in every
+preprocessor configuration (``--force``). Every finding there must lie in a place of
+``DEVIATIONS`` (its rule, its file, its enclosing
 function matching one of the place's patterns, found by `enclosing_functions`), and every
 pattern of every place must be met by a finding; ``deviation_list`` is written beside the
 generated code as MISRA_DEVIATIONS.md.
