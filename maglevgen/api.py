@@ -953,6 +953,50 @@ class Carriage:
             speeds = speed_range(self._carriage)
         return list(write_output(render(self._carriage, opts, speeds), Path(out)))
 
+    def firmware(self, out: str | Path, precision: str = "single",
+                 with_plant: bool = False) -> list[Path]:
+        """Write the embedded controller's firmware folder, as ``maglevgen firmware``.
+
+        The C of ``envelope.embedded_controller``'s path only, parameters baked: the table
+        schedule ``maglev_schedule``, the controller's per-tick function and the allocation
+        (eqs 22-23), ``maglev_tick`` (the speed loop and the force budget around them), an
+        example ``main.c``, a CMake project with a Cortex-M4F toolchain file, the MISRA
+        deviation list and a README saying what to call when.
+
+        Parameters
+        ----------
+        out : str or pathlib.Path
+            Output folder (written atomically; created if missing).
+        precision : {'single', 'double'}, optional
+            single for the board (default); double to check the same code on a host.
+        with_plant : bool, optional
+            Also ``maglev_dynamics`` (the plant) in the image: a closed loop on the target.
+
+        Returns
+        -------
+        list of pathlib.Path
+            The files written.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown precision, or a folder that cannot be written.
+
+        Examples
+        --------
+        >>> import tempfile, maglevgen
+        >>> with tempfile.TemporaryDirectory() as out:  # doctest: +SKIP
+        ...     names = [p.name for p in maglevgen.load().firmware(out)]
+        >>> "maglev_tick.c" in names  # doctest: +SKIP
+        True
+        """
+        from .codegen.firmware import firmware_files
+        from .output import check_writable, write_output
+
+        check_writable(Path(out))
+        return list(write_output(firmware_files(self._carriage, precision, with_plant),
+                                 Path(out)))
+
     def report(self, out: str | Path, simulation: str | Path | None = None) -> list[Path]:
         """Write the derivation report, as ``maglevgen report``.
 

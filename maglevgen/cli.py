@@ -231,6 +231,25 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------- firmware
+
+
+def cmd_firmware(args: argparse.Namespace) -> int:
+    from .codegen.firmware import firmware_files
+    from .output import check_writable, write_output
+
+    carriage = _carriage(args)
+    check_writable(Path(args.out))  # before the table's trims and the code generation
+    paths = write_output(firmware_files(carriage, args.precision, args.with_plant),
+                         Path(args.out))
+    print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (the embedded controller "
+          f"{carriage.params.envelope.embedded_controller!r}, {args.precision} precision; "
+          "what to call when: README.md there)")
+    for path in paths:
+        print(f"  {path.name}")
+    return 0
+
+
 # ---------------------------------------------------------------------------------- simulate
 
 
@@ -500,6 +519,19 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--out", default="generated", metavar="DIR",
                      help="output folder (default: ./generated)")
     gen.set_defaults(func=cmd_generate)
+
+    fw = sub.add_parser("firmware", help="the embedded controller's firmware folder: tick, "
+                        "table schedule, main.c, CMake with a Cortex-M4F toolchain file")
+    _common(fw)
+    fw.add_argument("--precision", choices=("single", "double"), default="single",
+                    help="single for the board (default); double to check the same code on a "
+                    "host")
+    fw.add_argument("--with-plant", action="store_true",
+                    help="also maglev_dynamics in maglev_functions.c: the plant in the same "
+                    "image for a closed loop on the target (HIL/SIL, QEMU)")
+    fw.add_argument("--out", default="firmware", metavar="DIR",
+                    help="output folder (default: ./firmware)")
+    fw.set_defaults(func=cmd_firmware)
 
     sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
     _common(sim)

@@ -115,8 +115,7 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
                         rel_tol=1e-12)
 
     lib_c = compile_shared([good / "c/maglev_gain_table.c"], cache_dir=good.parent / "gt",
-                           flags=("-std=c99", "-O2", "-fPIC", "-shared",
-                                  "-DMAGLEV_GAIN_TABLE_DOUBLE"))
+                           flags=("-std=c99", "-O2", "-fPIC", "-shared"))  # c/'s: double
     schedule = ctypes.CDLL(str(lib_c)).maglev_schedule
     schedule.argtypes = [ctypes.c_double, ctypes.POINTER(ctypes.c_double)]
     fields = (("F_prop", 1), ("a_ref", 5), ("K", 10), ("c_damping", 5), ("K_pos", 25),

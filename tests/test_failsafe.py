@@ -666,8 +666,8 @@ def _build(src: Path, out: Path, table: list[dict], carriage: Carriage,
     flags = ["-std=c99", "-O0", "-g", "-Wall", "-Wno-unused-function", "-Wno-unused-variable",
              *SANITIZE]
     script = (
-        f"cc {' '.join(flags)} -DMAGLEV_GAIN_TABLE_DOUBLE -c gain_table_cases.c &&"
-        f" cc {' '.join(flags)} -DMAGLEV_GAIN_TABLE_DOUBLE -c maglev_gain_table.c &&"
+        f"cc {' '.join(flags)} -c gain_table_cases.c &&"  # double: maglev_functions.h's
+        f" cc {' '.join(flags)} -c maglev_gain_table.c &&"
         f" cc {' '.join(flags)} -c harness.c maglev_simulate.c maglev_functions.c &&"
         f" cc {' '.join(SANITIZE)} harness.o maglev_simulate.o maglev_functions.o"
         " gain_table_cases.o maglev_gain_table.o -lm -o harness")

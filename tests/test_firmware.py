@@ -228,13 +228,13 @@ WARN = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wdouble-promo
 
 
 @pytest.fixture(scope="module")
-def gain_table(carriage: Carriage, sim_lib, tmp_path_factory):
-    """(table, its C folder, host libraries by precision, exact rows at speeds) over the
-    envelope's range."""
-    import subprocess
-
+def firmware(carriage: Carriage, sim_lib, tmp_path_factory) -> dict:
+    """The table schedule over the envelope's range (fitted here, as maglevgen.envelope's
+    gain_table does), the firmware loop, the exact rows at speeds, and the firmware folder
+    (`render_firmware`, no plant) of each precision."""
+    from maglevgen.codegen.firmware import firmware_loop, render_firmware
     from maglevgen.envelope import envelope_points, resolve_range
-    from maglevgen.schedule import GainTable, gain_table_row, gain_table_sources
+    from maglevgen.schedule import GainTable, gain_table_row
 
     v_min, v_max = resolve_range(carriage, sim_lib)
 
@@ -244,16 +244,28 @@ def gain_table(carriage: Carriage, sim_lib, tmp_path_factory):
                          for op in envelope_points(carriage, sim_lib, vs)])
 
     table = GainTable.fit(rows, v_min, v_max)
-    out = tmp_path_factory.mktemp("gain_table")
-    for name, text in gain_table_sources(table).items():
-        (out / name).write_text(text)
+    loop = firmware_loop(carriage, sim_lib)
+    folders = {}
+    for precision in ("single", "double"):
+        folders[precision] = tmp_path_factory.mktemp(f"firmware_{precision}")
+        write_output(render_firmware(carriage, table, loop, precision), folders[precision])
+    return {"table": table, "loop": loop, "rows": rows, "folders": folders}
+
+
+@pytest.fixture(scope="module")
+def gain_table(firmware):
+    """(table, its C folder (the single-precision firmware folder), host libraries by
+    precision, exact rows at speeds): maglev_gain_table.c compiled in each precision's
+    firmware folder (its maglev_real is that folder's maglev_functions.h's)."""
+    import subprocess
+
     libs = {}
-    for precision, define in (("double", ["-DMAGLEV_GAIN_TABLE_DOUBLE"]), ("single", [])):
-        so = out / f"gt_{precision}.so"
-        subprocess.run(["cc", *WARN, *define, "-O2", "-fPIC", "-shared",
-                        "maglev_gain_table.c", "-o", str(so)], cwd=out, check=True)
+    for precision, folder in firmware["folders"].items():
+        so = folder / f"gt_{precision}.so"
+        subprocess.run(["cc", *WARN, "-O2", "-fPIC", "-shared", "maglev_gain_table.c", "-o",
+                        str(so)], cwd=folder, check=True)
         libs[precision] = so
-    return table, out, libs, rows
+    return firmware["table"], firmware["folders"]["single"], libs, firmware["rows"]
 
 
 def _schedule_c(lib: Path, precision: str, v: float) -> tuple[int, np.ndarray]:
@@ -631,6 +643,8 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carria
         (tmp_path / name).write_text(text)
     for name in ("maglev_gain_table.c", "maglev_gain_table.h"):
         (tmp_path / name).write_text((table_dir / name).read_text())
+    # the header of these functions under the name the table's header includes
+    (tmp_path / "maglev_functions.h").write_text((tmp_path / "maglev_tick.h").read_text())
     run = subprocess.run(["cppcheck", "--addon=misra", "--std=c99", "--quiet",
                           "--template={file}:{line}:{id}", "maglev_tick.c",
                           "maglev_gain_table.c"], cwd=tmp_path, capture_output=True,
@@ -651,8 +665,11 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carria
             uncovered.append((file, line, *place[1:]))
         used.update(hits)
     assert not uncovered, uncovered
-    listed = {(i, p) for i, d in enumerate(DEVIATIONS) for p in d.functions}
-    assert listed == used, sorted(listed - used)
+    # the places of these files (the firmware folder's own are test_firmware_misra's)
+    files = ("maglev_functions.c", "maglev_gain_table.c", "maglev_gain_table.h")
+    listed = {(i, p) for i, d in enumerate(DEVIATIONS) for p in d.functions if d.file in files}
+    assert listed == {(i, p) for i, p in used if DEVIATIONS[i].file in files}, \
+        sorted(listed - used)
     md = (REPO / "generated" / "MISRA_DEVIATIONS.md").read_text()
     for d in DEVIATIONS:
         assert any(ln.startswith(f"| {d.rule} | {d.file} |") and d.what in ln
@@ -702,3 +719,302 @@ def test_header_leaves_casadi_real_alone(carriage: Carriage, tmp_path: Path) -> 
         "int use(void) { return (int)sizeof(real_kept) + (int)sizeof(int_kept)\n"
         "    + (int)sizeof(own_real) + (int)sizeof(own_int); }\n")
     subprocess.run(["cc", *WARN, "-c", "other.c", "-o", "other.o"], cwd=tmp_path, check=True)
+
+
+# ------------------------------------------------------------------------- the firmware folder
+
+#: the headers of `maglevgen firmware`'s folder
+FIRMWARE_HEADERS = ("maglev.h", "maglev_functions.h", "maglev_gain_table.h", "maglev_tick.h")
+FIRMWARE_SOURCES = ("maglev_tick.c", "maglev_gain_table.c", "maglev_functions.c", "main.c")
+STRICT = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]  # the issue's flags
+
+
+@pytest.mark.needs_cc("clang")
+def test_firmware_headers_compile_together_in_any_order(firmware, tmp_path: Path) -> None:
+    """Every header of the firmware folder included together, in both orders, under -std=c99
+    -Wall -Wextra -Wpedantic -Werror with gcc and clang, for both precisions (one definition
+    of maglev_real: the compiler checks its size, 4 or 8 bytes, in the translation unit);
+    every .c of the folder compiles under the same flags. A typedef given twice (the table's
+    old own maglev_real) fails here."""
+    import subprocess
+
+    for precision, folder in firmware["folders"].items():
+        size = 4 if precision == "single" else 8
+        for order, headers in (("forward", FIRMWARE_HEADERS),
+                               ("reverse", FIRMWARE_HEADERS[::-1])):
+            unit = folder / f"all_{order}.c"
+            unit.write_text("".join(f'#include "{h}"\n' for h in headers)
+                            + f"typedef char real_size[sizeof(maglev_real) == {size} ? 1 : -1];\n"
+                            "int use(maglev_real v, maglev_real* u);\n"
+                            "int use(maglev_real v, maglev_real* u) {\n"
+                            "    return maglev_schedule(v, u) + maglev_tick(u, v, u)\n"
+                            "        + (int)sizeof(real_size);\n}\n")
+            for cc in ("gcc", "clang"):
+                run = subprocess.run([cc, *STRICT, "-c", unit.name, "-o", f"{order}_{cc}.o"],
+                                     cwd=folder, capture_output=True, text=True)
+                assert run.returncode == 0, (precision, order, cc, run.stderr)
+        for cc in ("gcc", "clang"):
+            for source in FIRMWARE_SOURCES:
+                run = subprocess.run([cc, *STRICT, "-c", source, "-o", f"{cc}_{source}.o"],
+                                     cwd=folder, capture_output=True, text=True)
+                assert run.returncode == 0, (precision, cc, source, run.stderr)
+
+
+@pytest.mark.slow
+@pytest.mark.needs_arm("cmake", "arm-none-eabi-nm")
+def test_firmware_cmake_builds_for_cortex_m4f(firmware, tmp_path: Path) -> None:
+    """The folder's CMake project configures and builds with its toolchain file
+    (cortex-m4f.cmake): the example is an ARM ELF (its header's e_machine is 40, EM_ARM), and
+    the library calls no double-precision helper (__aeabi_d*), only libm's float functions,
+    and defines only maglev_* symbols (maglev_tick among them). About 15 s on a busy machine."""
+    import shutil
+    import subprocess
+
+    src = tmp_path / "fw"
+    shutil.copytree(firmware["folders"]["single"], src,
+                    ignore=shutil.ignore_patterns("*.o", "*.so", "all_*.c"))
+    for step in (["cmake", "-S", ".", "-B", "build", "-DCMAKE_TOOLCHAIN_FILE=cortex-m4f.cmake"],
+                 ["cmake", "--build", "build"]):
+        run = subprocess.run(step, cwd=src, capture_output=True, text=True)
+        assert run.returncode == 0, run.stdout + run.stderr
+    elf = (src / "build" / "maglev_firmware_example").read_bytes()
+    assert elf[:4] == b"\x7fELF" and int.from_bytes(elf[18:20], "little") == 40  # EM_ARM
+    nm = subprocess.run(["arm-none-eabi-nm", "-u", "build/libmaglev_firmware.a"], cwd=src,
+                        check=True, capture_output=True, text=True).stdout
+    assert "U sinf" in nm and not re.search(r"__aeabi_d|__aeabi_f2d", nm), nm
+    defined = subprocess.run(["arm-none-eabi-nm", "-g", "--defined-only",
+                              "build/libmaglev_firmware.a"], cwd=src, check=True,
+                             capture_output=True, text=True).stdout
+    names = {ln.split()[-1] for ln in defined.splitlines() if re.match(r"^[0-9a-f]+ ", ln)}
+    assert "maglev_tick" in names and all(n.startswith("maglev_") for n in names), names
+
+
+@pytest.mark.slow
+@pytest.mark.needs_arm("cppcheck")
+def test_firmware_misra_findings_are_all_justified(firmware) -> None:
+    """cppcheck's MISRA C:2012 addon on every .c of the firmware folder (their headers with
+    them) in every preprocessor configuration (--force): every finding lies in a listed place
+    (file, enclosing function, rule) of maglevgen.codegen.misra.DEVIATIONS, and every place
+    of the folder's own files (maglev.h, maglev_functions.h, maglev_tick.*, main.c) holds a
+    finding (no stale place; the others are test_tick_path_misra_findings_are_all_justified's).
+    About 12 s."""
+    import subprocess
+
+    from maglevgen.codegen.misra import DEVIATIONS, FILE_SCOPE, enclosing_functions
+
+    folder = firmware["folders"]["single"]
+    run = subprocess.run(["cppcheck", "--addon=misra", "--std=c99", "--force", "--quiet",
+                          "--template={file}:{line}:{id}", *FIRMWARE_SOURCES], cwd=folder,
+                         capture_output=True, text=True, timeout=300, check=True)
+    findings = [ln.split(":") for ln in run.stderr.splitlines() if "misra-c2012-" in ln]
+    assert {f for f, _, _ in findings} >= {"maglev_functions.c", "maglev.h"}, run.stderr
+    used, uncovered = set(), []
+    for file, line, rule in findings:
+        function = enclosing_functions((folder / file).read_text()).get(int(line), FILE_SCOPE)
+        hits = [(i, d.covers(file, function, rule.removeprefix("misra-c2012-")))
+                for i, d in enumerate(DEVIATIONS)]
+        hits = [(i, p) for i, p in hits if p is not None]
+        if not hits:
+            uncovered.append((file, line, function, rule))
+        used.update(hits)
+    assert not uncovered, uncovered
+    own = ("maglev.h", "maglev_functions.h", "maglev_tick.h", "maglev_tick.c", "main.c")
+    listed = {(i, p) for i, d in enumerate(DEVIATIONS) for p in d.functions if d.file in own}
+    assert listed and listed <= used, sorted(listed - used)
+
+
+def test_firmware_command_refuses_bad_input(tmp_path: Path, capsys) -> None:
+    """`maglevgen firmware`: an output path that is a file, an unknown embedded controller
+    and an unknown precision exit 2 with one line naming the value, before any slow work,
+    and write nothing."""
+    from maglevgen.cli import main
+
+    afile = tmp_path / "a_file"
+    afile.write_text("x")
+    cases = ((["firmware", "--out", str(afile)], str(afile)),
+             (["firmware", "--out", str(tmp_path / "fw"), "--set",
+               'envelope.embedded_controller="bogus"'], "bogus"))
+    for argv, named in cases:
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and named in err[0], err
+    with pytest.raises(SystemExit) as exc:
+        main(["firmware", "--precision", "quad", "--out", str(tmp_path / "fw")])
+    assert exc.value.code == 2 and "quad" in capsys.readouterr().err
+    assert afile.read_text() == "x" and not (tmp_path / "fw").exists()
+
+
+U32 = 2.0 ** -24  # float32's unit roundoff
+#: roundings per tick that the closed-loop bound counts for every term of the state update:
+#: four RK4 stages, each rounding the force law's products, exponentials and sums a few
+#: (about four) times; the state and the command stored once per tick
+ROUNDINGS = 16
+
+
+@pytest.mark.slow
+@pytest.mark.needs_arm("qemu-system-arm")
+def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Carriage, sim_lib,
+                                                          op, tmp_path: Path) -> None:
+    """`maglevgen firmware --with-plant` built for the Cortex-M4F with the README's flags and
+    run under QEMU (mps2-an386) in closed loop: maglev_tick at the tick rate with its delay,
+    one RK4 step of the float32 maglev_dynamics per tick with the command held, 1 s from the
+    default disturbance of the trim at the default speed. Reference: RK4 in numpy at the same
+    tick over the host double library's dynamics, its coupled control and allocation (run-time
+    parameters), the table evaluated by numpy's chebval, the speed loop and the budget
+    written here.
+
+    The bound (per state, linear error propagation): the target's error obeys
+    e[k+1] = Phi e[k] + d[k], Phi the one-tick map's Jacobian at the trim (state and the
+    commands on their way, central differences of the reference), d the float32 rounding of
+    one tick: ROUNDINGS * u32 * (max |x| over the run + dt |f| + dt m g sum_j |B_ij|) for the
+    state (m g sum |B|: the size of the lift and weight terms that cancel in each
+    acceleration, B from the host's Jacobians) and ROUNDINGS * u32 * (|command| + budget) for
+    the command. So
+    |e[n]| <= sum_{j<=n} |Phi^j| d, checked for every state at every sample; the disturbance's
+    response is at least 100 times the bound on the heave (the check can tell a wrong
+    controller). Then a NaN in the measured heave: the tick returns MAGLEV_ERR_NONFINITE and
+    zeroes the command on the target."""
+    import subprocess
+
+    from maglevgen.cli import main
+    from maglevgen.codegen.firmware import FIRMWARE_FLAGS, TICK_INPUTS
+    from maglevgen.derive import conventions as cv
+    from maglevgen.laws import controller
+    from maglevgen.schedule import GAIN_TABLE_FIELDS
+    from maglevgen.simulate import DISTURBANCE, initial_state
+
+    table, loop = firmware["table"], firmware["loop"]
+    out = tmp_path / "fw"
+    assert main(["firmware", "--with-plant", "--out", str(out)]) == 0
+    n_ticks = round(loop.tick_rate)  # 1 s
+    dt, depth = 1.0 / loop.tick_rate, loop.delay_ticks + 1
+    x0 = initial_state(op, DISTURBANCE).astype(np.float32)
+    v_ref = np.float32(op.speed)
+
+    # the target
+    m4 = REPO / "tests" / "c" / "m4"
+    objs = []
+    for name in ("maglev_tick", "maglev_gain_table", "maglev_functions"):
+        subprocess.run(["arm-none-eabi-gcc", *FIRMWARE_FLAGS, "-ffunction-sections",
+                        "-fdata-sections", "-c", f"{name}.c", "-o", f"{name}.o"], cwd=out,
+                       check=True)
+        objs.append(f"{name}.o")
+    defines = ["-DX0=" + ",".join(f"{float(v)!r}f" for v in x0),
+               f"-DV_REF={float(v_ref)!r}f", f"-DN_TICKS={n_ticks}"]
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-Os", "-std=gnu99", "-Wall", "-Werror",
+                    "-fno-math-errno", *defines, "-I.", "-c", str(m4 / "startup.c"),
+                    str(m4 / "closed_loop.c")], cwd=out, check=True)
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
+                    "-Wl,--gc-sections", "startup.o", "closed_loop.o", *objs, "-lm", "-lc",
+                    "-o", "loop.elf"], cwd=out, check=True)
+    run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
+                          "-kernel", "loop.elf"], cwd=out, capture_output=True, text=True,
+                         timeout=300, check=True)
+
+    def floats(line: str) -> np.ndarray:
+        return np.array([np.uint32(int(h, 16)).view(np.float32) for h in line.split()[1:]],
+                        dtype=float)
+
+    lines = run.stderr.splitlines()
+    xs = np.array([floats(ln) for ln in lines if ln.startswith("x ")])
+    tail = {ln[0]: floats(ln) for ln in lines if ln[:2] in ("r ", "n ", "u ")}
+    assert tail["r"][0] == 0 and xs.shape == (n_ticks + 1, 12), (tail, xs.shape)
+
+    # the reference: numpy RK4 over the host's double C, the same tick, delay and hold
+    p = carriage.p
+    tick_fn = controller(carriage.params.envelope.embedded_controller).tick_function
+    dyn, ctl, alloc = (sim_lib.function(n) for n in ("maglev_dynamics", tick_fn,
+                                                     "maglev_allocate"))
+    field, i = {}, 0
+    for name, size in GAIN_TABLE_FIELDS:
+        field[name] = slice(i, i + size)
+        i += size
+    array_of = np.array([i for i, (_, comps) in enumerate(carriage.model.structure.arrays)
+                         for _ in comps])
+    budget = loop.force_budget
+
+    def command(x: np.ndarray) -> np.ndarray:
+        v = float(np.linalg.norm(x[6:9]))
+        g = table(v)
+        (u_gen,) = ctl(x, *[g[field[n]] for n in TICK_INPUTS[tick_fn]], p)
+        (F,) = alloc(u_gen, p)
+        F = F.ravel()
+        norm = np.sqrt(np.bincount(array_of, F ** 2))
+        F = F * np.where(norm > budget, budget / np.maximum(norm, 1e-300), 1.0)[array_of]
+        return np.concatenate([[g[field["F_prop"]][0] + loop.speed_gain * (float(v_ref) - v)],
+                               F])
+
+    def f(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return dyn(x, u, p)[0].ravel()
+
+    def rk4(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        k1 = f(x, u)
+        k2 = f(x + dt / 2 * k1, u)
+        k3 = f(x + dt / 2 * k2, u)
+        k4 = f(x + dt * k3, u)
+        return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+    def tick(x: np.ndarray, queue: list[np.ndarray]) -> tuple[np.ndarray, list]:
+        """One tick: the command of delay ticks ago applied (queue[0]), the new one queued."""
+        c = command(x)
+        if depth == 1:
+            return rk4(x, c), queue
+        return rk4(x, queue[0]), [*queue[1:], c]
+
+    x = x0.astype(float)
+    first = command(x)
+    queue = [first] * (depth - 1)
+    ref = [x]
+    for _ in range(n_ticks):
+        x, queue = tick(x, queue)
+        ref.append(x)
+    ref = np.array(ref)
+
+    # the bound: the one-tick map's Jacobian Phi at the trim, z = (x, queued commands)
+    nx, nu = 12, first.size
+    x_trim = op.x_trim.astype(float)
+    c_trim = command(x_trim)
+
+    def step(z: np.ndarray) -> np.ndarray:
+        q = [z[nx + k * nu: nx + (k + 1) * nu] for k in range(depth - 1)]
+        x1, q1 = tick(z[:nx], q)
+        return np.concatenate([x1, *q1])
+
+    z0 = np.concatenate([x_trim, *[c_trim] * (depth - 1)])
+    h = 1e-6 * np.maximum(1.0, np.abs(z0))
+    Phi = np.column_stack([(step(z0 + h[j] * e) - step(z0 - h[j] * e)) / (2 * h[j])
+                           for j, e in enumerate(np.eye(z0.size))])
+    _, B = sim_lib.function("maglev_jacobians")(x_trim, c_trim, p)
+    weight = carriage.params.vehicle.mass * 9.81
+    d_x = ROUNDINGS * U32 * (np.abs(ref).max(axis=0) + dt * (
+        np.abs(f(x_trim, c_trim)) + weight * np.abs(B).sum(axis=1)))
+    d_c = ROUNDINGS * U32 * (np.abs(c_trim) + budget)
+    d = np.concatenate([d_x, *[d_c] * (depth - 1)])
+    power, bound = np.eye(z0.size), np.zeros(z0.size)
+    for _ in range(n_ticks + 1):
+        bound += np.abs(power) @ d
+        power = Phi @ power
+    bound = bound[:nx]
+    error = np.abs(xs - ref).max(axis=0)
+    assert np.all(error <= bound), (error, bound)
+    z = cv.STATE_INDEX["z"]
+    response = np.abs(ref[:, z] - x_trim[z]).max()
+    assert response >= 100 * bound[z], (response, bound[z])
+
+    # a NaN in the measured state, on the target: the code and a zero command
+    assert tail["n"][0] == ERR["MAGLEV_ERR_NONFINITE"]
+    assert tail["u"].size == nu and np.all(tail["u"] == 0), tail["u"]
+
+
+def test_firmware_readme_quotes_the_recorded_tick_cost() -> None:
+    """The tick's cost the folder's README quotes (maglevgen.codegen.firmware.MEASURED) is the
+    one bench/firmware_tick.py recorded (bench/firmware_tick_results.json), and the share of
+    the 1 kHz period is the cycles over 168 000 (recomputed here)."""
+    from maglevgen.codegen.firmware import MEASURED
+
+    recorded = json.loads((REPO / "bench" / "firmware_tick_results.json").read_text())
+    for key in ("instructions", "cycles", "clock_mhz", "stack_bytes"):
+        assert MEASURED[key] == recorded[key], key
+    assert MEASURED["share_percent"] == pytest.approx(
+        100 * recorded["cycles"] / (recorded["clock_mhz"] * 1e6 / 1000), abs=0.005)

@@ -148,6 +148,21 @@ def render_interface(carriage: Carriage, opts: GenerateOptions, table: list[dict
                      speed_range: tuple[float, float] | None = None) -> dict[str, str]:
     """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest.
     ``speed_range``: the baked trim's [v_min, v_max] (None: v > 0)."""
+    ctx = interface_context(carriage, opts, table, speed_range)
+    env = template_env()
+    files = {name: env.get_template(f"{name}.j2").render(ctx)
+             for name in ("maglev.h", "main.c", "CMakeLists.txt", "README.md")}
+    manifest = _manifest(carriage, opts, table, ctx["params"], ctx["inputs"])
+    if speed_range is not None:
+        manifest["trim_speed_range"] = [float(v) for v in speed_range]
+    files["manifest.json"] = json.dumps(manifest, indent=2) + "\n"
+    return files
+
+
+def interface_context(carriage: Carriage, opts: GenerateOptions, table: list[dict],
+                      speed_range: tuple[float, float] | None = None) -> dict:
+    """What the interface templates (maglev.h.j2 and its neighbours) read: the functions of
+    ``table`` with their checks, the states, inputs, axes and parameters."""
     header_banner = banner(opts, carriage.loaded.sha256)
     runtime = opts.parameters == "runtime"
     params = [{"name": e.name, "macro": _macro(e.name), "unit": e.unit or "1",
@@ -171,14 +186,7 @@ def render_interface(carriage: Carriage, opts: GenerateOptions, table: list[dict
         "speed_range": None if speed_range is None
         else [_c_literal(v, "double") for v in speed_range],
     }
-    env = template_env()
-    files = {name: env.get_template(f"{name}.j2").render(ctx)
-             for name in ("maglev.h", "main.c", "CMakeLists.txt", "README.md")}
-    manifest = _manifest(carriage, opts, table, params, inputs)
-    if speed_range is not None:
-        manifest["trim_speed_range"] = [float(v) for v in speed_range]
-    files["manifest.json"] = json.dumps(manifest, indent=2) + "\n"
-    return files
+    return ctx
 
 
 def _manifest(carriage: Carriage, opts: GenerateOptions, table: list[dict], params: list[dict],

@@ -89,7 +89,9 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
         "spec": _spec_context(carriage),
         "names": [CONTROLLER_TITLES[n] for n in names],
         "gain_table": {"nodes": table["nodes"], "dense_grid": table["dense_grid"],
-                       "bound": table["bound"], "worst": table["worst_relative_error"]},
+                       "bound": table["bound"], "worst": table["worst_relative_error"],
+                       "by_field": [{"name": k, "error": float(v)} for k, v in
+                                    table["relative_error_by_field"].items()]},
         "table": [{"speed": float(env.speeds[i]),
                    "cells": [float(env.controllers[n].max_real[i]) for n in names]}
                   for i in pick],
