@@ -33,10 +33,10 @@ from common import BENCH, ROOT, log, paired_ratios, run, summary
 
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
-from maglevgen.envelope import envelope_points, resolve_range, speed_range
+from maglevgen.envelope import gain_table, resolve_range, speed_range
 from maglevgen.library import simulation_library
 from maglevgen.params import load_params
-from maglevgen.schedule import GainTable, gain_table_row, gain_table_sources
+from maglevgen.schedule import GainTable, gain_table_sources
 
 RESULTS = BENCH / "firmware_results.json"
 BEGIN, END = "<!-- firmware benchmark: bench/firmware.py -->", "<!-- end of firmware benchmark -->"
@@ -85,9 +85,7 @@ def _sources(carriage: Carriage, folder: Path) -> GainTable:
                         speed_range(carriage)), folder)
     lib = simulation_library(carriage.structure)
     v_min, v_max = resolve_range(carriage, lib)
-    table = GainTable.fit(lambda vs: np.array([gain_table_row(op) for op in
-                                               envelope_points(carriage, lib, vs)]),
-                          v_min, v_max)
+    table = gain_table(carriage, lib, v_min, v_max)
     for name, text in gain_table_sources(table).items():
         (folder / name).write_text(text)
     return table
