@@ -25,8 +25,6 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import BENCH, ROOT, log, paired_ratios, run, summary
