@@ -56,7 +56,8 @@ from .operating import (
 )
 
 __all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Region", "Sampling", "SpeedRegion",
-           "default_deviation", "lyapunov_matrix", "region_of_attraction", "speed_region"]
+           "default_deviation", "deviation_multiple", "lyapunov_matrix",
+           "region_of_attraction", "speed_region", "study", "study_files", "study_json"]
 
 #: the states V is defined on, and their display units (mm, mrad; rates per second)
 AXIS_NAMES: tuple[str, ...] = cv.Q_STATES
@@ -569,3 +570,65 @@ def region_png(regions: Sequence[Region]) -> bytes:
     fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
     plt.close(fig)
     return buf.getvalue()
+
+
+#: speeds of `maglevgen roa` and of the build's region (the build's at BUILD_SAMPLING)
+DEFAULT_SPEEDS, BUILD_SPEEDS = 8, 4
+
+
+def study(carriage, lib: SimulationLibrary, controllers: Sequence[str],
+          n_speeds: int = DEFAULT_SPEEDS, sampling: Sampling = COMMAND_SAMPLING,
+          loop: str = "firmware",
+          progress: Callable[[float], None] | None = None) -> list[Region]:
+    """The region of each of ``controllers`` at ``n_speeds`` speeds spanning the envelope."""
+    from .envelope import resolve_range
+
+    if not isinstance(n_speeds, (int, np.integer)) or not 1 <= n_speeds <= 1000:
+        raise InputError(f"--speeds {n_speeds!r}: expected 1 to 1000 speeds")
+    v_min, v_max = resolve_range(carriage, lib)
+    speeds = np.linspace(v_min, v_max, n_speeds) if n_speeds > 1 else np.array([v_min])
+    out = []
+    for i, c in enumerate(controllers):
+        def step(f: float, i: int = i) -> None:
+            if progress is not None:
+                progress((i + f) / len(controllers))
+
+        out.append(region_of_attraction(carriage, lib, c, speeds, sampling, loop, step))
+    return out
+
+
+def study_json(regions: Sequence[Region]) -> dict:
+    """What `maglevgen roa --json` prints and roa.json holds."""
+    return {"lyapunov": "V = dx' P dx, A_cl' P + P A_cl = -(Q + K' R K) (the design's weights)",
+            "units": {"extents": "m, rad", "level": "V"},
+            "controllers": {r.controller: r.to_json() for r in regions}}
+
+
+def study_files(regions: Sequence[Region]) -> dict[str, str | bytes]:
+    """roa.json, roa.md and roa_extent.png."""
+    import json
+
+    return {"roa.json": json.dumps(study_json(regions), indent=1) + "\n",
+            "roa.md": region_markdown(regions), "roa_extent.png": region_png(regions)}
+
+
+def study_lines(regions: Sequence[Region], embedded: str) -> list[str]:
+    """The command's text: per controller one line per speed, then the statement."""
+    out = []
+    for reg in regions:
+        mark = " [embedded]" if reg.controller == embedded else ""
+        out.append(f"Region of attraction of {reg.controller}{mark} (V = dx' P dx; extent of "
+                   "each axis alone inside {V <= c}):")
+        out.append(f"  {'speed':>8} {'c':>10} " + " ".join(
+            f"{a + ' [' + AXIS_UNITS[a][0] + ']':>12}" for a in AXIS_NAMES)
+            + f" {'x default':>10}  limited by / boundary runs")
+        for r in reg.regions:
+            ext = r.extents
+            runs = sum(c.ok for c in r.confirmations)
+            shrunk = f", c x {CONFIRM_SHRINK}^{r.shrinks}" if r.shrinks else ""
+            out.append(f"  {r.speed:8.4g} {r.level:10.4g} " + " ".join(
+                f"{ext[a] * AXIS_UNITS[a][1]:12.4g}" for a in AXIS_NAMES)
+                + f" {r.disturbance_multiple:10.3g}  {r.limit}; {runs}/"
+                f"{len(r.confirmations)} settle{shrunk}")
+        out.append("  " + reg.statement())
+    return out
