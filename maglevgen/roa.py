@@ -134,6 +134,8 @@ class SpeedRegion:
     default_V: float  # V of the default disturbance (simulate.DISTURBANCE)
     confirmations: tuple[Confirmation, ...] = ()
     shrinks: int = 0  # how often the confirmation runs shrank c
+    rejected: tuple[Confirmation, ...] = ()  # the runs that failed at a larger c
+    worst: np.ndarray | None = None  # the first failing sampled direction (V = 1)
 
     @property
     def confirmed(self) -> bool:
@@ -196,6 +198,7 @@ class SpeedRegion:
                 "confirmations": [{"state": c.label, "status": c.status,
                                    "V_end_over_start": c.decay, "ok": c.ok}
                                   for c in self.confirmations],
+                "rejected": [{"state": c.label, "status": c.status} for c in self.rejected],
                 "P": self.P.tolist() if np.all(np.isfinite(self.P)) else None}
 
 
@@ -342,6 +345,62 @@ def _fails(Vd: np.ndarray, gap: np.ndarray, min_gap: float) -> tuple[np.ndarray,
     return ~(Vd < 0), ~(gap > min_gap)
 
 
+def sampled_search(failures: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
+                   D: np.ndarray, scale: float, sampling: Sampling
+                   ) -> tuple[float, float, str, list[int]]:
+    """(lo, hi, limit, worst): the largest sampled radius lo with no failure at any sampled
+    state r D_j, r <= lo (V = r^2 for rows D_j with V = 1), the smallest failing radius hi
+    found (inf: none), what failed there ("dV/dt", "contact", "none found") and the index of
+    the worst failing direction. ``failures(dx)``: (dV/dt not below 0, a gap not above the
+    minimum, dV/dt) at the rows of dx. Shells doubling from 2^SHELL_LOW ``scale`` until one
+    fails, a uniform grid of ``sampling.radii`` radii up to it, then bisections."""
+    worst: list[int] = []
+
+    def shell_fails(r: float) -> tuple[bool, str]:
+        f_v, f_g, Vd = failures(r * D)
+        bad = f_v | f_g
+        if bad.any():
+            # the failing direction with the largest dV/dt (contact first)
+            score = np.where(f_g, np.inf, np.nan_to_num(Vd, nan=np.inf))
+            worst[:] = [int(np.argmax(np.where(bad, score, -np.inf)))]
+            return True, "contact" if f_g.any() and not f_v.any() else "dV/dt"
+        return False, ""
+
+    lo, hi, limit = 0.0, float("inf"), "none found"
+    for k in range(SHELL_LOW, SHELL_HIGH + 1):
+        r = scale * 2.0 ** k
+        bad, why = shell_fails(r)
+        if bad:
+            hi, limit = r, why
+            break
+        lo = r
+    if not np.isfinite(hi):
+        return lo, hi, limit, worst
+    top = hi
+    for _ in range(3):  # a dense grid below the failing shell (below its first radius again
+        grid = top * np.arange(1, sampling.radii + 1) / sampling.radii  # when that failed)
+        lo, hit = 0.0, None
+        for r in grid:
+            bad, why = shell_fails(float(r))
+            if bad:
+                hit = (float(r), why)
+                break
+            lo = float(r)
+        if hit is not None:
+            hi, limit = hit
+        if lo > 0:
+            break
+        top = float(grid[0])
+    for _ in range(sampling.bisections):
+        mid = 0.5 * (lo + hi)
+        bad, why = shell_fails(mid)
+        if bad:
+            hi, limit = mid, why
+        else:
+            lo = mid
+    return lo, hi, limit, worst
+
+
 def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controller: str,
                  min_gap: float, sampling: Sampling,
                  confirm: Callable[[np.ndarray, np.ndarray], tuple[str, float]] | None = None
@@ -357,53 +416,15 @@ def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, cont
     default_V = float(d0 @ P @ d0)
     D, _ = _directions(P, sampling)
     ev = Evaluator(lib, p, op, controller, P, sampling)
-    worst: list[int] = []
 
-    def shell_fails(r: float) -> tuple[bool, str]:
-        _, Vd, g = ev(r * D)
-        f_v, f_g = _fails(Vd, g, min_gap)
-        bad = f_v | f_g
-        if bad.any():
-            # the failing direction with the largest dV/dt relative to V (contact first)
-            score = np.where(f_g, np.inf, np.nan_to_num(Vd, nan=np.inf))
-            worst[:] = [int(np.argmax(np.where(bad, score, -np.inf)))]
-            return True, "contact" if f_g.any() and not f_v.any() else "dV/dt"
-        return False, ""
+    def failures(dx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        _, Vd, g = ev(dx)
+        return (*_fails(Vd, g, min_gap), Vd)
 
-    rho_d = np.sqrt(default_V)
-    lo, hi, limit = 0.0, float("inf"), "none found"
-    for k in range(SHELL_LOW, SHELL_HIGH + 1):
-        r = rho_d * 2.0 ** k
-        bad, why = shell_fails(r)
-        if bad:
-            hi, limit = r, why
-            break
-        lo = r
-    if np.isfinite(hi):
-        top = hi
-        for _ in range(3):  # a dense grid below the failing shell (again below its first
-            grid = top * np.arange(1, sampling.radii + 1) / sampling.radii  # radius if needed)
-            lo, hit = 0.0, None
-            for r in grid:
-                bad, why = shell_fails(float(r))
-                if bad:
-                    hit = (float(r), why)
-                    break
-                lo = float(r)
-            if hit is not None:
-                hi, limit = hit
-            if lo > 0:
-                break
-            top = grid[0]
-        for _ in range(sampling.bisections):
-            mid = 0.5 * (lo + hi)
-            bad, why = shell_fails(mid)
-            if bad:
-                hi, limit = mid, why
-            else:
-                lo = mid
+    lo, hi, limit, worst = sampled_search(failures, D, float(np.sqrt(default_V)), sampling)
     sampled = lo**2
     level, confirmations, shrinks = sampled, [], 0
+    rejected: list[Confirmation] = []
     if confirm is not None and sampled > 0 and sampling.confirm > 0:
         boundary = _boundary_directions(D, P, worst, sampling.confirm)
         for shrinks in range(CONFIRM_ROUNDS + 1):
@@ -411,12 +432,13 @@ def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, cont
             confirmations = [Confirmation(lbl, *confirm(r * d, P)) for lbl, d in boundary]
             if all(c.ok for c in confirmations) or shrinks == CONFIRM_ROUNDS:
                 break
+            rejected += [c for c in confirmations if not c.ok]
             level *= CONFIRM_SHRINK
         if not all(c.ok for c in confirmations):
             level = 0.0
     return SpeedRegion(op.speed, float(level), float(sampled),
                        float(hi**2), limit, ev.count, P, default_V, tuple(confirmations),
-                       shrinks)
+                       shrinks, tuple(rejected), D[worst[0]] if worst else None)
 
 
 def _boundary_directions(D: np.ndarray, P: np.ndarray, worst: list[int],
