@@ -39,6 +39,7 @@ COMPANIONS = ("checkout", "release", "incref", "decref", "n_in", "n_out", "defau
               "name_in", "name_out", "sparsity_in", "sparsity_out", "work", "work_bytes")
 #: the functions with their own signatures (maglev_simulate.h, maglev_gain_table.h)
 OWN_SIGNATURE = ("maglev_simulate", "maglev_launch", "maglev_schedule_eval", "maglev_schedule",
+                 "maglev_lyapunov_batch",
                  "maglev_functions_casadi_version", "maglev_functions_casadi_int_size",
                  "maglev_functions_casadi_real_size")
 
