@@ -36,6 +36,8 @@ bound dV/dt over the whole set (sum-of-squares on a polynomial model with its re
 
 from __future__ import annotations
 
+import io
+import json
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -43,7 +45,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .derive import conventions as cv
+from .envelope import envelope_points, resolve_range
 from .errors import InputError
+from .laws import controller as registered
 from .laws.lqr import weighted_qr
 from .laws.spec import spec_weights
 from .library import SimulationLibrary
@@ -54,6 +58,7 @@ from .operating import (
     OperatingPoint,
     coupled_weights,
 )
+from .simulate import DISTURBANCE, run_loop, simulate
 
 __all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Region", "Sampling", "SpeedRegion",
            "default_deviation", "deviation_multiple", "lyapunov_matrix",
@@ -275,8 +280,6 @@ def design_weights(op: OperatingPoint, controller: str) -> tuple[np.ndarray, np.
 
 def default_deviation() -> np.ndarray:
     """The README's default disturbance (simulate.DISTURBANCE) on REDUCED_STATES."""
-    from .simulate import DISTURBANCE
-
     return np.array([DISTURBANCE.get(s, 0.0) for s in REDUCED_STATES])
 
 
@@ -469,8 +472,6 @@ def confirmation_run(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
     """(status, V(end) / V(start)) of a hold run from trim + a deviation (10 reduced states),
     the controller run as ``loop`` = (tick, speed gain, force budget) says
     (`simulate.run_loop`)."""
-    from .simulate import simulate
-
     tick, k_v, budget = loop
 
     def run(dx: np.ndarray, P: np.ndarray) -> tuple[str, float]:
@@ -489,9 +490,6 @@ def region_of_attraction(carriage, lib: SimulationLibrary, controller: str,
                          progress: Callable[[float], None] | None = None) -> Region:
     """The region of ``controller`` at ``speeds`` (module docstring), the boundary confirmed
     by runs of ``loop`` ("firmware": the tick-held loop of [control.spec]; "none": no runs)."""
-    from .envelope import envelope_points
-    from .simulate import run_loop
-
     min_gap = carriage.params.track.min_gap
     settings = None if loop == "none" else run_loop(carriage, lib, loop)
     out = []
@@ -557,14 +555,10 @@ def region_markdown(regions: Sequence[Region]) -> str:
 
 def region_png(regions: Sequence[Region]) -> bytes:
     """roa_extent.png: each axis' extent against speed, one line per controller."""
-    import io
-
-    import matplotlib
+    import matplotlib  # local: only when the figure is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from .laws import controller as registered
 
     fig, axes = plt.subplots(2, 3, figsize=(10, 5.6), sharex=True)
     for reg in regions:
@@ -603,8 +597,6 @@ def study(carriage, lib: SimulationLibrary, controllers: Sequence[str],
           loop: str = "firmware",
           progress: Callable[[float], None] | None = None) -> list[Region]:
     """The region of each of ``controllers`` at ``n_speeds`` speeds spanning the envelope."""
-    from .envelope import resolve_range
-
     if not isinstance(n_speeds, (int, np.integer)) or not 1 <= n_speeds <= 1000:
         raise InputError(f"--speeds {n_speeds!r}: expected 1 to 1000 speeds")
     v_min, v_max = resolve_range(carriage, lib)
@@ -628,8 +620,6 @@ def study_json(regions: Sequence[Region]) -> dict:
 
 def study_files(regions: Sequence[Region]) -> dict[str, str | bytes]:
     """roa.json, roa.md and roa_extent.png."""
-    import json
-
     return {"roa.json": json.dumps(study_json(regions), indent=1) + "\n",
             "roa.md": region_markdown(regions), "roa_extent.png": region_png(regions)}
 
@@ -653,4 +643,23 @@ def study_lines(regions: Sequence[Region], embedded: str) -> list[str]:
                 + f" {r.disturbance_multiple:10.3g}  {r.limit}; {runs}/"
                 f"{len(r.confirmations)} settle{shrunk}")
         out.append("  " + reg.statement())
+    return out
+
+
+def summary_lines(region: Region) -> list[str]:
+    """SUMMARY.md's paragraph: per speed the level's extents and the default's multiple."""
+    out = [f"Region of attraction of the embedded controller ({region.controller}; "
+           "envelope/roa.md, envelope/roa_extent.png; `maglevgen roa` at full resolution), "
+           "each axis' largest deviation alone inside {V <= c}:", "",
+           "| speed [m/s] | " + " | ".join(f"{a} [{AXIS_UNITS[a][0]}]" for a in AXIS_NAMES)
+           + " | x default | limited by | boundary runs settle |",
+           "|" + " --- |" * (len(AXIS_NAMES) + 4)]
+    for r in region.regions:
+        ext = r.extents
+        out.append(f"| {r.speed:.4g} | " + " | ".join(f"{ext[a] * AXIS_UNITS[a][1]:.3g}"
+                                                      for a in AXIS_NAMES)
+                   + f" | {r.disturbance_multiple:.3g} | {r.limit} | "
+                   + ("yes" if r.confirmed and r.level > 0 else "NO")
+                   + (f" (c shrunk {r.shrinks}x)" if r.shrinks else "") + " |")
+    out += ["", region.statement()]
     return out

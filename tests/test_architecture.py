@@ -34,7 +34,7 @@ _CLI_STAGES = ("maglevgen.build", "maglevgen.carriage", "maglevgen.codegen.gener
                "maglevgen.envelope", "maglevgen.fmu", "maglevgen.output", "maglevgen.params",
                "maglevgen.progress", "maglevgen.sim_output", "maglevgen.simulate",
                "maglevgen.summary", "maglevgen.report", "maglevgen.cache", "maglevgen.montecarlo",
-               "maglevgen.laws", "numpy")
+               "maglevgen.laws", "numpy", "maglevgen.api")
 LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.cli": (
         "start-up: a command imports its own stage only; an up-to-date `maglevgen build` "
@@ -47,7 +47,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.runtime.compile",
          "maglevgen.schedule",
          "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
-         "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy")),
+         "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy",
+         "maglevgen.roa")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
         "symbolic layers load when a carriage first needs them",
@@ -71,6 +72,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.codegen.interface", "maglevgen.library", "maglevgen.operating",
          "maglevgen.runtime.compile", "maglevgen.simulate", "maglevgen.laws", "fmpy")),
     "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
+    "maglevgen.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
+                      ("scipy", "matplotlib")),
     "maglevgen.sim_output": ("matplotlib only when figures are drawn", ("matplotlib",)),
     "maglevgen.report_figures": ("matplotlib only when figures are drawn",
                                  ("matplotlib", "cycler", "math")),
@@ -87,8 +90,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("control", "maglevgen.carriage", "maglevgen.codegen.generate",
          "maglevgen.derive.structure", "maglevgen.envelope", "maglevgen.fmu",
          "maglevgen.montecarlo", "maglevgen.operating", "maglevgen.output", "maglevgen.params",
-         "maglevgen.report", "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
-         "pandas")),
+         "maglevgen.report", "maglevgen.roa", "maglevgen.sim_output", "maglevgen.simulate",
+         "maglevgen.summary", "pandas")),
     "maglevgen.montecarlo": (
         "a worker process imports the stages when its first chunk runs; Dask only with "
         "--scheduler, pyarrow only for the Parquet table, matplotlib only for the plots",
