@@ -174,3 +174,22 @@ def test_batch_refuses_bad_arguments(sim_lib, carriage, op) -> None:
     with pytest.raises(RuntimeError, match="MAGLEV_SIM_ARGUMENT"):
         sim_lib.lyapunov_batch(X, op.f_prop, K_pos, K_rate, op.a_trim, op.x_trim, P,
                                carriage.p, op.gaps.size)
+
+
+def test_montecarlo_column_places_each_sample_against_the_region(sim_lib) -> None:
+    """Each Monte-Carlo sample carries its initial deviation as a multiple of the nominal
+    region at its speed: finite and positive for the spec design, and no sample inside the
+    region (multiple < 1) fails its run (the runs are the reference: a failure there would
+    contradict the region)."""
+    from maglevgen.carriage import Carriage
+    from maglevgen.montecarlo import FAILURES, make_study, run_local
+    from maglevgen.params import load_params
+
+    carriage = Carriage(load_params(None, ["tolerances.speed=[15.0, 25.0]"]))
+    study = make_study(carriage, sim_lib, ("spec",), t_end=0.4, dt=1e-3, seed=3)
+    cols = run_local(study, 6, workers=1)
+    m = cols["region_multiple"]
+    assert np.all(np.isfinite(m)) and np.all(m > 0)
+    inside = m < 1
+    assert inside.any()
+    assert not np.any(np.isin(cols["status"][inside], FAILURES))
