@@ -193,3 +193,18 @@ def test_montecarlo_column_places_each_sample_against_the_region(sim_lib) -> Non
     inside = m < 1
     assert inside.any()
     assert not np.any(np.isin(cols["status"][inside], FAILURES))
+
+
+@pytest.mark.parametrize("argv, key", [
+    (["roa", "--samples", "0"], "--samples 0"),
+    (["roa", "--speeds", "0"], "--speeds 0"),
+    (["roa", "--controller", "bogus"], "--controller 'bogus'"),
+    (["roa", "--workers", "0"], "--workers 0"),
+])
+def test_bad_options_are_one_line_exit_2(argv, key, capsys, private_cache) -> None:
+    """Bad input: exit 2 and one line on stderr naming the option and its value."""
+    from maglevgen.cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and key in err[0], err
