@@ -238,7 +238,9 @@ class Region:
                 f"bisections, seed {s.seed}); the level is bracketed {bracket}; a failure "
                 f"between the sampled directions can be missed. {s.confirm} closed-loop runs "
                 f"per speed ({self.loop} loop, {CONFIRM_T_END:g} s) from states on {{V = c}} "
-                "settled without contact (c shrunk where one did not).")
+                f"must settle without contact; where one did not, c shrank by "
+                f"{CONFIRM_SHRINK:g} until all did (at most {CONFIRM_ROUNDS} times, else "
+                "c = 0: no region confirmed).")
 
     def to_json(self) -> dict:
         s = self.sampling
