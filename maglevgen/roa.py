@@ -40,7 +40,7 @@ import io
 import json
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -61,7 +61,7 @@ from .operating import (
 from .simulate import DISTURBANCE, run_loop, simulate
 
 __all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Region", "Sampling", "SpeedRegion",
-           "default_deviation", "deviation_multiple", "lyapunov_matrix",
+           "default_deviation", "lyapunov_matrix",
            "region_of_attraction", "speed_region", "study", "study_files", "study_json"]
 
 #: the states V is defined on, and their display units (mm, mrad; rates per second)
@@ -216,7 +216,6 @@ class Region:
     sampling: Sampling
     loop: str  # how the confirmation runs executed the controller
     fixed_directions: int = 0
-    extra: dict = field(default_factory=dict)
 
     @property
     def speeds(self) -> np.ndarray:
@@ -503,26 +502,6 @@ def region_of_attraction(carriage, lib: SimulationLibrary, controller: str,
             progress((i + 1) / len(speeds))
     n_fixed = 2 * (2 * len(REDUCED_STATES) + 1)
     return Region(controller, tuple(out), sampling, loop, n_fixed)
-
-
-def deviation_multiple(region: Region, speed: float, dx: np.ndarray) -> float:
-    """``dx`` (10 reduced states) as a multiple of the region's boundary at ``speed``: P and c
-    interpolated linearly between the region's speeds (clamped at its ends); inf where the
-    nearer speed has no region."""
-    rs = [r for r in region.regions]
-    v = np.array([r.speed for r in rs])
-    if speed <= v[0] or len(rs) == 1:
-        return rs[0].multiple_of(dx)
-    if speed >= v[-1]:
-        return rs[-1].multiple_of(dx)
-    j = int(np.searchsorted(v, speed)) - 1
-    a, b = rs[j], rs[j + 1]
-    if not (a.level > 0 and b.level > 0):
-        return float("inf")
-    t = (speed - v[j]) / (v[j + 1] - v[j])
-    P = (1 - t) * a.P / a.level + t * b.P / b.level
-    dx = np.asarray(dx, dtype=float)
-    return float(np.sqrt(dx @ P @ dx))
 
 
 def axis_rows(region: Region) -> list[list[str]]:
