@@ -592,3 +592,64 @@ long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps
     *status = MAGLEV_SIM_OK;
     return k;
 }
+
+/* ------------------------------------------------------------------------------------------
+   A quadratic Lyapunov function and its rate along the closed loop, batched (see
+   maglev_simulate.h) */
+
+int maglev_lyapunov_batch(long long n, const maglev_real* X, maglev_real F_prop,
+                          const maglev_real* K_pos, const maglev_real* K_rate,
+                          const maglev_real* a_ref, const maglev_real* x_trim,
+                          const maglev_real* P,
+                          maglev_real* V, maglev_real* V_dot, maglev_real* gaps) {
+    work ws;
+    maglev_real T[NT], c[NC], xdot[NX], u[NU], dx[NX], Pdx[NX];
+    long long k;
+    int i, j;
+
+    if (n < 0 || n > MAGLEV_SIM_MAX_STEPS || X == 0 || V == 0 || V_dot == 0 || gaps == 0
+        || !isfinite(F_prop) || !finite_vector(K_pos, 25) || !finite_vector(K_rate, 25)
+        || !finite_vector(a_ref, 5) || !finite_vector(x_trim, NX)
+        || !finite_vector(P, NX * NX)) {
+        return MAGLEV_SIM_ARGUMENT;
+    }
+    /* what does not change over the batch, once: the allocation matrix, then the closed
+       loop's constants (as maglev_simulate) */
+    ws.res[0] = T;
+    if (maglev_allocation_matrix(ws.arg, ws.res, ws.iw, ws.w, 0)) return MAGLEV_SIM_ERROR;
+    ws.arg[0] = &F_prop;
+    ws.arg[1] = K_pos;
+    ws.arg[2] = K_rate;
+    ws.arg[3] = a_ref;
+    ws.arg[4] = T;
+    ws.res[0] = c;
+    if (maglev_closed_loop_prepare(ws.arg, ws.res, ws.iw, ws.w, 0)) return MAGLEV_SIM_ERROR;
+    for (k = 0; k < n; ++k) {
+        const maglev_real* x = X + k * NX;
+        maglev_real* g = gaps + k * NG;
+        maglev_real v = 0, vd = 0;
+        if (!all_finite(x, NX)) {
+            V[k] = V_dot[k] = (maglev_real)NAN;
+            for (i = 0; i < NG; ++i) g[i] = (maglev_real)NAN;
+            continue;
+        }
+        if (closed_loop(&ws, x, c, xdot, u, g)) return MAGLEV_SIM_ERROR;
+        for (i = 0; i < NX; ++i) dx[i] = x[i] - x_trim[i];
+        for (i = 0; i < NX; ++i) {
+            maglev_real s = 0;
+            for (j = 0; j < NX; ++j) s += P[i * NX + j] * dx[j];
+            Pdx[i] = s;
+        }
+        for (i = 0; i < NX; ++i) {
+            v += dx[i] * Pdx[i];
+            vd += (maglev_real)2 * Pdx[i] * xdot[i];
+        }
+        if (!isfinite(vd) || !all_finite(g, NG)) {
+            vd = (maglev_real)NAN;
+            for (i = 0; i < NG; ++i) g[i] = (maglev_real)NAN;
+        }
+        V[k] = v;
+        V_dot[k] = vd;
+    }
+    return MAGLEV_SIM_OK;
+}

@@ -140,6 +140,31 @@ long long maglev_launch(const maglev_real* x0, maglev_real dt, long long n_steps
                         maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj,
                         maglev_real* gap_traj, long long* saturated, int* status);
 
+/*
+ * maglev_lyapunov_batch: a quadratic Lyapunov function and its rate along the closed loop at
+ * n states, for a region-of-attraction estimate (maglevgen roa). For each row x of X:
+ *   V[k]     = (x - x_trim)' P (x - x_trim),
+ *   V_dot[k] = 2 (x - x_trim)' P f(x, u(x)),
+ * f the closed loop of maglev_closed_loop (the axis feedback u_gen = -(K_pos (a - a_ref) +
+ * K_rate a_dot) at x, allocated to the arrays, the propulsion F_prop), and gaps[k * 6 + i]
+ * the gap of array i at x (maglev_gaps: the closest corner of each array to its track).
+ * X, gaps: n rows of 12 and 6 values (row-major); P: 12 x 12 (row-major;
+ * zero rows and columns for the states V ignores); x_trim 12 values; K_pos, K_rate 25
+ * (column-major), a_ref 5. The rows are independent (no state is kept between
+ * them), so a caller may split a batch across threads.
+ *
+ * Returns MAGLEV_SIM_OK; MAGLEV_SIM_ARGUMENT (nothing written) when a pointer is NULL, n < 0 or
+ * above MAGLEV_SIM_MAX_STEPS, or F_prop, a gain, a_ref, x_trim or P is not finite;
+ * MAGLEV_SIM_ERROR when a generated function returned an error (the rows before it written).
+ * A row of X that is not finite gets NaN in V, V_dot and its gaps; a row where the closed loop
+ * or a gap is not finite, NaN in V_dot and its gaps.
+ */
+int maglev_lyapunov_batch(long long n, const maglev_real* X, maglev_real F_prop,
+                          const maglev_real* K_pos, const maglev_real* K_rate,
+                          const maglev_real* a_ref, const maglev_real* x_trim,
+                          const maglev_real* P,
+                          maglev_real* V, maglev_real* V_dot, maglev_real* gaps);
+
 #ifdef __cplusplus
 }
 #endif

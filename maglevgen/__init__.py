@@ -19,14 +19,15 @@ __all__ = [
     "InputError",
     "MaglevError",
     "NoTrimError",
+    "RegionResult",
     "SimulationResult",
     "TrimResult",
     "VerificationError",
     "__version__",
     "load",
 ]
-_API = frozenset({"Carriage", "EnvelopeResult", "Gains", "SimulationResult", "TrimResult",
-                  "load"})
+_API = frozenset({"Carriage", "EnvelopeResult", "Gains", "RegionResult", "SimulationResult",
+                  "TrimResult", "load"})
 
 
 def __getattr__(name: str) -> Any:

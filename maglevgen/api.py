@@ -15,6 +15,7 @@ numbers are the ones the command prints, and bad input raises the same exception
 ``Carriage.axis_plant``   one axis of ``maglevgen gains`` (eqs 24-27)
 ``Carriage.simulate``     ``maglevgen simulate``
 ``Carriage.envelope``     ``maglevgen envelope``
+``Carriage.roa``          ``maglevgen roa``
 ``Carriage.generate``     ``maglevgen generate``
 ``Carriage.report``       ``maglevgen report``
 ``Carriage.fmu``          ``maglevgen fmu``
@@ -53,7 +54,8 @@ if TYPE_CHECKING:
     from .params import Parameters
     from .simulate import SimulationRun
 
-__all__ = ["Carriage", "EnvelopeResult", "Gains", "SimulationResult", "TrimResult", "load"]
+__all__ = ["Carriage", "EnvelopeResult", "Gains", "RegionResult", "SimulationResult",
+           "TrimResult", "load"]
 
 STATE_NAMES: tuple[str, ...] = tuple(s.name for s in cv.STATES)
 AXES: tuple[str, ...] = tuple(cv.AXES)
@@ -343,6 +345,41 @@ class EnvelopeResult:
         5
         """
         return json.loads(json.dumps(self.report))
+
+
+@dataclass(frozen=True)
+class RegionResult:
+    """A sampled region of attraction per controller and speed: ``maglevgen roa``.
+
+    Attributes
+    ----------
+    speeds : numpy.ndarray
+        The speeds [m/s].
+    levels : dict of str to numpy.ndarray
+        Per controller: the level c of V = dx' P dx per speed (0: no region).
+    extents : dict of str to dict
+        Per controller and axis (y, z, phi, theta, psi): the largest deviation of that axis
+        alone inside {V <= c} [m, rad] per speed.
+    disturbance_multiple : dict of str to numpy.ndarray
+        Per controller: how many times the default disturbance fits inside, per speed.
+    statement : str
+        How the level was established (a sampled estimate, not a proof).
+    paths : tuple of pathlib.Path
+        The files written (``out``), else empty.
+    report : dict
+        What ``maglevgen roa --json`` prints.
+    lines : tuple of str
+        What ``maglevgen roa`` prints.
+    """
+
+    speeds: np.ndarray
+    levels: dict[str, np.ndarray]
+    extents: dict[str, dict[str, np.ndarray]]
+    disturbance_multiple: dict[str, np.ndarray]
+    statement: str
+    paths: tuple[Path, ...]
+    report: dict[str, Any] = field(repr=False)
+    lines: tuple[str, ...] = field(default=(), repr=False)
 
 
 class Carriage:
@@ -901,6 +938,81 @@ class Carriage:
         if out is not None:
             write_output(output_files(result), Path(out))
         return result.summary
+
+    def roa(self, n_speeds: int | None = None, controller: str | None = None,
+            samples: int | None = None, seed: int = 0, workers: int = 1,
+            batch: int | None = None, out: str | Path | None = None) -> RegionResult:
+        """A sampled region of attraction per speed, as ``maglevgen roa``.
+
+        V = dx' P dx on the ten reduced states (P from the design's Lyapunov / Riccati
+        equation); the largest level c with dV/dt < 0 on the nonlinear closed loop (the
+        generated C, batched in ``maglev_lyapunov_batch``) and every gap above track.min_gap
+        at every sampled state of {V <= c}, then confirmed by runs of the firmware loop from
+        states on {V = c} (`maglevgen.roa`). A sampled estimate, not a proof.
+
+        Parameters
+        ----------
+        n_speeds : int, optional
+            Speeds spanning [v_min, v_max] (``--speeds``; default 8).
+        controller : str, optional
+            A registered controller or ``"all"`` (``--controller``); default the embedded one.
+        samples : int, optional
+            Random directions per speed (``--samples``; default 3000).
+        seed : int, optional
+            Seed of the directions (``--seed``).
+        workers : int, optional
+            Threads evaluating the batches (``--workers``); the numbers do not change.
+        batch : int, optional
+            States per C call (``--batch``); the numbers do not change.
+        out : str or pathlib.Path, optional
+            Also write roa.json, roa.md and roa_extent.png there (``--out``).
+
+        Returns
+        -------
+        RegionResult
+            Per controller and speed the level, the extents and the default's multiple.
+
+        Raises
+        ------
+        maglevgen.InputError
+            A bad option (the CLI's one-line message).
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> r = maglevgen.load().roa(n_speeds=2, samples=50)
+        >>> sorted(r.levels)
+        ['spec']
+        """
+        from . import roa
+        from .output import check_writable, write_output
+
+        choice = controller or self.params.envelope.embedded_controller
+        if choice != "all":
+            _check_controller(choice)
+        base = roa.COMMAND_SAMPLING
+        sampling = roa.Sampling(directions=base.directions if samples is None else samples,
+                                radii=base.radii, bisections=base.bisections,
+                                confirm=base.confirm, seed=seed,
+                                batch=base.batch if batch is None else batch, workers=workers)
+        if out is not None:
+            check_writable(Path(out))
+        controllers = CONTROLLERS if choice == "all" else (choice,)
+        regions = roa.study(self._carriage, self._lib, controllers,
+                            roa.DEFAULT_SPEEDS if n_speeds is None else n_speeds, sampling)
+        paths: tuple[Path, ...] = ()
+        if out is not None:
+            paths = tuple(write_output(roa.study_files(regions), Path(out)))
+        return RegionResult(
+            speeds=regions[0].speeds,
+            levels={r.controller: np.array([s.level for s in r.regions]) for r in regions},
+            extents={r.controller: {a: np.array([s.extents[a] for s in r.regions])
+                                    for a in roa.AXIS_NAMES} for r in regions},
+            disturbance_multiple={r.controller: np.array([s.disturbance_multiple
+                                                          for s in r.regions])
+                                  for r in regions},
+            statement=regions[0].statement(), paths=paths, report=roa.study_json(regions),
+            lines=tuple(roa.study_lines(regions, self.params.envelope.embedded_controller)))
 
     # -------------------------------------------------------------------- writers
 

@@ -131,6 +131,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     if up_to_date(out_dir, key):
         return _unchanged(out_dir)
 
+    from . import roa
     from .cache import STORE
     from .carriage import Carriage
     from .envelope import compute_envelope, envelope_markdown
@@ -160,6 +161,9 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                         loop="firmware")
     step("envelope: stability of each controller across the speed range")
     env = compute_envelope(carriage, lib)
+    step("envelope: the embedded controller's region of attraction (sampled)")
+    regions = roa.study(carriage, lib, [carriage.params.envelope.embedded_controller],
+                        roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
     # One child draws every figure (one matplotlib import for the simulation's and the
     # report's) and writes the trajectories, while this process imports the symbolic layers
     # and builds the report's context. Its jobs in the order they are needed: the simulation
@@ -173,6 +177,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         step("report: trim and force figures")
         report_figures = _draw_report_figures(drawing, carriage, lib)
         mapping = submit(drawing, "drawing the stability map", _stability_map, env)
+        region_fig = submit(drawing, "drawing the region of attraction", roa.study_files,
+                            regions)
         writing = submit(drawing, "writing the trajectories", render_trajectories,
                          Shared("trajectories"), run.input_names)
         sim_files = PendingFiles(render_metrics(run.trajectories, run.header(loaded.sha256)),
@@ -180,16 +186,19 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                                   **dict.fromkeys(trajectory_names(run.trajectories), writing)})
         # the report (and its PDF where TeX is installed)
         stability_map = mapping.result()
+        region_files = region_fig.result()
         report = _report_files(carriage, sim_files, opts, step, report_figures,
                                (env, stability_map["envelope/stability_map.png"]),
-                               json.loads(files["c/manifest.json"])["gain_table"], run)
+                               json.loads(files["c/manifest.json"])["gain_table"], run,
+                               (regions, region_files["roa_extent.png"]))
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
         files.update(stability_map)
+        files.update({f"envelope/{n}": b for n, b in region_files.items()})
     files.update({f"report/{n}": b for n, b in report.items()})
     files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
-    summary = summary_text(carriage, run, lib, env, report_outputs(report, opts))
+    summary = summary_text(carriage, run, lib, env, report_outputs(report, opts), regions)
     files[SUMMARY] = summary
     verification = embedded_verification(carriage, env)
     digests = {n: sha256_hex(b) for n, b in sorted(files.items())}
@@ -282,16 +291,19 @@ def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
-                  step, figures: Job, envelope, gain_table: Mapping, run) -> dict[str, bytes]:
+                  step, figures: Job, envelope, gain_table: Mapping, run,
+                  region=None) -> dict[str, bytes]:
     """report.tex (+ report.pdf) with the simulation figures and its own ``figures``;
     ``gain_table``: c/manifest.json's entry (the report shows its numbers); ``run``: the
-    build's hold runs, which the actuator comparison reuses when they have its length and step."""
+    build's hold runs, which the actuator comparison reuses when they have its length and step;
+    ``region``: (the regions of attraction, their figure)."""
     from .report import RUN_DT, RUN_T_END, report_files
 
     same = (opts.t_end, opts.dt) == (RUN_T_END, RUN_DT) and run.scenario == "hold"
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,
                         envelope=envelope, gain_table=gain_table,
-                        hold_runs={t.controller: t for t in run.trajectories} if same else None)
+                        hold_runs={t.controller: t for t in run.trajectories} if same else None,
+                        roa=region)
 
 
 def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
@@ -306,9 +318,11 @@ def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
     return f"report/ ({names}; report.pdf skipped: {why})"
 
 
-def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") -> str:
+def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
+                 regions=None) -> str:
     """Where each output is, and the numbers an engineer checks first; ``report``: what
-    report/ holds (see `report_outputs`)."""
+    report/ holds (see `report_outputs`); ``regions``: the embedded controller's region of
+    attraction (maglevgen.roa), when computed."""
     import numpy as np
 
     from .derive import conventions as cv
@@ -334,6 +348,10 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)") 
     if env.other_models:
         lines += [f"The embedded controller's gains on the other models: "
                   f"{env.robustness_verdict()}."]
+    if regions:
+        from .roa import summary_lines
+
+        lines += ["", *summary_lines(regions[0])]
     lines += ["",
               "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
               "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "

@@ -211,6 +211,24 @@ def cmd_envelope(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------- roa
+
+
+def cmd_roa(args: argparse.Namespace) -> int:
+    from .api import Carriage
+
+    carriage = Carriage(args.params, args.overrides)
+    res = carriage.roa(args.speeds, args.controller, args.samples, args.seed, args.workers,
+                       args.batch, args.out)
+    if args.json:
+        print(json.dumps(res.report, indent=1))
+        return 0
+    print("\n".join(res.lines))
+    if args.out:
+        print(f"wrote {len(res.paths)} files to {Path(args.out).resolve()}")
+    return 0
+
+
 # ---------------------------------------------------------------------------------- generate
 
 
@@ -590,6 +608,28 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--out", metavar="DIR",
                      help="also write envelope.json, envelope.md and stability_map.png")
     env.set_defaults(func=cmd_envelope)
+
+    roa = sub.add_parser("roa", help="a sampled region of attraction of the controller per "
+                                     "speed (V = x'Px, dV/dt < 0 on the nonlinear loop in C, "
+                                     "boundary runs of the firmware loop)")
+    _common(roa)
+    roa.add_argument("--speeds", type=int, default=None, metavar="N",
+                     help="speeds spanning [v_min, v_max] (default 8)")
+    roa.add_argument("--controller", default=None, metavar="NAME",
+                     help="a registered controller or 'all' (default: "
+                          "envelope.embedded_controller)")
+    roa.add_argument("--samples", type=int, default=None, metavar="M",
+                     help="random directions on the ellipsoid per speed (default 3000)")
+    roa.add_argument("--seed", type=int, default=0, help="seed of the directions (default 0)")
+    roa.add_argument("--workers", type=int, default=1, metavar="K",
+                     help="threads evaluating the batches (default 1; the numbers do not "
+                          "change)")
+    roa.add_argument("--batch", type=int, default=None, metavar="B",
+                     help="states per C call (default 8192; the numbers do not change)")
+    roa.add_argument("--json", action="store_true", help="print roa.json on stdout")
+    roa.add_argument("--out", metavar="DIR",
+                     help="also write roa.json, roa.md and roa_extent.png")
+    roa.set_defaults(func=cmd_roa)
     from .fmu import DEFAULT_FMI, FMI_VERSIONS, FMU_LOOPS
     from .fmu import KINDS as FMU_KINDS
 

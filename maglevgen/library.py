@@ -139,6 +139,11 @@ class SimulationLibrary(GeneratedLibrary):
                        ctypes.POINTER(_Schedule), loop_ptr, ptr, real, ptr, ptr, ptr,
                        count_ptr, ctypes.POINTER(ctypes.c_int)]
         self._launch = fn
+        fn = self._lib.maglev_lyapunov_batch
+        fn.restype = ctypes.c_int
+        fn.argtypes = [ctypes.c_longlong, ptr, real, ptr, ptr, ptr, ptr, ptr, ptr, ptr, ptr,
+                       ptr]
+        self._lyapunov = fn
 
     def _loop(self, loop: ControlLoop | None):
         """The maglev_control_loop of ``loop`` (a pointer), or NULL for None."""
@@ -193,6 +198,36 @@ class SimulationLibrary(GeneratedLibrary):
         _refused("maglev_simulate", status.value)
         n = int(last) + 1
         return Run(int(last), status.value, x[:n], u[:n], g[:n], saturated.value)
+
+
+    def lyapunov_batch(self, X: np.ndarray, f_prop: float, k_pos: np.ndarray,
+                       k_rate: np.ndarray, a_ref: np.ndarray, x_trim: np.ndarray,
+                       P: np.ndarray, p: np.ndarray, n_gaps: int
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """maglev_lyapunov_batch: (V, dV/dt, gaps) at the rows of ``X`` (n x 12) of the closed
+        loop with the gains ``k_pos``, ``k_rate`` (column-major 25 each), V = (x - x_trim)'
+        P (x - x_trim); NaN where a row or its closed loop is not finite. One C call; the
+        rows are independent, so callers may split X across threads (ctypes releases the
+        GIL during the call)."""
+        real = self._real
+        Xc = np.ascontiguousarray(X, dtype=real)
+        ins = [np.ascontiguousarray(a, dtype=real).ravel()
+               for a in (k_pos, k_rate, a_ref, x_trim, P, p)]
+        n = Xc.shape[0]
+        V, Vd = np.zeros(n, dtype=real), np.zeros(n, dtype=real)
+        g = np.zeros((n, n_gaps), dtype=real)
+        ptr = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
+
+        def c(a: np.ndarray):
+            return a.ctypes.data_as(ptr)
+
+        status = self._lyapunov(n, c(Xc), f_prop, c(ins[0]), c(ins[1]), c(ins[2]), c(ins[3]),
+                                c(ins[4]), c(ins[5]), c(V), c(Vd), c(g))
+        _refused("maglev_lyapunov_batch", status)
+        if status != 0:
+            raise RuntimeError(f"maglev_lyapunov_batch: a generated function failed "
+                               f"(status {status})")
+        return V, Vd, g
 
 
 def _refused(name: str, status: int) -> None:

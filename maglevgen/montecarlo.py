@@ -37,7 +37,14 @@ import numpy as np
 
 from .derive import conventions as cv
 from .errors import InputError, MaglevError, NoTrimError
-from .operating import CONTROLLER_TITLES, CONTROLLERS, Weights, checked_trim, operating_point
+from .operating import (
+    CONTROLLER_TITLES,
+    CONTROLLERS,
+    REDUCED_STATES,
+    Weights,
+    checked_trim,
+    operating_point,
+)
 
 # statuses of a sample's run: the simulation's (maglevgen.simulate.RUN_STATUSES) and two of
 # the sample itself
@@ -76,6 +83,10 @@ class Study:
     tick: Any = None
     speed_gain: float = 0.0
     force_budget: float | None = None
+    # per controller the nominal carriage's sampled region of attraction over the speed range
+    # (maglevgen.roa at BUILD_SAMPLING, without boundary runs): (speeds, P / c per speed,
+    # NaN where there is none), for each sample's ``region_multiple``
+    regions: dict | None = None
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -174,7 +185,7 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
         r = {**base, "controller": controller, "status": status, "reason": reason,
              "contact_cause": "",
              "min_gap": math.nan, "speed_at_contact": math.nan, "speed_error": math.nan,
-             "saturated_time": math.nan}
+             "saturated_time": math.nan, "region_multiple": math.nan}
         for axis in cv.AXES:
             ax = (m or {}).get("axes", {}).get(axis, {})
             st = ax.get("settling_time")
@@ -195,14 +206,50 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     except NoTrimError as exc:
         return [row(c, "no trim", str(exc)) for c in study.controllers]
     for c in study.controllers:
+        multiple = region_multiple(study, c, float(draws[0]), disturbance)
         traj = simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance,
                         tick=study.tick, speed_gain=study.speed_gain,
                         force_budget=study.force_budget)
         m = metrics(traj)
         r = row(c, m["status"], m["event"] or "", m)
         r["contact_cause"] = contact_cause(lib, p, study.min_gap, m)
+        r["region_multiple"] = multiple
         rows.append(r)
     return rows
+
+
+def region_multiple(study: Study, controller: str, speed: float,
+                    disturbance: dict[str, float]) -> float:
+    """The sample's initial deviation as a multiple of the nominal region at its speed:
+    sqrt(dx' (P / c) dx) with P / c interpolated linearly in speed between the region's
+    speeds (clamped at the ends); below 1 the deviation lies inside the region, so a failure
+    there contradicts it. NaN without regions, inf where the region is empty."""
+    if not study.regions or controller not in study.regions:
+        return math.nan
+    speeds, M = study.regions[controller]
+    dx = np.array([disturbance.get(s, 0.0) for s in REDUCED_STATES])
+    flat = M.reshape(M.shape[0], -1)
+    Mv = np.array([np.interp(speed, speeds, flat[:, j]) for j in range(flat.shape[1])])
+    if not np.all(np.isfinite(Mv)):
+        return math.inf
+    return float(np.sqrt(max(dx @ Mv.reshape(M.shape[1:]) @ dx, 0.0)))
+
+
+def study_regions(carriage, lib, controllers: Sequence[str],
+                  speed: tuple[float, float]) -> dict:
+    """`Study.regions`: each controller's sampled region (maglevgen.roa, BUILD_SAMPLING, no
+    boundary runs: the study's own runs are the test of it) at BUILD_SPEEDS speeds."""
+    from . import roa
+
+    speeds = np.linspace(speed[0], speed[1], roa.BUILD_SPEEDS)
+    out = {}
+    for c in controllers:
+        reg = roa.region_of_attraction(carriage, lib, c, speeds, roa.BUILD_SAMPLING,
+                                       loop="none")
+        M = np.array([r.P / r.level if r.level > 0 else np.full(r.P.shape, np.nan)
+                      for r in reg.regions])
+        out[c] = (speeds, M)
+    return out
 
 
 # why a run touched the track: its speed fell below the sample's lift-off (no trim there: the
@@ -387,7 +434,8 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
         speed=speed, disturbance=tuple((s, float(a)) for s, a in tol.disturbance.items()),
         controllers=tuple(controllers), t_end=float(t_end), dt=float(dt),
         min_gap=float(params.track.min_gap), weights=w, seed=int(seed), tick=tick,
-        speed_gain=float(speed_gain), force_budget=force_budget)
+        speed_gain=float(speed_gain), force_budget=force_budget,
+        regions=study_regions(carriage, lib, controllers, speed))
 
 
 def table(rows: list[dict]) -> Columns:
@@ -464,8 +512,14 @@ def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
                           "reason": str(cols["reason"][i]),
                           "min_gap": float(cols["min_gap"][i]),
                           "inputs": {k: float(cols[k][i]) for k in study.columns}})
+        mult = cols["region_multiple"][sel] if "region_multiple" in cols else np.array([])
+        inside = (fail & (mult < 1)) if mult.size else np.zeros(0, bool)
         out[c] = {
             "title": CONTROLLER_TITLES[c], "samples": int(sel.sum()), "runs": n_run,
+            # failures from inside the sampled region of attraction: contradictions of it
+            "failures_inside_region": int(inside.sum()),
+            "failures_inside_region_samples": [int(i) for i in
+                                               cols["sample"][sel][inside][:WORST]],
             "status_counts": {s: int(np.sum(status == s)) for s in STATUSES},
             "contact_causes": {k: int(np.sum((status == "contact")
                                              & (cols["contact_cause"][sel] == k)))
@@ -535,6 +589,11 @@ def markdown(summary: dict) -> str:
         lines += ["", "Correlation of failure (contact, diverging) with each sampled input "
                   "(Pearson, over the runs):", ""]
         lines += [f"- `{k}`: {r:+.3f}" for k, r in a["failure_correlation"].items()]
+        inside = a.get("failures_inside_region", 0)
+        lines += ["", f"Failures from inside the nominal carriage's sampled region of "
+                  f"attraction (`region_multiple` < 1, maglevgen roa): {inside}"
+                  + (" (samples " + ", ".join(map(str, a["failures_inside_region_samples"]))
+                     + "): the region's contradictions" if inside else "") + "."]
         if a["worst"]:
             lines += ["", "Worst samples (failures first, then the smallest gap):", "",
                       "| sample | status | min gap [m] | inputs |", "| --- | --- | --- | --- |"]

@@ -35,7 +35,7 @@ _CLI_STAGES = ("maglevgen.build", "maglevgen.carriage", "maglevgen.codegen.firmw
                "maglevgen.envelope", "maglevgen.fmu", "maglevgen.output", "maglevgen.params",
                "maglevgen.progress", "maglevgen.sim_output", "maglevgen.simulate",
                "maglevgen.summary", "maglevgen.report", "maglevgen.cache", "maglevgen.montecarlo",
-               "maglevgen.laws", "numpy")
+               "maglevgen.laws", "numpy", "maglevgen.api")
 LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.cli": (
         "start-up: a command imports its own stage only; an up-to-date `maglevgen build` "
@@ -48,7 +48,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.runtime.compile",
          "maglevgen.schedule",
          "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
-         "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy")),
+         "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy",
+         "maglevgen.roa")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
         "symbolic layers load when a carriage first needs them",
@@ -72,6 +73,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.codegen.interface", "maglevgen.library", "maglevgen.operating",
          "maglevgen.runtime.compile", "maglevgen.simulate", "maglevgen.laws", "fmpy")),
     "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
+    "maglevgen.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
+                      ("scipy", "matplotlib")),
     "maglevgen.sim_output": ("matplotlib only when figures are drawn", ("matplotlib",)),
     "maglevgen.report_figures": ("matplotlib only when figures are drawn",
                                  ("matplotlib", "cycler", "math")),
@@ -89,13 +92,13 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.codegen.generate",
          "maglevgen.derive.structure", "maglevgen.envelope", "maglevgen.fmu",
          "maglevgen.montecarlo", "maglevgen.operating", "maglevgen.output", "maglevgen.params",
-         "maglevgen.report", "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
-         "pandas")),
+         "maglevgen.report", "maglevgen.roa", "maglevgen.sim_output", "maglevgen.simulate",
+         "maglevgen.summary", "pandas")),
     "maglevgen.montecarlo": (
         "a worker process imports the stages when its first chunk runs; Dask only with "
         "--scheduler, pyarrow only for the Parquet table, matplotlib only for the plots",
         ("distributed", "maglevgen.envelope", "maglevgen.library", "maglevgen.params",
-         "maglevgen.simulate", "matplotlib", "pyarrow", "re", "warnings")),
+         "maglevgen.roa", "maglevgen.simulate", "matplotlib", "pyarrow", "re", "warnings")),
     "maglevgen.params": ("the schema validates without the derivation's conventions unless a "
                          "tolerance names a state", ("maglevgen.derive.conventions",)),
     "maglevgen.report.display": ("SymPy and the number formats only when a display is built",

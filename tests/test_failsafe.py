@@ -39,6 +39,7 @@ COMPANIONS = ("checkout", "release", "incref", "decref", "n_in", "n_out", "defau
               "name_in", "name_out", "sparsity_in", "sparsity_out", "work", "work_bytes")
 #: the functions with their own signatures (maglev_simulate.h, maglev_gain_table.h)
 OWN_SIGNATURE = ("maglev_simulate", "maglev_launch", "maglev_schedule_eval", "maglev_schedule",
+                 "maglev_lyapunov_batch",
                  "maglev_functions_casadi_version", "maglev_functions_casadi_int_size",
                  "maglev_functions_casadi_real_size")
 
@@ -376,6 +377,65 @@ static void eval(const char* what, const maglev_spline_schedule* s, maglev_real 
   record("maglev_schedule_eval", what, rc, ok);
 }
 
+/* maglev_lyapunov_batch: MAGLEV_SIM_OK, _ERROR or _ARGUMENT; an invalid argument refused;
+   a non-finite row gives NaN in V and V_dot */
+static maglev_real Pm[144], xtrim[12], Vb[NS + 1], Vdb[NS + 1];
+static void lyap(const char* what, long long n, const maglev_real* X, maglev_real F,
+                 const maglev_real* kp, const maglev_real* P, const maglev_real* xr,
+                 maglev_real* V, int must_refuse, int nan_rows) {
+  int ok = 1, k;
+  int rc = maglev_lyapunov_batch(n, X, F, kp, krate, aref, xr, P,""" + p_sim + r""" V, Vdb,
+                                 &gt[0][0]);
+  if (rc != MAGLEV_SIM_OK && rc != MAGLEV_SIM_ERROR && rc != MAGLEV_SIM_ARGUMENT) ok = 0;
+  if (must_refuse == 1 && rc != MAGLEV_SIM_ARGUMENT) ok = 0;
+  if (must_refuse == 0 && rc == MAGLEV_SIM_ARGUMENT) ok = 0;
+  if (rc == MAGLEV_SIM_OK && nan_rows && V != 0) {
+    for (k = 0; k < n; ++k) {
+      if (!isnan(V[k]) || !isnan(Vdb[k])) ok = 0;
+    }
+  }
+  record("maglev_lyapunov_batch", what, rc, ok);
+}
+
+static void run_lyapunov(void) {
+  maglev_real* X = &xt[0][0];
+  static const long long bad_n[] = {-1, LLONG_MIN, MAGLEV_SIM_MAX_STEPS + 1};
+  char what[96];
+  int h, i, k;
+  run_nominal();
+  for (i = 0; i < 144; ++i) Pm[i] = (maglev_real)(i % 13 == 0 ? 1 : 0);
+  for (i = 0; i < 12; ++i) xtrim[i] = x0n[i];
+  for (k = 0; k <= NS; ++k) for (i = 0; i < 12; ++i) xt[k][i] = x0n[i];
+  lyap("nominal", NS, X, 1, kpos, Pm, xtrim, Vb, 0, 0);
+  lyap("n 0", 0, X, 1, kpos, Pm, xtrim, Vb, 0, 0);
+  for (i = 0; i < (int)(sizeof bad_n / sizeof bad_n[0]); ++i) {
+    sprintf(what, "n %lld", bad_n[i]);
+    lyap(what, bad_n[i], X, 1, kpos, Pm, xtrim, Vb, 1, 0);
+  }
+  lyap("X NULL", NS, 0, 1, kpos, Pm, xtrim, Vb, 1, 0);
+  lyap("K_pos NULL", NS, X, 1, 0, Pm, xtrim, Vb, 1, 0);
+  lyap("P NULL", NS, X, 1, kpos, 0, xtrim, Vb, 1, 0);
+  lyap("x_trim NULL", NS, X, 1, kpos, Pm, 0, Vb, 1, 0);
+  lyap("V NULL", NS, X, 1, kpos, Pm, xtrim, 0, 1, 0);
+  for (h = 0; h < NH; ++h) {
+    const maglev_real v = (maglev_real)hostile[h];
+    sprintf(what, "F_prop %g", hostile[h]);
+    lyap(what, NS, X, v, kpos, Pm, xtrim, Vb, !isfinite(v), 0);
+    Pm[0] = v;
+    sprintf(what, "P[0] %g", hostile[h]);
+    lyap(what, NS, X, 1, kpos, Pm, xtrim, Vb, !isfinite(v), 0);
+    Pm[0] = 1;
+    xtrim[3] = v;
+    sprintf(what, "x_trim[3] %g", hostile[h]);
+    lyap(what, NS, X, 1, kpos, Pm, xtrim, Vb, !isfinite(v), 0);
+    xtrim[3] = x0n[3];
+    for (k = 0; k < NS; ++k) for (i = 0; i < 12; ++i) xt[k][i] = v;
+    sprintf(what, "X all %g", hostile[h]);
+    lyap(what, NS, X, 1, kpos, Pm, xtrim, Vb, 2, !isfinite(v));
+    for (k = 0; k <= NS; ++k) for (i = 0; i < 12; ++i) xt[k][i] = x0n[i];
+  }
+}
+
 static void run_simulations(void) {
   maglev_real* x = &xt[0][0];
   maglev_real* u = &ut[0][0];
@@ -618,6 +678,7 @@ int main(void) {
          maglev_functions_casadi_real_size() == (int)sizeof(maglev_real));
   run_all_casadi();
   run_simulations();
+  run_lyapunov();
   run_gain_table(&calls, &failures, hostile, NH);
   printf("CALLS %ld FAILURES %ld\n", calls, failures);
   return failures != 0;

@@ -233,6 +233,7 @@ def test_without_tex_the_tex_is_written_and_the_install_named(
     assert "apt-get install" in out.err and "latexmk" in out.err
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == [
         "circuit_lag_damping.png",
+        "envelope_region_of_attraction.png",
         "envelope_stability_map.png",
         "fig_force_gap.png",
         "fig_force_speed.png",

@@ -41,7 +41,15 @@ from .sections.actuators import _actuator_comparison
 from .sections.circuit_lag import CIRCUIT_LAG_FIGURE, circuit_lag
 from .sections.conventions import _conventions
 from .sections.damping import _damping_allocation
-from .sections.envelope import ENVELOPE_FIGURE, _envelope, _envelope_checks, _envelope_context
+from .sections.envelope import (
+    ENVELOPE_FIGURE,
+    ROA_FIGURE,
+    _envelope,
+    _envelope_checks,
+    _envelope_context,
+    _roa,
+    _roa_context,
+)
 from .sections.force_law import _force_law, force_curves
 from .sections.geometry import _geometry
 from .sections.paper import _paper_comparison
@@ -71,6 +79,8 @@ class ReportOptions:
     # the build's own hold runs (by controller) when made at the actuator comparison's length
     # and step: the comparison reuses them for the selected actuator model
     hold_runs: Mapping[str, Any] | None = None
+    # the embedded controller's region of attraction (regions, figure PNG) when computed
+    roa: tuple[Any, bytes] | None = None
 
 
 class Pending(Protocol):
@@ -129,6 +139,8 @@ def build_context(
     sim, sim_files = _simulation(options.simulation, loaded.sha256 if folder else None)
     progress("report: envelope (stability across speed, in the compiled library)")
     env, env_png = _envelope(carriage, options.envelope)
+    progress("report: region of attraction (sampled, in the compiled library)")
+    regions, roa_png = _roa(carriage, options.roa)
     progress("report: trim and stiffness")
     lib = simulation_library(carriage.structure, progress=progress)
     trim = trim_point(carriage, lib, None)  # the compiled library's trim, as `maglevgen trim`
@@ -173,10 +185,12 @@ def build_context(
             pool.shutdown(cancel_futures=True)
     files.update(sim_files.read())
     files[ENVELOPE_FIGURE] = env_png
+    files[ROA_FIGURE] = roa_png
     files[POLE_FIGURE] = pole_map(poles)
     files[CIRCUIT_LAG_FIGURE] = lag_png
     rows, notes = parameter_rows(loaded)
     envelope = _envelope_context(carriage, env, options.gain_table)
+    envelope["roa"] = _roa_context(regions)
     ctx: dict[str, Any] = {
         "version": __version__,
         "titles": SECTION_TITLES,
@@ -294,16 +308,17 @@ def report_files(
     envelope: tuple[Any, bytes] | None = None,
     gain_table: Mapping[str, Any] | None = None,
     hold_runs: Mapping[str, Any] | None = None,
+    roa: tuple[Any, bytes] | None = None,
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
     ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
     ``figures``: the report's figures being drawn already (see `build_context`);
     ``gain_table``: c/manifest.json's entry of the firmware table (else fitted here);
-    ``hold_runs``: ReportOptions.hold_runs.
+    ``hold_runs``: ReportOptions.hold_runs; ``roa``: ReportOptions.roa.
     """
     options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope,
-                            gain_table=gain_table, hold_runs=hold_runs)
+                            gain_table=gain_table, hold_runs=hold_runs, roa=roa)
     return render_report(carriage, options, progress, figures=figures).files
 
 

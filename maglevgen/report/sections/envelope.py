@@ -15,12 +15,14 @@ from ...envelope import (
 )
 from ...library import simulation_library
 from ...operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
+from ...roa import AXIS_NAMES, AXIS_UNITS, BUILD_SAMPLING, BUILD_SPEEDS, region_png, study
 from ..format import tex_escape
 from .verification import Check
 
 # ============================================================================ envelope
 
 ENVELOPE_FIGURE = "envelope_stability_map.png"
+ROA_FIGURE = "envelope_region_of_attraction.png"
 
 
 def _envelope(carriage, given: tuple[Any, bytes] | None):
@@ -98,3 +100,26 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
     }
 
 
+
+
+def _roa(carriage, given: tuple[Any, bytes] | None):
+    """The embedded controller's sampled region of attraction (maglevgen.roa, at the build's
+    resolution) and its figure: the caller's (``given``, `maglevgen build`) when it has them."""
+    if given is not None:
+        return given
+    regions = study(carriage, simulation_library(carriage.structure),
+                    [carriage.params.envelope.embedded_controller], BUILD_SPEEDS,
+                    BUILD_SAMPLING)
+    return regions, region_png(regions)
+
+
+def _roa_context(regions) -> dict[str, Any]:
+    """The region's table and statement (the first region: the embedded controller's)."""
+    reg = regions[0]
+    return {"figure": ROA_FIGURE, "controller": CONTROLLER_TITLES[reg.controller],
+            "statement": reg.statement(),
+            "rows": [{"speed": r.speed, "level": r.level,
+                      "extents": [r.extents[a] * AXIS_UNITS[a][1] for a in AXIS_NAMES],
+                      "multiple": r.disturbance_multiple, "limit": r.limit,
+                      "confirmed": r.confirmed and r.level > 0, "shrinks": r.shrinks}
+                     for r in reg.regions]}
