@@ -187,8 +187,11 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
                   "RMS control force/moment |", "| --- | --- | --- | --- | --- |"]
         for axis, a in m["axes"].items():
             ts = "not settled" if a["settling_time"] is None else f"{a['settling_time']:.3f}"
+            # a deviation decayed below 1e-12 is printed as that bound, not as its digits
+            final = ("< 1e-12" if abs(a["final_deviation"]) < 1e-12
+                     else f"{a['final_deviation']:.3g}")
             lines.append(f"| {axis} ({a['state']}) | {ts} | {a['peak_deviation']:.4g} "
-                         f"{a['unit']} | {a['final_deviation']:.3g} {a['unit']} | "
+                         f"{a['unit']} | {final} {a['unit']} | "
                          f"{a['rms_control']:.4g} {a['force_unit']} |")
         lines.append("")
     return "\n".join(lines)

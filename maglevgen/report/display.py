@@ -272,6 +272,8 @@ def _as_math(span: str) -> str | None:
     if isinstance(value, list | tuple):
         if value and all(isinstance(v, list | tuple) for v in value):
             return "$" + matrix_tex([[round_floats(x, 6) for x in row] for row in value]) + "$"
+        if len(value) == 1:  # SymPy's list of one root or residual: the value itself
+            return f"${ltx(round_floats(value[0], 6))}$"
         # each element its own formula, so that a long list breaks between them
         return "[" + ", ".join(f"${ltx(round_floats(v, 6))}$" for v in value) + "]"
     if isinstance(value, sp.Basic):
@@ -285,6 +287,7 @@ def math_prose(text: str) -> str:
     from .format import tex_escape
 
     out, last = [], 0
+    text = text.replace(" * ", " \N{MIDDLE DOT} ")  # a product written out: a centred dot
     for m in _MATH_SPAN.finditer(text):
         span, start, end = m.group(0), m.start(), m.end()
         while span.startswith("(") and span.count("(") > span.count(")"):

@@ -107,6 +107,7 @@ _TEX_ESCAPES = {
     "”": "''",
     "…": r"\dots{}",
     "µ": r"$\mu$",
+    "\N{MIDDLE DOT}": r"$\cdot$",
 }
 
 

@@ -32,6 +32,7 @@ def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
     magnetic = {a["axis"]: a[lag["model"].replace("-", "_")] for a in lag["axes"]}
     return {
         "verdicts": envelope["rows"],
+        "embedded": envelope["embedded"],
         "spec_checked_on": envelope["spec_checked_on"],
         "v_min": envelope["v_min"], "v_max": envelope["v_max"],
         "trim": {"speed": trep["speed"], "lift_off": trep["lift_off_speed"],
