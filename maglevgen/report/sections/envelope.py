@@ -15,6 +15,7 @@ from ...envelope import (
 )
 from ...library import simulation_library
 from ...operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
+from ...summary import displayed_gains, embedded_gains
 from ..display import matrix_tex
 from ..format import fnum, tex_escape
 from .verification import Check
@@ -69,8 +70,6 @@ def _spec_context(carriage) -> dict[str, Any]:
 def _gain_matrix(K) -> str:
     """A 5 x 5 gain matrix as a typeset bmatrix, 4 significant digits, the entries that are
     round-off of a zero (`summary.displayed_gains`, as `maglevgen gains` prints them) as 0."""
-    from ...summary import displayed_gains
-
     return matrix_tex(displayed_gains(K), lambda v: "0" if v == 0 else fnum(v, 4))
 
 
@@ -79,8 +78,6 @@ def _embedded_context(carriage, env, table: Mapping[str, Any]) -> dict[str, Any]
     ``[control.spec]``), its gains at v_min, the design speed and v_max (`gains --json`'s
     "embedded" entry at each, from the same code), the table schedule's error for its gains
     and its verdicts."""
-    from ...summary import embedded_gains
-
     name = carriage.params.envelope.embedded_controller
     design = carriage.params.operation.speed
     where = [("v_{\\min}", env.v_min), ("V", design), ("v_{\\max}", env.v_max)]
