@@ -325,7 +325,11 @@ def embedded_gains(carriage: Carriage, op: OperatingPoint) -> dict:
     K_pos, K_rate = op.gains(name)
     out = {"controller": name, "title": CONTROLLER_TITLES[name], "speed": op.speed,
            "axes": list(cv.AXES), "forces": [c.name for c in cv.CONTROLS],
-           "a_ref": op.a_trim.tolist(), "K_pos": K_pos.tolist(), "K_rate": K_rate.tolist()}
+           "a_ref": op.a_trim.tolist(), "K_pos": K_pos.tolist(), "K_rate": K_rate.tolist(),
+           # on the coupled 10-state linearisation, as "coupled" gives the paper's designs'
+           "closed_loop_poles": [[float(e.real), float(e.imag)] for e in
+                                 sorted(np.linalg.eigvals(op.reduced_closed_loop(name)),
+                                        key=_pole_key)]}
     if name == "spec":
         q1, q2, r = spec_weights(op)
         out["weights"] = {"q1": q1.tolist(), "q2": q2.tolist(), "r": r.tolist(),

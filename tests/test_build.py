@@ -599,3 +599,84 @@ def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage
     assert derived == pytest.approx(K_fd, rel=1e-4)
     assert corrected == pytest.approx(point_pitch_fd(prm, rt.q, v, rt.f_prop), rel=5e-3)
     assert abs(printed / K_fd - 1) > 0.5
+
+
+# ------------------------------------------------------------------------------ the README
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+_NUM_RE = re.compile(r"[-+]?\d+(?:\.\d+)?")
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(x) for x in _NUM_RE.findall(text)]
+
+
+def _readme_statement(text: str, start: str, end: str = ";") -> str:
+    """The README's text from ``start`` to the next ``end`` (flattened to one line)."""
+    flat = re.sub(r"\s+", " ", text)
+    i = flat.index(start)
+    return flat[i:flat.index(end, i + len(start))]
+
+
+def test_the_readme_states_the_numbers_the_build_prints(good: Path) -> None:
+    """Every number the README's "What the default build reports" (and the prose that repeats
+    them) states is the one the default build prints: envelope.json's verdicts, SUMMARY.md's
+    stiffness differences and accelerating trim, c/manifest.json's gain-table bound. A README
+    that goes stale fails here."""
+    readme = README.read_text()
+    env = json.loads((good / "envelope/envelope.json").read_text())
+    summary = (good / "SUMMARY.md").read_text()
+    flat_summary = re.sub(r"\s+", " ", summary)
+    ctl = env["controllers"]
+
+    def printed(name: str) -> list[float]:
+        return _numbers(ctl[name]["verdict"] + " " + ctl[name]["spec_verdict"])
+
+    def assert_printed(stated: str, build: list[float]) -> None:
+        for x in _numbers(stated):
+            assert any(x == pytest.approx(b, rel=1e-9, abs=1e-12) for b in build), \
+                f"README states {x:g} ({stated!r}); the build prints {build}"
+
+    rng = _readme_statement(readme, "- envelope [")
+    assert _numbers(rng)[:2] == [float(f"{env['v_min']:.4g}"), float(f"{env['v_max']:.4g}")]
+    spec = _readme_statement(readme, "- the embedded controller `spec`", "1/s)")
+    assert_printed(spec.split("`[control.spec]`)")[1], printed("spec"))
+    assert ctl["spec"]["meets_spec"] and ctl["spec"]["stable"] is not False
+    designs = _readme_statement(readme, "- the paper's designs fail", "time constant)")
+    for name, part in zip(("damping", "lqr", "coupled"),
+                          re.split(r"optimized damping|per-axis LQR|coupled LQR", designs)[1:],
+                          strict=True):
+        stated = re.sub(r"a \d+ s( time constant)?", "", part)
+        assert_printed(stated, printed(name))
+        assert not ctl[name]["meets_spec"]
+    # the time constant is the slowest decay's inverse, rounded
+    tau = int(re.search(r"a (\d+) s time constant", re.sub(r"\s+", " ", readme))[1])
+    decay = re.search(r"slowest decay (\S+) 1/s", designs)[1]
+    assert tau == round(1 / float(decay))
+    # the per-axis LQR's unstable range, wherever the README repeats it
+    lqr_range = re.search(r"UNSTABLE for v in \[(\S+), (\S+)\]", ctl["lqr"]["verdict"]).groups()
+    stated = re.findall(r"per-axis\s+LQR[^.;]*?unstable\s+for\s+v\s+in\s+\[(\S+),\s+(\S+)\]",
+                        readme, re.IGNORECASE | re.DOTALL)
+    assert len(stated) >= 2 and all(s == lqr_range for s in stated), (stated, lqr_range)
+    # the stiffness differences: SUMMARY.md's discrepancy line, the same words
+    stiff = _readme_statement(readme, "- the paper's printed stiffnesses (eqs 13-19) differ "
+                              "from the derived K_st0 by ", "%.")
+    assert len(re.findall(r"(\w+) ([+-]\d+\.\d%)", stiff + "%")) == 5, stiff
+    for axis, pct in re.findall(r"(\w+) ([+-]\d+\.\d%)", stiff + "%"):
+        assert f"{axis} {pct}" in flat_summary, (axis, pct)
+    # the spec verdict where the envelope section repeats it
+    again = _readme_statement(readme, "default carriage `spec` meets it across", ";")
+    assert_printed(again, printed("spec"))
+    # the accelerating trim at v_min (SUMMARY.md's line)
+    pitch = re.search(r"at 5 m/s\^2 and v_min it pitches (\S+) mrad", re.sub(r"\s+", " ", readme))
+    acc = re.search(r"Accelerating trim at \S+ m/s and (\S+) m/s\^2 .*?\((\S+) mrad from the "
+                    r"constant-speed trim\)", summary)
+    assert float(acc[1]) == 5.0 and float(pitch[1]) == -float(acc[2])
+    # the circuits' characteristic speed R/(kL), stated to 3 digits
+    vc = re.search(r"R/\(kL\) = (\S+) m/s", readme)[1]
+    printed_vc = re.search(r"characteristic speed (\S+) m/s", summary)[1]
+    assert float(vc) == pytest.approx(float(printed_vc), abs=0.006)
+    # the gain table's bound
+    table = json.loads((good / "c/manifest.json").read_text())["gain_table"]
+    assert "holds its gains to 1e-3 of each matrix's largest entry" in re.sub(r"\s+", " ", readme)
+    assert table["bound"] == 1e-3 and table["worst_relative_error"] <= table["bound"]

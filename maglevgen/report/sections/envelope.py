@@ -41,8 +41,9 @@ def _envelope_checks(carriage, env) -> list[Check]:
     speed = carriage.params.operation.speed
     (op,) = envelope_points(carriage, simulation_library(carriage.structure), [speed])
     out = []
-    for name in ("coupled", "lqr", "damping"):
-        title = tex_escape(CONTROLLER_TITLES[name])
+    embedded = carriage.params.envelope.embedded_controller
+    for name in [n for n in env.controllers if n != "none"]:  # every designed controller
+        title = tex_escape(CONTROLLER_TITLES[name]) + (" (embedded)" if name == embedded else "")
         out.append(Check(
             f"{title}: closed loop at {speed:.4g} m/s (largest real part, 1/s)",
             "eigenvalues (numpy) of the C Jacobians with the gains and allocation",
