@@ -305,7 +305,9 @@ def test_unchanged_rebuild_regenerates_nothing(good: Path, capsys) -> None:
     before = tree(good)
     mtimes = {p: p.stat().st_mtime_ns for p in good.rglob("*")}
     assert main(["build", "--out", str(good), *FAST]) == 0
-    assert "up to date" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # the count is the files on disk, as the build that wrote them said ("wrote N files")
+    assert f"is up to date ({len(before)} files; nothing regenerated)" in out, out
     assert tree(good) == before
     assert {p: p.stat().st_mtime_ns for p in good.rglob("*")} == mtimes
 
@@ -599,6 +601,17 @@ def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage
     assert derived == pytest.approx(K_fd, rel=1e-4)
     assert corrected == pytest.approx(point_pitch_fd(prm, rt.q, v, rt.f_prop), rel=5e-3)
     assert abs(printed / K_fd - 1) > 0.5
+
+
+def test_summary_and_tables_have_no_raw_python_text(good: Path) -> None:
+    """SUMMARY.md, simulation/metrics.md and envelope/envelope.md as a person reads them: none
+    of the raw forms of tests/readable.py (**, [[, Eq(, sqrt(, " * ", [1], more than 7
+    significant digits, round-off noise below 1e-12)."""
+    from readable import raw_findings
+
+    found = [f for name in ("SUMMARY.md", "simulation/metrics.md", "envelope/envelope.md")
+             for f in raw_findings((good / name).read_text(), name)]
+    assert found == [], "\n".join(found)
 
 
 # ------------------------------------------------------------------------------ the README
