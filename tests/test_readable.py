@@ -31,6 +31,7 @@ def test_the_scanner_flags_each_raw_form_and_passes_what_a_person_writes() -> No
     assert [f.split(":")[1].strip() for f in raw_findings(table)] == ["3e-19 is round-off noise"]
 
 
+@pytest.mark.slow  # about a minute on 2 busy cores: trim, gains and envelope each sweep the envelope
 @pytest.mark.needs_cc
 def test_the_cli_text_output_is_written_for_a_person(sim_lib, tmp_path: Path, capsys) -> None:
     """trim, gains, envelope, a launch, a hold below the envelope and a small Monte Carlo: their
@@ -63,3 +64,20 @@ def test_the_cli_text_output_is_written_for_a_person(sim_lib, tmp_path: Path, ca
     err = capsys.readouterr().err
     assert "lift-off needs" in err and "see `maglevgen trim" not in err, err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_fmu_defaults_to_the_embedded_controller(monkeypatch, tmp_path: Path, capsys) -> None:
+    """`maglevgen fmu` without --controller exports envelope.embedded_controller (what the
+    firmware embeds and `build` verifies), with a --set override too; the FMU builder is
+    replaced by a recorder (building one is test_fmu.py's)."""
+    import maglevgen.fmu as fmu
+
+    seen = []
+    monkeypatch.setattr(fmu, "build_fmu", lambda carriage, kind, controller, **kw:
+                        seen.append(controller) or b"PK")
+    assert main(["fmu", "--out", str(tmp_path / "a")]) == 0
+    assert main(["fmu", "--out", str(tmp_path / "b"),
+                 "--set", 'envelope.embedded_controller="coupled"']) == 0
+    assert main(["fmu", "--out", str(tmp_path / "c"), "--controller", "lqr"]) == 0
+    assert seen == ["spec", "coupled", "lqr"]
+    assert "controller spec" in capsys.readouterr().out
