@@ -31,7 +31,7 @@ def test_the_scanner_flags_each_raw_form_and_passes_what_a_person_writes() -> No
     assert [f.split(":")[1].strip() for f in raw_findings(table)] == ["3e-19 is round-off noise"]
 
 
-@pytest.mark.slow  # about a minute on 2 busy cores: trim, gains and envelope each sweep the envelope
+@pytest.mark.slow  # about a minute on 2 busy cores: trim, gains and envelope sweep it
 @pytest.mark.needs_cc
 def test_the_cli_text_output_is_written_for_a_person(sim_lib, tmp_path: Path, capsys) -> None:
     """trim, gains, envelope, a launch, a hold below the envelope and a small Monte Carlo: their
