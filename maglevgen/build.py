@@ -94,7 +94,9 @@ def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
 def _unchanged(out_dir: Path) -> BuildResult:
     summary = (out_dir / SUMMARY).read_text()
     stamp = json.loads((out_dir / STAMP).read_text())
-    return BuildResult(out_dir, False, summary, tuple(stamp["files"]), stamp.get("verification"))
+    # the stamp lists every file but itself: count it too, as the build that wrote it did
+    return BuildResult(out_dir, False, summary, (*stamp["files"], STAMP),
+                       stamp.get("verification"), stamp.get("warning"))
 
 
 @dataclass(frozen=True)
@@ -104,6 +106,7 @@ class BuildResult:
     summary: str
     files: tuple[str, ...]
     verification: str | None = None  # why the build's verification failed (exit 3)
+    warning: str | None = None  # the runs' one-line warning (a speed outside the envelope)
 
 
 def _find_tex() -> str | None:
@@ -205,10 +208,11 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,
                                "params_sha256": loaded.sha256,
                                "overrides": list(loaded.overrides), "options": opts.as_dict(),
-                               "verification": verification, "files": digests},
+                               "verification": verification, "warning": run.warning,
+                               "files": digests},
                               indent=1) + "\n"
     write_output(files, out_dir)
-    return BuildResult(out_dir, True, summary, tuple(sorted(files)), verification)
+    return BuildResult(out_dir, True, summary, tuple(sorted(files)), verification, run.warning)
 
 
 def _schedule_c(carriage, lib, env) -> str:
@@ -325,7 +329,6 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     attraction (maglevgen.roa), when computed."""
     import numpy as np
 
-    from .derive import conventions as cv
     from .magnetic_damping import axis_damping
     from .operating import CONTROLLER_TITLES
     from .summary import accelerating_margins, pitch_paper_form, stiffness_table, trim_point
@@ -338,9 +341,15 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
                              next(r.paper_value for r in rows if r.axis == "pitch"))
 
     embedded = carriage.params.envelope.embedded_controller
-    lines = [f"# maglevgen build: {carriage.loaded.source}", "",
-             f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
-             "(envelope/envelope.md, envelope/stability_map.png):", ""]
+    loaded = carriage.loaded
+    sets = ", ".join(f"`--set {o}`" for o in loaded.overrides) or "none"
+    lines = [f"# maglevgen build: {loaded.source}", "",
+             f"Parameter file: `{loaded.source}` (sha256 {loaded.sha256[:16]}...); "
+             f"overrides: {sets}.", ""]
+    if run.warning:
+        lines += [f"Warning: {run.warning}.", ""]
+    lines += [f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
+              "(envelope/envelope.md, envelope/stability_map.png):", ""]
     lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
               f": {c.verdict}; specification: {c.spec_verdict}"
               for n, c in env.controllers.items()]
@@ -352,31 +361,48 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         from .roa import summary_lines
 
         lines += ["", *summary_lines(regions[0])]
+    names = list(carriage.params.arrays)
     lines += ["",
               "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
               "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
               f"{report}.", "",
-             f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
-             f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gaps "
-             + ", ".join(f"{g * 1e3:.3f}" for g in op.gaps) + " mm "
-             f"(track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
-             accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), "",
-             f"Magnetic damping c_mag = -m A[rate, rate] at trim "
-             f"(model.circuit_dynamics = {carriage.params.model.circuit_dynamics}; negative "
-             "feeds the motion), beside the LQR rate gain:", "",
-             "| axis | k | m | f_n [Hz] | LQR K (pos, rate) | magnetic c_mag | damping c "
-             "| paper k (printed) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for i, axis in enumerate(cv.AXES):
-        fn = np.sqrt(max(k[i], 0.0) / m[i]) / (2 * np.pi)
-        r = rows[i]
-        lines.append(f"| {axis} | {k[i]:.5g} {r.unit} | {m[i]:.4g} | {fn:.3f} | "
-                     f"{op.K[i, 0]:.4g}, {op.K[i, 1]:.4g} | {c_mag[i]:.4g} | "
-                     f"{op.c_damping[i]:.4g} | "
-                     f"{r.paper_value:.5g} ({r.relative_difference:+.0%}) |")
-    lines += ["", "Paper discrepancies found (details and evidence in the report):",
-              "- printed stiffnesses (eqs 13-19) differ from the derived ones: "
-              + ", ".join(f"{r.axis} {r.relative_difference:+.0%}" for r in rows) + ";",
+              f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
+              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gap "
+              "per array: " + ", ".join(f"{n} {g * 1e3:.3f} mm" for n, g in zip(names, op.gaps,
+                                                                                strict=True))
+              + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
+              accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), ""]
+    # one table per kind of axis, so that each column is one quantity in one unit
+    kinds = (("Translation", (0, 1), {"k": rows[0].unit, "m": "kg", "c": "N*s/m"}),
+             ("Rotation", (2, 3, 4), {"k": rows[2].unit, "m": "kg*m^2", "c": "N*m*s/rad"}))
+    lines += [f"Stiffness at trim: K_st0 (magnetic, the derivation's) beside the paper's printed "
+              "eqs 13-19 and their difference from it; k = K_st0 plus the gravity and "
+              "propulsion moments, the plant of the per-axis LQR, m its generalized mass "
+              f"(model.circuit_dynamics = {carriage.params.model.circuit_dynamics}):", ""]
+    for kind, idx, u in kinds:
+        lines += [f"| {kind.lower()} axis | K_st0 [{u['k']}] | paper, printed [{u['k']}] | "
+                  f"paper / K_st0 - 1 | k [{u['k']}] | m [{u['m']}] | f_n [Hz] |",
+                  "| --- | --- | --- | --- | --- | --- | --- |"]
+        for i in idx:
+            r = rows[i]
+            fn = np.sqrt(max(k[i], 0.0) / m[i]) / (2 * np.pi)
+            lines.append(f"| {r.axis} | {r.derived_magnetic:.5g} | {r.paper_value:.5g} | "
+                         f"{r.relative_difference:+.1%} | {k[i]:.5g} | {m[i]:.4g} | "
+                         f"{fn:.3f} |")
+        lines.append("")
+    lines += ["Per-axis LQR gains (the paper's design, u = -(K1 a + K2 a')), the optimized "
+              "damping c and the magnetic damping c_mag = -m A[rate, rate] of the circuits' "
+              "lag at trim (negative feeds the motion):", ""]
+    for kind, idx, u in kinds:
+        lines += [f"| {kind.lower()} axis | K1 [{u['k']}] | K2 [{u['c']}] | damping c "
+                  f"[{u['c']}] | magnetic c_mag [{u['c']}] |",
+                  "| --- | --- | --- | --- | --- |"]
+        lines += [f"| {rows[i].axis} | {op.K[i, 0]:.4g} | {op.K[i, 1]:.4g} | "
+                  f"{op.c_damping[i]:.4g} | {c_mag[i]:.4g} |" for i in idx]
+        lines.append("")
+    lines += ["Paper discrepancies found (details and evidence in the report):",
+              "- printed stiffnesses (eqs 13-19) differ from the derived K_st0: "
+              + ", ".join(f"{r.axis} {r.relative_difference:+.1%}" for r in rows) + ";",
               "- pitch (eq 15): the error is the net front force F_z3 - F_z1 - F_z2 where the "
               "upper and lower arrays' stiffnesses add (the arm L_x is right): printed "
               f"{pitch['printed']:.5g}, with the sum 2k sum_i F_i n_z,i^2 x_i^2 "

@@ -114,15 +114,17 @@ def cmd_trim(args: argparse.Namespace) -> int:
     print("\n".join(verdicts) + "\n")
     print(f"Trim at {rep['speed']:g} m/s{moving} (lift-off at {rep['lift_off_speed']:.3f} "
           f"m/s; residual {rep['residual']:.2e})")
-    for s in cv.STATES:
-        print(f"  {s.name:>6} = {rep['state'][s.name]: .6e} {s.unit:<6} {s.description}")
-    print(f"  F_prop = {rep['propulsion_force']: .6e} N      propulsion balancing the drag"
+    for s in cv.STATES:  # |value| below 1e-12 (SI) is the Newton solve's round-off of a zero
+        v = rep["state"][s.name]
+        print(f"  {s.name:>6} = {v if abs(v) >= 1e-12 else 0.0:>13.7g} {s.unit:<6} "
+              f"{s.description}")
+    print(f"  F_prop = {rep['propulsion_force']:>13.7g} N      propulsion balancing the drag"
           + (f" and m a = {carriage.params.vehicle.mass * a:.6g} N" if a else ""))
     print("\nArray   gap [mm]   lift [N]   drag [N]")
     for n, a in rep["arrays"].items():
         print(f"  {n:>4} {a['gap'] * 1e3:9.4f} {a['lift']:10.4f} {a['drag']:10.4f}")
     print("\nStiffness (eqs 13-19)  derived K_st0   +gravity/prop   paper (printed)"
-          "           paper/derived - 1")
+          "           paper/K_st0 - 1")
     for axis, r in rep["stiffness"].items():
         print(f"  {axis:<9} {r['unit']:<8} {r['derived']:12.5g} {r['derived_with_gravity']:14.5g}"
               f"   {r['paper']:10.5g} = {r['paper_formula']:<22} "
@@ -157,26 +159,28 @@ def cmd_gains(args: argparse.Namespace) -> int:
         kn, kp = a["K_numerical"], a["K_paper"]
         print(f"  {axis:<9}{a['stiffness']:12.5g}{a['inertia']:10.4g}"
               f"{a['K_closed_form'][0]:14.6g}{a['K_closed_form'][1]:13.6g}"
-              f"{kn[0]:13.6g}{kn[1]:13.6g}{kp[0]:13.6g}{kp[1]:13.6g}  {acc['more_accurate']}"
-              f" ({acc['closed_form']:.1e} vs {acc['numerical']:.1e})")
+              f"{kn[0]:13.6g}{kn[1]:13.6g}{kp[0]:13.6g}{kp[1]:13.6g}  "
+              f"{acc['more_accurate'].replace('_', ' ')} (error {acc['closed_form']:.2g} vs "
+              f"{acc['numerical']:.2g})")
+    print("  (k and K1 in N/m for lateral and vertical, N m/rad for roll, pitch and yaw; m in kg "
+          "or kg m^2;\n   K2 in N s/m or N m s/rad; the last column: each gain's largest "
+          "relative error against the 50-digit reference)")
     c = rep["coupled"]
     print(f"\nOn the coupled 10-state linearisation: cost of the per-axis design "
           f"{c['cost_per_axis_design']:.6g}, of the coupled LQR {c['cost_coupled_lqr']:.6g}; "
           f"slowest poles {max(p[0] for p in c['poles_per_axis_design']):.4g} and "
           f"{max(p[0] for p in c['poles_coupled_lqr']):.4g} 1/s")
-    print("The paper's eq 31-32 gain (K1 = sqrt(k^2+1) - 1) is not the LQR gain: its P does "
+    print("The paper's eq 31-32 gain (K1 = (k^2 + 1)^(1/2) - 1) is not the LQR gain: its P does "
           "not solve eq 30.")
     e = rep["embedded"]
     print(f"\nEmbedded controller ({e['title']}, `{e['controller']}`) at {e['speed']:g} m/s: "
           "u_gen = -(K_pos (a - a_ref) + K_rate a'), rows "
-          f"{', '.join(e['forces'])}, columns {', '.join(e['axes'])}")
+          f"{', '.join(e['forces'])} (N, N, N m, N m, N m), columns {', '.join(e['axes'])} "
+          "(m, m, rad, rad, rad; per second for K_rate)")
     for label, K in (("K_pos", e["K_pos"]), ("K_rate", e["K_rate"])):
-        # entries below 1e-9 of the matrix's largest are round-off of the LQR solve: 0
-        scale = max((abs(v) for row in K for v in row), default=0.0)
-        print(f"  {label}:")
-        for name, row in zip(e["forces"], K, strict=True):
-            print(f"    {name:<8}" + "".join(f"{v if abs(v) > 1e-9 * scale else 0.0:12.4g}"
-                                         for v in row))
+        print(f"  {label}:")  # round-off of a zero printed as 0 (summary.GAIN_ROUNDOFF)
+        for name, row in zip(e["forces"], summary.displayed_gains(K), strict=True):
+            print(f"    {name:<8}" + "".join(f"{v:12.4g}" for v in row))
     if "weights" in e:
         w = e["weights"]
         print(f"  weights (design damping ratio {w['design_damping_ratio']:g}): "
@@ -306,14 +310,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                         disturbance=_disturbance(args.disturbance), loop=args.loop)
     files = render_results(run.trajectories, run.input_names, run.header(carriage.loaded.sha256))
     paths = write_output(files, Path(args.out))
-    ran = max(float(t.t[-1]) for t in run.trajectories)
-    print(f"Simulated {ran:g} s at dt = {args.dt:g} s (RK4 in the generated C; stability "
-          f"limit {run.dt_limit:.3g} s) from trim at {run.op.speed:g} m/s, F_prop = "
+    if args.scenario == "launch":  # each run ends at release (v_max), contact or its bound
+        what = (f"the launch from {run.op.speed:.4g} to {run.v_end:.4g} m/s, each run until "
+                "release, contact or divergence,")
+    else:
+        what = f"{args.t_end:g} s of hold"
+    print(f"Simulated {what} at dt = {args.dt:g} s (RK4 in the generated C; stability limit "
+          f"{run.dt_limit:.3g} s) from trim at {run.op.speed:g} m/s, F_prop = "
           f"{run.op.f_prop:.4g} N")
-    for traj in run.trajectories:
-        print(f"  {traj.controller:<8} {traj.status}{': ' + traj.event if traj.event else ''}")
+    for traj in run.trajectories:  # the time each run actually reached
+        print(f"  {traj.controller:<8} {traj.status}{': ' + traj.event if traj.event else ''}"
+              f" (ran to t = {float(traj.t[-1]):.4g} s)")
         if (verdict := spec_verdict(traj)) is not None:
             print(f"  {'':<8} specification: {verdict.text()}")
+    if run.warning:
+        progress.step(f"warning: {run.warning}")
     if args.check:
         from .simulate import reference_check
 
@@ -451,6 +462,8 @@ def cmd_build(args: argparse.Namespace) -> int:
         for sub in ("c", "lib", "simulation", "envelope", "report"):
             print(f"  {res.out_dir / sub}/")
         print(f"  {res.out_dir / 'SUMMARY.md'} (this summary)")
+    if res.warning:
+        print(f"maglevgen: warning: {res.warning}", file=sys.stderr)
     if res.verification is not None:
         if opts.allow_unstable:
             print(f"maglevgen: warning: {res.verification}", file=sys.stderr)

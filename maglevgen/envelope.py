@@ -20,6 +20,7 @@ import numpy as np
 
 from .carriage import Carriage
 from .errors import InputError, NoTrimError
+from .laws import controller as registered_controller
 from .library import SimulationLibrary, simulation_library
 from .operating import (
     CONTROLLER_TITLES,
@@ -566,9 +567,9 @@ def stability_map_png(env: Envelope) -> bytes:
         fig, ax = plt.subplots(figsize=(7, 4))
         ax.axhspan(0, 1e9, color="#f6d5d5", lw=0, label="unstable (real part > 0)")
         ax.axhline(0.0, color="k", lw=0.8)
-        for n, c in env.controllers.items():
-            ax.plot(env.speeds, c.max_real, lw=1.2, marker=".", ms=3,
-                    label=f"{CONTROLLER_TITLES[n]}")
+        for n, c in env.controllers.items():  # the registry's styles: coinciding lines show
+            ax.plot(env.speeds, c.max_real, marker=".", ms=3, label=f"{CONTROLLER_TITLES[n]}",
+                    **registered_controller(n).style)
         ax.set_yscale("symlog", linthresh=1e-2)
         top = max(1.0, max(float(np.nanmax(c.max_real[np.isfinite(c.max_real)], initial=0))
                            for c in env.controllers.values()) * 2)

@@ -37,6 +37,7 @@ import numpy as np
 
 from .derive import conventions as cv
 from .errors import InputError, MaglevError, NoTrimError
+from .laws import controller as registered_controller
 from .operating import (
     CONTROLLER_TITLES,
     CONTROLLERS,
@@ -642,6 +643,11 @@ def _unit_text(unit: str) -> str:
     return f"({text})" if "/" in unit else text
 
 
+def _registry_color(controller: str) -> str | None:
+    """The controller's colour in the registry's line style (maglevgen.laws)."""
+    return registered_controller(controller).style.get("color")
+
+
 def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, bytes]:
     """histograms.png (settling time and peak deviation per axis, one colour per
     controller) and failures.png (each controller's runs against its two inputs most
@@ -659,12 +665,20 @@ def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, byt
             for row, (key, label) in enumerate((("settling_time", r"settling time $t_s$ / s"),
                                                 ("peak", f"peak deviation / {unit}"))):
                 ax = axs[row, j]
+                counts = []
                 for c in study.controllers:
                     v = cols[f"{key}.{axis}"][cols["controller"] == c]
-                    v = v[np.isfinite(v)]
+                    n_runs = v.size
+                    v = v[np.isfinite(v)]  # a run that never settled has no settling time
                     if v.size:
-                        ax.hist(v, bins=30, alpha=0.5, label=CONTROLLER_TITLES[c])
+                        ax.hist(v, bins=30, alpha=0.5, label=CONTROLLER_TITLES[c],
+                                color=_registry_color(c))
+                    counts.append(f"{CONTROLLER_TITLES[c]}: {v.size} of {n_runs}")
+                # how many runs each histogram holds (the settling times: the settled runs)
+                ax.text(0.98, 0.97, "\n".join(counts), transform=ax.transAxes, ha="right",
+                        va="top", fontsize=6, bbox={"fc": "white", "alpha": 0.7, "lw": 0})
                 ax.set_xlabel(label)
+                ax.set_ylabel("runs")
                 ax.set_title(axis)
         handles, labels = axs[0, 0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="upper center", ncol=max(1, len(labels)), fontsize=7,

@@ -98,8 +98,8 @@ def pole_map(sets: dict[str, list[tuple[float, float]]]) -> bytes:
                         lw=0.8, ls="--", zorder=0)
             ax.annotate(f"$\\zeta$={zeta:g}", (-reach * zeta, reach * math.sin(ang)),
                         fontsize=6, color="0.5")
-        for name, ps in sets.items():
-            marker, color = _POLE_STYLE.get(name, ("o", "k"))
+        for name, ps in sets.items():  # the embedded controller (any other set): diamonds
+            marker, color = _POLE_STYLE.get(name, ("D", "#9467bd"))
             ax.plot([p[0] for p in ps], [p[1] for p in ps], marker, color=color, ms=5,
                     ls="none", label=name, mfc="none" if marker in "os^" else color)
         ax.axhline(0, color="0.5", lw=0.6)
@@ -120,6 +120,7 @@ def damping_figure(d: dict[str, Any]) -> bytes:
     from matplotlib.figure import Figure
 
     colors = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"]
+    controller_colors = d.get("colors") or colors  # the registry's, where the caller gives them
     styles = dict(zip(d["models"], ("-", "--"), strict=True))
     with mpl.rc_context({k: v for k, v in _RC.items() if k != "axes.prop_cycle"}):
         fig = Figure(figsize=(7.0, 6.4))
@@ -141,7 +142,7 @@ def damping_figure(d: dict[str, Any]) -> bytes:
         for j, title in enumerate(d["controllers"]):
             for name, ls in styles.items():
                 bx.plot(d["envelope_speeds"][name], d["max_real"][name][j], ls=ls,
-                        color=colors[j], label=f"{title}, {name}")
+                        color=controller_colors[j], label=f"{title}, {name}")
         bx.axhline(0, color="k", lw=0.7)
         bx.set_yscale("symlog", linthresh=1e-2)
         bx.set_xlabel(r"speed $v$ / (m/s)")

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .derive import conventions as cv
+from .laws import controller as registered_controller
 from .simulate import (
     CONTROLLER_TITLES,
     DISTURBANCE_DOC,
@@ -31,11 +32,48 @@ FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = 
      "figs 3, 5, 7"),
     ("travel_roll.png", "Travel distance and roll",
      (("x", 1.0, r"travel $x$ / m"), ("phi", 1e3, r"roll $\phi - \phi_0$ / mrad")), "fig 4"),
-    ("lateral_pitch.png", "Lateral position and pitch",
-     (("y", 1e3, r"lateral $y - y_0$ / mm"), ("theta", 1e3, r"pitch $\theta - \theta_0$ / mrad")),
-     "figs 6, 8"),
+    # the paper's figs 6 and 8 plot lateral position and pitch; pitch is drawn once, in the
+    # first figure, and this one carries the remaining axis, yaw
+    ("lateral_yaw.png", "Lateral position and yaw",
+     (("y", 1e3, r"lateral $y - y_0$ / mm"), ("psi", 1e3, r"yaw $\psi - \psi_0$ / mrad")),
+     "figs 6, 8 (their pitch: the first figure)"),
 )
 PLOT_POINTS = 4000  # samples per line at most (decimated evenly; the run keeps every step)
+ZOOM_SECONDS = 1.5  # the left column: the raw response over the first seconds
+PEAK_WINDOW = 0.05  # [s] the right column: the largest |deviation| in windows this long
+PEAK_FLOOR = 1e-6  # the envelope's log axis reaches down to this fraction of its largest
+
+
+def _style(controller: str) -> dict:
+    """The registry's line style of a controller (maglevgen.laws), so that coinciding
+    responses stay distinguishable (dashes, widths), drawn in registration order."""
+    return dict(registered_controller(controller).style)
+
+
+def _label(traj: Trajectory) -> str:
+    name = CONTROLLER_TITLES[traj.controller]
+    if traj.event:
+        name += " (contact)" if traj.status == "contact" else f" ({traj.status})"
+    return name
+
+
+def _series(traj: Trajectory, state: str) -> np.ndarray:
+    if state in _AXIS_OF_STATE:
+        return traj.axis_deviation[:, _AXIS_OF_STATE[state]]
+    return traj.x[:, cv.STATE_INDEX[state]]
+
+
+def peak_envelope(t: np.ndarray, y: np.ndarray, window: float) -> tuple[np.ndarray, np.ndarray]:
+    """(window centres, largest |y| in each window of ``window`` seconds): the envelope of an
+    oscillating response, readable where the raw trace over many periods is a solid band."""
+    dt = float(t[1] - t[0]) if t.size > 1 else window
+    n = max(1, round(window / dt))
+    k = t.size // n
+    if k == 0:
+        return t[:1], np.abs(y[:1])
+    peaks = np.max(np.abs(y[: k * n]).reshape(k, n), axis=1)
+    centres = t[: k * n].reshape(k, n).mean(axis=1)
+    return centres, peaks
 _AXIS_OF_STATE = {s: i for i, s in enumerate(("y", "z", "phi", "theta", "psi"))}
 
 
@@ -94,33 +132,58 @@ def trajectories_npz(trajs: Sequence[Trajectory], input_names: Sequence[str]) ->
 
 def figure_png(trajs: Sequence[Trajectory], title: str,
                panels: tuple[tuple[str, float, str], ...], figs: str) -> bytes:
-    """Two stacked panels with the controllers overlaid (deterministic PNG bytes)."""
+    """One row per state: the raw response over the first ZOOM_SECONDS (left) and the peak
+    envelope over the whole run on a log axis (right), every controller in its registry
+    style (deterministic PNG bytes)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    t_end = max((float(t.t[-1]) for t in trajs), default=0.0)
+    zoom = min(ZOOM_SECONDS, t_end) or ZOOM_SECONDS
     with plt.rc_context({"svg.hashsalt": "maglevgen", "font.size": 9}):
-        fig, axes = plt.subplots(len(panels), 1, figsize=(7, 5), sharex=True)
-        for ax, (state, scale, label) in zip(axes, panels, strict=True):
+        fig, axes = plt.subplots(len(panels), 2, figsize=(9, 2.6 * len(panels)), squeeze=False)
+        for (ax, bx), (state, scale, label) in zip(axes, panels, strict=True):
+            top = 0.0
             for traj in trajs:
-                if state in _AXIS_OF_STATE:
-                    y = traj.axis_deviation[:, _AXIS_OF_STATE[state]]
-                else:
-                    y = traj.x[:, cv.STATE_INDEX[state]]
-                every = max(1, traj.t.size // PLOT_POINTS)  # the figure is ~800 px wide
-                t, y = traj.t[::every], y[::every]
-                name = CONTROLLER_TITLES[traj.controller]
-                if traj.event:
-                    name += " (contact)" if traj.status == "contact" else f" ({traj.status})"
-                ax.plot(t, y * scale, lw=0.9, label=name)
+                y = _series(traj, state) * scale
+                near = traj.t <= zoom
+                every = max(1, int(np.count_nonzero(near)) // PLOT_POINTS)
+                ax.plot(traj.t[near][::every], y[near][::every], label=_label(traj),
+                        **_style(traj.controller))
+                if state not in _AXIS_OF_STATE:  # not a deviation (the travel): as it is
+                    every = max(1, traj.t.size // PLOT_POINTS)
+                    bx.plot(traj.t[::every], y[::every], **_style(traj.controller))
+                    continue
+                tc, peak = peak_envelope(traj.t, y, PEAK_WINDOW)
+                top = max(top, float(np.max(peak, initial=0.0)))
+                bx.plot(tc, np.maximum(peak, 1e-300), **_style(traj.controller))
             ax.set_ylabel(label)
-            ax.grid(True, lw=0.3)
+            ax.set_xlim(0, zoom)
+            bx.set_xlim(0, t_end or 1.0)
+            symbol, _, unit = label.partition(" / ")
+            if state in _AXIS_OF_STATE:
+                bx.set_yscale("log")
+                if top > 0:
+                    bx.set_ylim(top * PEAK_FLOOR, top * 2)
+                bx.set_ylabel(f"peak |{symbol.split(' ', 1)[-1]}| / {unit}")
+                bx.set_title(f"peak over {PEAK_WINDOW * 1e3:g} ms windows, whole run",
+                             fontsize=9)
+            else:
+                bx.set_ylabel(label)
+                bx.set_title("whole run", fontsize=9)
+            ax.set_title(f"first {zoom:g} s", fontsize=9)
+            for a in (ax, bx):
+                a.grid(True, lw=0.3)
+        for a in axes[-1]:
+            a.set_xlabel(r"time $t$ / s")
         # beside the axes, not over the responses
-        axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-        axes[-1].set_xlabel(r"time $t$ / s")
+        axes[0, 1].legend(*axes[0, 0].get_legend_handles_labels(), loc="upper left",
+                          bbox_to_anchor=(1.02, 1.0), fontsize=8)
         fig.suptitle(f"{title} (paper {figs})")
-        fig.subplots_adjust(left=0.12, right=0.74, bottom=0.1, top=0.91, hspace=0.12)
+        fig.subplots_adjust(left=0.08, right=0.8, bottom=0.1, top=0.88, hspace=0.3,
+                            wspace=0.3)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
         plt.close(fig)
@@ -189,8 +252,11 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
                   "RMS control force/moment |", "| --- | --- | --- | --- | --- |"]
         for axis, a in m["axes"].items():
             ts = "not settled" if a["settling_time"] is None else f"{a['settling_time']:.3f}"
+            # a deviation decayed below 1e-12 is printed as that bound, not as its digits
+            final = ("< 1e-12" if abs(a["final_deviation"]) < 1e-12
+                     else f"{a['final_deviation']:.3g}")
             lines.append(f"| {axis} ({a['state']}) | {ts} | {a['peak_deviation']:.4g} "
-                         f"{a['unit']} | {a['final_deviation']:.3g} {a['unit']} | "
+                         f"{a['unit']} | {final} {a['unit']} | "
                          f"{a['rms_control']:.4g} {a['force_unit']} |")
         lines.append("")
     return "\n".join(lines)
@@ -226,8 +292,9 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
             for traj in trajs:
                 every = max(1, traj.t.size // PLOT_POINTS)
                 y = traj.axis_deviation[::every, _AXIS_OF_STATE[state]] * scale
-                ax.plot(traj.speed[::every], y, lw=0.9, label=CONTROLLER_TITLES[traj.controller]
-                        + (f" ({traj.status})" if traj.status == "contact" else ""))
+                ax.plot(traj.speed[::every], y, label=CONTROLLER_TITLES[traj.controller]
+                        + (f" ({traj.status})" if traj.status == "contact" else ""),
+                        **_style(traj.controller))
             ax.set_ylabel(label)
             ax.grid(True, lw=0.3)
         axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)

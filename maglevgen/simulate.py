@@ -526,6 +526,7 @@ class SimulationRun:
     scenario: str = "hold"
     v_end: float | None = None  # the launch's release speed
     speed_mode: SpeedMode | None = None  # the forward-speed mode at the start speed, explained
+    warning: str | None = None  # one line when the hold speed lies outside the envelope
 
     def header(self, params_sha256: str) -> dict:
         """What metrics.json states about the runs besides the per-run metrics."""
@@ -574,7 +575,7 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     lib = lib or simulation_library(carriage.structure, progress=announce or (lambda _: None))
     min_gap = carriage.params.track.min_gap
     weights = Weights.of(carriage.params)
-    v_end = None
+    v_end, warning = None, None
     if scenario == "launch":
         if speed is not None:
             raise InputError("--speed: the launch starts at envelope.v_min; set that instead")
@@ -591,6 +592,8 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
         if not (np.isfinite(v) and v > 0):
             raise InputError(f"--speed {v!r}: must be a positive speed in m/s")
         op = operating_point(lib, carriage.p, v, min_gap, weights)
+        warning = outside_envelope(carriage, lib, v, "operation.speed" if speed is None
+                                   else "--speed")
     eig = {c: np.linalg.eigvals(op.full_closed_loop(c)) for c in controllers}
     limits = {c: rk4_stability_limit(e) for c, e in eig.items()}
     worst = min(limits, key=limits.get)
@@ -626,4 +629,22 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     for traj in trajs:
         traj.input_names = names
         traj.run_spec = run_limits
-    return SimulationRun(op, tuple(trajs), limits[worst], names, growth, scenario, v_end, mode)
+    return SimulationRun(op, tuple(trajs), limits[worst], names, growth, scenario, v_end, mode,
+                         warning)
+
+
+def outside_envelope(carriage, lib: SimulationLibrary, speed: float, key: str) -> str | None:
+    """One line when ``speed`` lies outside the envelope [v_min, v_max] (where the embedded
+    controller is verified and the firmware's table holds), else None; None also when the
+    envelope itself has no trim (the commands that need it say so)."""
+    from .envelope import resolve_range
+
+    try:
+        v_lo, v_hi = resolve_range(carriage, lib)
+    except InputError:
+        return None
+    if v_lo <= speed <= v_hi:
+        return None
+    named = f"{key} {speed:g}" if key.startswith("--") else f"{key} = {speed:g}"
+    return (f"{named} m/s is outside the envelope [{v_lo:.4g}, {v_hi:.4g}] m/s "
+            "(envelope.v_min, envelope.v_max): the controllers are verified inside it only")

@@ -12,6 +12,7 @@ numerical LQR of each axis and the 50-digit closed form (mpmath).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -91,7 +92,9 @@ def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None,
         x, f_prop, gaps = (checked_trim(lib, p, v, min_gap) if acceleration == 0 else
                            checked_accelerating_trim(lib, p, v, acceleration, min_gap))
     except NoTrimError as exc:
-        why = str(exc).split(": ", 1)[-1]
+        # the checked trim's own pointer to `maglevgen trim` is dropped: this is what that
+        # command prints, and the lift-off speed below says where a trim starts
+        why = re.sub(r"; see `maglevgen trim[^`]*`", "", str(exc).split(": ", 1)[-1])
         v_off = _lift_off(carriage, lib) if v > 0 else float("nan")
         hint = f"; lift-off needs {v_off:.4g} m/s" if np.isfinite(v_off) else ""
         moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
@@ -220,7 +223,8 @@ def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary 
                    for n, g, fl, fd in zip(names, tp.gaps, tp.lift, tp.drag, strict=True)},
         "stiffness": {
             r.axis: {"unit": r.unit, "derived": r.derived_magnetic,
-                     "derived_with_gravity": r.derived_total, "paper_formula": r.paper_formula,
+                     "derived_with_gravity": r.derived_total,
+                     "paper_formula": plain_formula(sp.sympify(r.paper_formula)),
                      "paper": r.paper_value, "paper_relative_difference": r.relative_difference}
             for r in rows
         },
@@ -229,6 +233,19 @@ def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary 
         "pitch_paper_form": pitch_paper_form(
             carriage, tp, next(r.paper_value for r in rows if r.axis == "pitch")),
     }
+
+
+def plain_formula(expr: sp.Expr) -> str:
+    """A SymPy product as a person writes it in plain text: the coefficient as a decimal, the
+    factors separated by spaces, powers with ^ (eq 15's 0.12 F_upper k Lx^2, not SymPy's
+    3*F_upper*Lx**2*k/25)."""
+    coeff, rest = sp.sympify(expr).as_coeff_Mul()
+    factors = []
+    for f in sp.Mul.make_args(rest):
+        base, exp = f.as_base_exp()
+        factors.append(sp.sstr(base) + ("" if exp == 1 else f"^{sp.sstr(exp)}"))
+    head = [] if coeff == 1 else [f"{float(coeff):g}"]
+    return " ".join(head + factors)
 
 
 def axis_gains(axis: str, k: float, m: float, K: np.ndarray, c: float,
@@ -287,6 +304,19 @@ def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary
     }
 
 
+#: entries of a gain matrix below this fraction of its largest are round-off of the LQR solve
+#: of a zero (the carriage's symmetry): `gains` and the report print them as 0
+GAIN_ROUNDOFF = 1e-9
+
+
+def displayed_gains(K) -> np.ndarray:
+    """A gain matrix as `maglevgen gains` and the report print it: the entries below
+    GAIN_ROUNDOFF of its largest set to 0."""
+    K = np.asarray(K, dtype=float)
+    scale = float(np.max(np.abs(K))) if K.size else 0.0
+    return np.where(np.abs(K) > GAIN_ROUNDOFF * scale, K, 0.0)
+
+
 def embedded_gains(carriage: Carriage, op: OperatingPoint) -> dict:
     """The embedded controller's gains at ``op``: u_gen = -(K_pos (a - a_ref) + K_rate a'),
     rows the generalized forces (F_y, F_z, M_x, M_y, M_z), columns the axes; and for the
@@ -295,7 +325,11 @@ def embedded_gains(carriage: Carriage, op: OperatingPoint) -> dict:
     K_pos, K_rate = op.gains(name)
     out = {"controller": name, "title": CONTROLLER_TITLES[name], "speed": op.speed,
            "axes": list(cv.AXES), "forces": [c.name for c in cv.CONTROLS],
-           "a_ref": op.a_trim.tolist(), "K_pos": K_pos.tolist(), "K_rate": K_rate.tolist()}
+           "a_ref": op.a_trim.tolist(), "K_pos": K_pos.tolist(), "K_rate": K_rate.tolist(),
+           # on the coupled 10-state linearisation, as "coupled" gives the paper's designs'
+           "closed_loop_poles": [[float(e.real), float(e.imag)] for e in
+                                 sorted(np.linalg.eigvals(op.reduced_closed_loop(name)),
+                                        key=_pole_key)]}
     if name == "spec":
         q1, q2, r = spec_weights(op)
         out["weights"] = {"q1": q1.tolist(), "q2": q2.tolist(), "r": r.tolist(),

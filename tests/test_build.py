@@ -213,15 +213,17 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
     lines = (good / "SUMMARY.md").read_text().splitlines()
     (trim_line,) = [ln for ln in lines if ln.startswith("Trim at ")]
     m = re.fullmatch(r"Trim at (\S+) m/s: heave (\S+) mm, pitch (\S+) mrad, F_prop (\S+) N; "
-                     r"closest-corner gaps (.+) mm \(track.min_gap (\S+) mm\)\.", trim_line)
+                     r"closest-corner gap per array: (.+) \(track.min_gap (\S+) mm\)\.", trim_line)
     assert m, trim_line
     speed, heave, pitch, f_prop, gaps, min_gap = m.groups()
     assert float(speed) == v and float(min_gap) == pytest.approx(prm.track.min_gap * 1e3)
     assert float(heave) == pytest.approx(ref.q[1] * 1e3, abs=1e-4)
     assert float(pitch) == pytest.approx(ref.q[3] * 1e3, abs=1e-4)
     assert float(f_prop) == pytest.approx(ref.f_prop, rel=1e-3)
-    np.testing.assert_allclose([float(g) for g in gaps.split(", ")],
-                               contact_gaps(prm, ref.q) * 1e3,
+    named = [re.fullmatch(r"(\S+) (\S+) mm", g) for g in gaps.split(", ")]
+    assert all(named), gaps
+    assert [g[1] for g in named] == list(prm.arrays)  # each gap by its array's name
+    np.testing.assert_allclose([float(g[2]) for g in named], contact_gaps(prm, ref.q) * 1e3,
                                rtol=0, atol=6e-4)
     # the accelerating trim at v_min: the root with the d'Alembert load -m a at the CG
     (acc_line,) = [ln for ln in lines if ln.startswith("Accelerating trim at ")]
@@ -246,39 +248,65 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
     mass = generalized_mass(prm)
     paper = _paper_stiffness(prm, ref.arrays.lift)
     assert prm.model.circuit_dynamics == "first-order"
-    header = next(i for i, ln in enumerate(lines) if ln.startswith("| axis |"))
-    assert [c.strip() for c in lines[header].strip("|").split("|")] == [
-        "axis", "k", "m", "f_n [Hz]", "LQR K (pos, rate)", "magnetic c_mag", "damping c",
-        "paper k (printed)"]
     c_mag = _magnetic_damping_reference(prm, ref, mass)
-    rows = lines[header + 2: header + 7]
-    for i, (axis, row) in enumerate(zip(("lateral", "vertical", "roll", "pitch", "yaw"), rows,
-                                        strict=True)):
-        cells = [c.strip() for c in row.strip("|").split("|")]
-        assert cells[0] == axis
-        k_txt, unit = cells[1].split()
-        assert unit == ("N/m" if i < 2 else "N*m/rad")
-        assert float(k_txt) == pytest.approx(k_tot[i], rel=1e-4)
-        assert float(cells[2]) == pytest.approx(mass[i], rel=1e-3)
+    axes = ("lateral", "vertical", "roll", "pitch", "yaw")
+    units = {"k": ("N/m", "N*m/rad"), "m": ("kg", "kg*m^2"), "c": ("N*s/m", "N*m*s/rad")}
+
+    # four tables: stiffness (translation, rotation), then gains (translation, rotation),
+    # each row axis -> {column header: cell}
+    starts = [i for i, ln in enumerate(lines)
+              if ln.startswith(("| translation axis |", "| rotation axis |"))]
+    assert len(starts) == 4, starts
+    tables = []
+    for at in starts:
+        head = [c.strip() for c in lines[at].strip("|").split("|")][1:]
+        rows_ = {}
+        for row in lines[at + 2:]:
+            if not row.startswith("|"):
+                break
+            cells = [c.strip() for c in row.strip("|").split("|")]
+            rows_[cells[0]] = dict(zip(head, cells[1:], strict=True))
+        tables.append(rows_)
+    stiff, gains = {**tables[0], **tables[1]}, {**tables[2], **tables[3]}
+    assert list(stiff) == list(axes) and list(gains) == list(axes)
+    for i, axis in enumerate(axes):
+        rot = int(i >= 2)
+        uk, um, uc = units["k"][rot], units["m"][rot], units["c"][rot]
+        s_row, g_row = stiff[axis], gains[axis]
+        assert list(s_row) == [f"K_st0 [{uk}]", f"paper, printed [{uk}]", "paper / K_st0 - 1",
+                               f"k [{uk}]", f"m [{um}]", "f_n [Hz]"], s_row
+        assert list(g_row) == [f"K1 [{uk}]", f"K2 [{uc}]", f"damping c [{uc}]",
+                               f"magnetic c_mag [{uc}]"], g_row
+        K_st0, printed, rel, k_plant, m_axis, fn_txt = s_row.values()
+        assert float(K_st0) == pytest.approx(k_mag[i], rel=1e-4)
+        assert float(printed) == pytest.approx(paper[i], rel=1e-4)
+        # the percentage is against the K_st0 beside it
+        pct = re.fullmatch(r"([+-]\d+\.\d)%", rel)
+        assert pct, rel
+        assert float(pct[1]) == pytest.approx(100 * (paper[i] - k_mag[i]) / k_mag[i], abs=0.051)
+        assert float(k_plant) == pytest.approx(k_tot[i], rel=1e-4)
+        assert float(m_axis) == pytest.approx(mass[i], rel=1e-3)
         fn = np.sqrt(max(k_tot[i], 0.0) / mass[i]) / (2 * np.pi)
-        assert float(cells[3]) == pytest.approx(fn, abs=6e-4)
+        assert float(fn_txt) == pytest.approx(fn, abs=6e-4)
+        K1, K2, c_txt, c_mag_txt = (float(x) for x in g_row.values())
         K_ref, _ = lqr_reference_mp(k_tot[i], mass[i])
-        K_txt = [float(x) for x in cells[4].split(",")]
-        np.testing.assert_allclose(K_txt, [float(x) for x in K_ref], rtol=1e-3)
-        assert float(cells[5]) == pytest.approx(c_mag[i], rel=1e-3, abs=1e-6)
+        np.testing.assert_allclose([K1, K2], [float(x) for x in K_ref], rtol=1e-3)
+        assert c_mag_txt == pytest.approx(c_mag[i], rel=1e-3, abs=1e-6)
         c_ref = ise_optimal_damping(k_tot[i], mass[i]) if k_tot[i] > 0 else 0.0
-        assert float(cells[6]) == pytest.approx(c_ref, rel=1e-3)
-        pm = re.fullmatch(r"(\S+) \(([+-]\d+)%\)", cells[7])
-        assert pm, cells[7]
-        assert float(pm[1]) == pytest.approx(paper[i], rel=1e-4)
-        assert int(pm[2]) == round(100 * (paper[i] - k_mag[i]) / k_mag[i])
+        assert c_txt == pytest.approx(c_ref, rel=1e-3)
+    # the header names the parameter file; no override in this build
+    assert lines[0] == f"# maglevgen build: {carriage.loaded.source}"
+    assert f"Parameter file: `{carriage.loaded.source}`" in lines[2]
+    assert lines[2].endswith("overrides: none.")
 
 
 def test_unchanged_rebuild_regenerates_nothing(good: Path, capsys) -> None:
     before = tree(good)
     mtimes = {p: p.stat().st_mtime_ns for p in good.rglob("*")}
     assert main(["build", "--out", str(good), *FAST]) == 0
-    assert "up to date" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # the count is the files on disk, as the build that wrote them said ("wrote N files")
+    assert f"is up to date ({len(before)} files; nothing regenerated)" in out, out
     assert tree(good) == before
     assert {p: p.stat().st_mtime_ns for p in good.rglob("*")} == mtimes
 
@@ -297,9 +325,22 @@ def test_a_tampered_output_is_rebuilt(good: Path, tmp_path: Path) -> None:
 def test_parameter_change_rebuilds_without_rederiving_or_recompiling(
         good: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "heavy"
-    assert main(["build", "--out", str(out), *FAST, "--set", "vehicle.mass=9.5"]) == 0
+    # the hold speed 6 m/s lies below the envelope's v_min (1.5 x lift-off, about 6.6 m/s)
+    assert main(["build", "--out", str(out), *FAST, "--set", "vehicle.mass=9.5",
+                 "--set", "operation.speed=6.0"]) == 0
     err = capsys.readouterr().err
     assert "deriving" not in err and "compiling" not in err
+    # one warning line for the speed outside the envelope, and SUMMARY.md names every
+    # override and says the same
+    env = json.loads((out / "envelope/envelope.json").read_text())
+    warnings = [ln for ln in err.splitlines() if ln.startswith("maglevgen: warning: ")]
+    assert len(warnings) == 1 and "operation.speed = 6 m/s is outside the envelope" in \
+        warnings[0], err
+    assert env["v_min"] > 6.0, env["v_min"]  # the reference: the envelope's own range
+    summary = (out / "SUMMARY.md").read_text().splitlines()
+    assert summary[2].endswith("overrides: `--set vehicle.mass=9.5`, "
+                               "`--set operation.speed=6.0`."), summary[2]
+    assert summary[4] == "Warning: " + warnings[0].removeprefix("maglevgen: warning: ") + "."
     manifest = json.loads((out / "c/manifest.json").read_text())
     mass = next(p for p in manifest["parameter_vector"] if p["name"] == "vehicle.mass")
     assert mass["value"] == 9.5
@@ -559,3 +600,95 @@ def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage
     assert derived == pytest.approx(K_fd, rel=1e-4)
     assert corrected == pytest.approx(point_pitch_fd(prm, rt.q, v, rt.f_prop), rel=5e-3)
     assert abs(printed / K_fd - 1) > 0.5
+
+
+def test_summary_and_tables_have_no_raw_python_text(good: Path) -> None:
+    """SUMMARY.md, simulation/metrics.md and envelope/envelope.md as a person reads them: none
+    of the raw forms of tests/readable.py (**, [[, Eq(, sqrt(, " * ", [1], more than 7
+    significant digits, round-off noise below 1e-12)."""
+    from readable import raw_findings
+
+    found = [f for name in ("SUMMARY.md", "simulation/metrics.md", "envelope/envelope.md")
+             for f in raw_findings((good / name).read_text(), name)]
+    assert found == [], "\n".join(found)
+
+
+# ------------------------------------------------------------------------------ the README
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+_NUM_RE = re.compile(r"[-+]?\d+(?:\.\d+)?")
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(x) for x in _NUM_RE.findall(text)]
+
+
+def _readme_statement(text: str, start: str, end: str = ";") -> str:
+    """The README's text from ``start`` to the next ``end`` (flattened to one line)."""
+    flat = re.sub(r"\s+", " ", text)
+    i = flat.index(start)
+    return flat[i:flat.index(end, i + len(start))]
+
+
+def test_the_readme_states_the_numbers_the_build_prints(good: Path) -> None:
+    """Every number the README's "What the default build reports" (and the prose that repeats
+    them) states is the one the default build prints: envelope.json's verdicts, SUMMARY.md's
+    stiffness differences and accelerating trim, c/manifest.json's gain-table bound. A README
+    that goes stale fails here."""
+    readme = README.read_text()
+    env = json.loads((good / "envelope/envelope.json").read_text())
+    summary = (good / "SUMMARY.md").read_text()
+    flat_summary = re.sub(r"\s+", " ", summary)
+    ctl = env["controllers"]
+
+    def printed(name: str) -> list[float]:
+        return _numbers(ctl[name]["verdict"] + " " + ctl[name]["spec_verdict"])
+
+    def assert_printed(stated: str, build: list[float]) -> None:
+        for x in _numbers(stated):
+            assert any(x == pytest.approx(b, rel=1e-9, abs=1e-12) for b in build), \
+                f"README states {x:g} ({stated!r}); the build prints {build}"
+
+    rng = _readme_statement(readme, "- envelope [")
+    assert _numbers(rng)[:2] == [float(f"{env['v_min']:.4g}"), float(f"{env['v_max']:.4g}")]
+    spec = _readme_statement(readme, "- the embedded controller `spec`", "1/s)")
+    assert_printed(spec.split("`[control.spec]`)")[1], printed("spec"))
+    assert ctl["spec"]["meets_spec"] and ctl["spec"]["stable"] is not False
+    designs = _readme_statement(readme, "- the paper's designs fail", "time constant)")
+    for name, part in zip(("damping", "lqr", "coupled"),
+                          re.split(r"optimized damping|per-axis LQR|coupled LQR", designs)[1:],
+                          strict=True):
+        stated = re.sub(r"a \d+ s( time constant)?", "", part)
+        assert_printed(stated, printed(name))
+        assert not ctl[name]["meets_spec"]
+    # the time constant is the slowest decay's inverse, rounded
+    tau = int(re.search(r"a (\d+) s time constant", re.sub(r"\s+", " ", readme))[1])
+    decay = re.search(r"slowest decay (\S+) 1/s", designs)[1]
+    assert tau == round(1 / float(decay))
+    # the per-axis LQR's unstable range, wherever the README repeats it
+    lqr_range = re.search(r"UNSTABLE for v in \[(\S+), (\S+)\]", ctl["lqr"]["verdict"]).groups()
+    stated = re.findall(r"per-axis\s+LQR[^.;]*?unstable\s+for\s+v\s+in\s+\[(\S+),\s+(\S+)\]",
+                        readme, re.IGNORECASE | re.DOTALL)
+    assert len(stated) >= 2 and all(s == lqr_range for s in stated), (stated, lqr_range)
+    # the stiffness differences: SUMMARY.md's discrepancy line, the same words
+    stiff = _readme_statement(readme, "- the paper's printed stiffnesses (eqs 13-19) differ "
+                              "from the derived K_st0 by ", "%.")
+    assert len(re.findall(r"(\w+) ([+-]\d+\.\d%)", stiff + "%")) == 5, stiff
+    for axis, pct in re.findall(r"(\w+) ([+-]\d+\.\d%)", stiff + "%"):
+        assert f"{axis} {pct}" in flat_summary, (axis, pct)
+    # the spec verdict where the envelope section repeats it
+    again = _readme_statement(readme, "default carriage `spec` meets it across", ";")
+    assert_printed(again, printed("spec"))
+    # the accelerating trim at v_min (SUMMARY.md's line)
+    pitch = re.search(r"at 5 m/s\^2 and v_min it pitches (\S+) mrad", re.sub(r"\s+", " ", readme))
+    acc = re.search(r"Accelerating trim at \S+ m/s and (\S+) m/s\^2 .*?\((\S+) mrad from the "
+                    r"constant-speed trim\)", summary)
+    assert float(acc[1]) == 5.0 and float(pitch[1]) == -float(acc[2])
+    # the circuits' characteristic speed R/(kL), stated to 3 digits
+    vc = re.search(r"R/\(kL\) = (\S+) m/s", readme)[1]
+    printed_vc = re.search(r"characteristic speed (\S+) m/s", summary)[1]
+    assert float(vc) == pytest.approx(float(printed_vc), abs=0.006)
+    # the gain table's bound
+    table = json.loads((good / "c/manifest.json").read_text())["gain_table"]
+    assert "holds its gains to 1e-3 of each matrix's largest entry" in re.sub(r"\s+", " ", readme)
+    assert table["bound"] == 1e-3 and table["worst_relative_error"] <= table["bound"]

@@ -360,6 +360,69 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
 
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
+def test_no_raw_python_or_sympy_text_anywhere_in_the_pdf(default_report: Path) -> None:
+    """What a reader of the PDF sees (pdftotext of every page, not the LaTeX source) has no
+    SymPy or Python repr: no **, [[, Eq(, sqrt(, " * ", [1], no number with more than 7
+    significant digits and no round-off noise below 1e-12 (tests/readable.py)."""
+    from readable import raw_findings
+
+    found = raw_findings(_pdf_text(default_report / "report.pdf"), "report.pdf")
+    assert found == [], "\n".join(found)
+
+
+@pytest.mark.needs_cc
+@pytest.mark.needs_tex
+def test_the_embedded_controller_is_given_in_full(default_report: Path, carriage: Carriage,
+                                                  capsys) -> None:
+    """The section "The embedded controller" (and page 1) give it in full: its weights at the
+    design speed equal Bryson's rule and the damping-ratio root search of
+    tests/independent_reference.py (from the plants and the allocation `gains --json`
+    prints); its typeset K_pos and K_rate at v_min, V and v_max are `maglevgen gains --speed
+    v --json`'s "embedded" matrices (a separate command: what `gains` prints and the report
+    shows are the same), the design speed's also on page 1."""
+    from independent_reference import spec_weights_reference
+
+    tex = (default_report / "report.tex").read_text(encoding="utf-8")
+    section = tex[tex.index(r"\subsection{The embedded controller"):]
+    blocks = re.findall(r"\\\[ (v_\{\\min\}|V|v_\{\\max\}) = ([0-9.]+)\\,\\mathrm\{m/s\}:"
+                        r"\\quad K_\\mathrm\{pos\} = \\begin\{bmatrix\}(.*?)\\end\{bmatrix\}, "
+                        r"\\\]\s*\\\[ K_\\mathrm\{rate\} = \\begin\{bmatrix\}(.*?)"
+                        r"\\end\{bmatrix\}", section, re.DOTALL)
+    assert [b[0] for b in blocks] == ["v_{\\min}", "V", "v_{\\max}"], blocks
+    page1 = tex[:tex.index(r"\tableofcontents")]
+    assert r"\textbf{Embedded controller}" in page1
+    for label, speed, K_pos, K_rate in blocks:
+        assert main(["gains", "--speed", speed, "--json"]) == 0
+        rep = json.loads(capsys.readouterr().out)
+        e = rep["embedded"]
+        assert e["controller"] == carriage.params.envelope.embedded_controller == "spec"
+        for name, body in (("K_pos", K_pos), ("K_rate", K_rate)):
+            got = np.array([[v.real for c in row.split("&") for v in _tex_values(c) or [0.0]]
+                            for row in body.split(r"\\")])
+            want = np.array(e[name])
+            assert got.shape == want.shape, (label, name, got.shape)
+            # 4 significant digits; the round-off of zeros printed as 0
+            np.testing.assert_allclose(got, want, rtol=6e-4, atol=1e-9 * np.abs(want).max(),
+                                       err_msg=f"{name} at {label}")
+        if label != "V":
+            continue
+        assert K_pos in page1 and K_rate in page1  # the first page shows the design speed's
+        axes = rep["axes"].values()
+        k = np.array([a["stiffness"] for a in axes])
+        m = np.array([a["inertia"] for a in axes])
+        q1, q2, r = spec_weights_reference(carriage.params.control.spec, k, m,
+                                           np.array(rep["allocation"]["minimum_norm"]))
+        col = [b[0] for b in blocks].index("V")
+        for i, axis in enumerate(rep["axes"]):
+            row = re.search(rf"^{axis} & .*?\\\\$", section, re.MULTILINE)[0]
+            cells = [_tex_values(c) for c in row.removesuffix(r"\\").split("&")[2:]]
+            _a_max, _f_max, q1_txt, r_txt, *q2s = (c[0].real for c in cells)
+            np.testing.assert_allclose([q1_txt, r_txt, q2s[col]], [q1[i], r[i], q2[i]],
+                                       rtol=6e-4, err_msg=axis)
+
+
+@pytest.mark.needs_cc
+@pytest.mark.needs_tex
 def test_summary_gain_rows_agree_with_gains_json(default_report: Path, carriage: Carriage,
                                                  capsys) -> None:
     """Every number of the summary's gains table (K1, K2, the poles) equals `gains --json`'s,

@@ -269,14 +269,37 @@ def _as_math(span: str) -> str | None:
                            evaluate=True)
     except Exception:
         return None
+    value = _decimal_rationals(value)
     if isinstance(value, list | tuple):
         if value and all(isinstance(v, list | tuple) for v in value):
             return "$" + matrix_tex([[round_floats(x, 6) for x in row] for row in value]) + "$"
+        if len(value) == 1:  # SymPy's list of one root or residual: the value itself
+            return f"${ltx(round_floats(value[0], 6))}$"
         # each element its own formula, so that a long list breaks between them
         return "[" + ", ".join(f"${ltx(round_floats(v, 6))}$" for v in value) + "]"
     if isinstance(value, sp.Basic):
         return f"${ltx(round_floats(value, 6))}$"
     return None
+
+
+def _decimal_rationals(value: Any) -> Any:
+    """Rationals with a terminating decimal (13/50, 119/1000: the paper's printed 0.26 and
+    0.119 after SymPy's exact arithmetic) as that decimal; 1/3 stays a fraction."""
+    if isinstance(value, list | tuple):
+        return type(value)(_decimal_rationals(v) for v in value)
+    if not isinstance(value, sp.Basic):
+        return value
+
+    def terminating(q: sp.Rational) -> bool:
+        d = int(q.q)
+        for p in (2, 5):
+            while d % p == 0:
+                d //= p
+        return d == 1 and q.q != 1
+
+    rep = {q: sp.Float(f"{float(q):.6g}", 6) for q in value.atoms(sp.Rational)
+           if terminating(q)}
+    return value.xreplace(rep) if rep else value
 
 
 def math_prose(text: str) -> str:
@@ -285,6 +308,7 @@ def math_prose(text: str) -> str:
     from .format import tex_escape
 
     out, last = [], 0
+    text = text.replace(" * ", " \N{MIDDLE DOT} ")  # a product written out: a centred dot
     for m in _MATH_SPAN.finditer(text):
         span, start, end = m.group(0), m.start(), m.end()
         while span.startswith("(") and span.count("(") > span.count(")"):

@@ -10,6 +10,7 @@ import unicodedata
 
 __all__ = [
     "ROUNDOFF",
+    "faxis_unit",
     "fcomplex",
     "ferr",
     "ffixed",
@@ -107,6 +108,7 @@ _TEX_ESCAPES = {
     "”": "''",
     "…": r"\dots{}",
     "µ": r"$\mu$",
+    "\N{MIDDLE DOT}": r"$\cdot$",
 }
 
 
@@ -149,6 +151,19 @@ def tex_key(key: str) -> str:
         + "}"
     )
 
+
+
+# Per-axis units of a stiffness (and position gain), a generalized mass and a damping (and
+# rate gain): the translations in N and m, the rotations in N m and rad
+_AXIS_UNITS = {"k": (r"N/m", r"N\,m/rad"), "m": (r"kg", r"kg\,m$^2$"),
+               "c": (r"N\,s/m", r"N\,m\,s/rad")}
+_ROTATIONS = ("roll", "pitch", "yaw")
+
+
+def faxis_unit(axis: str, quantity: str) -> str:
+    """The unit (LaTeX text) of ``quantity`` ("k", "m" or "c") on ``axis``: a table whose
+    rows are the five axes gives each row's units in a column of their own."""
+    return _AXIS_UNITS[quantity][axis in _ROTATIONS]
 
 
 def froundoff(x: float, scale: float = 1.0, digits: int = 6) -> str:

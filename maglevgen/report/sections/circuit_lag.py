@@ -12,6 +12,7 @@ import sympy as sp
 from ...derive import conventions as cv
 from ...derive.circuit_lag import circuit_response
 from ...envelope import compute_envelope
+from ...laws import controller as registered_controller
 from ...library import simulation_library
 from ...magnetic_damping import damping_across_speed
 from ...operating import CONTROLLER_TITLES
@@ -97,6 +98,7 @@ def circuit_lag(carriage, lib, env, gains: dict) -> tuple[dict[str, Any], bytes]
         "axes": [f"{axis} ({_UNITS[axis]})" for axis in cv.AXES],
         "damping": {n: curves[n] for n in MODELS},
         "controllers": [CONTROLLER_TITLES[n] for n in env.controllers],
+        "colors": [registered_controller(n).style.get("color", "k") for n in env.controllers],
         "envelope_speeds": {n: envs[n].speeds for n in MODELS},
         "max_real": {n: [envs[n].controllers[c].max_real for c in env.controllers]
                      for n in MODELS}})

@@ -16,7 +16,9 @@ from ...envelope import (
 from ...library import simulation_library
 from ...operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
 from ...roa import AXIS_NAMES, AXIS_UNITS, BUILD_SAMPLING, BUILD_SPEEDS, region_png, study
-from ..format import tex_escape
+from ...summary import displayed_gains, embedded_gains
+from ..display import matrix_tex
+from ..format import fnum, tex_escape
 from .verification import Check
 
 # ============================================================================ envelope
@@ -41,8 +43,9 @@ def _envelope_checks(carriage, env) -> list[Check]:
     speed = carriage.params.operation.speed
     (op,) = envelope_points(carriage, simulation_library(carriage.structure), [speed])
     out = []
-    for name in ("coupled", "lqr", "damping"):
-        title = tex_escape(CONTROLLER_TITLES[name])
+    embedded = carriage.params.envelope.embedded_controller
+    for name in [n for n in env.controllers if n != "none"]:  # every designed controller
+        title = tex_escape(CONTROLLER_TITLES[name]) + (" (embedded)" if name == embedded else "")
         out.append(Check(
             f"{title}: closed loop at {speed:.4g} m/s (largest real part, 1/s)",
             "eigenvalues (numpy) of the C Jacobians with the gains and allocation",
@@ -65,6 +68,54 @@ def _spec_context(carriage) -> dict[str, Any]:
             "min_gap_margin": s.min_gap_margin,
             "deviation": {"y": d.y * 1e3, "z": d.z * 1e3, "phi": d.phi * 1e3,
                           "theta": d.theta * 1e3, "psi": d.psi * 1e3}}
+
+
+def _gain_matrix(K) -> str:
+    """A 5 x 5 gain matrix as a typeset bmatrix, 4 significant digits, the entries that are
+    round-off of a zero (`summary.displayed_gains`, as `maglevgen gains` prints them) as 0."""
+    return matrix_tex(displayed_gains(K), lambda v: "0" if v == 0 else fnum(v, 4))
+
+
+def _embedded_context(carriage, env, table: Mapping[str, Any]) -> dict[str, Any]:
+    """The embedded controller in full: its weights (and, for `spec`, how they follow from
+    ``[control.spec]``), its gains at v_min, the design speed and v_max (`gains --json`'s
+    "embedded" entry at each, from the same code), the table schedule's error for its gains
+    and its verdicts."""
+    name = carriage.params.envelope.embedded_controller
+    design = carriage.params.operation.speed
+    where = [("v_{\\min}", env.v_min), ("V", design), ("v_{\\max}", env.v_max)]
+    if not env.v_min < design < env.v_max:  # the design speed outside: v_min and v_max only
+        where = [where[0], where[2]]
+    points = envelope_points(carriage, simulation_library(carriage.structure),
+                             [v for _, v in where])
+    at = []
+    for (label, v), op in zip(where, points, strict=True):
+        e = embedded_gains(carriage, op)
+        row = {"label": label, "speed": v, "K_pos": _gain_matrix(e["K_pos"]),
+               "K_rate": _gain_matrix(e["K_rate"])}
+        if "weights" in e:
+            w = e["weights"]
+            row["weights"] = [{"axis": a, "q1": q1, "q2": q2, "r": r, "F_max": r ** -0.5}
+                              for a, q1, q2, r in zip(e["axes"], w["q1"], w["q2"], w["r"],
+                                                      strict=True)]
+        at.append(row)
+    same_r = all(np.allclose([w["r"] for w in row["weights"]],
+                             [w["r"] for w in at[0]["weights"]], rtol=1e-9)
+                 for row in at if "weights" in row)
+    c = env.controllers[name]
+    errors = table.get("relative_error_by_field", {})
+    s = carriage.params.control.spec
+    return {
+        "name": name, "title": CONTROLLER_TITLES[name], "at": at,
+        "spec_design": name == "spec", "same_r": same_r,
+        "deviation": [float(getattr(s.max_deviation, k)) for k in ("y", "z", "phi", "theta",
+                                                                   "psi")],
+        "design_damping_ratio": s.min_damping_ratio + s.damping_margin,
+        "verdict": c.verdict, "ok": c.ok, "spec_verdict": c.spec_verdict,
+        "meets_spec": c.meets_spec,
+        "table_error": {"K_pos": errors.get("K_pos"), "K_rate": errors.get("K_rate"),
+                        "worst": table["worst_relative_error"], "bound": table["bound"]},
+    }
 
 
 def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -94,6 +145,7 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
                        "bound": table["bound"], "worst": table["worst_relative_error"],
                        "by_field": [{"name": k, "error": float(v)} for k, v in
                                     table["relative_error_by_field"].items()]},
+        "embedded": _embedded_context(carriage, env, table),
         "table": [{"speed": float(env.speeds[i]),
                    "cells": [float(env.controllers[n].max_real[i]) for n in names]}
                   for i in pick],

@@ -67,10 +67,19 @@ def _geometry_displays(structure, gap_values: tuple[tuple[str, float], ...],
         tuple(
             line
             for lab, tag in printed_order
-            for line in break_sum(rf"\textstyle\sum {lab}", printed_sums[lab],
+            for line in break_sum(rf"\textstyle\sum {lab}", _as_printed(printed_sums[lab]),
                                  tag=f"{tag}, paper")
         )
     )
     return Display(tuple(gaps)), derived, printed
 
 
+
+
+def _as_printed(expr: sp.Expr) -> sp.Expr:
+    """Eqs 10-12 as the paper prints them, the arm times the sum: 0.119 (F_y1 - ...), not
+    SymPy's distributed 119 F_y1/1000 - ... (the coefficient as the decimal printed)."""
+    coeff, rest = sp.factor_terms(expr).as_coeff_Mul()
+    if coeff == 1 or not rest.is_Add:
+        return expr
+    return sp.Mul(sp.Float(f"{float(coeff):g}", 3), rest, evaluate=False)

@@ -1,5 +1,6 @@
 """Section: the pole map: open loop, the damping control, the per-axis LQR on the coupled
-linearisation and the coupled LQR, from the data of `maglevgen gains`."""
+linearisation, the coupled LQR and the embedded controller, from the data of `maglevgen
+gains`."""
 
 from __future__ import annotations
 
@@ -22,4 +23,6 @@ def pole_sets(gains: dict) -> dict[str, Any]:
         "damping control": [tuple(p) for p in c["poles_damping"]],
         "per-axis LQR": [tuple(p) for p in c["poles_per_axis_design"]],
         "coupled LQR": [tuple(p) for p in c["poles_coupled_lqr"]],
+        f"{gains['embedded']['title']} (embedded)":
+            [tuple(p) for p in gains["embedded"]["closed_loop_poles"]],
     }

@@ -15,7 +15,8 @@ from ..format import fnum, tex_breakable, tex_escape, tex_unit
 SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (
     ("levitation_pitch.png", "Levitation height and pitch (the paper's figs 3, 5 and 7)."),
     ("travel_roll.png", "Travel distance and roll (the paper's fig 4)."),
-    ("lateral_pitch.png", "Lateral position and pitch (the paper's figs 6 and 8)."),
+    ("lateral_yaw.png", "Lateral position and yaw (the paper's figs 6 and 8 plot lateral "
+     "position and pitch; pitch is in the first figure)."),
 )
 
 Simulation = Path | Mapping[str, bytes | str] | None

@@ -6,12 +6,15 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..format import faxis_unit
+
 
 def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:
     """The paper's printed values against the derivation, largest relative difference first."""
     rows = []
     for axis, r in trep["stiffness"].items():
-        rows.append({"what": f"{axis} stiffness (printed eq)", "paper": r["paper"],
+        rows.append({"what": f"{axis} stiffness (printed eq)", "unit": faxis_unit(axis, "k"),
+                     "paper": r["paper"],
                      "derived": r["derived"], "rel": r["paper_relative_difference"]})
     for axis, a in gains["axes"].items():
         if a["relative_difference"]["paper_vs_closed_form"] is None:
@@ -20,6 +23,7 @@ def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:
         i = max((0, 1), key=lambda j: abs(a["K_paper"][j] / a["K_closed_form"][j] - 1))
         paper, derived = a["K_paper"][i], a["K_closed_form"][i]
         rows.append({"what": f"{axis} LQR gain K{i + 1} (eqs 31-32 as printed)",
+                     "unit": faxis_unit(axis, "k" if i == 0 else "c"),
                      "paper": paper, "derived": derived, "rel": paper / derived - 1})
     return sorted(rows, key=lambda r: -abs(r["rel"]))
 
@@ -32,6 +36,7 @@ def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
     magnetic = {a["axis"]: a[lag["model"].replace("-", "_")] for a in lag["axes"]}
     return {
         "verdicts": envelope["rows"],
+        "embedded": envelope["embedded"],
         "spec_checked_on": envelope["spec_checked_on"],
         "v_min": envelope["v_min"], "v_max": envelope["v_max"],
         "trim": {"speed": trep["speed"], "lift_off": trep["lift_off_speed"],
