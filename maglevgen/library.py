@@ -16,6 +16,7 @@ from __future__ import annotations
 import ctypes
 import json
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -211,6 +212,21 @@ def simulation_library(structure: Structure, precision: str = "double",
     lib = compile_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib",
                          progress=progress)
     return SimulationLibrary(lib, precision)
+
+
+def build_libraries(structures: tuple[Structure, ...], precision: str = "double",
+                    cache_dir: Path | None = None, cc: str | None = None) -> list[Path]:
+    """Derive and compile (or reuse) the library of each structure, gcc compiling one while
+    the next is derived (gcc runs in its own process; the derivation holds the GIL); the
+    libraries' paths. What `maglevgen build` runs in a second process for the other models
+    its envelope and report compare (maglevgen.build), so that they are cached by the time
+    they are asked for."""
+    with ThreadPoolExecutor(max_workers=len(structures) or 1) as pool:
+        compiling = [pool.submit(compile_shared, _sources(runtime_sources(s, precision,
+                                                                          cache_dir)),
+                                 cc=cc, cache_dir=_cache(cache_dir) / "lib")
+                     for s in structures]
+        return [f.result() for f in compiling]
 
 
 def cached_simulation_library(structure: Structure, precision: str = "double",

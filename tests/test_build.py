@@ -560,3 +560,19 @@ def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage
     assert derived == pytest.approx(K_fd, rel=1e-4)
     assert corrected == pytest.approx(point_pitch_fd(prm, rt.q, v, rt.f_prop), rel=5e-3)
     assert abs(printed / K_fd - 1) > 0.5
+
+
+def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage) -> None:
+    """What a cold build derives and compiles in its second process: the other force law's
+    and the other circuit model's structures (the envelope's checks, the stiffness and lag
+    sections) and the normal actuators' (the report's comparison), made here the way those
+    sections make them, each once and never the carriage's own."""
+    from maglevgen.build import other_structures
+    from maglevgen.report.sections.actuators import with_actuators
+
+    want = [carriage.with_array_force("point").structure,
+            carriage.with_circuit_dynamics("quasi-static").structure,
+            with_actuators(carriage, "normal").structure]
+    got = other_structures(carriage)
+    assert got == want
+    assert carriage.structure not in got
