@@ -113,13 +113,22 @@ def _find_tex() -> str | None:
 def check_build_inputs(loaded: LoadedParams) -> None:
     """The checks of a build's input that need the compiled library, before anything slow
     is announced: the envelope's speed range has a trim (envelope.v_min above lift-off);
-    an InputError naming the key otherwise. The library is cached for run_build."""
+    an InputError naming the key otherwise. The library is cached for run_build, and so are
+    the other models' (`other_structures`), built meanwhile in a second process."""
     from .carriage import Carriage
     from .envelope import resolve_range
-    from .library import simulation_library
+    from .library import build_libraries, cached_simulation_library, simulation_library
 
     carriage = Carriage(loaded)
-    resolve_range(carriage, simulation_library(carriage.structure))
+    others = [s for s in other_structures(carriage) if cached_simulation_library(s) is None]
+    # a cold cache: the other models' libraries (which run_build's envelope and report read)
+    # derived and compiled in a second process while this one makes the carriage's own
+    with child() as building:
+        pending = (submit(building, "building the other models' libraries", build_libraries,
+                          tuple(others)) if others else None)
+        resolve_range(carriage, simulation_library(carriage.structure))
+        if pending is not None:
+            pending.result()
 
 
 def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=print,

@@ -27,7 +27,7 @@ from .cache import default_cache_dir, derivation_fingerprint
 from .derive.structure import Structure
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import write_output
-from .runtime.compile import DEFAULT_FLAGS, cached_shared, compile_shared
+from .runtime.compile import DEFAULT_FLAGS, CompileError, cached_shared, compile_shared
 from .runtime.ffi import GeneratedLibrary
 
 CHECKSUMS = "checksums.json"
@@ -225,8 +225,12 @@ class SimulationLibrary(GeneratedLibrary):
 
             src = Path(str(resources.files("maglevgen.templates") / BATCH_SOURCE))
             # the -I folder is the derivation's, keyed by its content: the key covers the header
-            lib = compile_shared([src], (*DEFAULT_FLAGS, "-fopenmp", f"-I{self.sources}"),
-                                 cc=cc, cache_dir=self.path.parent)
+            flags = (*DEFAULT_FLAGS, f"-I{self.sources}")
+            try:
+                lib = compile_shared([src], (*flags, "-fopenmp"), cc=cc,
+                                     cache_dir=self.path.parent)
+            except CompileError:  # a compiler without OpenMP: the same runs on one thread
+                lib = compile_shared([src], flags, cc=cc, cache_dir=self.path.parent)
             real = ctypes.c_float if self._real == np.float32 else ctypes.c_double
             ptr, lptr = ctypes.POINTER(real), ctypes.POINTER(ctypes.c_longlong)
             fn = ctypes.CDLL(str(lib)).maglev_batch_simulate
