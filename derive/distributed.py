@@ -34,7 +34,11 @@ factor is 1 and the point is the face centre: eq 3 times N at the centre, the pa
 
 sinhc and L have removable singularities at 0; below |u| = SERIES_BELOW they are evaluated by
 their Taylor series (relative truncation error under 1e-16 there; above it the closed form of L
-loses about 1/(3 u^2) ulps to cancellation, 16 at the switch).
+loses about 1/(3 u^2) ulps to cancellation, 16 at the switch). The series are written in
+Horner form in u^2 (a product per term, no powers: what the generated C evaluates), and each
+closed form also in m = exp(-|u|) (``closed_exp``), so the code generator computes one
+exponential per argument for sinhc, L, L' and L'' together instead of a sinh, a tanh and a
+cosh each (the closed forms in sinh/tanh stay what SymPy and the lambdified reference use).
 """
 
 from __future__ import annotations
@@ -45,9 +49,18 @@ import mpmath
 import sympy as sp
 
 __all__ = ["SERIES_BELOW", "DistributedLoad", "distributed_load", "face_axes", "langevin",
-           "langevin_slope", "sinhc"]
+           "langevin_curvature", "langevin_slope", "sinhc"]
 
 SERIES_BELOW = 0.25  # |u| below which sinhc, L and L' use their series
+
+
+def _horner(u: sp.Expr, coefficients: tuple) -> sp.Expr:
+    """sum_i c_i u^(2 i) in Horner form in u^2: c_0 + u^2 (c_1 + u^2 (c_2 + ...))."""
+    v = u**2
+    out = sp.S(coefficients[-1])
+    for c in reversed(coefficients[:-1]):
+        out = c + v * out
+    return out
 
 
 def _branches(u: sp.Expr, series, closed) -> sp.Expr:
@@ -83,6 +96,12 @@ class _RemovableSingularity(sp.Function):
 
     @staticmethod
     def closed(u: sp.Expr) -> sp.Expr:
+        raise NotImplementedError
+
+    @staticmethod
+    def closed_exp(u: sp.Expr, m: sp.Expr) -> sp.Expr:
+        """The closed form in u and m standing for exp(-|u|) (|u| >= SERIES_BELOW: no
+        cancellation in 1 - m^2 there, and no overflow where a sinh or cosh would not)."""
         raise NotImplementedError
 
     @staticmethod
@@ -123,11 +142,18 @@ class sinhc(_RemovableSingularity):  # noqa: N801  (a function, named as SymPy's
 
     @staticmethod
     def series(u: sp.Expr) -> sp.Expr:
-        return 1 + u**2 / 6 + u**4 / 120 + u**6 / 5040 + u**8 / 362880 + u**10 / 39916800
+        # 1 + u^2/6 + u^4/120 + u^6/5040 + u^8/362880 + u^10/39916800
+        return _horner(u, (1, sp.Rational(1, 6), sp.Rational(1, 120), sp.Rational(1, 5040),
+                           sp.Rational(1, 362880), sp.Rational(1, 39916800)))
 
     @staticmethod
     def closed(u: sp.Expr) -> sp.Expr:
         return sp.sinh(u) / u
+
+    @staticmethod
+    def closed_exp(u: sp.Expr, m: sp.Expr) -> sp.Expr:
+        # sinh|u| = (1 - m^2) / (2 m), and sinhc is even
+        return (1 - m**2) / (2 * m * sp.Abs(u))
 
     @staticmethod
     def exact(u: mpmath.mpf) -> mpmath.mpf:
@@ -148,12 +174,19 @@ class langevin(_RemovableSingularity):  # noqa: N801
 
     @staticmethod
     def series(u: sp.Expr) -> sp.Expr:
-        return (u / 3 - u**3 / 45 + 2 * u**5 / 945 - u**7 / 4725 + 2 * u**9 / 93555
-                - 1382 * u**11 / 638512875 + 4 * u**13 / 18243225)
+        # u/3 - u^3/45 + 2u^5/945 - u^7/4725 + 2u^9/93555 - 1382u^11/638512875 + 4u^13/18243225
+        return u * _horner(u, (sp.Rational(1, 3), sp.Rational(-1, 45), sp.Rational(2, 945),
+                               sp.Rational(-1, 4725), sp.Rational(2, 93555),
+                               sp.Rational(-1382, 638512875), sp.Rational(4, 18243225)))
 
     @staticmethod
     def closed(u: sp.Expr) -> sp.Expr:
         return 1 / sp.tanh(u) - 1 / u
+
+    @staticmethod
+    def closed_exp(u: sp.Expr, m: sp.Expr) -> sp.Expr:
+        # coth|u| = (1 + m^2) / (1 - m^2), and coth is odd
+        return sp.sign(u) * (1 + m**2) / (1 - m**2) - 1 / u
 
     @staticmethod
     def exact(u: mpmath.mpf) -> mpmath.mpf:
@@ -171,24 +204,62 @@ class langevin_slope(_RemovableSingularity):  # noqa: N801
 
     @staticmethod
     def series(u: sp.Expr) -> sp.Expr:
-        return (sp.Rational(1, 3) - u**2 / 15 + 2 * u**4 / 189 - u**6 / 675
-                + 2 * u**8 / 10395 - 1382 * u**10 / 58046625 + 4 * u**12 / 1403325)
+        # 1/3 - u^2/15 + 2u^4/189 - u^6/675 + 2u^8/10395 - 1382u^10/58046625 + 4u^12/1403325
+        return _horner(u, (sp.Rational(1, 3), sp.Rational(-1, 15), sp.Rational(2, 189),
+                           sp.Rational(-1, 675), sp.Rational(2, 10395),
+                           sp.Rational(-1382, 58046625), sp.Rational(4, 1403325)))
 
     @staticmethod
     def closed(u: sp.Expr) -> sp.Expr:
         return 1 / u**2 - 1 / sp.sinh(u) ** 2
 
     @staticmethod
+    def closed_exp(u: sp.Expr, m: sp.Expr) -> sp.Expr:
+        # 1/sinh(u)^2 = 4 m^2 / (1 - m^2)^2
+        return 1 / u**2 - 4 * m**2 / (1 - m**2) ** 2
+
+    @staticmethod
     def exact(u: mpmath.mpf) -> mpmath.mpf:
         return 1 / u**2 - 1 / mpmath.sinh(u) ** 2
 
     def fdiff(self, argindex: int = 1) -> sp.Expr:
-        u = self.args[0]
-        series = (-2 * u / 15 + 8 * u**3 / 189 - 2 * u**5 / 225 + 16 * u**7 / 10395
-                  - 2764 * u**9 / 11609325 + 16 * u**11 / 467775 - 7234 * u**13 / 1550674125
-                  + 1403744 * u**15 / 2292899734125)
-        return _branches(u, lambda _v: series,
-                         lambda v: -2 / v**3 + 2 * sp.cosh(v) / sp.sinh(v) ** 3)
+        return langevin_curvature(self.args[0])
+
+
+class langevin_curvature(_RemovableSingularity):  # noqa: N801
+    """L''(u) = -2/u^3 + 2 cosh(u)/sinh(u)^3, 0 at u = 0 (series to u^15 below SERIES_BELOW).
+
+    Opaque as the others so that the stiffness (the wrench's derivative, where L' of the
+    circuits' lag is differentiated) shares its argument's exponential; its own derivative is
+    that of its Piecewise form (nothing in the model differentiates it)."""
+
+    at_zero = sp.S.Zero
+    latex_name = "L''"
+
+    @staticmethod
+    def series(u: sp.Expr) -> sp.Expr:
+        # -2u/15 + 8u^3/189 - 2u^5/225 + 16u^7/10395 - 2764u^9/11609325 + 16u^11/467775
+        # - 7234u^13/1550674125 + 1403744u^15/2292899734125
+        return u * _horner(u, (sp.Rational(-2, 15), sp.Rational(8, 189), sp.Rational(-2, 225),
+                               sp.Rational(16, 10395), sp.Rational(-2764, 11609325),
+                               sp.Rational(16, 467775), sp.Rational(-7234, 1550674125),
+                               sp.Rational(1403744, 2292899734125)))
+
+    @staticmethod
+    def closed(u: sp.Expr) -> sp.Expr:
+        return -2 / u**3 + 2 * sp.cosh(u) / sp.sinh(u) ** 3
+
+    @staticmethod
+    def closed_exp(u: sp.Expr, m: sp.Expr) -> sp.Expr:
+        # cosh(u)/sinh(u)^3 = sign(u) 4 m^2 (1 + m^2) / (1 - m^2)^3
+        return -2 / u**3 + 8 * sp.sign(u) * m**2 * (1 + m**2) / (1 - m**2) ** 3
+
+    @staticmethod
+    def exact(u: mpmath.mpf) -> mpmath.mpf:
+        return -2 / u**3 + 2 * mpmath.cosh(u) / mpmath.sinh(u) ** 3
+
+    def fdiff(self, argindex: int = 1) -> sp.Expr:
+        return sp.diff(self.rewrite(sp.Piecewise), self.args[0])
 
 
 def face_axes(normal: sp.Matrix) -> tuple[sp.Matrix, sp.Matrix]:

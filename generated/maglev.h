@@ -221,7 +221,7 @@ int maglev_jacobians(const maglev_real** arg, maglev_real** res, maglev_int* iw,
 #define MAGLEV_TRIM_SZ_ARG 7
 #define MAGLEV_TRIM_SZ_RES 7
 #define MAGLEV_TRIM_SZ_IW 0
-#define MAGLEV_TRIM_SZ_W 1889
+#define MAGLEV_TRIM_SZ_W 1970
 int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
@@ -239,7 +239,7 @@ int maglev_trim(const maglev_real** arg, maglev_real** res, maglev_int* iw, magl
 #define MAGLEV_TRIM_ACCELERATING_SZ_ARG 9
 #define MAGLEV_TRIM_ACCELERATING_SZ_RES 7
 #define MAGLEV_TRIM_ACCELERATING_SZ_IW 0
-#define MAGLEV_TRIM_ACCELERATING_SZ_W 1889
+#define MAGLEV_TRIM_ACCELERATING_SZ_W 1970
 int maglev_trim_accelerating(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
@@ -256,7 +256,7 @@ int maglev_trim_accelerating(const maglev_real** arg, maglev_real** res, maglev_
 #define MAGLEV_AXIS_PLANTS_SZ_ARG 7
 #define MAGLEV_AXIS_PLANTS_SZ_RES 7
 #define MAGLEV_AXIS_PLANTS_SZ_IW 0
-#define MAGLEV_AXIS_PLANTS_SZ_W 1902
+#define MAGLEV_AXIS_PLANTS_SZ_W 1983
 int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
@@ -290,7 +290,7 @@ int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw
 #define MAGLEV_LQR_GAINS_SZ_ARG 7
 #define MAGLEV_LQR_GAINS_SZ_RES 7
 #define MAGLEV_LQR_GAINS_SZ_IW 0
-#define MAGLEV_LQR_GAINS_SZ_W 1917
+#define MAGLEV_LQR_GAINS_SZ_W 1998
 int maglev_lqr_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
@@ -390,7 +390,7 @@ int maglev_allocation_matrix(const maglev_real** arg, maglev_real** res, maglev_
 #define MAGLEV_RK4_STEP_SZ_ARG 12
 #define MAGLEV_RK4_STEP_SZ_RES 5
 #define MAGLEV_RK4_STEP_SZ_IW 0
-#define MAGLEV_RK4_STEP_SZ_W 271
+#define MAGLEV_RK4_STEP_SZ_W 254
 int maglev_rk4_step(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
     int mem);
 
@@ -423,7 +423,7 @@ int maglev_closed_loop(const maglev_real** arg, maglev_real** res, maglev_int* i
  *   in  K_rate[5x5]  rate gains (5 x 5, column-major; diagonal for the per-axis designs)
  *   in  a_ref[5x1]  per axis reference positions (y, z, phi, theta, psi)
  *   in  T[10x5]  minimum-norm allocation matrix (array forces x 5), from maglev_allocation_matrix
- *   out c[495x1]
+ *   out c[365x1]
  *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input finite (MAGLEV_ERR_NONFINITE);
  *     every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are
  *     zero
@@ -438,7 +438,7 @@ int maglev_closed_loop_prepare(const maglev_real** arg, maglev_real** res, magle
 /*
  * maglev_closed_loop_prepared: maglev_closed_loop's xdot, u and gaps from x and the prepared c
  *   in  x[12x1]  state, MAGLEV_X_* order
- *   in  c[495x1]
+ *   in  c[365x1]
  *   out xdot[12x1]  state derivative
  *   out u[11x1]  inputs, MAGLEV_U_* order
  *   out gaps[6x1]  [m] gap of each array face's closest corner, in the parameter file's array order

@@ -72,7 +72,7 @@ int maglev_trim_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *s
 #define maglev_trim_SZ_ARG 7
 #define maglev_trim_SZ_RES 7
 #define maglev_trim_SZ_IW 0
-#define maglev_trim_SZ_W 1889
+#define maglev_trim_SZ_W 1970
 int maglev_trim_accelerating(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_trim_accelerating_checkout(void);
 void maglev_trim_accelerating_release(int mem);
@@ -90,7 +90,7 @@ int maglev_trim_accelerating_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, 
 #define maglev_trim_accelerating_SZ_ARG 9
 #define maglev_trim_accelerating_SZ_RES 7
 #define maglev_trim_accelerating_SZ_IW 0
-#define maglev_trim_accelerating_SZ_W 1889
+#define maglev_trim_accelerating_SZ_W 1970
 int maglev_axis_plants(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_axis_plants_checkout(void);
 void maglev_axis_plants_release(int mem);
@@ -108,7 +108,7 @@ int maglev_axis_plants_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev
 #define maglev_axis_plants_SZ_ARG 7
 #define maglev_axis_plants_SZ_RES 7
 #define maglev_axis_plants_SZ_IW 0
-#define maglev_axis_plants_SZ_W 1902
+#define maglev_axis_plants_SZ_W 1983
 int maglev_axis_gains(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_axis_gains_checkout(void);
 void maglev_axis_gains_release(int mem);
@@ -144,7 +144,7 @@ int maglev_lqr_gains_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_i
 #define maglev_lqr_gains_SZ_ARG 7
 #define maglev_lqr_gains_SZ_RES 7
 #define maglev_lqr_gains_SZ_IW 0
-#define maglev_lqr_gains_SZ_W 1917
+#define maglev_lqr_gains_SZ_W 1998
 int maglev_lqr_control(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_lqr_control_checkout(void);
 void maglev_lqr_control_release(int mem);
@@ -252,7 +252,7 @@ int maglev_rk4_step_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_in
 #define maglev_rk4_step_SZ_ARG 12
 #define maglev_rk4_step_SZ_RES 5
 #define maglev_rk4_step_SZ_IW 0
-#define maglev_rk4_step_SZ_W 271
+#define maglev_rk4_step_SZ_W 254
 int maglev_closed_loop(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_closed_loop_checkout(void);
 void maglev_closed_loop_release(int mem);

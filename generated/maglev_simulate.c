@@ -23,7 +23,7 @@
 #define SZ_IW SZ(IW)
 #define SZ_W SZ(W)
 #define NT (11 - 1) * 5 /* allocation matrix entries */
-#define NC 495 /* the closed loop's prepared constants */
+#define NC 365 /* the closed loop's prepared constants */
 #define NA 6 /* arrays */
 #define NY MAGLEV_SCHEDULE_NY
 #define SQRT(v) sqrt(v)

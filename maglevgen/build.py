@@ -116,13 +116,22 @@ def _find_tex() -> str | None:
 def check_build_inputs(loaded: LoadedParams) -> None:
     """The checks of a build's input that need the compiled library, before anything slow
     is announced: the envelope's speed range has a trim (envelope.v_min above lift-off);
-    an InputError naming the key otherwise. The library is cached for run_build."""
+    an InputError naming the key otherwise. The library is cached for run_build, and so are
+    the other models' (`other_structures`), built meanwhile in a second process."""
     from .carriage import Carriage
     from .envelope import resolve_range
-    from .library import simulation_library
+    from .library import build_libraries, cached_simulation_library, simulation_library
 
     carriage = Carriage(loaded)
-    resolve_range(carriage, simulation_library(carriage.structure))
+    others = [s for s in other_structures(carriage) if cached_simulation_library(s) is None]
+    # a cold cache: the other models' libraries (which run_build's envelope and report read)
+    # derived and compiled in a second process while this one makes the carriage's own
+    with child() as building:
+        pending = (submit(building, "building the other models' libraries", build_libraries,
+                          tuple(others)) if others else None)
+        resolve_range(carriage, simulation_library(carriage.structure))
+        if pending is not None:
+            pending.result()
 
 
 def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=print,
@@ -138,7 +147,12 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     from .cache import STORE
     from .carriage import Carriage
     from .envelope import compute_envelope, envelope_markdown
-    from .library import cached_simulation_library, runtime_sources, simulation_library
+    from .library import (
+        build_libraries,
+        cached_simulation_library,
+        runtime_sources,
+        simulation_library,
+    )
     from .sim_output import (
         FIGURE_NAMES,
         render_figures,
@@ -151,17 +165,29 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     STORE.progress = step  # announce the derivation steps that are not cached yet
     carriage = Carriage(loaded)
     files: dict[str, str | bytes] = {}
-    lib = cached_simulation_library(carriage.structure)
-    if lib is None:  # first build of this structure: gcc compiles (in its own process) while
-        # this one derives and lambdifies the model (both cached afterwards)
-        with ThreadPoolExecutor(max_workers=1) as pool:
-            compiling = pool.submit(simulation_library, carriage.structure, progress=step)
-            carriage.functions  # noqa: B018
-            lib = compiling.result()
-    # simulations (validates the speed's trim and the step against RK4's stability limit);
-    # up to here a parameter edit has imported no SymPy, SciPy or CasADi
-    run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar,
-                        loop="firmware")
+    others = [s for s in other_structures(carriage) if cached_simulation_library(s) is None]
+    # the other models' libraries (the envelope's model checks, the report's comparisons),
+    # when not cached: derived and compiled in a second process (forked now, before this one
+    # starts any thread) while this one builds its own library and runs the simulations
+    with child() as building:
+        pending = (submit(building, "building the other models' libraries", build_libraries,
+                          tuple(others)) if others else None)
+        if others:
+            step(f"deriving and compiling {len(others)} other models' libraries in a second "
+                 "process (cached afterwards)")
+        lib = cached_simulation_library(carriage.structure)
+        if lib is None:  # first build of this structure: gcc compiles (in its own process)
+            # while this one derives and lambdifies the model (both cached afterwards)
+            with ThreadPoolExecutor(max_workers=1) as pool:
+                compiling = pool.submit(simulation_library, carriage.structure, progress=step)
+                carriage.functions  # noqa: B018
+                lib = compiling.result()
+        # simulations (validates the speed's trim and the step against RK4's stability
+        # limit); up to here a parameter edit has imported no SymPy, SciPy or CasADi
+        run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar,
+                            loop="firmware")
+        if pending is not None:
+            pending.result()  # the envelope's model checks read them from the cache
     step("envelope: stability of each controller across the speed range")
     env = compute_envelope(carriage, lib)
     step("envelope: the embedded controller's region of attraction (sampled)")
@@ -213,6 +239,24 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                               indent=1) + "\n"
     write_output(files, out_dir)
     return BuildResult(out_dir, True, summary, tuple(sorted(files)), verification, run.warning)
+
+
+def other_structures(carriage) -> list:
+    """The structures, other than the carriage's own, whose libraries a build reads: the
+    envelope's alternate models (maglevgen.envelope.alternate_models: the other force law,
+    the other circuit dynamics, which the report's stiffness and circuit-lag sections compare
+    too) and the report's other actuator models (report.sections.actuators.with_actuators:
+    only control.actuators changed, whose structure is made here without importing the
+    report, SymPy and SciPy), in that order, each once."""
+    from .carriage import structure_of
+    from .envelope import alternate_models
+    from .params import ACTUATOR_MODELS
+
+    params = carriage.params
+    out = [alt.structure for _, alt in alternate_models(carriage)]
+    out += [structure_of(params.model_copy(update={"control": params.control.model_copy(
+        update={"actuators": name})})) for name in ACTUATOR_MODELS]
+    return [s for i, s in enumerate(out) if s != carriage.structure and s not in out[:i]]
 
 
 def _schedule_c(carriage, lib, env) -> str:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import ctypes
 import json
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -26,10 +27,12 @@ from .cache import default_cache_dir, derivation_fingerprint
 from .derive.structure import Structure
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import write_output
-from .runtime.compile import cached_shared, compile_shared
+from .runtime.compile import DEFAULT_FLAGS, CompileError, cached_shared, compile_shared
 from .runtime.ffi import GeneratedLibrary
 
 CHECKSUMS = "checksums.json"
+#: the batch driver (templates/): many maglev_simulate runs per call, OpenMP across them
+BATCH_SOURCE = "maglev_batch.c"
 #: MAGLEV_SIM_ARGUMENT (maglev_simulate.h): the run refused an argument and wrote nothing
 SIM_ARGUMENT = 4
 
@@ -106,11 +109,28 @@ class Run(NamedTuple):
     saturated_steps: int
 
 
-class SimulationLibrary(GeneratedLibrary):
-    """The compiled run-time-parameter library: every generated function and maglev_simulate."""
+class BatchRun(NamedTuple):
+    """One run of `SimulationLibrary.simulate_batch`: maglev_simulate's inputs but the step,
+    the step count and gap_min, which all runs of a batch share."""
 
-    def __init__(self, path: Path, precision: str = "double") -> None:
+    x0: np.ndarray
+    f_prop: float
+    k_pos: np.ndarray  # 25, column-major as maglev_simulate takes it
+    k_rate: np.ndarray
+    a_ref: np.ndarray
+    p: np.ndarray
+    loop: ControlLoop | None
+
+
+class SimulationLibrary(GeneratedLibrary):
+    """The compiled run-time-parameter library: every generated function and maglev_simulate;
+    ``sources``: its derivation folder (maglev_simulate.h, for the batch driver)."""
+
+    def __init__(self, path: Path, precision: str = "double", sources: Path | None = None
+                 ) -> None:
         super().__init__(path, precision)
+        self.sources = sources
+        self._batch = None
         real = ctypes.c_float if precision == "single" else ctypes.c_double
         ptr = ctypes.POINTER(real)
 
@@ -229,6 +249,81 @@ class SimulationLibrary(GeneratedLibrary):
                                f"(status {status})")
         return V, Vd, g
 
+    def _batch_function(self, cc: str | None = None):
+        """maglev_batch_simulate: templates/maglev_batch.c compiled with -fopenmp against
+        this library's maglev_simulate.h (cached as every library is), loaded once."""
+        if self._batch is None:
+            if self.sources is None:
+                raise RuntimeError("this library was loaded without its sources: no batch")
+            from importlib import resources
+
+            src = Path(str(resources.files("maglevgen.templates") / BATCH_SOURCE))
+            # the -I folder is the derivation's, keyed by its content: the key covers the header
+            flags = (*DEFAULT_FLAGS, f"-I{self.sources}")
+            try:
+                lib = compile_shared([src], (*flags, "-fopenmp"), cc=cc,
+                                     cache_dir=self.path.parent)
+            except CompileError:  # a compiler without OpenMP: the same runs on one thread
+                lib = compile_shared([src], flags, cc=cc, cache_dir=self.path.parent)
+            real = ctypes.c_float if self._real == np.float32 else ctypes.c_double
+            ptr, lptr = ctypes.POINTER(real), ctypes.POINTER(ctypes.c_longlong)
+            fn = ctypes.CDLL(str(lib)).maglev_batch_simulate
+            fn.restype = ctypes.c_int
+            fn.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_int, ctypes.c_int,
+                           ctypes.c_int, ctypes.c_int, ctypes.c_longlong, ptr, real,
+                           ctypes.c_longlong, ptr, ptr, ptr, ptr, ctypes.POINTER(self._Loop),
+                           ptr, real, ptr, ptr, ptr, lptr, lptr, ctypes.POINTER(ctypes.c_int)]
+            self._batch = fn
+        return self._batch
+
+    def simulate_batch(self, runs: list[BatchRun], dt: float, n_steps: int, gap_min: float,
+                       n_u: int, n_gaps: int, threads: int = 0) -> list[Run]:
+        """Every run of ``runs`` as `simulate` makes it (one maglev_simulate call each, the
+        same numbers), in one call of the batch driver on ``threads`` threads (0: every core,
+        OpenMP's default)."""
+        real = self._real
+        n = len(runs)
+        if n == 0:
+            return []
+
+        def stack(values) -> np.ndarray:
+            return np.ascontiguousarray(np.array([np.ravel(v) for v in values], dtype=real))
+
+        x0, kp, kr, ar, p = (stack(getattr(r, f) for r in runs)
+                             for f in ("x0", "k_pos", "k_rate", "a_ref", "p"))
+        fp = np.ascontiguousarray([r.f_prop for r in runs], dtype=real)
+        plain = ControlLoop()  # the plain loop, as NULL: maglev_simulate's loop_plain
+        loops = (self._Loop * n)(*[self._Loop(lp.tick_steps, lp.delay_ticks, lp.k_v,
+                                             lp.v_ref, lp.accel, lp.force_budget)
+                                  for lp in (r.loop or plain for r in runs)])
+        n_x, rows = x0.shape[1], n_steps + 1
+        x = np.zeros((n, rows, n_x), dtype=real)
+        u = np.zeros((n, rows, n_u), dtype=real)
+        g = np.zeros((n, rows, n_gaps), dtype=real)
+        last = np.zeros(n, dtype=np.int64)
+        saturated = np.zeros(n, dtype=np.int64)
+        status = np.full(n, -1, dtype=np.intc)
+        P = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
+        LP = ctypes.POINTER(ctypes.c_longlong)
+
+        def c(a: np.ndarray):
+            return a.ctypes.data_as(P)
+
+        rc = self._batch_function()(
+            ctypes.cast(self._simulate, ctypes.c_void_p), n, threads, n_x, n_u, n_gaps,
+            p.shape[1], c(x0), dt, n_steps, c(fp), c(kp), c(kr), c(ar), loops, c(p), gap_min,
+            c(x), c(u), c(g), last.ctypes.data_as(LP), saturated.ctypes.data_as(LP),
+            status.ctypes.data_as(ctypes.POINTER(ctypes.c_int)))
+        if rc != 0:
+            raise RuntimeError("maglev_batch_simulate refused its arguments")
+        out = []
+        for i in range(n):
+            _refused("maglev_simulate", int(status[i]))
+            k = int(last[i]) + 1
+            out.append(Run(int(last[i]), int(status[i]), x[i, :k], u[i, :k], g[i, :k],
+                           int(saturated[i])))
+        return out
+
 
 def _refused(name: str, status: int) -> None:
     """An internal error when the C refused the arguments this module passed it (the
@@ -245,7 +340,22 @@ def simulation_library(structure: Structure, precision: str = "double",
     folder = runtime_sources(structure, precision, cache_dir, progress)
     lib = compile_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib",
                          progress=progress)
-    return SimulationLibrary(lib, precision)
+    return SimulationLibrary(lib, precision, folder)
+
+
+def build_libraries(structures: tuple[Structure, ...], precision: str = "double",
+                    cache_dir: Path | None = None, cc: str | None = None) -> list[Path]:
+    """Derive and compile (or reuse) the library of each structure, gcc compiling one while
+    the next is derived (gcc runs in its own process; the derivation holds the GIL); the
+    libraries' paths. What `maglevgen build` runs in a second process for the other models
+    its envelope and report compare (maglevgen.build), so that they are cached by the time
+    they are asked for."""
+    with ThreadPoolExecutor(max_workers=len(structures) or 1) as pool:
+        compiling = [pool.submit(compile_shared, _sources(runtime_sources(s, precision,
+                                                                          cache_dir)),
+                                 cc=cc, cache_dir=_cache(cache_dir) / "lib")
+                     for s in structures]
+        return [f.result() for f in compiling]
 
 
 def cached_simulation_library(structure: Structure, precision: str = "double",
@@ -257,7 +367,7 @@ def cached_simulation_library(structure: Structure, precision: str = "double",
     if not _intact(folder):
         return None
     lib = cached_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib")
-    return None if lib is None else SimulationLibrary(lib, precision)
+    return None if lib is None else SimulationLibrary(lib, precision, folder)
 
 
 def _cache(cache_dir: Path | None) -> Path:

@@ -172,15 +172,59 @@ def _library(structure):
 
 def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     """One row per controller: the draws, the status and the per-axis metrics."""
-    from .simulate import metrics, simulate
+    from .simulate import simulate
 
     lib = lib or _library(study.structure)
+    prepared = _prepare(study, index, lib)
+    if isinstance(prepared, list):
+        return prepared
+    p, op, disturbance, row = prepared
+    return [_run_row(study, lib, p, row, c,
+                     simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance,
+                              tick=study.tick, speed_gain=study.speed_gain,
+                              force_budget=study.force_budget), op, disturbance)
+            for c in study.controllers]
+
+
+def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
+                      threads: int = 0) -> list[dict]:
+    """`run_sample`'s rows of every sample of ``indices``, in order, with the closed-loop runs
+    of all of them in one call of the C batch driver (maglevgen.simulate.simulate_batch) on
+    ``threads`` threads (0: every core): the same rows (each run is the same maglev_simulate
+    call). The draws, the trim and the gains of each sample come first, in Python and the
+    library's C, as `run_sample` makes them."""
+    from .simulate import simulate_batch
+
+    lib = lib or _library(study.structure)
+    out: list[list[dict] | None] = []
+    jobs, owners = [], []
+    for i in indices:
+        prepared = _prepare(study, int(i), lib)
+        if isinstance(prepared, list):
+            out.append(prepared)
+            continue
+        p, op, disturbance, row = prepared
+        out.append(None)
+        for c in study.controllers:
+            jobs.append((p, op, c, disturbance))
+            owners.append((len(out) - 1, row))
+    trajectories = simulate_batch(lib, jobs, study.t_end, study.dt, study.min_gap,
+                                  tick=study.tick, speed_gain=study.speed_gain,
+                                  force_budget=study.force_budget, threads=threads)
+    runs: dict[int, list[dict]] = {}
+    for (k, row), (p, op, c, d), traj in zip(owners, jobs, trajectories, strict=True):
+        runs.setdefault(k, []).append(_run_row(study, lib, p, row, c, traj, op, d))
+    return [r for k, rows in enumerate(out) for r in (rows if rows is not None else runs[k])]
+
+
+def _prepare(study: Study, index: int, lib):
+    """Sample ``index``'s (p, operating point, disturbance, row maker), or its rows when it
+    has no run (rejected, no trim)."""
     draws = sample_inputs(study, index)
     base = {"sample": index, **dict(zip(study.columns, draws.tolist(), strict=True))}
     disturbance = {s: float(d) for (s, _), d in
                    zip(study.disturbance, draws[1:1 + len(study.disturbance)], strict=True)}
     p = sample_parameters(study, draws)
-    rows = []
 
     def row(controller: str, status: str, reason: str = "", m: dict | None = None) -> dict:
         r = {**base, "controller": controller, "status": status, "reason": reason,
@@ -206,17 +250,20 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
         op = operating_point(lib, p, float(draws[0]), study.min_gap, study.weights)
     except NoTrimError as exc:
         return [row(c, "no trim", str(exc)) for c in study.controllers]
-    for c in study.controllers:
-        multiple = region_multiple(study, c, float(draws[0]), disturbance)
-        traj = simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance,
-                        tick=study.tick, speed_gain=study.speed_gain,
-                        force_budget=study.force_budget)
-        m = metrics(traj)
-        r = row(c, m["status"], m["event"] or "", m)
-        r["contact_cause"] = contact_cause(lib, p, study.min_gap, m)
-        r["region_multiple"] = multiple
-        rows.append(r)
-    return rows
+    return p, op, disturbance, row
+
+
+def _run_row(study: Study, lib, p, row, controller: str, traj, op,
+             disturbance: dict[str, float]) -> dict:
+    """The row of one controller's run: its status and metrics, the cause of a contact, the
+    initial deviation as a multiple of the region at its speed."""
+    from .simulate import metrics
+
+    m = metrics(traj)
+    r = row(controller, m["status"], m["event"] or "", m)
+    r["contact_cause"] = contact_cause(lib, p, study.min_gap, m)
+    r["region_multiple"] = region_multiple(study, controller, op.speed, disturbance)
+    return r
 
 
 def region_multiple(study: Study, controller: str, speed: float,
@@ -277,7 +324,9 @@ def run_chunk(study: Study, indices: Sequence[int]) -> Columns:
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # overflow in a diverging sample: its status says so
-        return table([r for i in indices for r in run_sample(study, int(i))])
+        # the chunk's runs in one call of the C batch driver, on one thread: the workers (or
+        # Dask) spread the chunks over the cores
+        return table(run_samples_batch(study, indices, threads=1))
 
 
 # ------------------------------------------------------------------------------ execution
@@ -314,7 +363,7 @@ def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
     if workers <= 1:
         lib = _library(study.structure)
         for k, c in enumerate(chunks):
-            results[k] = table([r for i in c for r in run_sample(study, i, lib)])
+            results[k] = table(run_samples_batch(study, c, lib, threads=1))
             if tick:
                 tick(len(c))
         return concat([results[k] for k in range(len(chunks))])

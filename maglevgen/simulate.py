@@ -19,7 +19,7 @@ from .derive import conventions as cv
 from .derive.conventions import Q_STATES
 from .derive.structure import input_names_of
 from .errors import InputError, NoTrimError
-from .library import ControlLoop, SimulationLibrary
+from .library import BatchRun, ControlLoop, Run, SimulationLibrary
 from .operating import (
     AXIS_STATES,
     CONTROLLER_TITLES,
@@ -315,19 +315,19 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
     defaults give the loop of maglev_simulate without a maglev_control_loop.
     """
     n_steps = _check_steps(t_end, dt)
-    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed)
     disturbance = DISTURBANCE if disturbance is None else disturbance
-    K_pos, K_rate = (k.ravel(order="F") for k in op.gains(controller))
-    x0 = initial_state(op, disturbance)
+    first = hold_run(p, op, controller, dt, disturbance, tick, speed_gain, force_budget)
     n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     xs, us, gs = [], [], []
     done, status, saturated = 0, 0, 0
     # a ticked run in one call: its command pipeline does not survive a chunk's end
+    loop = first.loop
     chunk_steps = CHUNK_STEPS if loop is None or loop.tick_steps == 0 else n_steps
+    x0 = first.x0
     while True:
         chunk = min(chunk_steps, n_steps - done)
-        run = lib.simulate(x0, dt, chunk, op.f_prop, K_pos, K_rate, op.a_trim, p, min_gap, n_u,
-                           n_g, loop)
+        run = lib.simulate(x0, dt, chunk, first.f_prop, first.k_pos, first.k_rate, first.a_ref,
+                           p, min_gap, n_u, n_g, loop)
         status, x, u, g = run.status, run.x, run.u, run.gaps
         saturated += run.saturated_steps
         final = status != 0 or done + chunk == n_steps
@@ -339,14 +339,56 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
         if final:
             break
         x0 = x[-1]
-    x, u, g = np.concatenate(xs), np.concatenate(us), np.concatenate(gs)
+    whole = Run(done, status, np.concatenate(xs), np.concatenate(us), np.concatenate(gs),
+                saturated)
+    return hold_trajectory(lib, p, op, controller, dt, min_gap, disturbance, whole, tick,
+                           speed_gain, force_budget)
+
+
+def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
+             disturbance: dict[str, float], tick: Tick | None = None, speed_gain: float = 0.0,
+             force_budget: float | None = None) -> BatchRun:
+    """maglev_simulate's inputs for `simulate`'s run (the disturbed trim, the trim drag, the
+    controller's gains at op, p and the loop): what `simulate_batch` runs."""
+    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed)
+    K_pos, K_rate = (k.ravel(order="F") for k in op.gains(controller))
+    return BatchRun(initial_state(op, disturbance), float(op.f_prop), K_pos, K_rate,
+                    op.a_trim, p, loop)
+
+
+def hold_trajectory(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
+                    controller: str, dt: float, min_gap: float,
+                    disturbance: dict[str, float], run: Run, tick: Tick | None = None,
+                    speed_gain: float = 0.0, force_budget: float | None = None) -> Trajectory:
+    """`simulate`'s Trajectory of the hold run ``run`` (its x, u and gap rows from sample 0):
+    its event and the moving equilibrium it is measured against."""
+    x, u, g = run.x, run.u, run.gaps
     t = np.arange(x.shape[0]) * dt
-    traj = Trajectory(controller, op, dt, t, x, u, g, status, None, dict(disturbance),
-                      speed_reference=np.full(t.size, op.speed), saturated_time=saturated * dt,
+    traj = Trajectory(controller, op, dt, t, x, u, g, run.status, None, dict(disturbance),
+                      speed_reference=np.full(t.size, op.speed),
+                      saturated_time=run.saturated_steps * dt,
                       tick=tick, speed_gain=float(speed_gain), force_budget=force_budget)
-    traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
+    traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, run.status)
     traj.equilibrium = moving_equilibrium(lib, p, op, traj.speed, min_gap)
     return traj
+
+
+def simulate_batch(lib: SimulationLibrary, jobs: list[tuple[np.ndarray, OperatingPoint, str,
+                                                             dict[str, float]]],
+                   t_end: float, dt: float, min_gap: float, tick: Tick | None = None,
+                   speed_gain: float = 0.0, force_budget: float | None = None,
+                   threads: int = 0) -> list[Trajectory]:
+    """`simulate` of each job (p, op, controller, disturbance), the runs in one call of the C
+    batch driver on ``threads`` threads (0: every core): the same trajectories, in order."""
+    n_steps = _check_steps(t_end, dt)
+    if not jobs:
+        return []
+    runs = [hold_run(p, op, c, dt, d, tick, speed_gain, force_budget) for p, op, c, d in jobs]
+    op0 = jobs[0][1]
+    done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
+                              op0.gaps.size, threads)
+    return [hold_trajectory(lib, p, op, c, dt, min_gap, d, run, tick, speed_gain, force_budget)
+            for (p, op, c, d), run in zip(jobs, done, strict=True)]
 
 
 def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: OperatingPoint,

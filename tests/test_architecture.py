@@ -44,9 +44,9 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "the unchanged rebuild (< 0.5 s) reads the parameter text and BUILD.json only; the "
         "stages are imported when something has to be built",
         ("maglevgen.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
-         "maglevgen.envelope", "maglevgen.library",
-         "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.runtime.compile",
-         "maglevgen.schedule",
+         "maglevgen.derive.conventions", "maglevgen.envelope", "maglevgen.library",
+         "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.params",
+         "maglevgen.runtime.compile", "maglevgen.schedule",
          "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
          "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy",
          "maglevgen.roa")),
@@ -57,8 +57,10 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "sympy")),
     "maglevgen.cache": ("hashing a key imports nothing heavy; cloudpickle reads an entry",
                         ("cloudpickle",)),
-    "maglevgen.library": ("a cached library is loaded without SymPy or CasADi",
-                          ("maglevgen.codegen.generate", "maglevgen.derive.model")),
+    "maglevgen.library": ("a cached library is loaded without SymPy or CasADi; the batch "
+                          "driver's source is looked up when a batch runs",
+                          ("maglevgen.codegen.generate", "maglevgen.derive.model",
+                           "importlib")),
     "maglevgen.laws.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "

@@ -692,3 +692,18 @@ def test_the_readme_states_the_numbers_the_build_prints(good: Path) -> None:
     table = json.loads((good / "c/manifest.json").read_text())["gain_table"]
     assert "holds its gains to 1e-3 of each matrix's largest entry" in re.sub(r"\s+", " ", readme)
     assert table["bound"] == 1e-3 and table["worst_relative_error"] <= table["bound"]
+
+def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage) -> None:
+    """What a cold build derives and compiles in its second process: the other force law's
+    and the other circuit model's structures (the envelope's checks, the stiffness and lag
+    sections) and the normal actuators' (the report's comparison), made here the way those
+    sections make them, each once and never the carriage's own."""
+    from maglevgen.build import other_structures
+    from maglevgen.report.sections.actuators import with_actuators
+
+    want = [carriage.with_array_force("point").structure,
+            carriage.with_circuit_dynamics("quasi-static").structure,
+            with_actuators(carriage, "normal").structure]
+    got = other_structures(carriage)
+    assert got == want
+    assert carriage.structure not in got

@@ -239,9 +239,9 @@ def test_a_chunk_whose_worker_dies_is_retried_once(small, tmp_path: Path, monkey
     from maglevgen import montecarlo
 
     if multiprocessing.get_start_method() != "fork":
-        pytest.skip("needs forked workers to patch run_sample")  # Linux default
+        pytest.skip("needs forked workers to patch _prepare")  # Linux default
     _, study, one = small
-    original = montecarlo.run_sample
+    original = montecarlo._prepare  # every sample's first step, in either path
     marker = tmp_path / "died"
 
     def dies_once(study, index, lib=None):
@@ -250,14 +250,14 @@ def test_a_chunk_whose_worker_dies_is_retried_once(small, tmp_path: Path, monkey
             os._exit(1)
         return original(study, index, lib)
 
-    monkeypatch.setattr(montecarlo, "run_sample", dies_once)
+    monkeypatch.setattr(montecarlo, "_prepare", dies_once)
     _same(one, run_local(study, 6, workers=2, chunk=2))
     assert marker.exists()
 
     def always_dies(study, index, lib=None):
         os._exit(1)
 
-    monkeypatch.setattr(montecarlo, "run_sample", always_dies)
+    monkeypatch.setattr(montecarlo, "_prepare", always_dies)
     with pytest.raises(montecarlo.ChunkFailedError, match="died twice"):
         run_local(study, 4, workers=2, chunk=2)
 

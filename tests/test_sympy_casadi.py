@@ -66,3 +66,38 @@ def test_unknown_symbol_and_function_raise() -> None:
         to_casadi(x + y, {x: ca.SX.sym("x")})
     with pytest.raises(NotImplementedError, match="gamma"):
         to_casadi(sp.gamma(x), {x: ca.SX.sym("x")})
+
+
+@pytest.mark.parametrize("u", [0.0, -1e-7, 0.1, 0.2499, 0.25, -0.2501, 0.7, -3.0, 40.0, -800.0])
+def test_removable_singularities_and_their_casadi_derivatives_against_mpmath(u: float) -> None:
+    """sinhc, L, L', L'' as converted (Horner series, closed forms in one exp(-|u|)) and
+    CasADi's derivative of each, against mpmath's closed forms at 150 digits (their
+    derivative by mpmath's numerical differentiation); at -800 a sinh would overflow, L and L'
+    stay finite."""
+    import mpmath
+
+    from maglevgen.derive.distributed import langevin, langevin_curvature, langevin_slope
+
+    mpmath.mp.dps = 150  # the closed forms at 1e-30 cancel about 90 digits
+    refs = {sinhc: lambda v: mpmath.sinh(v) / v if v != 0 else mpmath.mpf(1),
+            langevin: lambda v: mpmath.coth(v) - 1 / v if v != 0 else mpmath.mpf(0),
+            langevin_slope: lambda v: (1 / v**2 - 1 / mpmath.sinh(v) ** 2 if v != 0
+                                       else mpmath.mpf(1) / 3),
+            langevin_curvature: lambda v: (-2 / v**3 + 2 * mpmath.cosh(v) / mpmath.sinh(v) ** 3
+                                           if v != 0 else mpmath.mpf(0))}
+    s = ca.SX.sym("s")
+    at = mpmath.mpf(u) if u != 0 else mpmath.mpf("1e-30")
+    for fn, ref in refs.items():
+        if fn is sinhc and abs(u) > 700:
+            continue  # sinh(800) is past float64
+        value = to_casadi(fn(x), {x: s})
+        f = ca.Function("f", [s], [value, ca.jacobian(value, s)])
+        got, slope = (float(v) for v in f(u))
+        want = float(ref(at))
+        # L'' = -2/u^3 + 2 cosh/sinh^3 cancels about 4000-fold at the switch (both forms)
+        rel = 2e-12 if fn is langevin_curvature else 1e-13
+        assert got == pytest.approx(want, rel=rel, abs=1e-15), fn
+        want_slope = float(mpmath.diff(ref, at))
+        # the derivative of a series truncated after u^12 (L') errs by about 2e-12 relative
+        # at the switch, as the expanded series did
+        assert slope == pytest.approx(want_slope, rel=1e-11, abs=1e-14), fn

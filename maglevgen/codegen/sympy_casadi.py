@@ -2,6 +2,11 @@
 
 Shared subexpressions are converted once (memo on the SymPy node), so CasADi sees the same
 DAG that SymPy built; CasADi's own CSE then works on it during code generation.
+
+derive/distributed.py's functions with a removable singularity (sinhc, L, L', L'') become their
+two branches, the Horner series below SERIES_BELOW and above it the closed form in
+m = exp(-|u|) (``closed_exp``): one exponential per argument, which CasADi's CSE shares
+among the functions of that argument and their derivatives.
 """
 
 from __future__ import annotations
@@ -12,6 +17,8 @@ from typing import Any
 
 import casadi as ca
 import sympy as sp
+
+from maglevgen.derive.distributed import SERIES_BELOW
 
 _UNARY = {
     sp.sin: ca.sin, sp.cos: ca.cos, sp.tan: ca.tan, sp.exp: ca.exp, sp.log: ca.log,
@@ -76,13 +83,25 @@ class SympyToCasadi:
             out = out - self._conv(t)
         return out
 
+    def _removable(self, e: sp.Function) -> Any:
+        """if_else(|u| < SERIES_BELOW, series(u), closed_exp(s, exp(-|s|))), s = u where the
+        closed form is taken and 1 where the series is (CasADi's if_else evaluates both
+        branches: nothing may divide by zero)."""
+        u = e.args[0]
+        cu = self._conv(u)
+        small = ca.fabs(cu) < SERIES_BELOW
+        safe = ca.if_else(small, 1, cu)
+        s, m = sp.Dummy("s", real=True), sp.Dummy("m", positive=True)
+        closed = SympyToCasadi({s: safe, m: ca.exp(-ca.fabs(safe))})._convert(e.closed_exp(s, m))
+        return ca.if_else(small, self._conv(e.series(u)), closed)
+
     def _convert_node(self, e: sp.Basic) -> Any:
         if isinstance(e, sp.Symbol):
             raise KeyError(f"symbol {e} has no CasADi counterpart")
         if e.is_Number or e in (sp.pi, sp.E):
             return ca.SX(float(e))
         if getattr(e, "removable_singularity", False):  # derive/distributed.py's functions
-            return self._conv(e.rewrite(sp.Piecewise))
+            return self._removable(e)
         if isinstance(e, sp.Piecewise):
             *branches, (last, _true) = e.args
             out = self._conv(last)

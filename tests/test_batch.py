@@ -1,0 +1,57 @@
+"""The Monte-Carlo batch in C (templates/maglev_batch.c, maglevgen.simulate.simulate_batch)
+against today's per-sample path: every run is maglev_simulate called once per run by the
+batch driver on several threads, against `simulate` calling it from Python (chunked, one
+sample after another). Same inputs, so the trajectories and the study's rows must be equal
+to the last bit, whatever the threads."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from maglevgen.montecarlo import make_study, run_sample, run_samples_batch
+from maglevgen.sampled import Tick
+from maglevgen.simulate import Weights, operating_point, simulate, simulate_batch
+
+
+@pytest.mark.needs_cc
+@pytest.mark.parametrize("tick", [None, Tick(250.0, 1)], ids=["continuous", "ticked"])
+def test_batch_runs_equal_the_per_sample_runs(carriage, sim_lib, op, tick) -> None:
+    """Three runs (two controllers at the nominal parameters, one of them again on a 4 %
+    heavier carriage with its own trim and gains), with the speed loop and a force budget on
+    the ticked loop, on two threads: x, u, gaps, status and saturated time equal."""
+    p2 = carriage.p.copy()
+    p2[carriage.structure.param_names.index("vehicle.mass")] *= 1.04
+    op2 = operating_point(sim_lib, p2, op.speed, carriage.params.track.min_gap,
+                          Weights.of(carriage.params))
+    dist = {"z": 2e-3, "phi": 4e-3}
+    jobs = [(carriage.p, op, "lqr", dist), (carriage.p, op, "coupled", dist),
+            (p2, op2, "lqr", {"y": -1e-3})]
+    kw = {"tick": tick, "speed_gain": 500.0 if tick else 0.0,
+          "force_budget": 2e3 if tick else None}
+    min_gap = carriage.params.track.min_gap
+    got = simulate_batch(sim_lib, jobs, 0.3, 1e-3, min_gap, threads=2, **kw)
+    for (p, o, c, d), b in zip(jobs, got, strict=True):
+        a = simulate(sim_lib, p, o, c, 0.3, 1e-3, min_gap, d, **kw)
+        assert a.status == b.status
+        assert a.saturated_time == b.saturated_time
+        for name in ("x", "u", "gaps"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), (c, name)
+
+
+@pytest.mark.needs_cc
+def test_batch_study_rows_equal_the_per_sample_rows(carriage, sim_lib) -> None:
+    """Five samples of a study (seed 5, two controllers) through run_samples_batch on two
+    threads and through run_sample one by one: the same rows, NaN where NaN."""
+    study = make_study(carriage, sim_lib, ("damping", "lqr"), t_end=0.2, dt=1e-3, seed=5)
+    want = [r for i in range(5) for r in run_sample(study, i, sim_lib)]
+    got = run_samples_batch(study, range(5), sim_lib, threads=2)
+    assert len(got) == len(want) == 10
+    for a, b in zip(want, got, strict=True):
+        assert a.keys() == b.keys()
+        for k in a:
+            same = (a[k] == b[k] or (isinstance(a[k], float) and math.isnan(a[k])
+                                     and math.isnan(b[k])))
+            assert same, (k, a[k], b[k])
