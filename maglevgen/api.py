@@ -379,7 +379,7 @@ class RegionResult:
     statement: str
     paths: tuple[Path, ...]
     report: dict[str, Any] = field(repr=False)
-    lines: tuple[str, ...] = field(default=(), repr=False)
+    lines: tuple[str, ...] = field(repr=False)
 
 
 class Carriage:

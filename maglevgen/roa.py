@@ -225,7 +225,7 @@ class Region:
         """How the level was established, and what it is not (one paragraph, ASCII)."""
         s = self.sampling
         brackets = [r.radial_bracket for r in self.regions if np.isfinite(r.radial_bracket)]
-        bracket = (f"within {100 * max(brackets):.2g} % in sqrt(c) along the sampled "
+        bracket = (f"within {100 * max(brackets):.2g} % in the square root of c along the sampled "
                    "directions" if brackets else "not bracketed (no failure found)")
         states = max((r.states for r in self.regions), default=0)
         return (f"A sampled estimate, not a proof: at each speed dV/dt < 0 on the nonlinear "

@@ -44,7 +44,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "the unchanged rebuild (< 0.5 s) reads the parameter text and BUILD.json only; the "
         "stages are imported when something has to be built",
         ("maglevgen.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
-         "maglevgen.derive.conventions", "maglevgen.envelope", "maglevgen.library",
+         "maglevgen.envelope", "maglevgen.library",
          "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.params",
          "maglevgen.runtime.compile", "maglevgen.schedule",
          "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
