@@ -13,6 +13,22 @@ ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "bench"
 REFERENCE_DIR = BENCH / "reference"
 DRIVER_DIR = BENCH / "c"
+BENCHMARKS = ROOT / "BENCHMARKS.md"
+
+
+def replace_section(lines: Sequence[str], begin: str, end: str,
+                    path: Path = BENCHMARKS) -> None:
+    """Put ``lines`` (a section from its ``begin`` marker to its ``end`` marker) in place of
+    the file's section between the same markers, or append it where the file has none."""
+    block = "\n".join(lines) + "\n"
+    text = path.read_text()
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        tail = rest.split(end, 1)[1].lstrip("\n")
+        text = head + block + ("\n" + tail if tail else "")
+    else:
+        text = text.rstrip("\n") + "\n\n" + block
+    path.write_text(text)
 
 
 def log(msg: str) -> None:

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import ROOT, log
+from common import ROOT, log, replace_section
 
 from maglevgen.carriage import Carriage
 from maglevgen.envelope import compute_envelope
@@ -186,17 +186,6 @@ def _counts(counts: dict) -> str:
     return ", ".join(f"{k} {v}" for k, v in counts.items() if v)
 
 
-def write_section(r: dict, path: Path = ROOT / "BENCHMARKS.md") -> None:
-    block = "\n".join(section(r)) + "\n"
-    text = path.read_text()
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + block + rest.split(END, 1)[1].lstrip("\n")
-    else:
-        text = text.rstrip("\n") + "\n\n" + block
-    path.write_text(text)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--montecarlo", action="store_true",
@@ -235,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     elif RESULTS.exists() and "montecarlo" in json.loads(RESULTS.read_text()):
         r["montecarlo"] = json.loads(RESULTS.read_text())["montecarlo"]
     RESULTS.write_text(json.dumps(r, indent=1) + "\n")
-    write_section(r)
+    replace_section(section(r), BEGIN, END)
     log(f"wrote {RESULTS.name} and BENCHMARKS.md")
     return 0
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import BENCH, ROOT, log, paired_ratios, run, summary
+from common import BENCH, ROOT, log, paired_ratios, replace_section, run, summary
 
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
@@ -228,17 +228,6 @@ def section(r: dict) -> list[str]:
     return [*lines, END]
 
 
-def write_section(r: dict, path: Path = ROOT / "BENCHMARKS.md") -> None:
-    block = "\n".join(section(r)) + "\n"
-    text = path.read_text()
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + block + rest.split(END, 1)[1].lstrip("\n")
-    else:
-        text = text.rstrip("\n") + "\n\n" + block
-    path.write_text(text)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-misra", action="store_true",
@@ -259,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
             r["misra"] = last["misra"]
             r["misra_date_utc"] = last.get("misra_date_utc", last["date_utc"])
     RESULTS.write_text(json.dumps(r, indent=1) + "\n")
-    write_section(r)
+    replace_section(section(r), BEGIN, END)
     log(f"wrote {RESULTS.name} and BENCHMARKS.md")
     return 0
 

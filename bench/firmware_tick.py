@@ -37,7 +37,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import BENCH, ROOT, log, run
+from common import BENCH, ROOT, log, replace_section, run
 
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.firmware import FIRMWARE_FLAGS, firmware_files
@@ -233,15 +233,7 @@ def main() -> int:
     RESULTS.write_text(json.dumps(r, indent=1) + "\n")
     log(f"tick: {r['instructions']} instructions, ~{r['cycles']} cycles, "
         f"{r['share_percent']:.2f} % of 1 kHz at {CLOCK_MHZ} MHz, stack {r['stack_bytes']} B")
-    md = ROOT / "BENCHMARKS.md"
-    text = md.read_text()
-    block = "\n".join(section(r)) + "\n"
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + block + rest.split(END, 1)[1].lstrip("\n")
-    else:
-        text = text.rstrip("\n") + "\n\n" + block
-    md.write_text(text)
+    replace_section(section(r), BEGIN, END)
     print(json.dumps({k: r[k] for k in ("instructions", "cycles", "share_percent",
                                          "stack_bytes")}))
     return 0

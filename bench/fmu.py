@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import BENCH, ROOT, log, paired_ratios, summary
+from common import BENCH, log, paired_ratios, replace_section, summary
 
 from maglevgen.carriage import Carriage
 from maglevgen.derive import conventions as cv
@@ -172,24 +172,13 @@ def section(r: dict) -> list[str]:
     ]
 
 
-def update_benchmarks(r: dict, path: Path = ROOT / "BENCHMARKS.md") -> None:
-    text = path.read_text()
-    block = "\n".join(section(r)) + "\n"
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + block + rest.split(END, 1)[1].lstrip("\n")
-    else:
-        text = text.rstrip("\n") + "\n\n" + block
-    path.write_text(text)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args(argv)
     r = measure(args.repeats)
     RESULTS.write_text(json.dumps(r, indent=1) + "\n")
-    update_benchmarks(r)
+    replace_section(section(r), BEGIN, END)
     log(f"wrote {RESULTS} and the FMU section of BENCHMARKS.md")
     return 0
 
