@@ -456,10 +456,10 @@ def test_background_rendering_gives_the_files_of_an_in_process_run(good: Path, t
 
 
 @pytest.mark.slow
-def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carriage,
-                                                          monkeypatch) -> None:
+def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carriage, monkeypatch,
+                                                          seeded_cache) -> None:
     """Every cache entry (generated C, compiled library, lambdified model) corrupted at once."""
-    cache = tmp_path / "cache"
+    cache = Path(seeded_cache)
     monkeypatch.setenv("MAGLEVGEN_CACHE", str(cache))
     out = tmp_path / "out"
     loaded = load_params()

@@ -268,8 +268,8 @@ def test_parameter_change_needs_no_regeneration_or_recompile(carriage, sim_lib,
 
 
 @pytest.mark.slow
-def test_corrupted_cache_entries_are_rebuilt(carriage, tmp_path) -> None:
-    cache = tmp_path / "cache"
+def test_corrupted_cache_entries_are_rebuilt(carriage, seeded_cache) -> None:
+    cache = Path(seeded_cache) / "maglevgen"
     folder = runtime_sources(carriage.structure, cache_dir=cache)
     src = folder / "maglev_simulate.c"
     good = src.read_bytes()
