@@ -477,11 +477,12 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
 
     cache = Path(seeded_cache)
     monkeypatch.setenv("MAGLEVGEN_CACHE", str(cache))
-    read: list[Path] = []
+    log = tmp_path / "read.txt"  # a file: the build's forked children read the store too
     real_get = STORE.get
 
     def recording_get(module: str, key: str):
-        read.append(STORE.path(module, key))
+        with log.open("a") as f:
+            f.write(f"{STORE.path(module, key)}\n")
         return real_get(module, key)
 
     monkeypatch.setattr(STORE, "get", recording_get)
@@ -492,6 +493,7 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
     run_build(loaded, out, opts, step=lambda _m: None)
     ref = tree(out)
     lib = cached_simulation_library(carriage.structure)
+    read = [Path(line) for line in log.read_text().splitlines()]
     entries = {f for f in (*read, lib.path, *runtime_sources(carriage.structure).glob("*.c"))
                if f.exists()}
     assert len(entries) >= 8 and all(f.is_relative_to(cache) for f in entries)
