@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -96,36 +97,44 @@ def pytest_configure(config: pytest.Config) -> None:
         return
     config._maglev_cache = tempfile.TemporaryDirectory(prefix="maglevgen-cache-")
     os.environ[_SHARED_CACHE] = config._maglev_cache.name
-    _cold_build(config._maglev_cache.name)
+    config._maglev_build = tempfile.TemporaryDirectory(prefix="maglevgen-cold-build-")
+    out = os.path.join(config._maglev_build.name, "out")
+    if _cold_build(config._maglev_cache.name, out):
+        os.environ[_DEFAULT_BUILD] = out
 
 
-def _cold_build(cache: str) -> None:
+_DEFAULT_BUILD = "MAGLEVGEN_TEST_DEFAULT_BUILD"
+BUILD_FAST = ("--t-end", "1", "--no-pdf")  # the suite's build options: a 1 s run, no PDF
+
+
+def _cold_build(cache: str, out: str) -> bool:
     """The cold build the suite exercises first: the default carriage built once into the
     run's empty cache, before the workers start, so that they read its derivations and
-    libraries instead of deriving the same ones side by side. Its exit code is not judged
-    here (the build's own tests do); a failure to run at all is printed and the tests that
-    need the cache then fail on their own."""
+    libraries instead of deriving the same ones side by side; its output is the
+    `default_build` fixture. Its result is judged by the build's own tests; a build that
+    fails is printed here, and the tests then build (and fail) on their own."""
     import subprocess
     import sys
     import time
 
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="maglevgen-cold-build-") as out:
-        done = subprocess.run([sys.executable, "-m", "maglevgen.cli", "build", "--out", out,
-                               "--t-end", "1", "--no-pdf"],
-                              env={**os.environ, "MAGLEVGEN_CACHE": cache},
-                              capture_output=True, text=True)
-    tail = done.stderr.strip().splitlines()[-1:] if done.returncode not in (0, 3) else []
+    done = subprocess.run([sys.executable, "-m", "maglevgen.cli", "build", "--out", out,
+                           *BUILD_FAST], env={**os.environ, "MAGLEVGEN_CACHE": cache},
+                          capture_output=True, text=True)
+    tail = done.stderr.strip().splitlines()[-1:] if done.returncode != 0 else []
     sys.stderr.write(f"maglevgen tests: cold build of the default carriage into the run's "
                      f"cache: exit {done.returncode} in {time.perf_counter() - start:.0f} s"
                      f"{' (' + tail[0] + ')' if tail else ''}\n")
+    return done.returncode == 0
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
     folder = getattr(config, "_maglev_cache", None)
     if folder is not None:
         os.environ.pop(_SHARED_CACHE, None)
+        os.environ.pop(_DEFAULT_BUILD, None)
         folder.cleanup()
+        config._maglev_build.cleanup()
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -138,6 +147,28 @@ def private_cache():
         os.environ.pop("MAGLEVGEN_CACHE", None)
     else:
         os.environ["MAGLEVGEN_CACHE"] = old
+
+
+@pytest.fixture(scope="session")
+def default_build(tmp_path_factory, private_cache) -> Path:
+    """A complete build of the default carriage (`BUILD_FAST`), made once: the run's cold
+    build, or (with MAGLEVGEN_TEST_SHARED_CACHE set) a build made here. Read-only: a test
+    that writes into a build works on `copy_build` of it."""
+    ready = os.environ.get(_DEFAULT_BUILD)
+    if ready and os.path.isdir(ready):
+        return Path(ready)
+    from maglevgen.cli import main
+
+    out = tmp_path_factory.mktemp("default-build") / "out"
+    assert main(["build", "--out", str(out), *BUILD_FAST]) == 0
+    return out
+
+
+@pytest.fixture
+def fresh_build(tmp_path: Path, default_build: Path) -> Path:
+    """A writable copy of `default_build` (its stamp still matches: the build's key does not
+    depend on where it is)."""
+    return Path(shutil.copytree(default_build, tmp_path / "out"))
 
 
 @pytest.fixture

@@ -14,6 +14,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -139,10 +140,8 @@ def test_bad_input_through_trim(tmp_path: Path, capsys, text: str, expected: lis
 
 
 @pytest.fixture(scope="module")
-def good(tmp_path_factory, sim_lib) -> Path:
-    out = tmp_path_factory.mktemp("boundaries") / "out"
-    assert main(["build", "--out", str(out), *FAST]) == 0
-    return out
+def good(tmp_path_factory, default_build, sim_lib) -> Path:
+    return Path(shutil.copytree(default_build, tmp_path_factory.mktemp("boundaries") / "out"))
 
 
 @pytest.mark.parametrize(("text", "expected"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
@@ -464,10 +463,9 @@ sys.exit(main(["build", "--out", sys.argv[2], "--t-end", "1", "--no-pdf",
 
 
 @pytest.mark.parametrize("stage", ["writing", "old", "between"])
-def test_a_killed_build_leaves_nothing_after_the_next_build(good: Path, tmp_path: Path,
+def test_a_killed_build_leaves_nothing_after_the_next_build(fresh_build: Path,
                                                             stage: str) -> None:
-    out = tmp_path / "out"
-    assert main(["build", "--out", str(out), *FAST]) == 0
+    out = fresh_build
     before = tree(out)
     ready = Path(f"{out}.ready")
     child = subprocess.Popen([sys.executable, "-c", _CHILD, stage, str(out)],
