@@ -84,7 +84,7 @@ def generated(carriage: Carriage, tmp_path_factory) -> GeneratedLibrary:
     out = tmp_path_factory.mktemp("gen")
     for name, text in generate_c(fns, "maglev_functions", "double").items():
         (out / name).write_text(text)
-    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    lib = compile_shared([out / "maglev_functions.c"])
     return GeneratedLibrary(lib, "double")
 
 

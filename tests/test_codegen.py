@@ -35,7 +35,7 @@ A_STATES = [cv.STATE_INDEX[s] for s in cv.Q_STATES]  # the axis coordinates (y, 
 def runtime_lib(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path]:
     out = tmp_path_factory.mktemp(f"gen_{request.param}")
     write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
-    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    lib = compile_shared([out / "maglev_functions.c"])
     return request.param, lib
 
 
@@ -49,7 +49,7 @@ def _ext(runtime_lib: tuple[str, Path], name: str):
 def test_casadi_external_loads_every_function(carriage: Carriage, tmp_path: Path) -> None:
     out = tmp_path / "gen"
     write_output(render(carriage, GenerateOptions("double", "runtime")), out)
-    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    lib = compile_shared([out / "maglev_functions.c"])
     manifest = json.loads((out / "manifest.json").read_text())
     ours = GeneratedLibrary(lib, "double")
     rng = np.random.default_rng(0)
@@ -207,8 +207,8 @@ def _double_library(carriage: Carriage, parameters: str, tmp_path: Path) -> Gene
     """The double-precision generated C (run-time or baked parameters), compiled."""
     write_output(render(carriage, GenerateOptions("double", parameters),
                         speed_range(carriage)), tmp_path / "gen")
-    return GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"],
-                                           cache_dir=tmp_path / "cache"), "double")
+    return GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"]),
+                            "double")
 
 
 @pytest.mark.needs_cc

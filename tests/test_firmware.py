@@ -32,7 +32,7 @@ def gen(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path, Path]
     """(precision, generated folder, compiled library) with run-time parameters."""
     out = tmp_path_factory.mktemp(f"fw_{request.param}")
     write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
-    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    lib = compile_shared([out / "maglev_functions.c"])
     return request.param, out, lib
 
 
@@ -88,7 +88,7 @@ def baked_gen(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path,
     out = tmp_path_factory.mktemp(f"fw_baked_{request.param}")
     write_output(render(carriage, GenerateOptions(request.param, "baked"),
                         speed_range(carriage)), out)
-    lib = compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache")
+    lib = compile_shared([out / "maglev_functions.c"])
     return request.param, out, lib
 
 
@@ -537,7 +537,7 @@ def test_single_file_is_the_two_file_build(carriage: Carriage, tmp_path: Path) -
         assert sources == (["maglev.c", "main.c"] if flag else
                            ["maglev_functions.c", "maglev_simulate.c", "main.c"])
         c_files = [out / s for s in sources if s != "main.c"]
-        libs[name] = compile_shared(c_files, cache_dir=out / "cache")
+        libs[name] = compile_shared(c_files)
         if flag:
             assert json.loads((out / "manifest.json").read_text())["files"]["c"] == ["maglev.c"]
             subprocess.run(["cc", *WARN, "-Wmissing-prototypes", "-O2", "-c", "maglev.c",
@@ -692,8 +692,7 @@ def test_int32_build_gives_the_int64_results(carriage: Carriage, tmp_path: Path)
         want = "int" if int_type == "int32" else "long long int"
         assert f"typedef {want} maglev_int;" in text
         libs[int_type] = GeneratedLibrary(
-            compile_shared([out / "maglev_functions.c"], cache_dir=out / "cache"), "double",
-            int_type)
+            compile_shared([out / "maglev_functions.c"]), "double", int_type)
     for name, args in (("maglev_trim", ([20.0], carriage.p)),
                        ("maglev_lqr_gains", ([15.0], carriage.p))):
         a, b = (libs[k].function(name)(*args) for k in ("int64", "int32"))
