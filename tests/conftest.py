@@ -1,8 +1,11 @@
 """Shared fixtures: the default carriage, built once per test session; the tool markers.
 
 The derivation/compile cache goes to a temporary folder made for the run (shared by the
-pytest-xdist workers), so the suite neither reads nor writes the user's cache and always
-exercises a cold build first.
+pytest-xdist workers), so the suite neither reads nor writes the user's cache. The run starts
+with a cold build of the default carriage into it (`_cold_build`, before the workers start):
+the workers then read its derivations and libraries instead of deriving them side by side,
+and its output is the `default_build` fixture. Tests that corrupt or replace cache entries
+work on a copy (`seeded_cache`).
 
 Tool markers (pyproject.toml): ``needs_cc`` (the C compiler, nm and size; extra tools as
 arguments, e.g. ``needs_cc("clang")``), ``needs_tex`` (latexmk and pdftotext), ``needs_arm``
