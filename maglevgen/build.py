@@ -443,7 +443,8 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
               f": {c.verdict}; specification: {c.spec_verdict}"
               for n, c in env.controllers.items()]
-    lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}."]
+    lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}.",
+              env.firmware_design(embedded)]
     if env.other_models:
         lines += [f"The embedded controller's gains on the other models: "
                   f"{env.robustness_verdict()}."]

@@ -96,7 +96,8 @@ def _verdicts(carriage, rep: dict) -> list[str]:
     embedded = carriage.params.envelope.embedded_controller
     rep["envelope"] = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
                        "verdicts": {n: c.verdict for n, c in env.controllers.items()},
-                       "stable": {n: c.ok for n, c in env.controllers.items()}}
+                       "stable": {n: c.ok for n, c in env.controllers.items()},
+                       "firmware_design": env.firmware_design(embedded)}
     return summary.verdict_lines(env, embedded)
 
 
