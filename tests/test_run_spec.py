@@ -148,7 +148,7 @@ def test_a_yaw_at_speed_starts_a_drift_no_budget_stops_within_the_disturbance(ca
     stiffness by central differences) over the allowed deviations. So every controller within
     the budget overshoots y0 by at least Delta = m v0^2 / (2 F): a limit at y0 (the former
     default) is met by none; the file's limit leaves the room, and the run keeps to it."""
-    from independent_reference import rotation, stiffness_fd
+    from independent_reference import lateral_drift_overshoot, rotation
 
     from maglevgen.envelope import resolve_range
     from maglevgen.simulate import DISTURBANCE, run_scenarios
@@ -163,12 +163,10 @@ def test_a_yaw_at_speed_starts_a_drift_no_budget_stops_within_the_disturbance(ca
     assert v0 > 0 and DISTURBANCE["y"] > 0  # the drift and the offset point the same way
     # the first steps move O sideways at v0 (the forces change the velocity only later)
     assert (traj.x[1, 1] - x0[1]) / (traj.t[1] - traj.t[0]) == pytest.approx(v0, rel=0.1)
-    n_lateral = sum(abs(a.normal[1]) > 1e-12 for a in prm.arrays.values())
-    K = stiffness_fd(prm, traj.op.x_trim[1:6], v_max, traj.op.f_prop)
     limits = np.array([getattr(spec.max_deviation, k) for k in ("y", "z", "phi", "theta",
                                                                   "psi")])
-    f_external = float(np.abs(K[0]) @ limits)  # the largest |F_y| a pose in the box gives
-    delta = prm.vehicle.mass * v0**2 / (2 * (n_lateral * spec.force_budget + f_external))
+    delta = lateral_drift_overshoot(prm, traj.op.x_trim[1:6], v_max, traj.op.f_prop, v0,
+                                    limits)
     peak = float(np.max(np.abs(traj.axis_deviation[:, 0])))
     assert peak >= DISTURBANCE["y"] + delta  # no controller in the budget does better
     assert spec.max_deviation.y >= DISTURBANCE["y"] + delta and peak <= spec.max_deviation.y
