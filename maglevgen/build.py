@@ -26,6 +26,7 @@ from .workers import Job, PendingFiles, Shared, child, submit
 
 if TYPE_CHECKING:
     from .params import LoadedParams
+    from .run_spec import RunVerdict
 
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"
@@ -300,8 +301,8 @@ def _stability_map(env) -> dict[str, bytes]:
 class JudgedRun:
     """One run of the embedded controller that `build` judges against ``[control.spec]``."""
 
-    label: str  # "the hold run at 40 m/s", "the launch run (6.543 to 40 m/s)"
-    verdict: object  # maglevgen.run_spec.RunVerdict
+    label: str  # "hold run at 40 m/s", "launch run (6.543 to 40 m/s)"
+    verdict: RunVerdict
     command: str  # the `maglevgen simulate` that repeats it
 
 
@@ -320,11 +321,11 @@ def embedded_runs(carriage, lib, env, run, opts: BuildOptions) -> tuple[JudgedRu
         traj = (own if own is not None and v == run.op.speed else
                 run_scenarios(carriage, (name,), opts.t_end, opts.dt, v, lib=lib,
                               loop="firmware").trajectories[0])
-        out.append(JudgedRun(f"the hold run at {v:.4g} m/s", spec_verdict(traj),
+        out.append(JudgedRun(f"hold run at {v:.4g} m/s", spec_verdict(traj),
                              f"maglevgen simulate --controller {name} --speed {v:.4g}"))
     launched = run_scenarios(carriage, (name,), opts.t_end, opts.dt, lib=lib,
                              scenario="launch", loop="firmware")
-    out.append(JudgedRun(f"the launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
+    out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
                          "m/s)", spec_verdict(launched.trajectories[0]),
                          f"maglevgen simulate --controller {name} --scenario launch"))
     return tuple(out)
@@ -350,7 +351,7 @@ def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = ()) -> st
         where.append("maglevgen envelope")
     for r in runs:
         if r.verdict is not None and not r.verdict.meets:
-            failed.append(f"{r.verdict.text()} in {r.label}")
+            failed.append(f"{r.verdict.text()} in the {r.label}")
             where.append(r.command)
     if not failed:
         return None
@@ -511,7 +512,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         lines += ["", f"The embedded controller `{embedded}` in the firmware loop against "
                   "[control.spec] at the envelope's ends and in the launch (`build` exits 3 "
                   "when one fails):", "",
-                  *(f"- {r.label[4:]}: {r.verdict.text()}" for r in judged)]
+                  *(f"- {r.label}: {r.verdict.text()}" for r in judged)]
     return "\n".join(lines) + "\n"
 
 
