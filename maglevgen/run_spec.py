@@ -10,7 +10,7 @@ current speed or the accelerating trim of a launch):
 - peak deviation per axis at most control.spec.max_deviation. The disturbance itself counts,
   and so does the motion it starts: a yaw psi0 at body speed V moves the carriage sideways at
   V sin(psi0) from the first instant, which a bounded force stops only after a distance (about
-  0.36 mm for 2 mrad at 40 m/s within the default lateral budget). A limit at the disturbance's
+  0.35 mm for 2 mrad at 40 m/s within the default lateral budget). A limit at the disturbance's
   own offset is therefore met by no controller; the default limits are twice the default
   disturbance (`maglevgen.simulate.DISTURBANCE`) on the axes it loads, and a run that starts at
   or beyond a limit says so beside that check;
