@@ -26,6 +26,7 @@ from .workers import Job, PendingFiles, Shared, child, submit
 
 if TYPE_CHECKING:
     from .params import LoadedParams
+    from .run_spec import RunVerdict
 
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"
@@ -190,6 +191,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
             pending.result()  # the envelope's model checks read them from the cache
     step("envelope: stability of each controller across the speed range")
     env = compute_envelope(carriage, lib)
+    step("the embedded controller's hold and launch runs against [control.spec]")
+    judged = embedded_runs(carriage, lib, env, run, opts)
     step("envelope: the embedded controller's region of attraction (sampled)")
     regions = roa.study(carriage, lib, [carriage.params.envelope.embedded_controller],
                         roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
@@ -227,9 +230,10 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
-    summary = summary_text(carriage, run, lib, env, report_outputs(report, opts), regions)
+    summary = summary_text(carriage, run, lib, env, report_outputs(report, opts), regions,
+                           judged)
     files[SUMMARY] = summary
-    verification = embedded_verification(carriage, env)
+    verification = embedded_verification(carriage, env, judged)
     digests = {n: sha256_hex(b) for n, b in sorted(files.items())}
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,
                                "params_sha256": loaded.sha256,
@@ -293,24 +297,66 @@ def _stability_map(env) -> dict[str, bytes]:
     return {"envelope/stability_map.png": stability_map_png(env)}
 
 
-def embedded_verification(carriage, env) -> str | None:
+@dataclass(frozen=True)
+class JudgedRun:
+    """One run of the embedded controller that `build` judges against ``[control.spec]``."""
+
+    label: str  # "hold run at 40 m/s", "launch run (6.543 to 40 m/s)"
+    verdict: RunVerdict
+    command: str  # the `maglevgen simulate` that repeats it
+
+
+def embedded_runs(carriage, lib, env, run, opts: BuildOptions) -> tuple[JudgedRun, ...]:
+    """The embedded controller in the firmware loop, judged against ``[control.spec]``
+    (`maglevgen.run_spec`): held at envelope.v_min, at the build's run speed (that run,
+    reused) and at v_max for opts.t_end, and launched from v_min to v_max, the ends and the
+    launch being where the linear verdict's worst cases lie (the gains' ends of the table,
+    the accelerating trim's smallest gaps)."""
+    from .simulate import run_scenarios, spec_verdict
+
+    name = carriage.params.envelope.embedded_controller
+    own = next((t for t in run.trajectories if t.controller == name), None)
+    out = []
+    for v in sorted({env.v_min, env.v_max, *([run.op.speed] if own is not None else [])}):
+        traj = (own if own is not None and v == run.op.speed else
+                run_scenarios(carriage, (name,), opts.t_end, opts.dt, v, lib=lib,
+                              loop="firmware").trajectories[0])
+        out.append(JudgedRun(f"hold run at {v:.4g} m/s", spec_verdict(traj),
+                             f"maglevgen simulate --controller {name} --speed {v:.4g}"))
+    launched = run_scenarios(carriage, (name,), opts.t_end, opts.dt, lib=lib,
+                             scenario="launch", loop="firmware")
+    out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
+                         "m/s)", spec_verdict(launched.trajectories[0]),
+                         f"maglevgen simulate --controller {name} --scenario launch"))
+    return tuple(out)
+
+
+def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = ()) -> str | None:
     """None when the embedded controller is stable and meets ``[control.spec]`` across the
-    envelope, else the one-line reason `build` exits 3 with."""
+    envelope (the linear verdict, on every model checked) and in each of ``runs``
+    (`embedded_runs`), else the one-line reason `build` exits 3 with: every failed spec, its
+    value, its limit and where."""
     name = carriage.params.envelope.embedded_controller
     c = env.controllers[name]
+    head = f"verification failed: the embedded controller envelope.embedded_controller = {name!r}"
     if not c.ok:
-        return (f"verification failed: the embedded controller envelope.embedded_controller = "
-                f"{name!r} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)")
+        return f"{head} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)"
+    failed, where = [], []
     if not c.meets_spec:
-        return (f"verification failed: the embedded controller envelope.embedded_controller = "
-                f"{name!r} {c.spec_verdict}, {env.checked_on()} (maglevgen envelope; "
-                "--allow-unstable to accept)")
+        failed.append(f"{c.spec_verdict}, {env.checked_on()}")
+        where.append("maglevgen envelope")
     if not env.robust:
-        return (f"verification failed: the embedded controller envelope.embedded_controller = "
-                f"{name!r} meets the specification on the carriage's model but its gains fail "
-                f"it {env.robustness_verdict()} (maglevgen envelope; --allow-unstable to "
-                "accept)")
-    return None
+        failed.append("meets the specification on the carriage's model but its gains fail "
+                      f"it {env.robustness_verdict()}")
+        where.append("maglevgen envelope")
+    for r in runs:
+        if r.verdict is not None and not r.verdict.meets:
+            failed.append(f"{r.verdict.text()} in the {r.label}")
+            where.append(r.command)
+    if not failed:
+        return None
+    return (f"{head} " + "; ".join(failed) + f" ({'; '.join(dict.fromkeys(where))}; "
+            "--allow-unstable to accept)")
 
 
 def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
@@ -367,10 +413,11 @@ def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
 
 
 def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
-                 regions=None) -> str:
+                 regions=None, judged: tuple[JudgedRun, ...] = ()) -> str:
     """Where each output is, and the numbers an engineer checks first; ``report``: what
     report/ holds (see `report_outputs`); ``regions``: the embedded controller's region of
-    attraction (maglevgen.roa), when computed."""
+    attraction (maglevgen.roa), when computed; ``judged``: the embedded controller's runs
+    against [control.spec] (`embedded_runs`)."""
     import numpy as np
 
     from .magnetic_damping import axis_damping
@@ -397,7 +444,8 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
               f": {c.verdict}; specification: {c.spec_verdict}"
               for n, c in env.controllers.items()]
-    lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}."]
+    lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}.",
+              env.firmware_design(embedded)]
     if env.other_models:
         lines += [f"The embedded controller's gains on the other models: "
                   f"{env.robustness_verdict()}."]
@@ -460,6 +508,11 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         lines.append(f"Simulation `{traj.controller}`: {traj.status}"
                      + (f" ({traj.event})" if traj.event else ""))
     lines += _run_spec_lines(run)
+    if judged:
+        lines += ["", f"The embedded controller `{embedded}` in the firmware loop against "
+                  "[control.spec] at the envelope's ends and in the launch (`build` exits 3 "
+                  "when one fails):", "",
+                  *(f"- {r.label}: {r.verdict.text()}" for r in judged)]
     return "\n".join(lines) + "\n"
 
 

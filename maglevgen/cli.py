@@ -96,7 +96,8 @@ def _verdicts(carriage, rep: dict) -> list[str]:
     embedded = carriage.params.envelope.embedded_controller
     rep["envelope"] = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
                        "verdicts": {n: c.verdict for n, c in env.controllers.items()},
-                       "stable": {n: c.ok for n, c in env.controllers.items()}}
+                       "stable": {n: c.ok for n, c in env.controllers.items()},
+                       "firmware_design": env.firmware_design(embedded)}
     return summary.verdict_lines(env, embedded)
 
 
@@ -679,7 +680,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: envelope.embedded_controller, the spec design)")
     bld.add_argument("--allow-unstable", action="store_true",
                      help="exit 0 with a warning (not 3) when the embedded controller is "
-                          "unstable somewhere in the envelope")
+                          "unstable somewhere in the envelope or fails a spec of "
+                          "[control.spec] (the linear verdict or a hold or launch run)")
     bld.set_defaults(func=cmd_build)
 
     rep = sub.add_parser("report", help="LaTeX derivation report, and its PDF where TeX is "

@@ -262,6 +262,32 @@ class Envelope:
                 if others else "")
         return f"on the linearisation with {self.model}{loop}{also}"
 
+    def firmware_design(self, name: str) -> str:
+        """Which design of controller ``name`` (the embedded one) the firmware gets and why,
+        in one sentence: the gains designed on the continuous linearisation, checked on the
+        sampled-data loop; for `spec`, the design at the tick (`TickDesignCheck`) is the
+        fallback computed where that check fails, and the generated loop cannot run it."""
+        c = self.controllers.get(name)
+        if c is None or self.loop is None:
+            return (f"The firmware gets the {CONTROLLER_TITLES[name]} gains designed on the "
+                    "continuous linearisation (not checked here on the sampled-data loop).")
+        on = f"on the {self.loop.tick_text()}"
+        if name != "spec":
+            return (f"The firmware gets the {CONTROLLER_TITLES[name]} gains designed on the "
+                    f"continuous linearisation, which {on} "
+                    f"{'meet' if c.meets_spec else 'fail'} [control.spec].")
+        if c.tick_design is None:
+            return ("The firmware gets the continuous spec design (the coupled LQR of the "
+                    "continuous linearisation, scheduled over speed) because it meets "
+                    f"[control.spec] {on}; the design at the tick (DARE on the ZOH model with "
+                    "the delay, the same weights) is the fallback the envelope computes and "
+                    "reports only where the continuous design loses the spec at the tick.")
+        return ("The firmware gets the continuous spec design although it fails "
+                f"[control.spec] {on}: the design at the tick (DARE on the ZOH model with the "
+                f"delay, the same weights) {'meets' if c.tick_design.meets_spec else 'fails'} "
+                "it but feeds back the commands in flight, which the generated loop "
+                "(maglev_control_loop) does not run.")
+
     def robustness_verdict(self) -> str:
         """The embedded controller's gains on the other models, in one sentence."""
         return "; ".join(c.text() for c in self.other_models)
@@ -352,10 +378,14 @@ class LoopSetting:
     speed_gain: float  # k_v [N s/m], one value over the envelope
     bandwidth: float  # the speed pole it guarantees at least [1/s]
 
-    def text(self) -> str:
+    def tick_text(self) -> str:
+        """"sampled-data loop at <rate> Hz with <n> tick(s) of delay"."""
         delay = f"{self.tick.delay} tick{'s' if self.tick.delay != 1 else ''} of delay"
-        return (f"sampled-data loop at {self.tick.rate:g} Hz with {delay}, zero-order hold, "
-                f"speed loop k_v = {self.speed_gain:.4g} N s/m")
+        return f"sampled-data loop at {self.tick.rate:g} Hz with {delay}"
+
+    def text(self) -> str:
+        return (f"{self.tick_text()}, zero-order hold, speed loop k_v = "
+                f"{self.speed_gain:.4g} N s/m")
 
 
 def loop_setting(carriage, points: Sequence[OperatingPoint]) -> LoopSetting:

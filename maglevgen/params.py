@@ -255,8 +255,10 @@ class ControlSpec(_Section):
     the model's parameter vector (it changes no equation)."""
 
     max_deviation: AxisDeviation = Field(default_factory=lambda: AxisDeviation(
-        y=1e-3, z=1e-3, phi=5e-3, theta=2e-3, psi=5e-3), description="allowed deviation "
-        "per axis (Bryson's rule: q1 = 1/a_max^2)")
+        y=2e-3, z=2e-3, phi=5e-3, theta=4e-3, psi=5e-3), description="allowed deviation "
+        "per axis (Bryson's rule: q1 = 1/a_max^2), the peak a run may reach: at least the "
+        "disturbance's own reach (its offset and the motion it starts), else no controller "
+        "meets it")
     force_budget: float = Field(
         default=20.0, description="largest control force of one array (the norm of its "
         "control components); Bryson's rule r = 1/F_max^2 with F_max the generalized force "

@@ -235,7 +235,8 @@ def spec_verdict(traj: Trajectory) -> RunVerdict | None:
     return judge_run(traj.run_spec, [settling_time(traj.t, dev[:, i]) for i in
                                      range(dev.shape[1])],
                      np.max(np.abs(dev), axis=0), float(np.min(traj.gaps)), traj.speed_error,
-                     bool(traj.speed_gain), traj.saturated_time, traj.force_budget)
+                     bool(traj.speed_gain), traj.saturated_time, traj.force_budget,
+                     np.abs(dev[0]))
 
 
 def run_status(traj: Trajectory) -> str:

@@ -378,6 +378,7 @@ def verdict_lines(env, embedded: str) -> list[str]:
             out.append(f"  {'':<28} its gains on the other models: "
                        f"{env.robustness_verdict()}")
     out.append(f"  (specification checked {env.checked_on()})")
+    out.append(f"  {env.firmware_design(embedded)}")
     return out
 
 

@@ -442,3 +442,16 @@ def spec_weights_reference(spec, k, m, T):
         q2[i] = floor if f(floor) >= 0 else brentq(f, floor, 1e6 * q1[i] * m[i] / sigma,
                                                    rtol=1e-13)
     return q1, q2, r
+
+
+def lateral_drift_overshoot(prm: Parameters, q_trim: np.ndarray, speed: float, f_prop: float,
+                            v0: float, limits: np.ndarray) -> float:
+    """The least distance beyond its starting offset that O drifts sideways from a lateral
+    velocity ``v0`` (outward) under any control within the force budget: the kinetic energy
+    m v0^2 / 2 taken by at most the budget of every array whose normal has a lateral part
+    plus the largest external lateral force (`external_wrench` linearised by `stiffness_fd`
+    at ``q_trim``) over poses within ``limits`` (y, z, phi, theta, psi) of the trim."""
+    n_lateral = sum(abs(a.normal[1]) > 1e-12 for a in prm.arrays.values())
+    K = stiffness_fd(prm, q_trim, speed, f_prop)
+    force = n_lateral * prm.control.spec.force_budget + float(np.abs(K[0]) @ limits)
+    return prm.vehicle.mass * v0**2 / (2 * force)

@@ -740,3 +740,37 @@ def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage
     got = other_structures(carriage)
     assert got == want
     assert carriage.structure not in got
+
+
+def test_the_default_build_judges_the_embedded_runs_and_passes(good: Path, carriage) -> None:
+    """The default build's verification covers the embedded controller's runs: SUMMARY.md
+    lists its holds at v_min, operation.speed and v_max and its launch, each meeting the run
+    spec, and BUILD.json records no failure (exit 0, the fixture). The v_max hold's lateral
+    peak lies between the least any controller within the force budget reaches from the
+    default disturbance (the energy bound of `lateral_drift_overshoot` at the reference trim)
+    and the file's allowed deviation; the firmware's design is stated."""
+    from independent_reference import lateral_drift_overshoot
+
+    from maglevgen.simulate import DISTURBANCE
+
+    assert json.loads((good / STAMP).read_text())["verification"] is None
+    env = json.loads((good / "envelope/envelope.json").read_text())
+    summary = (good / "SUMMARY.md").read_text()
+    prm = carriage.params
+    speeds = sorted({env["v_min"], prm.operation.speed, env["v_max"]})
+    for v in speeds:
+        assert f"- hold run at {v:.4g} m/s: meets the specification (" in summary, v
+    assert "- launch run (" in summary and "FAILS" not in summary.split(
+        "in the firmware loop against [control.spec]")[1]
+    line = next(ln for ln in summary.splitlines()
+                if ln.startswith(f"- hold run at {env['v_max']:.4g} m/s"))
+    peak = float(re.search(r"peak lateral deviation (\S+) m", line)[1])
+    ref = reference_trim(prm, env["v_max"])
+    dev = prm.control.spec.max_deviation
+    bound = DISTURBANCE["y"] + lateral_drift_overshoot(
+        prm, ref.q, env["v_max"], ref.f_prop, env["v_max"] * np.sin(DISTURBANCE["psi"]),
+        np.array([dev.y, dev.z, dev.phi, dev.theta, dev.psi]))
+    assert bound * (1 - 1e-3) <= peak <= dev.y
+    assert "The firmware gets the continuous spec design because it meets" in \
+        re.sub(r"\s+", " ", summary).replace("(the coupled LQR of the continuous "
+                                             "linearisation, scheduled over speed) ", "")

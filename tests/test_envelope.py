@@ -52,8 +52,9 @@ def _reference_eigenvalues(carriage: Carriage, v: float) -> dict[str, np.ndarray
     c = np.where(k > 0, np.sqrt(np.maximum(k, 0) * m), 0.0)  # optimized damping sqrt(k m)
     K_c, _, _ = control.lqr(Ar, Bg, q1 * S.T @ S + q2 * C.T @ C, r * np.eye(5))
     q1s, q2s, rs = spec_weights_reference(carriage.params.control.spec, k, m, T)
-    K_s, _, _ = control.lqr(Ar, Bg, S.T @ np.diag(q1s) @ S + C.T @ np.diag(q2s) @ C,
-                            np.diag(rs))
+    Q_s = S.T @ np.diag(q1s) @ S + C.T @ np.diag(q2s) @ C
+    # symmetric to round-off, which python-control's check compares with an absolute eps
+    K_s, _, _ = control.lqr(Ar, Bg, (Q_s + Q_s.T) / 2, np.diag(rs))
     return {
         "none": np.linalg.eigvals(Ar),
         "damping": np.linalg.eigvals(Ar - Bg @ (np.diag(c) @ C)),

@@ -112,7 +112,7 @@ def _embedded_context(carriage, env, table: Mapping[str, Any]) -> dict[str, Any]
                                                                    "psi")],
         "design_damping_ratio": s.min_damping_ratio + s.damping_margin,
         "verdict": c.verdict, "ok": c.ok, "spec_verdict": c.spec_verdict,
-        "meets_spec": c.meets_spec,
+        "meets_spec": c.meets_spec, "firmware_design": env.firmware_design(name),
         "table_error": {"K_pos": errors.get("K_pos"), "K_rate": errors.get("K_rate"),
                         "worst": table["worst_relative_error"], "bound": table["bound"]},
     }
