@@ -250,7 +250,7 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
     assert prm.model.circuit_dynamics == "first-order"
     c_mag = _magnetic_damping_reference(prm, ref, mass)
     axes = ("lateral", "vertical", "roll", "pitch", "yaw")
-    units = {"k": ("N/m", "N*m/rad"), "m": ("kg", "kg*m^2"), "c": ("N*s/m", "N*m*s/rad")}
+    units = {"k": ("N/m", "N m/rad"), "m": ("kg", "kg m^2"), "c": ("N s/m", "N m s/rad")}
 
     # four tables: stiffness (translation, rotation), then gains (translation, rotation),
     # each row axis -> {column header: cell}

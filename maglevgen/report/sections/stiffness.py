@@ -113,6 +113,7 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
             rf"\dot{{{ltx(sp.Symbol(cv.STATE_NAMES[i]))}}}",
             ltx(sp.Symbol(cv.STATE_NAMES[j])),
             float(A[i, j]),
+            jacobian_unit(cv.STATES[i].unit, cv.STATES[j].unit),
         )
         for i in range(12)
         for j in range(12)
@@ -136,6 +137,29 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
         "B_shape": B.shape,
         "B_nonzero": int(np.count_nonzero(np.abs(B) > 1e-13)),
     }
+
+
+def jacobian_unit(row_unit: str, column_unit: str) -> str:
+    """The unit (LaTeX text) of the entry of A = d(x')/dx in row ``row_unit``'s derivative and
+    column ``column_unit`` (the states' units: m, rad, m/s, rad/s): row unit / (s column unit),
+    with m, rad and s each to one power ("1/s$^2$", "m/(s\\,rad)")."""
+    power: dict[str, int] = {"m": 0, "rad": 0, "s": -1}
+    for unit, sign in ((row_unit, 1), (column_unit, -1)):
+        num, _, den = unit.partition("/")
+        power[num] += sign
+        if den:
+            power[den] -= sign
+
+    def part(names: list[str]) -> str:
+        return r"\,".join(n + (f"$^{{{abs(power[n])}}}$" if abs(power[n]) > 1 else "")
+                          for n in names)
+
+    up = [n for n in ("m", "rad", "s") if power[n] > 0]
+    down = [n for n in ("m", "rad", "s") if power[n] < 0]
+    text = part(up) or "1"
+    if down:
+        text += "/" + (f"({part(down)})" if len(down) > 1 else part(down))
+    return text
 
 
 # the table's columns: every choice of params.ARRAY_FORCE_LAWS, the paper's first
