@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
+from .columns import fcolumn_plain
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import check_writable, clean_stale_siblings, write_output
 from .version import __version__
@@ -375,7 +376,6 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
 
     from .magnetic_damping import axis_damping
     from .operating import CONTROLLER_TITLES
-    from .report.format import fcolumn_plain
     from .summary import accelerating_margins, pitch_paper_form, stiffness_table, trim_point
 
     op = run.op

@@ -592,7 +592,7 @@ def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage
         assert float(t[1]) == pytest.approx(ref[key], rel=1e-3)
     assert f"The {dominant} dominates." in tex
     p = re.search(r"- pitch \(eq 15\): .* printed (\S+), with the sum .* (\S+), derived (\S+) "
-                  r"N\*m/rad;", text)
+                  r"N m/rad;", text)
     assert p, text
     rt = reference_trim(prm, v)
     K_fd = stiffness_fd(prm, rt.q, v, rt.f_prop, other=False)[3, 3]
@@ -707,3 +707,28 @@ def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage
     got = other_structures(carriage)
     assert got == want
     assert carriage.structure not in got
+
+
+def test_summary_tables_print_each_column_in_one_notation_and_units_as_written(good: Path
+                                                                              ) -> None:
+    """Every Markdown table of SUMMARY.md: a column's numbers all plain decimals or all with
+    an exponent (no 0.0002235 above 2.965e-05), and no '*' in a unit (Markdown would start
+    emphasis at N*m): units as a person writes them, N m/rad."""
+    lines = (good / "SUMMARY.md").read_text().splitlines()
+    tables, current = [], []
+    for ln in [*lines, ""]:
+        if ln.startswith("|"):
+            current.append([c.strip() for c in ln.strip().strip("|").split("|")])
+        elif current:
+            tables.append(current)
+            current = []
+    assert len(tables) >= 5  # stiffness and gains (translation, rotation), region of attraction
+    number = re.compile(r"^[-+]?\d+(?:\.\d+)?(e[-+]\d+)?$")
+    for table in tables:
+        head, rows = table[0], table[2:]
+        assert not any("*" in h for h in head), head
+        for col in range(len(head)):
+            kinds = {bool(m.group(1)) for r in rows if (m := number.match(r[col]))}
+            assert len(kinds) <= 1, (head[col], [r[col] for r in rows])
+    gains = [t for t in tables if t[0][1].startswith("K1 [")]
+    assert [t[0][1] for t in gains] == ["K1 [N/m]", "K1 [N m/rad]"]

@@ -8,12 +8,13 @@ import math
 import re
 import unicodedata
 
+from ..columns import plain_column
+
 __all__ = [
     "ROUNDOFF",
     "axis_unit_row",
     "faxis_unit",
     "fcolumn",
-    "fcolumn_plain",
     "fcomplex",
     "ferr",
     "ffixed",
@@ -192,36 +193,13 @@ def axis_unit_row(axis: str, *quantities: str, lead: int = 1) -> str:
     return (r"\midrule" + "\n" if block == "rotations" else "") + " & ".join(cells) + r" \\" + "\n"
 
 
-def _plain_column(values) -> bool:
-    """Whether a column's numbers all read as plain decimals: every nonzero finite magnitude
-    in [1e-4, 1e5) (else the whole column takes an exponent)."""
-    finite = [abs(float(v)) for v in values
-              if v is not None and math.isfinite(float(v)) and float(v) != 0]
-    return all(1e-4 <= v < 1e5 for v in finite)
-
-
-def fcolumn_plain(values, digits: int = 4) -> list[str]:
-    """`fcolumn` for plain text (SUMMARY.md's tables): ``digits`` significant digits, plain
-    decimals for the whole column or an exponent (2.965e-05) for the whole column."""
-    plain = _plain_column(values)
-    out = []
-    for v in values:
-        x = float(v)
-        if plain or x == 0 or not math.isfinite(x):
-            out.append(f"{x:.{digits}g}" if abs(x) < 10**digits or not math.isfinite(x)
-                       else f"{x:.0f}")
-        else:
-            out.append(f"{x:.{digits - 1}e}")
-    return out
-
-
 def fcolumn(values, digits: int = 6) -> list[str]:
     """The numbers of one table column (LaTeX math, without $) in one notation: plain
-    decimals (`ffixed`) when every nonzero magnitude is in [1e-4, 1e5), else every entry as
+    decimals (`ffixed`) where `maglevgen.columns.plain_column` says so, else every entry as
     a x 10^e (`fnum`'s mantissa and exponent, also for the ones that would read plainly), so
     that a column never mixes 0.000223 with 2.96 x 10^-5. None stays None (the template's
     dash); zeros print as 0."""
-    plain = _plain_column(values)
+    plain = plain_column(values)
     out: list[str] = []
     for v in values:
         if v is None:

@@ -16,7 +16,16 @@ from ...derive.paper import paper_stiffness
 from ...errors import NoTrimError
 from ...library import simulation_library
 from ...summary import trim_point
-from ..display import REPORT_SOURCE, Display, break_sum, eqs, ltx, matrix_tex, round_floats
+from ..display import (
+    REPORT_SOURCE,
+    Display,
+    break_sum,
+    decimal_rationals,
+    eqs,
+    ltx,
+    matrix_tex,
+    round_floats,
+)
 from ..format import fnum
 from ..symbols import K_SYM, array_labels, to_display
 
@@ -91,7 +100,8 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
             {
                 "axis": axis,
                 "unit": r["unit"],
-                "formula": ltx(printed[axis]),
+                # as printed: eq 15's 0.12 F_upper k L_x^2, not SymPy's 3 F k L_x^2/25
+                "formula": ltx(decimal_rationals(printed[axis])),
                 "eq": tags[axis],
                 "paper": r["paper"],
                 "derived": r["derived"],
