@@ -288,8 +288,9 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
         for j, (axis, a) in enumerate(axes):
             ts = "not settled" if a["settling_time"] is None else f"{a['settling_time']:.3f}"
             final = "< 1e-12" if abs(a["final_deviation"]) < 1e-12 else next(finals)
+            unit = a["force_unit"].replace("*", " ")  # N m: a '*' would start emphasis
             lines.append(f"| {axis} ({a['state']}) | {ts} | {peaks[j]} {a['unit']} | "
-                         f"{final} {a['unit']} | {rms[j]} {a['force_unit']} |")
+                         f"{final} {a['unit']} | {rms[j]} {unit} |")
         lines.append("")
     return "\n".join(lines)
 

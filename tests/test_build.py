@@ -711,24 +711,27 @@ def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage
 
 def test_summary_tables_print_each_column_in_one_notation_and_units_as_written(good: Path
                                                                               ) -> None:
-    """Every Markdown table of SUMMARY.md: a column's numbers all plain decimals or all with
-    an exponent (no 0.0002235 above 2.965e-05), and no '*' in a unit (Markdown would start
-    emphasis at N*m): units as a person writes them, N m/rad."""
+    """Every Markdown table of SUMMARY.md and simulation/metrics.md: a column's numbers all
+    plain decimals or all with an exponent (no 0.0002235 above 2.965e-05), and no '*' in a
+    unit (Markdown would start emphasis at N*m): units as a person writes them, N m/rad."""
+    number = re.compile(r"^[-+]?\d+(?:\.\d+)?(e[-+]\d+)?(?: \S+(?: \S+)?)?$")  # 2.5e-05 m
+    for name in ("SUMMARY.md", "simulation/metrics.md"):
+        lines = (good / name).read_text().splitlines()
+        tables, current = [], []
+        for ln in [*lines, ""]:
+            if ln.startswith("|"):
+                current.append([c.strip() for c in ln.strip().strip("|").split("|")])
+            elif current:
+                tables.append(current)
+                current = []
+        assert len(tables) >= 5, name  # SUMMARY: stiffness, gains, region; metrics: a run each
+        for table in tables:
+            head, rows = table[0], table[2:]
+            assert not any("*" in c for r in table for c in r), (name, table)
+            for col in range(len(head)):
+                kinds = {bool(m.group(1)) for r in rows if (m := number.match(r[col]))
+                         and float(r[col].split()[0]) != 0}
+                assert len(kinds) <= 1, (name, head[col], [r[col] for r in rows])
     lines = (good / "SUMMARY.md").read_text().splitlines()
-    tables, current = [], []
-    for ln in [*lines, ""]:
-        if ln.startswith("|"):
-            current.append([c.strip() for c in ln.strip().strip("|").split("|")])
-        elif current:
-            tables.append(current)
-            current = []
-    assert len(tables) >= 5  # stiffness and gains (translation, rotation), region of attraction
-    number = re.compile(r"^[-+]?\d+(?:\.\d+)?(e[-+]\d+)?$")
-    for table in tables:
-        head, rows = table[0], table[2:]
-        assert not any("*" in h for h in head), head
-        for col in range(len(head)):
-            kinds = {bool(m.group(1)) for r in rows if (m := number.match(r[col]))}
-            assert len(kinds) <= 1, (head[col], [r[col] for r in rows])
-    gains = [t for t in tables if t[0][1].startswith("K1 [")]
-    assert [t[0][1] for t in gains] == ["K1 [N/m]", "K1 [N m/rad]"]
+    heads = [ln for ln in lines if ln.startswith("| ") and "K1 [" in ln]
+    assert [h.split("|")[2].strip() for h in heads] == ["K1 [N/m]", "K1 [N m/rad]"]
