@@ -299,6 +299,38 @@ def test_number_formats() -> None:
     assert fmt.fcomplex(-1.5 + 0j) == "-1.5"
 
 
+def test_a_column_takes_one_notation_and_reads_back_its_values() -> None:
+    """fcolumn (LaTeX) and fcolumn_plain (text): a column whose magnitudes span 1e-5 to 1e-2
+    prints every entry with an exponent, one within [1e-4, 1e5) every entry plainly; each
+    entry reads back (parsed here) as its value to the digits asked; zeros and None pass."""
+    from maglevgen.columns import fcolumn_plain
+
+    wide = [2.23524e-4, 2.96472e-5, 3.63352e-2, 0.0]
+    tex = fmt.fcolumn(wide)
+    assert [r"\times" in c for c in tex] == [True, True, True, False]
+    np.testing.assert_allclose([_value(c) for c in tex], wide, rtol=1e-6)
+    plain = [2236.9, 9.3, 0.000223524, None]
+    tex = fmt.fcolumn(plain)
+    assert tex[-1] is None and not any(r"\times" in c for c in tex[:-1])
+    np.testing.assert_allclose([float(c) for c in tex[:-1]], plain[:-1], rtol=1e-6)
+    text = fcolumn_plain(wide)
+    assert all("e" in c for c in text[:3]) and text[3] == "0"
+    np.testing.assert_allclose([float(c) for c in text], wide, rtol=1e-3)
+    text = fcolumn_plain([16865.1, 0.08149, 1234567.0], 5)
+    assert all("e" in c for c in text)  # 1.2e6 is outside the plain range: all take one
+    assert fcolumn_plain([16865.1, 0.08149], 5) == ["16865", "0.08149"]
+
+
+def test_axis_tables_open_each_block_with_its_units() -> None:
+    """axis_unit_row: a row of units before lateral and roll only (the rotations' after a
+    rule), each quantity's unit by the block, a literal unit as given."""
+    assert fmt.axis_unit_row("vertical", "k") == fmt.axis_unit_row("yaw", "k") == ""
+    assert fmt.axis_unit_row("lateral", "k", "m", "1/s") == (
+        "\\textit{translations} & [N/m] & [kg] & [1/s] \\\\\n")
+    assert fmt.axis_unit_row("roll", "c", "", lead=2) == (
+        "\\midrule\n\\textit{rotations} &  & [N\\,m\\,s/rad] &  \\\\\n")
+
+
 def test_escape_and_long_sums_are_broken() -> None:
     assert fmt.tex_escape("a_b & 50% #1 {x} ~ ^") == (
         r"a\_b \& 50\% \#1 \{x\} \textasciitilde{} \^{}"
