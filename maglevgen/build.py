@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
+from .columns import fcolumn_plain
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import check_writable, clean_stale_siblings, write_output
 from .version import __version__
@@ -465,8 +466,10 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
               + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
               accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), ""]
     # one table per kind of axis, so that each column is one quantity in one unit
-    kinds = (("Translation", (0, 1), {"k": rows[0].unit, "m": "kg", "c": "N*s/m"}),
-             ("Rotation", (2, 3, 4), {"k": rows[2].unit, "m": "kg*m^2", "c": "N*m*s/rad"}))
+    # (units as a person writes them: a '*' in a Markdown table starts emphasis)
+    kinds = (("Translation", (0, 1), {"k": _md_unit(rows[0].unit), "m": "kg", "c": "N s/m"}),
+             ("Rotation", (2, 3, 4), {"k": _md_unit(rows[2].unit), "m": "kg m^2",
+                                      "c": "N m s/rad"}))
     lines += [f"Stiffness at trim: K_st0 (magnetic, the derivation's) beside the paper's printed "
               "eqs 13-19 and their difference from it; k = K_st0 plus the gravity and "
               "propulsion moments, the plant of the per-axis LQR, m its generalized mass "
@@ -475,12 +478,14 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         lines += [f"| {kind.lower()} axis | K_st0 [{u['k']}] | paper, printed [{u['k']}] | "
                   f"paper / K_st0 - 1 | k [{u['k']}] | m [{u['m']}] | f_n [Hz] |",
                   "| --- | --- | --- | --- | --- | --- | --- |"]
-        for i in idx:
-            r = rows[i]
-            fn = np.sqrt(max(k[i], 0.0) / m[i]) / (2 * np.pi)
-            lines.append(f"| {r.axis} | {r.derived_magnetic:.5g} | {r.paper_value:.5g} | "
-                         f"{r.relative_difference:+.1%} | {k[i]:.5g} | {m[i]:.4g} | "
-                         f"{fn:.3f} |")
+        # each column in one notation (fcolumn_plain): no 0.0002235 above 2.965e-05
+        cols = [fcolumn_plain([rows[i].derived_magnetic for i in idx], 5),
+                fcolumn_plain([rows[i].paper_value for i in idx], 5),
+                [f"{rows[i].relative_difference:+.1%}" for i in idx],
+                fcolumn_plain([k[i] for i in idx], 5), fcolumn_plain([m[i] for i in idx]),
+                [f"{np.sqrt(max(k[i], 0.0) / m[i]) / (2 * np.pi):.3f}" for i in idx]]
+        lines += [f"| {rows[i].axis} | " + " | ".join(c[j] for c in cols) + " |"
+                  for j, i in enumerate(idx)]
         lines.append("")
     lines += ["Per-axis LQR gains (the paper's design, u = -(K1 a + K2 a')), the optimized "
               "damping c and the magnetic damping c_mag = -m A[rate, rate] of the circuits' "
@@ -489,8 +494,10 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         lines += [f"| {kind.lower()} axis | K1 [{u['k']}] | K2 [{u['c']}] | damping c "
                   f"[{u['c']}] | magnetic c_mag [{u['c']}] |",
                   "| --- | --- | --- | --- | --- |"]
-        lines += [f"| {rows[i].axis} | {op.K[i, 0]:.4g} | {op.K[i, 1]:.4g} | "
-                  f"{op.c_damping[i]:.4g} | {c_mag[i]:.4g} |" for i in idx]
+        cols = [fcolumn_plain([v[i] for i in idx])
+                for v in (op.K[:, 0], op.K[:, 1], op.c_damping, c_mag)]
+        lines += [f"| {rows[i].axis} | " + " | ".join(c[j] for c in cols) + " |"
+                  for j, i in enumerate(idx)]
         lines.append("")
     lines += ["Paper discrepancies found (details and evidence in the report):",
               "- printed stiffnesses (eqs 13-19) differ from the derived K_st0: "
@@ -498,7 +505,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
               "- pitch (eq 15): the error is the net front force F_z3 - F_z1 - F_z2 where the "
               "upper and lower arrays' stiffnesses add (the arm L_x is right): printed "
               f"{pitch['printed']:.5g}, with the sum 2k sum_i F_i n_z,i^2 x_i^2 "
-              f"{pitch['sum_of_contributions']:.5g}, derived {pitch['derived']:.5g} N*m/rad;",
+              f"{pitch['sum_of_contributions']:.5g}, derived {pitch['derived']:.5g} N m/rad;",
               "- eq 31 does not satisfy the Riccati equation eq 30, and eq 32's gain is not the "
               "LQR gain; the toolchain uses the derived closed form (stable in float32);",
               "- with Q = diag(state_weights), R = input_weight as in the paper the LQR damps "
@@ -514,6 +521,11 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
                   "when one fails):", "",
                   *(f"- {r.label}: {r.verdict.text()}" for r in judged)]
     return "\n".join(lines) + "\n"
+
+
+def _md_unit(unit: str) -> str:
+    """A unit as SUMMARY.md's tables print it: N m/rad, not N*m/rad."""
+    return unit.replace("*", " ")
 
 
 def _run_spec_lines(run) -> list[str]:

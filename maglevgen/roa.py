@@ -633,7 +633,7 @@ def summary_lines(region: Region) -> list[str]:
            "envelope/roa.md, envelope/roa_extent.png; `maglevgen roa` at full resolution), "
            "each axis' largest deviation alone inside {V <= c}:", "",
            "| speed [m/s] | " + " | ".join(f"{a} [{AXIS_UNITS[a][0]}]" for a in AXIS_NAMES)
-           + " | x default | limited by | boundary runs settle |",
+           + " | multiple of the default disturbance | limited by | boundary runs settle |",
            "|" + " --- |" * (len(AXIS_NAMES) + 4)]
     for r in region.regions:
         ext = r.extents

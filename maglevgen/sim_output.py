@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .columns import fcolumn_plain
 from .derive import conventions as cv
 from .laws import controller as registered_controller
 from .simulate import (
@@ -31,7 +32,9 @@ FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = 
      (("z", 1e3, r"heave $z - z_0$ / mm"), ("theta", 1e3, r"pitch $\theta - \theta_0$ / mrad")),
      "figs 3, 5, 7"),
     ("travel_roll.png", "Travel distance and roll",
-     (("x", 1.0, r"travel $x$ / m"), ("phi", 1e3, r"roll $\phi - \phi_0$ / mrad")), "fig 4"),
+     # the travel: each run's departure from the reference travel (`travel_departure`)
+     (("x", 1e3, r"travel $x - x_\mathrm{ref}$ / mm"),
+      ("phi", 1e3, r"roll $\phi - \phi_0$ / mrad")), "fig 4"),
     # the paper's figs 6 and 8 plot lateral position and pitch; pitch is drawn once, in the
     # first figure, and this one carries the remaining axis, yaw
     ("lateral_yaw.png", "Lateral position and yaw",
@@ -130,11 +133,24 @@ def trajectories_npz(trajs: Sequence[Trajectory], input_names: Sequence[str]) ->
     return buf.getvalue()
 
 
+def travel_departure(traj: Trajectory) -> np.ndarray:
+    """x - x_ref [m]: the travel's departure from the reference travel, x_ref the run's first
+    x plus the integral of the reference speed (the speed loop's v_ref, else the trim speed):
+    every run travels 200 m in 10 s within a few decimetres, so x itself draws one line."""
+    ref = traj.speed_reference
+    v = np.full(traj.t.size, traj.op.speed) if ref is None else np.asarray(ref, dtype=float)
+    x_ref = traj.x[0, 0] + np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1])
+                                                            * np.diff(traj.t))))
+    return traj.x[:, 0] - x_ref
+
+
 def figure_png(trajs: Sequence[Trajectory], title: str,
                panels: tuple[tuple[str, float, str], ...], figs: str) -> bytes:
     """One row per state: the raw response over the first ZOOM_SECONDS (left) and the peak
     envelope over the whole run on a log axis (right), every controller in its registry
-    style (deterministic PNG bytes)."""
+    style; the travel (a state whose runs coincide to a few parts in a thousand) one subplot
+    per controller of its departure from the reference travel (`travel_departure`), so that
+    no line hides another (deterministic PNG bytes)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -143,8 +159,29 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
     t_end = max((float(t.t[-1]) for t in trajs), default=0.0)
     zoom = min(ZOOM_SECONDS, t_end) or ZOOM_SECONDS
     with plt.rc_context({"svg.hashsalt": "maglevgen", "font.size": 9}):
-        fig, axes = plt.subplots(len(panels), 2, figsize=(9, 2.6 * len(panels)), squeeze=False)
-        for (ax, bx), (state, scale, label) in zip(axes, panels, strict=True):
+        fig = plt.figure(figsize=(9, 2.6 * len(panels)))
+        grid = fig.add_gridspec(len(panels), 2, left=0.08, right=0.8, bottom=0.1, top=0.88,
+                                hspace=0.45, wspace=0.3)
+        legend_from = None
+        bottom = []
+        for row, (state, scale, label) in enumerate(panels):
+            if state not in _AXIS_OF_STATE:  # the travel: one subplot per controller
+                sub = grid[row, :].subgridspec(1, max(len(trajs), 1), wspace=0.55)
+                for k, traj in enumerate(trajs):
+                    cx = fig.add_subplot(sub[0, k])
+                    every = max(1, traj.t.size // PLOT_POINTS)
+                    cx.plot(traj.t[::every], travel_departure(traj)[::every] * scale,
+                            label=_label(traj), **_style(traj.controller))
+                    cx.set_title(_label(traj), fontsize=7)
+                    cx.set_xlim(0, t_end or 1.0)
+                    cx.tick_params(labelsize=7)
+                    cx.grid(True, lw=0.3)
+                    cx.set_xlabel(r"$t$ / s", fontsize=7)
+                    if k == 0:
+                        cx.set_ylabel(label)
+                continue
+            ax, bx = fig.add_subplot(grid[row, 0]), fig.add_subplot(grid[row, 1])
+            legend_from = legend_from or (ax, bx)
             top = 0.0
             for traj in trajs:
                 y = _series(traj, state) * scale
@@ -152,10 +189,6 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
                 every = max(1, int(np.count_nonzero(near)) // PLOT_POINTS)
                 ax.plot(traj.t[near][::every], y[near][::every], label=_label(traj),
                         **_style(traj.controller))
-                if state not in _AXIS_OF_STATE:  # not a deviation (the travel): as it is
-                    every = max(1, traj.t.size // PLOT_POINTS)
-                    bx.plot(traj.t[::every], y[::every], **_style(traj.controller))
-                    continue
                 tc, peak = peak_envelope(traj.t, y, PEAK_WINDOW)
                 top = max(top, float(np.max(peak, initial=0.0)))
                 bx.plot(tc, np.maximum(peak, 1e-300), **_style(traj.controller))
@@ -163,27 +196,22 @@ def figure_png(trajs: Sequence[Trajectory], title: str,
             ax.set_xlim(0, zoom)
             bx.set_xlim(0, t_end or 1.0)
             symbol, _, unit = label.partition(" / ")
-            if state in _AXIS_OF_STATE:
-                bx.set_yscale("log")
-                if top > 0:
-                    bx.set_ylim(top * PEAK_FLOOR, top * 2)
-                bx.set_ylabel(f"peak |{symbol.split(' ', 1)[-1]}| / {unit}")
-                bx.set_title(f"peak over {PEAK_WINDOW * 1e3:g} ms windows, whole run",
-                             fontsize=9)
-            else:
-                bx.set_ylabel(label)
-                bx.set_title("whole run", fontsize=9)
+            bx.set_yscale("log")
+            if top > 0:
+                bx.set_ylim(top * PEAK_FLOOR, top * 2)
+            bx.set_ylabel(f"peak |{symbol.split(' ', 1)[-1]}| / {unit}")
+            bx.set_title(f"peak over {PEAK_WINDOW * 1e3:g} ms windows, whole run", fontsize=9)
             ax.set_title(f"first {zoom:g} s", fontsize=9)
             for a in (ax, bx):
                 a.grid(True, lw=0.3)
-        for a in axes[-1]:
+            if row == len(panels) - 1:
+                bottom += [ax, bx]
+        for a in bottom:
             a.set_xlabel(r"time $t$ / s")
-        # beside the axes, not over the responses
-        axes[0, 1].legend(*axes[0, 0].get_legend_handles_labels(), loc="upper left",
-                          bbox_to_anchor=(1.02, 1.0), fontsize=8)
+        if legend_from is not None:  # beside the axes, not over the responses
+            legend_from[1].legend(*legend_from[0].get_legend_handles_labels(),
+                                  loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8)
         fig.suptitle(f"{title} (paper {figs})")
-        fig.subplots_adjust(left=0.08, right=0.8, bottom=0.1, top=0.88, hspace=0.3,
-                            wspace=0.3)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
         plt.close(fig)
@@ -250,14 +278,19 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
             lines += [f"Against [control.spec]: {m['spec']['verdict']}.", ""]
         lines += ["| axis | settling time [s] | peak deviation | final deviation | "
                   "RMS control force/moment |", "| --- | --- | --- | --- | --- |"]
-        for axis, a in m["axes"].items():
+        axes = list(m["axes"].items())
+        # each column in one notation (no 0.00158 above 4.89e-04); a deviation decayed below
+        # 1e-12 is printed as that bound, not as its digits
+        peaks = fcolumn_plain([a["peak_deviation"] for _, a in axes])
+        shown = [a["final_deviation"] for _, a in axes if abs(a["final_deviation"]) >= 1e-12]
+        finals = iter(fcolumn_plain(shown, 3))
+        rms = fcolumn_plain([a["rms_control"] for _, a in axes])
+        for j, (axis, a) in enumerate(axes):
             ts = "not settled" if a["settling_time"] is None else f"{a['settling_time']:.3f}"
-            # a deviation decayed below 1e-12 is printed as that bound, not as its digits
-            final = ("< 1e-12" if abs(a["final_deviation"]) < 1e-12
-                     else f"{a['final_deviation']:.3g}")
-            lines.append(f"| {axis} ({a['state']}) | {ts} | {a['peak_deviation']:.4g} "
-                         f"{a['unit']} | {final} {a['unit']} | "
-                         f"{a['rms_control']:.4g} {a['force_unit']} |")
+            final = "< 1e-12" if abs(a["final_deviation"]) < 1e-12 else next(finals)
+            unit = a["force_unit"].replace("*", " ")  # N m: a '*' would start emphasis
+            lines.append(f"| {axis} ({a['state']}) | {ts} | {peaks[j]} {a['unit']} | "
+                         f"{final} {a['unit']} | {rms[j]} {unit} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -277,7 +310,10 @@ SPEED_FIGURE = "against_speed.png"
 
 
 def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
-    """Heave, pitch and roll deviations against the speed of a launch (PNG bytes)."""
+    """Heave, pitch and roll deviations against the speed of a launch (PNG bytes): the raw
+    response over the first ZOOM_SECONDS (left) and the peak envelope over the whole launch on
+    a log axis (right, as `figure_png`), so that runs which settle to zero, and runs ringing
+    for seconds, stay apart."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -287,20 +323,39 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
               ("theta", 1e3, r"$\theta - \theta_0$ / mrad"),
               ("phi", 1e3, r"$\phi - \phi_0$ / mrad"))
     with plt.rc_context({"font.size": 9}):
-        fig, axes = plt.subplots(len(panels), 1, figsize=(7, 6), sharex=True)
-        for ax, (state, scale, label) in zip(axes, panels, strict=True):
+        fig, axes = plt.subplots(len(panels), 2, figsize=(9, 6.4), squeeze=False)
+        for (ax, bx), (state, scale, label) in zip(axes, panels, strict=True):
+            top = 0.0
             for traj in trajs:
-                every = max(1, traj.t.size // PLOT_POINTS)
-                y = traj.axis_deviation[::every, _AXIS_OF_STATE[state]] * scale
-                ax.plot(traj.speed[::every], y, label=CONTROLLER_TITLES[traj.controller]
+                y = traj.axis_deviation[:, _AXIS_OF_STATE[state]] * scale
+                near = traj.t <= ZOOM_SECONDS
+                every = max(1, int(np.count_nonzero(near)) // PLOT_POINTS)
+                ax.plot(traj.speed[near][::every], y[near][::every],
+                        label=CONTROLLER_TITLES[traj.controller]
                         + (f" ({traj.status})" if traj.status == "contact" else ""),
                         **_style(traj.controller))
+                tc, peak = peak_envelope(traj.t, y, PEAK_WINDOW)
+                top = max(top, float(np.max(peak, initial=0.0)))
+                bx.plot(np.interp(tc, traj.t, traj.speed), np.maximum(peak, 1e-300),
+                        **_style(traj.controller))
             ax.set_ylabel(label)
-            ax.grid(True, lw=0.3)
-        axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-        axes[-1].set_xlabel("speed $v$ / (m/s)")
+            bx.set_yscale("log")
+            if top > 0:
+                bx.set_ylim(top * PEAK_FLOOR, top * 2)
+            symbol, _, unit = label.partition(" / ")
+            bx.set_ylabel(f"peak |{symbol}| / {unit}")
+            for a in (ax, bx):
+                a.grid(True, lw=0.3)
+        axes[0, 0].set_title(f"first {ZOOM_SECONDS:g} s of the launch", fontsize=9)
+        axes[0, 1].set_title(f"peak over {PEAK_WINDOW * 1e3:g} ms windows, whole launch",
+                             fontsize=9)
+        axes[0, 1].legend(*axes[0, 0].get_legend_handles_labels(), loc="upper left",
+                          bbox_to_anchor=(1.02, 1.0), fontsize=8)
+        for a in axes[-1]:
+            a.set_xlabel("speed $v$ / (m/s)")
         fig.suptitle("Launch: deviations from the scheduled trim against speed")
-        fig.subplots_adjust(left=0.12, right=0.78, bottom=0.08, top=0.93, hspace=0.12)
+        fig.subplots_adjust(left=0.08, right=0.8, bottom=0.08, top=0.9, hspace=0.3,
+                            wspace=0.3)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
         plt.close(fig)

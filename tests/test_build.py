@@ -249,7 +249,7 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
     assert prm.model.circuit_dynamics == "first-order"
     c_mag = _magnetic_damping_reference(prm, ref, mass)
     axes = ("lateral", "vertical", "roll", "pitch", "yaw")
-    units = {"k": ("N/m", "N*m/rad"), "m": ("kg", "kg*m^2"), "c": ("N*s/m", "N*m*s/rad")}
+    units = {"k": ("N/m", "N m/rad"), "m": ("kg", "kg m^2"), "c": ("N s/m", "N m s/rad")}
 
     # four tables: stiffness (translation, rotation), then gains (translation, rotation),
     # each row axis -> {column header: cell}
@@ -625,7 +625,7 @@ def test_summary_explains_the_speed_mode_and_the_pitch_form(good: Path, carriage
         assert float(t[1]) == pytest.approx(ref[key], rel=1e-3)
     assert f"The {dominant} dominates." in tex
     p = re.search(r"- pitch \(eq 15\): .* printed (\S+), with the sum .* (\S+), derived (\S+) "
-                  r"N\*m/rad;", text)
+                  r"N m/rad;", text)
     assert p, text
     rt = reference_trim(prm, v)
     K_fd = stiffness_fd(prm, rt.q, v, rt.f_prop, other=False)[3, 3]
@@ -774,3 +774,31 @@ def test_the_default_build_judges_the_embedded_runs_and_passes(good: Path, carri
     assert "The firmware gets the continuous spec design because it meets" in \
         re.sub(r"\s+", " ", summary).replace("(the coupled LQR of the continuous "
                                              "linearisation, scheduled over speed) ", "")
+
+
+def test_summary_tables_print_each_column_in_one_notation_and_units_as_written(good: Path
+                                                                              ) -> None:
+    """Every Markdown table of SUMMARY.md and simulation/metrics.md: a column's numbers all
+    plain decimals or all with an exponent (no 0.0002235 above 2.965e-05), and no '*' in a
+    unit (Markdown would start emphasis at N*m): units as a person writes them, N m/rad."""
+    number = re.compile(r"^[-+]?\d+(?:\.\d+)?(e[-+]\d+)?(?: \S+(?: \S+)?)?$")  # 2.5e-05 m
+    for name in ("SUMMARY.md", "simulation/metrics.md"):
+        lines = (good / name).read_text().splitlines()
+        tables, current = [], []
+        for ln in [*lines, ""]:
+            if ln.startswith("|"):
+                current.append([c.strip() for c in ln.strip().strip("|").split("|")])
+            elif current:
+                tables.append(current)
+                current = []
+        assert len(tables) >= 5, name  # SUMMARY: stiffness, gains, region; metrics: a run each
+        for table in tables:
+            head, rows = table[0], table[2:]
+            assert not any("*" in c for r in table for c in r), (name, table)
+            for col in range(len(head)):
+                kinds = {bool(m.group(1)) for r in rows if (m := number.match(r[col]))
+                         and float(r[col].split()[0]) != 0}
+                assert len(kinds) <= 1, (name, head[col], [r[col] for r in rows])
+    lines = (good / "SUMMARY.md").read_text().splitlines()
+    heads = [ln for ln in lines if ln.startswith("| ") and "K1 [" in ln]
+    assert [h.split("|")[2].strip() for h in heads] == ["K1 [N/m]", "K1 [N m/rad]"]

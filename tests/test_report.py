@@ -62,7 +62,15 @@ def _pdf_text(pdf: Path) -> str:
     return unicodedata.normalize("NFKC", text).replace("\u2212", "-")
 
 
-_NUM = r"-?\d+(?:\.\d+)?"
+# a number as pdftotext prints it (2.5, 2.5 × 10-4) or the .tex writes it (2.5 \times 10^{-4})
+_NUM = r"-?\d+(?:\.\d+)?(?:\s*(?:×|\\times)\s*10\^?\{?-?\d+\}?)?"
+
+
+def _value(text: str) -> float:
+    """The value of a number matched by _NUM."""
+    flat = re.sub(r"[\^{}]", "", text.replace("\\times", "×"))
+    mant, _, exp = flat.partition("×")
+    return float(mant) * 10.0 ** int(exp.strip()[2:]) if exp else float(mant)
 
 
 def _gain_rows(text: str, sep: str) -> dict[str, list[float]]:
@@ -77,7 +85,7 @@ def _gain_rows(text: str, sep: str) -> dict[str, list[float]]:
             re.MULTILINE,
         )
         assert m, f"no gains row for {axis}"
-        rows[axis] = [float(g) for g in m.groups()]
+        rows[axis] = [_value(g) for g in m.groups()]
     return rows
 
 
@@ -291,6 +299,38 @@ def test_number_formats() -> None:
     assert fmt.fcomplex(-1.5 + 0j) == "-1.5"
 
 
+def test_a_column_takes_one_notation_and_reads_back_its_values() -> None:
+    """fcolumn (LaTeX) and fcolumn_plain (text): a column whose magnitudes span 1e-5 to 1e-2
+    prints every entry with an exponent, one within [1e-4, 1e5) every entry plainly; each
+    entry reads back (parsed here) as its value to the digits asked; zeros and None pass."""
+    from maglevgen.columns import fcolumn_plain
+
+    wide = [2.23524e-4, 2.96472e-5, 3.63352e-2, 0.0]
+    tex = fmt.fcolumn(wide)
+    assert [r"\times" in c for c in tex] == [True, True, True, False]
+    np.testing.assert_allclose([_value(c) for c in tex], wide, rtol=1e-6)
+    plain = [2236.9, 9.3, 0.000223524, None]
+    tex = fmt.fcolumn(plain)
+    assert tex[-1] is None and not any(r"\times" in c for c in tex[:-1])
+    np.testing.assert_allclose([float(c) for c in tex[:-1]], plain[:-1], rtol=1e-6)
+    text = fcolumn_plain(wide)
+    assert all("e" in c for c in text[:3]) and text[3] == "0"
+    np.testing.assert_allclose([float(c) for c in text], wide, rtol=1e-3)
+    text = fcolumn_plain([16865.1, 0.08149, 1234567.0], 5)
+    assert all("e" in c for c in text)  # 1.2e6 is outside the plain range: all take one
+    assert fcolumn_plain([16865.1, 0.08149], 5) == ["16865", "0.08149"]
+
+
+def test_axis_tables_open_each_block_with_its_units() -> None:
+    """axis_unit_row: a row of units before lateral and roll only (the rotations' after a
+    rule), each quantity's unit by the block, a literal unit as given."""
+    assert fmt.axis_unit_row("vertical", "k") == fmt.axis_unit_row("yaw", "k") == ""
+    assert fmt.axis_unit_row("lateral", "k", "m", "1/s") == (
+        "\\textit{translations} & [N/m] & [kg] & [1/s] \\\\\n")
+    assert fmt.axis_unit_row("roll", "c", "", lead=2) == (
+        "\\midrule\n\\textit{rotations} &  & [N\\,m\\,s/rad] &  \\\\\n")
+
+
 def test_escape_and_long_sums_are_broken() -> None:
     assert fmt.tex_escape("a_b & 50% #1 {x} ~ ^") == (
         r"a\_b \& 50\% \#1 \{x\} \textasciitilde{} \^{}"
@@ -415,7 +455,7 @@ def test_the_embedded_controller_is_given_in_full(default_report: Path, carriage
         col = [b[0] for b in blocks].index("V")
         for i, axis in enumerate(rep["axes"]):
             row = re.search(rf"^{axis} & .*?\\\\$", section, re.MULTILINE)[0]
-            cells = [_tex_values(c) for c in row.removesuffix(r"\\").split("&")[2:]]
+            cells = [_tex_values(c) for c in row.removesuffix(r"\\").split("&")[1:]]
             _a_max, _f_max, q1_txt, r_txt, *q2s = (c[0].real for c in cells)
             np.testing.assert_allclose([q1_txt, r_txt, q2s[col]], [q1[i], r[i], q2[i]],
                                        rtol=6e-4, err_msg=axis)
@@ -444,9 +484,9 @@ def test_summary_gain_rows_agree_with_gains_json(default_report: Path, carriage:
         m = re.search(rf"^\s*{axis}\s+({num})\s+({num})\s+({num})\s+(.*)$", page,
                       re.MULTILINE)
         assert m, f"no summary row for {axis}"
-        np.testing.assert_allclose([float(m.group(1)), float(m.group(2))], a["K_closed_form"],
-                                   rtol=RTOL, err_msg=axis)
-        assert float(m.group(3)) == pytest.approx(c_mag[i], rel=RTOL, abs=1e-3), axis
+        np.testing.assert_allclose([_value(m.group(1)), _value(m.group(2))],
+                                   a["K_closed_form"], rtol=RTOL, err_msg=axis)
+        assert _value(m.group(3)) == pytest.approx(c_mag[i], rel=RTOL, abs=1e-3), axis
         pole = r"(-?\d+(?:\.\d+)?)\s*([+-])\s*(\d+(?:\.\d+)?)\s*j|(-?\d+(?:\.\d+)?)"
         parts = re.findall(pole, m.group(4))
         poles = [complex(float(re_), float(im) * (1 if sg == "+" else -1)) if im else
@@ -633,3 +673,122 @@ def test_stiffness_table_has_both_laws_and_the_roll_text_names_its_terms(
     roll = tex[tex.index(r"\textbf{Roll.}"):]
     roll = roll[:roll.index("\n\n")]
     assert "rotating arms" in roll and "gravity's term" in roll and "tilt across" in roll
+
+
+# ---------------------------------------------------------- tables: one quantity, one unit
+
+_ENVS = re.compile(r"\\begin\{(tabular|longtable)\}(?:\{(?:[^{}]|\{[^{}]*\})*\})(.*?)"
+                   r"\\end\{\1\}", re.DOTALL)
+_CELL_NUMBER = re.compile(r"^\$(-?\d+(?:\.\d+)?)(\s*\\times\s*10\^\{-?\d+\})?\$(?:\s*\S+)?$")
+
+
+def _tables(tex: str, with_header: bool = False) -> list:
+    """Every tabular and longtable of the .tex: its data rows (after the header's \\midrule),
+    each as its cells; the unit rows of the blocks (\\textit{translations}, ...) kept. With
+    ``with_header``: (the header's text, the rows) each."""
+    out = []
+    for m in _ENVS.finditer(tex):
+        body = m.group(2)
+        header = body[:body.find(r"\midrule")]
+        body = body[body.find(r"\midrule") + len(r"\midrule"):] if r"\midrule" in body else ""
+        body = body.split(r"\endhead")[-1]
+        rows = []
+        for raw in re.split(r"\\\\\s*\n", body):
+            raw = re.sub(r"\\(?:midrule|bottomrule|toprule)", "", raw).strip()
+            if raw and "&" in raw:
+                rows.append([c.strip() for c in raw.split("&")])
+        out.append((header, rows) if with_header else rows)
+    return out
+
+
+@pytest.mark.needs_cc
+def test_every_table_column_is_in_one_notation_and_gives_its_unit(default_report: Path
+                                                                  ) -> None:
+    """Each column of every table of the .tex prints its numbers in one notation (all plain
+    decimals, or all a x 10^e: no 0.000223 above 2.96 x 10^-5); no header gives two units in
+    one cell ([N/m; N m/rad]); every table whose rows are the five axes opens the
+    translations' and the rotations' rows with a row of their units, and those units are the
+    axis's (N/m and N m/rad for a stiffness, kg and kg m^2 for a generalized mass)."""
+    tex = (default_report / "report.tex").read_text(encoding="utf-8")
+    assert "; N" not in tex and "[translation; rotation]" not in tex
+    tables = _tables(tex)
+    assert len(tables) > 15
+    mixed = []
+    for header, rows in _tables(tex, with_header=True):
+        if re.search(r"& \s*(?:unit|Unit)\s*(?:&|\\\\)", header):
+            continue  # a list of quantities, each row its own with its unit (parameters, trim)
+        for col in range(max((len(r) for r in rows), default=0)):
+            kinds = {bool(m.group(2)) for r in rows if col < len(r)
+                     if (m := _CELL_NUMBER.match(r[col])) and m.group(1) != "0"}
+            if len(kinds) > 1:
+                mixed.append([r[col] for r in rows if col < len(r)])
+    assert mixed == [], mixed
+    axis_tables = [rows for rows in tables if any(r[0] == r"\textit{translations}"
+                                                  for r in rows) and rows[1][0] == "lateral"]
+    # page 1, the circuits' lag, 9.2, 9.3, damping, the three Riccati tables, the spec
+    # design's weights
+    assert len(axis_tables) == 9, [rows[0] for rows in axis_tables]
+    for rows in axis_tables:
+        firsts = [r[0] for r in rows]
+        lat, roll = firsts.index("lateral"), firsts.index("roll")
+        t_units, r_units = rows[lat - 1], rows[roll - 1]
+        assert t_units[0] == r"\textit{translations}", rows
+        assert r_units[0] == r"\textit{rotations}", rows
+        for unit_t, unit_r in zip(t_units[1:], r_units[1:], strict=True):
+            assert (unit_t == "") == (unit_r == ""), (t_units, r_units)
+            pairs = {("[N/m]", r"[N\,m/rad]"), ("[kg]", r"[kg\,m$^2$]"),
+                     (r"[N\,s/m]", r"[N\,m\,s/rad]"), ("[m]", "[rad]"), ("[N]", r"[N\,m]"),
+                     ("[1/N$^2$]", r"[1/(N\,m)$^2$]")}
+            if unit_t != unit_r:  # a quantity whose unit follows the axis
+                assert (unit_t, unit_r) in pairs or unit_r.endswith("rad$^2$]"), (unit_t,
+                                                                                   unit_r)
+
+
+@pytest.mark.needs_cc
+def test_page_one_compares_each_printed_value_with_the_derived_one_beside_it(
+        default_report: Path, carriage: Carriage) -> None:
+    """The summary's two comparison tables read back from the .tex: the printed stiffnesses
+    (eqs 7, 13-16 evaluated here at the reference trim) beside K_st0 (central differences of
+    the test's force sums) and their difference in percent of that K_st0; the printed eq 32
+    gain K1 = sqrt(k^2 + 1) - 1 beside the LQR gain (50-digit closed form here) and their
+    ratio (to its two printed digits)."""
+    from independent_reference import (
+        generalized_mass,
+        lqr_reference_mp,
+        reference_trim,
+        stiffness_fd,
+    )
+    from test_build import _paper_stiffness
+
+    prm = carriage.params
+    v = prm.operation.speed
+    ref = reference_trim(prm, v)
+    k_mag = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop, other=False))
+    k_tot = np.diag(stiffness_fd(prm, ref.q, v, ref.f_prop))
+    mass = generalized_mass(prm)
+    paper = _paper_stiffness(prm, ref.arrays.lift)
+    tex = (default_report / "report.tex").read_text(encoding="utf-8")
+    page = tex[tex.index(r"\textbf{Paper discrepancies"):tex.index(r"\textbf{Speed mode}")]
+    stiff, gains = _tables(page)
+    axes = ("lateral", "vertical", "roll", "pitch", "yaw")
+    got = {r[0]: r for r in stiff}
+    assert sorted(got) == sorted(axes)
+    for i, axis in enumerate(axes):
+        _, unit, printed, derived, pct = got[axis]
+        assert unit == ("N/m" if i < 2 else r"N\,m/rad")
+        assert _value(printed.strip("$")) == pytest.approx(paper[i], rel=1e-4)
+        assert _value(derived.strip("$")) == pytest.approx(k_mag[i], rel=1e-4)
+        p = re.fullmatch(r"\$([+-]\d+\.\d)\\,\\%\$", pct)
+        assert p, pct
+        assert float(p[1]) == pytest.approx(100 * (paper[i] / k_mag[i] - 1), abs=0.051)
+    rels = [abs(float(re.search(r"[+-]\d+\.\d", r[4])[0])) for r in stiff]
+    assert rels == sorted(rels, reverse=True)  # largest first
+    got = {r[0]: r for r in gains}
+    assert sorted(got) == sorted(f"{a} K1" for a in axes)
+    for i, axis in enumerate(axes):
+        _, unit, printed, derived, ratio = got[f"{axis} K1"]
+        K1 = float(lqr_reference_mp(k_tot[i], mass[i])[0][0])
+        K1_paper = float(np.sqrt(k_tot[i] ** 2 + 1) - 1)
+        assert _value(printed.strip("$")) == pytest.approx(K1_paper, rel=1e-4)
+        assert _value(derived.strip("$")) == pytest.approx(K1, rel=1e-4)
+        assert _value(ratio.strip("$")) == pytest.approx(K1_paper / K1, rel=0.051)

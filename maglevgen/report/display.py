@@ -13,8 +13,8 @@ import sympy as sp
 
 from ..hashing import sha256_hex
 
-__all__ = ["LINE_WIDTH", "REPORT_SOURCE", "Display", "abbreviate_radicals", "break_sum", "eq",
-           "eqs", "ltx", "matrix_tex", "round_floats", "trig_abbrev"]
+__all__ = ["LINE_WIDTH", "REPORT_SOURCE", "Display", "abbreviate_radicals", "break_sum",
+           "decimal_rationals", "eq", "eqs", "ltx", "matrix_tex", "round_floats", "trig_abbrev"]
 
 # Width budget of one display line, in the units of `tex_width` (about one math glyph).
 LINE_WIDTH = 62
@@ -28,8 +28,9 @@ REPORT_SOURCE = sha256_hex(b"".join(
     p.read_bytes() for p in sorted(Path(__file__).parent.rglob("*.py"))))[:16]
 
 def ltx(expr: Any) -> str:
-    """sympy.latex with the report's settings."""
-    return sp.latex(expr, full_prec=False)
+    """sympy.latex with the report's settings; a float's power of ten as the tables write
+    it (a x 10^e, `format.fnum`), not SymPy's a . 10^e."""
+    return sp.latex(expr, full_prec=False).replace(r" \cdot 10^{", r" \times 10^{")
 
 
 def round_floats(expr: Any, digits: int = FLOAT_DIGITS) -> Any:
@@ -269,7 +270,7 @@ def _as_math(span: str) -> str | None:
                            evaluate=True)
     except Exception:
         return None
-    value = _decimal_rationals(value)
+    value = decimal_rationals(value)
     if isinstance(value, list | tuple):
         if value and all(isinstance(v, list | tuple) for v in value):
             return "$" + matrix_tex([[round_floats(x, 6) for x in row] for row in value]) + "$"
@@ -282,11 +283,11 @@ def _as_math(span: str) -> str | None:
     return None
 
 
-def _decimal_rationals(value: Any) -> Any:
+def decimal_rationals(value: Any) -> Any:
     """Rationals with a terminating decimal (13/50, 119/1000: the paper's printed 0.26 and
     0.119 after SymPy's exact arithmetic) as that decimal; 1/3 stays a fraction."""
     if isinstance(value, list | tuple):
-        return type(value)(_decimal_rationals(v) for v in value)
+        return type(value)(decimal_rationals(v) for v in value)
     if not isinstance(value, sp.Basic):
         return value
 
@@ -297,8 +298,9 @@ def _decimal_rationals(value: Any) -> Any:
                 d //= p
         return d == 1 and q.q != 1
 
+    powers = {p.exp for p in value.atoms(sp.Pow)}  # a square root stays one, not ^0.5
     rep = {q: sp.Float(f"{float(q):.6g}", 6) for q in value.atoms(sp.Rational)
-           if terminating(q)}
+           if terminating(q) and q not in powers}
     return value.xreplace(rep) if rep else value
 
 

@@ -8,9 +8,13 @@ import math
 import re
 import unicodedata
 
+from ..columns import plain_column
+
 __all__ = [
     "ROUNDOFF",
+    "axis_unit_row",
     "faxis_unit",
+    "fcolumn",
     "fcomplex",
     "ferr",
     "ffixed",
@@ -153,17 +157,61 @@ def tex_key(key: str) -> str:
 
 
 
-# Per-axis units of a stiffness (and position gain), a generalized mass and a damping (and
-# rate gain): the translations in N and m, the rotations in N m and rad
+# Per-axis units (translation, rotation) of the quantities a table of the five axes shows:
+# a stiffness or position gain, a generalized mass, a damping or rate gain, a deviation, a
+# generalized force, and the spec design's weights (Bryson's rule: 1/a^2, 1/F^2, s^2/a^2)
 _AXIS_UNITS = {"k": (r"N/m", r"N\,m/rad"), "m": (r"kg", r"kg\,m$^2$"),
-               "c": (r"N\,s/m", r"N\,m\,s/rad")}
+               "c": (r"N\,s/m", r"N\,m\,s/rad"), "a": ("m", "rad"), "F": ("N", r"N\,m"),
+               "q1": (r"1/m$^2$", r"1/rad$^2$"), "r": (r"1/N$^2$", r"1/(N\,m)$^2$"),
+               "q2": (r"s$^2$/m$^2$", r"s$^2$/rad$^2$"),
+               # the Riccati solution P of one axis: x^T P x the cost in N^2 s or (N m)^2 s
+               "p11": (r"N$^2$\,s/m$^2$", r"N$^2$\,m$^2$\,s/rad$^2$"),
+               "p12": (r"N$^2$\,s$^2$/m$^2$", r"N$^2$\,m$^2$\,s$^2$/rad$^2$"),
+               "p22": (r"N$^2$\,s$^3$/m$^2$", r"N$^2$\,m$^2$\,s$^3$/rad$^2$")}
 _ROTATIONS = ("roll", "pitch", "yaw")
+_BLOCK_START = {"lateral": "translations", "roll": "rotations"}
 
 
 def faxis_unit(axis: str, quantity: str) -> str:
-    """The unit (LaTeX text) of ``quantity`` ("k", "m" or "c") on ``axis``: a table whose
-    rows are the five axes gives each row's units in a column of their own."""
+    """The unit (LaTeX text) of ``quantity`` (a key of _AXIS_UNITS) on ``axis``."""
     return _AXIS_UNITS[quantity][axis in _ROTATIONS]
+
+
+def axis_unit_row(axis: str, *quantities: str, lead: int = 1) -> str:
+    """The unit row that opens a block of a table whose rows are the axes (LaTeX), or "" for
+    an axis inside a block: every table of the axes gives its quantities in the header and
+    their units in a row at the start of each block, translations (lateral, vertical) and
+    rotations (roll, pitch, yaw), one unit per column. ``quantities``: a key of _AXIS_UNITS
+    per column (the unit follows the block), or the unit itself (LaTeX text; "" for a column
+    without one); ``lead``: the columns before them, the first holding the block's name."""
+    block = _BLOCK_START.get(axis)
+    if block is None:
+        return ""
+    units = [f"[{faxis_unit(axis, q)}]" if q in _AXIS_UNITS else (f"[{q}]" if q else "")
+             for q in quantities]
+    cells = [rf"\textit{{{block}}}"] + [""] * (lead - 1) + units
+    return (r"\midrule" + "\n" if block == "rotations" else "") + " & ".join(cells) + r" \\" + "\n"
+
+
+def fcolumn(values, digits: int = 6) -> list[str]:
+    """The numbers of one table column (LaTeX math, without $) in one notation: plain
+    decimals (`ffixed`) where `maglevgen.columns.plain_column` says so, else every entry as
+    a x 10^e (`fnum`'s mantissa and exponent, also for the ones that would read plainly), so
+    that a column never mixes 0.000223 with 2.96 x 10^-5. None stays None (the template's
+    dash); zeros print as 0."""
+    plain = plain_column(values)
+    out: list[str] = []
+    for v in values:
+        if v is None:
+            out.append(None)  # type: ignore[arg-type]
+        elif plain or not math.isfinite(float(v)) or float(v) == 0:
+            out.append(ffixed(v, digits))
+        else:
+            x = float(v)
+            mant, exp = f"{x:.{digits - 1}e}".split("e")
+            mant = mant.rstrip("0").rstrip(".") if "." in mant else mant
+            out.append(rf"{mant} \times 10^{{{int(exp)}}}")
+    return out
 
 
 def froundoff(x: float, scale: float = 1.0, digits: int = 6) -> str:

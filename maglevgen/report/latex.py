@@ -16,6 +16,8 @@ from .. import texsetup
 from ..texsetup import INSTALL_HINT, TEX_PACKAGES
 from .display import display_filter, math_prose
 from .format import (
+    axis_unit_row,
+    fcolumn,
     fcomplex,
     ferr,
     ffixed,
@@ -72,6 +74,8 @@ def latex_env() -> jinja2.Environment:
         roundoff=froundoff,
         prose=tex_prose,
         mathprose=math_prose,
+        column=fcolumn,
+        unitrow=axis_unit_row,
     )
     return env
 

@@ -49,11 +49,11 @@ def _envelope_checks(carriage, env) -> list[Check]:
         out.append(Check(
             f"{title}: closed loop at {speed:.4g} m/s (largest real part, 1/s)",
             "eigenvalues (numpy) of the C Jacobians with the gains and allocation",
-            closed_loop_stability(op, name)[0], -STABILITY_MARGIN))
+            closed_loop_stability(op, name)[0], -STABILITY_MARGIN, unit="1/s"))
         out.append(Check(
             f"{title}: closed loop across [{env.v_min:.4g}, {env.v_max:.4g}] m/s (largest "
             "real part, 1/s)", f"the same at {env.speeds.size} speeds",
-            float(np.max(env.controllers[name].max_real)), -STABILITY_MARGIN))
+            float(np.max(env.controllers[name].max_real)), -STABILITY_MARGIN, unit="1/s"))
     return out
 
 

@@ -16,7 +16,16 @@ from ...derive.paper import paper_stiffness
 from ...errors import NoTrimError
 from ...library import simulation_library
 from ...summary import trim_point
-from ..display import REPORT_SOURCE, Display, break_sum, eqs, ltx, matrix_tex, round_floats
+from ..display import (
+    REPORT_SOURCE,
+    Display,
+    break_sum,
+    decimal_rationals,
+    eqs,
+    ltx,
+    matrix_tex,
+    round_floats,
+)
 from ..format import fnum
 from ..symbols import K_SYM, array_labels, to_display
 
@@ -91,7 +100,8 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
             {
                 "axis": axis,
                 "unit": r["unit"],
-                "formula": ltx(printed[axis]),
+                # as printed: eq 15's 0.12 F_upper k L_x^2, not SymPy's 3 F k L_x^2/25
+                "formula": ltx(decimal_rationals(printed[axis])),
                 "eq": tags[axis],
                 "paper": r["paper"],
                 "derived": r["derived"],
@@ -113,6 +123,7 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
             rf"\dot{{{ltx(sp.Symbol(cv.STATE_NAMES[i]))}}}",
             ltx(sp.Symbol(cv.STATE_NAMES[j])),
             float(A[i, j]),
+            jacobian_unit(cv.STATES[i].unit, cv.STATES[j].unit),
         )
         for i in range(12)
         for j in range(12)
@@ -136,6 +147,29 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
         "B_shape": B.shape,
         "B_nonzero": int(np.count_nonzero(np.abs(B) > 1e-13)),
     }
+
+
+def jacobian_unit(row_unit: str, column_unit: str) -> str:
+    """The unit (LaTeX text) of the entry of A = d(x')/dx in row ``row_unit``'s derivative and
+    column ``column_unit`` (the states' units: m, rad, m/s, rad/s): row unit / (s column unit),
+    with m, rad and s each to one power ("1/s$^2$", "m/(s\\,rad)")."""
+    power: dict[str, int] = {"m": 0, "rad": 0, "s": -1}
+    for unit, sign in ((row_unit, 1), (column_unit, -1)):
+        num, _, den = unit.partition("/")
+        power[num] += sign
+        if den:
+            power[den] -= sign
+
+    def part(names: list[str]) -> str:
+        return r"\,".join(n + (f"$^{{{abs(power[n])}}}$" if abs(power[n]) > 1 else "")
+                          for n in names)
+
+    up = [n for n in ("m", "rad", "s") if power[n] > 0]
+    down = [n for n in ("m", "rad", "s") if power[n] < 0]
+    text = part(up) or "1"
+    if down:
+        text += "/" + (f"({part(down)})" if len(down) > 1 else part(down))
+    return text
 
 
 # the table's columns: every choice of params.ARRAY_FORCE_LAWS, the paper's first

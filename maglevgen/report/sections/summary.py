@@ -25,7 +25,17 @@ def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:
         rows.append({"what": f"{axis} LQR gain K{i + 1} (eqs 31-32 as printed)",
                      "unit": faxis_unit(axis, "k" if i == 0 else "c"),
                      "paper": paper, "derived": derived, "rel": paper / derived - 1})
+    for r in rows:  # the gains' table's quantity: the printed value over the derived beside it
+        r["ratio"] = 1 + r["rel"]
     return sorted(rows, key=lambda r: -abs(r["rel"]))
+
+
+def _by_kind(rows: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    """The discrepancies in two tables, each of one quantity per column: the printed
+    stiffnesses (their difference from the derived one in percent) and the printed LQR gains
+    (their ratio to the derived one: orders of magnitude, which no percentage reads)."""
+    return {"stiffness": [r for r in rows if "stiffness" in r["what"]],
+            "gains": [r for r in rows if "stiffness" not in r["what"]]}
 
 
 def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
@@ -45,6 +55,7 @@ def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
                    "poles": [complex(*p) for p in a["closed_loop_poles"]]}
                   for axis, a in gains["axes"].items()],
         "discrepancies": _discrepancies(trep, gains),
+        "discrepancy_tables": _by_kind(_discrepancies(trep, gains)),
         "speed_mode": gains["speed_mode"],
         "circuit_dynamics": lag["model"],
         "passed": status.count("pass"), "failed": status.count("FAIL"),
