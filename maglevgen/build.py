@@ -129,7 +129,16 @@ def check_build_inputs(loaded: LoadedParams) -> None:
     with child() as building:
         pending = (submit(building, "building the other models' libraries", build_libraries,
                           tuple(others)) if others else None)
-        resolve_range(carriage, simulation_library(carriage.structure))
+        lib = cached_simulation_library(carriage.structure)
+        if lib is None:  # a cold cache: while gcc compiles the library (its own process),
+            # this one lambdifies the model (the report's verification reads it; cached
+            # afterwards), as run_build does, instead of waiting for gcc and lambdifying it
+            # at the end of the build with nothing else left to overlap it
+            with ThreadPoolExecutor(max_workers=1) as pool:
+                compiling = pool.submit(simulation_library, carriage.structure)
+                carriage.functions  # noqa: B018
+                lib = compiling.result()
+        resolve_range(carriage, lib)
         if pending is not None:
             pending.result()
 
