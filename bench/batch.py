@@ -5,7 +5,9 @@ Python path (run_sample: one maglev_simulate call per run from Python); the stud
 CLI runs it (maglevgen.montecarlo.run_local: chunks on 1 and on 2 worker processes); and where
 the batch path's time goes, stage by stage (thread CPU time of this process, one pass).
 
-    .venv/bin/python bench/batch.py [--samples N] [--reps R] [--out FILE]
+    .venv/bin/python bench/batch.py [--samples N] [--reps R] [--out FILE] [--no-write]
+
+Writes its section of BENCHMARKS.md (between BEGIN and END) unless --no-write.
 
 The default study of `maglevgen montecarlo` (the default carriage's [tolerances], the
 embedded controller, --loop firmware, 10 s at 1 kHz, seed 0). Wall time (perf_counter) and
@@ -23,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-from common import BENCH, log, paired_ratios, summary
+from common import BENCH, log, paired_ratios, replace_section, summary
 
 from maglevgen.carriage import Carriage
 from maglevgen.library import simulation_library
@@ -37,6 +39,42 @@ from maglevgen.montecarlo import (
 )
 from maglevgen.params import load_params
 from maglevgen.simulate import hold_run, hold_trajectory, run_loop
+
+BEGIN = "<!-- batch benchmark (bench/batch.py) -->"
+END = "<!-- end of batch benchmark -->"
+
+
+def section(r: dict) -> list[str]:
+    """The BENCHMARKS.md section of a run's results ``r`` (what main writes to --out)."""
+    lo, hi = r["load_average_start"], r["load_average_end"]
+    lines = [BEGIN, "",
+             f"### Monte Carlo in C: runs per second (bench/batch.py, {r['date']}; raw: "
+             "bench/batch_results.json)", "",
+             f"The default study of `maglevgen montecarlo` ({r['controller']} controller, "
+             f"`--loop {r['loop']}`, 10 s at 1 kHz, seed 0), {r['samples']} samples, "
+             f"{r['reps']} repeats, the variants alternating, all in one run; load average "
+             f"(1 min) {lo[0]:.1f} at the start and {hi[0]:.1f} at the end on the 2 shared "
+             "cores (`os.getloadavg`). CPU: this process's threads and its ended worker "
+             "processes. Medians.", "",
+             "| variant | runs/s (wall) | CPU s per run |", "| --- | --- | --- |"]
+    for k, rate in r["runs_per_s"].items():
+        lines.append(f"| {k} | {rate:.3g} | {r['cpu_per_run'][k]:.3g} |")
+    lines += ["", "| ratio (median of the per-repeat ratios [quartiles]) | value |",
+              "| --- | --- |"]
+    for k, q in r["ratios"].items():
+        lines.append(f"| {k} | {q['median']:.3g} [{q['q1']:.3g}-{q['q3']:.3g}] |")
+    stages = r["stages_cpu_s"]
+    total = sum(stages.values())
+    c_run = stages["the C runs (maglev_batch_simulate)"]
+    lines += ["", "Where the batch path's time goes (one pass over the same samples, one "
+              "thread, thread CPU time per sample):", "",
+              "| stage | CPU ms per sample | share |", "| --- | --- | --- |"]
+    for k, v in stages.items():
+        lines.append(f"| {k} | {1e3 * v:.3g} | {100 * v / total:.0f} % |")
+    lines += ["", f"The Python around the runs: {1e3 * (total - c_run):.3g} ms per sample, "
+              f"{100 * (total - c_run) / c_run:.0f} % on top of the C run "
+              f"({1e3 * c_run:.3g} ms).", "", END]
+    return lines
 
 
 def cpu_time() -> float:
@@ -86,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=8)
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--out", type=Path, default=BENCH / "batch_results.json")
+    ap.add_argument("--no-write", action="store_true", help="leave BENCHMARKS.md alone")
     args = ap.parse_args(argv)
     load_start = os.getloadavg()
     carriage = Carriage(load_params())
@@ -134,6 +173,7 @@ def main(argv: list[str] | None = None) -> int:
            "load_average_end": load, "stages_cpu_s": per_stage, "runs": len(runs),
            "reps": args.reps,
            "controller": controller, "loop": "firmware",
+           "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
            "wall_s": {k: summary(v) for k, v in wall.items()},
            "cpu_s": {k: summary(v) for k, v in cpu.items()}, "runs_per_s": {}}
     print("| variant | runs/s (wall) | CPU s per run |")
@@ -141,7 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     for k in variants:
         rate = n_runs[k] / out["wall_s"][k]["median"]
         out["runs_per_s"][k] = rate
-        print(f"| {k} | {rate:.3g} | {out['cpu_s'][k]['median'] / n_runs[k]:.3g} |")
+        out.setdefault("cpu_per_run", {})[k] = out["cpu_s"][k]["median"] / n_runs[k]
+        print(f"| {k} | {rate:.3g} | {out['cpu_per_run'][k]:.3g} |")
     # per-repeat ratios (the contenders of one repeat ran within seconds of each other)
     pairs = {"batch path / bare C loop, CPU per run, 1 thread":
              ("cpu", "batch path, 1 thread", "bare C loop, 1 thread"),
@@ -165,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     for k, v in per_stage.items():
         print(f"| {k} | {v:.4g} |")
     args.out.write_text(json.dumps(out, indent=1) + "\n")
+    if not args.no_write:
+        replace_section(section(out), BEGIN, END)
     return 0
 
 

@@ -35,6 +35,13 @@ CHECKSUMS = "checksums.json"
 BATCH_SOURCE = "maglev_batch.c"
 #: MAGLEV_SIM_ARGUMENT (maglev_simulate.h): the run refused an argument and wrote nothing
 SIM_ARGUMENT = 4
+#: gcc flags of the simulation library: -O1, not -O2. The generated functions are long
+#: straight-line code (CasADi's SX) where -O2's extra passes cost compile time and buy no run
+#: time: for the default carriage's library (1.9 MB of C) gcc -O1 takes 19 s of CPU against
+#: 47 s at -O2, a 10 s closed-loop run costs the same (0.99x, 15 interleaved repeats), and
+#: every output of every function is bitwise the same (no fast-math: both keep IEEE
+#: semantics; measured on 420 calls, BENCHMARKS.md, issue 37)
+LIBRARY_FLAGS: tuple[str, ...] = tuple("-O1" if f == "-O2" else f for f in DEFAULT_FLAGS)
 
 Progress = Callable[[str], None]
 
@@ -338,8 +345,8 @@ def simulation_library(structure: Structure, precision: str = "double",
                        progress: Progress = _quiet) -> SimulationLibrary:
     """Generate (or reuse) and compile (or reuse) the simulation library of ``structure``."""
     folder = runtime_sources(structure, precision, cache_dir, progress)
-    lib = compile_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib",
-                         progress=progress)
+    lib = compile_shared(_sources(folder), LIBRARY_FLAGS, cc=cc,
+                         cache_dir=_cache(cache_dir) / "lib", progress=progress)
     return SimulationLibrary(lib, precision, folder)
 
 
@@ -353,7 +360,7 @@ def build_libraries(structures: tuple[Structure, ...], precision: str = "double"
     with ThreadPoolExecutor(max_workers=len(structures) or 1) as pool:
         compiling = [pool.submit(compile_shared, _sources(runtime_sources(s, precision,
                                                                           cache_dir)),
-                                 cc=cc, cache_dir=_cache(cache_dir) / "lib")
+                                 LIBRARY_FLAGS, cc=cc, cache_dir=_cache(cache_dir) / "lib")
                      for s in structures]
         return [f.result() for f in compiling]
 
@@ -366,7 +373,8 @@ def cached_simulation_library(structure: Structure, precision: str = "double",
     folder = _derivation_folder(structure, precision, cache_dir)
     if not _intact(folder):
         return None
-    lib = cached_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib")
+    lib = cached_shared(_sources(folder), LIBRARY_FLAGS, cc=cc,
+                        cache_dir=_cache(cache_dir) / "lib")
     return None if lib is None else SimulationLibrary(lib, precision, folder)
 
 
