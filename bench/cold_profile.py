@@ -87,7 +87,7 @@ def compiles(cc_log: Path) -> list[dict]:
     return out
 
 
-def tables(prof: dict, cc: list[dict], rate: float) -> list[str]:
+def tables(prof: dict, cc: list[dict], rate: int) -> list[str]:
     lines = ["| process | stage | sampled s | share of the process |", "| --- | --- | --- | --- |"]
     for proc, counts in sorted(prof.items(), key=lambda kv: -kv[1]["(all)"]):
         total = counts["(all)"]
@@ -108,7 +108,7 @@ def tables(prof: dict, cc: list[dict], rate: float) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--work", type=Path, help="keep the cache and output here")
-    ap.add_argument("--rate", type=float, default=20.0, help="py-spy samples per second")
+    ap.add_argument("--rate", type=int, default=20, help="py-spy samples per second")
     ap.add_argument("--raw", type=Path, help="an existing py-spy raw file: only the tables")
     ap.add_argument("--cc-log", type=Path, help="with --raw: the wrapper's compile log")
     ap.add_argument("--out", type=Path, default=BENCH / "cold_profile_results.json")

@@ -24,7 +24,7 @@ from maglevgen.carriage import Carriage
 from maglevgen.cli import main
 from maglevgen.controllers import allocation_matrix, axis_plants
 from maglevgen.errors import InputError
-from maglevgen.library import LIBRARY_FLAGS, runtime_sources, simulation_library
+from maglevgen.library import runtime_sources, simulation_library
 from maglevgen.params import load_params
 from maglevgen.runtime.compile import CompileError, compile_shared
 from maglevgen.simulate import (
@@ -281,7 +281,7 @@ def test_corrupted_cache_entries_are_rebuilt(carriage, tmp_path) -> None:
     assert src.read_bytes() == good
     # a truncated library (corrupted before anything maps it) is detected and rebuilt
     sources = [folder / "maglev_functions.c", folder / "maglev_simulate.c"]
-    so = compile_shared(sources, LIBRARY_FLAGS, cache_dir=cache / "lib")
+    so = compile_shared(sources, cache_dir=cache / "lib")
     size = so.stat().st_size
     so.write_bytes(so.read_bytes()[:5000])
     messages.clear()
