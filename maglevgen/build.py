@@ -122,7 +122,12 @@ def check_build_inputs(loaded: LoadedParams) -> None:
     the other models' (`other_structures`), built meanwhile in a second process."""
     from .carriage import Carriage
     from .envelope import resolve_range
-    from .library import build_libraries, cached_simulation_library, simulation_library
+    from .library import (
+        build_libraries,
+        cached_simulation_library,
+        runtime_sources,
+        simulation_library,
+    )
 
     carriage = Carriage(loaded)
     others = [s for s in other_structures(carriage) if cached_simulation_library(s) is None]
@@ -131,7 +136,19 @@ def check_build_inputs(loaded: LoadedParams) -> None:
     with child() as building:
         pending = (submit(building, "building the other models' libraries", build_libraries,
                           tuple(others)) if others else None)
-        resolve_range(carriage, simulation_library(carriage.structure))
+        lib = cached_simulation_library(carriage.structure)
+        if lib is None:  # a cold cache: while gcc compiles the library (its own process),
+            # this one lambdifies the model (the report's verification reads it; cached
+            # afterwards), as run_build does, instead of waiting for gcc and lambdifying it
+            # at the end of the build with nothing else left to overlap it. The derivation
+            # first, alone: it and the lambdifying both hold the GIL, and gcc can only start
+            # once it is done
+            runtime_sources(carriage.structure)
+            with ThreadPoolExecutor(max_workers=1) as pool:
+                compiling = pool.submit(simulation_library, carriage.structure)
+                carriage.functions  # noqa: B018
+                lib = compiling.result()
+        resolve_range(carriage, lib)
         if pending is not None:
             pending.result()
 
@@ -179,7 +196,9 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                  "process (cached afterwards)")
         lib = cached_simulation_library(carriage.structure)
         if lib is None:  # first build of this structure: gcc compiles (in its own process)
-            # while this one derives and lambdifies the model (both cached afterwards)
+            # while this one lambdifies the model (both cached afterwards); the derivation
+            # first, alone (it and the lambdifying both hold the GIL; gcc waits for it)
+            runtime_sources(carriage.structure, progress=step)
             with ThreadPoolExecutor(max_workers=1) as pool:
                 compiling = pool.submit(simulation_library, carriage.structure, progress=step)
                 carriage.functions  # noqa: B018

@@ -35,6 +35,17 @@ CHECKSUMS = "checksums.json"
 BATCH_SOURCE = "maglev_batch.c"
 #: MAGLEV_SIM_ARGUMENT (maglev_simulate.h): the run refused an argument and wrote nothing
 SIM_ARGUMENT = 4
+#: gcc flags of the libraries a build compiles only for its comparisons (`build_libraries`:
+#: the other force law, circuit model and actuator model): -O1, not -O2. The generated
+#: functions are long straight-line code (CasADi's SX) where -O2's extra passes cost compile
+#: time: gcc -O1 takes 19 s of CPU on the default carriage's library (1.9 MB of C) against
+#: 47 s at -O2, and every output of every function is bitwise the same (no fast-math: IEEE
+#: semantics at both levels; 420 calls and a whole closed-loop run compared, BENCHMARKS.md,
+#: issue 37). The run time is within about 10 % either way (0.89x-1.07x measured), which a
+#: comparison's few runs do not notice but a Monte-Carlo study would: a library compiled for
+#: its own sake (`simulation_library`) keeps -O2. Either is reused where the other is asked
+#: for and missing (`_cached`): the numbers are the same.
+COMPARISON_FLAGS: tuple[str, ...] = tuple("-O1" if f == "-O2" else f for f in DEFAULT_FLAGS)
 
 Progress = Callable[[str], None]
 
@@ -338,9 +349,19 @@ def simulation_library(structure: Structure, precision: str = "double",
                        progress: Progress = _quiet) -> SimulationLibrary:
     """Generate (or reuse) and compile (or reuse) the simulation library of ``structure``."""
     folder = runtime_sources(structure, precision, cache_dir, progress)
-    lib = compile_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib",
-                         progress=progress)
+    lib = _cached(folder, cc, cache_dir) or compile_shared(
+        _sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib", progress=progress)
     return SimulationLibrary(lib, precision, folder)
+
+
+def _cached(folder: Path, cc: str | None, cache_dir: Path | None) -> Path | None:
+    """The compiled library of the C in ``folder`` when cached at either -O level
+    (DEFAULT_FLAGS first, then COMPARISON_FLAGS: the same numbers), else None."""
+    for flags in (DEFAULT_FLAGS, COMPARISON_FLAGS):
+        lib = cached_shared(_sources(folder), flags, cc=cc, cache_dir=_cache(cache_dir) / "lib")
+        if lib is not None:
+            return lib
+    return None
 
 
 def build_libraries(structures: tuple[Structure, ...], precision: str = "double",
@@ -349,11 +370,13 @@ def build_libraries(structures: tuple[Structure, ...], precision: str = "double"
     the next is derived (gcc runs in its own process; the derivation holds the GIL); the
     libraries' paths. What `maglevgen build` runs in a second process for the other models
     its envelope and report compare (maglevgen.build), so that they are cached by the time
-    they are asked for."""
+    they are asked for. Compiled at COMPARISON_FLAGS (-O1) where not cached at either level."""
+    def compiled(folder: Path) -> Path:
+        return _cached(folder, cc, cache_dir) or compile_shared(
+            _sources(folder), COMPARISON_FLAGS, cc=cc, cache_dir=_cache(cache_dir) / "lib")
+
     with ThreadPoolExecutor(max_workers=len(structures) or 1) as pool:
-        compiling = [pool.submit(compile_shared, _sources(runtime_sources(s, precision,
-                                                                          cache_dir)),
-                                 cc=cc, cache_dir=_cache(cache_dir) / "lib")
+        compiling = [pool.submit(compiled, runtime_sources(s, precision, cache_dir))
                      for s in structures]
         return [f.result() for f in compiling]
 
@@ -366,7 +389,7 @@ def cached_simulation_library(structure: Structure, precision: str = "double",
     folder = _derivation_folder(structure, precision, cache_dir)
     if not _intact(folder):
         return None
-    lib = cached_shared(_sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib")
+    lib = _cached(folder, cc, cache_dir)
     return None if lib is None else SimulationLibrary(lib, precision, folder)
 
 

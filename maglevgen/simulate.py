@@ -166,13 +166,7 @@ class Trajectory:
     @property
     def speed_error(self) -> float | None:
         """max |V - v_ref| / v_ref after the first second (None for a run not longer)."""
-        ref = self.speed_reference
-        if ref is None:
-            ref = np.full(self.t.size, self.op.speed)
-        late = self.t > 1.0
-        if not np.any(late):
-            return None
-        return float(np.max(np.abs(self.speed[late] - ref[late]) / ref[late]))
+        return _speed_error(self, self.speed)
 
     @property
     def speed(self) -> np.ndarray:
@@ -209,17 +203,7 @@ class Trajectory:
     def growth_rate(self) -> float | None:
         """ln(peak |deviation| of the last quarter / of the first quarter) per second, over the
         axis that grows most (each axis relative to its own peak); None for a short run."""
-        n = self.t.size // 4
-        if n < 2:
-            return None
-        dev = np.abs(self.axis_deviation)
-        first, last = dev[:n].max(axis=0), dev[-n:].max(axis=0)
-        ok = first > 0
-        if not np.any(ok):
-            return 0.0
-        span = self.t[-n:].mean() - self.t[:n].mean()
-        with np.errstate(divide="ignore"):
-            return float(np.max(np.log(np.maximum(last[ok], 1e-300) / first[ok])) / span)
+        return _growth_rate(self.t, self.axis_deviation)
 
     @property
     def status(self) -> str:
@@ -252,13 +236,47 @@ def run_status(traj: Trajectory) -> str:
     so its growth counts as is."""
     if traj.c_status in C_STATUS:
         return C_STATUS[traj.c_status]
-    growth = traj.growth_rate
+    dev = traj.axis_deviation
+    return _status(traj, _growth_rate(traj.t, dev),
+                   lambda: [settling_time(traj.t, dev[:, i]) for i in range(dev.shape[1])])
+
+
+def _status(traj: Trajectory, growth: float | None,
+            settling: Callable[[], list[float | None]]) -> str:
+    """`run_status` of a run the C finished, from its growth rate and (only asked for when
+    the run is not diverging) its axes' settling times: `metrics` passes what it computes
+    anyway, so each is computed once per run."""
     if growth is not None and growth > 0 and not linearly_stable_hold(traj):
         return "diverging"
-    dev = traj.axis_deviation
-    if all(settling_time(traj.t, dev[:, i]) is not None for i in range(dev.shape[1])):
+    if all(st is not None for st in settling()):
         return "settled"
     return "not settled"
+
+
+def _growth_rate(t: np.ndarray, deviation: np.ndarray) -> float | None:
+    """`Trajectory.growth_rate` of the axis deviations ``deviation`` sampled at ``t``."""
+    n = t.size // 4
+    if n < 2:
+        return None
+    dev = np.abs(deviation)
+    first, last = dev[:n].max(axis=0), dev[-n:].max(axis=0)
+    ok = first > 0
+    if not np.any(ok):
+        return 0.0
+    span = t[-n:].mean() - t[:n].mean()
+    with np.errstate(divide="ignore"):
+        return float(np.max(np.log(np.maximum(last[ok], 1e-300) / first[ok])) / span)
+
+
+def _speed_error(traj: Trajectory, speed: np.ndarray) -> float | None:
+    """`Trajectory.speed_error` with the run's ``speed`` (`Trajectory.speed`) given."""
+    ref = traj.speed_reference
+    if ref is None:
+        ref = np.full(traj.t.size, traj.op.speed)
+    late = traj.t > 1.0
+    if not np.any(late):
+        return None
+    return float(np.max(np.abs(speed[late] - ref[late]) / ref[late]))
 
 
 def linearly_stable_hold(traj: Trajectory) -> bool:
@@ -369,8 +387,9 @@ def hold_trajectory(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
                       speed_reference=np.full(t.size, op.speed),
                       saturated_time=run.saturated_steps * dt,
                       tick=tick, speed_gain=float(speed_gain), force_budget=force_budget)
-    traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, run.status)
-    traj.equilibrium = moving_equilibrium(lib, p, op, traj.speed, min_gap)
+    speed = traj.speed  # once: a norm over every sample
+    traj.event = _contact_event(t, g, float(speed[-1]), min_gap, run.status)
+    traj.equilibrium = moving_equilibrium(lib, p, op, speed, min_gap)
     return traj
 
 
@@ -521,29 +540,34 @@ def metrics(traj: Trajectory) -> dict:
     run: its status, gaps, speeds, the speed error after the first second
     (`Trajectory.speed_error`), the time spent with an array at its force budget, and how
     the controller ran."""
+    # each derived series computed once (the properties would recompute them per use)
     dev = traj.axis_deviation
+    speed = traj.speed
+    growth = _growth_rate(traj.t, dev)
+    settling = [settling_time(traj.t, dev[:, i]) for i in range(dev.shape[1])]
+    status = (C_STATUS[traj.c_status] if traj.c_status in C_STATUS
+              else _status(traj, growth, lambda: settling))
     ugen = traj.generalized_forces
     axes = {}
     for i, (axis, state, ctrl) in enumerate(zip(cv.AXES, Q_STATES, cv.CONTROLS, strict=True)):
         unit = cv.STATES[cv.STATE_INDEX[state]].unit
         axes[axis] = {
             "state": state, "unit": unit, "force_unit": ctrl.unit,
-            "settling_time": settling_time(traj.t, dev[:, i]),
+            "settling_time": settling[i],
             "peak_deviation": float(np.max(np.abs(dev[:, i]))),
             "final_deviation": float(abs(dev[-1, i])),
             "rms_control": float(np.sqrt(np.mean(ugen[:, i] ** 2))),
         }
-    speed = traj.speed
     return {
-        "controller": traj.controller, "scenario": traj.scenario, "status": traj.status,
-        "event": traj.event, "growth_rate": traj.growth_rate,
+        "controller": traj.controller, "scenario": traj.scenario, "status": status,
+        "event": traj.event, "growth_rate": growth,
         "t_end": float(traj.t[-1]), "dt": traj.dt, "steps": int(traj.t.size - 1),
         "min_gap": float(np.min(traj.gaps)),
         "speed_start": float(speed[0]), "speed_end": float(speed[-1]),
-        "speed_at_contact": float(speed[-1]) if traj.status == "contact" else None,
+        "speed_at_contact": float(speed[-1]) if status == "contact" else None,
         "rms_array_force": float(np.sqrt(np.mean(traj.u[:, 1:] ** 2))),
         "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
-        "speed_error": traj.speed_error, "saturated_time": traj.saturated_time,
+        "speed_error": _speed_error(traj, speed), "saturated_time": traj.saturated_time,
         # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
         "tick": None if traj.tick is None else {"rate": traj.tick.rate,
                                                 "delay": traj.tick.delay},
