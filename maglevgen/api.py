@@ -274,8 +274,8 @@ class SimulationResult:
     gap_names: tuple[str, ...]
     units: dict[str, str]
     dt_limit: float
-    specification: str | None = None
-    check: dict[str, dict[str, float]] | None = None
+    specification: str | None
+    check: dict[str, dict[str, float]] | None
 
     def to_dataframe(self) -> pandas.DataFrame:
         """The run as a pandas DataFrame: one row per sample, the CSV file's columns.
@@ -1586,7 +1586,7 @@ def _check_controller(controller: str) -> None:
 
 
 def _simulation_result(run: SimulationRun, traj: Trajectory,
-                       check: dict | None = None) -> SimulationResult:
+                       check: dict | None) -> SimulationResult:
     """One run of a `SimulationRun`, with the CSV file's column names."""
     from .sim_output import columns
     from .simulate import metrics, spec_verdict

@@ -18,11 +18,14 @@ import sys
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from .derive import conventions as cv
 from .errors import MaglevError
 from .version import __version__
+
+if TYPE_CHECKING:
+    from .api import Carriage
 
 # The API (numpy) and the parameter schema (pydantic) are imported by the commands that need
 # them, so that `maglevgen --help` and `maglevgen build` on an up-to-date folder answer
@@ -43,11 +46,11 @@ def _run_options(p: argparse.ArgumentParser) -> None:
                    help="RK4 step [s] (default 1e-3)")
 
 
-def _carriage(args: argparse.Namespace):
+def _carriage(args: argparse.Namespace) -> Carriage:
     """The API's carriage of ``--params`` and ``--set`` (`maglevgen.Carriage`)."""
-    from .api import Carriage
+    from . import api
 
-    return Carriage(args.params, args.overrides)
+    return api.Carriage(args.params, args.overrides)
 
 
 # ------------------------------------------------------------------------------------ params
