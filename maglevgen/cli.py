@@ -241,7 +241,7 @@ def cmd_firmware(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     runs = _carriage(args).simulations(args.controller, args.scenario, args.speed, args.t_end,
                                        args.dt, args.loop, args.disturbance, args.check,
-                                       args.out or None, progress=True)
+                                       args.out, progress=True)
     if runs.scenario == "launch":  # each run ends at release (v_max), contact or its bound
         what = (f"the launch from {runs.speed:.4g} to {runs.release_speed:.4g} m/s, each run "
                 "until release, contact or divergence,")
@@ -259,9 +259,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         state, worst = max(run.check.items(), key=lambda kv: kv[1]["relative_to_peak"])
         print(f"  check {run.controller:<8} largest deviation from the adaptive reference: "
               f"{state} {worst['max_abs']:.3g} ({worst['relative_to_peak']:.2g} of its peak)")
-    if args.out:
-        print(f"wrote {len(runs.paths)} files to {Path(args.out).resolve()} (metrics.md: the "
-              "tables)")
+    print(f"wrote {len(runs.paths)} files to {Path(args.out).resolve()} (metrics.md: the "
+          "tables)")
     return 0
 
 

@@ -7,7 +7,8 @@ over the API).
   prints) are the command line's own. A planted option without an API parameter is caught.
 - Each command's function calls its entry point (it prints what the API computes); the
   `build` command calls the function `Carriage.build` calls (an up-to-date folder answers
-  without numpy).
+  without numpy). Neither front end (nor summary.py, the functions behind trim, gains and
+  envelope) reaches for another module's private name (read with `ast`).
 - The options the API gained do what the command line does: the disturbance is the initial
   state's deviation from the trim (numpy on the API's trim); the checks are the CLI's
   (message and exit code of ``maglevgen.cli.main``). ``generate --int`` and
@@ -17,6 +18,7 @@ over the API).
 from __future__ import annotations
 
 import argparse
+import ast
 import inspect
 from collections.abc import Callable
 from pathlib import Path
@@ -163,6 +165,32 @@ def test_each_command_calls_its_entry_point() -> None:
     # build's function is the one the API calls
     assert "build_folder(" in inspect.getsource(api.Carriage.build)
     assert build.build_folder.__module__ == "maglevgen.build"
+
+
+def private_uses(path: Path) -> list[str]:
+    """Each ``from .x import _y`` and ``obj._y`` (``self``/``cls`` aside, dunders aside)."""
+    tree = ast.parse(path.read_text())
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.ImportFrom) and n.level:
+            out += [f"{path.name}:{n.lineno} {ast.unparse(n)}" for a in n.names
+                    if a.name.startswith("_") and not a.name.startswith("__")]
+        if (isinstance(n, ast.Attribute) and n.attr.startswith("_")
+                and not n.attr.startswith("__")
+                and not (isinstance(n.value, ast.Name) and n.value.id in ("self", "cls"))):
+            out.append(f"{path.name}:{n.lineno} {ast.unparse(n)}")
+    return out
+
+
+def test_the_front_ends_use_no_private_name_of_another_module(tmp_path: Path) -> None:
+    from maglevgen import summary
+
+    assert [u for m in (cli, api, summary, build) for u in private_uses(Path(m.__file__))] == []
+    planted = tmp_path / "planted.py"  # the check itself, on the pattern it replaced
+    planted.write_text("from .summary import _library\nlib = summary._library(c)\n"
+                       "self._lib\nx.__name__\n")
+    assert [u.split(" ", 1)[1] for u in private_uses(planted)] == [
+        "from .summary import _library", "summary._library"]
 
 
 # ------------------------------------------------------------- the options the API gained
