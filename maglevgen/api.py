@@ -61,6 +61,7 @@ if TYPE_CHECKING:
     import pandas
 
     from .build import BuildResult
+    from .carriage import Carriage as _Carriage
     from .library import SimulationLibrary
     from .operating import OperatingPoint
     from .params import Parameters
@@ -539,16 +540,15 @@ class Carriage:
     """
 
     def __init__(self, params: str | Path | None = None, overrides: Sequence[str] = ()) -> None:
-        from .carriage import Carriage as _Carriage
         from .params import load_params
 
         if isinstance(overrides, str):  # one "NAME=VALUE" would iterate by character
             overrides = (overrides,)
         self._source, self._overrides = params, tuple(overrides)  # what `build` rereads
-        self._carriage = _Carriage(load_params(params, self._overrides))
+        self._loaded = load_params(params, self._overrides)
 
     def __repr__(self) -> str:
-        loaded = self._carriage.loaded
+        loaded = self._loaded
         extra = f", overrides={list(loaded.overrides)!r}" if loaded.overrides else ""
         return f"maglevgen.Carriage({loaded.source!r}{extra})"
 
@@ -557,12 +557,12 @@ class Carriage:
     @property
     def params(self) -> Parameters:
         """The validated parameters (a pydantic model; ``maglevgen params schema``)."""
-        return self._carriage.params
+        return self._loaded.params
 
     @property
     def sha256(self) -> str:
         """SHA-256 of the parameter text and overrides (``params_sha256`` of every output)."""
-        return self._carriage.loaded.sha256
+        return self._loaded.sha256
 
     @property
     def state_names(self) -> tuple[str, ...]:
@@ -588,6 +588,14 @@ class Carriage:
         return tuple(self.params.arrays)
 
     @cached_property
+    def _carriage(self) -> _Carriage:
+        """The model, built when a method first needs it: after its options are checked
+        (bad input is refused before any work, as on the command line)."""
+        from .carriage import Carriage as _Carriage
+
+        return _Carriage(self._loaded)
+
+    @cached_property
     def _lib(self) -> SimulationLibrary:
         return _commands().library_of(self._carriage)
 
@@ -605,7 +613,8 @@ class Carriage:
     def _operating_point(self, speed: float | None) -> OperatingPoint:
         from .operating import Weights, operating_point
 
-        return operating_point(self._lib, self._carriage.p, self._speed(speed),
+        v = self._speed(speed)  # before the library is built
+        return operating_point(self._lib, self._carriage.p, v,
                                self.params.track.min_gap, Weights.of(self.params))
 
     # --------------------------------------------------------------------- trim, gains
@@ -695,7 +704,8 @@ class Carriage:
         >>> len(rep["axes"]["vertical"]["K_closed_form"])
         2
         """
-        return _commands().gains_report(self._carriage, self._speed(speed))
+        v = self._speed(speed)  # before the model is built
+        return _commands().gains_report(self._carriage, v)
 
     def verdicts(self) -> tuple[dict[str, Any], tuple[str, ...]]:
         """The envelope's verdicts that ``maglevgen trim`` and ``gains`` print first.
@@ -889,8 +899,9 @@ class Carriage:
                              f"(or {', '.join(cv.Q_STATES)})")
         i = AXES.index(name)
         summary = _commands()
+        v = self._speed(speed)
         lib = summary.library_of(self._carriage)
-        v = summary.trim_point(self._carriage, lib, self._speed(speed)).speed  # or no trim
+        v = summary.trim_point(self._carriage, lib, v).speed  # or no trim
         k, m = (float(a.ravel()[i]) for a in lib.function("maglev_axis_plants")(
             v, self._carriage.p))
         q = cv.Q_STATES[i]
@@ -1035,11 +1046,12 @@ class Carriage:
         if speed is not None:
             self._speed(speed)
         _check_run_options(t_end, dt)
+        initial = _disturbance(disturbance)  # before the library: bad input is one line
         controllers = ALL if controller == "all" else (controller,)
         run = run_scenarios(self._carriage, controllers, t_end, dt, speed, lib=self._lib,
                             announce=steps.step if progress else None,
                             bar=steps.bar if progress else None, scenario=scenario,
-                            disturbance=_disturbance(disturbance), loop=loop)
+                            disturbance=initial, loop=loop)
         paths: tuple[Path, ...] = ()
         if out is not None:
             from .codegen.generate import write_output
@@ -1185,7 +1197,7 @@ class Carriage:
         from .output import check_writable, write_output
         from .simulate import run_loop
 
-        choice = controller or self._carriage.params.envelope.embedded_controller
+        choice = controller or self.params.envelope.embedded_controller
         if choice != "all":
             _check_controller(choice)
         if not isinstance(samples, int) or samples <= 0:
