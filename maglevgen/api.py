@@ -1048,7 +1048,10 @@ class Carriage:
         _check_run_options(t_end, dt)
         initial = _disturbance(disturbance)  # before the library: bad input is one line
         controllers = ALL if controller == "all" else (controller,)
-        run = run_scenarios(self._carriage, controllers, t_end, dt, speed, lib=self._lib,
+        # the library if this carriage has built it (cached_property's entry), else the one
+        # run_scenarios builds after checking its options: bad input stays the only line
+        lib = self.__dict__.get("_lib")
+        run = run_scenarios(self._carriage, controllers, t_end, dt, speed, lib=lib,
                             announce=steps.step if progress else None,
                             bar=steps.bar if progress else None, scenario=scenario,
                             disturbance=initial, loop=loop)
