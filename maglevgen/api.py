@@ -1506,6 +1506,7 @@ class Carriage:
         from .fmu import FMU_NAME, build_fmu
         from .output import write_output
 
+        controller = controller or self.params.envelope.embedded_controller
         data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop,
                          progress=steps.step if progress else _quiet)
         (path,) = write_output({FMU_NAME: data}, Path(out))
