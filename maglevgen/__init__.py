@@ -18,16 +18,19 @@ __all__ = [
     "Gains",
     "InputError",
     "MaglevError",
+    "MonteCarloResult",
     "NoTrimError",
     "RegionResult",
+    "ReportResult",
     "SimulationResult",
+    "SimulationRuns",
     "TrimResult",
     "VerificationError",
     "__version__",
     "load",
 ]
-_API = frozenset({"Carriage", "EnvelopeResult", "Gains", "RegionResult", "SimulationResult",
-                  "TrimResult", "load"})
+_API = frozenset({"Carriage", "EnvelopeResult", "Gains", "MonteCarloResult", "RegionResult",
+                  "ReportResult", "SimulationResult", "SimulationRuns", "TrimResult", "load"})
 
 
 def __getattr__(name: str) -> Any:

@@ -13,14 +13,23 @@ numbers are the ones the command prints, and bad input raises the same exception
 ``Carriage.gains``        the 5 x 5 gains the simulation, envelope and FMU use
 ``Carriage.linearize``    the Jacobians of the compiled ``maglev_jacobians``
 ``Carriage.axis_plant``   one axis of ``maglevgen gains`` (eqs 24-27)
-``Carriage.simulate``     ``maglevgen simulate``
+``Carriage.verdicts``     the envelope's verdicts ``trim`` and ``gains`` print
+``Carriage.simulate``     one run of ``maglevgen simulate``
+``Carriage.simulations``  ``maglevgen simulate``
 ``Carriage.envelope``     ``maglevgen envelope``
 ``Carriage.roa``          ``maglevgen roa``
+``Carriage.montecarlo``   ``maglevgen montecarlo``
 ``Carriage.generate``     ``maglevgen generate``
+``Carriage.firmware``     ``maglevgen firmware``
 ``Carriage.report``       ``maglevgen report``
 ``Carriage.fmu``          ``maglevgen fmu``
-``Carriage.montecarlo``   not yet: waits for ``maglevgen montecarlo`` (issue 19)
+``Carriage.build``        ``maglevgen build``
 ========================  ===================================================
+
+Every option of a command is a parameter of its method (tests/test_cli_api.py checks it), and
+the command is a printer over the method: it parses its arguments, calls the method and prints
+what the method returns. ``progress=True`` announces the slow steps on stderr as the command
+does.
 
 The state, input and output names of the python-control systems are those of the generated C
 (``manifest.json``): states x, y, z, phi, theta, psi (position of O and Z-Y-X Euler angles) and
@@ -30,8 +39,9 @@ u, v, w, p, q, r (body velocities and rates); inputs F_prop and the array force 
 from __future__ import annotations
 
 import json
+import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -41,6 +51,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import laws
+from . import progress as steps  # the commands' progress lines (stdlib only)
 from .derive import conventions as cv
 from .errors import InputError
 from .fmu import DEFAULT_FMI
@@ -49,13 +60,15 @@ if TYPE_CHECKING:
     import control
     import pandas
 
+    from .build import BuildResult
+    from .carriage import Carriage as _Carriage
     from .library import SimulationLibrary
     from .operating import OperatingPoint
     from .params import Parameters
-    from .simulate import SimulationRun
+    from .simulate import SimulationRun, Trajectory
 
-__all__ = ["Carriage", "EnvelopeResult", "Gains", "RegionResult", "SimulationResult",
-           "TrimResult", "load"]
+__all__ = ["Carriage", "EnvelopeResult", "Gains", "MonteCarloResult", "RegionResult",
+           "ReportResult", "SimulationResult", "SimulationRuns", "TrimResult", "load"]
 
 STATE_NAMES: tuple[str, ...] = tuple(s.name for s in cv.STATES)
 AXES: tuple[str, ...] = tuple(cv.AXES)
@@ -240,6 +253,12 @@ class SimulationResult:
         Unit of every column name, t included.
     dt_limit : float
         RK4's stability limit [s] for the stiffest closed-loop mode at the start.
+    specification : str or None
+        The run against the controller's run specification (``[control.spec]``), in words;
+        None without one.
+    check : dict or None
+        With ``check=True``: per state the largest deviation from SciPy's adaptive DOP853 on
+        the lambdified SymPy model (``max_abs``, ``relative_to_peak``); else None.
     """
 
     controller: str
@@ -256,6 +275,8 @@ class SimulationResult:
     gap_names: tuple[str, ...]
     units: dict[str, str]
     dt_limit: float
+    specification: str | None
+    check: dict[str, dict[str, float]] | None
 
     def to_dataframe(self) -> pandas.DataFrame:
         """The run as a pandas DataFrame: one row per sample, the CSV file's columns.
@@ -289,6 +310,40 @@ class SimulationResult:
 
 
 @dataclass(frozen=True)
+class SimulationRuns:
+    """The closed-loop runs of ``maglevgen simulate``, one per controller, from one trim.
+
+    Attributes
+    ----------
+    runs : dict of str to SimulationResult
+        Per controller, in the order asked for: its run.
+    scenario : str
+        hold or launch.
+    speed : float
+        The speed of the trim the runs start from [m/s] (the launch's: envelope.v_min).
+    propulsion_force : float
+        F_prop [N] at that trim.
+    release_speed : float or None
+        The launch's release speed (envelope.v_max) [m/s]; None for hold.
+    dt_limit : float
+        RK4's stability limit [s] for the stiffest closed-loop mode at the start.
+    warning : str or None
+        One line when the hold speed lies outside the envelope, else None.
+    paths : tuple of pathlib.Path
+        The files written (``out``: trajectories, metrics, figures), else empty.
+    """
+
+    runs: dict[str, SimulationResult]
+    scenario: str
+    speed: float
+    propulsion_force: float
+    release_speed: float | None
+    dt_limit: float
+    warning: str | None
+    paths: tuple[Path, ...]
+
+
+@dataclass(frozen=True)
 class EnvelopeResult:
     """Each controller's closed-loop stability across [v_min, v_max]: ``maglevgen envelope``.
 
@@ -315,6 +370,8 @@ class EnvelopeResult:
         The files written (``out``), else empty.
     report : dict
         What ``maglevgen envelope --json`` prints.
+    lines : tuple of str
+        The verdict lines ``maglevgen envelope`` prints, the embedded controller marked.
     """
 
     speeds: np.ndarray
@@ -328,6 +385,7 @@ class EnvelopeResult:
     speed_pole: np.ndarray
     paths: tuple[Path, ...]
     report: dict[str, Any] = field(repr=False)
+    lines: tuple[str, ...] = field(repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         """The envelope as plain JSON data (a copy).
@@ -382,6 +440,69 @@ class RegionResult:
     lines: tuple[str, ...] = field(repr=False)
 
 
+@dataclass(frozen=True)
+class MonteCarloResult(Mapping[str, Any]):
+    """A Monte-Carlo study's summary, ``maglevgen montecarlo --json``, and the files written.
+
+    Read as the summary itself (a mapping: ``result["controllers"]``).
+
+    Attributes
+    ----------
+    summary : dict
+        Per controller the contact probability with its 95 % Wilson interval, status counts,
+        per-axis quantiles, the worst samples and the inputs the failures correlate with;
+        the timing.
+    paths : tuple of pathlib.Path
+        The files written (``out``), else empty.
+    """
+
+    summary: dict[str, Any] = field(repr=False)
+    paths: tuple[Path, ...]
+
+    def __getitem__(self, key: str) -> Any:
+        return self.summary[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.summary)
+
+    def __len__(self) -> int:
+        return len(self.summary)
+
+
+@dataclass(frozen=True)
+class ReportResult(Sequence[Path]):
+    """The files ``maglevgen report`` wrote (a sequence of paths) and how LaTeX went.
+
+    Attributes
+    ----------
+    paths : tuple of pathlib.Path
+        The files written.
+    out_dir : pathlib.Path
+        The output folder.
+    latex_tool : str or None
+        latexmk or pdflatex, None when no TeX is installed.
+    pdf : bool
+        report.pdf was built.
+    latex_seconds : float
+        LaTeX's time [s].
+    failed_checks : tuple of str
+        The verification rows whose error exceeds their bound (each also a warning).
+    """
+
+    paths: tuple[Path, ...]
+    out_dir: Path
+    latex_tool: str | None
+    pdf: bool
+    latex_seconds: float
+    failed_checks: tuple[str, ...]
+
+    def __getitem__(self, index):  # Sequence's: an int or a slice
+        return self.paths[index]
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+
 class Carriage:
     """A carriage: its validated parameters, model, compiled library and results.
 
@@ -419,15 +540,15 @@ class Carriage:
     """
 
     def __init__(self, params: str | Path | None = None, overrides: Sequence[str] = ()) -> None:
-        from .carriage import Carriage as _Carriage
         from .params import load_params
 
         if isinstance(overrides, str):  # one "NAME=VALUE" would iterate by character
             overrides = (overrides,)
-        self._carriage = _Carriage(load_params(params, tuple(overrides)))
+        self._source, self._overrides = params, tuple(overrides)  # what `build` rereads
+        self._loaded = load_params(params, self._overrides)
 
     def __repr__(self) -> str:
-        loaded = self._carriage.loaded
+        loaded = self._loaded
         extra = f", overrides={list(loaded.overrides)!r}" if loaded.overrides else ""
         return f"maglevgen.Carriage({loaded.source!r}{extra})"
 
@@ -436,12 +557,12 @@ class Carriage:
     @property
     def params(self) -> Parameters:
         """The validated parameters (a pydantic model; ``maglevgen params schema``)."""
-        return self._carriage.params
+        return self._loaded.params
 
     @property
     def sha256(self) -> str:
         """SHA-256 of the parameter text and overrides (``params_sha256`` of every output)."""
-        return self._carriage.loaded.sha256
+        return self._loaded.sha256
 
     @property
     def state_names(self) -> tuple[str, ...]:
@@ -467,8 +588,16 @@ class Carriage:
         return tuple(self.params.arrays)
 
     @cached_property
+    def _carriage(self) -> _Carriage:
+        """The model, built when a method first needs it: after its options are checked
+        (bad input is refused before any work, as on the command line)."""
+        from .carriage import Carriage as _Carriage
+
+        return _Carriage(self._loaded)
+
+    @cached_property
     def _lib(self) -> SimulationLibrary:
-        return _commands()._library(self._carriage)
+        return _commands().library_of(self._carriage)
 
     # ----------------------------------------------------------------------- checks
 
@@ -484,7 +613,8 @@ class Carriage:
     def _operating_point(self, speed: float | None) -> OperatingPoint:
         from .operating import Weights, operating_point
 
-        return operating_point(self._lib, self._carriage.p, self._speed(speed),
+        v = self._speed(speed)  # before the library is built
+        return operating_point(self._lib, self._carriage.p, v,
                                self.params.track.min_gap, Weights.of(self.params))
 
     # --------------------------------------------------------------------- trim, gains
@@ -574,7 +704,41 @@ class Carriage:
         >>> len(rep["axes"]["vertical"]["K_closed_form"])
         2
         """
-        return _commands().gains_report(self._carriage, self._speed(speed))
+        v = self._speed(speed)  # before the model is built
+        return _commands().gains_report(self._carriage, v)
+
+    def verdicts(self) -> tuple[dict[str, Any], tuple[str, ...]]:
+        """The envelope's verdicts that ``maglevgen trim`` and ``gains`` print first.
+
+        Each controller's verdict on the continuous linearisation and the run
+        specification across [v_min, v_max] (as `envelope`, without the embedded
+        controller's check on the other models).
+
+        Returns
+        -------
+        entry : dict
+            What ``trim --json`` and ``gains --json`` hold under ``"envelope"``: v_min,
+            v_max, the embedded controller, the verdicts and whether each is stable; or
+            ``{"error": ...}``, why the envelope could not be computed (no trim at one of
+            its ends).
+        lines : tuple of str
+            The lines the commands print.
+
+        Raises
+        ------
+        maglevgen.MaglevError
+            A failure other than bad input (an envelope with no trim is reported in
+            ``entry``, not raised).
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> entry, lines = maglevgen.load().verdicts()
+        >>> entry["embedded"], lines[0].startswith("Envelope")
+        ('spec', True)
+        """
+        entry, lines = _commands().envelope_verdicts(self._carriage)
+        return entry, tuple(lines)
 
     def gains(self, speed: float | None = None, controller: str = "lqr") -> Gains:
         """A controller's gains at a speed, as the compiled simulation and the FMU use them.
@@ -735,8 +899,9 @@ class Carriage:
                              f"(or {', '.join(cv.Q_STATES)})")
         i = AXES.index(name)
         summary = _commands()
-        lib = summary._library(self._carriage)
-        v = summary.trim_point(self._carriage, lib, self._speed(speed)).speed  # or no trim
+        v = self._speed(speed)
+        lib = summary.library_of(self._carriage)
+        v = summary.trim_point(self._carriage, lib, v).speed  # or no trim
         k, m = (float(a.ravel()[i]) for a in lib.function("maglev_axis_plants")(
             v, self._carriage.p))
         q = cv.Q_STATES[i]
@@ -748,7 +913,9 @@ class Carriage:
 
     def simulate(self, controller: str = "lqr", scenario: str = "hold",
                  speed: float | None = None, t_end: float = 10.0,
-                 dt: float = 1e-3, loop: str = "firmware") -> SimulationResult:
+                 dt: float = 1e-3, loop: str = "firmware",
+                 disturbance: Mapping[str, float] | Sequence[str] | None = None
+                 ) -> SimulationResult:
         """A closed-loop run in the compiled C, as ``maglevgen simulate`` (figs 3-8).
 
         From the trim disturbed by 1 mm lateral and heave, 2 mrad roll, pitch and yaw; RK4
@@ -773,11 +940,19 @@ class Carriage:
             ``firmware`` (default): the controller at the tick of ``[control.spec]`` with
             its delay, the speed loop and the force budget (``--loop``); ``continuous``: the
             paper's law at every RK4 stage under the trim propulsion.
+        disturbance : mapping of str to float, or sequence of str, optional
+            The initial deviation from trim (``--disturbance``): state name to value
+            (m, rad, m/s, rad/s; at most 0.1 in magnitude), or ``"STATE=VALUE"`` items; given,
+            only these states are disturbed. None: the default disturbance above.
 
         Returns
         -------
         SimulationResult
             t, x, u, gaps, status, metrics and the column names.
+
+        See Also
+        --------
+        simulations : several controllers, the files and the reference check.
 
         Raises
         ------
@@ -796,15 +971,114 @@ class Carriage:
         >>> run.metrics["axes"]["vertical"]["unit"]
         'm'
         """
+        _check_controller(controller)
+        return self.simulations(controller, scenario, speed, t_end, dt, loop,
+                                disturbance).runs[controller]
+
+    def simulations(self, controller: str = "all", scenario: str = "hold",
+                    speed: float | None = None, t_end: float = 10.0, dt: float = 1e-3,
+                    loop: str = "firmware",
+                    disturbance: Mapping[str, float] | Sequence[str] | None = None,
+                    check: bool = False, out: str | Path | None = None,
+                    progress: bool = False) -> SimulationRuns:
+        """The closed-loop runs of ``maglevgen simulate``: one per controller, the files, the
+        reference check (figs 3-8).
+
+        The runs of `simulate`, from the same trim, in the compiled C.
+
+        Parameters
+        ----------
+        controller : str, optional
+            A registered controller or ``"all"`` (default; ``--controller``).
+        scenario : {'hold', 'launch'}, optional
+            The run (default hold; ``--scenario``).
+        speed : float, optional
+            Forward speed of ``hold`` [m/s] (``--speed``); default ``operation.speed``.
+        t_end : float, optional
+            Simulated time of ``hold`` [s] (default 10; ``--t-end``).
+        dt : float, optional
+            RK4 step [s] (default 1e-3; ``--dt``).
+        loop : {'firmware', 'continuous'}, optional
+            How each controller runs (``--loop``; see `simulate`).
+        disturbance : mapping of str to float, or sequence of str, optional
+            The initial deviation from trim (``--disturbance``; see `simulate`).
+        check : bool, optional
+            Also integrate each run with SciPy's adaptive DOP853 (rtol 1e-12) on the
+            lambdified SymPy model (``--check``; seconds per run; ``loop='continuous'``
+            only): `SimulationResult.check`.
+        out : str or pathlib.Path, optional
+            Write trajectories.npz, the CSV files, metrics.json, metrics.md and the figures
+            there (``--out``).
+        progress : bool, optional
+            Announce the slow steps (and a speed outside the envelope) on stderr.
+
+        Returns
+        -------
+        SimulationRuns
+            Per controller its `SimulationResult`; the start trim, the files.
+
+        Raises
+        ------
+        maglevgen.InputError
+            An unknown controller or scenario, t_end or dt outside their ranges, a step
+            above the stability limit, a speed with ``launch``, a disturbance of an unknown
+            state or above 0.1, ``check`` without ``loop='continuous'``.
+        maglevgen.NoTrimError
+            No equilibrium at the speed.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> runs = maglevgen.load().simulations(t_end=0.5, disturbance={"z": 0.002})
+        >>> list(runs.runs), runs.scenario
+        (['none', 'damping', 'lqr', 'coupled', 'spec'], 'hold')
+        >>> float(runs.runs["spec"].x[0, 2] - runs.runs["spec"].x[-1, 2]) > 0
+        True
+        """
+        from .simulate import CONTROLLERS as ALL
         from .simulate import run_scenarios
 
-        _check_controller(controller)
+        if controller != "all":
+            _check_controller(controller)
+        if check and loop != "continuous":
+            raise InputError("--check: the DOP853 reference integrates the continuous "
+                             "control law; add --loop continuous")
         if speed is not None:
             self._speed(speed)
         _check_run_options(t_end, dt)
-        run = run_scenarios(self._carriage, (controller,), t_end, dt, speed, lib=self._lib,
-                            scenario=scenario, loop=loop)
-        return _simulation_result(run)
+        initial = _disturbance(disturbance)  # before the library: bad input is one line
+        controllers = ALL if controller == "all" else (controller,)
+        # the library if this carriage has built it (cached_property's entry), else the one
+        # run_scenarios builds after checking its options: bad input stays the only line
+        lib = self.__dict__.get("_lib")
+        run = run_scenarios(self._carriage, controllers, t_end, dt, speed, lib=lib,
+                            announce=steps.step if progress else None,
+                            bar=steps.bar if progress else None, scenario=scenario,
+                            disturbance=initial, loop=loop)
+        paths: tuple[Path, ...] = ()
+        if out is not None:
+            from .codegen.generate import write_output
+            from .sim_output import render_results
+
+            files = render_results(run.trajectories, run.input_names,
+                                   run.header(self._carriage.loaded.sha256))
+            paths = tuple(write_output(files, Path(out)))
+        if run.warning and progress:
+            steps.step(f"warning: {run.warning}")
+        checks: dict[str, dict] = {}
+        if check:
+            from .simulate import reference_check
+
+            if progress:
+                steps.step("checking against DOP853 (rtol 1e-12) on the lambdified model")
+            for traj in run.trajectories:
+                checks[traj.controller] = reference_check(self._carriage.functions,
+                                                          self._carriage.p, traj)
+        return SimulationRuns(
+            runs={t.controller: _simulation_result(run, t, checks.get(t.controller))
+                  for t in run.trajectories},
+            scenario=run.scenario, speed=run.op.speed, propulsion_force=run.op.f_prop,
+            release_speed=run.v_end, dt_limit=run.dt_limit, warning=run.warning, paths=paths)
 
     def envelope(self, n_speeds: int | None = None,
                  out: str | Path | None = None) -> EnvelopeResult:
@@ -841,7 +1115,8 @@ class Carriage:
         >>> env.verdicts["coupled"][:6]
         'stable'
         """
-        env = _commands().envelope_of(self._carriage, n_speeds)
+        summary = _commands()
+        env = summary.envelope_of(self._carriage, n_speeds)
         rep = env.to_json()
         paths: tuple[Path, ...] = ()
         if out is not None:
@@ -860,12 +1135,13 @@ class Carriage:
             stable={n: e.stable for n, e in c.items()},
             unstable_ranges={n: e.unstable_ranges for n, e in c.items()},
             verdicts={n: e.verdict for n, e in c.items()}, speed_pole=env.speed_pole,
-            paths=paths, report=rep)
+            paths=paths, report=rep,
+            lines=tuple(summary.verdict_lines(env, self.params.envelope.embedded_controller)))
 
     def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
                    t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
                    scheduler: str | None = None, out: str | Path | None = None,
-                   loop: str = "firmware") -> dict:
+                   loop: str = "firmware", progress: bool = False) -> MonteCarloResult:
         """Monte-Carlo robustness over the parameter file's ``[tolerances]``, as
         ``maglevgen montecarlo``.
 
@@ -896,13 +1172,17 @@ class Carriage:
             Folder for ``samples.parquet``, ``montecarlo.md``/``.json`` and the plots.
         loop : {'firmware', 'continuous'}, optional
             How every run executes its controller (``--loop``; see `simulate`).
+        progress : bool, optional
+            Announce the slow steps on stderr, and the runs' rate (a progress bar on a
+            terminal).
 
         Returns
         -------
-        dict
-            The summary ``maglevgen montecarlo --json`` prints: per controller the contact
-            probability with its 95 % Wilson interval, status counts, per-axis quantiles,
-            the worst samples and the inputs the failures correlate with.
+        MonteCarloResult
+            The summary ``maglevgen montecarlo --json`` prints (read as a mapping): per
+            controller the contact probability with its 95 % Wilson interval, status counts,
+            per-axis quantiles, the worst samples and the inputs the failures correlate with;
+            and the files written.
 
         Raises
         ------
@@ -920,24 +1200,33 @@ class Carriage:
         from .output import check_writable, write_output
         from .simulate import run_loop
 
-        choice = controller or self._carriage.params.envelope.embedded_controller
+        choice = controller or self.params.envelope.embedded_controller
         if choice != "all":
             _check_controller(choice)
         if not isinstance(samples, int) or samples <= 0:
             raise InputError(f"--samples {samples}: expected a positive number of samples")
+        if seed < 0:  # numpy's SeedSequence takes non-negative integers only
+            raise InputError(f"--seed {seed}: expected a non-negative integer")
         if workers is not None and workers < 1:
             raise InputError(f"--workers {workers}: expected at least 1")
         _check_run_options(t_end, dt)
         if out is not None:
             check_writable(Path(out))
         controllers = CONTROLLERS if choice == "all" else (choice,)
-        lib = _commands()._library(self._carriage)
+        lib = self._lib
         study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
                            *run_loop(self._carriage, lib, loop))
-        result = run_study(study, samples, workers or default_workers(), scheduler)
+        k = len(controllers)
+        if progress:
+            with steps.rate_bar("Monte Carlo", samples * k) as tick:
+                result = run_study(study, samples, workers or default_workers(), scheduler,
+                                   tick=lambda n: tick(n * k))
+        else:
+            result = run_study(study, samples, workers or default_workers(), scheduler)
+        paths: tuple[Path, ...] = ()
         if out is not None:
-            write_output(output_files(result), Path(out))
-        return result.summary
+            paths = tuple(write_output(output_files(result), Path(out)))
+        return MonteCarloResult(result.summary, paths)
 
     def roa(self, n_speeds: int | None = None, controller: str | None = None,
             samples: int | None = None, seed: int = 0, workers: int = 1,
@@ -1016,8 +1305,8 @@ class Carriage:
 
     # -------------------------------------------------------------------- writers
 
-    def generate(self, out: str | Path, precision: str = "double",
-                 parameters: str = "baked") -> list[Path]:
+    def generate(self, out: str | Path, precision: str = "double", parameters: str = "baked",
+                 int_type: str = "int64", single_file: bool = False) -> list[Path]:
         """Generate the carriage's C, as ``maglevgen generate``.
 
         The dynamics (eqs 10-12), Jacobians, Newton trim, gain schedule, per-tick
@@ -1031,7 +1320,14 @@ class Carriage:
         precision : {'double', 'single'}, optional
             Floating-point type of the C (default double).
         parameters : {'baked', 'runtime'}, optional
-            Fold the parameter values in, or take them as an input vector p.
+            Fold the parameter values in, or take them as an input vector p; baked also
+            bakes the envelope's speed range, the trim's accepted speeds.
+        int_type : {'int64', 'int32'}, optional
+            casadi_int (``--int``): int64 (long long, as casadi.external expects) or int32
+            (int, for 32-bit MCUs).
+        single_file : bool, optional
+            One translation unit, maglev.c, with only the headers' API external
+            (``--single-file``).
 
         Returns
         -------
@@ -1041,7 +1337,7 @@ class Carriage:
         Raises
         ------
         maglevgen.InputError
-            An unknown precision or parameters mode.
+            An unknown precision, parameters mode or int type.
 
         Examples
         --------
@@ -1053,13 +1349,9 @@ class Carriage:
         """
         from .codegen.generate import GenerateOptions, render, write_output
 
-        if precision not in ("double", "single"):
-            raise InputError(f"--precision {precision!r}: expected double or single")
-        if parameters not in ("baked", "runtime"):
-            raise InputError(f"--parameters {parameters!r}: expected baked or runtime")
-        opts = GenerateOptions(precision, parameters)
+        opts = GenerateOptions(precision, parameters, int_type, single_file)  # checks them
         speeds = None
-        if parameters == "baked":
+        if opts.parameters == "baked":  # the trim's accepted speeds baked with the parameters
             from .envelope import speed_range
 
             speeds = speed_range(self._carriage)
@@ -1109,7 +1401,8 @@ class Carriage:
         return list(write_output(firmware_files(self._carriage, precision, with_plant),
                                  Path(out)))
 
-    def report(self, out: str | Path, simulation: str | Path | None = None) -> list[Path]:
+    def report(self, out: str | Path, simulation: str | Path | None = None,
+               progress: bool = False) -> ReportResult:
         """Write the derivation report, as ``maglevgen report``.
 
         ``report.tex`` and, where TeX is installed, ``report.pdf``: every equation of the
@@ -1123,11 +1416,14 @@ class Carriage:
             Output folder.
         simulation : str or pathlib.Path, optional
             A folder written by ``maglevgen simulate --out``: include its figures.
+        progress : bool, optional
+            Announce the slow steps on stderr, and say there what would be warnings (the
+            command's lines).
 
         Returns
         -------
-        list of pathlib.Path
-            The files written.
+        ReportResult
+            The files written (a sequence of paths) and how LaTeX went.
 
         Raises
         ------
@@ -1147,17 +1443,24 @@ class Carriage:
         from .report import INSTALL_HINT, ReportOptions, write_report
 
         opts = ReportOptions(simulation=Path(simulation) if simulation else None)
-        res = write_report(self._carriage, Path(out), opts)
-        if res.latex.tool is None:
-            warnings.warn(f"no LaTeX found: wrote report.tex without report.pdf; to build "
-                          f"the PDF install TeX ({INSTALL_HINT})", stacklevel=2)
-        for what in res.failed_checks:
-            warnings.warn(f"verification failed: {what} (see the report's Verification)",
-                          stacklevel=2)
-        return list(res.paths)
+        res = write_report(self._carriage, Path(out), opts,
+                           progress=steps.step if progress else _quiet)
+        # a note and warnings: lines on stderr with `progress` (the command's), else warnings
+        notes = ([f"no LaTeX found: wrote report.tex without report.pdf; to build the PDF "
+                  f"install TeX ({INSTALL_HINT}) and rerun"] if res.latex.tool is None else [])
+        failed = [f"verification failed: {what} (see the report's Verification)"
+                  for what in res.failed_checks]
+        if progress:
+            for line in (*notes, *(f"warning: {m}" for m in failed)):
+                steps.step(line)
+        else:
+            for message in (*notes, *failed):
+                warnings.warn(message, stacklevel=2)
+        return ReportResult(tuple(res.paths), res.out_dir, res.latex.tool, res.latex.ok,
+                            res.latex.seconds, tuple(res.failed_checks))
 
     def fmu(self, out: str | Path, kind: str = "both", controller: str | None = None,
-            fmi: str = DEFAULT_FMI, loop: str = "firmware") -> Path:
+            fmi: str = DEFAULT_FMI, loop: str = "firmware", progress: bool = False) -> Path:
         """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
         fmu``.
 
@@ -1177,6 +1480,8 @@ class Carriage:
             ``--loop``: the built-in controller at the tick of ``[control.spec]`` with its
             delay, the speed loop and the force budget (default), or at every derivative
             evaluation (the start values of the FMU's tick parameters).
+        progress : bool, optional
+            Announce the slow steps (code generation, compilation) on stderr.
 
         Returns
         -------
@@ -1201,17 +1506,87 @@ class Carriage:
         from .fmu import FMU_NAME, build_fmu
         from .output import write_output
 
-        data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop)
+        controller = controller or self.params.envelope.embedded_controller
+        data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop,
+                         progress=steps.step if progress else _quiet)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
+
+    def build(self, out: str | Path = "build", t_end: float = 10.0, dt: float = 1e-3,
+              pdf: bool = True, controller: str | None = None, allow_unstable: bool = False,
+              progress: bool = False) -> BuildResult:
+        """The main job, as ``maglevgen build``: C, library, simulations, envelope, region of
+        attraction and report brought up to date in one atomic step, with SUMMARY.md.
+
+        The carriage's parameter file and overrides are read again: an up-to-date folder is
+        recognised from their text and BUILD.json alone, and left as it is.
+
+        Parameters
+        ----------
+        out : str or pathlib.Path, optional
+            Output folder (default ``build``).
+        t_end : float, optional
+            Simulated time of the runs [s] (default 10; ``--t-end``).
+        dt : float, optional
+            RK4 step [s] (default 1e-3; ``--dt``).
+        pdf : bool, optional
+            Also build report.pdf where TeX is installed (``--no-pdf``: False).
+        controller : str, optional
+            The embeddable controller the firmware C embeds and the build verifies
+            (``--controller``; the same as the override
+            ``envelope.embedded_controller="NAME"``); default the file's.
+        allow_unstable : bool, optional
+            A failed verification (the embedded controller unstable somewhere in the
+            envelope) is a warning, not a `maglevgen.VerificationError`.
+        progress : bool, optional
+            Announce the steps on stderr (a progress bar on a terminal).
+
+        Returns
+        -------
+        maglevgen.build.BuildResult
+            The folder, whether it was rebuilt, SUMMARY.md's text and the files.
+
+        Raises
+        ------
+        maglevgen.InputError
+            Bad parameters or options, an envelope without a trim, a folder that cannot be
+            written.
+        maglevgen.VerificationError
+            The embedded controller fails the build's verification (exit 3 on the command
+            line), unless ``allow_unstable``.
+
+        Examples
+        --------
+        >>> import maglevgen
+        >>> maglevgen.load().build("/nonexistent/x/build", dt=5.0)
+        Traceback (most recent call last):
+        ...
+        maglevgen.errors.InputError: --dt 5: ...
+        """
+        from .build import BuildOptions, build_folder
+
+        opts = BuildOptions(t_end=t_end, dt=dt, pdf=pdf, allow_unstable=allow_unstable)
+        res = build_folder(self._source, self._overrides, Path(out), opts, controller,
+                           step=steps.step if progress else None,
+                           bar=steps.bar if progress else None)
+        for message in res.warnings(allow_unstable):
+            warnings.warn(message, stacklevel=2)
+        if (error := res.failure(allow_unstable)) is not None:
+            raise error
+        return res
 
 
 def _commands() -> ModuleType:
     """The module holding the functions behind the commands (trim_report, gains_report,
-    envelope_of, _library): the one place this API names it."""
+    envelope_of, envelope_verdicts, verdict_lines, library_of): the one place this API
+    names it."""
     from . import summary
 
     return summary
+
+
+def _quiet(_message: str) -> None:
+    """No progress (the methods' default: a script's stderr stays its own)."""
 
 
 def _check_run_options(t_end: float, dt: float) -> None:
@@ -1226,12 +1601,13 @@ def _check_controller(controller: str) -> None:
                          f"{', '.join(CONTROLLERS)}")
 
 
-def _simulation_result(run: SimulationRun) -> SimulationResult:
-    """The single run of a `SimulationRun`, with the CSV file's column names."""
+def _simulation_result(run: SimulationRun, traj: Trajectory,
+                       check: dict | None) -> SimulationResult:
+    """One run of a `SimulationRun`, with the CSV file's column names."""
     from .sim_output import columns
-    from .simulate import metrics
+    from .simulate import metrics, spec_verdict
 
-    (traj,) = run.trajectories
+    verdict = spec_verdict(traj)
     cols = columns(run.input_names, traj.gaps.shape[1])
     names = [n for n, _ in cols]
     n_x, n_u = traj.x.shape[1], traj.u.shape[1]
@@ -1239,4 +1615,28 @@ def _simulation_result(run: SimulationRun) -> SimulationResult:
         controller=traj.controller, scenario=traj.scenario, t=traj.t, x=traj.x, u=traj.u,
         gaps=traj.gaps, status=traj.status, event=traj.event, metrics=metrics(traj),
         state_names=tuple(names[1:1 + n_x]), input_names=tuple(names[1 + n_x:1 + n_x + n_u]),
-        gap_names=tuple(names[1 + n_x + n_u:]), units=dict(cols), dt_limit=run.dt_limit)
+        gap_names=tuple(names[1 + n_x + n_u:]), units=dict(cols), dt_limit=run.dt_limit,
+        specification=None if verdict is None else verdict.text(), check=check)
+
+
+def _disturbance(given: Mapping[str, float] | Sequence[str] | None) -> dict[str, float] | None:
+    """The initial deviation from trim of ``--disturbance STATE=VALUE`` items, or of a
+    mapping state -> value, checked (None: the default disturbance)."""
+    if not given:
+        return None
+    if isinstance(given, str):  # one "STATE=VALUE" would iterate by character
+        given = (given,)
+    items = ([(f"{k}={v}", k, v) for k, v in given.items()] if isinstance(given, Mapping)
+             else [(item, *item.partition("=")[::2]) for item in given])
+    out = {}
+    for item, name, raw in items:
+        try:
+            value = float(raw)
+        except (TypeError, ValueError):
+            value = math.nan
+        if str(name).strip() not in cv.STATE_INDEX or not (math.isfinite(value)
+                                                            and abs(value) <= 0.1):
+            raise InputError(f"--disturbance {item!r}: expected STATE=VALUE with a state of "
+                             f"{', '.join(cv.STATE_INDEX)} and |VALUE| <= 0.1")
+        out[str(name).strip()] = value
+    return out

@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from . import progress
 from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
 from .columns import fcolumn_plain
+from .errors import VerificationError
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import check_writable, clean_stale_siblings, write_output
 from .version import __version__
@@ -109,6 +111,48 @@ class BuildResult:
     files: tuple[str, ...]
     verification: str | None = None  # why the build's verification failed (exit 3)
     warning: str | None = None  # the runs' one-line warning (a speed outside the envelope)
+
+    def warnings(self, allow_unstable: bool = False) -> list[str]:
+        """What the build warns about: the runs' warning, and the failed verification when
+        ``allow_unstable`` lets it pass."""
+        return [w for w in (self.warning, self.verification if allow_unstable else None) if w]
+
+    def failure(self, allow_unstable: bool = False) -> VerificationError | None:
+        """The error of a failed verification (exit 3) unless ``allow_unstable``."""
+        if self.verification is None or allow_unstable:
+            return None
+        return VerificationError(self.verification)
+
+
+def build_folder(params: str | Path | None, overrides: Sequence[str], out_dir: str | Path,
+                 opts: BuildOptions, controller: str | None = None,
+                 step: Callable[[str], None] | None = None, bar=None) -> BuildResult:
+    """`maglevgen build` and `maglevgen.Carriage.build`: ``out_dir`` brought up to date for
+    the parameter file ``params`` (None: the LLNL carriage) with ``overrides``.
+
+    An up-to-date folder is recognised from the parameter text alone (`cached_result`: no
+    schema, numpy or derivation imported). Otherwise the input is checked before anything
+    slow is announced (the parameters, --t-end and --dt, the folder, the envelope's trim),
+    with the steps announced meanwhile held back (`progress.held`): bad input is then the
+    only line on stderr. ``controller``: the same as ``--set
+    envelope.embedded_controller="NAME"``. ``step`` announces the steps (None: quiet),
+    ``bar`` opens a progress bar (`progress.bar`).
+    """
+    overrides = list(overrides)
+    if controller:
+        overrides.append(f'envelope.embedded_controller="{controller}"')
+    out_dir = Path(out_dir)
+    res = cached_result(None if params is None else str(params), overrides, out_dir, opts)
+    if res is not None:
+        return res
+    from .params import check_run_options, load_params
+
+    with progress.held():  # bad input found here is the only line on stderr
+        loaded = load_params(params, overrides)
+        check_run_options(opts.t_end, opts.dt)
+        check_writable(out_dir)  # before any work (the library, the model)
+        check_build_inputs(loaded)
+    return run_build(loaded, out_dir, opts, step=step or (lambda _: None), bar=bar)
 
 
 def _find_tex() -> str | None:

@@ -1,7 +1,11 @@
-"""The `maglevgen` command: a thin layer over params, derive/ and the code generator.
+"""The `maglevgen` command: a printer over the Python API (maglevgen/api.py).
 
-Errors are one line on stderr; exit 0 success, 2 bad input, 1 internal failure. ``--debug``
-shows the traceback.
+Each command parses its arguments, calls the API method of the same name (`build`, which
+answers an up-to-date folder without numpy, calls the function that method calls:
+`maglevgen.build.build_folder`) and prints what it returns; the checks of the input and the
+files written are the API's. Every option is a parameter of that method
+(tests/test_cli_api.py). Errors are one line on stderr; exit 0 success, 2 bad input, 1
+internal failure, 3 failed verification. ``--debug`` shows the traceback.
 """
 
 from __future__ import annotations
@@ -9,20 +13,23 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import math
 import os
 import sys
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from .derive import conventions as cv
-from .errors import InputError, MaglevError, VerificationError
+from .errors import MaglevError
 from .version import __version__
 
-# The parameter schema (pydantic, numpy) is imported by the commands that need it, so that
-# `maglevgen build` on an up-to-date folder answers without loading it.
+if TYPE_CHECKING:
+    from .api import Carriage
+
+# The API (numpy) and the parameter schema (pydantic) are imported by the commands that need
+# them, so that `maglevgen --help` and `maglevgen build` on an up-to-date folder answer
+# without loading them.
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -39,16 +46,11 @@ def _run_options(p: argparse.ArgumentParser) -> None:
                    help="RK4 step [s] (default 1e-3)")
 
 
-def _carriage(args: argparse.Namespace):
-    from .carriage import Carriage
-    from .params import check_key_option, check_run_options, load_params
+def _carriage(args: argparse.Namespace) -> Carriage:
+    """The API's carriage of ``--params`` and ``--set`` (`maglevgen.Carriage`)."""
+    from . import api
 
-    loaded = load_params(args.params, args.overrides)
-    if getattr(args, "speed", None) is not None:
-        check_key_option("--speed", args.speed, "operation.speed")
-    if getattr(args, "t_end", None) is not None:
-        check_run_options(args.t_end, args.dt)
-    return Carriage(loaded)
+    return api.Carriage(args.params, args.overrides)
 
 
 # ------------------------------------------------------------------------------------ params
@@ -83,30 +85,11 @@ def cmd_params_schema(args: argparse.Namespace) -> int:
 # -------------------------------------------------------------------------------------- trim
 
 
-def _verdicts(carriage, rep: dict) -> list[str]:
-    """Add the envelope's verdicts to a report (under "envelope"); the lines to print first.
-    A carriage whose envelope has no trim still gets its trim and gains, with the reason."""
-    from . import summary
-
-    try:
-        env = summary.envelope_of(carriage, other_models=False)  # `envelope` and `build` do
-    except InputError as exc:
-        rep["envelope"] = {"error": str(exc)}
-        return [f"Envelope not computed: {exc}"]
-    embedded = carriage.params.envelope.embedded_controller
-    rep["envelope"] = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
-                       "verdicts": {n: c.verdict for n, c in env.controllers.items()},
-                       "stable": {n: c.ok for n, c in env.controllers.items()},
-                       "firmware_design": env.firmware_design(embedded)}
-    return summary.verdict_lines(env, embedded)
-
-
 def cmd_trim(args: argparse.Namespace) -> int:
-    from . import summary
-
     carriage = _carriage(args)
-    rep = summary.trim_report(carriage, args.speed, acceleration=args.acceleration)
-    verdicts = _verdicts(carriage, rep)
+    trim = carriage.trim(args.speed, acceleration=args.acceleration)
+    entry, verdicts = carriage.verdicts()
+    rep = {**trim.report, "envelope": entry}
     if args.json:
         print(json.dumps(rep, indent=2, sort_keys=False))
         return 0
@@ -144,8 +127,9 @@ def cmd_gains(args: argparse.Namespace) -> int:
     from . import summary
 
     carriage = _carriage(args)
-    rep = summary.gains_report(carriage, args.speed)
-    verdicts = _verdicts(carriage, rep)
+    report = carriage.gains_report(args.speed)
+    entry, verdicts = carriage.verdicts()
+    rep = {**report, "envelope": entry}
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0
@@ -194,25 +178,15 @@ def cmd_gains(args: argparse.Namespace) -> int:
 
 
 def cmd_envelope(args: argparse.Namespace) -> int:
-    from . import summary
-
-    carriage = _carriage(args)
-    env = summary.envelope_of(carriage, args.speeds)
-    if args.out:
-        from .envelope import envelope_markdown, stability_map_png
-        from .output import write_output
-
-        paths = write_output({"envelope.json": json.dumps(env.to_json(), indent=1) + "\n",
-                              "envelope.md": envelope_markdown(env),
-                              "stability_map.png": stability_map_png(env)}, Path(args.out))
+    env = _carriage(args).envelope(args.speeds, args.out or None)
     if args.json:
-        print(json.dumps(env.to_json(), indent=1))
+        print(json.dumps(env.report, indent=1))
         return 0
-    print("\n".join(summary.verdict_lines(env, carriage.params.envelope.embedded_controller)))
+    print("\n".join(env.lines))
     print("Ten-state closed loop (y z phi theta psi v w p q r) at the trim at each of "
           f"{env.speeds.size} speeds; x drops out, the speed is held by the propulsion.")
     if args.out:
-        print(f"wrote {len(paths)} files to {Path(args.out).resolve()}")
+        print(f"wrote {len(env.paths)} files to {Path(args.out).resolve()}")
     return 0
 
 
@@ -220,9 +194,7 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 
 
 def cmd_roa(args: argparse.Namespace) -> int:
-    from .api import Carriage
-
-    carriage = Carriage(args.params, args.overrides)
+    carriage = _carriage(args)
     res = carriage.roa(args.speeds, args.controller, args.samples, args.seed, args.workers,
                        args.batch, args.out)
     if args.json:
@@ -238,16 +210,11 @@ def cmd_roa(args: argparse.Namespace) -> int:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from .codegen.generate import GenerateOptions, render, write_output
+    from .codegen.generate import GenerateOptions
 
     opts = GenerateOptions(args.precision, args.parameters, args.int, args.single_file)
-    carriage = _carriage(args)
-    speeds = None
-    if opts.parameters == "baked":  # the trim's accepted speeds are baked with the parameters
-        from .envelope import speed_range
-
-        speeds = speed_range(carriage)
-    paths = write_output(render(carriage, opts, speeds), Path(args.out))
+    paths = _carriage(args).generate(args.out, opts.precision, opts.parameters, opts.int_type,
+                                     opts.single_file)
     print(f"wrote {len(paths)} files to {Path(args.out).resolve()} ({opts.command})")
     for path in paths:
         print(f"  {path.name}")
@@ -258,13 +225,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_firmware(args: argparse.Namespace) -> int:
-    from .codegen.firmware import firmware_files
-    from .output import check_writable, write_output
-
     carriage = _carriage(args)
-    check_writable(Path(args.out))  # before the table's trims and the code generation
-    paths = write_output(firmware_files(carriage, args.precision, args.with_plant),
-                         Path(args.out))
+    paths = carriage.firmware(args.out, args.precision, args.with_plant)
     print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (the embedded controller "
           f"{carriage.params.envelope.embedded_controller!r}, {args.precision} precision; "
           "what to call when: README.md there)")
@@ -276,67 +238,29 @@ def cmd_firmware(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------- simulate
 
 
-def _disturbance(items: Sequence[str]) -> dict[str, float] | None:
-    """--disturbance STATE=VALUE items (None: the default disturbance)."""
-    if not items:
-        return None
-    out = {}
-    for item in items:
-        name, _, raw = item.partition("=")
-        try:
-            value = float(raw)
-        except ValueError:
-            value = math.nan
-        if name.strip() not in cv.STATE_INDEX or not (math.isfinite(value)
-                                                       and abs(value) <= 0.1):
-            raise InputError(f"--disturbance {item!r}: expected STATE=VALUE with a state of "
-                             f"{', '.join(cv.STATE_INDEX)} and |VALUE| <= 0.1")
-        out[name.strip()] = value
-    return out
-
-
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from . import progress
-    from .codegen.generate import write_output
-    from .sim_output import render_results
-    from .simulate import CONTROLLERS, run_scenarios, spec_verdict
-
-    controllers = CONTROLLERS if args.controller == "all" else (args.controller,)
-    if args.check and args.loop != "continuous":
-        raise InputError("--check: the DOP853 reference integrates the continuous control law; "
-                         "add --loop continuous")
-    carriage = _carriage(args)
-    run = run_scenarios(carriage, controllers, args.t_end, args.dt, args.speed,
-                        announce=progress.step, bar=progress.bar, scenario=args.scenario,
-                        disturbance=_disturbance(args.disturbance), loop=args.loop)
-    files = render_results(run.trajectories, run.input_names, run.header(carriage.loaded.sha256))
-    paths = write_output(files, Path(args.out))
-    if args.scenario == "launch":  # each run ends at release (v_max), contact or its bound
-        what = (f"the launch from {run.op.speed:.4g} to {run.v_end:.4g} m/s, each run until "
-                "release, contact or divergence,")
+    runs = _carriage(args).simulations(args.controller, args.scenario, args.speed, args.t_end,
+                                       args.dt, args.loop, args.disturbance, args.check,
+                                       args.out, progress=True)
+    if runs.scenario == "launch":  # each run ends at release (v_max), contact or its bound
+        what = (f"the launch from {runs.speed:.4g} to {runs.release_speed:.4g} m/s, each run "
+                "until release, contact or divergence,")
     else:
         what = f"{args.t_end:g} s of hold"
     print(f"Simulated {what} at dt = {args.dt:g} s (RK4 in the generated C; stability limit "
-          f"{run.dt_limit:.3g} s) from trim at {run.op.speed:g} m/s, F_prop = "
-          f"{run.op.f_prop:.4g} N")
-    for traj in run.trajectories:  # the time each run actually reached
-        print(f"  {traj.controller:<8} {traj.status}{': ' + traj.event if traj.event else ''}"
-              f" (ran to t = {float(traj.t[-1]):.4g} s)")
-        if (verdict := spec_verdict(traj)) is not None:
-            print(f"  {'':<8} specification: {verdict.text()}")
-    if run.warning:
-        progress.step(f"warning: {run.warning}")
-    if args.check:
-        from .simulate import reference_check
-
-        progress.step("checking against DOP853 (rtol 1e-12) on the lambdified model")
-        for traj in run.trajectories:
-            worst = max(reference_check(carriage.functions, carriage.p, traj).items(),
-                        key=lambda kv: kv[1]["relative_to_peak"])
-            print(f"  check {traj.controller:<8} largest deviation from the adaptive reference: "
-                  f"{worst[0]} {worst[1]['max_abs']:.3g} ({worst[1]['relative_to_peak']:.2g} "
-                  "of its peak)")
-    print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (metrics.md: the tables)")
+          f"{runs.dt_limit:.3g} s) from trim at {runs.speed:g} m/s, F_prop = "
+          f"{runs.propulsion_force:.4g} N")
+    for run in runs.runs.values():  # the time each run actually reached
+        print(f"  {run.controller:<8} {run.status}{': ' + run.event if run.event else ''}"
+              f" (ran to t = {float(run.t[-1]):.4g} s)")
+        if run.specification is not None:
+            print(f"  {'':<8} specification: {run.specification}")
+    for run in runs.runs.values() if args.check else ():
+        state, worst = max(run.check.items(), key=lambda kv: kv[1]["relative_to_peak"])
+        print(f"  check {run.controller:<8} largest deviation from the adaptive reference: "
+              f"{state} {worst['max_abs']:.3g} ({worst['relative_to_peak']:.2g} of its peak)")
+    print(f"wrote {len(runs.paths)} files to {Path(args.out).resolve()} (metrics.md: the "
+          "tables)")
     return 0
 
 
@@ -344,50 +268,24 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
-    from . import progress
-    from .montecarlo import CONTROLLERS, make_study, output_files, run_study
-    from .output import check_writable, write_output
-    from .simulate import run_loop
-
-    if args.samples <= 0:
-        raise InputError(f"--samples {args.samples}: expected a positive number of samples")
-    if args.seed < 0:  # numpy's SeedSequence takes non-negative integers only
-        raise InputError(f"--seed {args.seed}: expected a non-negative integer")
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers {args.workers}: expected at least 1")
-    carriage = _carriage(args)
-    controllers = (CONTROLLERS if args.controller == "all" else
-                   (args.controller or carriage.params.envelope.embedded_controller,))
-    if args.out:
-        check_writable(Path(args.out))
-    from . import summary
-
-    lib = summary._library(carriage)
-    study = make_study(carriage, lib, controllers, args.t_end, args.dt, args.seed,
-                       *run_loop(carriage, lib, args.loop))
-    from .montecarlo import default_workers
-
-    workers = args.workers or default_workers()
-    k = len(controllers)
-    with progress.rate_bar("Monte Carlo", args.samples * k) as tick:
-        result = run_study(study, args.samples, workers, args.scheduler,
-                           tick=lambda n: tick(n * k))
-    if args.out:
-        paths = write_output(output_files(result), Path(args.out))
+    res = _carriage(args).montecarlo(args.samples, args.seed, args.controller, args.t_end,
+                                     args.dt, args.workers, args.scheduler, args.out or None,
+                                     args.loop, progress=True)
     if args.json:
-        print(json.dumps(result.summary, indent=1))
+        print(json.dumps(res.summary, indent=1))
     else:
-        t = result.summary["timing"]
-        print(f"{args.samples} samples x {k} controller(s): {t['runs']} runs in "
-              f"{t['seconds']:.3g} s ({t['runs_per_s']:.4g} runs/s, {t['workers']})")
-        for c, a in result.summary["controllers"].items():
+        t = res.summary["timing"]
+        print(f"{args.samples} samples x {len(res.summary['controllers'])} controller(s): "
+              f"{t['runs']} runs in {t['seconds']:.3g} s ({t['runs_per_s']:.4g} runs/s, "
+              f"{t['workers']})")
+        for c, a in res.summary["controllers"].items():
             lo, hi = a["contact_ci95"]
             p = a["contact_probability"]
             rate = "no run" if p is None else f"{p:.4f} (95 % CI [{lo:.4f}, {hi:.4f}])"
             counts = ", ".join(f"{s} {n}" for s, n in a["status_counts"].items() if n)
             print(f"  {c:<8} contact probability {rate}; {counts}")
     if args.out:
-        print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (montecarlo.md)",
+        print(f"wrote {len(res.paths)} files to {Path(args.out).resolve()} (montecarlo.md)",
               file=sys.stderr if args.json else sys.stdout)
     return 0
 
@@ -396,17 +294,14 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def cmd_fmu(args: argparse.Namespace) -> int:
-    from . import progress
-    from .fmu import FMI_VERSIONS, FMU_NAME, build_fmu
-    from .output import write_output
+    from .fmu import FMI_VERSIONS
 
     carriage = _carriage(args)
+    path = carriage.fmu(args.out, args.kind, args.controller, args.fmi, args.loop,
+                        progress=True)
     controller = args.controller or carriage.params.envelope.embedded_controller
-    data = build_fmu(carriage, args.kind, controller, progress=progress.step, fmi=args.fmi,
-                     loop=args.loop)
-    (path,) = write_output({FMU_NAME: data}, Path(args.out))
     print(f"wrote {path.resolve()} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
-          f"controller {controller}, {args.loop} loop, {len(data)} bytes)")
+          f"controller {controller}, {args.loop} loop, {path.stat().st_size} bytes)")
     return 0
 
 
@@ -414,20 +309,10 @@ def cmd_fmu(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from . import progress
-    from .report import INSTALL_HINT, ReportOptions, write_report
-
-    carriage = _carriage(args)
-    opts = ReportOptions(simulation=Path(args.simulation) if args.simulation else None)
-    res = write_report(carriage, Path(args.out), opts, progress=progress.step)
-    if res.latex.tool is None:
-        progress.step(f"no LaTeX found: wrote report.tex without report.pdf; to build the PDF "
-                      f"install TeX ({INSTALL_HINT}) and rerun")
-    for what in res.failed_checks:
-        progress.step(f"warning: verification failed: {what} (see the report's Verification)")
-    built = f", PDF by {res.latex.tool} in {res.latex.seconds:.1f} s" if res.latex.ok else ""
-    print(f"wrote {len(res.paths)} files to {res.out_dir}{built}")
-    for path in res.paths:
+    res = _carriage(args).report(args.out, args.simulation, progress=True)
+    built = f", PDF by {res.latex_tool} in {res.latex_seconds:.1f} s" if res.pdf else ""
+    print(f"wrote {len(res)} files to {res.out_dir}{built}")
+    for path in res:
         print(f"  {path.name}")
     return 0
 
@@ -436,25 +321,14 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    if args.controller:  # the same as --set envelope.embedded_controller="NAME"
-        args.overrides = [*args.overrides, f'envelope.embedded_controller="{args.controller}"']
-    from .build import BuildOptions, cached_result
+    # not through maglevgen.Carriage: an up-to-date folder answers without numpy or the schema
+    from . import progress
+    from .build import BuildOptions, build_folder
 
     opts = BuildOptions(t_end=args.t_end, dt=args.dt, pdf=not args.no_pdf,
                         allow_unstable=args.allow_unstable)
-    res = cached_result(args.params, args.overrides, Path(args.out), opts)
-    if res is None:  # not up to date: validate the parameters and build
-        from . import progress
-        from .build import check_build_inputs, run_build
-        from .output import check_writable
-        from .params import check_run_options, load_params
-
-        with progress.held():  # bad input found here is the only line on stderr
-            loaded = load_params(args.params, args.overrides)
-            check_run_options(args.t_end, args.dt)
-            check_writable(Path(args.out))  # before any work (the library, the model)
-            check_build_inputs(loaded)
-        res = run_build(loaded, Path(args.out), opts, step=progress.step, bar=progress.bar)
+    res = build_folder(args.params, args.overrides, Path(args.out), opts, args.controller,
+                       step=progress.step, bar=progress.bar)
     if not res.rebuilt:
         print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")
     else:
@@ -463,13 +337,10 @@ def cmd_build(args: argparse.Namespace) -> int:
         for sub in ("c", "lib", "simulation", "envelope", "report"):
             print(f"  {res.out_dir / sub}/")
         print(f"  {res.out_dir / 'SUMMARY.md'} (this summary)")
-    if res.warning:
-        print(f"maglevgen: warning: {res.warning}", file=sys.stderr)
-    if res.verification is not None:
-        if opts.allow_unstable:
-            print(f"maglevgen: warning: {res.verification}", file=sys.stderr)
-            return 0
-        raise VerificationError(res.verification)
+    for message in res.warnings(opts.allow_unstable):
+        print(f"maglevgen: warning: {message}", file=sys.stderr)
+    if (error := res.failure(opts.allow_unstable)) is not None:
+        raise error
     return 0
 
 

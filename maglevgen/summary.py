@@ -205,7 +205,7 @@ def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary 
                 acceleration: float = 0.0) -> dict:
     """Everything `maglevgen trim` prints, as plain data; ``acceleration`` [m/s^2]: of the
     accelerating trim (`trim_point`)."""
-    lib = lib or _library(carriage)
+    lib = lib or library_of(carriage)
     tp = trim_point(carriage, lib, speed, acceleration)
     kin = carriage.paper_stiffness_inputs(tp)
     rows = stiffness_rows(kin, tp.K_magnetic, tp.K_magnetic + tp.K_other)
@@ -266,7 +266,7 @@ def axis_gains(axis: str, k: float, m: float, K: np.ndarray, c: float,
 def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None
                  ) -> dict:
     """Everything `maglevgen gains` prints, as plain data."""
-    lib = lib or _library(carriage)
+    lib = lib or library_of(carriage)
     v = trim_point(carriage, lib, speed).speed  # the trim, or why there is none
     w = Weights.of(carriage.params)
     op = operating_point(lib, carriage.p, v, carriage.params.track.min_gap, w)
@@ -356,14 +356,16 @@ def _pole_key(e: complex) -> tuple[float, float]:
     return (float(e.real), float(e.imag))
 
 
-def _library(carriage: Carriage) -> SimulationLibrary:
+def library_of(carriage: Carriage) -> SimulationLibrary:
+    """The carriage's compiled run-time-parameter library (cached; built with the steps
+    announced on stderr): what every query here, the API and the commands run."""
     return simulation_library(carriage.structure, progress=progress.step)
 
 
 def envelope_of(carriage: Carriage, n_speeds: int | None = None,
                 lib: SimulationLibrary | None = None, other_models: bool = True):
     """The envelope of a carriage through its compiled library (maglevgen.envelope)."""
-    return compute_envelope(carriage, lib or _library(carriage), n_speeds or DEFAULT_SPEEDS,
+    return compute_envelope(carriage, lib or library_of(carriage), n_speeds or DEFAULT_SPEEDS,
                             other_models=other_models)
 
 
@@ -382,3 +384,17 @@ def verdict_lines(env, embedded: str) -> list[str]:
     return out
 
 
+def envelope_verdicts(carriage: Carriage) -> tuple[dict, list[str]]:
+    """The envelope's verdicts `maglevgen trim` and `gains` print first: the entry their
+    ``--json`` report holds under "envelope" and the lines. A carriage whose envelope has no
+    trim still gets its trim and gains: the entry is then the reason, ``{"error": ...}``."""
+    try:
+        env = envelope_of(carriage, other_models=False)  # `envelope` and `build` do
+    except InputError as exc:
+        return {"error": str(exc)}, [f"Envelope not computed: {exc}"]
+    embedded = carriage.params.envelope.embedded_controller
+    entry = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
+             "verdicts": {n: c.verdict for n, c in env.controllers.items()},
+             "stable": {n: c.ok for n, c in env.controllers.items()},
+             "firmware_design": env.firmware_design(embedded)}
+    return entry, verdict_lines(env, embedded)
