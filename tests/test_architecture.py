@@ -64,16 +64,21 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.laws.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
-                           "only when written", ("scipy", "maglevgen.codegen.checks", "numpy")),
+                           "only when written", ("scipy", "maglevgen.codegen.checks",
+                                                 "maglevgen.codegen.emit", "numpy")),
     "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
                               ("maglevgen.codegen.checks",)),
+    "maglevgen.codegen.checks": ("the ctypes runtime reads the error codes without jinja2: "
+                                 "the checks' C is rendered only when C is generated",
+                                 ("maglevgen.codegen.emit",)),
     "maglevgen.simulate": (
         "a hold run needs neither the envelope nor SciPy (the launch and --check do)",
         ("maglevgen.envelope", "maglevgen.library", "scipy")),
     "maglevgen.fmu": (
         "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
-        ("maglevgen.codegen.interface", "maglevgen.library", "maglevgen.operating",
-         "maglevgen.runtime.compile", "maglevgen.simulate", "maglevgen.laws", "fmpy")),
+        ("maglevgen.codegen.interface", "maglevgen.codegen.emit", "maglevgen.cache",
+         "maglevgen.library", "maglevgen.operating", "maglevgen.runtime.compile",
+         "maglevgen.simulate", "maglevgen.laws", "fmpy")),
     "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
     "maglevgen.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
                       ("scipy", "matplotlib")),

@@ -96,7 +96,7 @@ def error_defines(names: Sequence[str] | None = None, docs: bool = True) -> str:
     """The ``#define MAGLEV_*`` lines of ERROR_CODES (``names``: only those, in ERROR_CODES'
     order), each with its meaning as a comment when ``docs`` (identical text in maglev.h and
     the C: a benign redefinition in C). Rendered by templates/maglev_errors.h.j2."""
-    from .interface import template_env  # local: the ctypes runtime imports this module light
+    from .emit import template_env  # local: the ctypes runtime imports this module light
 
     codes = [(k, v, doc if docs else "") for k, (v, doc) in ERROR_CODES.items()
              if names is None or k in names]
@@ -235,7 +235,7 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
         source = source.replace(head, f"static int {name}_unchecked(const casadi_real** arg")
     source = _version_null_safe(source)
     work = work_sizes(source)
-    from .interface import template_env  # local: the ctypes runtime imports this module light
+    from .emit import template_env  # local: the ctypes runtime imports this module light
 
     nx = by_name["maglev_dynamics"]["inputs"][0]["rows"] if "maglev_dynamics" in by_name else 0
     block = template_env().get_template("maglev_checks.c.j2").render(

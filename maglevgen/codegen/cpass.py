@@ -37,7 +37,8 @@ from pathlib import Path
 from typing import Literal, NamedTuple
 
 import casadi as ca
-import numpy as np
+
+from .emit import float_literal
 
 Precision = Literal["double", "single"]
 
@@ -187,28 +188,6 @@ def _literal_value(text: str) -> float:
     """The value of a floating literal (suffix ignored), as a Python float."""
     body = text[:-1] if _float_suffix(text) else text
     return float.fromhex(body) if body.lower().startswith("0x") else float(body)
-
-
-def _as_float32(value: float) -> float:
-    """Round a double to the nearest IEEE single (inf beyond range), like a C ``(float)`` cast."""
-    with np.errstate(over="ignore"):
-        return float(np.float32(value))
-
-
-def float_literal(value: float) -> str:
-    """Print a non-negative double as a C float constant with the same float value.
-
-    Integers up to 2**24 print as ``2.0f``; others with 9 significant digits (enough to round-trip
-    any float) as ``1.00000001e-01f``; a value beyond float range becomes ``INFINITY`` (a float
-    constant in C99) and one that underflows becomes ``0.0f``, which is what a cast would give and
-    keeps clang's literal-range warnings quiet.
-    """
-    f32 = _as_float32(value)
-    if f32 == float("inf"):
-        return "INFINITY"
-    if f32 == int(f32) and f32 <= 2.0**24:
-        return f"{int(f32)}.0f"
-    return f"{f32:.8e}f"
 
 
 def _suffix_literals(code: str) -> str:

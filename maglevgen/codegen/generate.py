@@ -18,7 +18,8 @@ from maglevgen.output import write_output  # noqa: F401  (re-exported: the write
 from maglevgen.params import entry_limits
 
 from .checks import MAX_DELAY_TICKS, check_entries, work_sizes
-from .cpass import float_literal, generate_c
+from .cpass import generate_c
+from .emit import c_literal
 from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
 from .interface import (
     C_NAME,
@@ -33,6 +34,7 @@ from .interface import (
     template_env,
 )
 from .misra import deviation_list
+from .simulate_api import SIMULATE_API
 
 
 def _io(fn: ca.Function, out: bool) -> list[dict]:
@@ -64,8 +66,7 @@ def _min_gap_c(model: CarriageModel, opts: GenerateOptions, p_value: np.ndarray 
     i = model.structure.param_names.index("track.min_gap")
     if p_value is None:
         return f"p[{i}]"
-    value = float(p_value[i])
-    return float_literal(value) if opts.precision == "single" else repr(value)
+    return c_literal(p_value[i], opts.precision)
 
 
 def _speed_range_c(opts: GenerateOptions,
@@ -73,8 +74,7 @@ def _speed_range_c(opts: GenerateOptions,
     """The baked trim's [v_min, v_max] as C literals of the precision."""
     if speed_range is None:
         return None
-    return tuple(float_literal(v) if opts.precision == "single" else repr(float(v))
-                 for v in speed_range)  # type: ignore[return-value]
+    return tuple(c_literal(v, opts.precision) for v in speed_range)  # type: ignore[return-value]
 
 
 def _p_limits_c(model: CarriageModel, opts: GenerateOptions) -> list[tuple[str, str]] | None:
@@ -82,13 +82,7 @@ def _p_limits_c(model: CarriageModel, opts: GenerateOptions) -> list[tuple[str, 
     entry points refuse a p outside them: MAGLEV_ERR_PARAMETER)."""
     if opts.parameters != "runtime":
         return None
-
-    def lit(v: float) -> str:
-        if opts.precision == "double":
-            return repr(float(v))
-        return f"-{float_literal(-v)}" if v < 0 else float_literal(v)
-
-    return [tuple(lit(v) for v in entry_limits(n))  # type: ignore[misc]
+    return [tuple(c_literal(v, opts.precision) for v in entry_limits(n))  # type: ignore[misc]
             for n in model.structure.param_names]
 
 
@@ -113,7 +107,7 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
            # the array of each control force, in the input order (structure.input_names_of)
            "array_of_force": [i for i, (_, comps) in enumerate(model.structure.arrays)
                               for _ in comps],
-           "max_delay": MAX_DELAY_TICKS}
+           "max_delay": MAX_DELAY_TICKS, "api": {f.name: f for f in SIMULATE_API}}
     env = template_env()
     for name in SIMULATE_FILES:
         files[name] = env.get_template(f"{name}.j2").render(ctx)
