@@ -105,7 +105,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "a worker process imports the stages when its first chunk runs; Dask only with "
         "--scheduler, pyarrow only for the Parquet table, matplotlib only for the plots",
         ("distributed", "maglevgen.envelope", "maglevgen.library", "maglevgen.params",
-         "maglevgen.roa", "maglevgen.simulate", "matplotlib", "pyarrow", "re", "warnings")),
+         "maglevgen.roa", "matplotlib", "pyarrow", "re", "warnings")),
     "maglevgen.params": ("the schema validates without the derivation's conventions unless a "
                          "tolerance names a state", ("maglevgen.derive.conventions",)),
     "maglevgen.report.display": ("SymPy and the number formats only when a display is built",

@@ -15,6 +15,7 @@ from ...derive.model import build_model
 from ...derive.paper import paper_stiffness
 from ...errors import NoTrimError
 from ...library import simulation_library
+from ...params import ARRAY_FORCE_LAWS, PAPER_ARRAY_FORCE
 from ...summary import trim_point
 from ..display import REPORT_SOURCE, Display, break_sum, eqs, ltx, matrix_tex, round_floats
 from ..format import fnum
@@ -139,7 +140,8 @@ def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
 
 
 # the table's columns: every choice of params.ARRAY_FORCE_LAWS, the paper's first
-LAW_COLUMNS = ("point", "distributed")
+LAW_COLUMNS = (PAPER_ARRAY_FORCE,
+               *(law for law in ARRAY_FORCE_LAWS if law != PAPER_ARRAY_FORCE))
 
 
 def _by_law(carriage, trim, lib) -> dict[str, dict[str, Any] | None]:
