@@ -69,8 +69,9 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
                               ("maglevgen.codegen.checks",)),
     "maglevgen.codegen.checks": ("the ctypes runtime reads the error codes without jinja2: "
-                                 "the checks' C is rendered only when C is generated",
-                                 ("maglevgen.codegen.emit",)),
+                                 "the checks' C is rendered (and CasADi's edited) only when C "
+                                 "is generated", ("maglevgen.codegen.cpass",
+                                                  "maglevgen.codegen.emit")),
     "maglevgen.simulate": (
         "a hold run needs neither the envelope nor SciPy (the launch and --check do)",
         ("maglevgen.envelope", "maglevgen.library", "scipy")),

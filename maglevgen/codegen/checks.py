@@ -197,25 +197,6 @@ def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...
             "speed_range": speed_range}
 
 
-_VERSION = re.compile(r"(CASADI_SYMBOL_EXPORT void \w+_casadi_version\(int\* major, int\* minor, "
-                      r"int\* patch\) \{\n)((?:  \*\w+ = \d+;\n)+)\}")
-
-
-def _version_null_safe(source: str) -> str:
-    """CasADi's NAME_casadi_version(major, minor, patch) writes through its pointers
-    unconditionally: a NULL one (which its type allows) must skip that number instead."""
-    found = _VERSION.findall(source)
-    if len(found) != 1:
-        raise ValueError("the CasADi version function not found once in the generated C")
-
-    def guard(m: re.Match) -> str:
-        body = re.sub(r"  \*(\w+) = (\d+);", r"  if (\1 != 0) {\n    *\1 = \2;\n  }",
-                      m.group(2))
-        return m.group(1) + body + "}"
-
-    return _VERSION.sub(guard, source)
-
-
 def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime: bool,
                   min_gap: str, speed_range: tuple[str, str] | None = None,
                   p_limits: Sequence[tuple[str, str]] | None = None) -> str:
@@ -228,14 +209,13 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
     wanted = [f["name"] for f in table]
     if runtime and p_limits is None:
         raise ValueError("run-time parameters need the schema's ranges of p (p_limits)")
-    for name in wanted:
-        head = f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg"
-        if source.count(head) != 1:
-            raise ValueError(f"entry point of {name} not found once in the generated C")
-        source = source.replace(head, f"static int {name}_unchecked(const casadi_real** arg")
-    source = _version_null_safe(source)
-    work = work_sizes(source)
+    # CasADi's own C rewritten (the entry points made static, its version function NULL-safe):
+    # maglevgen.codegen.cpass, the one pass that edits CasADi's text
+    from .cpass import null_safe_version, unchecked_entry_points  # local: CasADi, at generation
     from .emit import template_env  # local: the ctypes runtime imports this module light
+
+    source = null_safe_version(unchecked_entry_points(source, wanted))
+    work = work_sizes(source)
 
     nx = by_name["maglev_dynamics"]["inputs"][0]["rows"] if "maglev_dynamics" in by_name else 0
     block = template_env().get_template("maglev_checks.c.j2").render(

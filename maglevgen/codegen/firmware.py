@@ -27,7 +27,7 @@ from maglevgen.version import __version__
 
 from .checks import check_entries, error_defines
 from .cpass import generate_c
-from .emit import c_literal
+from .emit import c_literal, render
 from .functions import bake_all, build_functions
 from .generate import function_table
 from .interface import C_NAME, GenerateOptions, interface_context, template_env
@@ -113,7 +113,8 @@ def render_firmware(carriage: Carriage, table: GainTable, loop: FirmwareLoop,
     sources = generate_c(fns, C_NAME, precision, int_type="int")
     sources[f"{C_NAME}.c"] = check_entries(sources[f"{C_NAME}.c"], function_table(fns),
                                            precision, False, "0")
-    files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
+    files = {name: render("generated_file.j2", banner=text_banner, text=text)
+             for name, text in sources.items()}
     fn_table = function_table(fns, files[f"{C_NAME}.c"])
     ctx = interface_context(carriage, opts, fn_table, None)
     ctx["banner"] = text_banner

@@ -6,7 +6,6 @@ Writers return (file name, text) pairs; `write_output` alone touches the disk, a
 from __future__ import annotations
 
 import json
-import re
 
 import casadi as ca
 import numpy as np
@@ -18,8 +17,9 @@ from maglevgen.output import write_output  # noqa: F401  (re-exported: the write
 from maglevgen.params import entry_limits
 
 from .checks import MAX_DELAY_TICKS, check_entries, work_sizes
-from .cpass import generate_c
+from .cpass import generate_c, static_helpers
 from .emit import c_literal
+from .emit import render as render_template
 from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
 from .interface import (
     C_NAME,
@@ -98,7 +98,8 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
                                            _min_gap_c(model, opts, p_value),
                                            _speed_range_c(opts, speed_range),
                                            _p_limits_c(model, opts))
-    files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
+    files = {name: render_template("generated_file.j2", banner=text_banner, text=text)
+             for name, text in sources.items()}
     prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
     ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
            "nx": len(cv.STATES),
@@ -117,25 +118,6 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
     return files
 
 
-#: a definition of one of CasADi's runtime helpers at the start of a line, not yet static
-_CASADI_HELPER = re.compile(r"^((?:casadi_real|casadi_int|void|int) (casadi_\w+)\()", re.M)
-
-
-def _static_helpers(text: str) -> str:
-    """CasADi's runtime helpers (casadi_copy, casadi_qr, ...), external in its own output,
-    made static; those no function calls (CasADi emits the QR solve's whole family) removed,
-    as a static function nobody calls is a warning."""
-    while True:
-        unused = [m for m in _CASADI_HELPER.finditer(text)
-                  if len(re.findall(rf"\b{m.group(2)}\(", text)) == 1]
-        if not unused:
-            break
-        for m in reversed(unused):  # the definition runs to the first "}" alone on a line
-            end = text.index("\n}\n", m.start()) + 3
-            text = text[:m.start()] + text[end:].lstrip("\n")
-    return _CASADI_HELPER.sub(r"static \1", text)
-
-
 def single_translation_unit(functions_c: str, simulate_c: str, text_banner: str) -> str:
     """maglev.c (`--single-file`): the functions and the simulation loop as one translation
     unit behind maglev.h and maglev_simulate.h, so every external function has its documented
@@ -145,14 +127,12 @@ def single_translation_unit(functions_c: str, simulate_c: str, text_banner: str)
         return text.split("\n", 1)[1]  # without the banner line
 
     includes = '#include "maglev_simulate.h"\n'
-    functions_c = _static_helpers(functions_c)
+    functions_c = static_helpers(functions_c)
     if simulate_c.count(includes) != 1:
         raise ValueError("maglev_simulate.c does not include its header once")
-    return (f"/* {text_banner} */\n/* {SINGLE_FILE}: maglev_functions.c and maglev_simulate.c "
-            "as one translation unit (`--single-file`); the API is declared in maglev.h "
-            "(maglev_functions.h) and maglev_simulate.h. */\n"
-            '#include "maglev.h"\n' + includes + "\n" + body(functions_c)
-            + "\n/* ---- maglev_simulate.c ---- */\n" + body(simulate_c).replace(includes, ""))
+    return render_template("maglev.c.j2", banner=text_banner, file=SINGLE_FILE,
+                  functions_body=body(functions_c),
+                  simulate_body=body(simulate_c).replace(includes, ""))
 
 
 def render_runtime_sources(model: CarriageModel, precision: str = "double") -> dict[str, str]:
