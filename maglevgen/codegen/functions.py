@@ -2,9 +2,9 @@
 
 Every function that depends on the parameters takes the vector ``p`` as its last input
 (``maglev_closed_loop_prepared`` takes the constants ``maglev_closed_loop_prepare`` made from
-it instead); `bake_all` folds a parameter file's values in as constants. Descriptions live in
-``DESCRIPTIONS``; names, inputs and outputs in the Function objects, which everything
-downstream (C, header, manifest) reads.
+it instead); `bake_all` folds a parameter file's values in as constants. `FUNCTION_SPECS`
+names each function, its inputs and outputs and says what it does; everything downstream (C,
+header, manifest) reads the Function objects made to it.
 """
 
 from __future__ import annotations
@@ -34,54 +34,16 @@ from .sympy_casadi import SympyToCasadi, casadi_rewriting_off
 PREFIX = "maglev_"
 N_AXES = len(cv.AXES)
 
-# What each generated function does, for the header and the manifest.
-DESCRIPTIONS: dict[str, str] = {
-    "dynamics": "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, 8-12)",
-    "jacobians": "(A, B) = (df/dx, df/du) of maglev_dynamics",
-    "trim": "equilibrium at speed v (Newton iterations in C): trim state and propulsion force",
-    "trim_accelerating": "equilibrium at speed v accelerating at accel along the track "
-                         "(Newton iterations in C): eqs 1-2 with the d'Alembert load -m accel "
-                         "at the CG and the propulsion at operation.propulsion_point "
-                         "(derive/trim.py); trim state and propulsion force (drag + m accel); "
-                         "accel = 0 gives maglev_trim",
-    "axis_plants": "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed v",
-    "lqr_gains": "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim",
-    "axis_gains": "per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form "
-                  "(eqs 29-33), the small part of the gain schedule",
-    "lqr_control": "one control tick: u_gen = -K (a - a_ref, a_dot), a = (y, z, phi, theta, psi)",
-    "damping_control": "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)",
-    "coupled_control": "one control tick of a full-matrix feedback (the coupled LQR): "
-                       "u_gen = -(K_pos (a - a_ref) + K_rate a_dot), K_pos and K_rate 5 x 5",
-    "allocate": "array forces T u_gen, T the pseudo-inverse of E: the least-norm forces that "
-                "produce u_gen (eqs 22-23 derived), or with normal actuators "
-                "(E of rank 4) its least-squares projection",
-    "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
-    "closed_loop": "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
-                   "integrates), the array forces being T u_gen with T an input; and the gaps "
-                   "at x (they share the model's geometry)",
-    "allocation_matrix": "T (arrays' forces x 5): the minimum-norm allocation as a matrix",
-    "closed_loop_prepare": "the part of maglev_closed_loop that depends only on the inputs "
-                           "constant over a run: c, once per simulation",
-    "closed_loop_prepared": "maglev_closed_loop's xdot, u and gaps from x and the prepared c",
-    "gaps": "the gap of each array face's closest corner (exact pose geometry); contact when "
-            "one reaches track.min_gap",
-    "array_forces": "lift and drag of each array at state x (eqs 3-4 at the exact gaps, summed "
-                    "over the tilted face for model.array_force = distributed)",
-    "stiffness": "at state x and propulsion F_prop: the magnetic stiffness K_st0 = -dW/dq of "
-                 "the array forces (5 x 5, eqs 13-19 derived) and that of the gravity and "
-                 "propulsion moments (K_other)",
-    "effectiveness": "E (5 x arrays' forces): the generalized forces about O that unit array "
-                     "control forces produce (eqs 22-23; T is its minimum-norm inverse)",
-    "stiffness_parts": "at state x and propulsion F_prop: maglev_stiffness's K_magnetic + "
-                       "K_other split by where the pose enters the wrench (5 x 5 each): the "
-                       "gap slope of eq 3, the rotating moment arms, the tilt across the face, "
-                       "gravity's and the propulsion's moments (the report's parts table; "
-                       "run-time-parameter library only, not in the baked firmware)",
-}
 
 #: functions for the analysis (the report) that the run-time-parameter library has and
 #: `maglevgen generate` leaves out: the firmware needs none of them
 ANALYSIS_FUNCTIONS = ("maglev_stiffness_parts",)
+_ANALYSIS_DESCRIPTIONS = {"stiffness_parts":
+    "at state x and propulsion F_prop: maglev_stiffness's K_magnetic + K_other "
+    "split by where the pose enters the wrench (5 x 5 each): the gap slope of eq "
+    "3, the rotating moment arms, the tilt across the face, gravity's and the "
+    "propulsion's moments (the report's parts table; run-time-parameter library "
+    "only, not in the baked firmware)"}
 
 
 @dataclass(frozen=True)
@@ -116,35 +78,80 @@ class FunctionSpec:
     name: str
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
+    description: str  # what it does, for the header and the manifest
     derived: bool = False
 
 
 #: every generated function, in the order of the C, the header and the manifest
 FUNCTION_SPECS: tuple[FunctionSpec, ...] = (
-    FunctionSpec("dynamics", ("x", "u", "p"), ("xdot",)),
-    FunctionSpec("jacobians", ("x", "u", "p"), ("A", "B")),
-    FunctionSpec("trim", ("v", "p"), ("x_trim", "F_prop")),
-    FunctionSpec("trim_accelerating", ("v", "accel", "p"), ("x_trim", "F_prop")),
-    FunctionSpec("axis_plants", ("v", "p"), ("k", "m")),
-    FunctionSpec("axis_gains", ("k", "m", "p"), ("K", "c_damping")),
-    FunctionSpec("lqr_gains", ("v", "p"), ("K", "c_damping")),
-    FunctionSpec("lqr_control", ("x", "K", "a_ref", "p"), ("u_gen",)),
-    FunctionSpec("damping_control", ("x", "c_damping", "p"), ("u_gen",)),
-    FunctionSpec("coupled_control", ("x", "K_pos", "K_rate", "a_ref", "p"), ("u_gen",)),
-    FunctionSpec("allocate", ("u_gen", "p"), ("F_arrays",)),
-    FunctionSpec("allocation_matrix", ("p",), ("T",)),
+    FunctionSpec("dynamics", ("x", "u", "p"), ("xdot",),
+                 "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, "
+                 "8-12)"),
+    FunctionSpec("jacobians", ("x", "u", "p"), ("A", "B"),
+                 "(A, B) = (df/dx, df/du) of maglev_dynamics"),
+    FunctionSpec("trim", ("v", "p"), ("x_trim", "F_prop"),
+                 "equilibrium at speed v (Newton iterations in C): trim state and propulsion "
+                 "force"),
+    FunctionSpec("trim_accelerating", ("v", "accel", "p"), ("x_trim", "F_prop"),
+                 "equilibrium at speed v accelerating at accel along the track (Newton "
+                 "iterations in C): eqs 1-2 with the d'Alembert load -m accel at the CG and "
+                 "the propulsion at operation.propulsion_point (derive/trim.py); trim state "
+                 "and propulsion force (drag + m accel); accel = 0 gives maglev_trim"),
+    FunctionSpec("axis_plants", ("v", "p"), ("k", "m"),
+                 "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed "
+                 "v"),
+    FunctionSpec("axis_gains", ("k", "m", "p"), ("K", "c_damping"),
+                 "per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form (eqs "
+                 "29-33), the small part of the gain schedule"),
+    FunctionSpec("lqr_gains", ("v", "p"), ("K", "c_damping"),
+                 "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim"),
+    FunctionSpec("lqr_control", ("x", "K", "a_ref", "p"), ("u_gen",),
+                 "one control tick: u_gen = -K (a - a_ref, a_dot), a = (y, z, phi, theta, psi)"),
+    FunctionSpec("damping_control", ("x", "c_damping", "p"), ("u_gen",),
+                 "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)"),
+    FunctionSpec("coupled_control", ("x", "K_pos", "K_rate", "a_ref", "p"), ("u_gen",),
+                 "one control tick of a full-matrix feedback (the coupled LQR): u_gen = "
+                 "-(K_pos (a - a_ref) + K_rate a_dot), K_pos and K_rate 5 x 5"),
+    FunctionSpec("allocate", ("u_gen", "p"), ("F_arrays",),
+                 "array forces T u_gen, T the pseudo-inverse of E: the least-norm forces that "
+                 "produce u_gen (eqs 22-23 derived), or with normal actuators (E of rank 4) "
+                 "its least-squares projection"),
+    FunctionSpec("allocation_matrix", ("p",), ("T",),
+                 "T (arrays' forces x 5): the minimum-norm allocation as a matrix"),
     FunctionSpec("rk4_step", ("x", "dt", "F_prop", "K_pos", "K_rate", "a_ref", "p"),
-                 ("x_next", "u"), derived=True),
+                 ("x_next", "u"),
+                 "one RK4 step of the closed loop; the axis feedback is evaluated at every "
+                 "stage", derived=True),
     FunctionSpec("closed_loop", ("x", "F_prop", "K_pos", "K_rate", "a_ref", "T", "p"),
-                 ("xdot", "u", "gaps")),
+                 ("xdot", "u", "gaps"),
+                 "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
+                 "integrates), the array forces being T u_gen with T an input; and the gaps at "
+                 "x (they share the model's geometry)"),
     FunctionSpec("closed_loop_prepare", ("F_prop", "K_pos", "K_rate", "a_ref", "T", "p"),
-                 ("c",), derived=True),
-    FunctionSpec("closed_loop_prepared", ("x", "c"), ("xdot", "u", "gaps"), derived=True),
-    FunctionSpec("gaps", ("x", "p"), ("gaps",)),
-    FunctionSpec("array_forces", ("x", "p"), ("lift", "drag")),
-    FunctionSpec("stiffness", ("x", "F_prop", "p"), ("K_magnetic", "K_other")),
-    FunctionSpec("effectiveness", ("p",), ("E",)),
+                 ("c",),
+                 "the part of maglev_closed_loop that depends only on the inputs constant over "
+                 "a run: c, once per simulation", derived=True),
+    FunctionSpec("closed_loop_prepared", ("x", "c"), ("xdot", "u", "gaps"),
+                 "maglev_closed_loop's xdot, u and gaps from x and the prepared c", derived=True),
+    FunctionSpec("gaps", ("x", "p"), ("gaps",),
+                 "the gap of each array face's closest corner (exact pose geometry); contact "
+                 "when one reaches track.min_gap"),
+    FunctionSpec("array_forces", ("x", "p"), ("lift", "drag"),
+                 "lift and drag of each array at state x (eqs 3-4 at the exact gaps, summed "
+                 "over the tilted face for model.array_force = distributed)"),
+    FunctionSpec("stiffness", ("x", "F_prop", "p"), ("K_magnetic", "K_other"),
+                 "at state x and propulsion F_prop: the magnetic stiffness K_st0 = -dW/dq of "
+                 "the array forces (5 x 5, eqs 13-19 derived) and that of the gravity and "
+                 "propulsion moments (K_other)"),
+    FunctionSpec("effectiveness", ("p",), ("E",),
+                 "E (5 x arrays' forces): the generalized forces about O that unit array "
+                 "control forces produce (eqs 22-23; T is its minimum-norm inverse)"),
 )
+
+
+#: what each generated function does (the header's and the manifest's text), by name
+DESCRIPTIONS: dict[str, str] = {**{s.name: s.description for s in FUNCTION_SPECS},
+                                **_ANALYSIS_DESCRIPTIONS}
 
 
 def build_functions(model: CarriageModel, newton_iterations: int = 30,
