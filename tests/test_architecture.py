@@ -382,9 +382,10 @@ def test_the_cached_c_is_keyed_by_the_generators_sources(tmp_path: Path) -> None
 
     keys = [key()]
     for rel in ("codegen/functions.py", "derive/geometry.py",
-                "templates/maglev_simulate.c.j2", "sim_output.py"):
+                "templates/maglev_simulate.c.j2", "templates/maglev_checks.c.j2",
+                "sim_output.py"):
         with (top / rel).open("a") as f:
             f.write("\n" + ("{# an edit #}" if rel.endswith(".j2") else "# an edit") + "\n")
         keys.append(key())
-    assert len(set(keys[:4])) == 4  # every edit the C depends on: a new key
-    assert keys[4] == keys[3]  # sim_output.py: not the generator's
+    assert len(set(keys[:5])) == 5  # every edit the C depends on: a new key
+    assert keys[5] == keys[4]  # sim_output.py: not the generator's
