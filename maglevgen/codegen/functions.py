@@ -28,7 +28,7 @@ from maglevgen.derive.riccati import riccati_stable_form
 from maglevgen.derive.structure import NORMAL_AXIS
 from maglevgen.derive.trim import along_track_acceleration
 
-from .casadi_model import casadi_model
+from .casadi_model import CasadiModel, casadi_model
 from .sympy_casadi import SympyToCasadi, casadi_rewriting_off
 
 PREFIX = "maglev_"
@@ -159,24 +159,47 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     """All generated functions (`FUNCTION_SPECS`) with the parameters as a run-time input
     (and, with ``analysis``, the ANALYSIS_FUNCTIONS).
 
-    Each function's inputs and outputs are given by name (``io``); the table orders and
-    names them. The symbols are made where they were first needed, in the same order every
-    time: CasADi orders the operands of its nodes by their creation, so the same order is
-    the same C.
+    Each part of the model gives its functions' inputs and outputs by name (``io``); the
+    table orders and names them. The parts run in this order, and each makes its symbols
+    where they are first needed, in the same order every time: CasADi orders the operands of
+    its nodes by their creation, so the same order is the same C.
     """
     cm = casadi_model(model)
     x, u, p = cm.x, cm.u, cm.p
-    n_x, n_u = x.shape[0], u.shape[0]
     base = {**_pairs(model.x, x), **_pairs(model.u, u), **_pairs(model.p, p)}
-    conv = SympyToCasadi(base)
-    names = model.structure.param_names
     io: dict[str, tuple[dict, dict]] = {}  # function -> (inputs, outputs), each by name
 
     dynamics = ca.Function("maglev_dynamics", [x, u, p], [cm.xdot])
     io["dynamics"] = {"x": x, "u": u, "p": p}, {"xdot": cm.xdot}
     io["jacobians"] = ({"x": x, "u": u, "p": p},
                        {"A": ca.jacobian(cm.xdot, x), "B": ca.jacobian(cm.xdot, u)})
+    trim = _trim_io(model, cm, dynamics, precision, newton_iterations, io)
+    K_fn, xs, fprop_s, lift_fn = _plant_io(model, cm, base, trim, io)
+    rates_fn = _control_io(cm, K_fn, io)
+    E, T_normal = _allocation_io(model, p, io)
+    _closed_loop_io(cm, dynamics, rates_fn, E, T_normal, io)
+    made = {s.name: _finished(_function(s, *io[s.name]))
+            for s in FUNCTION_SPECS if not s.derived}
+    # the step calls the finished right-hand side, so the C holds one copy of it
+    made["rk4_step"] = _rk4_step(made["closed_loop"], made["allocation_matrix"])
+    made["closed_loop_prepare"], made["closed_loop_prepared"] = \
+        _prepared_closed_loop(made["closed_loop"])
+    for s in FUNCTION_SPECS:  # the derived functions' names are the table's
+        f = made[s.name]
+        if (tuple(f.name_in()), tuple(f.name_out())) != (s.inputs, s.outputs):
+            raise ValueError(f"{f.name()}: inputs {f.name_in()} and outputs {f.name_out()}, "
+                             f"not the table's {s.inputs} and {s.outputs}")
+    extra = (_finished(_stiffness_parts(model, base, xs, fprop_s, p, lift_fn)),) \
+        if analysis else ()
+    return Built(tuple(made[s.name] for s in FUNCTION_SPECS), p.shape[0], extra)
 
+
+def _trim_io(model: CarriageModel, cm: CasadiModel, dynamics: ca.Function, precision: str,
+             newton_iterations: int, io: dict) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
+    """maglev_trim and maglev_trim_accelerating into ``io``; (v, p, x_trim, u_trim) of the
+    constant-speed trim (MX) for the functions at the trim."""
+    u, p = cm.u, cm.p
+    n_u = u.shape[0]
     # --- trim: Newton on the six accelerations in (y, z, phi, theta, psi, F_prop), less those
     # of a pure translation at accel along the track (derive.trim.along_track_acceleration:
     # eqs 1-2 with the d'Alembert load at the CG). One solver serves maglev_trim (accel = 0,
@@ -204,7 +227,19 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     xa_mx, ua_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, a_mx, p_mx)))
     io["trim_accelerating"] = ({"v": v_mx, "accel": a_mx, "p": p_mx},
                                {"x_trim": xa_mx, "F_prop": ua_mx[0]})
+    return v_mx, p_mx, xt_mx, ut_mx
 
+
+def _plant_io(model: CarriageModel, cm: CasadiModel, base: dict, trim: tuple, io: dict
+              ) -> tuple[ca.Function, ca.SX, ca.SX, ca.Function]:
+    """maglev_array_forces, maglev_stiffness, maglev_lqr_gains and maglev_axis_plants into
+    ``io``; the axis gains' function of (k, m) and p, the symbols x and F_prop of the
+    stiffness, the array forces' function."""
+    x, p = cm.x, cm.p
+    n_x = x.shape[0]
+    conv = SympyToCasadi(base)
+    names = model.structure.param_names
+    v_mx, p_mx, xt_mx, ut_mx = trim
     # --- per-axis plants at trim and their closed-form gains
     sf = stiffness_form(model.structure)
     q_sx = ca.SX.sym("q", 5)
@@ -256,7 +291,13 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     K_mx, c_mx = K_fn(km_mx, p_mx)
     io["lqr_gains"] = {"v": v_mx, "p": p_mx}, {"K": K_mx, "c_damping": c_mx}
     io["axis_plants"] = {"v": v_mx, "p": p_mx}, {"k": km_mx[:N_AXES], "m": km_mx[N_AXES:]}
+    return K_fn, xs, fprop_s, lift_fn
 
+
+def _control_io(cm: CasadiModel, K_fn: ca.Function, io: dict) -> ca.Function:
+    """The per-tick controllers and maglev_axis_gains into ``io``; the axis rates' function."""
+    x, p = cm.x, cm.p
+    n_x = x.shape[0]
     # --- per-tick controllers on the axis coordinates a = (y, z, phi, theta, psi): the gains
     # and the reference come from the schedule (maglev_trim, maglev_lqr_gains or
     # maglev_axis_plants + maglev_axis_gains), computed once per speed, not at every tick.
@@ -278,7 +319,12 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     io["axis_gains"] = ({"k": k_in, "m": m_in, "p": p},
                         dict(zip(("K", "c_damping"), K_fn(ca.vertcat(k_in, m_in), p),
                                  strict=True)))
+    return rates_fn
 
+
+def _allocation_io(model: CarriageModel, p: ca.SX, io: dict) -> tuple[ca.SX, ca.SX | None]:
+    """maglev_allocate and maglev_effectiveness into ``io``; E and, with normal actuators,
+    its pseudo-inverse."""
     # --- allocation: T = E^T (E E^T)^-1 from the array positions in p (E E^T can be singular
     # with forces along the normals: the pseudoinverse by iterated Tikhonov then)
     u_gen = ca.SX.sym("u_gen", N_AXES)
@@ -288,7 +334,15 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     forces = T_normal @ u_gen if normal else E.T @ ca.solve(E @ E.T, u_gen)
     io["allocate"] = {"u_gen": u_gen, "p": p}, {"F_arrays": forces}
     io["effectiveness"] = {"p": p}, {"E": E}
+    return E, T_normal
 
+
+def _closed_loop_io(cm: CasadiModel, dynamics: ca.Function, rates_fn: ca.Function, E: ca.SX,
+                    T_normal: ca.SX | None, io: dict) -> None:
+    """maglev_gaps, maglev_closed_loop and maglev_allocation_matrix into ``io``."""
+    x, p = cm.x, cm.p
+    n_x = x.shape[0]
+    normal = T_normal is not None
     # --- the closed loop's right-hand side, with the allocation matrix T as an input:
     # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
     # RK4 step, so one copy of the model's code stays in the instruction cache and nothing
@@ -310,20 +364,7 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                              {"xdot": dynamics(x0, u_cl, p), "u": u_cl, "gaps": gaps_fn(x0, p)})
         io["allocation_matrix"] = ({"p": p}, {
             "T": T_normal if normal else E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))})
-    made = {s.name: _finished(_function(s, *io[s.name]))
-            for s in FUNCTION_SPECS if not s.derived}
-    # the step calls the finished right-hand side, so the C holds one copy of it
-    made["rk4_step"] = _rk4_step(made["closed_loop"], made["allocation_matrix"])
-    made["closed_loop_prepare"], made["closed_loop_prepared"] = \
-        _prepared_closed_loop(made["closed_loop"])
-    for s in FUNCTION_SPECS:  # the derived functions' names are the table's
-        f = made[s.name]
-        if (tuple(f.name_in()), tuple(f.name_out())) != (s.inputs, s.outputs):
-            raise ValueError(f"{f.name()}: inputs {f.name_in()} and outputs {f.name_out()}, "
-                             f"not the table's {s.inputs} and {s.outputs}")
-    extra = (_finished(_stiffness_parts(model, base, xs, fprop_s, p, lift_fn)),) \
-        if analysis else ()
-    return Built(tuple(made[s.name] for s in FUNCTION_SPECS), p.shape[0], extra)
+
 
 
 def _function(spec: FunctionSpec, inputs: dict, outputs: dict) -> ca.Function:
