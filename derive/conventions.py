@@ -67,3 +67,8 @@ CONTROLS: tuple[Signal, ...] = (
 
 # Inputs of the dynamics: the propulsion force and each array's control force components.
 PROPULSION = Signal("F_prop", "N", "propulsion force along the track (inertial x)")
+
+#: The initial disturbance from trim per state (m, rad) of `maglevgen simulate`, and the
+#: parameter file's default tolerances.disturbance: small against the gaps (15 mm upper,
+#: 30 mm lower) so the response stays in the linear range the controllers were designed for.
+DISTURBANCE: dict[str, float] = {"y": 1e-3, "z": 1e-3, "phi": 2e-3, "theta": 2e-3, "psi": 2e-3}

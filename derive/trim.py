@@ -33,6 +33,7 @@ import sympy as sp
 from scipy.optimize import brentq, root
 
 from .numeric import ModelFunctions
+from .search import lowest_trim_speed
 
 
 class NoTrimError(ValueError):
@@ -122,15 +123,8 @@ def lift_off_speed(mf: ModelFunctions, p: np.ndarray, min_gap: float,
     if f(v_max) <= 0:
         return float("inf")
     lo = float(brentq(f, 1e-6, v_max, xtol=1e-9))
-    hi = max(2 * lo, 1e-3)
-    while not _has_trim(mf, p, hi, min_gap):
-        hi *= 2
-        if hi > v_max:
-            return float("inf")
-    while hi - lo > 1e-6 * hi:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if _has_trim(mf, p, mid, min_gap) else (mid, hi)
-    return hi
+    return lowest_trim_speed(lambda v: _has_trim(mf, p, v, min_gap), lo, max(2 * lo, 1e-3),
+                             v_max)
 
 
 def _has_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float) -> bool:

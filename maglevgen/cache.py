@@ -21,7 +21,9 @@ from .hashing import ContentHash, closure_hash, package_root, sha256_hex
 from .version import __version__
 
 # What the cached C of the derivation depends on besides the generator's source closure.
-DERIVATION_TEMPLATES = ("maglev_simulate.*.j2",)
+# (every template render_runtime_sources renders or imports)
+DERIVATION_TEMPLATES = ("maglev_simulate.*.j2", "maglev_checks.c.j2", "maglev_errors.h.j2",
+                        "c_prototype.h.j2", "casadi_output.j2", "generated_file.j2")
 DERIVATION_LIBS = ("casadi", "sympy", "numpy", "cloudpickle")
 # Everything a build's outputs depend on.
 ALL_PACKAGES = ("maglevgen", "maglevgen.derive", "maglevgen.codegen", "maglevgen.runtime",
@@ -46,6 +48,11 @@ def params_digest(text: str, overrides: Iterable[str]) -> str:
 def default_cache_dir() -> Path:
     base = os.environ.get("MAGLEVGEN_CACHE") or os.environ.get("XDG_CACHE_HOME")
     return Path(base) / "maglevgen" if base else Path.home() / ".cache" / "maglevgen"
+
+
+def cache_root(cache_dir: Path | None) -> Path:
+    """The cache folder: ``cache_dir`` when given, else `default_cache_dir`."""
+    return Path(cache_dir) if cache_dir else default_cache_dir()
 
 
 @cache

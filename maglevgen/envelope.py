@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .carriage import Carriage
+from .derive.search import lowest_trim_speed
 from .errors import InputError, NoTrimError
 from .laws import controller as registered_controller
 from .library import SimulationLibrary, simulation_library
@@ -51,9 +52,11 @@ _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between tw
 
 
 def lift_off_speed(lib: SimulationLibrary, p: np.ndarray, min_gap: float,
-                   v_hi: float) -> float:
+                   v_hi: float, v_limit: float | None = None) -> float:
     """The lowest speed with a trim (the Newton solve in C converges and every gap is above
-    track.min_gap), by bisection between 0 and ``v_hi``."""
+    track.min_gap), by bisection between 0 and ``v_hi`` (derive.search). ``v_limit``: when
+    ``v_hi`` has no trim, the search goes on at 4, 16, ... times ``v_hi`` up to it (inf when
+    none has one); None: an InputError naming envelope.v_max instead."""
     def has_trim(v: float) -> bool:
         try:
             checked_trim(lib, p, v, min_gap)
@@ -61,16 +64,11 @@ def lift_off_speed(lib: SimulationLibrary, p: np.ndarray, min_gap: float,
             return False
         return True
 
-    if not has_trim(v_hi):
+    v = lowest_trim_speed(has_trim, 0.0, v_hi, v_hi if v_limit is None else v_limit, grow=4.0)
+    if v == float("inf") and v_limit is None:
         raise InputError(f"envelope.v_max = {v_hi:g}: the carriage has no trim at this speed "
                          "(see `maglevgen trim --speed`)")
-    lo, hi = 0.0, v_hi
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if has_trim(mid) else (mid, hi)
-        if hi - lo < 1e-6 * hi:
-            break
-    return hi
+    return v
 
 
 def resolve_range(carriage, lib: SimulationLibrary) -> tuple[float, float]:

@@ -119,45 +119,40 @@ class FmuController:
     """One controller of the FMU.
 
     ``law`` "axis": u_gen = -(k_pos (a - a_ref) + k_rate a_dot) inside the generated
-    maglev_closed_loop_prepared (the path `maglevgen simulate` integrates), with ``gains_c``
-    setting k_pos and k_rate at initialization from K (5 x 2, column-major) and c_damping of
-    maglev_lqr_gains. ``law`` "generic": ``u_gen_c`` computes u_gen (5) from the state x, the
-    controller inputs ``in`` and the ``gains`` storage (``gain_slots`` values that ``gains_c``
-    fills at initialization); the array forces are then T u_gen and the derivatives come from
-    maglev_dynamics. ``inputs``: "references" (axis position offsets from trim), "controls"
-    (the generalized forces themselves) or "" (none).
+    maglev_closed_loop_prepared (the path `maglevgen simulate` integrates), with k_pos and
+    k_rate set at initialization as ``gains`` says (`FMU_GAINS`; the C of each is the macro
+    of that name in templates/fmu_controllers.c.j2). ``law`` "generic": u_gen (5) from the
+    state x, the controller inputs ``in`` and the ``gains`` storage (``gain_slots`` values),
+    by the macro u_gen of that template; the array forces are then T u_gen and the
+    derivatives come from maglev_dynamics. ``inputs``: "references" (axis position offsets
+    from trim), "controls" (the generalized forces themselves) or "" (none).
     """
 
     name: str
     description: str
     law: str
     inputs: str = ""
-    gains_c: str = ""
-    u_gen_c: str = ""
+    gains: str = "none"
     gain_slots: int = 1
 
 
-# How the wrapper sets each registered controller's gains (maglevgen.laws, Controller.fmu_gains).
-# "matrix": the gains need a Riccati solve the C does not hold: the toolchain solves it at
-# export (maglevgen.operating, at operation.speed for the file's parameters) and the wrapper
-# carries them as constants (MATRIX_K_POS, MATRIX_K_RATE); a parameter set through FMI
-# changes the trim but not these gains.
-_GAINS_C = {
+# How the wrapper sets each registered controller's gains (maglevgen.laws, Controller.fmu_gains):
+# the inputs it adds and what its description says of the gains. "matrix": the gains need a
+# Riccati solve the C does not hold: the toolchain solves it at export (maglevgen.operating,
+# at operation.speed for the file's parameters) and the wrapper carries them as constants
+# (MATRIX_K_POS, MATRIX_K_RATE); a parameter set through FMI changes the trim but not these
+# gains.
+FMU_GAINS: dict[str, tuple[str, str]] = {
     "none": ("", ""),
-    "damping": ("", "for (i = 0; i < NA; ++i) m->k_rate[i * (NA + 1)] = m->c_damping[i];"),
-    "axis": ("references", "for (i = 0; i < NA; ++i) { m->k_pos[i * (NA + 1)] = m->K[i]; "
-                           "m->k_rate[i * (NA + 1)] = m->K[NA + i]; }"),
-    "matrix": ("references", "for (i = 0; i < NA * NA; ++i) { m->k_pos[i] = MATRIX_K_POS[i]; "
-                             "m->k_rate[i] = MATRIX_K_RATE[i]; }"),
+    "damping": ("", ", gains at operation.speed"),
+    "axis": ("references", ", gains at operation.speed"),
+    "matrix": ("references", ", gains solved at export for the parameter file at "
+                             "operation.speed"),
 }
-_GAINS_AT = {"none": "", "damping": ", gains at operation.speed",
-             "axis": ", gains at operation.speed",
-             "matrix": ", gains solved at export for the parameter file at operation.speed"}
 
 
 EXTERNAL = FmuController("external", "generalized control forces are inputs (minimum-norm "
-                         "allocation, eqs 22-23)", "generic", inputs="controls",
-                         u_gen_c="for (i = 0; i < NA; ++i) u_gen[i] = in[i];")
+                         "allocation, eqs 22-23)", "generic", inputs="controls")
 
 
 def fmu_controllers() -> dict[str, FmuController]:
@@ -166,9 +161,9 @@ def fmu_controllers() -> dict[str, FmuController]:
 
     out = {}
     for c in laws.REGISTRY.values():
-        inputs, gains_c = _GAINS_C[c.fmu_gains]
-        out[c.name] = FmuController(c.name, c.description + _GAINS_AT[c.fmu_gains], "axis",
-                                    inputs=inputs, gains_c=gains_c)
+        inputs, gains_at = FMU_GAINS[c.fmu_gains]
+        out[c.name] = FmuController(c.name, c.description + gains_at, "axis", inputs=inputs,
+                                    gains=c.fmu_gains)
     return {**out, EXTERNAL.name: EXTERNAL}
 
 
@@ -316,10 +311,13 @@ def _function(manifest: dict, name: str) -> dict:
     return next(f for f in manifest["functions"] if f["name"] == name)
 
 
-def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI) -> dict[str, str]:
+def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
+                 matrix_gains: tuple[list[float], list[float]] | None = None
+                 ) -> dict[str, str]:
     """modelDescription.xml, the wrapper C, the sources' note and (FMI 3.0) the build
-    description, as text, for FMI version ``fmi`` ("2" or "3")."""
-    from .codegen.interface import template_env
+    description, as text, for FMI version ``fmi`` ("2" or "3"); ``matrix_gains``: the
+    (K_pos, K_rate) constants (column-major) of a controller whose gains are "matrix"."""
+    from .codegen.emit import template_env
 
     man = model.manifest
     pnames = [e["name"] for e in man["parameter_vector"]]
@@ -356,6 +354,7 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI) -> dict[str
         "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
         "fmi": version,
         "max_delay": MAX_DELAY_TICKS, "array_of_force": _array_of_force(man),
+        "matrix_gains": matrix_gains,
         # FMI 3.0: the independent variable time (unit s) beside the list's units
         "units3": [(u, fmi3_base_unit(u)) for u in sorted({*units, "s"})],
     }
@@ -412,8 +411,9 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     embeds (``envelope.embedded_controller``); ``loop`` (FMU_LOOPS): the start values of the
     tick's parameters, "firmware" those of `maglevgen.simulate.firmware_loop`, "continuous"
     zeros (the law at every derivative evaluation)."""
+    from .cache import cache_root
     from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
-    from .library import _cache, runtime_sources
+    from .library import runtime_sources
     from .runtime.compile import compile_object, compile_shared
 
     if controller is None:
@@ -436,10 +436,9 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
         [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
          json.loads(json.dumps([v.__dict__ for v in model.variables]))]
         + ([] if fmi == "2" else [f"fmi{fmi}"])))) + "}"  # FMI 2.0's GUID as before
-    files = render_files(model, guid, fmi)
-    if "MATRIX_K_POS" in model.controller.gains_c:
-        files[WRAPPER_C] = _with_matrix_gains(files[WRAPPER_C], carriage, controller,
-                                              cache_dir, cc)
+    matrix = (_matrix_gains(carriage, controller, cache_dir, cc)
+              if model.controller.gains == "matrix" else None)
+    files = render_files(model, guid, fmi, matrix)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
         p.name for p in folder.iterdir() if p.suffix in (".c", ".h"))}
     sources[WRAPPER_C] = files[WRAPPER_C].encode()
@@ -449,7 +448,7 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
         sources["buildDescription.xml"] = files["buildDescription.xml"].encode()
     # the wrapper's C is rendered per carriage (start values): compiled in its own folder,
     # cached by content like the simulation library
-    build = _cache(cache_dir) / "fmu" / guid.strip("{}")
+    build = cache_root(cache_dir) / "fmu" / guid.strip("{}")
     build.mkdir(parents=True, exist_ok=True)
     for name, data in sources.items():
         path = build / name
@@ -458,20 +457,20 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     # the carriage functions (most of the compile time) once per derivation, shared by every
     # FMU of it; each FMU links them with its own wrapper
     functions = compile_object(folder / "maglev_functions.c", cc=cc,
-                               cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
+                               cache_dir=cache_root(cache_dir) / "fmu" / "lib", progress=progress)
     flags = ("-std=c99", "-O2", "-fPIC", "-shared", f"-I{headers}")
     lib = compile_shared([*sorted(p for p in build.glob("*.c") if p.name != "maglev_functions.c"),
                           functions], flags=flags, cc=cc,
-                         cache_dir=_cache(cache_dir) / "fmu" / "lib", progress=progress)
+                         cache_dir=cache_root(cache_dir) / "fmu" / "lib", progress=progress)
     return _zip({"modelDescription.xml": files["modelDescription.xml"].encode(),
                  f"binaries/{version.platform}/{MODEL_IDENTIFIER}.so": lib.read_bytes(),
                  **{f"sources/{n}": d for n, d in sources.items()}})
 
 
-def _with_matrix_gains(wrapper: str, carriage, controller: str, cache_dir: Path | None,
-                       cc: str | None) -> str:
-    """The wrapper's C with ``controller``'s (K_pos, K_rate) at operation.speed as constants
-    (column-major, repr of each double: deterministic)."""
+def _matrix_gains(carriage, controller: str, cache_dir: Path | None, cc: str | None
+                  ) -> tuple[list[float], list[float]]:
+    """``controller``'s (K_pos, K_rate) at operation.speed, column-major: the constants
+    MATRIX_K_POS and MATRIX_K_RATE of the wrapper (templates/fmu_tick.c.j2)."""
     from .library import simulation_library
     from .operating import Weights, operating_point
 
@@ -479,14 +478,8 @@ def _with_matrix_gains(wrapper: str, carriage, controller: str, cache_dir: Path 
     op = operating_point(lib, carriage.p, carriage.params.operation.speed,
                          carriage.params.track.min_gap, Weights.of(carriage.params))
     K_pos, K_rate = op.gains(controller)
-
-    def table(name: str, K) -> str:
-        return (f"static const maglev_real {name}[NA * NA] = {{"
-                + ", ".join(repr(float(v)) for v in K.ravel(order="F")) + "};\n")
-
-    consts = table("MATRIX_K_POS", K_pos) + table("MATRIX_K_RATE", K_rate)
-    marker = "typedef struct {"
-    return wrapper.replace(marker, consts + "\n" + marker, 1)
+    return ([float(v) for v in K_pos.ravel(order="F")],
+            [float(v) for v in K_rate.ravel(order="F")])
 
 
 def _tick(carriage, cache_dir: Path | None, cc: str | None) -> FmuTick:

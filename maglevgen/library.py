@@ -23,7 +23,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .cache import default_cache_dir, derivation_fingerprint
+from .cache import cache_root, derivation_fingerprint
+from .codegen.simulate_api import function as api_function
 from .derive.structure import Structure
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import write_output
@@ -151,30 +152,32 @@ class SimulationLibrary(GeneratedLibrary):
                         ("force_budget", real)]
 
         self._Loop = _Loop
-        loop_ptr, count_ptr = ctypes.POINTER(_Loop), ctypes.POINTER(ctypes.c_longlong)
-        fn = self._lib.maglev_simulate
-        fn.restype = ctypes.c_longlong
-        fn.argtypes = [ptr, real, ctypes.c_longlong, real, ptr, ptr, ptr, loop_ptr, ptr, real,
-                       ptr, ptr, ptr, count_ptr, ctypes.POINTER(ctypes.c_int)]
-        self._simulate = fn
-        real_ptr = ptr
 
         class _Schedule(ctypes.Structure):  # maglev_spline_schedule (maglev_simulate.h)
-            _fields_ = [("n", ctypes.c_int), ("v0", real), ("dv", real), ("y", real_ptr),
-                        ("d2y", real_ptr)]
+            _fields_ = [("n", ctypes.c_int), ("v0", real), ("dv", real), ("y", ptr),
+                        ("d2y", ptr)]
 
         self._Schedule = _Schedule
-        fn = self._lib.maglev_launch
-        fn.restype = ctypes.c_longlong
-        fn.argtypes = [ptr, real, ctypes.c_longlong, real, real, ctypes.c_longlong,
-                       ctypes.POINTER(_Schedule), loop_ptr, ptr, real, ptr, ptr, ptr,
-                       count_ptr, ctypes.POINTER(ctypes.c_int)]
-        self._launch = fn
-        fn = self._lib.maglev_lyapunov_batch
-        fn.restype = ctypes.c_int
-        fn.argtypes = [ctypes.c_longlong, ptr, real, ptr, ptr, ptr, ptr, ptr, ptr, ptr, ptr,
-                       ptr]
-        self._lyapunov = fn
+        # each C type of the API's arguments (simulate_api: the header's text) as ctypes
+        self._ctypes = {"maglev_real": real, "const maglev_real*": ptr, "maglev_real*": ptr,
+                        "long long": ctypes.c_longlong, "int": ctypes.c_int,
+                        "long long*": ctypes.POINTER(ctypes.c_longlong),
+                        "int*": ctypes.POINTER(ctypes.c_int),
+                        "const maglev_control_loop*": ctypes.POINTER(_Loop),
+                        "const maglev_spline_schedule*": ctypes.POINTER(_Schedule),
+                        "maglev_simulate_fn": ctypes.c_void_p}
+        self._simulate = self._api(self._lib, "maglev_simulate")
+        self._launch = self._api(self._lib, "maglev_launch")
+        self._lyapunov = self._api(self._lib, "maglev_lyapunov_batch")
+
+    def _api(self, lib: ctypes.CDLL, name: str):
+        """``name`` of ``lib`` with its signature from maglevgen.codegen.simulate_api (the
+        run-time-parameter arguments: this library takes p)."""
+        f = api_function(name)
+        fn = getattr(lib, name)
+        fn.restype = self._ctypes[f.returns]
+        fn.argtypes = [self._ctypes[a.ctype] for a in f.arguments_for("runtime")]
+        return fn
 
     def _loop(self, loop: ControlLoop | None):
         """The maglev_control_loop of ``loop`` (a pointer), or NULL for None."""
@@ -276,14 +279,7 @@ class SimulationLibrary(GeneratedLibrary):
                                      cache_dir=self.path.parent)
             except CompileError:  # a compiler without OpenMP: the same runs on one thread
                 lib = compile_shared([src], flags, cc=cc, cache_dir=self.path.parent)
-            real = ctypes.c_float if self._real == np.float32 else ctypes.c_double
-            ptr, lptr = ctypes.POINTER(real), ctypes.POINTER(ctypes.c_longlong)
-            fn = ctypes.CDLL(str(lib)).maglev_batch_simulate
-            fn.restype = ctypes.c_int
-            fn.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_int, ctypes.c_int,
-                           ctypes.c_int, ctypes.c_int, ctypes.c_longlong, ptr, real,
-                           ctypes.c_longlong, ptr, ptr, ptr, ptr, ctypes.POINTER(self._Loop),
-                           ptr, real, ptr, ptr, ptr, lptr, lptr, ctypes.POINTER(ctypes.c_int)]
+            fn = self._api(ctypes.CDLL(str(lib)), "maglev_batch_simulate")
             self._batch = fn
         return self._batch
 
@@ -350,7 +346,7 @@ def simulation_library(structure: Structure, precision: str = "double",
     """Generate (or reuse) and compile (or reuse) the simulation library of ``structure``."""
     folder = runtime_sources(structure, precision, cache_dir, progress)
     lib = _cached(folder, cc, cache_dir) or compile_shared(
-        _sources(folder), cc=cc, cache_dir=_cache(cache_dir) / "lib", progress=progress)
+        _sources(folder), cc=cc, cache_dir=cache_root(cache_dir) / "lib", progress=progress)
     return SimulationLibrary(lib, precision, folder)
 
 
@@ -358,7 +354,7 @@ def _cached(folder: Path, cc: str | None, cache_dir: Path | None) -> Path | None
     """The compiled library of the C in ``folder`` when cached at either -O level
     (DEFAULT_FLAGS first, then COMPARISON_FLAGS: the same numbers), else None."""
     for flags in (DEFAULT_FLAGS, COMPARISON_FLAGS):
-        lib = cached_shared(_sources(folder), flags, cc=cc, cache_dir=_cache(cache_dir) / "lib")
+        lib = cached_shared(_sources(folder), flags, cc=cc, cache_dir=cache_root(cache_dir) / "lib")
         if lib is not None:
             return lib
     return None
@@ -373,7 +369,7 @@ def build_libraries(structures: tuple[Structure, ...], precision: str = "double"
     they are asked for. Compiled at COMPARISON_FLAGS (-O1) where not cached at either level."""
     def compiled(folder: Path) -> Path:
         return _cached(folder, cc, cache_dir) or compile_shared(
-            _sources(folder), COMPARISON_FLAGS, cc=cc, cache_dir=_cache(cache_dir) / "lib")
+            _sources(folder), COMPARISON_FLAGS, cc=cc, cache_dir=cache_root(cache_dir) / "lib")
 
     with ThreadPoolExecutor(max_workers=len(structures) or 1) as pool:
         compiling = [pool.submit(compiled, runtime_sources(s, precision, cache_dir))
@@ -393,12 +389,8 @@ def cached_simulation_library(structure: Structure, precision: str = "double",
     return None if lib is None else SimulationLibrary(lib, precision, folder)
 
 
-def _cache(cache_dir: Path | None) -> Path:
-    return Path(cache_dir) if cache_dir else default_cache_dir()
-
-
 def _derivation_folder(structure: Structure, precision: str, cache_dir: Path | None) -> Path:
-    return _cache(cache_dir) / "derivation" / derivation_key(structure, precision)
+    return cache_root(cache_dir) / "derivation" / derivation_key(structure, precision)
 
 
 def _sources(folder: Path) -> list[Path]:

@@ -46,10 +46,16 @@ from .operating import (
     checked_trim,
     operating_point,
 )
+from .simulate import (
+    RUN_STATUSES,
+    control_loop,
+    metrics,
+    rk4_stability_limit,
+    simulate,
+    simulate_batch,
+)
 
-# statuses of a sample's run: the simulation's (maglevgen.simulate.RUN_STATUSES) and two of
-# the sample itself
-RUN_STATUSES = ("settled", "not settled", "diverging", "contact", "generated code error")
+# statuses of a sample's run: the simulation's (RUN_STATUSES) and two of the sample itself
 SAMPLE_STATUSES = ("rejected", "no trim")
 STATUSES = RUN_STATUSES + SAMPLE_STATUSES
 FAILURES = ("contact", "diverging", "generated code error")
@@ -172,8 +178,6 @@ def _library(structure):
 
 def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     """One row per controller: the draws, the status and the per-axis metrics."""
-    from .simulate import simulate
-
     lib = lib or _library(study.structure)
     prepared = _prepare(study, index, lib)
     if isinstance(prepared, list):
@@ -193,8 +197,6 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
     ``threads`` threads (0: every core): the same rows (each run is the same maglev_simulate
     call). The draws, the trim and the gains of each sample come first, in Python and the
     library's C, as `run_sample` makes them."""
-    from .simulate import simulate_batch
-
     lib = lib or _library(study.structure)
     out: list[list[dict] | None] = []
     jobs, owners = [], []
@@ -257,8 +259,6 @@ def _run_row(study: Study, lib, p, row, controller: str, traj, op,
              disturbance: dict[str, float]) -> dict:
     """The row of one controller's run: its status and metrics, the cause of a contact, the
     initial deviation as a multiple of the region at its speed."""
-    from .simulate import metrics
-
     m = metrics(traj)
     r = row(controller, m["status"], m["event"] or "", m)
     r["contact_cause"] = contact_cause(lib, p, study.min_gap, m)
@@ -447,8 +447,6 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
     ``tick`` (maglevgen.simulate.Tick), ``speed_gain``, ``force_budget``: how the controller
     runs in every sample, as in maglevgen.simulate.simulate (the defaults: at every RK4
     stage, no speed loop, no budget)."""
-    from .simulate import control_loop, rk4_stability_limit
-
     control_loop(dt, tick, speed_gain, force_budget, 1.0)  # refused before any sample
 
     params = carriage.params

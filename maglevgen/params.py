@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .cache import DEFAULT_PARAMS_NAME, params_digest
+from .derive.conventions import DISTURBANCE  # the initial disturbance of `maglevgen simulate`
 from .derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
 from .errors import InputError
 from .laws import embeddable
@@ -375,6 +376,7 @@ class Envelope(_Section):
 
 
 ARRAY_FORCE_LAWS = ("distributed", "point")
+PAPER_ARRAY_FORCE = "point"  # the paper's eq 3 at the face centre
 
 
 class ModelChoices(_Section):
@@ -440,8 +442,6 @@ class Tolerance(_Section):
         return NORMAL_TRUNCATION * self.normal if self.normal is not None else float(self.uniform)
 
 
-# the initial disturbance amplitudes of `maglevgen simulate` (maglevgen.simulate.DISTURBANCE)
-_DEFAULT_DISTURBANCE = {"y": 1e-3, "z": 1e-3, "phi": 2e-3, "theta": 2e-3, "psi": 2e-3}
 
 
 class Tolerances(_Section):
@@ -452,7 +452,7 @@ class Tolerances(_Section):
         "the envelope's [v_min, v_max])", json_schema_extra={
             "unit": "m/s", "limits": [0.01, 1e3, _ENVELOPE_SPEED]})
     disturbance: dict[str, float] = Field(
-        default_factory=lambda: dict(_DEFAULT_DISTURBANCE), description="per state (x, y, z, "
+        default_factory=lambda: dict(DISTURBANCE), description="per state (x, y, z, "
         "phi, theta, psi, u, v, w, p, q, r): the initial deviation from trim drawn uniformly "
         "in +- this amplitude", json_schema_extra={
             "unit": "m, rad, m/s or rad/s", "limits": [0.0, 0.1, "a disturbance from trim, "

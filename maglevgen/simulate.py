@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .derive import conventions as cv
-from .derive.conventions import Q_STATES
+from .derive.conventions import DISTURBANCE, Q_STATES
 from .derive.structure import input_names_of
 from .errors import InputError, NoTrimError
 from .library import BatchRun, ControlLoop, Run, SimulationLibrary
@@ -38,10 +38,7 @@ from .run_spec import RunSpec, RunVerdict, judge_run
 from .sampled import Tick, speed_gain
 from .schedule import Schedule
 
-# The initial disturbance from trim (per axis): small against the gaps (15 mm upper, 30 mm
-# lower) so the response stays in the linear range the controllers were designed for.
-DISTURBANCE: dict[str, float] = {"y": 1e-3, "z": 1e-3, "phi": 2e-3, "theta": 2e-3,
-                                 "psi": 2e-3}
+# DISTURBANCE (derive.conventions) in words
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "
                    "2 mrad yaw from trim; body velocities at trim")
 
@@ -58,6 +55,7 @@ SCENARIOS: tuple[str, ...] = ("hold", "launch")
 # what maglev_simulate / maglev_launch report (MAGLEV_SIM_*); a run that took every step gets
 # its status from its trajectory (run_status)
 C_STATUS = {1: "contact", 2: "diverging", 3: "generated code error"}
+# every status of a run (maglevgen.montecarlo's samples add theirs)
 RUN_STATUSES: tuple[str, ...] = ("settled", "not settled", "diverging", "contact",
                                  "generated code error")
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls

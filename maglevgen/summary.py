@@ -66,15 +66,10 @@ def _speed(carriage: Carriage, speed: float | None) -> float:
 
 def _lift_off(carriage: Carriage, lib: SimulationLibrary) -> float:
     """The lowest speed with a trim (bisection on the C's trim up to envelope.v_max, or
-    further where the carriage has no trim there); inf when none up to 1e4 m/s."""
-    v_hi = float(carriage.params.envelope.v_max)
-    while True:
-        try:
-            return lift_off_speed(lib, carriage.p, carriage.params.track.min_gap, v_hi)
-        except InputError:
-            if v_hi > 1e4:
-                return float("inf")
-            v_hi *= 4
+    further where the carriage has no trim there: 4, 16, ... times it up to the first above
+    1e4 m/s); inf when none."""
+    return lift_off_speed(lib, carriage.p, carriage.params.track.min_gap,
+                          float(carriage.params.envelope.v_max), v_limit=4e4)
 
 
 def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None,

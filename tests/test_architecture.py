@@ -63,16 +63,22 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.laws.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
-                           "only when written", ("scipy", "maglevgen.codegen.checks", "numpy")),
+                           "only when written", ("scipy", "maglevgen.codegen.checks",
+                                                 "maglevgen.codegen.emit", "numpy")),
     "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
                               ("maglevgen.codegen.checks",)),
+    "maglevgen.codegen.checks": ("the ctypes runtime reads the error codes without jinja2: "
+                                 "the checks' C is rendered (and CasADi's edited) only when C "
+                                 "is generated", ("maglevgen.codegen.cpass",
+                                                  "maglevgen.codegen.emit")),
     "maglevgen.simulate": (
         "a hold run needs neither the envelope nor SciPy (the launch and --check do)",
         ("maglevgen.envelope", "maglevgen.library", "scipy")),
     "maglevgen.fmu": (
         "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
-        ("maglevgen.codegen.interface", "maglevgen.library", "maglevgen.operating",
-         "maglevgen.runtime.compile", "maglevgen.simulate", "maglevgen.laws", "fmpy")),
+        ("maglevgen.codegen.interface", "maglevgen.codegen.emit", "maglevgen.cache",
+         "maglevgen.library", "maglevgen.operating", "maglevgen.runtime.compile",
+         "maglevgen.simulate", "maglevgen.laws", "fmpy")),
     "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
     "maglevgen.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
                       ("scipy", "matplotlib")),
@@ -99,7 +105,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "a worker process imports the stages when its first chunk runs; Dask only with "
         "--scheduler, pyarrow only for the Parquet table, matplotlib only for the plots",
         ("distributed", "maglevgen.envelope", "maglevgen.library", "maglevgen.params",
-         "maglevgen.roa", "maglevgen.simulate", "matplotlib", "pyarrow", "re", "warnings")),
+         "maglevgen.roa", "matplotlib", "pyarrow", "re", "warnings")),
     "maglevgen.params": ("the schema validates without the derivation's conventions unless a "
                          "tolerance names a state", ("maglevgen.derive.conventions",)),
     "maglevgen.report.display": ("SymPy and the number formats only when a display is built",
@@ -375,9 +381,10 @@ def test_the_cached_c_is_keyed_by_the_generators_sources(tmp_path: Path) -> None
 
     keys = [key()]
     for rel in ("codegen/functions.py", "derive/geometry.py",
-                "templates/maglev_simulate.c.j2", "sim_output.py"):
+                "templates/maglev_simulate.c.j2", "templates/maglev_checks.c.j2",
+                "sim_output.py"):
         with (top / rel).open("a") as f:
             f.write("\n" + ("{# an edit #}" if rel.endswith(".j2") else "# an edit") + "\n")
         keys.append(key())
-    assert len(set(keys[:4])) == 4  # every edit the C depends on: a new key
-    assert keys[4] == keys[3]  # sim_output.py: not the generator's
+    assert len(set(keys[:5])) == 5  # every edit the C depends on: a new key
+    assert keys[5] == keys[4]  # sim_output.py: not the generator's

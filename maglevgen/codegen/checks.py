@@ -92,11 +92,15 @@ def error_name(code: int) -> str:
     return ERROR_NAMES.get(code, f"MAGLEV_ERR_{code}")
 
 
-def error_defines() -> str:
-    """The ``#define MAGLEV_ERR_*`` lines (identical text in maglev.h and the C: a benign
-    redefinition in C)."""
-    return "".join(f"#define {name} {value}  /* {doc} */\n"
-                   for name, (value, doc) in ERROR_CODES.items())
+def error_defines(names: Sequence[str] | None = None, docs: bool = True) -> str:
+    """The ``#define MAGLEV_*`` lines of ERROR_CODES (``names``: only those, in ERROR_CODES'
+    order), each with its meaning as a comment when ``docs`` (identical text in maglev.h and
+    the C: a benign redefinition in C). Rendered by templates/maglev_errors.h.j2."""
+    from .emit import template_env  # local: the ctypes runtime imports this module light
+
+    codes = [(k, v, doc if docs else "") for k, (v, doc) in ERROR_CODES.items()
+             if names is None or k in names]
+    return template_env().get_template("maglev_errors.h.j2").render(codes=codes)
 
 
 def work_sizes(source: str) -> dict[str, tuple[int, int, int, int]]:
@@ -112,21 +116,10 @@ def _sizes(io: Sequence[Mapping]) -> list[int]:
     return [int(d["rows"]) * int(d["cols"]) for d in io]
 
 
-def _zero_outputs(outs: list[int]) -> str:
-    return "".join(f"  maglev_zero_res(res, {i}, {n});\n" for i, n in enumerate(outs))
-
-
 def _p_index(fn: Mapping, runtime: bool) -> int | None:
     """The position of the parameter vector p among ``fn``'s inputs (None: none, or baked)."""
     names = [io["name"] for io in fn["inputs"]]
     return names.index("p") if runtime and "p" in names else None
-
-
-def _pointer_check(name: str, work: Mapping[str, tuple[int, ...]]) -> str:
-    """The C condition that a required pointer is NULL: arg, res, and the work arrays that
-    ``name``'s work sizes say it uses."""
-    sz = work.get(name, (0, 0, 0, 0))
-    return f"!maglev_pointers_ok(arg, res, iw, w, {int(sz[2] > 0)}, {int(sz[3] > 0)})"
 
 
 def entry_checks(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]) -> str:
@@ -148,195 +141,60 @@ def entry_checks(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]
     return "; ".join(steps) + "; on an error the requested outputs are zero"
 
 
-def _checked(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]]) -> str:
-    """The checked entry point of a function that is not of TRIM_KIND."""
-    name, ins, outs = fn["name"], _sizes(fn["inputs"]), _sizes(fn["outputs"])
-    in_checks = " ||\n      ".join(f"!maglev_all_finite(arg[{i}], {n})"
-                                   for i, (n, io) in enumerate(zip(ins, fn["inputs"],
-                                                                   strict=True))
-                                   if (name, io["name"]) not in UNCHECKED_INPUTS)
-    out_checks = " ||\n      ".join(f"!maglev_all_finite(res[{i}], {n})"
-                                    for i, n in enumerate(outs))
-    ip = _p_index(fn, runtime)
-    body = ""
-    if in_checks:
-        body += f"  }} else if ({in_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE;\n"
-    if ip is not None:
-        body += f"  }} else if (!maglev_params_ok(arg[{ip}])) {{\n    rc = MAGLEV_ERR_PARAMETER;\n"
-    return (
-        f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, "
-        "casadi_int* iw, casadi_real* w, int mem) {\n"
-        "  int rc = MAGLEV_OK;\n"
-        f"  if ({_pointer_check(name, work)}) {{\n    rc = MAGLEV_ERR_ARGUMENT;\n"
-        + body +
-        f"  }} else if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
-        "    rc = MAGLEV_ERR_INTERNAL;\n"
-        f"  }} else if ({out_checks}) {{\n    rc = MAGLEV_ERR_NONFINITE_OUTPUT;\n"
-        "  } else {\n    return MAGLEV_OK;\n  }\n"
-        + _zero_outputs(outs) + "  return rc;\n}\n\n")
+def _entry(fn: Mapping, runtime: bool, work: Mapping[str, tuple[int, ...]], nx: int) -> dict:
+    """What templates/maglev_checks.c.j2 needs of the checked entry point of ``fn``: its
+    kind ("checked", or of TRIM_KIND "trim_solve" / "trim_kind"), the sizes of its inputs and
+    outputs, which work arrays it needs, where its p (and the accelerating trim's a) are."""
+    name, outs = fn["name"], _sizes(fn["outputs"])
+    sz = work.get(name, (0, 0, 0, 0))
+    entry = {"name": name, "out_sizes": outs, "outputs": list(enumerate(outs)),
+             "need_iw": int(sz[2] > 0), "need_w": int(sz[3] > 0)}
+    if name not in TRIM_KIND:
+        entry["kind"] = "checked"
+        entry["inputs"] = [(i, n) for i, (n, io) in enumerate(zip(_sizes(fn["inputs"]),
+                                                               fn["inputs"], strict=True))
+                           if (name, io["name"]) not in UNCHECKED_INPUTS]
+        entry["p_index"] = _p_index(fn, runtime)
+        return entry
+    # the trims and the schedule functions: (v, [accel,] p) with p only at run time
+    accelerating = name in TRIM_SOLVES and name != "maglev_trim"
+    entry["kind"] = "trim_solve" if name in TRIM_SOLVES else "trim_kind"
+    entry["accel_index"] = 1 if accelerating else None
+    entry["p_index"] = (2 if accelerating else 1) if runtime else None
+    entry["nx"] = nx
+    entry["own_work"] = _own_work(name, work)
+    return entry
 
 
-def _speed_check(speed_range: tuple[str, str] | None) -> tuple[str, str]:
-    """(comment, C statement) of the speed check: [v_min, v_max] (C literals), else v > 0."""
-    if speed_range is None:
-        return "v > 0", "if (!(*v > 0)) return MAGLEV_ERR_SPEED;"
-    lo, hi = speed_range
-    return (f"v in [{lo}, {hi}] (the envelope)",
-            f"if (!((*v >= {lo}) && (*v <= {hi}))) return MAGLEV_ERR_SPEED;")
+def _trim_needs(work: Mapping[str, tuple[int, ...]]) -> list[tuple[int, ...]]:
+    """The work sizes of what maglev_trim_checked calls: the Newton solves, the dynamics, the
+    gaps."""
+    return [work[f] for f in (*TRIM_SOLVES, "maglev_dynamics", "maglev_gaps")]
 
 
-def _params_helper(limits: Sequence[tuple[str, str]]) -> str:
-    """``maglev_params_ok``: every p[i] inside [lo_i, hi_i] (C literals; NaN fails)."""
-    n = len(limits)
-    lo = ",\n  ".join(a for a, _ in limits)
-    hi = ",\n  ".join(b for _, b in limits)
-    return (f"/* the ranges of the parameter schema (maglevgen.params), MAGLEV_P_* order */\n"
-            f"static const casadi_real maglev_p_min[{n}] = {{\n  {lo}\n}};\n"
-            f"static const casadi_real maglev_p_max[{n}] = {{\n  {hi}\n}};\n\n"
-            "/* p inside the schema's ranges (a NULL p is CasADi's zero vector: no mass) */\n"
-            "static int maglev_params_ok(const casadi_real* p) {\n  int i;\n"
-            "  if (p == 0) return 0;\n"
-            f"  for (i = 0; i < {n}; ++i) {{\n"
-            "    if (!(p[i] >= maglev_p_min[i] && p[i] <= maglev_p_max[i])) return 0;\n"
-            "  }\n  return 1;\n}\n\n")
+def _own_work(name: str, work: Mapping[str, tuple[int, ...]]) -> tuple[int, int] | None:
+    """None when ``name``'s own work sizes (the caller's iw and w) cover maglev_trim_checked
+    (they do: the Newton solve evaluates the dynamics), else the sizes of iw and w arrays of
+    its own on the stack."""
+    need = [max(sz[k] for sz in _trim_needs(work)) for k in (2, 3)]
+    if work[name][2] >= need[0] and work[name][3] >= need[1]:
+        return None
+    return need[0] + 1, need[1] + 1
 
 
 def _trim_helper(table: Mapping[str, Mapping], work: Mapping[str, tuple[int, ...]],
                  precision: str, runtime: bool, min_gap: str,
-                 speed_range: tuple[str, str] | None) -> str:
-    """``maglev_trim_checked``: the trim at v (accelerating at *a when a is not NULL) into x and
-    F_prop, with its checks."""
-    used = (*TRIM_SOLVES, "maglev_dynamics", "maglev_gaps")
-    sz = [max(work[f][k] for f in used) + 1 for k in range(2)]
-    nx = table["maglev_dynamics"]["inputs"][0]["rows"]
-    nu = table["maglev_dynamics"]["inputs"][1]["rows"]
-    ng = table["maglev_gaps"]["outputs"][0]["rows"]
-    n_p = table["maglev_trim"]["inputs"][1]["rows"] if runtime else 0
-    p_arg = "p" if runtime else "0"
-    tol = TRIM_TOLERANCES[precision]
-    p_check = (f"  if (!maglev_all_finite(v, 1) || !maglev_all_finite(p, {n_p})) "
-               "return MAGLEV_ERR_NONFINITE;\n"
-               "  if (!maglev_params_ok(p)) return MAGLEV_ERR_PARAMETER;\n" if runtime else
-               "  if (!maglev_all_finite(v, 1)) return MAGLEV_ERR_NONFINITE;\n")
-    speed_doc, speed_check = _speed_check(speed_range)
-    p_range = ", p in range" if runtime else ""
-    return f"""/* the trim at *v into x and *F_prop (a NULL: maglev_trim; else the accelerating trim
-   at *a, maglev_trim_accelerating): v, a and p finite{p_range}, {speed_doc}, the
-   accelerations at the trim less those of the translation at a (a/v times the body velocity,
-   derive/trim.py) within {tol} (the Newton solve converged), every gap >= track.min_gap */
-static int maglev_trim_checked(const casadi_real* v, const casadi_real* a,
-                               const casadi_real* p, casadi_real* x, casadi_real* F_prop,
-                               casadi_int* iw, casadi_real* w) {{
-  const casadi_real* arg[{sz[0]}];
-  casadi_real* res[{sz[1]}];
-  casadi_real u[{nu}], xdot[{nx}], gaps[{ng}], d;
-  int i, rc;
-  (void)p;
-  if (v == 0) return MAGLEV_ERR_ARGUMENT;
-  if (!maglev_all_finite(a, 1)) return MAGLEV_ERR_NONFINITE;
-{p_check}  {speed_check}
-  res[0] = x;
-  res[1] = F_prop;
-  arg[0] = v;
-  if (a == 0) {{
-    arg[1] = {p_arg};
-    rc = maglev_trim_unchecked(arg, res, iw, w, 0);
-  }} else {{
-    arg[1] = a;
-    arg[2] = {p_arg};
-    rc = maglev_trim_accelerating_unchecked(arg, res, iw, w, 0);
-  }}
-  if (rc != 0) return MAGLEV_ERR_INTERNAL;
-  if (!maglev_all_finite(x, {nx}) || !maglev_all_finite(F_prop, 1)) {{
-    return MAGLEV_ERR_NOT_CONVERGED;
-  }}
-  for (i = 0; i < {nu}; ++i) u[i] = 0;
-  u[0] = *F_prop;
-  arg[0] = x;
-  arg[1] = u;
-  arg[2] = {p_arg};
-  res[0] = xdot;
-  if (maglev_dynamics_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
-  for (i = 6; i < {nx}; ++i) {{
-    d = xdot[i];
-    if (a != 0 && i < 9) d -= (*a / *v) * x[i];
-    if (!(d <= {tol} && d >= -{tol})) return MAGLEV_ERR_NOT_CONVERGED;
-  }}
-  arg[1] = {p_arg};
-  res[0] = gaps;
-  if (maglev_gaps_unchecked(arg, res, iw, w, 0) != 0) return MAGLEV_ERR_INTERNAL;
-  for (i = 0; i < {ng}; ++i) {{
-    if (!(gaps[i] >= {min_gap})) return MAGLEV_ERR_CONTACT;
-  }}
-  return MAGLEV_OK;
-}}
-
-"""
-
-
-def _work_args(name: str, work: Mapping[str, tuple[int, ...]]) -> tuple[str, str]:
-    """(declarations, ``iw, w`` arguments) for maglev_trim_checked inside ``name``: the
-    caller's work arrays where ``name``'s own work sizes cover the trim, the dynamics and the
-    gaps (they do: the Newton solve evaluates the dynamics), else arrays on the stack."""
-    need = [max(work[f][k] for f in (*TRIM_SOLVES, "maglev_dynamics", "maglev_gaps"))
-            for k in (2, 3)]
-    if work[name][2] >= need[0] and work[name][3] >= need[1]:
-        return "", "iw, w"
-    return (f"  casadi_int iw_trim[{need[0] + 1}];\n  casadi_real w_trim[{need[1] + 1}];\n",
-            "iw_trim, w_trim")
-
-
-def _trim_kind(fn: Mapping, table: Mapping[str, Mapping], runtime: bool,
-               work: Mapping[str, tuple[int, ...]]) -> str:
-    name, outs = fn["name"], _sizes(fn["outputs"])
-    nx = table["maglev_dynamics"]["inputs"][0]["rows"]
-    p = "arg[1]" if runtime else "0"
-    decl, iw_w = _work_args(name, work)
-    pointers = (f"  if ({_pointer_check(name, work)}) {{\n"
-                + _zero_outputs(outs).replace("  maglev", "    maglev")
-                + "    return MAGLEV_ERR_ARGUMENT;\n  }\n")
-    if name in TRIM_SOLVES:
-        accel, p = ("arg[1]", "arg[2]" if runtime else "0") if name != "maglev_trim" \
-            else ("0", p)
-        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}  int rc;\n" + pointers +
-                f"  rc = maglev_trim_checked(arg[0], {accel}, {p},\n"
-                "                           res[0] != 0 ? res[0] : x,\n"
-                f"                           res[1] != 0 ? res[1] : &F_prop, {iw_w});\n"
-                "  (void)iw; (void)w; (void)mem;\n"
-                "  if (rc == MAGLEV_OK) return MAGLEV_OK;\n")
-    else:
-        body = (f"  casadi_real x[{nx}], F_prop;\n{decl}  int rc;\n" + pointers +
-                f"  rc = maglev_trim_checked(arg[0], 0, {p}, x, &F_prop, {iw_w});\n"
-                "  if (rc == MAGLEV_OK) {\n"
-                f"    if ({name}_unchecked(arg, res, iw, w, mem) != 0) {{\n"
-                "      rc = MAGLEV_ERR_INTERNAL;\n"
-                "    } else if ("
-                + " ||\n        ".join(f"!maglev_all_finite(res[{i}], {n})"
-                                       for i, n in enumerate(outs))
-                + ") {\n      rc = MAGLEV_ERR_NONFINITE_OUTPUT;\n"
-                "    } else {\n      return MAGLEV_OK;\n    }\n  }\n")
-    return (f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, "
-            "casadi_int* iw, casadi_real* w, int mem) {\n" + body
-            + _zero_outputs(outs) + "  return rc;\n}\n\n")
-
-
-_VERSION = re.compile(r"(CASADI_SYMBOL_EXPORT void \w+_casadi_version\(int\* major, int\* minor, "
-                      r"int\* patch\) \{\n)((?:  \*\w+ = \d+;\n)+)\}")
-
-
-def _version_null_safe(source: str) -> str:
-    """CasADi's NAME_casadi_version(major, minor, patch) writes through its pointers
-    unconditionally: a NULL one (which its type allows) must skip that number instead."""
-    found = _VERSION.findall(source)
-    if len(found) != 1:
-        raise ValueError("the CasADi version function not found once in the generated C")
-
-    def guard(m: re.Match) -> str:
-        body = re.sub(r"  \*(\w+) = (\d+);", r"  if (\1 != 0) {\n    *\1 = \2;\n  }",
-                      m.group(2))
-        return m.group(1) + body + "}"
-
-    return _VERSION.sub(guard, source)
+                 speed_range: tuple[str, str] | None) -> dict:
+    """What templates/maglev_checks.c.j2 needs of ``maglev_trim_checked``: the trim at v
+    (accelerating at *a when a is not NULL) into x and F_prop, with its checks."""
+    dyn = table["maglev_dynamics"]
+    return {"sz_arg": max(sz[0] for sz in _trim_needs(work)) + 1,
+            "sz_res": max(sz[1] for sz in _trim_needs(work)) + 1,
+            "nx": dyn["inputs"][0]["rows"], "nu": dyn["inputs"][1]["rows"],
+            "ng": table["maglev_gaps"]["outputs"][0]["rows"],
+            "n_p": table["maglev_trim"]["inputs"][1]["rows"] if runtime else 0,
+            "runtime": runtime, "tol": TRIM_TOLERANCES[precision], "min_gap": min_gap,
+            "speed_range": speed_range}
 
 
 def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime: bool,
@@ -351,42 +209,23 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
     wanted = [f["name"] for f in table]
     if runtime and p_limits is None:
         raise ValueError("run-time parameters need the schema's ranges of p (p_limits)")
-    for name in wanted:
-        head = f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg"
-        if source.count(head) != 1:
-            raise ValueError(f"entry point of {name} not found once in the generated C")
-        source = source.replace(head, f"static int {name}_unchecked(const casadi_real** arg")
-    source = _version_null_safe(source)
+    # CasADi's own C rewritten (the entry points made static, its version function NULL-safe):
+    # maglevgen.codegen.cpass, the one pass that edits CasADi's text
+    from .cpass import null_safe_version, unchecked_entry_points  # local: CasADi, at generation
+    from .emit import template_env  # local: the ctypes runtime imports this module light
+
+    source = null_safe_version(unchecked_entry_points(source, wanted))
     work = work_sizes(source)
-    block = [
-        "/* Checked entry points (maglevgen.codegen.checks): MAGLEV_ERR_* as in maglev.h. */\n",
-        error_defines(), "\n",
-        "static int maglev_all_finite(const casadi_real* a, int n) {\n"
-        "  int i;\n  if (a == 0) return 1;\n"
-        "  for (i = 0; i < n; ++i) {\n    if (!isfinite(a[i])) return 0;\n  }\n  return 1;\n}\n\n"
-        "static void maglev_zero(casadi_real* a, int n) {\n  int i;\n  if (a == 0) return;\n"
-        "  for (i = 0; i < n; ++i) {\n    a[i] = 0;\n  }\n}\n\n"
-        "/* output i zeroed, when res and res[i] are given */\n"
-        "static void maglev_zero_res(casadi_real** res, int i, int n) {\n"
-        "  if (res != 0) {\n    maglev_zero(res[i], n);\n  }\n}\n\n"
-        "/* the pointers a function needs: arg and res, iw and w where it uses them */\n"
-        "static int maglev_pointers_ok(const casadi_real** arg, casadi_real** res, "
-        "const casadi_int* iw,\n"
-        "                              const casadi_real* w, int need_iw, int need_w) {\n"
-        "  int ok = 1;\n"
-        "  if ((arg == 0) || (res == 0)) {\n    ok = 0;\n  }\n"
-        "  if ((need_iw != 0) && (iw == 0)) {\n    ok = 0;\n  }\n"
-        "  if ((need_w != 0) && (w == 0)) {\n    ok = 0;\n  }\n"
-        "  return ok;\n}\n\n",
-    ]
-    if runtime and any(_p_index(f, runtime) is not None for f in table):
-        block.append(_params_helper(p_limits or ()))
-    if any(n in TRIM_KIND for n in wanted):
-        block.append(_trim_helper(by_name, work, precision, runtime, min_gap, speed_range))
-    for name in wanted:
-        block.append(_trim_kind(by_name[name], by_name, runtime, work) if name in TRIM_KIND
-                     else _checked(by_name[name], runtime, work))
+
+    nx = by_name["maglev_dynamics"]["inputs"][0]["rows"] if "maglev_dynamics" in by_name else 0
+    block = template_env().get_template("maglev_checks.c.j2").render(
+        error_defines=error_defines(),
+        params={"lo": [lo for lo, _ in p_limits or ()], "hi": [hi for _, hi in p_limits or ()]}
+        if runtime and any(_p_index(f, runtime) is not None for f in table) else None,
+        trim=_trim_helper(by_name, work, precision, runtime, min_gap, speed_range)
+        if any(n in TRIM_KIND for n in wanted) else None,
+        entries=[_entry(by_name[n], runtime, work, nx) for n in wanted])
     tail = "\n#ifdef __cplusplus\n} /* extern \"C\" */\n#endif\n"
     if not source.endswith(tail):
         raise ValueError("generated C does not end with its extern \"C\" block")
-    return source[: -len(tail)] + "\n" + "".join(block) + tail
+    return source[: -len(tail)] + "\n" + block + tail

@@ -23,6 +23,19 @@ Design choices:
   defines to be the same thing, because clang flags the implicit real-to-bool conversion.
 * Writable static or global data (CasADi emits it for functions with memory, e.g. ``nlpsol``) is
   not re-entrant firmware code: the pass refuses it with ``ValueError`` rather than hiding it.
+
+Why a pass over the text at all: CasADi 3.8.2's ``CodeGenerator`` options (``casadi_real``,
+``casadi_int``, ``with_header``, ``main``, ``mex``, ``cpp``, ...) choose the types, not the
+math functions, the literals, the truth tests or the unused parameters, and
+tests/test_cpass.py::test_raw_casadi_output_fails_the_same_flags shows its raw output failing
+the flags. Every C file the toolchain writes otherwise comes from a template
+(maglevgen.codegen.emit); this module is the one place that edits CasADi's text, on tokens
+where the edit needs the C's structure. Besides :func:`postprocess`, for the checked entry
+points (maglevgen.codegen.checks) and the one translation unit (``--single-file``):
+:func:`unchecked_entry_points` makes each entry point a ``static NAME_unchecked``,
+:func:`null_safe_version` guards the version function's pointers, :func:`static_helpers`
+makes CasADi's runtime helpers static. Each refuses a text it does not find where it
+expects it.
 """
 
 from __future__ import annotations
@@ -37,13 +50,14 @@ from pathlib import Path
 from typing import Literal, NamedTuple
 
 import casadi as ca
-import numpy as np
+
+from .emit import float_literal, render
 
 Precision = Literal["double", "single"]
 
 __all__ = [
-    "CompileError", "Precision", "compile_check", "float_literal", "generate_c", "postprocess",
-    "tokenize",
+    "CompileError", "Precision", "compile_check", "float_literal", "generate_c",
+    "null_safe_version", "postprocess", "static_helpers", "tokenize", "unchecked_entry_points",
 ]
 
 
@@ -187,28 +201,6 @@ def _literal_value(text: str) -> float:
     """The value of a floating literal (suffix ignored), as a Python float."""
     body = text[:-1] if _float_suffix(text) else text
     return float.fromhex(body) if body.lower().startswith("0x") else float(body)
-
-
-def _as_float32(value: float) -> float:
-    """Round a double to the nearest IEEE single (inf beyond range), like a C ``(float)`` cast."""
-    with np.errstate(over="ignore"):
-        return float(np.float32(value))
-
-
-def float_literal(value: float) -> str:
-    """Print a non-negative double as a C float constant with the same float value.
-
-    Integers up to 2**24 print as ``2.0f``; others with 9 significant digits (enough to round-trip
-    any float) as ``1.00000001e-01f``; a value beyond float range becomes ``INFINITY`` (a float
-    constant in C99) and one that underflows becomes ``0.0f``, which is what a cast would give and
-    keeps clang's literal-range warnings quiet.
-    """
-    f32 = _as_float32(value)
-    if f32 == float("inf"):
-        return "INFINITY"
-    if f32 == int(f32) and f32 <= 2.0**24:
-        return f"{int(f32)}.0f"
-    return f"{f32:.8e}f"
 
 
 def _suffix_literals(code: str) -> str:
@@ -590,6 +582,63 @@ def _is_call(tokens: list[Token], k: int) -> bool:
     return nxt == "(" and prev not in (".", "->")
 
 
+# ----------------------------------------------------------------------------- entry points
+
+
+def unchecked_entry_points(source: str, names: Iterable[str]) -> str:
+    """``source`` with the CasADi entry point of each of ``names`` renamed to a ``static``
+    ``NAME_unchecked``, for maglevgen.codegen.checks to define ``NAME`` around it; a name
+    whose entry point is not found exactly once is a ValueError."""
+    for name in names:
+        head = f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg"
+        if source.count(head) != 1:
+            raise ValueError(f"entry point of {name} not found once in the generated C")
+        source = source.replace(head, f"static int {name}_unchecked(const casadi_real** arg")
+    return source
+
+
+_VERSION = re.compile(r"(CASADI_SYMBOL_EXPORT void \w+_casadi_version\(int\* major, int\* minor, "
+                      r"int\* patch\) \{\n)((?:  \*\w+ = \d+;\n)+)\}")
+
+
+def null_safe_version(source: str) -> str:
+    """CasADi's NAME_casadi_version(major, minor, patch) writes through its pointers
+    unconditionally: a NULL one (which its type allows) must skip that number instead."""
+    found = _VERSION.findall(source)
+    if len(found) != 1:
+        raise ValueError("the CasADi version function not found once in the generated C")
+
+    def guard(m: re.Match) -> str:
+        body = re.sub(r"  \*(\w+) = (\d+);", r"  if (\1 != 0) {\n    *\1 = \2;\n  }",
+                      m.group(2))
+        return m.group(1) + body + "}"
+
+    return _VERSION.sub(guard, source)
+
+
+
+# ----------------------------------------------------------------------------- one unit
+
+
+#: a definition of one of CasADi's runtime helpers at the start of a line, not yet static
+_CASADI_HELPER = re.compile(r"^((?:casadi_real|casadi_int|void|int) (casadi_\w+)\()", re.M)
+
+
+def static_helpers(text: str) -> str:
+    """CasADi's runtime helpers (casadi_copy, casadi_qr, ...), external in its own output,
+    made static; those no function calls (CasADi emits the QR solve's whole family) removed,
+    as a static function nobody calls is a warning."""
+    while True:
+        unused = [m for m in _CASADI_HELPER.finditer(text)
+                  if len(re.findall(rf"\b{m.group(2)}\(", text)) == 1]
+        if not unused:
+            break
+        for m in reversed(unused):  # the definition runs to the first "}" alone on a line
+            end = text.index("\n}\n", m.start()) + 3
+            text = text[:m.start()] + text[end:].lstrip("\n")
+    return _CASADI_HELPER.sub(r"static \1", text)
+
+
 # ----------------------------------------------------------------------------- public API
 
 
@@ -637,14 +686,6 @@ def codegen_options(precision: Precision, int_type: str = "long long int") -> di
     }
 
 
-def _banner(name: str, precision: Precision, suffix: str) -> str:
-    """The first comment of a post-processed file (no time, path or host in it)."""
-    return (
-        f"/* {name}{suffix}: CasADi {ca.__version__} output post-processed by "
-        f"maglevgen.codegen.cpass (precision={precision}). Do not edit. */\n"
-    )
-
-
 def generate_c(
     functions: list[ca.Function],
     name: str,
@@ -668,10 +709,14 @@ def generate_c(
         for text in raw.values():
             if tmp in text:
                 raise ValueError("generated code contains the temporary directory path")
-    source = _banner(name, precision, ".c") + postprocess(raw[".c"], precision)
-    header = _banner(name, precision, ".h") + postprocess(raw[".h"], precision)
-    header = _include_guard(name, _own_types(header))
-    return {f"{name}.c": source, f"{name}.h": header}
+    # the banner (no time, path or host in it) and the header's include guard:
+    # templates/casadi_output.j2
+    guard = re.sub(r"\W", "_", name).upper() + "_H"
+    return {f"{name}{sfx}": render("casadi_output.j2", file=f"{name}{sfx}", body=body,
+                                   casadi_version=ca.__version__, precision=precision,
+                                   guard=guard if sfx == ".h" else None)
+            for sfx, body in ((".c", postprocess(raw[".c"], precision)),
+                              (".h", _own_types(postprocess(raw[".h"], precision))))}
 
 
 def _own_types(header: str) -> str:
@@ -689,12 +734,6 @@ def _own_types(header: str) -> str:
         header = _map_code(header, lambda code, macro=macro, own=own:
                            re.sub(rf"\b{macro}\b", own, code))
     return header
-
-
-def _include_guard(name: str, header: str) -> str:
-    """Wrap a header in ``#ifndef NAME_H`` / ``#define NAME_H`` / ``#endif`` (CasADi has none)."""
-    macro = re.sub(r"\W", "_", name).upper() + "_H"
-    return f"#ifndef {macro}\n#define {macro}\n{header}#endif /* {macro} */\n"
 
 
 def compile_check(sources: dict[str, str], flags: list[str], cc: str = "gcc") -> None:

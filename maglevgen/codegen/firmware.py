@@ -26,7 +26,8 @@ from maglevgen.schedule import GAIN_TABLE_FIELDS, GainTable, gain_table_sources
 from maglevgen.version import __version__
 
 from .checks import check_entries, error_defines
-from .cpass import float_literal, generate_c
+from .cpass import generate_c
+from .emit import c_literal, render
 from .functions import bake_all, build_functions
 from .generate import function_table
 from .interface import C_NAME, GenerateOptions, interface_context, template_env
@@ -87,12 +88,6 @@ def _banner(sha256: str, precision: str, with_plant: bool) -> str:
             f"file sha256 {sha256}. Do not edit: regenerate.")
 
 
-def _literal(value: float, precision: str) -> str:
-    if precision == "single":
-        return f"-{float_literal(-value)}" if value < 0 else float_literal(value)
-    return repr(float(value))
-
-
 def render_firmware(carriage: Carriage, table: GainTable, loop: FirmwareLoop,
                     precision: str = "single", with_plant: bool = False,
                     measured: dict | None = None) -> dict[str, str]:
@@ -118,7 +113,8 @@ def render_firmware(carriage: Carriage, table: GainTable, loop: FirmwareLoop,
     sources = generate_c(fns, C_NAME, precision, int_type="int")
     sources[f"{C_NAME}.c"] = check_entries(sources[f"{C_NAME}.c"], function_table(fns),
                                            precision, False, "0")
-    files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
+    files = {name: render("generated_file.j2", banner=text_banner, text=text)
+             for name, text in sources.items()}
     fn_table = function_table(fns, files[f"{C_NAME}.c"])
     ctx = interface_context(carriage, opts, fn_table, None)
     ctx["banner"] = text_banner
@@ -139,10 +135,10 @@ def render_firmware(carriage: Carriage, table: GainTable, loop: FirmwareLoop,
         "banner": text_banner, "precision": precision, "controller": embedded,
         "controller_title": registered(embedded).title, "tick_function": tick_fn,
         "tick_inputs": [name.upper() for name in TICK_INPUTS[tick_fn]],
-        "tick_rate": _literal(loop.tick_rate, precision), "tick_rate_value": loop.tick_rate,
+        "tick_rate": c_literal(loop.tick_rate, precision), "tick_rate_value": loop.tick_rate,
         "delay_ticks": int(loop.delay_ticks),
-        "k_v": _literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
-        "force_budget": _literal(loop.force_budget, precision),
+        "k_v": c_literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
+        "force_budget": c_literal(loop.force_budget, precision),
         "force_budget_value": loop.force_budget,
         "n_arrays": len(structure.arrays), "array_of_force": array_of_force,
         "sz": sizes, "nu": len(carriage.model.input_names), "offsets": offsets,

@@ -2,9 +2,9 @@
 
 Every function that depends on the parameters takes the vector ``p`` as its last input
 (``maglev_closed_loop_prepared`` takes the constants ``maglev_closed_loop_prepare`` made from
-it instead); `bake_all` folds a parameter file's values in as constants. Descriptions live in
-``DESCRIPTIONS``; names, inputs and outputs in the Function objects, which everything
-downstream (C, header, manifest) reads.
+it instead); `bake_all` folds a parameter file's values in as constants. `FUNCTION_SPECS`
+names each function, its inputs and outputs and says what it does; everything downstream (C,
+header, manifest) reads the Function objects made to it.
 """
 
 from __future__ import annotations
@@ -28,60 +28,22 @@ from maglevgen.derive.riccati import riccati_stable_form
 from maglevgen.derive.structure import NORMAL_AXIS
 from maglevgen.derive.trim import along_track_acceleration
 
-from .casadi_model import casadi_model
+from .casadi_model import CasadiModel, casadi_model
 from .sympy_casadi import SympyToCasadi, casadi_rewriting_off
 
 PREFIX = "maglev_"
 N_AXES = len(cv.AXES)
 
-# What each generated function does, for the header and the manifest.
-DESCRIPTIONS: dict[str, str] = {
-    "dynamics": "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, 8-12)",
-    "jacobians": "(A, B) = (df/dx, df/du) of maglev_dynamics",
-    "trim": "equilibrium at speed v (Newton iterations in C): trim state and propulsion force",
-    "trim_accelerating": "equilibrium at speed v accelerating at accel along the track "
-                         "(Newton iterations in C): eqs 1-2 with the d'Alembert load -m accel "
-                         "at the CG and the propulsion at operation.propulsion_point "
-                         "(derive/trim.py); trim state and propulsion force (drag + m accel); "
-                         "accel = 0 gives maglev_trim",
-    "axis_plants": "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed v",
-    "lqr_gains": "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim",
-    "axis_gains": "per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form "
-                  "(eqs 29-33), the small part of the gain schedule",
-    "lqr_control": "one control tick: u_gen = -K (a - a_ref, a_dot), a = (y, z, phi, theta, psi)",
-    "damping_control": "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)",
-    "coupled_control": "one control tick of a full-matrix feedback (the coupled LQR): "
-                       "u_gen = -(K_pos (a - a_ref) + K_rate a_dot), K_pos and K_rate 5 x 5",
-    "allocate": "array forces T u_gen, T the pseudo-inverse of E: the least-norm forces that "
-                "produce u_gen (eqs 22-23 derived), or with normal actuators "
-                "(E of rank 4) its least-squares projection",
-    "rk4_step": "one RK4 step of the closed loop; the axis feedback is evaluated at every stage",
-    "closed_loop": "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
-                   "integrates), the array forces being T u_gen with T an input; and the gaps "
-                   "at x (they share the model's geometry)",
-    "allocation_matrix": "T (arrays' forces x 5): the minimum-norm allocation as a matrix",
-    "closed_loop_prepare": "the part of maglev_closed_loop that depends only on the inputs "
-                           "constant over a run: c, once per simulation",
-    "closed_loop_prepared": "maglev_closed_loop's xdot, u and gaps from x and the prepared c",
-    "gaps": "the gap of each array face's closest corner (exact pose geometry); contact when "
-            "one reaches track.min_gap",
-    "array_forces": "lift and drag of each array at state x (eqs 3-4 at the exact gaps, summed "
-                    "over the tilted face for model.array_force = distributed)",
-    "stiffness": "at state x and propulsion F_prop: the magnetic stiffness K_st0 = -dW/dq of "
-                 "the array forces (5 x 5, eqs 13-19 derived) and that of the gravity and "
-                 "propulsion moments (K_other)",
-    "effectiveness": "E (5 x arrays' forces): the generalized forces about O that unit array "
-                     "control forces produce (eqs 22-23; T is its minimum-norm inverse)",
-    "stiffness_parts": "at state x and propulsion F_prop: maglev_stiffness's K_magnetic + "
-                       "K_other split by where the pose enters the wrench (5 x 5 each): the "
-                       "gap slope of eq 3, the rotating moment arms, the tilt across the face, "
-                       "gravity's and the propulsion's moments (the report's parts table; "
-                       "run-time-parameter library only, not in the baked firmware)",
-}
 
 #: functions for the analysis (the report) that the run-time-parameter library has and
 #: `maglevgen generate` leaves out: the firmware needs none of them
 ANALYSIS_FUNCTIONS = ("maglev_stiffness_parts",)
+_ANALYSIS_DESCRIPTIONS = {"stiffness_parts":
+    "at state x and propulsion F_prop: maglev_stiffness's K_magnetic + K_other "
+    "split by where the pose enters the wrench (5 x 5 each): the gap slope of eq "
+    "3, the rotating moment arms, the tilt across the face, gravity's and the "
+    "propulsion's moments (the report's parts table; run-time-parameter library "
+    "only, not in the baked firmware)"}
 
 
 @dataclass(frozen=True)
@@ -105,21 +67,139 @@ def _pairs(syms, sx) -> dict:
 NEWTON_TOLERANCES = {"double": (1e-13, 1e-12), "single": (1e-5, 1e-6)}
 
 
+@dataclass(frozen=True)
+class FunctionSpec:
+    """One generated function: its name without PREFIX and its inputs and outputs by name
+    (the names the C, the header and the manifest show). `build_functions` makes it from its
+    symbols and expressions of those names; a ``derived`` one (the RK4 step, the prepared
+    closed loop) is made from other functions of the table, and its names are checked
+    against these."""
+
+    name: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    description: str  # what it does, for the header and the manifest
+    derived: bool = False
+
+
+#: every generated function, in the order of the C, the header and the manifest
+FUNCTION_SPECS: tuple[FunctionSpec, ...] = (
+    FunctionSpec("dynamics", ("x", "u", "p"), ("xdot",),
+                 "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, "
+                 "8-12)"),
+    FunctionSpec("jacobians", ("x", "u", "p"), ("A", "B"),
+                 "(A, B) = (df/dx, df/du) of maglev_dynamics"),
+    FunctionSpec("trim", ("v", "p"), ("x_trim", "F_prop"),
+                 "equilibrium at speed v (Newton iterations in C): trim state and propulsion "
+                 "force"),
+    FunctionSpec("trim_accelerating", ("v", "accel", "p"), ("x_trim", "F_prop"),
+                 "equilibrium at speed v accelerating at accel along the track (Newton "
+                 "iterations in C): eqs 1-2 with the d'Alembert load -m accel at the CG and "
+                 "the propulsion at operation.propulsion_point (derive/trim.py); trim state "
+                 "and propulsion force (drag + m accel); accel = 0 gives maglev_trim"),
+    FunctionSpec("axis_plants", ("v", "p"), ("k", "m"),
+                 "per-axis stiffness k (eqs 13-19 derived) and inertia m at the trim at speed "
+                 "v"),
+    FunctionSpec("axis_gains", ("k", "m", "p"), ("K", "c_damping"),
+                 "per-axis LQR gains K (5 x 2) and damping gains from (k, m): closed form (eqs "
+                 "29-33), the small part of the gain schedule"),
+    FunctionSpec("lqr_gains", ("v", "p"), ("K", "c_damping"),
+                 "per-axis LQR gains K (5 x 2) at speed v, closed form (eqs 29-33) at the trim"),
+    FunctionSpec("lqr_control", ("x", "K", "a_ref", "p"), ("u_gen",),
+                 "one control tick: u_gen = -K (a - a_ref, a_dot), a = (y, z, phi, theta, psi)"),
+    FunctionSpec("damping_control", ("x", "c_damping", "p"), ("u_gen",),
+                 "one control tick: u_gen = -c a_dot, optimized damping (eqs 20-21)"),
+    FunctionSpec("coupled_control", ("x", "K_pos", "K_rate", "a_ref", "p"), ("u_gen",),
+                 "one control tick of a full-matrix feedback (the coupled LQR): u_gen = "
+                 "-(K_pos (a - a_ref) + K_rate a_dot), K_pos and K_rate 5 x 5"),
+    FunctionSpec("allocate", ("u_gen", "p"), ("F_arrays",),
+                 "array forces T u_gen, T the pseudo-inverse of E: the least-norm forces that "
+                 "produce u_gen (eqs 22-23 derived), or with normal actuators (E of rank 4) "
+                 "its least-squares projection"),
+    FunctionSpec("allocation_matrix", ("p",), ("T",),
+                 "T (arrays' forces x 5): the minimum-norm allocation as a matrix"),
+    FunctionSpec("rk4_step", ("x", "dt", "F_prop", "K_pos", "K_rate", "a_ref", "p"),
+                 ("x_next", "u"),
+                 "one RK4 step of the closed loop; the axis feedback is evaluated at every "
+                 "stage", derived=True),
+    FunctionSpec("closed_loop", ("x", "F_prop", "K_pos", "K_rate", "a_ref", "T", "p"),
+                 ("xdot", "u", "gaps"),
+                 "xdot and u of the closed loop (the right-hand side that maglev_rk4_step "
+                 "integrates), the array forces being T u_gen with T an input; and the gaps at "
+                 "x (they share the model's geometry)"),
+    FunctionSpec("closed_loop_prepare", ("F_prop", "K_pos", "K_rate", "a_ref", "T", "p"),
+                 ("c",),
+                 "the part of maglev_closed_loop that depends only on the inputs constant over "
+                 "a run: c, once per simulation", derived=True),
+    FunctionSpec("closed_loop_prepared", ("x", "c"), ("xdot", "u", "gaps"),
+                 "maglev_closed_loop's xdot, u and gaps from x and the prepared c", derived=True),
+    FunctionSpec("gaps", ("x", "p"), ("gaps",),
+                 "the gap of each array face's closest corner (exact pose geometry); contact "
+                 "when one reaches track.min_gap"),
+    FunctionSpec("array_forces", ("x", "p"), ("lift", "drag"),
+                 "lift and drag of each array at state x (eqs 3-4 at the exact gaps, summed "
+                 "over the tilted face for model.array_force = distributed)"),
+    FunctionSpec("stiffness", ("x", "F_prop", "p"), ("K_magnetic", "K_other"),
+                 "at state x and propulsion F_prop: the magnetic stiffness K_st0 = -dW/dq of "
+                 "the array forces (5 x 5, eqs 13-19 derived) and that of the gravity and "
+                 "propulsion moments (K_other)"),
+    FunctionSpec("effectiveness", ("p",), ("E",),
+                 "E (5 x arrays' forces): the generalized forces about O that unit array "
+                 "control forces produce (eqs 22-23; T is its minimum-norm inverse)"),
+)
+
+
+#: what each generated function does (the header's and the manifest's text), by name
+DESCRIPTIONS: dict[str, str] = {**{s.name: s.description for s in FUNCTION_SPECS},
+                                **_ANALYSIS_DESCRIPTIONS}
+
+
 def build_functions(model: CarriageModel, newton_iterations: int = 30,
                     precision: str = "double", analysis: bool = False) -> Built:
-    """All generated functions with the parameters as a run-time input (and, with
-    ``analysis``, the ANALYSIS_FUNCTIONS)."""
+    """All generated functions (`FUNCTION_SPECS`) with the parameters as a run-time input
+    (and, with ``analysis``, the ANALYSIS_FUNCTIONS).
+
+    Each part of the model gives its functions' inputs and outputs by name (``io``); the
+    table orders and names them. The parts run in this order, and each makes its symbols
+    where they are first needed, in the same order every time: CasADi orders the operands of
+    its nodes by their creation, so the same order is the same C.
+    """
     cm = casadi_model(model)
     x, u, p = cm.x, cm.u, cm.p
-    n_x, n_u = x.shape[0], u.shape[0]
     base = {**_pairs(model.x, x), **_pairs(model.u, u), **_pairs(model.p, p)}
-    conv = SympyToCasadi(base)
+    io: dict[str, tuple[dict, dict]] = {}  # function -> (inputs, outputs), each by name
 
-    dynamics = ca.Function("maglev_dynamics", [x, u, p], [cm.xdot], ["x", "u", "p"], ["xdot"])
-    jacobians = ca.Function("maglev_jacobians", [x, u, p],
-                            [ca.jacobian(cm.xdot, x), ca.jacobian(cm.xdot, u)],
-                            ["x", "u", "p"], ["A", "B"])
+    dynamics = ca.Function("maglev_dynamics", [x, u, p], [cm.xdot])
+    io["dynamics"] = {"x": x, "u": u, "p": p}, {"xdot": cm.xdot}
+    io["jacobians"] = ({"x": x, "u": u, "p": p},
+                       {"A": ca.jacobian(cm.xdot, x), "B": ca.jacobian(cm.xdot, u)})
+    trim = _trim_io(model, cm, dynamics, precision, newton_iterations, io)
+    K_fn, xs, fprop_s, lift_fn = _plant_io(model, cm, base, trim, io)
+    rates_fn = _control_io(cm, K_fn, io)
+    E, T_normal = _allocation_io(model, p, io)
+    _closed_loop_io(cm, dynamics, rates_fn, E, T_normal, io)
+    made = {s.name: _finished(_function(s, *io[s.name]))
+            for s in FUNCTION_SPECS if not s.derived}
+    # the step calls the finished right-hand side, so the C holds one copy of it
+    made["rk4_step"] = _rk4_step(made["closed_loop"], made["allocation_matrix"])
+    made["closed_loop_prepare"], made["closed_loop_prepared"] = \
+        _prepared_closed_loop(made["closed_loop"])
+    for s in FUNCTION_SPECS:  # the derived functions' names are the table's
+        f = made[s.name]
+        if (tuple(f.name_in()), tuple(f.name_out())) != (s.inputs, s.outputs):
+            raise ValueError(f"{f.name()}: inputs {f.name_in()} and outputs {f.name_out()}, "
+                             f"not the table's {s.inputs} and {s.outputs}")
+    extra = (_finished(_stiffness_parts(model, base, xs, fprop_s, p, lift_fn)),) \
+        if analysis else ()
+    return Built(tuple(made[s.name] for s in FUNCTION_SPECS), p.shape[0], extra)
 
+
+def _trim_io(model: CarriageModel, cm: CasadiModel, dynamics: ca.Function, precision: str,
+             newton_iterations: int, io: dict) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
+    """maglev_trim and maglev_trim_accelerating into ``io``; (v, p, x_trim, u_trim) of the
+    constant-speed trim (MX) for the functions at the trim."""
+    u, p = cm.u, cm.p
+    n_u = u.shape[0]
     # --- trim: Newton on the six accelerations in (y, z, phi, theta, psi, F_prop), less those
     # of a pure translation at accel along the track (derive.trim.along_track_acceleration:
     # eqs 1-2 with the d'Alembert load at the CG). One solver serves maglev_trim (accel = 0,
@@ -143,13 +223,23 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     guess = ca.vertcat(0, 0, 0, 0, 0, 0)
     trim_state_fn = ca.Function("maglev_trim_state", [v, z6], [x_trim, u_trim])
     xt_mx, ut_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, 0, p_mx)))
-    trim = ca.Function("maglev_trim", [v_mx, p_mx], [xt_mx, ut_mx[0]], ["v", "p"],
-                       ["x_trim", "F_prop"])
+    io["trim"] = {"v": v_mx, "p": p_mx}, {"x_trim": xt_mx, "F_prop": ut_mx[0]}
     xa_mx, ua_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, a_mx, p_mx)))
-    trim_accelerating = ca.Function("maglev_trim_accelerating", [v_mx, a_mx, p_mx],
-                                    [xa_mx, ua_mx[0]], ["v", "accel", "p"],
-                                    ["x_trim", "F_prop"])
+    io["trim_accelerating"] = ({"v": v_mx, "accel": a_mx, "p": p_mx},
+                               {"x_trim": xa_mx, "F_prop": ua_mx[0]})
+    return v_mx, p_mx, xt_mx, ut_mx
 
+
+def _plant_io(model: CarriageModel, cm: CasadiModel, base: dict, trim: tuple, io: dict
+              ) -> tuple[ca.Function, ca.SX, ca.SX, ca.Function]:
+    """maglev_array_forces, maglev_stiffness, maglev_lqr_gains and maglev_axis_plants into
+    ``io``; the axis gains' function of (k, m) and p, the symbols x and F_prop of the
+    stiffness, the array forces' function."""
+    x, p = cm.x, cm.p
+    n_x = x.shape[0]
+    conv = SympyToCasadi(base)
+    names = model.structure.param_names
+    v_mx, p_mx, xt_mx, ut_mx = trim
     # --- per-axis plants at trim and their closed-form gains
     sf = stiffness_form(model.structure)
     q_sx = ca.SX.sym("q", 5)
@@ -159,9 +249,9 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
                             **_pairs(sf.drag_sym, fd), model.u[0]: fprop})
     k_diag = ca.vertcat(*[conv_k(sf.K[i, i] + sf.K_other[i, i]) for i in range(5)])
     m_diag = conv(generalized_mass_expr(model))
-    q1 = p[model.structure.param_names.index("control.state_weights.0")]
-    q2 = p[model.structure.param_names.index("control.state_weights.1")]
-    r = p[model.structure.param_names.index("control.input_weight")]
+    q1 = p[names.index("control.state_weights.0")]
+    q2 = p[names.index("control.state_weights.1")]
+    r = p[names.index("control.input_weight")]
     # closed-form gains (riccati_stable_form) and damping of each axis from (k, m)
     km = ca.SX.sym("km", 2 * N_AXES)
     K_sx, c_sx = ca.SX(N_AXES, 2), ca.SX(N_AXES, 1)
@@ -186,8 +276,7 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     q_of_x = ca.vertcat(*[xs[cv.STATE_INDEX[s]] for s in Q_STATES])
     plant = ca.Function("maglev_axis_plant", [xs, fprop_s, p],
                         [plant_qf(q_of_x, fl_t, fd_t, fprop_s, p)])
-    array_forces = ca.Function("maglev_array_forces", [xs, p], [fl_t, fd_t], ["x", "p"],
-                               ["lift", "drag"])
+    io["array_forces"] = {"x": xs, "p": p}, {"lift": fl_t, "drag": fd_t}
     K_mag = ca.SX(5, 5)
     K_oth = ca.SX(5, 5)
     for i in range(5):
@@ -195,16 +284,20 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
             K_mag[i, j] = conv_k(sf.K[i, j])
             K_oth[i, j] = conv_k(sf.K_other[i, j])
     stiff_qf = ca.Function("maglev_stiffness_qf", [q_sx, fl, fd, fprop, p], [K_mag, K_oth])
-    stiffness = ca.Function("maglev_stiffness", [xs, fprop_s, p],
-                            list(stiff_qf(q_of_x, fl_t, fd_t, fprop_s, p)),
-                            ["x", "F_prop", "p"], ["K_magnetic", "K_other"])
+    io["stiffness"] = ({"x": xs, "F_prop": fprop_s, "p": p},
+                       dict(zip(("K_magnetic", "K_other"),
+                                stiff_qf(q_of_x, fl_t, fd_t, fprop_s, p), strict=True)))
     km_mx = plant(xt_mx, ut_mx[0], p_mx)
     K_mx, c_mx = K_fn(km_mx, p_mx)
-    lqr_gains = ca.Function("maglev_lqr_gains", [v_mx, p_mx], [K_mx, c_mx], ["v", "p"],
-                            ["K", "c_damping"])
-    axis_plants = ca.Function("maglev_axis_plants", [v_mx, p_mx],
-                              [km_mx[:N_AXES], km_mx[N_AXES:]], ["v", "p"], ["k", "m"])
+    io["lqr_gains"] = {"v": v_mx, "p": p_mx}, {"K": K_mx, "c_damping": c_mx}
+    io["axis_plants"] = {"v": v_mx, "p": p_mx}, {"k": km_mx[:N_AXES], "m": km_mx[N_AXES:]}
+    return K_fn, xs, fprop_s, lift_fn
 
+
+def _control_io(cm: CasadiModel, K_fn: ca.Function, io: dict) -> ca.Function:
+    """The per-tick controllers and maglev_axis_gains into ``io``; the axis rates' function."""
+    x, p = cm.x, cm.p
+    n_x = x.shape[0]
     # --- per-tick controllers on the axis coordinates a = (y, z, phi, theta, psi): the gains
     # and the reference come from the schedule (maglev_trim, maglev_lqr_gains or
     # maglev_axis_plants + maglev_axis_gains), computed once per speed, not at every tick.
@@ -215,20 +308,23 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
         ca.SX.sym("a_ref", N_AXES)
     a_c = ca.vertcat(*[x_c[cv.STATE_INDEX[s]] for s in Q_STATES])
     adot = rates_fn(x_c)
-    lqr_control = ca.Function("maglev_lqr_control", [x_c, K_in, a_ref_in, p],
-                              [-(K_in[:, 0] * (a_c - a_ref_in) + K_in[:, 1] * adot)],
-                              ["x", "K", "a_ref", "p"], ["u_gen"])
-    damping_control = ca.Function("maglev_damping_control", [x_c, c_in, p], [-c_in * adot],
-                                  ["x", "c_damping", "p"], ["u_gen"])
+    io["lqr_control"] = ({"x": x_c, "K": K_in, "a_ref": a_ref_in, "p": p},
+                         {"u_gen": -(K_in[:, 0] * (a_c - a_ref_in) + K_in[:, 1] * adot)})
+    io["damping_control"] = {"x": x_c, "c_damping": c_in, "p": p}, {"u_gen": -c_in * adot}
     Kp_in, Kr_in = ca.SX.sym("K_pos", N_AXES, N_AXES), ca.SX.sym("K_rate", N_AXES, N_AXES)
-    coupled_control = ca.Function("maglev_coupled_control", [x_c, Kp_in, Kr_in, a_ref_in, p],
-                                  [-(Kp_in @ (a_c - a_ref_in) + Kr_in @ adot)],
-                                  ["x", "K_pos", "K_rate", "a_ref", "p"], ["u_gen"])
+    io["coupled_control"] = ({"x": x_c, "K_pos": Kp_in, "K_rate": Kr_in, "a_ref": a_ref_in,
+                              "p": p},
+                             {"u_gen": -(Kp_in @ (a_c - a_ref_in) + Kr_in @ adot)})
     k_in, m_in = ca.SX.sym("k", N_AXES), ca.SX.sym("m", N_AXES)
-    axis_gains = ca.Function("maglev_axis_gains", [k_in, m_in, p],
-                             list(K_fn(ca.vertcat(k_in, m_in), p)), ["k", "m", "p"],
-                             ["K", "c_damping"])
+    io["axis_gains"] = ({"k": k_in, "m": m_in, "p": p},
+                        dict(zip(("K", "c_damping"), K_fn(ca.vertcat(k_in, m_in), p),
+                                 strict=True)))
+    return rates_fn
 
+
+def _allocation_io(model: CarriageModel, p: ca.SX, io: dict) -> tuple[ca.SX, ca.SX | None]:
+    """maglev_allocate and maglev_effectiveness into ``io``; E and, with normal actuators,
+    its pseudo-inverse."""
     # --- allocation: T = E^T (E E^T)^-1 from the array positions in p (E E^T can be singular
     # with forces along the normals: the pseudoinverse by iterated Tikhonov then)
     u_gen = ca.SX.sym("u_gen", N_AXES)
@@ -236,10 +332,17 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     normal = any(NORMAL_AXIS in comps for _, comps in model.structure.arrays)
     T_normal = _pseudo_inverse(E) if normal else None
     forces = T_normal @ u_gen if normal else E.T @ ca.solve(E @ E.T, u_gen)
-    allocate = ca.Function("maglev_allocate", [u_gen, p], [forces], ["u_gen", "p"],
-                           ["F_arrays"])
-    effectiveness = ca.Function("maglev_effectiveness", [p], [E], ["p"], ["E"])
+    io["allocate"] = {"u_gen": u_gen, "p": p}, {"F_arrays": forces}
+    io["effectiveness"] = {"p": p}, {"E": E}
+    return E, T_normal
 
+
+def _closed_loop_io(cm: CasadiModel, dynamics: ca.Function, rates_fn: ca.Function, E: ca.SX,
+                    T_normal: ca.SX | None, io: dict) -> None:
+    """maglev_gaps, maglev_closed_loop and maglev_allocation_matrix into ``io``."""
+    x, p = cm.x, cm.p
+    n_x = x.shape[0]
+    normal = T_normal is not None
     # --- the closed loop's right-hand side, with the allocation matrix T as an input:
     # maglev_simulate computes T once (maglev_allocation_matrix) and calls this four times per
     # RK4 step, so one copy of the model's code stays in the instruction cache and nothing
@@ -254,26 +357,25 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
         a_cl = ca.vertcat(*[x0[cv.STATE_INDEX[s]] for s in Q_STATES])
         u_cl = ca.vertcat(F_prop, T_in @ -(K_pos @ (a_cl - a_ref) + K_rate @ rates_fn(x0)))
         # contact is judged at each face's closest corner, not its centre
-        gaps_fn = ca.Function("maglev_gaps", [x, p], [cm.contact_gaps], ["x", "p"], ["gaps"])
-        closed_loop = ca.Function("maglev_closed_loop", [x0, F_prop, K_pos, K_rate, a_ref, T_in, p],
-                                  [dynamics(x0, u_cl, p), u_cl, gaps_fn(x0, p)],
-                                  ["x", "F_prop", "K_pos", "K_rate", "a_ref", "T", "p"],
-                                  ["xdot", "u", "gaps"])
-        T_out = T_normal if normal else E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))
-        allocation_matrix = ca.Function("maglev_allocation_matrix", [p], [T_out], ["p"], ["T"])
-    fns = [_finished(f) for f in (dynamics, jacobians, trim, trim_accelerating, axis_plants,
-                                  axis_gains, lqr_gains,
-                                  lqr_control, damping_control, coupled_control, allocate,
-                                  allocation_matrix)]
-    closed_loop, allocation_matrix = _finished(closed_loop), fns[-1]
-    # the step calls the finished right-hand side, so the C holds one copy of it
-    rk4 = _rk4_step(closed_loop, allocation_matrix)
-    prepare, prepared = _prepared_closed_loop(closed_loop)
-    extra = (_finished(_stiffness_parts(model, base, xs, fprop_s, p, lift_fn)),) \
-        if analysis else ()
-    return Built((*fns, rk4, closed_loop, prepare, prepared, _finished(gaps_fn),
-                  _finished(array_forces), _finished(stiffness), _finished(effectiveness)),
-                 p.shape[0], extra)
+        gaps_fn = ca.Function("maglev_gaps", [x, p], [cm.contact_gaps])
+        io["gaps"] = {"x": x, "p": p}, {"gaps": cm.contact_gaps}
+        io["closed_loop"] = ({"x": x0, "F_prop": F_prop, "K_pos": K_pos, "K_rate": K_rate,
+                              "a_ref": a_ref, "T": T_in, "p": p},
+                             {"xdot": dynamics(x0, u_cl, p), "u": u_cl, "gaps": gaps_fn(x0, p)})
+        io["allocation_matrix"] = ({"p": p}, {
+            "T": T_normal if normal else E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))})
+
+
+
+def _function(spec: FunctionSpec, inputs: dict, outputs: dict) -> ca.Function:
+    """The CasADi Function of ``spec``: its inputs the symbols ``inputs`` holds of their
+    names, its outputs the expressions ``outputs`` holds of theirs (every one, no other)."""
+    if (set(inputs), set(outputs)) != (set(spec.inputs), set(spec.outputs)):
+        raise ValueError(f"{spec.name}: inputs {sorted(inputs)} and outputs {sorted(outputs)}, "
+                         f"the table has {sorted(spec.inputs)} and {sorted(spec.outputs)}")
+    return ca.Function(PREFIX + spec.name, [inputs[n] for n in spec.inputs],
+                       [outputs[n] for n in spec.outputs], list(spec.inputs),
+                       list(spec.outputs))
 
 
 def _stiffness_parts(model: CarriageModel, base: dict, xs: ca.SX, fprop: ca.SX, p: ca.SX,

@@ -6,7 +6,6 @@ Writers return (file name, text) pairs; `write_output` alone touches the disk, a
 from __future__ import annotations
 
 import json
-import re
 
 import casadi as ca
 import numpy as np
@@ -18,7 +17,9 @@ from maglevgen.output import write_output  # noqa: F401  (re-exported: the write
 from maglevgen.params import entry_limits
 
 from .checks import MAX_DELAY_TICKS, check_entries, work_sizes
-from .cpass import float_literal, generate_c
+from .cpass import generate_c, static_helpers
+from .emit import c_literal
+from .emit import render as render_template
 from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
 from .interface import (
     C_NAME,
@@ -33,6 +34,7 @@ from .interface import (
     template_env,
 )
 from .misra import deviation_list
+from .simulate_api import SIMULATE_API
 
 
 def _io(fn: ca.Function, out: bool) -> list[dict]:
@@ -64,8 +66,7 @@ def _min_gap_c(model: CarriageModel, opts: GenerateOptions, p_value: np.ndarray 
     i = model.structure.param_names.index("track.min_gap")
     if p_value is None:
         return f"p[{i}]"
-    value = float(p_value[i])
-    return float_literal(value) if opts.precision == "single" else repr(value)
+    return c_literal(p_value[i], opts.precision)
 
 
 def _speed_range_c(opts: GenerateOptions,
@@ -73,8 +74,7 @@ def _speed_range_c(opts: GenerateOptions,
     """The baked trim's [v_min, v_max] as C literals of the precision."""
     if speed_range is None:
         return None
-    return tuple(float_literal(v) if opts.precision == "single" else repr(float(v))
-                 for v in speed_range)  # type: ignore[return-value]
+    return tuple(c_literal(v, opts.precision) for v in speed_range)  # type: ignore[return-value]
 
 
 def _p_limits_c(model: CarriageModel, opts: GenerateOptions) -> list[tuple[str, str]] | None:
@@ -82,13 +82,7 @@ def _p_limits_c(model: CarriageModel, opts: GenerateOptions) -> list[tuple[str, 
     entry points refuse a p outside them: MAGLEV_ERR_PARAMETER)."""
     if opts.parameters != "runtime":
         return None
-
-    def lit(v: float) -> str:
-        if opts.precision == "double":
-            return repr(float(v))
-        return f"-{float_literal(-v)}" if v < 0 else float_literal(v)
-
-    return [tuple(lit(v) for v in entry_limits(n))  # type: ignore[misc]
+    return [tuple(c_literal(v, opts.precision) for v in entry_limits(n))  # type: ignore[misc]
             for n in model.structure.param_names]
 
 
@@ -104,7 +98,8 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
                                            _min_gap_c(model, opts, p_value),
                                            _speed_range_c(opts, speed_range),
                                            _p_limits_c(model, opts))
-    files = {name: f"/* {text_banner} */\n{text}" for name, text in sources.items()}
+    files = {name: render_template("generated_file.j2", banner=text_banner, text=text)
+             for name, text in sources.items()}
     prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
     ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
            "nx": len(cv.STATES),
@@ -113,7 +108,7 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
            # the array of each control force, in the input order (structure.input_names_of)
            "array_of_force": [i for i, (_, comps) in enumerate(model.structure.arrays)
                               for _ in comps],
-           "max_delay": MAX_DELAY_TICKS}
+           "max_delay": MAX_DELAY_TICKS, "api": {f.name: f for f in SIMULATE_API}}
     env = template_env()
     for name in SIMULATE_FILES:
         files[name] = env.get_template(f"{name}.j2").render(ctx)
@@ -121,25 +116,6 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
         files[SINGLE_FILE] = single_translation_unit(files.pop(f"{C_NAME}.c"),
                                                      files.pop("maglev_simulate.c"), text_banner)
     return files
-
-
-#: a definition of one of CasADi's runtime helpers at the start of a line, not yet static
-_CASADI_HELPER = re.compile(r"^((?:casadi_real|casadi_int|void|int) (casadi_\w+)\()", re.M)
-
-
-def _static_helpers(text: str) -> str:
-    """CasADi's runtime helpers (casadi_copy, casadi_qr, ...), external in its own output,
-    made static; those no function calls (CasADi emits the QR solve's whole family) removed,
-    as a static function nobody calls is a warning."""
-    while True:
-        unused = [m for m in _CASADI_HELPER.finditer(text)
-                  if len(re.findall(rf"\b{m.group(2)}\(", text)) == 1]
-        if not unused:
-            break
-        for m in reversed(unused):  # the definition runs to the first "}" alone on a line
-            end = text.index("\n}\n", m.start()) + 3
-            text = text[:m.start()] + text[end:].lstrip("\n")
-    return _CASADI_HELPER.sub(r"static \1", text)
 
 
 def single_translation_unit(functions_c: str, simulate_c: str, text_banner: str) -> str:
@@ -151,14 +127,12 @@ def single_translation_unit(functions_c: str, simulate_c: str, text_banner: str)
         return text.split("\n", 1)[1]  # without the banner line
 
     includes = '#include "maglev_simulate.h"\n'
-    functions_c = _static_helpers(functions_c)
+    functions_c = static_helpers(functions_c)
     if simulate_c.count(includes) != 1:
         raise ValueError("maglev_simulate.c does not include its header once")
-    return (f"/* {text_banner} */\n/* {SINGLE_FILE}: maglev_functions.c and maglev_simulate.c "
-            "as one translation unit (`--single-file`); the API is declared in maglev.h "
-            "(maglev_functions.h) and maglev_simulate.h. */\n"
-            '#include "maglev.h"\n' + includes + "\n" + body(functions_c)
-            + "\n/* ---- maglev_simulate.c ---- */\n" + body(simulate_c).replace(includes, ""))
+    return render_template("maglev.c.j2", banner=text_banner, file=SINGLE_FILE,
+                  functions_body=body(functions_c),
+                  simulate_body=body(simulate_c).replace(includes, ""))
 
 
 def render_runtime_sources(model: CarriageModel, precision: str = "double") -> dict[str, str]:

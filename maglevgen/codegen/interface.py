@@ -10,11 +10,9 @@ from __future__ import annotations
 import json
 import re
 from dataclasses import dataclass
-from importlib import metadata, resources
+from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-import jinja2
 
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.structure import input_names_of
@@ -23,6 +21,8 @@ from maglevgen.params import entry_limits
 from maglevgen.version import __version__
 
 from .checks import entry_checks, error_defines
+from .emit import c_literal, template_env
+from .simulate_api import manifest_entries
 
 if TYPE_CHECKING:
     from maglevgen.carriage import Carriage
@@ -102,27 +102,11 @@ def _macro(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9]", "_", name).upper()
 
 
-def _c_literal(value: float, precision: str) -> str:
-    text = repr(float(value))
-    if "e" not in text and "." not in text and "inf" not in text:
-        text += ".0"
-    return text + ("f" if precision == "single" else "")
-
-
-
-
 def _checked_range(name: str) -> str:
     """A parameter's range that the run-time-parameter C checks p against, for maglev.h."""
 
     lo, hi = entry_limits(name)
     return f"; checked range [{lo!r}, {hi!r}]"
-
-
-def template_env() -> jinja2.Environment:
-    path = resources.files("maglevgen.templates")
-    return jinja2.Environment(loader=jinja2.FileSystemLoader(str(path)),
-                              undefined=jinja2.StrictUndefined, keep_trailing_newline=True,
-                              trim_blocks=False, lstrip_blocks=False, autoescape=False)
 
 
 def banner(opts: GenerateOptions, params_sha256: str | None) -> str:
@@ -167,7 +151,7 @@ def interface_context(carriage: Carriage, opts: GenerateOptions, table: list[dic
     runtime = opts.parameters == "runtime"
     params = [{"name": e.name, "macro": _macro(e.name), "unit": e.unit or "1",
                "description": e.description, "value": e.value, "value_repr": repr(e.value),
-               "value_c": _c_literal(e.value, opts.precision),
+               "value_c": c_literal(e.value, opts.precision),
                "checked_range": _checked_range(e.name) if runtime else ""}
               for e in carriage.entries]
     work = {f["name"]: (f["sz_arg"], f["sz_res"], f["sz_iw"], f["sz_w"]) for f in table}
@@ -180,11 +164,11 @@ def interface_context(carriage: Carriage, opts: GenerateOptions, table: list[dic
         "int_type": INT_TYPES[opts.int_type],
         "states": cv.STATES, "inputs": inputs, "controls": cv.CONTROLS, "params": params,
         "functions": [{**f, "checks": entry_checks(f, runtime, work)} for f in table],
-        "speed": _c_literal(carriage.params.operation.speed, "double"),
+        "speed": c_literal(carriage.params.operation.speed, "double"),
         "dt": "1e-3", "n_steps": 2000, "error_defines": error_defines(),
         "c_sources": c_sources(opts),
         "speed_range": None if speed_range is None
-        else [_c_literal(v, "double") for v in speed_range],
+        else [c_literal(v, "double") for v in speed_range],
     }
     return ctx
 
@@ -214,4 +198,6 @@ def _manifest(carriage: Carriage, opts: GenerateOptions, table: list[dict], para
                               "description": p["description"], "value": p["value"]}
                              for p in params],
         "functions": table,
+        # the simulation loop's C API (maglev_simulate.h), as the header declares it
+        "simulate_functions": manifest_entries(opts.parameters),
     }

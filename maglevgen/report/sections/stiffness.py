@@ -15,6 +15,7 @@ from ...derive.model import build_model
 from ...derive.paper import paper_stiffness
 from ...errors import NoTrimError
 from ...library import simulation_library
+from ...params import ARRAY_FORCE_LAWS, PAPER_ARRAY_FORCE
 from ...summary import trim_point
 from ..display import (
     REPORT_SOURCE,
@@ -173,7 +174,8 @@ def jacobian_unit(row_unit: str, column_unit: str) -> str:
 
 
 # the table's columns: every choice of params.ARRAY_FORCE_LAWS, the paper's first
-LAW_COLUMNS = ("point", "distributed")
+LAW_COLUMNS = (PAPER_ARRAY_FORCE,
+               *(law for law in ARRAY_FORCE_LAWS if law != PAPER_ARRAY_FORCE))
 
 
 def _by_law(carriage, trim, lib) -> dict[str, dict[str, Any] | None]:
