@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
+from .columns import fcolumn_plain
 from .derive import conventions as cv
 from .errors import MaglevError
 from .version import __version__
@@ -139,14 +140,18 @@ def cmd_gains(args: argparse.Namespace) -> int:
           f"R = {r:g}; u = -K (position, rate)")
     print(f"  {'axis':<9}{'k':>12}{'m':>10}{'K1 (closed)':>14}{'K2 (closed)':>13}"
           f"{'K numerical':>26}{'K paper eq 32':>26}  more accurate")
-    for axis, a in rep["axes"].items():
+    axes = list(rep["axes"].values())
+    # each column in one notation (maglevgen.columns): no 0.000223524 above 2.96472e-05
+    columns = [fcolumn_plain([a["stiffness"] for a in axes], 5),
+               fcolumn_plain([a["inertia"] for a in axes], 4),
+               *(fcolumn_plain([a[key][i] for a in axes], 6)
+                 for key in ("K_closed_form", "K_numerical", "K_paper") for i in (0, 1))]
+    widths = (12, 10, 14, 13, 13, 13, 13, 13)
+    for row, (axis, a) in enumerate(rep["axes"].items()):
         acc = a["accuracy_vs_50_digit_reference"]
-        kn, kp = a["K_numerical"], a["K_paper"]
-        print(f"  {axis:<9}{a['stiffness']:12.5g}{a['inertia']:10.4g}"
-              f"{a['K_closed_form'][0]:14.6g}{a['K_closed_form'][1]:13.6g}"
-              f"{kn[0]:13.6g}{kn[1]:13.6g}{kp[0]:13.6g}{kp[1]:13.6g}  "
-              f"{acc['more_accurate'].replace('_', ' ')} (error {acc['closed_form']:.2g} vs "
-              f"{acc['numerical']:.2g})")
+        cells = "".join(f"{col[row]:>{w}}" for col, w in zip(columns, widths, strict=True))
+        print(f"  {axis:<9}{cells}  {acc['more_accurate'].replace('_', ' ')} (error "
+              f"{acc['closed_form']:.2g} vs {acc['numerical']:.2g})")
     print("  (k and K1 in N/m for lateral and vertical, N m/rad for roll, pitch and yaw; m in kg "
           "or kg m^2;\n   K2 in N s/m or N m s/rad; the last column: each gain's largest "
           "relative error against the 50-digit reference)")

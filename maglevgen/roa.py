@@ -550,15 +550,15 @@ def region_png(regions: Sequence[Region]) -> bytes:
             unit, scale = AXIS_UNITS[a]
             ax.plot(v, [r.extents[a] * scale for r in reg.regions], label=reg.controller,
                     **style)
-            ax.set_ylabel(f"{a} [{unit}]")
+            ax.set_ylabel(f"extent of {a} / {unit}")
         axes.flat[5].plot(v, [r.disturbance_multiple for r in reg.regions],
                           label=reg.controller, **style)
-    axes.flat[5].set_ylabel("x default disturbance")
+    axes.flat[5].set_ylabel("multiple of the\ndefault disturbance")
     for ax in axes.flat:
         ax.grid(True, alpha=0.3)
         ax.set_ylim(bottom=0)
     for ax in axes[1]:
-        ax.set_xlabel("speed [m/s]")
+        ax.set_xlabel("speed $v$ / (m/s)")
     axes.flat[0].legend(fontsize=7)
     fig.suptitle("Region of attraction: largest recoverable deviation per axis (sampled)",
                  fontsize=10)
