@@ -145,8 +145,9 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
         # root search on python-control's damping ratio
         assert carriage.params.envelope.embedded_controller == "spec"
         q1s, q2s, rs = spec_weights_reference(carriage.params.control.spec, k, mass, T)
-        K_c = control.lqr(A_r, B_g, S.T @ np.diag(q1s) @ S + C_rate.T @ np.diag(q2s) @ C_rate,
-                          np.diag(rs))[0]
+        Q = S.T @ np.diag(q1s) @ S + C_rate.T @ np.diag(q2s) @ C_rate
+        # exactly symmetric (python-control's check is absolute, at machine epsilon)
+        K_c = control.lqr(A_r, B_g, (Q + Q.T) / 2, np.diag(rs))[0]
         K_prime = K_c @ np.linalg.inv(np.vstack([S, C_rate]))  # on (a, a')
         exact.append(np.concatenate([f_prop, x[axes], K.ravel(order="F"), c,
                                      K_prime[:, :5].ravel(order="F"),

@@ -168,5 +168,6 @@ def test_report_stiffness_and_trim_are_the_librarys(monkeypatch, sim_lib) -> Non
     A, _ = jac(tp.x, u, fresh.p)
     shown = [float(A[i, j]) for i in range(12) for j in range(12)
              if abs(A[i, j]) > 1e-13 * np.abs(A).max()]  # the section's nonzero entries
-    assert [v for _, _, v in ctx["stiffness"]["A_entries"]] == shown
+    # each entry: (row, column, value, unit)
+    assert [entry[2] for entry in ctx["stiffness"]["A_entries"]] == shown
     np.testing.assert_allclose(A, A_ref, rtol=1e-7, atol=1e-7 * np.abs(A_ref).max())
