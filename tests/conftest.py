@@ -2,7 +2,8 @@
 
 The derivation/compile cache goes to a temporary folder made for the run (shared by the
 pytest-xdist workers), so the suite neither reads nor writes the user's cache. The run starts
-with a cold build of the default carriage into it (`_cold_build`, before the workers start):
+with a cold build of the default carriage into it (`_cold_build`, before pytest-xdist's workers
+start; a run in one process derives as it goes):
 the workers then read its derivations and libraries instead of deriving them side by side,
 and its output is the `default_build` fixture. Tests that corrupt or replace cache entries
 work on a copy (`seeded_cache`).
@@ -102,7 +103,10 @@ def pytest_configure(config: pytest.Config) -> None:
     os.environ[_SHARED_CACHE] = config._maglev_cache.name
     config._maglev_build = tempfile.TemporaryDirectory(prefix="maglevgen-cold-build-")
     out = os.path.join(config._maglev_build.name, "out")
-    if _cold_build(config._maglev_cache.name, out):
+    # only for workers (pytest-xdist's -n N): one process derives what it needs as it goes,
+    # and a run of a few light tests pays for no build
+    if getattr(config.option, "numprocesses", None) and _cold_build(
+            config._maglev_cache.name, out):
         os.environ[_DEFAULT_BUILD] = out
 
 
