@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import statistics
 import subprocess
 import sys
@@ -78,3 +79,19 @@ def time_calls(fn: Callable[[int], object], calls: int) -> float:
     for i in range(calls):
         fn(i)
     return (time.perf_counter_ns() - t0) / calls
+
+
+def worst_stack(ci: str, root: str) -> int:
+    """The deepest static stack from ``root`` in gcc's -fcallgraph-info output (``ci``): each
+    function's own frame plus its deepest callee's (recursion cut where a call repeats)."""
+    own = {m.group(1): int(m.group(2)) for m in re.finditer(
+        r'node: \{ title: "([^"]+)" label: "[^"]*?(\d+) bytes \(static\)', ci)}
+    calls: dict[str, list[str]] = {}
+    for m in re.finditer(r'edge: \{ sourcename: "([^"]+)" targetname: "([^"]+)"', ci):
+        calls.setdefault(m.group(1), []).append(m.group(2))
+
+    def worst(f: str, seen: frozenset) -> int:
+        return own.get(f, 0) + max((worst(g, seen | {f}) for g in calls.get(f, ())
+                                    if g not in seen), default=0)
+
+    return worst(root, frozenset())

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 import tempfile
 import time
@@ -27,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import BENCH, ROOT, log, paired_ratios, replace_section, run, summary
+from common import BENCH, ROOT, log, paired_ratios, replace_section, run, summary, worst_stack
 
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
@@ -62,20 +61,6 @@ SECTIONS {
   .bss : { _sbss = .; *(.bss*) *(COMMON) _ebss = .; } > RAM
 }
 """
-
-
-def _worst_stack(ci: str, root: str) -> int:
-    own = {m.group(1): int(m.group(2)) for m in re.finditer(
-        r'node: \{ title: "([^"]+)" label: "[^"]*?(\d+) bytes \(static\)', ci)}
-    calls: dict[str, list[str]] = {}
-    for m in re.finditer(r'edge: \{ sourcename: "([^"]+)" targetname: "([^"]+)"', ci):
-        calls.setdefault(m.group(1), []).append(m.group(2))
-
-    def worst(f: str, seen: frozenset) -> int:
-        return own.get(f, 0) + max((worst(g, seen | {f}) for g in calls.get(f, ())
-                                    if g not in seen), default=0)
-
-    return worst(root, frozenset())
 
 
 def _sources(carriage: Carriage, folder: Path) -> GainTable:
@@ -123,7 +108,7 @@ def m4_footprint(folder: Path) -> dict:
     for group, names in GROUPS.items():
         text, rodata = image(names)
         out[group] = {"functions": names, "text": text - base[0], "rodata": rodata - base[1],
-                      "stack": max(_worst_stack(ci, n) for n in names)}
+                      "stack": max(worst_stack(ci, n) for n in names)}
         log(f"M4 {group}: {out[group]}")
     return out
 

@@ -37,7 +37,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import BENCH, ROOT, log, replace_section, run
+from common import BENCH, ROOT, log, replace_section, run, worst_stack
 
 from maglevgen.carriage import Carriage
 from maglevgen.codegen.firmware import FIRMWARE_FLAGS, firmware_files
@@ -174,7 +174,7 @@ def measure() -> dict:
             for ln in (folder / f"{n}.su").read_text().splitlines():
                 where, size, kind = ln.split("\t")
                 su[where.rsplit(":", 1)[-1]] = (int(size), kind)
-        stack = _worst_stack(ci, "maglev_tick")
+        stack = worst_stack(ci, "maglev_tick")
     share = cycles / (CLOCK_MHZ * 1e6 / TICK_HZ) * 100
     return {"instructions": round(instructions), "cycles": round(cycles),
             "share_percent": share, "clock_mhz": CLOCK_MHZ, "tick_hz": TICK_HZ,
@@ -184,20 +184,6 @@ def measure() -> dict:
             # the functions on the tick's path (the CasADi query functions are not)
             "stack_usage": {k: v[0] for k, v in sorted(su.items()) if k in by_function},
             "stack_kind": {k: v[1] for k, v in sorted(su.items()) if k in by_function}}
-
-
-def _worst_stack(ci: str, root: str) -> int:
-    own = {m.group(1): int(m.group(2)) for m in re.finditer(
-        r'node: \{ title: "([^"]+)" label: "[^"]*?(\d+) bytes \(static\)', ci)}
-    calls: dict[str, list[str]] = {}
-    for m in re.finditer(r'edge: \{ sourcename: "([^"]+)" targetname: "([^"]+)"', ci):
-        calls.setdefault(m.group(1), []).append(m.group(2))
-
-    def worst(f: str, seen: frozenset) -> int:
-        return own.get(f, 0) + max((worst(g, seen | {f}) for g in calls.get(f, ())
-                                    if g not in seen), default=0)
-
-    return worst(root, frozenset())
 
 
 def section(r: dict) -> list[str]:
