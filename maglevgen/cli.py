@@ -47,6 +47,13 @@ def _run_options(p: argparse.ArgumentParser) -> None:
                    help="RK4 step [s] (default 1e-3)")
 
 
+def _loop_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
+                   help="firmware (default): each controller at the tick of [control.spec] "
+                        "with its delay, the speed loop and the force budget; continuous: "
+                        "the paper's law at every RK4 stage under the trim propulsion")
+
+
 def _carriage(args: argparse.Namespace) -> Carriage:
     """The API's carriage of ``--params`` and ``--set`` (`maglevgen.Carriage`)."""
     from . import api
@@ -455,10 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "these, default: 1 mm / 2 mrad on each axis)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
-    sim.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
-                     help="firmware (default): each controller at the tick of [control.spec] "
-                          "with its delay, the speed loop and the force budget; continuous: "
-                          "the paper's law at every RK4 stage under the trim propulsion")
+    _loop_option(sim)
     sim.add_argument("--check", action="store_true",
                      help="also integrate each run with scipy's adaptive DOP853 on the SymPy "
                           "model and report the largest deviation (slow: seconds per run)")
@@ -474,10 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--controller", choices=_Controllers(extra=("all",)), metavar="NAME",
                     help="default: envelope.embedded_controller")
     _run_options(mc)
-    mc.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
-                    help="firmware (default): each controller at the tick of [control.spec] "
-                         "with its delay, the speed loop and the force budget; continuous: "
-                         "the paper's law at every RK4 stage under the trim propulsion")
+    _loop_option(mc)
     mc.add_argument("--workers", type=int, metavar="K",
                     help="worker processes (default: every core); with --scheduler local, "
                          "the LocalCluster's workers")
