@@ -15,9 +15,9 @@ $(BIN)/maglevgen: pyproject.toml
 setup: $(BIN)/maglevgen
 
 # TeX for report.pdf: installed with apt-get where TeX is missing and this user may (root, or
-# sudo without a password), else one line says what to install (maglevgen/texsetup.py).
+# sudo without a password), else one line says what to install (maglevgen/infrastructure/texsetup.py).
 run: setup
-	$(BIN)/python -m maglevgen.texsetup
+	$(BIN)/python -m maglevgen.infrastructure.texsetup
 	$(BIN)/maglevgen build
 
 # The suite in TEST_WORKERS processes (pytest-xdist, one file per worker at a time: the

@@ -15,7 +15,7 @@ import numpy as np
 import sympy as sp
 from scipy.integrate import solve_ivp
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.linearize import Q_STATES
 
@@ -27,7 +27,7 @@ IVP_RTOL = 1e-6
 IVP_ATOL = 1e-9
 
 
-def lambdify_xdot(carriage: Carriage, cse: bool) -> tuple[Callable, float]:
+def lambdify_xdot(carriage: DerivedCarriage, cse: bool) -> tuple[Callable, float]:
     """xdot(x, u, p) as one numpy function of the composed expression, and its build time."""
     m = carriage.model
     t0 = time.perf_counter()
@@ -35,7 +35,7 @@ def lambdify_xdot(carriage: Carriage, cse: bool) -> tuple[Callable, float]:
     return f, time.perf_counter() - t0
 
 
-def lambdify_kinematics(carriage: Carriage) -> Callable:
+def lambdify_kinematics(carriage: DerivedCarriage) -> Callable:
     m = carriage.model
     return sp.lambdify([list(m.x)], m.kinematics, modules="numpy", cse=True)
 

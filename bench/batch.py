@@ -1,8 +1,9 @@
 """Monte-Carlo runs per second, in one process: the study's path through the C batch
-(maglevgen.montecarlo.run_samples_batch) on 1 and 2 threads, the bare C loop (the same runs
+(maglevgen.analyses.montecarlo.run_samples_batch) on 1 and 2 threads, the bare C loop (the same runs
 prepared beforehand, maglev_batch_simulate alone) on 1 and 2 threads, and today's per-sample
 Python path (run_sample: one maglev_simulate call per run from Python); the study as the
-CLI runs it (maglevgen.montecarlo.run_local: chunks on 1 and on 2 worker processes); and where
+CLI runs it (maglevgen.analyses.montecarlo.run_local: chunks on 1 and on 2 worker processes); and
+where
 the batch path's time goes, stage by stage (thread CPU time of this process, one pass).
 
     .venv/bin/python bench/batch.py [--samples N] [--reps R] [--out FILE] [--no-write]
@@ -27,9 +28,7 @@ from pathlib import Path
 
 from common import BENCH, log, paired_ratios, replace_section, summary
 
-from maglevgen.carriage import Carriage
-from maglevgen.library import simulation_library
-from maglevgen.montecarlo import (
+from maglevgen.analyses.montecarlo import (
     _prepare,
     _run_row,
     make_study,
@@ -37,8 +36,10 @@ from maglevgen.montecarlo import (
     run_sample,
     run_samples_batch,
 )
+from maglevgen.analyses.simulate import hold_run, hold_trajectory, run_loop
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.params import load_params
-from maglevgen.simulate import hold_run, hold_trajectory, run_loop
+from maglevgen.runtime.library import simulation_library
 
 BEGIN = "<!-- batch benchmark (bench/batch.py) -->"
 END = "<!-- end of batch benchmark -->"
@@ -127,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-write", action="store_true", help="leave BENCHMARKS.md alone")
     args = ap.parse_args(argv)
     load_start = os.getloadavg()
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     controller = carriage.params.envelope.embedded_controller
     tick, k_v, budget = run_loop(carriage, lib, "firmware")

@@ -25,10 +25,10 @@ CPU0 = time.process_time()
 import json  # noqa: E402
 import os  # noqa: E402
 
-from maglevgen.carriage import Carriage  # noqa: E402
-from maglevgen.library import cached_simulation_library  # noqa: E402
+from maglevgen.analyses.simulate import CONTROLLERS, run_scenarios  # noqa: E402
+from maglevgen.carriage import DerivedCarriage  # noqa: E402
 from maglevgen.params import load_params  # noqa: E402
-from maglevgen.simulate import CONTROLLERS, run_scenarios  # noqa: E402
+from maglevgen.runtime.library import cached_simulation_library  # noqa: E402
 
 
 def _cpu(fn, *args):
@@ -39,7 +39,7 @@ def _cpu(fn, *args):
 
 def main() -> None:
     loaded = load_params(None, [])
-    carriage = Carriage(loaded)
+    carriage = DerivedCarriage(loaded)
     lib = cached_simulation_library(carriage.structure)
     if lib is None:
         raise SystemExit("build_floor.py: no cached library: run a build first")
@@ -54,11 +54,11 @@ def main() -> None:
         from matplotlib.figure import Figure  # noqa: F401
 
     out["matplotlib_import"], _ = _cpu(import_matplotlib)
-    from maglevgen.sim_output import render_figures, render_trajectories
+    from maglevgen.analyses.sim_output import render_figures, render_trajectories
 
     out["simulation_figures"], _ = _cpu(render_figures, run.trajectories)
     from maglevgen.report import force_curves
-    from maglevgen.report_figures import force_figures
+    from maglevgen.report.figures import force_figures
 
     curves = force_curves(carriage, carriage.trim())
     out["report_figures"], _ = _cpu(force_figures, curves)

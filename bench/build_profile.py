@@ -41,14 +41,14 @@ from maglevgen.params import load_params  # noqa: E402
 
 # what run_build imports when it rebuilds (imported here so the timers can wrap them)
 LAZY_MODULES = (
-    "maglevgen.cache",
+    "maglevgen.infrastructure.cache",
     "maglevgen.carriage",
     "maglevgen.codegen.interface",
-    "maglevgen.library",
-    "maglevgen.workers",
-    "maglevgen.summary",
-    "maglevgen.sim_output",
-    "maglevgen.simulate",
+    "maglevgen.runtime.library",
+    "maglevgen.infrastructure.workers",
+    "maglevgen.analyses.queries",
+    "maglevgen.analyses.sim_output",
+    "maglevgen.analyses.simulate",
     "maglevgen.report",
 )
 for _m in LAZY_MODULES:
@@ -61,21 +61,21 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("run_build", "maglevgen.build:run_build"),
     ("build_key", "maglevgen.build:build_key"),
     ("up_to_date", "maglevgen.build:up_to_date"),
-    ("runtime_sources", "maglevgen.library:runtime_sources"),
-    ("simulation_library", "maglevgen.library:simulation_library"),
+    ("runtime_sources", "maglevgen.runtime.library:runtime_sources"),
+    ("simulation_library", "maglevgen.runtime.library:simulation_library"),
     ("model_functions", "maglevgen.carriage:model_functions"),  # timers only (memoised)
     ("carriage_functions", "maglevgen.carriage:Carriage.functions"),  # cprofile only
     ("render_interface", "maglevgen.codegen.interface:render_interface"),
-    ("run_scenarios", "maglevgen.simulate:run_scenarios"),
-    ("c_simulate", "maglevgen.library:SimulationLibrary.simulate"),
-    ("render_metrics", "maglevgen.sim_output:render_metrics"),
+    ("run_scenarios", "maglevgen.analyses.simulate:run_scenarios"),
+    ("c_simulate", "maglevgen.runtime.library:SimulationLibrary.simulate"),
+    ("render_metrics", "maglevgen.analyses.sim_output:render_metrics"),
     # trajectories, simulation figures and report figures are drawn in forked children
-    # (maglevgen.workers): this process only sees the time it waits for them
-    ("background_wait", "maglevgen.workers:Job.result"),
+    # (maglevgen.infrastructure.workers): this process only sees the time it waits for them
+    ("background_wait", "maglevgen.infrastructure.workers:Job.result"),
     ("report_files", "maglevgen.build:_report_files"),
     ("build_context", "maglevgen.report:build_context"),
-    ("trim_report", "maglevgen.summary:trim_report"),
-    ("gains_report", "maglevgen.summary:gains_report"),
+    ("trim_report", "maglevgen.analyses.queries:trim_report"),
+    ("gains_report", "maglevgen.analyses.queries:gains_report"),
     ("verification", "maglevgen.report:_verification"),
     ("render_tex", "maglevgen.report:render_tex"),
     ("run_latex", "maglevgen.report:run_latex"),

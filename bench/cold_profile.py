@@ -31,7 +31,7 @@ from common import BENCH, ROOT, log
 # stages (a frame and what the table calls it), in the build's order
 STAGES = (
     ("check_build_inputs (maglevgen/build.py)", "check_build_inputs (the CLI's first step)"),
-    ("runtime_sources (maglevgen/library.py)", "derivation + CasADi + C pass (runtime_sources)"),
+    ("runtime_sources (runtime/library.py)", "derivation + CasADi + C pass (runtime_sources)"),
     ("build_functions (maglevgen/codegen/functions.py)", "CasADi functions (build_functions)"),
     ("_stiffness_parts (maglevgen/codegen/functions.py)",
      "SymPy Jacobians of the stiffness parts (_stiffness_parts)"),
@@ -39,12 +39,12 @@ STAGES = (
     ("Carriage.functions (maglevgen/carriage.py)",
      "lambdified model (Carriage.functions: SymPy Jacobians, lambdify)"),
     ("run_build (maglevgen/build.py)", "run_build"),
-    ("run_scenarios (maglevgen/simulate.py)", "three simulations (run_scenarios)"),
-    ("compute_envelope (maglevgen/envelope.py)", "envelope (compute_envelope)"),
-    ("study (maglevgen/roa.py)", "region of attraction (roa.study)"),
+    ("run_scenarios (maglevgen/analyses/simulate.py)", "three simulations (run_scenarios)"),
+    ("compute_envelope (maglevgen/analyses/envelope.py)", "envelope (compute_envelope)"),
+    ("study (maglevgen/analyses/roa.py)", "region of attraction (roa.study)"),
     ("_report_files (maglevgen/build.py)", "report (_report_files)"),
     ("_verification (maglevgen/report/sections/verification.py)", "report: verification"),
-    ("render_figures (maglevgen/sim_output.py)", "figures (render_figures)"),
+    ("render_figures (maglevgen/analyses/sim_output.py)", "figures (render_figures)"),
     ("_find_and_load (<frozen importlib._bootstrap>)", "imports"),
 )
 

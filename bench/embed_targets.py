@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 from common import ROOT, log, replace_section
 
-from maglevgen.carriage import Carriage
-from maglevgen.envelope import compute_envelope
-from maglevgen.library import simulation_library
+from maglevgen.analyses.envelope import compute_envelope
+from maglevgen.analyses.simulate import metrics, run_scenarios
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.params import load_params
-from maglevgen.simulate import metrics, run_scenarios
+from maglevgen.runtime.library import simulation_library
 
 RESULTS = ROOT / "bench" / "embed_targets_results.json"
 BEGIN = "<!-- embed_targets: begin -->"
@@ -38,7 +38,7 @@ END = "<!-- embed_targets: end -->"
 MC_SAMPLES, MC_SEED = 400, 3
 
 
-def sampled_loop(carriage: Carriage, lib) -> dict:
+def sampled_loop(carriage: DerivedCarriage, lib) -> dict:
     env = compute_envelope(carriage, lib, 50, controllers=(carriage.params.envelope
                                                            .embedded_controller,))
     c = env.controllers[carriage.params.envelope.embedded_controller]
@@ -56,7 +56,7 @@ def low_ticks(lib) -> list[dict]:
     delay) on the sampled-data loop at lower tick rates (9 speeds)."""
     out = []
     for rate in LOW_TICKS:
-        c = Carriage(load_params(overrides=[f"control.spec.tick_rate={rate:g}"]))
+        c = DerivedCarriage(load_params(overrides=[f"control.spec.tick_rate={rate:g}"]))
         e = compute_envelope(c, lib, 9, controllers=("spec",), other_models=False)
         spec = e.controllers["spec"]
         row = {"rate": rate, "continuous_min_damping": float(np.nanmin(spec
@@ -72,7 +72,7 @@ def low_ticks(lib) -> list[dict]:
     return out
 
 
-def holds(carriage: Carriage, lib, v_min: float, v_max: float) -> list[dict]:
+def holds(carriage: DerivedCarriage, lib, v_min: float, v_max: float) -> list[dict]:
     out = []
     name = carriage.params.envelope.embedded_controller
     for v in (v_min, 20.0, v_max):
@@ -90,7 +90,7 @@ def holds(carriage: Carriage, lib, v_min: float, v_max: float) -> list[dict]:
     return out
 
 
-def launch_run(carriage: Carriage, lib) -> dict:
+def launch_run(carriage: DerivedCarriage, lib) -> dict:
     name = carriage.params.envelope.embedded_controller
     run = run_scenarios(carriage, (name,), 10.0, 1e-3, lib=lib, scenario="launch",
                         loop="firmware")
@@ -111,9 +111,9 @@ def launch_run(carriage: Carriage, lib) -> dict:
             "meets": m["spec"]["meets"], "spec": m["spec"]["verdict"]}
 
 
-def montecarlo(carriage: Carriage, lib) -> dict:
-    from maglevgen.montecarlo import make_study, run_study
-    from maglevgen.simulate import run_loop
+def montecarlo(carriage: DerivedCarriage, lib) -> dict:
+    from maglevgen.analyses.montecarlo import make_study, run_study
+    from maglevgen.analyses.simulate import run_loop
 
     name = carriage.params.envelope.embedded_controller
     study = make_study(carriage, lib, (name,), 10.0, 1e-3, MC_SEED,
@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="take the study from the montecarlo.json of `maglevgen montecarlo "
                          f"--samples {MC_SAMPLES} --seed {MC_SEED} --out DIR` instead")
     args = ap.parse_args(argv)
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     log("sampled-data loop across the envelope")
     s = sampled_loop(carriage, lib)

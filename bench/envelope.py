@@ -18,22 +18,22 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import BENCH, log, summary
 
-from maglevgen.carriage import Carriage
-from maglevgen.envelope import compute_envelope, envelope_points, resolve_range
-from maglevgen.library import simulation_library
+from maglevgen.analyses.envelope import compute_envelope, envelope_points, resolve_range
+from maglevgen.analyses.simulate import initial_state, launch
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.schedule import Schedule
 from maglevgen.params import load_params
-from maglevgen.schedule import Schedule
-from maglevgen.simulate import initial_state, launch
+from maglevgen.runtime.library import simulation_library
 
 N_SPEEDS = 50
 
 
-def _python_envelope(carriage: Carriage, speeds: np.ndarray) -> dict[str, np.ndarray]:
+def _python_envelope(carriage: DerivedCarriage, speeds: np.ndarray) -> dict[str, np.ndarray]:
     """The same eigenvalue sweep on the lambdified model: SciPy trim, SymPy Jacobians,
     python-control LQR per axis and coupled."""
     import control
 
-    from maglevgen.controllers import effectiveness
+    from maglevgen.control.symbolic_reference import effectiveness
 
     T = np.linalg.pinv(effectiveness(carriage))
     red = [1, 2, 3, 4, 5, 7, 8, 9, 10, 11]
@@ -61,12 +61,12 @@ def _python_envelope(carriage: Carriage, speeds: np.ndarray) -> dict[str, np.nda
     return out
 
 
-def _python_launch(carriage: Carriage, sched: Schedule, x0: np.ndarray, f_extra: float,
+def _python_launch(carriage: DerivedCarriage, sched: Schedule, x0: np.ndarray, f_extra: float,
                    v_end: float) -> float:
     """The launch by solve_ivp (RK45, rtol 1e-6) on the lambdified model; its end time."""
     from scipy.integrate import solve_ivp
 
-    from maglevgen.controllers import effectiveness
+    from maglevgen.control.symbolic_reference import effectiveness
 
     fns = carriage.functions
     T = np.linalg.pinv(effectiveness(carriage))
@@ -90,7 +90,7 @@ def _python_launch(carriage: Carriage, sched: Schedule, x0: np.ndarray, f_extra:
 
 
 def run(repeats: int = 5) -> dict:
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     compute_envelope(carriage, lib, N_SPEEDS)  # warm: library loaded, functions resolved
     log(f"envelope: {N_SPEEDS} speeds x 4 controllers, compiled library")

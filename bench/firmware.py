@@ -28,12 +28,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import BENCH, ROOT, log, paired_ratios, replace_section, run, summary, worst_stack
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.envelope import gain_table, resolve_range, speed_range
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
-from maglevgen.envelope import gain_table, resolve_range, speed_range
-from maglevgen.library import simulation_library
+from maglevgen.control.schedule import GainTable, gain_table_sources
 from maglevgen.params import load_params
-from maglevgen.schedule import GainTable, gain_table_sources
+from maglevgen.runtime.library import simulation_library
 
 RESULTS = BENCH / "firmware_results.json"
 BEGIN, END = "<!-- firmware benchmark: bench/firmware.py -->", "<!-- end of firmware benchmark -->"
@@ -63,7 +63,7 @@ SECTIONS {
 """
 
 
-def _sources(carriage: Carriage, folder: Path) -> GainTable:
+def _sources(carriage: DerivedCarriage, folder: Path) -> GainTable:
     write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
                         speed_range(carriage)), folder)
     lib = simulation_library(carriage.structure)
@@ -130,7 +130,7 @@ def x86_times(folder: Path) -> dict:
 WHOLE_FILE_FLAGS = ("--max-configs=1",)
 
 
-def misra_counts(folder: Path, carriage: Carriage) -> dict:
+def misra_counts(folder: Path, carriage: DerivedCarriage) -> dict:
     def count(files: list[str], cwd: Path, *flags: str) -> tuple[dict[str, int], list[str]]:
         """MISRA findings by rule, and cppcheck's own findings (id file:line)."""
         import subprocess
@@ -218,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-misra", action="store_true",
                     help="skip cppcheck (minutes): keep the last counts")
     args = ap.parse_args(argv)
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     with tempfile.TemporaryDirectory(prefix="bench_fw_") as tmp:
         folder = Path(tmp)
         table = _sources(carriage, folder)

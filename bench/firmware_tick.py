@@ -39,9 +39,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import BENCH, ROOT, log, replace_section, run, worst_stack
 
-from maglevgen.carriage import Carriage
-from maglevgen.codegen.firmware import FIRMWARE_FLAGS, firmware_files
-from maglevgen.output import write_output
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.exports.firmware import FIRMWARE_FLAGS, firmware_files
+from maglevgen.infrastructure.output import write_output
 from maglevgen.params import load_params
 
 RESULTS = BENCH / "firmware_tick_results.json"
@@ -118,7 +118,7 @@ def _profile(pcs: list[int], dis: dict) -> tuple[Counter, Counter]:
 
 
 def measure() -> dict:
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     with tempfile.TemporaryDirectory(prefix="bench_tick_") as tmp:
         folder = Path(tmp) / "fw"
         write_output(firmware_files(carriage), folder)

@@ -25,12 +25,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import BENCH, log, paired_ratios, replace_section, summary
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.simulate import (
+    DISTURBANCE,
+    initial_state,
+    operating_point,
+    reference_trajectory,
+)
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.derive import conventions as cv
-from maglevgen.fmu import build_fmu
-from maglevgen.library import simulation_library
+from maglevgen.exports.fmu import build_fmu
 from maglevgen.params import load_params
-from maglevgen.simulate import DISTURBANCE, initial_state, operating_point, reference_trajectory
+from maglevgen.runtime.library import simulation_library
 
 RESULTS = BENCH / "fmu_results.json"
 CS_T_END, DT = 10.0, 1e-3
@@ -42,7 +47,7 @@ def measure(repeats: int) -> dict:
     from fmpy import extract, read_model_description, simulate_fmu
     from fmpy.fmi2 import FMU2Slave
 
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     p, min_gap = carriage.p, carriage.params.track.min_gap
     op = operating_point(lib, p, carriage.params.operation.speed, min_gap)

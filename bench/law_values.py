@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.params import load_params
 from maglevgen.runtime.ffi import GeneratedLibrary
 
@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--law", default="distributed")
     ap.add_argument("--samples", type=int, default=200)
     args = ap.parse_args(argv)
-    carriage = Carriage(load_params()).with_array_force(args.law)
+    carriage = DerivedCarriage(load_params()).with_array_force(args.law)
     p = carriage.p
     old, new = GeneratedLibrary(args.old), GeneratedLibrary(args.new)
     worst = dict.fromkeys(("dynamics", "jacobians", "stiffness", "trim"), 0.0)

@@ -3,7 +3,7 @@
     .venv/bin/python bench/laws.py [--reps N] [--out FILE] [LABEL=LIBRARY.so ...]
 
 Builds (or reuses) the run-time-parameter library of the default carriage under each force
-law (maglevgen.library.simulation_library: the cache of MAGLEVGEN_CACHE), writes each one's
+law (maglevgen.runtime.library.simulation_library: the cache of MAGLEVGEN_CACHE), writes each one's
 inputs (the trim at operation.speed, a state 1 mm off it, the LQR hold run of `maglevgen
 simulate`: 10 s at 1 kHz), and times maglev_dynamics, maglev_jacobians, maglev_trim,
 maglev_stiffness and one maglev_simulate run of every library from one C process
@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 from common import BENCH, DRIVER_DIR, log, paired_ratios, run, summary
 
-from maglevgen.carriage import Carriage
-from maglevgen.library import simulation_library
-from maglevgen.operating import Weights, operating_point
+from maglevgen.analyses.simulate import DISTURBANCE, initial_state
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.operating import Weights, operating_point
 from maglevgen.params import load_params
-from maglevgen.simulate import DISTURBANCE, initial_state
+from maglevgen.runtime.library import simulation_library
 
 LAWS = ("point", "distributed")
 FUNCTIONS = ("dynamics", "jacobians", "trim", "stiffness", "closed_loop")
@@ -39,7 +39,7 @@ def _fmt(values) -> str:
     return " ".join(repr(float(v)) for v in np.ravel(values))
 
 
-def write_input(carriage: Carriage, lib, path: Path) -> Path:
+def write_input(carriage: DerivedCarriage, lib, path: Path) -> Path:
     """The driver's input for ``carriage`` (bench/c/bench_laws.c's INPUT)."""
     pr = carriage.params
     speed = float(pr.operation.speed)
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(tempfile.mkdtemp(prefix="bench_laws_"))
     exe = work / "bench_laws"
     run(["gcc", "-std=c99", "-O2", "-o", exe, DRIVER_DIR / "bench_laws.c", "-ldl"])
-    base = Carriage(load_params())
+    base = DerivedCarriage(load_params())
     libs, inputs = {}, {}
     for law in LAWS:
         carriage = base.with_array_force(law)

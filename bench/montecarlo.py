@@ -20,23 +20,23 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import BENCH, log, summary
 
-from maglevgen.carriage import Carriage
-from maglevgen.derive import conventions as cv
-from maglevgen.library import simulation_library
-from maglevgen.montecarlo import (
+from maglevgen.analyses.montecarlo import (
     make_study,
     run_local,
     sample_inputs,
     sample_parameters,
 )
-from maglevgen.operating import operating_point
+from maglevgen.analyses.simulate import AXIS_STATES, simulate
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.operating import operating_point
+from maglevgen.derive import conventions as cv
 from maglevgen.params import load_params
-from maglevgen.simulate import AXIS_STATES, simulate
+from maglevgen.runtime.library import simulation_library
 
 T_END, DT, CONTROLLER = 10.0, 1e-3, "coupled"
 
 
-def _python_sample(carriage: Carriage, study, lib, i: int) -> float:
+def _python_sample(carriage: DerivedCarriage, study, lib, i: int) -> float:
     """Sample i the way an engineer would without the toolchain's C: SciPy's trim on the
     lambdified model, then solve_ivp (RK45, rtol 1e-6) of the closed loop. The gains are the
     C's (the same op), so only the trim and the integration are replaced. Seconds."""
@@ -75,7 +75,7 @@ def _python_sample(carriage: Carriage, study, lib, i: int) -> float:
 
 
 def run(quick: bool = False, big: int | None = None) -> dict:
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     study = make_study(carriage, lib, (CONTROLLER,), T_END, DT, seed=1)
     load_start = os.getloadavg()

@@ -22,15 +22,15 @@ import sympy as sp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import BENCH, DRIVER_DIR, REFERENCE_DIR, log, paired_ratios, run, summary
 
-from maglevgen.carriage import Carriage
-from maglevgen.library import runtime_sources
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.params import load_params
+from maglevgen.runtime.library import runtime_sources
 
 FLAGS = ["-std=c99", "-O2"]  # bench/native.py SPEED_FLAGS: the same as the other C figures
 N_SAMPLES = 64
 
 
-def sympy_c(carriage: Carriage) -> tuple[str, float]:
+def sympy_c(carriage: DerivedCarriage) -> tuple[str, float]:
     """C99 for xdot by sympy.cse + sympy.ccode: one function, doubles, no helper calls.
     Returns the source and the seconds SymPy took."""
     t0 = time.perf_counter()
@@ -70,7 +70,7 @@ extern "C" void symforce_dynamics(const double *x, const double *u, const double
 """
 
 
-def symforce_cpp(carriage: Carriage, out: Path) -> float | str:
+def symforce_cpp(carriage: DerivedCarriage, out: Path) -> float | str:
     """SymForce's C++ for xdot (its code generator with SymPy as the symbolic backend, fed
     the composed expression) in ``out``; the seconds it took, or why it is not there."""
     try:
@@ -97,7 +97,7 @@ def symforce_cpp(carriage: Carriage, out: Path) -> float | str:
     return time.perf_counter() - t0
 
 
-def samples(carriage: Carriage, lib) -> tuple[np.ndarray, np.ndarray]:
+def samples(carriage: DerivedCarriage, lib) -> tuple[np.ndarray, np.ndarray]:
     """N_SAMPLES states and inputs near the trim at the default speed."""
     x_trim, f_prop = (a.ravel() for a in lib.function("maglev_trim")(
         carriage.params.operation.speed, carriage.p))
@@ -111,9 +111,9 @@ def samples(carriage: Carriage, lib) -> tuple[np.ndarray, np.ndarray]:
 
 
 def run_peers(reps: int = 21, calls: int = 200_000) -> dict:
-    from maglevgen.library import simulation_library
+    from maglevgen.runtime.library import simulation_library
 
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     gen = runtime_sources(carriage.structure)
     log("peers: SymPy cse + ccode of the composed xdot")

@@ -24,12 +24,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import BENCH, ROOT
 
-from maglevgen import roa
-from maglevgen.carriage import Carriage
-from maglevgen.envelope import envelope_points
-from maglevgen.library import simulation_library
-from maglevgen.operating import AXIS_STATES, REDUCED_INDEX
+from maglevgen.analyses import roa
+from maglevgen.analyses.envelope import envelope_points
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.operating import AXIS_STATES, REDUCED_INDEX
 from maglevgen.params import load_params
+from maglevgen.runtime.library import simulation_library
 
 RESULTS = BENCH / "roa_results.json"
 BEGIN, END = "<!-- roa benchmark: bench/roa.py -->", "<!-- end of roa benchmark -->"
@@ -46,7 +46,7 @@ def _median(fn, rounds: int = 3) -> float:
 
 
 def main() -> None:
-    carriage = Carriage(load_params())
+    carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     (op,) = envelope_points(carriage, lib, [carriage.params.operation.speed])
     P = roa.lyapunov_matrix(op, "spec")

@@ -38,12 +38,12 @@ import workflow
 import writeup
 from common import BENCH, ROOT, log, paired_ratios, run, summary, time_calls
 
-from maglevgen.cache import toolchain_fingerprint
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.envelope import speed_range
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.functions import build_functions
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
-from maglevgen.controllers import allocation_matrix
-from maglevgen.envelope import speed_range
+from maglevgen.control.symbolic_reference import allocation_matrix
+from maglevgen.infrastructure.cache import toolchain_fingerprint
 from maglevgen.params import load_params
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedLibrary
@@ -184,7 +184,7 @@ def derivation(work: Path, reps: Repeats) -> dict:
 
 @dataclass
 class Setup:
-    carriage: Carriage
+    carriage: DerivedCarriage
     functions: tuple
     gen: dict[str, Path]
     lib: GeneratedLibrary
@@ -203,7 +203,7 @@ class Setup:
 
 def prepare(work: Path) -> Setup:
     log("deriving the default carriage and generating the three builds")
-    carriage = Carriage(load_params(None, []))
+    carriage = DerivedCarriage(load_params(None, []))
     functions = build_functions(carriage.model).functions
     gen = {}
     for precision, params in (("double", "runtime"), ("double", "baked"), ("single", "baked")):

@@ -227,9 +227,10 @@ def _derivation(r: dict) -> list[str]:
     return [
         f"Each run is a fresh Python process ({n} cold/cached pairs, seconds, median "
         "[quartiles]) doing what the first steps of `maglevgen build` do (bench/"
-        "derive_phases.py). The caches are the CLI's: maglevgen/cache.py (the memo store behind "
+        "derive_phases.py). The caches are the CLI's: "
+        "maglevgen/infrastructure/cache.py (the memo store behind "
         "derive/memo.py, holding the derivation steps and the lambdified model) and "
-        "maglevgen/library.py (the generated run-time-parameter C and the compiled library), "
+        "runtime/library.py (the generated run-time-parameter C and the compiled library), "
         "all keyed by the toolchain's source, the library versions and the carriage's structure, "
         "never by parameter values. *Cold*: empty cache folder ($MAGLEVGEN_CACHE). *Cached*: a "
         "second fresh process on the folder the cold run filled. " + cache_note,
@@ -304,7 +305,7 @@ def _workflow(r: dict) -> list[str]:
         if not bad
         else "**Not as planned:** " + "; ".join(bad) + ". (A step re-derived in every build, "
         "the toolchain unchanged, is most likely one whose memo entry the next process cannot "
-        "read back: maglevgen/cache.py treats an unreadable entry as absent.)"
+        "read back: maglevgen/infrastructure/cache.py treats an unreadable entry as absent.)"
     )
     return [
         *_floor(wf),

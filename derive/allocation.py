@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from .geometry import control_effectiveness
+from maglevgen.derive.geometry import control_effectiveness
 
 __all__ = [
     "RankReport",

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from .memo import memoized
+from maglevgen.derive.memo import memoized
 
 __all__ = [
     "DampingDerivation",

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from .structure import CONTROL_AXES, NORMAL_AXIS, control_components
+from maglevgen.derive.structure import CONTROL_AXES, NORMAL_AXIS, control_components
 
 __all__ = ["CONTROL_AXES", "NORMAL_AXIS", "ArraySymbols", "array_gap", "array_gap_rate",
            "array_speed",

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from . import conventions as cv
-from .geometry import array_wrench
-from .memo import memoized
-from .model import CarriageModel, Structure, build_model, inertia_cg_matrix
-from .rigid_body import inertia_about_origin
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.geometry import array_wrench
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.model import CarriageModel, Structure, build_model, inertia_cg_matrix
+from maglevgen.derive.rigid_body import inertia_about_origin
 
 GENERALIZED_FORCES: tuple[str, ...] = ("F_y", "F_z", "M_x", "M_y", "M_z")
 Q_STATES = cv.Q_STATES  # re-exported: the axis coordinates live in conventions

@@ -4,7 +4,8 @@ The derivation depends on the carriage's structure, never on parameter values, s
 steps (differentiating the wrench, solving the Riccati equation, lambdifying) are pure
 functions of hashable arguments. ``memoized`` keeps their results in the process and, when a
 store is installed, across processes. derive/ does no I/O itself: the application installs
-the store (maglevgen.cache.DiskStore), which must key an entry by the source of everything
+the store (maglevgen.infrastructure.cache.DiskStore), which must key an entry by the source of
+everything
 the computing module (passed with the key) depends on.
 """
 

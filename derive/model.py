@@ -17,10 +17,14 @@ from functools import lru_cache
 
 import sympy as sp
 
-from . import conventions as cv
-from .circuit_lag import distributed_lag, drag_rate_per_circuit, lift_rate_per_circuit
-from .distributed import distributed_load, face_axes
-from .geometry import (
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.circuit_lag import (
+    distributed_lag,
+    drag_rate_per_circuit,
+    lift_rate_per_circuit,
+)
+from maglevgen.derive.distributed import distributed_load, face_axes
+from maglevgen.derive.geometry import (
     ArraySymbols,
     array_gap,
     array_gap_rate,
@@ -28,9 +32,14 @@ from .geometry import (
     array_wrench,
     control_direction,
 )
-from .inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
-from .rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
-from .structure import Structure, box_principal_moments, explicit_inertia, input_names_of
+from maglevgen.derive.inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
+from maglevgen.derive.rigid_body import body_accelerations, euler_rates, rotation_body_to_inertial
+from maglevgen.derive.structure import (
+    Structure,
+    box_principal_moments,
+    explicit_inertia,
+    input_names_of,
+)
 
 __all__ = ["CarriageModel", "Structure", "build_model", "inertia_cg_matrix", "input_names_of",
            "symbol_name"]

@@ -14,11 +14,11 @@ from typing import Protocol
 import numpy as np
 import sympy as sp
 
-from . import conventions as cv
-from .conventions import Q_STATES
-from .linearize import generalized_mass_expr, stiffness_form, stiffness_parts
-from .memo import memoized
-from .model import CarriageModel, Structure, build_model
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.conventions import Q_STATES
+from maglevgen.derive.linearize import generalized_mass_expr, stiffness_form, stiffness_parts
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.model import CarriageModel, Structure, build_model
 
 
 class Equilibrium(Protocol):

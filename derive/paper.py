@@ -15,9 +15,9 @@ from collections.abc import Sequence
 
 import sympy as sp
 
-from .allocation import minimum_norm_allocation
-from .memo import memoized
-from .riccati import axis_matrices, riccati_closed_form, riccati_residual
+from maglevgen.derive.allocation import minimum_norm_allocation
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.riccati import axis_matrices, riccati_closed_form, riccati_residual
 
 __all__ = [
     "PAPER_FORCES",

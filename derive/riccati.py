@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg
 import sympy as sp
 
-from .memo import memoized
+from maglevgen.derive.memo import memoized
 
 __all__ = [
     "AxisLQR",

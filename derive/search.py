@@ -1,7 +1,7 @@
 """The lift-off search: the lowest speed with a trim, by bisection on whether one exists.
 
 One definition for both sides of the toolchain: the derivation's Python trim
-(`derive.trim.lift_off_speed`) and the compiled C's (`maglevgen.envelope.lift_off_speed`)
+(`derive.trim.lift_off_speed`) and the compiled C's (`maglevgen.analyses.envelope.lift_off_speed`)
 pass their own test of "a trim exists at v". Imports nothing: the simulation path reads it
 without SymPy or SciPy.
 """

@@ -34,7 +34,7 @@ from functools import cache
 
 import sympy as sp
 
-from .riccati import riccati_stable_form
+from maglevgen.derive.riccati import riccati_stable_form
 
 __all__ = ["RateWeightForm", "bryson_weights", "damping_ratio_form", "rate_weight_form"]
 

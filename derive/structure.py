@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from . import conventions as cv
+from maglevgen.derive import conventions as cv
 
 # Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).
 CONTROL_AXES: tuple[str, ...] = ("y", "z")

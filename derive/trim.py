@@ -32,8 +32,8 @@ import numpy as np
 import sympy as sp
 from scipy.optimize import brentq, root
 
-from .numeric import ModelFunctions
-from .search import lowest_trim_speed
+from maglevgen.derive.numeric import ModelFunctions
+from maglevgen.derive.search import lowest_trim_speed
 
 
 class NoTrimError(ValueError):

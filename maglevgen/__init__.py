@@ -9,8 +9,8 @@ command line) stays light.
 import os
 from typing import Any
 
-from .errors import InputError, MaglevError, NoTrimError, VerificationError
-from .version import __version__
+from maglevgen.errors import InputError, MaglevError, NoTrimError, VerificationError
+from maglevgen.version import __version__
 
 __all__ = [
     "Carriage",
@@ -36,7 +36,7 @@ _API = frozenset({"Carriage", "EnvelopeResult", "Gains", "MonteCarloResult", "Re
 def __getattr__(name: str) -> Any:
     """The API's names, imported from maglevgen.api when first asked for (PEP 562)."""
     if name in _API:
-        from . import api
+        from maglevgen import api
 
         return getattr(api, name)
     raise AttributeError(f"module 'maglevgen' has no attribute {name!r}")

@@ -50,29 +50,29 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import laws
-from . import progress as steps  # the commands' progress lines (stdlib only)
-from .derive import conventions as cv
-from .errors import InputError
-from .fmu import DEFAULT_FMI
+from maglevgen import control
+from maglevgen.derive import conventions as cv
+from maglevgen.errors import InputError
+from maglevgen.exports.fmu import DEFAULT_FMI
+from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
 
 if TYPE_CHECKING:
     import control
     import pandas
 
-    from .build import BuildResult
-    from .carriage import Carriage as _Carriage
-    from .library import SimulationLibrary
-    from .operating import OperatingPoint
-    from .params import Parameters
-    from .simulate import SimulationRun, Trajectory
+    from maglevgen.analyses.simulate import SimulationRun, Trajectory
+    from maglevgen.build import BuildResult
+    from maglevgen.carriage import DerivedCarriage
+    from maglevgen.control.operating import OperatingPoint
+    from maglevgen.params import Parameters
+    from maglevgen.runtime.library import SimulationLibrary
 
 __all__ = ["Carriage", "EnvelopeResult", "Gains", "MonteCarloResult", "RegionResult",
            "ReportResult", "SimulationResult", "SimulationRuns", "TrimResult", "load"]
 
 STATE_NAMES: tuple[str, ...] = tuple(s.name for s in cv.STATES)
 AXES: tuple[str, ...] = tuple(cv.AXES)
-CONTROLLERS: tuple[str, ...] = laws.names()
+CONTROLLERS: tuple[str, ...] = control.names()
 
 
 def load(params: str | Path | None = None, overrides: Sequence[str] = ()) -> Carriage:
@@ -365,7 +365,8 @@ class EnvelopeResult:
         Per controller: the verdict line the CLI prints.
     speed_pole : numpy.ndarray
         The forward-speed mode under the trim propulsion [1/s] per speed: the speed eigenvalue
-        of the embedded controller's 12-state closed loop (``maglevgen.operating.SpeedMode``).
+        of the embedded controller's 12-state closed loop
+        (``maglevgen.control.operating.SpeedMode``).
     paths : tuple of pathlib.Path
         The files written (``out``), else empty.
     report : dict
@@ -540,7 +541,7 @@ class Carriage:
     """
 
     def __init__(self, params: str | Path | None = None, overrides: Sequence[str] = ()) -> None:
-        from .params import load_params
+        from maglevgen.params import load_params
 
         if isinstance(overrides, str):  # one "NAME=VALUE" would iterate by character
             overrides = (overrides,)
@@ -578,7 +579,7 @@ class Carriage:
     def input_names(self) -> tuple[str, ...]:
         """F_prop and the force component of each array [N]: F_y1, F_z1, ... (eqs 22-23,
         control.actuators = "paper") or F_n1, ... along the normals ("normal")."""
-        from .derive.structure import input_names_of
+        from maglevgen.derive.structure import input_names_of
 
         return tuple(input_names_of(self._carriage.structure))
 
@@ -588,12 +589,12 @@ class Carriage:
         return tuple(self.params.arrays)
 
     @cached_property
-    def _carriage(self) -> _Carriage:
+    def _carriage(self) -> DerivedCarriage:
         """The model, built when a method first needs it: after its options are checked
         (bad input is refused before any work, as on the command line)."""
-        from .carriage import Carriage as _Carriage
+        from maglevgen.carriage import DerivedCarriage
 
-        return _Carriage(self._loaded)
+        return DerivedCarriage(self._loaded)
 
     @cached_property
     def _lib(self) -> SimulationLibrary:
@@ -603,7 +604,7 @@ class Carriage:
 
     def _speed(self, speed: float | None) -> float:
         """The speed asked for, checked as ``--speed`` is; None: operation.speed."""
-        from .params import check_key_option
+        from maglevgen.params import check_key_option
 
         if speed is None:
             return float(self.params.operation.speed)
@@ -611,7 +612,7 @@ class Carriage:
         return float(speed)
 
     def _operating_point(self, speed: float | None) -> OperatingPoint:
-        from .operating import Weights, operating_point
+        from maglevgen.control.operating import Weights, operating_point
 
         v = self._speed(speed)  # before the library is built
         return operating_point(self._lib, self._carriage.p, v,
@@ -779,7 +780,7 @@ class Carriage:
         >>> bool(np.all(lqr.poles.real < 0))
         False
         """
-        from .operating import N_AXES, REDUCED_STATES
+        from maglevgen.control.operating import N_AXES, REDUCED_STATES
 
         _check_controller(controller)
         op = self._operating_point(speed)
@@ -838,7 +839,7 @@ class Carriage:
         """
         import control
 
-        from .operating import REDUCED_STATES
+        from maglevgen.control.operating import REDUCED_STATES
 
         if model not in ("full", "reduced"):
             raise InputError(f"model {model!r}: expected 'full' or 'reduced'")
@@ -898,10 +899,10 @@ class Carriage:
             raise InputError(f"axis {axis!r}: expected one of {', '.join(AXES)} "
                              f"(or {', '.join(cv.Q_STATES)})")
         i = AXES.index(name)
-        summary = _commands()
+        queries = _commands()
         v = self._speed(speed)
-        lib = summary.library_of(self._carriage)
-        v = summary.trim_point(self._carriage, lib, v).speed  # or no trim
+        lib = queries.library_of(self._carriage)
+        v = queries.trim_point(self._carriage, lib, v).speed  # or no trim
         k, m = (float(a.ravel()[i]) for a in lib.function("maglev_axis_plants")(
             v, self._carriage.p))
         q = cv.Q_STATES[i]
@@ -1035,8 +1036,8 @@ class Carriage:
         >>> float(runs.runs["spec"].x[0, 2] - runs.runs["spec"].x[-1, 2]) > 0
         True
         """
-        from .simulate import CONTROLLERS as ALL
-        from .simulate import run_scenarios
+        from maglevgen.analyses.simulate import CONTROLLERS as ALL
+        from maglevgen.analyses.simulate import run_scenarios
 
         if controller != "all":
             _check_controller(controller)
@@ -1057,8 +1058,8 @@ class Carriage:
                             disturbance=initial, loop=loop)
         paths: tuple[Path, ...] = ()
         if out is not None:
-            from .codegen.generate import write_output
-            from .sim_output import render_results
+            from maglevgen.analyses.sim_output import render_results
+            from maglevgen.codegen.generate import write_output
 
             files = render_results(run.trajectories, run.input_names,
                                    run.header(self._carriage.loaded.sha256))
@@ -1067,7 +1068,7 @@ class Carriage:
             steps.step(f"warning: {run.warning}")
         checks: dict[str, dict] = {}
         if check:
-            from .simulate import reference_check
+            from maglevgen.analyses.simulate import reference_check
 
             if progress:
                 steps.step("checking against DOP853 (rtol 1e-12) on the lambdified model")
@@ -1115,13 +1116,13 @@ class Carriage:
         >>> env.verdicts["coupled"][:6]
         'stable'
         """
-        summary = _commands()
-        env = summary.envelope_of(self._carriage, n_speeds)
+        queries = _commands()
+        env = queries.envelope_of(self._carriage, n_speeds)
         rep = env.to_json()
         paths: tuple[Path, ...] = ()
         if out is not None:
-            from .envelope import envelope_markdown, stability_map_png
-            from .output import write_output
+            from maglevgen.analyses.envelope import envelope_markdown, stability_map_png
+            from maglevgen.infrastructure.output import write_output
 
             paths = tuple(write_output({"envelope.json": json.dumps(rep, indent=1) + "\n",
                                         "envelope.md": envelope_markdown(env),
@@ -1136,7 +1137,7 @@ class Carriage:
             unstable_ranges={n: e.unstable_ranges for n, e in c.items()},
             verdicts={n: e.verdict for n, e in c.items()}, speed_pole=env.speed_pole,
             paths=paths, report=rep,
-            lines=tuple(summary.verdict_lines(env, self.params.envelope.embedded_controller)))
+            lines=tuple(queries.verdict_lines(env, self.params.envelope.embedded_controller)))
 
     def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
                    t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
@@ -1196,9 +1197,15 @@ class Carriage:
         >>> sorted(s["controllers"])
         ['spec']
         """
-        from .montecarlo import CONTROLLERS, default_workers, make_study, output_files, run_study
-        from .output import check_writable, write_output
-        from .simulate import run_loop
+        from maglevgen.analyses.montecarlo import (
+            CONTROLLERS,
+            default_workers,
+            make_study,
+            output_files,
+            run_study,
+        )
+        from maglevgen.analyses.simulate import run_loop
+        from maglevgen.infrastructure.output import check_writable, write_output
 
         choice = controller or self.params.envelope.embedded_controller
         if choice != "all":
@@ -1237,7 +1244,7 @@ class Carriage:
         equation); the largest level c with dV/dt < 0 on the nonlinear closed loop (the
         generated C, batched in ``maglev_lyapunov_batch``) and every gap above track.min_gap
         at every sampled state of {V <= c}, then confirmed by runs of the firmware loop from
-        states on {V = c} (`maglevgen.roa`). A sampled estimate, not a proof.
+        states on {V = c} (`maglevgen.analyses.roa`). A sampled estimate, not a proof.
 
         Parameters
         ----------
@@ -1273,8 +1280,8 @@ class Carriage:
         >>> sorted(r.levels)
         ['spec']
         """
-        from . import roa
-        from .output import check_writable, write_output
+        from maglevgen.analyses import roa
+        from maglevgen.infrastructure.output import check_writable, write_output
 
         choice = controller or self.params.envelope.embedded_controller
         if choice != "all":
@@ -1347,12 +1354,12 @@ class Carriage:
         >>> "maglev.h" in names and "manifest.json" in names
         True
         """
-        from .codegen.generate import GenerateOptions, render, write_output
+        from maglevgen.codegen.generate import GenerateOptions, render, write_output
 
         opts = GenerateOptions(precision, parameters, int_type, single_file)  # checks them
         speeds = None
         if opts.parameters == "baked":  # the trim's accepted speeds baked with the parameters
-            from .envelope import speed_range
+            from maglevgen.analyses.envelope import speed_range
 
             speeds = speed_range(self._carriage)
         return list(write_output(render(self._carriage, opts, speeds), Path(out)))
@@ -1394,8 +1401,8 @@ class Carriage:
         >>> "maglev_tick.c" in names
         True
         """
-        from .codegen.firmware import firmware_files
-        from .output import check_writable, write_output
+        from maglevgen.exports.firmware import firmware_files
+        from maglevgen.infrastructure.output import check_writable, write_output
 
         check_writable(Path(out))
         return list(write_output(firmware_files(self._carriage, precision, with_plant),
@@ -1440,7 +1447,7 @@ class Carriage:
         >>> "report.tex" in names
         True
         """
-        from .report import INSTALL_HINT, ReportOptions, write_report
+        from maglevgen.report import INSTALL_HINT, ReportOptions, write_report
 
         opts = ReportOptions(simulation=Path(simulation) if simulation else None)
         res = write_report(self._carriage, Path(out), opts,
@@ -1474,7 +1481,8 @@ class Carriage:
             The controller inside the FMU (default: ``envelope.embedded_controller``, the
             one the firmware embeds); ``external``: the generalized forces are inputs.
         fmi : {'2', '3'}, optional
-            The FMI version (``--fmi``): 2.0 (default, ``maglevgen.fmu.DEFAULT_FMI``) or 3.0,
+            The FMI version (``--fmi``): 2.0 (default,
+                             ``maglevgen.exports.fmu.DEFAULT_FMI``) or 3.0,
             the same variables.
         loop : {'firmware', 'continuous'}, optional
             ``--loop``: the built-in controller at the tick of ``[control.spec]`` with its
@@ -1503,8 +1511,8 @@ class Carriage:
         >>> path.name, size > 0
         ('maglev.fmu', True)
         """
-        from .fmu import FMU_NAME, build_fmu
-        from .output import write_output
+        from maglevgen.exports.fmu import FMU_NAME, build_fmu
+        from maglevgen.infrastructure.output import write_output
 
         controller = controller or self.params.envelope.embedded_controller
         data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop,
@@ -1563,7 +1571,7 @@ class Carriage:
         ...
         maglevgen.errors.InputError: --dt 5: ...
         """
-        from .build import BuildOptions, build_folder
+        from maglevgen.build import BuildOptions, build_folder
 
         opts = BuildOptions(t_end=t_end, dt=dt, pdf=pdf, allow_unstable=allow_unstable)
         res = build_folder(self._source, self._overrides, Path(out), opts, controller,
@@ -1580,9 +1588,9 @@ def _commands() -> ModuleType:
     """The module holding the functions behind the commands (trim_report, gains_report,
     envelope_of, envelope_verdicts, verdict_lines, library_of): the one place this API
     names it."""
-    from . import summary
+    from maglevgen.analyses import queries
 
-    return summary
+    return queries
 
 
 def _quiet(_message: str) -> None:
@@ -1590,7 +1598,7 @@ def _quiet(_message: str) -> None:
 
 
 def _check_run_options(t_end: float, dt: float) -> None:
-    from .params import check_run_options
+    from maglevgen.params import check_run_options
 
     check_run_options(t_end, dt)
 
@@ -1604,8 +1612,8 @@ def _check_controller(controller: str) -> None:
 def _simulation_result(run: SimulationRun, traj: Trajectory,
                        check: dict | None) -> SimulationResult:
     """One run of a `SimulationRun`, with the CSV file's column names."""
-    from .sim_output import columns
-    from .simulate import metrics, spec_verdict
+    from maglevgen.analyses.sim_output import columns
+    from maglevgen.analyses.simulate import metrics, spec_verdict
 
     verdict = spec_verdict(traj)
     cols = columns(run.input_names, traj.gaps.shape[1])

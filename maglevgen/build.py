@@ -1,9 +1,10 @@
 """`maglevgen build`: the main job. Parameters -> C -> library -> simulations -> report.
 
-Slow, parameter-independent work is cached on disk (maglevgen.library: the derivation's C,
+Slow, parameter-independent work is cached on disk (maglevgen.runtime.library: the derivation's C,
 the compiled library, the lambdified model), so after a parameter edit only the
 parameter-dependent steps run. The whole output tree is assembled in a temporary folder and
-swapped in at once (maglevgen.output); BUILD.json records the key of the inputs and every
+swapped in at once (maglevgen.infrastructure.output); BUILD.json records the key of the inputs and
+every
 file's checksum, so an unchanged rebuild verifies the tree and does nothing else.
 """
 
@@ -18,18 +19,18 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from . import progress
-from .cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
-from .columns import fcolumn_plain
-from .errors import VerificationError
-from .hashing import ContentHash, file_sha256, sha256_hex
-from .output import check_writable, clean_stale_siblings, write_output
-from .version import __version__
-from .workers import Job, PendingFiles, Shared, child, submit
+from maglevgen.errors import VerificationError
+from maglevgen.infrastructure import progress
+from maglevgen.infrastructure.cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
+from maglevgen.infrastructure.columns import fcolumn_plain
+from maglevgen.infrastructure.hashing import ContentHash, file_sha256, sha256_hex
+from maglevgen.infrastructure.output import check_writable, clean_stale_siblings, write_output
+from maglevgen.infrastructure.workers import Job, PendingFiles, Shared, child, submit
+from maglevgen.version import __version__
 
 if TYPE_CHECKING:
-    from .params import LoadedParams
-    from .run_spec import RunVerdict
+    from maglevgen.analyses.run_spec import RunVerdict
+    from maglevgen.params import LoadedParams
 
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"
@@ -47,7 +48,7 @@ class BuildOptions:
 
 
 def _compiler_identity() -> str:
-    from .runtime.compile import compiler_name
+    from maglevgen.runtime.compile import compiler_name
 
     name = compiler_name()
     return f"{name}={shutil.which(name)}"
@@ -145,7 +146,7 @@ def build_folder(params: str | Path | None, overrides: Sequence[str], out_dir: s
     res = cached_result(None if params is None else str(params), overrides, out_dir, opts)
     if res is not None:
         return res
-    from .params import check_run_options, load_params
+    from maglevgen.params import check_run_options, load_params
 
     with progress.held():  # bad input found here is the only line on stderr
         loaded = load_params(params, overrides)
@@ -164,16 +165,16 @@ def check_build_inputs(loaded: LoadedParams) -> None:
     is announced: the envelope's speed range has a trim (envelope.v_min above lift-off);
     an InputError naming the key otherwise. The library is cached for run_build, and so are
     the other models' (`other_structures`), built meanwhile in a second process."""
-    from .carriage import Carriage
-    from .envelope import resolve_range
-    from .library import (
+    from maglevgen.analyses.envelope import resolve_range
+    from maglevgen.carriage import DerivedCarriage
+    from maglevgen.runtime.library import (
         build_libraries,
         cached_simulation_library,
         runtime_sources,
         simulation_library,
     )
 
-    carriage = Carriage(loaded)
+    carriage = DerivedCarriage(loaded)
     others = [s for s in other_structures(carriage) if cached_simulation_library(s) is None]
     # a cold cache: the other models' libraries (which run_build's envelope and report read)
     # derived and compiled in a second process while this one makes the carriage's own
@@ -206,27 +207,27 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     if up_to_date(out_dir, key):
         return _unchanged(out_dir)
 
-    from . import roa
-    from .cache import STORE
-    from .carriage import Carriage
-    from .envelope import compute_envelope, envelope_markdown
-    from .library import (
-        build_libraries,
-        cached_simulation_library,
-        runtime_sources,
-        simulation_library,
-    )
-    from .sim_output import (
+    from maglevgen.analyses import roa
+    from maglevgen.analyses.envelope import compute_envelope, envelope_markdown
+    from maglevgen.analyses.sim_output import (
         FIGURE_NAMES,
         render_figures,
         render_metrics,
         render_trajectories,
         trajectory_names,
     )
-    from .simulate import CONTROLLERS, run_scenarios
+    from maglevgen.analyses.simulate import CONTROLLERS, run_scenarios
+    from maglevgen.carriage import DerivedCarriage
+    from maglevgen.infrastructure.cache import STORE
+    from maglevgen.runtime.library import (
+        build_libraries,
+        cached_simulation_library,
+        runtime_sources,
+        simulation_library,
+    )
 
     STORE.progress = step  # announce the derivation steps that are not cached yet
-    carriage = Carriage(loaded)
+    carriage = DerivedCarriage(loaded)
     files: dict[str, str | bytes] = {}
     others = [s for s in other_structures(carriage) if cached_simulation_library(s) is None]
     # the other models' libraries (the envelope's model checks, the report's comparisons),
@@ -311,14 +312,14 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 
 def other_structures(carriage) -> list:
     """The structures, other than the carriage's own, whose libraries a build reads: the
-    envelope's alternate models (maglevgen.envelope.alternate_models: the other force law,
+    envelope's alternate models (maglevgen.analyses.envelope.alternate_models: the other force law,
     the other circuit dynamics, which the report's stiffness and circuit-lag sections compare
     too) and the report's other actuator models (report.sections.actuators.with_actuators:
     only control.actuators changed, whose structure is made here without importing the
     report, SymPy and SciPy), in that order, each once."""
-    from .carriage import structure_of
-    from .envelope import alternate_models
-    from .params import ACTUATOR_MODELS
+    from maglevgen.analyses.envelope import alternate_models
+    from maglevgen.carriage import structure_of
+    from maglevgen.params import ACTUATOR_MODELS
 
     params = carriage.params
     out = [alt.structure for _, alt in alternate_models(carriage)]
@@ -333,8 +334,8 @@ def _schedule_c(carriage, lib, env) -> str:
     envelope.launch_acceleration, the constant-speed gains; envelope.launch_schedule)."""
     import numpy as np
 
-    from .envelope import envelope_points, launch_schedule
-    from .schedule import schedule_c_source
+    from maglevgen.analyses.envelope import envelope_points, launch_schedule
+    from maglevgen.control.schedule import schedule_c_source
 
     nodes = np.linspace(env.v_min, env.v_max, carriage.params.envelope.schedule_nodes)
     points = envelope_points(carriage, lib, nodes)
@@ -345,8 +346,8 @@ def _schedule_c(carriage, lib, env) -> str:
 def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
     """c/maglev_gain_table.{c,h}: the firmware's table schedule over ``env``'s range, and its
     measured worst error added to c/manifest.json (``gain_table``)."""
-    from .envelope import gain_table
-    from .schedule import gain_table_sources
+    from maglevgen.analyses.envelope import gain_table
+    from maglevgen.control.schedule import gain_table_sources
 
     table = gain_table(carriage, lib, env.v_min, env.v_max)
     data = json.loads(manifest)
@@ -356,7 +357,7 @@ def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
 
 
 def _stability_map(env) -> dict[str, bytes]:
-    from .envelope import stability_map_png
+    from maglevgen.analyses.envelope import stability_map_png
 
     return {"envelope/stability_map.png": stability_map_png(env)}
 
@@ -372,11 +373,11 @@ class JudgedRun:
 
 def embedded_runs(carriage, lib, env, run, opts: BuildOptions) -> tuple[JudgedRun, ...]:
     """The embedded controller in the firmware loop, judged against ``[control.spec]``
-    (`maglevgen.run_spec`): held at envelope.v_min, at the build's run speed (that run,
+    (`maglevgen.analyses.run_spec`): held at envelope.v_min, at the build's run speed (that run,
     reused) and at v_max for opts.t_end, and launched from v_min to v_max, the ends and the
     launch being where the linear verdict's worst cases lie (the gains' ends of the table,
     the accelerating trim's smallest gaps)."""
-    from .simulate import run_scenarios, spec_verdict
+    from maglevgen.analyses.simulate import run_scenarios, spec_verdict
 
     name = carriage.params.envelope.embedded_controller
     own = next((t for t in run.trajectories if t.controller == name), None)
@@ -426,7 +427,7 @@ def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = ()) -> st
 def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
     """c/: the cached run-time-parameter sources, and the interface files for these parameters
     (maglev.h, main.c, CMake example, manifest)."""
-    from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
+    from maglevgen.codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
 
     files: dict[str, str | bytes] = {f"c/{f.name}": f.read_bytes()
                                      for f in sorted(folder.iterdir()) if f.suffix in (".c", ".h")}
@@ -440,9 +441,9 @@ def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
 def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
     """Have ``drawing`` draw the report's force figures at the compiled library's trim (the
     curves are the library's array forces; v_c, eq 3's displayed form, imports SymPy)."""
-    from .report import force_curves
-    from .report_figures import force_figures
-    from .summary import trim_point
+    from maglevgen.analyses.queries import trim_point
+    from maglevgen.report import force_curves
+    from maglevgen.report.figures import force_figures
 
     return submit(drawing, "drawing the report figures", force_figures,
                   force_curves(carriage, trim_point(carriage, lib, None), lib))
@@ -455,7 +456,7 @@ def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
     ``gain_table``: c/manifest.json's entry (the report shows its numbers); ``run``: the
     build's hold runs, which the actuator comparison reuses when they have its length and step;
     ``region``: (the regions of attraction, their figure)."""
-    from .report import RUN_DT, RUN_T_END, report_files
+    from maglevgen.report import RUN_DT, RUN_T_END, report_files
 
     same = (opts.t_end, opts.dt) == (RUN_T_END, RUN_DT) and run.scenario == "hold"
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,
@@ -466,7 +467,7 @@ def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
 
 def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
     """What report/ holds, and why report.pdf is not among them when it is not."""
-    from .texsetup import INSTALL_HINT
+    from maglevgen.infrastructure.texsetup import INSTALL_HINT
 
     names = ", ".join(n for n in ("report.tex", "report.pdf") if n in report)
     if "report.pdf" in report:
@@ -480,13 +481,18 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
                  regions=None, judged: tuple[JudgedRun, ...] = ()) -> str:
     """Where each output is, and the numbers an engineer checks first; ``report``: what
     report/ holds (see `report_outputs`); ``regions``: the embedded controller's region of
-    attraction (maglevgen.roa), when computed; ``judged``: the embedded controller's runs
+    attraction (maglevgen.analyses.roa), when computed; ``judged``: the embedded controller's runs
     against [control.spec] (`embedded_runs`)."""
     import numpy as np
 
-    from .magnetic_damping import axis_damping
-    from .operating import CONTROLLER_TITLES
-    from .summary import accelerating_margins, pitch_paper_form, stiffness_table, trim_point
+    from maglevgen.analyses.magnetic_damping import axis_damping
+    from maglevgen.analyses.queries import (
+        accelerating_margins,
+        pitch_paper_form,
+        stiffness_table,
+        trim_point,
+    )
+    from maglevgen.control.operating import CONTROLLER_TITLES
 
     op = run.op
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
@@ -514,7 +520,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         lines += [f"The embedded controller's gains on the other models: "
                   f"{env.robustness_verdict()}."]
     if regions:
-        from .roa import summary_lines
+        from maglevgen.analyses.roa import summary_lines
 
         lines += ["", *summary_lines(regions[0])]
     names = list(carriage.params.arrays)
@@ -593,7 +599,7 @@ def _md_unit(unit: str) -> str:
 
 def _run_spec_lines(run) -> list[str]:
     """The runs against [control.spec] (`simulate.spec_verdict`): a block of its own."""
-    from .simulate import spec_verdict
+    from maglevgen.analyses.simulate import spec_verdict
 
     verdicts = [(t.controller, v) for t in run.trajectories
                 if (v := spec_verdict(t)) is not None]

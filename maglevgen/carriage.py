@@ -12,17 +12,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .cache import install_store
-from .derive import conventions as cv
-from .derive.structure import Structure, control_components
-from .errors import NoTrimError
-from .params import LoadedParams, ModelChoices, Parameters, flatten
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.structure import Structure, control_components
+from maglevgen.errors import NoTrimError
+from maglevgen.infrastructure.cache import install_store
+from maglevgen.params import LoadedParams, ModelChoices, Parameters, flatten
 
 if TYPE_CHECKING:  # the symbolic layers are imported when first used: running the compiled
     # model (maglevgen simulate, the build's simulations) needs only the parameters
-    from .derive.model import CarriageModel
-    from .derive.numeric import ModelFunctions
-    from .derive.trim import Trim
+    from maglevgen.derive.model import CarriageModel
+    from maglevgen.derive.numeric import ModelFunctions
+    from maglevgen.derive.trim import Trim
 
 
 def structure_of(params: Parameters) -> Structure:
@@ -53,7 +53,7 @@ _STIFFNESS_UNITS = {"lateral": "N/m", "vertical": "N/m", "roll": "N*m/rad", "pit
                     "yaw": "N*m/rad"}
 
 
-class Carriage:
+class DerivedCarriage:
     """Parameters, model and derived numbers of one carriage."""
 
     def __init__(self, loaded: LoadedParams) -> None:
@@ -72,22 +72,23 @@ class Carriage:
     def functions(self) -> ModelFunctions:
         """The lambdified model: an independent reference for the compiled library (the
         report's verification table, `simulate --check`, the tests), never the source of a
-        printed number (maglevgen.summary reads those from the C). Memoised across processes
-        (derive.memo, maglevgen.cache) under a content hash of derive/'s sources."""
-        from .derive.numeric import model_functions
+        printed number (maglevgen.analyses.queries reads those from the C). Memoised across
+        processes
+        (derive.memo, maglevgen.infrastructure.cache) under a content hash of derive/'s sources."""
+        from maglevgen.derive.numeric import model_functions
 
         return model_functions(self.structure)
 
     @property
     def model(self) -> CarriageModel:
         """The symbolic model (what the report displays): SymPy only, nothing lambdified."""
-        from .derive.numeric import symbolic_model
+        from maglevgen.derive.numeric import symbolic_model
 
         return symbolic_model(self.structure)
 
     def trim(self, speed: float | None = None) -> Trim:
         """The equilibrium at ``speed`` (default: operation.speed), solved once per speed."""
-        from .derive import trim
+        from maglevgen.derive import trim
 
         v = float(self.params.operation.speed if speed is None else speed)
         if v not in self._trims:
@@ -104,22 +105,22 @@ class Carriage:
 
     @cached_property
     def _lift_off(self) -> float:
-        from .derive.trim import lift_off_speed
+        from maglevgen.derive.trim import lift_off_speed
 
         return lift_off_speed(self.functions, self.p, self.params.track.min_gap)
 
     def linearize(self, trim: Trim) -> tuple[np.ndarray, np.ndarray]:
-        from .derive.numeric import linearize
+        from maglevgen.derive.numeric import linearize
 
         return linearize(self.functions, trim, self.p)
 
     def magnetic_stiffness(self, trim: Trim) -> np.ndarray:
-        from .derive.numeric import magnetic_stiffness
+        from maglevgen.derive.numeric import magnetic_stiffness
 
         return magnetic_stiffness(self.functions, trim, self.p)
 
     def total_stiffness(self, trim: Trim) -> np.ndarray:
-        from .derive.numeric import other_stiffness
+        from maglevgen.derive.numeric import other_stiffness
 
         return self.magnetic_stiffness(trim) + other_stiffness(self.functions, trim, self.p)
 
@@ -128,31 +129,31 @@ class Carriage:
         rotating arms, tilt across the face, gravity, propulsion: derive.linearize), from the
         lambdified split: the tests' reference for the library's maglev_stiffness_parts (what
         the report prints)."""
-        from .derive.numeric import stiffness_split
+        from maglevgen.derive.numeric import stiffness_split
 
         return stiffness_split(self.structure, trim, self.p)
 
-    def with_array_force(self, law: str) -> Carriage:
+    def with_array_force(self, law: str) -> DerivedCarriage:
         """This carriage with model.array_force = ``law`` (itself when it already has it)."""
         if law == self.params.model.array_force:
             return self
         return self._with_model("array_force", law)
 
-    def with_circuit_dynamics(self, dynamics: str) -> Carriage:
+    def with_circuit_dynamics(self, dynamics: str) -> DerivedCarriage:
         """This carriage with model.circuit_dynamics = ``dynamics`` (itself when it has it)."""
         if dynamics == self.params.model.circuit_dynamics:
             return self
         return self._with_model("circuit_dynamics", dynamics)
 
-    def _with_model(self, key: str, value: str) -> Carriage:
+    def _with_model(self, key: str, value: str) -> DerivedCarriage:
         """This carriage with model.<key> = ``value``, the other model choices kept."""
         choices = ModelChoices(**{**self.params.model.model_dump(), key: value})
         params = self.params.model_copy(update={"model": choices})
-        return Carriage(LoadedParams(params, self.loaded.source, self.loaded.sha256,
+        return DerivedCarriage(LoadedParams(params, self.loaded.source, self.loaded.sha256,
                                      (*self.loaded.overrides, f'model.{key}="{value}"')))
 
     def generalized_mass(self) -> np.ndarray:
-        from .derive.numeric import generalized_mass
+        from maglevgen.derive.numeric import generalized_mass
 
         return generalized_mass(self.model, self.p)
 
@@ -188,10 +189,10 @@ class Carriage:
 def stiffness_rows(kin: dict[str, float], K_mag: np.ndarray,
                    K_tot: np.ndarray) -> list[StiffnessRow]:
     """Per-axis rows of K_st0 (magnetic) and of the total stiffness beside the paper's printed
-    eqs 13-19 evaluated at ``kin`` (`Carriage.paper_stiffness_inputs`)."""
+    eqs 13-19 evaluated at ``kin`` (`DerivedCarriage.paper_stiffness_inputs`)."""
     import sympy as sp
 
-    from .derive.paper import paper_stiffness
+    from maglevgen.derive.paper import paper_stiffness
 
     syms = {name: sp.Symbol(name) for name in kin}
     printed = paper_stiffness(**syms)

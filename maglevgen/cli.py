@@ -20,13 +20,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-from .columns import fcolumn_plain
-from .derive import conventions as cv
-from .errors import MaglevError
-from .version import __version__
+from maglevgen.derive import conventions as cv
+from maglevgen.errors import MaglevError
+from maglevgen.infrastructure.columns import fcolumn_plain
+from maglevgen.version import __version__
 
 if TYPE_CHECKING:
-    from .api import Carriage
+    from maglevgen.api import Carriage
 
 # The API (numpy) and the parameter schema (pydantic) are imported by the commands that need
 # them, so that `maglevgen --help` and `maglevgen build` on an up-to-date folder answer
@@ -56,7 +56,7 @@ def _loop_option(p: argparse.ArgumentParser) -> None:
 
 def _carriage(args: argparse.Namespace) -> Carriage:
     """The API's carriage of ``--params`` and ``--set`` (`maglevgen.Carriage`)."""
-    from . import api
+    from maglevgen import api
 
     return api.Carriage(args.params, args.overrides)
 
@@ -65,7 +65,7 @@ def _carriage(args: argparse.Namespace) -> Carriage:
 
 
 def cmd_params_show(args: argparse.Namespace) -> int:
-    from .params import annotate_with_units, default_params_text, load_params
+    from maglevgen.params import annotate_with_units, default_params_text, load_params
 
     if args.params or args.overrides:
         load_params(args.params, args.overrides)  # validate what is shown
@@ -80,7 +80,7 @@ def cmd_params_show(args: argparse.Namespace) -> int:
 
 
 def cmd_params_schema(args: argparse.Namespace) -> int:
-    from .params import schema_table
+    from maglevgen.params import schema_table
 
     rows = schema_table()
     width = max(len(r[0]) for r in rows)
@@ -132,7 +132,7 @@ def cmd_trim(args: argparse.Namespace) -> int:
 
 
 def cmd_gains(args: argparse.Namespace) -> int:
-    from . import summary
+    from maglevgen.analyses import queries
 
     carriage = _carriage(args)
     report = carriage.gains_report(args.speed)
@@ -148,7 +148,7 @@ def cmd_gains(args: argparse.Namespace) -> int:
     print(f"  {'axis':<9}{'k':>12}{'m':>10}{'K1 (closed)':>14}{'K2 (closed)':>13}"
           f"{'K numerical':>26}{'K paper eq 32':>26}  more accurate")
     axes = list(rep["axes"].values())
-    # each column in one notation (maglevgen.columns): no 0.000223524 above 2.96472e-05
+    # each column in one notation (infrastructure.columns): no 0.000223524 above 2.96472e-05
     columns = [fcolumn_plain([a["stiffness"] for a in axes], 5),
                fcolumn_plain([a["inertia"] for a in axes], 4),
                *(fcolumn_plain([a[key][i] for a in axes], 6)
@@ -175,8 +175,8 @@ def cmd_gains(args: argparse.Namespace) -> int:
           f"{', '.join(e['forces'])} (N, N, N m, N m, N m), columns {', '.join(e['axes'])} "
           "(m, m, rad, rad, rad; per second for K_rate)")
     for label, K in (("K_pos", e["K_pos"]), ("K_rate", e["K_rate"])):
-        print(f"  {label}:")  # round-off of a zero printed as 0 (summary.GAIN_ROUNDOFF)
-        for name, row in zip(e["forces"], summary.displayed_gains(K), strict=True):
+        print(f"  {label}:")  # round-off of a zero printed as 0 (queries.GAIN_ROUNDOFF)
+        for name, row in zip(e["forces"], queries.displayed_gains(K), strict=True):
             print(f"    {name:<8}" + "".join(f"{v:12.4g}" for v in row))
     if "weights" in e:
         w = e["weights"]
@@ -222,7 +222,7 @@ def cmd_roa(args: argparse.Namespace) -> int:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from .codegen.generate import GenerateOptions
+    from maglevgen.codegen.generate import GenerateOptions
 
     opts = GenerateOptions(args.precision, args.parameters, args.int, args.single_file)
     paths = _carriage(args).generate(args.out, opts.precision, opts.parameters, opts.int_type,
@@ -306,7 +306,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def cmd_fmu(args: argparse.Namespace) -> int:
-    from .fmu import FMI_VERSIONS
+    from maglevgen.exports.fmu import FMI_VERSIONS
 
     carriage = _carriage(args)
     path = carriage.fmu(args.out, args.kind, args.controller, args.fmi, args.loop,
@@ -334,8 +334,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_build(args: argparse.Namespace) -> int:
     # not through maglevgen.Carriage: an up-to-date folder answers without numpy or the schema
-    from . import progress
-    from .build import BuildOptions, build_folder
+    from maglevgen.build import BuildOptions, build_folder
+    from maglevgen.infrastructure import progress
 
     opts = BuildOptions(t_end=args.t_end, dt=args.dt, pdf=not args.no_pdf,
                         allow_unstable=args.allow_unstable)
@@ -378,9 +378,9 @@ class _Controllers:
         self.embeddable_only, self.extra = embeddable_only, extra
 
     def _names(self) -> tuple[str, ...]:
-        from . import laws
+        from maglevgen import control
 
-        return (laws.embeddable() if self.embeddable_only else laws.names()) + self.extra
+        return (control.embeddable() if self.embeddable_only else control.names()) + self.extra
 
     def __iter__(self):
         return iter(self._names())
@@ -521,8 +521,8 @@ def build_parser() -> argparse.ArgumentParser:
     roa.add_argument("--out", metavar="DIR",
                      help="also write roa.json, roa.md and roa_extent.png")
     roa.set_defaults(func=cmd_roa)
-    from .fmu import DEFAULT_FMI, FMI_VERSIONS, FMU_LOOPS
-    from .fmu import KINDS as FMU_KINDS
+    from maglevgen.exports.fmu import DEFAULT_FMI, FMI_VERSIONS, FMU_LOOPS
+    from maglevgen.exports.fmu import KINDS as FMU_KINDS
 
     fmu = sub.add_parser("fmu", help="FMI 2.0 or 3.0 FMU (model exchange, co-simulation) of the "
                                      "carriage")
@@ -581,8 +581,8 @@ def _json_default(o: object) -> object:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from .cache import STORE
-    from .progress import step
+    from maglevgen.infrastructure.cache import STORE
+    from maglevgen.infrastructure.progress import step
 
     parser = build_parser()
     args = parser.parse_args(argv)

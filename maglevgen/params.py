@@ -20,11 +20,13 @@ from typing import Annotated, Any, get_args, get_origin
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from .cache import DEFAULT_PARAMS_NAME, params_digest
-from .derive.conventions import DISTURBANCE  # the initial disturbance of `maglevgen simulate`
-from .derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
-from .errors import InputError
-from .laws import embeddable
+from maglevgen.control import embeddable
+from maglevgen.derive.conventions import (
+    DISTURBANCE,  # the initial disturbance of `maglevgen simulate`
+)
+from maglevgen.derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
+from maglevgen.errors import InputError
+from maglevgen.infrastructure.cache import DEFAULT_PARAMS_NAME, params_digest
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -464,7 +466,7 @@ class Tolerances(_Section):
     @field_validator("disturbance")
     @classmethod
     def _known_states(cls, amps: dict[str, float]) -> dict[str, float]:
-        from .derive.conventions import STATE_INDEX
+        from maglevgen.derive.conventions import STATE_INDEX
 
         for name, amp in amps.items():
             if name not in STATE_INDEX:
@@ -570,7 +572,7 @@ class Parameters(_Section):
     def _tolerances_within_limits(self) -> None:
         """The file is refused when a tolerance can draw a value outside its key's range:
         every sample then passes the key checks (the cross-key rules are checked per sample,
-        maglevgen.montecarlo)."""
+        maglevgen.analyses.montecarlo)."""
         values = {e.name: e.value for e in flatten(self)}
         for key, tol in self.tolerances.parameters.items():
             where = f"tolerances.parameters.{key}"

@@ -9,9 +9,9 @@ import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from maglevgen.cache import default_cache_dir, write_atomic
 from maglevgen.errors import InputError, MaglevError
-from maglevgen.hashing import ContentHash, file_sha256
+from maglevgen.infrastructure.cache import default_cache_dir, write_atomic
+from maglevgen.infrastructure.hashing import ContentHash, file_sha256
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
 

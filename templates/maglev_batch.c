@@ -4,8 +4,8 @@
    Not generated: the same driver serves every carriage. It is compiled on its own against the
    library's maglev_simulate.h (-I the library's derivation folder, for maglev_real and
    maglev_control_loop) and reaches maglev_simulate through the pointer it is given, so the
-   large generated library is neither recompiled nor linked again (maglevgen.library). Each run
-   is exactly the call maglevgen.simulate.simulate makes for it (maglev_simulate is reentrant:
+   large generated library is neither recompiled nor linked again (maglevgen.runtime.library). Each run
+   is exactly the call maglevgen.analyses.simulate.simulate makes for it (maglev_simulate is reentrant:
    its work arrays are on the stack), so a run's trajectory does not depend on the threads. */
 #include "maglev_simulate.h"
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.params import load_params
 
 _INSTALL = {
@@ -81,12 +81,12 @@ def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Co
 
 
 @pytest.fixture(scope="session")
-def carriage() -> Carriage:
-    return Carriage(load_params())
+def carriage() -> DerivedCarriage:
+    return DerivedCarriage(load_params())
 
 
 @pytest.fixture(scope="session")
-def trim(carriage: Carriage):
+def trim(carriage: DerivedCarriage):
     return carriage.trim()
 
 
@@ -188,17 +188,17 @@ def seeded_cache(tmp_path_factory, private_cache) -> str:
 
 
 @pytest.fixture(scope="session")
-def sim_lib(carriage: Carriage, private_cache):
+def sim_lib(carriage: DerivedCarriage, private_cache):
     """The compiled run-time-parameter simulation library of the default carriage."""
-    from maglevgen.library import simulation_library
+    from maglevgen.runtime.library import simulation_library
 
     return simulation_library(carriage.structure)
 
 
 @pytest.fixture(scope="session")
-def op(sim_lib, carriage: Carriage):
+def op(sim_lib, carriage: DerivedCarriage):
     """Trim and gains at the default speed, from the generated C."""
-    from maglevgen.simulate import Weights, operating_point
+    from maglevgen.analyses.simulate import Weights, operating_point
 
     return operating_point(sim_lib, carriage.p, carriage.params.operation.speed,
                            carriage.params.track.min_gap, Weights.of(carriage.params))

@@ -11,8 +11,8 @@ import pytest
 import scipy.linalg
 import sympy as sp
 
-from maglevgen.carriage import Carriage
-from maglevgen.controllers import allocation_matrix
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.symbolic_reference import allocation_matrix
 from maglevgen.params import load_params
 
 NORMAL = 'control.actuators="normal"'
@@ -43,13 +43,13 @@ def effectiveness(actuators: str) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def normal_carriage() -> Carriage:
-    return Carriage(load_params(overrides=[NORMAL]))
+def normal_carriage() -> DerivedCarriage:
+    return DerivedCarriage(load_params(overrides=[NORMAL]))
 
 
 @pytest.fixture(scope="module")
 def normal_lib(normal_carriage, private_cache):
-    from maglevgen.library import simulation_library
+    from maglevgen.runtime.library import simulation_library
 
     return simulation_library(normal_carriage.structure)
 
@@ -80,7 +80,7 @@ def test_normal_actuators_leave_roll_about_the_lines_crossing_uncontrolled() -> 
 @pytest.mark.parametrize("actuators", ["paper", "normal"])
 def test_derived_allocation_is_the_pseudoinverse(actuators: str) -> None:
     """controllers.allocation_matrix (derive.allocation's minimum-norm T) = pinv(E)."""
-    c = Carriage(load_params(overrides=[f'control.actuators="{actuators}"']))
+    c = DerivedCarriage(load_params(overrides=[f'control.actuators="{actuators}"']))
     T = allocation_matrix(c)
     np.testing.assert_allclose(T, np.linalg.pinv(effectiveness(actuators)), atol=1e-13)
 
@@ -146,7 +146,7 @@ def test_model_applies_each_normal_force_along_its_normal(normal_carriage) -> No
 def test_simulated_array_forces_lie_along_the_normals(normal_carriage, normal_lib) -> None:
     """In a closed-loop run of the C with normal actuators, each array's control force is one
     number per array (F_n) and the generalized forces it makes are E F with E built here."""
-    from maglevgen.simulate import Weights, metrics, operating_point, simulate
+    from maglevgen.analyses.simulate import Weights, metrics, operating_point, simulate
 
     prm = normal_carriage.params
     op = operating_point(normal_lib, normal_carriage.p, prm.operation.speed, prm.track.min_gap,
@@ -190,7 +190,7 @@ def _inertia_at(overrides: list[str]) -> np.ndarray:
     """The model's inertia about the CG at the parameter values (its symbols substituted)."""
     from maglevgen.derive.model import inertia_cg_matrix
 
-    c = Carriage(load_params(overrides=overrides))
+    c = DerivedCarriage(load_params(overrides=overrides))
     model = c.model
     values = dict(zip(model.p, c.p, strict=True))
     inertia = inertia_cg_matrix(model.param, model.structure.param_names)
@@ -214,10 +214,10 @@ def test_mass_doubles_the_box_inertia_and_leaves_the_explicit_one() -> None:
 def test_box_keeps_the_parameter_vector_free_of_the_tensor() -> None:
     """With "box" the tensor's entries leave the parameter vector (the box's dimensions enter
     it), so a sampled or overridden mass moves the inertia in the compiled model too."""
-    names = [e.name for e in Carriage(load_params(overrides=[BOX])).entries]
+    names = [e.name for e in DerivedCarriage(load_params(overrides=[BOX])).entries]
     assert "vehicle.width" in names and "vehicle.height" in names
     assert not any(n.startswith("vehicle.inertia_cg") for n in names)
-    default = [e.name for e in Carriage(load_params()).entries]
+    default = [e.name for e in DerivedCarriage(load_params()).entries]
     assert "vehicle.width" not in default and "vehicle.inertia_cg.xz" in default
 
 
@@ -248,8 +248,8 @@ def normal_firmware(normal_carriage, normal_lib, tmp_path_factory):
     int32`) with normal actuators, compiled for the host with WARN; its library."""
     import subprocess
 
+    from maglevgen.analyses.envelope import resolve_range
     from maglevgen.codegen.generate import GenerateOptions, render, write_output
-    from maglevgen.envelope import resolve_range
     from runtime.ffi import GeneratedLibrary
 
     out = tmp_path_factory.mktemp("normal_firmware")

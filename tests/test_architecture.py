@@ -21,9 +21,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 # pyproject.toml [tool.setuptools.package-dir]
-LAYOUT = {"maglevgen": "maglevgen", "maglevgen.laws": "maglevgen/laws",
-          "maglevgen.derive": "derive",
-          "maglevgen.runtime": "runtime", "maglevgen.codegen": "maglevgen/codegen",
+LAYOUT = {"maglevgen": "maglevgen", "maglevgen.infrastructure": "maglevgen/infrastructure",
+          "maglevgen.derive": "derive", "maglevgen.codegen": "maglevgen/codegen",
+          "maglevgen.runtime": "runtime", "maglevgen.control": "maglevgen/control",
+          "maglevgen.analyses": "maglevgen/analyses", "maglevgen.exports": "maglevgen/exports",
           "maglevgen.report": "maglevgen/report",
           "maglevgen.report.sections": "maglevgen/report/sections"}
 
@@ -32,9 +33,10 @@ LAYOUT = {"maglevgen": "maglevgen", "maglevgen.laws": "maglevgen/laws",
 # First-party targets are module names, third-party ones their top-level package.
 # The commands reach the stages through the API (maglevgen.api); `build` through the function
 # the API calls (an up-to-date folder without numpy), `params` through the schema.
-_CLI_STAGES = ("maglevgen.build", "maglevgen.codegen.generate", "maglevgen.fmu",
-               "maglevgen.params", "maglevgen.progress", "maglevgen.summary", "maglevgen.cache",
-               "maglevgen.laws", "numpy", "maglevgen.api")
+_CLI_STAGES = ("maglevgen.build", "maglevgen.codegen.generate", "maglevgen.exports.fmu",
+               "maglevgen.params", "maglevgen.infrastructure.progress",
+               "maglevgen.analyses.queries", "maglevgen.infrastructure.cache",
+               "maglevgen.control", "numpy", "maglevgen.api")
 LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.cli": (
         "start-up: a command imports its own stage only; an up-to-date `maglevgen build` "
@@ -42,51 +44,53 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.build": (
         "the unchanged rebuild (< 0.5 s) reads the parameter text and BUILD.json only; the "
         "stages are imported when something has to be built",
-        ("maglevgen.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
-         "maglevgen.envelope", "maglevgen.library",
-         "maglevgen.magnetic_damping", "maglevgen.operating", "maglevgen.params",
-         "maglevgen.runtime.compile", "maglevgen.schedule",
-         "maglevgen.sim_output", "maglevgen.simulate", "maglevgen.summary",
-         "maglevgen.texsetup", "maglevgen.report", "maglevgen.report_figures", "numpy",
-         "maglevgen.roa")),
+        ("maglevgen.infrastructure.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
+         "maglevgen.analyses.envelope", "maglevgen.runtime.library",
+         "maglevgen.analyses.magnetic_damping", "maglevgen.control.operating",
+         "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
+         "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
+         "maglevgen.analyses.queries", "maglevgen.infrastructure.texsetup", "maglevgen.report",
+         "maglevgen.report.figures", "numpy", "maglevgen.analyses.roa")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
         "symbolic layers load when a carriage first needs them",
         ("maglevgen.derive.numeric", "maglevgen.derive.trim", "maglevgen.derive.paper",
          "sympy")),
-    "maglevgen.cache": ("hashing a key imports nothing heavy; cloudpickle reads an entry",
-                        ("cloudpickle",)),
-    "maglevgen.library": ("a cached library is loaded without SymPy or CasADi; the batch "
-                          "driver's source is looked up when a batch runs",
-                          ("maglevgen.codegen.generate", "maglevgen.derive.model",
-                           "importlib")),
-    "maglevgen.laws.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
-    "maglevgen.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
-    "maglevgen.schedule": ("the simulation path stays SciPy-free; the firmware table's C "
-                           "only when written", ("scipy", "maglevgen.codegen.checks",
-                                                 "maglevgen.codegen.emit", "numpy")),
+    "maglevgen.infrastructure.cache": (
+        "hashing a key imports nothing heavy; cloudpickle reads an entry", ("cloudpickle",)),
+    "maglevgen.runtime.library": (
+        "a cached library is loaded without SymPy or CasADi; the batch driver's source is "
+        "looked up when a batch runs",
+        ("maglevgen.codegen.generate", "maglevgen.derive.model", "importlib")),
+    "maglevgen.control.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.control.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.control.schedule": (
+        "the simulation path stays SciPy-free; the firmware table's C only when written",
+        ("scipy", "maglevgen.codegen.checks", "maglevgen.codegen.emit", "numpy")),
     "maglevgen.runtime.ffi": ("the error codes' names only when a generated function fails",
                               ("maglevgen.codegen.checks",)),
     "maglevgen.codegen.checks": ("the ctypes runtime reads the error codes without jinja2: "
                                  "the checks' C is rendered (and CasADi's edited) only when C "
                                  "is generated", ("maglevgen.codegen.cpass",
                                                   "maglevgen.codegen.emit")),
-    "maglevgen.simulate": (
+    "maglevgen.analyses.simulate": (
         "a hold run needs neither the envelope nor SciPy (the launch and --check do)",
-        ("maglevgen.envelope", "maglevgen.library", "scipy")),
-    "maglevgen.fmu": (
+        ("maglevgen.analyses.envelope", "maglevgen.runtime.library", "scipy")),
+    "maglevgen.exports.fmu": (
         "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
-        ("maglevgen.codegen.interface", "maglevgen.codegen.emit", "maglevgen.cache",
-         "maglevgen.library", "maglevgen.operating", "maglevgen.runtime.compile",
-         "maglevgen.simulate", "maglevgen.laws", "fmpy")),
-    "maglevgen.envelope": ("matplotlib only when the stability map is drawn", ("matplotlib",)),
-    "maglevgen.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
-                      ("scipy", "matplotlib")),
-    "maglevgen.sim_output": ("matplotlib only when figures are drawn", ("matplotlib",)),
-    "maglevgen.report_figures": ("matplotlib only when figures are drawn",
+        ("maglevgen.codegen.interface", "maglevgen.codegen.emit",
+         "maglevgen.infrastructure.cache", "maglevgen.runtime.library",
+         "maglevgen.control.operating", "maglevgen.runtime.compile",
+         "maglevgen.analyses.simulate", "maglevgen.control", "fmpy")),
+    "maglevgen.analyses.envelope": ("matplotlib only when the stability map is drawn",
+                                    ("matplotlib",)),
+    "maglevgen.analyses.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
+                               ("scipy", "matplotlib")),
+    "maglevgen.analyses.sim_output": ("matplotlib only when figures are drawn", ("matplotlib",)),
+    "maglevgen.report.figures": ("matplotlib only when figures are drawn",
                                  ("matplotlib", "cycler", "math")),
-    "maglevgen.progress": ("rich (and the clock) only when a terminal shows progress",
-                           ("rich", "time")),
+    "maglevgen.infrastructure.progress": (
+        "rich (and the clock) only when a terminal shows progress", ("rich", "time")),
     "maglevgen.derive.riccati": ("python-control is a reference only", ("control",)),
     "maglevgen.derive.paper": ("sympy.physics.units for the paper's printed units",
                                ("sympy",)),
@@ -95,17 +99,19 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.api": (
         "each method imports the stage it runs, as the CLI's commands do (a script that only "
         "simulates loads no SymPy); pandas and python-control only where they are returned",
-        ("control", "maglevgen.build", "maglevgen.carriage", "maglevgen.codegen.firmware",
+        ("control", "maglevgen.build", "maglevgen.carriage", "maglevgen.exports.firmware",
          "maglevgen.codegen.generate",
-         "maglevgen.derive.structure", "maglevgen.envelope", "maglevgen.fmu",
-         "maglevgen.montecarlo", "maglevgen.operating", "maglevgen.output", "maglevgen.params",
-         "maglevgen.report", "maglevgen.roa", "maglevgen.sim_output", "maglevgen.simulate",
-         "maglevgen.summary", "pandas")),
-    "maglevgen.montecarlo": (
+         "maglevgen.derive.structure", "maglevgen.analyses.envelope", "maglevgen.exports.fmu",
+         "maglevgen.analyses.montecarlo", "maglevgen.control.operating",
+         "maglevgen.infrastructure.output", "maglevgen.params", "maglevgen.report",
+         "maglevgen.analyses.roa", "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
+         "maglevgen.analyses.queries", "pandas")),
+    "maglevgen.analyses.montecarlo": (
         "a worker process imports the stages when its first chunk runs; Dask only with "
         "--scheduler, pyarrow only for the Parquet table, matplotlib only for the plots",
-        ("distributed", "maglevgen.envelope", "maglevgen.library", "maglevgen.params",
-         "maglevgen.roa", "matplotlib", "pyarrow", "re", "warnings")),
+        ("distributed", "maglevgen.analyses.envelope", "maglevgen.runtime.library",
+         "maglevgen.params", "maglevgen.analyses.roa", "matplotlib", "pyarrow", "re",
+         "warnings")),
     "maglevgen.params": ("the schema validates without the derivation's conventions unless a "
                          "tolerance names a state", ("maglevgen.derive.conventions",)),
     "maglevgen.report.display": ("SymPy and the number formats only when a display is built",
@@ -211,6 +217,53 @@ def test_no_import_cycles() -> None:
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
 
+# The pipeline's layers, first to last (README's layout table): a module imports from its own
+# layer and earlier ones only. derive/ (pure), the errors and the version come first.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("maglevgen.derive", "maglevgen.errors", "maglevgen.version"),
+    ("maglevgen.infrastructure",),
+    ("maglevgen.params", "maglevgen.carriage"),
+    ("maglevgen.codegen",),
+    ("maglevgen.runtime",),
+    ("maglevgen.control",),
+    ("maglevgen.analyses",),
+    ("maglevgen.exports",),
+    ("maglevgen.report",),
+    ("maglevgen.api", "maglevgen.build", "maglevgen.cli", "maglevgen"),
+)
+# The one import against the order, and why: the schema checks a controller's name against
+# the registry, whose definitions import nothing of the application outside themselves
+# (test_the_controller_definitions_stand_alone).
+UPWARD_IMPORTS = {("maglevgen.params", "maglevgen.control")}
+CONTROLLER_DEFINITIONS = ("maglevgen.control", "maglevgen.control.registry",
+                          "maglevgen.control.paper_designs", "maglevgen.control.spec",
+                          "maglevgen.control.lqr")
+
+
+def _layer(module: str) -> int:
+    best = max(((len(prefix), i) for i, names in enumerate(LAYERS) for prefix in names
+                if module == prefix or module.startswith(prefix + ".")), default=None)
+    assert best is not None, f"{module} is in no layer of LAYERS"
+    return best[1]
+
+
+def test_imports_follow_the_pipeline() -> None:
+    """Every module imports only from its own layer and the layers before it."""
+    bad = [f"{m} -> {t}" for m, targets in _graph().items() for t in sorted(targets)
+           if _layer(t) > _layer(m) and (m, t) not in UPWARD_IMPORTS]
+    assert bad == []
+    planted = {"maglevgen.derive.model": {"maglevgen.report.format"}}  # the check itself
+    assert [m for m, ts in planted.items() for t in ts if _layer(t) > _layer(m)] == [
+        "maglevgen.derive.model"]
+
+
+def test_the_controller_definitions_stand_alone() -> None:
+    """What the schema imports of the registry imports nothing else of the application."""
+    graph = _graph()
+    assert all(graph[m] <= set(CONTROLLER_DEFINITIONS) for m in CONTROLLER_DEFINITIONS), {
+        m: graph[m] - set(CONTROLLER_DEFINITIONS) for m in CONTROLLER_DEFINITIONS}
+
+
 def test_derive_imports_nothing_from_the_application() -> None:
     """derive/ is pure SymPy: it imports only derive/ and third-party libraries."""
     bad = [(m, t) for m in MODULES if m.startswith("maglevgen.derive")
@@ -249,9 +302,9 @@ def test_function_local_imports_are_the_listed_light_paths() -> None:
 
 
 def test_one_content_hash_helper() -> None:
-    """hashlib is imported by maglevgen.hashing alone."""
+    """hashlib is imported by maglevgen.infrastructure.hashing alone."""
     users = sorted(m for m in MODULES for t, _ in _imports(m) if t == "hashlib")
-    assert users == ["maglevgen.hashing"]
+    assert users == ["maglevgen.infrastructure.hashing"]
 
 
 def test_content_hash_frames_its_parts() -> None:
@@ -259,8 +312,8 @@ def test_content_hash_frames_its_parts() -> None:
     same order give the same key; a parameter file's digest is its plain sha256."""
     import hashlib
 
-    from maglevgen.cache import params_digest
-    from maglevgen.hashing import ContentHash, sha256_hex
+    from maglevgen.infrastructure.cache import params_digest
+    from maglevgen.infrastructure.hashing import ContentHash, sha256_hex
 
     assert ContentHash("ab", "c").hexdigest() != ContentHash("a", "bc").hexdigest()
     assert ContentHash().text("x", "1").hexdigest() != ContentHash().text("y", "1").hexdigest()
@@ -278,8 +331,8 @@ _PROBE = textwrap.dedent("""
     import sys
     import maglevgen
     assert maglevgen.__file__.startswith(sys.argv[1]), maglevgen.__file__
-    from maglevgen.cache import install_store
-    from maglevgen.controllers import _minimum_norm
+    from maglevgen.infrastructure.cache import install_store
+    from maglevgen.control.symbolic_reference import _minimum_norm
     store = install_store()
     _minimum_norm(((1.0, 0.0, 1.0), (0.0, 1.0, 1.0)))
     print(store.misses)
@@ -297,8 +350,8 @@ def _installed_copy(dest: Path) -> Path:
 
 
 def test_editing_a_memoised_modules_source_misses_the_cache(tmp_path: Path) -> None:
-    """controllers.py memoises `_minimum_norm` across processes: an edit to it, or to a module
-    it imports, is a miss; an edit to a module it does not depend on is a hit."""
+    """control/symbolic_reference.py memoises `_minimum_norm` across processes: an edit to it,
+    or to a module it imports, is a miss; an edit to a module it does not depend on is a hit."""
     top = _installed_copy(tmp_path / "src")
     env = {**os.environ, "PYTHONPATH": str(tmp_path / "src"),
            "MAGLEVGEN_CACHE": str(tmp_path / "cache")}
@@ -311,24 +364,24 @@ def test_editing_a_memoised_modules_source_misses_the_cache(tmp_path: Path) -> N
 
     assert misses() == 1  # cold
     assert misses() == 0  # the same sources: read back from the disk store
-    with (top / "controllers.py").open("a") as f:
+    with (top / "control" / "symbolic_reference.py").open("a") as f:
         f.write("\n# an edit\n")
     assert misses() == 1
     assert misses() == 0
-    with (top / "derive" / "allocation.py").open("a") as f:  # imported by controllers
+    with (top / "derive" / "allocation.py").open("a") as f:  # imported by it
         f.write("\n# an edit\n")
     assert misses() == 1
-    with (top / "sim_output.py").open("a") as f:  # controllers does not depend on it
+    with (top / "analyses" / "sim_output.py").open("a") as f:  # not imported by it
         f.write("\n# an edit\n")
     assert misses() == 0
 
 
 @pytest.mark.parametrize("module", sorted(MODULES))
 def test_a_memo_key_covers_the_modules_imports(module: str) -> None:
-    """The source closure a cache key hashes (maglevgen.hashing: a scan of the import
+    """The source closure a cache key hashes (maglevgen.infrastructure.hashing: a scan of the import
     statements) holds every module ``module`` imports, directly or not (this file's ast
     walker as the reference)."""
-    from maglevgen.hashing import source_closure
+    from maglevgen.infrastructure.hashing import source_closure
 
     graph, seen, todo = _graph(), {module}, [module]
     while todo:
@@ -371,7 +424,8 @@ def test_the_cached_c_is_keyed_by_the_generators_sources(tmp_path: Path) -> None
     top = _installed_copy(tmp_path / "src")
     env = {**os.environ, "PYTHONPATH": str(tmp_path / "src")}
     code = ("import sys, maglevgen; assert maglevgen.__file__.startswith(sys.argv[1]); "
-            "from maglevgen.cache import derivation_fingerprint; print(derivation_fingerprint())")
+            "from maglevgen.infrastructure.cache import derivation_fingerprint; "
+            "print(derivation_fingerprint())")
 
     def key() -> str:
         out = subprocess.run([sys.executable, "-c", code, str(top)], capture_output=True,
@@ -382,7 +436,8 @@ def test_the_cached_c_is_keyed_by_the_generators_sources(tmp_path: Path) -> None
     keys = [key()]
     for rel in ("codegen/functions.py", "derive/geometry.py",
                 "templates/maglev_simulate.c.j2", "templates/maglev_checks.c.j2",
-                "sim_output.py"):
+                "analyses/sim_output.py"):
+        assert (top / rel).is_file(), rel
         with (top / rel).open("a") as f:
             f.write("\n" + ("{# an edit #}" if rel.endswith(".j2") else "# an edit") + "\n")
         keys.append(key())

@@ -1,4 +1,4 @@
-"""The Monte-Carlo batch in C (templates/maglev_batch.c, maglevgen.simulate.simulate_batch)
+"""The Monte-Carlo batch in C (templates/maglev_batch.c, maglevgen.analyses.simulate.simulate_batch)
 against today's per-sample path: every run is maglev_simulate called once per run by the
 batch driver on several threads, against `simulate` calling it from Python (chunked, one
 sample after another). Same inputs, so the trajectories and the study's rows must be equal
@@ -11,9 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from maglevgen.montecarlo import make_study, run_sample, run_samples_batch
-from maglevgen.sampled import Tick
-from maglevgen.simulate import Weights, operating_point, simulate, simulate_batch
+from maglevgen.analyses.montecarlo import make_study, run_sample, run_samples_batch
+from maglevgen.analyses.simulate import Weights, operating_point, simulate, simulate_batch
+from maglevgen.control.sampled import Tick
 
 
 @pytest.mark.needs_cc

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.cpass import generate_c
 from maglevgen.codegen.functions import build_functions
-from maglevgen.controllers import allocation_matrix
+from maglevgen.control.symbolic_reference import allocation_matrix
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.linearize import Q_STATES
 from maglevgen.params import load_params
@@ -40,11 +40,11 @@ def _ptr(a: np.ndarray) -> ctypes.POINTER:
 
 
 @pytest.fixture(scope="module")
-def carriage() -> Carriage:
+def carriage() -> DerivedCarriage:
     """The default carriage with the paper's point force law and quasi-static circuits (eq 3):
     the model the hand-written C implements (the distributed law is checked against its own
     quadrature reference, the circuits' lag in test_circuit_lag.py)."""
-    return Carriage(load_params(overrides=['model.array_force="point"',
+    return DerivedCarriage(load_params(overrides=['model.array_force="point"',
                                            'model.circuit_dynamics="quasi-static"']))
 
 
@@ -75,7 +75,7 @@ def reference(tmp_path_factory) -> ctypes.CDLL:
 
 
 @pytest.fixture(scope="module")
-def generated(carriage: Carriage, tmp_path_factory) -> GeneratedLibrary:
+def generated(carriage: DerivedCarriage, tmp_path_factory) -> GeneratedLibrary:
     """maglev_dynamics and maglev_allocate as `maglevgen generate --parameters runtime` emits
     them (the same Functions and C pass), in a library of their own."""
     wanted = ("maglev_dynamics", "maglev_allocate")
@@ -95,7 +95,7 @@ def _ref_xdot(lib: ctypes.CDLL, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> 
     return out
 
 
-def _samples(carriage: Carriage, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def _samples(carriage: DerivedCarriage, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """States scattered around trim (mm, mrad, a few m/s) and array forces of a few newtons."""
     trim = carriage.trim()
     rng = np.random.default_rng(seed)
@@ -105,7 +105,8 @@ def _samples(carriage: Carriage, n: int, seed: int) -> tuple[np.ndarray, np.ndar
     return X, U
 
 
-def test_same_parameter_vector_and_structure(reference: ctypes.CDLL, carriage: Carriage) -> None:
+def test_same_parameter_vector_and_structure(reference: ctypes.CDLL,
+                                             carriage: DerivedCarriage) -> None:
     names = (ctypes.c_char_p * len(carriage.p)).in_dll(reference, "REF_PARAM_NAMES")
     assert [n.decode() for n in names] == [e.name for e in carriage.entries]
     # the reference is written for the default structure: y and z on arrays 1, 2, 4, 5
@@ -120,7 +121,7 @@ def test_same_parameter_vector_and_structure(reference: ctypes.CDLL, carriage: C
 
 
 def test_dynamics_match_generated_c_and_symbolic_model(
-    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: Carriage
+    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: DerivedCarriage
 ) -> None:
     dyn = generated.function("maglev_dynamics")
     X, U = _samples(carriage, N_SAMPLES, seed=5)
@@ -136,7 +137,7 @@ def test_dynamics_match_generated_c_and_symbolic_model(
 
 
 def test_dynamics_away_from_trim(
-    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: Carriage
+    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: DerivedCarriage
 ) -> None:
     """Large attitudes, rates and a CG offset in every direction: nothing is small-angle."""
     dyn = generated.function("maglev_dynamics")
@@ -156,7 +157,7 @@ def test_dynamics_away_from_trim(
 
 
 def test_allocation_matches(
-    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: Carriage
+    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: DerivedCarriage
 ) -> None:
     alloc = generated.function("maglev_allocate")
     T = allocation_matrix(carriage)
@@ -206,7 +207,7 @@ def _ref_simulate(reference: ctypes.CDLL, x0: np.ndarray, dt: float, n: int, f_p
 
 
 def test_closed_loop_matches_python_loop(
-    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: Carriage
+    reference: ctypes.CDLL, generated: GeneratedLibrary, carriage: DerivedCarriage
 ) -> None:
     trim = carriage.trim()
     idx = [cv.STATE_INDEX[s] for s in Q_STATES]
@@ -226,7 +227,7 @@ def test_closed_loop_matches_python_loop(
     np.testing.assert_allclose(G, gaps, rtol=1e-12, atol=1e-14)
 
 
-def test_closed_loop_reports_contact(reference: ctypes.CDLL, carriage: Carriage) -> None:
+def test_closed_loop_reports_contact(reference: ctypes.CDLL, carriage: DerivedCarriage) -> None:
     trim = carriage.trim()
     x0 = trim.x.copy()
     x0[cv.STATE_INDEX["w"]] = -1.0  # falling at 1 m/s with no feedback: contact within 15 ms

@@ -421,11 +421,11 @@ def _broken(*_a, **_k) -> None:
     ("maglevgen.build", "_report_files",
      "maglevgen: internal error: RuntimeError: simulated failure (rerun with --debug)"),
     # figures and trajectories: the jobs of a forked child (maglevgen.background)
-    ("maglevgen.sim_output", "render_figures",
+    ("maglevgen.analyses.sim_output", "render_figures",
      "maglevgen: error: drawing the figures failed: RuntimeError: simulated failure"),
-    ("maglevgen.report_figures", "force_figures",
+    ("maglevgen.report.figures", "force_figures",
      "maglevgen: error: drawing the report figures failed: RuntimeError: simulated failure"),
-    ("maglevgen.sim_output", "render_trajectories",
+    ("maglevgen.analyses.sim_output", "render_trajectories",
      "maglevgen: error: writing the trajectories failed: RuntimeError: simulated failure"),
 ], ids=["report-stage", "child-first-job", "child-second-job", "child-third-job"])
 def test_internal_failure_is_exit_1_and_leaves_the_good_build(good: Path, monkeypatch, capsys,
@@ -471,8 +471,8 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
     library, each derivation step this process reads) corrupted at once: each is detected,
     rebuilt, and the output is the same. (The other models' libraries are read through the
     same checks; rebuilding them too would triple the cost and test nothing more.)"""
-    from maglevgen.cache import STORE
-    from maglevgen.library import cached_simulation_library, runtime_sources
+    from maglevgen.infrastructure.cache import STORE
+    from maglevgen.runtime.library import cached_simulation_library, runtime_sources
 
     cache = Path(seeded_cache)
     monkeypatch.setenv("MAGLEVGEN_CACHE", str(cache))
@@ -542,7 +542,7 @@ def test_concurrent_builds_into_one_folder_end_consistent(tmp_path: Path, good: 
 
 def test_interrupted_build_leaves_the_previous_output(good: Path, monkeypatch) -> None:
     before, names = tree(good), siblings(good)
-    from maglevgen import output
+    from maglevgen.infrastructure import output
 
     real_write = output.Path.write_bytes
     calls = {"n": 0}
@@ -752,7 +752,7 @@ def test_the_default_build_judges_the_embedded_runs_and_passes(good: Path, carri
     and the file's allowed deviation; the firmware's design is stated."""
     from independent_reference import lateral_drift_overshoot
 
-    from maglevgen.simulate import DISTURBANCE
+    from maglevgen.analyses.simulate import DISTURBANCE
 
     assert json.loads((good / STAMP).read_text())["verification"] is None
     env = json.loads((good / "envelope/envelope.json").read_text())

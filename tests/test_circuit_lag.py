@@ -20,11 +20,11 @@ from independent_reference import (
 )
 from scipy.integrate import solve_ivp
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.operating import REDUCED_STATES, closed_loop_stability
 from maglevgen.derive import conventions as cv
-from maglevgen.library import simulation_library
-from maglevgen.operating import REDUCED_STATES, closed_loop_stability
 from maglevgen.params import load_params
+from maglevgen.runtime.library import simulation_library
 
 MODULATION = 45.0  # rad/s: the heave and pitch frequencies of the default carriage
 # both sides of v_c = R/(kL) = 9.18 m/s, outside the band where the rate coefficient passes
@@ -33,7 +33,7 @@ MODULATION = 45.0  # rad/s: the heave and pitch frequencies of the default carri
 SLOW_SPEEDS = (5.0, 14.0, 20.0, 40.0)
 
 
-def _upper_array(carriage: Carriage) -> int:
+def _upper_array(carriage: DerivedCarriage) -> int:
     return next(i for i, a in enumerate(carriage.params.arrays.values())
                 if abs(a.normal[2]) > 1 - 1e-9)
 
@@ -71,7 +71,7 @@ def _integrated_rate_coefficients(prm, speed: float) -> tuple[float, float]:
             -np.mean(drag * gd) / proj / np.mean(drag))
 
 
-def _library_rate_coefficients(carriage: Carriage, lib, speed: float, array: int,
+def _library_rate_coefficients(carriage: DerivedCarriage, lib, speed: float, array: int,
                                dw: float = 1e-4) -> tuple[float, float]:
     """The same from the generated C: -d(force)/d(heave rate) / force of an upper array at
     zero attitude (its gap rate is the heave rate w there), central differences."""
@@ -88,7 +88,8 @@ def _library_rate_coefficients(carriage: Carriage, lib, speed: float, array: int
 
 
 @pytest.mark.parametrize("speed", SLOW_SPEEDS)
-def test_rate_coefficient_equals_direct_integration_of_the_circuit(carriage: Carriage, sim_lib,
+def test_rate_coefficient_equals_direct_integration_of_the_circuit(carriage: DerivedCarriage,
+                                                                   sim_lib,
                                                                      speed: float) -> None:
     """The C's lift and drag rate terms (and the issue's closed form k tau_d) against the
     circuit equation integrated directly, to 1 % where the modulation is slow."""
@@ -107,7 +108,7 @@ def test_rate_coefficient_equals_direct_integration_of_the_circuit(carriage: Car
     assert np.sign(lift_ref) == (1.0 if speed < c.resistance / (k * c.inductance) else -1.0)
 
 
-def test_the_lift_rate_term_changes_sign_at_r_over_k_l(carriage: Carriage, sim_lib) -> None:
+def test_the_lift_rate_term_changes_sign_at_r_over_k_l(carriage: DerivedCarriage, sim_lib) -> None:
     """Damping below R/(kL), negative damping above: the root of the C's rate coefficient
     (Brent) at the characteristic speed written here."""
     c = carriage.params.circuit
@@ -123,7 +124,7 @@ def test_the_lift_rate_term_changes_sign_at_r_over_k_l(carriage: Carriage, sim_l
     assert v_c == pytest.approx(9.18, abs=0.005)  # the issue's number
 
 
-def _rest_states(carriage: Carriage, speed: float, n: int = 5) -> list[np.ndarray]:
+def _rest_states(carriage: DerivedCarriage, speed: float, n: int = 5) -> list[np.ndarray]:
     """Poses about the design pose moving along the track at ``speed`` with no body rate:
     every gap's rate is zero."""
     rng = np.random.default_rng(35)
@@ -136,7 +137,7 @@ def _rest_states(carriage: Carriage, speed: float, n: int = 5) -> list[np.ndarra
     return out
 
 
-def test_zero_gap_rates_give_eq_3(carriage: Carriage, sim_lib) -> None:
+def test_zero_gap_rates_give_eq_3(carriage: DerivedCarriage, sim_lib) -> None:
     """With every rate zero the first-order model's array forces are eq 3's circuit sum."""
     fn = sim_lib.function("maglev_array_forces")
     for speed in (7.0, 20.0, 40.0):
@@ -150,12 +151,12 @@ def test_zero_gap_rates_give_eq_3(carriage: Carriage, sim_lib) -> None:
 @pytest.fixture(scope="module")
 def point_quasi_static():
     """The paper's model: eq 3 at the face centres, quasi-static circuits."""
-    c = Carriage(load_params(overrides=['model.array_force="point"',
+    c = DerivedCarriage(load_params(overrides=['model.array_force="point"',
                                         'model.circuit_dynamics="quasi-static"']))
     return c, simulation_library(c.structure)
 
 
-def _moving_states(carriage: Carriage) -> list[np.ndarray]:
+def _moving_states(carriage: DerivedCarriage) -> list[np.ndarray]:
     """Trim at 20 m/s with body velocities and rates added: the gaps move."""
     x0 = carriage.trim(20.0).x
     rng = np.random.default_rng(7)
@@ -178,13 +179,13 @@ def test_quasi_static_has_no_rate_term(point_quasi_static) -> None:
     _assert_velocity_columns(carriage, lib, lag=False)
 
 
-def _reference_xdot(carriage: Carriage, x: np.ndarray, f_prop: float, lag: bool,
+def _reference_xdot(carriage: DerivedCarriage, x: np.ndarray, f_prop: float, lag: bool,
                     body_wrench: np.ndarray | None = None) -> np.ndarray:
     return rigid_body_xdot(carriage.params, x, array_loads(carriage.params, x, lag)[2], f_prop,
                            body_wrench)
 
 
-def _reference_jacobian(carriage: Carriage, x: np.ndarray, f_prop: float, lag: bool,
+def _reference_jacobian(carriage: DerivedCarriage, x: np.ndarray, f_prop: float, lag: bool,
                         h: float = 1e-6) -> np.ndarray:
     J = np.zeros((12, 12))
     for j in range(12):
@@ -195,8 +196,8 @@ def _reference_jacobian(carriage: Carriage, x: np.ndarray, f_prop: float, lag: b
     return J
 
 
-def _assert_velocity_columns(carriage: Carriage, lib, lag: bool) -> np.ndarray:
-    from maglevgen.operating import checked_trim
+def _assert_velocity_columns(carriage: DerivedCarriage, lib, lag: bool) -> np.ndarray:
+    from maglevgen.control.operating import checked_trim
 
     x, f_prop, _ = checked_trim(lib, carriage.p, 20.0, carriage.params.track.min_gap)
     u = np.zeros(len(carriage.model.u))
@@ -208,7 +209,7 @@ def _assert_velocity_columns(carriage: Carriage, lib, lag: bool) -> np.ndarray:
 
 
 def test_velocity_columns_equal_central_differences_of_the_lagged_force_sum(
-        carriage: Carriage, sim_lib) -> None:
+        carriage: DerivedCarriage, sim_lib) -> None:
     """The default model's Jacobian (generated C) in its velocity columns: the rate term of
     every circuit (each at its own gap; its couple along the face included) against central
     differences of the circuit-by-circuit sum written in independent_reference."""
@@ -220,7 +221,7 @@ def test_velocity_columns_equal_central_differences_of_the_lagged_force_sum(
 
 def test_point_law_velocity_columns_equal_central_differences() -> None:
     """The point law (eq 3 at the face centres with the centre gap's rate), lambdified."""
-    c = Carriage(load_params(overrides=['model.array_force="point"']))
+    c = DerivedCarriage(load_params(overrides=['model.array_force="point"']))
     assert c.params.model.circuit_dynamics == "first-order"
     trim = c.trim(20.0)
     A, _ = c.linearize(trim)
@@ -228,7 +229,7 @@ def test_point_law_velocity_columns_equal_central_differences() -> None:
     np.testing.assert_allclose(A[6:, 6:], J[6:, 6:], rtol=1e-5, atol=1e-6)
 
 
-def _reference_plant(carriage: Carriage, x: np.ndarray, f_prop: float, lag: bool
+def _reference_plant(carriage: DerivedCarriage, x: np.ndarray, f_prop: float, lag: bool
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(A_r, B_r, C_rate) of the ten-state linearisation, assembled here: A_r by central
     differences of the reference, the generalized forces (F_y, F_z, M_x, M_y, M_z, body axes
@@ -245,7 +246,7 @@ def _reference_plant(carriage: Carriage, x: np.ndarray, f_prop: float, lag: bool
     return J[np.ix_(idx, idx)], B[idx], J[np.ix_(axes, idx)]
 
 
-def _coupled_lqr(carriage: Carriage, A_r: np.ndarray, B_r: np.ndarray, C_rate: np.ndarray
+def _coupled_lqr(carriage: DerivedCarriage, A_r: np.ndarray, B_r: np.ndarray, C_rate: np.ndarray
                  ) -> np.ndarray:
     """The LQR of Q = q1 on the axis positions + q2 on the axis rates, R = r I (the paper's
     weights), by SciPy's CARE."""
@@ -260,7 +261,7 @@ def _max_real(A: np.ndarray) -> float:
     return float(np.linalg.eigvals(A).real.max())
 
 
-def test_closed_loop_with_the_rate_term_equals_a_numpy_assembly(carriage: Carriage, sim_lib,
+def test_closed_loop_with_the_rate_term_equals_a_numpy_assembly(carriage: DerivedCarriage, sim_lib,
                                                                  op) -> None:
     """At 20 m/s, the ten-state closed loops assembled here with and without the rate term:
     the open loop grows about 16 times faster (+0.013 -> +0.21 1/s); the coupled LQR with the
@@ -293,7 +294,7 @@ def test_closed_loop_with_the_rate_term_equals_a_numpy_assembly(carriage: Carria
     assert closed_loop_stability(op, "coupled")[0] == pytest.approx(coupled, abs=1e-5)
 
 
-def test_lag_times_written_here_equal_the_derived_closed_forms(carriage: Carriage) -> None:
+def test_lag_times_written_here_equal_the_derived_closed_forms(carriage: DerivedCarriage) -> None:
     """derive.circuit_lag's SymPy solution of the circuit equation: tau_d and tau_D evaluated
     against `lag_times`, and its steady response against eq 3's 1/(1 + (R/(omega L))^2)."""
     from maglevgen.derive.circuit_lag import circuit_response

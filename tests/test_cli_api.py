@@ -7,7 +7,7 @@ over the API).
   prints) are the command line's own. A planted option without an API parameter is caught.
 - Each command's function calls its entry point (it prints what the API computes); the
   `build` command calls the function `Carriage.build` calls (an up-to-date folder answers
-  without numpy). Neither front end (nor summary.py, the functions behind trim, gains and
+  without numpy). Neither front end (nor analyses/queries.py, the functions behind trim, gains and
   envelope) reaches for another module's private name (read with `ast`).
 - The options the API gained do what the command line does: the disturbance is the initial
   state's deviation from the trim (numpy on the API's trim); the checks are the CLI's
@@ -183,14 +183,14 @@ def private_uses(path: Path) -> list[str]:
 
 
 def test_the_front_ends_use_no_private_name_of_another_module(tmp_path: Path) -> None:
-    from maglevgen import summary
+    from maglevgen.analyses import queries
 
-    assert [u for m in (cli, api, summary, build) for u in private_uses(Path(m.__file__))] == []
+    assert [u for m in (cli, api, queries, build) for u in private_uses(Path(m.__file__))] == []
     planted = tmp_path / "planted.py"  # the check itself, on the pattern it replaced
-    planted.write_text("from .summary import _library\nlib = summary._library(c)\n"
+    planted.write_text("from .queries import _library\nlib = queries._library(c)\n"
                        "self._lib\nx.__name__\n")
     assert [u.split(" ", 1)[1] for u in private_uses(planted)] == [
-        "from .summary import _library", "summary._library"]
+        "from .queries import _library", "queries._library"]
 
 
 # ------------------------------------------------------------- the options the API gained

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from independent_reference import contact_gaps
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.envelope import speed_range
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
-from maglevgen.controllers import axis_plants
+from maglevgen.control.symbolic_reference import axis_plants
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import lqr_gain_mp
-from maglevgen.envelope import speed_range
 from maglevgen.params import load_params
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedLibrary
@@ -32,7 +32,7 @@ A_STATES = [cv.STATE_INDEX[s] for s in cv.Q_STATES]  # the axis coordinates (y, 
 
 
 @pytest.fixture(scope="module", params=["double", "single"])
-def runtime_lib(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path]:
+def runtime_lib(request, carriage: DerivedCarriage, tmp_path_factory) -> tuple[str, Path]:
     out = tmp_path_factory.mktemp(f"gen_{request.param}")
     write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
     lib = compile_shared([out / "maglev_functions.c"])
@@ -46,7 +46,7 @@ def _ext(runtime_lib: tuple[str, Path], name: str):
 
 
 @pytest.mark.needs_cc
-def test_casadi_external_loads_every_function(carriage: Carriage, tmp_path: Path) -> None:
+def test_casadi_external_loads_every_function(carriage: DerivedCarriage, tmp_path: Path) -> None:
     out = tmp_path / "gen"
     write_output(render(carriage, GenerateOptions("double", "runtime")), out)
     lib = compile_shared([out / "maglev_functions.c"])
@@ -75,7 +75,7 @@ def test_casadi_external_loads_every_function(carriage: Carriage, tmp_path: Path
             np.testing.assert_allclose(np.array(a), b, rtol=1e-15, equal_nan=True)
 
 
-def test_dynamics_matches_sympy_model(runtime_lib, carriage: Carriage) -> None:
+def test_dynamics_matches_sympy_model(runtime_lib, carriage: DerivedCarriage) -> None:
     precision, _ = runtime_lib
     f = _ext(runtime_lib, "maglev_dynamics")
     rng = np.random.default_rng(11)
@@ -104,7 +104,7 @@ def test_dynamics_matches_sympy_model(runtime_lib, carriage: Carriage) -> None:
                                                                   "vehicle.inertia_cg.yy=0.42")])
 def test_lqr_gains_match_50_digit_reference(runtime_lib, speed: float, override) -> None:
     precision, _ = runtime_lib
-    car = Carriage(load_params(overrides=list(override)))
+    car = DerivedCarriage(load_params(overrides=list(override)))
     (q1, q2), r = car.params.control.state_weights, car.params.control.input_weight
     K, _c = _ext(runtime_lib, "maglev_lqr_gains")(speed, car.p)
     K = np.array(K)
@@ -114,7 +114,7 @@ def test_lqr_gains_match_50_digit_reference(runtime_lib, speed: float, override)
         assert rel < TOL[precision], (i, rel)
 
 
-def test_trim_in_c_matches_python(runtime_lib, carriage: Carriage) -> None:
+def test_trim_in_c_matches_python(runtime_lib, carriage: DerivedCarriage) -> None:
     precision, _ = runtime_lib
     for v in (6.0, 20.0, 80.0):
         x, fp = _ext(runtime_lib, "maglev_trim")(v, carriage.p)
@@ -124,8 +124,8 @@ def test_trim_in_c_matches_python(runtime_lib, carriage: Carriage) -> None:
         assert float(fp) == pytest.approx(tr.u[0], rel=tol)
 
 
-def test_allocation_is_pseudo_inverse(runtime_lib, carriage: Carriage) -> None:
-    from maglevgen.controllers import allocation_matrix
+def test_allocation_is_pseudo_inverse(runtime_lib, carriage: DerivedCarriage) -> None:
+    from maglevgen.control.symbolic_reference import allocation_matrix
 
     precision, _ = runtime_lib
     T = allocation_matrix(carriage)
@@ -135,7 +135,7 @@ def test_allocation_is_pseudo_inverse(runtime_lib, carriage: Carriage) -> None:
                                    rtol=TOL[precision] * 10, atol=TOL[precision] * 10)
 
 
-def test_gain_schedule_pieces_match_the_python_derivation(runtime_lib, carriage: Carriage,
+def test_gain_schedule_pieces_match_the_python_derivation(runtime_lib, carriage: DerivedCarriage,
                                                           trim) -> None:
     """axis_plants (trim in C) against the SymPy/scipy trim; axis_gains against the 50-digit
     Riccati solution and the damping sqrt(k m); the per-tick controllers against numpy."""
@@ -167,7 +167,7 @@ def test_gain_schedule_pieces_match_the_python_derivation(runtime_lib, carriage:
 
 
 @pytest.fixture(scope="module")
-def baked(carriage: Carriage, tmp_path_factory) -> dict[str, Path]:
+def baked(carriage: DerivedCarriage, tmp_path_factory) -> dict[str, Path]:
     out = {}
     for precision in ("double", "single"):
         d = tmp_path_factory.mktemp(f"baked_{precision}")
@@ -185,11 +185,11 @@ def _gain_matrices(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     return K_pos, K_rate
 
 
-def _closed_loop_reference(carriage: Carriage, f_prop: float, k_pos: np.ndarray,
+def _closed_loop_reference(carriage: DerivedCarriage, f_prop: float, k_pos: np.ndarray,
                            k_rate: np.ndarray, a_ref: np.ndarray):
     """x -> (xdot, u) of the closed loop on the SymPy model (derive.numeric), with the feedback
     u = (F_prop, T(-K_pos (a - a_ref) - K_rate a')) in numpy and T = pinv(E)."""
-    from maglevgen.controllers import effectiveness
+    from maglevgen.control.symbolic_reference import effectiveness
 
     idx = A_STATES
     T = np.linalg.pinv(effectiveness(carriage))
@@ -203,7 +203,7 @@ def _closed_loop_reference(carriage: Carriage, f_prop: float, k_pos: np.ndarray,
     return f
 
 
-def _double_library(carriage: Carriage, parameters: str, tmp_path: Path) -> GeneratedLibrary:
+def _double_library(carriage: DerivedCarriage, parameters: str, tmp_path: Path) -> GeneratedLibrary:
     """The double-precision generated C (run-time or baked parameters), compiled."""
     write_output(render(carriage, GenerateOptions("double", parameters),
                         speed_range(carriage)), tmp_path / "gen")
@@ -213,12 +213,12 @@ def _double_library(carriage: Carriage, parameters: str, tmp_path: Path) -> Gene
 
 @pytest.mark.needs_cc
 @pytest.mark.parametrize("parameters", ["runtime", "baked"])
-def test_prepared_closed_loop_matches_the_sympy_model(carriage: Carriage, trim,
+def test_prepared_closed_loop_matches_the_sympy_model(carriage: DerivedCarriage, trim,
                                                       parameters: str, tmp_path: Path) -> None:
     """maglev_closed_loop_prepare once, then maglev_closed_loop_prepared at many states (what
     maglev_simulate does): xdot, u and the gaps against the SymPy model with the feedback in
     numpy, T = pinv(E)."""
-    from maglevgen.controllers import effectiveness
+    from maglevgen.control.symbolic_reference import effectiveness
 
     lib = _double_library(carriage, parameters, tmp_path)
     rng = np.random.default_rng(8)
@@ -242,7 +242,7 @@ def test_prepared_closed_loop_matches_the_sympy_model(carriage: Carriage, trim,
 
 @pytest.mark.needs_cc
 @pytest.mark.parametrize("parameters", ["runtime", "baked"])
-def test_rk4_step_matches_a_numpy_rk4_on_the_sympy_model(carriage: Carriage, trim,
+def test_rk4_step_matches_a_numpy_rk4_on_the_sympy_model(carriage: DerivedCarriage, trim,
                                                          parameters: str, tmp_path: Path) -> None:
     """maglev_rk4_step (the MX step calling maglev_closed_loop four times; the baked one
     rebuilt around the baked right-hand side) against RK4 written out in numpy."""
@@ -418,7 +418,7 @@ def test_version_banners_are_all_that_is_left_out() -> None:
     assert _without_version_banners("manifest.json", json.dumps(m).encode())[0] != same
 
 
-def test_generation_is_deterministic(carriage: Carriage) -> None:
+def test_generation_is_deterministic(carriage: DerivedCarriage) -> None:
     a = render(carriage, GenerateOptions("single", "runtime"))
-    b = render(Carriage(load_params()), GenerateOptions("single", "runtime"))
+    b = render(DerivedCarriage(load_params()), GenerateOptions("single", "runtime"))
     assert a == b

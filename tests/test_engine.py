@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from independent_reference import contact_gaps
 
-from maglevgen import summary
-from maglevgen.carriage import Carriage
+from maglevgen.analyses import queries
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
-from maglevgen.controllers import allocation_matrix, carriage_gains, effectiveness
+from maglevgen.control.symbolic_reference import allocation_matrix, carriage_gains, effectiveness
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.numeric import magnetic_stiffness, other_stiffness
 
@@ -33,7 +33,8 @@ def _states(trim, n: int = 5) -> list[np.ndarray]:
     return [trim.x + scale * rng.uniform(-1, 1, 12) for _ in range(n)]
 
 
-def test_array_forces_and_stiffness_in_c_equal_the_lambdified_model(sim_lib, carriage: Carriage,
+def test_array_forces_and_stiffness_in_c_equal_the_lambdified_model(sim_lib,
+                                                                    carriage: DerivedCarriage,
                                                                     trim) -> None:
     """maglev_array_forces and maglev_stiffness (new generated functions) against the SymPy
     model lambdified, at the trim and at states around it."""
@@ -52,7 +53,8 @@ def test_array_forces_and_stiffness_in_c_equal_the_lambdified_model(sim_lib, car
         np.testing.assert_allclose(K_oth, ref_oth, rtol=1e-10, atol=1e-10 * np.abs(ref_oth).max())
 
 
-def test_trim_json_is_the_c_trim_and_agrees_with_scipy(capsys, carriage: Carriage, trim) -> None:
+def test_trim_json_is_the_c_trim_and_agrees_with_scipy(capsys, carriage: DerivedCarriage,
+                                                       trim) -> None:
     assert main(["trim", "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     x = np.array([rep["state"][s.name] for s in cv.STATES])
@@ -70,7 +72,7 @@ def test_trim_json_is_the_c_trim_and_agrees_with_scipy(capsys, carriage: Carriag
     assert rep["lift_off_speed"] == pytest.approx(carriage.lift_off_speed(), rel=1e-5)
 
 
-def test_gains_json_is_the_c_and_agrees_with_the_references(capsys, carriage: Carriage,
+def test_gains_json_is_the_c_and_agrees_with_the_references(capsys, carriage: DerivedCarriage,
                                                             trim) -> None:
     assert main(["gains", "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
@@ -86,7 +88,7 @@ def test_gains_json_is_the_c_and_agrees_with_the_references(capsys, carriage: Ca
     alloc = rep["allocation"]
     np.testing.assert_allclose(alloc["minimum_norm"], allocation_matrix(carriage), atol=1e-12)
     np.testing.assert_allclose(alloc["effectiveness"], effectiveness(carriage), atol=1e-12)
-    from maglevgen.controllers import coupled_comparison
+    from maglevgen.control.symbolic_reference import coupled_comparison
 
     cc = coupled_comparison(carriage, trim, carriage_gains(carriage, trim))
     for key, ref in (("poles_per_axis_design", cc.poles_per_axis),
@@ -99,29 +101,29 @@ def test_gains_json_is_the_c_and_agrees_with_the_references(capsys, carriage: Ca
 
 
 def test_trim_and_gains_never_use_the_lambdified_model(monkeypatch, sim_lib) -> None:
-    """The data `trim` and `gains` print is computed without Carriage.functions (the
+    """The data `trim` and `gains` print is computed without DerivedCarriage.functions (the
     lambdified SymPy model, now a reference only)."""
     from maglevgen.params import load_params
 
-    fresh = Carriage(load_params(overrides=["vehicle.mass=9.7"]))
+    fresh = DerivedCarriage(load_params(overrides=["vehicle.mass=9.7"]))
 
     def forbidden(self):
         raise AssertionError("the lambdified model was used")
 
-    monkeypatch.setattr(Carriage, "functions", property(forbidden))
-    monkeypatch.setattr(Carriage, "trim", forbidden)
-    t = summary.trim_report(fresh, None, sim_lib)
-    g = summary.gains_report(fresh, None, sim_lib)
+    monkeypatch.setattr(DerivedCarriage, "functions", property(forbidden))
+    monkeypatch.setattr(DerivedCarriage, "trim", forbidden)
+    t = queries.trim_report(fresh, None, sim_lib)
+    g = queries.gains_report(fresh, None, sim_lib)
     assert t["speed"] == g["speed"] == fresh.params.operation.speed
     assert set(g["axes"]) == set(cv.AXES)
 
 
-def test_no_trim_names_the_lift_off_speed(sim_lib, carriage: Carriage) -> None:
+def test_no_trim_names_the_lift_off_speed(sim_lib, carriage: DerivedCarriage) -> None:
     from maglevgen.errors import NoTrimError
 
     v_off = carriage.lift_off_speed()  # SciPy on the lambdified model: the reference
     with pytest.raises(NoTrimError, match=r"^no trim at speed 1 m/s: .*lift-off needs ") as err:
-        summary.trim_point(carriage, sim_lib, 1.0)
+        queries.trim_point(carriage, sim_lib, 1.0)
     assert float(str(err.value).rsplit("needs ", 1)[1].split()[0]) == pytest.approx(v_off,
                                                                                     rel=1e-3)
 
@@ -136,7 +138,7 @@ def test_report_stiffness_and_trim_are_the_librarys(monkeypatch, sim_lib) -> Non
     from maglevgen.derive.numeric import total_stiffness
     from maglevgen.params import load_params
 
-    fresh = Carriage(load_params(overrides=["vehicle.mass=9.7"]))
+    fresh = DerivedCarriage(load_params(overrides=["vehicle.mass=9.7"]))
     ref_trim = fresh.trim()  # SciPy on the lambdified model: the references
     K_ref = total_stiffness(fresh.functions, ref_trim, fresh.p)
     A_ref, _ = fresh.linearize(ref_trim)
@@ -145,13 +147,13 @@ def test_report_stiffness_and_trim_are_the_librarys(monkeypatch, sim_lib) -> Non
     def forbidden(self, *_a):
         raise AssertionError("the report used the lambdified model")
 
-    monkeypatch.setattr(Carriage, "functions", property(forbidden))
+    monkeypatch.setattr(DerivedCarriage, "functions", property(forbidden))
     for name in ("trim", "linearize", "magnetic_stiffness", "total_stiffness",
                  "generalized_mass", "lift_off_speed"):
-        monkeypatch.setattr(Carriage, name, forbidden)
+        monkeypatch.setattr(DerivedCarriage, name, forbidden)
     ctx, _ = rp.build_context(fresh, rp.ReportOptions(verify_c=False, build_pdf=False))
 
-    tp = summary.trim_point(fresh, sim_lib, None)
+    tp = queries.trim_point(fresh, sim_lib, None)
     assert [v for _, _, v, _, _ in ctx["trim"]["states"]] == tp.x.tolist()
     assert ctx["trim"]["F_prop"] == tp.f_prop
     np.testing.assert_allclose(tp.x, ref_trim.x, rtol=1e-9, atol=1e-12)

@@ -19,20 +19,20 @@ import pytest
 from independent_reference import spec_weights_reference
 from scipy.integrate import solve_ivp
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.envelope import STABILITY_MARGIN, compute_envelope, envelope_points
+from maglevgen.analyses.simulate import AXIS_STATES, initial_state, launch
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
-from maglevgen.controllers import effectiveness
+from maglevgen.control.schedule import Schedule
+from maglevgen.control.symbolic_reference import effectiveness
 from maglevgen.derive import conventions as cv
-from maglevgen.envelope import STABILITY_MARGIN, compute_envelope, envelope_points
 from maglevgen.params import load_params
-from maglevgen.schedule import Schedule
-from maglevgen.simulate import AXIS_STATES, initial_state, launch
 
 RED = [cv.STATE_INDEX[s] for s in ("y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r")]
 AX = list(AXIS_STATES)
 
 
-def _reference_eigenvalues(carriage: Carriage, v: float) -> dict[str, np.ndarray]:
+def _reference_eigenvalues(carriage: DerivedCarriage, v: float) -> dict[str, np.ndarray]:
     """Closed-loop eigenvalues of the ten-state loop at v, assembled from the SymPy model:
     its trim and Jacobians, gains from python-control, T = pinv(E)."""
     trim = carriage.trim(v)
@@ -72,26 +72,26 @@ QUASI_STATIC = 'model.circuit_dynamics="quasi-static"'
 
 
 @pytest.fixture(scope="module")
-def envelope(carriage: Carriage, sim_lib):
+def envelope(carriage: DerivedCarriage, sim_lib):
     return compute_envelope(carriage, sim_lib, 12)
 
 
 @pytest.fixture(scope="module")
-def point_carriage(private_cache) -> Carriage:
+def point_carriage(private_cache) -> DerivedCarriage:
     """The paper's force law (eq 3 at each face centre, quasi-static circuits): its per-axis
     LQR and damping control lose stability in the low part of the range."""
-    return Carriage(load_params(None, [POINT, QUASI_STATIC]))
+    return DerivedCarriage(load_params(None, [POINT, QUASI_STATIC]))
 
 
 @pytest.fixture(scope="module")
-def point_lib(point_carriage: Carriage):
-    from maglevgen.library import simulation_library
+def point_lib(point_carriage: DerivedCarriage):
+    from maglevgen.runtime.library import simulation_library
 
     return simulation_library(point_carriage.structure)
 
 
 @pytest.fixture(scope="module")
-def point_envelope(point_carriage: Carriage, point_lib):
+def point_envelope(point_carriage: DerivedCarriage, point_lib):
     return compute_envelope(point_carriage, point_lib, 12)
 
 
@@ -147,7 +147,7 @@ def test_unstable_range_edges_are_where_the_sign_changes(point_carriage, point_e
 
 def test_stable_range_gives_a_stable_verdict(point_lib) -> None:
     """With the envelope above the per-axis LQR's unstable range its verdict is stable."""
-    c = Carriage(load_params(None, [POINT, QUASI_STATIC, "envelope.v_min=17.0"]))
+    c = DerivedCarriage(load_params(None, [POINT, QUASI_STATIC, "envelope.v_min=17.0"]))
     env = compute_envelope(c, point_lib, 8, ("lqr",))
     assert env.controllers["lqr"].ok
     ev = _reference_eigenvalues(c, 17.0)["lqr"]
@@ -157,7 +157,7 @@ def test_stable_range_gives_a_stable_verdict(point_lib) -> None:
 def test_heavier_carriage_is_unstable_at_the_design_speed(point_lib) -> None:
     """The issue's case (point force law): mass 12 kg makes the per-axis LQR unstable at
     20 m/s."""
-    c = Carriage(load_params(None, [POINT, QUASI_STATIC, "vehicle.mass=12"]))
+    c = DerivedCarriage(load_params(None, [POINT, QUASI_STATIC, "vehicle.mass=12"]))
     env = compute_envelope(c, point_lib, 8, ("lqr", "coupled"))
     assert max(float(np.max(_reference_eigenvalues(c, 20.0)["lqr"].real)), 0) > 0
     assert any(lo <= 20.0 <= hi for lo, hi in env.controllers["lqr"].unstable_ranges)
@@ -238,7 +238,7 @@ def test_schedule_gains_reproduce_the_coupled_lqr(carriage, sim_lib) -> None:
 # ------------------------------------------------------------------------------- launch
 
 
-def _launch_reference(carriage: Carriage, sched: Schedule, x0: np.ndarray, f_extra: float,
+def _launch_reference(carriage: DerivedCarriage, sched: Schedule, x0: np.ndarray, f_extra: float,
                       t: np.ndarray) -> np.ndarray:
     """The launch closed loop by DOP853 on the lambdified SymPy model, with the schedule
     evaluated by scipy's spline at |(u, v, w)| at every evaluation."""
@@ -294,8 +294,8 @@ def test_launch_follows_the_accelerating_trim_found_here(carriage, sim_lib,
     0.15 mm; the run's deviation from its equilibrium (the schedule's) is as small."""
     from independent_reference import reference_trim
 
-    from maglevgen.envelope import launch_schedule
-    from maglevgen.operating import checked_accelerating_trim
+    from maglevgen.analyses.envelope import launch_schedule
+    from maglevgen.control.operating import checked_accelerating_trim
 
     prm = carriage.params
     a, min_gap = prm.envelope.launch_acceleration, prm.track.min_gap
@@ -328,7 +328,7 @@ def test_launch_cli_reaches_release_speed(tmp_path, capsys) -> None:
     npz = np.load(out / "trajectories.npz")
     cols = [list(npz["columns"]).index(s) for s in ("u", "v", "w")]
     speed = np.linalg.norm(npz["coupled"][:, cols], axis=1)
-    c = Carriage(load_params())
+    c = DerivedCarriage(load_params())
     assert speed[-1] >= c.params.envelope.v_max - 1e-9 > speed[-2]
     assert speed[0] < 0.5 * c.params.envelope.v_max
     assert np.all(np.diff(speed) > 0)  # the steady acceleration force: monotonic
@@ -382,9 +382,9 @@ def test_embedded_schedule_table_compiles_and_evaluates(carriage, sim_lib, tmp_p
     maglev_schedule_eval(&maglev_embedded_schedule, v) equals scipy's spline of the nodes."""
     import shutil
 
-    from maglevgen.library import runtime_sources
+    from maglevgen.control.schedule import schedule_c_source
     from maglevgen.runtime.compile import compile_shared
-    from maglevgen.schedule import schedule_c_source
+    from maglevgen.runtime.library import runtime_sources
 
     points = envelope_points(carriage, sim_lib, np.linspace(7.0, 40.0, 12))
     sched = Schedule.from_points(points, "coupled")

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from independent_reference import array_state, reference_trim, stiffness_fd
 
+from maglevgen.analyses.queries import trim_report
+from maglevgen.control.operating import Weights, operating_point, speed_mode
 from maglevgen.derive import conventions as cv
-from maglevgen.operating import Weights, operating_point, speed_mode
-from maglevgen.summary import trim_report
 
 # Below the characteristic speed (9.18 m/s for the default carriage, R/(kL)) and the default.
 SPEEDS = (7.0, 20.0)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.checks import ERROR_CODES
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,7 +50,7 @@ def _declared(headers: list[Path]) -> set[str]:
     return {m.group(1) for h in headers for m in pat.finditer(h.read_text())}
 
 
-def _nominal(name: str, n: int, carriage: Carriage) -> list[float]:
+def _nominal(name: str, n: int, carriage: DerivedCarriage) -> list[float]:
     """A finite, physically sensible value of an input (what the hostile values replace)."""
     if name in ("x", "x0"):
         x = [0.0] * 12
@@ -71,7 +71,7 @@ def _c_array(name: str, values: list[float]) -> str:
         f"static const double {name}[1] = {{0.0}};\n"
 
 
-def _casadi_calls(table: list[dict], carriage: Carriage, runtime: bool) -> str:
+def _casadi_calls(table: list[dict], carriage: DerivedCarriage, runtime: bool) -> str:
     """C: for each function, the hostile-input cases through call_case (see _PRELUDE)."""
     out = []
     for f in table:
@@ -271,7 +271,7 @@ static void hostile_cases(const fn_t* f) {
 """
 
 
-def _hostile_parameter_code(carriage: Carriage) -> str:
+def _hostile_parameter_code(carriage: DerivedCarriage) -> str:
     """C: hostile parameter vectors (refused: an error code) and NaN in each entry of p."""
     names = carriage.structure.param_names
     cases = [("vehicle.mass", "0.0"), ("vehicle.mass", "-9.3"), ("halbach.wavelength", "0.0"),
@@ -607,7 +607,7 @@ static void run_simulations(void) {
 """)
 
 
-def _p_run_code(carriage: Carriage, runtime: bool) -> dict[str, str]:
+def _p_run_code(carriage: DerivedCarriage, runtime: bool) -> dict[str, str]:
     """The run-time parameter parts of _run_code's C (empty with baked parameters)."""
     if not runtime:
         return {"P_NOMINAL": "", "P_NULL_CASE": "", "P_HOSTILE_CASES": ""}
@@ -689,7 +689,12 @@ int main(void) {
 def _gain_table_sources() -> dict[str, str]:
     """maglev_gain_table.{c,h} of a table with every value stored (random coefficients: the
     hostile cases test the evaluator's checks, not the fit)."""
-    from maglevgen.schedule import GAIN_TABLE_FIELDS, GAIN_TABLE_NY, GainTable, gain_table_sources
+    from maglevgen.control.schedule import (
+        GAIN_TABLE_FIELDS,
+        GAIN_TABLE_NY,
+        GainTable,
+        gain_table_sources,
+    )
 
     coeffs = np.random.default_rng(40).normal(size=(8, GAIN_TABLE_NY))
     table = GainTable(6.5, 40.0, coeffs, {n: 0.0 for n, _ in GAIN_TABLE_FIELDS},
@@ -697,7 +702,7 @@ def _gain_table_sources() -> dict[str, str]:
     return gain_table_sources(table)
 
 
-def _harness(src: Path, table: list[dict], carriage: Carriage, runtime: bool) -> str:
+def _harness(src: Path, table: list[dict], carriage: DerivedCarriage, runtime: bool) -> str:
     from maglevgen.codegen.checks import error_defines
 
     nu = len(carriage.model.input_names)
@@ -712,7 +717,7 @@ def _harness(src: Path, table: list[dict], carriage: Carriage, runtime: bool) ->
             + run + _MAIN)
 
 
-def _build(src: Path, out: Path, table: list[dict], carriage: Carriage,
+def _build(src: Path, out: Path, table: list[dict], carriage: DerivedCarriage,
            runtime: bool) -> subprocess.Popen:
     """Write the harness into ``out`` and start compiling it with the sanitizers (the
     generated C of ``src`` included); returns the compiler process (make's -j, in one)."""
@@ -737,12 +742,12 @@ def _build(src: Path, out: Path, table: list[dict], carriage: Carriage,
 
 
 @pytest.fixture(scope="module")
-def harnesses(carriage: Carriage, tmp_path_factory, private_cache) -> dict[str, tuple]:
+def harnesses(carriage: DerivedCarriage, tmp_path_factory, private_cache) -> dict[str, tuple]:
     """{"baked": ..., "runtime": ...}: (source folder, function table, harness folder) of the
     committed generated/ (baked, double) and of the simulation library's run-time-parameter C,
     both compiled with the sanitizers (in parallel)."""
     from maglevgen.codegen.interface import FUNCTION_TABLE
-    from maglevgen.library import runtime_sources
+    from maglevgen.runtime.library import runtime_sources
 
     runtime_src = runtime_sources(carriage.structure)
     cases = {
@@ -933,7 +938,7 @@ print(json.dumps({"calls": n, "bad": bad}))
 
 
 @pytest.mark.needs_cc
-def test_fmu_hostile_values_and_out_of_order_calls(carriage: Carriage, sim_lib,
+def test_fmu_hostile_values_and_out_of_order_calls(carriage: DerivedCarriage, sim_lib,
                                                    tmp_path: Path) -> None:
     """Through FMPy (in a child process, so that a crash is a failure, not the end of the
     run): NaN, +-inf, +-1e30, denormals, zero and -1 into every real parameter and input
@@ -943,7 +948,7 @@ def test_fmu_hostile_values_and_out_of_order_calls(carriage: Carriage, sim_lib,
     fmi2Discard) or followed by OK calls with every real finite."""
     import sys
 
-    from maglevgen.fmu import build_fmu
+    from maglevgen.exports.fmu import build_fmu
 
     path = tmp_path / "m.fmu"
     path.write_bytes(build_fmu(carriage, "both", "lqr"))

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.envelope import speed_range
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.checks import ERROR_CODES
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
-from maglevgen.envelope import speed_range
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedFunctionError, GeneratedLibrary
 
@@ -28,7 +28,7 @@ TRIM_KIND = ("maglev_trim", "maglev_axis_plants", "maglev_lqr_gains")
 
 
 @pytest.fixture(scope="module", params=["double", "single"])
-def gen(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path, Path]:
+def gen(request, carriage: DerivedCarriage, tmp_path_factory) -> tuple[str, Path, Path]:
     """(precision, generated folder, compiled library) with run-time parameters."""
     out = tmp_path_factory.mktemp(f"fw_{request.param}")
     write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
@@ -56,7 +56,7 @@ def _code(gen, name: str, *args) -> tuple[int, list[np.ndarray]]:
 
 
 @pytest.mark.parametrize("name", TRIM_KIND)
-def test_schedule_functions_refuse_bad_speeds(gen, carriage: Carriage, name: str) -> None:
+def test_schedule_functions_refuse_bad_speeds(gen, carriage: DerivedCarriage, name: str) -> None:
     """v = 0, v < 0, NaN, +-inf and a NaN parameter give their MAGLEV_ERR_* code and zeroed
     outputs; below the derivation's lift-off speed (SymPy/SciPy trim, no C) there is no trim,
     above it (and far above the envelope's v_max) there is."""
@@ -83,7 +83,7 @@ def test_schedule_functions_refuse_bad_speeds(gen, carriage: Carriage, name: str
 
 
 @pytest.fixture(scope="module", params=["double", "single"])
-def baked_gen(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path, Path]:
+def baked_gen(request, carriage: DerivedCarriage, tmp_path_factory) -> tuple[str, Path, Path]:
     """(precision, generated folder, compiled library) with baked parameters (and range)."""
     out = tmp_path_factory.mktemp(f"fw_baked_{request.param}")
     write_output(render(carriage, GenerateOptions(request.param, "baked"),
@@ -93,7 +93,7 @@ def baked_gen(request, carriage: Carriage, tmp_path_factory) -> tuple[str, Path,
 
 
 @pytest.mark.parametrize("name", TRIM_KIND)
-def test_baked_schedule_functions_keep_to_the_envelope(baked_gen, carriage: Carriage,
+def test_baked_schedule_functions_keep_to_the_envelope(baked_gen, carriage: DerivedCarriage,
                                                        name: str) -> None:
     """Baked parameters bake the envelope's [v_min, v_max]: just below v_min (from the
     derivation's lift-off speed, SymPy/SciPy, times 1 + envelope.lift_off_margin), just above
@@ -122,7 +122,7 @@ def test_baked_schedule_functions_keep_to_the_envelope(baked_gen, carriage: Carr
 
 
 def test_accelerating_trim_refuses_bad_input_and_agrees_with_the_derivation(
-        gen, carriage: Carriage) -> None:
+        gen, carriage: DerivedCarriage) -> None:
     """maglev_trim_accelerating's checked entry point: a NaN or infinite acceleration gives
     MAGLEV_ERR_NONFINITE, v <= 0 MAGLEV_ERR_SPEED, an acceleration that no equilibrium clear of
     the track holds (20 g: its thrust moment tips the carriage onto the track)
@@ -151,7 +151,7 @@ def test_accelerating_trim_refuses_bad_input_and_agrees_with_the_derivation(
         assert f_prop[0] == pytest.approx(ref.u[0], rel=tol * 10)
 
 
-def test_runtime_names_the_code(gen, carriage: Carriage) -> None:
+def test_runtime_names_the_code(gen, carriage: DerivedCarriage) -> None:
     """The ctypes runtime raises with the code's name."""
     with pytest.raises(GeneratedFunctionError, match="MAGLEV_ERR_SPEED") as info:
         _call(gen, "maglev_trim", [0.0], carriage.p)
@@ -159,7 +159,7 @@ def test_runtime_names_the_code(gen, carriage: Carriage) -> None:
     assert info.value.code == ERR["MAGLEV_ERR_SPEED"]
 
 
-def test_tick_functions_refuse_non_finite_inputs(gen, carriage: Carriage) -> None:
+def test_tick_functions_refuse_non_finite_inputs(gen, carriage: DerivedCarriage) -> None:
     """A NaN state (and an infinite gain) into each tick function: MAGLEV_ERR_NONFINITE and
     every output zero (no control force); the same call with finite inputs returns 0 and
     finite outputs."""
@@ -190,7 +190,7 @@ def test_tick_functions_refuse_non_finite_inputs(gen, carriage: Carriage) -> Non
             assert rc == ERR["MAGLEV_ERR_NONFINITE"], (name, rc)
 
 
-def test_tick_output_overflow_is_reported(gen, carriage: Carriage) -> None:
+def test_tick_output_overflow_is_reported(gen, carriage: DerivedCarriage) -> None:
     """Finite inputs whose product overflows (a huge gain times a state offset): the output
     would be infinite, so the tick returns MAGLEV_ERR_NONFINITE_OUTPUT with zeros."""
     precision = gen[0]
@@ -228,13 +228,13 @@ WARN = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wdouble-promo
 
 
 @pytest.fixture(scope="module")
-def firmware(carriage: Carriage, sim_lib, tmp_path_factory) -> dict:
-    """The table schedule over the envelope's range (fitted here, as maglevgen.envelope's
+def firmware(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
+    """The table schedule over the envelope's range (fitted here, as maglevgen.analyses.envelope's
     gain_table does), the firmware loop, the exact rows at speeds, and the firmware folder
     (`render_firmware`, no plant) of each precision."""
-    from maglevgen.codegen.firmware import firmware_loop, render_firmware
-    from maglevgen.envelope import envelope_points, resolve_range
-    from maglevgen.schedule import GainTable, gain_table_row
+    from maglevgen.analyses.envelope import envelope_points, resolve_range
+    from maglevgen.control.schedule import GainTable, gain_table_row
+    from maglevgen.exports.firmware import firmware_loop, render_firmware
 
     v_min, v_max = resolve_range(carriage, sim_lib)
 
@@ -269,7 +269,7 @@ def gain_table(firmware):
 
 
 def _schedule_c(lib: Path, precision: str, v: float) -> tuple[int, np.ndarray]:
-    from maglevgen.schedule import GAIN_TABLE_NY
+    from maglevgen.control.schedule import GAIN_TABLE_NY
 
     real = ctypes.c_double if precision == "double" else ctypes.c_float
     fn = ctypes.CDLL(str(lib)).maglev_schedule
@@ -281,15 +281,15 @@ def _schedule_c(lib: Path, precision: str, v: float) -> tuple[int, np.ndarray]:
 
 @pytest.mark.needs_cc
 @pytest.mark.parametrize("precision", ["double", "single"])
-def test_table_schedule_against_exact_schedule(gain_table, carriage: Carriage,
+def test_table_schedule_against_exact_schedule(gain_table, carriage: DerivedCarriage,
                                                precision: str) -> None:
     """maglev_schedule (C, static tables) at 200 random speeds of [v_min, v_max], none a node
     nor a point of the fitting grid, against the exact schedule (Newton trim in C, closed-form
     gains, SciPy's CARE for the coupled LQR): every field within GAIN_TABLE_BOUND of its
     scale (single precision: plus float32 rounding); the per-axis gains also against the
     50-digit Riccati solution (mpmath) at three speeds, with the same measure."""
+    from maglevgen.control.schedule import GAIN_TABLE_BOUND, GAIN_TABLE_FIELDS, field_errors
     from maglevgen.derive.riccati import lqr_gain_mp
-    from maglevgen.schedule import GAIN_TABLE_BOUND, GAIN_TABLE_FIELDS, field_errors
 
     table, _, libs, rows = gain_table
     speeds = np.random.default_rng(5).uniform(table.v_min, table.v_max, 200)
@@ -314,8 +314,8 @@ def test_table_schedule_against_exact_schedule(gain_table, carriage: Carriage,
         assert np.max(np.abs(K - ref)) / scale <= GAIN_TABLE_BOUND * slack
 
 
-def _plants(carriage: Carriage, v: float):
-    from maglevgen.library import simulation_library
+def _plants(carriage: DerivedCarriage, v: float):
+    from maglevgen.runtime.library import simulation_library
 
     return simulation_library(carriage.structure).function("maglev_axis_plants")(v, carriage.p)
 
@@ -340,13 +340,13 @@ def test_table_schedule_return_codes(gain_table) -> None:
 
 
 @pytest.mark.needs_cc
-def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: Carriage,
+def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: DerivedCarriage,
                                                       sim_lib) -> None:
     """Between the table's nodes (midpoints), the ten-state closed loop with the table's
     gains of the embedded controller has eigenvalues within 1 % of |lambda| (and 1e-3 1/s)
     of those with the exact gains (scipy CARE), and stays stable."""
-    from maglevgen.envelope import envelope_points
-    from maglevgen.schedule import GainTable
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.control.schedule import GainTable
 
     table, _, libs, _ = gain_table
     nodes = GainTable.nodes(len(table.coeffs), table.v_min, table.v_max)
@@ -402,7 +402,7 @@ def _worst_stack(ci_text: str, root: str) -> int:
 
 
 @pytest.mark.needs_arm("qemu-system-arm", "arm-none-eabi-nm", "arm-none-eabi-size")
-def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path) -> None:
+def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path: Path) -> None:
     """The single-precision baked C and the table schedule cross-compiled for Cortex-M4F with
     the firmware flags: no double arithmetic (__aeabi_d*, f2d, d2f) nor double libm call, no
     .data/.bss, every external symbol maglev_*, the ticks' and the schedule's stack (callees
@@ -412,7 +412,7 @@ def test_cortex_m4_build_and_run(gain_table, carriage: Carriage, tmp_path: Path)
     import subprocess
 
     from maglevgen.codegen.cpass import DOUBLE_MATH
-    from maglevgen.schedule import GAIN_TABLE_NY
+    from maglevgen.control.schedule import GAIN_TABLE_NY
 
     table, table_dir, table_libs, _ = gain_table
     src = tmp_path / "m4"
@@ -519,7 +519,7 @@ def _external(nm: list[str]) -> set[str]:
 
 
 @pytest.mark.needs_cc
-def test_single_file_is_the_two_file_build(carriage: Carriage, tmp_path: Path) -> None:
+def test_single_file_is_the_two_file_build(carriage: DerivedCarriage, tmp_path: Path) -> None:
     """`generate --single-file`: one translation unit, maglev.c, that compiles warning-free
     for the host with the issue's flags plus -Wmissing-prototypes (an external function
     without a header prototype fails), defines exactly the functions the headers declare (every
@@ -579,7 +579,7 @@ def test_single_file_is_the_two_file_build(carriage: Carriage, tmp_path: Path) -
 
 
 @pytest.mark.needs_arm("arm-none-eabi-objdump", "arm-none-eabi-nm")
-def test_m4_square_root_is_the_fpu_instruction(carriage: Carriage, tmp_path: Path) -> None:
+def test_m4_square_root_is_the_fpu_instruction(carriage: DerivedCarriage, tmp_path: Path) -> None:
     """With -fno-math-errno (the README's firmware flags) the Cortex-M4F object computes
     square roots with the FPU's vsqrt.f32 and calls no sqrtf (newlib's errno-setting
     wrapper); without the flag it does call sqrtf: the check can see the difference."""
@@ -625,7 +625,7 @@ def test_enclosing_functions_on_a_planted_file() -> None:
 
 
 @pytest.mark.needs_arm("cppcheck")
-def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carriage,
+def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: DerivedCarriage,
                                                     tmp_path: Path) -> None:
     """cppcheck's MISRA C:2012 addon on the per-tick functions (single precision, baked;
     maglev_tick.c, whose text is maglev_functions.c's for them) and the table schedule: every
@@ -680,7 +680,7 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Carria
 
 
 @pytest.mark.needs_cc
-def test_int32_build_gives_the_int64_results(carriage: Carriage, tmp_path: Path) -> None:
+def test_int32_build_gives_the_int64_results(carriage: DerivedCarriage, tmp_path: Path) -> None:
     """`--int int32` (casadi_int = int for 32-bit MCUs): the header says so, and the trim and
     a tick called through the int32 ABI equal the default int64 build's bit for bit (the
     integer type only indexes sparsity and work)."""
@@ -701,7 +701,7 @@ def test_int32_build_gives_the_int64_results(carriage: Carriage, tmp_path: Path)
 
 
 @pytest.mark.needs_cc
-def test_header_leaves_casadi_real_alone(carriage: Carriage, tmp_path: Path) -> None:
+def test_header_leaves_casadi_real_alone(carriage: DerivedCarriage, tmp_path: Path) -> None:
     """maglev.h (single precision) included after another CasADi module's
     ``#define casadi_real double``: casadi_real stays double (8 bytes) and the header's own
     maglev_real is float (4 bytes); the compiler checks both sizes."""
@@ -853,7 +853,8 @@ ROUNDINGS = 16
 
 @pytest.mark.slow
 @pytest.mark.needs_arm("qemu-system-arm")
-def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Carriage, sim_lib,
+def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: DerivedCarriage,
+                                                         sim_lib,
                                                           op, tmp_path: Path) -> None:
     """`maglevgen firmware --with-plant` built for the Cortex-M4F with the README's flags and
     run under QEMU (mps2-an386) in closed loop: maglev_tick at the tick rate with its delay,
@@ -876,12 +877,12 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Car
     zeroes the command on the target."""
     import subprocess
 
+    from maglevgen.analyses.simulate import DISTURBANCE, initial_state
     from maglevgen.cli import main
-    from maglevgen.codegen.firmware import FIRMWARE_FLAGS, TICK_INPUTS
+    from maglevgen.control import controller
+    from maglevgen.control.schedule import GAIN_TABLE_FIELDS
     from maglevgen.derive import conventions as cv
-    from maglevgen.laws import controller
-    from maglevgen.schedule import GAIN_TABLE_FIELDS
-    from maglevgen.simulate import DISTURBANCE, initial_state
+    from maglevgen.exports.firmware import FIRMWARE_FLAGS, TICK_INPUTS
 
     table, loop = firmware["table"], firmware["loop"]
     out = tmp_path / "fw"
@@ -1007,10 +1008,10 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Car
 
 
 def test_firmware_readme_quotes_the_recorded_tick_cost() -> None:
-    """The tick's cost the folder's README quotes (maglevgen.codegen.firmware.MEASURED) is the
+    """The tick's cost the folder's README quotes (maglevgen.exports.firmware.MEASURED) is the
     one bench/firmware_tick.py recorded (bench/firmware_tick_results.json), and the share of
     the 1 kHz period is the cycles over 168 000 (recomputed here)."""
-    from maglevgen.codegen.firmware import MEASURED
+    from maglevgen.exports.firmware import MEASURED
 
     recorded = json.loads((REPO / "bench" / "firmware_tick_results.json").read_text())
     for key in ("instructions", "cycles", "clock_mhz", "stack_bytes"):

@@ -18,11 +18,11 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.simulate import AXIS_STATES, reference_trajectory, run_scenarios
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.derive import conventions as cv
-from maglevgen.fmu import build_fmu, fmi_headers, fmu_controllers
+from maglevgen.exports.fmu import build_fmu, fmi_headers, fmu_controllers
 from maglevgen.params import load_params
-from maglevgen.simulate import AXIS_STATES, reference_trajectory, run_scenarios
 
 try:
     import tomllib
@@ -34,7 +34,7 @@ STATES = [s.name for s in cv.STATES]
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory, carriage: Carriage, sim_lib):
+def fmus(tmp_path_factory, carriage: DerivedCarriage, sim_lib):
     """FMUs of the default carriage by (kind, controller), built on first use."""
     folder = tmp_path_factory.mktemp("fmu")
     made: dict[tuple[str, str], Path] = {}
@@ -95,7 +95,7 @@ def test_variables_come_from_the_parameter_file_and_the_conventions(fmus) -> Non
 
 
 @pytest.mark.parametrize("controller", ["lqr", "coupled", "damping"])
-def test_cs_reproduces_maglevgen_simulate(fmus, carriage: Carriage, sim_lib,
+def test_cs_reproduces_maglevgen_simulate(fmus, carriage: DerivedCarriage, sim_lib,
                                           controller: str) -> None:
     """The CS FMU with a built-in controller against `maglevgen simulate` at the same step
     (the coupled LQR's full 5 x 5 gains, the others' diagonal ones)."""
@@ -111,7 +111,7 @@ def test_cs_reproduces_maglevgen_simulate(fmus, carriage: Carriage, sim_lib,
     _assert_close(_states(res10), ref.x[::10], 1e-9)
 
 
-def test_me_with_cvode_agrees_with_solve_ivp_on_the_sympy_model(fmus, carriage: Carriage,
+def test_me_with_cvode_agrees_with_solve_ivp_on_the_sympy_model(fmus, carriage: DerivedCarriage,
                                                                 op) -> None:
     t_end, rtol = 0.5, 1e-10
     res = simulate_fmu(str(fmus("me")), fmi_type="ModelExchange", solver="CVode",
@@ -129,7 +129,7 @@ def test_me_with_cvode_agrees_with_solve_ivp_on_the_sympy_model(fmus, carriage: 
 
 
 def test_mass_set_through_fmpy_equals_set_on_the_command_line(fmus, sim_lib) -> None:
-    heavy = Carriage(load_params(None, ["vehicle.mass=10.5"]))
+    heavy = DerivedCarriage(load_params(None, ["vehicle.mass=10.5"]))
     ref = run_scenarios(heavy, ("lqr",), 0.5, 1e-3, lib=sim_lib).trajectories[0]
     res = simulate_fmu(str(fmus("cs")), fmi_type="CoSimulation", stop_time=0.5,
                        output_interval=1e-3, output=STATES,
@@ -191,7 +191,7 @@ def test_no_trim_is_an_error_through_the_logger(fmus) -> None:
 
 def test_contact_ends_the_run_where_maglevgen_simulate_ends_it(fmus, carriage, sim_lib,
                                                                 op) -> None:
-    from maglevgen.simulate import DISTURBANCE, simulate
+    from maglevgen.analyses.simulate import DISTURBANCE, simulate
 
     push = {**DISTURBANCE, "w": -1.0}  # 1 m/s towards array 3: it touches the track
     ref = simulate(sim_lib, carriage.p, op, "none", 0.5, 1e-3, carriage.params.track.min_gap,
@@ -295,9 +295,9 @@ def test_normal_actuators_fmu_reproduces_maglevgen_simulate(tmp_path: Path) -> N
     normals' crossing line is barely controlled (slowest linearised mode about -0.005 1/s)
     and under the hold's drifting speed the LQR run reaches the track within 20 s; the two
     must agree on the drift too."""
-    from maglevgen.library import simulation_library
+    from maglevgen.runtime.library import simulation_library
 
-    normal = Carriage(load_params(overrides=['control.actuators="normal"']))
+    normal = DerivedCarriage(load_params(overrides=['control.actuators="normal"']))
     lib = simulation_library(normal.structure)
     path = tmp_path / "normal.fmu"
     path.write_bytes(build_fmu(normal, "both", "lqr"))

@@ -21,10 +21,15 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.simulate import (
+    AXIS_STATES,
+    DISTURBANCE,
+    reference_trajectory,
+    run_scenarios,
+)
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.derive import conventions as cv
-from maglevgen.fmu import FMI_VERSIONS, build_fmu
-from maglevgen.simulate import AXIS_STATES, DISTURBANCE, reference_trajectory, run_scenarios
+from maglevgen.exports.fmu import FMI_VERSIONS, build_fmu
 
 try:
     import tomllib
@@ -37,7 +42,7 @@ pytestmark = pytest.mark.needs_cc
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory, carriage: Carriage, sim_lib):
+def fmus(tmp_path_factory, carriage: DerivedCarriage, sim_lib):
     """FMI 3.0 FMUs of the default carriage by kind and controller, built on first use."""
     folder = tmp_path_factory.mktemp("fmu3")
     made: dict[tuple[str, str], Path] = {}
@@ -133,7 +138,7 @@ def test_unit_definitions_are_the_si_dimensions(fmus) -> None:
         assert got == _sympy_dimensions(name), name
 
 
-def test_cs_reproduces_maglevgen_simulate(fmus, carriage: Carriage, sim_lib) -> None:
+def test_cs_reproduces_maglevgen_simulate(fmus, carriage: DerivedCarriage, sim_lib) -> None:
     """Same RK4 arithmetic as `maglevgen simulate`: the trajectory bit for bit, at one
     internal step per communication step and at ten."""
     ref = run_scenarios(carriage, ("lqr",), 1.0, 1e-3, lib=sim_lib).trajectories[0]
@@ -147,7 +152,7 @@ def test_cs_reproduces_maglevgen_simulate(fmus, carriage: Carriage, sim_lib) -> 
 
 
 @pytest.mark.parametrize("controller", ["damping", "none"])
-def test_cs_other_controllers_reproduce_maglevgen_simulate(fmus, carriage: Carriage, sim_lib,
+def test_cs_other_controllers_reproduce_maglevgen_simulate(fmus, carriage: DerivedCarriage, sim_lib,
                                                            controller: str) -> None:
     ref = run_scenarios(carriage, (controller,), 0.3, 1e-3, lib=sim_lib).trajectories[0]
     res = simulate_fmu(str(fmus("cs", controller)), fmi_type="CoSimulation", stop_time=0.3,
@@ -155,7 +160,7 @@ def test_cs_other_controllers_reproduce_maglevgen_simulate(fmus, carriage: Carri
     assert np.array_equal(_states(res), ref.x)
 
 
-def test_external_controller_with_zero_forces_is_the_open_loop(fmus, carriage: Carriage,
+def test_external_controller_with_zero_forces_is_the_open_loop(fmus, carriage: DerivedCarriage,
                                                                sim_lib, op) -> None:
     md = read_model_description(str(fmus("cs", "external")))
     assert {v.name for v in md.modelVariables if v.causality == "input"} == {
@@ -169,7 +174,7 @@ def test_external_controller_with_zero_forces_is_the_open_loop(fmus, carriage: C
     assert push["F_z3"][0] == pytest.approx(5.0 * op.allocation[4, 1], rel=1e-12)
 
 
-def test_me_with_cvode_agrees_with_dop853_on_the_sympy_model(fmus, carriage: Carriage,
+def test_me_with_cvode_agrees_with_dop853_on_the_sympy_model(fmus, carriage: DerivedCarriage,
                                                              op) -> None:
     t_end, rtol = 0.5, 1e-10
     res = simulate_fmu(str(fmus("me")), fmi_type="ModelExchange", solver="CVode",
@@ -186,7 +191,7 @@ def test_me_with_cvode_agrees_with_dop853_on_the_sympy_model(fmus, carriage: Car
 
 def test_contact_ends_the_cs_run_where_maglevgen_simulate_ends_it(fmus, carriage, sim_lib,
                                                                    op) -> None:
-    from maglevgen.simulate import simulate
+    from maglevgen.analyses.simulate import simulate
 
     push = {**DISTURBANCE, "w": -1.0}
     ref = simulate(sim_lib, carriage.p, op, "lqr", 0.5, 1e-3, carriage.params.track.min_gap,
@@ -238,7 +243,7 @@ def test_errors_are_status_codes_with_a_message(fmus) -> None:
     fmu.freeInstance()
 
 
-def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: Carriage,
+def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: DerivedCarriage,
                                                      sim_lib) -> None:
     """The default controller is the one the firmware embeds, run as the firmware runs it
     (--loop firmware, the default): the CLI's FMU follows `maglevgen simulate` of that
@@ -266,7 +271,7 @@ def test_instantiate_free_1000_times_without_a_leak(fmus, tmp_path: Path) -> Non
     with calloc: FMI 3.0 passes no allocator); LeakSanitizer must find nothing left."""
     import shutil
 
-    from maglevgen.fmu import fmi_headers
+    from maglevgen.exports.fmu import fmi_headers
 
     cc = shutil.which("gcc") or shutil.which("clang")
     assert cc is not None, "a C compiler is needed (the FMU itself is compiled with one)"
@@ -291,7 +296,7 @@ def test_build_description_rebuilds_the_binary(fmus, tmp_path: Path) -> None:
     binary (-O0: quick; the same IEEE arithmetic on x86-64) gives the shipped trajectory."""
     import shutil
 
-    from maglevgen.fmu import fmi_headers
+    from maglevgen.exports.fmu import fmi_headers
 
     path = fmus("cs")
     unzipped = tmp_path / "fmu"

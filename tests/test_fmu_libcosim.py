@@ -27,11 +27,11 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.simulate import AXIS_STATES, reference_trajectory, run_scenarios
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.derive import conventions as cv
-from maglevgen.fmu import build_fmu
+from maglevgen.exports.fmu import build_fmu
 from maglevgen.params import load_params
-from maglevgen.simulate import AXIS_STATES, reference_trajectory, run_scenarios
 
 if sys.version_info < (3, 11):  # libcosimpy's wheels start at Python 3.11
     pytest.importorskip("libcosimpy")
@@ -70,13 +70,13 @@ def _run(path: Path, t_end_ns: int, start: dict[str, float]) -> tuple[np.ndarray
 
 
 @pytest.fixture(scope="module")
-def cs_fmu(tmp_path_factory, carriage: Carriage, sim_lib) -> Path:
+def cs_fmu(tmp_path_factory, carriage: DerivedCarriage, sim_lib) -> Path:
     path = tmp_path_factory.mktemp("libcosim") / "cs.fmu"
     path.write_bytes(build_fmu(carriage, "cs", "lqr", fmi="2"))
     return path
 
 
-def test_libcosim_run_is_maglevgen_simulate_bit_for_bit(cs_fmu: Path, carriage: Carriage,
+def test_libcosim_run_is_maglevgen_simulate_bit_for_bit(cs_fmu: Path, carriage: DerivedCarriage,
                                                        sim_lib) -> None:
     ref = run_scenarios(carriage, ("lqr",), 1.0, 1e-3, lib=sim_lib).trajectories[0]
     t, x = _run(cs_fmu, 1_000_000_000, {})
@@ -87,7 +87,7 @@ def test_libcosim_run_is_maglevgen_simulate_bit_for_bit(cs_fmu: Path, carriage: 
 
 
 def test_libcosim_start_value_is_the_command_line_set(cs_fmu: Path, sim_lib) -> None:
-    heavy = Carriage(load_params(None, ["vehicle.mass=10.5"]))
+    heavy = DerivedCarriage(load_params(None, ["vehicle.mass=10.5"]))
     ref = run_scenarios(heavy, ("lqr",), 0.5, 1e-3, lib=sim_lib).trajectories[0]
     t, x = _run(cs_fmu, 500_000_000, {"vehicle.mass": 10.5})
     assert np.array_equal(x, ref.x[t // STEP_NS])
@@ -131,7 +131,7 @@ def _fmi_library() -> ctypes.CDLL:
 
 @pytest.mark.slow  # about 20 s: LSODA through Python callbacks, and the DOP853 reference
 def test_me_loaded_by_fmi_library_agrees_with_dop853_on_the_sympy_model(
-        tmp_path: Path, carriage: Carriage, sim_lib, op) -> None:
+        tmp_path: Path, carriage: DerivedCarriage, sim_lib, op) -> None:
     """The model-exchange FMU's derivatives through FMI Library (its own unzip, XML parser,
     dlopen and FMI 2.0 calls), integrated by scipy's LSODA, against DOP853 on the SymPy
     model: the bound of the FMPy/CVode test (1e-5 of the disturbance's peak)."""

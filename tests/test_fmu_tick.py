@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
 
+from maglevgen.analyses.simulate import Tick, firmware_loop, simulate
 from maglevgen.derive import conventions as cv
-from maglevgen.fmu import build_fmu
-from maglevgen.simulate import Tick, firmware_loop, simulate
+from maglevgen.exports.fmu import build_fmu
 
 STATES = [s.name for s in cv.STATES]
 T_END = 0.3  # [s]: the disturbance's first ticks saturate the budget, then the loop settles

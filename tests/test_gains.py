@@ -12,9 +12,9 @@ import pytest
 import scipy.linalg
 from independent_reference import generalized_mass, lqr_reference_mp, reference_trim, stiffness_fd
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
-from maglevgen.controllers import (
+from maglevgen.control.symbolic_reference import (
     axis_plants,
     carriage_gains,
     coupled_comparison,
@@ -52,7 +52,7 @@ def test_gains_json_shape_and_lqr(gains_json: dict) -> None:
         assert a["relative_difference"]["paper_vs_closed_form"] > 0.1
 
 
-def test_gains_json_plants_and_gains_equal_references(carriage: Carriage,
+def test_gains_json_plants_and_gains_equal_references(carriage: DerivedCarriage,
                                                       gains_json: dict) -> None:
     """`gains --json` (k, m, K, P) against the reference trim, central-difference stiffness,
     parallel-axis inertia and hand-solved Riccati equation (tests/independent_reference.py)."""
@@ -70,7 +70,7 @@ def test_gains_json_plants_and_gains_equal_references(carriage: Carriage,
                                    rtol=1e-13)
 
 
-def test_schedule_is_lqr_of_trim_at_each_speed(carriage: Carriage) -> None:
+def test_schedule_is_lqr_of_trim_at_each_speed(carriage: DerivedCarriage) -> None:
     speeds = np.array([8.0, 20.0, 60.0])
     sched = gain_schedule(carriage, speeds)
     for j, v in enumerate(speeds):
@@ -86,7 +86,7 @@ def test_schedule_is_lqr_of_trim_at_each_speed(carriage: Carriage) -> None:
 
 
 @pytest.mark.parametrize("dynamics", ["quasi-static", "first-order"])
-def test_coupled_lqr_is_optimal_and_per_axis_design_stabilises(carriage: Carriage,
+def test_coupled_lqr_is_optimal_and_per_axis_design_stabilises(carriage: DerivedCarriage,
                                                                 dynamics: str) -> None:
     """With eq 3's quasi-static circuits (the paper's model) both designs stabilise and the
     coupled LQR minimises the per-axis design's cost; with the circuits' lag (the default)

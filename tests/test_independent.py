@@ -30,8 +30,8 @@ from independent_reference import (
     zero_attitude_lift_off_bound,
 )
 
-from maglevgen.carriage import Carriage
-from maglevgen.controllers import axis_plants, carriage_gains
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.symbolic_reference import axis_plants, carriage_gains
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import lqr_gain_mp, riccati_stable_form
 from maglevgen.params import Parameters, default_params_path, load_params
@@ -45,15 +45,15 @@ LAWS = ("point", "distributed")
 
 
 @pytest.fixture(scope="module", params=LAWS, ids=[f"{law}law" for law in LAWS])
-def law_carriage(request: pytest.FixtureRequest) -> Carriage:
+def law_carriage(request: pytest.FixtureRequest) -> DerivedCarriage:
     """The default carriage with each force law (model.array_force)."""
-    return Carriage(load_params(overrides=[f'model.array_force="{request.param}"']))
+    return DerivedCarriage(load_params(overrides=[f'model.array_force="{request.param}"']))
 
 
 @pytest.fixture(scope="module")
-def heavy(law_carriage: Carriage) -> Carriage:
+def heavy(law_carriage: DerivedCarriage) -> DerivedCarriage:
     """A second carriage: heavier, CG further off O (a larger gravity stiffness)."""
-    return Carriage(load_params(overrides=[
+    return DerivedCarriage(load_params(overrides=[
         "vehicle.mass=10.5", "vehicle.cg_offset=[0.02, 0.0, 0.03]",
         f'model.array_force="{law_carriage.params.model.array_force}"']))
 
@@ -62,7 +62,7 @@ def _q(trim) -> np.ndarray:
     return np.array([trim.x[cv.STATE_INDEX[s]] for s in cv.Q_STATES])
 
 
-def _cases(carriage: Carriage, heavy: Carriage):
+def _cases(carriage: DerivedCarriage, heavy: DerivedCarriage):
     return [(c, v) for c in (carriage, heavy) for v in SPEEDS]
 
 
@@ -75,8 +75,8 @@ def _assert_stiffness(K: np.ndarray, K_ref: np.ndarray, rel: float = 1e-6) -> No
             assert abs(K[i, j] - K_ref[i, j]) < tol, (i, j, K[i, j], K_ref[i, j])
 
 
-def test_trim_equals_root_of_eq3_and_static_balance(law_carriage: Carriage,
-                                                    heavy: Carriage) -> None:
+def test_trim_equals_root_of_eq3_and_static_balance(law_carriage: DerivedCarriage,
+                                                    heavy: DerivedCarriage) -> None:
     """Pose, propulsion and every array's gap, lift and drag against the root found here."""
     for c, v in _cases(law_carriage, heavy):
         trim, ref = c.trim(v), reference_trim(c.params, v)
@@ -94,15 +94,15 @@ ACCELERATIONS = (5.0, -3.0)  # m/s^2: the default launch, and braking
 
 
 def test_accelerating_trim_equals_root_of_static_balances_with_dalembert_load(
-        law_carriage: Carriage, heavy: Carriage) -> None:
+        law_carriage: DerivedCarriage, heavy: DerivedCarriage) -> None:
     """The accelerating trim, in C (maglev_trim_accelerating, checked) and by derive/trim.py,
     against the root of the six static balances with the d'Alembert load -m a e_x at the CG
     solved here (independent_reference): pose, propulsion and every array's gap, lift and
     drag; along the track F_prop = drag + m a; accelerating pitches nose down (braking nose
     up) by several mrad from the constant-speed trim: the CG sits above the thrust's line."""
+    from maglevgen.control.operating import checked_accelerating_trim
     from maglevgen.derive.trim import solve_trim
-    from maglevgen.library import simulation_library
-    from maglevgen.operating import checked_accelerating_trim
+    from maglevgen.runtime.library import simulation_library
 
     lib = simulation_library(law_carriage.structure)  # heavy has the same structure
     for c, v in _cases(law_carriage, heavy):
@@ -128,10 +128,10 @@ def test_accelerating_trim_equals_root_of_static_balances_with_dalembert_load(
 
 
 def test_accelerating_trim_at_zero_acceleration_is_the_constant_speed_trim(
-        law_carriage: Carriage) -> None:
+        law_carriage: DerivedCarriage) -> None:
     """maglev_trim_accelerating(v, 0) gives maglev_trim(v) (to 1e-12: the same Newton
     iterations on the same residual), both at the test's root of the static balances."""
-    from maglevgen.library import simulation_library
+    from maglevgen.runtime.library import simulation_library
 
     lib = simulation_library(law_carriage.structure)
     for v in (7.0, *SPEEDS):
@@ -147,7 +147,7 @@ def test_accelerating_trim_at_zero_acceleration_is_the_constant_speed_trim(
 def test_trim_of_an_asymmetric_carriage_equals_root_of_eq3_and_static_balance() -> None:
     """CG 1 cm to the side: the equilibrium rolls and yaws (a symmetric carriage's trim has
     zero roll and yaw, where the yaw's terms of the trim state's velocity vanish)."""
-    c = Carriage(load_params(overrides=["vehicle.cg_offset=[0.005, 0.01, 0.015]"]))
+    c = DerivedCarriage(load_params(overrides=["vehicle.cg_offset=[0.005, 0.01, 0.015]"]))
     for v in SPEEDS:
         trim, ref = c.trim(v), reference_trim(c.params, v)
         assert min(abs(ref.q[2]), abs(ref.q[4])) > 1e-6  # rolled and yawed
@@ -157,8 +157,8 @@ def test_trim_of_an_asymmetric_carriage_equals_root_of_eq3_and_static_balance() 
         assert np.linalg.norm(trim.x[6:9]) == pytest.approx(v, rel=1e-12)
 
 
-def test_heave_range_equals_gap_limits_written_here(law_carriage: Carriage,
-                                                    heavy: Carriage) -> None:
+def test_heave_range_equals_gap_limits_written_here(law_carriage: DerivedCarriage,
+                                                    heavy: DerivedCarriage) -> None:
     """The trim's heave bracket: at zero attitude each gap is linear in z (slope n_z, from the
     reference gaps at z = 0 and 1 mm); the range keeping every gap >= track.min_gap, solved
     here, is the one the solver brackets the vertical balance in."""
@@ -169,7 +169,7 @@ def test_heave_range_equals_gap_limits_written_here(law_carriage: Carriage,
 def test_heave_range_with_tilted_upper_arrays_equals_gap_limits_written_here() -> None:
     """Arrays 3 and 6 tilted 11 degrees about x: the slope of their gaps in heave is 0.98, not
     1, where dividing the gap margin by the slope and multiplying by it would agree."""
-    _assert_heave_range(Carriage(load_params(overrides=[
+    _assert_heave_range(DerivedCarriage(load_params(overrides=[
         'model.array_force="point"', "arrays.3.normal=[0.0, 0.2, 1.0]",
         "arrays.6.normal=[0.0, -0.2, 1.0]"])))
 
@@ -190,7 +190,7 @@ def _array_lift_at_heave_limit(prm: Parameters, speed: float, limit: str) -> flo
     return float(external_wrench(prm, np.array([0.0, z, 0, 0, 0]), speed, 0.0, other=False)[2])
 
 
-def _assert_heave_range(c: Carriage) -> None:
+def _assert_heave_range(c: DerivedCarriage) -> None:
     from maglevgen.derive.trim import _heave_limits
 
     np.testing.assert_allclose(_heave_limits(c.functions, c.p, c.params.track.min_gap),
@@ -211,7 +211,7 @@ def test_lift_off_speed_equals_reference_below_1_m_s_and_after_doubling(
     the loop resistance puts the zero-attitude bound below 1 m/s (the search's bracket must
     start below it); pitched, the lift-off is more than twice that bound (the search must
     double its upper end before it bisects)."""
-    c = Carriage(load_params(LOW_RESISTANCE, overrides=list(overrides)))
+    c = DerivedCarriage(load_params(LOW_RESISTANCE, overrides=list(overrides)))
     bound = zero_attitude_lift_off_bound(c.params)
     ref = symmetric_lift_off_speed(c.params, v_start=8 * bound)
     if overrides:  # the premise: no trim at twice the bound, so the search doubles
@@ -229,7 +229,7 @@ def test_no_lift_off_when_the_lift_at_the_search_limit_is_short_of_the_weight() 
     prm = load_params(overrides=[law]).params
     lift = _array_lift_at_heave_limit(prm, 1e4, "lower")
     mass = float((lift + 0.5) / prm.vehicle.gravity)
-    c = Carriage(load_params(overrides=[law, f"vehicle.mass={mass!r}"]))
+    c = DerivedCarriage(load_params(overrides=[law, f"vehicle.mass={mass!r}"]))
     assert c.lift_off_speed() == float("inf")
 
 
@@ -240,7 +240,7 @@ def test_trim_refuses_a_speed_that_is_not_positive(speed: float) -> None:
     search, whose error names a cause that is not the input's)."""
     from maglevgen.derive.trim import NoTrimError, solve_trim
 
-    c = Carriage(load_params(overrides=['model.array_force="point"']))
+    c = DerivedCarriage(load_params(overrides=['model.array_force="point"']))
     with pytest.raises(NoTrimError, match=r"^operation\.speed = .*: must be > 0$"):
         solve_trim(c.functions, c.p, speed, c.params.track.min_gap)
 
@@ -252,7 +252,7 @@ def test_no_trim_below_the_zero_attitude_bound_names_the_lift_off_speed() -> Non
     written here to the 4 digits printed. A hair above the bound they do lift it."""
     from maglevgen.derive.trim import NoTrimError, solve_trim
 
-    c = Carriage(load_params(overrides=['model.array_force="point"']))
+    c = DerivedCarriage(load_params(overrides=['model.array_force="point"']))
     prm = c.params
     bound = zero_attitude_lift_off_bound(prm)
     ref = symmetric_lift_off_speed(prm, v_start=8 * bound)
@@ -289,7 +289,7 @@ def test_upper_contact_is_blamed_only_when_the_arrays_push_up_there(tmp_path: Pa
         '"vehicle.mass" = { normal = 0.3 }', '"vehicle.mass" = { normal = 0.001 }')
     light = tmp_path / "carriage_light.toml"
     light.write_text(text)
-    c = Carriage(load_params(light, overrides=['model.array_force="point"']))
+    c = DerivedCarriage(load_params(light, overrides=['model.array_force="point"']))
     prm, speed = c.params, 0.2
     assert prm.vehicle.mass == 0.01
     net = (_array_lift_at_heave_limit(prm, speed, "upper")
@@ -325,7 +325,7 @@ def test_lift_off_found_when_the_lift_at_the_search_limit_exceeds_the_weight_by_
     st = array_state(prm, np.array([0.0, _reference_heave_range(prm, v_max)[0], 0, 0, 0]),
                      v_max)
     z_prop = float(st.drag @ st.arms[:, 2] / st.drag.sum())  # no drag pitch moment
-    c = Carriage(load_params(overrides=[
+    c = DerivedCarriage(load_params(overrides=[
         *level, f"operation.propulsion_point=[0.0, 0.0, {z_prop!r}]"]))
     ref = symmetric_lift_off_speed(c.params, v_start=v_max)  # asserts a lift-off at v_max
     assert lift_off_speed(c.functions, c.p, c.params.track.min_gap, v_max=v_max) == (
@@ -350,14 +350,14 @@ def test_lift_at_the_top_of_the_heave_range_pushes_the_lower_arrays_into_the_tra
     light = tmp_path / "carriage_light.toml"  # the mass tolerance scaled to the mass
     light.write_text(default_params_path().read_text().replace(
         '"vehicle.mass" = { normal = 0.3 }', '"vehicle.mass" = { normal = 0.03 }'))
-    c = Carriage(load_params(light, overrides=[*weak, f"vehicle.mass={mass!r}"]))
+    c = DerivedCarriage(load_params(light, overrides=[*weak, f"vehicle.mass={mass!r}"]))
     assert c.params.tolerances != prm.tolerances
     with pytest.raises(NoTrimError, match=r"into the track \(net vertical force 0\.5 N at"):
         solve_trim(c.functions, c.p, speed, c.params.track.min_gap)
 
 
-def test_full_axis_stiffness_equals_central_difference(law_carriage: Carriage,
-                                                       heavy: Carriage) -> None:
+def test_full_axis_stiffness_equals_central_difference(law_carriage: DerivedCarriage,
+                                                       heavy: DerivedCarriage) -> None:
     """K_st0 + gravity and propulsion terms = -dW/dq of every external force (5x5)."""
     for c, v in _cases(law_carriage, heavy):
         trim = c.trim(v)
@@ -368,7 +368,7 @@ def test_full_axis_stiffness_equals_central_difference(law_carriage: Carriage,
 
 
 def test_gravity_and_propulsion_stiffness_equals_central_difference(
-        law_carriage: Carriage, heavy: Carriage) -> None:
+        law_carriage: DerivedCarriage, heavy: DerivedCarriage) -> None:
     """The K_other part alone: its own scale, so a sign error cannot hide in the magnetic one."""
     from maglevgen.derive.numeric import other_stiffness
 
@@ -381,7 +381,7 @@ def test_gravity_and_propulsion_stiffness_equals_central_difference(
         np.testing.assert_allclose(K, K_fd, rtol=0, atol=1e-7 * np.max(np.abs(K_fd)))
 
 
-def test_design_pose_stiffness_equals_central_difference(law_carriage: Carriage) -> None:
+def test_design_pose_stiffness_equals_central_difference(law_carriage: DerivedCarriage) -> None:
     """The closed form the report prints beside eqs 13-19 (K_st0 at zero attitude, in the
     arrays' lift and drag symbols) with eq 3's lift and drag at the design pose (written here)
     against central differences of the arrays' force sum there."""
@@ -397,7 +397,8 @@ def test_design_pose_stiffness_equals_central_difference(law_carriage: Carriage)
                       stiffness_fd(c.params, np.zeros(5), speed, 0.0, other=False))
 
 
-def test_axis_plants_and_gains_equal_references(law_carriage: Carriage, heavy: Carriage) -> None:
+def test_axis_plants_and_gains_equal_references(law_carriage: DerivedCarriage,
+                                                heavy: DerivedCarriage) -> None:
     """(k, m) of each axis, its LQR gain (mpmath, by hand) and damping (numerical ISE minimum)."""
     for c in (law_carriage, heavy):
         trim = c.trim()
@@ -424,7 +425,7 @@ def test_axis_plants_and_gains_equal_references(law_carriage: Carriage, heavy: C
 
 
 @pytest.mark.needs_cc
-def test_generated_c_operating_point_equals_references(carriage: Carriage, op,
+def test_generated_c_operating_point_equals_references(carriage: DerivedCarriage, op,
                                                        sim_lib) -> None:
     """The compiled C's trim, axis plants, gains and damping against the references here."""
     v = carriage.params.operation.speed
@@ -507,7 +508,7 @@ def test_closed_form_mpmath_gain_equals_hand_solution() -> None:
             assert abs(a - b) <= mpmath.mpf(10) ** -38 * abs(b), pt
 
 
-def test_reference_wrench_balances_at_the_reference_trim(law_carriage: Carriage) -> None:
+def test_reference_wrench_balances_at_the_reference_trim(law_carriage: DerivedCarriage) -> None:
     """The reference's own root really is an equilibrium, and not the trivial one."""
     prm = law_carriage.params
     ref = reference_trim(prm, 20.0)
@@ -516,7 +517,8 @@ def test_reference_wrench_balances_at_the_reference_trim(law_carriage: Carriage)
     assert ref.arrays.lift.sum() > prm.vehicle.mass * prm.vehicle.gravity  # lower arrays pull
 
 
-def test_each_control_input_pushes_along_its_axis_at_its_array(law_carriage: Carriage) -> None:
+def test_each_control_input_pushes_along_its_axis_at_its_array(
+        law_carriage: DerivedCarriage) -> None:
     """The model's wrench (eqs 8-12 with eqs 22-23's inputs): setting one control input to 1 N
     adds, in body axes, a unit force along that input's body axis at its array's face centre
     and its moment about O, built here by numpy cross products (at the trim pose)."""
@@ -525,11 +527,11 @@ def test_each_control_input_pushes_along_its_axis_at_its_array(law_carriage: Car
 
 def test_each_normal_actuator_pushes_along_its_arrays_unit_normal() -> None:
     """control.actuators = "normal": one input per array, a force along its unit normal."""
-    _assert_unit_inputs(Carriage(load_params(overrides=[
+    _assert_unit_inputs(DerivedCarriage(load_params(overrides=[
         'model.array_force="point"', 'control.actuators="normal"'])))
 
 
-def _assert_unit_inputs(c: Carriage) -> None:
+def _assert_unit_inputs(c: DerivedCarriage) -> None:
     x = c.trim().x
     u0 = np.zeros(c.functions.model.u.shape[0])
     base = np.ravel(c.functions.body_wrench(x, u0, c.p))
@@ -547,7 +549,7 @@ def _assert_unit_inputs(c: Carriage) -> None:
     assert j == u0.size  # every input checked
 
 
-def test_array_speed_includes_the_body_rates(law_carriage: Carriage) -> None:
+def test_array_speed_includes_the_body_rates(law_carriage: DerivedCarriage) -> None:
     """Each array's along-track speed is (R (v + w x a_i))_x: at the trim pose with body rates
     and a sideways body velocity, every array's gap equals the reference's, and its lift and
     drag equal eq 3's at that speed (array_state, one array at a time, the speed built here
@@ -574,10 +576,10 @@ def test_array_speed_includes_the_body_rates(law_carriage: Carriage) -> None:
         assert abs(lift[i] / ref.lift[i] - 1) > 1e-6  # the lag is there
 
 
-def test_control_effectiveness_equals_cross_products(law_carriage: Carriage) -> None:
+def test_control_effectiveness_equals_cross_products(law_carriage: DerivedCarriage) -> None:
     """E (eqs 8-12 / 22-23): each column the wrench about O of a unit body-axis force at an
     array's face centre, built here by numpy cross products."""
-    from maglevgen.controllers import allocation_matrix
+    from maglevgen.control.symbolic_reference import allocation_matrix
 
     cols = []
     for arr, (_, comps) in zip(law_carriage.params.arrays.values(), law_carriage.structure.arrays,

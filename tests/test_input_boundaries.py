@@ -31,9 +31,9 @@ from test_build import FAST, assert_one_line_error, siblings, tree
 from test_params_cli import DEFAULT_DATA, DEFAULT_TEXT, edited, replaced
 
 import maglevgen.carriage
-from maglevgen import output, texsetup
 from maglevgen.cli import main
 from maglevgen.errors import InputError
+from maglevgen.infrastructure import output, texsetup
 
 # ------------------------------------------------------------------------------ the cases
 
@@ -122,12 +122,12 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 @pytest.fixture
 def no_model_build(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Building a Carriage fails the test: a bad input must be refused before any work."""
+    """Building a DerivedCarriage fails the test: a bad input must be refused before any work."""
 
     def boom(*_a: object, **_k: object) -> None:
         raise AssertionError("model built before the input was refused")
 
-    monkeypatch.setattr(maglevgen.carriage, "Carriage", boom)
+    monkeypatch.setattr(maglevgen.carriage, "DerivedCarriage", boom)
 
 
 @pytest.mark.usefixtures("no_model_build")
@@ -246,8 +246,8 @@ def test_a_libraries_multi_line_message_stays_one_line(monkeypatch, capsys) -> N
     """SciPy's root() message (several lines in some versions) inside the no-trim error of
     the lambdified trim (the report's), raised where `maglevgen trim` meets a no-trim error
     (its own trim is the C's, which has no such message)."""
-    from maglevgen import summary
-    from maglevgen.carriage import Carriage
+    from maglevgen.analyses import queries
+    from maglevgen.carriage import DerivedCarriage
     from maglevgen.derive import trim as trim_mod
     from maglevgen.errors import NoTrimError
     from maglevgen.params import load_params
@@ -259,12 +259,12 @@ def test_a_libraries_multi_line_message_stays_one_line(monkeypatch, capsys) -> N
 
     monkeypatch.setattr(trim_mod, "root", failing_root)
     with pytest.raises(NoTrimError) as raised:
-        Carriage(load_params(overrides=["vehicle.mass=9.31"])).trim()
+        DerivedCarriage(load_params(overrides=["vehicle.mass=9.31"])).trim()
 
     def no_trim(*_a):
         raise raised.value
 
-    monkeypatch.setattr(summary, "trim_point", no_trim)
+    monkeypatch.setattr(queries, "trim_point", no_trim)
     rc = main(["trim", "--set", "vehicle.mass=9.31"])
     out, err = capsys.readouterr()
     assert_one_line_error(rc, out, err, ["did not converge", "not making good progress, as "
@@ -276,16 +276,16 @@ def test_floating_point_warnings_never_reach_the_terminal(monkeypatch, capsys) -
     the command's own."""
     import numpy as np
 
-    from maglevgen import summary
+    from maglevgen.analyses import queries
 
-    real = summary.trim_report
+    real = queries.trim_report
 
     def overflowing(carriage, speed, **options):
         np.exp(np.array([1e3]))  # RuntimeWarning: overflow
         warnings.warn("a library's own warning", UserWarning, stacklevel=1)
         return real(carriage, speed, **options)
 
-    monkeypatch.setattr(summary, "trim_report", overflowing)
+    monkeypatch.setattr(queries, "trim_report", overflowing)
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         rc = main(["trim", "--json"])
@@ -429,7 +429,7 @@ def test_a_name_with_an_underscore_reaches_c_and_latex_only_escaped(tmp_path: Pa
 
 _CHILD = """
 import os, sys, time
-import maglevgen.output as o
+import maglevgen.infrastructure.output as o
 from maglevgen.cli import main
 from maglevgen.errors import InputError
 stage = sys.argv[1]

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from independent_reference import reference_trim
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 
 REPO = Path(__file__).resolve().parents[1]
 # the checkout's folders and where pyproject.toml's package-dir installs them
@@ -74,7 +74,7 @@ def test_wheel_holds_every_file_of_the_package(wheel) -> None:
 
 
 def test_installed_command_runs_outside_the_checkout(wheel, tmp_path: Path,
-                                                     carriage: Carriage) -> None:
+                                                     carriage: DerivedCarriage) -> None:
     """A fresh venv (its dependencies those of this environment, through a .pth file: no
     download) with the wheel installed by pip; `maglevgen trim --json` run from another
     folder imports the installed copy and finds the trim."""

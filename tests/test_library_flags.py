@@ -1,4 +1,5 @@
-"""The comparison libraries' -O1 build (maglevgen.library.COMPARISON_FLAGS) against gcc -O2 of
+"""The comparison libraries' -O1 build (maglevgen.runtime.library.COMPARISON_FLAGS) against gcc -O2
+of
 the same generated C: bitwise the same numbers, and a library cached at either level serves
 `simulation_library` without a second compile."""
 
@@ -9,14 +10,14 @@ import shutil
 import numpy as np
 import pytest
 
-from maglevgen.library import (
+from maglevgen.runtime.compile import DEFAULT_FLAGS, compile_shared
+from maglevgen.runtime.ffi import GeneratedLibrary
+from maglevgen.runtime.library import (
     build_libraries,
     cached_simulation_library,
     runtime_sources,
     simulation_library,
 )
-from maglevgen.runtime.compile import DEFAULT_FLAGS, compile_shared
-from maglevgen.runtime.ffi import GeneratedLibrary
 
 
 @pytest.mark.slow  # two compiles of the point law's library (-O1 and -O2): about 15 s of CPU

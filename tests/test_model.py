@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from independent_reference import reference_trim
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
 from maglevgen.codegen.casadi_model import casadi_model
 from maglevgen.derive import conventions as cv
@@ -23,7 +23,7 @@ def _rot(phi: float, theta: float, psi: float) -> np.ndarray:
     return Rz @ Ry @ Rx
 
 
-def _array_wrench_printed_eq3(carriage: Carriage, q: np.ndarray, speed: float) -> np.ndarray:
+def _array_wrench_printed_eq3(carriage: DerivedCarriage, q: np.ndarray, speed: float) -> np.ndarray:
     """(F_y, F_z, M_x, M_y, M_z) of the arrays, written here from eqs 3-4 as printed."""
     prm = carriage.params
     h, c = prm.halbach, prm.circuit
@@ -44,13 +44,13 @@ def _array_wrench_printed_eq3(carriage: Carriage, q: np.ndarray, speed: float) -
     return total[1:]
 
 
-def test_surface_field_matches_paper_value(carriage: Carriage) -> None:
+def test_surface_field_matches_paper_value(carriage: DerivedCarriage) -> None:
     """Eq 4 with the assumed Br, d, M gives the paper's B0 = 0.9 T within 0.5 %."""
     val = dict(zip(carriage.model.p, carriage.p, strict=True))
     assert float(carriage.model.B0.xreplace(val)) == pytest.approx(0.9, rel=5e-3)
 
 
-def test_trim_is_equilibrium_at_nominal_gap(carriage: Carriage, trim) -> None:
+def test_trim_is_equilibrium_at_nominal_gap(carriage: DerivedCarriage, trim) -> None:
     xdot = carriage.functions.xdot(trim.x, trim.u, carriage.p)
     assert np.max(np.abs(xdot[6:])) < 1e-9
     assert xdot[0] == pytest.approx(carriage.params.operation.speed, rel=1e-12)
@@ -67,12 +67,12 @@ def test_trim_is_equilibrium_at_nominal_gap(carriage: Carriage, trim) -> None:
 
 
 @pytest.fixture(scope="module")
-def point() -> Carriage:
+def point() -> DerivedCarriage:
     """The paper's force law: eq 3 at each face centre (model.array_force = "point")."""
-    return Carriage(load_params(overrides=['model.array_force="point"']))
+    return DerivedCarriage(load_params(overrides=['model.array_force="point"']))
 
 
-def test_trim_forces_balance_weight_independently(point: Carriage) -> None:
+def test_trim_forces_balance_weight_independently(point: DerivedCarriage) -> None:
     """The printed eq 3 with the point law's trim pose reproduces the weight (independent
     force sum); the distributed law's trim is checked in test_independent.py."""
     carriage, trim = point, point.trim()
@@ -83,7 +83,7 @@ def test_trim_forces_balance_weight_independently(point: Carriage) -> None:
     assert abs(w[0]) < 1e-9 * weight
 
 
-def test_stiffness_equals_central_difference(point: Carriage) -> None:
+def test_stiffness_equals_central_difference(point: DerivedCarriage) -> None:
     """Each derived stiffness of the point law (closed form in the trim forces) equals -dW/dq
     of printed eq 3 by differences (the distributed law's: test_stiffness_parts.py)."""
     carriage, trim = point, point.trim()
@@ -103,7 +103,7 @@ def test_stiffness_equals_central_difference(point: Carriage) -> None:
             assert abs(K[i, j] - K_fd[i, j]) < tol, (i, j, K[i, j], K_fd[i, j])
 
 
-def test_linearisation_equals_casadi_ad(carriage: Carriage, trim) -> None:
+def test_linearisation_equals_casadi_ad(carriage: DerivedCarriage, trim) -> None:
     """The chain-rule symbolic Jacobians equal CasADi's AD of the converted model at trim."""
     cm = casadi_model(carriage.model)
     jac = ca.Function("jacobians", [cm.x, cm.u, cm.p],
@@ -116,7 +116,7 @@ def test_linearisation_equals_casadi_ad(carriage: Carriage, trim) -> None:
         assert np.max(np.abs(ours[nz] - ref[nz]) / np.abs(ref[nz])) < 1e-9
 
 
-def test_casadi_dynamics_equals_lambdified_model(carriage: Carriage) -> None:
+def test_casadi_dynamics_equals_lambdified_model(carriage: DerivedCarriage) -> None:
     cm = casadi_model(carriage.model)
     f = ca.Function("f", [cm.x, cm.u, cm.p], [cm.xdot])
     rng = np.random.default_rng(3)
@@ -129,7 +129,7 @@ def test_casadi_dynamics_equals_lambdified_model(carriage: Carriage) -> None:
         np.testing.assert_allclose(ours, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
 
 
-def test_no_trim_below_lift_off(carriage: Carriage) -> None:
+def test_no_trim_below_lift_off(carriage: DerivedCarriage) -> None:
     v_off = carriage.lift_off_speed()
     assert 0 < v_off < carriage.params.operation.speed
     carriage.trim(1.01 * v_off)  # just above: exists
@@ -145,7 +145,7 @@ def test_trim_cli_no_equilibrium_is_one_line(capsys: pytest.CaptureFixture[str])
     assert errors == lines[-1:] and "no trim at speed 1 m/s" in errors[0]
 
 
-def test_trim_cli_json_stiffness(capsys: pytest.CaptureFixture[str], carriage: Carriage,
+def test_trim_cli_json_stiffness(capsys: pytest.CaptureFixture[str], carriage: DerivedCarriage,
                                  trim) -> None:
     import json
 
@@ -162,12 +162,12 @@ def test_trim_cli_json_stiffness(capsys: pytest.CaptureFixture[str], carriage: C
 
 
 def test_override_changes_trim() -> None:
-    heavy = Carriage(load_params(overrides=["vehicle.mass=10.5"]))
-    light = Carriage(load_params())
+    heavy = DerivedCarriage(load_params(overrides=["vehicle.mass=10.5"]))
+    light = DerivedCarriage(load_params())
     assert heavy.trim().x[2] < light.trim().x[2]  # a heavier carriage rides lower
 
 
-def test_force_figure_curves_are_eq3_from_the_library(carriage: Carriage, sim_lib) -> None:
+def test_force_figure_curves_are_eq3_from_the_library(carriage: DerivedCarriage, sim_lib) -> None:
     """The force figure's curves (report.force_curves: the compiled library's array forces at
     zero attitude) against eq 3-4 as printed, written here: lift and drag of one upper array
     per circuit count, against the gap at a speed and against the speed at a gap."""

@@ -1,4 +1,5 @@
-"""Monte-Carlo robustness (maglevgen.montecarlo): reproducibility, agreement with `maglevgen
+"""Monte-Carlo robustness (maglevgen.analyses.montecarlo): reproducibility, agreement with
+`maglevgen
 simulate`, and the contact probability's confidence interval.
 
 References independent of the code under test: numpy's ``SeedSequence.spawn`` for the
@@ -17,11 +18,7 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest
 
-from maglevgen.carriage import Carriage
-from maglevgen.cli import main
-from maglevgen.derive import conventions as cv
-from maglevgen.laws import names
-from maglevgen.montecarlo import (
+from maglevgen.analyses.montecarlo import (
     input_label,
     make_study,
     run_dask,
@@ -29,6 +26,10 @@ from maglevgen.montecarlo import (
     run_study,
     wilson,
 )
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.cli import main
+from maglevgen.control import names
+from maglevgen.derive import conventions as cv
 from maglevgen.params import load_params
 
 SPEEDS = "tolerances.speed=[8.0, 16.0]"  # across the per-axis designs' unstable range
@@ -45,7 +46,7 @@ def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
 
 @pytest.fixture(scope="module")
 def small(sim_lib):
-    carriage = Carriage(load_params(None, [SPEEDS]))
+    carriage = DerivedCarriage(load_params(None, [SPEEDS]))
     study = make_study(carriage, sim_lib, ("damping", "coupled"), t_end=0.4, dt=1e-3, seed=7)
     return carriage, study, run_local(study, 6, workers=1)
 
@@ -111,7 +112,7 @@ def test_a_sample_equals_maglevgen_simulate(small, tmp_path: Path) -> None:
             assert ax["settling_time"] == pytest.approx(st, rel=1e-12)
 
 
-def _direct_contact_rate(carriage: Carriage, lib, n: int, t_end: float, dt: float) -> float:
+def _direct_contact_rate(carriage: DerivedCarriage, lib, n: int, t_end: float, dt: float) -> float:
     """Contacts over runs for the optimized damping, samples drawn here from the file's
     tolerances and run through the runtime's ctypes functions alone."""
     tol = carriage.params.tolerances
@@ -159,9 +160,9 @@ def test_contact_interval_covers_an_independent_estimate(private_cache) -> None:
     """The point force law with quasi-static circuits (the paper's model), whose optimized
     damping loses roll stiffness at low speed: a contact rate worth an interval (with the
     distributed law it holds)."""
-    from maglevgen.library import simulation_library
+    from maglevgen.runtime.library import simulation_library
 
-    carriage = Carriage(load_params(None, [SPEEDS, 'model.array_force="point"',
+    carriage = DerivedCarriage(load_params(None, [SPEEDS, 'model.array_force="point"',
                                            'model.circuit_dynamics="quasi-static"']))
     sim_lib = simulation_library(carriage.structure)
     study = make_study(carriage, sim_lib, ("damping",), t_end=3.0, dt=1e-3, seed=11)
@@ -185,7 +186,7 @@ def test_wilson_interval_matches_scipy() -> None:
 
 def test_samples_breaking_a_cross_key_rule_are_rejected_and_counted(sim_lib) -> None:
     """A nominal gap drawn at or below track.min_gap (2 mm) is rejected, not run."""
-    carriage = Carriage(load_params(None, [
+    carriage = DerivedCarriage(load_params(None, [
         'tolerances.parameters={"arrays.3.nominal_gap" = {uniform = 0.0135}}', SPEEDS]))
     study = make_study(carriage, sim_lib, ("coupled",), t_end=0.02, dt=1e-3, seed=3)
     cols = run_local(study, 40, workers=1)
@@ -236,7 +237,7 @@ def test_a_chunk_whose_worker_dies_is_retried_once(small, tmp_path: Path, monkey
     import multiprocessing
     import os
 
-    from maglevgen import montecarlo
+    from maglevgen.analyses import montecarlo
 
     if multiprocessing.get_start_method() != "fork":
         pytest.skip("needs forked workers to patch _prepare")  # Linux default

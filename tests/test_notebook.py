@@ -19,7 +19,7 @@ import pytest
 from nbclient import NotebookClient
 from test_envelope import _reference_eigenvalues
 
-from maglevgen.carriage import Carriage
+from maglevgen.carriage import DerivedCarriage
 
 pytestmark = [pytest.mark.needs_cc, pytest.mark.slow]  # the compiled library; ~15 s (a kernel)
 NOTEBOOK = Path(__file__).resolve().parents[1] / "examples" / "linearization_envelope.ipynb"
@@ -27,7 +27,7 @@ N_SPEEDS = 4
 
 
 def test_notebook_runs_and_its_envelope_matches_the_sympy_eigenvalues(
-        tmp_path: Path, carriage: Carriage, sim_lib) -> None:
+        tmp_path: Path, carriage: DerivedCarriage, sim_lib) -> None:
     nb = nbformat.read(NOTEBOOK, as_version=4)
     assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code")  # stored clean
     out = tmp_path / "numbers.json"

@@ -70,7 +70,7 @@ def test_fmu_defaults_to_the_embedded_controller(monkeypatch, tmp_path: Path, ca
     """`maglevgen fmu` without --controller exports envelope.embedded_controller (what the
     firmware embeds and `build` verifies), with a --set override too; the FMU builder is
     replaced by a recorder (building one is test_fmu.py's)."""
-    import maglevgen.fmu as fmu
+    import maglevgen.exports.fmu as fmu
 
     seen = []
     monkeypatch.setattr(fmu, "build_fmu", lambda carriage, kind, controller, **kw:

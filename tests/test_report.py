@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 
 from maglevgen import report as rp
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.queries import gains_report
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
 from maglevgen.errors import InputError, MaglevError
 from maglevgen.params import default_params_text, load_params
 from maglevgen.report import display, latex, render
 from maglevgen.report import format as fmt
 from maglevgen.report.sections import parameters, simulation, stiffness
-from maglevgen.summary import gains_report
 
 OVERFULL_BOUND_PT = 10.0  # widest overfull box the PDF may have
 RTOL = 1e-4  # the report prints 6 significant digits
@@ -51,7 +51,7 @@ def mass_report(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def default_context(carriage: Carriage):
+def default_context(carriage: DerivedCarriage):
     return rp.build_context(carriage)
 
 
@@ -114,7 +114,7 @@ def test_pdf_builds_without_errors_or_wide_overfull_boxes(default_report: Path) 
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
 def test_pdf_has_every_section_and_the_gains_command_numbers(
-    default_report: Path, carriage: Carriage
+    default_report: Path, carriage: DerivedCarriage
 ) -> None:
     text = _pdf_text(default_report / "report.pdf")
     flat = re.sub(r"\s+", " ", text)
@@ -127,7 +127,7 @@ def test_pdf_has_every_section_and_the_gains_command_numbers(
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
 def test_changed_mass_changes_the_report(mass_report: Path, default_report: Path) -> None:
-    heavy = Carriage(load_params(None, [f"vehicle.mass={MASS}"]))
+    heavy = DerivedCarriage(load_params(None, [f"vehicle.mass={MASS}"]))
     ref = gains_report(heavy, None)
     text = _pdf_text(mass_report / "report.pdf")
     rows = _gain_rows(text, "")
@@ -209,7 +209,7 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
 
 @pytest.mark.needs_tex
 def test_latex_failure_leaves_the_previous_output(
-    default_context, carriage: Carriage, tmp_path: Path, monkeypatch
+    default_context, carriage: DerivedCarriage, tmp_path: Path, monkeypatch
 ) -> None:
     out = tmp_path / "out"
     out.mkdir()
@@ -303,7 +303,7 @@ def test_a_column_takes_one_notation_and_reads_back_its_values() -> None:
     """fcolumn (LaTeX) and fcolumn_plain (text): a column whose magnitudes span 1e-5 to 1e-2
     prints every entry with an exponent, one within [1e-4, 1e5) every entry plainly; each
     entry reads back (parsed here) as its value to the digits asked; zeros and None pass."""
-    from maglevgen.columns import fcolumn_plain
+    from maglevgen.infrastructure.columns import fcolumn_plain
 
     wide = [2.23524e-4, 2.96472e-5, 3.63352e-2, 0.0]
     tex = fmt.fcolumn(wide)
@@ -346,9 +346,9 @@ def test_escape_and_long_sums_are_broken() -> None:
 def test_stiffness_display_is_keyed_by_the_geometry_it_shows() -> None:
     """The cached K_st0 display (keyed by the array geometry it substitutes) changes with the
     geometry, not with the mass, and equals what a fresh derivation renders."""
-    base = Carriage(load_params(overrides=[]))
-    heavier = Carriage(load_params(overrides=["vehicle.mass=12.5"]))
-    moved = Carriage(load_params(overrides=["arrays.3.position=[0.26, 0.0, -0.031]"]))
+    base = DerivedCarriage(load_params(overrides=[]))
+    heavier = DerivedCarriage(load_params(overrides=["vehicle.mass=12.5"]))
+    moved = DerivedCarriage(load_params(overrides=["arrays.3.position=[0.26, 0.0, -0.031]"]))
     assert stiffness._shown_values(heavier) == stiffness._shown_values(base)
     assert stiffness._shown_values(moved) != stiffness._shown_values(base)
     assert ("arrays.3.position.z", -0.031) in stiffness._shown_values(moved)
@@ -365,7 +365,7 @@ def test_stiffness_display_is_keyed_by_the_geometry_it_shows() -> None:
         fresh = stiffness._stiffness_display(moved.structure, stiffness._shown_values(moved),
                                       display.REPORT_SOURCE)
     finally:
-        from maglevgen.cache import STORE
+        from maglevgen.infrastructure.cache import STORE
 
         memo.set_store(STORE)
     assert fresh == shown
@@ -377,12 +377,12 @@ def test_stiffness_display_is_keyed_by_the_geometry_it_shows() -> None:
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
 def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
-                                                         carriage: Carriage) -> None:
+                                                         carriage: DerivedCarriage) -> None:
     """Page 1 names every controller's verdict (from `maglevgen envelope`'s data, computed here
     by envelope.compute_envelope) and the count of checks; nowhere a SymPy/Python repr."""
-    from maglevgen.envelope import compute_envelope
-    from maglevgen.library import simulation_library
-    from maglevgen.operating import CONTROLLER_TITLES
+    from maglevgen.analyses.envelope import compute_envelope
+    from maglevgen.control.operating import CONTROLLER_TITLES
+    from maglevgen.runtime.library import simulation_library
 
     pdf = str(default_report / "report.pdf")
     page1 = subprocess.run(["pdftotext", "-f", "1", "-l", "1", pdf, "-"], check=True,
@@ -412,7 +412,7 @@ def test_no_raw_python_or_sympy_text_anywhere_in_the_pdf(default_report: Path) -
 
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
-def test_the_embedded_controller_is_given_in_full(default_report: Path, carriage: Carriage,
+def test_the_embedded_controller_is_given_in_full(default_report: Path, carriage: DerivedCarriage,
                                                   capsys) -> None:
     """The section "The embedded controller" (and page 1) give it in full: its weights at the
     design speed equal Bryson's rule and the damping-ratio root search of
@@ -463,7 +463,7 @@ def test_the_embedded_controller_is_given_in_full(default_report: Path, carriage
 
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
-def test_summary_gain_rows_agree_with_gains_json(default_report: Path, carriage: Carriage,
+def test_summary_gain_rows_agree_with_gains_json(default_report: Path, carriage: DerivedCarriage,
                                                  capsys) -> None:
     """Every number of the summary's gains table (K1, K2, the poles) equals `gains --json`'s,
     parsed row by row from the PDF's text; the magnetic damping beside them equals central
@@ -746,7 +746,7 @@ def test_every_table_column_is_in_one_notation_and_gives_its_unit(default_report
 
 @pytest.mark.needs_cc
 def test_page_one_compares_each_printed_value_with_the_derived_one_beside_it(
-        default_report: Path, carriage: Carriage) -> None:
+        default_report: Path, carriage: DerivedCarriage) -> None:
     """The summary's two comparison tables read back from the .tex: the printed stiffnesses
     (eqs 7, 13-16 evaluated here at the reference trim) beside K_st0 (central differences of
     the test's force sums) and their difference in percent of that K_st0; the printed eq 32

@@ -1,4 +1,4 @@
-"""The sampled region of attraction (maglevgen.roa, maglev_lyapunov_batch).
+"""The sampled region of attraction (maglevgen.analyses.roa, maglev_lyapunov_batch).
 
 References: a two-state system whose region is known in closed form (x1' = -x1 + x1^3,
 x2' = -x2: V = x1^2 + x2^2 decreases exactly inside x1^2 < 1 on each level, so the largest
@@ -16,10 +16,10 @@ import scipy.linalg
 from independent_reference import contact_gaps
 from scipy.integrate import solve_ivp
 
-from maglevgen import roa
-from maglevgen.laws.lqr import weighted_qr
-from maglevgen.laws.spec import spec_weights
-from maglevgen.operating import AXIS_STATES, REDUCED_INDEX
+from maglevgen.analyses import roa
+from maglevgen.control.lqr import weighted_qr
+from maglevgen.control.operating import AXIS_STATES, REDUCED_INDEX
+from maglevgen.control.spec import spec_weights
 
 SMALL = roa.Sampling(directions=60, radii=8, bisections=4, confirm=0)
 
@@ -181,11 +181,11 @@ def test_montecarlo_column_places_each_sample_against_the_region(sim_lib) -> Non
     region at its speed: finite and positive for the spec design, and no sample inside the
     region (multiple < 1) fails its run (the runs are the reference: a failure there would
     contradict the region)."""
-    from maglevgen.carriage import Carriage
-    from maglevgen.montecarlo import FAILURES, make_study, run_local
+    from maglevgen.analyses.montecarlo import FAILURES, make_study, run_local
+    from maglevgen.carriage import DerivedCarriage
     from maglevgen.params import load_params
 
-    carriage = Carriage(load_params(None, ["tolerances.speed=[15.0, 25.0]"]))
+    carriage = DerivedCarriage(load_params(None, ["tolerances.speed=[15.0, 25.0]"]))
     study = make_study(carriage, sim_lib, ("spec",), t_end=0.4, dt=1e-3, seed=3)
     cols = run_local(study, 6, workers=1)
     m = cols["region_multiple"]

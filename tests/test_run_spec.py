@@ -1,4 +1,4 @@
-"""A run judged against [control.spec] (maglevgen.run_spec, simulate.spec_verdict).
+"""A run judged against [control.spec] (maglevgen.analyses.run_spec, simulate.spec_verdict).
 
 References: the checks recomputed here with numpy from a firmware-loop run's raw arrays (the
 states, the trim, the gaps), the limits read from the parameter file in the test, and runs
@@ -10,9 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from maglevgen.params import load_params
-from maglevgen.run_spec import SPEED_TOLERANCE, RunSpec, judge_run
-from maglevgen.simulate import (
+from maglevgen.analyses.run_spec import SPEED_TOLERANCE, RunSpec, judge_run
+from maglevgen.analyses.simulate import (
     AXIS_STATES,
     SETTLING_BAND,
     firmware_loop,
@@ -20,6 +19,7 @@ from maglevgen.simulate import (
     simulate,
     spec_verdict,
 )
+from maglevgen.params import load_params
 
 T_END = 1.5  # [s] past the first second, where the speed error is judged
 
@@ -150,8 +150,8 @@ def test_a_yaw_at_speed_starts_a_drift_no_budget_stops_within_the_disturbance(ca
     default) is met by none; the file's limit leaves the room, and the run keeps to it."""
     from independent_reference import lateral_drift_overshoot, rotation
 
-    from maglevgen.envelope import resolve_range
-    from maglevgen.simulate import DISTURBANCE, run_scenarios
+    from maglevgen.analyses.envelope import resolve_range
+    from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios
 
     prm, spec = carriage.params, carriage.params.control.spec
     v_max = resolve_range(carriage, sim_lib)[1]

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from scipy.integrate import cumulative_trapezoid
 
-from maglevgen import sim_output
-from maglevgen.laws import controller as registered
-from maglevgen.simulate import Trajectory
+from maglevgen.analyses import sim_output
+from maglevgen.analyses.simulate import Trajectory
+from maglevgen.control import controller as registered
 
 matplotlib.use("Agg")
 

@@ -20,14 +20,7 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.signal import find_peaks
 
-from maglevgen.carriage import Carriage
-from maglevgen.cli import main
-from maglevgen.controllers import allocation_matrix, axis_plants
-from maglevgen.errors import InputError
-from maglevgen.library import runtime_sources, simulation_library
-from maglevgen.params import load_params
-from maglevgen.runtime.compile import CompileError, compile_shared
-from maglevgen.simulate import (
+from maglevgen.analyses.simulate import (
     AXIS_STATES,
     CONTROLLERS,
     initial_state,
@@ -37,6 +30,13 @@ from maglevgen.simulate import (
     settling_time,
     simulate,
 )
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.cli import main
+from maglevgen.control.symbolic_reference import allocation_matrix, axis_plants
+from maglevgen.errors import InputError
+from maglevgen.params import load_params
+from maglevgen.runtime.compile import CompileError, compile_shared
+from maglevgen.runtime.library import runtime_sources, simulation_library
 
 AXIS = {"lateral": 0, "vertical": 1, "roll": 2, "pitch": 3, "yaw": 4}
 
@@ -46,29 +46,29 @@ AXIS = {"lateral": 0, "vertical": 1, "roll": 2, "pitch": 3, "yaw": 4}
 # circuits' lag (the default) the open loop grows and the per-axis LQR is unstable at 20 m/s
 # (tests/test_circuit_lag.py, test_envelope.py). Those tests run on the quasi-static model.
 @pytest.fixture(scope="module")
-def qs_carriage(private_cache) -> Carriage:
-    return Carriage(load_params(overrides=['model.circuit_dynamics="quasi-static"']))
+def qs_carriage(private_cache) -> DerivedCarriage:
+    return DerivedCarriage(load_params(overrides=['model.circuit_dynamics="quasi-static"']))
 
 
 @pytest.fixture(scope="module")
-def qs_lib(qs_carriage: Carriage):
+def qs_lib(qs_carriage: DerivedCarriage):
     return simulation_library(qs_carriage.structure)
 
 
 @pytest.fixture(scope="module")
-def qs_trim(qs_carriage: Carriage):
+def qs_trim(qs_carriage: DerivedCarriage):
     return qs_carriage.trim()
 
 
 @pytest.fixture(scope="module")
-def qs_op(qs_lib, qs_carriage: Carriage):
-    from maglevgen.simulate import Weights, operating_point
+def qs_op(qs_lib, qs_carriage: DerivedCarriage):
+    from maglevgen.analyses.simulate import Weights, operating_point
 
     return operating_point(qs_lib, qs_carriage.p, qs_carriage.params.operation.speed,
                            qs_carriage.params.track.min_gap, Weights.of(qs_carriage.params))
 
 
-def _run(sim_lib, carriage: Carriage, op, controller: str, t_end: float, dt: float = 1e-3,
+def _run(sim_lib, carriage: DerivedCarriage, op, controller: str, t_end: float, dt: float = 1e-3,
          **kw):
     return simulate(sim_lib, carriage.p, op, controller, t_end, dt,
                     carriage.params.track.min_gap, **kw)
@@ -103,7 +103,7 @@ def test_generated_closed_loop_matches_reference_at_default_step(sim_lib, carria
 # ------------------------------------------------------------- behaviour of the scenarios
 
 
-def _energy(carriage: Carriage, trim, traj) -> np.ndarray:
+def _energy(carriage: DerivedCarriage, trim, traj) -> np.ndarray:
     """0.5 a_dot' M a_dot + 0.5 da' K da with M, K from the SymPy linearisation at trim."""
     M = np.diag(carriage.generalized_mass())
     K = carriage.total_stiffness(trim)
@@ -254,12 +254,12 @@ def test_step_above_the_stability_limit_is_refused(carriage, sim_lib) -> None:
 
 def test_parameter_change_needs_no_regeneration_or_recompile(carriage, sim_lib,
                                                              private_cache) -> None:
-    heavier = Carriage(load_params(None, ["vehicle.mass=12.0"]))
+    heavier = DerivedCarriage(load_params(None, ["vehicle.mass=12.0"]))
     messages: list[str] = []
     lib = simulation_library(heavier.structure, progress=messages.append)
     assert messages == [] and lib.path == sim_lib.path
     # and the run-time parameters take effect: the trim heave sinks with the mass
-    from maglevgen.simulate import Weights, operating_point
+    from maglevgen.analyses.simulate import Weights, operating_point
 
     heavy_op = operating_point(lib, heavier.p, 20.0, heavier.params.track.min_gap,
                                Weights.of(heavier.params))
@@ -363,7 +363,7 @@ def test_cli_bad_step_exits_2_with_one_line(tmp_path: Path, sim_lib) -> None:
 
 def test_reference_check_reports_small_deviation_and_catches_a_wrong_run(sim_lib, carriage,
                                                                          op) -> None:
-    from maglevgen.simulate import reference_check
+    from maglevgen.analyses.simulate import reference_check
 
     traj = _run(sim_lib, carriage, op, "lqr", 0.5)
     ok = reference_check(carriage.functions, carriage.p, traj)
@@ -381,12 +381,13 @@ def test_the_simulation_path_imports_no_symbolic_layer() -> None:
     does not import them either."""
     code = (
         "import sys\n"
-        "from maglevgen.carriage import Carriage\n"
-        "from maglevgen.library import cached_simulation_library\n"
+        "from maglevgen.carriage import DerivedCarriage\n"
+        "from maglevgen.runtime.library import cached_simulation_library\n"
         "from maglevgen.params import load_params\n"
-        "import maglevgen.sim_output, maglevgen.simulate, maglevgen.report_figures\n"
+        "import maglevgen.analyses.sim_output, maglevgen.analyses.simulate\n"
+        "import maglevgen.report.figures\n"
         "from maglevgen.codegen.interface import GenerateOptions, render_interface\n"
-        "c = Carriage(load_params(None, []))\n"
+        "c = DerivedCarriage(load_params(None, []))\n"
         "c.structure, c.p\n"
         "cached_simulation_library(c.structure)\n"
         "render_interface(c, GenerateOptions('double', 'runtime'), [])\n"

@@ -16,12 +16,12 @@ import pytest
 import sympy as sp
 from scipy.optimize import brentq
 
+from maglevgen.analyses.envelope import compute_envelope
+from maglevgen.control import embeddable, names
+from maglevgen.control.sampled import Tick, loop_gain, loop_model, sampled_eigenvalues
+from maglevgen.control.spec import axis_force_limits, rate_weight, spec_weights
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.spec_design import rate_weight_form
-from maglevgen.envelope import compute_envelope
-from maglevgen.laws import embeddable, names
-from maglevgen.laws.spec import axis_force_limits, rate_weight, spec_weights
-from maglevgen.sampled import Tick, loop_gain, loop_model, sampled_eigenvalues
 
 # (k, m, a_max, F_max, zeta): the default carriage's heave (where the position weight alone
 # damps to 0.63), a heave with a smaller budget, roll and pitch at 20 m/s, an unstable axis
@@ -158,7 +158,7 @@ def test_spec_design_meets_the_spec_and_the_paper_designs_fail_it(envelope, carr
     """The default carriage: the spec design's sampled-data loop (c2d here) has every damping
     ratio >= 0.5 and decays faster than 1/s at every envelope speed; the paper's LQRs fail
     the damping ratio. The verdicts say so and name where they were checked."""
-    from maglevgen.envelope import envelope_points
+    from maglevgen.analyses.envelope import envelope_points
 
     spec = carriage.params.control.spec
     tick = Tick(spec.tick_rate, spec.delay_ticks)
@@ -212,7 +212,7 @@ def test_build_exits_3_naming_the_run_spec_the_embedded_design_fails(tmp_path,
 
     from independent_reference import lateral_drift_overshoot, reference_trim
 
-    from maglevgen.simulate import DISTURBANCE
+    from maglevgen.analyses.simulate import DISTURBANCE
 
     limit, prm = 1.2e-3, carriage.params
     v_max = prm.envelope.v_max
@@ -245,13 +245,13 @@ def test_embedded_gains_on_the_point_force_law(envelope, carriage, sim_lib) -> N
     """The spec design's gains (on the distributed law) closed around the point law's loop,
     assembled here with c2d from the point law's own C Jacobians: the verdict's ModelCheck
     says what the eigenvalues say."""
-    from maglevgen.carriage import Carriage
-    from maglevgen.envelope import envelope_points
-    from maglevgen.library import simulation_library
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.carriage import DerivedCarriage
     from maglevgen.params import load_params
+    from maglevgen.runtime.library import simulation_library
 
     check = next(c for c in envelope.other_models if c.model == "model.array_force = point")
-    point = Carriage(load_params(None, ['model.array_force="point"']))
+    point = DerivedCarriage(load_params(None, ['model.array_force="point"']))
     spec = carriage.params.control.spec
     tick = Tick(spec.tick_rate, spec.delay_ticks)
     ours = envelope_points(carriage, sim_lib, envelope.speeds)
@@ -274,15 +274,15 @@ def test_the_firmware_design_sentence_follows_the_sampled_loop(envelope, carriag
     design meets the spec on the sampled loop (the c2d eigenvalues of the test above), so it
     is that design, the DARE design at the tick named as the fallback; at 200 Hz the
     continuous design loses it (c2d here, at the same speeds) and the sentence says so."""
-    from maglevgen.carriage import Carriage
-    from maglevgen.envelope import envelope_points
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.carriage import DerivedCarriage
     from maglevgen.params import load_params
 
     said = envelope.firmware_design("spec")
     assert said.startswith("The firmware gets the continuous spec design")
     assert "because it meets [control.spec] on the sampled-data loop at 1000 Hz with 1 tick " \
            "of delay" in said and "fallback" in said and said.count(". ") == 0
-    slow = Carriage(load_params(overrides=["control.spec.tick_rate=200.0"]))
+    slow = DerivedCarriage(load_params(overrides=["control.spec.tick_rate=200.0"]))
     env = compute_envelope(slow, sim_lib, 3, controllers=("spec",), other_models=False)
     tick, spec = Tick(200.0, 1), slow.params.control.spec
     zeta = []

@@ -17,19 +17,19 @@ import numpy as np
 import pytest
 from independent_reference import array_state, rotation, stiffness_fd
 
-from maglevgen.carriage import Carriage
+from maglevgen.analyses.queries import trim_point
+from maglevgen.carriage import DerivedCarriage
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.linearize import STIFFNESS_PARTS
-from maglevgen.library import simulation_library
 from maglevgen.params import Parameters, load_params
-from maglevgen.summary import trim_point
+from maglevgen.runtime.library import simulation_library
 
 H = 1e-6
 
 
 @pytest.fixture(scope="module")
-def point() -> Carriage:
-    return Carriage(load_params(overrides=['model.array_force="point"']))
+def point() -> DerivedCarriage:
+    return DerivedCarriage(load_params(overrides=['model.array_force="point"']))
 
 
 def _q(trim) -> np.ndarray:
@@ -88,12 +88,13 @@ def _assert_close(K: np.ndarray, K_ref: np.ndarray, scale: np.ndarray, rel: floa
             assert abs(K[i, j] - K_ref[i, j]) < tol, (i, j, K[i, j], K_ref[i, j])
 
 
-def test_the_default_law_is_distributed(carriage: Carriage) -> None:
+def test_the_default_law_is_distributed(carriage: DerivedCarriage) -> None:
     assert carriage.params.model.array_force == "distributed"
 
 
 @pytest.mark.parametrize("speed", [20.0, 35.0])
-def test_each_laws_stiffness_equals_central_differences(carriage: Carriage, point: Carriage,
+def test_each_laws_stiffness_equals_central_differences(carriage: DerivedCarriage,
+                                                        point: DerivedCarriage,
                                                         speed: float) -> None:
     """K_st0 + K_other of both laws against -dW/dq of the reference force sums."""
     for c in (carriage, point):
@@ -103,7 +104,7 @@ def test_each_laws_stiffness_equals_central_differences(carriage: Carriage, poin
 
 
 def test_parts_sum_to_the_derived_stiffness_and_equal_their_differences(
-        carriage: Carriage, point: Carriage) -> None:
+        carriage: DerivedCarriage, point: DerivedCarriage) -> None:
     for c in (carriage, point):
         trim = c.trim()
         parts = c.stiffness_parts(trim)
@@ -122,7 +123,8 @@ def test_parts_sum_to_the_derived_stiffness_and_equal_their_differences(
             assert refs["tilt"][pitch, pitch] > 0
 
 
-def test_contact_gaps_are_the_closest_corners(carriage: Carriage, point: Carriage) -> None:
+def test_contact_gaps_are_the_closest_corners(carriage: DerivedCarriage,
+                                              point: DerivedCarriage) -> None:
     """The model's contact gap of each face equals the smallest of its four corners' gaps,
     each computed here from the pose (corner = face centre +- w/2 across +- N p/2 along)."""
     rng = np.random.default_rng(17)
@@ -148,7 +150,7 @@ def test_contact_gaps_are_the_closest_corners(carriage: Carriage, point: Carriag
                 assert got[i] < centre[i]
 
 
-def test_library_parts_are_the_derivations_split(carriage: Carriage, point: Carriage,
+def test_library_parts_are_the_derivations_split(carriage: DerivedCarriage, point: DerivedCarriage,
                                                  private_cache) -> None:
     """maglev_stiffness_parts (generated C, the report's parts table) at the C's trim equals
     each part's central difference of the force sums written here, sums to maglev_stiffness's

@@ -17,14 +17,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from maglevgen.carriage import Carriage
-from maglevgen.controllers import effectiveness
-from maglevgen.envelope import envelope_points
-from maglevgen.errors import InputError
-from maglevgen.library import ControlLoop
-from maglevgen.operating import speed_mode
-from maglevgen.schedule import Schedule
-from maglevgen.simulate import (
+from maglevgen.analyses.envelope import envelope_points
+from maglevgen.analyses.simulate import (
     AXIS_STATES,
     DISTURBANCE,
     Tick,
@@ -34,6 +28,12 @@ from maglevgen.simulate import (
     simulate,
     speed_loop_gain,
 )
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.operating import speed_mode
+from maglevgen.control.schedule import Schedule
+from maglevgen.control.symbolic_reference import effectiveness
+from maglevgen.errors import InputError
+from maglevgen.runtime.library import ControlLoop
 
 AX = list(AXIS_STATES)
 DT = 1e-3
@@ -42,20 +42,20 @@ DT = 1e-3
 _ALLOCATION: dict[int, np.ndarray] = {}
 
 
-def _allocation(carriage: Carriage) -> np.ndarray:
+def _allocation(carriage: DerivedCarriage) -> np.ndarray:
     """T = pinv(E), E from the SymPy geometry (evaluated once per carriage)."""
     if id(carriage) not in _ALLOCATION:
         _ALLOCATION[id(carriage)] = np.linalg.pinv(effectiveness(carriage))
     return _ALLOCATION[id(carriage)]
 
 
-def _groups(carriage: Carriage) -> np.ndarray:
+def _groups(carriage: DerivedCarriage) -> np.ndarray:
     """The array of each control force, from the structure (input order)."""
     return np.array([i for i, (_, comps) in enumerate(carriage.structure.arrays)
                      for _ in comps])
 
 
-def _command(carriage: Carriage, x: np.ndarray, t: float, gains_at, k_v: float, v_ref_at,
+def _command(carriage: DerivedCarriage, x: np.ndarray, t: float, gains_at, k_v: float, v_ref_at,
              budget: float | None = None) -> np.ndarray:
     """The command from the state x sampled at t: F_prop = F_ff + k_v (v_ref(t) - V) and the
     minimum-norm array forces of u_gen = -(K_pos (a - a_ref) + K_rate a'), each array's
@@ -72,7 +72,7 @@ def _command(carriage: Carriage, x: np.ndarray, t: float, gains_at, k_v: float, 
     return np.concatenate([[f_ff + k_v * (v_ref_at(t) - V)], F])
 
 
-def _tick_reference(carriage: Carriage, x0: np.ndarray, t_end: float, tick_steps: int,
+def _tick_reference(carriage: DerivedCarriage, x0: np.ndarray, t_end: float, tick_steps: int,
                     delay: int, gains_at, k_v: float, v_ref_at, budget: float | None = None
                     ) -> np.ndarray:
     """The firmware's loop by DOP853: at each tick (every tick_steps * DT) the state is
@@ -104,7 +104,7 @@ def _scaled_error(x: np.ndarray, ref: np.ndarray) -> float:
     return float(np.max(np.abs(x - ref) / scale))
 
 
-def _held_commands(carriage: Carriage, traj, tick_steps: int, delay: int, gains_at,
+def _held_commands(carriage: DerivedCarriage, traj, tick_steps: int, delay: int, gains_at,
                    k_v: float, v_ref_at, budget: float | None = None) -> np.ndarray:
     """The inputs the C run should hold at each of its samples, from its own states at the
     ticks: the command of the tick ``delay`` ticks before (the first tick's until then)."""
@@ -315,7 +315,7 @@ def test_montecarlo_samples_run_the_loop_they_are_given(carriage, sim_lib) -> No
     """A study's tick, speed gain and budget reach every sample's run: a budget far below
     the forces saturates the whole run, none leaves it unsaturated; a bad tick is refused
     when the study is made (before any sample)."""
-    from maglevgen.montecarlo import make_study, run_sample
+    from maglevgen.analyses.montecarlo import make_study, run_sample
 
     rows = {}
     for budget in (1e-6, None):

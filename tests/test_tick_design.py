@@ -1,4 +1,5 @@
-"""The `spec` design at the tick (maglevgen.sampled.tick_design) and the envelope's rule that
+"""The `spec` design at the tick (maglevgen.control.sampled.tick_design) and the envelope's rule
+that
 uses it where the continuous design loses the specification at the tick.
 
 References: python-control's ``c2d`` (ZOH) of the reduced linearisation, the delay's states
@@ -12,11 +13,9 @@ import control
 import numpy as np
 import pytest
 
-from maglevgen.carriage import Carriage
-from maglevgen.envelope import compute_envelope, envelope_points, loop_setting
-from maglevgen.laws.spec import spec_weights
-from maglevgen.params import load_params
-from maglevgen.sampled import (
+from maglevgen.analyses.envelope import compute_envelope, envelope_points, loop_setting
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.sampled import (
     Tick,
     loop_gain,
     loop_model,
@@ -24,6 +23,8 @@ from maglevgen.sampled import (
     tick_design,
     tick_design_loop_gains,
 )
+from maglevgen.control.spec import spec_weights
+from maglevgen.params import load_params
 
 LOW_TICK = 200.0  # [Hz] where the continuous design goes unstable, the one at the tick not
 
@@ -101,7 +102,7 @@ def test_a_low_tick_picks_the_design_at_the_tick_and_says_which_the_firmware_get
     loop (the reference: its largest |z| from the loop built here); designed at the tick it
     meets the damping and decay specs; the verdict says both and that the firmware gets the
     continuous design."""
-    low = Carriage(load_params(overrides=[f"control.spec.tick_rate={LOW_TICK:g}"]))
+    low = DerivedCarriage(load_params(overrides=[f"control.spec.tick_rate={LOW_TICK:g}"]))
     env = compute_envelope(low, sim_lib, 3, controllers=("spec",), other_models=False)
     e = env.controllers["spec"]
     assert not e.meets_spec and e.tick_design is not None

@@ -1,4 +1,5 @@
-"""maglevgen.workers: jobs in a forked child through concurrent.futures, their failures, and
+"""maglevgen.infrastructure.workers: jobs in a forked child through concurrent.futures, their
+failures, and
 the pending-file view (replaces tests/test_background.py, test for test).
 
 The reference for a result is the same function called in this process.
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 from maglevgen.errors import MaglevError
-from maglevgen.workers import PendingFiles, Shared, child, submit
+from maglevgen.infrastructure.workers import PendingFiles, Shared, child, submit
 
 
 def _pid_and_sum(values: np.ndarray) -> tuple[int, float]:
@@ -162,14 +163,14 @@ def test_render_results_in_a_child_equals_rendering_in_this_process(sim_lib, car
                                                                      ) -> None:
     """`render_results` draws the figures in a forked child: byte for byte what the same
     functions give in this process."""
-    from maglevgen.derive.model import input_names_of
-    from maglevgen.sim_output import (
+    from maglevgen.analyses.sim_output import (
         render_figures,
         render_metrics,
         render_results,
         render_trajectories,
     )
-    from maglevgen.simulate import simulate
+    from maglevgen.analyses.simulate import simulate
+    from maglevgen.derive.model import input_names_of
 
     trajs = [simulate(sim_lib, carriage.p, op, c, 0.5, 1e-3, carriage.params.track.min_gap)
              for c in ("damping", "lqr")]

@@ -7,9 +7,8 @@ from dataclasses import dataclass
 import casadi as ca
 import sympy as sp
 
+from maglevgen.codegen.sympy_casadi import SympyToCasadi
 from maglevgen.derive.model import CarriageModel
-
-from .sympy_casadi import SympyToCasadi
 
 
 @dataclass(frozen=True)

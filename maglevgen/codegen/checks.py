@@ -26,7 +26,7 @@ Every function, in this order (``ENTRY_CHECKS``, which maglev.h states next to e
   below any v_min), the trim's accelerations within ``TRIM_TOLERANCES`` (the Newton solve
   converged; for the accelerating trim the accelerations less those of the translation at a,
   a/v times the trim's body velocity) and every gap at or above the track's minimum gap
-  (``track.min_gap``, as ``maglevgen.operating.checked_trim``);
+  (``track.min_gap``, as ``maglevgen.control.operating.checked_trim``);
 * the CasADi function's own return code (``MAGLEV_ERR_INTERNAL``), then every output finite
   (``MAGLEV_ERR_NONFINITE_OUTPUT``).
 
@@ -65,7 +65,7 @@ ERROR_CODES: dict[str, tuple[int, str]] = {
 ERROR_NAMES: dict[int, str] = {v: k for k, (v, _) in ERROR_CODES.items()}
 
 #: the largest computation delay, in ticks, that the simulation loop's command buffer holds
-#: (maglev_simulate.h's MAGLEV_SIM_MAX_DELAY; maglevgen.simulate.Tick refuses more): a
+#: (maglev_simulate.h's MAGLEV_SIM_MAX_DELAY; maglevgen.analyses.simulate.Tick refuses more): a
 #: firmware's computation takes a tick or two, not more
 MAX_DELAY_TICKS = 4
 
@@ -96,7 +96,9 @@ def error_defines(names: Sequence[str] | None = None, docs: bool = True) -> str:
     """The ``#define MAGLEV_*`` lines of ERROR_CODES (``names``: only those, in ERROR_CODES'
     order), each with its meaning as a comment when ``docs`` (identical text in maglev.h and
     the C: a benign redefinition in C). Rendered by templates/maglev_errors.h.j2."""
-    from .emit import template_env  # local: the ctypes runtime imports this module light
+    from maglevgen.codegen.emit import (
+        template_env,  # local: the ctypes runtime imports this module light
+    )
 
     codes = [(k, v, doc if docs else "") for k, (v, doc) in ERROR_CODES.items()
              if names is None or k in names]
@@ -211,8 +213,13 @@ def check_entries(source: str, table: Sequence[Mapping], precision: str, runtime
         raise ValueError("run-time parameters need the schema's ranges of p (p_limits)")
     # CasADi's own C rewritten (the entry points made static, its version function NULL-safe):
     # maglevgen.codegen.cpass, the one pass that edits CasADi's text
-    from .cpass import null_safe_version, unchecked_entry_points  # local: CasADi, at generation
-    from .emit import template_env  # local: the ctypes runtime imports this module light
+    from maglevgen.codegen.cpass import (  # local: CasADi, at generation
+        null_safe_version,
+        unchecked_entry_points,
+    )
+    from maglevgen.codegen.emit import (
+        template_env,  # local: the ctypes runtime imports this module light
+    )
 
     source = null_safe_version(unchecked_entry_points(source, wanted))
     work = work_sizes(source)

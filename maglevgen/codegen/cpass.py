@@ -51,7 +51,7 @@ from typing import Literal, NamedTuple
 
 import casadi as ca
 
-from .emit import float_literal, render
+from maglevgen.codegen.emit import float_literal, render
 
 Precision = Literal["double", "single"]
 

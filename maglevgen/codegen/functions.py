@@ -15,6 +15,8 @@ import casadi as ca
 import numpy as np
 import sympy as sp
 
+from maglevgen.codegen.casadi_model import CasadiModel, casadi_model
+from maglevgen.codegen.sympy_casadi import SympyToCasadi, casadi_rewriting_off
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.linearize import (
     Q_STATES,
@@ -27,9 +29,6 @@ from maglevgen.derive.model import CarriageModel
 from maglevgen.derive.riccati import riccati_stable_form
 from maglevgen.derive.structure import NORMAL_AXIS
 from maglevgen.derive.trim import along_track_acceleration
-
-from .casadi_model import CasadiModel, casadi_model
-from .sympy_casadi import SympyToCasadi, casadi_rewriting_off
 
 PREFIX = "maglev_"
 N_AXES = len(cv.AXES)

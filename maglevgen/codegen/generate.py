@@ -10,18 +10,13 @@ import json
 import casadi as ca
 import numpy as np
 
-from maglevgen.carriage import Carriage
-from maglevgen.derive import conventions as cv
-from maglevgen.derive.model import CarriageModel
-from maglevgen.output import write_output  # noqa: F401  (re-exported: the writers' API)
-from maglevgen.params import entry_limits
-
-from .checks import MAX_DELAY_TICKS, check_entries, work_sizes
-from .cpass import generate_c, static_helpers
-from .emit import c_literal
-from .emit import render as render_template
-from .functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
-from .interface import (
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.codegen.checks import MAX_DELAY_TICKS, check_entries, work_sizes
+from maglevgen.codegen.cpass import generate_c, static_helpers
+from maglevgen.codegen.emit import c_literal
+from maglevgen.codegen.emit import render as render_template
+from maglevgen.codegen.functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
+from maglevgen.codegen.interface import (
     C_NAME,
     FUNCTION_TABLE,
     INT_TYPES,
@@ -33,8 +28,12 @@ from .interface import (
     render_interface,
     template_env,
 )
-from .misra import deviation_list
-from .simulate_api import SIMULATE_API
+from maglevgen.codegen.misra import deviation_list
+from maglevgen.codegen.simulate_api import SIMULATE_API
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.model import CarriageModel
+from maglevgen.infrastructure.output import write_output  # noqa: F401  (re-exported: the writers' API)
+from maglevgen.params import entry_limits
 
 
 def _io(fn: ca.Function, out: bool) -> list[dict]:
@@ -147,10 +146,10 @@ def render_runtime_sources(model: CarriageModel, precision: str = "double") -> d
     return files
 
 
-def render(carriage: Carriage, opts: GenerateOptions,
+def render(carriage: DerivedCarriage, opts: GenerateOptions,
            speed_range: tuple[float, float] | None = None) -> dict[str, str]:
     """Every output file's name and text (nothing written). ``speed_range``: the envelope's
-    (v_min, v_max) (maglevgen.envelope.speed_range), baked into the trim's checks with the
+    (v_min, v_max) (maglevgen.analyses.envelope.speed_range), baked into the trim's checks with the
     parameters; required with baked parameters."""
     if opts.parameters == "baked" and speed_range is None:
         raise ValueError("baked parameters need the envelope's speed range")

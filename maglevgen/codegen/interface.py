@@ -14,18 +14,17 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from maglevgen.codegen.checks import entry_checks, error_defines
+from maglevgen.codegen.emit import c_literal, template_env
+from maglevgen.codegen.simulate_api import manifest_entries
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
 from maglevgen.params import entry_limits
 from maglevgen.version import __version__
 
-from .checks import entry_checks, error_defines
-from .emit import c_literal, template_env
-from .simulate_api import manifest_entries
-
 if TYPE_CHECKING:
-    from maglevgen.carriage import Carriage
+    from maglevgen.carriage import DerivedCarriage
 
 C_NAME = "maglev_functions"
 SIMULATE_FILES = ("maglev_simulate.c", "maglev_simulate.h")
@@ -128,7 +127,7 @@ def c_sources(opts: GenerateOptions) -> list[str]:
     return [SINGLE_FILE] if opts.single_file else [f"{C_NAME}.c", "maglev_simulate.c"]
 
 
-def render_interface(carriage: Carriage, opts: GenerateOptions, table: list[dict],
+def render_interface(carriage: DerivedCarriage, opts: GenerateOptions, table: list[dict],
                      speed_range: tuple[float, float] | None = None) -> dict[str, str]:
     """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest.
     ``speed_range``: the baked trim's [v_min, v_max] (None: v > 0)."""
@@ -143,7 +142,7 @@ def render_interface(carriage: Carriage, opts: GenerateOptions, table: list[dict
     return files
 
 
-def interface_context(carriage: Carriage, opts: GenerateOptions, table: list[dict],
+def interface_context(carriage: DerivedCarriage, opts: GenerateOptions, table: list[dict],
                       speed_range: tuple[float, float] | None = None) -> dict:
     """What the interface templates (maglev.h.j2 and its neighbours) read: the functions of
     ``table`` with their checks, the states, inputs, axes and parameters."""
@@ -173,7 +172,8 @@ def interface_context(carriage: Carriage, opts: GenerateOptions, table: list[dic
     return ctx
 
 
-def _manifest(carriage: Carriage, opts: GenerateOptions, table: list[dict], params: list[dict],
+def _manifest(carriage: DerivedCarriage, opts: GenerateOptions, table: list[dict],
+              params: list[dict],
               inputs: list) -> dict:
     return {
         "generated_by": f"maglevgen {__version__}",

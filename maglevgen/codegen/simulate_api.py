@@ -3,7 +3,7 @@ as data: each function's return type and arguments, in order.
 
 One list serves every side of the interface: maglev_simulate.h.j2 renders the prototypes from
 it, the manifest lists it (``simulate_functions``), and the ctypes runtime
-(maglevgen.library) makes its signatures from it; tests/test_simulate_api.py parses the
+(maglevgen.runtime.library) makes its signatures from it; tests/test_simulate_api.py parses the
 header and maglev_batch.c, independently of this module, and compares.
 
 Imports nothing: the ctypes runtime reads it on the simulation path.

@@ -4,29 +4,33 @@ The package, top down: ``render`` assembles the context of every section (``sect
 module per section of the report, each returning plain data and LaTeX strings), renders
 report.tex and writes the files; ``latex`` runs LaTeX; ``display`` turns SymPy expressions into
 aligned displays; ``symbols`` names the parameters' symbols; ``format`` formats every number
-and escapes every string that reaches LaTeX.
+and escapes every string that reaches LaTeX; ``figures`` draws the report's figures from plain
+numbers, without SymPy.
+
+The names below load their module on first use (PEP 562): the figure-drawing worker imports
+``figures`` without the 2 s of SymPy that ``render`` costs.
 """
 
 from __future__ import annotations
 
-from .latex import INSTALL_HINT, TEX_PACKAGES, LatexBuild, first_latex_error, overfull_boxes
-from .render import (
-    SECTION_TITLES,
-    ReportFiles,
-    ReportOptions,
-    ReportResult,
-    build_context,
-    render_report,
-    render_tex,
-    report_files,
-    write_report,
-)
-from .sections.actuators import RUN_DT, RUN_T_END
-from .sections.force_law import force_curves
-from .sections.simulation import SIMULATION_FIGURES
+from importlib import import_module
+from typing import Any
 
-__all__ = ["INSTALL_HINT", "RUN_DT", "RUN_T_END", "SECTION_TITLES", "SIMULATION_FIGURES",
-           "TEX_PACKAGES", "LatexBuild",
-           "ReportFiles", "ReportOptions", "ReportResult", "build_context", "first_latex_error",
-           "force_curves", "overfull_boxes", "render_report", "render_tex", "report_files",
-           "write_report"]
+# name -> the module of this package that defines it
+_EXPORTS = {
+    "INSTALL_HINT": "latex", "TEX_PACKAGES": "latex", "LatexBuild": "latex",
+    "first_latex_error": "latex", "overfull_boxes": "latex", "run_latex": "latex",
+    "SECTION_TITLES": "render", "ReportFiles": "render", "ReportOptions": "render",
+    "ReportResult": "render", "build_context": "render", "render_report": "render",
+    "render_tex": "render", "report_files": "render", "write_report": "render",
+    "RUN_DT": "sections.actuators", "RUN_T_END": "sections.actuators",
+    "force_curves": "sections.force_law", "SIMULATION_FIGURES": "sections.simulation",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_EXPORTS[name]}"), name)

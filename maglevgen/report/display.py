@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ..hashing import sha256_hex
+from maglevgen.infrastructure.hashing import sha256_hex
 
 __all__ = ["LINE_WIDTH", "REPORT_SOURCE", "Display", "abbreviate_radicals", "break_sum",
            "decimal_rationals", "eq", "eqs", "ltx", "matrix_tex", "round_floats", "trig_abbrev"]
@@ -307,7 +307,7 @@ def decimal_rationals(value: Any) -> Any:
 def math_prose(text: str) -> str:
     """A finding written with SymPy's string output, as LaTeX text: each list, Eq(...),
     sqrt(...) and formula in it typeset (numbers rounded), the words escaped."""
-    from .format import tex_escape
+    from maglevgen.report.format import tex_escape
 
     out, last = [], 0
     text = text.replace(" * ", " \N{MIDDLE DOT} ")  # a product written out: a centred dot

@@ -8,7 +8,7 @@ import math
 import re
 import unicodedata
 
-from ..columns import plain_column
+from maglevgen.infrastructure.columns import plain_column
 
 __all__ = [
     "ROUNDOFF",
@@ -195,10 +195,10 @@ def axis_unit_row(axis: str, *quantities: str, lead: int = 1) -> str:
 
 def fcolumn(values, digits: int = 6) -> list[str]:
     """The numbers of one table column (LaTeX math, without $) in one notation: plain
-    decimals (`ffixed`) where `maglevgen.columns.plain_column` says so, else every entry as
-    a x 10^e (`fnum`'s mantissa and exponent, also for the ones that would read plainly), so
-    that a column never mixes 0.000223 with 2.96 x 10^-5. None stays None (the template's
-    dash); zeros print as 0."""
+    decimals (`ffixed`) where `maglevgen.infrastructure.columns.plain_column` says so, else
+    every entry as a x 10^e (`fnum`'s mantissa and exponent, also for the ones that would read
+    plainly), so that a column never mixes 0.000223 with 2.96 x 10^-5. None stays None (the
+    template's dash); zeros print as 0."""
     plain = plain_column(values)
     out: list[str] = []
     for v in values:

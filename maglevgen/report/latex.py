@@ -12,10 +12,10 @@ from pathlib import Path
 
 import jinja2
 
-from .. import texsetup
-from ..texsetup import INSTALL_HINT, TEX_PACKAGES
-from .display import display_filter, math_prose
-from .format import (
+from maglevgen.infrastructure import texsetup
+from maglevgen.infrastructure.texsetup import INSTALL_HINT, TEX_PACKAGES
+from maglevgen.report.display import display_filter, math_prose
+from maglevgen.report.format import (
     axis_unit_row,
     fcolumn,
     fcomplex,

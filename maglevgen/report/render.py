@@ -24,24 +24,21 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import maglevgen.report.latex as latex  # a module (tests patch its find_tex)
-
-from ..errors import MaglevError
-from ..library import simulation_library
-from ..output import write_output
-from ..report_figures import force_figures, pole_map
-from ..summary import (  # the CLI's numbers, from the C
+from maglevgen.analyses.queries import (  # the CLI's numbers, from the C
     accelerating_margins,
     gains_report,
     trim_point,
     trim_report,
 )
-from ..version import __version__
-from .latex import LatexBuild, latex_env
-from .sections.actuators import _actuator_comparison
-from .sections.circuit_lag import CIRCUIT_LAG_FIGURE, circuit_lag
-from .sections.conventions import _conventions
-from .sections.damping import _damping_allocation
-from .sections.envelope import (
+from maglevgen.errors import MaglevError
+from maglevgen.infrastructure.output import write_output
+from maglevgen.report.figures import force_figures, pole_map
+from maglevgen.report.latex import LatexBuild, latex_env
+from maglevgen.report.sections.actuators import _actuator_comparison
+from maglevgen.report.sections.circuit_lag import CIRCUIT_LAG_FIGURE, circuit_lag
+from maglevgen.report.sections.conventions import _conventions
+from maglevgen.report.sections.damping import _damping_allocation
+from maglevgen.report.sections.envelope import (
     ENVELOPE_FIGURE,
     ROA_FIGURE,
     _envelope,
@@ -50,18 +47,20 @@ from .sections.envelope import (
     _roa,
     _roa_context,
 )
-from .sections.force_law import _force_law, force_curves
-from .sections.geometry import _geometry
-from .sections.paper import _paper_comparison
-from .sections.parameters import model_choices, parameter_rows
-from .sections.poles import POLE_FIGURE, pole_sets
-from .sections.riccati import _riccati
-from .sections.rigid_body import _rigid_body
-from .sections.simulation import Simulation, _simulation
-from .sections.stiffness import _stiffness
-from .sections.summary import summary
-from .sections.trim import _trim
-from .sections.verification import _verification
+from maglevgen.report.sections.force_law import _force_law, force_curves
+from maglevgen.report.sections.geometry import _geometry
+from maglevgen.report.sections.paper import _paper_comparison
+from maglevgen.report.sections.parameters import model_choices, parameter_rows
+from maglevgen.report.sections.poles import POLE_FIGURE, pole_sets
+from maglevgen.report.sections.riccati import _riccati
+from maglevgen.report.sections.rigid_body import _rigid_body
+from maglevgen.report.sections.simulation import Simulation, _simulation
+from maglevgen.report.sections.stiffness import _stiffness
+from maglevgen.report.sections.summary import summary
+from maglevgen.report.sections.trim import _trim
+from maglevgen.report.sections.verification import _verification
+from maglevgen.runtime.library import simulation_library
+from maglevgen.version import __version__
 
 __all__ = ["SECTION_TITLES", "ReportFiles", "ReportOptions", "ReportResult", "build_context",
            "render_report", "render_tex", "report_files", "write_report"]
@@ -329,7 +328,7 @@ def write_report(
     progress: Callable[[str], None] = _quiet,
 ) -> ReportResult:
     """Render the report (`render_report`) and write it to ``out_dir`` at once
-    (maglevgen.output.write_output swaps the folder in).
+    (maglevgen.infrastructure.output.write_output swaps the folder in).
 
     On a LaTeX failure ``out_dir`` is left as it was and the failed build is kept in
     ``.<name>.failed`` beside it.

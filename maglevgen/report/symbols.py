@@ -7,8 +7,8 @@ from typing import Any
 
 import sympy as sp
 
-from .display import ltx
-from .format import tex_escape
+from maglevgen.report.display import ltx
+from maglevgen.report.format import tex_escape
 
 __all__ = ["K_SYM", "display_key_symbol", "display_symbol", "to_display"]
 

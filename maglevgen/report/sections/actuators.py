@@ -11,13 +11,13 @@ import numpy as np
 import scipy.linalg
 import sympy as sp
 
-from ...carriage import Carriage
-from ...derive.structure import input_names_of
-from ...library import simulation_library
-from ...params import ACTUATOR_MODELS, LoadedParams
-from ...simulate import metrics, run_scenarios
-from ..display import ltx, matrix_tex
-from ..format import fnum, tex_escape
+from maglevgen.analyses.simulate import metrics, run_scenarios
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.derive.structure import input_names_of
+from maglevgen.params import ACTUATOR_MODELS, LoadedParams
+from maglevgen.report.display import ltx, matrix_tex
+from maglevgen.report.format import fnum, tex_escape
+from maglevgen.runtime.library import simulation_library
 
 # the runs compared: `maglevgen simulate`'s hold (its default length and step) per controller
 # that applies forces
@@ -38,7 +38,7 @@ def with_actuators(carriage, actuators: str):
     params = carriage.params.model_copy(update={
         "control": carriage.params.control.model_copy(update={"actuators": actuators})})
     loaded = carriage.loaded
-    return Carriage(LoadedParams(params, loaded.source, loaded.sha256,
+    return DerivedCarriage(LoadedParams(params, loaded.source, loaded.sha256,
                                  (*loaded.overrides, f'control.actuators="{actuators}"')))
 
 

@@ -9,15 +9,15 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ...derive import conventions as cv
-from ...derive.circuit_lag import circuit_response
-from ...envelope import compute_envelope
-from ...laws import controller as registered_controller
-from ...library import simulation_library
-from ...magnetic_damping import damping_across_speed
-from ...operating import CONTROLLER_TITLES
-from ...report_figures import damping_figure
-from ..display import eq
+from maglevgen.analyses.envelope import compute_envelope
+from maglevgen.analyses.magnetic_damping import damping_across_speed
+from maglevgen.control import controller as registered_controller
+from maglevgen.control.operating import CONTROLLER_TITLES
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.circuit_lag import circuit_response
+from maglevgen.report.display import eq
+from maglevgen.report.figures import damping_figure
+from maglevgen.runtime.library import simulation_library
 
 __all__ = ["CIRCUIT_LAG_FIGURE", "circuit_lag"]
 

@@ -6,10 +6,19 @@ from typing import Any
 
 import sympy as sp
 
-from ...derive import conventions as cv
-from ...derive.memo import memoized
-from ...derive.rigid_body import euler_rates, rotation_body_to_inertial
-from ..display import _PHI, _PSI, _THETA, REPORT_SOURCE, Display, eqs, ltx, trig_abbrev
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.rigid_body import euler_rates, rotation_body_to_inertial
+from maglevgen.report.display import (
+    _PHI,
+    _PSI,
+    _THETA,
+    REPORT_SOURCE,
+    Display,
+    eqs,
+    ltx,
+    trig_abbrev,
+)
 
 
 def _conventions(model) -> dict[str, Any]:

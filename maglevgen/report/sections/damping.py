@@ -7,11 +7,15 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ...derive.damping import damping_gain_closed_form, optimal_damping_ratio, square_error_cost
-from ...derive.memo import memoized
-from ...derive.paper import paper_allocation
-from ..display import REPORT_SOURCE, Display, eq, ltx, matrix_tex
-from ..format import fnum, tex_escape
+from maglevgen.derive.damping import (
+    damping_gain_closed_form,
+    optimal_damping_ratio,
+    square_error_cost,
+)
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.paper import paper_allocation
+from maglevgen.report.display import REPORT_SOURCE, Display, eq, ltx, matrix_tex
+from maglevgen.report.format import fnum, tex_escape
 
 
 def _damping_allocation(gains: dict) -> dict[str, Any]:

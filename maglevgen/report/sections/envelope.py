@@ -7,19 +7,26 @@ from typing import Any
 
 import numpy as np
 
-from ...envelope import (
+from maglevgen.analyses.envelope import (
     compute_envelope,
     envelope_points,
     gain_table,
     stability_map_png,
 )
-from ...library import simulation_library
-from ...operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
-from ...roa import AXIS_NAMES, AXIS_UNITS, BUILD_SAMPLING, BUILD_SPEEDS, region_png, study
-from ...summary import displayed_gains, embedded_gains
-from ..display import matrix_tex
-from ..format import fnum, tex_escape
-from .verification import Check
+from maglevgen.analyses.queries import displayed_gains, embedded_gains
+from maglevgen.analyses.roa import (
+    AXIS_NAMES,
+    AXIS_UNITS,
+    BUILD_SAMPLING,
+    BUILD_SPEEDS,
+    region_png,
+    study,
+)
+from maglevgen.control.operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
+from maglevgen.report.display import matrix_tex
+from maglevgen.report.format import fnum, tex_escape
+from maglevgen.report.sections.verification import Check
+from maglevgen.runtime.library import simulation_library
 
 # ============================================================================ envelope
 
@@ -28,7 +35,8 @@ ROA_FIGURE = "envelope_region_of_attraction.png"
 
 
 def _envelope(carriage, given: tuple[Any, bytes] | None):
-    """The envelope (maglevgen.envelope, through the compiled library) and its stability map:
+    """The envelope (maglevgen.analyses.envelope, through the compiled library) and its stability
+    map:
     the caller's (``given``) when it has them (`maglevgen build`), else computed and drawn."""
     if given is not None:
         return given
@@ -155,7 +163,8 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
 
 
 def _roa(carriage, given: tuple[Any, bytes] | None):
-    """The embedded controller's sampled region of attraction (maglevgen.roa, at the build's
+    """The embedded controller's sampled region of attraction (maglevgen.analyses.roa, at the
+    build's
     resolution) and its figure: the caller's (``given``, `maglevgen build`) when it has them."""
     if given is not None:
         return given

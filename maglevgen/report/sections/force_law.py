@@ -7,11 +7,11 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ...derive import conventions as cv
-from ...derive.inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
-from ...derive.memo import memoized
-from ..display import REPORT_SOURCE, Display, eq, ltx
-from ..symbols import K_SYM
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
+from maglevgen.derive.memo import memoized
+from maglevgen.report.display import REPORT_SOURCE, Display, eq, ltx
+from maglevgen.report.symbols import K_SYM
 
 # The force law's symbols: eq 4's B_r, d, M and eq 3's w, L, R, B_0, gap delta and speed v.
 _FORCE_SYMBOLS = sp.symbols("B_r d M w L R B_0 delta v")

@@ -6,14 +6,21 @@ from typing import Any
 
 import sympy as sp
 
-from ...derive import conventions as cv
-from ...derive.geometry import generalized_wrench_row
-from ...derive.memo import memoized
-from ...derive.model import build_model
-from ...derive.paper import paper_force_sums
-from ..display import REPORT_SOURCE, Display, break_sum, eqs, round_floats, trig_abbrev
-from ..format import tex_escape
-from ..symbols import to_display
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.geometry import generalized_wrench_row
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.model import build_model
+from maglevgen.derive.paper import paper_force_sums
+from maglevgen.report.display import (
+    REPORT_SOURCE,
+    Display,
+    break_sum,
+    eqs,
+    round_floats,
+    trig_abbrev,
+)
+from maglevgen.report.format import tex_escape
+from maglevgen.report.symbols import to_display
 
 
 def _geometry(carriage, gains: dict) -> dict[str, Any]:

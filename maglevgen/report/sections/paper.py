@@ -8,12 +8,12 @@ import mpmath
 import numpy as np
 import sympy as sp
 
-from ...derive.paper import (
+from maglevgen.derive.paper import (
     paper_discrepancies_allocation,
     paper_discrepancies_riccati,
     paper_riccati,
 )
-from ...derive.riccati import (
+from maglevgen.derive.riccati import (
     axis_matrices,
     lqr_gain_mp,
     lqr_gain_numeric,

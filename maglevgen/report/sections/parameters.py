@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ...params import schema_leaves
-from ..symbols import display_key_symbol
+from maglevgen.params import schema_leaves
+from maglevgen.report.symbols import display_key_symbol
 
 __all__ = ["Note", "ParamRow", "paper_number", "parameter_rows", "provenance_of"]
 

@@ -6,15 +6,15 @@ from typing import Any
 
 import sympy as sp
 
-from ...derive.paper import paper_riccati
-from ...derive.riccati import (
+from maglevgen.derive.paper import paper_riccati
+from maglevgen.derive.riccati import (
     axis_matrices,
     riccati_closed_form,
     riccati_residual,
     riccati_stable_form,
 )
-from ...derive.spec_design import damping_ratio_form, rate_weight_form
-from ..display import abbreviate_radicals, eqs, ltx
+from maglevgen.derive.spec_design import damping_ratio_form, rate_weight_form
+from maglevgen.report.display import abbreviate_radicals, eqs, ltx
 
 
 def _riccati(gains: dict) -> dict[str, Any]:

@@ -8,9 +8,9 @@ from typing import Any
 
 import sympy as sp
 
-from ...derive.memo import memoized
-from ...derive.rigid_body import body_accelerations, inertia_about_origin
-from ..display import REPORT_SOURCE, eqs, ltx
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.rigid_body import body_accelerations, inertia_about_origin
+from maglevgen.report.display import REPORT_SOURCE, eqs, ltx
 
 
 def _vec(names: str) -> sp.Matrix:

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ...errors import InputError
-from ..format import fnum, tex_breakable, tex_escape, tex_unit
+from maglevgen.errors import InputError
+from maglevgen.report.format import fnum, tex_breakable, tex_escape, tex_unit
 
 # PNGs written by `maglevgen simulate --out DIR`, with the paper's figures they correspond to.
 SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (
@@ -23,7 +23,8 @@ SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (
 
 Simulation = Path | Mapping[str, bytes | str] | None
 
-# metrics.json's keys (maglevgen.simulate.ScenarioRun.header, simulate.metrics) as the report
+# metrics.json's keys (maglevgen.analyses.simulate.ScenarioRun.header, simulate.metrics) as the
+# report
 # names them: (LaTeX text, unit). A key not listed is shown in words, without its underscores.
 METRIC_LABELS: dict[str, tuple[str, str]] = {
     "params_sha256": ("parameters (SHA-256 of the file and overrides)", ""),

@@ -7,17 +7,16 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from ... import progress
-from ...derive import conventions as cv
-from ...derive.linearize import STIFFNESS_PARTS, design_pose_stiffness, generalized_mass_expr
-from ...derive.memo import memoized
-from ...derive.model import build_model
-from ...derive.paper import paper_stiffness
-from ...errors import NoTrimError
-from ...library import simulation_library
-from ...params import ARRAY_FORCE_LAWS, PAPER_ARRAY_FORCE
-from ...summary import trim_point
-from ..display import (
+from maglevgen.analyses.queries import trim_point
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.linearize import STIFFNESS_PARTS, design_pose_stiffness, generalized_mass_expr
+from maglevgen.derive.memo import memoized
+from maglevgen.derive.model import build_model
+from maglevgen.derive.paper import paper_stiffness
+from maglevgen.errors import NoTrimError
+from maglevgen.infrastructure import progress
+from maglevgen.params import ARRAY_FORCE_LAWS, PAPER_ARRAY_FORCE
+from maglevgen.report.display import (
     REPORT_SOURCE,
     Display,
     break_sum,
@@ -27,8 +26,9 @@ from ..display import (
     matrix_tex,
     round_floats,
 )
-from ..format import fnum
-from ..symbols import K_SYM, array_labels, to_display
+from maglevgen.report.format import fnum
+from maglevgen.report.symbols import K_SYM, array_labels, to_display
+from maglevgen.runtime.library import simulation_library
 
 _Q_LABELS = ("y", "z", r"\phi", r"\theta", r"\psi")
 _W_LABELS = ("F_y", "F_z", "M_x", "M_y", "M_z")

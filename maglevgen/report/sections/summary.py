@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..format import faxis_unit
+from maglevgen.report.format import faxis_unit
 
 
 def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:

@@ -6,9 +6,9 @@ from typing import Any
 
 import sympy as sp
 
-from ...derive import conventions as cv
-from ...summary import AcceleratingMargin
-from ..display import ltx
+from maglevgen.analyses.queries import AcceleratingMargin
+from maglevgen.derive import conventions as cv
+from maglevgen.report.display import ltx
 
 
 def _trim(trep: dict, accelerating: list[AcceleratingMargin] | None = None) -> dict[str, Any]:

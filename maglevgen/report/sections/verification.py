@@ -9,9 +9,9 @@ from pathlib import Path
 import mpmath
 import numpy as np
 
-from ...derive.riccati import riccati_relative_residual
-from ...errors import MaglevError
-from ...library import simulation_library
+from maglevgen.derive.riccati import riccati_relative_residual
+from maglevgen.errors import MaglevError
+from maglevgen.runtime.library import simulation_library
 
 
 @dataclass(frozen=True)

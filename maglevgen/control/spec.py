@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .lqr import numerical_lqr, weighted_qr
-from .registry import Controller, register
+from maglevgen.control.lqr import numerical_lqr, weighted_qr
+from maglevgen.control.registry import Controller, register
 
 if TYPE_CHECKING:
-    from ..operating import OperatingPoint
+    from maglevgen.control.operating import OperatingPoint
 
 AXIS_KEYS = ("y", "z", "phi", "theta", "psi")
 # q2 where the closed form is not positive, relative to q1 m / sigma (the rate weight that

@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .registry import Controller, register
+from maglevgen.control.registry import Controller, register
 
 if TYPE_CHECKING:
-    from ..operating import OperatingPoint
+    from maglevgen.control.operating import OperatingPoint
 
 N_AXES = 5
 

@@ -21,9 +21,9 @@ from importlib import metadata, util
 from pathlib import Path
 
 # The installed packages (pyproject's package-dir maps derive/, runtime/ under maglevgen.)
-PACKAGES = ("maglevgen", "maglevgen.laws", "maglevgen.derive", "maglevgen.runtime",
-            "maglevgen.codegen", "maglevgen.report", "maglevgen.report.sections",
-            "maglevgen.templates")
+PACKAGES = ("maglevgen", "maglevgen.infrastructure", "maglevgen.derive", "maglevgen.codegen",
+            "maglevgen.runtime", "maglevgen.control", "maglevgen.analyses", "maglevgen.exports",
+            "maglevgen.report", "maglevgen.report.sections", "maglevgen.templates")
 
 
 def sha256_hex(data: bytes | str) -> str:

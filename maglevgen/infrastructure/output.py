@@ -22,7 +22,7 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 
-from .errors import InputError
+from maglevgen.errors import InputError
 
 
 def _umask() -> int:

@@ -12,7 +12,8 @@ current speed or the accelerating trim of a launch):
   V sin(psi0) from the first instant, which a bounded force stops only after a distance (about
   0.35 mm for 2 mrad at 40 m/s within the default lateral budget). A limit at the disturbance's
   own offset is therefore met by no controller; the default limits are twice the default
-  disturbance (`maglevgen.simulate.DISTURBANCE`) on the axes it loads, and a run that starts at
+  disturbance (`maglevgen.analyses.simulate.DISTURBANCE`) on the axes it loads, and a run that
+  starts at
   or beyond a limit says so beside that check;
 - smallest gap at least control.spec.min_gap_margin above track.min_gap;
 - speed held: |V - v_ref| / v_ref after the first second at most SPEED_TOLERANCE (where the
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .derive import conventions as cv
+from maglevgen.derive import conventions as cv
 
 __all__ = ["SPEED_TOLERANCE", "RunCheck", "RunSpec", "RunVerdict", "judge_run"]
 

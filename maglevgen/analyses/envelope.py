@@ -2,12 +2,12 @@
 linearisation stable, and a verdict that never calls an unstable design good.
 
 At each speed the trim, the Jacobians, the per-axis gains and the allocation come from the
-generated C (maglevgen.operating); the coupled LQR is solved there by SciPy's CARE. The
+generated C (maglevgen.control.operating); the coupled LQR is solved there by SciPy's CARE. The
 eigenvalues are those of the ten-state closed loop (y, z, phi, theta, psi, v, w, p, q, r) with
 the controller and the allocation closed around it: x drops out (nothing depends on it) and
 the forward speed u is the scheduling variable held by the propulsion (its own mode under a
 constant force is reported apart, as ``speed_pole``: `operating.SpeedMode`). See
-maglevgen/operating.py.
+maglevgen/control/operating.py.
 """
 
 from __future__ import annotations
@@ -18,12 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .carriage import Carriage
-from .derive.search import lowest_trim_speed
-from .errors import InputError, NoTrimError
-from .laws import controller as registered_controller
-from .library import SimulationLibrary, simulation_library
-from .operating import (
+from maglevgen.carriage import DerivedCarriage
+from maglevgen.control import controller as registered_controller
+from maglevgen.control.operating import (
     CONTROLLER_TITLES,
     CONTROLLERS,
     STABILITY_MARGIN,
@@ -35,8 +32,7 @@ from .operating import (
     speed_mode,
     stability,
 )
-from .params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
-from .sampled import (
+from maglevgen.control.sampled import (
     Tick,
     loop_gain,
     loop_model,
@@ -45,7 +41,17 @@ from .sampled import (
     tick_design,
     tick_design_loop_gains,
 )
-from .schedule import GainTable, Reference, Schedule, accelerating_references, gain_table_row
+from maglevgen.control.schedule import (
+    GainTable,
+    Reference,
+    Schedule,
+    accelerating_references,
+    gain_table_row,
+)
+from maglevgen.derive.search import lowest_trim_speed
+from maglevgen.errors import InputError, NoTrimError
+from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
+from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
 DEFAULT_SPEEDS = 50
 _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
@@ -164,7 +170,7 @@ class SpecFailure:
 class ControllerEnvelope:
     """One controller across the speeds: the continuous linearisation's largest real part,
     smallest damping ratio, stability, unstable speed ranges and verdict; and the sampled-data
-    loop's (`maglevgen.sampled`: the tick, its delay, the speed loop) against the
+    loop's (`maglevgen.control.sampled`: the tick, its delay, the speed loop) against the
     specification, with the specification's verdict."""
 
     controller: str
@@ -485,7 +491,7 @@ MODEL_CHOICES: tuple[tuple[str, tuple[str, ...]], ...] = (("array_force", ARRAY_
                                                           ("circuit_dynamics", CIRCUIT_DYNAMICS))
 
 
-def alternate_models(carriage) -> list[tuple[str, Carriage]]:
+def alternate_models(carriage) -> list[tuple[str, DerivedCarriage]]:
     """(label, carriage) for each other value of each model choice, one change at a time."""
     params, out = carriage.params, []
     for key, choices in MODEL_CHOICES:
@@ -495,7 +501,7 @@ def alternate_models(carriage) -> list[tuple[str, Carriage]]:
             changed = params.model_copy(update={"model": params.model.model_copy(
                 update={key: value})})
             loaded = carriage.loaded
-            out.append((f"model.{key} = {value}", Carriage(LoadedParams(
+            out.append((f"model.{key} = {value}", DerivedCarriage(LoadedParams(
                 changed, loaded.source, loaded.sha256,
                 (*loaded.overrides, f'model.{key}="{value}"')))))
     return out

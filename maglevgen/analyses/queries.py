@@ -3,7 +3,8 @@ SUMMARY.md read the same): no argument parsing, no printing.
 
 Every number printed for the carriage comes from the compiled library generated from the
 derivation (`maglev_trim`, `maglev_array_forces`, `maglev_stiffness`, `maglev_axis_plants`,
-`maglev_lqr_gains`, `maglev_jacobians`, `maglev_allocation_matrix`; maglevgen.operating), the
+`maglev_lqr_gains`, `maglev_jacobians`, `maglev_allocation_matrix`; maglevgen.control.operating),
+the
 same C the firmware embeds; numpy and SciPy only assemble and solve small dense problems from
 them (eigenvalues, the coupled LQR's CARE, the designs' costs). The comparison columns are
 references, labelled as such: the paper's printed forms (eqs 13-19, 31-32, SymPy), SciPy's
@@ -19,29 +20,30 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
-from . import progress
-from .carriage import Carriage, stiffness_rows
-from .controllers import AxisGains, compare_designs
-from .derive import conventions as cv
-from .derive.paper import paper_riccati
-from .derive.riccati import lqr_gain_mp, riccati_solution_mp
-from .derive.structure import input_names_of
-from .envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
-from .errors import InputError, NoTrimError
-from .laws.spec import spec_weights
-from .library import SimulationLibrary, simulation_library
-from .operating import (
+from maglevgen.analyses.envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
+from maglevgen.carriage import DerivedCarriage, stiffness_rows
+from maglevgen.control.operating import (
     CONTROLLER_TITLES,
     N_AXES,
     REDUCED_STATES,
+    AxisGains,
     OperatingPoint,
     Weights,
     checked_accelerating_trim,
     checked_trim,
+    compare_designs,
     numerical_lqr,
     operating_point,
     speed_mode,
 )
+from maglevgen.control.spec import spec_weights
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.paper import paper_riccati
+from maglevgen.derive.riccati import lqr_gain_mp, riccati_solution_mp
+from maglevgen.derive.structure import input_names_of
+from maglevgen.errors import InputError, NoTrimError
+from maglevgen.infrastructure import progress
+from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
 
 @dataclass(frozen=True)
@@ -60,11 +62,11 @@ class TrimPoint:
     acceleration: float = 0.0  # along-track acceleration of the trim [m/s^2]
 
 
-def _speed(carriage: Carriage, speed: float | None) -> float:
+def _speed(carriage: DerivedCarriage, speed: float | None) -> float:
     return float(carriage.params.operation.speed if speed is None else speed)
 
 
-def _lift_off(carriage: Carriage, lib: SimulationLibrary) -> float:
+def _lift_off(carriage: DerivedCarriage, lib: SimulationLibrary) -> float:
     """The lowest speed with a trim (bisection on the C's trim up to envelope.v_max, or
     further where the carriage has no trim there: 4, 16, ... times it up to the first above
     1e4 m/s); inf when none."""
@@ -72,7 +74,7 @@ def _lift_off(carriage: Carriage, lib: SimulationLibrary) -> float:
                           float(carriage.params.envelope.v_max), v_limit=4e4)
 
 
-def trim_point(carriage: Carriage, lib: SimulationLibrary, speed: float | None,
+def trim_point(carriage: DerivedCarriage, lib: SimulationLibrary, speed: float | None,
                acceleration: float = 0.0) -> TrimPoint:
     """The checked trim at ``speed`` (default operation.speed) and what the trim table shows;
     NoTrimError naming the lift-off speed when there is none. ``acceleration`` [m/s^2]: the
@@ -142,7 +144,7 @@ class AcceleratingMargin:
                 f"{self.min_gap * 1e3:g} mm), F_prop {self.f_prop_accelerating:.4g} N.")
 
 
-def accelerating_margins(carriage: Carriage, lib: SimulationLibrary, speeds: Sequence[float],
+def accelerating_margins(carriage: DerivedCarriage, lib: SimulationLibrary, speeds: Sequence[float],
                          acceleration: float | None = None) -> list[AcceleratingMargin]:
     """`AcceleratingMargin` at each speed, at ``acceleration`` (default
     envelope.launch_acceleration)."""
@@ -159,14 +161,14 @@ def accelerating_margins(carriage: Carriage, lib: SimulationLibrary, speeds: Seq
     return out
 
 
-def stiffness_table(carriage: Carriage, lib: SimulationLibrary, speed: float | None):
+def stiffness_table(carriage: DerivedCarriage, lib: SimulationLibrary, speed: float | None):
     """Per-axis stiffness at the C's trim: derived K_st0 (and with gravity) beside eqs 13-19."""
     tp = trim_point(carriage, lib, speed)
     return stiffness_rows(carriage.paper_stiffness_inputs(tp), tp.K_magnetic,
                           tp.K_magnetic + tp.K_other)
 
 
-def pitch_paper_form(carriage: Carriage, tp: TrimPoint, printed: float) -> dict[str, float]:
+def pitch_paper_form(carriage: DerivedCarriage, tp: TrimPoint, printed: float) -> dict[str, float]:
     """Eq 15's pitch stiffness as printed, with its net front force replaced by the sum of the
     arrays' stiffness contributions, and derived (K_st0's pitch entry from the C) [N m/rad].
 
@@ -196,7 +198,8 @@ def pitch_paper_form(carriage: Carriage, tp: TrimPoint, printed: float) -> dict[
     }
 
 
-def trim_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None,
+def trim_report(carriage: DerivedCarriage, speed: float | None,
+                lib: SimulationLibrary | None = None,
                 acceleration: float = 0.0) -> dict:
     """Everything `maglevgen trim` prints, as plain data; ``acceleration`` [m/s^2]: of the
     accelerating trim (`trim_point`)."""
@@ -258,8 +261,8 @@ def axis_gains(axis: str, k: float, m: float, K: np.ndarray, c: float,
                      float(c) if k > 0 else None)
 
 
-def gains_report(carriage: Carriage, speed: float | None, lib: SimulationLibrary | None = None
-                 ) -> dict:
+def gains_report(carriage: DerivedCarriage, speed: float | None,
+                 lib: SimulationLibrary | None = None) -> dict:
     """Everything `maglevgen gains` prints, as plain data."""
     lib = lib or library_of(carriage)
     v = trim_point(carriage, lib, speed).speed  # the trim, or why there is none
@@ -312,7 +315,7 @@ def displayed_gains(K) -> np.ndarray:
     return np.where(np.abs(K) > GAIN_ROUNDOFF * scale, K, 0.0)
 
 
-def embedded_gains(carriage: Carriage, op: OperatingPoint) -> dict:
+def embedded_gains(carriage: DerivedCarriage, op: OperatingPoint) -> dict:
     """The embedded controller's gains at ``op``: u_gen = -(K_pos (a - a_ref) + K_rate a'),
     rows the generalized forces (F_y, F_z, M_x, M_y, M_z), columns the axes; and for the
     `spec` design its per-axis weights."""
@@ -335,7 +338,7 @@ def embedded_gains(carriage: Carriage, op: OperatingPoint) -> dict:
 
 def coupled_comparison(op: OperatingPoint):
     """The per-axis LQR and the damping applied to the C's coupled linearisation, beside the
-    coupled LQR (controllers.compare_designs)."""
+    coupled LQR (operating.compare_designs)."""
     S = np.eye(N_AXES, len(REDUCED_STATES))
 
     def feedback(name: str) -> np.ndarray:
@@ -351,15 +354,15 @@ def _pole_key(e: complex) -> tuple[float, float]:
     return (float(e.real), float(e.imag))
 
 
-def library_of(carriage: Carriage) -> SimulationLibrary:
+def library_of(carriage: DerivedCarriage) -> SimulationLibrary:
     """The carriage's compiled run-time-parameter library (cached; built with the steps
     announced on stderr): what every query here, the API and the commands run."""
     return simulation_library(carriage.structure, progress=progress.step)
 
 
-def envelope_of(carriage: Carriage, n_speeds: int | None = None,
+def envelope_of(carriage: DerivedCarriage, n_speeds: int | None = None,
                 lib: SimulationLibrary | None = None, other_models: bool = True):
-    """The envelope of a carriage through its compiled library (maglevgen.envelope)."""
+    """The envelope of a carriage through its compiled library (maglevgen.analyses.envelope)."""
     return compute_envelope(carriage, lib or library_of(carriage), n_speeds or DEFAULT_SPEEDS,
                             other_models=other_models)
 
@@ -379,7 +382,7 @@ def verdict_lines(env, embedded: str) -> list[str]:
     return out
 
 
-def envelope_verdicts(carriage: Carriage) -> tuple[dict, list[str]]:
+def envelope_verdicts(carriage: DerivedCarriage) -> tuple[dict, list[str]]:
     """The envelope's verdicts `maglevgen trim` and `gains` print first: the entry their
     ``--json`` report holds under "envelope" and the lines. A carriage whose envelope has no
     trim still gets its trim and gains: the entry is then the reason, ``{"error": ...}``."""

@@ -14,12 +14,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .operating import AXIS_STATES, N_AXES, OperatingPoint, checked_accelerating_trim
+from maglevgen.control.operating import (
+    AXIS_STATES,
+    N_AXES,
+    OperatingPoint,
+    checked_accelerating_trim,
+)
 
 if TYPE_CHECKING:
     from scipy.interpolate import CubicSpline
 
-    from .library import SimulationLibrary
+    from maglevgen.runtime.library import SimulationLibrary
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give
 F_DRAG, A_REF, K_POS, K_RATE = 0, 1, 1 + N_AXES, 1 + N_AXES + N_AXES**2
@@ -123,7 +128,7 @@ def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
     tables and a `maglev_spline_schedule` (maglev_simulate.h) named ``maglev_embedded_schedule``
     for `maglev_schedule_eval` (templates/maglev_schedule.c.j2). Deterministic text (each value
     a C literal of ``precision``, maglevgen.codegen.emit.c_literal)."""
-    from .codegen.emit import render  # local: jinja2 only when C is written
+    from maglevgen.codegen.emit import render  # local: jinja2 only when C is written
 
     return render("maglev_schedule.c.j2", controller=schedule.controller,
                   speeds=[float(v) for v in schedule.speeds], values=schedule.values,
@@ -257,8 +262,8 @@ def gain_table_sources(table: GainTable) -> dict[str, str]:
     writable data. Returns 0, MAGLEV_ERR_NONFINITE (out zeroed) or MAGLEV_ERR_SPEED (v outside
     [v_min, v_max]: out holds the nearer end's values).
     """
-    from .codegen.checks import error_defines  # local: jinja2 only when C is written
-    from .codegen.emit import render
+    from maglevgen.codegen.checks import error_defines  # local: jinja2 only when C is written
+    from maglevgen.codegen.emit import render
 
     n, ny = table.coeffs.shape
     a, b = 1.0 / table.v_max, 1.0 / table.v_min

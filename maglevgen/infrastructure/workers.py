@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from .errors import MaglevError
+from maglevgen.errors import MaglevError
 
 _shared: dict[str, Any] = {}  # in the child: the data it was started with
 

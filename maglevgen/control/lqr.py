@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["numerical_dlqr", "numerical_lqr", "weighted_qr"]
+__all__ = ["numerical_dlqr", "numerical_lqr", "quadratic_cost", "weighted_qr"]
 
 
 def numerical_lqr(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -37,3 +37,13 @@ def weighted_qr(C_rate: np.ndarray, q1: np.ndarray, q2: np.ndarray,
     S = np.eye(n_axes, C_rate.shape[1])
     Q = S.T @ np.diag(q1) @ S + C_rate.T @ np.diag(q2) @ C_rate
     return Q, np.diag(np.asarray(r, dtype=float))
+
+
+def quadratic_cost(A_cl: np.ndarray, Q_total: np.ndarray) -> float:
+    """J = trace(X), A_cl' X + X A_cl = -Q_total: the integral of x' Q_total x summed over unit
+    initial states (inf when A_cl is not Hurwitz)."""
+    import scipy.linalg  # local: see numerical_lqr
+
+    if np.max(np.linalg.eigvals(A_cl).real) >= 0:
+        return float("inf")
+    return float(np.trace(scipy.linalg.solve_continuous_lyapunov(A_cl.T, -Q_total)))

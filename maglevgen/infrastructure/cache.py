@@ -1,6 +1,7 @@
 """The on-disk cache: where it is, what its keys hash, and the derivation memo store.
 
-Every key is a `maglevgen.hashing.ContentHash` of everything the cached value depends on: the
+Every key is a `maglevgen.infrastructure.hashing.ContentHash` of everything the cached value
+depends on: the
 source closure of the module that computes it (`hashing.source_closure`: its file and every
 maglevgen module it imports, followed through the package), the library versions and the
 arguments. An edit to any of those files is therefore a miss, whatever module it is in.
@@ -16,9 +17,9 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from .derive import memo
-from .hashing import ContentHash, closure_hash, package_root, sha256_hex
-from .version import __version__
+from maglevgen.derive import memo
+from maglevgen.infrastructure.hashing import ContentHash, closure_hash, package_root, sha256_hex
+from maglevgen.version import __version__
 
 # What the cached C of the derivation depends on besides the generator's source closure.
 # (every template render_runtime_sources renders or imports)

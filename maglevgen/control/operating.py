@@ -16,9 +16,9 @@ a' (the Euler kinematics of the body velocities), with 5 x 5 gain matrices:
 - ``coupled``: a full-state LQR of the coupled 10-state linearisation (below), with the same
   weights as the per-axis design (Q = q1 on every axis position and q2 on every axis rate,
   R = r on every generalized force), written in the same (a, a') coordinates;
-- ``spec``: the same coupled LQR with weights from the specification (maglevgen/laws/spec.py).
+- ``spec``: the same coupled LQR with weights from the specification (maglevgen/control/spec.py).
 
-The controllers themselves are defined once, in the registry of maglevgen/laws.
+The controllers themselves are defined once, in the registry of maglevgen/control (registry.py).
 
 The coupled linearisation: the 12-state Jacobian at trim restricted to the ten states
 (y, z, phi, theta, psi, v, w, p, q, r). The along-track position x is dropped because nothing
@@ -36,15 +36,15 @@ from functools import cached_property
 
 import numpy as np
 
-from .derive import conventions as cv
-from .derive.conventions import Q_STATES
-from .errors import InputError, NoTrimError
-from .laws import controller as registered_controller
-from .laws import names, titles
-from .laws.lqr import numerical_lqr
-from .laws.spec import SpecWeights
-from .library import SimulationLibrary
-from .runtime.ffi import GeneratedFunctionError
+from maglevgen.control import controller as registered_controller
+from maglevgen.control import names, titles
+from maglevgen.control.lqr import numerical_lqr, quadratic_cost
+from maglevgen.control.spec import SpecWeights
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.conventions import Q_STATES
+from maglevgen.errors import InputError, NoTrimError
+from maglevgen.runtime.ffi import GeneratedFunctionError
+from maglevgen.runtime.library import SimulationLibrary
 
 CONTROLLERS: tuple[str, ...] = names()
 CONTROLLER_TITLES: dict[str, str] = titles()
@@ -114,7 +114,7 @@ class OperatingPoint:
         return self.A[np.ix_(idx, idx)], self.B[idx, 1:] @ self.allocation
 
     def gains(self, controller: str) -> tuple[np.ndarray, np.ndarray]:
-        """(K_pos, K_rate), each 5 x 5, of a registered controller (maglevgen.laws), computed
+        """(K_pos, K_rate), each 5 x 5, of a registered controller (maglevgen.control), computed
         once per operating point."""
         if controller not in self._gains:
             try:
@@ -232,6 +232,80 @@ def coupled_lqr(A_r: np.ndarray, B_g: np.ndarray, C_rate: np.ndarray,
                 w: Weights) -> np.ndarray:
     """K (5 x 10) of the coupled LQR with `coupled_weights`."""
     return numerical_lqr(A_r, B_g, *coupled_weights(C_rate, w))
+
+
+@dataclass(frozen=True)
+class AxisGains:
+    """One axis: its plant, the closed-form LQR, the numerical LQR and the paper's gain."""
+
+    axis: str
+    stiffness: float
+    inertia: float
+    A: np.ndarray
+    B: np.ndarray
+    P_closed_form: np.ndarray
+    K_closed_form: np.ndarray
+    K_numerical: np.ndarray
+    K_paper: np.ndarray
+    K_reference: np.ndarray  # the closed form in 50-digit arithmetic, rounded to double
+    damping_gain: float | None
+
+    def relative(self, K: np.ndarray, ref: np.ndarray | None = None) -> float:
+        ref = self.K_reference if ref is None else ref
+        return float(np.max(np.abs(K - ref) / np.abs(ref)))
+
+    def to_json(self, Q: tuple[float, float], R: float) -> dict:
+        err_cf = self.relative(self.K_closed_form)
+        err_num = self.relative(self.K_numerical)
+        return {
+            "stiffness": self.stiffness,
+            "inertia": self.inertia,
+            "A": self.A.tolist(),
+            "B": self.B.tolist(),
+            "P_closed_form": self.P_closed_form.tolist(),
+            "K_closed_form": self.K_closed_form.tolist(),
+            "K_numerical": self.K_numerical.tolist(),
+            "K_paper": self.K_paper.tolist(),
+            "paper_applies": bool(Q == (1.0, 1.0) and R == 1.0),
+            "relative_difference": {
+                "numerical_vs_closed_form": self.relative(self.K_numerical, self.K_closed_form),
+                "paper_vs_closed_form": self.relative(self.K_paper, self.K_closed_form),
+            },
+            "accuracy_vs_50_digit_reference": {
+                "closed_form": err_cf,
+                "numerical": err_num,
+                "more_accurate": "closed_form" if err_cf <= err_num else "numerical",
+            },
+            "closed_loop_poles": [[p.real, p.imag] for p in
+                                  np.linalg.eigvals(self.A - self.B @ self.K_closed_form[None])],
+            "damping_gain": self.damping_gain,
+        }
+
+
+@dataclass(frozen=True)
+class CoupledComparison:
+    """The per-axis design applied to the full linearisation, beside the coupled LQR."""
+
+    poles_per_axis: np.ndarray
+    poles_coupled: np.ndarray
+    poles_damping: np.ndarray
+    cost_per_axis: float  # J = trace(P_lyap) for unit-covariance initial states
+    cost_coupled: float
+    K_coupled: np.ndarray  # 5 x 10 on REDUCED_STATES
+
+
+def compare_designs(Ar: np.ndarray, Bg: np.ndarray, C_rate: np.ndarray, w: Weights,
+                    K_a: np.ndarray, K_c: np.ndarray, K_d: np.ndarray) -> CoupledComparison:
+    """Poles and LQR costs of the per-axis (K_a), coupled (K_c) and damping (K_d) feedbacks
+    (5 x 10 on REDUCED_STATES) closed around the reduced linearisation (Ar, Bg)."""
+    Q, R = coupled_weights(C_rate, w)
+
+    def cost(K: np.ndarray) -> float:
+        return quadratic_cost(Ar - Bg @ K, Q + K.T @ R @ K)
+
+    eig = lambda K: np.linalg.eigvals(Ar - Bg @ K)  # noqa: E731
+    return CoupledComparison(eig(K_a), eig(K_c), eig(K_d), cost(K_a), cost(K_c),
+                             np.asarray(K_c))
 
 
 def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float, min_gap: float,

@@ -1,4 +1,4 @@
-"""The registry of controllers: `Controller` and `register` (see maglevgen.laws)."""
+"""The registry of controllers: `Controller` and `register` (see maglevgen.control)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..operating import OperatingPoint
+    from maglevgen.control.operating import OperatingPoint
 
 __all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "titles"]
 

@@ -7,12 +7,13 @@ same for both FMI versions, and both files are rendered from it by the templates
 version (`FMI_VERSIONS`: fmu_model_description.xml.j2 and fmu_wrapper.c.j2 for 2.0,
 fmu3_model_description.xml.j2 and fmu3_wrapper.c.j2 with the version-independent model core
 fmu_core.c.j2 for 3.0). The model is the run-time-parameter C of the carriage's structure
-(the cached derivation of maglevgen.library): every function takes the parameter vector p, so
+(the cached derivation of maglevgen.runtime.library): every function takes the parameter vector p,
+so
 a parameter set through fmi2SetReal (fmi3SetFloat64) before initialization behaves like
 ``--set``: the trim (maglev_trim at ``operation.speed``), the gains (maglev_lqr_gains) and the
 allocation are computed from it when the FMU leaves initialization mode.
 
-Controllers come from the registry (maglevgen.laws) through `fmu_controllers`: one entry per
+Controllers come from the registry (maglevgen.control) through `fmu_controllers`: one entry per
 controller says how the wrapper gets the generalized forces u_gen (eqs 20-33) and which inputs
 it adds.
 """
@@ -28,11 +29,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from .codegen.checks import ERROR_CODES, MAX_DELAY_TICKS
-from .derive import conventions as cv
-from .derive.conventions import Q_STATES
-from .errors import InputError
-from .version import __version__
+from maglevgen.codegen.checks import ERROR_CODES, MAX_DELAY_TICKS
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.conventions import Q_STATES
+from maglevgen.errors import InputError
+from maglevgen.version import __version__
 
 # Imported by the command-line parser: nothing heavier than the conventions at module level.
 
@@ -46,7 +47,7 @@ TUNABLE_PARAMETERS = frozenset({"track.min_gap"})
 DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s default
 # how the FMU's built-in controller runs (the fixed parameters tick_rate, delay_ticks,
 # speed_gain and force_budget; `build_fmu`'s ``loop``): "firmware" as the firmware runs it
-# (maglevgen.simulate.firmware_loop: the tick of [control.spec] with its delay, the speed
+# (maglevgen.analyses.simulate.firmware_loop: the tick of [control.spec] with its delay, the speed
 # loop, the force budget), "continuous" the paper's law at every derivative evaluation
 FMU_LOOPS: tuple[str, ...] = ("firmware", "continuous")
 
@@ -136,9 +137,9 @@ class FmuController:
     gain_slots: int = 1
 
 
-# How the wrapper sets each registered controller's gains (maglevgen.laws, Controller.fmu_gains):
+# How the wrapper sets each registered controller's gains (maglevgen.control, Controller.fmu_gains):
 # the inputs it adds and what its description says of the gains. "matrix": the gains need a
-# Riccati solve the C does not hold: the toolchain solves it at export (maglevgen.operating,
+# Riccati solve the C does not hold: the toolchain solves it at export (maglevgen.control.operating,
 # at operation.speed for the file's parameters) and the wrapper carries them as constants
 # (MATRIX_K_POS, MATRIX_K_RATE); a parameter set through FMI changes the trim but not these
 # gains.
@@ -156,11 +157,13 @@ EXTERNAL = FmuController("external", "generalized control forces are inputs (min
 
 
 def fmu_controllers() -> dict[str, FmuController]:
-    """Every registered controller (maglevgen.laws) as the wrapper runs it, and ``external``."""
-    from . import laws  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
+    """Every registered controller (maglevgen.control) as the wrapper runs it, and ``external``."""
+    from maglevgen import (
+        control,  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
+    )
 
     out = {}
-    for c in laws.REGISTRY.values():
+    for c in control.REGISTRY.values():
         inputs, gains_at = FMU_GAINS[c.fmu_gains]
         out[c.name] = FmuController(c.name, c.description + gains_at, "axis", inputs=inputs,
                                     gains=c.fmu_gains)
@@ -217,7 +220,7 @@ def fmu_variables(manifest: dict, controller: FmuController, kind: str,
                   tick: FmuTick | None = None) -> tuple[FmuVariable, ...]:
     """Every FMU variable, in value-reference order, from the manifest; ``tick``: the start
     values of the tick's parameters (a built-in controller's only; default: continuous)."""
-    from .simulate import DISTURBANCE, DISTURBANCE_DOC
+    from maglevgen.analyses.simulate import DISTURBANCE, DISTURBANCE_DOC
 
     states = manifest["states"]
     out: list[FmuVariable] = [
@@ -317,7 +320,7 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
     """modelDescription.xml, the wrapper C, the sources' note and (FMI 3.0) the build
     description, as text, for FMI version ``fmi`` ("2" or "3"); ``matrix_gains``: the
     (K_pos, K_rate) constants (column-major) of a controller whose gains are "matrix"."""
-    from .codegen.emit import template_env
+    from maglevgen.codegen.emit import template_env
 
     man = model.manifest
     pnames = [e["name"] for e in man["parameter_vector"]]
@@ -409,12 +412,12 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
     FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
     embeds (``envelope.embedded_controller``); ``loop`` (FMU_LOOPS): the start values of the
-    tick's parameters, "firmware" those of `maglevgen.simulate.firmware_loop`, "continuous"
+    tick's parameters, "firmware" those of `maglevgen.analyses.simulate.firmware_loop`, "continuous"
     zeros (the law at every derivative evaluation)."""
-    from .cache import cache_root
-    from .codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
-    from .library import runtime_sources
-    from .runtime.compile import compile_object, compile_shared
+    from maglevgen.codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
+    from maglevgen.infrastructure.cache import cache_root
+    from maglevgen.runtime.compile import compile_object, compile_shared
+    from maglevgen.runtime.library import runtime_sources
 
     if controller is None:
         controller = carriage.params.envelope.embedded_controller
@@ -471,8 +474,8 @@ def _matrix_gains(carriage, controller: str, cache_dir: Path | None, cc: str | N
                   ) -> tuple[list[float], list[float]]:
     """``controller``'s (K_pos, K_rate) at operation.speed, column-major: the constants
     MATRIX_K_POS and MATRIX_K_RATE of the wrapper (templates/fmu_tick.c.j2)."""
-    from .library import simulation_library
-    from .operating import Weights, operating_point
+    from maglevgen.control.operating import Weights, operating_point
+    from maglevgen.runtime.library import simulation_library
 
     lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
     op = operating_point(lib, carriage.p, carriage.params.operation.speed,
@@ -484,8 +487,8 @@ def _matrix_gains(carriage, controller: str, cache_dir: Path | None, cc: str | N
 
 def _tick(carriage, cache_dir: Path | None, cc: str | None) -> FmuTick:
     """The firmware loop's settings (`simulate.firmware_loop`) as the tick's start values."""
-    from .library import simulation_library
-    from .simulate import firmware_loop
+    from maglevgen.analyses.simulate import firmware_loop
+    from maglevgen.runtime.library import simulation_library
 
     lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
     tick, k_v, budget = firmware_loop(carriage, lib)
@@ -495,8 +498,8 @@ def _tick(carriage, cache_dir: Path | None, cc: str | None) -> FmuTick:
 def _check_trim(carriage, cache_dir: Path | None, cc: str | None, progress: Progress) -> None:
     """No FMU whose initialization would fail at its start values: the trim at
     operation.speed, checked as `maglevgen simulate` checks it (NoTrimError, exit 2)."""
-    from .library import simulation_library
-    from .simulate import checked_trim
+    from maglevgen.analyses.simulate import checked_trim
+    from maglevgen.runtime.library import simulation_library
 
     lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc, progress=progress)
     checked_trim(lib, carriage.p, carriage.params.operation.speed, carriage.params.track.min_gap)

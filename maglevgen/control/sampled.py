@@ -22,12 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .codegen.checks import MAX_DELAY_TICKS
-from .derive import conventions as cv
-from .errors import InputError
-from .laws.lqr import numerical_dlqr, weighted_qr
-from .laws.spec import spec_weights
-from .operating import AXIS_STATES, N_AXES, REDUCED_STATES, OperatingPoint
+from maglevgen.codegen.checks import MAX_DELAY_TICKS
+from maglevgen.control.lqr import numerical_dlqr, weighted_qr
+from maglevgen.control.operating import AXIS_STATES, N_AXES, REDUCED_STATES, OperatingPoint
+from maglevgen.control.spec import spec_weights
+from maglevgen.derive import conventions as cv
+from maglevgen.errors import InputError
 
 __all__ = ["LOOP_STATES", "Tick", "TickDesign", "delay_augmented", "loop_gain", "loop_model",
            "sampled_eigenvalues", "speed_gain", "tick_design", "tick_design_loop_gains"]

@@ -23,13 +23,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .cache import cache_root, derivation_fingerprint
-from .codegen.simulate_api import function as api_function
-from .derive.structure import Structure
-from .hashing import ContentHash, file_sha256, sha256_hex
-from .output import write_output
-from .runtime.compile import DEFAULT_FLAGS, CompileError, cached_shared, compile_shared
-from .runtime.ffi import GeneratedLibrary
+from maglevgen.codegen.simulate_api import function as api_function
+from maglevgen.derive.structure import Structure
+from maglevgen.infrastructure.cache import cache_root, derivation_fingerprint
+from maglevgen.infrastructure.hashing import ContentHash, file_sha256, sha256_hex
+from maglevgen.infrastructure.output import write_output
+from maglevgen.runtime.compile import DEFAULT_FLAGS, CompileError, cached_shared, compile_shared
+from maglevgen.runtime.ffi import GeneratedLibrary
 
 CHECKSUMS = "checksums.json"
 #: the batch driver (templates/): many maglev_simulate runs per call, OpenMP across them
@@ -81,8 +81,10 @@ def runtime_sources(structure: Structure, precision: str = "double",
     if _intact(folder):
         return folder
     progress("deriving the model and generating C (cached afterwards)")
-    from .codegen.generate import render_runtime_sources  # SymPy and CasADi: only on a miss
-    from .derive.model import build_model
+    from maglevgen.codegen.generate import (
+        render_runtime_sources,  # SymPy and CasADi: only on a miss
+    )
+    from maglevgen.derive.model import build_model
 
     files = render_runtime_sources(build_model(structure), precision)
     data = {n: t.encode() for n, t in files.items()}
@@ -189,7 +191,8 @@ class SimulationLibrary(GeneratedLibrary):
     def launch(self, x0: np.ndarray, dt: float, n_steps: int, v_end: float, f_extra: float,
                hold_steps: int, schedule, p: np.ndarray, gap_min: float, n_u: int,
                n_gaps: int, loop: ControlLoop | None = None) -> Run:
-        """maglev_launch with ``schedule`` (maglevgen.schedule.Schedule): as ``simulate``."""
+        """maglev_launch with ``schedule`` (maglevgen.control.schedule.Schedule): as
+        ``simulate``."""
         real = self._real
         P = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
         y = np.ascontiguousarray(schedule.values, dtype=real)

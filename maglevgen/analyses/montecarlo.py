@@ -5,7 +5,7 @@ Each sample draws the parameters listed in the file's ``[tolerances]`` (normal, 
 per controller, the trim, the gains and one closed-loop RK4 run (the hold scenario of
 `maglevgen simulate`) all in the compiled run-time-parameter C (the parameters are arguments
 of the C, so nothing is regenerated or recompiled), and the run's status and per-axis metrics
-(maglevgen.simulate.metrics).
+(maglevgen.analyses.simulate.metrics).
 
 Reproducibility: sample i draws from ``SeedSequence(seed, spawn_key=(i,))`` (numpy's i-th
 child of the seed), so its result depends on (seed, i) alone, never on the worker count or
@@ -35,18 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from .derive import conventions as cv
-from .errors import InputError, MaglevError, NoTrimError
-from .laws import controller as registered_controller
-from .operating import (
-    CONTROLLER_TITLES,
-    CONTROLLERS,
-    REDUCED_STATES,
-    Weights,
-    checked_trim,
-    operating_point,
-)
-from .simulate import (
+from maglevgen.analyses.simulate import (
     RUN_STATUSES,
     control_loop,
     metrics,
@@ -54,6 +43,17 @@ from .simulate import (
     simulate,
     simulate_batch,
 )
+from maglevgen.control import controller as registered_controller
+from maglevgen.control.operating import (
+    CONTROLLER_TITLES,
+    CONTROLLERS,
+    REDUCED_STATES,
+    Weights,
+    checked_trim,
+    operating_point,
+)
+from maglevgen.derive import conventions as cv
+from maglevgen.errors import InputError, MaglevError, NoTrimError
 
 # statuses of a sample's run: the simulation's (RUN_STATUSES) and two of the sample itself
 SAMPLE_STATUSES = ("rejected", "no trim")
@@ -84,14 +84,15 @@ class Study:
     min_gap: float
     weights: Weights
     seed: int
-    # how the controller runs in every sample (maglevgen.simulate.simulate): its tick
-    # (maglevgen.simulate.Tick; None: at every RK4 stage), the speed loop's k_v [N s/m], the
+    # how the controller runs in every sample (maglevgen.analyses.simulate.simulate): its tick
+    # (maglevgen.analyses.simulate.Tick; None: at every RK4 stage), the speed loop's k_v [N s/m],
+    # the
     # per-array force budget [N] (None: no limit)
     tick: Any = None
     speed_gain: float = 0.0
     force_budget: float | None = None
     # per controller the nominal carriage's sampled region of attraction over the speed range
-    # (maglevgen.roa at BUILD_SAMPLING, without boundary runs): (speeds, P / c per speed,
+    # (maglevgen.analyses.roa at BUILD_SAMPLING, without boundary runs): (speeds, P / c per speed,
     # NaN where there is none), for each sample's ``region_multiple``
     regions: dict | None = None
 
@@ -103,7 +104,7 @@ class Study:
 
 def sample_inputs(study: Study, index: int) -> np.ndarray:
     """Sample ``index``'s draws (speed, disturbances, parameters) from its own SeedSequence."""
-    from .params import NORMAL_TRUNCATION
+    from maglevgen.params import NORMAL_TRUNCATION
 
     rng = np.random.default_rng(np.random.SeedSequence(study.seed, spawn_key=(index,)))
     lo, hi = study.speed
@@ -146,7 +147,7 @@ CROSS_KEY_RULES = ("vehicle.inertia_cg.", "track.min_gap", ".nominal_gap")
 def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
     """The sample's parameter vector; the reason when it is rejected (a rule across keys
     broken)."""
-    from .params import validate
+    from maglevgen.params import validate
 
     p = np.array(study.p)
     values = draws[1 + len(study.disturbance):]
@@ -170,7 +171,7 @@ def _library(structure):
     """The compiled library in this process (generated and compiled on a worker where its
     cache lacks it), loaded once."""
     if structure not in _LIBRARIES:
-        from .library import simulation_library
+        from maglevgen.runtime.library import simulation_library
 
         _LIBRARIES[structure] = simulation_library(structure)
     return _LIBRARIES[structure]
@@ -193,7 +194,7 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
 def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
                       threads: int = 0) -> list[dict]:
     """`run_sample`'s rows of every sample of ``indices``, in order, with the closed-loop runs
-    of all of them in one call of the C batch driver (maglevgen.simulate.simulate_batch) on
+    of all of them in one call of the C batch driver (maglevgen.analyses.simulate.simulate_batch) on
     ``threads`` threads (0: every core): the same rows (each run is the same maglev_simulate
     call). The draws, the trim and the gains of each sample come first, in Python and the
     library's C, as `run_sample` makes them."""
@@ -285,9 +286,9 @@ def region_multiple(study: Study, controller: str, speed: float,
 
 def study_regions(carriage, lib, controllers: Sequence[str],
                   speed: tuple[float, float]) -> dict:
-    """`Study.regions`: each controller's sampled region (maglevgen.roa, BUILD_SAMPLING, no
+    """`Study.regions`: each controller's sampled region (maglevgen.analyses.roa, BUILD_SAMPLING, no
     boundary runs: the study's own runs are the test of it) at BUILD_SPEEDS speeds."""
-    from . import roa
+    from maglevgen.analyses import roa
 
     speeds = np.linspace(speed[0], speed[1], roa.BUILD_SPEEDS)
     out = {}
@@ -444,8 +445,9 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
                force_budget: float | None = None) -> Study:
     """The study of a carriage's [tolerances]; the speed range defaults to the envelope's.
     Refuses a step above RK4's stability limit at the range's ends (nominal parameters).
-    ``tick`` (maglevgen.simulate.Tick), ``speed_gain``, ``force_budget``: how the controller
-    runs in every sample, as in maglevgen.simulate.simulate (the defaults: at every RK4
+    ``tick`` (maglevgen.analyses.simulate.Tick), ``speed_gain``, ``force_budget``: how the
+    controller
+    runs in every sample, as in maglevgen.analyses.simulate.simulate (the defaults: at every RK4
     stage, no speed loop, no budget)."""
     control_loop(dt, tick, speed_gain, force_budget, 1.0)  # refused before any sample
 
@@ -454,7 +456,7 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
     if tol.speed is not None:
         speed = (float(tol.speed[0]), float(tol.speed[1]))
     else:
-        from .envelope import resolve_range
+        from maglevgen.analyses.envelope import resolve_range
 
         speed = resolve_range(carriage, lib)
     w = Weights.of(params)
@@ -676,7 +678,7 @@ def input_label(study: Study, name: str) -> str:
         sym = f"\\{state}" if state in _ANGLES else state
         unit = cv.STATES[cv.STATE_INDEX[state]].unit
         return rf"initial deviation $\Delta {sym}$ / {_unit_text(unit)}"
-    from .params import flatten, validate
+    from maglevgen.params import flatten, validate
 
     units = {e.name: e.unit for e in flatten(validate(study.data, study.origin))}
     unit = units.get(name, "")
@@ -691,7 +693,7 @@ def _unit_text(unit: str) -> str:
 
 
 def _registry_color(controller: str) -> str | None:
-    """The controller's colour in the registry's line style (maglevgen.laws)."""
+    """The controller's colour in the registry's line style (maglevgen.control)."""
     return registered_controller(controller).style.get("color")
 
 

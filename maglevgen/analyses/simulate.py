@@ -3,7 +3,7 @@
 The carriage starts at its trim with a small disturbance on every controlled axis and runs
 under the steady propulsion force that balances the drag at trim, with no control, the
 optimized damping or the LQR. Trim, gains and the integration loop all run in the compiled
-run-time-parameter library (maglevgen.library): Python only prepares the call and reads the
+run-time-parameter library (maglevgen.runtime.library): Python only prepares the call and reads the
 result. ``reference_trajectory`` integrates the same closed loop with scipy's adaptive DOP853
 on the lambdified SymPy model, as an independent check.
 """
@@ -15,12 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .derive import conventions as cv
-from .derive.conventions import DISTURBANCE, Q_STATES
-from .derive.structure import input_names_of
-from .errors import InputError, NoTrimError
-from .library import BatchRun, ControlLoop, Run, SimulationLibrary
-from .operating import (
+from maglevgen.analyses.run_spec import RunSpec, RunVerdict, judge_run
+from maglevgen.control.operating import (
     AXIS_STATES,
     CONTROLLER_TITLES,
     CONTROLLERS,
@@ -34,9 +30,13 @@ from .operating import (
     operating_point,
     speed_mode,
 )
-from .run_spec import RunSpec, RunVerdict, judge_run
-from .sampled import Tick, speed_gain
-from .schedule import Schedule
+from maglevgen.control.sampled import Tick, speed_gain
+from maglevgen.control.schedule import Schedule
+from maglevgen.derive import conventions as cv
+from maglevgen.derive.conventions import DISTURBANCE, Q_STATES
+from maglevgen.derive.structure import input_names_of
+from maglevgen.errors import InputError, NoTrimError
+from maglevgen.runtime.library import BatchRun, ControlLoop, Run, SimulationLibrary
 
 # DISTURBANCE (derive.conventions) in words
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "
@@ -55,7 +55,7 @@ SCENARIOS: tuple[str, ...] = ("hold", "launch")
 # what maglev_simulate / maglev_launch report (MAGLEV_SIM_*); a run that took every step gets
 # its status from its trajectory (run_status)
 C_STATUS = {1: "contact", 2: "diverging", 3: "generated code error"}
-# every status of a run (maglevgen.montecarlo's samples add theirs)
+# every status of a run (maglevgen.analyses.montecarlo's samples add theirs)
 RUN_STATUSES: tuple[str, ...] = ("settled", "not settled", "diverging", "contact",
                                  "generated code error")
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls
@@ -71,7 +71,7 @@ def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[Tick, float, float]
     """(tick, k_v, force budget) of [control.spec]: the tick and its delay, the speed loop's
     one gain over the envelope (`envelope.loop_setting`, the gain the envelope's verdicts
     used) and the per-array force budget."""
-    from .envelope import envelope_points, loop_setting, resolve_range
+    from maglevgen.analyses.envelope import envelope_points, loop_setting, resolve_range
 
     v_lo, v_hi = resolve_range(carriage, lib)
     points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi, carriage.params
@@ -210,7 +210,7 @@ class Trajectory:
 
 
 def spec_verdict(traj: Trajectory) -> RunVerdict | None:
-    """The run against its ``run_spec`` (`maglevgen.run_spec`); None without one."""
+    """The run against its ``run_spec`` (`maglevgen.analyses.run_spec`); None without one."""
     if traj.run_spec is None:
         return None
     dev = traj.axis_deviation
@@ -629,8 +629,13 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     every RK4 stage, no speed loop, no budget). Refuses a step above RK4's stability limit
     for the stiffest closed-loop mode at the start speed.
     """
-    from .envelope import envelope_points, launch_references, launch_schedule, resolve_range
-    from .library import simulation_library
+    from maglevgen.analyses.envelope import (
+        envelope_points,
+        launch_references,
+        launch_schedule,
+        resolve_range,
+    )
+    from maglevgen.runtime.library import simulation_library
 
     for c in controllers:
         if c not in CONTROLLERS:
@@ -702,7 +707,7 @@ def outside_envelope(carriage, lib: SimulationLibrary, speed: float, key: str) -
     """One line when ``speed`` lies outside the envelope [v_min, v_max] (where the embedded
     controller is verified and the firmware's table holds), else None; None also when the
     envelope itself has no trim (the commands that need it say so)."""
-    from .envelope import resolve_range
+    from maglevgen.analyses.envelope import resolve_range
 
     try:
         v_lo, v_hi = resolve_range(carriage, lib)

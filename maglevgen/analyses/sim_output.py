@@ -13,10 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .columns import fcolumn_plain
-from .derive import conventions as cv
-from .laws import controller as registered_controller
-from .simulate import (
+from maglevgen.analyses.simulate import (
     CONTROLLER_TITLES,
     DISTURBANCE_DOC,
     SETTLING_BAND,
@@ -24,7 +21,10 @@ from .simulate import (
     disturbance_doc,
     metrics,
 )
-from .workers import Shared, child, submit
+from maglevgen.control import controller as registered_controller
+from maglevgen.derive import conventions as cv
+from maglevgen.infrastructure.columns import fcolumn_plain
+from maglevgen.infrastructure.workers import Shared, child, submit
 
 # The paper's figures: (file, title, [(state, scale, axis label)], figures reproduced)
 FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = (
@@ -48,7 +48,7 @@ PEAK_FLOOR = 1e-6  # the envelope's log axis reaches down to this fraction of it
 
 
 def _style(controller: str) -> dict:
-    """The registry's line style of a controller (maglevgen.laws), so that coinciding
+    """The registry's line style of a controller (maglevgen.control), so that coinciding
     responses stay distinguishable (dashes, widths), drawn in registration order."""
     return dict(registered_controller(controller).style)
 
@@ -372,7 +372,7 @@ def _peak_forces(m: dict) -> str:
 def render_results(trajs: Sequence[Trajectory], input_names: Sequence[str],
                    header: dict) -> dict[str, bytes]:
     """Every output file of a simulation run; the figures are drawn in a child process
-    (maglevgen.workers) while this one writes the trajectories and metrics."""
+    (maglevgen.infrastructure.workers) while this one writes the trajectories and metrics."""
     with child(shared={"trajectories": trajs}) as drawing:
         figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         files = {**render_metrics(trajs, header), **render_trajectories(trajs, input_names)}

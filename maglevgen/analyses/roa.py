@@ -44,21 +44,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .derive import conventions as cv
-from .envelope import envelope_points, resolve_range
-from .errors import InputError
-from .laws import controller as registered
-from .laws.lqr import weighted_qr
-from .laws.spec import spec_weights
-from .library import SimulationLibrary
-from .operating import (
+from maglevgen.analyses.envelope import envelope_points, resolve_range
+from maglevgen.analyses.simulate import DISTURBANCE, run_loop, simulate
+from maglevgen.control import controller as registered
+from maglevgen.control.lqr import weighted_qr
+from maglevgen.control.operating import (
     N_AXES,
     REDUCED_INDEX,
     REDUCED_STATES,
     OperatingPoint,
     coupled_weights,
 )
-from .simulate import DISTURBANCE, run_loop, simulate
+from maglevgen.control.spec import spec_weights
+from maglevgen.derive import conventions as cv
+from maglevgen.errors import InputError
+from maglevgen.runtime.library import SimulationLibrary
 
 __all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Region", "Sampling", "SpeedRegion",
            "default_deviation", "lyapunov_matrix",

@@ -20,9 +20,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .derive import conventions as cv
-from .envelope import envelope_points
-from .operating import OperatingPoint
+from maglevgen.analyses.envelope import envelope_points
+from maglevgen.control.operating import OperatingPoint
+from maglevgen.derive import conventions as cv
 
 __all__ = ["AXIS_RATES", "axis_damping", "damping_across_speed"]
 

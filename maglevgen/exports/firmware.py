@@ -1,14 +1,15 @@
 """`maglevgen firmware`: the folder a user builds for the board.
 
 The single-precision C of the embedded controller's path only (``envelope.embedded_controller``):
-the table schedule (maglev_gain_table.c, `maglevgen.schedule.gain_table_sources`), the
+the table schedule (maglev_gain_table.c, `maglevgen.control.schedule.gain_table_sources`), the
 controller's per-tick function and the allocation (maglev_functions.c, baked, with the checked
 entry points of maglevgen.codegen.checks), the tick that joins them with the speed loop and the
 force budget (maglev_tick.c), an example main.c, a CMake project with a Cortex-M4F toolchain
 file, the MISRA deviation list and a README saying what to call when. The host/HIL files
 (Newton trim, spline schedule, maglev_simulate) stay with `maglevgen generate`.
 
-Writers return (file name, text) pairs; `maglevgen.output.write_output` alone touches the disk.
+Writers return (file name, text) pairs; `maglevgen.infrastructure.output.write_output` alone
+touches the disk.
 """
 
 from __future__ import annotations
@@ -19,22 +20,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.envelope import envelope_points, gain_table, loop_setting, resolve_range
-from maglevgen.laws import controller as registered
-from maglevgen.library import simulation_library
-from maglevgen.schedule import GAIN_TABLE_FIELDS, GainTable, gain_table_sources
+from maglevgen.analyses.envelope import envelope_points, gain_table, loop_setting, resolve_range
+from maglevgen.codegen.checks import check_entries, error_defines
+from maglevgen.codegen.cpass import generate_c
+from maglevgen.codegen.emit import c_literal, render
+from maglevgen.codegen.functions import bake_all, build_functions
+from maglevgen.codegen.generate import function_table
+from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_context, template_env
+from maglevgen.codegen.misra import deviation_list
+from maglevgen.control import controller as registered
+from maglevgen.control.schedule import GAIN_TABLE_FIELDS, GainTable, gain_table_sources
+from maglevgen.runtime.library import simulation_library
 from maglevgen.version import __version__
 
-from .checks import check_entries, error_defines
-from .cpass import generate_c
-from .emit import c_literal, render
-from .functions import bake_all, build_functions
-from .generate import function_table
-from .interface import C_NAME, GenerateOptions, interface_context, template_env
-from .misra import deviation_list
-
 if TYPE_CHECKING:
-    from maglevgen.carriage import Carriage
+    from maglevgen.carriage import DerivedCarriage
 
 __all__ = ["FIRMWARE_FLAGS", "TICK_INPUTS", "FirmwareLoop", "firmware_files",
            "firmware_functions", "firmware_loop", "render_firmware"]
@@ -45,7 +45,7 @@ FIRMWARE_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-
                   "-Wfloat-conversion", "-Werror", "-fno-math-errno")
 
 #: each per-tick function's inputs after the state x: the gain table's fields they read
-#: (maglevgen.schedule.GAIN_TABLE_FIELDS), in the function's input order
+#: (maglevgen.control.schedule.GAIN_TABLE_FIELDS), in the function's input order
 TICK_INPUTS = {
     "maglev_coupled_control": ("K_pos", "K_rate", "a_ref"),
     "maglev_lqr_control": ("K", "a_ref"),
@@ -70,7 +70,7 @@ class FirmwareLoop:
 
     tick_rate: float  # [Hz]
     delay_ticks: int  # ticks from computing a command to applying it
-    speed_gain: float  # k_v [N s/m] (`maglevgen.envelope.loop_setting`)
+    speed_gain: float  # k_v [N s/m] (`maglevgen.analyses.envelope.loop_setting`)
     force_budget: float  # [N] per array
 
 
@@ -88,13 +88,13 @@ def _banner(sha256: str, precision: str, with_plant: bool) -> str:
             f"file sha256 {sha256}. Do not edit: regenerate.")
 
 
-def render_firmware(carriage: Carriage, table: GainTable, loop: FirmwareLoop,
+def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareLoop,
                     precision: str = "single", with_plant: bool = False,
                     measured: dict | None = None) -> dict[str, str]:
     """Every file of the firmware folder (nothing written).
 
     ``table``: the table schedule of the embedded controller over the envelope
-    (`maglevgen.envelope.gain_table`); ``loop``: its tick, delay, speed-loop gain and force
+    (`maglevgen.analyses.envelope.gain_table`); ``loop``: its tick, delay, speed-loop gain and force
     budget; ``precision``: "single" for the board, "double" for a host check of the same
     code; ``with_plant``: maglev_dynamics in the same image too (a closed loop on the target,
     e.g. under QEMU); ``measured``: the tick's cost on the Cortex-M4 at the default carriage
@@ -165,9 +165,9 @@ def render_firmware(carriage: Carriage, table: GainTable, loop: FirmwareLoop,
     return files
 
 
-def firmware_loop(carriage: Carriage, lib) -> FirmwareLoop:
+def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
     """The tick, delay, speed-loop gain and budget the build's firmware runs verify
-    (`maglevgen.envelope.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
+    (`maglevgen.analyses.envelope.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
     v_lo, v_hi = resolve_range(carriage, lib)
     points = envelope_points(carriage, lib, np.linspace(
         v_lo, v_hi, carriage.params.envelope.schedule_nodes))
@@ -176,7 +176,7 @@ def firmware_loop(carriage: Carriage, lib) -> FirmwareLoop:
                         float(carriage.params.control.spec.force_budget))
 
 
-def firmware_files(carriage: Carriage, precision: str = "single",
+def firmware_files(carriage: DerivedCarriage, precision: str = "single",
                    with_plant: bool = False) -> dict[str, str]:
     """The firmware folder of ``carriage`` (`render_firmware`): the table schedule over the
     envelope and the loop from the compiled simulation library (cached on disk)."""

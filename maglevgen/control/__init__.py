@@ -1,0 +1,34 @@
+"""The controllers: one registry, one definition per controller, and what runs them.
+
+The folder: ``registry`` (the `Controller` record and `register`), one module per family of
+controllers (``paper_designs``: the paper's; ``spec``: the design to ``[control.spec]``),
+``lqr`` (the Riccati solves they share), ``operating`` (trim, gains and the linearised closed
+loop at one speed, from the C), ``schedule`` (gain schedules over speed), ``sampled`` (the loop
+as the firmware runs it: tick, hold, delay, speed loop) and ``symbolic_reference`` (the same
+designs on the lambdified SymPy model: the tests' reference).
+
+A controller is data (`Controller`): its name and title, whether the firmware may embed it,
+whether it is one of the paper's designs, how its gains are computed at an operating point,
+the generated C tick that runs it, how the FMU carries its gains and how figures draw it.
+Every consumer (the CLI's choices, the API's validation, the operating point, the schedule,
+the envelope, the FMU, the report and the figures) iterates over `REGISTRY`; adding a linear
+controller is one module that calls `register` (see `spec`) and its test.
+
+Every controller here acts on the axis coordinates a = (y, z, phi, theta, psi) and their
+rates a' with 5 x 5 gain matrices, u_gen = -(K_pos (a - a_ref) + K_rate a').
+"""
+
+from __future__ import annotations
+
+from maglevgen.control import paper_designs, spec  # noqa: F401  (each registers its controllers, in this order)
+from maglevgen.control.registry import (
+    REGISTRY,
+    Controller,
+    controller,
+    embeddable,
+    names,
+    register,
+    titles,
+)
+
+__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "titles"]
