@@ -16,6 +16,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = ["AXES", "AXIS_POSITION_STATE", "CONTROLS", "DISTURBANCE", "PROPULSION", "Q_STATES",
+           "STATES", "STATE_INDEX", "STATE_NAMES", "Signal"]
+
 
 @dataclass(frozen=True)
 class Signal:

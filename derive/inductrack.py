@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sympy as sp
 
+__all__ = ["drag_per_circuit", "halbach_surface_field", "lift_per_circuit"]
+
 
 def halbach_surface_field(remanence: sp.Expr, thickness: sp.Expr, magnets_per_wavelength: sp.Expr,
                           wavenumber: sp.Expr) -> sp.Expr:

@@ -20,6 +20,10 @@ from maglevgen.derive.linearize import generalized_mass_expr, stiffness_form, st
 from maglevgen.derive.memo import memoized
 from maglevgen.derive.model import CarriageModel, Structure, build_model
 
+__all__ = ["Equilibrium", "ModelFunctions", "generalized_mass", "lambdified_parts",
+           "lambdify_stiffness", "linearize", "magnetic_stiffness", "model_functions",
+           "other_stiffness", "stiffness_split", "symbolic_model", "total_stiffness"]
+
 
 class Equilibrium(Protocol):
     """What the evaluations at trim read of a trim (derive.trim.Trim has it; trim imports this

@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import sympy as sp
 
+__all__ = ["body_accelerations", "euler_rates", "inertia_about_origin", "rotation_body_to_inertial",
+           "skew"]
+
 
 def skew(r: sp.Matrix) -> sp.Matrix:
     """[r]x, the matrix with [r]x s = r x s."""

@@ -13,6 +13,9 @@ from typing import Any
 
 from maglevgen.derive import conventions as cv
 
+__all__ = ["CIRCUIT_DYNAMICS", "CONTROL_AXES", "NORMAL_AXIS", "Structure", "box_principal_moments",
+           "control_components", "explicit_inertia", "input_names_of"]
+
 # Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).
 CONTROL_AXES: tuple[str, ...] = ("y", "z")
 # model.circuit_dynamics: the circuits' first-order lag (derive/circuit_lag.py) or eq 3's

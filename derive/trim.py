@@ -35,6 +35,9 @@ from scipy.optimize import brentq, root
 from maglevgen.derive.numeric import ModelFunctions
 from maglevgen.derive.search import lowest_trim_speed
 
+__all__ = ["NoTrimError", "Trim", "along_track_acceleration", "lift_off_speed", "solve_trim",
+           "trim_state"]
+
 
 class NoTrimError(ValueError):
     """No equilibrium at the requested speed (the application reports it as bad input:

@@ -32,6 +32,25 @@ if TYPE_CHECKING:
     from maglevgen.analyses.run_spec import RunVerdict
     from maglevgen.params import LoadedParams
 
+__all__ = [
+    "STAMP",
+    "SUMMARY",
+    "BuildOptions",
+    "BuildResult",
+    "JudgedRun",
+    "build_folder",
+    "build_key",
+    "cached_result",
+    "check_build_inputs",
+    "embedded_runs",
+    "embedded_verification",
+    "other_structures",
+    "report_outputs",
+    "run_build",
+    "summary_text",
+    "up_to_date",
+]
+
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"
 

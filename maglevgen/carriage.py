@@ -24,6 +24,8 @@ if TYPE_CHECKING:  # the symbolic layers are imported when first used: running t
     from maglevgen.derive.numeric import ModelFunctions
     from maglevgen.derive.trim import Trim
 
+__all__ = ["DerivedCarriage", "StiffnessRow", "stiffness_rows", "structure_of"]
+
 
 def structure_of(params: Parameters) -> Structure:
     """The structure of a validated parameter set (what the derivation depends on)."""

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+__all__ = ["InputError", "MaglevError", "NoTrimError", "VerificationError"]
+
 
 class MaglevError(Exception):
     """Base class: an error whose message is fit to show a user on one line."""

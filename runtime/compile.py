@@ -13,6 +13,16 @@ from maglevgen.errors import InputError, MaglevError
 from maglevgen.infrastructure.cache import default_cache_dir, write_atomic
 from maglevgen.infrastructure.hashing import ContentHash, file_sha256
 
+__all__ = [
+    "DEFAULT_FLAGS",
+    "CompileError",
+    "cached_shared",
+    "compile_object",
+    "compile_shared",
+    "compiler_name",
+    "find_compiler",
+]
+
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
 
 

@@ -31,6 +31,23 @@ from maglevgen.infrastructure.output import write_output
 from maglevgen.runtime.compile import DEFAULT_FLAGS, CompileError, cached_shared, compile_shared
 from maglevgen.runtime.ffi import GeneratedLibrary
 
+__all__ = [
+    "BATCH_SOURCE",
+    "CHECKSUMS",
+    "COMPARISON_FLAGS",
+    "SIM_ARGUMENT",
+    "BatchRun",
+    "ControlLoop",
+    "Progress",
+    "Run",
+    "SimulationLibrary",
+    "build_libraries",
+    "cached_simulation_library",
+    "derivation_key",
+    "runtime_sources",
+    "simulation_library",
+]
+
 CHECKSUMS = "checksums.json"
 #: the batch driver (templates/): many maglev_simulate runs per call, OpenMP across them
 BATCH_SOURCE = "maglev_batch.c"

@@ -10,6 +10,7 @@ is pyproject's package-dir), every import counted, function-local ones included;
 from __future__ import annotations
 
 import ast
+import importlib
 import os
 import shutil
 import subprocess
@@ -262,6 +263,55 @@ def test_the_controller_definitions_stand_alone() -> None:
     graph = _graph()
     assert all(graph[m] <= set(CONTROLLER_DEFINITIONS) for m in CONTROLLER_DEFINITIONS), {
         m: graph[m] - set(CONTROLLER_DEFINITIONS) for m in CONTROLLER_DEFINITIONS}
+
+
+def _public_definitions(tree: ast.Module) -> set[str]:
+    return {n.name for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))
+            and not n.name.startswith("_")}
+
+
+def test_every_module_declares_its_public_names() -> None:
+    """``__all__`` in every module with code (a folder's docstring-only ``__init__`` has none):
+    every function and class it defines without a leading underscore, and only names that
+    exist there."""
+    bad = {}
+    for m, f in MODULES.items():
+        tree = ast.parse(f.read_text())
+        code = [n for n in tree.body if not (isinstance(n, ast.Expr)
+                                            and isinstance(n.value, ast.Constant))]
+        if not code:
+            continue
+        declared = [n for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign))
+                    and "__all__" in {getattr(x, "id", None) for x in
+                                      (n.targets if isinstance(n, ast.Assign) else [n.target])}]
+        if not declared:
+            bad[m] = "no __all__"
+            continue
+        try:
+            names = set(ast.literal_eval(declared[0].value))
+        except ValueError:  # computed (maglevgen.report: PEP 562, its names load on use)
+            names = set(importlib.import_module(m).__all__)
+        bound = {x.id for n in tree.body for x in ast.walk(n)
+                 if isinstance(x, ast.Name) and isinstance(x.ctx, ast.Store)}
+        bound |= {(a.asname or a.name).split(".")[0] for n in tree.body
+                  if isinstance(n, (ast.Import, ast.ImportFrom)) for a in n.names}
+        bound |= {n.name for n in tree.body
+                  if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))}
+        if any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body):
+            bound |= {n for n in names if hasattr(importlib.import_module(m), n)}  # PEP 562
+        missing, unknown = _public_definitions(tree) - names, names - bound
+        if missing or unknown:
+            bad[m] = {"not in __all__": sorted(missing), "unknown": sorted(unknown)}
+    assert bad == {}
+
+
+def test_no_module_imports_another_modules_private_name() -> None:
+    """A leading underscore means "this module only": no package module imports one."""
+    bad = [f"{m}: from {n.module} import {a.name}" for m, f in MODULES.items()
+           for n in ast.walk(ast.parse(f.read_text()))
+           if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("maglevgen")
+           for a in n.names if a.name.startswith("_") and not a.name.startswith("__")]
+    assert bad == []
 
 
 def test_derive_imports_nothing_from_the_application() -> None:

@@ -53,6 +53,38 @@ from maglevgen.errors import InputError, NoTrimError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
 from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
+__all__ = [
+    "DEFAULT_SPEEDS",
+    "MODEL_CHOICES",
+    "ControllerEnvelope",
+    "Envelope",
+    "LoopSetting",
+    "ModelCheck",
+    "SpecFailure",
+    "TickDesignCheck",
+    "alternate_models",
+    "compute_envelope",
+    "envelope_markdown",
+    "envelope_points",
+    "gain_table",
+    "grid_ranges",
+    "launch_references",
+    "launch_schedule",
+    "lift_off_speed",
+    "loop_setting",
+    "model_checks",
+    "resolve_range",
+    "sampled_stability",
+    "spec_failures",
+    "spec_verdict_text",
+    "speed_range",
+    "stability_map_png",
+    "tick_design_check",
+    "tick_design_stability",
+    "unstable_ranges",
+    "verdict_text",
+]
+
 DEFAULT_SPEEDS = 50
 _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
 

@@ -828,5 +828,8 @@ def default_workers() -> int:
         os.cpu_count() or 1)
 
 
-__all__ = ["CONTROLLERS", "Result", "Study", "aggregate", "make_study", "run_study",
-           "sample_inputs", "wilson"]
+__all__ = ["CONTROLLERS", "ChunkFailedError", "Result", "Study", "aggregate", "concat",
+           "contact_cause", "dask_client", "default_chunk", "default_workers", "input_label",
+           "make_study", "markdown", "output_files", "plots", "region_multiple", "run_chunk",
+           "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study", "sample_inputs",
+           "sample_parameters", "study_regions", "summary_json", "table", "table_files", "wilson"]

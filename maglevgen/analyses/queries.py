@@ -45,6 +45,27 @@ from maglevgen.errors import InputError, NoTrimError
 from maglevgen.infrastructure import progress
 from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
+__all__ = [
+    "GAIN_ROUNDOFF",
+    "AcceleratingMargin",
+    "TrimPoint",
+    "accelerating_margins",
+    "axis_gains",
+    "coupled_comparison",
+    "displayed_gains",
+    "embedded_gains",
+    "envelope_of",
+    "envelope_verdicts",
+    "gains_report",
+    "library_of",
+    "pitch_paper_form",
+    "plain_formula",
+    "stiffness_table",
+    "trim_point",
+    "trim_report",
+    "verdict_lines",
+]
+
 
 @dataclass(frozen=True)
 class TrimPoint:

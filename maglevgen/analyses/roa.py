@@ -60,9 +60,11 @@ from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary
 
-__all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Region", "Sampling", "SpeedRegion",
-           "default_deviation", "lyapunov_matrix",
-           "region_of_attraction", "speed_region", "study", "study_files", "study_json"]
+__all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Confirmation", "Evaluator", "Region", "Sampling",
+           "SpeedRegion", "axis_rows", "confirmation_run", "default_deviation", "design_weights",
+           "lyapunov_matrix", "region_markdown", "region_of_attraction", "region_png",
+           "sampled_search", "speed_region", "study", "study_files", "study_json", "study_lines",
+           "summary_lines"]
 
 #: the states V is defined on, and their display units (mm, mrad; rates per second)
 AXIS_NAMES: tuple[str, ...] = cv.Q_STATES

@@ -38,6 +38,41 @@ from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.runtime.library import BatchRun, ControlLoop, Run, SimulationLibrary
 
+__all__ = [
+    "CHUNK_STEPS",
+    "C_STATUS",
+    "DISTURBANCE_DOC",
+    "LOOPS",
+    "RUN_STATUSES",
+    "SCENARIOS",
+    "SETTLING_BAND",
+    "Progress",
+    "SimulationRun",
+    "Trajectory",
+    "control_loop",
+    "disturbance_doc",
+    "firmware_loop",
+    "hold_run",
+    "hold_trajectory",
+    "initial_state",
+    "launch",
+    "linearly_stable_hold",
+    "metrics",
+    "moving_equilibrium",
+    "outside_envelope",
+    "reference_check",
+    "reference_trajectory",
+    "rk4_stability_limit",
+    "run_loop",
+    "run_scenarios",
+    "run_status",
+    "settling_time",
+    "simulate",
+    "simulate_batch",
+    "spec_verdict",
+    "speed_loop_gain",
+]
+
 # DISTURBANCE (derive.conventions) in words
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "
                    "2 mrad yaw from trim; body velocities at trim")

@@ -10,6 +10,8 @@ import sympy as sp
 from maglevgen.codegen.sympy_casadi import SympyToCasadi
 from maglevgen.derive.model import CarriageModel
 
+__all__ = ["CasadiModel", "casadi_model"]
+
 
 @dataclass(frozen=True)
 class CasadiModel:

@@ -35,6 +35,9 @@ from maglevgen.derive.model import CarriageModel
 from maglevgen.infrastructure.output import write_output  # noqa: F401  (re-exported: the writers' API)
 from maglevgen.params import entry_limits
 
+__all__ = ["TICK_FUNCTIONS", "function_table", "render", "render_c", "render_runtime_sources",
+           "render_tick_sources", "single_translation_unit"]
+
 
 def _io(fn: ca.Function, out: bool) -> list[dict]:
     n = fn.n_out() if out else fn.n_in()

@@ -26,6 +26,22 @@ from maglevgen.version import __version__
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
+__all__ = [
+    "C_NAME",
+    "FUNCTION_TABLE",
+    "INT_TYPES",
+    "IO_DOCS",
+    "PARAMETER_MODES",
+    "PRECISIONS",
+    "SIMULATE_FILES",
+    "SINGLE_FILE",
+    "GenerateOptions",
+    "banner",
+    "c_sources",
+    "interface_context",
+    "render_interface",
+]
+
 C_NAME = "maglev_functions"
 SIMULATE_FILES = ("maglev_simulate.c", "maglev_simulate.h")
 SINGLE_FILE = "maglev.c"  # --single-file: the one translation unit

@@ -22,6 +22,8 @@ import re
 from dataclasses import dataclass
 from fnmatch import fnmatchcase
 
+__all__ = ["DEVIATIONS", "FILE_SCOPE", "Deviation", "deviation_list", "enclosing_functions"]
+
 #: the "function" of a finding outside every function body (declarations, macros)
 FILE_SCOPE = "(file scope)"
 #: CasADi's per-function query API, generated beside each entry point NAME

@@ -20,6 +20,8 @@ import sympy as sp
 
 from maglevgen.derive.distributed import SERIES_BELOW
 
+__all__ = ["SympyToCasadi", "casadi_rewriting_off", "to_casadi"]
+
 _UNARY = {
     sp.sin: ca.sin, sp.cos: ca.cos, sp.tan: ca.tan, sp.exp: ca.exp, sp.log: ca.log,
     sp.sqrt: ca.sqrt, sp.Abs: ca.fabs, sp.tanh: ca.tanh, sp.asin: ca.asin, sp.acos: ca.acos,

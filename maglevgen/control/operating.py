@@ -46,6 +46,30 @@ from maglevgen.errors import InputError, NoTrimError
 from maglevgen.runtime.ffi import GeneratedFunctionError
 from maglevgen.runtime.library import SimulationLibrary
 
+__all__ = [
+    "AXIS_STATES",
+    "CONTROLLERS",
+    "CONTROLLER_TITLES",
+    "N_AXES",
+    "REDUCED_INDEX",
+    "REDUCED_STATES",
+    "STABILITY_MARGIN",
+    "AxisGains",
+    "CoupledComparison",
+    "OperatingPoint",
+    "SpeedMode",
+    "Weights",
+    "checked_accelerating_trim",
+    "checked_trim",
+    "closed_loop_stability",
+    "compare_designs",
+    "coupled_lqr",
+    "coupled_weights",
+    "operating_point",
+    "speed_mode",
+    "stability",
+]
+
 CONTROLLERS: tuple[str, ...] = names()
 CONTROLLER_TITLES: dict[str, str] = titles()
 AXIS_STATES: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in Q_STATES)

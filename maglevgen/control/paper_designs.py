@@ -17,6 +17,8 @@ from maglevgen.control.registry import Controller, register
 if TYPE_CHECKING:
     from maglevgen.control.operating import OperatingPoint
 
+__all__ = ["N_AXES"]
+
 N_AXES = 5
 
 

@@ -30,7 +30,8 @@ from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
 __all__ = ["LOOP_STATES", "Tick", "TickDesign", "delay_augmented", "loop_gain", "loop_model",
-           "sampled_eigenvalues", "speed_gain", "tick_design", "tick_design_loop_gains"]
+           "sampled_closed_loop", "sampled_eigenvalues", "speed_gain", "tick_design",
+           "tick_design_loop_gains", "zoh"]
 
 LOOP_STATES: tuple[str, ...] = (*REDUCED_STATES, "u")
 LOOP_INDEX: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in LOOP_STATES)

@@ -26,6 +26,30 @@ if TYPE_CHECKING:
 
     from maglevgen.runtime.library import SimulationLibrary
 
+__all__ = [
+    "A_REF",
+    "DEFAULT_NODES",
+    "DENSE_GRID",
+    "F_DRAG",
+    "GAIN_TABLE_BOUND",
+    "GAIN_TABLE_FIELDS",
+    "GAIN_TABLE_NODES",
+    "GAIN_TABLE_NY",
+    "K_POS",
+    "K_RATE",
+    "NY",
+    "ZERO_VALUE",
+    "GainTable",
+    "Reference",
+    "Schedule",
+    "accelerating_references",
+    "field_errors",
+    "gain_table_row",
+    "gain_table_sources",
+    "node_values",
+    "schedule_c_source",
+]
+
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give
 F_DRAG, A_REF, K_POS, K_RATE = 0, 1, 1 + N_AXES, 1 + N_AXES + N_AXES**2
 NY = 1 + N_AXES + 2 * N_AXES**2

@@ -39,6 +39,9 @@ from maglevgen.derive.paper import paper_riccati
 from maglevgen.derive.riccati import lqr_gain_mp, lqr_gain_numeric, riccati_solution_mp
 from maglevgen.derive.trim import Trim
 
+__all__ = ["allocation_matrix", "axis_gains", "axis_plants", "carriage_gains", "coupled_comparison",
+           "effectiveness", "gain_schedule", "reduced_model"]
+
 
 def axis_plants(carriage: DerivedCarriage, trim: Trim) -> list[tuple[str, float, float]]:
     """(axis, stiffness, inertia) of each axis at trim."""

@@ -35,6 +35,34 @@ from maglevgen.derive.conventions import Q_STATES
 from maglevgen.errors import InputError
 from maglevgen.version import __version__
 
+__all__ = [
+    "DEFAULT_FMI",
+    "DEFAULT_INTERNAL_STEP",
+    "EXTERNAL",
+    "FMI3_BASE_UNITS",
+    "FMI_VERSIONS",
+    "FMU_GAINS",
+    "FMU_LOOPS",
+    "FMU_NAME",
+    "KINDS",
+    "MODEL_IDENTIFIER",
+    "TUNABLE_PARAMETERS",
+    "WRAPPER_C",
+    "FmiVersion",
+    "FmuController",
+    "FmuModel",
+    "FmuTick",
+    "FmuVariable",
+    "Progress",
+    "build_fmu",
+    "build_model",
+    "fmi3_base_unit",
+    "fmi_headers",
+    "fmu_controllers",
+    "fmu_variables",
+    "render_files",
+]
+
 # Imported by the command-line parser: nothing heavier than the conventions at module level.
 
 KINDS = ("me", "cs", "both")

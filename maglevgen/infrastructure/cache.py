@@ -21,6 +21,24 @@ from maglevgen.derive import memo
 from maglevgen.infrastructure.hashing import ContentHash, closure_hash, package_root, sha256_hex
 from maglevgen.version import __version__
 
+__all__ = [
+    "ALL_LIBS",
+    "ALL_PACKAGES",
+    "DEFAULT_PARAMS_NAME",
+    "DERIVATION_LIBS",
+    "DERIVATION_TEMPLATES",
+    "MEMO_LIBS",
+    "STORE",
+    "DiskStore",
+    "cache_root",
+    "default_cache_dir",
+    "derivation_fingerprint",
+    "install_store",
+    "params_digest",
+    "toolchain_fingerprint",
+    "write_atomic",
+]
+
 # What the cached C of the derivation depends on besides the generator's source closure.
 # (every template render_runtime_sources renders or imports)
 DERIVATION_TEMPLATES = ("maglev_simulate.*.j2", "maglev_checks.c.j2", "maglev_errors.h.j2",

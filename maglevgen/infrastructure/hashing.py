@@ -20,6 +20,18 @@ from functools import cache
 from importlib import metadata, util
 from pathlib import Path
 
+__all__ = [
+    "PACKAGES",
+    "ContentHash",
+    "closure_hash",
+    "file_sha256",
+    "imported_modules",
+    "module_files",
+    "package_root",
+    "sha256_hex",
+    "source_closure",
+]
+
 # The installed packages (pyproject's package-dir maps derive/, runtime/ under maglevgen.)
 PACKAGES = ("maglevgen", "maglevgen.infrastructure", "maglevgen.derive", "maglevgen.codegen",
             "maglevgen.runtime", "maglevgen.control", "maglevgen.analyses", "maglevgen.exports",

@@ -24,6 +24,8 @@ from pathlib import Path
 
 from maglevgen.errors import InputError
 
+__all__ = ["check_writable", "clean_stale_siblings", "remove_stale_siblings", "write_output"]
+
 
 def _umask() -> int:
     mask = os.umask(0)

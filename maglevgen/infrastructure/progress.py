@@ -10,6 +10,8 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+__all__ = ["bar", "held", "rate_bar", "step"]
+
 #: the lines announced inside `held` (None: print them as they come)
 _held: list[str] | None = None
 

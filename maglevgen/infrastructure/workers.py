@@ -20,6 +20,8 @@ from typing import Any, Protocol
 
 from maglevgen.errors import MaglevError
 
+__all__ = ["Job", "PendingFiles", "PendingResult", "Shared", "child", "submit"]
+
 _shared: dict[str, Any] = {}  # in the child: the data it was started with
 
 

@@ -13,8 +13,9 @@ import sympy as sp
 
 from maglevgen.infrastructure.hashing import sha256_hex
 
-__all__ = ["LINE_WIDTH", "REPORT_SOURCE", "Display", "abbreviate_radicals", "break_sum",
-           "decimal_rationals", "eq", "eqs", "ltx", "matrix_tex", "round_floats", "trig_abbrev"]
+__all__ = ["EULER_PHI", "EULER_PSI", "EULER_THETA", "LINE_WIDTH", "REPORT_SOURCE", "Display",
+           "abbreviate_radicals", "break_sum", "decimal_rationals", "display_filter", "eq", "eqs",
+           "ltx", "math_prose", "matrix_tex", "round_floats", "trig_abbrev"]
 
 # Width budget of one display line, in the units of `tex_width` (about one math glyph).
 LINE_WIDTH = 62
@@ -22,7 +23,7 @@ FLOAT_DIGITS = 4  # significant digits of numbers printed inside symbolic expres
 
 # Report pieces cached across processes (derive.memo's store, whose key covers the derivation's
 # source) take the report package's digest as an argument, so an edit here renders them again.
-_PHI, _THETA, _PSI = sp.symbols("phi theta psi")  # the Euler angles as displayed
+EULER_PHI, EULER_THETA, EULER_PSI = sp.symbols("phi theta psi")  # the Euler angles as displayed
 
 REPORT_SOURCE = sha256_hex(b"".join(
     p.read_bytes() for p in sorted(Path(__file__).parent.rglob("*.py"))))[:16]
@@ -222,7 +223,7 @@ def display_filter(d: Display) -> str:
 def trig_abbrev() -> dict[sp.Expr, sp.Symbol]:
     """cos(phi) -> c_phi, sin(phi) -> s_phi, ... (named subexpressions of the rotations)."""
     rep: dict[sp.Expr, sp.Symbol] = {}
-    for a in (_PHI, _THETA, _PSI):
+    for a in (EULER_PHI, EULER_THETA, EULER_PSI):
         rep[sp.cos(a)] = sp.Symbol(f"c_{a.name}")
         rep[sp.sin(a)] = sp.Symbol(f"s_{a.name}")
     return rep

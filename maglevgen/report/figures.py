@@ -10,6 +10,8 @@ from __future__ import annotations
 import io
 from typing import Any
 
+__all__ = ["damping_figure", "force_figures", "pole_map"]
+
 _RC = {
     "font.family": "DejaVu Sans",
     "font.size": 9,

@@ -34,36 +34,36 @@ from maglevgen.errors import MaglevError
 from maglevgen.infrastructure.output import write_output
 from maglevgen.report.figures import force_figures, pole_map
 from maglevgen.report.latex import LatexBuild, latex_env
-from maglevgen.report.sections.actuators import _actuator_comparison
+from maglevgen.report.sections.actuators import actuator_comparison_section
 from maglevgen.report.sections.circuit_lag import CIRCUIT_LAG_FIGURE, circuit_lag
-from maglevgen.report.sections.conventions import _conventions
-from maglevgen.report.sections.damping import _damping_allocation
+from maglevgen.report.sections.conventions import conventions_section
+from maglevgen.report.sections.damping import damping_allocation_section
 from maglevgen.report.sections.envelope import (
     ENVELOPE_FIGURE,
     ROA_FIGURE,
-    _envelope,
-    _envelope_checks,
-    _envelope_context,
-    _roa,
-    _roa_context,
+    envelope_checks,
+    envelope_context,
+    envelope_section,
+    roa_context,
+    roa_section,
 )
-from maglevgen.report.sections.force_law import _force_law, force_curves
-from maglevgen.report.sections.geometry import _geometry
-from maglevgen.report.sections.paper import _paper_comparison
+from maglevgen.report.sections.force_law import force_curves, force_law_section
+from maglevgen.report.sections.geometry import geometry_section
+from maglevgen.report.sections.paper import paper_comparison_section
 from maglevgen.report.sections.parameters import model_choices, parameter_rows
 from maglevgen.report.sections.poles import POLE_FIGURE, pole_sets
-from maglevgen.report.sections.riccati import _riccati
-from maglevgen.report.sections.rigid_body import _rigid_body
-from maglevgen.report.sections.simulation import Simulation, _simulation
-from maglevgen.report.sections.stiffness import _stiffness
+from maglevgen.report.sections.riccati import riccati_section
+from maglevgen.report.sections.rigid_body import rigid_body_section
+from maglevgen.report.sections.simulation import Simulation, simulation_section
+from maglevgen.report.sections.stiffness import stiffness_section
 from maglevgen.report.sections.summary import summary
-from maglevgen.report.sections.trim import _trim
-from maglevgen.report.sections.verification import _verification
+from maglevgen.report.sections.trim import trim_section
+from maglevgen.report.sections.verification import verification_section
 from maglevgen.runtime.library import simulation_library
 from maglevgen.version import __version__
 
-__all__ = ["SECTION_TITLES", "ReportFiles", "ReportOptions", "ReportResult", "build_context",
-           "render_report", "render_tex", "report_files", "write_report"]
+__all__ = ["SECTION_TITLES", "Pending", "ReportFiles", "ReportOptions", "ReportResult",
+           "build_context", "render_report", "render_tex", "report_files", "write_report"]
 
 
 @dataclass(frozen=True)
@@ -135,11 +135,11 @@ def build_context(
     loaded = carriage.loaded
     folder = isinstance(options.simulation, str | Path)
     # bad input fails before the slow steps; a folder must come from these parameters
-    sim, sim_files = _simulation(options.simulation, loaded.sha256 if folder else None)
+    sim, sim_files = simulation_section(options.simulation, loaded.sha256 if folder else None)
     progress("report: envelope (stability across speed, in the compiled library)")
-    env, env_png = _envelope(carriage, options.envelope)
+    env, env_png = envelope_section(carriage, options.envelope)
     progress("report: region of attraction (sampled, in the compiled library)")
-    regions, roa_png = _roa(carriage, options.roa)
+    regions, roa_png = roa_section(carriage, options.roa)
     progress("report: trim and stiffness")
     lib = simulation_library(carriage.structure, progress=progress)
     trim = trim_point(carriage, lib, None)  # the compiled library's trim, as `maglevgen trim`
@@ -153,29 +153,30 @@ def build_context(
         progress("report: LQR gains, coupled comparison and allocation")
         gains = gains_report(carriage, None, lib)
         progress("report: symbolic forms")
-        force = _force_law(carriage, trim, trep)
+        force = force_law_section(carriage, trim, trep)
         progress("report: the circuits' lag (the other circuit model's library and envelope)")
         lag, lag_png = circuit_lag(carriage, lib, env, gains)
-        rigid = _rigid_body()
-        alloc = _damping_allocation(gains)
-        alloc["actuators"] = _actuator_comparison(carriage, progress, options.hold_runs)
+        rigid = rigid_body_section()
+        alloc = damping_allocation_section(gains)
+        alloc["actuators"] = actuator_comparison_section(carriage, progress, options.hold_runs)
         sections = {
-            "conventions": _conventions(carriage.model),
+            "conventions": conventions_section(carriage.model),
             "rigid_body": rigid,
             "force_law": force,
             "circuit_lag": lag,
-            "geometry": _geometry(carriage, gains),
-            "trim": _trim(trep, accelerating_margins(carriage, lib, _margin_speeds(carriage, env))),
-            "stiffness": _stiffness(carriage, trim, trep, gains, lib),
+            "geometry": geometry_section(carriage, gains),
+            "trim": trim_section(
+                trep, accelerating_margins(carriage, lib, _margin_speeds(carriage, env))),
+            "stiffness": stiffness_section(carriage, trim, trep, gains, lib),
             "damping": alloc,
-            "riccati": _riccati(gains),
+            "riccati": riccati_section(gains),
         }
         progress("report: comparison with the paper")
-        paper = _paper_comparison(gains, trep)
+        paper = paper_comparison_section(gains, trep)
         progress("report: verification")
-        checks = _verification(
+        checks = verification_section(
             carriage, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
-        ) + _envelope_checks(carriage, env)
+        ) + envelope_checks(carriage, env)
         progress("report: figures")
         poles = pole_sets(gains)
         files = dict(figures.result())
@@ -188,8 +189,8 @@ def build_context(
     files[POLE_FIGURE] = pole_map(poles)
     files[CIRCUIT_LAG_FIGURE] = lag_png
     rows, notes = parameter_rows(loaded)
-    envelope = _envelope_context(carriage, env, options.gain_table)
-    envelope["roa"] = _roa_context(regions)
+    envelope = envelope_context(carriage, env, options.gain_table)
+    envelope["roa"] = roa_context(regions)
     ctx: dict[str, Any] = {
         "version": __version__,
         "titles": SECTION_TITLES,

@@ -19,6 +19,9 @@ from maglevgen.report.display import ltx, matrix_tex
 from maglevgen.report.format import fnum, tex_escape
 from maglevgen.runtime.library import simulation_library
 
+__all__ = ["ACTUATOR_TEXT", "RUN_CONTROLLERS", "RUN_DT", "RUN_T_END", "actuator_comparison_section",
+           "with_actuators"]
+
 # the runs compared: `maglevgen simulate`'s hold (its default length and step) per controller
 # that applies forces
 RUN_CONTROLLERS = ("damping", "lqr", "coupled")
@@ -42,7 +45,7 @@ def with_actuators(carriage, actuators: str):
                                  (*loaded.overrides, f'control.actuators="{actuators}"')))
 
 
-def _actuator_comparison(carriage, progress: Callable[[str], None],
+def actuator_comparison_section(carriage, progress: Callable[[str], None],
                          hold_runs: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """E, T, rank and peak array forces of every actuator model, from their generated C;
     ``hold_runs``: the selected model's runs (RUN_T_END, RUN_DT) by controller, when the

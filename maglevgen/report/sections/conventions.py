@@ -10,9 +10,9 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.memo import memoized
 from maglevgen.derive.rigid_body import euler_rates, rotation_body_to_inertial
 from maglevgen.report.display import (
-    _PHI,
-    _PSI,
-    _THETA,
+    EULER_PHI,
+    EULER_PSI,
+    EULER_THETA,
     REPORT_SOURCE,
     Display,
     eqs,
@@ -20,8 +20,10 @@ from maglevgen.report.display import (
     trig_abbrev,
 )
 
+__all__ = ["conventions_section"]
 
-def _conventions(model) -> dict[str, Any]:
+
+def conventions_section(model) -> dict[str, Any]:
     return _conventions_section(model.input_names, REPORT_SOURCE)
 
 
@@ -31,14 +33,14 @@ def _conventions_section(input_names: tuple[str, ...], _source: str) -> dict[str
     the input names alone)."""
 
     ab = trig_abbrev()
-    Rm = rotation_body_to_inertial(_PHI, _THETA, _PSI)
+    Rm = rotation_body_to_inertial(EULER_PHI, EULER_THETA, EULER_PSI)
     vel = sp.Matrix(sp.symbols("u v w"))
     omega = sp.Matrix(sp.symbols("p q r"))
     pos_rates = (Rm * vel).xreplace(ab)
     rates = (
-        euler_rates(_PHI, _THETA, omega)
+        euler_rates(EULER_PHI, EULER_THETA, omega)
         .xreplace(ab)
-        .xreplace({sp.tan(_THETA): sp.Symbol("t_theta")})
+        .xreplace({sp.tan(EULER_THETA): sp.Symbol("t_theta")})
     )
     inputs = [cv.PROPULSION] + [
         cv.Signal(n, "N", f"control force of array {n[3:]} along body {n[2]}")

@@ -17,8 +17,10 @@ from maglevgen.derive.paper import paper_allocation
 from maglevgen.report.display import REPORT_SOURCE, Display, eq, ltx, matrix_tex
 from maglevgen.report.format import fnum, tex_escape
 
+__all__ = ["damping_allocation_section"]
 
-def _damping_allocation(gains: dict) -> dict[str, Any]:
+
+def damping_allocation_section(gains: dict) -> dict[str, Any]:
     axes = []
     for axis, a in gains["axes"].items():
         cg = a["damping_gain"]

@@ -28,13 +28,16 @@ from maglevgen.report.format import fnum, tex_escape
 from maglevgen.report.sections.verification import Check
 from maglevgen.runtime.library import simulation_library
 
+__all__ = ["ENVELOPE_FIGURE", "ROA_FIGURE", "envelope_checks", "envelope_context",
+           "envelope_section", "roa_context", "roa_section"]
+
 # ============================================================================ envelope
 
 ENVELOPE_FIGURE = "envelope_stability_map.png"
 ROA_FIGURE = "envelope_region_of_attraction.png"
 
 
-def _envelope(carriage, given: tuple[Any, bytes] | None):
+def envelope_section(carriage, given: tuple[Any, bytes] | None):
     """The envelope (maglevgen.analyses.envelope, through the compiled library) and its stability
     map:
     the caller's (``given``) when it has them (`maglevgen build`), else computed and drawn."""
@@ -44,7 +47,7 @@ def _envelope(carriage, given: tuple[Any, bytes] | None):
     return env, stability_map_png(env)
 
 
-def _envelope_checks(carriage, env) -> list[Check]:
+def envelope_checks(carriage, env) -> list[Check]:
     """Stability rows: each designed controller at the design speed and across the envelope
     (a row fails when the closed loop has an eigenvalue with real part >= -margin)."""
 
@@ -126,7 +129,7 @@ def _embedded_context(carriage, env, table: Mapping[str, Any]) -> dict[str, Any]
     }
 
 
-def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The section's numbers; ``table``: the firmware table's manifest entry (c/manifest.json's
     ``gain_table``, which the build passes), else the same entry fitted here."""
     if table is None:
@@ -162,7 +165,7 @@ def _envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> 
 
 
 
-def _roa(carriage, given: tuple[Any, bytes] | None):
+def roa_section(carriage, given: tuple[Any, bytes] | None):
     """The embedded controller's sampled region of attraction (maglevgen.analyses.roa, at the
     build's
     resolution) and its figure: the caller's (``given``, `maglevgen build`) when it has them."""
@@ -174,7 +177,7 @@ def _roa(carriage, given: tuple[Any, bytes] | None):
     return regions, region_png(regions)
 
 
-def _roa_context(regions) -> dict[str, Any]:
+def roa_context(regions) -> dict[str, Any]:
     """The region's table and statement (the first region: the embedded controller's)."""
     reg = regions[0]
     return {"figure": ROA_FIGURE, "controller": CONTROLLER_TITLES[reg.controller],

@@ -13,6 +13,8 @@ from maglevgen.derive.memo import memoized
 from maglevgen.report.display import REPORT_SOURCE, Display, eq, ltx
 from maglevgen.report.symbols import K_SYM
 
+__all__ = ["array_force_curves", "force_curves", "force_law_section"]
+
 # The force law's symbols: eq 4's B_r, d, M and eq 3's w, L, R, B_0, gap delta and speed v.
 _FORCE_SYMBOLS = sp.symbols("B_r d M w L R B_0 delta v")
 
@@ -35,7 +37,7 @@ def _force_law_forms(_source: str) -> dict[str, Any]:
 def _force_numbers(carriage) -> dict[sp.Symbol, float]:
     """The force law's symbols with the carriage's values (B0 from eq 4).
 
-    B0 and v_c (`_force_law`) are the values of displayed closed forms of the parameters
+    B0 and v_c (`force_law_section`) are the values of displayed closed forms of the parameters
     (eq 4, and F_D/F_L = 1 of eq 3), printed beside their equations; they are not a model
     result, so they are evaluated here from the same SymPy form that is displayed (xreplace,
     no lambdify). Every force the report prints or draws comes from the compiled library."""
@@ -96,7 +98,7 @@ def force_curves(carriage, trim, lib) -> dict[str, Any]:
             "dots": dots, "labels": [(xy, ", ".join(names)) for xy, names in points.items()]}
 
 
-def _force_law(carriage, trim, trep: dict) -> dict[str, Any]:
+def force_law_section(carriage, trim, trep: dict) -> dict[str, Any]:
     forms, num = _force_law_forms(REPORT_SOURCE), _force_numbers(carriage)
     B0_expr, FL, FD = forms["B0"], forms["FL"], forms["FD"]
     ratio, slope, v_c = forms["ratio"], forms["slope"], forms["v_c"]

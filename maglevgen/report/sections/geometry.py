@@ -22,8 +22,10 @@ from maglevgen.report.display import (
 from maglevgen.report.format import tex_escape
 from maglevgen.report.symbols import to_display
 
+__all__ = ["geometry_section"]
 
-def _geometry(carriage, gains: dict) -> dict[str, Any]:
+
+def geometry_section(carriage, gains: dict) -> dict[str, Any]:
     model = carriage.model
     free = model.gaps.free_symbols
     gap_values = tuple((e.name, float(e.value)) for e, s in zip(carriage.entries, model.p,

@@ -20,13 +20,15 @@ from maglevgen.derive.riccati import (
     riccati_relative_residual,
 )
 
+__all__ = ["paper_comparison_section"]
+
 
 def _zeta(pole: complex) -> float:
     """Damping ratio of a pole: -Re / |pole|."""
     return float(-pole.real / abs(pole)) if pole != 0 else 1.0
 
 
-def _paper_comparison(gains: dict, trep: dict) -> dict[str, Any]:
+def paper_comparison_section(gains: dict, trep: dict) -> dict[str, Any]:
 
     (q1, _), (_, q2) = gains["Q"]
     r = gains["R"]

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+__all__ = ["POLE_FIGURE", "pole_sets"]
+
 POLE_FIGURE = "pole_map.png"
 
 

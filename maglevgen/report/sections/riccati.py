@@ -16,8 +16,10 @@ from maglevgen.derive.riccati import (
 from maglevgen.derive.spec_design import damping_ratio_form, rate_weight_form
 from maglevgen.report.display import abbreviate_radicals, eqs, ltx
 
+__all__ = ["riccati_section"]
 
-def _riccati(gains: dict) -> dict[str, Any]:
+
+def riccati_section(gains: dict) -> dict[str, Any]:
 
     k, m = sp.Symbol("k"), sp.Symbol("m")
     q1, q2, r = sp.symbols("q_1 q_2 r")

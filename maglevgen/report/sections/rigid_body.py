@@ -12,6 +12,8 @@ from maglevgen.derive.memo import memoized
 from maglevgen.derive.rigid_body import body_accelerations, inertia_about_origin
 from maglevgen.report.display import REPORT_SOURCE, eqs, ltx
 
+__all__ = ["rigid_body_section"]
+
 
 def _vec(names: str) -> sp.Matrix:
     return sp.Matrix(sp.symbols(names))
@@ -72,7 +74,7 @@ def _rigid_body_check(samples: int = 3, seed: int = 7) -> int:
     return nonzero
 
 
-def _rigid_body() -> dict[str, Any]:
+def rigid_body_section() -> dict[str, Any]:
     return _rigid_body_section(REPORT_SOURCE)
 
 

@@ -11,6 +11,9 @@ from typing import Any
 from maglevgen.errors import InputError
 from maglevgen.report.format import fnum, tex_breakable, tex_escape, tex_unit
 
+__all__ = ["METRIC_LABELS", "SIMULATION_FIGURES", "Simulation", "metric_label",
+           "simulation_section"]
+
 # PNGs written by `maglevgen simulate --out DIR`, with the paper's figures they correspond to.
 SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (
     ("levitation_pitch.png", "Levitation height and pitch (the paper's figs 3, 5 and 7)."),
@@ -48,7 +51,7 @@ METRIC_LABELS: dict[str, tuple[str, str]] = {
 }
 
 
-def _simulation(source: Simulation, params_sha256: str | None = None
+def simulation_section(source: Simulation, params_sha256: str | None = None
                 ) -> tuple[dict[str, Any], _Deferred]:
     """Figures and metrics of `maglevgen simulate`: its output folder, or its files in memory.
 

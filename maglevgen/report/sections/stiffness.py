@@ -30,6 +30,8 @@ from maglevgen.report.format import fnum
 from maglevgen.report.symbols import K_SYM, array_labels, to_display
 from maglevgen.runtime.library import simulation_library
 
+__all__ = ["LAW_COLUMNS", "ROLL", "jacobian_unit", "stiffness_section"]
+
 _Q_LABELS = ("y", "z", r"\phi", r"\theta", r"\psi")
 _W_LABELS = ("F_y", "F_z", "M_x", "M_y", "M_z")
 ROLL = cv.AXES.index("roll")
@@ -70,7 +72,7 @@ def _stiffness_display(structure, values: tuple[tuple[str, float], ...],
     return Display(tuple(lines)), mass_lines
 
 
-def _stiffness(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
+def stiffness_section(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
     """The section's numbers, all from the compiled library (as `maglevgen trim` and `gains`
     print them): K_st0 and the gravity terms of ``trim`` (summary.TrimPoint, maglev_stiffness),
     A and B (maglev_jacobians at the trim), the generalized masses (maglev_axis_plants)."""

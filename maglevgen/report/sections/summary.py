@@ -8,6 +8,8 @@ from typing import Any
 
 from maglevgen.report.format import faxis_unit
 
+__all__ = ["summary"]
+
 
 def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:
     """The paper's printed values against the derivation, largest relative difference first."""

@@ -10,8 +10,11 @@ from maglevgen.analyses.queries import AcceleratingMargin
 from maglevgen.derive import conventions as cv
 from maglevgen.report.display import ltx
 
+__all__ = ["trim_section"]
 
-def _trim(trep: dict, accelerating: list[AcceleratingMargin] | None = None) -> dict[str, Any]:
+
+def trim_section(trep: dict,
+                 accelerating: list[AcceleratingMargin] | None = None) -> dict[str, Any]:
     """The trim table's context; ``accelerating``: the accelerating trim beside the
     constant-speed one at v_min, the design speed and v_max (`accelerating_margins`)."""
     rows = [{"speed": r.speed, "pitch": r.pitch * 1e3, "pitch_acc": r.pitch_accelerating * 1e3,

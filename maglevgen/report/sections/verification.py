@@ -13,6 +13,8 @@ from maglevgen.derive.riccati import riccati_relative_residual
 from maglevgen.errors import MaglevError
 from maglevgen.runtime.library import simulation_library
 
+__all__ = ["Check", "Simulation", "verification_section"]
+
 
 @dataclass(frozen=True)
 class Check:
@@ -102,7 +104,7 @@ def _generated_c_checks(
     ]
 
 
-def _verification(
+def verification_section(
     carriage,
     gains: dict,
     trep: dict,
