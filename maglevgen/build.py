@@ -500,25 +500,27 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
                  regions=None, judged: tuple[JudgedRun, ...] = ()) -> str:
     """Where each output is, and the numbers an engineer checks first; ``report``: what
     report/ holds (see `report_outputs`); ``regions``: the embedded controller's region of
-    attraction (maglevgen.analyses.roa), when computed; ``judged``: the embedded controller's runs
-    against [control.spec] (`embedded_runs`)."""
-    import numpy as np
+    attraction (maglevgen.analyses.roa), when computed; ``judged``: the embedded controller's
+    runs against [control.spec] (`embedded_runs`)."""
+    from maglevgen.analyses.queries import stiffness_table
 
-    from maglevgen.analyses.magnetic_damping import axis_damping
-    from maglevgen.analyses.queries import (
-        accelerating_margins,
-        pitch_paper_form,
-        stiffness_table,
-        trim_point,
-    )
+    rows = stiffness_table(carriage, lib, run.op.speed)
+    # one table per kind of axis, so that each column is one quantity in one unit
+    # (units as a person writes them: a '*' in a Markdown table starts emphasis)
+    kinds = (("Translation", (0, 1), {"k": _md_unit(rows[0].unit), "m": "kg", "c": "N s/m"}),
+             ("Rotation", (2, 3, 4), {"k": _md_unit(rows[2].unit), "m": "kg m^2",
+                                      "c": "N m s/rad"}))
+    lines = [*_summary_verdicts(carriage, run, env, regions),
+             *_summary_trim(carriage, run, lib, env, report),
+             *_summary_axes(carriage, run, lib, rows, kinds),
+             *_summary_paper(carriage, run, lib, rows),
+             *_summary_runs(carriage, run, judged)]
+    return "\n".join(lines) + "\n"
+
+
+def _summary_verdicts(carriage, run, env, regions) -> list[str]:
+    """The file and overrides, then the envelope's verdicts and the region of attraction."""
     from maglevgen.control.operating import CONTROLLER_TITLES
-
-    op = run.op
-    k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
-    c_mag = axis_damping(op, m)  # the circuits' lag in the Jacobian's velocity columns
-    rows = stiffness_table(carriage, lib, op.speed)
-    pitch = pitch_paper_form(carriage, trim_point(carriage, lib, op.speed),
-                             next(r.paper_value for r in rows if r.axis == "pitch"))
 
     embedded = carriage.params.envelope.embedded_controller
     loaded = carriage.loaded
@@ -542,26 +544,41 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         from maglevgen.analyses.roa import summary_lines
 
         lines += ["", *summary_lines(regions[0])]
+    return lines
+
+
+def _summary_trim(carriage, run, lib, env, report: str) -> list[str]:
+    """The outputs, the trim at the design speed and the accelerating trim at v_min."""
+    from maglevgen.analyses.queries import accelerating_margins
+
+    op = run.op
     names = list(carriage.params.arrays)
-    lines += ["",
-              "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
-              "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
-              f"{report}.", "",
-              f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
-              f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gap "
-              "per array: " + ", ".join(f"{n} {g * 1e3:.3f} mm" for n, g in zip(names, op.gaps,
-                                                                                strict=True))
-              + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
-              accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), ""]
-    # one table per kind of axis, so that each column is one quantity in one unit
-    # (units as a person writes them: a '*' in a Markdown table starts emphasis)
-    kinds = (("Translation", (0, 1), {"k": _md_unit(rows[0].unit), "m": "kg", "c": "N s/m"}),
-             ("Rotation", (2, 3, 4), {"k": _md_unit(rows[2].unit), "m": "kg m^2",
-                                      "c": "N m s/rad"}))
-    lines += [f"Stiffness at trim: K_st0 (magnetic, the derivation's) beside the paper's printed "
-              "eqs 13-19 and their difference from it; k = K_st0 plus the gravity and "
-              "propulsion moments, the plant of the per-axis LQR, m its generalized mass "
-              f"(model.circuit_dynamics = {carriage.params.model.circuit_dynamics}):", ""]
+    return ["",
+            "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
+            "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
+            f"{report}.", "",
+            f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
+            f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gap "
+            "per array: " + ", ".join(f"{n} {g * 1e3:.3f} mm" for n, g in zip(names, op.gaps,
+                                                                              strict=True))
+            + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
+            accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), ""]
+
+
+def _summary_axes(carriage, run, lib, rows, kinds) -> list[str]:
+    """The stiffness tables (derived, printed, the plant) and the gain tables per kind of
+    axis."""
+    import numpy as np
+
+    from maglevgen.analyses.magnetic_damping import axis_damping
+
+    op = run.op
+    k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(op.speed, carriage.p))
+    c_mag = axis_damping(op, m)  # the circuits' lag in the Jacobian's velocity columns
+    lines = [f"Stiffness at trim: K_st0 (magnetic, the derivation's) beside the paper's printed "
+             "eqs 13-19 and their difference from it; k = K_st0 plus the gravity and "
+             "propulsion moments, the plant of the per-axis LQR, m its generalized mass "
+             f"(model.circuit_dynamics = {carriage.params.model.circuit_dynamics}):", ""]
     for kind, idx, u in kinds:
         lines += [f"| {kind.lower()} axis | K_st0 [{u['k']}] | paper, printed [{u['k']}] | "
                   f"paper / K_st0 - 1 | k [{u['k']}] | m [{u['m']}] | f_n [Hz] |",
@@ -587,28 +604,41 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
         lines += [f"| {rows[i].axis} | " + " | ".join(c[j] for c in cols) + " |"
                   for j, i in enumerate(idx)]
         lines.append("")
-    lines += ["Paper discrepancies found (details and evidence in the report):",
-              "- printed stiffnesses (eqs 13-19) differ from the derived K_st0: "
-              + ", ".join(f"{r.axis} {r.relative_difference:+.1%}" for r in rows) + ";",
-              "- pitch (eq 15): the error is the net front force F_z3 - F_z1 - F_z2 where the "
-              "upper and lower arrays' stiffnesses add (the arm L_x is right): printed "
-              f"{pitch['printed']:.5g}, with the sum 2k sum_i F_i n_z,i^2 x_i^2 "
-              f"{pitch['sum_of_contributions']:.5g}, derived {pitch['derived']:.5g} N m/rad;",
-              "- eq 31 does not satisfy the Riccati equation eq 30, and eq 32's gain is not the "
-              "LQR gain; the toolchain uses the derived closed form (stable in float32);",
-              "- with Q = diag(state_weights), R = input_weight as in the paper the LQR damps "
-              "heave and pitch less than the optimized damping (see simulation/metrics.md);",
-              f"- the speed mode: {run.speed_mode.explanation()}.", ""]
-    for traj in run.trajectories:
-        lines.append(f"Simulation `{traj.controller}`: {traj.status}"
-                     + (f" ({traj.event})" if traj.event else ""))
+    return lines
+
+
+def _summary_paper(carriage, run, lib, rows) -> list[str]:
+    """Where the paper's printed forms differ from the derivation."""
+    from maglevgen.analyses.queries import pitch_paper_form, trim_point
+
+    pitch = pitch_paper_form(carriage, trim_point(carriage, lib, run.op.speed),
+                             next(r.paper_value for r in rows if r.axis == "pitch"))
+    return ["Paper discrepancies found (details and evidence in the report):",
+            "- printed stiffnesses (eqs 13-19) differ from the derived K_st0: "
+            + ", ".join(f"{r.axis} {r.relative_difference:+.1%}" for r in rows) + ";",
+            "- pitch (eq 15): the error is the net front force F_z3 - F_z1 - F_z2 where the "
+            "upper and lower arrays' stiffnesses add (the arm L_x is right): printed "
+            f"{pitch['printed']:.5g}, with the sum 2k sum_i F_i n_z,i^2 x_i^2 "
+            f"{pitch['sum_of_contributions']:.5g}, derived {pitch['derived']:.5g} N m/rad;",
+            "- eq 31 does not satisfy the Riccati equation eq 30, and eq 32's gain is not the "
+            "LQR gain; the toolchain uses the derived closed form (stable in float32);",
+            "- with Q = diag(state_weights), R = input_weight as in the paper the LQR damps "
+            "heave and pitch less than the optimized damping (see simulation/metrics.md);",
+            f"- the speed mode: {run.speed_mode.explanation()}.", ""]
+
+
+def _summary_runs(carriage, run, judged) -> list[str]:
+    """The simulations' statuses, their runs against [control.spec] and the embedded
+    controller's judged runs."""
+    lines = [f"Simulation `{traj.controller}`: {traj.status}"
+             + (f" ({traj.event})" if traj.event else "") for traj in run.trajectories]
     lines += _run_spec_lines(run)
     if judged:
-        lines += ["", f"The embedded controller `{embedded}` in the firmware loop against "
-                  "[control.spec] at the envelope's ends and in the launch (`build` exits 3 "
-                  "when one fails):", "",
+        lines += ["", f"The embedded controller `{carriage.params.envelope.embedded_controller}` "
+                  "in the firmware loop against [control.spec] at the envelope's ends and in "
+                  "the launch (`build` exits 3 when one fails):", "",
                   *(f"- {r.label}: {r.verdict.text()}" for r in judged)]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def _md_unit(unit: str) -> str:
