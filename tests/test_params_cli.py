@@ -206,7 +206,7 @@ def no_model_build(monkeypatch: pytest.MonkeyPatch) -> None:
     def boom(*_a: object, **_k: object) -> None:
         raise AssertionError("model built before the parameter file was validated")
 
-    monkeypatch.setattr(maglevgen.carriage, "Carriage", boom)
+    monkeypatch.setattr(maglevgen.carriage, "DerivedCarriage", boom)
 
 
 @pytest.mark.usefixtures("no_model_build")

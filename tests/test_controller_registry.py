@@ -1,0 +1,124 @@
+"""Adding a linear controller is one registration: a controller registered the way a module of
+maglevgen/control/ registers one reaches the CLI's choices, the API, the gains, the envelope,
+the simulations in the firmware loop and the FMU, with nothing else edited.
+
+The example is the optimized damping (eqs 20-21) written as a general linear law (K_pos = 0,
+K_rate = diag(c)) run by the generic matrix tick (``maglev_coupled_control``) instead of the
+damping's own diagonal tick: its poles and runs are checked against the registered
+``damping`` controller's, which its own tests hold against independent references.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+# The module a developer would add (maglevgen/control/<name>.py), then the checks, in a child
+# process: the registry of this test session stays as it is.
+_CHILD = r'''
+import json, sys
+import numpy as np
+from maglevgen.control import Controller, register
+
+def _damping_as_matrix(op):
+    return np.zeros((5, 5)), np.diag(op.c_damping)
+
+register(Controller(
+    "example", "damping as a matrix", "optimized damping through the generic linear tick",
+    _damping_as_matrix, tick_function="maglev_coupled_control", fmu_gains="matrix",
+    style={"color": "tab:red", "ls": "-.", "lw": 1.0}))
+
+import maglevgen
+from maglevgen.cli import build_parser
+
+out = {}
+sim_choices = next(a for a in build_parser()._subparsers._group_actions[0].choices[
+    "simulate"]._actions if a.dest == "controller").choices
+out["simulate_choices"] = list(sim_choices)
+c = maglevgen.load()
+g_ex, g_d = c.gains(controller="example"), c.gains(controller="damping")
+out["gains"] = [g_ex.K.tolist(), g_d.K.tolist()]
+out["poles"] = [sorted(map(str, np.round(np.sort_complex(g.poles), 9)))
+                for g in (g_ex, g_d)]
+env = c.envelope(n_speeds=5)
+out["envelope"] = {n: env.max_real[n].tolist() for n in ("example", "damping")}
+out["verdict"] = env.verdicts["example"]
+runs = [c.simulate(controller=n, t_end=0.3) for n in ("example", "damping")]
+out["runs"] = [r.x.tolist() for r in runs]
+out["status"] = [r.status for r in runs]
+from fmpy import simulate_fmu
+fmu = c.fmu(sys.argv[1], kind="cs", controller="example")
+res = simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=0.3, output_interval=1e-3,
+                   output=list(runs[0].state_names))
+out["fmu_x"] = np.column_stack([res[s] for s in runs[0].state_names]).tolist()
+print(json.dumps(out))
+'''
+
+
+@pytest.fixture(scope="module")
+def example(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    folder = tmp_path_factory.mktemp("example_controller")
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(folder / "fmu")],
+                          capture_output=True, text=True, timeout=1200)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.splitlines()[-1])
+
+
+def test_a_registered_controller_is_a_choice_of_the_cli(example: dict) -> None:
+    assert "example" in example["simulate_choices"]
+
+
+def test_its_gains_and_poles_are_the_law_it_registers(example: dict) -> None:
+    import numpy as np
+
+    K_ex, K_d = (np.array(k) for k in example["gains"])
+    np.testing.assert_array_equal(K_ex, K_d)
+    assert example["poles"][0] == example["poles"][1]
+
+
+def test_the_envelope_judges_it(example: dict) -> None:
+    import numpy as np
+
+    np.testing.assert_allclose(example["envelope"]["example"], example["envelope"]["damping"],
+                               rtol=1e-9, atol=1e-12)
+    assert example["verdict"]
+
+
+def test_the_firmware_loop_runs_it_through_the_generic_tick(example: dict) -> None:
+    """The generic matrix tick against the damping's diagonal one: the same law, so the same
+    run up to the round-off of a 5 x 10 product against a diagonal one."""
+    import numpy as np
+
+    x_ex, x_d = (np.array(x) for x in example["runs"])
+    assert example["status"][0] == example["status"][1]
+    assert x_ex.shape == x_d.shape
+    scale = np.max(np.abs(x_d), axis=0) + 1e-12
+    assert np.max(np.abs(x_ex - x_d) / scale) < 1e-9
+
+
+def test_the_fmu_runs_it_as_the_simulation_does(example: dict) -> None:
+    """The co-simulation FMU with the example built in, under FMPy, against the API's run
+    (the same RK4 and tick arithmetic)."""
+    import numpy as np
+
+    x_fmu, x_api = np.array(example["fmu_x"]), np.array(example["runs"][0])
+    assert x_fmu.shape == x_api.shape
+    scale = np.max(np.abs(x_api), axis=0) + 1e-12
+    assert np.max(np.abs(x_fmu - x_api) / scale) < 1e-9
+
+
+def test_nothing_else_names_a_controller() -> None:
+    """No module outside maglevgen/control/ spells out the list of controllers: where a
+    consumer needs them it iterates over the registry."""
+    root = Path(__file__).resolve().parents[1]
+    listing = ('"none", "damping", "lqr", "coupled"', "'none', 'damping', 'lqr', 'coupled'",
+               '("none", "damping", "lqr"', "('none', 'damping', 'lqr'")
+    found = [str(p.relative_to(root)) for folder in ("maglevgen", "runtime", "derive")
+             for p in (root / folder).rglob("*.py")
+             if "control" not in p.relative_to(root).parts
+             and any(s in p.read_text() for s in listing)]
+    assert found == []
