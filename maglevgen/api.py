@@ -1482,8 +1482,7 @@ class Carriage:
             one the firmware embeds); ``external``: the generalized forces are inputs.
         fmi : {'2', '3'}, optional
             The FMI version (``--fmi``): 2.0 (default,
-                             ``maglevgen.exports.fmu.DEFAULT_FMI``) or 3.0,
-            the same variables.
+            ``maglevgen.exports.fmu.DEFAULT_FMI``) or 3.0, the same variables.
         loop : {'firmware', 'continuous'}, optional
             ``--loop``: the built-in controller at the tick of ``[control.spec]`` with its
             delay, the speed loop and the force budget (default), or at every derivative

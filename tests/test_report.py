@@ -167,7 +167,7 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
     png = b"\x89PNG\r\n\x1a\n" + b"0" * 16  # copied as bytes, never decoded
     (sim / "levitation_pitch.png").write_bytes(png)
     (sim / "metrics.json").write_text('{"lqr": {"settling_time": 1.5, "ok": true}}')
-    sim_ctx, files = simulation._simulation(sim)
+    sim_ctx, files = simulation.simulation_section(sim)
     assert files.read() == {"sim_levitation_pitch.png": png}
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     assert (
@@ -176,7 +176,7 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
     )
     assert "figs 3, 5 and 7" in tex and "travel\\_roll.png" in tex and "settling" in tex
     with pytest.raises(InputError, match="none of"):
-        simulation._simulation(tmp_path)
+        simulation.simulation_section(tmp_path)
     # in memory, as `maglevgen build` passes a simulate run's files, with its metrics format
     run = {
         "controller": "lqr",
@@ -195,13 +195,14 @@ def test_simulation_figures_are_copied_and_captioned(default_context, tmp_path: 
         },
     }
     metrics = json.dumps({"speed": 20.0, "disturbance": "1 mm heave", "runs": [run]})
-    sim_ctx, files = simulation._simulation({"travel_roll.png": png, "metrics.json": metrics})
+    sim_ctx, files = simulation.simulation_section({"travel_roll.png": png,
+                                                    "metrics.json": metrics})
     assert list(files.read()) == ["sim_travel_roll.png"]
     assert sim_ctx["runs"][0]["controller"] == "lqr"
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     assert "not settled" in tex and "1 mm heave" in tex and "\\texttt{lqr}: ok" in tex
     with pytest.raises(InputError, match="not a folder"):
-        simulation._simulation(tmp_path / "nowhere")
+        simulation.simulation_section(tmp_path / "nowhere")
 
 
 # ------------------------------------------------------------------- failure and no TeX
@@ -617,7 +618,7 @@ def test_simulation_metrics_are_named_with_units_and_every_figure_is_referenced(
     capsys.readouterr()
     data = json.loads((sim / "metrics.json").read_text())
     ctx, _ = default_context
-    sim_ctx, _ = simulation._simulation(sim, ctx["sha256"])
+    sim_ctx, _ = simulation.simulation_section(sim, ctx["sha256"])
     tex = rp.render_tex({**ctx, "simulation": sim_ctx})
     section = _section(tex, "simulation")
     table = section[section.index("quantity [unit]"):]

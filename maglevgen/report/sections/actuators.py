@@ -13,6 +13,7 @@ import sympy as sp
 
 from maglevgen.analyses.simulate import metrics, run_scenarios
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control import REGISTRY
 from maglevgen.derive.structure import input_names_of
 from maglevgen.params import ACTUATOR_MODELS, LoadedParams
 from maglevgen.report.display import ltx, matrix_tex
@@ -22,9 +23,9 @@ from maglevgen.runtime.library import simulation_library
 __all__ = ["ACTUATOR_TEXT", "RUN_CONTROLLERS", "RUN_DT", "RUN_T_END", "actuator_comparison_section",
            "with_actuators"]
 
-# the runs compared: `maglevgen simulate`'s hold (its default length and step) per controller
-# that applies forces
-RUN_CONTROLLERS = ("damping", "lqr", "coupled")
+# the runs compared: `maglevgen simulate`'s hold (its default length and step) per design of
+# the paper that applies forces
+RUN_CONTROLLERS = tuple(n for n, c in REGISTRY.items() if c.paper and c.tick_function)
 RUN_T_END, RUN_DT = 10.0, 1e-3
 
 ACTUATOR_TEXT = {
