@@ -37,7 +37,12 @@ class Equilibrium(Protocol):
 
 
 def _fn(args: list, expr: sp.Matrix) -> Callable[..., np.ndarray]:
-    f = sp.lambdify(args, expr, modules="numpy", cse=True)
+    # lambdify(cse=True)'s code, without its two walks of the expression as a tree (shared
+    # subexpressions again at every use: most of its time): the implemented functions'
+    # (the model has none) and the symbols' (of the reduced expression here)
+    cses, reduced = sp.cse(expr, list=False)
+    f = sp.lambdify(args, reduced, modules="numpy", cse=lambda _: (cses, reduced),
+                    use_imps=False)
     shape = expr.shape
 
     def call(*a: np.ndarray) -> np.ndarray:
