@@ -1,4 +1,4 @@
-"""Jacobians with SymPy's own differentiation rules, each subexpression differentiated once.
+"""Jacobians and substitutions by SymPy's own rules, each shared subexpression done once.
 
 SymPy's ``diff`` recomputes the free symbols of every subexpression it descends into (to skip
 the constant ones) and differentiates a subexpression shared by several entries (a gap, a load
@@ -7,7 +7,8 @@ most of the derivation's time. `Differentiator` applies the very rules of SymPy'
 Pow and Function (``_eval_derivative``, Leibniz's rule for Mul) and hands any other node to
 SymPy, with the free symbols and the derivatives kept per (subexpression, variable); so its
 results are SymPy's expressions, node for node (what the generated C is printed from), only
-made once.
+made once. `xreplace` is SymPy's xreplace likewise: SymPy's walks the expression as a tree,
+a shared subexpression again at every use.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import sympy as sp
 from sympy.core.basic import Basic
 from sympy.core.function import ArgumentIndexError
 
-__all__ = ["Differentiator", "jacobian"]
+__all__ = ["Differentiator", "jacobian", "xreplace"]
 
 
 def _generic_function(cls: type) -> bool:
@@ -103,3 +104,29 @@ def jacobian(exprs: sp.Matrix, variables: Sequence[sp.Symbol],
     d = Differentiator() if d is None else d
     col = list(exprs)
     return sp.Matrix(len(col), len(variables), lambda i, j: d(col[i], variables[j]))
+
+
+def xreplace(exprs: sp.Matrix, rule: dict) -> sp.Matrix:
+    """``exprs.xreplace(rule)``: Basic._xreplace's rule (a node is rebuilt when one of its
+    arguments changed), each distinct subexpression replaced once."""
+    done: dict[Basic, tuple[Basic, bool]] = {}
+
+    def rep(expr: Basic) -> tuple[Basic, bool]:
+        if expr in rule:
+            return rule[expr], True
+        hit = done.get(expr)
+        if hit is None:
+            args, changed = [], False
+            for a in expr.args:
+                if isinstance(a, Basic):
+                    a, c = rep(a)
+                    changed |= c
+                elif hasattr(a, "_xreplace"):
+                    a, c = a._xreplace(rule)
+                    changed |= c
+                args.append(a)
+            hit = (expr.func(*args), True) if changed else (expr, False)
+            done[expr] = hit
+        return hit
+
+    return sp.Matrix(exprs.rows, exprs.cols, [rep(e)[0] for e in exprs])

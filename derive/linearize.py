@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import sympy as sp
 
 from maglevgen.derive import conventions as cv
-from maglevgen.derive.differentiate import Differentiator, jacobian
+from maglevgen.derive.differentiate import Differentiator, jacobian, xreplace
 from maglevgen.derive.geometry import array_wrench
 from maglevgen.derive.memo import memoized
 from maglevgen.derive.model import CarriageModel, Structure, build_model, inertia_cg_matrix
@@ -61,8 +61,8 @@ def stiffness_form(structure: Structure) -> StiffnessForm:
     rows = W[1:6, 0]  # F_y, F_z, M_x, M_y, M_z
     d = Differentiator()
     K = -jacobian(rows, q, d)
-    K = K.xreplace({g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})
-    K = K.xreplace({f: lf for f, lf in zip(trim_factor, m.load_factor, strict=True)})
+    K = xreplace(K, {g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})
+    K = xreplace(K, {f: lf for f, lf in zip(trim_factor, m.load_factor, strict=True)})
     mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
     f_prop = m.u[0] * ex
     other = ((m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))
@@ -119,7 +119,7 @@ def stiffness_parts(structure: Structure) -> StiffnessParts:
     back.update(dict(zip(trim_gap, m.gaps, strict=True)))
     back.update(dict(zip(trim_factor, m.load_factor, strict=True)))
     d = Differentiator()
-    parts = {name: (-jacobian(W, cs, d)).xreplace(back) for name, cs in copies.items()}
+    parts = {name: xreplace(-jacobian(W, cs, d), back) for name, cs in copies.items()}
     mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
     f_prop = sp.Symbol("F_prop", real=True)
     gravity = (m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))

@@ -1,12 +1,12 @@
-"""derive.differentiate against SymPy's own differentiation: the same expressions, node for node
-(srepr), since the generated C is printed from them."""
+"""derive.differentiate against SymPy's own differentiation and xreplace: the same expressions,
+node for node (srepr), since the generated C is printed from them."""
 
 from __future__ import annotations
 
 import sympy as sp
 
 from maglevgen.carriage import structure_of
-from maglevgen.derive.differentiate import Differentiator, jacobian
+from maglevgen.derive.differentiate import Differentiator, jacobian, xreplace
 from maglevgen.derive.distributed import langevin, sinhc
 from maglevgen.derive.model import build_model
 from maglevgen.params import load_params
@@ -36,3 +36,12 @@ def test_the_models_jacobians_are_sympys() -> None:
     for exprs, variables in ((m.lift_at_speed, list(m.x)), (m.wrench, list(m.arm_sym)),
                              (m.lift_at_speed, list(m.speed_sym))):
         assert _same(jacobian(exprs, variables, d), exprs.jacobian(variables))
+
+
+def test_xreplace_is_sympys() -> None:
+    x, y, g, G, f = sp.symbols("x y g G f", real=True)
+    shared = sp.exp(-2 * x * (g - G)) * sinhc(x * y) / f
+    exprs = sp.Matrix([shared * (1 + shared), sp.Abs(G - y) + f, sp.Integer(2), x])
+    rule = {G: g, f: sinhc(x * y)}  # cancels: exp(0) = 1, sinhc / sinhc = 1
+    assert _same(xreplace(exprs, rule), exprs.xreplace(rule))
+    assert xreplace(exprs, rule)[0] == 2
