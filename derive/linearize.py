@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import sympy as sp
 
 from maglevgen.derive import conventions as cv
+from maglevgen.derive.differentiate import Differentiator, jacobian, xreplace
 from maglevgen.derive.geometry import array_wrench
 from maglevgen.derive.memo import memoized
 from maglevgen.derive.model import CarriageModel, Structure, build_model, inertia_cg_matrix
@@ -58,14 +59,15 @@ def stiffness_form(structure: Structure) -> StiffnessForm:
         W[0:3, 0] += f
         W[3:6, 0] += moment
     rows = W[1:6, 0]  # F_y, F_z, M_x, M_y, M_z
-    K = -rows.jacobian(q)
-    K = K.xreplace({g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})
-    K = K.xreplace({f: lf for f, lf in zip(trim_factor, m.load_factor, strict=True)})
+    d = Differentiator()
+    K = -jacobian(rows, q, d)
+    K = xreplace(K, {g: gap for g, gap in zip(trim_gap, m.gaps, strict=True)})
+    K = xreplace(K, {f: lf for f, lf in zip(trim_factor, m.load_factor, strict=True)})
     mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
     f_prop = m.u[0] * ex
     other = ((m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))
              + (m.R * m.vec("operation.propulsion_point")).cross(f_prop))
-    K_other = -sp.Matrix.vstack(sp.zeros(2, 1), other).jacobian(q)
+    K_other = -jacobian(sp.Matrix.vstack(sp.zeros(2, 1), other), q, d)
     return StiffnessForm(K, K_other, q, m.lift_sym, m.drag_sym)
 
 
@@ -116,13 +118,14 @@ def stiffness_parts(structure: Structure) -> StiffnessParts:
     back = {c: v for cs in copies.values() for c, v in zip(cs, q, strict=True)}
     back.update(dict(zip(trim_gap, m.gaps, strict=True)))
     back.update(dict(zip(trim_factor, m.load_factor, strict=True)))
-    parts = {name: (-W.jacobian(cs)).xreplace(back) for name, cs in copies.items()}
+    d = Differentiator()
+    parts = {name: xreplace(-jacobian(W, cs, d), back) for name, cs in copies.items()}
     mass, grav = m.param("vehicle.mass"), m.param("vehicle.gravity")
     f_prop = sp.Symbol("F_prop", real=True)
     gravity = (m.R * m.vec("vehicle.cg_offset")).cross(sp.Matrix([0, 0, -mass * grav]))
     propulsion = (m.R * m.vec("operation.propulsion_point")).cross(f_prop * ex)
-    parts["gravity"] = -sp.Matrix.vstack(sp.zeros(2, 1), gravity).jacobian(q)
-    parts["propulsion"] = -sp.Matrix.vstack(sp.zeros(2, 1), propulsion).jacobian(q)
+    parts["gravity"] = -jacobian(sp.Matrix.vstack(sp.zeros(2, 1), gravity), q, d)
+    parts["propulsion"] = -jacobian(sp.Matrix.vstack(sp.zeros(2, 1), propulsion), q, d)
     return StiffnessParts({n: parts[n] for n in STIFFNESS_PARTS}, q, m.lift_sym, m.drag_sym,
                           f_prop)
 

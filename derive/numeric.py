@@ -16,6 +16,7 @@ import sympy as sp
 
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import Q_STATES
+from maglevgen.derive.differentiate import Differentiator, jacobian
 from maglevgen.derive.linearize import generalized_mass_expr, stiffness_form, stiffness_parts
 from maglevgen.derive.memo import memoized
 from maglevgen.derive.model import CarriageModel, Structure, build_model
@@ -36,7 +37,12 @@ class Equilibrium(Protocol):
 
 
 def _fn(args: list, expr: sp.Matrix) -> Callable[..., np.ndarray]:
-    f = sp.lambdify(args, expr, modules="numpy", cse=True)
+    # lambdify(cse=True)'s code, without its two walks of the expression as a tree (shared
+    # subexpressions again at every use: most of its time): the implemented functions'
+    # (the model has none) and the symbols' (of the reduced expression here)
+    cses, reduced = sp.cse(expr, list=False)
+    f = sp.lambdify(args, reduced, modules="numpy", cse=lambda _: (cses, reduced),
+                    use_imps=False)
     shape = expr.shape
 
     def call(*a: np.ndarray) -> np.ndarray:
@@ -136,35 +142,40 @@ def model_functions(structure: Structure) -> ModelFunctions:
     xs, xups = [m.x], [m.x, m.u, m.lift_sym, m.drag_sym, m.spread_sym, m.arm_sym, m.p]
     arms = sp.Matrix.vstack(*m.arms)
     xsp = [m.x, m.speed_sym, m.p]
+    d = Differentiator()  # one for all: the layers share their gaps, factors and rotation
+
+    def jac(exprs: sp.Matrix, variables: list) -> sp.Matrix:
+        return jacobian(exprs, variables, d)
+
     return ModelFunctions(
         model=m,
         kin=_fn(xs, m.kinematics),
-        kin_x=_fn(xs, m.kinematics.jacobian(x)),
+        kin_x=_fn(xs, jac(m.kinematics, x)),
         speeds=_fn([m.x, m.p], m.array_speeds),
         gaps=_fn([m.x, m.p], m.gaps),
         contact_gaps=_fn([m.x, m.p], m.contact_gaps),
         lift=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed),
         drag=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed),
-        lift_x=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed.jacobian(x)),
-        lift_s=_fn([m.x, m.speed_sym, m.p], m.lift_at_speed.jacobian(s)),
-        drag_x=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed.jacobian(x)),
-        drag_s=_fn([m.x, m.speed_sym, m.p], m.drag_at_speed.jacobian(s)),
-        speeds_x=_fn([m.x, m.p], m.array_speeds.jacobian(x)),
+        lift_x=_fn([m.x, m.speed_sym, m.p], jac(m.lift_at_speed, x)),
+        lift_s=_fn([m.x, m.speed_sym, m.p], jac(m.lift_at_speed, s)),
+        drag_x=_fn([m.x, m.speed_sym, m.p], jac(m.drag_at_speed, x)),
+        drag_s=_fn([m.x, m.speed_sym, m.p], jac(m.drag_at_speed, s)),
+        speeds_x=_fn([m.x, m.p], jac(m.array_speeds, x)),
         spread=_fn(xsp, m.spread_at_speed),
-        spread_x=_fn(xsp, m.spread_at_speed.jacobian(x)),
-        spread_s=_fn(xsp, m.spread_at_speed.jacobian(s)),
+        spread_x=_fn(xsp, jac(m.spread_at_speed, x)),
+        spread_s=_fn(xsp, jac(m.spread_at_speed, s)),
         arms=_fn([m.x, m.p], arms),
-        arms_x=_fn([m.x, m.p], arms.jacobian(x)),
+        arms_x=_fn([m.x, m.p], jac(arms, x)),
         wrench=_fn(xups, m.wrench),
-        wrench_x=_fn(xups, m.wrench.jacobian(x)),
-        wrench_u=_fn(xups, m.wrench.jacobian(u)),
-        wrench_FL=_fn(xups, m.wrench.jacobian(fl)),
-        wrench_FD=_fn(xups, m.wrench.jacobian(fd)),
-        wrench_G=_fn(xups, m.wrench.jacobian(list(m.spread_sym))),
-        wrench_A=_fn(xups, m.wrench.jacobian(list(m.arm_sym))),
+        wrench_x=_fn(xups, jac(m.wrench, x)),
+        wrench_u=_fn(xups, jac(m.wrench, u)),
+        wrench_FL=_fn(xups, jac(m.wrench, fl)),
+        wrench_FD=_fn(xups, jac(m.wrench, fd)),
+        wrench_G=_fn(xups, jac(m.wrench, list(m.spread_sym))),
+        wrench_A=_fn(xups, jac(m.wrench, list(m.arm_sym))),
         acc=_fn([m.x, m.wrench_sym, m.p], m.accelerations),
-        acc_x=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(x)),
-        acc_W=_fn([m.x, m.wrench_sym, m.p], m.accelerations.jacobian(w)),
+        acc_x=_fn([m.x, m.wrench_sym, m.p], jac(m.accelerations, x)),
+        acc_W=_fn([m.x, m.wrench_sym, m.p], jac(m.accelerations, w)),
         stiffness_magnetic=stiffness_magnetic,
         stiffness_other=stiffness_other,
     )
