@@ -25,7 +25,7 @@ import numpy as np
 
 from .cache import cache_root, derivation_fingerprint
 from .codegen.simulate_api import function as api_function
-from .derive.structure import Structure
+from .derive.structure import Structure, numbered
 from .hashing import ContentHash, file_sha256, sha256_hex
 from .output import write_output
 from .runtime.compile import DEFAULT_FLAGS, CompileError, cached_shared, compile_shared
@@ -56,7 +56,10 @@ def _quiet(_: str) -> None:
 
 
 def derivation_key(structure: Structure, precision: str) -> str:
-    return ContentHash(derivation_fingerprint(), repr(structure), precision).hexdigest(24)
+    """The derivation folder's key: the structure with its arrays numbered (`numbered`: the
+    generated C names none of them), so structures that differ only in array names share it."""
+    return ContentHash(derivation_fingerprint(), repr(numbered(structure)),
+                       precision).hexdigest(24)
 
 
 def _checksums(files: dict[str, bytes]) -> str:
@@ -84,7 +87,7 @@ def runtime_sources(structure: Structure, precision: str = "double",
     from .codegen.generate import render_runtime_sources  # SymPy and CasADi: only on a miss
     from .derive.model import build_model
 
-    files = render_runtime_sources(build_model(structure), precision)
+    files = render_runtime_sources(build_model(numbered(structure)), precision)
     data = {n: t.encode() for n, t in files.items()}
     write_output({**files, CHECKSUMS: _checksums(data)}, folder)
     return folder
