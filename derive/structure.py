@@ -14,7 +14,7 @@ from typing import Any
 from maglevgen.derive import conventions as cv
 
 __all__ = ["CIRCUIT_DYNAMICS", "CONTROL_AXES", "NORMAL_AXIS", "Structure", "box_principal_moments",
-           "control_components", "explicit_inertia", "input_names_of"]
+           "control_components", "explicit_inertia", "input_names_of", "numbered"]
 
 # Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).
 CONTROL_AXES: tuple[str, ...] = ("y", "z")
@@ -41,6 +41,28 @@ class Structure:
     arrays: tuple[tuple[str, tuple[str, ...]], ...]
     array_force: str = "point"
     circuit_dynamics: str = "quasi-static"
+
+
+def numbered(structure: Structure) -> Structure:
+    """``structure`` with its arrays named by their place ("1", "2", ...), in the parameter
+    names too. An array's name is a label: the derivation reads a parameter by its name and
+    orders nothing by it, so the C generated from this structure (which holds p's indices,
+    never a name) serves every structure that differs from it only in array names, and a
+    renamed array derives and compiles nothing new. (SymPy orders a sum's terms by symbol
+    name, so deriving under the other names would give the same functions in another order
+    of operations.) The LLNL carriage's arrays are named 1 to 6 in order: its own structure."""
+    place = {name: str(i) for i, (name, _) in enumerate(structure.arrays, 1)}
+
+    def param(name: str) -> str:
+        head, sep, rest = name.partition(".")
+        if head != "arrays" or not sep:
+            return name
+        array, dot, key = rest.partition(".")
+        return f"arrays.{place[array]}{dot}{key}"
+
+    return Structure(tuple(param(n) for n in structure.param_names),
+                     tuple((place[name], comps) for name, comps in structure.arrays),
+                     structure.array_force, structure.circuit_dynamics)
 
 
 def control_components(normal_values: Sequence[float], actuators: str = "paper",

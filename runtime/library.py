@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from maglevgen.codegen.simulate_api import function as api_function
-from maglevgen.derive.structure import Structure
+from maglevgen.derive.structure import Structure, numbered
 from maglevgen.infrastructure.cache import cache_root, derivation_fingerprint
 from maglevgen.infrastructure.hashing import ContentHash, file_sha256, sha256_hex
 from maglevgen.infrastructure.output import write_output
@@ -73,7 +73,10 @@ def _quiet(_: str) -> None:
 
 
 def derivation_key(structure: Structure, precision: str) -> str:
-    return ContentHash(derivation_fingerprint(), repr(structure), precision).hexdigest(24)
+    """The derivation folder's key: the structure with its arrays numbered (`numbered`: the
+    generated C names none of them), so structures that differ only in array names share it."""
+    return ContentHash(derivation_fingerprint(), repr(numbered(structure)),
+                       precision).hexdigest(24)
 
 
 def _checksums(files: dict[str, bytes]) -> str:
@@ -103,7 +106,7 @@ def runtime_sources(structure: Structure, precision: str = "double",
     )
     from maglevgen.derive.model import build_model
 
-    files = render_runtime_sources(build_model(structure), precision)
+    files = render_runtime_sources(build_model(numbered(structure)), precision)
     data = {n: t.encode() for n, t in files.items()}
     write_output({**files, CHECKSUMS: _checksums(data)}, folder)
     return folder

@@ -202,3 +202,25 @@ def op(sim_lib, carriage: DerivedCarriage):
 
     return operating_point(sim_lib, carriage.p, carriage.params.operation.speed,
                            carriage.params.track.min_gap, Weights.of(carriage.params))
+
+
+@pytest.fixture(scope="session")
+def rendered():
+    """`maglevgen.codegen.generate.render`, once per carriage, options and speed range in a
+    process: rendering (the CasADi functions, the C and its checks) takes about 10 s, and the
+    code-generation and firmware tests compile or read the same few renders (double and single,
+    run-time and baked). Each test writes its own copy; the dict is not to be changed."""
+    from maglevgen.codegen.generate import render
+
+    done: dict[tuple, dict[str, str]] = {}
+
+    def get(carriage: DerivedCarriage, opts, speed_range: tuple[float, float] | None = None
+            ) -> dict[str, str]:
+        # the speed range is baked only with the parameters (render ignores it otherwise)
+        key = (carriage.loaded.sha256, carriage.loaded.overrides, opts,
+               speed_range if opts.parameters == "baked" else None)
+        if key not in done:
+            done[key] = render(carriage, opts, speed_range)
+        return done[key]
+
+    return get

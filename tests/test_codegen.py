@@ -32,9 +32,9 @@ A_STATES = [cv.STATE_INDEX[s] for s in cv.Q_STATES]  # the axis coordinates (y, 
 
 
 @pytest.fixture(scope="module", params=["double", "single"])
-def runtime_lib(request, carriage: DerivedCarriage, tmp_path_factory) -> tuple[str, Path]:
+def runtime_lib(request, carriage: DerivedCarriage, tmp_path_factory, rendered) -> tuple[str, Path]:
     out = tmp_path_factory.mktemp(f"gen_{request.param}")
-    write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
+    write_output(rendered(carriage, GenerateOptions(request.param, "runtime")), out)
     lib = compile_shared([out / "maglev_functions.c"])
     return request.param, lib
 
@@ -46,9 +46,10 @@ def _ext(runtime_lib: tuple[str, Path], name: str):
 
 
 @pytest.mark.needs_cc
-def test_casadi_external_loads_every_function(carriage: DerivedCarriage, tmp_path: Path) -> None:
+def test_casadi_external_loads_every_function(carriage: DerivedCarriage, tmp_path: Path,
+                                              rendered) -> None:
     out = tmp_path / "gen"
-    write_output(render(carriage, GenerateOptions("double", "runtime")), out)
+    write_output(rendered(carriage, GenerateOptions("double", "runtime")), out)
     lib = compile_shared([out / "maglev_functions.c"])
     manifest = json.loads((out / "manifest.json").read_text())
     ours = GeneratedLibrary(lib, "double")
@@ -167,12 +168,12 @@ def test_gain_schedule_pieces_match_the_python_derivation(runtime_lib, carriage:
 
 
 @pytest.fixture(scope="module")
-def baked(carriage: DerivedCarriage, tmp_path_factory) -> dict[str, Path]:
+def baked(carriage: DerivedCarriage, tmp_path_factory, rendered) -> dict[str, Path]:
     out = {}
     for precision in ("double", "single"):
         d = tmp_path_factory.mktemp(f"baked_{precision}")
-        write_output(render(carriage, GenerateOptions(precision, "baked"),
-                            speed_range(carriage)), d)
+        write_output(rendered(carriage, GenerateOptions(precision, "baked"),
+                              speed_range(carriage)), d)
         out[precision] = d
     return out
 
@@ -203,10 +204,11 @@ def _closed_loop_reference(carriage: DerivedCarriage, f_prop: float, k_pos: np.n
     return f
 
 
-def _double_library(carriage: DerivedCarriage, parameters: str, tmp_path: Path) -> GeneratedLibrary:
+def _double_library(carriage: DerivedCarriage, parameters: str, tmp_path: Path,
+                    rendered) -> GeneratedLibrary:
     """The double-precision generated C (run-time or baked parameters), compiled."""
-    write_output(render(carriage, GenerateOptions("double", parameters),
-                        speed_range(carriage)), tmp_path / "gen")
+    write_output(rendered(carriage, GenerateOptions("double", parameters),
+                          speed_range(carriage)), tmp_path / "gen")
     return GeneratedLibrary(compile_shared([tmp_path / "gen" / "maglev_functions.c"]),
                             "double")
 
@@ -214,13 +216,14 @@ def _double_library(carriage: DerivedCarriage, parameters: str, tmp_path: Path) 
 @pytest.mark.needs_cc
 @pytest.mark.parametrize("parameters", ["runtime", "baked"])
 def test_prepared_closed_loop_matches_the_sympy_model(carriage: DerivedCarriage, trim,
-                                                      parameters: str, tmp_path: Path) -> None:
+                                                      parameters: str, tmp_path: Path,
+                                                      rendered) -> None:
     """maglev_closed_loop_prepare once, then maglev_closed_loop_prepared at many states (what
     maglev_simulate does): xdot, u and the gaps against the SymPy model with the feedback in
     numpy, T = pinv(E)."""
     from maglevgen.control.symbolic_reference import effectiveness
 
-    lib = _double_library(carriage, parameters, tmp_path)
+    lib = _double_library(carriage, parameters, tmp_path, rendered)
     rng = np.random.default_rng(8)
     k_pos, k_rate = _gain_matrices(rng)
     a_ref, f_prop = trim.x[A_STATES], trim.u[0]
@@ -243,10 +246,12 @@ def test_prepared_closed_loop_matches_the_sympy_model(carriage: DerivedCarriage,
 @pytest.mark.needs_cc
 @pytest.mark.parametrize("parameters", ["runtime", "baked"])
 def test_rk4_step_matches_a_numpy_rk4_on_the_sympy_model(carriage: DerivedCarriage, trim,
-                                                         parameters: str, tmp_path: Path) -> None:
+                                                         parameters: str, tmp_path: Path,
+                                                         rendered) -> None:
     """maglev_rk4_step (the MX step calling maglev_closed_loop four times; the baked one
     rebuilt around the baked right-hand side) against RK4 written out in numpy."""
-    step = _double_library(carriage, parameters, tmp_path).function("maglev_rk4_step")
+    step = _double_library(carriage, parameters, tmp_path, rendered).function(
+        "maglev_rk4_step")
     rng = np.random.default_rng(5)
     k_pos, k_rate = _gain_matrices(rng)
     a_ref, f_prop, dt = trim.x[A_STATES], trim.u[0], 2e-3
@@ -418,7 +423,7 @@ def test_version_banners_are_all_that_is_left_out() -> None:
     assert _without_version_banners("manifest.json", json.dumps(m).encode())[0] != same
 
 
-def test_generation_is_deterministic(carriage: DerivedCarriage) -> None:
-    a = render(carriage, GenerateOptions("single", "runtime"))
+def test_generation_is_deterministic(carriage: DerivedCarriage, rendered) -> None:
+    a = rendered(carriage, GenerateOptions("single", "runtime"))  # runtime_lib's render
     b = render(DerivedCarriage(load_params()), GenerateOptions("single", "runtime"))
     assert a == b

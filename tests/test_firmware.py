@@ -18,7 +18,7 @@ import pytest
 from maglevgen.analyses.envelope import speed_range
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.checks import ERROR_CODES
-from maglevgen.codegen.generate import GenerateOptions, render, write_output
+from maglevgen.codegen.generate import GenerateOptions, write_output
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedFunctionError, GeneratedLibrary
 
@@ -28,10 +28,10 @@ TRIM_KIND = ("maglev_trim", "maglev_axis_plants", "maglev_lqr_gains")
 
 
 @pytest.fixture(scope="module", params=["double", "single"])
-def gen(request, carriage: DerivedCarriage, tmp_path_factory) -> tuple[str, Path, Path]:
+def gen(request, carriage: DerivedCarriage, tmp_path_factory, rendered) -> tuple[str, Path, Path]:
     """(precision, generated folder, compiled library) with run-time parameters."""
     out = tmp_path_factory.mktemp(f"fw_{request.param}")
-    write_output(render(carriage, GenerateOptions(request.param, "runtime")), out)
+    write_output(rendered(carriage, GenerateOptions(request.param, "runtime")), out)
     lib = compile_shared([out / "maglev_functions.c"])
     return request.param, out, lib
 
@@ -83,11 +83,12 @@ def test_schedule_functions_refuse_bad_speeds(gen, carriage: DerivedCarriage, na
 
 
 @pytest.fixture(scope="module", params=["double", "single"])
-def baked_gen(request, carriage: DerivedCarriage, tmp_path_factory) -> tuple[str, Path, Path]:
+def baked_gen(request, carriage: DerivedCarriage, tmp_path_factory, rendered
+              ) -> tuple[str, Path, Path]:
     """(precision, generated folder, compiled library) with baked parameters (and range)."""
     out = tmp_path_factory.mktemp(f"fw_baked_{request.param}")
-    write_output(render(carriage, GenerateOptions(request.param, "baked"),
-                        speed_range(carriage)), out)
+    write_output(rendered(carriage, GenerateOptions(request.param, "baked"),
+                          speed_range(carriage)), out)
     lib = compile_shared([out / "maglev_functions.c"])
     return request.param, out, lib
 
@@ -402,7 +403,8 @@ def _worst_stack(ci_text: str, root: str) -> int:
 
 
 @pytest.mark.needs_arm("qemu-system-arm", "arm-none-eabi-nm", "arm-none-eabi-size")
-def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path: Path) -> None:
+def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path: Path,
+                                 rendered) -> None:
     """The single-precision baked C and the table schedule cross-compiled for Cortex-M4F with
     the firmware flags: no double arithmetic (__aeabi_d*, f2d, d2f) nor double libm call, no
     .data/.bss, every external symbol maglev_*, the ticks' and the schedule's stack (callees
@@ -416,8 +418,8 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
 
     table, table_dir, table_libs, _ = gain_table
     src = tmp_path / "m4"
-    write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
-                        speed_range(carriage)), src)
+    write_output(rendered(carriage, GenerateOptions("single", "baked", "int32"),
+                          speed_range(carriage)), src)
     for name in ("maglev_gain_table.c", "maglev_gain_table.h"):
         (src / name).write_text((table_dir / name).read_text())
     objs = []
@@ -462,8 +464,9 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
     # `--single-file`: maglev.c with the same flags (and -Wmissing-prototypes: every external
     # function declared by the headers), linked with the same driver: the same output bits
     one = tmp_path / "m4_single"
-    write_output(render(carriage, GenerateOptions("single", "baked", "int32", single_file=True),
-                        speed_range(carriage)), one)
+    write_output(rendered(carriage, GenerateOptions("single", "baked", "int32",
+                                                    single_file=True),
+                          speed_range(carriage)), one)
     subprocess.run(["arm-none-eabi-gcc", *M4_FLAGS, "-Wmissing-prototypes", "-ffunction-sections",
                     "-fdata-sections", "-c", "maglev.c", "-o", "maglev.o"], cwd=one, check=True)
     assert _external(["arm-none-eabi-nm", str(one / "maglev.o")]) == _declared(one)
@@ -487,9 +490,10 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
 
     # the host double build
     host = tmp_path / "host"
-    write_output(render(carriage, GenerateOptions("double", "baked"), speed_range(carriage)), host)
-    lib = GeneratedLibrary(compile_shared([host / "maglev_functions.c"],
-                                          cache_dir=host / "cache"), "double")
+    write_output(rendered(carriage, GenerateOptions("double", "baked"), speed_range(carriage)),
+                 host)
+    # the run's content-keyed cache: baked_gen's double library when that ran in this process
+    lib = GeneratedLibrary(compile_shared([host / "maglev_functions.c"]), "double")
     x = np.array(M4_INPUTS["X"])
     K = np.array(M4_INPUTS["K_GAINS"]).reshape(5, 2, order="F")
     u_gen = lib.function("maglev_lqr_control")(x, K, M4_INPUTS["A_REF"])[0].ravel()
@@ -579,14 +583,15 @@ def test_single_file_is_the_two_file_build(carriage: DerivedCarriage, tmp_path: 
 
 
 @pytest.mark.needs_arm("arm-none-eabi-objdump", "arm-none-eabi-nm")
-def test_m4_square_root_is_the_fpu_instruction(carriage: DerivedCarriage, tmp_path: Path) -> None:
+def test_m4_square_root_is_the_fpu_instruction(carriage: DerivedCarriage, tmp_path: Path,
+                                               rendered) -> None:
     """With -fno-math-errno (the README's firmware flags) the Cortex-M4F object computes
     square roots with the FPU's vsqrt.f32 and calls no sqrtf (newlib's errno-setting
     wrapper); without the flag it does call sqrtf: the check can see the difference."""
     import subprocess
 
-    write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
-                        speed_range(carriage)), tmp_path)
+    write_output(rendered(carriage, GenerateOptions("single", "baked", "int32"),
+                          speed_range(carriage)), tmp_path)
     found = {}
     for name, flags in (("fast", M4_FLAGS), ("errno", [f for f in M4_FLAGS
                                                        if f != "-fno-math-errno"])):
@@ -680,14 +685,15 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Derive
 
 
 @pytest.mark.needs_cc
-def test_int32_build_gives_the_int64_results(carriage: DerivedCarriage, tmp_path: Path) -> None:
+def test_int32_build_gives_the_int64_results(carriage: DerivedCarriage, tmp_path: Path,
+                                             rendered) -> None:
     """`--int int32` (casadi_int = int for 32-bit MCUs): the header says so, and the trim and
     a tick called through the int32 ABI equal the default int64 build's bit for bit (the
     integer type only indexes sparsity and work)."""
     libs = {}
     for int_type in ("int64", "int32"):
         out = tmp_path / int_type
-        write_output(render(carriage, GenerateOptions("double", "runtime", int_type)), out)
+        write_output(rendered(carriage, GenerateOptions("double", "runtime", int_type)), out)
         text = (out / "maglev_functions.h").read_text()
         want = "int" if int_type == "int32" else "long long int"
         assert f"typedef {want} maglev_int;" in text
@@ -701,14 +707,15 @@ def test_int32_build_gives_the_int64_results(carriage: DerivedCarriage, tmp_path
 
 
 @pytest.mark.needs_cc
-def test_header_leaves_casadi_real_alone(carriage: DerivedCarriage, tmp_path: Path) -> None:
+def test_header_leaves_casadi_real_alone(carriage: DerivedCarriage, tmp_path: Path,
+                                        rendered) -> None:
     """maglev.h (single precision) included after another CasADi module's
     ``#define casadi_real double``: casadi_real stays double (8 bytes) and the header's own
     maglev_real is float (4 bytes); the compiler checks both sizes."""
     import subprocess
 
-    write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
-                        speed_range(carriage)), tmp_path)
+    write_output(rendered(carriage, GenerateOptions("single", "baked", "int32"),
+                          speed_range(carriage)), tmp_path)
     (tmp_path / "other.c").write_text(
         "#define casadi_real double\n#define casadi_int long long int\n#include \"maglev.h\"\n"
         "typedef char real_kept[sizeof(casadi_real) == 8 ? 1 : -1];\n"

@@ -425,6 +425,31 @@ def test_a_name_with_an_underscore_reaches_c_and_latex_only_escaped(tmp_path: Pa
                 assert re.fullmatch(r"#define [A-Z_][A-Z0-9_]* \d+ +/\*.*\*/", line), line
 
 
+def test_a_renamed_array_shares_the_derivation_of_its_numbered_structure(tmp_path: Path
+                                                                         ) -> None:
+    """An array's name is a label (the generated C holds p's indices, no name): the renamed
+    carriage's structure, numbered, is the default one, so its derivation folder (C and
+    library) is the default's; names not at their place are numbered by place."""
+    from maglevgen.carriage import structure_of
+    from maglevgen.derive.structure import numbered
+    from maglevgen.params import load_params
+    from maglevgen.runtime.library import derivation_key
+
+    default = structure_of(load_params().params)
+    renamed_s = structure_of(load_params(_write(tmp_path, renamed("3", "up_Front9"))).params)
+    assert renamed_s != default and ("up_Front9", ("z",)) in renamed_s.arrays
+    assert [n.replace("arrays.up_Front9.", "arrays.3.") for n in renamed_s.param_names] == \
+        list(default.param_names)
+    assert numbered(renamed_s) == numbered(default) == default
+    assert derivation_key(renamed_s, "double") == derivation_key(default, "double")
+    swapped = DEFAULT_TEXT.replace("[arrays.1]", "[arrays.x]").replace("[arrays.2]", "[arrays.1]")
+    swapped = swapped.replace("[arrays.x]", "[arrays.2]").replace('"arrays.1.', '"arrays.x.')
+    swapped = swapped.replace('"arrays.2.', '"arrays.1.').replace('"arrays.x.', '"arrays.2.')
+    two_first = structure_of(load_params(_write(tmp_path, swapped)).params)
+    assert [n for n, _ in two_first.arrays][:2] == ["2", "1"]
+    assert numbered(two_first) == default  # by place: "2" first is array 1
+
+
 # ------------------------------------------------------------------------------ killed builds
 
 _CHILD = """
