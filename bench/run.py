@@ -774,7 +774,16 @@ def main(argv: list[str] | None = None) -> int:
         help="the partial results of an interrupted run (JSON.partial.json, written after "
         "each stage): its stages are kept, the others measured",
     )
+    ap.add_argument(
+        "--no-measure",
+        action="store_true",
+        help="with --resume: write BENCHMARKS.md and the JSON from its stages alone, measuring "
+        "nothing (the sections of the stages it lacks are carried over from BENCHMARKS.md)",
+    )
     args = ap.parse_args(argv)
+    if args.no_measure and not args.resume:
+        print("bench: --no-measure needs --resume PARTIAL.json", file=sys.stderr)
+        return 2
     reps = Repeats.quick() if args.quick else Repeats()
     t0 = time.perf_counter()
     command = os.environ.get("MAGLEV_BENCH_COMMAND") or shlex.join(
@@ -803,6 +812,9 @@ def main(argv: list[str] | None = None) -> int:
             log(f"{name}: kept from {args.resume}")
             results[name] = done[name]
             return
+        if args.no_measure:
+            log(f"{name}: not measured (--no-measure)")
+            return
         results[name] = fn()
         results["meta"]["elapsed_s"] = earlier_s + time.perf_counter() - t0
         partial.write_text(json.dumps(results, indent=1, default=float) + "\n")
@@ -815,7 +827,9 @@ def main(argv: list[str] | None = None) -> int:
         stage("workflow", lambda: workflow.workflow(
             work, reps.build_cold, reps.build_rebuild, reps.build_profile
         ))
-        if not all(k in done for k in ("dynamics", "closed_loop", "footprint", "precision")):
+        if not args.no_measure and not all(
+            k in done for k in ("dynamics", "closed_loop", "footprint", "precision")
+        ):
             s = prepare(work)
             stage("dynamics", lambda: dynamics(s, reps))
             stage("closed_loop", lambda: closed_loop(s, reps))

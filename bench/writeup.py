@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import statistics
+from importlib import import_module
 from pathlib import Path
 
 # BENCHMARKS.md from this line to its end holds the sections other scripts record on their own
@@ -11,6 +12,12 @@ from pathlib import Path
 # a full run regenerates what is above the line and carries the rest over byte for byte.
 KEPT_MARKER = "<!-- recorded separately: kept by make bench -->"
 FIRMWARE_BEGIN = "<!-- firmware benchmark: bench/firmware.py -->"
+# the headings of the sections run.py's last stages write: carried over when not measured
+CARRIED_SECTIONS = {
+    "envelope": "## Envelope and launch",
+    "montecarlo": "## Monte Carlo (`maglevgen montecarlo`",
+    "peers": "## Peers for the generated C",
+}
 
 CONTROLLER_GROUP = "controller_path"
 TEXT_LIMIT = 4096
@@ -1045,6 +1052,18 @@ def _schedule_note(p: dict) -> list[str]:
     return out
 
 
+def _old_section(old: str | None, heading: str) -> list[str]:
+    """The section of ``old`` above the kept part that starts with ``heading``, to its next
+    heading or marker comment ([] when there is none)."""
+    head = (old or "").split(KEPT_MARKER)[0]
+    i = head.find("\n" + heading)
+    if i < 0:
+        return []
+    ends = [j for j in (head.find("\n## ", i + 1), head.find("\n<!--", i + 1)) if j >= 0]
+    body = head[i + 1 : min(ends) if ends else len(head)].rstrip("\n")
+    return [*body.split("\n"), ""]
+
+
 def kept_part(old: str | None) -> str:
     """What a full run keeps of the existing BENCHMARKS.md ``old``: from KEPT_MARKER to the end
     ('' without the marker)."""
@@ -1079,6 +1098,13 @@ def markdown(r: dict, old: str | None = None) -> str:
     ]
     if meta["quick"]:
         out += ["**Quick run (--quick): too few repeats to quote.**", ""]
+    missing = [k for k in CARRIED_SECTIONS if k not in r]
+    if missing:
+        out += [
+            f"Not measured in this run: {', '.join(missing)} (bench/run.py's last stages); "
+            "their sections below are the previous file's, with the dates they give.",
+            "",
+        ]
     if meta.get("resumed_at"):
         out += [
             f"The run was interrupted and resumed on {meta['resumed_at']} (`--resume`): the "
@@ -1131,18 +1157,12 @@ def markdown(r: dict, old: str | None = None) -> str:
         import fmu
 
         out += ["", *fmu.section(json.loads(fmu_results.read_text())), ""]
-    if "envelope" in r:
-        import envelope as envelope_bench
-
-        out += envelope_bench.markdown(r["envelope"])
-    if "montecarlo" in r:
-        import montecarlo as montecarlo_bench
-
-        out += montecarlo_bench.markdown(r["montecarlo"])
-    if "peers" in r:
-        import peers as peers_bench
-
-        out += peers_bench.markdown(r["peers"])
+    for key, module in (("envelope", "envelope"), ("montecarlo", "montecarlo"),
+                        ("peers", "peers")):
+        if key in r:
+            out += import_module(module).markdown(r[key])
+        else:  # a stage this run did not measure (--no-measure): its section as it was
+            out += _old_section(old, CARRIED_SECTIONS[key])
     firmware_results = Path(__file__).with_name("firmware_results.json")
     # measured separately by bench/firmware.py; its section, when in the kept part, stays there
     if firmware_results.exists() and FIRMWARE_BEGIN not in kept:

@@ -49,3 +49,11 @@ def test_rewrite_without_marker_is_the_generated_text(writeup: ModuleType) -> No
     generated = "# Benchmarks\n\nnew\n"
     assert writeup.document(generated, "# Benchmarks\n\nold, no marker\n") == generated
     assert writeup.document(generated, None) == generated
+
+
+def test_a_section_not_measured_is_carried_over(writeup: ModuleType) -> None:
+    old = ("# Benchmarks\n\n## Envelope and launch (2026-11-27)\n\n98 ms\n\n"
+           "## Monte Carlo (`maglevgen montecarlo`; old)\n\n220 s\n\n" + MARKER + "\n## Later\n")
+    assert writeup._old_section(old, "## Envelope and launch") == [
+        "## Envelope and launch (2026-11-27)", "", "98 ms", ""]
+    assert writeup._old_section(old, "## Peers for the generated C") == []
