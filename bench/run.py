@@ -858,21 +858,22 @@ def main(argv: list[str] | None = None) -> int:
         work = args.work or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
         stage("derivation", lambda: derivation(work, reps))
-        stage("workflow", lambda: workflow.workflow(
-            work, reps.build_cold, reps.build_rebuild, reps.build_profile
-        ))
+        # the C figures first, then the build workflow, then the Python contenders
         if not args.no_measure and not all(
-            k in done
-            for k in ("dynamics", "closed_loop", "dynamics_python", "closed_loop_python",
-                      "footprint", "precision")
+            k in done for k in ("dynamics", "closed_loop", "footprint", "precision",
+                                "dynamics_python", "closed_loop_python")
         ):
             s = prepare(work)
             stage("dynamics", lambda: dynamics(s, reps))
             stage("closed_loop", lambda: closed_loop(s, reps))
-            stage("dynamics_python", lambda: python_dynamics(s, reps))
-            stage("closed_loop_python", lambda: closed_loop_python(s, reps))
             stage("footprint", lambda: footprint(s, work))
             stage("precision", lambda: precision(s, reps))
+        stage("workflow", lambda: workflow.workflow(
+            work, reps.build_cold, reps.build_rebuild, reps.build_profile
+        ))
+        if "s" in locals():
+            stage("dynamics_python", lambda: python_dynamics(s, reps))
+            stage("closed_loop_python", lambda: closed_loop_python(s, reps))
         stage("envelope", lambda: envelope_bench.run(3 if args.quick else 5))
         stage("montecarlo", lambda: montecarlo_bench.run(quick=args.quick))
         stage("peers", lambda: peers_bench.run_peers(
