@@ -837,7 +837,11 @@ def main(argv: list[str] | None = None) -> int:
     if done:
         results["meta"]["date_utc"] = done["meta"]["date_utc"]
         results["machine"]["loadavg_start"] = done["machine"]["loadavg_start"]
-        results["meta"]["resumed_at"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        now = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        # --no-measure only writes: the resume that measured is the one to name
+        results["meta"]["resumed_at"] = done["meta"].get("resumed_at", now) if args.no_measure \
+            else now
+        results["meta"]["git"] = done["meta"]["git"] if args.no_measure else git_state()
     earlier_s = done.get("meta", {}).get("elapsed_s", 0.0)
     partial = args.json.with_name(args.json.stem + ".partial.json")
 
@@ -859,10 +863,11 @@ def main(argv: list[str] | None = None) -> int:
         work.mkdir(parents=True, exist_ok=True)
         stage("derivation", lambda: derivation(work, reps))
         # the C figures first, then the build workflow, then the Python contenders
-        if not args.no_measure and not all(
-            k in done for k in ("dynamics", "closed_loop", "footprint", "precision",
-                                "dynamics_python", "closed_loop_python")
-        ):
+        prepared = ("dynamics", "closed_loop", "footprint", "precision", "dynamics_python",
+                    "closed_loop_python")  # the stages that need prepare()
+        if args.no_measure:
+            results.update({k: done[k] for k in prepared if k in done})
+        elif not all(k in done for k in prepared):
             s = prepare(work)
             stage("dynamics", lambda: dynamics(s, reps))
             stage("closed_loop", lambda: closed_loop(s, reps))

@@ -644,7 +644,8 @@ def _dynamics(r: dict) -> list[str]:
         "a short C timing of the generated function of the same law, which its ratio is taken "
         "against.",
         "",
-        *_table(["implementation", "time per call", "x generated C (distributed)"], py_rows),
+        *(_table(["implementation", "time per call", "x generated C (distributed)"], py_rows)
+          if py_rows else ["Not measured in this run.", ""]),
     ]
     cg = d["callgrind"]
     if cg.get("gen") and cg.get("ref"):
@@ -796,8 +797,8 @@ def _loop(r: dict) -> list[str]:
         "a short C run of the same law, which its ratio is taken against; agreement: the "
         "largest deviation from that generated C's trajectory in position and attitude.",
         "",
-        *_table(["implementation", "ms per run", "x generated C (distributed)", "agreement"],
-                py_rows),
+        *(_table(["implementation", "ms per run", "x generated C (distributed)", "agreement"],
+                 py_rows) if py_rows else ["Not measured in this run.", ""]),
         *_loop_breakdown(r),
     ]
 
@@ -1070,7 +1071,7 @@ def _schedule_note(p: dict) -> list[str]:
 def _old_section(old: str | None, heading: str) -> list[str]:
     """The section of ``old`` above the kept part that starts with ``heading``, to its next
     heading or marker comment ([] when there is none)."""
-    head = (old or "").split(KEPT_MARKER)[0]
+    head = (old or "")[: len(old or "") - len(kept_part(old))]
     i = head.find("\n" + heading)
     if i < 0:
         return []
@@ -1082,9 +1083,10 @@ def _old_section(old: str | None, heading: str) -> list[str]:
 def kept_part(old: str | None) -> str:
     """What a full run keeps of the existing BENCHMARKS.md ``old``: from KEPT_MARKER to the end
     ('' without the marker)."""
-    if not old or KEPT_MARKER not in old:
+    line = "\n" + KEPT_MARKER + "\n"  # the marker on a line of its own
+    if not old or line not in old:
         return ""
-    return old[old.index(KEPT_MARKER):]
+    return old[old.index(line) + 1 :]
 
 
 def document(generated: str, old: str | None) -> str:
@@ -1106,9 +1108,9 @@ def markdown(r: dict, old: str | None = None) -> str:
         f"would otherwise use, all measured in one run. Produced by `{meta['command']}` "
         "(`make bench` runs `python bench/run.py` in the project's virtualenv) on "
         f"{meta['date_utc']}; the run took {meta['wall_s'] / 60:.1f} min. Do not edit: rerun. "
-        "Raw figures: bench/results.json. The sections after the marker line "
-        f"`{KEPT_MARKER}` were recorded by other scripts, each on its own date, and are carried "
-        "over unchanged.",
+        "Raw figures: bench/results.json. The sections after the marker comment *recorded "
+        "separately: kept by make bench* were recorded by other scripts, each on its own date, "
+        "and are carried over unchanged.",
         "",
     ]
     if meta["quick"]:

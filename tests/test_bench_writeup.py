@@ -43,6 +43,9 @@ def test_rewrite_keeps_the_marked_part_byte_for_byte(writeup: ModuleType, tmp_pa
     assert new == generated + "\n" + kept
     assert "stale" not in new
     assert new.encode().endswith(kept.encode())
+    # the marker quoted inside a line is not the marker line
+    quoted = f"# Benchmarks\n\nsee `{MARKER}` below\n\n" + kept
+    assert writeup.document(generated, quoted) == generated + "\n" + kept
 
 
 def test_rewrite_without_marker_is_the_generated_text(writeup: ModuleType) -> None:
