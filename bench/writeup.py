@@ -20,6 +20,8 @@ CARRIED_SECTIONS = {
 }
 
 CONTROLLER_GROUP = "controller_path"
+# fewer instructions with calls: a wrapper, not the model's straight-line body
+STRAIGHT_LINE_MIN = 1000
 TEXT_LIMIT = 4096
 DYNAMICS_LIMIT = 1.15
 LOOP_LIMIT = 1.2
@@ -665,11 +667,18 @@ def _dynamics(r: dict) -> list[str]:
             ),
             f"The generated body as written (before gcc merges sin/cos pairs into sincos): "
             f"{body}. The instruction ratio is {g['instructions'] / h['instructions']:.2f}x, the "
-            f"time ratio {c['generated_over_reference']['median']:.2f}x. In the compiled "
-            "generated function (straight-line code, so these static counts are also per "
-            f"call) {asm['stack_memory']} of its {asm['instructions']} instructions load or "
-            "store a stack slot: CasADi's SX code keeps its scalar temporaries in memory "
-            "around its libm calls (every floating-point register is caller-saved on x86-64). "
+            f"time ratio {c['generated_over_reference']['median']:.2f}x. "
+            + (
+                "In the compiled generated function (straight-line code, so these static "
+                f"counts are also per call) {asm['stack_memory']} of its "
+                f"{asm['instructions']} instructions load or store a stack slot: CasADi's SX "
+                "code keeps its scalar temporaries in memory around its libm calls (every "
+                "floating-point register is caller-saved on x86-64). "
+                if asm["calls"] == 0 or asm["instructions"] >= STRAIGHT_LINE_MIN
+                else f"(The compiled `{asm['function']}` is {asm['instructions']} instructions "
+                f"with {asm['calls']} calls, a wrapper around the code holding the model: its "
+                "stack traffic is not counted here.) "
+            )
             + _divisions_note(g, h, "call")
             + " Stack traffic and divisions take more time per instruction than the "
             "arithmetic, which most likely explains why the time ratio exceeds the instruction "
