@@ -57,10 +57,12 @@ def main() -> None:
     from maglevgen.analyses.sim_output import render_figures, render_trajectories
 
     out["simulation_figures"], _ = _cpu(render_figures, run.trajectories)
+    from maglevgen.analyses.queries import trim_point
     from maglevgen.report import force_curves
     from maglevgen.report.figures import force_figures
 
-    curves = force_curves(carriage, carriage.trim())
+    # as the build draws them (maglevgen.build._draw_report_figures): at the library's trim
+    curves = force_curves(carriage, trim_point(carriage, lib, None), lib)
     out["report_figures"], _ = _cpu(force_figures, curves)
     out["trajectories"], _ = _cpu(render_trajectories, run.trajectories, run.input_names)
     out["total"] = sum(out.values())

@@ -50,6 +50,9 @@ LAZY_MODULES = (
     "maglevgen.analyses.sim_output",
     "maglevgen.analyses.simulate",
     "maglevgen.report",
+    "maglevgen.report.render",
+    "maglevgen.report.latex",
+    "maglevgen.derive.numeric",
 )
 for _m in LAZY_MODULES:
     importlib.import_module(_m)
@@ -63,8 +66,8 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("up_to_date", "maglevgen.build:up_to_date"),
     ("runtime_sources", "maglevgen.runtime.library:runtime_sources"),
     ("simulation_library", "maglevgen.runtime.library:simulation_library"),
-    ("model_functions", "maglevgen.carriage:model_functions"),  # timers only (memoised)
-    ("carriage_functions", "maglevgen.carriage:Carriage.functions"),  # cprofile only
+    ("model_functions", "maglevgen.derive.numeric:model_functions"),  # timers only (memoised)
+    ("carriage_functions", "maglevgen.carriage:DerivedCarriage.functions"),  # cprofile only
     ("render_interface", "maglevgen.codegen.interface:render_interface"),
     ("run_scenarios", "maglevgen.analyses.simulate:run_scenarios"),
     ("c_simulate", "maglevgen.runtime.library:SimulationLibrary.simulate"),
@@ -73,12 +76,12 @@ STAGES: tuple[tuple[str, str], ...] = (
     # (maglevgen.infrastructure.workers): this process only sees the time it waits for them
     ("background_wait", "maglevgen.infrastructure.workers:Job.result"),
     ("report_files", "maglevgen.build:_report_files"),
-    ("build_context", "maglevgen.report:build_context"),
-    ("trim_report", "maglevgen.analyses.queries:trim_report"),
-    ("gains_report", "maglevgen.analyses.queries:gains_report"),
-    ("verification", "maglevgen.report:_verification"),
-    ("render_tex", "maglevgen.report:render_tex"),
-    ("run_latex", "maglevgen.report:run_latex"),
+    ("build_context", "maglevgen.report.render:build_context"),
+    ("trim_report", "maglevgen.report.render:trim_report"),
+    ("gains_report", "maglevgen.report.render:gains_report"),
+    ("verification", "maglevgen.report.render:verification_section"),
+    ("render_tex", "maglevgen.report.render:render_tex"),
+    ("run_latex", "maglevgen.report.latex:run_latex"),
     ("summary_text", "maglevgen.build:summary_text"),
     ("write_output", "maglevgen.build:write_output"),
 )

@@ -17,10 +17,14 @@ import os
 import platform
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +58,7 @@ from maglevgen.runtime.ffi import GeneratedLibrary
 DISTURBANCE = np.array(list(cv.DISTURBANCE.values()))
 DT, N_STEPS = 1e-3, 10_000
 N_SAMPLES = 64  # states near trim cycled through by the per-call timings
+COMPILERS = ("gcc", "clang")  # the C drivers' compilers (clang where installed)
 # the schedule (trim, plants, gains) in float32 and float64 at these multiples of the speed
 SCHEDULE_SPEED_FACTORS = (0.4, 0.6, 1.0, 1.5, 2.25)
 # generated functions maglev_simulate may call (the first three: the model's right-hand side,
@@ -182,33 +187,68 @@ def derivation(work: Path, reps: Repeats) -> dict:
 
 # ------------------------------------------------------------------------------- set-up
 
+# The force laws timed side by side in every C timing (model.array_force; the default first),
+# and the model the hand-written C (bench/reference/maglev_model.c) computes: the paper's point
+# law with quasi-static circuits (tests/test_bench_reference.py checks it against that build),
+# so the hand-written C is compared with that build only.
+DEFAULT_LAW = "distributed"
+LAWS: dict[str, tuple[str, ...]] = {
+    "distributed": (),
+    "point": ('model.array_force="point"',),
+}
+PAPER = "paper"
+PAPER_OVERRIDES = ('model.array_force="point"', 'model.circuit_dynamics="quasi-static"')
+VARIANTS: dict[str, tuple[str, ...]] = {**LAWS, PAPER: PAPER_OVERRIDES}
+
 
 @dataclass
-class Setup:
+class Variant:
+    """One carriage model's run-time-parameter double build and its C drivers."""
+
+    label: str
+    overrides: tuple[str, ...]
     carriage: DerivedCarriage
-    functions: tuple
-    gen: dict[str, Path]
+    gen: dict[str, Path]  # "double_runtime" and, for the laws, the two baked builds
     lib: GeneratedLibrary
     lib_path: Path
     loop: alt.Loop
     X: np.ndarray
     U: np.ndarray
-    runtime_exe: Path
+    exe: dict[str, Path]  # compiler -> bench_runtime (generated + hand-written + driver)
     runtime_input: Path
-    other_exe: dict[str, Path]  # the same driver built by other compilers (clang)
-    controller_exe: dict[str, Path]
+    controller_exe: dict[str, Path]  # precision -> bench_controller (laws only)
     newton_exe: dict[str, Path]  # the same, with the trim's Newton iterations counted
-    controller_input: Path
+    controller_input: Path | None
+
+
+@dataclass
+class Setup:
+    variants: dict[str, Variant]
+    functions: tuple  # the default carriage's CasADi Functions (the Python contenders)
     work: Path
 
+    @property
+    def default(self) -> Variant:
+        return self.variants[DEFAULT_LAW]
 
-def prepare(work: Path) -> Setup:
-    log("deriving the default carriage and generating the three builds")
-    carriage = DerivedCarriage(load_params(None, []))
-    functions = build_functions(carriage.model).functions
+    @property
+    def paper(self) -> Variant:
+        return self.variants[PAPER]
+
+    @property
+    def laws(self) -> dict[str, Variant]:
+        return {k: self.variants[k] for k in LAWS}
+
+
+def _prepare_variant(label: str, overrides: tuple[str, ...], work: Path) -> Variant:
+    log(f"{label}: deriving the carriage ({', '.join(overrides) or 'defaults'}) and generating")
+    carriage = DerivedCarriage(load_params(None, list(overrides)))
+    builds = [("double", "runtime")]
+    if label in LAWS:
+        builds += [("double", "baked"), ("single", "baked")]
     gen = {}
-    for precision, params in (("double", "runtime"), ("double", "baked"), ("single", "baked")):
-        out = work / f"gen_{precision}_{params}"
+    for precision, params in builds:
+        out = work / f"gen_{label}_{precision}_{params}"
         write_output(render(carriage, GenerateOptions(precision, params),
                             speed_range(carriage)), out)
         gen[f"{precision}_{params}"] = out
@@ -216,7 +256,7 @@ def prepare(work: Path) -> Setup:
     if not (rt / "maglev_simulate.c").exists():
         raise SystemExit("bench: the runtime build has no maglev_simulate.c; update maglevgen")
     lib_path = compile_shared(
-        [rt / "maglev_functions.c", rt / "maglev_simulate.c"], cache_dir=work / "lib"
+        [rt / "maglev_functions.c", rt / "maglev_simulate.c"], cache_dir=work / f"lib_{label}"
     )
     lib = GeneratedLibrary(lib_path, "double")
     speed = carriage.params.operation.speed
@@ -235,6 +275,7 @@ def prepare(work: Path) -> Setup:
         n_steps=N_STEPS,
         gap_min=carriage.params.track.min_gap,
     )
+    # the same perturbations about each model's own trim
     rng = np.random.default_rng(2024)
     X = x_trim + rng.normal(
         scale=[0.5, 2e-3, 2e-3, 0.01, 0.01, 0.01, 2, 0.05, 0.05, 0.05, 0.05, 0.05],
@@ -243,60 +284,115 @@ def prepare(work: Path) -> Setup:
     U = np.zeros((N_SAMPLES, carriage.model.u.shape[0]))
     U[:, 0] = loop.F_prop
     U += rng.normal(scale=5.0, size=U.shape)
-    log("compiling the C drivers (-O2)")
-    runtime_exe = native.build_runtime_driver(rt, work / "drv_runtime")
-    other_exe = {
-        cc: native.build_runtime_driver(rt, work / f"drv_runtime_{cc}", cc=cc)
-        for cc in ("clang",)
-        if shutil.which(cc)
-    }
+    log(f"{label}: compiling the C drivers (-O2)")
     runtime_input = native.write_runtime_input(
-        work / "runtime_input.txt", carriage.p, loop.as_dict(), X, U
+        work / f"runtime_input_{label}.txt", carriage.p, loop.as_dict(), X, U
     )
-    controller_exe = {
-        p: native.build_controller_driver(gen[f"{p}_baked"], work / f"drv_{p}")
-        for p in ("double", "single")
-    }
-    newton_exe = {
-        p: native.build_controller_driver(
-            gen[f"{p}_baked"], work / f"drv_{p}_newton", count_newton=True
-        )
-        for p in ("double", "single")
-    }
-    controller_input = native.write_controller_input(work / "controller_input.txt", speed, X)
-    return Setup(
-        carriage,
-        functions,
-        gen,
-        lib,
-        lib_path,
-        loop,
-        X,
-        U,
-        runtime_exe,
-        runtime_input,
-        other_exe,
-        controller_exe,
-        newton_exe,
-        controller_input,
-        work,
+    # the drivers compiled two at a time (nothing is timed yet)
+    with ThreadPoolExecutor(2) as pool:
+        exe_jobs = {
+            cc: pool.submit(native.build_runtime_driver, rt, work / f"drv_{label}_runtime_{cc}",
+                            cc=cc)
+            for cc in COMPILERS
+            if shutil.which(cc)
+        }
+        ctl_jobs, newton_jobs = {}, {}
+        if label in LAWS:
+            for p in ("double", "single"):
+                ctl_jobs[p] = pool.submit(native.build_controller_driver, gen[f"{p}_baked"],
+                                          work / f"drv_{label}_{p}")
+                newton_jobs[p] = pool.submit(native.build_controller_driver, gen[f"{p}_baked"],
+                                             work / f"drv_{label}_{p}_newton", count_newton=True)
+        exe = {cc: j.result() for cc, j in exe_jobs.items()}
+        controller_exe = {p: j.result() for p, j in ctl_jobs.items()}
+        newton_exe = {p: j.result() for p, j in newton_jobs.items()}
+    controller_input = (
+        native.write_controller_input(work / f"controller_input_{label}.txt", speed, X)
+        if label in LAWS
+        else None
     )
+    return Variant(label, overrides, carriage, gen, lib, lib_path, loop, X, U, exe,
+                   runtime_input, controller_exe, newton_exe, controller_input)
+
+
+def prepare(work: Path) -> Setup:
+    for label in VARIANTS:
+        (work / label).mkdir(parents=True, exist_ok=True)  # its callgrind files
+    variants = {label: _prepare_variant(label, ov, work) for label, ov in VARIANTS.items()}
+    names = [e.name for e in variants[PAPER].carriage.entries]
+    for v in variants.values():  # one driver reads every model's p: the same vector
+        if [e.name for e in v.carriage.entries] != names:
+            raise SystemExit(f"bench: the {v.label} model's parameter vector differs")
+    functions = build_functions(variants[DEFAULT_LAW].carriage.model).functions
+    return Setup(variants, functions, work)
+
+
+def _interleaved(s: Setup, cc: str, mode: str, reps: int, *args: int) -> dict[str, dict]:
+    """bench_runtime ``mode`` of every model in turn, two repeats per process, the models'
+    order reversed every round: each model's lists (generated and hand-written figures), the
+    i-th entries of all models taken in the same round."""
+    labels = [k for k, v in s.variants.items() if cc in v.exe]
+    out: dict[str, dict] = {k: {} for k in labels}
+    for r in range(max(1, (reps + 1) // 2)):
+        for label in labels if r % 2 == 0 else labels[::-1]:
+            v = s.variants[label]
+            d = json.loads(run([v.exe[cc], v.runtime_input, mode, 2, *args]))
+            for key, val in d.items():
+                if isinstance(val, list) and key.endswith("_ns"):
+                    out[label].setdefault(key, []).extend(val)
+                else:
+                    out[label][key] = val
+    return out
+
+
+def _laws_table(raw: dict[str, dict], scale: float = 1.0) -> dict:
+    """Each model's generated-C figures and the distributed / point ratio per round."""
+    gen = {k: np.array(v["generated_ns"]) / scale for k, v in raw.items()}
+    out = {f"{k}_{'ns' if scale == 1.0 else 'ms'}": summary(g) for k, g in gen.items()}
+    out["distributed_over_point"] = paired_ratios(gen["distributed"], gen["point"])
+    return out
 
 
 # ----------------------------------------------------------------------------- dynamics
 
+# sympy.lambdify of the composed model without cse: under the distributed law a build that
+# may not end in the run's time; a contender not built by then is recorded as such
+LAMBDIFY_LIMIT_S = 300
+
+
+@contextmanager
+def _time_limit(seconds: int) -> Iterator[None]:
+    """TimeoutError in the main thread after ``seconds`` (SIGALRM; SymPy is pure Python)."""
+
+    def expired(_sig: int, _frame: object) -> None:
+        raise TimeoutError
+
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 
 def _c_generated_dynamics_ns(s: Setup) -> float:
-    """A short C timing of the generated dynamics, to pair with a Python figure."""
-    d = native.time_dynamics(s.runtime_exe, s.runtime_input, 3, 20_000)
+    """A short C timing of the generated dynamics (default law), to pair with a Python figure."""
+    d = native.time_dynamics(s.default.exe["gcc"], s.default.runtime_input, 3, 20_000)
     return float(np.median(d["generated_ns"]))
 
 
 def dynamics(s: Setup, reps: Repeats) -> dict:
-    log("dynamics: C (generated vs hand-written)")
-    c = native.time_dynamics(s.runtime_exe, s.runtime_input, reps.c_dynamics, reps.c_calls)
-    out = {
-        "c": {
+    out: dict = {"laws": {}, "other_compilers": {}}
+    for cc in COMPILERS:
+        if cc not in s.paper.exe:
+            continue
+        log(f"dynamics: C built by {cc}, the models interleaved")
+        raw = _interleaved(s, cc, "dynamics", reps.c_dynamics, reps.c_calls)
+        out["laws"][cc] = _laws_table(raw)
+        c = raw[PAPER]
+        ref = {
             "calls_per_repeat": c["calls"],
             "generated_ns": summary(c["generated_ns"]),
             "reference_ns": summary(c["reference_ns"]),
@@ -305,37 +401,36 @@ def dynamics(s: Setup, reps: Repeats) -> dict:
             "generated_over_reference_prepared": paired_ratios(
                 c["generated_ns"], c["reference_prepared_ns"]
             ),
-            "raw": c,
-        },
-        "other_compilers": {},
-    }
-    for cc, exe in s.other_exe.items():
-        log(f"dynamics: C built by {cc}")
-        o = native.time_dynamics(exe, s.runtime_input, reps.c_dynamics, reps.c_calls)
-        out["other_compilers"][cc] = {
-            "generated_ns": summary(o["generated_ns"]),
-            "reference_ns": summary(o["reference_ns"]),
-            "generated_over_reference": paired_ratios(o["generated_ns"], o["reference_ns"]),
         }
+        if cc == "gcc":
+            out["c"] = {**ref, "raw": raw}
+        else:
+            out["other_compilers"][cc] = ref
     log("dynamics: callgrind instruction counts")
+    exe, inp = s.paper.exe["gcc"], s.paper.runtime_input
     out["callgrind"] = {
-        which: native.callgrind(s.runtime_exe, s.runtime_input, which, sym, 2000, s.work)
+        which: native.callgrind(exe, inp, which, sym, 2000, s.work / PAPER)
         for which, sym in (("gen", "maglev_dynamics"), ("ref", "ref_dynamics"))
     }
+    out["callgrind_laws"] = {
+        k: native.callgrind(v.exe["gcc"], v.runtime_input, "gen", "maglev_dynamics", 2000,
+                            s.work / k)
+        for k, v in s.laws.items()
+    }
     out["generated_asm"] = native.disassembly_stats(
-        s.work / "drv_runtime" / "maglev_functions.o", "maglev_dynamics"
+        s.paper.exe["gcc"].parent / "maglev_functions.o", "maglev_dynamics"
     )
     out["generated_body"] = native.count_math_calls(
-        (s.gen["double_runtime"] / "maglev_functions.c").read_text(),
+        (s.paper.gen["double_runtime"] / "maglev_functions.c").read_text(),
         "/* maglev_dynamics:(",
     )
-    out["python"] = python_dynamics(s, reps)
     return out
 
 
 def python_dynamics(s: Setup, reps: Repeats) -> dict:
-    p = s.carriage.p
-    X, U = s.X, s.U
+    v = s.default  # the Python contenders compute the default law: paired with its C
+    p = v.carriage.p
+    X, U = v.X, v.U
     n = len(X)
     contenders = {}
     dyn = alt.function_named(s.functions, "maglev_dynamics")
@@ -350,32 +445,38 @@ def python_dynamics(s: Setup, reps: Repeats) -> dict:
         5_000,
         0.0,
     )
-    ext = s.lib.function("maglev_dynamics")
+    ext = v.lib.function("maglev_dynamics")
     contenders["generated C through ctypes (runtime.ffi)"] = (
         lambda i: ext(X[i % n], U[i % n], p),
         10_000,
         0.0,
     )
-    mf = s.carriage.functions
+    mf = v.carriage.functions
     contenders["maglevgen numeric layer (lambdified layers, cse)"] = (
         lambda i: mf.xdot(X[i % n], U[i % n], p),
         1_500,
         0.0,
     )
+    out: dict = {}
     for cse in (True, False):
         log(f"dynamics: sympy.lambdify of the composed xdot, cse={cse}")
-        f, build_s = alt.lambdify_xdot(s.carriage, cse)
+        label = f"sympy.lambdify numpy, {'with' if cse else 'without'} cse"
+        try:
+            with _time_limit(LAMBDIFY_LIMIT_S):
+                f, build_s = alt.lambdify_xdot(v.carriage, cse)
+        except TimeoutError:
+            out[label] = {"not_built": f"lambdify not done within {LAMBDIFY_LIMIT_S} s"}
+            log(f"dynamics: {label}: {out[label]['not_built']}")
+            continue
         ref = np.asarray(f(X[0], U[0], p), dtype=float).ravel()
         want = ext(X[0], U[0], p)[0].ravel()
         if not np.allclose(ref, want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want))):
             raise RuntimeError(f"lambdify (cse={cse}) disagrees with the generated C")
-        label = f"sympy.lambdify numpy, {'with' if cse else 'without'} cse"
         contenders[label] = (
             (lambda i, f=f: f(X[i % n], U[i % n], p)),
             3_000 if cse else 6,
             build_s,
         )
-    out = {}
     for label, (fn, calls, build_s) in contenders.items():
         log(f"dynamics: {label}")
         py, cg = [], []
@@ -398,16 +499,16 @@ def python_dynamics(s: Setup, reps: Repeats) -> dict:
 
 
 def _c_simulate_ns(s: Setup) -> float:
-    d = native.time_simulate(s.runtime_exe, s.runtime_input, 3)
+    d = native.time_simulate(s.default.exe["gcc"], s.default.runtime_input, 3)
     return float(np.median(d["generated_ns"]))
 
 
-def _generated_trajectory(s: Setup) -> tuple[np.ndarray, int, int]:
+def _generated_trajectory(v: Variant) -> tuple[np.ndarray, int, int]:
     """maglev_simulate called once through ctypes: (x rows, last sample, status)."""
     import ctypes
 
     d = ctypes.POINTER(ctypes.c_double)
-    lib = ctypes.CDLL(str(s.lib_path))
+    lib = ctypes.CDLL(str(v.lib_path))
     fn = lib.maglev_simulate
     fn.restype = ctypes.c_longlong
     fn.argtypes = [
@@ -418,18 +519,21 @@ def _generated_trajectory(s: Setup) -> tuple[np.ndarray, int, int]:
         d,
         d,
         d,
+        ctypes.c_void_p,  # loop: NULL, the plain loop
         d,
         ctypes.c_double,
         d,
         d,
         d,
+        ctypes.c_void_p,  # saturated: NULL
         ctypes.POINTER(ctypes.c_int),
     ]
-    lp, n = s.loop, s.loop.n_steps
+    lp, n = v.loop, v.loop.n_steps
     X, U, G = np.zeros((n + 1, 12)), np.zeros((n + 1, 11)), np.zeros((n + 1, 6))
+    # the per-axis gains as the 5 x 5 (diagonal) matrices maglev_simulate takes
     arrs = [
         np.ascontiguousarray(a, dtype=float)
-        for a in (lp.x0, lp.k_pos, lp.k_rate, lp.a_ref, s.carriage.p)
+        for a in (lp.x0, np.diag(lp.k_pos), np.diag(lp.k_rate), lp.a_ref, v.carriage.p)
     ]
     ptr = [a.ctypes.data_as(d) for a in arrs]
     status = ctypes.c_int(-1)
@@ -441,85 +545,111 @@ def _generated_trajectory(s: Setup) -> tuple[np.ndarray, int, int]:
         ptr[1],
         ptr[2],
         ptr[3],
+        None,
         ptr[4],
         lp.gap_min,
         X.ctypes.data_as(d),
         U.ctypes.data_as(d),
         G.ctypes.data_as(d),
+        None,
         ctypes.byref(status),
     )
     return X[: last + 1], int(last), status.value
 
 
-def closed_loop(s: Setup, reps: Repeats) -> dict:
-    log("closed loop: C (maglev_simulate vs hand-written ref_simulate)")
-    c = native.time_simulate(s.runtime_exe, s.runtime_input, reps.c_simulate)
-    X_c, last, status = _generated_trajectory(s)
-    if (last, status) != (s.loop.n_steps, 0):
-        raise RuntimeError(f"maglev_simulate stopped at sample {last} with status {status}")
-    out = {
-        "loop": {
-            k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in s.loop.as_dict().items()
-        },
-        "c": {
-            "generated_ms": summary(np.array(c["generated_ns"]) / 1e6),
-            "reference_ms": summary(np.array(c["reference_ns"]) / 1e6),
-            "generated_over_reference": paired_ratios(c["generated_ns"], c["reference_ns"]),
-            "agreement": c["max_rel_diff"],
-            "status": {"generated": c["generated"], "reference": c["reference"]},
-            "raw": c,
-        },
-        "python": {},
-        "other_compilers": {},
-    }
-    for cc, exe in s.other_exe.items():
-        log(f"closed loop: C built by {cc}")
-        o = native.time_simulate(exe, s.runtime_input, reps.c_simulate)
-        out["other_compilers"][cc] = {
-            "generated_ms": summary(np.array(o["generated_ns"]) / 1e6),
-            "reference_ms": summary(np.array(o["reference_ns"]) / 1e6),
-            "generated_over_reference": paired_ratios(o["generated_ns"], o["reference_ns"]),
-        }
-    log("closed loop: callgrind instruction counts per RK4 step")
-    n = s.loop.n_steps
+def _loop_callgrind(v: Variant, work: Path, symbols: tuple[tuple[str, str], ...]) -> dict:
+    n = v.loop.n_steps
     cg = {}
-    for which, sym in (
-        ("simgen", "maglev_simulate"),
-        *(("simgen", f) for f in LOOP_FUNCTIONS),
-        ("simref", "ref_simulate"),
-    ):
-        got = native.callgrind(s.runtime_exe, s.runtime_input, which, sym, 1, s.work)
+    for which, sym in symbols:
+        got = native.callgrind(v.exe["gcc"], v.runtime_input, which, sym, 1, work)
         if got is not None and got["instructions"] > 0:  # absent: maglev_simulate never calls it
             cg[sym] = {
                 "instructions_per_step": got["instructions"] / n,
-                "libm_calls_per_step": {k: v / n for k, v in got["libm_calls"].items()},
+                "libm_calls_per_step": {k: x / n for k, x in got["libm_calls"].items()},
             }
             if "divisions" in got:
                 cg[sym]["divisions_per_step"] = got["divisions"] / n
+    return cg
+
+
+def closed_loop(s: Setup, reps: Repeats) -> dict:
+    out: dict = {
+        "loop": {
+            k: (x.tolist() if isinstance(x, np.ndarray) else x)
+            for k, x in s.default.loop.as_dict().items()
+        },
+        "laws": {},
+        "python": {},
+        "other_compilers": {},
+    }
+    for cc in COMPILERS:
+        if cc not in s.paper.exe:
+            continue
+        log(f"closed loop: C built by {cc}, the models interleaved")
+        raw = _interleaved(s, cc, "simulate", reps.c_simulate)
+        for label, d in raw.items():
+            if (d["generated"]["last"], d["generated"]["status"]) != (N_STEPS, 0):
+                raise RuntimeError(f"maglev_simulate ({label}, {cc}) stopped: {d['generated']}")
+        out["laws"][cc] = _laws_table(raw, 1e6)
+        c = raw[PAPER]
+        ref = {
+            "generated_ms": summary(np.array(c["generated_ns"]) / 1e6),
+            "reference_ms": summary(np.array(c["reference_ns"]) / 1e6),
+            "generated_over_reference": paired_ratios(c["generated_ns"], c["reference_ns"]),
+        }
+        if cc == "gcc":
+            out["c"] = {
+                **ref,
+                "agreement": c["max_rel_diff"],
+                "status": {"generated": c["generated"], "reference": c["reference"]},
+                "raw": raw,
+            }
+        else:
+            out["other_compilers"][cc] = ref
+    log("closed loop: callgrind instruction counts per RK4 step")
+    cg = _loop_callgrind(s.paper, s.work / PAPER, (
+        ("simgen", "maglev_simulate"),
+        *(("simgen", f) for f in LOOP_FUNCTIONS),
+        ("simref", "ref_simulate"),
+    ))
     out["callgrind"] = cg
+    out["callgrind_laws"] = {
+        k: _loop_callgrind(v, s.work / k, (("simgen", "maglev_simulate"),))
+        for k, v in s.laws.items()
+    }
     # the function holding the model in the loop: its compiled code's instruction mix
     worker = next((f for f in RHS_FUNCTIONS if f in cg), None)
     if worker is not None:
         out["generated_asm"] = native.disassembly_stats(
-            s.work / "drv_runtime" / "maglev_functions.o", worker
+            s.paper.exe["gcc"].parent / "maglev_functions.o", worker
         )
+    return out
+
+
+def closed_loop_python(s: Setup, reps: Repeats) -> dict:
+    """The Python contenders of the closed loop: the default law, against its generated C."""
+    out: dict = {}
+    v = s.default
+    X_c, last, status = _generated_trajectory(v)
+    if (last, status) != (v.loop.n_steps, 0):
+        raise RuntimeError(f"maglev_simulate stopped at sample {last} with status {status}")
     rhs = alt.closed_loop_function(s.functions)
     names = {f.name() for f in s.functions}
     gaps = alt.function_named(s.functions, "maglev_gaps") if "maglev_gaps" in names else None
-    kin = alt.lambdify_kinematics(s.carriage)
-    xdot, _ = alt.lambdify_xdot(s.carriage, cse=True)
-    T = allocation_matrix(s.carriage)
-    p = s.carriage.p
-    stages = 4 * s.loop.n_steps + 1
+    kin = alt.lambdify_kinematics(v.carriage)
+    xdot, _ = alt.lambdify_xdot(v.carriage, cse=True)
+    T = allocation_matrix(v.carriage)
+    p = v.carriage.p
+    stages = 4 * v.loop.n_steps + 1
     contenders = {
         "Python RK4 loop over casadi.Function": lambda: (
-            alt.casadi_rk4(rhs, gaps, s.loop, p)[0],
+            alt.casadi_rk4(rhs, gaps, v.loop, p)[0],
             stages,
         ),
         (
             f"scipy solve_ivp {alt.IVP_METHOD} (rtol {alt.IVP_RTOL:g}, atol {alt.IVP_ATOL:g}) "
             "on the CSE-lambdified model"
-        ): lambda: alt.ivp_closed_loop(xdot, kin, T, s.loop, p),
+        ): lambda: alt.ivp_closed_loop(xdot, kin, T, v.loop, p),
     }
     for label, fn in contenders.items():
         py, cg = [], []
@@ -530,7 +660,7 @@ def closed_loop(s: Setup, reps: Repeats) -> dict:
             py.append(time.perf_counter_ns() - t0)
             cg.append(_c_simulate_ns(s))
         dev = np.abs(X_py - X_c)
-        out["python"][label] = {
+        out[label] = {
             "ms": summary(np.array(py) / 1e6),
             "c_generated_ms": summary(np.array(cg) / 1e6),
             "over_generated_c": paired_ratios(py, cg),
@@ -550,55 +680,67 @@ def closed_loop(s: Setup, reps: Repeats) -> dict:
 
 
 def precision(s: Setup, reps: Repeats) -> dict:
-    """Firmware functions, float32 vs float64 (baked builds), alternating runs of the drivers;
-    and the schedule each precision computes (trim, Newton iterations, gains) over speeds."""
-    rounds: dict[str, list[dict]] = {"single": [], "double": []}
+    """Firmware functions, float32 vs float64 (baked builds), of each force law: the four
+    drivers in turn in every round (the order rotating); and the schedule each precision
+    computes (trim, Newton iterations, gains) over speeds, for the default law."""
+    drivers = [(law, prec) for law in LAWS for prec in ("single", "double")]
+    rounds: dict[tuple[str, str], list[dict]] = {d: [] for d in drivers}
     for r in range(reps.precision_rounds):
-        order = ("single", "double") if r % 2 == 0 else ("double", "single")
-        log(f"firmware functions float32 vs float64, round {r + 1}/{reps.precision_rounds}")
-        for prec in order:
-            rounds[prec].append(
+        log(f"firmware functions, the laws in float32 and float64, round {r + 1}/"
+            f"{reps.precision_rounds}")
+        for law, prec in drivers[r % len(drivers):] + drivers[: r % len(drivers)]:
+            v = s.variants[law]
+            rounds[law, prec].append(
                 native.time_controller(
-                    s.controller_exe[prec], s.controller_input, 3, reps.controller_ms
+                    v.controller_exe[prec], v.controller_input, 3, reps.controller_ms
                 )
             )
-    kinds = [k for k in rounds["single"][0] if k.endswith("_ns")]
+    first = rounds[DEFAULT_LAW, "single"][0]
+    kinds = [k for k in first if k.endswith("_ns")]
     out = {
         "kinds": {},
         "newton": {
             prec: native.newton_settings(
-                (s.gen[f"{prec}_baked"] / "maglev_functions.c").read_text()
+                (s.default.gen[f"{prec}_baked"] / "maglev_functions.c").read_text()
             )
             for prec in ("single", "double")
         },
     }
+
+    def med(law: str, prec: str, k: str) -> list[float]:
+        return [float(np.median(x[k])) for x in rounds[law, prec]]
+
     for k in kinds:
-        single = [float(np.median(r[k])) for r in rounds["single"]]
-        double = [float(np.median(r[k])) for r in rounds["double"]]
+        single, double = med(DEFAULT_LAW, "single", k), med(DEFAULT_LAW, "double", k)
+        pt_single, pt_double = med("point", "single", k), med("point", "double", k)
         out["kinds"][k.removesuffix("_ns")] = {
             "single_ns": summary(single),
             "double_ns": summary(double),
             "single_over_double": paired_ratios(single, double),
+            "point_single_ns": summary(pt_single),
+            "point_double_ns": summary(pt_double),
+            "distributed_over_point_single": paired_ratios(single, pt_single),
+            "distributed_over_point_double": paired_ratios(double, pt_double),
         }
-    out["workspace_reals"] = {p: rounds[p][0]["sz_w"] for p in rounds}
-    out["schedule"] = schedule_accuracy(s)
+    out["workspace_reals"] = {p: rounds[DEFAULT_LAW, p][0]["sz_w"] for p in ("single", "double")}
+    out["schedule"] = schedule_accuracy(s.default)
     return out
 
 
-def schedule_accuracy(s: Setup) -> dict:
+def schedule_accuracy(v: Variant) -> dict:
     """The schedule of each baked build at several speeds: Newton iterations, the residual
     of its trim in its own precision, and how far float32's trim and gains are from float64's
     (and float64's from the run-time-parameter library's)."""
     log("schedule (trim, Newton iterations, gains) in float32 and float64")
-    speed = s.carriage.params.operation.speed
+    speed = v.carriage.params.operation.speed
     speeds = [speed * f for f in SCHEDULE_SPEED_FACTORS]
     got = {
-        prec: native.controller_schedule(s.newton_exe[prec], s.controller_input, speeds)["speeds"]
+        prec: native.controller_schedule(v.newton_exe[prec], v.controller_input, speeds)["speeds"]
         for prec in ("single", "double")
     }
     rows = []
     for sg, db in zip(got["single"], got["double"], strict=True):
-        K_rt, _c = s.lib.function("maglev_lqr_gains")(db["speed"], s.carriage.p)
+        K_rt, _c = v.lib.function("maglev_lqr_gains")(db["speed"], v.carriage.p)
         K_rt = np.asarray(K_rt).ravel(order="F")  # column-major, as the C arrays
 
         def rel(a: str, b: dict, ref: dict = db) -> float:
@@ -636,6 +778,17 @@ def schedule_accuracy(s: Setup) -> dict:
     return {"speeds": rows, "default_speed": speed}
 
 
+def footprint(s: Setup, work: Path) -> dict:
+    log("footprint (-Os, single precision, baked parameters)")
+    out = native.footprint(s.default.gen["single_baked"], work / "size_single")
+    out["reference"] = native.reference_footprint(work / "size_ref")
+    # the generated dynamics of the model the hand-written C computes
+    out["generated_runtime_double_dynamics"] = native.footprint_runtime_dynamics(
+        s.paper.gen["double_runtime"], work / "size_rt"
+    )
+    return out
+
+
 # ---------------------------------------------------------------------------------- main
 
 
@@ -649,7 +802,22 @@ def main(argv: list[str] | None = None) -> int:
         help="few repeats: a smoke run of the suite, not figures to publish",
     )
     ap.add_argument("--work", type=Path, help="keep the build files in this folder")
+    ap.add_argument(
+        "--resume",
+        type=Path,
+        help="the partial results of an interrupted run (JSON.partial.json, written after "
+        "each stage): its stages are kept, the others measured",
+    )
+    ap.add_argument(
+        "--no-measure",
+        action="store_true",
+        help="with --resume: write BENCHMARKS.md and the JSON from its stages alone, measuring "
+        "nothing (the sections of the stages it lacks are carried over from BENCHMARKS.md)",
+    )
     args = ap.parse_args(argv)
+    if args.no_measure and not args.resume:
+        print("bench: --no-measure needs --resume PARTIAL.json", file=sys.stderr)
+        return 2
     reps = Repeats.quick() if args.quick else Repeats()
     t0 = time.perf_counter()
     command = os.environ.get("MAGLEV_BENCH_COMMAND") or shlex.join(
@@ -665,34 +833,70 @@ def main(argv: list[str] | None = None) -> int:
         },
         "machine": machine(),
     }
+    done = json.loads(args.resume.read_text()) if args.resume else {}
+    if done:
+        results["meta"]["date_utc"] = done["meta"]["date_utc"]
+        results["machine"]["loadavg_start"] = done["machine"]["loadavg_start"]
+        now = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        # --no-measure only writes: the resume that measured is the one to name
+        results["meta"]["resumed_at"] = done["meta"].get("resumed_at", now) if args.no_measure \
+            else now
+        results["meta"]["git"] = done["meta"]["git"] if args.no_measure else git_state()
+    earlier_s = done.get("meta", {}).get("elapsed_s", 0.0)
+    partial = args.json.with_name(args.json.stem + ".partial.json")
+
+    def stage(name: str, fn) -> None:
+        if name in done:
+            log(f"{name}: kept from {args.resume}")
+            results[name] = done[name]
+            return
+        if args.no_measure:
+            log(f"{name}: not measured (--no-measure)")
+            return
+        results[name] = fn()
+        results["meta"]["elapsed_s"] = earlier_s + time.perf_counter() - t0
+        partial.write_text(json.dumps(results, indent=1, default=float) + "\n")
+
     fingerprint_start = toolchain_fingerprint()
     with tempfile.TemporaryDirectory(prefix="maglev_bench_") as tmp:
         work = args.work or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        results["derivation"] = derivation(work, reps)
-        results["workflow"] = workflow.workflow(
+        stage("derivation", lambda: derivation(work, reps))
+        # the C figures first, then the build workflow, then the Python contenders
+        prepared = ("dynamics", "closed_loop", "footprint", "precision", "dynamics_python",
+                    "closed_loop_python")  # the stages that need prepare()
+        if args.no_measure:
+            results.update({k: done[k] for k in prepared if k in done})
+        elif not all(k in done for k in prepared):
+            s = prepare(work)
+            stage("dynamics", lambda: dynamics(s, reps))
+            stage("closed_loop", lambda: closed_loop(s, reps))
+            stage("footprint", lambda: footprint(s, work))
+            stage("precision", lambda: precision(s, reps))
+        stage("workflow", lambda: workflow.workflow(
             work, reps.build_cold, reps.build_rebuild, reps.build_profile
-        )
-        s = prepare(work)
-        results["dynamics"] = dynamics(s, reps)
-        results["closed_loop"] = closed_loop(s, reps)
-        log("footprint (-Os, single precision, baked parameters)")
-        results["footprint"] = native.footprint(s.gen["single_baked"], work / "size_single")
-        results["footprint"]["reference"] = native.reference_footprint(work / "size_ref")
-        results["footprint"]["generated_runtime_double_dynamics"] = (
-            native.footprint_runtime_dynamics(s.gen["double_runtime"], work / "size_rt")
-        )
-        results["precision"] = precision(s, reps)
-        results["envelope"] = envelope_bench.run(3 if args.quick else 5)
-        results["montecarlo"] = montecarlo_bench.run(quick=args.quick)
-        results["peers"] = peers_bench.run_peers(7 if args.quick else 21)
+        ))
+        if "s" in locals():
+            stage("dynamics_python", lambda: python_dynamics(s, reps))
+            stage("closed_loop_python", lambda: closed_loop_python(s, reps))
+        stage("envelope", lambda: envelope_bench.run(3 if args.quick else 5))
+        stage("montecarlo", lambda: montecarlo_bench.run(quick=args.quick))
+        stage("peers", lambda: peers_bench.run_peers(
+            7 if args.quick else 21, overrides=PAPER_OVERRIDES
+        ))
     results["machine"]["loadavg_end"] = os.getloadavg()
+    # the Python contenders, measured as stages of their own, in their sections
+    for key, section in (("dynamics_python", "dynamics"), ("closed_loop_python", "closed_loop")):
+        if key in results and section in results:
+            results[section]["python"] = results.pop(key)
     # the toolchain's source (what keys every cache) must not change while the suite runs
     results["meta"]["toolchain_changed_during_run"] = toolchain_fingerprint() != fingerprint_start
-    results["meta"]["wall_s"] = time.perf_counter() - t0
+    results["meta"]["wall_s"] = earlier_s + time.perf_counter() - t0
     results["targets"] = writeup.targets(results)
     args.json.write_text(json.dumps(results, indent=1, default=float) + "\n")
-    args.out.write_text(writeup.markdown(results))
+    # the sections other scripts recorded (below writeup.KEPT_MARKER) are carried over
+    old = args.out.read_text() if args.out.exists() else None
+    args.out.write_text(writeup.markdown(results, old))
     log(f"wrote {args.out} and {args.json} in {results['meta']['wall_s']:.0f} s")
     for t in results["targets"]:
         log(f"target {t['name']}: {t['measured']} ({'met' if t['met'] else 'MISSED'})")

@@ -57,10 +57,10 @@ static void read_input(const char *path) {
 }
 
 static void generated(const double *x, const double *u, double *xdot) {
-    const casadi_real *arg[maglev_dynamics_SZ_ARG + 1];
-    casadi_real *res[maglev_dynamics_SZ_RES + 1];
-    casadi_int iw[maglev_dynamics_SZ_IW + 1];
-    casadi_real w[maglev_dynamics_SZ_W + 1];
+    const maglev_real *arg[maglev_dynamics_SZ_ARG + 1];
+    maglev_real *res[maglev_dynamics_SZ_RES + 1];
+    maglev_int iw[maglev_dynamics_SZ_IW + 1];
+    maglev_real w[maglev_dynamics_SZ_W + 1];
     arg[0] = x;
     arg[1] = u;
     arg[2] = P;

@@ -28,6 +28,8 @@
 #define NS_MAX 1024
 
 static double P[REF_NP], X0[NX], F_PROP, K_POS[5], K_RATE[5], A_REF[5], DT, GAP_MIN;
+/* the per-axis gains as maglev_simulate takes them: 5 x 5 matrices, diagonal (per-axis LQR) */
+static double K_POS_M[25], K_RATE_M[25];
 static long long N_STEPS;
 static long N_SAMPLES;
 static double XS[NS_MAX][NX], US[NS_MAX][NU];
@@ -50,6 +52,10 @@ static void read_input(const char *path) {
     DT = v[0];
     N_STEPS = (long long)v[1];
     GAP_MIN = v[2];
+    for (i = 0; i < 5; ++i) {
+        K_POS_M[i * 6] = K_POS[i];
+        K_RATE_M[i * 6] = K_RATE[i];
+    }
     read_doubles(f, v, 1, "n_samples");
     N_SAMPLES = (long)v[0];
     if (N_SAMPLES < 1 || N_SAMPLES > NS_MAX) {
@@ -161,7 +167,7 @@ static void traj_alloc(traj *t) {
 
 static double run_generated(traj *t) {
     double t0 = now_ns();
-    t->last = maglev_simulate(X0, DT, N_STEPS, F_PROP, K_POS, K_RATE, A_REF, 0, P, GAP_MIN,
+    t->last = maglev_simulate(X0, DT, N_STEPS, F_PROP, K_POS_M, K_RATE_M, A_REF, 0, P, GAP_MIN,
                               t->x, t->u, t->g, 0, &t->status);
     return now_ns() - t0;
 }
