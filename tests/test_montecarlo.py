@@ -277,3 +277,29 @@ def test_scatter_axes_name_symbol_and_unit(small) -> None:
     for key, unit in expected.items():  # the default file's [tolerances.parameters]
         assert labels[key] == f"{key} / {unit}"
     assert all(label != name for name, label in labels.items())
+
+
+@pytest.mark.parametrize("failures", [0, 3])
+def test_failure_correlation_is_reported_only_when_runs_failed(failures: int) -> None:
+    """A correlation with a constant (no run failed) is undefined: montecarlo.md says there
+    is none to report instead of printing +0.000 for every input."""
+    from maglevgen.analyses.montecarlo import markdown
+
+    stat = {"median": 0.1, "p95": 0.2, "max": 0.3}
+    summary = {"samples": 10, "seed": 0, "t_end": 1.0, "dt": 1e-3, "speed_range": [10, 40],
+               "timing": {"runs": 10, "seconds": 1.0, "runs_per_s": 10.0, "workers": "1"},
+               "controllers": {"spec": {
+                   "title": "spec LQR", "runs": 10, "contact_probability": failures / 10,
+                   "contact_ci95": [0.0, 0.3], "contact_causes": {},
+                   "status_counts": {"settled": 10 - failures, "contact": failures},
+                   "failure_probability": failures / 10,
+                   "axes": {"lateral": {"settling_time": stat, "peak_deviation": stat}},
+                   "failure_correlation": {"speed": 0.5 if failures else 0.0,
+                                           "vehicle.mass": -0.25 if failures else 0.0},
+                   "failures_inside_region": 0, "failures_inside_region_samples": [],
+                   "worst": []}}}
+    md = markdown(summary)
+    if failures:
+        assert "- `speed`: +0.500" in md and "- `vehicle.mass`: -0.250" in md
+    else:
+        assert "`speed`" not in md and "none to report (no run made contact or diverged)" in md

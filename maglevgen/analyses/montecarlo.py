@@ -636,9 +636,13 @@ def markdown(summary: dict) -> str:
                 return " / ".join("-" if d[k] is None else f"{d[k]:.4g}"
                                   for k in ("median", "p95", "max"))
             lines.append(f"| {axis} | {f(q['settling_time'])} | {f(q['peak_deviation'])} |")
-        lines += ["", "Correlation of failure (contact, diverging) with each sampled input "
-                  "(Pearson, over the runs):", ""]
-        lines += [f"- `{k}`: {r:+.3f}" for k, r in a["failure_correlation"].items()]
+        if a["failure_probability"]:
+            lines += ["", "Correlation of failure (contact, diverging) with each sampled input "
+                      "(Pearson, over the runs):", ""]
+            lines += [f"- `{k}`: {r:+.3f}" for k, r in a["failure_correlation"].items()]
+        else:  # a correlation with a constant is undefined, not zero
+            lines += ["", "Correlation of failure with the sampled inputs: none to report (no "
+                      "run made contact or diverged)."]
         inside = a.get("failures_inside_region", 0)
         lines += ["", f"Failures from inside the nominal carriage's sampled region of "
                   f"attraction (`region_multiple` < 1, maglevgen roa): {inside}"
