@@ -213,6 +213,13 @@ def test_schedule_eval_in_c_equals_scipy_spline(carriage, sim_lib) -> None:
     for v in np.random.default_rng(3).uniform(8.0, 30.0, 25):
         assert fn(ctypes.byref(s), v, out.ctypes.data_as(P)) == 0
         np.testing.assert_allclose(out, spline(v), rtol=1e-11, atol=1e-12)
+    # Schedule.at on an array of speeds (what a launch's reference reads), clamped like the C
+    speeds = np.concatenate([np.random.default_rng(4).uniform(8.0, 30.0, 20), [5.0, 45.0]])
+    rows = sched.at(speeds)
+    assert rows.shape == (speeds.size, y.shape[1])
+    for v, row in zip(speeds, rows, strict=True):
+        assert fn(ctypes.byref(s), v, out.ctypes.data_as(P)) in (0, 1)  # 1: clamped
+        np.testing.assert_allclose(row, out, rtol=1e-11, atol=1e-12)
     assert fn(ctypes.byref(s), 40.0, out.ctypes.data_as(P)) == 1
     np.testing.assert_allclose(out, y[-1], rtol=1e-12, atol=1e-12)
     out[:] = 7.0

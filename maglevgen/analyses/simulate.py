@@ -31,7 +31,7 @@ from maglevgen.control.operating import (
     speed_mode,
 )
 from maglevgen.control.sampled import Tick, speed_gain
-from maglevgen.control.schedule import Schedule
+from maglevgen.control.schedule import A_REF, K_POS, Schedule
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import DISTURBANCE, Q_STATES
 from maglevgen.derive.structure import input_names_of
@@ -486,7 +486,7 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
     traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
     # deviations from the scheduled reference (the trim at each sample's speed; the
     # accelerating trim for a schedule at the launch's acceleration)
-    traj.equilibrium = np.array([Schedule.unpack(schedule.at(v))[1] for v in traj.speed])
+    traj.equilibrium = schedule.at(traj.speed)[:, A_REF:K_POS]  # Schedule.unpack's a_ref
     return traj
 
 

@@ -135,9 +135,11 @@ class Schedule:
         """(n, NY) d^2/dv^2 of the spline at the nodes: what the C evaluation needs."""
         return self.spline(self.speeds, 2)
 
-    def at(self, v: float) -> np.ndarray:
-        """The spline at v, clamped to the node range (as maglev_schedule_eval)."""
-        return self.spline(float(np.clip(v, self.speeds[0], self.speeds[-1])))
+    def at(self, v: float | np.ndarray) -> np.ndarray:
+        """The spline at v, clamped to the node range (as maglev_schedule_eval): (NY,) values
+        at a speed, (n, NY) at an array of n speeds (one spline for all of them)."""
+        v = np.asarray(v, dtype=float)
+        return self.spline(np.clip(v, self.speeds[0], self.speeds[-1]))
 
     @staticmethod
     def unpack(row: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
