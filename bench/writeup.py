@@ -617,13 +617,8 @@ def _dynamics(r: dict) -> list[str]:
         build = f" (built in {v['build_s']:.1f} s)" if v["build_s"] else ""
         py_rows.append([label + build, _ns(v["ns"]), _ratio(v["over_generated_c"])])
     cgl = d.get("callgrind_laws") or {}
-    instr = (
-        " Instructions per call (callgrind, libm included): distributed "
-        f"{cgl['distributed']['instructions']:.0f}, point {cgl['point']['instructions']:.0f}"
-        f" ({cgl['distributed']['instructions'] / cgl['point']['instructions']:.2f}x)."
-        if cgl.get("distributed") and cgl.get("point")
-        else ""
-    )
+    instr = _instructions("call", (cgl.get("distributed") or {}).get("instructions"),
+                          (cgl.get("point") or {}).get("instructions"))
     out = [
         "One call of xdot = f(x, u, p) for the default carriage, on 64 states and inputs near "
         "each model's trim taken in turn. C figures are timed from a C loop (bench/c/"
@@ -772,13 +767,7 @@ def _loop(r: dict) -> list[str]:
         )
     cgl = lp.get("callgrind_laws") or {}
     per = {k: v.get("maglev_simulate", {}).get("instructions_per_step") for k, v in cgl.items()}
-    instr = (
-        " Instructions per RK4 step (callgrind, libm included): distributed "
-        f"{per['distributed']:.0f}, point {per['point']:.0f} "
-        f"({per['distributed'] / per['point']:.2f}x)."
-        if per.get("distributed") and per.get("point")
-        else ""
-    )
+    instr = _instructions("RK4 step", per.get("distributed"), per.get("point"))
     steps = loop["n_steps"]
     return [
         f"{steps * loop['dt']:g} s of simulated time at {1 / loop['dt']:g} Hz ({steps} RK4 "
@@ -1103,6 +1092,15 @@ def document(generated: str, old: str | None) -> str:
     the marker of ``old``, the marked part after it unchanged."""
     kept = kept_part(old)
     return generated.rstrip("\n") + "\n\n" + kept if kept else generated
+
+
+def _instructions(per: str, distributed: float | None, point: float | None) -> str:
+    """The callgrind sentence: instructions per ``per`` of both laws and their ratio ("" when
+    either was not measured)."""
+    if not (distributed and point):
+        return ""
+    return (f" Instructions per {per} (callgrind, libm included): distributed {distributed:.0f}, "
+            f"point {point:.0f} ({distributed / point:.2f}x).")
 
 
 def markdown(r: dict, old: str | None = None) -> str:
