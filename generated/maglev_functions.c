@@ -116,9 +116,9 @@ extern "C" {
   #endif
 #endif
 
-casadi_real casadi_sq(casadi_real x) { return x*x;}
+static casadi_real casadi_sq(casadi_real x) { return x*x;}
 
-casadi_real casadi_fabs(casadi_real x) {
+static casadi_real casadi_fabs(casadi_real x) {
   (void)x;
 /* Pre-c99 compatibility */
 #if __STDC_VERSION__ < 199901L
@@ -128,9 +128,9 @@ casadi_real casadi_fabs(casadi_real x) {
 #endif
 }
 
-casadi_real casadi_sign(casadi_real x) { return x<0 ? -1 : x>0 ? 1 : x;}
+static casadi_real casadi_sign(casadi_real x) { return x<0 ? -1 : x>0 ? 1 : x;}
 
-void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+static void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
   casadi_int i;
   if (y!=0) {
     if (x!=0) {
@@ -141,13 +141,13 @@ void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
   }
 }
 
-void casadi_axpy(casadi_int n, casadi_real alpha, const casadi_real* x, casadi_real* y) {
+static void casadi_axpy(casadi_int n, casadi_real alpha, const casadi_real* x, casadi_real* y) {
   casadi_int i;
   if (!x || !y) return;
   for (i=0; i<n; ++i) *y++ += alpha**x++;
 }
 
-casadi_real casadi_fmax(casadi_real x, casadi_real y) {
+static casadi_real casadi_fmax(casadi_real x, casadi_real y) {
   (void)x; (void)y;
 /* Pre-c99 compatibility */
 #if __STDC_VERSION__ < 199901L
@@ -157,36 +157,23 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 #endif
 }
 
-casadi_real casadi_norm_inf(casadi_int n, const casadi_real* x) {
+static casadi_real casadi_norm_inf(casadi_int n, const casadi_real* x) {
   casadi_int i;
   casadi_real ret = 0;
   for (i=0; i<n; ++i) ret = casadi_fmax(ret, casadi_fabs(*x++));
   return ret;
 }
 
-casadi_real casadi_if_else(casadi_real c, casadi_real x, casadi_real y) { return c!=0 ? x : y;}
+static casadi_real casadi_if_else(casadi_real c, casadi_real x, casadi_real y) { return c!=0 ? x : y;}
 
-void casadi_scal(casadi_int n, casadi_real alpha, casadi_real* x) {
-  casadi_int i;
-  if (x==0) return;
-  for (i=0; i<n; ++i) *x++ *= alpha;
-}
-
-casadi_real casadi_dot(casadi_int n, const casadi_real* x, const casadi_real* y) {
-  casadi_int i;
-  casadi_real r = 0;
-  for (i=0; i<n; ++i) r += *x++ * *y++;
-  return r;
-}
-
-void casadi_clear(casadi_real* x, casadi_int n) {
+static void casadi_clear(casadi_real* x, casadi_int n) {
   casadi_int i;
   if (x!=0) {
     for (i=0; i<n; ++i) *x++ = 0;
   }
 }
 
-casadi_real casadi_house(casadi_real* v, casadi_real* beta, casadi_int nv) {
+static casadi_real casadi_house(casadi_real* v, casadi_real* beta, casadi_int nv) {
   casadi_int i;
   casadi_real v0, sigma, s, sigma_is_zero, v0_nonpos;
   v0 = v[0];
@@ -200,7 +187,7 @@ casadi_real casadi_house(casadi_real* v, casadi_real* beta, casadi_int nv) {
   *beta = casadi_if_else(sigma_is_zero, 2*v0_nonpos, -1/(s*v[0]));
   return s;
 }
-void casadi_qr(const casadi_int* sp_a, const casadi_real* nz_a, casadi_real* x,
+static void casadi_qr(const casadi_int* sp_a, const casadi_real* nz_a, casadi_real* x,
                const casadi_int* sp_v, casadi_real* nz_v, const casadi_int* sp_r, casadi_real* nz_r, casadi_real* beta,
                const casadi_int* prinv, const casadi_int* pc) {
    casadi_int ncol, nrow, r, c, k, k1;
@@ -229,7 +216,7 @@ void casadi_qr(const casadi_int* sp_a, const casadi_real* nz_a, casadi_real* x,
      *nz_r++ = casadi_house(nz_v + v_colind[c], beta + c, v_colind[c+1] - v_colind[c]);
    }
  }
-void casadi_qr_mv(const casadi_int* sp_v, const casadi_real* v, const casadi_real* beta, casadi_real* x,
+static void casadi_qr_mv(const casadi_int* sp_v, const casadi_real* v, const casadi_real* beta, casadi_real* x,
                   casadi_int tr) {
   casadi_int ncol, c, c1, k;
   casadi_real alpha;
@@ -244,7 +231,7 @@ void casadi_qr_mv(const casadi_int* sp_v, const casadi_real* v, const casadi_rea
     for (k=colind[c]; k<colind[c+1]; ++k) x[row[k]] -= alpha*v[k];
   }
 }
-void casadi_qr_trs(const casadi_int* sp_r, const casadi_real* nz_r, casadi_real* x, casadi_int tr) {
+static void casadi_qr_trs(const casadi_int* sp_r, const casadi_real* nz_r, casadi_real* x, casadi_int tr) {
   casadi_int ncol, r, c, k;
   const casadi_int *colind, *row;
   ncol=sp_r[1];
@@ -273,7 +260,7 @@ void casadi_qr_trs(const casadi_int* sp_r, const casadi_real* nz_r, casadi_real*
     }
   }
 }
-void casadi_qr_solve(casadi_real* x, casadi_int nrhs, casadi_int tr,
+static void casadi_qr_solve(casadi_real* x, casadi_int nrhs, casadi_int tr,
                      const casadi_int* sp_v, const casadi_real* v, const casadi_int* sp_r, const casadi_real* r,
                      const casadi_real* beta, const casadi_int* prinv, const casadi_int* pc, casadi_real* w) {
   casadi_int k, c, nrow_ext, ncol;
@@ -294,61 +281,6 @@ void casadi_qr_solve(casadi_real* x, casadi_int nrhs, casadi_int tr,
     x += ncol;
   }
 }
-casadi_int casadi_qr_singular(casadi_real* rmin, casadi_int* irmin, const casadi_real* nz_r,
-                             const casadi_int* sp_r, const casadi_int* pc, casadi_real eps) {
-  casadi_real rd, rd_min;
-  casadi_int ncol, c, nullity;
-  const casadi_int* r_colind;
-  nullity = 0;
-  rd_min = 0;
-  ncol = sp_r[1];
-  r_colind = sp_r + 2;
-  for (c=0; c<ncol; ++c) {
-    rd = fabs(nz_r[r_colind[c+1]-1]);
-    if (rd<eps) nullity++;
-    if (c==0 || rd < rd_min) {
-      rd_min = rd;
-      if (rmin!=0) *rmin = rd;
-      if (irmin!=0) *irmin = pc[c];
-    }
-  }
-  return nullity;
-}
-void casadi_qr_colcomb(casadi_real* v, const casadi_real* nz_r, const casadi_int* sp_r,
-                       const casadi_int* pc, casadi_real eps, casadi_int ind) {
-  casadi_int ncol, r, c, k;
-  const casadi_int *r_colind, *r_row;
-  ncol = sp_r[1];
-  r_colind = sp_r + 2;
-  r_row = r_colind + ncol + 1;
-  for (c=0; c<ncol; ++c) {
-    if (fabs(nz_r[r_colind[c+1]-1])<eps && 0==ind--) {
-      ind = c;
-      break;
-    }
-  }
-  casadi_clear(v, ncol);
-  v[pc[ind]] = 1.;
-  for (k=r_colind[ind]; k<r_colind[ind+1]-1; ++k) {
-    v[pc[r_row[k]]] = -nz_r[k];
-  }
-  for (c=ind-1; c>=0; --c) {
-    for (k=r_colind[c+1]-1; k>=r_colind[c]; --k) {
-      r=r_row[k];
-      if (r==c) {
-        if (fabs(nz_r[k])<eps) {
-          v[pc[r]] = 0;
-        } else {
-          v[pc[r]] /= nz_r[k];
-        }
-      } else {
-        v[pc[r]] -= nz_r[k]*v[pc[c]];
-      }
-    }
-  }
-  casadi_scal(ncol, 1./sqrt(casadi_dot(ncol, v, v)), v);
-}
-
 struct casadi_newton_mem {
   casadi_int n;
   casadi_real abstol;
@@ -366,7 +298,7 @@ struct casadi_newton_mem {
   casadi_real* lin_r;
   casadi_real* lin_beta;
 };
-int casadi_newton(const struct casadi_newton_mem* m) {
+static int casadi_newton(const struct casadi_newton_mem* m) {
     if (m->abstol>0 && casadi_norm_inf(m->n, m->g) <= m->abstol) return 1;
     casadi_qr(m->sp_a, m->jac_g_x, m->lin_w,
               m->sp_v,  m->lin_v, m->sp_r, m->lin_r, m->lin_beta,

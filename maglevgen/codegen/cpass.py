@@ -30,12 +30,13 @@ math functions, the literals, the truth tests or the unused parameters, and
 tests/test_cpass.py::test_raw_casadi_output_fails_the_same_flags shows its raw output failing
 the flags. Every C file the toolchain writes otherwise comes from a template
 (maglevgen.codegen.emit); this module is the one place that edits CasADi's text, on tokens
-where the edit needs the C's structure. Besides :func:`postprocess`, for the checked entry
-points (maglevgen.codegen.checks) and the one translation unit (``--single-file``):
+where the edit needs the C's structure. Besides :func:`postprocess`, :func:`static_helpers`
+makes CasADi's runtime helpers static in every generated .c (external, a shared library
+calls each ``casadi_fabs`` through the PLT: the distributed force law's right-hand side made
+48 such calls per evaluation); for the checked entry points (maglevgen.codegen.checks):
 :func:`unchecked_entry_points` makes each entry point a ``static NAME_unchecked``,
-:func:`null_safe_version` guards the version function's pointers, :func:`static_helpers`
-makes CasADi's runtime helpers static. Each refuses a text it does not find where it
-expects it.
+:func:`null_safe_version` guards the version function's pointers. Each refuses a text it
+does not find where it expects it.
 """
 
 from __future__ import annotations
@@ -692,7 +693,8 @@ def generate_c(
     *,
     int_type: str = "long long int",
 ) -> dict[str, str]:
-    """Generate ``{name}.c`` and ``{name}.h`` for ``functions`` and post-process them.
+    """Generate ``{name}.c`` and ``{name}.h`` for ``functions`` and post-process them (the .c
+    with its runtime helpers static: `static_helpers`).
 
     The result depends only on the functions, ``name``, ``precision`` and ``int_type``: the
     generator runs in a private temporary directory, and any trace of that path is refused.
@@ -714,7 +716,7 @@ def generate_c(
     return {f"{name}{sfx}": render("casadi_output.j2", file=f"{name}{sfx}", body=body,
                                    casadi_version=ca.__version__, precision=precision,
                                    guard=guard if sfx == ".h" else None)
-            for sfx, body in ((".c", postprocess(raw[".c"], precision)),
+            for sfx, body in ((".c", static_helpers(postprocess(raw[".c"], precision))),
                               (".h", _own_types(postprocess(raw[".h"], precision))))}
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.checks import MAX_DELAY_TICKS, check_entries, work_sizes
-from maglevgen.codegen.cpass import generate_c, static_helpers
+from maglevgen.codegen.cpass import generate_c
 from maglevgen.codegen.emit import c_literal
 from maglevgen.codegen.emit import render as render_template
 from maglevgen.codegen.functions import DESCRIPTIONS, PREFIX, bake_all, build_functions
@@ -123,13 +123,12 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
 def single_translation_unit(functions_c: str, simulate_c: str, text_banner: str) -> str:
     """maglev.c (`--single-file`): the functions and the simulation loop as one translation
     unit behind maglev.h and maglev_simulate.h, so every external function has its documented
-    prototype in view (gcc's -Wmissing-prototypes checks it); CasADi's runtime helpers, external
-    in the two-file build, are made static. Nothing else changes: the text is the two files'."""
+    prototype in view (gcc's -Wmissing-prototypes checks it). Nothing else changes: the text is
+    the two files'."""
     def body(text: str) -> str:
         return text.split("\n", 1)[1]  # without the banner line
 
     includes = '#include "maglev_simulate.h"\n'
-    functions_c = static_helpers(functions_c)
     if simulate_c.count(includes) != 1:
         raise ValueError("maglev_simulate.c does not include its header once")
     return render_template("maglev.c.j2", banner=text_banner, file=SINGLE_FILE,
