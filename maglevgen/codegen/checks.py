@@ -80,10 +80,11 @@ TRIM_SOLVES = ("maglev_trim", "maglev_trim_accelerating")
 TICK_KIND = ("maglev_lqr_control", "maglev_damping_control", "maglev_coupled_control",
              "maglev_allocate", "maglev_axis_gains")
 
-#: inputs not checked for finiteness at entry (their outputs are): the prepared constants c,
-#: which maglev_closed_loop_prepare checked when it made them, enter every RK4 stage of a
-#: run (four calls a step), where checking their 392 values again cost 10 to 20 % of the run
-UNCHECKED_INPUTS = {("maglev_closed_loop_prepared", "c")}
+#: inputs not checked for finiteness at entry (their outputs are): the prepared constants c
+#: and d, which maglev_closed_loop_prepare and maglev_dynamics_prepare checked when they made
+#: them, enter every RK4 stage of a run (four calls a step), where checking their 300-400
+#: values again cost 10 to 20 % of the run
+UNCHECKED_INPUTS = {("maglev_closed_loop_prepared", "c"), ("maglev_dynamics_prepared", "d")}
 
 #: largest |acceleration| [m/s^2, rad/s^2] at an accepted trim, per precision: double as
 #: checked_trim; single a hundred times the Newton tolerance (float32 rounding of the

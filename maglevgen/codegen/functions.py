@@ -102,6 +102,11 @@ FUNCTION_SPECS: tuple[FunctionSpec, ...] = (
     FunctionSpec("dynamics", ("x", "u", "p"), ("xdot",),
                  "xdot = f(x, u): the nonlinear 12-state model with array forces (eqs 1-4, "
                  "8-12)"),
+    FunctionSpec("dynamics_prepare", ("p",), ("d",),
+                 "the part of maglev_dynamics that depends only on p: d, once per simulation",
+                 derived=True),
+    FunctionSpec("dynamics_prepared", ("x", "u", "d"), ("xdot",),
+                 "maglev_dynamics' xdot from x, u and the prepared d", derived=True),
     FunctionSpec("jacobians", ("x", "u", "p"), ("A", "B"),
                  "(A, B) = (df/dx, df/du) of maglev_dynamics"),
     FunctionSpec("trim", ("v", "p"), ("x_trim", "F_prop"),
@@ -198,7 +203,8 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     # the step calls the finished right-hand side, so the C holds one copy of it
     made["rk4_step"] = _rk4_step(made["closed_loop"], made["allocation_matrix"])
     made["closed_loop_prepare"], made["closed_loop_prepared"] = \
-        _prepared_closed_loop(made["closed_loop"])
+        _prepared(made["closed_loop"], 1, "c")
+    made["dynamics_prepare"], made["dynamics_prepared"] = _prepared(made["dynamics"], 2, "d")
     for s in FUNCTION_SPECS:  # the derived functions' names are the table's
         f = made[s.name]
         if (tuple(f.name_in()), tuple(f.name_out())) != (s.inputs, s.outputs):
@@ -433,22 +439,22 @@ def _finished(fn: ca.Function) -> ca.Function:
         return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out(), {"cse": sx})
 
 
-def _prepared_closed_loop(closed_loop: ca.Function) -> tuple[ca.Function, ca.Function]:
-    """``maglev_closed_loop`` split in two by CasADi's extract_parametric: what depends only on
-    the inputs that stay constant over a simulation (F_prop, gains, reference, T, p), computed
-    once (``maglev_closed_loop_prepare``), and the rest at every stage
-    (``maglev_closed_loop_prepared``): the field B0's exp and sin and the inverse inertia's
-    divisions, among others, leave the stage."""
-    ins = closed_loop.sx_in()
-    x, run = ins[0], ins[1:]
+def _prepared(fn: ca.Function, n_state: int, name: str) -> tuple[ca.Function, ca.Function]:
+    """``fn`` split in two by CasADi's extract_parametric: what depends only on its inputs
+    after the first ``n_state`` (those constant over a simulation: for maglev_closed_loop F_prop,
+    the gains, the reference, T and p; for maglev_dynamics p), computed once
+    (``NAME_prepare``, output ``name``), and the rest at every stage (``NAME_prepared``): the
+    field B0's exp and sin and the inverse inertia's divisions, among others, leave the stage."""
+    ins = fn.sx_in()
+    states, run = ins[:n_state], ins[n_state:]
     with casadi_rewriting_off():
-        outs = closed_loop.call(ins)
+        outs = fn.call(ins)
         rest, syms, values = ca.extract_parametric(outs, run, {"extract_trivial": True})
         c = ca.vertcat(*syms)
-        prepare = ca.Function("maglev_closed_loop_prepare", run, [ca.vertcat(*values)],
-                              closed_loop.name_in()[1:], ["c"], {"cse": True})
-        prepared = ca.Function("maglev_closed_loop_prepared", [x, c], rest, ["x", "c"],
-                               closed_loop.name_out(), {"cse": True})
+        prepare = ca.Function(f"{fn.name()}_prepare", run, [ca.vertcat(*values)],
+                              fn.name_in()[n_state:], [name], {"cse": True})
+        prepared = ca.Function(f"{fn.name()}_prepared", [*states, c], rest,
+                               [*fn.name_in()[:n_state], name], fn.name_out(), {"cse": True})
     return prepare, prepared
 
 

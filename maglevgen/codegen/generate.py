@@ -103,10 +103,12 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
     files = {name: render_template("generated_file.j2", banner=text_banner, text=text)
              for name, text in sources.items()}
     prepare = next(f for f in functions if f.name() == "maglev_closed_loop_prepare")
+    dynamics_prepare = next(f for f in functions if f.name() == "maglev_dynamics_prepare")
     ctx = {"banner": text_banner, "parameters": opts.parameters, "precision": opts.precision,
            "nx": len(cv.STATES),
            "nu": len(model.input_names), "ng": len(model.arrays),
-           "n_prepared": prepare.numel_out(0), "n_arrays": len(model.structure.arrays),
+           "n_prepared": prepare.numel_out(0), "n_dynamics_prepared": dynamics_prepare.numel_out(0),
+           "n_arrays": len(model.structure.arrays),
            # the array of each control force, in the input order (structure.input_names_of)
            "array_of_force": [i for i, (_, comps) in enumerate(model.structure.arrays)
                               for _ in comps],
