@@ -192,6 +192,36 @@ int maglev_dynamics(const maglev_real** arg, maglev_real** res, maglev_int* iw, 
     int mem);
 
 /*
+ * maglev_dynamics_prepare: the part of maglev_dynamics that depends only on p: d, once per simulation
+ *   out d[246x1]
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every output finite
+ *     (MAGLEV_ERR_NONFINITE_OUTPUT); on an error the requested outputs are zero
+ */
+#define MAGLEV_DYNAMICS_PREPARE_SZ_ARG 0
+#define MAGLEV_DYNAMICS_PREPARE_SZ_RES 1
+#define MAGLEV_DYNAMICS_PREPARE_SZ_IW 0
+#define MAGLEV_DYNAMICS_PREPARE_SZ_W 0
+int maglev_dynamics_prepare(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
+    int mem);
+
+/*
+ * maglev_dynamics_prepared: maglev_dynamics' xdot from x, u and the prepared d
+ *   in  x[12x1]  state, MAGLEV_X_* order
+ *   in  u[11x1]  inputs, MAGLEV_U_* order
+ *   in  d[246x1]
+ *   out xdot[12x1]  state derivative
+ *   checks: arg, res not NULL (MAGLEV_ERR_ARGUMENT); every input but d (checked where it is made)
+ *     finite (MAGLEV_ERR_NONFINITE); every output finite (MAGLEV_ERR_NONFINITE_OUTPUT); on an
+ *     error the requested outputs are zero
+ */
+#define MAGLEV_DYNAMICS_PREPARED_SZ_ARG 3
+#define MAGLEV_DYNAMICS_PREPARED_SZ_RES 1
+#define MAGLEV_DYNAMICS_PREPARED_SZ_IW 0
+#define MAGLEV_DYNAMICS_PREPARED_SZ_W 0
+int maglev_dynamics_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w,
+    int mem);
+
+/*
  * maglev_jacobians: (A, B) = (df/dx, df/du) of maglev_dynamics
  *   in  x[12x1]  state, MAGLEV_X_* order
  *   in  u[11x1]  inputs, MAGLEV_U_* order

@@ -37,6 +37,42 @@ int maglev_dynamics_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_in
 #define maglev_dynamics_SZ_RES 1
 #define maglev_dynamics_SZ_IW 0
 #define maglev_dynamics_SZ_W 0
+int maglev_dynamics_prepare(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
+int maglev_dynamics_prepare_checkout(void);
+void maglev_dynamics_prepare_release(int mem);
+void maglev_dynamics_prepare_incref(void);
+void maglev_dynamics_prepare_decref(void);
+maglev_int maglev_dynamics_prepare_n_in(void);
+maglev_int maglev_dynamics_prepare_n_out(void);
+maglev_real maglev_dynamics_prepare_default_in(maglev_int i);
+const char* maglev_dynamics_prepare_name_in(maglev_int i);
+const char* maglev_dynamics_prepare_name_out(maglev_int i);
+const maglev_int* maglev_dynamics_prepare_sparsity_in(maglev_int i);
+const maglev_int* maglev_dynamics_prepare_sparsity_out(maglev_int i);
+int maglev_dynamics_prepare_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_dynamics_prepare_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+#define maglev_dynamics_prepare_SZ_ARG 0
+#define maglev_dynamics_prepare_SZ_RES 1
+#define maglev_dynamics_prepare_SZ_IW 0
+#define maglev_dynamics_prepare_SZ_W 0
+int maglev_dynamics_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
+int maglev_dynamics_prepared_checkout(void);
+void maglev_dynamics_prepared_release(int mem);
+void maglev_dynamics_prepared_incref(void);
+void maglev_dynamics_prepared_decref(void);
+maglev_int maglev_dynamics_prepared_n_in(void);
+maglev_int maglev_dynamics_prepared_n_out(void);
+maglev_real maglev_dynamics_prepared_default_in(maglev_int i);
+const char* maglev_dynamics_prepared_name_in(maglev_int i);
+const char* maglev_dynamics_prepared_name_out(maglev_int i);
+const maglev_int* maglev_dynamics_prepared_sparsity_in(maglev_int i);
+const maglev_int* maglev_dynamics_prepared_sparsity_out(maglev_int i);
+int maglev_dynamics_prepared_work(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+int maglev_dynamics_prepared_work_bytes(maglev_int *sz_arg, maglev_int* sz_res, maglev_int *sz_iw, maglev_int *sz_w);
+#define maglev_dynamics_prepared_SZ_ARG 3
+#define maglev_dynamics_prepared_SZ_RES 1
+#define maglev_dynamics_prepared_SZ_IW 0
+#define maglev_dynamics_prepared_SZ_W 0
 int maglev_jacobians(const maglev_real** arg, maglev_real** res, maglev_int* iw, maglev_real* w, int mem);
 int maglev_jacobians_checkout(void);
 void maglev_jacobians_release(int mem);

@@ -17,13 +17,16 @@
 #define MAX4(a, b, c, d) MAX2(MAX3(a, b, c), d)
 #define SZ(what) MAX4(MAX4(maglev_closed_loop_prepared_SZ_##what, maglev_closed_loop_prepare_SZ_##what, \
                            maglev_allocation_matrix_SZ_##what, maglev_closed_loop_SZ_##what), \
-                      maglev_dynamics_SZ_##what, maglev_gaps_SZ_##what, maglev_coupled_control_SZ_##what)
+                      MAX4(maglev_dynamics_SZ_##what, maglev_gaps_SZ_##what, \
+                           maglev_coupled_control_SZ_##what, maglev_dynamics_prepared_SZ_##what), \
+                      maglev_dynamics_prepare_SZ_##what, 0)
 #define SZ_ARG SZ(ARG)
 #define SZ_RES SZ(RES)
 #define SZ_IW SZ(IW)
 #define SZ_W SZ(W)
 #define NT (11 - 1) * 5 /* allocation matrix entries */
 #define NC 365 /* the closed loop's prepared constants */
+#define ND 246 /* the dynamics' prepared constants */
 #define NA 6 /* arrays */
 #define NY MAGLEV_SCHEDULE_NY
 #define SQRT(v) sqrt(v)
