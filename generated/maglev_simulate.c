@@ -210,11 +210,9 @@ static int command(work* ws, const loop_run* r, const maglev_real* x, maglev_rea
 }
 
 /* xdot = f(x, u) with the input held (maglev_dynamics) */
-static int held_rhs(work* ws, const loop_run* r, const maglev_real* x, const maglev_real* u,
-                    maglev_real* xdot) {
+static int held_rhs(work* ws, const maglev_real* x, const maglev_real* u, maglev_real* xdot) {
     ws->arg[0] = x;
     ws->arg[1] = u;
-    (void)r;
     ws->res[0] = xdot;
     return maglev_dynamics(ws->arg, ws->res, ws->iw, ws->w, 0);
 }
@@ -232,7 +230,7 @@ static int stage_rhs(work* ws, const loop_run* r, const maglev_real* x, maglev_r
         return 2;
     }
     s = command(ws, r, x, t, g, u);
-    if (s < 0 || held_rhs(ws, r, x, u, xdot)) return -1;
+    if (s < 0 || held_rhs(ws, x, u, xdot)) return -1;
     return s;
 }
 
@@ -297,7 +295,7 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
                 sat = ring_sat[w];
             }
             for (i = 0; i < NU; ++i) u[i] = applied[i];
-            if (held_rhs(ws, r, x, applied, k1)) {
+            if (held_rhs(ws, x, applied, k1)) {
                 *status = MAGLEV_SIM_ERROR;
                 break;
             }
@@ -328,11 +326,11 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
             maglev_real* x_next = x_traj + (k + 1) * NX;
             for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k1[i];
             if (tick > 0) {
-                err |= held_rhs(ws, r, xt, applied, k2);
+                err |= held_rhs(ws, xt, applied, k2);
                 for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k2[i];
-                err |= held_rhs(ws, r, xt, applied, k3);
+                err |= held_rhs(ws, xt, applied, k3);
                 for (i = 0; i < NX; ++i) xt[i] = x[i] + dt * k3[i];
-                err |= held_rhs(ws, r, xt, applied, k4);
+                err |= held_rhs(ws, xt, applied, k4);
             } else {
                 err |= stage_rhs(ws, r, xt, t + half, hold, u_stage, k2) < 0;
                 for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k2[i];
