@@ -7,6 +7,7 @@ casadi.external assumes casadi_real is double; this loader reads each function's
 from __future__ import annotations
 
 import ctypes
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +60,7 @@ class GeneratedFunction:
         self._addr_res = ctypes.c_void_p * self._sz_res
         self._iw_t = self._int * self._sz_iw
         self._w_t = creal * self._sz_w
+        self._local = threading.local()
 
     def _dense_shape(self, sp: ctypes.POINTER) -> tuple[int, int]:
         rows, cols = sp[0], sp[1]
@@ -75,17 +77,33 @@ class GeneratedFunction:
         arr = arr.reshape(shape) if arr.ndim == 2 else arr.reshape(shape, order="F")
         return np.ascontiguousarray(arr.ravel(order="F"))
 
+    def _buffers(self) -> tuple:
+        """This thread's input, output and work arrays with their address tables, made on
+        its first call: a call then copies its inputs in and its outputs out (reading an
+        ndarray's address costs more than the copies, and a trim is tens of us of C)."""
+        b = getattr(self._local, "buffers", None)
+        if b is None:
+            ins = [np.zeros(r * c, dtype=self.real) for r, c in self.shapes_in]
+            outs = [np.zeros(r * c, dtype=self.real) for r, c in self.shapes_out]
+            b = self._local.buffers = (
+                ins, outs, self._addr_arg(*[a.ctypes.data for a in ins]),
+                self._addr_res(*[o.ctypes.data for o in outs]), self._iw_t(), self._w_t())
+        return b
+
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
         if len(args) != len(self.shapes_in):
             raise TypeError(f"{self.name} takes {len(self.shapes_in)} inputs, got {len(args)}")
-        ins = [self._flat(a, s) for a, s in zip(args, self.shapes_in, strict=True)]
-        outs = [np.zeros(r * c, dtype=self.real) for r, c in self.shapes_out]
-        arg = self._addr_arg(*[a.ctypes.data for a in ins])
-        res = self._addr_res(*[o.ctypes.data for o in outs])
-        rc = self._fn(arg, res, self._iw_t(), self._w_t(), 0)
+        ins, outs, arg, res, iw, w = self._buffers()
+        for buf, a, s in zip(ins, args, self.shapes_in, strict=True):
+            if isinstance(a, np.ndarray) and a.ndim == 1 and a.size == buf.size:
+                buf[:] = a  # the common case: a vector, no reshaping
+            else:
+                buf[:] = self._flat(a, s)
+        rc = self._fn(arg, res, iw, w, 0)
         if rc:
             raise GeneratedFunctionError(self.name, rc)
-        return [o.reshape(s, order="F") for o, s in zip(outs, self.shapes_out, strict=True)]
+        return [o.copy().reshape(s, order="F") for o, s in zip(outs, self.shapes_out,
+                                                                strict=True)]
 
 
 class GeneratedLibrary:

@@ -100,6 +100,17 @@ def test_generated_closed_loop_matches_reference_at_default_step(sim_lib, carria
     np.testing.assert_allclose(dev_c, dev_ref, atol=1e-6 * np.max(np.abs(dev_ref)))
 
 
+def test_trajectory_speed_and_deviation_are_numpys(sim_lib, carriage, op) -> None:
+    """The run's speed is np.linalg.norm of (u, v, w) to the bit, and the axis deviation the
+    axis states' columns less the equilibrium, both on a firmware-loop run (the speed moves)."""
+    traj = _run(sim_lib, carriage, op, "lqr", 0.5, speed_gain=50.0)
+    assert np.ptp(traj.speed) > 0
+    np.testing.assert_array_equal(traj.speed, np.linalg.norm(traj.x[:, 6:9], axis=1))
+    assert traj.equilibrium is not None
+    np.testing.assert_array_equal(traj.axis_deviation,
+                                  traj.x[:, list(AXIS_STATES)] - traj.equilibrium)
+
+
 # ------------------------------------------------------------- behaviour of the scenarios
 
 

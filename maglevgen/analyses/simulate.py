@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -93,6 +94,11 @@ C_STATUS = {1: "contact", 2: "diverging", 3: "generated code error"}
 # every status of a run (maglevgen.analyses.montecarlo's samples add theirs)
 RUN_STATUSES: tuple[str, ...] = ("settled", "not settled", "diverging", "contact",
                                  "generated code error")
+# the axis states' columns of x: a slice (a view, no gather) where they are consecutive
+_AXIS_COLUMNS: slice | list[int] = (
+    slice(AXIS_STATES[0], AXIS_STATES[-1] + 1)
+    if list(AXIS_STATES) == list(range(AXIS_STATES[0], AXIS_STATES[-1] + 1))
+    else list(AXIS_STATES))
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls
 
 Progress = Callable[[float], None]
@@ -201,10 +207,14 @@ class Trajectory:
         """max |V - v_ref| / v_ref after the first second (None for a run not longer)."""
         return _speed_error(self, self.speed)
 
-    @property
+    @cached_property
     def speed(self) -> np.ndarray:
-        """|(u, v, w)| at each sample: the speed the schedule is evaluated at [m/s]."""
-        return np.linalg.norm(self.x[:, 6:9], axis=1)
+        """|(u, v, w)| at each sample: the speed the schedule is evaluated at [m/s].
+
+        Computed once (x is not reassigned), as sqrt((u^2 + v^2) + w^2): np.linalg.norm's
+        operations in its order, without its passes over a strided (n, 3) view."""
+        u, v, w = self.x[:, 6], self.x[:, 7], self.x[:, 8]
+        return np.sqrt(u * u + v * v + w * w)
 
     @property
     def axis_deviation(self) -> np.ndarray:
@@ -215,7 +225,7 @@ class Trajectory:
         the trim moves with it; deviations are measured from that moving equilibrium.
         """
         ref = self.op.a_trim if self.equilibrium is None else self.equilibrium
-        return self.x[:, list(AXIS_STATES)] - ref
+        return self.x[:, _AXIS_COLUMNS] - ref
 
     @property
     def generalized_forces(self) -> np.ndarray:
