@@ -162,24 +162,27 @@ def _workflow_targets(wf: dict) -> list[dict]:
 
 
 def _montecarlo_targets(mc: dict | None) -> list[dict]:
-    """Issue 19's targets for `maglevgen montecarlo` (bench/montecarlo.py)."""
-    if mc is None:
+    """Issue 37's targets for `maglevgen montecarlo`'s default study (bench/montecarlo.py)."""
+    if mc is None or "study_vs_bare_c" not in mc:
         return []
+    ratio, scaling = mc["study_vs_bare_c"]["median"], mc["scaling"]["median"]
     out = [
         {
-            "name": "Monte Carlo: batch overhead per run under 10 % of a single run's C loop",
-            "measured": f"{mc['batch_overhead_vs_c_loop'] * 100:.0f} %",
-            "met": mc["batch_overhead_vs_c_loop"] < 0.1,
+            "name": "Monte Carlo: the study per run within 1.1x of the bare C loop (1 core)",
+            "measured": f"{ratio:.3g}x",
+            "met": ratio <= 1.1,
         },
         {
-            "name": f"Monte Carlo: at least 1.7x on {mc['cores']} cores",
-            "measured": f"{mc['scaling']:.2f}x ({mc['runs_per_s_all']:.0f} runs/s)",
-            "met": mc["scaling"] >= 1.7,
+            "name": f"Monte Carlo: at least 1.8x on {mc['cores']} cores",
+            "measured": f"{scaling:.3g}x ({mc['runs_per_s_all']:.0f} runs/s)",
+            "met": scaling >= 1.8,
         },
     ]
     if "big_runs" in mc:
-        out.append({"name": f"Monte Carlo: {mc['big_runs']} runs of 10 s at 1 kHz under 60 s",
-                    "measured": f"{mc['big_s']:.1f} s", "met": mc["big_s"] < 60})
+        out.append({"name": f"Monte Carlo: {mc['big_runs']} samples of the default study "
+                            "under 60 s",
+                    "measured": f"{mc['big_s']:.1f} s (the bare C loop alone: "
+                                f"{mc['big_floor_s']:.0f} s)", "met": mc["big_s"] < 60})
     return out
 
 
