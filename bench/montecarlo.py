@@ -25,6 +25,7 @@ from common import BENCH, log, paired_ratios, summary
 
 from maglevgen.analyses.montecarlo import (
     _prepare,
+    default_chunk,
     make_study,
     run_local,
     sample_inputs,
@@ -109,10 +110,14 @@ def run(quick: bool = False, big: int | None = None) -> dict:
     lib.simulate_batch(runs[:2], DT, n_steps, study.min_gap, n_u, n_g, 1)  # the driver, once
     log(f"montecarlo: {n} samples x {repeats}: the bare C loop, the study on 1 and {cores} "
         "processes")
+    # the bare loop in the chunks a 1-process study makes: a call's trajectories (2.3 MB a
+    # run) are memory the C writes for the first time, which one call of every run would inflate
+    size = default_chunk(n, 1)
     bare, one, many = [], [], []
     for _ in range(repeats):  # the three alternate in every repeat
         t0 = time.perf_counter()
-        lib.simulate_batch(runs, DT, n_steps, study.min_gap, n_u, n_g, 1)
+        for i in range(0, len(runs), size):
+            lib.simulate_batch(runs[i:i + size], DT, n_steps, study.min_gap, n_u, n_g, 1)
         bare.append((time.perf_counter() - t0) / len(runs))
         t0 = time.perf_counter()
         run_local(study, n, workers=1)
@@ -123,6 +128,7 @@ def run(quick: bool = False, big: int | None = None) -> dict:
     out = {
         "loadavg_start": load_start, "t_end": T_END, "dt": DT, "controller": controller,
         "loop": "firmware", "cores": cores, "samples": n, "repeats": repeats, "seed": 0,
+        "chunk": size,
         "bare_c_per_run_s": summary(bare), "study_per_run_1_s": summary(one),
         "study_per_run_all_s": summary(many),
         "study_vs_bare_c": paired_ratios(one, bare),
@@ -163,7 +169,8 @@ def markdown(r: dict) -> list[str]:
            f"{r['loadavg_end'][0]:.1f} at the end: the scaling needs idle cores)"
            if "loadavg_start" in r else "") + ".", "",
         "| what | time |", "| --- | --- |",
-        f"| per run, the bare C loop (`maglev_batch_simulate` of the prepared runs, 1 thread) "
+        f"| per run, the bare C loop (`maglev_batch_simulate` of the prepared runs, 1 thread, "
+        f"in the study's chunks of {r.get('chunk', '?')}) "
         f"| {_ms(r['bare_c_per_run_s'])} |",
         f"| per run, the study on 1 process (`run_local`: draws, trims, gains, the C batch, "
         f"metrics) | {_ms(r['study_per_run_1_s'])}: {ratio['median']:.3g}x the bare C loop "

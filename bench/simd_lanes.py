@@ -8,7 +8,9 @@ writes it, translated statement by statement into C over W-lane vectors (GCC's v
 extensions: every arithmetic statement, comparison and select on W samples at once, exp, sin
 and cos per lane through libm). With ``memo``, an exp whose argument is -1 in every lane is
 the stored exp(-1): that is the closed form's argument wherever the series branch is taken (the
-Piecewise passes 1 to the branch it discards), so a flying carriage never needs it. Each lane
+Piecewise passes 1 to the branch it discards), so a flying carriage never needs it. ``stub``
+replaces exp, sin and cos by the identity (wrong values: what the lanes' arithmetic alone
+costs, the bound on what vector transcendentals could add). Each lane
 is checked bit for bit against the scalar library at the same state (no contraction: -std=c99
 keeps -ffp-contract=off). Timed per state in one process (bench/c/bench_lanes.c) for W = 2
 (SSE2), 4 (AVX2) and 8 (AVX-512F) where the CPU has them. A batch driver that ran W samples
@@ -50,11 +52,11 @@ static const double EXP_M1 = 0.36787944117144233;
 static inline V vexp(V a) {{
     V r;
     int l;
-{memo}    for (l = 0; l < {w}; ++l) r[l] = exp(a[l]);
+{memo}    for (l = 0; l < {w}; ++l) r[l] = {exp}(a[l]);
     return r;
 }}
-static inline V vsin(V a) {{ V r; int l; for (l = 0; l < {w}; ++l) r[l] = sin(a[l]); return r; }}
-static inline V vcos(V a) {{ V r; int l; for (l = 0; l < {w}; ++l) r[l] = cos(a[l]); return r; }}
+static inline V vsin(V a) {{ V r; int l; for (l = 0; l < {w}; ++l) r[l] = {sin}(a[l]); return r; }}
+static inline V vcos(V a) {{ V r; int l; for (l = 0; l < {w}; ++l) r[l] = {cos}(a[l]); return r; }}
 static inline V vabs(V x) {{ return (V)((VI)x & ((VI){{0}} + 0x7fffffffffffffffLL)); }}
 static inline V vsign(V x) {{  /* casadi_sign: x<0 ? -1 : x>0 ? 1 : x */
     VI lt = (VI)(x < ZERO), gt = (VI)(x > ZERO), eq = ~(lt | gt);
@@ -76,10 +78,14 @@ def function_body(c_source: str, name: str) -> str:
     return c_source[start:c_source.index("\n}\n", start) + 3]
 
 
-def translate(body: str, w: int, memo: bool) -> str:
-    """The body over W-lane vectors; a statement of a kind not handled here is left as it is,
-    so that the compiler refuses it (double and V do not mix)."""
-    out = [_PRELUDE.format(bytes=8 * w, w=w, memo=_MEMO % w if memo else "")]
+def translate(body: str, w: int, variant: str) -> str:
+    """The body over W-lane vectors (``variant``: "", "memo" or "stub"); a statement of a kind
+    not handled here is left as it is, so that the compiler refuses it (double and V do not
+    mix)."""
+    stub = variant == "stub"
+    out = [_PRELUDE.format(bytes=8 * w, w=w, memo=_MEMO % w if variant == "memo" else "",
+                           exp="" if stub else "exp", sin="" if stub else "sin",
+                           cos="" if stub else "cos")]
     for line in body.splitlines():
         if line.startswith("static int casadi_f"):
             out.append("int lanes_prepared(const V** arg, V** res) {")
@@ -129,12 +135,12 @@ def main(argv: list[str] | None = None) -> int:
         if CPU_FLAG[w] not in cpu.split():
             log(f"W = {w}: the CPU has no {CPU_FLAG[w]}")
             continue
-        for memo in (False, True):
-            label = f"W={w}{', memo' if memo else ''}"
+        for variant in ("", "memo", "stub"):
+            label = f"W={w}{', ' + variant if variant else ''}"
             log(label)
-            lanes_c = work / f"lanes{w}{int(memo)}.c"
-            lanes_c.write_text(translate(body, w, memo))
-            exe = work / f"bench_lanes{w}{int(memo)}"
+            lanes_c = work / f"lanes{w}{variant}.c"
+            lanes_c.write_text(translate(body, w, variant))
+            exe = work / f"bench_lanes{w}{variant}"
             flags = ["-std=c99", "-O2", *([flag] if flag else [])]
             run(["gcc", *flags, f"-DW={w}", "-o", exe, DRIVER_DIR / "bench_lanes.c", lanes_c,
                  "-ldl", "-lm"])
@@ -145,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
                               "speedup": s["median"] / v["median"]}
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     print("| lanes | scalar [ns per state] | lanes [ns per state] | speed-up | each lane "
-          "bit for bit the scalar's |")
+          "bit for bit the scalar's (stub: not meant to be) |")
     print("| --- | --- | --- | --- | --- |")
     for label, r in results.items():
         print(f"| {label} | {r['scalar_ns']['median']:.0f} | "
