@@ -26,15 +26,12 @@ import shutil
 import tempfile
 from pathlib import Path
 
-import casadi as ca
 from common import BENCH, DRIVER_DIR, log, run, summary
-from law_instructions import dynamics
+from law_instructions import dynamics, shared_library
 from laws import write_input
 
 from maglevgen.carriage import DerivedCarriage
-from maglevgen.codegen.cpass import postprocess, static_helpers
 from maglevgen.params import load_params
-from maglevgen.runtime.compile import DEFAULT_FLAGS
 from maglevgen.runtime.library import simulation_library
 
 LANES = {2: "", 4: "-mavx2", 8: "-mavx512f"}  # W: the flag its vectors need
@@ -120,13 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(tempfile.mkdtemp(prefix="bench_lanes_"))
     carriage = DerivedCarriage(load_params())
     _f, prepare, prepared = dynamics(carriage.model)
-    gen = ca.CodeGenerator("scalar.c", {"with_header": False})
-    gen.add(prepare)
-    gen.add(prepared)
-    source = static_helpers(postprocess(gen.dump(), "double"))  # the build's C pass
-    (work / "scalar.c").write_text(source)
     scalar = work / "scalar.so"
-    run(["gcc", *DEFAULT_FLAGS, "-o", scalar, work / "scalar.c", "-lm"])
+    source = shared_library(prepare, prepared, scalar)
     input_file = write_input(carriage, simulation_library(carriage.structure), work / "in.txt")
     body = function_body(source, "maglev_dynamics_prepared")
     cpu = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""

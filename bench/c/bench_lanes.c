@@ -8,9 +8,8 @@
  * l * 1e-4 m and every entry scaled by 1 + 1e-3 l; each lane's output is compared bit for bit
  * with the scalar library's at the same state. Prints JSON: ns per state of each, per repeat.
  */
-#include "bench_util.h"
+#include "bench_dl.h"
 
-#include <dlfcn.h>
 #include <string.h>
 
 #define NX 12
@@ -18,16 +17,8 @@
 #define NP_MAX 256
 #define ND_MAX 4096
 
-typedef long long cint;
-typedef int (*casadi_fn)(const double **, double **, cint *, double *, int);
 typedef double V __attribute__((vector_size(8 * W)));
 int lanes_prepared(const V **arg, V **res);
-
-static double thread_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e9 + (double)ts.tv_nsec;
-}
 
 int main(int argc, char **argv) {
     static double p[NP_MAX], d[ND_MAX], x[NX], u[NU], xs[W][NX], out[W][NX], w[100000];

@@ -12,9 +12,8 @@
  * INPUT (written by bench/laws.py): n_p; p[n_p]; x[12] u[11] (a state near trim); v (a trim
  * speed); x0[12] F_prop K_pos[25] K_rate[25] a_ref[5] dt n_steps gap_min (a closed-loop run).
  */
-#include "bench_util.h"
+#include "bench_dl.h"
 
-#include <dlfcn.h>
 #include <string.h>
 
 #define NX 12
@@ -23,20 +22,9 @@
 #define NP_MAX 256
 #define MAX_LIBS 6
 
-typedef long long cint;
-typedef int (*casadi_fn)(const double **, double **, cint *, double *, int);
-typedef int (*work_fn)(cint *, cint *, cint *, cint *);
 typedef long long (*simulate_fn)(const double *, double, long long, double, const double *,
                                  const double *, const double *, const void *, const double *,
                                  double, double *, double *, double *, long long *, int *);
-
-typedef struct {
-    casadi_fn f;
-    const double **arg;
-    double **res;
-    cint *iw;
-    double *w;
-} fun;
 
 typedef struct {
     void *h;
@@ -49,25 +37,6 @@ typedef struct {
     double xdot[NX], A[NX * NX], B[NX * NU], x_trim[NX], f_trim, K_mag[25], K_oth[25];
     double *x_traj, *u_traj, *g_traj;
 } lib;
-
-static fun load_fun(void *h, const char *name) {
-    char buf[128];
-    fun out;
-    cint sz[4];
-    work_fn work;
-    snprintf(buf, sizeof buf, "%s_work", name);
-    out.f = (casadi_fn)dlsym(h, name);
-    work = (work_fn)dlsym(h, buf);
-    if (!out.f || !work || work(&sz[0], &sz[1], &sz[2], &sz[3])) {
-        fprintf(stderr, "bench: %s missing\n", name);
-        exit(2);
-    }
-    out.arg = xmalloc(sizeof(double *) * (size_t)(sz[0] + 1));
-    out.res = xmalloc(sizeof(double *) * (size_t)(sz[1] + 1));
-    out.iw = xmalloc(sizeof(cint) * (size_t)(sz[2] + 1));
-    out.w = xmalloc(sizeof(double) * (size_t)(sz[3] + 1));
-    return out;
-}
 
 static void load(lib *L, const char *path, const char *input) {
     double v[3];
@@ -108,17 +77,10 @@ enum { DYNAMICS, JACOBIANS, TRIM, STIFFNESS, SIMULATE, N_WHAT };
 static const char *WHAT[N_WHAT] = {"dynamics", "jacobians", "trim", "stiffness", "closed_loop"};
 static const long CALLS[N_WHAT] = {20000, 2000, 1000, 2000, 1};
 
-/* this thread's CPU time [ns]: on a shared machine the time it was descheduled stays out */
-static double cpu_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e9 + (double)ts.tv_nsec;
-}
-
 /* CPU ns per call of one function */
 static double time_one(lib *L, int what) {
     long i, n = CALLS[what];
-    double t0 = cpu_ns(), acc = 0;
+    double t0 = thread_ns(), acc = 0;
     for (i = 0; i < n; ++i) {
         if (what == DYNAMICS) {
             fun *F = &L->dynamics;
@@ -163,7 +125,7 @@ static double time_one(lib *L, int what) {
         }
     }
     bench_sink = acc;
-    return (cpu_ns() - t0) / (double)n;
+    return (thread_ns() - t0) / (double)n;
 }
 
 int main(int argc, char **argv) {

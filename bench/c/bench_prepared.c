@@ -11,9 +11,8 @@
  * 1e-12 m per call so that no call repeats the last one. Prints JSON: per library, a list of
  * ns per call, one per repeat.
  */
-#include "bench_util.h"
+#include "bench_dl.h"
 
-#include <dlfcn.h>
 #include <string.h>
 
 #define NX 12
@@ -21,43 +20,6 @@
 #define NP_MAX 256
 #define ND_MAX 4096
 #define MAX_LIBS 8
-
-typedef long long cint;
-typedef int (*casadi_fn)(const double **, double **, cint *, double *, int);
-typedef int (*work_fn)(cint *, cint *, cint *, cint *);
-
-typedef struct {
-    casadi_fn f;
-    const double **arg;
-    double **res;
-    cint *iw;
-    double *w;
-} fun;
-
-static fun load_fun(void *h, const char *name) {
-    char buf[128];
-    fun out;
-    cint sz[4];
-    work_fn work;
-    snprintf(buf, sizeof buf, "%s_work", name);
-    out.f = (casadi_fn)dlsym(h, name);
-    work = (work_fn)dlsym(h, buf);
-    if (!out.f || !work || work(&sz[0], &sz[1], &sz[2], &sz[3])) {
-        fprintf(stderr, "bench: %s missing\n", name);
-        exit(2);
-    }
-    out.arg = xmalloc(sizeof(double *) * (size_t)(sz[0] + 1));
-    out.res = xmalloc(sizeof(double *) * (size_t)(sz[1] + 1));
-    out.iw = xmalloc(sizeof(cint) * (size_t)(sz[2] + 1));
-    out.w = xmalloc(sizeof(double) * (size_t)(sz[3] + 1));
-    return out;
-}
-
-static double thread_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e9 + (double)ts.tv_nsec;
-}
 
 int main(int argc, char **argv) {
     int reps, n_lib, r, k, i;
