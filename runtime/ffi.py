@@ -52,10 +52,8 @@ class GeneratedFunction:
         if work(*[ctypes.byref(s) for s in sz]):
             raise RuntimeError(f"{name}_work failed")
         self._sz_arg, self._sz_res, self._sz_iw, self._sz_w = (max(1, s.value) for s in sz)
-        self._creal = creal
-        # the ctypes array types of a call, made once: the arg and res tables hold raw
-        # addresses (the arrays stay referenced for the call), which costs a fraction of
-        # building POINTER objects per argument (a trim is three calls of tens of us of C)
+        # the ctypes array types of a call, made once; each thread's arg and res tables hold
+        # the raw addresses of that thread's buffers (`_buffers`), set once
         self._addr_arg = ctypes.c_void_p * self._sz_arg
         self._addr_res = ctypes.c_void_p * self._sz_res
         self._iw_t = self._int * self._sz_iw
