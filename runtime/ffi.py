@@ -52,6 +52,7 @@ class GeneratedFunction:
         if work(*[ctypes.byref(s) for s in sz]):
             raise RuntimeError(f"{name}_work failed")
         self._sz_arg, self._sz_res, self._sz_iw, self._sz_w = (max(1, s.value) for s in sz)
+        self._creal = creal  # the C's real type (tests/test_firmware.py calls through it)
         # the ctypes array types of a call, made once; each thread's arg and res tables hold
         # the raw addresses of that thread's buffers (`_buffers`), set once
         self._addr_arg = ctypes.c_void_p * self._sz_arg
