@@ -41,6 +41,7 @@ __all__ = [
     "PAPER_ARRAY_FORCE",
     "PROVENANCE_SOURCES",
     "SCHEMA_DEPTH",
+    "Actuators",
     "Array",
     "AxisDeviation",
     "Circuit",
@@ -373,6 +374,29 @@ class Control(_Section):
         return q
 
 
+class Actuators(_Section):
+    """What stands between a commanded array force and the force on the carriage: each array's
+    control force follows its command through a first-order lag (a drive coil's current, L/R),
+    within a force and a rate limit. Not part of the model's parameter vector (it changes no
+    equation of the rigid body); the loop the `spec` controller is designed on and every linear
+    verification include the lag (`maglevgen.control.plant`)."""
+
+    time_constant: float = Field(
+        default=2e-3, description="tau: each array's control force F follows its command F_c "
+        "as tau F' = F_c - F (a drive coil's L/R); 0: the force appears at once",
+        json_schema_extra={"unit": "s", "limits": [0.0, 1.0, "instant to a 1 s lag, far "
+                                                   "slower than any levitation mode"]})
+    force_limit: float = Field(
+        default=20.0, description="largest control force one array's drive can produce (the "
+        "norm of its control components); control.spec.force_budget may not exceed it",
+        json_schema_extra={"unit": "N", "limits": [1e-6, 1e7, "a micronewton to 1000 t"]})
+    rate_limit: float = Field(
+        default=2e4, description="largest rate of change of one array's control force (the "
+        "drive's voltage over the coil's inductance)",
+        json_schema_extra={"unit": "N/s", "limits": [1e-3, 1e12, "a creeping drive to "
+                                                     "an instant one"]})
+
+
 class Track(_Section):
     min_gap: float = _f("m", "smallest gap before an array touches the track (contact)",
                         limits=(1e-6, 0.1, "a micrometre to 10 cm of mechanical clearance"))
@@ -536,7 +560,8 @@ class Tolerances(_Section):
 
 # sections of the file that are not model parameters (not in the parameter vector p)
 # sections and tables that are not part of the model's parameter vector (dotted keys)
-NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model", "provenance", "tolerances", "control.spec")
+NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model", "provenance", "tolerances", "control.spec",
+                                  "actuators")
 PROVENANCE_SOURCES = ("paper", "assumed")
 
 
@@ -570,6 +595,7 @@ class Parameters(_Section):
     track: Track
     envelope: Envelope
     model: ModelChoices = Field(default_factory=ModelChoices)
+    actuators: Actuators = Field(default_factory=Actuators)
     # parameter key or table ("arrays.3", "vehicle.inertia_cg") -> where its value comes from
     provenance: dict[str, Provenance] = Field(default_factory=dict)
     tolerances: Tolerances = Field(default_factory=Tolerances)
@@ -609,10 +635,15 @@ class Parameters(_Section):
             if arr.nominal_gap <= self.track.min_gap:
                 raise _ModelError(f"arrays.{name}.nominal_gap", f"{arr.nominal_gap:g}",
                                   f"is not above track.min_gap = {self.track.min_gap:g}")
+        if self.control.spec.force_budget > self.actuators.force_limit:
+            raise _ModelError("control.spec.force_budget", f"{self.control.spec.force_budget:g}",
+                              "above actuators.force_limit = "
+                              f"{self.actuators.force_limit:g} (what a drive can produce)")
         self._tolerances_within_limits()
         keys = [lf.key for lf in schema_leaves(self)] + [
             f"{t}.{f}" for t, m in (("envelope", Envelope), ("vehicle", Vehicle),
-                                    ("control", Control), ("control.spec", ControlSpec))
+                                    ("control", Control), ("control.spec", ControlSpec),
+                                    ("actuators", Actuators))
             for f in m.model_fields]
         for key in self.provenance:
             if not any(k == key or k.startswith(key + ".") for k in keys):
