@@ -329,6 +329,22 @@ class ControlSpec(_Section):
     min_decay_rate: float = Field(
         default=1.0, description="slowest allowed decay: every closed-loop eigenvalue's real "
         "part below minus this", json_schema_extra={"unit": "1/s", "limits": list(_RATE)})
+    min_levitation_decay_rate: float = Field(
+        default=5.0, description="slowest allowed decay of the levitation modes (every mode "
+        "of the loop but the speed loop's): real part below minus this",
+        json_schema_extra={"unit": "1/s", "limits": list(_RATE)})
+    min_disk_gain_margin: float = Field(
+        default=6.0, description="the embedded loop's multi-loop disk margin at the plant "
+        "input (broken at the actuators, every array force at once), in gain",
+        json_schema_extra={"unit": "dB", "limits": [0.0, 40.0, "none to a factor of 100"]})
+    min_disk_phase_margin: float = Field(
+        default=40.0, description="the same disk margin in phase",
+        json_schema_extra={"unit": "deg", "limits": [0.0, 90.0, "none to the 90 degrees of "
+                                                     "an infinite disk"]})
+    min_delay_margin: int = Field(
+        default=2, description="extra ticks of delay between the controller's array commands "
+        "and the actuators that the embedded loop must stay stable with",
+        json_schema_extra={"unit": "1", "limits": [0, 20, "none to twenty ticks"]})
     min_gap_margin: float = Field(
         default=3e-3, description="smallest gap of a run above track.min_gap",
         json_schema_extra={"unit": "m", "limits": [0.0, 0.1, "up to 10 cm"]})

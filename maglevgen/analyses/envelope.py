@@ -20,6 +20,7 @@ import numpy as np
 
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control import controller as registered_controller
+from maglevgen.control.margins import DiskMargins, delay_margin, disk_gain_phase, disk_margins
 from maglevgen.control.operating import (
     CONTROLLER_TITLES,
     CONTROLLERS,
@@ -32,6 +33,7 @@ from maglevgen.control.operating import (
     speed_mode,
     stability,
 )
+from maglevgen.control.plant import LoopDesign, LoopPlant
 from maglevgen.control.sampled import (
     Tick,
     loop_gain,
@@ -49,6 +51,7 @@ from maglevgen.control.schedule import (
     gain_table_row,
 )
 from maglevgen.derive.search import lowest_trim_speed
+from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
 from maglevgen.runtime.library import SimulationLibrary, simulation_library
@@ -58,6 +61,7 @@ __all__ = [
     "MODEL_CHOICES",
     "ControllerEnvelope",
     "Envelope",
+    "LoopMargins",
     "LoopSetting",
     "ModelCheck",
     "SpecFailure",
@@ -71,7 +75,11 @@ __all__ = [
     "launch_references",
     "launch_schedule",
     "lift_off_speed",
+    "loop_design",
+    "loop_margins",
+    "loop_plant",
     "loop_setting",
+    "loop_stability",
     "model_checks",
     "resolve_range",
     "sampled_stability",
@@ -86,6 +94,7 @@ __all__ = [
 ]
 
 DEFAULT_SPEEDS = 50
+MARGIN_SPEEDS = 5  # speeds of the grid (both ends among them) where the margins are computed
 _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
 
 
@@ -217,6 +226,12 @@ class ControllerEnvelope:
     spec_verdict: str
     # where the continuous `spec` design fails on the sampled loop: the design at the tick
     tick_design: TickDesignCheck | None = None
+    # the levitation modes' largest real part on the loop as built (all but the speed loop's)
+    levitation_real: np.ndarray | None = None
+    # a controller designed at the tick: its continuous gains on the same loop (what the
+    # generated full-state tick, maglev_coupled_control, runs)
+    continuous_gains: TickDesignCheck | None = None
+    margins: LoopMargins | None = None  # the embedded controller's, at MARGIN_SPEEDS speeds
 
     @property
     def ok(self) -> bool:
@@ -239,7 +254,81 @@ class ControllerEnvelope:
                                    "worst": f.worst, "worst_speed": f.worst_speed}
                                   for f in self.spec_failures],
                 "firmware_design": "continuous",
-                "tick_design": None if self.tick_design is None else self.tick_design.to_json()}
+                "tick_design": None if self.tick_design is None else self.tick_design.to_json(),
+                "levitation_max_real": None if self.levitation_real is None
+                else self.levitation_real.tolist(),
+                "continuous_gains": None if self.continuous_gains is None
+                else self.continuous_gains.to_json(),
+                "margins": None if self.margins is None else self.margins.to_json()}
+
+
+@dataclass(frozen=True)
+class LoopMargins:
+    """The embedded loop's margins broken at the actuators (`maglevgen.control.margins`) at a
+    few speeds of the envelope: the balanced disk margin of every array force at once
+    (multi-loop) and of each alone (loop at a time), and the delay margin in extra ticks."""
+
+    speeds: np.ndarray
+    multi: np.ndarray  # disk size alpha per speed
+    per_loop: np.ndarray  # (n_speeds, n_channels) alpha
+    delay: np.ndarray  # extra ticks the loop stays stable with, per speed
+    channels: tuple[str, ...]  # the array force components (F_<axis><array>)
+    curves: tuple[DiskMargins, ...]  # against frequency, per speed
+
+    def failures(self, spec) -> tuple[SpecFailure, ...]:
+        """The margin specifications of ``spec`` (`ControlSpec`) missed, with their speeds."""
+        gp = np.array([disk_gain_phase(a) for a in self.multi])
+        out = []
+        for text, unit, values, limit in (
+                (f"multi-loop disk gain margin >= {spec.min_disk_gain_margin:g} dB", "dB",
+                 gp[:, 0], spec.min_disk_gain_margin),
+                (f"multi-loop disk phase margin >= {spec.min_disk_phase_margin:g} deg", "deg",
+                 gp[:, 1], spec.min_disk_phase_margin),
+                (f"delay margin >= {spec.min_delay_margin} extra ticks", "extra ticks",
+                 self.delay.astype(float), spec.min_delay_margin)):
+            bad = ~(values >= limit)
+            if np.any(bad):
+                worst = int(np.argmin(values))
+                out.append(SpecFailure(text, grid_ranges(self.speeds, bad), float(values[worst]),
+                                       float(self.speeds[worst]), unit))
+        return tuple(out)
+
+    def text(self) -> str:
+        """The margins in one sentence: the worst speed of each."""
+        i = int(np.argmin(self.multi))
+        gm, pm = disk_gain_phase(float(self.multi[i]))
+        worst = np.unravel_index(int(np.argmin(self.per_loop)), self.per_loop.shape)
+        lgm, lpm = disk_gain_phase(float(self.per_loop[worst]))
+        spans = f"{self.speeds[0]:.4g} to {self.speeds[-1]:.4g} m/s"
+        return (f"disk margins at the actuators ({len(self.speeds)} speeds, {spans}): "
+                f"multi-loop +-{gm:.3g} dB / {pm:.3g} deg at {self.speeds[i]:.4g} m/s, loop at "
+                f"a time at least +-{lgm:.3g} dB / {lpm:.3g} deg ({self.channels[worst[1]]} at "
+                f"{self.speeds[worst[0]]:.4g} m/s); delay margin {int(np.min(self.delay))} "
+                "extra ticks")
+
+    def to_json(self) -> dict:
+        gp = [disk_gain_phase(a) for a in self.multi]
+        return {"speeds": self.speeds.tolist(), "channels": list(self.channels),
+                "multi_loop_alpha": self.multi.tolist(),
+                "multi_loop_gain_db": [g for g, _ in gp],
+                "multi_loop_phase_deg": [p for _, p in gp],
+                "loop_at_a_time_alpha": self.per_loop.tolist(),
+                "delay_margin_ticks": self.delay.tolist(), "text": self.text()}
+
+
+def loop_margins(carriage, points: Sequence[OperatingPoint], controller: str,
+                 setting: LoopSetting) -> LoopMargins:
+    """`LoopMargins` of ``controller`` (its gains as `loop_design`) at ``points``."""
+    curves, delays = [], []
+    for op in points:
+        plant, gains = loop_plant(op, setting), loop_design(op, controller, setting)
+        curves.append(disk_margins(*plant.open_loop(gains), setting.tick.period))
+        delays.append(delay_margin(lambda k, p=plant, g=gains: bool(
+            np.max(np.abs(np.linalg.eigvals(p.closed_loop(g, k)))) < 1)))
+    return LoopMargins(np.array([op.speed for op in points]),
+                       np.array([c.multi for c in curves]),
+                       np.array([c.per_loop for c in curves]), np.array(delays),
+                       tuple(input_names_of(carriage.structure)[1:]), tuple(curves))
 
 
 @dataclass(frozen=True)
@@ -308,21 +397,20 @@ class Envelope:
             return (f"The firmware gets the {CONTROLLER_TITLES[name]} gains designed on the "
                     "continuous linearisation (not checked here on the sampled-data loop).")
         on = f"on the {self.loop.tick_text()}"
-        if name != "spec":
+        if not registered_controller(name).tick_design:
             return (f"The firmware gets the {CONTROLLER_TITLES[name]} gains designed on the "
                     f"continuous linearisation, which {on} "
                     f"{'meet' if c.meets_spec else 'fail'} [control.spec].")
-        if c.tick_design is None:
-            return ("The firmware gets the continuous spec design (the coupled LQR of the "
-                    "continuous linearisation, scheduled over speed) because it meets "
-                    f"[control.spec] {on}; the design at the tick (DARE on the ZOH model with "
-                    "the delay, the same weights) is the fallback the envelope computes and "
-                    "reports only where the continuous design loses the spec at the tick.")
-        return ("The firmware gets the continuous spec design although it fails "
-                f"[control.spec] {on}: the design at the tick (DARE on the ZOH model with the "
-                f"delay, the same weights) {'meets' if c.tick_design.meets_spec else 'fails'} "
-                "it but feeds back the commands in flight, which the generated loop "
-                "(maglev_control_loop) does not run.")
+        cont = c.continuous_gains
+        cont_said = "" if cont is None else f": on this loop they {cont.verdict}"
+        return (f"The {CONTROLLER_TITLES[name]} design is solved at the tick on the loop as "
+                "built (DARE on the ZOH model with the delay and the actuator lag; gains on "
+                "the state, the commands in flight and the actuator forces the controller "
+                "predicts from its own commands), which "
+                f"{'meets' if c.meets_spec else 'fails'} [control.spec] {on}. The generated "
+                "full-state tick (maglev_coupled_control, ideal sensing) runs the continuous "
+                f"{CONTROLLER_TITLES[name]} gains from the table instead{cont_said}; the "
+                "output-feedback tick of issue 49 runs the design at the tick.")
 
     def robustness_verdict(self) -> str:
         """The embedded controller's gains on the other models, in one sentence."""
@@ -342,6 +430,7 @@ class Envelope:
                 "speed_loop_gain": None if self.loop is None else self.loop.speed_gain,
                 "tick_rate": None if self.loop is None else self.loop.tick.rate,
                 "delay_ticks": None if self.loop is None else self.loop.tick.delay,
+                "actuator_lag": None if self.loop is None else self.loop.actuator_lag,
                 "other_models": [{"model": c.model, "ok": c.ok, "verdict": c.text()}
                                  for c in self.other_models]}
 
@@ -413,11 +502,15 @@ class LoopSetting:
     tick: Tick
     speed_gain: float  # k_v [N s/m], one value over the envelope
     bandwidth: float  # the speed pole it guarantees at least [1/s]
+    actuator_lag: float = 0.0  # [s] each array force's first-order lag ([actuators])
 
     def tick_text(self) -> str:
-        """"sampled-data loop at <rate> Hz with <n> tick(s) of delay"."""
+        """"sampled-data loop at <rate> Hz with <n> tick(s) of delay[ and a <tau> ms actuator
+        lag]"."""
         delay = f"{self.tick.delay} tick{'s' if self.tick.delay != 1 else ''} of delay"
-        return f"sampled-data loop at {self.tick.rate:g} Hz with {delay}"
+        lag = (f" and a {self.actuator_lag * 1e3:.3g} ms actuator lag" if self.actuator_lag > 0
+               else ", instant actuators")
+        return f"sampled-data loop at {self.tick.rate:g} Hz with {delay}{lag}"
 
     def text(self) -> str:
         return (f"{self.tick_text()}, zero-order hold, speed loop k_v = "
@@ -430,13 +523,50 @@ def loop_setting(carriage, points: Sequence[OperatingPoint]) -> LoopSetting:
     control.spec.speed_bandwidth at every speed with one constant gain."""
     spec, mass = carriage.params.control.spec, carriage.params.vehicle.mass
     k_v = max(speed_gain(mass, op.trim_drag_slope, spec.speed_bandwidth) for op in points)
-    return LoopSetting(Tick.of(carriage.params), k_v, float(spec.speed_bandwidth))
+    return LoopSetting(Tick.of(carriage.params), k_v, float(spec.speed_bandwidth),
+                       float(carriage.params.actuators.time_constant))
+
+
+def loop_plant(op: OperatingPoint, setting: LoopSetting) -> LoopPlant:
+    """The loop as built at ``op`` (`plant.LoopPlant`: tick, delay, actuator lag, speed loop)."""
+    return LoopPlant(op, setting.tick, setting.actuator_lag, setting.speed_gain)
+
+
+def loop_design(op: OperatingPoint, controller: str, setting: LoopSetting,
+                continuous: bool = False) -> LoopDesign:
+    """``controller``'s gains on the loop as built: its design at the tick on `loop_plant`
+    (the controller's ``tick_design``, unless ``continuous``), else its continuous gains (no
+    feedback of the commands in flight or of the actuators). ValueError / LinAlgError where
+    the DARE has no stabilizing solution."""
+    if registered_controller(controller).tick_design and not continuous:
+        return loop_plant(op, setting).design()
+    return LoopDesign(*op.gains(controller))
+
+
+def loop_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
+                   design: OperatingPoint | None = None,
+                   continuous: bool = False) -> tuple[float, float, float]:
+    """(largest real part, smallest damping ratio, largest real part of the levitation modes,
+    i.e. all but the speed loop's) of the loop as built at ``op`` with ``controller``'s gains
+    from ``design`` (default ``op``; ``continuous``: its continuous gains even where it is
+    designed at the tick); (inf, nan, inf) where it has none."""
+    try:
+        gains = loop_design(design or op, controller, setting, continuous)
+    except (np.linalg.LinAlgError, ValueError):
+        return float("inf"), float("nan"), float("inf")
+    if not all(np.all(np.isfinite(k)) for k in (gains.K_pos, gains.K_rate)):
+        return float("inf"), float("nan"), float("inf")
+    s, speed = loop_plant(op, setting).modes(gains)
+    finite = np.isfinite(s)
+    max_real, min_damping = stability(s[finite])
+    return max_real, min_damping, float(np.max(s[finite & ~speed].real))
 
 
 def sampled_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
                       design: OperatingPoint | None = None) -> tuple[float, float]:
-    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op``, with
-    the gains of ``design`` (default ``op``)."""
+    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op`` without
+    the actuator lag and with the continuous gains of ``design`` (default ``op``): the loop
+    `loop_stability` had before [actuators]."""
     A, B = loop_model(op)
     K = loop_gain(op, controller, setting.speed_gain, design)
     if not np.all(np.isfinite(K)):
@@ -469,16 +599,23 @@ def tick_design_check(carriage, speeds: np.ndarray, points: Sequence[OperatingPo
 
 
 def spec_failures(carriage, speeds: np.ndarray, max_real: np.ndarray,
-                  min_damping: np.ndarray) -> tuple[SpecFailure, ...]:
-    """The specifications of ``[control.spec]`` that the loop misses, with their ranges."""
+                  min_damping: np.ndarray, levitation_real: np.ndarray | None = None
+                  ) -> tuple[SpecFailure, ...]:
+    """The specifications of ``[control.spec]`` that the loop misses, with their ranges
+    (``levitation_real``: the levitation modes' largest real part, checked against
+    min_levitation_decay_rate)."""
     spec = carriage.params.control.spec
+    lev = () if levitation_real is None else (
+        (f"levitation decay rate >= {spec.min_levitation_decay_rate:g} 1/s", "", "1/s",
+         -levitation_real, ~(-levitation_real >= spec.min_levitation_decay_rate),
+         np.nanargmin),)
     checks = (
         ("stability", "largest real part", "1/s", max_real, ~(max_real < -STABILITY_MARGIN),
          np.nanargmax),
         (f"damping ratio >= {spec.min_damping_ratio:g}", "", "", min_damping,
          ~(min_damping >= spec.min_damping_ratio), np.nanargmin),
         (f"decay rate >= {spec.min_decay_rate:g} 1/s", "", "1/s", -max_real,
-         ~(-max_real >= spec.min_decay_rate), np.nanargmin))
+         ~(-max_real >= spec.min_decay_rate), np.nanargmin), *lev)
     out = []
     for text, what, unit, values, bad, pick in checks:
         if np.any(bad):
@@ -491,13 +628,16 @@ def spec_failures(carriage, speeds: np.ndarray, max_real: np.ndarray,
 
 
 def spec_verdict_text(speeds: np.ndarray, failures: tuple[SpecFailure, ...],
-                      max_real: np.ndarray, min_damping: np.ndarray) -> str:
+                      max_real: np.ndarray, min_damping: np.ndarray,
+                      levitation_real: np.ndarray | None = None) -> str:
     """"meets the specification across [a, b] m/s (...)" or the failures, "; "-separated."""
     if failures:
         return "; ".join(f.text() for f in failures)
+    lev = ("" if levitation_real is None else
+           f", slowest levitation decay {-np.max(levitation_real):.4g} 1/s")
     return (f"meets the specification across [{speeds[0]:.4g}, {speeds[-1]:.4g}] m/s "
             f"(smallest damping ratio {np.nanmin(min_damping):.3g}, slowest decay "
-            f"{-np.max(max_real):.4g} 1/s)")
+            f"{-np.max(max_real):.4g} 1/s{lev})")
 
 
 @dataclass(frozen=True)
@@ -553,9 +693,10 @@ def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
                                                                           speeds[-1]),),
                                                       float("nan"), float(speeds[0])),)))
             continue
-        sd = np.array([sampled_stability(a, controller, setting, design=op)
+        sd = np.array([loop_stability(a, controller, setting, design=op)
                        for a, op in zip(alt_points, points, strict=True)])
-        out.append(ModelCheck(label, spec_failures(carriage, speeds, sd[:, 0], sd[:, 1])))
+        out.append(ModelCheck(label, spec_failures(carriage, speeds, sd[:, 0], sd[:, 1],
+                                                   sd[:, 2])))
     return tuple(out)
 
 
@@ -573,24 +714,34 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     points = envelope_points(carriage, lib, speeds)
     setting = loop_setting(carriage, points)
     out = {}
+    embedded = carriage.params.envelope.embedded_controller
     for c in controllers:
         rows = np.array([closed_loop_stability(op, c) for op in points])
         max_real, min_damping = rows[:, 0], rows[:, 1]
         stable = max_real < -STABILITY_MARGIN
         ranges = unstable_ranges(carriage, lib, c, speeds, stable)
-        sd = np.array([sampled_stability(op, c, setting) for op in points])
-        failures = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1])
-        said = spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1])
-        # the rule: where the continuous spec design loses the spec at the tick, design at
-        # the tick and say what that gives and which design the firmware runs
-        at_tick = (tick_design_check(carriage, speeds, points, setting)
-                   if c == "spec" and failures else None)
-        if at_tick is not None:
-            said += "; " + at_tick.text(setting.tick)
+        # the loop as built: the tick, its delay, the actuator lag, the speed loop
+        sd = np.array([loop_stability(op, c, setting) for op in points])
+        failures = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1], sd[:, 2])
+        margins = None
+        if c == embedded:
+            pick = np.unique(np.linspace(0, len(points) - 1, MARGIN_SPEEDS).round().astype(int))
+            margins = loop_margins(carriage, [points[i] for i in pick], c, setting)
+            failures += margins.failures(carriage.params.control.spec)
+        said = spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1], sd[:, 2])
+        if margins is not None and not failures:
+            said += f"; {margins.text()}"
+        continuous = None
+        if registered_controller(c).tick_design:
+            cd = np.array([loop_stability(op, c, setting, continuous=True) for op in points])
+            cf = spec_failures(carriage, speeds, cd[:, 0], cd[:, 1], cd[:, 2])
+            continuous = TickDesignCheck(cd[:, 0], cd[:, 1], cf, spec_verdict_text(
+                speeds, cf, cd[:, 0], cd[:, 1], cd[:, 2]))
         out[c] = ControllerEnvelope(c, max_real, min_damping, stable, ranges,
                                     verdict_text(c, speeds, max_real, ranges), sd[:, 0],
-                                    sd[:, 1], failures, said, at_tick)
-    mass, embedded = carriage.params.vehicle.mass, carriage.params.envelope.embedded_controller
+                                    sd[:, 1], failures, said, None, sd[:, 2], continuous,
+                                    margins)
+    mass = carriage.params.vehicle.mass
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
     checks = (model_checks(carriage, embedded, points, setting)
               if other_models and embedded in controllers else ())

@@ -24,6 +24,8 @@ class Controller:
     maglev_lqr_gains on the rate diagonal), "axis" (the per-axis K of maglev_lqr_gains) or
     "matrix" (K_pos and K_rate solved at export, carried as constants).
     ``tick_function``: the generated C function the firmware calls every tick (None: none).
+    ``tick_design``: the loop's verdicts use its design at the tick on the loop as built
+    (`maglevgen.control.plant`), else its continuous gains on that loop.
     """
 
     name: str
@@ -34,6 +36,9 @@ class Controller:
     paper: bool = False
     tick_function: str | None = "maglev_coupled_control"
     fmu_gains: str = "matrix"
+    # designed at the tick on the loop as built (`plant.LoopPlant.design`: the delay, the
+    # actuator lag) from its weights; False: its continuous gains are checked on that loop
+    tick_design: bool = False
     style: dict = field(default_factory=dict)  # matplotlib line style
 
 
