@@ -1,0 +1,202 @@
+"""The loop as built (maglevgen.control.plant: tick, delay, actuator lag, speed loop), its design
+at the tick and its margins (maglevgen.control.margins).
+
+References, each assembled here from the C's Jacobians and the allocation: python-control's
+``c2d`` (ZOH) of the plant with the lag written here; ``control.dlqr`` on the design model with
+the lag and the delay's states written here; ``control.disk_margins`` (SLICOT's AB13MD for the
+multi-loop margin) on the loop broken at the actuators; the delay margin from the eigenvalues of
+the loop with extra delay states appended here; the speed loop's steady error from the final-
+value theorem on a model written here and from scipy's solve_ivp.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+import scipy.integrate
+import scipy.linalg
+
+from maglevgen.analyses.envelope import loop_setting
+from maglevgen.control.margins import disk_gain_phase, disk_margins
+from maglevgen.control.plant import LoopPlant, speed_loop_gains
+from maglevgen.control.sampled import LOOP_STATES, Tick
+from maglevgen.control.spec import spec_weights
+from maglevgen.derive import conventions as cv
+
+TAU = 2e-3
+LOOP_IDX = [cv.STATE_INDEX[s] for s in LOOP_STATES]
+REDUCED = ["y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r"]
+
+
+def _plant_continuous(op, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x, F) with tau F' = F_c - F, inputs (F_c, F_prop): written from op.A, op.B."""
+    A = op.A[np.ix_(LOOP_IDX, LOOP_IDX)]
+    B_F, b_p = op.B[LOOP_IDX, 1:], op.B[LOOP_IDX, 0]
+    n, nf = A.shape[0], B_F.shape[1]
+    Ac = np.block([[A, B_F], [np.zeros((nf, n)), -np.eye(nf) / tau]])
+    Bc = np.block([[np.zeros((n, nf)), b_p[:, None]],
+                   [np.eye(nf) / tau, np.zeros((nf, 1))]])
+    return Ac, Bc
+
+
+@pytest.mark.parametrize("tau", [TAU, 10e-3])
+def test_discrete_plant_is_c2d_of_the_lagged_plant(op, tau) -> None:
+    tick = Tick(1000.0, 1)
+    Ac, Bc = _plant_continuous(op, tau)
+    ref = control.c2d(control.ss(Ac, Bc, np.eye(Ac.shape[0]), 0), tick.period, "zoh")
+    Phi, Gamma = LoopPlant(op, tick, tau).discrete()
+    np.testing.assert_allclose(Phi, ref.A, atol=1e-10 * np.abs(ref.A).max())
+    np.testing.assert_allclose(Gamma, ref.B, atol=1e-10 * np.abs(ref.B).max())
+    # the lag over one held tick: exp(-h/tau) on the force states (scipy's expm of them alone)
+    nf = op.B.shape[1] - 1
+    np.testing.assert_allclose(Phi[-nf:, -nf:], scipy.linalg.expm(-np.eye(nf) * tick.period
+                                                                  / tau), rtol=1e-12)
+
+
+@pytest.mark.parametrize("delay", [0, 1, 2])
+def test_design_is_dlqr_of_the_zoh_model_with_the_lag_and_the_delay(op, delay) -> None:
+    """The gains on (a - a_ref, a'), on the lagged generalized forces and on the commands in
+    flight equal python-control's dlqr on the model assembled here."""
+    tick = Tick(1000.0, delay)
+    A_r = op.A[np.ix_([cv.STATE_INDEX[s] for s in REDUCED], [cv.STATE_INDEX[s] for s in REDUCED])]
+    B_g = op.B[[cv.STATE_INDEX[s] for s in REDUCED], 1:] @ op.allocation
+    n, m = A_r.shape[0], B_g.shape[1]
+    Ac = np.block([[A_r, B_g], [np.zeros((m, n)), -np.eye(m) / TAU]])
+    Bc = np.vstack([np.zeros((n, m)), np.eye(m) / TAU])
+    sysd = control.c2d(control.ss(Ac, Bc, np.eye(n + m), 0), tick.period, "zoh")
+    nc = n + m
+    N = nc + delay * m
+    Pa, Ga = np.zeros((N, N)), np.zeros((N, m))
+    Pa[:nc, :nc] = sysd.A
+    if delay == 0:
+        Ga[:nc] = sysd.B
+    else:
+        Pa[:nc, N - m:] = sysd.B
+        for j in range(1, delay):
+            Pa[nc + j * m:nc + (j + 1) * m, nc + (j - 1) * m:nc + j * m] = np.eye(m)
+        Ga[nc:nc + m] = np.eye(m)
+    q1, q2, r = spec_weights(op)
+    C = op.rate_map
+    Q = np.zeros((N, N))
+    Q[:n, :n] = np.diag(np.r_[q1, np.zeros(n - 5)]) + C.T @ np.diag(q2) @ C
+    K_ref, _, _ = control.dlqr(Pa, Ga, Q, np.diag(r))
+    design = LoopPlant(op, tick, TAU).design()
+    K_state = design.K_pos @ np.eye(5, n) + design.K_rate @ op.rate_map
+    scale = np.abs(K_ref).max()
+    np.testing.assert_allclose(K_state, K_ref[:, :n], atol=1e-6 * scale)
+    np.testing.assert_allclose(design.K_lag, K_ref[:, n:nc], atol=1e-6 * scale)
+    np.testing.assert_allclose(design.K_delay, K_ref[:, nc:], atol=1e-6 * scale)
+
+
+@pytest.fixture(scope="module")
+def loop(carriage, op):
+    setting = loop_setting(carriage, [op])
+    plant = LoopPlant(op, setting.tick, TAU, setting.speed_gain)
+    return plant, plant.design()
+
+
+def test_disk_margins_equal_python_control(loop) -> None:
+    """Multi-loop (AB13MD's mu bound) and loop at a time (each channel's SISO loop with the
+    others closed, assembled here) against control.disk_margins on the same frequencies."""
+    plant, design = loop
+    M, N, C = plant.open_loop(design)
+    h = plant.tick.period
+    omega = np.logspace(0, np.log10(np.pi / h), 120)
+    ours = disk_margins(M, N, C, h, omega)
+    DM, DGM, DPM = control.disk_margins(control.ss(M, N, -C, 0, dt=h), omega, skew=0.0,
+                                        returnall=True)
+    # our bound is AB13MD's or (Nelder-Mead stopping short) a hair more conservative
+    assert ours.multi == pytest.approx(DM.min(), rel=2e-3)
+    assert ours.multi <= DM.min() * (1 + 1e-6)
+    gm, pm = ours.gain_phase()
+    assert gm == pytest.approx(DGM.min(), rel=5e-3) and pm == pytest.approx(DPM.min(), rel=5e-3)
+    for i in range(N.shape[1]):
+        others = [j for j in range(N.shape[1]) if j != i]
+        Mi = M + N[:, others] @ C[others]
+        L_i = control.ss(Mi, N[:, [i]], -C[[i]], 0, dt=h)
+        dm_i, _, _ = control.disk_margins(L_i, omega, skew=0.0)
+        assert ours.per_loop[i] == pytest.approx(dm_i, rel=1e-8)
+
+
+def test_delay_margin_against_eigenvalues_with_extra_delay_states(loop) -> None:
+    """The loop with k extra ticks of the array commands, the queue appended here to the
+    open loop (M, N, C): the largest k that keeps every eigenvalue inside the unit circle is
+    the one `closed_loop(design, k)` gives, and the default carriage's is at least 2."""
+    plant, design = loop
+    M, N, C = plant.open_loop(design)
+    n, nf = M.shape[0], N.shape[1]
+
+    def radius_here(k: int) -> float:
+        if k == 0:
+            return float(np.max(np.abs(np.linalg.eigvals(M + N @ C))))
+        A = np.zeros((n + k * nf, n + k * nf))
+        A[:n, :n] = M
+        A[:n, n + (k - 1) * nf:] = N  # the actuators receive the oldest
+        A[n:n + nf, :n] = C  # the controller's commands enter the queue
+        for j in range(1, k):
+            A[n + j * nf:n + (j + 1) * nf, n + (j - 1) * nf:n + j * nf] = np.eye(nf)
+        return float(np.max(np.abs(np.linalg.eigvals(A))))
+
+    for k in range(7):
+        ours = float(np.max(np.abs(np.linalg.eigvals(plant.closed_loop(design, k)))))
+        assert ours == pytest.approx(radius_here(k), rel=1e-9)
+    stable = [radius_here(k) < 1 for k in range(7)]
+    assert all(stable[:3])  # the spec's 2 extra ticks
+
+
+def test_margin_formulas() -> None:
+    """A disk of size alpha: gain (1 + a/2)/(1 - a/2), phase 2 atan(a/2) (Seiler et al.)."""
+    gm, pm = disk_gain_phase(0.75)
+    assert 10 ** (gm / 20) == pytest.approx(1.375 / 0.625)
+    assert pm == pytest.approx(np.degrees(2 * np.arctan(0.375)))
+
+
+def test_levitation_and_speed_modes_split_by_participation(loop) -> None:
+    """The speed loop's modes are the eigenvalues of the closed loop nearest those of its
+    scalar model m s + (slope + k_v) with the tick's delay (written here, a 2-state discrete
+    loop); everything else decays faster than the spec's 5 1/s."""
+    plant, design = loop
+    s, speed = plant.modes(design)
+    m = 9.3
+    a = -(plant.op.trim_drag_slope) / m
+    h = plant.tick.period
+    # dV[k+1] = e^{a h} dV + (e^{a h} - 1)/a / m * p[k-1],  p[k] = -k_v dV[k]
+    ea = np.exp(a * h)
+    A = np.array([[ea, (ea - 1) / a / m], [-plant.k_v, 0.0]])
+    z = np.linalg.eigvals(A).astype(complex)
+    slow_ref = np.log(z[np.argmax(np.abs(z))]) / h
+    slow = s[speed & np.isfinite(s) & (np.abs(s) < 100)]
+    assert len(slow) == 1 and abs(slow[0] - slow_ref) < 0.05 * abs(slow_ref)
+    assert np.max(s[np.isfinite(s) & ~speed].real) < -5.0
+
+
+def test_speed_integral_removes_the_steady_error(op, carriage) -> None:
+    """A drag the feed-forward misses (dF): the speed error of m V' = -(slope + k_v) dV - k_i xi
+    - dF, xi' = dV tends to -dF/(slope + k_v) without the integral and to 0 with it (solve_ivp
+    on the model written here, and the final-value theorem); the loop's own closed loop with
+    the integral has its speed modes as the characteristic polynomial's double root says."""
+    m, b = carriage.params.vehicle.mass, carriage.params.control.spec.speed_bandwidth
+    slope = op.trim_drag_slope
+    dF = 5.0  # [N]
+    for integral in (False, True):
+        k_v, k_i = speed_loop_gains(m, slope, b, integral)
+
+        def rhs(t, y, k_v=k_v, k_i=k_i):
+            dV, xi = y
+            return [(-(slope + k_v) * dV - k_i * xi - dF) / m, dV]
+
+        sol = scipy.integrate.solve_ivp(rhs, (0, 10.0), [0.0, 0.0], rtol=1e-10, atol=1e-12)
+        final = sol.y[0, -1]
+        if integral:
+            assert abs(final) < 1e-6  # FVT: s dV(s) -> 0 with the integrator
+        else:
+            assert final == pytest.approx(-dF / (slope + k_v), rel=1e-6)
+    k_v, k_i = speed_loop_gains(m, slope, b)
+    assert np.allclose(np.roots([m, slope + k_v, k_i]), [-b, -b], rtol=1e-6)
+    plant = LoopPlant(op, Tick(1000.0, 1), TAU, k_v, k_i)
+    s, speed = plant.modes(plant.design())
+    # two modes of the speed loop near -b (the double root splits under the coupling and the
+    # tick), the product of the pair within 10 % of b^2
+    pair = np.sort_complex(s[speed & (np.abs(s) < 50)])
+    assert len(pair) == 2 and abs(np.prod(pair) / b**2 - 1) < 0.1
