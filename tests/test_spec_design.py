@@ -266,33 +266,3 @@ def test_embedded_gains_on_the_point_force_law(envelope, carriage, sim_lib) -> N
                       and np.max(s.real) < -spec.min_decay_rate)
     assert check.ok == meets
     assert meets  # the default design holds on both force laws
-
-
-def test_the_firmware_design_sentence_follows_the_sampled_loop(envelope, carriage,
-                                                               sim_lib) -> None:
-    """One sentence says which design the firmware gets and why: at 1 kHz the continuous
-    design meets the spec on the sampled loop (the c2d eigenvalues of the test above), so it
-    is that design, the DARE design at the tick named as the fallback; at 200 Hz the
-    continuous design loses it (c2d here, at the same speeds) and the sentence says so."""
-    from maglevgen.analyses.envelope import envelope_points
-    from maglevgen.carriage import DerivedCarriage
-    from maglevgen.params import load_params
-
-    said = envelope.firmware_design("spec")
-    assert said.startswith("The firmware gets the continuous spec design")
-    assert "because it meets [control.spec] on the sampled-data loop at 1000 Hz with 1 tick " \
-           "of delay" in said and "fallback" in said and said.count(". ") == 0
-    slow = DerivedCarriage(load_params(overrides=["control.spec.tick_rate=200.0"]))
-    env = compute_envelope(slow, sim_lib, 3, controllers=("spec",), other_models=False)
-    tick, spec = Tick(200.0, 1), slow.params.control.spec
-    zeta = []
-    for op in envelope_points(slow, sim_lib, env.speeds):
-        z = _reference_sampled(op, "spec", env.loop.speed_gain, tick)
-        s = np.log(z[np.abs(z) > 1e-12].astype(complex)) / tick.period
-        zeta.append(np.min(-s.real / np.abs(s)))
-    assert min(zeta) < spec.min_damping_ratio  # the continuous design fails at 200 Hz
-    said = env.firmware_design("spec")
-    assert said.startswith("The firmware gets the continuous spec design although it fails "
-                           "[control.spec] on the sampled-data loop at 200 Hz with 1 tick of "
-                           "delay")
-    assert "commands in flight" in said

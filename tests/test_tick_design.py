@@ -1,6 +1,6 @@
-"""The `spec` design at the tick (maglevgen.control.sampled.tick_design) and the envelope's rule
-that
-uses it where the continuous design loses the specification at the tick.
+"""The `spec` design at the tick without the actuator lag (maglevgen.control.sampled.tick_design).
+The envelope's verdict of `spec` is its design at the tick on the loop as built, lag included:
+tests/test_loop_plant.py.
 
 References: python-control's ``c2d`` (ZOH) of the reduced linearisation, the delay's states
 assembled here, and ``control.dlqr`` on that model with the weights built here from the
@@ -13,18 +13,15 @@ import control
 import numpy as np
 import pytest
 
-from maglevgen.analyses.envelope import compute_envelope, envelope_points, loop_setting
-from maglevgen.carriage import DerivedCarriage
+from maglevgen.analyses.envelope import loop_setting
 from maglevgen.control.sampled import (
     Tick,
-    loop_gain,
     loop_model,
     sampled_closed_loop,
     tick_design,
     tick_design_loop_gains,
 )
 from maglevgen.control.spec import spec_weights
-from maglevgen.params import load_params
 
 LOW_TICK = 200.0  # [Hz] where the continuous design goes unstable, the one at the tick not
 
@@ -94,42 +91,3 @@ def test_tick_design_on_the_loop_gives_the_reference_closed_loop(carriage, sim_l
     got = np.sort_complex(np.linalg.eigvals(sampled_closed_loop(A, B, K, tick, K_delay)))
     np.testing.assert_allclose(got, ref, atol=1e-9)
     assert K_delay.shape == (6, 6) and np.all(K_delay[5] == 0) and np.all(K_delay[:, 5] == 0)
-
-
-def test_a_low_tick_picks_the_design_at_the_tick_and_says_which_the_firmware_gets(
-        sim_lib) -> None:
-    """At 200 Hz with one tick of delay the continuous spec design is unstable on the sampled
-    loop (the reference: its largest |z| from the loop built here); designed at the tick it
-    meets the damping and decay specs; the verdict says both and that the firmware gets the
-    continuous design."""
-    low = DerivedCarriage(load_params(overrides=[f"control.spec.tick_rate={LOW_TICK:g}"]))
-    env = compute_envelope(low, sim_lib, 3, controllers=("spec",), other_models=False)
-    e = env.controllers["spec"]
-    assert not e.meets_spec and e.tick_design is not None
-    points = envelope_points(low, sim_lib, env.speeds)
-    setting = loop_setting(low, points)
-
-    for op in points:
-        A, B = loop_model(op)
-        z = np.linalg.eigvals(sampled_closed_loop(A, B, loop_gain(op, "spec",
-                                                                   setting.speed_gain),
-                                                  setting.tick))
-        assert np.max(np.abs(z)) > 1.0  # the continuous design: unstable at this tick
-        K, K_delay = tick_design_loop_gains(op, tick_design(op, setting.tick),
-                                            setting.speed_gain)
-        z = np.linalg.eigvals(sampled_closed_loop(A, B, K, setting.tick, K_delay))
-        z = z[np.abs(z) > 1e-12]
-        s = np.log(z.astype(complex)) / setting.tick.period
-        assert np.max(s.real) < -low.params.control.spec.min_decay_rate
-        assert np.min(-s.real / np.abs(s)) >= low.params.control.spec.min_damping_ratio
-    assert e.tick_design.meets_spec
-    assert "designed at the tick" in e.spec_verdict and "it meets the specification" in \
-        e.spec_verdict
-    assert "the firmware gets the continuous design" in e.spec_verdict
-    assert e.to_json()["tick_design"]["meets_spec"] is True
-
-
-def test_the_default_tick_needs_no_design_at_the_tick(carriage, sim_lib) -> None:
-    """At the default 1 kHz the continuous design meets the spec: no design at the tick."""
-    env = compute_envelope(carriage, sim_lib, 3, controllers=("spec",), other_models=False)
-    assert env.controllers["spec"].meets_spec and env.controllers["spec"].tick_design is None

@@ -402,7 +402,7 @@ class Envelope:
                     f"continuous linearisation, which {on} "
                     f"{'meet' if c.meets_spec else 'fail'} [control.spec].")
         cont = c.continuous_gains
-        cont_said = "" if cont is None else f": on this loop they {cont.verdict}"
+        cont_said = "" if cont is None else f" (on this loop: {cont.verdict})"
         return (f"The {CONTROLLER_TITLES[name]} design is solved at the tick on the loop as "
                 "built (DARE on the ZOH model with the delay and the actuator lag; gains on "
                 "the state, the commands in flight and the actuator forces the controller "
