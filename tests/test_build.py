@@ -772,9 +772,10 @@ def test_the_default_build_judges_the_embedded_runs_and_passes(good: Path, carri
         prm, ref.q, env["v_max"], ref.f_prop, env["v_max"] * np.sin(DISTURBANCE["psi"]),
         np.array([dev.y, dev.z, dev.phi, dev.theta, dev.psi]))
     assert bound * (1 - 1e-3) <= peak <= dev.y
-    assert "The firmware gets the continuous spec design because it meets" in \
-        re.sub(r"\s+", " ", summary).replace("(the coupled LQR of the continuous "
-                                             "linearisation, scheduled over speed) ", "")
+    flat = re.sub(r"\s+", " ", summary)
+    assert "design is solved at the tick on the loop as built" in flat
+    assert "which meets [control.spec] on the sampled-data loop at 1000 Hz with 1 tick of " \
+           "delay and a 2 ms actuator lag" in flat
 
 
 def test_summary_tables_print_each_column_in_one_notation_and_units_as_written(good: Path
