@@ -376,9 +376,13 @@ def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
 
 
 def _stability_map(env) -> dict[str, bytes]:
-    from maglevgen.analyses.envelope import stability_map_png
+    from maglevgen.analyses.envelope import disk_margins_png, stability_map_png
 
-    return {"envelope/stability_map.png": stability_map_png(env)}
+    out = {"envelope/stability_map.png": stability_map_png(env)}
+    margins = next((c.margins for c in env.controllers.values() if c.margins is not None), None)
+    if margins is not None:  # the embedded controller's
+        out["envelope/disk_margins.png"] = disk_margins_png(margins)
+    return out
 
 
 @dataclass(frozen=True)
@@ -531,7 +535,8 @@ def _summary_verdicts(carriage, run, env, regions) -> list[str]:
     if run.warning:
         lines += [f"Warning: {run.warning}.", ""]
     lines += [f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
-              "(envelope/envelope.md, envelope/stability_map.png):", ""]
+              "(envelope/envelope.md, envelope/stability_map.png, envelope/disk_margins.png):",
+              ""]
     lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
               f": {c.verdict}; specification: {c.spec_verdict}"
               for n, c in env.controllers.items()]

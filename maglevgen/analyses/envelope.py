@@ -68,6 +68,7 @@ __all__ = [
     "TickDesignCheck",
     "alternate_models",
     "compute_envelope",
+    "disk_margins_png",
     "envelope_markdown",
     "envelope_points",
     "gain_table",
@@ -274,6 +275,7 @@ class LoopMargins:
     delay: np.ndarray  # extra ticks the loop stays stable with, per speed
     channels: tuple[str, ...]  # the array force components (F_<axis><array>)
     curves: tuple[DiskMargins, ...]  # against frequency, per speed
+    min_phase: float = 0.0  # [deg] control.spec.min_disk_phase_margin, for the figure
 
     def failures(self, spec) -> tuple[SpecFailure, ...]:
         """The margin specifications of ``spec`` (`ControlSpec`) missed, with their speeds."""
@@ -328,7 +330,8 @@ def loop_margins(carriage, points: Sequence[OperatingPoint], controller: str,
     return LoopMargins(np.array([op.speed for op in points]),
                        np.array([c.multi for c in curves]),
                        np.array([c.per_loop for c in curves]), np.array(delays),
-                       tuple(input_names_of(carriage.structure)[1:]), tuple(curves))
+                       tuple(input_names_of(carriage.structure)[1:]), tuple(curves),
+                       float(carriage.params.control.spec.min_disk_phase_margin))
 
 
 @dataclass(frozen=True)
@@ -800,6 +803,42 @@ def stability_map_png(env: Envelope) -> bytes:
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
         ax.set_title("Stability across the envelope (symmetric log scale)")
         fig.subplots_adjust(left=0.11, right=0.7, bottom=0.12, top=0.92)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
+        plt.close(fig)
+    return buf.getvalue()
+
+
+def disk_margins_png(margins: LoopMargins) -> bytes:
+    """The embedded loop's balanced disk margin against frequency at each margin speed, in
+    phase (2 atan(alpha/2)): every array force at once (multi-loop, solid) and the weakest
+    channel alone (dashed), the spec's min_disk_phase_margin marked (PNG bytes)."""
+    limit = margins.min_phase
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def phase(alpha: np.ndarray) -> np.ndarray:
+        return np.degrees(2 * np.arctan(np.minimum(alpha, 1e6) / 2))
+
+    with plt.rc_context({"font.size": 9}):
+        fig, ax = plt.subplots(figsize=(7, 4))
+        colours = plt.cm.viridis(np.linspace(0, 0.9, len(margins.speeds)))
+        for v, c, col in zip(margins.speeds, margins.curves, colours, strict=True):
+            ax.semilogx(c.omega, phase(c.alpha_multi), color=col, lw=1.2,
+                        label=f"{v:.4g} m/s, multi-loop")
+            i = c.worst_loop()
+            ax.semilogx(c.omega, phase(c.alpha_loops[i]), color=col, lw=0.8, ls="--",
+                        label=f"{v:.4g} m/s, {margins.channels[i]} alone")
+        ax.axhline(limit, color="tab:red", lw=0.8, label=f"spec: {limit:g} deg")
+        ax.set_ylim(0, 90)
+        ax.set_xlabel(r"frequency $\omega$ / (rad/s)")
+        ax.set_ylabel("disk margin in phase / deg")
+        ax.grid(True, lw=0.3, which="both")
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7)
+        ax.set_title("Disk margins at the actuators (balanced, broken at each array force)")
+        fig.subplots_adjust(left=0.09, right=0.68, bottom=0.12, top=0.92)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
         plt.close(fig)
