@@ -4,8 +4,10 @@ The folder: ``registry`` (the `Controller` record and `register`), one module pe
 controllers (``paper_designs``: the paper's; ``spec``: the design to ``[control.spec]``),
 ``lqr`` (the Riccati solves they share), ``operating`` (trim, gains and the linearised closed
 loop at one speed, from the C), ``schedule`` (gain schedules over speed), ``sampled`` (the loop
-as the firmware runs it: tick, hold, delay, speed loop) and ``symbolic_reference`` (the same
-designs on the lambdified SymPy model: the tests' reference).
+as the firmware runs it: tick, hold, delay, speed loop), ``plant`` (the loop as built with the
+actuator lag, from one state layout, and the `spec` design at the tick on it), ``margins``
+(disk and delay margins at the actuators) and ``symbolic_reference`` (the same designs on the
+lambdified SymPy model: the tests' reference).
 
 A controller is data (`Controller`): its name and title, whether the firmware may embed it,
 whether it is one of the paper's designs, how its gains are computed at an operating point,

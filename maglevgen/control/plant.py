@@ -25,9 +25,10 @@ The controller (ideal sensing: x measured at each tick) is
 with w_hat its prediction of the lagged generalized forces from its own applied commands,
 w_hat[k+1] = a w_hat[k] + (1 - a) w_applied[k], a = exp(-h/tau) (exact for a held command),
 and xi the speed error's integral (integral action: a drag the feedforward misses leaves no
-steady speed error). K_x, K_q, K_a are the discrete LQR of the design model (`design_model`):
-the reduced linearisation with the lag on the generalized forces and the commands in flight,
-the `spec` weights on the body states, none on the lag and the queue.
+steady speed error; k_i = 0, the C loop's today, leaves xi out of the layout). K_x, K_q, K_a
+are the discrete LQR of the design model (`design_model`): the reduced linearisation with the
+lag on the generalized forces and the commands in flight, the `spec` weights on the body
+states, none on the lag and the queue.
 
 References
 ----------
