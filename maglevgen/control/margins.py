@@ -66,8 +66,8 @@ def _scaled_norm(M: np.ndarray, d: np.ndarray) -> float:
 
 def mu_upper_bound(M: np.ndarray, refine: bool = True) -> float:
     """inf_D sigma_max(D M D^-1), D positive diagonal: mu's upper bound for a structure of
-    complex scalars; Osborne's balancing (`_osborne`) as the start, then (``refine``) a
-    Nelder-Mead search on log D with the first entry fixed at 1. Without ``refine``: the
+    complex scalars; Osborne's balancing (`_osborne`) as the start, then (``refine``) BFGS and
+    a short Nelder-Mead search on log D with the first entry fixed at 1. Without ``refine``: the
     bound at Osborne's D, never below the refined one."""
     import scipy.optimize  # local: see lqr.numerical_lqr
 
@@ -79,10 +79,14 @@ def mu_upper_bound(M: np.ndarray, refine: bool = True) -> float:
     if not refine:
         return start
     x0 = np.log(d[1:] / d[0])
+    # BFGS on log D (sigma_max is smooth where the largest singular value is simple, as at
+    # the optimum of a generic M), then Nelder-Mead from there where that stalls
     res = scipy.optimize.minimize(lambda x: _scaled_norm(M, np.exp(np.r_[0.0, x])), x0,
-                                  method="Nelder-Mead",
-                                  options={"xatol": 1e-7, "fatol": 1e-12, "maxiter": 6000})
-    return min(float(res.fun), start)
+                                  method="BFGS", options={"gtol": 1e-9})
+    res2 = scipy.optimize.minimize(lambda x: _scaled_norm(M, np.exp(np.r_[0.0, x])), res.x,
+                                   method="Nelder-Mead",
+                                   options={"xatol": 1e-6, "fatol": 1e-10, "maxiter": 1500})
+    return min(float(res.fun), float(res2.fun), start)
 
 
 def frequency_grid(period: float, n: int = 300) -> np.ndarray:
