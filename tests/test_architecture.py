@@ -65,6 +65,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.codegen.generate", "maglevgen.derive.model", "importlib")),
     "maglevgen.control.lqr": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.control.sampled": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.control.plant": ("the simulation path stays SciPy-free", ("scipy",)),
+    "maglevgen.control.margins": ("the simulation path stays SciPy-free", ("scipy",)),
     "maglevgen.control.schedule": (
         "the simulation path stays SciPy-free; the firmware table's C only when written",
         ("scipy", "maglevgen.codegen.checks", "maglevgen.codegen.emit", "numpy")),

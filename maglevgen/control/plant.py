@@ -44,7 +44,7 @@ from functools import cached_property
 import numpy as np
 
 from maglevgen.control.lqr import numerical_dlqr, weighted_qr
-from maglevgen.control.operating import AXIS_STATES, N_AXES, OperatingPoint
+from maglevgen.control.operating import AXIS_STATES, N_AXES, REDUCED_STATES, OperatingPoint
 from maglevgen.control.sampled import LOOP_INDEX, LOOP_STATES, Tick, loop_model, zoh
 from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
@@ -156,8 +156,6 @@ class LoopPlant:
     def design_layout(self) -> Layout:
         """The design model's state: the reduced body states, the lagged generalized forces,
         the generalized forces in flight (newest first)."""
-        from maglevgen.control.operating import REDUCED_STATES
-
         d = self.tick.delay
         lag = tuple(c.name for c in cv.CONTROLS) if self.tau > 0 else ()
         flight = tuple(f"{c.name}[k-{j + 1}]" for j in range(d) for c in cv.CONTROLS)
