@@ -16,12 +16,15 @@ from maglevgen.control.plant import (
     NEEDED_STATES,
     EstimatorPoint,
     SensorLayout,
+    continuous_equivalent,
     estimation_failures,
     estimator_model,
     estimator_points,
     kalman,
     observability,
+    whole_loop,
 )
+from maglevgen.control.sampled import LOOP_STATES, loop_gain, speed_gain
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.params import load_params
@@ -167,3 +170,58 @@ def test_a_long_noisy_run_has_the_dare_covariance(sim_lib, carriage) -> None:
     for name in NEEDED_STATES:
         i = cv.STATE_INDEX[name]
         assert abs(est[i] - design.P[i, i]) < 4 * se[i], (name, est[i], design.P[i, i], se[i])
+
+
+@pytest.mark.parametrize("speed", (10.0, 40.0))
+def test_whole_loop_equals_the_loop_assembled_on_the_estimate(sim_lib, carriage,
+                                                              speed: float) -> None:
+    """The output-feedback loop assembled here on (z, z_hat[k|k-1]) with control.dlqe's P
+    (M = P C' (C P C' + R)^-1) and the loop's gain on the estimate written here: its
+    eigenvalues are the package's whole loop's and the track position's 1."""
+    params = carriage.params
+    op = _op(sim_lib, carriage, speed)
+    model = estimator_model(sim_lib, carriage.p, op, params)
+    k_v = speed_gain(params.vehicle.mass, op.trim_drag_slope,
+                     params.control.spec.speed_bandwidth)
+    K = loop_gain(op, "spec", k_v)
+    n = model.Phi.shape[0]
+    K_u = np.zeros((op.B.shape[1], n))
+    cols = [cv.STATE_INDEX[s] for s in LOOP_STATES]  # the estimator holds all 12, x first
+    K_u[0, cols], K_u[1:, cols] = K[5], op.allocation @ K[:5]
+    _, P, _ = control.dlqe(model.Phi, np.eye(n), model.C, model.Q, model.R)
+    M = P @ model.C.T @ np.linalg.inv(model.C @ P @ model.C.T + model.R)
+    post_z, post_hat = M @ model.C, np.eye(n) - M @ model.C  # z_hat[k|k] from z, z_hat
+    loop = np.block([
+        [model.Phi - model.Gamma @ K_u @ post_z, -model.Gamma @ K_u @ post_hat],
+        [(model.Phi - model.Gamma @ K_u) @ post_z, (model.Phi - model.Gamma @ K_u) @ post_hat]])
+    ref_z = np.linalg.eigvals(loop)
+    ref_z = np.delete(ref_z, np.argmin(np.abs(ref_z - 1.0)))
+    got = np.linalg.eigvals(whole_loop(model, kalman(model), K_u))
+    key = lambda z: (round(z.real, 6), round(abs(z.imag), 6))  # noqa: E731
+    np.testing.assert_allclose(sorted(got, key=key), sorted(ref_z, key=key), atol=1e-7)
+    s = continuous_equivalent(whole_loop(model, kalman(model), K_u),
+                              1.0 / params.control.spec.tick_rate)
+    s = s[np.isfinite(s.real)]
+    assert np.max(s.real) < -params.control.spec.min_decay_rate
+
+
+@pytest.mark.slow
+def test_a_noisy_hold_estimates_the_pose_as_the_filter_predicts(sim_lib, carriage) -> None:
+    """The output-feedback loop on the nonlinear C plant with the sensors' noise (no process
+    noise: the filter's P, from SciPy's DARE on the linear model with it, bounds the error
+    from above): each axis position's estimation error RMS over 3 s lies between 0.6 and 1.1
+    times sqrt of the updated P (the DARE's own prediction for the error the noise makes)."""
+    from maglevgen.analyses.output_feedback import noisy_hold
+
+    params = carriage.params
+    op = _op(sim_lib, carriage, 15.7)  # a speed whose tick advance is no whole encoder step
+    hold = noisy_hold(sim_lib, carriage.p, params, op, t_end=3.0, seed=5)
+    model = estimator_model(sim_lib, carriage.p, op, params)
+    design = kalman(model)
+    S = model.C @ design.P @ model.C.T + model.R
+    P_upd = design.P - design.P @ model.C.T @ np.linalg.solve(S, model.C @ design.P)
+    for state in cv.Q_STATES:
+        i = model.states.index(state)
+        ratio = hold.estimation_rms[state] / np.sqrt(P_upd[i, i])
+        assert 0.6 < ratio < 1.1, (state, ratio)
+    assert hold.min_gap > params.track.min_gap
