@@ -225,3 +225,26 @@ def test_a_noisy_hold_estimates_the_pose_as_the_filter_predicts(sim_lib, carriag
         ratio = hold.estimation_rms[state] / np.sqrt(P_upd[i, i])
         assert 0.6 < ratio < 1.1, (state, ratio)
     assert hold.min_gap > params.track.min_gap
+
+
+@pytest.mark.slow
+def test_the_kalman_table_holds_dlqe_gains_across_the_envelope(sim_lib, carriage) -> None:
+    """The update's gain scheduled over speed in the controller's table machinery (a Chebyshev
+    series in 1/v): at speeds between its nodes it equals M from control.dlqe's P within the
+    table's bound, relative to M's largest entry."""
+    from maglevgen.analyses.envelope import speed_range
+    from maglevgen.control.plant import kalman_table
+    from maglevgen.control.schedule import GAIN_TABLE_BOUND
+
+    params = carriage.params
+    v_min, v_max = speed_range(carriage)
+    table = kalman_table(sim_lib, carriage.p, params, lambda v: _op(sim_lib, carriage, v),
+                         v_min, v_max)
+    rng = np.random.default_rng(49)
+    for v in rng.uniform(v_min, v_max, 3):
+        model = estimator_model(sim_lib, carriage.p, _op(sim_lib, carriage, float(v)), params)
+        n = model.Phi.shape[0]
+        _, P, _ = control.dlqe(model.Phi, np.eye(n), model.C, model.Q, model.R)
+        M = P @ model.C.T @ np.linalg.inv(model.C @ P @ model.C.T + model.R)
+        got = table(float(v)).reshape(12, -1, order="F")
+        assert np.max(np.abs(got - M[:12])) <= GAIN_TABLE_BOUND * np.max(np.abs(M[:12])), v
