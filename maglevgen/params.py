@@ -48,18 +48,24 @@ __all__ = [
     "Control",
     "ControlSpec",
     "Envelope",
+    "GapSensor",
+    "GapSensors",
     "Halbach",
+    "Imu",
     "Inertia",
     "LoadedParams",
     "ModelChoices",
     "Operation",
     "ParamEntry",
     "Parameters",
+    "ProcessNoise",
     "Provenance",
     "SchemaLeaf",
+    "Sensors",
     "Tolerance",
     "Tolerances",
     "Track",
+    "TrackSensor",
     "Vec3",
     "Vehicle",
     "annotate_with_units",
@@ -574,10 +580,121 @@ class Tolerances(_Section):
         return self
 
 
-# sections of the file that are not model parameters (not in the parameter vector p)
+_SAMPLE_RATE = (1.0, 1e6, "1 Hz to 1 MHz: at least the controller's tick")
+_CUTOFF = (0.1, 5e5, "0.1 Hz to half of a 1 MHz sample rate")
+
+
+class GapSensor(_Section):
+    """One gap sensor: the array face it reads and where on that face. It measures the
+    distance from its point along the face's normal (turning with the body) to the track
+    plane that face runs over (derive/sensors.py)."""
+
+    array: str = Field(description="the array whose face it sits on (a key of [arrays])",
+                       json_schema_extra={"unit": "-"})
+    across: float = _f("m", "from the face centre across the face (the face's e_s = n x e_t, "
+                            "derive/distributed.py's face_axes; +y for an upward face)",
+                       limits=(-10.0, 10.0, "on the face: within half the array's width"))
+    along: float = Field(default=0.0, description="from the face centre along the face (e_t, "
+                         "body x projected onto it)", json_schema_extra={
+                             "unit": "m", "limits": [-100.0, 100.0,
+                                                     "on the face: within half its length"]})
+
+
+class GapSensors(_Section):
+    """The gap sensors (eddy-current or laser triangulation) and what each reading carries."""
+
+    noise: float = _f("m", "RMS noise of one reading at the tick (after the anti-alias "
+                      "filter)", limits=(0.0, 1e-2, "a perfect sensor to 1 cm"))
+    resolution: float = _f("m", "quantization step of a reading (adds step^2/12 to the "
+                           "noise's variance)", limits=(0.0, 1e-2, "none to 1 cm"))
+    sample_rate: float = _f("Hz", "readings per second", limits=_SAMPLE_RATE)
+    anti_alias: float = _f("Hz", "cut-off of the first-order anti-alias filter before the "
+                           "sampler (below half the sample rate)", limits=_CUTOFF)
+
+
+class Imu(_Section):
+    """The inertial measurement unit: a three-axis gyro and accelerometer at one point of the
+    body, body axes."""
+
+    position: Vec3 = _f("m", "the IMU's point, body axes, relative to O (what its "
+                        "accelerometer's reading depends on)", limits=_OFFSET)
+    gyro_noise: float = _f("rad/s/sqrt(Hz)", "gyro angle random walk (white rate noise "
+                           "density, each axis)", limits=(0.0, 1.0, "a perfect gyro to 1 rad/s "
+                                                              "in 1 Hz"))
+    gyro_bias: float = _f("rad/s", "gyro in-run bias (each axis; in the simulated sensor, not "
+                          "estimated)", limits=(0.0, 1.0, "none to 1 rad/s"))
+    accel_noise: float = _f("m/s^2/sqrt(Hz)", "accelerometer velocity random walk (white "
+                            "noise density, each axis)", limits=(0.0, 10.0, "a perfect "
+                                                                  "accelerometer to 1 g"))
+    accel_bias: float = _f("m/s^2", "accelerometer in-run bias (each axis; in the simulated "
+                           "sensor, not estimated)", limits=(0.0, 10.0, "none to 1 g"))
+    sample_rate: float = _f("Hz", "readings per second", limits=_SAMPLE_RATE)
+    anti_alias: float = _f("Hz", "cut-off of the first-order anti-alias (digital low-pass) "
+                           "filter (below half the sample rate)", limits=_CUTOFF)
+
+
+class TrackSensor(_Section):
+    """The position along the track (an encoder or track markers read on the carriage)."""
+
+    noise: float = _f("m", "RMS noise of one reading", limits=(0.0, 10.0, "none to 10 m"))
+    resolution: float = _f("m", "quantization step (adds step^2/12 to the noise's variance)",
+                           limits=(0.0, 10.0, "none to 10 m"))
+    sample_rate: float = _f("Hz", "readings per second", limits=_SAMPLE_RATE)
+
+
+class ProcessNoise(_Section):
+    """The forces no sensor measures, as the estimator's model takes them: white force and
+    moment densities on the body (track irregularity, the arrays' field ripple above the
+    Nyquist frequency), the Kalman filter's process noise."""
+
+    force: float = _f("N/sqrt(Hz)", "one-sided density of an unmeasured force along each "
+                      "axis (continuous intensity force^2/2)",
+                      limits=(1e-9, 1e6, "any force a carriage meets, and not zero: a "
+                                         "filter that trusts its model alone never corrects"))
+    moment: float = _f("N*m/sqrt(Hz)", "one-sided density of an unmeasured moment about each "
+                       "axis (continuous intensity moment^2/2)",
+                       limits=(1e-9, 1e6, "as the force's"))
+
+
+class Sensors(_Section):
+    """What the carriage measures: the estimator's measurement equations (derive/sensors.py)
+    and noise. Not part of the model's parameter vector (it changes no equation of motion).
+    A group left out is not fitted."""
+
+    gap: GapSensors | None = Field(default=None, description="what every gap sensor's "
+                                   "reading carries (with gap_sensors)")
+    gap_sensors: dict[str, GapSensor] = Field(default_factory=dict, description="the gap "
+                                              "sensors by name: where each sits")
+    imu: Imu | None = Field(default=None, description="the inertial measurement unit")
+    track: TrackSensor | None = Field(default=None, description="the position along the "
+                                      "track")
+    disturbance: ProcessNoise = Field(default_factory=lambda: ProcessNoise(
+        force=0.2, moment=0.05), description="the unmeasured forces the estimator assumes")
+
+    @model_validator(mode="after")
+    def _below_nyquist(self) -> Sensors:
+        for name, group in (("gap", self.gap), ("imu", self.imu)):
+            if group is not None and not group.anti_alias < group.sample_rate / 2:
+                raise _ModelError(f"{name}.anti_alias", f"{group.anti_alias:g}",
+                                  f"not below half the sample rate {group.sample_rate:g} Hz "
+                                  "(the Nyquist frequency): it would not stop aliasing")
+        if self.gap is None and self.imu is None and self.track is None:
+            raise _ModelError("(sensors)", "{}", "no sensor: give gap, imu or track")
+        if (self.gap is None) != (not self.gap_sensors):
+            raise _ModelError("gap_sensors" if self.gap is None else "gap", "(missing)",
+                              "gap sensors need both [sensors.gap] (their noise) and "
+                              "[sensors.gap_sensors] (where they sit)")
+        return self
+
+    def groups(self) -> dict[str, BaseModel]:
+        """The fitted groups by name (gap, imu, track)."""
+        return {k: v for k, v in (("gap", self.gap), ("imu", self.imu), ("track", self.track))
+                if v is not None}
+
+
 # sections and tables that are not part of the model's parameter vector (dotted keys)
 NOT_IN_MODEL: tuple[str, ...] = ("envelope", "model", "provenance", "tolerances", "control.spec",
-                                  "actuators")
+                                 "actuators", "sensors")
 PROVENANCE_SOURCES = ("paper", "assumed")
 
 
@@ -615,6 +732,8 @@ class Parameters(_Section):
     # parameter key or table ("arrays.3", "vehicle.inertia_cg") -> where its value comes from
     provenance: dict[str, Provenance] = Field(default_factory=dict)
     tolerances: Tolerances = Field(default_factory=Tolerances)
+    sensors: Sensors | None = Field(default=None, description="what the carriage measures "
+                                    "(the estimator's); omitted: no output-feedback design")
 
     @field_validator("arrays", mode="before")
     @classmethod
@@ -656,15 +775,46 @@ class Parameters(_Section):
                               "above actuators.force_limit = "
                               f"{self.actuators.force_limit:g} (what a drive can produce)")
         self._tolerances_within_limits()
+        self._sensors_on_the_carriage()
         keys = [lf.key for lf in schema_leaves(self)] + [
             f"{t}.{f}" for t, m in (("envelope", Envelope), ("vehicle", Vehicle),
                                     ("control", Control), ("control.spec", ControlSpec),
-                                    ("actuators", Actuators))
+                                    ("actuators", Actuators),
+                                    ("sensors", Sensors), ("sensors.gap", GapSensors),
+                                    ("sensors.imu", Imu), ("sensors.track", TrackSensor),
+                                    ("sensors.disturbance", ProcessNoise))
             for f in m.model_fields]
         for key in self.provenance:
             if not any(k == key or k.startswith(key + ".") for k in keys):
                 raise _ModelError("provenance", _short(key), "names no parameter or table")
         return self
+
+    def _sensors_on_the_carriage(self) -> None:
+        """Each gap sensor on an array's face (a key of [arrays], within its width and
+        length); each sensor at least as fast as the controller's tick (a slower one would
+        leave ticks without a reading: multi-rate estimation is not modelled)."""
+        if self.sensors is None:
+            return
+        tick = self.control.spec.tick_rate
+        for group, sensor in self.sensors.groups().items():
+            if sensor.sample_rate < tick * (1 - 1e-12):
+                raise _ModelError(f"sensors.{group}.sample_rate", f"{sensor.sample_rate:g}",
+                                  f"below control.spec.tick_rate = {tick:g} Hz (a tick "
+                                  "without a reading; multi-rate estimation is not modelled)")
+        for name, g in self.sensors.gap_sensors.items():
+            where = f"sensors.gap_sensors.{name}"
+            arr = self.arrays.get(g.array)
+            if arr is None:
+                raise _ModelError(f"{where}.array", _short(g.array), "not an array: expected "
+                                  "one of " + ", ".join(self.arrays))
+            half_w = self.halbach.width / 2
+            half_l = arr.circuits * self.circuit.pitch / 2
+            if abs(g.across) > half_w * (1 + 1e-12):
+                raise _ModelError(f"{where}.across", f"{g.across:g}", f"off the face: its "
+                                  f"half-width is halbach.width / 2 = {half_w:g} m")
+            if abs(g.along) > half_l * (1 + 1e-12):
+                raise _ModelError(f"{where}.along", f"{g.along:g}", f"off the face: its "
+                                  f"half-length is circuits x pitch / 2 = {half_l:g} m")
 
     def _tolerances_within_limits(self) -> None:
         """The file is refused when a tolerance can draw a value outside its key's range:
@@ -773,8 +923,10 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
         if not isinstance(node, dict) or key not in node:
             raise InputError(f"--set {dotted}: unknown key {'.'.join(keys[: depth + 1])!r}")
         node = node[key]
-    optional = {k for k, *_ in schema_rows()}  # a key of the schema the file may omit
-    if not isinstance(node, dict) or (keys[-1] not in node and dotted not in optional):
+    # a key of the schema the file may omit (<name>: a table's key, any name)
+    optional = any(re.fullmatch(re.escape(k).replace(re.escape("<name>"), r"[^.]+"), dotted)
+                   for k, *_ in schema_rows())
+    if not isinstance(node, dict) or (keys[-1] not in node and not optional):
         raise InputError(f"--set {dotted}: unknown key {dotted!r}")
     node[keys[-1]] = value
 
@@ -955,6 +1107,15 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
                              "or table) comes from", "", "source = paper or assumed, and why"))
             elif isinstance(ann, type) and issubclass(ann, BaseModel):
                 walk(ann, name + ".")
+            elif model is Sensors and field == "gap_sensors":
+                rows.append((f"{name}.<name>", "-", "a gap sensor, by its name (a table "
+                             "key)", "", "any TOML key"))
+                walk(GapSensor, name + ".<name>.")
+            elif (model is Parameters and field == "sensors") or (
+                    model is Sensors and _table_of(ann) is not None):
+                walk(_table_of(ann), name + ".")  # an optional table (sensors, its groups)
+            elif model is GapSensor and field == "array":
+                rows.append((name, "-", info.description or "", "", "a key of [arrays]"))
             elif model is Vehicle and field == "inertia_cg":
                 rows.append((name, "", info.description or "", "",
                              f"a table, or \"{INERTIA_BOX}\""))
@@ -1061,7 +1222,7 @@ def _model_field(key: str) -> Any:
 
 def annotate_with_units(text: str) -> str:
     """The TOML text with each key's unit (from the schema) appended as a comment."""
-    units = {re.sub(r"\.<name>\.", ".*.", k): u for k, u, _, _ in schema_rows()}
+    units = {re.sub(r"\.<name>(\.|$)", r".*\1", k): u for k, u, _, _ in schema_rows()}
     section = ""
     out = []
     for line in text.splitlines():
@@ -1071,7 +1232,7 @@ def annotate_with_units(text: str) -> str:
         km = re.match(r"^\s*([A-Za-z0-9_]+)\s*=", line)
         if km:
             key = f"{section}.{km.group(1)}" if section else km.group(1)
-            generic = re.sub(r"^arrays\.[^.]+\.", "arrays.*.", key)
+            generic = re.sub(r"^(arrays|sensors\.gap_sensors)\.[^.]+(\.|$)", r"\1.*\2", key)
             unit = units.get(key) or units.get(generic)
             if unit is None and section.startswith("vehicle.inertia_cg"):
                 unit = "kg*m^2"

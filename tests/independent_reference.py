@@ -455,3 +455,65 @@ def lateral_drift_overshoot(prm: Parameters, q_trim: np.ndarray, speed: float, f
     K = stiffness_fd(prm, q_trim, speed, f_prop)
     force = n_lateral * prm.control.spec.force_budget + float(np.abs(K[0]) @ limits)
     return prm.vehicle.mass * v0**2 / (2 * force)
+
+
+# ------------------------------------------------- the sensors' readings
+
+
+def gap_sensor_points(prm: Parameters) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
+    """(name, body point, face normal, the face's nominal gap) of each gap sensor: the face
+    centre moved across and along the face (its axes as `contact_gaps` takes them)."""
+    out = []
+    for name, s in prm.sensors.gap_sensors.items():
+        arr = prm.arrays[s.array]
+        a, n = np.array(arr.position), np.array(arr.normal)
+        across, along = _face_axes(n)
+        out.append((name, a + s.across * across + s.along * along, n, arr.nominal_gap))
+    return out
+
+
+def sensor_readings(prm: Parameters, x: np.ndarray, xdot: np.ndarray) -> np.ndarray:
+    """The sensors' readings at state x with rates xdot, order gaps, gyro, accelerometer,
+    track: each gap sensor's ray from its point along the turned face normal -R n intersected
+    with the face's track plane (a point and normal fixed at the design pose) by a linear
+    solve; the gyro the body rates; the accelerometer the inertial acceleration of its point,
+    d/dt (R (v + omega x r)) = R' (v + omega x r) + R (v' + omega' x r) with R' a five-point
+    difference of the rotation along the Euler rates, less gravity, in body axes; the track
+    sensor X_x."""
+    X, ang, v, w = x[0:3], x[3:6], x[6:9], x[9:12]
+    R = rotation(*ang)
+    out = []
+    for _, b, n, g0 in gap_sensor_points(prm):
+        origin, direction = X + R @ b, -(R @ n)
+        plane_point = b - g0 * n  # on the plane at the design pose (n . b = n . a on the face)
+        # origin + t direction - plane_point orthogonal to n: [n . direction] t = n . (pp - o)
+        t = np.linalg.solve(np.array([[n @ direction]]), np.array([n @ (plane_point - origin)]))
+        out.append(float(t[0]))
+    if prm.sensors.imu is not None:
+        r = np.array(prm.sensors.imu.position)
+        out += list(w)
+        h = 1e-3  # the five-point stencil: truncation O(h^4), rounding 1e-13
+        rates = euler_rates(ang[0], ang[1], w)
+        Rh = [rotation(*(ang + j * h * rates)) for j in (-2, -1, 1, 2)]
+        R_dot = (Rh[0] - 8 * Rh[1] + 8 * Rh[2] - Rh[3]) / (12 * h)
+        acc = R_dot @ (v + np.cross(w, r)) + R @ (xdot[6:9] + np.cross(xdot[9:12], r))
+        out += list(R.T @ (acc - np.array([0.0, 0.0, -prm.vehicle.gravity])))
+    if prm.sensors.track is not None:
+        out.append(X[0])
+    return np.array(out)
+
+
+def sensor_jacobians_fd(prm: Parameters, x: np.ndarray, xdot: np.ndarray,
+                        h: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+    """(dy/dx, dy/dxdot) of `sensor_readings` by central differences (a step of 1e-4: the
+    accelerometer's R' v carries the rotation's difference rounding, 1e-13 times 20 m/s)."""
+    def column(f, i: int, z: np.ndarray) -> np.ndarray:
+        e = np.zeros_like(z)
+        e[i] = h
+        return (f(z + e) - f(z - e)) / (2 * h)
+
+    Hx = np.column_stack([column(lambda z: sensor_readings(prm, z, xdot), i, x)
+                          for i in range(len(x))])
+    Hd = np.column_stack([column(lambda z: sensor_readings(prm, x, z), i, xdot)
+                          for i in range(len(xdot))])
+    return Hx, Hd

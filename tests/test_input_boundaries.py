@@ -51,8 +51,10 @@ INJECTED_NAMES = [
 
 def renamed(old: str, new: str) -> str:
     """The default file with array ``old``'s table named ``new`` (a TOML quoted key), and its
-    [provenance] entries following it (a provenance key that names nothing is refused)."""
+    [provenance] entries and gap sensors following it (a provenance key that names nothing, a
+    sensor on no array, is refused)."""
     text = replaced(f"[arrays.{old}]", f"[arrays.{json.dumps(new)}]")
+    text = text.replace(f'array = "{old}"', f"array = {json.dumps(new)}")
     return text.replace(f'"arrays.{old}.', json.dumps(f"arrays.{new}.")[:-1])
 
 
@@ -203,6 +205,12 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
         if key == "model.circuit_dynamics":
             assert line.endswith("one of first-order, quasi-static"), line
             continue
+        if key == "sensors.gap_sensors.<name>":  # a name: any TOML key
+            assert line.endswith("any TOML key"), line
+            continue
+        if key == "sensors.gap_sensors.<name>.array":  # a name: one of the arrays'
+            assert line.endswith("a key of [arrays]"), line
+            continue
         if key == "provenance.<key>":  # text about a value, not a number
             assert "paper or assumed" in line, line
             continue
@@ -217,11 +225,16 @@ def test_schema_documents_every_range_with_its_reason(capsys) -> None:
                                          "provenance.<key>", "control.actuators",
                                          "vehicle.inertia_cg", "model.array_force",
                                          "model.circuit_dynamics",
-                                         "tolerances.parameters.<key>")}
+                                         "tolerances.parameters.<key>",
+                                         "sensors.gap_sensors.<name>",
+                                         "sensors.gap_sensors.<name>.array")}
 
     def leaves(data: Any, prefix: str = "") -> Any:
         for k, v in data.items():
-            key = re.sub(r"^arrays\.[^.]+\.", "arrays.<name>.", f"{prefix}{k}")
+            key = re.sub(r"^(arrays|sensors\.gap_sensors)\.[^.]+\.", r"\1.<name>.",
+                         f"{prefix}{k}")
+            if key.startswith("sensors.gap_sensors.<name>.array"):
+                continue  # a name: one of the arrays
             if prefix.startswith("tolerances.parameters."):
                 key = f"tolerances.parameters.<key>.{k}"
             if prefix == "tolerances.disturbance.":

@@ -86,7 +86,7 @@ def listing(root: Path) -> list[str]:
 
 
 def generic(key: str) -> str:
-    return re.sub(r"^arrays\.[^.]+\.", "arrays.<name>.", key)
+    return re.sub(r"^(arrays|sensors\.gap_sensors)\.[^.]+(\.|$)", r"\1.<name>\2", key)
 
 
 def file_keys(text: str) -> list[tuple[str, str]]:

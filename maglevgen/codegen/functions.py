@@ -27,6 +27,7 @@ from maglevgen.derive.linearize import (
 )
 from maglevgen.derive.model import CarriageModel
 from maglevgen.derive.riccati import riccati_stable_form
+from maglevgen.derive.sensors import GapSensorSymbols, accelerometer_reading, gap_reading
 from maglevgen.derive.structure import NORMAL_AXIS
 from maglevgen.derive.trim import along_track_acceleration
 
@@ -166,6 +167,15 @@ FUNCTION_SPECS: tuple[FunctionSpec, ...] = (
     FunctionSpec("effectiveness", ("p",), ("E",),
                  "E (5 x arrays' forces): the generalized forces about O that unit array "
                  "control forces produce (eqs 22-23; T is its minimum-norm inverse)"),
+    FunctionSpec("gap_reading", ("x", "point", "normal", "nominal_gap"), ("reading", "H"),
+                 "what a gap sensor at a body point of a face (its unit normal and nominal "
+                 "gap) reads along the turned normal to the face's track plane, and its "
+                 "Jacobian dreading/dx (derive/sensors.py)"),
+    FunctionSpec("imu_reading", ("x", "xdot", "point", "p"),
+                 ("gyro", "specific_force", "H_x", "H_xdot"),
+                 "what an IMU at a body point reads: the body rates and the specific force in "
+                 "body axes, and the Jacobians of (gyro, accel) in x and in xdot "
+                 "(derive/sensors.py)"),
 )
 
 
@@ -198,6 +208,7 @@ def build_functions(model: CarriageModel, newton_iterations: int = 30,
     rates_fn = _control_io(cm, K_fn, io)
     E, T_normal = _allocation_io(model, p, io)
     _closed_loop_io(cm, dynamics, rates_fn, E, T_normal, io)
+    _sensor_io(model, p, io)
     made = {s.name: _finished(_function(s, *io[s.name]))
             for s in FUNCTION_SPECS if not s.derived}
     # the step calls the finished right-hand side, so the C holds one copy of it
@@ -386,6 +397,32 @@ def _closed_loop_io(cm: CasadiModel, dynamics: ca.Function, rates_fn: ca.Functio
         io["allocation_matrix"] = ({"p": p}, {
             "T": T_normal if normal else E.T @ ca.solve(E @ E.T, ca.SX.eye(N_AXES))})
 
+
+
+def _sensor_io(model: CarriageModel, p: ca.SX, io: dict) -> None:
+    """maglev_gap_reading and maglev_imu_reading into ``io``: derive/sensors.py's measurement
+    equations of one sensor, its geometry an input (the sensor set is the caller's)."""
+    n_x = len(cv.STATES)
+    xs = sp.Matrix(sp.symbols(" ".join(cv.STATE_NAMES), real=True))
+    ds = sp.Matrix(sp.symbols(" ".join(f"{n}_dot" for n in cv.STATE_NAMES), real=True))
+    bs, ns = sp.Matrix(sp.symbols("b0:3", real=True)), sp.Matrix(sp.symbols("n0:3", real=True))
+    g0, g = sp.Symbol("g0", real=True), sp.Symbol("g", real=True)
+    x, xdot = ca.SX.sym("x", n_x), ca.SX.sym("xdot", n_x)
+    point, normal, nominal = ca.SX.sym("point", 3), ca.SX.sym("normal", 3), ca.SX.sym("g0")
+    R = model.R.xreplace(dict(zip(model.x, xs, strict=True)))
+    conv = SympyToCasadi({**_pairs(xs, x), **_pairs(ds, xdot), **_pairs(bs, point),
+                          **_pairs(ns, normal), g0: nominal,
+                          g: p[model.structure.param_names.index("vehicle.gravity")]})
+    reading = conv(gap_reading(GapSensorSymbols(bs, ns, g0), xs[0:3, 0], R))
+    io["gap_reading"] = ({"x": x, "point": point, "normal": normal, "nominal_gap": nominal},
+                         {"reading": reading, "H": ca.jacobian(reading, x)})
+    gyro = x[9:12]
+    accel = conv(accelerometer_reading(bs, R, xs[6:9, 0], xs[9:12, 0], ds[6:9, 0], ds[9:12, 0],
+                                       g))
+    both = ca.vertcat(gyro, accel)
+    io["imu_reading"] = ({"x": x, "xdot": xdot, "point": point, "p": p},
+                         {"gyro": gyro, "specific_force": accel, "H_x": ca.jacobian(both, x),
+                          "H_xdot": ca.jacobian(both, xdot)})
 
 
 def _function(spec: FunctionSpec, inputs: dict, outputs: dict) -> ca.Function:

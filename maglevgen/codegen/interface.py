@@ -83,6 +83,16 @@ IO_DOCS: dict[str, str] = {
     "tilt": "stiffness part: the tilt across the face (5 x 5; zero for the point force)",
     "gravity": "stiffness part: gravity's moment of the CG offset (5 x 5, column-major)",
     "propulsion": "stiffness part: the propulsion force's moment (5 x 5, column-major)",
+    # the sensors' readings (maglev_gap_reading, maglev_imu_reading)
+    "point": "[m] the sensor's point, body axes, relative to O",
+    "normal": "unit normal of the sensor's array face, body axes",
+    "nominal_gap": "[m] that face's gap at the design pose",
+    "reading": "[m] the gap the sensor reads along its turned normal",
+    "H": "dreading/dx (1 x 12)",
+    "gyro": "[rad/s] body rates (p, q, r) the gyro reads",
+    "specific_force": "[m/s^2] what the accelerometer at the point reads, body axes",
+    "H_x": "d(gyro, specific_force)/dx (6 x 12, column-major)",
+    "H_xdot": "d(gyro, specific_force)/dxdot (6 x 12, column-major)",
 }
 
 

@@ -180,10 +180,11 @@ DENSE_GRID = 201  # about 25 speeds between adjacent nodes: the error curve is s
 ZERO_VALUE = 1e-9  # relative to the field's scale: a value this small everywhere is zero
 
 
-def _field_slices() -> list[tuple[int, int]]:
+def _field_slices(fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS
+                  ) -> list[tuple[int, int]]:
     """(first index, size) of each field of a row."""
     out, i = [], 0
-    for _, n in GAIN_TABLE_FIELDS:
+    for _, n in fields:
         out.append((i, n))
         i += n
     return out
@@ -196,11 +197,12 @@ def gain_table_row(op: OperatingPoint, controller: str) -> np.ndarray:
                            K_pos.ravel(order="F"), K_rate.ravel(order="F")])
 
 
-def field_errors(approx: np.ndarray, exact: np.ndarray) -> dict[str, float]:
+def field_errors(approx: np.ndarray, exact: np.ndarray,
+                 fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS) -> dict[str, float]:
     """Each field's worst |approx - exact| over the rows, relative to the field's largest
     |exact| (GAIN_TABLE_BOUND's measure)."""
     out, i = {}, 0
-    for name, n in GAIN_TABLE_FIELDS:
+    for name, n in fields:
         scale = float(np.max(np.abs(exact[:, i:i + n])))
         err = float(np.max(np.abs(approx[:, i:i + n] - exact[:, i:i + n])))
         out[name] = err / scale if scale > 0 else err
@@ -220,6 +222,9 @@ class GainTable:
     coeffs: np.ndarray  # (n, GAIN_TABLE_NY); zero columns for the values not stored
     errors: dict[str, float]  # field_errors on the dense grid
     stored: tuple[int, ...]  # the values stored; the others are zero over the envelope
+    # a row's fields (name, size): the controller's gains, or another table's (the Kalman
+    # filter's, maglevgen.control.estimation)
+    fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS
 
     @staticmethod
     def t_of(v: np.ndarray | float, v_min: float, v_max: float) -> np.ndarray:
@@ -240,9 +245,10 @@ class GainTable:
         return chebyshev.chebval(self.t_of(v, self.v_min, self.v_max), self.coeffs).T
 
     @classmethod
-    def fit(cls, row_at, v_min: float, v_max: float) -> GainTable:
+    def fit(cls, row_at, v_min: float, v_max: float,
+            fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS) -> GainTable:
         """The smallest table of GAIN_TABLE_NODES within GAIN_TABLE_BOUND on a dense grid
-        (the largest when none is); ``row_at(speeds)`` gives the exact rows."""
+        (the largest when none is); ``row_at(speeds)`` gives the exact rows of ``fields``."""
         from numpy.polynomial import chebyshev
 
         dense = np.linspace(v_min, v_max, DENSE_GRID)
@@ -251,19 +257,19 @@ class GainTable:
         # vertical axes' cross gains, the trim's y, phi, psi) are not stored: a zero output
         # within ZERO_VALUE of each field's scale, counted in the errors like any other
         scale = np.concatenate([np.full(n, np.max(np.abs(exact[:, i:i + n])) or 1.0)
-                                for i, n in _field_slices()])
+                                for i, n in _field_slices(fields)])
         stored = tuple(int(j) for j in np.flatnonzero(np.max(np.abs(exact), axis=0)
                                                       > ZERO_VALUE * scale))
         table = None
         for n in GAIN_TABLE_NODES:
             nodes = cls.nodes(n, v_min, v_max)
             coeffs = chebyshev.chebfit(cls.t_of(nodes, v_min, v_max), row_at(nodes), n - 1)
-            mask = np.zeros(GAIN_TABLE_NY, dtype=bool)
+            mask = np.zeros(coeffs.shape[1], dtype=bool)
             mask[list(stored)] = True
             coeffs[:, ~mask] = 0.0
-            table = cls(v_min, v_max, coeffs, {}, stored)
-            errors = field_errors(table(dense), exact)
-            table = cls(v_min, v_max, coeffs, errors, stored)
+            table = cls(v_min, v_max, coeffs, {}, stored, fields)
+            errors = field_errors(table(dense), exact, fields)
+            table = cls(v_min, v_max, coeffs, errors, stored, fields)
             if max(errors.values()) <= GAIN_TABLE_BOUND:
                 break
         assert table is not None
