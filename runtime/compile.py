@@ -10,8 +10,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from maglevgen.errors import InputError, MaglevError
-from maglevgen.infrastructure.cache import default_cache_dir, write_atomic
-from maglevgen.infrastructure.hashing import ContentHash, file_sha256
+from maglevgen.infrastructure.cache import cache_root, sign_file, signature_ok, write_atomic
+from maglevgen.infrastructure.hashing import ContentHash
 
 __all__ = [
     "DEFAULT_FLAGS",
@@ -21,6 +21,7 @@ __all__ = [
     "compile_shared",
     "compiler_name",
     "find_compiler",
+    "trusted",
 ]
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
@@ -50,9 +51,10 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     """Build (or reuse) a shared library from C sources; returns its path.
 
     The cache key hashes the compiler path, flags and every source's and header's bytes, so a
-    stale entry can never be returned; a cached library whose bytes no longer match the
-    checksum recorded beside it (a corrupted entry) is rebuilt. The library and its checksum
-    are written to temporary names and renamed.
+    stale entry can never be returned; a cached library whose bytes do not match the
+    signature recorded beside it (`maglevgen.infrastructure.cache.sign`: corrupted, or not
+    compiled by this user's runs) is never loaded and is compiled again. The library and its
+    signature are written to temporary names and renamed.
     """
     compiler = find_compiler(cc)
     sources = [Path(s).resolve() for s in sources]
@@ -60,6 +62,7 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     if _intact(lib):
         return lib
     cache, key = lib.parent, lib.name.removeprefix("lib").removesuffix(".so")
+    _refused(lib, progress)
     if progress is not None:
         progress(f"compiling {sources[0].name} ({' '.join(flags)}; cached afterwards)")
     try:
@@ -74,8 +77,7 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
         os.unlink(tmp)
         first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
         raise CompileError(f"compiling {sources[0].name} failed: {first}")
-    digest = file_sha256(Path(tmp))
-    write_atomic(_checksum_path(lib), (digest + "\n").encode())
+    write_atomic(_checksum_path(lib), (sign_file(Path(tmp)) + "\n").encode())
     os.replace(tmp, lib)
     return lib
 
@@ -97,6 +99,7 @@ def compile_object(source: Path, flags: Sequence[str] = ("-std=c99", "-O2", "-fP
     obj = key.with_name(key.name.removeprefix("lib").removesuffix(".so") + ".o")
     if _intact(obj):
         return obj
+    _refused(obj, progress)
     if progress is not None:
         progress(f"compiling {source.name} ({' '.join(flags)}; cached afterwards)")
     try:
@@ -112,7 +115,7 @@ def compile_object(source: Path, flags: Sequence[str] = ("-std=c99", "-O2", "-fP
         os.unlink(tmp)
         first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
         raise CompileError(f"compiling {source.name} failed: {first}")
-    write_atomic(_checksum_path(obj), (file_sha256(Path(tmp)) + "\n").encode())
+    write_atomic(_checksum_path(obj), (sign_file(Path(tmp)) + "\n").encode())
     os.replace(tmp, obj)
     return obj
 
@@ -136,23 +139,37 @@ def _library_path(compiler: str, sources: Sequence[Path], flags: Sequence[str],
     for src in sources:
         h.files((f.name, f) for f in (sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c"
                                       else [src]))
-    cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    return cache / f"lib{h.hexdigest(24)}.so"
+    return cache_root(cache_dir) / f"lib{h.hexdigest(24)}.so"
 
 
 def _checksum_path(lib: Path) -> Path:
-    return lib.with_name(lib.name + ".sha256")
+    return lib.with_name(lib.name + ".hmac")
 
 
 def _intact(lib: Path) -> bool:
-    """A cached library that exists, is ELF and matches its recorded checksum."""
-    if not _looks_like_elf(lib):
+    """A cached library that is a regular ELF file (no link) and matches its recorded
+    signature (`maglevgen.infrastructure.cache.sign`)."""
+    if lib.is_symlink() or not _looks_like_elf(lib):
         return False
     try:
-        recorded = _checksum_path(lib).read_text().strip()
-    except OSError:
+        recorded = _checksum_path(lib).read_text()
+        return signature_ok(recorded, sign_file(lib))
+    except (OSError, UnicodeDecodeError):
         return False
-    return file_sha256(lib) == recorded
+
+
+def trusted(lib: Path) -> bool:
+    """``lib`` is one this user's runs compiled into a cache (its signature verifies): the
+    only libraries the tool loads."""
+    return _intact(Path(lib))
+
+
+def _refused(entry: Path, progress: Callable[[str], None] | None) -> None:
+    """Say so when an entry is there but its signature does not verify (planted, corrupted,
+    or from another user's key): it is not loaded, and compiled again over it."""
+    if progress is not None and (entry.exists() or entry.is_symlink()):
+        progress(f"cache entry {entry.name} is not signed by this user's cache key "
+                 "(corrupted or not made by maglevgen here): not loaded, compiled again")
 
 
 def _looks_like_elf(path: Path) -> bool:

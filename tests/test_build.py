@@ -8,6 +8,7 @@ temporary folders beside it.
 from __future__ import annotations
 
 import hashlib
+import hmac
 import importlib
 import json
 import os
@@ -34,6 +35,7 @@ from test_params_cli import BAD, edited, write_input
 
 from maglevgen.build import STAMP, BuildOptions, run_build, up_to_date
 from maglevgen.cli import main
+from maglevgen.infrastructure.cache import key_file
 from maglevgen.params import load_params
 
 FAST = ["--t-end", "1", "--no-pdf"]
@@ -515,8 +517,9 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
     assert reread & set(original)
     for f, data in original.items():  # each entry the rebuild needed written again whole
         now = f.read_bytes()
-        if f.suffix == ".pkl":  # the store's layout: sha256 of the payload, then the payload
-            assert f not in reread or now[:64] == hashlib.sha256(now[64:]).hexdigest().encode(), f
+        if f.suffix == ".pkl":  # the store's layout: the payload's HMAC, then the payload
+            assert f not in reread or now[:64] == hmac.new(
+                key_file().read_bytes(), now[64:], hashlib.sha256).hexdigest().encode(), f
         else:  # generated C and its compiled library: deterministic
             assert now == data, f
 

@@ -28,7 +28,6 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
@@ -54,6 +53,7 @@ from maglevgen.control.operating import (
 )
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, MaglevError, NoTrimError
+from maglevgen.infrastructure.workers import process_pool
 
 # statuses of a sample's run: the simulation's (RUN_STATUSES) and two of the sample itself
 SAMPLE_STATUSES = ("rejected", "no trim")
@@ -372,7 +372,7 @@ def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
     pending = list(range(len(chunks)))
     while pending:
         failed: list[int] = []
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with process_pool(workers) as pool:
             futures = {pool.submit(run_chunk, study, list(chunks[k])): k for k in pending}
             for fut, k in futures.items():
                 try:
