@@ -32,7 +32,7 @@ from maglevgen.infrastructure.output import (
     owned_names,
     write_output,
 )
-from maglevgen.infrastructure.text import shown_name
+from maglevgen.infrastructure.text import markdown_code, shown_name
 from maglevgen.infrastructure.workers import Job, PendingFiles, Shared, child, submit
 from maglevgen.version import __version__
 
@@ -571,9 +571,10 @@ def _summary_verdicts(carriage, run, env, regions) -> list[str]:
 
     embedded = carriage.params.envelope.embedded_controller
     loaded = carriage.loaded
-    sets = ", ".join(f"`--set {o}`" for o in loaded.overrides) or "none"
-    lines = [f"# maglevgen build: {loaded.source}", "",
-             f"Parameter file: `{loaded.source}` (sha256 {loaded.sha256[:16]}...); "
+    # the file's name and the overrides as the user typed them: escaped (maglevgen's text)
+    sets = ", ".join(markdown_code(f"--set {o}") for o in loaded.overrides) or "none"
+    lines = [f"# maglevgen build: {shown_name(loaded.source, markdown=True)}", "",
+             f"Parameter file: {markdown_code(loaded.source)} (sha256 {loaded.sha256[:16]}...); "
              f"overrides: {sets}.", ""]
     if run.warning:
         lines += [f"Warning: {run.warning}.", ""]

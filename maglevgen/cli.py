@@ -11,6 +11,7 @@ internal failure, 3 failed verification. ``--debug`` shows the traceback.
 from __future__ import annotations
 
 import argparse
+import errno
 import gc
 import json
 import os
@@ -612,6 +613,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         _reader_gone()
         return 0
+    except OSError as exc:
+        if debug:
+            raise
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):  # a full disk anywhere: as --out's
+            where = f" to {exc.filename}" if exc.filename else ""
+            print(f"maglevgen: error: cannot write{where}: {exc.strerror}", file=sys.stderr)
+            return 2
+        print(f"maglevgen: internal error: {type(exc).__name__}: {one_line(exc)} "
+              "(rerun with --debug)", file=sys.stderr)
+        return 1
     except Exception as exc:  # internal failure: one line unless --debug
         if debug:
             raise

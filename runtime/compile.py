@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import subprocess
 import tempfile
 from collections.abc import Callable, Sequence
+from contextlib import suppress
 from pathlib import Path
 
 from maglevgen.errors import InputError, MaglevError
@@ -69,16 +71,11 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create the cache folder {cache}: {exc.strerror}") from None
-    fd, tmp = tempfile.mkstemp(prefix=f".lib{key}.", suffix=".so", dir=cache)
-    os.close(fd)
+    tmp = _temporary(cache, f".lib{key}.", ".so")
     cmd = [compiler, *flags, *map(str, sources), "-o", tmp, "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        os.unlink(tmp)
-        first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
-        raise CompileError(f"compiling {sources[0].name} failed: {first}")
-    write_atomic(_checksum_path(lib), (sign_file(Path(tmp)) + "\n").encode())
-    os.replace(tmp, lib)
+    _check_compiled(proc, tmp, sources[0], cache)
+    _store(tmp, lib)
     return lib
 
 
@@ -107,17 +104,55 @@ def compile_object(source: Path, flags: Sequence[str] = ("-std=c99", "-O2", "-fP
     except OSError as exc:
         raise InputError(f"cannot create the cache folder {obj.parent}: {exc.strerror}"
                          ) from None
-    fd, tmp = tempfile.mkstemp(prefix=f".{obj.stem}.", suffix=".o", dir=obj.parent)
-    os.close(fd)
+    tmp = _temporary(obj.parent, f".{obj.stem}.", ".o")
     proc = subprocess.run([compiler, *flags, "-c", str(source), "-o", tmp],
                           capture_output=True, text=True)
-    if proc.returncode != 0:
-        os.unlink(tmp)
-        first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
-        raise CompileError(f"compiling {source.name} failed: {first}")
-    write_atomic(_checksum_path(obj), (sign_file(Path(tmp)) + "\n").encode())
-    os.replace(tmp, obj)
+    _check_compiled(proc, tmp, source, obj.parent)
+    _store(tmp, obj)
     return obj
+
+
+def _disk_full(where: Path, exc: OSError | None = None) -> InputError:
+    """A full disk (or quota) in the cache: bad input as --out's is (exit 2, one line)."""
+    why = exc.strerror if exc is not None and exc.strerror else os.strerror(errno.ENOSPC)
+    return InputError(f"cannot write to the cache folder {where}: {why}")
+
+
+def _temporary(folder: Path, prefix: str, suffix: str) -> str:
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
+    except OSError as exc:
+        raise _disk_full(folder, exc) from None
+    os.close(fd)
+    return tmp
+
+
+def _check_compiled(proc: subprocess.CompletedProcess, tmp: str, source: Path,
+                    folder: Path) -> None:
+    """A failed compile: its temporary removed (gcc may have removed it already), a full
+    disk as exit 2, anything else as the compiler's first line (exit 1)."""
+    if proc.returncode == 0:
+        return
+    with suppress(FileNotFoundError):
+        os.unlink(tmp)
+    if "No space left on device" in proc.stderr or "Disk quota exceeded" in proc.stderr:
+        raise _disk_full(folder)
+    first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
+    raise CompileError(f"compiling {source.name} failed: {first}")
+
+
+def _store(tmp: str, entry: Path) -> None:
+    """The compiled file signed and renamed into place; a signature that cannot be written
+    (a full disk) leaves no entry."""
+    try:
+        signature = sign_file(Path(tmp))
+    except OSError as exc:
+        raise _disk_full(entry.parent, exc) from None
+    if not write_atomic(_checksum_path(entry), (signature + "\n").encode()):
+        with suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise _disk_full(entry.parent)
+    os.replace(tmp, entry)
 
 
 def cached_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,

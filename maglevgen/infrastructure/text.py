@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 import unicodedata
 
-__all__ = ["MAX_TEXT", "check_text", "control_character", "shown_name"]
+__all__ = ["MAX_TEXT", "check_text", "control_character", "markdown_code", "shown_name"]
 
 #: the longest user text kept (a provenance note, a name): longer is a mistake, not a note
 MAX_TEXT = 2000
@@ -53,3 +53,12 @@ def shown_name(text: object, markdown: bool = False) -> str:
             out.append(ch)
     shown = "".join(out)
     return _MARKDOWN.sub(r"\\\1", shown) if markdown else shown
+
+
+def markdown_code(text: object) -> str:
+    """``text`` as a Markdown code span (shown as it is, no markup): control characters
+    escaped (`shown_name`), the fence longer than any run of backticks in it."""
+    shown = shown_name(text)
+    run = max((len(m) for m in re.findall(r"`+", shown)), default=0)
+    pad = " " if shown.startswith("`") or shown.endswith("`") else ""
+    return f"{'`' * (run + 1)}{pad}{shown}{pad}{'`' * (run + 1)}"

@@ -17,6 +17,7 @@ in the worker), and ends at once when the parent is already gone.
 from __future__ import annotations
 
 import ctypes
+import errno
 import multiprocessing
 import os
 import signal
@@ -28,7 +29,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from maglevgen.errors import MaglevError
+from maglevgen.errors import InputError, MaglevError
 
 __all__ = ["Job", "PendingFiles", "PendingResult", "Shared", "child", "die_with_parent",
            "process_pool", "submit"]
@@ -131,6 +132,13 @@ class Job:
             return self.future.result()
         except BrokenProcessPool:
             raise MaglevError(f"{self.what} failed: the child process ended") from None
+        except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):  # a full disk: exit 2, as --out's
+                where = f" to {exc.filename}" if exc.filename else ""
+                raise InputError(f"{self.what} failed: cannot write{where}: {exc.strerror}"
+                                 ) from None
+            raise MaglevError(f"{self.what} failed: {type(exc).__name__}: "
+                              f"{' '.join(str(exc).split())}") from None
         except Exception as exc:
             raise MaglevError(f"{self.what} failed: {type(exc).__name__}: "
                               f"{' '.join(str(exc).split())}") from None
