@@ -753,7 +753,7 @@ def parse_override(item: str) -> tuple[str, Any]:
     name, raw = (s.strip() for s in item.split("=", 1))
     if not re.fullmatch(r"[A-Za-z0-9_]+(\.[A-Za-z0-9_]+)*", name):
         raise InputError(f"--set {_short(item)}: {_short(name)} is not a dotted parameter name")
-    bad = check_text(raw, MAX_SET)
+    bad = check_text(item.split("=", 1)[1], MAX_SET)  # before strip(): a trailing newline too
     if bad is not None:  # a newline would let the value add keys of its own to the TOML
         raise InputError(f"--set {name}: the value {bad} (one TOML value on one line)")
     try:
