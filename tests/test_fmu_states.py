@@ -281,3 +281,179 @@ def test_co_simulation_time_is_monotone_and_a_nan_start_is_refused(fmu_both: Pat
         assert res[name + " then step"] == ERROR, (name, res)  # the error is sticky
         assert res[name + " then reset"] == 0, (name, res)
     assert res["in order"] == [0, 0, 0]
+
+
+# ---------------------------------------------------------------------------------- FMI 3.0
+
+# FMI 3.0.1, co-simulation without event mode (4.2) and model exchange (3.2)
+ALLOWED3_CS = {
+    "enterInitializationMode": {"instantiated"},
+    "exitInitializationMode": {"initialization"},
+    "doStep": {"step"},
+    "terminate": {"step"},
+    "setFloat64_input": {"instantiated", "initialization", "step"},
+    "getFloat64_output": {"initialization", "step", "terminated", "error"},
+    "reset": set(STATES_CS),
+    "setTime": set(), "setContinuousStates": set(), "getContinuousStateDerivatives": set(),
+    "enterContinuousTimeMode": set(), "completedIntegratorStep": set(),
+}
+ALLOWED3_ME = {
+    "enterInitializationMode": {"instantiated"},
+    "exitInitializationMode": {"initialization"},
+    "terminate": {"event", "continuous"},
+    "setFloat64_input": {"instantiated", "initialization", "event", "continuous"},
+    "getFloat64_output": {"initialization", "event", "continuous", "terminated", "error"},
+    "reset": set(STATES_ME),
+    "setTime": {"event", "continuous"},
+    "setContinuousStates": {"continuous"},
+    "getContinuousStateDerivatives": {"event", "continuous", "terminated", "error"},
+    "getContinuousStates": {"event", "continuous", "terminated", "error"},
+    "enterContinuousTimeMode": {"event"},
+    "updateDiscreteStates": {"event"},
+    "completedIntegratorStep": {"continuous"},
+    "doStep": set(),
+}
+OPEN3 = {("me", "initialization", "getContinuousStateDerivatives"),
+         ("me", "initialization", "getContinuousStates")}
+CASES3 = [c for c in
+          [("cs", s, c, s in allowed) for c, allowed in ALLOWED3_CS.items() for s in STATES_CS]
+          + [("me", s, c, s in allowed) for c, allowed in ALLOWED3_ME.items()
+             for s in STATES_ME]
+          if c[:3] not in OPEN3]
+
+_DRIVER3 = r'''
+import ctypes, json, sys
+from ctypes import byref, c_bool, c_double, c_size_t, c_uint32, c_void_p
+from fmpy import extract, read_model_description
+from fmpy.fmi3 import FMU3Model, FMU3Slave
+
+path = sys.argv[1]
+cases = json.loads(sys.argv[2])
+md = read_model_description(path)
+unzipped = extract(path)
+log = []
+inp = next(v.valueReference for v in md.modelVariables if v.causality == "input")
+out = next(v.valueReference for v in md.modelVariables if v.causality == "output")
+nx = md.numberOfContinuousStates
+Vec = c_double * nx
+loaded = {
+    "cs": FMU3Slave(guid=md.guid, unzipDirectory=unzipped,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="s"),
+    "me": FMU3Model(guid=md.guid, unzipDirectory=unzipped,
+                    modelIdentifier=md.modelExchange.modelIdentifier, instanceName="m"),
+}
+
+def raw(fmu, name, *args):
+    f = getattr(fmu.dll, name)
+    f.restype = ctypes.c_int
+    return f(c_void_p(fmu.component), *args)
+
+def set64(fmu, value):
+    return raw(fmu, "fmi3SetFloat64", byref(c_uint32(inp)), c_size_t(1),
+               byref(c_double(value)), c_size_t(1))
+
+def get64(fmu):
+    return raw(fmu, "fmi3GetFloat64", byref(c_uint32(out)), c_size_t(1), byref(c_double()),
+               c_size_t(1))
+
+def step(fmu, t):
+    b = [c_bool() for _ in range(3)]
+    return raw(fmu, "fmi3DoStep", c_double(t), c_double(1e-3), c_bool(True), byref(b[0]),
+               byref(b[1]), byref(b[2]), byref(c_double()))
+
+def run(kind, state, call):
+    fmu = loaded[kind]
+    fmu.instantiate(logMessage=lambda env, status, cat, msg: log.append(msg.decode()))
+    t = 0.0
+    if state != "instantiated":
+        raw(fmu, "fmi3EnterInitializationMode", c_bool(False), c_double(0), c_double(0),
+            c_bool(False), c_double(0))
+    if state not in ("instantiated", "initialization"):
+        raw(fmu, "fmi3ExitInitializationMode")
+        if kind == "cs":
+            step(fmu, 0.0)
+            t = 1e-3
+    if state == "continuous":
+        raw(fmu, "fmi3EnterContinuousTimeMode")
+    if state == "terminated":
+        raw(fmu, "fmi3Terminate")
+    if state == "error":
+        set64(fmu, float("nan"))
+    got = Vec()
+    if kind == "me" and state in ("event", "continuous"):
+        raw(fmu, "fmi3GetContinuousStates", got, c_size_t(nx))
+    log.clear()
+    b = [c_bool() for _ in range(5)]
+    calls = {
+        "enterInitializationMode": lambda: raw(fmu, "fmi3EnterInitializationMode", c_bool(False),
+                                               c_double(0), c_double(0), c_bool(False),
+                                               c_double(0)),
+        "exitInitializationMode": lambda: raw(fmu, "fmi3ExitInitializationMode"),
+        "doStep": lambda: step(fmu, t),
+        "terminate": lambda: raw(fmu, "fmi3Terminate"),
+        "setFloat64_input": lambda: set64(fmu, 0.0),
+        "getFloat64_output": lambda: get64(fmu),
+        "reset": lambda: raw(fmu, "fmi3Reset"),
+        "setTime": lambda: raw(fmu, "fmi3SetTime", c_double(0.0)),
+        "setContinuousStates": lambda: raw(fmu, "fmi3SetContinuousStates", got, c_size_t(nx)),
+        "getContinuousStateDerivatives": lambda: raw(fmu, "fmi3GetContinuousStateDerivatives",
+                                                     Vec(), c_size_t(nx)),
+        "getContinuousStates": lambda: raw(fmu, "fmi3GetContinuousStates", Vec(),
+                                           c_size_t(nx)),
+        "enterContinuousTimeMode": lambda: raw(fmu, "fmi3EnterContinuousTimeMode"),
+        "updateDiscreteStates": lambda: raw(fmu, "fmi3UpdateDiscreteStates", *map(byref, b),
+                                            byref(c_double())),
+        "completedIntegratorStep": lambda: raw(fmu, "fmi3CompletedIntegratorStep", c_bool(True),
+                                               byref(b[0]), byref(b[1])),
+    }
+    result = calls[call]()
+    messages = list(log)
+    after = get64(fmu)
+    fmu.dll.fmi3FreeInstance(c_void_p(fmu.component))
+    return {"case": [kind, state, call], "status": result, "log": messages, "after": after}
+
+for kind, state, call in cases:
+    print(json.dumps({"start": [kind, state, call]}), flush=True)
+    print(json.dumps(run(kind, state, call)), flush=True)
+'''
+
+
+@pytest.fixture(scope="module")
+def fmu3_both(carriage, tmp_path_factory) -> Path:
+    from maglevgen.exports.fmu import build_fmu
+
+    path = tmp_path_factory.mktemp("fmu3") / "both.fmu"
+    path.write_bytes(build_fmu(carriage, "both", "lqr", fmi="3"))
+    return path
+
+
+def _judge(cases: list, results: list[dict]) -> list[str]:
+    """The cases whose answer the standard's table does not allow (fmi2Error = fmi3Error = 3)."""
+    assert len(results) == len(cases)
+    wrong = []
+    for (kind, state, call, allowed), res in zip(cases, results, strict=True):
+        if allowed and res["status"] == ERROR:
+            wrong.append(f"{kind} {state} {call}: refused ({res['log'][-1:]})")
+        if not allowed:
+            if res["status"] != ERROR:
+                wrong.append(f"{kind} {state} {call}: answered {res['status']}, not Error")
+            elif not res["log"]:
+                wrong.append(f"{kind} {state} {call}: Error without a message")
+            elif state != "instantiated" and res["after"] != 0:
+                wrong.append(f"{kind} {state} {call}: the getter after the error: "
+                             f"{res['after']}")
+    return wrong
+
+
+@pytest.mark.needs_cc
+def test_every_state_and_call_of_fmi3(fmu3_both: Path) -> None:
+    done = subprocess.run([sys.executable, "-c", _DRIVER3, str(fmu3_both),
+                           json.dumps([c[:3] for c in CASES3])],
+                          capture_output=True, text=True, timeout=900)
+    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    if done.returncode != 0:
+        last = lines[-1].get("start") if lines else None
+        pytest.fail(f"the child ended with {done.returncode} in the case {last}: "
+                    f"{done.stderr[-1500:]}")
+    wrong = _judge(CASES3, [r for r in lines if "case" in r])
+    assert wrong == [], "\n".join(wrong)
