@@ -162,8 +162,9 @@ def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
 def _unchanged(out_dir: Path) -> BuildResult:
     summary = (out_dir / SUMMARY).read_text()
     stamp = json.loads((out_dir / STAMP).read_text())
-    # the stamp lists every file but itself: count it too, as the build that wrote it did
-    return BuildResult(out_dir, False, summary, (*stamp["files"], STAMP),
+    # the stamp lists every file but itself and the output marker: counted too, as the build
+    # that wrote them did
+    return BuildResult(out_dir, False, summary, (*stamp["files"], STAMP, MARKER),
                        stamp.get("verification"), stamp.get("warning"))
 
 
@@ -373,7 +374,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                                "files": digests},
                               indent=1) + "\n"
     write_output(files, out_dir)
-    return BuildResult(out_dir, True, summary, tuple(sorted(files)), verification, run.warning)
+    return BuildResult(out_dir, True, summary, tuple(sorted([*files, MARKER])), verification,
+                       run.warning)
 
 
 def other_structures(carriage) -> list:

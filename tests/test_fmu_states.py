@@ -457,3 +457,52 @@ def test_every_state_and_call_of_fmi3(fmu3_both: Path) -> None:
                     f"{done.stderr[-1500:]}")
     wrong = _judge(CASES3, [r for r in lines if "case" in r])
     assert wrong == [], "\n".join(wrong)
+
+
+def _with_asan(fmu: Path, out: Path) -> Path:
+    """``fmu`` with its binary rebuilt from its own sources under AddressSanitizer and
+    UndefinedBehaviorSanitizer (its README's command, the sanitizers added)."""
+    import shutil
+    import zipfile
+
+    import fmpy
+
+    unzipped = out / "unzipped"
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(unzipped)
+    (binary,) = unzipped.glob("binaries/*/*.so")
+    src = unzipped / "sources"
+    subprocess.run(["gcc", "-std=c99", "-O1", "-g", "-fPIC", "-shared",
+                    "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
+                    "-fno-omit-frame-pointer", f"-I{Path(fmpy.__file__).parent / 'c-code'}",
+                    *(str(p) for p in sorted(src.glob("*.c"))), "-o", str(binary), "-lm"],
+                   check=True, capture_output=True, timeout=1800)
+    path = out / fmu.name
+    shutil.make_archive(str(path.with_suffix("")), "zip", unzipped)
+    path.with_suffix(".zip").rename(path)
+    return path
+
+
+@pytest.mark.slow
+@pytest.mark.needs_cc
+@pytest.mark.parametrize("version", ["2", "3"])
+def test_the_tables_under_asan(fmu_both: Path, fmu3_both: Path, tmp_path: Path,
+                               version: str) -> None:
+    """Both tables again with the FMU's C under ASan/UBSan (libasan preloaded into the
+    child): no sanitizer report, the same answers."""
+    import os
+
+    fmu = _with_asan(fmu_both if version == "2" else fmu3_both, tmp_path)
+    asan = subprocess.run(["gcc", "-print-file-name=libasan.so"], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    env = {**os.environ, "LD_PRELOAD": asan, "ASAN_OPTIONS": "detect_leaks=0"}
+    driver, cases = (_DRIVER, CASES) if version == "2" else (_DRIVER3, CASES3)
+    done = subprocess.run([sys.executable, "-c", driver, str(fmu),
+                           json.dumps([c[:3] for c in cases])], capture_output=True,
+                          text=True, timeout=1800, env=env)
+    assert "AddressSanitizer" not in done.stderr and "runtime error" not in done.stderr, \
+        done.stderr[-3000:]
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = [json.loads(line) for line in done.stdout.splitlines()
+               if line.startswith("{") and '"case"' in line]
+    assert _judge(cases, results) == []

@@ -28,8 +28,10 @@ __all__ = [
     "closure_hash",
     "file_sha256",
     "imported_modules",
+    "keyed_hex",
     "module_files",
     "package_root",
+    "same_digest",
     "sha256_hex",
     "source_closure",
 ]
