@@ -36,6 +36,7 @@ from test_params_cli import BAD, edited, write_input
 from maglevgen.build import STAMP, BuildOptions, run_build, up_to_date
 from maglevgen.cli import main
 from maglevgen.infrastructure.cache import key_file
+from maglevgen.infrastructure.output import MARKER
 from maglevgen.params import load_params
 
 FAST = ["--t-end", "1", "--no-pdf"]
@@ -76,7 +77,9 @@ def test_build_writes_every_stage_and_a_consistent_stamp(good: Path, carriage) -
                      "report/report.tex", "SUMMARY.md", STAMP):
         assert expected in names, expected
     stamp = json.loads((good / STAMP).read_text())
-    assert set(stamp["files"]) == names - {STAMP}
+    # every file but the stamp itself and the output marker (the list of what was written)
+    assert set(stamp["files"]) == names - {STAMP, MARKER}
+    assert json.loads((good / MARKER).read_text())["files"] == sorted(names - {MARKER})
     assert all(tree(good)[n] == d for n, d in stamp["files"].items())
     manifest = json.loads((good / "c/manifest.json").read_text())
     assert [p["value"] for p in manifest["parameter_vector"]] == list(carriage.p)
@@ -538,7 +541,7 @@ def test_concurrent_builds_into_one_folder_end_consistent(tmp_path: Path, good: 
         _, err = p.communicate(timeout=600)
         assert p.returncode == 0, err
     stamp = json.loads((out / STAMP).read_text())
-    assert tree(out) == {**stamp["files"], STAMP: tree(out)[STAMP]}
+    assert tree(out) == {**stamp["files"], STAMP: tree(out)[STAMP], MARKER: tree(out)[MARKER]}
     mass = next(p["value"] for p in json.loads((out / "c/manifest.json").read_text())
                 ["parameter_vector"] if p["name"] == "vehicle.mass")
     assert stamp["overrides"] == [f"vehicle.mass={mass}"]
