@@ -755,7 +755,8 @@ def parse_override(item: str) -> tuple[str, Any]:
         raise InputError(f"--set {_short(item)}: {_short(name)} is not a dotted parameter name")
     bad = check_text(item.split("=", 1)[1], MAX_SET)  # before strip(): a trailing newline too
     if bad is not None:  # a newline would let the value add keys of its own to the TOML
-        raise InputError(f"--set {name}: the value {bad} (one TOML value on one line)")
+        one_line = " (one TOML value on one line)" if "control" in bad else ""
+        raise InputError(f"--set {name}: the value {bad}{one_line}")
     try:
         doc = tomllib.loads(f"v = {raw}")
         if list(doc) != ["v"]:
