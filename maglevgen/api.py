@@ -1048,6 +1048,10 @@ class Carriage:
             self._speed(speed)
         _check_run_options(t_end, dt)
         initial = _disturbance(disturbance)  # before the library: bad input is one line
+        if out is not None:
+            from maglevgen.infrastructure.output import check_writable
+
+            check_writable(Path(out))  # before any work: a folder of the user's is refused
         controllers = ALL if controller == "all" else (controller,)
         # the library if this carriage has built it (cached_property's entry), else the one
         # run_scenarios builds after checking its options: bad input stays the only line
@@ -1117,6 +1121,10 @@ class Carriage:
         'stable'
         """
         queries = _commands()
+        if out is not None:
+            from maglevgen.infrastructure.output import check_writable
+
+            check_writable(Path(out))  # before any work: a folder of the user's is refused
         env = queries.envelope_of(self._carriage, n_speeds)
         rep = env.to_json()
         paths: tuple[Path, ...] = ()

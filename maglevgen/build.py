@@ -24,7 +24,15 @@ from maglevgen.infrastructure import progress
 from maglevgen.infrastructure.cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
 from maglevgen.infrastructure.columns import fcolumn_plain
 from maglevgen.infrastructure.hashing import ContentHash, file_sha256, sha256_hex
-from maglevgen.infrastructure.output import check_writable, clean_stale_siblings, write_output
+from maglevgen.infrastructure.output import (
+    MARKER,
+    check_writable,
+    clean_stale_siblings,
+    foreign_entry,
+    owned_names,
+    write_output,
+)
+from maglevgen.infrastructure.text import markdown_code, shown_name
 from maglevgen.infrastructure.workers import Job, PendingFiles, Shared, child, submit
 from maglevgen.version import __version__
 
@@ -38,6 +46,7 @@ __all__ = [
     "BuildOptions",
     "BuildResult",
     "JudgedRun",
+    "build_changes",
     "build_folder",
     "build_key",
     "cached_result",
@@ -83,22 +92,54 @@ def build_key(params_sha256: str, overrides: tuple[str, ...], opts: BuildOptions
                        toolchain_fingerprint()).hexdigest()
 
 
-def up_to_date(out_dir: Path, key: str) -> bool:
-    """The folder holds a complete build for ``key``: stamp matches, every file unchanged."""
+def build_changes(out_dir: Path, key: str) -> str | None:
+    """What differs between ``out_dir`` and a complete build for ``key`` (one line), or None
+    when it is one: the stamp's key, then every path of the folder against the stamp's list
+    (a file removed, changed, replaced by a symbolic link, added; an entry naming a place
+    outside the folder), the output marker listing the same files."""
+    stamp_path = out_dir / STAMP
+    if not out_dir.is_dir():
+        return "no build there yet"
+    if stamp_path.is_symlink() or not stamp_path.is_file():
+        return f"no {STAMP} there"
     try:
-        stamp = json.loads((out_dir / STAMP).read_text())
-        if stamp.get("key") != key:
-            return False
-        return all(file_sha256(out_dir / name) == digest
-                   for name, digest in stamp["files"].items())
-    except (OSError, ValueError, KeyError, AttributeError, TypeError):
-        return False
+        stamp = json.loads(stamp_path.read_text(encoding="utf-8"))
+        if not isinstance(stamp, dict) or stamp.get("key") != key:
+            return "the inputs, the options or the toolchain changed"
+        listed = stamp["files"]
+        if not isinstance(listed, dict):
+            return f"{STAMP} lists no files"
+        names = owned_names(out_dir)
+        expected = {*listed, STAMP, MARKER}
+        if names != expected:  # an entry outside the folder, or lists that disagree
+            return f"{STAMP} or {MARKER} does not list the folder's files"
+        for name, digest in sorted(listed.items()):
+            path = out_dir / name
+            shown = shown_name(name)
+            if any(p.is_symlink() for p in (path, *path.parents) if out_dir in p.parents):
+                return f"{shown} is a symbolic link"
+            if not path.is_file():
+                return f"{shown} was removed"
+            if file_sha256(path) != digest:
+                return f"{shown} changed"
+        extra = foreign_entry(out_dir, expected)
+        if extra is not None:
+            return f"{shown_name(extra)} was added"
+    except (OSError, ValueError, KeyError, AttributeError, TypeError) as exc:
+        return f"{STAMP} cannot be read ({type(exc).__name__})"
+    return None
+
+
+def up_to_date(out_dir: Path, key: str) -> bool:
+    """The folder holds a complete build for ``key`` and nothing else (`build_changes`)."""
+    return build_changes(out_dir, key) is None
 
 
 def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
-                  opts: BuildOptions) -> BuildResult | None:
+                  opts: BuildOptions, why: list[str] | None = None) -> BuildResult | None:
     """The result of an up-to-date folder, checked from the parameter text alone (no schema,
-    no derivation imported); None when anything needs building or cannot be read."""
+    no derivation imported); None when anything needs building or cannot be read (and, for a
+    folder holding a build, the line saying what changed appended to ``why``)."""
     try:
         if params_path is None:
             text = resources.files("maglevgen").joinpath(DEFAULT_PARAMS_NAME).read_text("utf-8")
@@ -109,7 +150,10 @@ def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
         return None
     tex = _find_tex() if opts.pdf else None
     key = build_key(params_digest(text, overrides), tuple(overrides), opts, tex)
-    if not up_to_date(out_dir, key):
+    changed = build_changes(out_dir, key)
+    if changed is not None:
+        if why is not None and (out_dir / STAMP).exists():
+            why.append(f"rebuilding {shown_name(out_dir)}: {changed}")
         return None
     clean_stale_siblings(out_dir)  # what killed builds into this folder left beside it
     return _unchanged(out_dir)
@@ -118,8 +162,9 @@ def cached_result(params_path: str | None, overrides: list[str], out_dir: Path,
 def _unchanged(out_dir: Path) -> BuildResult:
     summary = (out_dir / SUMMARY).read_text()
     stamp = json.loads((out_dir / STAMP).read_text())
-    # the stamp lists every file but itself: count it too, as the build that wrote it did
-    return BuildResult(out_dir, False, summary, (*stamp["files"], STAMP),
+    # the stamp lists every file but itself and the output marker: counted too, as the build
+    # that wrote them did
+    return BuildResult(out_dir, False, summary, (*stamp["files"], STAMP, MARKER),
                        stamp.get("verification"), stamp.get("warning"))
 
 
@@ -162,12 +207,15 @@ def build_folder(params: str | Path | None, overrides: Sequence[str], out_dir: s
     if controller:
         overrides.append(f'envelope.embedded_controller="{controller}"')
     out_dir = Path(out_dir)
-    res = cached_result(None if params is None else str(params), overrides, out_dir, opts)
+    why: list[str] = []
+    res = cached_result(None if params is None else str(params), overrides, out_dir, opts, why)
     if res is not None:
         return res
     from maglevgen.params import check_run_options, load_params
 
     with progress.held():  # bad input found here is the only line on stderr
+        for line in why:
+            (step or (lambda _: None))(line)
         loaded = load_params(params, overrides)
         check_run_options(opts.t_end, opts.dt)
         check_writable(out_dir)  # before any work (the library, the model)
@@ -326,7 +374,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                                "files": digests},
                               indent=1) + "\n"
     write_output(files, out_dir)
-    return BuildResult(out_dir, True, summary, tuple(sorted(files)), verification, run.warning)
+    return BuildResult(out_dir, True, summary, tuple(sorted([*files, MARKER])), verification,
+                       run.warning)
 
 
 def other_structures(carriage) -> list:
@@ -528,9 +577,10 @@ def _summary_verdicts(carriage, run, env, regions) -> list[str]:
 
     embedded = carriage.params.envelope.embedded_controller
     loaded = carriage.loaded
-    sets = ", ".join(f"`--set {o}`" for o in loaded.overrides) or "none"
-    lines = [f"# maglevgen build: {loaded.source}", "",
-             f"Parameter file: `{loaded.source}` (sha256 {loaded.sha256[:16]}...); "
+    # the file's name and the overrides as the user typed them: escaped (maglevgen's text)
+    sets = ", ".join(markdown_code(f"--set {o}") for o in loaded.overrides) or "none"
+    lines = [f"# maglevgen build: {shown_name(loaded.source, markdown=True)}", "",
+             f"Parameter file: {markdown_code(loaded.source)} (sha256 {loaded.sha256[:16]}...); "
              f"overrides: {sets}.", ""]
     if run.warning:
         lines += [f"Warning: {run.warning}.", ""]

@@ -11,6 +11,7 @@ internal failure, 3 failed verification. ``--debug`` shows the traceback.
 from __future__ import annotations
 
 import argparse
+import errno
 import gc
 import json
 import os
@@ -23,6 +24,7 @@ from typing import TYPE_CHECKING, NoReturn
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import MaglevError
 from maglevgen.infrastructure.columns import fcolumn_plain
+from maglevgen.infrastructure.text import shown_name
 from maglevgen.version import __version__
 
 if TYPE_CHECKING:
@@ -202,7 +204,7 @@ def cmd_envelope(args: argparse.Namespace) -> int:
     print("Ten-state closed loop (y z phi theta psi v w p q r) at the trim at each of "
           f"{env.speeds.size} speeds; x drops out, the speed is held by the propulsion.")
     if args.out:
-        print(f"wrote {len(env.paths)} files to {Path(args.out).resolve()}")
+        print(f"wrote {len(env.paths)} files to {shown_name(Path(args.out).resolve())}")
     return 0
 
 
@@ -218,7 +220,7 @@ def cmd_roa(args: argparse.Namespace) -> int:
         return 0
     print("\n".join(res.lines))
     if args.out:
-        print(f"wrote {len(res.paths)} files to {Path(args.out).resolve()}")
+        print(f"wrote {len(res.paths)} files to {shown_name(Path(args.out).resolve())}")
     return 0
 
 
@@ -231,7 +233,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     opts = GenerateOptions(args.precision, args.parameters, args.int, args.single_file)
     paths = _carriage(args).generate(args.out, opts.precision, opts.parameters, opts.int_type,
                                      opts.single_file)
-    print(f"wrote {len(paths)} files to {Path(args.out).resolve()} ({opts.command})")
+    print(f"wrote {len(paths)} files to {shown_name(Path(args.out).resolve())} ({opts.command})")
     for path in paths:
         print(f"  {path.name}")
     return 0
@@ -243,7 +245,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def cmd_firmware(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
     paths = carriage.firmware(args.out, args.precision, args.with_plant)
-    print(f"wrote {len(paths)} files to {Path(args.out).resolve()} (the embedded controller "
+    print(f"wrote {len(paths)} files to {shown_name(Path(args.out).resolve())} "
+          "(the embedded controller "
           f"{carriage.params.envelope.embedded_controller!r}, {args.precision} precision; "
           "what to call when: README.md there)")
     for path in paths:
@@ -275,7 +278,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         state, worst = max(run.check.items(), key=lambda kv: kv[1]["relative_to_peak"])
         print(f"  check {run.controller:<8} largest deviation from the adaptive reference: "
               f"{state} {worst['max_abs']:.3g} ({worst['relative_to_peak']:.2g} of its peak)")
-    print(f"wrote {len(runs.paths)} files to {Path(args.out).resolve()} (metrics.md: the "
+    print(f"wrote {len(runs.paths)} files to {shown_name(Path(args.out).resolve())} "
+          "(metrics.md: the "
           "tables)")
     return 0
 
@@ -301,7 +305,8 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
             counts = ", ".join(f"{s} {n}" for s, n in a["status_counts"].items() if n)
             print(f"  {c:<8} contact probability {rate}; {counts}")
     if args.out:
-        print(f"wrote {len(res.paths)} files to {Path(args.out).resolve()} (montecarlo.md)",
+        print(f"wrote {len(res.paths)} files to {shown_name(Path(args.out).resolve())} "
+              "(montecarlo.md)",
               file=sys.stderr if args.json else sys.stdout)
     return 0
 
@@ -316,7 +321,7 @@ def cmd_fmu(args: argparse.Namespace) -> int:
     path = carriage.fmu(args.out, args.kind, args.controller, args.fmi, args.loop,
                         progress=True)
     controller = args.controller or carriage.params.envelope.embedded_controller
-    print(f"wrote {path.resolve()} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
+    print(f"wrote {shown_name(path.resolve())} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
           f"controller {controller}, {args.loop} loop, {path.stat().st_size} bytes)")
     return 0
 
@@ -327,7 +332,7 @@ def cmd_fmu(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     res = _carriage(args).report(args.out, args.simulation, progress=True)
     built = f", PDF by {res.latex_tool} in {res.latex_seconds:.1f} s" if res.pdf else ""
-    print(f"wrote {len(res)} files to {res.out_dir}{built}")
+    print(f"wrote {len(res)} files to {shown_name(res.out_dir)}{built}")
     for path in res:
         print(f"  {path.name}")
     return 0
@@ -346,13 +351,14 @@ def cmd_build(args: argparse.Namespace) -> int:
     res = build_folder(args.params, args.overrides, Path(args.out), opts, args.controller,
                        step=progress.step, bar=progress.bar)
     if not res.rebuilt:
-        print(f"{res.out_dir} is up to date ({len(res.files)} files; nothing regenerated)")
+        print(f"{shown_name(res.out_dir)} is up to date ({len(res.files)} files; nothing "
+              "regenerated)")
     else:
         sys.stdout.write(res.summary)
-        print(f"\nwrote {len(res.files)} files to {res.out_dir}:")
+        print(f"\nwrote {len(res.files)} files to {shown_name(res.out_dir)}:")
         for sub in ("c", "lib", "simulation", "envelope", "report"):
-            print(f"  {res.out_dir / sub}/")
-        print(f"  {res.out_dir / 'SUMMARY.md'} (this summary)")
+            print(f"  {shown_name(res.out_dir / sub)}/")
+        print(f"  {shown_name(res.out_dir / 'SUMMARY.md')} (this summary)")
     for message in res.warnings(opts.allow_unstable):
         print(f"maglevgen: warning: {message}", file=sys.stderr)
     if (error := res.failure(opts.allow_unstable)) is not None:
@@ -612,6 +618,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         _reader_gone()
         return 0
+    except OSError as exc:
+        if debug:
+            raise
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):  # a full disk anywhere: as --out's
+            where = f" to {exc.filename}" if exc.filename else ""
+            print(f"maglevgen: error: cannot write{where}: {exc.strerror}", file=sys.stderr)
+            return 2
+        print(f"maglevgen: internal error: {type(exc).__name__}: {one_line(exc)} "
+              "(rerun with --debug)", file=sys.stderr)
+        return 1
     except Exception as exc:  # internal failure: one line unless --debug
         if debug:
             raise
@@ -621,8 +637,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def one_line(exc: BaseException) -> str:
-    """An error's message on one line, whatever the library that wrote it put in it."""
-    return " ".join(str(exc).split())
+    """An error's message on one line, whatever the library that wrote it put in it, with
+    any control character left in it (a user's file name) escaped for the terminal."""
+    return shown_name(" ".join(str(exc).split()))
 
 
 def run() -> None:

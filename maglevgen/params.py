@@ -27,6 +27,7 @@ from maglevgen.derive.conventions import (
 from maglevgen.derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
 from maglevgen.errors import InputError
 from maglevgen.infrastructure.cache import DEFAULT_PARAMS_NAME, params_digest
+from maglevgen.infrastructure.text import check_text
 
 __all__ = [
     "ACTUATOR_MODELS",
@@ -715,6 +716,15 @@ class Provenance(BaseModel):
             raise ValueError(f"expected one of {', '.join(PROVENANCE_SOURCES)}")
         return source
 
+    @field_validator("why")
+    @classmethod
+    def _one_line_text(cls, why: str) -> str:
+        """It reaches the report's LaTeX and SUMMARY.md: no control characters, bounded."""
+        bad = check_text(why)
+        if bad is not None:
+            raise ValueError(bad)
+        return why
+
 
 class Parameters(_Section):
     """A carriage description. Arrays are keyed by their number in the paper's Fig. 2."""
@@ -931,15 +941,27 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
     node[keys[-1]] = value
 
 
+#: the longest --set value (a vector or a small table; a parameter file holds more)
+MAX_SET = 4000
+
+
 def parse_override(item: str) -> tuple[str, Any]:
     """Parse ``NAME=VALUE`` where VALUE is a TOML value (``9.3``, ``[0, 0, 0.01]``, ``"x"``)."""
     if "=" not in item:
         raise InputError(f"--set {item!r}: expected NAME=VALUE")
     name, raw = (s.strip() for s in item.split("=", 1))
     if not re.fullmatch(r"[A-Za-z0-9_]+(\.[A-Za-z0-9_]+)*", name):
-        raise InputError(f"--set {item!r}: {name!r} is not a dotted parameter name")
+        raise InputError(f"--set {_short(item)}: {_short(name)} is not a dotted parameter name")
+    bad = check_text(item.split("=", 1)[1], MAX_SET)  # before strip(): a trailing newline too
+    if bad is not None:  # a newline would let the value add keys of its own to the TOML
+        one_line = " (one TOML value on one line)" if "control" in bad else ""
+        raise InputError(f"--set {name}: the value {bad}{one_line}")
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
+        doc = tomllib.loads(f"v = {raw}")
+        if list(doc) != ["v"]:
+            raise InputError(f"--set {name}: the value {_short(raw)} is more than one TOML "
+                             "value")
+        value = doc["v"]
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"--set {_short(item)}: not a TOML value ({exc})") from None
     except RecursionError:

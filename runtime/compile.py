@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import subprocess
 import tempfile
 from collections.abc import Callable, Sequence
+from contextlib import suppress
 from pathlib import Path
 
 from maglevgen.errors import InputError, MaglevError
-from maglevgen.infrastructure.cache import default_cache_dir, write_atomic
-from maglevgen.infrastructure.hashing import ContentHash, file_sha256
+from maglevgen.infrastructure.cache import cache_root, sign_file, signature_ok, write_atomic
+from maglevgen.infrastructure.hashing import ContentHash
 
 __all__ = [
     "DEFAULT_FLAGS",
@@ -21,6 +23,7 @@ __all__ = [
     "compile_shared",
     "compiler_name",
     "find_compiler",
+    "trusted",
 ]
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
@@ -50,9 +53,10 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     """Build (or reuse) a shared library from C sources; returns its path.
 
     The cache key hashes the compiler path, flags and every source's and header's bytes, so a
-    stale entry can never be returned; a cached library whose bytes no longer match the
-    checksum recorded beside it (a corrupted entry) is rebuilt. The library and its checksum
-    are written to temporary names and renamed.
+    stale entry can never be returned; a cached library whose bytes do not match the
+    signature recorded beside it (`maglevgen.infrastructure.cache.sign`: corrupted, or not
+    compiled by this user's runs) is never loaded and is compiled again. The library and its
+    signature are written to temporary names and renamed.
     """
     compiler = find_compiler(cc)
     sources = [Path(s).resolve() for s in sources]
@@ -60,23 +64,18 @@ def compile_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS
     if _intact(lib):
         return lib
     cache, key = lib.parent, lib.name.removeprefix("lib").removesuffix(".so")
+    _refused(lib, progress)
     if progress is not None:
         progress(f"compiling {sources[0].name} ({' '.join(flags)}; cached afterwards)")
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create the cache folder {cache}: {exc.strerror}") from None
-    fd, tmp = tempfile.mkstemp(prefix=f".lib{key}.", suffix=".so", dir=cache)
-    os.close(fd)
+    tmp = _temporary(cache, f".lib{key}.", ".so")
     cmd = [compiler, *flags, *map(str, sources), "-o", tmp, "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        os.unlink(tmp)
-        first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
-        raise CompileError(f"compiling {sources[0].name} failed: {first}")
-    digest = file_sha256(Path(tmp))
-    write_atomic(_checksum_path(lib), (digest + "\n").encode())
-    os.replace(tmp, lib)
+    _check_compiled(proc, tmp, sources[0], cache)
+    _store(tmp, lib)
     return lib
 
 
@@ -97,6 +96,7 @@ def compile_object(source: Path, flags: Sequence[str] = ("-std=c99", "-O2", "-fP
     obj = key.with_name(key.name.removeprefix("lib").removesuffix(".so") + ".o")
     if _intact(obj):
         return obj
+    _refused(obj, progress)
     if progress is not None:
         progress(f"compiling {source.name} ({' '.join(flags)}; cached afterwards)")
     try:
@@ -104,17 +104,55 @@ def compile_object(source: Path, flags: Sequence[str] = ("-std=c99", "-O2", "-fP
     except OSError as exc:
         raise InputError(f"cannot create the cache folder {obj.parent}: {exc.strerror}"
                          ) from None
-    fd, tmp = tempfile.mkstemp(prefix=f".{obj.stem}.", suffix=".o", dir=obj.parent)
-    os.close(fd)
+    tmp = _temporary(obj.parent, f".{obj.stem}.", ".o")
     proc = subprocess.run([compiler, *flags, "-c", str(source), "-o", tmp],
                           capture_output=True, text=True)
-    if proc.returncode != 0:
-        os.unlink(tmp)
-        first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
-        raise CompileError(f"compiling {source.name} failed: {first}")
-    write_atomic(_checksum_path(obj), (file_sha256(Path(tmp)) + "\n").encode())
-    os.replace(tmp, obj)
+    _check_compiled(proc, tmp, source, obj.parent)
+    _store(tmp, obj)
     return obj
+
+
+def _disk_full(where: Path, exc: OSError | None = None) -> InputError:
+    """A full disk (or quota) in the cache: bad input as --out's is (exit 2, one line)."""
+    why = exc.strerror if exc is not None and exc.strerror else os.strerror(errno.ENOSPC)
+    return InputError(f"cannot write to the cache folder {where}: {why}")
+
+
+def _temporary(folder: Path, prefix: str, suffix: str) -> str:
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
+    except OSError as exc:
+        raise _disk_full(folder, exc) from None
+    os.close(fd)
+    return tmp
+
+
+def _check_compiled(proc: subprocess.CompletedProcess, tmp: str, source: Path,
+                    folder: Path) -> None:
+    """A failed compile: its temporary removed (gcc may have removed it already), a full
+    disk as exit 2, anything else as the compiler's first line (exit 1)."""
+    if proc.returncode == 0:
+        return
+    with suppress(FileNotFoundError):
+        os.unlink(tmp)
+    if "No space left on device" in proc.stderr or "Disk quota exceeded" in proc.stderr:
+        raise _disk_full(folder)
+    first = (proc.stderr.strip().splitlines() or ["(no output)"])[0]
+    raise CompileError(f"compiling {source.name} failed: {first}")
+
+
+def _store(tmp: str, entry: Path) -> None:
+    """The compiled file signed and renamed into place; a signature that cannot be written
+    (a full disk) leaves no entry."""
+    try:
+        signature = sign_file(Path(tmp))
+    except OSError as exc:
+        raise _disk_full(entry.parent, exc) from None
+    if not write_atomic(_checksum_path(entry), (signature + "\n").encode()):
+        with suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise _disk_full(entry.parent)
+    os.replace(tmp, entry)
 
 
 def cached_shared(sources: Sequence[Path], flags: Sequence[str] = DEFAULT_FLAGS,
@@ -136,23 +174,37 @@ def _library_path(compiler: str, sources: Sequence[Path], flags: Sequence[str],
     for src in sources:
         h.files((f.name, f) for f in (sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c"
                                       else [src]))
-    cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    return cache / f"lib{h.hexdigest(24)}.so"
+    return cache_root(cache_dir) / f"lib{h.hexdigest(24)}.so"
 
 
 def _checksum_path(lib: Path) -> Path:
-    return lib.with_name(lib.name + ".sha256")
+    return lib.with_name(lib.name + ".hmac")
 
 
 def _intact(lib: Path) -> bool:
-    """A cached library that exists, is ELF and matches its recorded checksum."""
-    if not _looks_like_elf(lib):
+    """A cached library that is a regular ELF file (no link) and matches its recorded
+    signature (`maglevgen.infrastructure.cache.sign`)."""
+    if lib.is_symlink() or not _looks_like_elf(lib):
         return False
     try:
-        recorded = _checksum_path(lib).read_text().strip()
-    except OSError:
+        recorded = _checksum_path(lib).read_text()
+        return signature_ok(recorded, sign_file(lib))
+    except (OSError, UnicodeDecodeError):
         return False
-    return file_sha256(lib) == recorded
+
+
+def trusted(lib: Path) -> bool:
+    """``lib`` is one this user's runs compiled into a cache (its signature verifies): the
+    only libraries the tool loads."""
+    return _intact(Path(lib))
+
+
+def _refused(entry: Path, progress: Callable[[str], None] | None) -> None:
+    """Say so when an entry is there but its signature does not verify (planted, corrupted,
+    or from another user's key): it is not loaded, and compiled again over it."""
+    if progress is not None and (entry.exists() or entry.is_symlink()):
+        progress(f"cache entry {entry.name} is not signed by this user's cache key "
+                 "(corrupted or not made by maglevgen here): not loaded, compiled again")
 
 
 def _looks_like_elf(path: Path) -> bool:

@@ -25,10 +25,17 @@ import numpy as np
 
 from maglevgen.codegen.simulate_api import function as api_function
 from maglevgen.derive.structure import Structure, numbered
-from maglevgen.infrastructure.cache import cache_root, derivation_fingerprint
+from maglevgen.errors import MaglevError
+from maglevgen.infrastructure.cache import cache_root, derivation_fingerprint, sign, signature_ok
 from maglevgen.infrastructure.hashing import ContentHash, file_sha256, sha256_hex
 from maglevgen.infrastructure.output import write_output
-from maglevgen.runtime.compile import DEFAULT_FLAGS, CompileError, cached_shared, compile_shared
+from maglevgen.runtime.compile import (
+    DEFAULT_FLAGS,
+    CompileError,
+    cached_shared,
+    compile_shared,
+    trusted,
+)
 from maglevgen.runtime.ffi import GeneratedLibrary
 
 __all__ = [
@@ -80,17 +87,27 @@ def derivation_key(structure: Structure, precision: str) -> str:
 
 
 def _checksums(files: dict[str, bytes]) -> str:
+    """The folder's list of checksums, signed (`sign`: the C compiled into the libraries the
+    tool loads is trusted only as this user's runs wrote it)."""
     sums = {name: sha256_hex(data) for name, data in sorted(files.items())}
-    return json.dumps(sums, indent=1, sort_keys=True) + "\n"
+    return json.dumps({"files": sums, "hmac": sign(json.dumps(sums, sort_keys=True).encode())},
+                      indent=1, sort_keys=True) + "\n"
 
 
 def _intact(folder: Path) -> bool:
-    """True when every file listed in the folder's checksum file is present and unchanged."""
+    """True when the folder's signed checksum list verifies and every C file and header in
+    the folder is listed, present and unchanged."""
     try:
         listed = json.loads((folder / CHECKSUMS).read_text())
-        return all(file_sha256(folder / n) == s
-                   for n, s in listed.items()) and bool(listed)
-    except (OSError, ValueError, AttributeError):
+        sums = listed["files"]
+        if not sums or not signature_ok(listed["hmac"],
+                                        sign(json.dumps(sums, sort_keys=True).encode())):
+            return False
+        present = {p.name for p in folder.glob("*.[ch]")}
+        return present <= set(sums) and all(
+            not (folder / n).is_symlink() and file_sha256(folder / n) == s
+            for n, s in sums.items())
+    except (OSError, ValueError, AttributeError, KeyError, TypeError):
         return False
 
 
@@ -108,7 +125,7 @@ def runtime_sources(structure: Structure, precision: str = "double",
 
     files = render_runtime_sources(build_model(numbered(structure)), precision)
     data = {n: t.encode() for n, t in files.items()}
-    write_output({**files, CHECKSUMS: _checksums(data)}, folder)
+    write_output({**files, CHECKSUMS: _checksums(data)}, folder, ours=True)
     return folder
 
 
@@ -162,6 +179,9 @@ class SimulationLibrary(GeneratedLibrary):
 
     def __init__(self, path: Path, precision: str = "double", sources: Path | None = None
                  ) -> None:
+        if not trusted(path):  # never dlopen what this user's runs did not compile
+            raise MaglevError(f"refusing to load {path}: not a library maglevgen compiled in "
+                              "this cache (its signature does not verify)")
         super().__init__(path, precision)
         self.sources = sources
         self._batch = None
@@ -302,6 +322,8 @@ class SimulationLibrary(GeneratedLibrary):
                                      cache_dir=self.path.parent)
             except CompileError:  # a compiler without OpenMP: the same runs on one thread
                 lib = compile_shared([src], flags, cc=cc, cache_dir=self.path.parent)
+            if not trusted(lib):
+                raise MaglevError(f"refusing to load {lib}: its signature does not verify")
             fn = self._api(ctypes.CDLL(str(lib)), "maglev_batch_simulate")
             self._batch = fn
         return self._batch

@@ -8,6 +8,7 @@ temporary folders beside it.
 from __future__ import annotations
 
 import hashlib
+import hmac
 import importlib
 import json
 import os
@@ -34,6 +35,8 @@ from test_params_cli import BAD, edited, write_input
 
 from maglevgen.build import STAMP, BuildOptions, run_build, up_to_date
 from maglevgen.cli import main
+from maglevgen.infrastructure.cache import key_file
+from maglevgen.infrastructure.output import MARKER
 from maglevgen.params import load_params
 
 FAST = ["--t-end", "1", "--no-pdf"]
@@ -74,7 +77,9 @@ def test_build_writes_every_stage_and_a_consistent_stamp(good: Path, carriage) -
                      "report/report.tex", "SUMMARY.md", STAMP):
         assert expected in names, expected
     stamp = json.loads((good / STAMP).read_text())
-    assert set(stamp["files"]) == names - {STAMP}
+    # every file but the stamp itself and the output marker (the list of what was written)
+    assert set(stamp["files"]) == names - {STAMP, MARKER}
+    assert json.loads((good / MARKER).read_text())["files"] == sorted(names - {MARKER})
     assert all(tree(good)[n] == d for n, d in stamp["files"].items())
     manifest = json.loads((good / "c/manifest.json").read_text())
     assert [p["value"] for p in manifest["parameter_vector"]] == list(carriage.p)
@@ -295,7 +300,9 @@ def test_summary_numbers_match_independent_computations(good: Path, carriage) ->
         c_ref = ise_optimal_damping(k_tot[i], mass[i]) if k_tot[i] > 0 else 0.0
         assert c_txt == pytest.approx(c_ref, rel=1e-3)
     # the header names the parameter file; no override in this build
-    assert lines[0] == f"# maglevgen build: {carriage.loaded.source}"
+    # (Markdown: the name's punctuation backslash-escaped, CommonMark's rule undoes it)
+    heading = re.sub(r"\\([!-/:-@\[-`{-~])", r"\1", lines[0])
+    assert heading == f"# maglevgen build: {carriage.loaded.source}"
     assert f"Parameter file: `{carriage.loaded.source}`" in lines[2]
     assert lines[2].endswith("overrides: none.")
 
@@ -515,8 +522,9 @@ def test_corrupted_cache_entries_are_detected_and_rebuilt(tmp_path: Path, carria
     assert reread & set(original)
     for f, data in original.items():  # each entry the rebuild needed written again whole
         now = f.read_bytes()
-        if f.suffix == ".pkl":  # the store's layout: sha256 of the payload, then the payload
-            assert f not in reread or now[:64] == hashlib.sha256(now[64:]).hexdigest().encode(), f
+        if f.suffix == ".pkl":  # the store's layout: the payload's HMAC, then the payload
+            assert f not in reread or now[:64] == hmac.new(
+                key_file().read_bytes(), now[64:], hashlib.sha256).hexdigest().encode(), f
         else:  # generated C and its compiled library: deterministic
             assert now == data, f
 
@@ -533,7 +541,7 @@ def test_concurrent_builds_into_one_folder_end_consistent(tmp_path: Path, good: 
         _, err = p.communicate(timeout=600)
         assert p.returncode == 0, err
     stamp = json.loads((out / STAMP).read_text())
-    assert tree(out) == {**stamp["files"], STAMP: tree(out)[STAMP]}
+    assert tree(out) == {**stamp["files"], STAMP: tree(out)[STAMP], MARKER: tree(out)[MARKER]}
     mass = next(p["value"] for p in json.loads((out / "c/manifest.json").read_text())
                 ["parameter_vector"] if p["name"] == "vehicle.mass")
     assert stamp["overrides"] == [f"vehicle.mass={mass}"]

@@ -857,7 +857,7 @@ def finish(fmu, what):
             bad.append(what + ": fmi2OK with a non-finite output")
     except FMICallException:
         pass
-    fmu.terminate()
+    refused(fmu.terminate)  # refused in the error state a refused call leaves
     drop(fmu)
 
 n = 0
@@ -869,60 +869,86 @@ for v in settable:
         n += 1
         if refused(lambda: fmu.setReal([v.valueReference], [value])):
             if not math.isfinite(value):
-                fmu.terminate()
-                drop(fmu)
+                drop(fmu)  # the refusal left the error state: only freeing is left to do
                 continue
         elif not math.isfinite(value):
             bad.append(f"{v.name} = {value}: accepted")
         finish(fmu, f"{v.name} = {value}")
 # out of order
+# (a refused call leaves the error state: each case from a fresh instance, in step mode)
+def stepping():
+    fmu = new()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu
+
 fmu = new()
-n += 4
+n += 1
 if not refused(lambda: fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-3)):
     bad.append("doStep before initialization accepted")
+drop(fmu)
+fmu = new()
+n += 1
 if not refused(lambda: fmu.exitInitializationMode()):
     bad.append("exitInitializationMode before enter accepted")
+drop(fmu)
+fmu = new()
 fmu.setupExperiment(startTime=0.0)
 fmu.enterInitializationMode()
+n += 1
 if not refused(lambda: fmu.enterInitializationMode()):
     bad.append("enterInitializationMode twice accepted")
-fmu.exitInitializationMode()
+drop(fmu)
+fmu = stepping()
+n += 1
 if not refused(lambda: fmu.setupExperiment(startTime=0.0)):
     bad.append("setupExperiment after initialization accepted")
+drop(fmu)
 for h in (float("nan"), float("inf"), -1e-3, 0.0, 1e300):
+    fmu = stepping()
     n += 1
     if not refused(lambda: fmu.doStep(currentCommunicationPoint=0.0,
                                       communicationStepSize=h)):
         bad.append(f"doStep h = {h} accepted")
+    values = fmu.getReal(outputs)
+    if not all(math.isfinite(v) for v in values):
+        bad.append(f"non-finite outputs after the refused step h = {h}")
+    drop(fmu)
 for t in (float("nan"), float("inf")):
+    fmu = stepping()
     n += 1
     if not refused(lambda: fmu.doStep(currentCommunicationPoint=t,
                                       communicationStepSize=1e-3)):
         bad.append(f"doStep t = {t} accepted")
-values = fmu.getReal(outputs)
-if not all(math.isfinite(v) for v in values):
-    bad.append("non-finite outputs after refused steps")
-fmu.terminate()
-fmu.freeInstance()
+    drop(fmu)
 # model exchange: hostile states and times
 from fmpy.fmi2 import FMU2Model
 me = FMU2Model(guid=md.guid, unzipDirectory=unzipped,
                modelIdentifier=md.modelExchange.modelIdentifier, instanceName="m")
-me.instantiate(callbacks=cb)
-me.setupExperiment(startTime=0.0)
-me.enterInitializationMode()
-me.exitInitializationMode()
-me.enterContinuousTimeMode()
+
+def continuous():
+    me.instantiate(callbacks=cb)
+    me.setupExperiment(startTime=0.0)
+    me.enterInitializationMode()
+    me.exitInitializationMode()
+    me.enterContinuousTimeMode()
+
 nx = md.numberOfContinuousStates
 Vec = ctypes.c_double * nx
 for value in HOSTILE:
     n += 2
     if not math.isfinite(value):
+        continuous()
         if not refused(lambda: me.setContinuousStates(Vec(*[value] * nx), nx)):
             bad.append(f"ME states = {value} accepted")
+        me.fmi2FreeInstance(me.component)
+        continuous()
         if not refused(lambda: me.setTime(value)):
             bad.append(f"ME time = {value} accepted")
+        me.fmi2FreeInstance(me.component)
         continue
+    continuous()
     try:
         me.setContinuousStates(Vec(*[value] * nx), nx)
         dx = Vec()
@@ -931,8 +957,7 @@ for value in HOSTILE:
             bad.append(f"ME states = {value}: OK with non-finite derivatives")
     except FMICallException:
         pass
-me.terminate()
-me.freeInstance()
+    me.fmi2FreeInstance(me.component)
 print(json.dumps({"calls": n, "bad": bad}))
 '''
 

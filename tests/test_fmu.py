@@ -173,10 +173,15 @@ def test_fixed_parameter_after_initialization_is_an_error(fmus) -> None:
     with pytest.raises(FMICallException):
         fmu.setReal([vr["vehicle.mass"]], [10.0])
     assert any("fixed parameter" in m for m in messages)
+    with pytest.raises(FMICallException):  # the error state: refused until a reset
+        fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-3)
+    fmu.reset()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
     with pytest.raises(FMICallException):  # 1.5 internal steps
         fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1.5e-3)
     assert any("not a multiple of rk4_step" in m for m in messages)
-    fmu.terminate()
     fmu.freeInstance()
 
 

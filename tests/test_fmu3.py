@@ -229,17 +229,22 @@ def test_errors_are_status_codes_with_a_message(fmus) -> None:
     with pytest.raises(FMICallException):  # a NaN is refused, and changes nothing
         fmu.setFloat64([vr["vehicle.mass"], vr["dF_prop"]], [9.0, float("nan")])
     assert any("not a finite number" in m for m in messages)
-    assert fmu.getFloat64([vr["vehicle.mass"]]) == [9.3]
+    assert fmu.getFloat64([vr["vehicle.mass"]]) == [9.3]  # the error state keeps the getters
+    with pytest.raises(FMICallException):  # and refuses the rest until a reset
+        fmu.enterInitializationMode(startTime=0.0)
+    fmu.reset()
     fmu.enterInitializationMode(startTime=0.0)
     fmu.exitInitializationMode()
     fmu.setFloat64([vr["track.min_gap"]], [0.001])  # tunable
     with pytest.raises(FMICallException):
         fmu.setFloat64([vr["vehicle.mass"]], [10.0])
     assert any("fixed parameter" in m for m in messages)
+    fmu.reset()
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
     with pytest.raises(FMICallException):  # 1.5 internal steps
         fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1.5e-3)
     assert any("not a multiple of rk4_step" in m for m in messages)
-    fmu.terminate()
     fmu.freeInstance()
 
 
@@ -337,15 +342,19 @@ def test_hostile_times_steps_and_states_are_refused(fmus) -> None:
     cs = FMU3Slave(guid=md.guid, unzipDirectory=extract(str(path)),
                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="cs")
     cs.instantiate(logMessage=log)
-    cs.enterInitializationMode(startTime=0.0)
-    cs.exitInitializationMode()
     nan, inf = float("nan"), float("inf")
     for t, h in [(0.0, nan), (0.0, inf), (0.0, -inf), (0.0, -1e-3), (0.0, 0.0), (0.0, 1e300),
                  (nan, 1e-3), (inf, 1e-3), (-inf, 1e-3)]:
+        cs.reset()  # each refusal leaves the error state
+        cs.enterInitializationMode(startTime=0.0)
+        cs.exitInitializationMode()
         messages.clear()
         with pytest.raises(FMICallException):
             cs.doStep(currentCommunicationPoint=t, communicationStepSize=h)
         assert messages, (t, h)
+    cs.reset()
+    cs.enterInitializationMode(startTime=0.0)
+    cs.exitInitializationMode()
     cs.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-3)
     assert all(math.isfinite(x) for x in cs.getFloat64(states))
     cs.terminate()
@@ -354,19 +363,19 @@ def test_hostile_times_steps_and_states_are_refused(fmus) -> None:
     me = FMU3Model(guid=md.guid, unzipDirectory=extract(str(path)),
                    modelIdentifier=md.modelExchange.modelIdentifier, instanceName="me")
     me.instantiate(logMessage=log)
-    me.enterInitializationMode(startTime=0.0)
-    me.exitInitializationMode()
-    me.enterContinuousTimeMode()
     n = len(states)
     vec = ctypes.c_double * n
     good, dx = vec(), vec()
-    me.getContinuousStates(good, n)
     for value in (nan, inf, -inf):
+        me.reset()  # each refusal leaves the error state
+        me.enterInitializationMode(startTime=0.0)
+        me.exitInitializationMode()
+        me.enterContinuousTimeMode()
+        me.getContinuousStates(good, n)
         messages.clear()
         with pytest.raises(FMICallException):
             me.setContinuousStates(vec(*[value] * n), n)
         assert any("not finite" in m for m in messages), value
-    me.getContinuousStateDerivatives(dx, n)  # the states before the refusals
-    assert all(math.isfinite(x) for x in dx) and all(math.isfinite(x) for x in good)
-    me.terminate()
+        me.getContinuousStateDerivatives(dx, n)  # the error state's getters: the states
+        assert all(math.isfinite(x) for x in dx) and all(math.isfinite(x) for x in good)
     me.freeInstance()

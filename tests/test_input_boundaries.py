@@ -163,7 +163,9 @@ def test_bad_input_leaves_the_good_build(good: Path, tmp_path: Path, capsys, com
     (["trim", "--speed", "1e308"], ["--speed 1e+308", "[0.001, 1000] m/s"]),
     (["gains", "--speed", "1e-9"], ["--speed 1e-09", "[0.001, 1000] m/s"]),
     (["trim", "--set", "arrays.3.position=" + nested(4)], ["arrays.3.position.0 = ", "nested"]),
-    (["trim", "--set", "vehicle.mass=" + nested(5000)], ["--set vehicle.mass", "nested"]),
+    # (refused by its length before TOML parses it: the --set values are bounded)
+    (["trim", "--set", "vehicle.mass=" + nested(5000)], ["--set vehicle.mass",
+                                                        "characters long (at most 4000)"]),
     (["simulate", "--t-end", "1e308"], ["--t-end 1e+308", "[0.001, 10000] s"]),
     (["simulate", "--dt", "1e-308"], ["--dt 1e-308", "[1e-07, 1] s"]),
     (["simulate", "--dt", "1e-6", "--t-end", "100"], ["1e+08 steps", "more than 1e7"]),

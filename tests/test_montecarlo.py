@@ -221,8 +221,8 @@ def test_command_writes_table_report_and_plots(tmp_path: Path, capsys) -> None:
     summary = json.loads(capsys.readouterr().out)
     assert set(summary["controllers"]) == {"none", "damping", "lqr", "coupled", "spec"}
     assert sorted(p.name for p in out.iterdir()) == [
-        "failures.png", "histograms.png", "montecarlo.json", "montecarlo.md",
-        "samples.parquet"]
+        ".maglevgen-output.json", "failures.png", "histograms.png", "montecarlo.json",
+        "montecarlo.md", "samples.parquet"]
     import pyarrow.parquet as pq
 
     t = pq.read_table(out / "samples.parquet")

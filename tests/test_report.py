@@ -23,6 +23,7 @@ from maglevgen.analyses.queries import gains_report
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
 from maglevgen.errors import InputError, MaglevError
+from maglevgen.infrastructure import output
 from maglevgen.params import default_params_text, load_params
 from maglevgen.report import display, latex, render
 from maglevgen.report import format as fmt
@@ -213,8 +214,7 @@ def test_latex_failure_leaves_the_previous_output(
     default_context, carriage: DerivedCarriage, tmp_path: Path, monkeypatch
 ) -> None:
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "report.tex").write_text("previous")
+    output.write_output({"report.tex": "previous"}, out)  # an earlier report of maglevgen's
     monkeypatch.setattr(render, "build_context", lambda *a, **k: default_context)
     monkeypatch.setattr(
         render,
@@ -227,7 +227,7 @@ def test_latex_failure_leaves_the_previous_output(
         r"sequence.*\.out\.failed/report\.log",
     ):
         rp.write_report(carriage, out)
-    assert [p.name for p in out.iterdir()] == ["report.tex"]
+    assert sorted(p.name for p in out.iterdir()) == [output.MARKER, "report.tex"]
     assert (out / "report.tex").read_text() == "previous"
 
 
@@ -241,6 +241,7 @@ def test_without_tex_the_tex_is_written_and_the_install_named(
     assert "report.tex" in out.out and "report.pdf" not in out.out
     assert "apt-get install" in out.err and "latexmk" in out.err
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == [
+        ".maglevgen-output.json",
         "circuit_lag_damping.png",
         "envelope_region_of_attraction.png",
         "envelope_stability_map.png",

@@ -327,7 +327,8 @@ def cli_out(tmp_path_factory, sim_lib) -> Path:
 
 def test_cli_writes_trajectories_figures_and_metrics(cli_out: Path, carriage) -> None:
     names = sorted(p.name for p in cli_out.iterdir())
-    assert names == sorted(["lateral_yaw.png", "levitation_pitch.png", "travel_roll.png",
+    assert names == sorted([".maglevgen-output.json", "lateral_yaw.png", "levitation_pitch.png",
+                            "travel_roll.png",
                             "metrics.json", "metrics.md", "trajectories.npz",
                             *(f"trajectory_{c}.csv" for c in CONTROLLERS)])
     for png in cli_out.glob("*.png"):

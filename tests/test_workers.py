@@ -84,7 +84,7 @@ def test_leaving_the_block_by_an_error_stops_the_child() -> None:
         jobs = [submit(pool, "sleeping", _sleep_then, i, 30.0) for i in range(3)]
         time.sleep(0.2)  # the first job has started
         raise KeyError("an error elsewhere")
-    assert time.monotonic() - start < 10.0  # not the 90 s the jobs would take
+    assert time.monotonic() - start < 25.0  # not the 30 s of the first job (loaded machine: slack)
     for job in jobs:
         assert job.future.cancelled() or job.future.exception() is not None
 

@@ -28,7 +28,6 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
@@ -54,6 +53,7 @@ from maglevgen.control.operating import (
 )
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, MaglevError, NoTrimError
+from maglevgen.infrastructure.workers import process_pool
 
 # statuses of a sample's run: the simulation's (RUN_STATUSES) and two of the sample itself
 SAMPLE_STATUSES = ("rejected", "no trim")
@@ -372,7 +372,7 @@ def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
     pending = list(range(len(chunks)))
     while pending:
         failed: list[int] = []
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with process_pool(workers) as pool:
             futures = {pool.submit(run_chunk, study, list(chunks[k])): k for k in pending}
             for fut, k in futures.items():
                 try:
@@ -414,26 +414,70 @@ def dask_client(scheduler: str, workers: int):
                          ) from None
 
 
+#: how long a Dask study waits with no worker in the cluster before it fails [s]
+#: (MAGLEVGEN_DASK_WORKER_TIMEOUT overrides it): a worker that comes back within it resumes
+#: the study (the scheduler runs the lost chunks again, each chunk's result counted once)
+DASK_WORKER_TIMEOUT = 120.0
+
+
+def _worker_timeout() -> float:
+    try:
+        return max(1.0, float(os.environ.get("MAGLEVGEN_DASK_WORKER_TIMEOUT",
+                                             DASK_WORKER_TIMEOUT)))
+    except ValueError:
+        return DASK_WORKER_TIMEOUT
+
+
 def run_dask(study: Study, n: int, client, chunk: int | None = None,
              tick: Tick | None = None) -> Columns:
-    """Samples 0..n-1 as chunk tasks on a Dask cluster; each task is retried once."""
-    from distributed import as_completed
+    """Samples 0..n-1 as chunk tasks on a Dask cluster; each task is retried once. A cluster
+    left with no worker for `DASK_WORKER_TIMEOUT` seconds fails the study (ChunkFailedError,
+    exit 1) naming the samples not run, instead of waiting for ever."""
+    from distributed import wait
 
     workers = max(1, len(client.scheduler_info().get("workers", {})))
     chunks = _chunks(n, chunk or default_chunk(n, workers))
     futures = [client.submit(run_chunk, study, list(c), retries=1, pure=False) for c in chunks]
     where = {f.key: k for k, f in enumerate(futures)}
     results: dict[int, Columns] = {}
-    for fut in as_completed(futures):
-        k = where[fut.key]
+    pending = set(futures)
+    limit, poll = _worker_timeout(), 1.0
+    alone_since: float | None = None
+    while pending:
         try:
-            results[k] = fut.result()
-        except Exception as exc:
-            c = chunks[k]
-            raise ChunkFailedError(f"samples {c.start} to {c.stop - 1} failed twice on the "
-                                   f"Dask cluster: {type(exc).__name__}: {exc}") from None
-        if tick:
-            tick(len(chunks[k]))
+            done, pending = wait(pending, timeout=poll, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            done = set()
+        for fut in done:
+            k = where[fut.key]
+            if k in results:
+                continue  # counted once, whatever the scheduler did
+            try:
+                results[k] = fut.result()
+            except Exception as exc:
+                c = chunks[k]
+                raise ChunkFailedError(f"samples {c.start} to {c.stop - 1} failed twice on "
+                                       f"the Dask cluster: {type(exc).__name__}: {exc}"
+                                       ) from None
+            if tick:
+                tick(len(chunks[k]))
+        if done or not pending:
+            alone_since = None
+            continue
+        try:
+            n_workers = len(client.nthreads())
+        except Exception:  # the scheduler itself gone: as good as no worker
+            n_workers = 0
+        if n_workers:
+            alone_since = None
+        elif alone_since is None:
+            alone_since = time.monotonic()
+        elif time.monotonic() - alone_since > limit:
+            left = sorted(where[f.key] for f in pending)
+            raise ChunkFailedError(
+                f"the Dask cluster has had no worker for {limit:.0f} s: samples "
+                f"{chunks[left[0]].start} to {chunks[left[-1]].stop - 1} not run "
+                f"({len(left)} of {len(chunks)} chunks; start workers and run again)")
     return concat([results[k] for k in range(len(chunks))])
 
 

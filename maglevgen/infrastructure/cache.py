@@ -5,12 +5,20 @@ depends on: the
 source closure of the module that computes it (`hashing.source_closure`: its file and every
 maglevgen module it imports, followed through the package), the library versions and the
 arguments. An edit to any of those files is therefore a miss, whatever module it is in.
-Entries carry a checksum; a corrupted entry reads as absent and is rebuilt.
+
+Nothing executable is trusted from disk on its checksum alone (a checksum beside an entry
+detects corruption, not tampering: whoever can write the entry can write the checksum). Every
+entry the tool writes (a memo's pickle, a library, an object file, a derivation folder's list
+of checksums) is signed with an HMAC-SHA256 under a key kept outside the cache (`key_file`:
+the user's config folder, 0600, made on first use); an entry whose signature does not verify
+reads as absent and is made again, so a planted pickle or library is never loaded. The cache
+folder is created 0700 and refused (exit 2) when another user may write into it.
 """
 
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from collections.abc import Callable, Iterable
 from functools import cache
@@ -18,7 +26,14 @@ from pathlib import Path
 from typing import Any
 
 from maglevgen.derive import memo
-from maglevgen.infrastructure.hashing import ContentHash, closure_hash, package_root, sha256_hex
+from maglevgen.errors import InputError
+from maglevgen.infrastructure.hashing import (
+    ContentHash,
+    closure_hash,
+    keyed_hex,
+    package_root,
+    same_digest,
+)
 from maglevgen.version import __version__
 
 __all__ = [
@@ -34,7 +49,11 @@ __all__ = [
     "default_cache_dir",
     "derivation_fingerprint",
     "install_store",
+    "key_file",
     "params_digest",
+    "sign",
+    "sign_file",
+    "signature_ok",
     "toolchain_fingerprint",
     "write_atomic",
 ]
@@ -70,8 +89,87 @@ def default_cache_dir() -> Path:
 
 
 def cache_root(cache_dir: Path | None) -> Path:
-    """The cache folder: ``cache_dir`` when given, else `default_cache_dir`."""
-    return Path(cache_dir) if cache_dir else default_cache_dir()
+    """The cache folder: ``cache_dir`` when given, else `default_cache_dir`; created 0700
+    and refused (InputError) when another user owns it or may write into it."""
+    root = Path(cache_dir) if cache_dir else default_cache_dir()
+    _check_private(str(root))
+    return root
+
+
+@cache
+def _check_private(root: str) -> None:
+    path = Path(root)
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = path.stat()
+    except OSError:
+        return  # nothing cached can be written there: every entry is made afresh
+    if st.st_uid != os.getuid():
+        raise InputError(f"cache folder {root}: owned by another user (uid {st.st_uid}); set "
+                         "MAGLEVGEN_CACHE to a folder of your own")
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise InputError(f"cache folder {root}: writable by other users (mode "
+                         f"{stat.S_IMODE(st.st_mode):o}); run chmod go-w {root} or set "
+                         "MAGLEVGEN_CACHE to a private folder")
+
+
+def key_file() -> Path:
+    """Where the cache's signing key is kept: the user's config folder, not the cache."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "maglevgen" / "cache.key"
+
+
+@cache
+def _signing_key() -> bytes:
+    """The HMAC key (32 random bytes, 0600, made on first use). A key file another user
+    may read is refused; where none can be kept, a key for this process alone (nothing
+    cached before is trusted, nothing cached now is trusted by a later run)."""
+    path = key_file()
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+        except FileNotFoundError:
+            try:
+                path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+            except FileExistsError:
+                continue  # made by a concurrent run meanwhile: read it
+            except OSError:
+                return os.urandom(32)
+            with os.fdopen(fd, "wb") as f:
+                key = os.urandom(32)
+                f.write(key)
+            return key
+        except OSError:
+            return os.urandom(32)
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            if st.st_uid != os.getuid() or st.st_mode & 0o077:
+                raise InputError(f"cache key {path}: readable or owned by another user (mode "
+                                 f"{stat.S_IMODE(st.st_mode):o}); run chmod 600 {path}, or "
+                                 "delete it (the cache is then made again)")
+            key = f.read(64)
+        if len(key) >= 32:
+            return key
+        return os.urandom(32)  # a truncated key file: trust nothing cached
+    return os.urandom(32)
+
+
+def sign(data: bytes) -> str:
+    """The HMAC-SHA256 of ``data`` under the user's cache key, in hex (64 digits)."""
+    return keyed_hex(_signing_key(), data)
+
+
+def sign_file(path: Path) -> str:
+    """`sign` of the file at ``path``."""
+    return keyed_hex(_signing_key(), path=path)
+
+
+def signature_ok(signature: str | bytes, expected: str) -> bool:
+    """``signature`` (as read from disk) equals ``expected`` (`sign`'s), in constant time."""
+    if isinstance(signature, bytes):
+        signature = signature.decode("ascii", "replace")
+    return same_digest(signature.strip(), expected)
 
 
 @cache
@@ -124,8 +222,9 @@ class DiskStore:
     """derive.memo's cross-process store: cloudpickled results, keyed by the computing
     module's source closure (`_module_key`) and the call.
 
-    File layout: 64 hex digits of sha256(payload), then the payload; any mismatch or
-    unpickling error reads as a miss.
+    File layout: 64 hex digits of the payload's HMAC (`sign`: the user's key), then the
+    payload; a signature that does not verify reads as a miss before anything is unpickled
+    (a pickle runs code: only the user's own runs' entries are loaded).
     """
 
     def __init__(self, progress: Callable[[str], None] | None = None) -> None:
@@ -134,12 +233,12 @@ class DiskStore:
 
     def path(self, module: str, key: str) -> Path:
         digest = ContentHash(_module_key(module), key).hexdigest(32)
-        return default_cache_dir() / "memo" / f"{digest}.pkl"
+        return cache_root(None) / "memo-signed" / f"{digest}.pkl"
 
     def get(self, module: str, key: str) -> Any:
         try:
             blob = self.path(module, key).read_bytes()
-            if sha256_hex(blob[64:]).encode() == blob[:64]:
+            if signature_ok(blob[:64], sign(blob[64:])):
                 import cloudpickle  # local: only when an entry is read (light path: hashing)
 
                 return cloudpickle.loads(blob[64:])
@@ -154,7 +253,7 @@ class DiskStore:
         import cloudpickle  # local: only when an entry is written
 
         data = cloudpickle.dumps(value)
-        write_atomic(self.path(module, key), sha256_hex(data).encode() + data)
+        write_atomic(self.path(module, key), sign(data).encode() + data)
 
 
 STORE = DiskStore()

@@ -2,7 +2,8 @@
 
 - `ContentHash`: a key over labelled parts (text, bytes, files, library versions), each part
   framed by its label and length so that no two different inputs hash the same;
-- `sha256_hex`: the checksum of a blob (BUILD.json, cached C and libraries, memo entries);
+- `sha256_hex`: the checksum of a blob (BUILD.json, the cached C's list; the cache's entries
+  are also signed, `maglevgen.infrastructure.cache.sign`);
 - `source_closure`: the maglevgen source files a module depends on (its imports, followed
   through the package, function-local ones included), so that a cached result is keyed by
   every file that could change it (an edit to any of them is a cache miss).
@@ -13,6 +14,7 @@ Imports only the standard library: `maglevgen build` computes its key before any
 from __future__ import annotations
 
 import hashlib
+import hmac
 import re
 import sys
 from collections.abc import Iterable
@@ -26,8 +28,10 @@ __all__ = [
     "closure_hash",
     "file_sha256",
     "imported_modules",
+    "keyed_hex",
     "module_files",
     "package_root",
+    "same_digest",
     "sha256_hex",
     "source_closure",
 ]
@@ -45,6 +49,24 @@ def sha256_hex(data: bytes | str) -> str:
 
 def file_sha256(path: Path) -> str:
     return sha256_hex(Path(path).read_bytes())
+
+
+def keyed_hex(key: bytes, data: bytes | None = None, path: Path | None = None) -> str:
+    """The HMAC-SHA256 under ``key`` of ``data``, or of the file at ``path``, in hex (the
+    cache's signatures: maglevgen.infrastructure.cache.sign)."""
+    h = hmac.new(key, digestmod=hashlib.sha256)
+    if data is not None:
+        h.update(data)
+    if path is not None:
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def same_digest(a: str, b: str) -> bool:
+    """Two hex digests equal, compared in constant time."""
+    return hmac.compare_digest(a.encode("ascii", "replace"), b.encode("ascii", "replace"))
 
 
 class ContentHash:

@@ -6,11 +6,22 @@ second to import) and write the trajectories in one worker process while this on
 is inherited by the child, not pickled (`Shared` names it in a job's arguments); where fork is
 not available it is a one-thread ThreadPoolExecutor. `Job` turns a job's failure into one line
 naming the job (MaglevError, exit 1).
+
+Every worker process the tool starts (`process_pool`: these, the Monte-Carlo pool, the
+report's figure process) dies with the process that started it: a killed build (SIGKILL, where
+nothing of the parent runs any more) leaves no worker behind. On Linux the worker asks the
+kernel for SIGKILL at its parent's death (prctl PR_SET_PDEATHSIG, through ctypes, first thing
+in the worker), and ends at once when the parent is already gone.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import multiprocessing
+import os
+import signal
+import sys
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -18,9 +29,12 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from maglevgen.errors import MaglevError
+from maglevgen.errors import InputError, MaglevError
 
-__all__ = ["Job", "PendingFiles", "PendingResult", "Shared", "child", "submit"]
+__all__ = ["Job", "PendingFiles", "PendingResult", "Shared", "child", "die_with_parent",
+           "process_pool", "submit"]
+
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 _shared: dict[str, Any] = {}  # in the child: the data it was started with
 
@@ -30,6 +44,33 @@ class Shared:
     """A job argument the child already holds: an entry of `child`'s ``shared`` data."""
 
     name: str
+
+
+def die_with_parent(parent: int) -> None:
+    """In a worker process: be killed when the process ``parent`` (the one that started
+    this worker) dies, and end now if it already has (it died before this call)."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:
+        os._exit(1)
+
+
+def _init(parent: int, then: Callable[..., Any] | None, args: tuple) -> None:
+    die_with_parent(parent)
+    if then is not None:
+        then(*args)
+
+
+def process_pool(max_workers: int, mp_context=None, initializer: Callable[..., Any] | None = None,
+                 initargs: tuple = ()) -> ProcessPoolExecutor:
+    """A ProcessPoolExecutor whose workers die with this process (`die_with_parent`), then
+    run ``initializer(*initargs)``."""
+    return ProcessPoolExecutor(max_workers, mp_context=mp_context, initializer=_init,
+                               initargs=(os.getpid(), initializer, tuple(initargs)))
 
 
 def _hold(shared: dict[str, Any]) -> None:
@@ -47,8 +88,7 @@ def child(shared: Mapping[str, Any] | None = None) -> Iterator[Executor]:
     Leaving the block by an exception stops the worker (its jobs fail or are cancelled)."""
     init = {"initializer": _hold, "initargs": (dict(shared or {}),)}
     if "fork" in multiprocessing.get_all_start_methods():
-        pool: Executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"),
-                                             **init)
+        pool: Executor = process_pool(1, mp_context=multiprocessing.get_context("fork"), **init)
     else:
         pool = ThreadPoolExecutor(1, **init)
     try:
@@ -92,6 +132,13 @@ class Job:
             return self.future.result()
         except BrokenProcessPool:
             raise MaglevError(f"{self.what} failed: the child process ended") from None
+        except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):  # a full disk: exit 2, as --out's
+                where = f" to {exc.filename}" if exc.filename else ""
+                raise InputError(f"{self.what} failed: cannot write{where}: {exc.strerror}"
+                                 ) from None
+            raise MaglevError(f"{self.what} failed: {type(exc).__name__}: "
+                              f"{' '.join(str(exc).split())}") from None
         except Exception as exc:
             raise MaglevError(f"{self.what} failed: {type(exc).__name__}: "
                               f"{' '.join(str(exc).split())}") from None

@@ -116,16 +116,29 @@ _TEX_ESCAPES = {
 }
 
 
+#: the Greek small letters LaTeX has a command for (omicron is an o)
+_TEX_GREEK = frozenset(("alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta",
+                        "iota", "kappa", "lamda", "mu", "nu", "xi", "pi", "rho", "sigma", "tau",
+                        "upsilon", "phi", "chi", "psi", "omega"))
+
+
 def tex_escape(text: object) -> str:
-    """Text made safe for LaTeX: special characters escaped, other non-ASCII transliterated."""
+    """Text made safe for LaTeX: special characters escaped, other non-ASCII transliterated,
+    control characters (which the parameter file's validation refuses) shown as ``?``."""
     out = []
     for ch in str(text):
+        name = unicodedata.name(ch, "")
+        greek = name[19:].lower() if name.startswith("GREEK SMALL LETTER ") else ""
         if ch in _TEX_ESCAPES:
             out.append(_TEX_ESCAPES[ch])
+        elif ch in "\n\t\r":
+            out.append(" " if ch != "\n" else ch)  # white space: LaTeX's meaning unchanged
+        elif unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"):
+            out.append("?")
         elif ord(ch) < 128:
             out.append(ch)
-        elif unicodedata.name(ch, "").startswith("GREEK SMALL LETTER "):
-            out.append(rf"$\{unicodedata.name(ch)[19:].lower()}$")
+        elif greek in _TEX_GREEK:
+            out.append(rf"$\{'lambda' if greek == 'lamda' else greek}$")
         else:
             ascii_ = unicodedata.normalize("NFKD", ch).encode("ascii", "ignore").decode()
             out.append(ascii_ or "?")

@@ -18,7 +18,7 @@ import re
 import shutil
 import tempfile
 from collections.abc import Callable, Mapping
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -32,6 +32,7 @@ from maglevgen.analyses.queries import (  # the CLI's numbers, from the C
 )
 from maglevgen.errors import MaglevError
 from maglevgen.infrastructure.output import write_output
+from maglevgen.infrastructure.workers import process_pool
 from maglevgen.report.figures import force_figures, pole_map
 from maglevgen.report.latex import LatexBuild, latex_env
 from maglevgen.report.sections.actuators import actuator_comparison_section
@@ -145,7 +146,7 @@ def build_context(
     trim = trim_point(carriage, lib, None)  # the compiled library's trim, as `maglevgen trim`
     pool = None
     if figures is None:
-        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"))
+        pool = process_pool(1, mp_context=multiprocessing.get_context("fork"))
         own: Future = pool.submit(force_figures, force_curves(carriage, trim, lib))
         figures = own
     try:
