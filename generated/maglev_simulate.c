@@ -209,6 +209,14 @@ static int command(work* ws, const loop_run* r, const maglev_real* x, maglev_rea
     return budget_active(loop->force_budget) ? saturate(u + 1, loop->force_budget) : 0;
 }
 
+/* the safe command, applied until the first computed one arrives: no control force, the
+   propulsion's feedforward F_drag + F_extra (no speed feedback: nothing measured yet) */
+static void safe_command(const loop_run* r, const maglev_real* g, maglev_real* u) {
+    int i;
+    u[0] = g[MAGLEV_SCHEDULE_F_DRAG] + r->F_extra;
+    for (i = 1; i < NU; ++i) u[i] = 0;
+}
+
 /* xdot = f(x, u) with the input held (maglev_dynamics) */
 static int held_rhs(work* ws, const maglev_real* x, const maglev_real* u, maglev_real* xdot) {
     ws->arg[0] = x;
@@ -271,7 +279,7 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
         if (tick > 0) {
             if (k % tick == 0) {
                 /* a tick: sample x, compute the command, apply the one computed
-                   delay_ticks ticks ago (at the first ticks: the first command) */
+                   delay_ticks ticks ago (before the first: the safe command) */
                 const maglev_real* g;
                 maglev_real* slot = ring + w * NU;
                 int s;
@@ -279,17 +287,18 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
                     *status = MAGLEV_SIM_NONFINITE;
                     break;
                 }
+                if (k == 0) {
+                    /* the commands before the first computed one: the safe command */
+                    for (d = 0; d < depth; ++d) {
+                        safe_command(r, g, ring + d * NU);
+                        ring_sat[d] = 0;
+                    }
+                }
                 if ((s = command(ws, r, x, t, g, slot)) < 0) {
                     *status = MAGLEV_SIM_ERROR;
                     break;
                 }
                 ring_sat[w] = s;
-                if (k == 0) {
-                    for (d = 0; d < depth; ++d) {
-                        for (i = 0; i < NU; ++i) ring[d * NU + i] = slot[i];
-                        ring_sat[d] = s;
-                    }
-                }
                 w = (w + 1) % depth; /* the oldest command, and where the next one goes */
                 for (i = 0; i < NU; ++i) applied[i] = ring[w * NU + i];
                 sat = ring_sat[w];

@@ -58,7 +58,8 @@ extern "C" {
  *   feedback (with the gains of the schedule at the measured speed in maglev_launch) and its
  *   allocation to the arrays. A command is applied delay_ticks ticks after its tick and held
  *   (zero-order hold) through every RK4 stage until the next one is applied; until the first
- *   delayed command arrives, the one computed from x0 is applied. The plant between ticks:
+ *   delayed command arrives, the safe command is applied (no array force, the propulsion's
+ *   feedforward F_ff at the speed of x0, no speed feedback). The plant between ticks:
  *   RK4 on maglev_dynamics with the input held. tick_steps = 0: the command at every stage.
  * - The speed loop: F_prop = F_ff + k_v (v_ref(t) - |(u, v, w)|), |(u, v, w)| measured with
  *   the command, v_ref(t) = v_ref + accel t (maglev_launch: at most v_end), F_ff the given

@@ -971,7 +971,11 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
 
     x = x0.astype(float)
     first = command(x)
-    queue = [first] * (depth - 1)
+    # before the first computed command: the safe one, no array force and the table's trim
+    # propulsion at the measured speed
+    safe = np.zeros(first.size)
+    safe[0] = table(float(np.linalg.norm(x[6:9])))[field["F_prop"]][0]
+    queue = [safe] * (depth - 1)
     ref = [x]
     for _ in range(n_ticks):
         x, queue = tick(x, queue)
