@@ -392,26 +392,34 @@ class JudgedRun:
 
 def embedded_runs(carriage, lib, env, run, opts: BuildOptions) -> tuple[JudgedRun, ...]:
     """The embedded controller in the firmware loop, judged against ``[control.spec]``
-    (`maglevgen.analyses.run_spec`): held at envelope.v_min, at the build's run speed (that run,
-    reused) and at v_max for opts.t_end, and launched from v_min to v_max, the ends and the
-    launch being where the linear verdict's worst cases lie (the gains' ends of the table,
-    the accelerating trim's smallest gaps)."""
-    from maglevgen.analyses.simulate import run_scenarios, spec_verdict
+    (`maglevgen.analyses.run_spec`): held at envelope.v_min, at the build's run speed and at
+    v_max for opts.t_end, and launched from v_min to v_max, the ends and the launch being
+    where the linear verdict's worst cases lie (the gains' ends of the table, the
+    accelerating trim's smallest gaps). Each from every sign combination of the default
+    disturbance, judged on the worst (`maglevgen.analyses.worst_case`)."""
+    from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
+    from maglevgen.analyses.worst_case import sign_combinations, worst_verdict
 
     name = carriage.params.envelope.embedded_controller
-    own = next((t for t in run.trajectories if t.controller == name), None)
+    combos = sign_combinations(DISTURBANCE)
+
+    def judged(sim) -> RunVerdict:
+        return worst_verdict([(d, spec_verdict(t)) for d, t in
+                              zip(combos, sim.trajectories, strict=True)])
+
     out = []
-    for v in sorted({env.v_min, env.v_max, *([run.op.speed] if own is not None else [])}):
-        traj = (own if own is not None and v == run.op.speed else
-                run_scenarios(carriage, (name,), opts.t_end, opts.dt, v, lib=lib,
-                              loop="firmware").trajectories[0])
-        out.append(JudgedRun(f"hold run at {v:.4g} m/s", spec_verdict(traj),
-                             f"maglevgen simulate --controller {name} --speed {v:.4g}"))
+    for v in sorted({env.v_min, env.v_max, run.op.speed}):
+        sim = run_scenarios(carriage, (name,), opts.t_end, opts.dt, v, lib=lib,
+                            loop="firmware", disturbances=combos)
+        out.append(JudgedRun(f"hold run at {v:.4g} m/s", judged(sim),
+                             f"maglevgen simulate --controller {name} --speed {v:.4g} "
+                             "--disturbance STATE=VALUE ..."))
     launched = run_scenarios(carriage, (name,), opts.t_end, opts.dt, lib=lib,
-                             scenario="launch", loop="firmware")
+                             scenario="launch", loop="firmware", disturbances=combos)
     out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
-                         "m/s)", spec_verdict(launched.trajectories[0]),
-                         f"maglevgen simulate --controller {name} --scenario launch"))
+                         "m/s)", judged(launched),
+                         f"maglevgen simulate --controller {name} --scenario launch "
+                         "--disturbance STATE=VALUE ..."))
     return tuple(out)
 
 
@@ -634,9 +642,15 @@ def _summary_runs(carriage, run, judged) -> list[str]:
              + (f" ({traj.event})" if traj.event else "") for traj in run.trajectories]
     lines += _run_spec_lines(run)
     if judged:
+        from maglevgen.analyses.simulate import DISTURBANCE
+        from maglevgen.analyses.worst_case import sign_combinations
+
+        n_signs = len(sign_combinations(DISTURBANCE))
         lines += ["", f"The embedded controller `{carriage.params.envelope.embedded_controller}` "
                   "in the firmware loop against [control.spec] at the envelope's ends and in "
-                  "the launch (`build` exits 3 when one fails):", "",
+                  f"the launch, each run from every one of the {n_signs} sign combinations of "
+                  "the default disturbance and judged on the worst (each check's worst value, "
+                  "with the signs where it occurs; `build` exits 3 when one fails):", "",
                   *(f"- {r.label}: {r.verdict.text()}" for r in judged)]
     return lines
 
