@@ -52,7 +52,7 @@ import numpy as np
 
 from maglevgen import control
 from maglevgen.derive import conventions as cv
-from maglevgen.errors import InputError
+from maglevgen.errors import InputError, VerificationError
 from maglevgen.exports.fmu import DEFAULT_FMI
 from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
 
@@ -1373,7 +1373,7 @@ class Carriage:
         return list(write_output(render(self._carriage, opts, speeds), Path(out)))
 
     def firmware(self, out: str | Path, precision: str = "single",
-                 with_plant: bool = False) -> list[Path]:
+                 with_plant: bool = False, allow_unstable: bool = False) -> list[Path]:
         """Write the embedded controller's firmware folder, as ``maglevgen firmware``.
 
         The C of ``envelope.embedded_controller``'s path only, parameters baked: the table
@@ -1390,6 +1390,9 @@ class Carriage:
             single for the board (default); double to check the same code on a host.
         with_plant : bool, optional
             Also ``maglev_dynamics`` (the plant) in the image: a closed loop on the target.
+        allow_unstable : bool, optional
+            Write the folder even when the embedded controller fails the check ``build``
+            exits 3 on (its verdict then says so in the README and manifest).
 
         Returns
         -------
@@ -1400,6 +1403,9 @@ class Carriage:
         ------
         maglevgen.InputError
             An unknown precision, or a folder that cannot be written.
+        maglevgen.VerificationError
+            The embedded controller fails ``build``'s check (unstable somewhere in the
+            envelope, a spec of ``[control.spec]`` or a judged run): nothing is written.
 
         Examples
         --------
@@ -1409,12 +1415,26 @@ class Carriage:
         >>> "maglev_tick.c" in names
         True
         """
+        from maglevgen.codegen.generate import GenerateOptions
         from maglevgen.exports.firmware import firmware_files
         from maglevgen.infrastructure.output import check_writable, write_output
 
         check_writable(Path(out))
-        return list(write_output(firmware_files(self._carriage, precision, with_plant),
-                                 Path(out)))
+        GenerateOptions(precision, "baked")  # an unknown precision: InputError first
+        verdict = self._verified(allow_unstable)
+        return list(write_output(firmware_files(self._carriage, precision, with_plant,
+                                                verdict.to_json()), Path(out)))
+
+    def _verified(self, allow_unstable: bool, progress: bool = False):
+        """The embedded controller's verdict (`maglevgen.build.verify_embedded`, cached);
+        a VerificationError (exit 3) when it fails and ``allow_unstable`` is not set."""
+        from maglevgen.build import verify_embedded
+
+        verdict = verify_embedded(self._carriage, self._lib,
+                                  steps.step if progress else _quiet)
+        if not verdict.verified and not allow_unstable:
+            raise VerificationError(f"{verdict.reason}: nothing written")
+        return verdict
 
     def report(self, out: str | Path, simulation: str | Path | None = None,
                progress: bool = False) -> ReportResult:
@@ -1475,7 +1495,8 @@ class Carriage:
                             res.latex.seconds, tuple(res.failed_checks))
 
     def fmu(self, out: str | Path, kind: str = "both", controller: str | None = None,
-            fmi: str = DEFAULT_FMI, loop: str = "firmware", progress: bool = False) -> Path:
+            fmi: str = DEFAULT_FMI, loop: str = "firmware", progress: bool = False,
+            allow_unstable: bool = False) -> Path:
         """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
         fmu``.
 
@@ -1497,6 +1518,9 @@ class Carriage:
             evaluation (the start values of the FMU's tick parameters).
         progress : bool, optional
             Announce the slow steps (code generation, compilation) on stderr.
+        allow_unstable : bool, optional
+            Write the FMU of the embedded controller even when it fails the check ``build``
+            exits 3 on (its description then says so).
 
         Returns
         -------
@@ -1521,9 +1545,16 @@ class Carriage:
         from maglevgen.exports.fmu import FMU_NAME, build_fmu
         from maglevgen.infrastructure.output import write_output
 
-        controller = controller or self.params.envelope.embedded_controller
+        embedded = self.params.envelope.embedded_controller
+        controller = controller or embedded
+        if controller == embedded:  # verified before anything is written (after the options)
+            def verdict() -> str:
+                return self._verified(allow_unstable, progress).text()
+        else:
+            verdict = (f"controller {controller!r}: not the embedded controller {embedded!r}, "
+                       "not verified by maglevgen against [control.spec]")
         data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop,
-                         progress=steps.step if progress else _quiet)
+                         progress=steps.step if progress else _quiet, verdict=verdict)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
 

@@ -45,6 +45,7 @@ __all__ = [
     "SUMMARY",
     "BuildOptions",
     "BuildResult",
+    "EmbeddedVerdict",
     "JudgedRun",
     "build_changes",
     "build_folder",
@@ -58,6 +59,7 @@ __all__ = [
     "run_build",
     "summary_text",
     "up_to_date",
+    "verify_embedded",
 ]
 
 STAMP = "BUILD.json"
@@ -324,7 +326,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     step("envelope: stability of each controller across the speed range")
     env = compute_envelope(carriage, lib)
     step("the embedded controller's hold and launch runs against [control.spec]")
-    judged = embedded_runs(carriage, lib, env, run, opts)
+    judged = embedded_runs(carriage, lib, env, run.op.speed, opts)
     step("envelope: the embedded controller's region of attraction (sampled)")
     regions = roa.study(carriage, lib, [carriage.params.envelope.embedded_controller],
                         roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
@@ -366,6 +368,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                            judged)
     files[SUMMARY] = summary
     verification = embedded_verification(carriage, env, judged)
+    _store_verdict(carriage, opts, EmbeddedVerdict.of(carriage, env, verification))
     digests = {n: sha256_hex(b) for n, b in sorted(files.items())}
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,
                                "params_sha256": loaded.sha256,
@@ -443,29 +446,128 @@ class JudgedRun:
     command: str  # the `maglevgen simulate` that repeats it
 
 
-def embedded_runs(carriage, lib, env, run, opts: BuildOptions) -> tuple[JudgedRun, ...]:
+def embedded_runs(carriage, lib, env, speed: float, opts: BuildOptions
+                  ) -> tuple[JudgedRun, ...]:
     """The embedded controller in the firmware loop, judged against ``[control.spec]``
-    (`maglevgen.analyses.run_spec`): held at envelope.v_min, at the build's run speed (that run,
-    reused) and at v_max for opts.t_end, and launched from v_min to v_max, the ends and the
-    launch being where the linear verdict's worst cases lie (the gains' ends of the table,
-    the accelerating trim's smallest gaps)."""
-    from maglevgen.analyses.simulate import run_scenarios, spec_verdict
+    (`maglevgen.analyses.run_spec`): held at envelope.v_min, at ``speed`` (the build's run
+    speed, operation.speed) and at
+    v_max for opts.t_end, and launched from v_min to v_max, the ends and the launch being
+    where the linear verdict's worst cases lie (the gains' ends of the table, the
+    accelerating trim's smallest gaps). Each from every sign combination of the default
+    disturbance, judged on the worst (`maglevgen.analyses.worst_case`)."""
+    from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
+    from maglevgen.analyses.worst_case import sign_combinations, worst_verdict
 
     name = carriage.params.envelope.embedded_controller
-    own = next((t for t in run.trajectories if t.controller == name), None)
+    combos = sign_combinations(DISTURBANCE)
+
+    def judged(sim) -> RunVerdict:
+        return worst_verdict([(d, spec_verdict(t)) for d, t in
+                              zip(combos, sim.trajectories, strict=True)])
+
     out = []
-    for v in sorted({env.v_min, env.v_max, *([run.op.speed] if own is not None else [])}):
-        traj = (own if own is not None and v == run.op.speed else
-                run_scenarios(carriage, (name,), opts.t_end, opts.dt, v, lib=lib,
-                              loop="firmware").trajectories[0])
-        out.append(JudgedRun(f"hold run at {v:.4g} m/s", spec_verdict(traj),
-                             f"maglevgen simulate --controller {name} --speed {v:.4g}"))
+    for v in sorted({env.v_min, env.v_max, speed}):
+        sim = run_scenarios(carriage, (name,), opts.t_end, opts.dt, v, lib=lib,
+                            loop="firmware", disturbances=combos)
+        out.append(JudgedRun(f"hold run at {v:.4g} m/s", judged(sim),
+                             f"maglevgen simulate --controller {name} --speed {v:.4g} "
+                             "--disturbance STATE=VALUE ..."))
     launched = run_scenarios(carriage, (name,), opts.t_end, opts.dt, lib=lib,
-                             scenario="launch", loop="firmware")
+                             scenario="launch", loop="firmware", disturbances=combos)
     out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
-                         "m/s)", spec_verdict(launched.trajectories[0]),
-                         f"maglevgen simulate --controller {name} --scenario launch"))
+                         "m/s)", judged(launched),
+                         f"maglevgen simulate --controller {name} --scenario launch "
+                         "--disturbance STATE=VALUE ..."))
     return tuple(out)
+
+
+@dataclass(frozen=True)
+class EmbeddedVerdict:
+    """The embedded controller's verdict as `build` decides its exit code (the linear spec on
+    every model checked and the judged runs, `embedded_verification`), for what `firmware`
+    and `fmu` write: the verdict, the spec, the model and the range."""
+
+    controller: str
+    reason: str | None  # why the verification failed (build exits 3), None: verified
+    model: str  # what the spec was checked on (Envelope.checked_on)
+    v_min: float
+    v_max: float
+
+    @classmethod
+    def of(cls, carriage, env, reason: str | None) -> EmbeddedVerdict:
+        return cls(carriage.params.envelope.embedded_controller, reason, env.checked_on(),
+                   float(env.v_min), float(env.v_max))
+
+    @property
+    def verified(self) -> bool:
+        return self.reason is None
+
+    def text(self) -> str:
+        """One line: verified (what, where, on what) or the failure."""
+        if self.reason is not None:
+            return f"NOT VERIFIED: {self.reason}"
+        return (f"verified: the embedded controller {self.controller!r} meets [control.spec] "
+                f"across [{self.v_min:.4g}, {self.v_max:.4g}] m/s, checked {self.model}, and "
+                "in its hold and launch runs in the firmware loop, each judged on the worst "
+                "sign combination of the default disturbance (the check `maglevgen build` "
+                "exits 3 on)")
+
+    def to_json(self) -> dict:
+        return {"verified": self.verified, "verdict": self.text(), "controller": self.controller,
+                "spec": "[control.spec]", "model": self.model,
+                "range_m_per_s": [self.v_min, self.v_max]}
+
+
+def _verdict_path(carriage, opts: BuildOptions) -> Path:
+    """Where a build leaves its verdict for `firmware` and `fmu` (the cache: keyed by the
+    parameters, the overrides, the toolchain and the runs' t_end and dt)."""
+    from maglevgen.infrastructure.cache import default_cache_dir
+
+    loaded = carriage.loaded
+    key = (ContentHash().text("params", loaded.sha256)
+           .text("overrides", "\0".join(loaded.overrides))
+           .text("toolchain", toolchain_fingerprint())
+           .text("runs", f"{opts.t_end!r} {opts.dt!r}").hexdigest())
+    return default_cache_dir() / "verdicts" / f"{key}.json"
+
+
+def _store_verdict(carriage, opts: BuildOptions, verdict: EmbeddedVerdict) -> None:
+    """Keep ``verdict`` for a later `firmware` or `fmu` (best effort: a cache)."""
+    from maglevgen.infrastructure.cache import write_atomic
+
+    path = _verdict_path(carriage, opts)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return
+    write_atomic(path, json.dumps({"controller": verdict.controller, "reason": verdict.reason,
+                                   "model": verdict.model, "v_min": verdict.v_min,
+                                   "v_max": verdict.v_max}).encode())
+
+
+def verify_embedded(carriage, lib, step: Callable[[str], None] = lambda _: None
+                    ) -> EmbeddedVerdict:
+    """The embedded controller's verdict, the same check as `build` (its linear spec across
+    the envelope on every model, its hold and launch runs on the worst disturbance signs, at
+    the build's default t_end and dt): the one a build of the same parameters left in the
+    cache, else computed here (and left for the next)."""
+    opts = BuildOptions()
+    path = _verdict_path(carriage, opts)
+    try:
+        got = json.loads(path.read_text())
+        return EmbeddedVerdict(got["controller"], got["reason"], got["model"],
+                               float(got["v_min"]), float(got["v_max"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    from maglevgen.analyses.envelope import compute_envelope
+
+    step("verifying the embedded controller against [control.spec] (as `maglevgen build`; "
+         "cached afterwards)")
+    env = compute_envelope(carriage, lib)
+    judged = embedded_runs(carriage, lib, env, carriage.params.operation.speed, opts)
+    verdict = EmbeddedVerdict.of(carriage, env, embedded_verification(carriage, env, judged))
+    _store_verdict(carriage, opts, verdict)
+    return verdict
 
 
 def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = ()) -> str | None:
@@ -689,9 +791,15 @@ def _summary_runs(carriage, run, judged) -> list[str]:
              + (f" ({traj.event})" if traj.event else "") for traj in run.trajectories]
     lines += _run_spec_lines(run)
     if judged:
+        from maglevgen.analyses.simulate import DISTURBANCE
+        from maglevgen.analyses.worst_case import sign_combinations
+
+        n_signs = len(sign_combinations(DISTURBANCE))
         lines += ["", f"The embedded controller `{carriage.params.envelope.embedded_controller}` "
                   "in the firmware loop against [control.spec] at the envelope's ends and in "
-                  "the launch (`build` exits 3 when one fails):", "",
+                  f"the launch, each run from every one of the {n_signs} sign combinations of "
+                  "the default disturbance and judged on the worst (each check's worst value, "
+                  "with the signs where it occurs; `build` exits 3 when one fails):", "",
                   *(f"- {r.label}: {r.verdict.text()}" for r in judged)]
     return lines
 

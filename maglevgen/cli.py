@@ -244,7 +244,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 def cmd_firmware(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
-    paths = carriage.firmware(args.out, args.precision, args.with_plant)
+    paths = carriage.firmware(args.out, args.precision, args.with_plant, args.allow_unstable)
     print(f"wrote {len(paths)} files to {shown_name(Path(args.out).resolve())} "
           "(the embedded controller "
           f"{carriage.params.envelope.embedded_controller!r}, {args.precision} precision; "
@@ -319,7 +319,7 @@ def cmd_fmu(args: argparse.Namespace) -> int:
 
     carriage = _carriage(args)
     path = carriage.fmu(args.out, args.kind, args.controller, args.fmi, args.loop,
-                        progress=True)
+                        progress=True, allow_unstable=args.allow_unstable)
     controller = args.controller or carriage.params.envelope.embedded_controller
     print(f"wrote {shown_name(path.resolve())} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
           f"controller {controller}, {args.loop} loop, {path.stat().st_size} bytes)")
@@ -456,6 +456,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "image for a closed loop on the target (HIL/SIL, QEMU)")
     fw.add_argument("--out", default="firmware", metavar="DIR",
                     help="output folder (default: ./firmware)")
+    fw.add_argument("--allow-unstable", action="store_true",
+                    help="write the folder (its README and manifest saying so) even when the "
+                    "embedded controller fails the check `build` exits 3 on; without it "
+                    "nothing is written and the exit code is 3")
     fw.set_defaults(func=cmd_firmware)
 
     sim = sub.add_parser("simulate", help="closed-loop runs of figs 3-8 in the generated C")
@@ -553,6 +557,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "force_budget); continuous: the law at every derivative evaluation")
     fmu.add_argument("--out", default="build/fmu", metavar="DIR",
                      help="output folder of maglev.fmu (default: ./build/fmu)")
+    fmu.add_argument("--allow-unstable", action="store_true",
+                     help="write the FMU of the embedded controller (its description saying "
+                     "so) even when it fails the check `build` exits 3 on; without it nothing "
+                     "is written and the exit code is 3")
     fmu.set_defaults(func=cmd_fmu)
 
     bld = sub.add_parser("build", help="the main job: C, library, simulations and report, "

@@ -50,6 +50,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.analyses.magnetic_damping", "maglevgen.control.operating",
          "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
+         "maglevgen.analyses.worst_case",
          "maglevgen.analyses.queries", "maglevgen.infrastructure.texsetup", "maglevgen.report",
          "maglevgen.report.figures", "numpy", "maglevgen.analyses.roa")),
     "maglevgen.carriage": (

@@ -309,3 +309,24 @@ def test_lag_times_written_here_equal_the_derived_closed_forms(carriage: Derived
         assert float(cr.tau_drag.xreplace(val)) == pytest.approx(tau_D, rel=1e-13)
         eq3 = 1 / (c.inductance * (1 + (c.resistance / (w * c.inductance)) ** 2))
         assert float(cr.lift0.xreplace(val)) == pytest.approx(eq3, rel=1e-13)
+
+
+def test_the_report_states_h1_as_minus_i_dh0_domega() -> None:
+    """The report's circuit-lag section writes H1 = -i dH0/domega: the identity holds for
+    the steady response written here, H0 = i w / (R + i w L) (eq 3's), and the derived H1;
+    the plain dH0/domega it said before does not."""
+    from pathlib import Path
+
+    import sympy as sp
+
+    from maglevgen.derive.circuit_lag import circuit_response
+
+    cr = circuit_response()
+    R, L, w = cr.R, cr.L, cr.omega
+    h0 = sp.I * w / (R + sp.I * w * L)
+    assert sp.simplify(cr.H0 - h0) == 0
+    assert sp.simplify(cr.H1 - (-sp.I) * sp.diff(h0, w)) == 0
+    assert sp.simplify(cr.H1 - sp.diff(h0, w)) != 0
+    tex = (Path(__file__).resolve().parents[1] / "templates" / "report"
+           / "circuit_lag.tex.j2").read_text()
+    assert r"$H_1 = -i\,\mathrm{d}H_0/\mathrm{d}\omega$" in tex

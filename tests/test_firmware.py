@@ -971,7 +971,11 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
 
     x = x0.astype(float)
     first = command(x)
-    queue = [first] * (depth - 1)
+    # before the first computed command: the safe one, no array force and the table's trim
+    # propulsion at the measured speed
+    safe = np.zeros(first.size)
+    safe[0] = table(float(np.linalg.norm(x[6:9])))[field["F_prop"]][0]
+    queue = [safe] * (depth - 1)
     ref = [x]
     for _ in range(n_ticks):
         x, queue = tick(x, queue)
@@ -1025,3 +1029,70 @@ def test_firmware_readme_quotes_the_recorded_tick_cost() -> None:
         assert MEASURED[key] == recorded[key], key
     assert MEASURED["share_percent"] == pytest.approx(
         100 * recorded["cycles"] / (recorded["clock_mhz"] * 1e6 / 1000), abs=0.005)
+
+
+def _sampled_loop_growth(op, rate: float, delay: int) -> float:
+    """The largest |z| of the spec design's sampled loop on the reduced linearisation at
+    ``rate`` Hz with ``delay`` ticks: python-control's c2d (ZOH) of (A_r, B_g), the commands
+    in flight as states, w[k] = -K x[k - delay] (an independent assembly of the loop)."""
+    import control as ct
+
+    from maglevgen.control.operating import N_AXES, REDUCED_INDEX
+
+    A, B = op.reduced
+    K_pos, K_rate = op.gains("spec")
+    K = K_pos @ np.eye(N_AXES, len(REDUCED_INDEX)) + K_rate @ op.rate_map
+    d = ct.c2d(ct.ss(A, B, np.eye(A.shape[0]), 0), 1.0 / rate, "zoh")
+    n, m = A.shape[0], B.shape[1]
+    N = n + delay * m
+    M = np.zeros((N, N))
+    M[:n, :n] = d.A
+    if delay == 0:
+        M[:n, :n] -= d.B @ K
+    else:
+        M[:n, n + (delay - 1) * m:] = d.B  # the oldest command applied
+        M[n:n + m, :n] = -K  # the newest computed
+        for j in range(1, delay):
+            M[n + j * m:n + (j + 1) * m, n + (j - 1) * m:n + j * m] = np.eye(m)
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+@pytest.mark.slow
+def test_firmware_verifies_before_it_writes(carriage: DerivedCarriage, sim_lib, tmp_path: Path,
+                                            capsys) -> None:
+    """`maglevgen firmware` runs `build`'s check first: at a 50 Hz tick the spec design's
+    sampled loop is unstable (python-control's c2d of the linearisation with the delay, at
+    some speed of the envelope), so the command exits 3 with one line naming the failure and
+    writes nothing; with --allow-unstable it writes the folder, whose README and manifest
+    carry the failed verdict. The default carriage's folder says verified, the spec, the
+    model and the range."""
+    from maglevgen.analyses.envelope import envelope_points, resolve_range
+    from maglevgen.cli import main
+
+    v_min, v_max = resolve_range(carriage, sim_lib)
+    ops = envelope_points(carriage, sim_lib, np.linspace(v_min, v_max, 5))
+    delay = carriage.params.control.spec.delay_ticks
+    assert max(_sampled_loop_growth(op, 50.0, delay) for op in ops) > 1.0
+    assert max(_sampled_loop_growth(op, 1000.0, delay) for op in ops) < 1.0
+
+    out = tmp_path / "fw50"
+    capsys.readouterr()
+    assert main(["firmware", "--set", "control.spec.tick_rate=50", "--out", str(out)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert not out.exists()
+    # progress lines (a cold cache's derivations) may precede it; the error is one line
+    errors = [ln for ln in err if ln.startswith("maglevgen: error")]
+    assert errors == err[-1:] and "verification failed" in err[-1]
+    assert "nothing written" in err[-1]
+    assert main(["firmware", "--set", "control.spec.tick_rate=50", "--allow-unstable",
+                 "--out", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["verification"]["verified"] is False
+    assert "NOT VERIFIED" in (out / "README.md").read_text()
+
+    good = tmp_path / "fw"
+    assert main(["firmware", "--out", str(good)]) == 0
+    ver = json.loads((good / "manifest.json").read_text())["verification"]
+    assert ver["verified"] is True and ver["spec"] == "[control.spec]"
+    assert ver["range_m_per_s"] == pytest.approx([v_min, v_max], rel=1e-12)
+    assert f"**Verdict**: {ver['verdict']}." in (good / "README.md").read_text()

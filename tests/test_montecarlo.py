@@ -303,3 +303,30 @@ def test_failure_correlation_is_reported_only_when_runs_failed(failures: int) ->
         assert "- `speed`: +0.500" in md and "- `vehicle.mass`: -0.250" in md
     else:
         assert "`speed`" not in md and "none to report (no run made contact or diverged)" in md
+
+
+def test_a_start_in_contact_is_counted_apart(carriage, sim_lib, op) -> None:
+    """Planted: a run from 20 mm of heave down (the start's gap below track.min_gap by the
+    test's own geometry) stops at its first sample and is "starts in contact"; the default
+    disturbance's run has no contact cause. In the aggregate the starts in contact leave the
+    in-flight contact probability, whose interval is scipy's Wilson interval of the rest."""
+    from independent_reference import contact_gaps
+
+    from maglevgen.analyses.montecarlo import CONTACT_CAUSES, _in_flight, contact_cause
+    from maglevgen.analyses.simulate import initial_state, metrics, simulate
+
+    min_gap = carriage.params.track.min_gap
+    down = {"z": -0.02}
+    assert np.min(contact_gaps(carriage.params, initial_state(op, down)[1:6])) <= min_gap
+    m = metrics(simulate(sim_lib, carriage.p, op, "spec", 0.05, 1e-3, min_gap, down))
+    assert m["status"] == "contact"
+    assert contact_cause(sim_lib, carriage.p, min_gap, m) == "starts in contact"
+    m = metrics(simulate(sim_lib, carriage.p, op, "spec", 0.05, 1e-3, min_gap))
+    assert contact_cause(sim_lib, carriage.p, min_gap, m) == ""
+
+    status = np.array(["contact"] * 5 + ["settled"] * 95)
+    cause = np.array([CONTACT_CAUSES[0]] * 3 + [CONTACT_CAUSES[2]] * 2 + [""] * 95)
+    got = _in_flight(status, cause, 100)
+    ref = binomtest(2, 97).proportion_ci(0.95, method="wilson")
+    assert (got["starts_in_contact"], got["runs"], got["contacts"]) == (3, 97, 2)
+    assert got["ci95"] == pytest.approx([ref.low, ref.high], rel=1e-9)

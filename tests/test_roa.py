@@ -208,3 +208,94 @@ def test_bad_options_are_one_line_exit_2(argv, key, capsys, private_cache) -> No
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and key in err[0], err
+
+
+def _gaps_many(prm, Q: np.ndarray) -> np.ndarray:
+    """independent_reference.contact_gaps at every row of Q (y, z, phi, theta, psi),
+    vectorised: each face's least corner gap nominal_gap + n . (X + (R - I) b)."""
+    from independent_reference import _face_axes
+
+    y, z, phi, th, psi = Q.T
+    c, s = np.cos, np.sin
+    one, zero = np.ones_like(y), np.zeros_like(y)
+    Rz = np.stack([np.stack([c(psi), -s(psi), zero], -1), np.stack([s(psi), c(psi), zero], -1),
+                   np.stack([zero, zero, one], -1)], -2)
+    Ry = np.stack([np.stack([c(th), zero, s(th)], -1), np.stack([zero, one, zero], -1),
+                   np.stack([-s(th), zero, c(th)], -1)], -2)
+    Rx = np.stack([np.stack([one, zero, zero], -1), np.stack([zero, c(phi), -s(phi)], -1),
+                   np.stack([zero, s(phi), c(phi)], -1)], -2)
+    R = Rz @ Ry @ Rx - np.eye(3)
+    X = np.stack([zero, y, z], -1)
+    out = []
+    for arr in prm.arrays.values():
+        a, n = np.array(arr.position), np.array(arr.normal)
+        across, along = _face_axes(n)
+        half_l, half_w = arr.circuits * prm.circuit.pitch / 2, prm.halbach.width / 2
+        corners = [a + i * half_w * across + j * half_l * along for i in (-1, 1)
+                   for j in (-1, 1)]
+        out.append(np.min([arr.nominal_gap + (X + R @ b) @ n for b in corners], axis=0))
+    return np.stack(out, -1)
+
+
+def _reduced_gaps(prm, op, dx: np.ndarray) -> np.ndarray:
+    """The reference gaps at trim + the rows of dx (10 reduced deviations)."""
+    X = np.tile(op.x_trim, (dx.shape[0], 1))
+    X[:, list(REDUCED_INDEX)] += dx
+    return _gaps_many(prm, X[:, 1:6])
+
+
+@pytest.fixture(scope="module")
+def speeds_ops(sim_lib, carriage):
+    from maglevgen.analyses.envelope import envelope_points, resolve_range
+
+    v_min, v_max = resolve_range(carriage, sim_lib)
+    return envelope_points(carriage, sim_lib, [v_min, 20.9, v_max])
+
+
+def test_contact_level_is_the_closed_form_on_linearised_gaps(speeds_ops, carriage) -> None:
+    """On the gaps linearised at trim (g0 + A dx, A by central differences of the test's own
+    geometry) the contact-limited level is the closed form: min over {V <= c} of a'dx is
+    -sqrt(c a'P^-1 a), so gap j reaches min_gap at c_j = (g0_j - min_gap)^2 / (a_j'P^-1 a_j);
+    the level is the least c_j and the state returned lies on {V = c} at min_gap."""
+    prm, min_gap = carriage.params, carriage.params.track.min_gap
+    for op in speeds_ops:
+        P = roa.lyapunov_matrix(op, "spec")
+        n = P.shape[0]
+        g0 = _reduced_gaps(prm, op, np.zeros((1, n)))[0]
+        h = 1e-7
+        A = np.column_stack([(_reduced_gaps(prm, op, h * e[None, :])[0]
+                              - _reduced_gaps(prm, op, -h * e[None, :])[0]) / (2 * h)
+                             for e in np.eye(n)])
+        Pinv = np.linalg.inv(P)
+        expected = min((g0[j] - min_gap) ** 2 / (A[j] @ Pinv @ A[j]) for j in range(g0.size))
+        c, touch = roa.contact_level(lambda dx, g0=g0, A=A: g0 + dx @ A.T, P, min_gap)
+        assert c == pytest.approx(expected, rel=1e-6), op.speed
+        assert touch @ P @ touch == pytest.approx(c, rel=1e-9)
+        assert np.min(g0 + A @ touch) == pytest.approx(min_gap, abs=1e-12)
+
+
+@pytest.mark.slow
+def test_no_state_of_the_contact_limited_set_is_in_contact(speeds_ops, sim_lib,
+                                                           carriage) -> None:
+    """The level from the generated gaps against 10^5 states of {V <= c} per speed (half
+    uniform in the volume, half on the boundary, where a gap is least), their gaps from the
+    test's own geometry: none in contact; the state the level names is in contact (the
+    level is not too small); the region `speed_region` reports is at most this level."""
+    prm, min_gap = carriage.params, carriage.params.track.min_gap
+    rng = np.random.default_rng(2024)
+    for op in speeds_ops[:2]:
+        P = roa.lyapunov_matrix(op, "spec")
+        n = P.shape[0]
+        ev = roa.Evaluator(sim_lib, carriage.p, op, "spec", P, SMALL)
+        c, touch = roa.contact_level(lambda dx, ev=ev: ev.all_gaps(dx)[2], P, min_gap)
+        L = np.linalg.cholesky(P)
+        z = rng.standard_normal((100_000, n))
+        z /= np.linalg.norm(z, axis=1, keepdims=True)
+        z[:50_000] *= rng.uniform(size=(50_000, 1)) ** (1 / n)
+        dx = np.sqrt(c) * np.linalg.solve(L.T, z.T).T * (1 - 1e-9)
+        g = _reduced_gaps(prm, op, dx)
+        assert np.min(g) > min_gap, op.speed
+        assert np.min(_reduced_gaps(prm, op, touch[None, :])) <= min_gap + 1e-11
+        assert touch @ P @ touch == pytest.approx(c, rel=1e-9)
+        region = roa.speed_region(sim_lib, carriage.p, op, "spec", min_gap, SMALL)
+        assert region.level <= c * (1 + 1e-12)

@@ -72,13 +72,20 @@ def _command(carriage: DerivedCarriage, x: np.ndarray, t: float, gains_at, k_v: 
     return np.concatenate([[f_ff + k_v * (v_ref_at(t) - V)], F])
 
 
+def _safe(carriage: DerivedCarriage, x0: np.ndarray, gains_at) -> np.ndarray:
+    """The command applied before the first computed one arrives: no array force, the
+    propulsion's feedforward at the speed of x0 (no speed feedback)."""
+    n_u = carriage.model.u.shape[0]
+    return np.concatenate([[gains_at(float(np.linalg.norm(x0[6:9])))[0]], np.zeros(n_u - 1)])
+
+
 def _tick_reference(carriage: DerivedCarriage, x0: np.ndarray, t_end: float, tick_steps: int,
                     delay: int, gains_at, k_v: float, v_ref_at, budget: float | None = None
                     ) -> np.ndarray:
     """The firmware's loop by DOP853: at each tick (every tick_steps * DT) the state is
     sampled and the command computed (`_command`), the command of ``delay`` ticks before
-    applied (the first one until then) and held while the SymPy model is integrated to the
-    next tick. The states at every DT."""
+    applied (the safe command until then, `_safe`) and held while the SymPy model is
+    integrated to the next tick. The states at every DT."""
     fns, p = carriage.functions, carriage.p
     period = tick_steps * DT
     x, out, queue = np.array(x0, float), [np.array(x0, float)], []
@@ -86,7 +93,7 @@ def _tick_reference(carriage: DerivedCarriage, x0: np.ndarray, t_end: float, tic
         t = j * period
         cmd = _command(carriage, x, t, gains_at, k_v, v_ref_at, budget)
         if j == 0:
-            queue = [cmd] * delay
+            queue = [_safe(carriage, x, gains_at)] * delay
         queue.append(cmd)
         held = queue.pop(0)
         sol = solve_ivp(lambda _t, xx, u=held: fns.xdot(xx, u, p).ravel(), (t, t + period), x,
@@ -107,11 +114,13 @@ def _scaled_error(x: np.ndarray, ref: np.ndarray) -> float:
 def _held_commands(carriage: DerivedCarriage, traj, tick_steps: int, delay: int, gains_at,
                    k_v: float, v_ref_at, budget: float | None = None) -> np.ndarray:
     """The inputs the C run should hold at each of its samples, from its own states at the
-    ticks: the command of the tick ``delay`` ticks before (the first tick's until then)."""
+    ticks: the command of the tick ``delay`` ticks before (the safe command until then)."""
     ticks = range(0, traj.t.size, tick_steps)
     cmds = [_command(carriage, traj.x[k], traj.t[k], gains_at, k_v, v_ref_at, budget)
             for k in ticks]
-    return np.array([cmds[max(0, k // tick_steps - delay)] for k in range(traj.t.size)])
+    safe = _safe(carriage, traj.x[0], gains_at)
+    return np.array([cmds[k // tick_steps - delay] if k // tick_steps >= delay else safe
+                     for k in range(traj.t.size)])
 
 
 # RK4 at DT = 1 ms against DOP853 at rtol 1e-10, each state relative to its excursion: measured
@@ -184,6 +193,44 @@ def test_hold_with_tick_and_speed_loop_matches_solve_ivp(carriage, sim_lib, op) 
     ref = _tick_reference(carriage, initial_state(op, DISTURBANCE), t_end, steps, 2, gains,
                           k_v, v_ref, budget)
     assert _scaled_error(traj.x, ref) < BOUND
+
+
+@pytest.mark.parametrize("delay", [0, 1, 3])
+def test_a_step_in_the_measurement_reaches_the_command_after_the_delay(carriage, sim_lib, op,
+                                                                      delay) -> None:
+    """The delay line starts honest. The run starts at the default disturbance: the
+    measurement steps from the trim at the first tick (tick 1, counted from 1). Its command is
+    applied at tick delay + 1, not before: ticks 1 .. delay hold the safe command (no array
+    force, the feedforward propulsion, no speed feedback), as a numpy queue of the loop says;
+    from tick delay + 1 the held inputs are the numpy commands of the run's own samples."""
+    mode = speed_mode(sim_lib, carriage.p, op, carriage.params.vehicle.mass, "damping")
+    k_v = speed_loop_gain(mode, carriage.params.control.spec.speed_bandwidth)
+    steps, t_end = 4, 0.06
+    traj = simulate(sim_lib, carriage.p, op, "damping", t_end, DT,
+                    carriage.params.track.min_gap, tick=Tick(250.0, delay), speed_gain=k_v)
+    assert traj.c_status == 0
+    K_pos, K_rate = op.gains("damping")
+
+    def gains(_v: float):
+        return op.f_prop, op.a_trim, K_pos, K_rate
+
+    def v_ref(_t: float) -> float:
+        return op.speed
+
+    # the numpy loop: a queue of `delay` safe commands, one in and one out at every tick
+    n_u = traj.u.shape[1]
+    queue = [np.concatenate([[op.f_prop], np.zeros(n_u - 1)])] * delay
+    applied = []
+    for j in range(0, traj.t.size, steps):
+        queue.append(_command(carriage, traj.x[j], traj.t[j], gains, k_v, v_ref))
+        applied.extend([queue.pop(0)] * min(steps, traj.t.size - j))
+    applied = np.array(applied)
+    np.testing.assert_allclose(traj.u, applied, rtol=1e-9, atol=1e-9 * np.abs(applied).max())
+    # ticks 1 .. delay: exactly no array force; tick delay + 1: the disturbance's response
+    first = delay * steps
+    assert np.all(traj.u[:first, 1:] == 0.0)
+    assert np.all(traj.u[:first, 0] == op.f_prop)
+    assert np.abs(traj.u[first, 1:]).max() > 1.0  # [N]: the step's command has arrived
 
 
 def test_without_a_tick_the_loop_is_maglev_rk4_step(carriage, sim_lib, op) -> None:
@@ -272,8 +319,11 @@ def test_a_tiny_budget_saturates_and_bounds_every_array_force(carriage, sim_lib,
             assert np.all(norms <= budget * (1 + 1e-12))
             sat = metrics(traj)["saturated_time"]
             if expect == "always":
-                assert sat == pytest.approx(traj.t[-1])
-                assert np.allclose(norms.max(axis=1), budget, rtol=1e-12)
+                # the tick's first interval holds the safe command (no array force)
+                first = 0 if tick is None else round(tick.delay / tick.rate / DT)
+                assert sat == pytest.approx(traj.t[-1] - first * DT)
+                assert np.allclose(norms[first:].max(axis=1), budget, rtol=1e-12)
+                assert np.all(norms[:first] == 0.0)
             elif expect == "some":
                 assert 0 < sat < traj.t[-1]
             else:
@@ -324,7 +374,8 @@ def test_montecarlo_samples_run_the_loop_they_are_given(carriage, sim_lib) -> No
         assert (study.tick, study.speed_gain, study.force_budget) == (Tick(1000.0, 1), 10.0,
                                                                       budget)
         (rows[budget],) = run_sample(study, 0, sim_lib)
-    assert rows[1e-6]["saturated_time"] == pytest.approx(0.2)
+    # saturated but for the first tick's safe command (no array force)
+    assert rows[1e-6]["saturated_time"] == pytest.approx(0.2 - 1e-3)
     assert rows[None]["saturated_time"] == 0.0
     with pytest.raises(InputError, match=re.escape("tick rate 300.0")):
         make_study(carriage, sim_lib, ("damping",), 0.2, DT, seed=3, tick=Tick(300.0, 1))

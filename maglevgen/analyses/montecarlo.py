@@ -301,16 +301,22 @@ def study_regions(carriage, lib, controllers: Sequence[str],
     return out
 
 
-# why a run touched the track: its speed fell below the sample's lift-off (no trim there: the
-# carriage slowed down and landed), or the levitation loop lost it at a flying speed
-CONTACT_CAUSES = ("below lift-off", "levitation")
+# why a run touched the track: its disturbed start was already in contact (no controller
+# acted: a finding about the sampled start, not the loop), its speed fell below the sample's
+# lift-off (no trim there: the carriage slowed down and landed), or the levitation loop lost
+# it at a flying speed
+CONTACT_CAUSES = ("starts in contact", "below lift-off", "levitation")
 
 
 def contact_cause(lib, p, min_gap: float, m: dict) -> str:
-    """"" for a run without contact, else one of CONTACT_CAUSES: whether the sample has a
-    trim at its speed at contact (the Newton trim in C, `operating.checked_trim`)."""
+    """"" for a run without contact, else one of CONTACT_CAUSES: "starts in contact" when the
+    run stopped at its first sample (the start's gap at or below min_gap), else whether the
+    sample has a trim at its speed at contact (the Newton trim in C,
+    `operating.checked_trim`)."""
     if m["status"] != "contact" or m["speed_at_contact"] is None:
         return ""
+    if m["steps"] == 0:
+        return CONTACT_CAUSES[0]
     try:
         checked_trim(lib, p, float(m["speed_at_contact"]), min_gap)
     except NoTrimError:
@@ -568,6 +574,17 @@ def _quantiles(values: np.ndarray) -> dict[str, float | None]:
             "max": float(v.max())}
 
 
+def _in_flight(status: np.ndarray, cause: np.ndarray, n_run: int) -> dict:
+    """The contact probability (95 % Wilson interval) of the runs that did not start in
+    contact: the loop's own failures, the starts in contact counted apart."""
+    starts = int(np.sum((status == "contact") & (cause == CONTACT_CAUSES[0])))
+    n = n_run - starts
+    k = int(np.sum(status == "contact")) - starts
+    lo, hi = wilson(k, n)
+    return {"starts_in_contact": starts, "runs": n, "contacts": k,
+            "probability": k / n if n else None, "ci95": [lo, hi]}
+
+
 def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
     """Per controller: the status counts, the contact probability with its 95 % Wilson
     interval, settling time and peak deviation per axis, the worst samples and the
@@ -620,6 +637,8 @@ def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
                                for k in CONTACT_CAUSES},
             "contact_probability": contact / n_run if n_run else None,
             "contact_ci95": [lo, hi],
+            # counted apart: the runs whose disturbed start was already in contact
+            "contact_in_flight": _in_flight(status, cols["contact_cause"][sel], n_run),
             "failure_probability": int(fail.sum()) / n_run if n_run else None,
             "axes": axes,
             "failure_correlation": {k: corr[k] for k in ranked},

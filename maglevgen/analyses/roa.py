@@ -1,4 +1,6 @@
-"""A region of attraction of a controller's closed loop across the envelope, by sampling.
+"""A region of attraction of a controller's closed loop across the envelope: a contact-free
+sublevel set of a Lyapunov function on which it decreases, its contact limit computed and its
+decrease sampled.
 
 At each speed the Lyapunov candidate is V(x) = dx' P dx on the ten reduced states
 dx = x_r - x_r,trim (`operating.REDUCED_STATES`; the forward speed is held by the propulsion,
@@ -14,12 +16,16 @@ paper's q1, q2, r. For an LQR designed with these weights on the coupled model (
 own gain); for the per-axis LQR and the damping it is the cost-to-go of the paper's cost
 under that controller.
 
-The level: the largest c such that, at every sampled state of {V <= c},
-1. dV/dt = 2 dx' P f(x) < 0 on the **nonlinear** closed loop (the generated C's
-   `maglev_closed_loop`, the build's physics model; evaluated in C, batched:
-   `maglev_lyapunov_batch`), and
-2. every array's gap (the closest corner, `maglev_gaps`) is above track.min_gap.
-The states: ``directions`` unit directions on the ellipsoid {V = 1} (uniform on the whitened
+The level: the smaller of
+1. the contact limit, computed (`contact_level`): the largest c with every array's gap (the
+   closest corner, `maglev_gaps`, the nonlinear gaps) at or above track.min_gap on the whole
+   of {V <= c}, by minimising V over the states in contact, per gap, from several starts; and
+2. the largest c such that, at every sampled state of {V <= c}, dV/dt = 2 dx' P f(x) < 0 on
+   the **nonlinear** closed loop (the generated C's `maglev_closed_loop`, the build's
+   physics model; evaluated in C, batched: `maglev_lyapunov_batch`).
+The set is therefore a contact-free sublevel set of V on which V decreases (where sampled),
+not the limit of recovery: the carriage recovers from further out along most directions.
+The states of 2: ``directions`` unit directions on the ellipsoid {V = 1} (uniform on the whitened
 sphere, plus the ten state axes, the default disturbance and P's eigenvectors, each with both
 signs), each at radii doubling from 1/1024 of the default disturbance's to the first shell
 with a failure, then on a uniform grid of ``radii`` radii up to that shell, then ``bisections``
@@ -29,8 +35,10 @@ of [control.spec]: `simulate.firmware_loop`), closed-loop runs from ``confirm`` 
 boundary {V = c} must all settle without contact; where one does not, c shrinks
 (CONFIRM_SHRINK) until every run settles.
 
-This is a sampled estimate, not a proof: a failure between the sampled directions or radii
-can be missed (the report states the counts and the radial bracket). A certificate would
+The decrease is a sampled estimate, not a proof: a failure between the sampled directions or
+radii can be missed (the report states the counts and the radial bracket); the contact limit
+is a local minimisation from several starts (a tested bound: no state of {V <= c} in contact
+among 10^5 sampled in tests/test_roa.py). A certificate would
 bound dV/dt over the whole set (sum-of-squares on a polynomial model with its remainder).
 """
 
@@ -60,9 +68,10 @@ from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary
 
-__all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Confirmation", "Evaluator", "Region", "Sampling",
-           "SpeedRegion", "axis_rows", "confirmation_run", "default_deviation", "design_weights",
-           "lyapunov_matrix", "region_markdown", "region_of_attraction", "region_png",
+__all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Confirmation", "Evaluator", "Recovery", "Region",
+           "Sampling", "SpeedRegion", "axis_rows", "confirmation_run", "contact_level",
+           "default_deviation", "design_weights", "lyapunov_matrix", "recovery_bracket",
+           "recovery_lines", "region_markdown", "region_of_attraction", "region_png",
            "sampled_search", "speed_region", "study", "study_files", "study_json", "study_lines",
            "summary_lines"]
 
@@ -128,6 +137,26 @@ class Confirmation:
 
 
 @dataclass(frozen=True)
+class Recovery:
+    """How far along a direction the firmware loop recovers (`recovery_bracket`): from
+    ``lo`` times it, not from ``hi`` times it (multiples of the default disturbance, or of the
+    boundary state along the limiting direction)."""
+
+    label: str
+    lo: float
+    hi: float
+
+    def text(self) -> str:
+        top = (f"not from {self.hi:.3g}x" if np.isfinite(self.hi) else
+               f"no failure up to {self.lo:.3g}x")
+        return f"{self.label}: recovers from {self.lo:.3g}x, {top}"
+
+    def to_json(self) -> dict:
+        return {"along": self.label, "recovers_from": self.lo,
+                "fails_from": self.hi if np.isfinite(self.hi) else None}
+
+
+@dataclass(frozen=True)
 class SpeedRegion:
     """The region at one speed."""
 
@@ -143,6 +172,7 @@ class SpeedRegion:
     shrinks: int = 0  # how often the confirmation runs shrank c
     rejected: tuple[Confirmation, ...] = ()  # the runs that failed at a larger c
     worst: np.ndarray | None = None  # the first failing sampled direction (V = 1)
+    recovery: tuple[Recovery, ...] = ()  # firmware-loop runs along chosen directions
 
     @property
     def confirmed(self) -> bool:
@@ -206,6 +236,7 @@ class SpeedRegion:
                                    "V_end_over_start": c.decay, "ok": c.ok}
                                   for c in self.confirmations],
                 "rejected": [{"state": c.label, "status": c.status} for c in self.rejected],
+                "recovery": [r.to_json() for r in self.recovery],
                 "P": self.P.tolist() if np.all(np.isfinite(self.P)) else None}
 
 
@@ -230,8 +261,12 @@ class Region:
         bracket = (f"within {100 * max(brackets):.2g} % in the square root of c along the sampled "
                    "directions" if brackets else "not bracketed (no failure found)")
         states = max((r.states for r in self.regions), default=0)
-        return (f"A sampled estimate, not a proof: at each speed dV/dt < 0 on the nonlinear "
-                f"closed loop (the generated C) and every gap above track.min_gap at up to "
+        return (f"A contact-free sublevel set of V on which V decreases, not the limit of "
+                f"recovery. Contact: computed, the largest c with every nonlinear gap at or "
+                f"above track.min_gap on all of {{V <= c}} (V minimised over the states in "
+                f"contact, per gap, SLSQP from {1 + CONTACT_STARTS} starts). Decrease: a "
+                f"sampled estimate, not a proof: dV/dt < 0 on the nonlinear closed loop (the "
+                f"generated C) at up to "
                 f"{states} states of {{V <= c}} ({s.directions} random directions uniform on "
                 f"the ellipsoid plus {self.fixed_directions} fixed ones (the state axes, the "
                 f"default disturbance, P's eigenvectors), on shells doubling in radius, "
@@ -305,6 +340,11 @@ class Evaluator:
 
     def __call__(self, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(V, dV/dt, smallest gap) at the rows of ``dx`` (n x 10 reduced deviations)."""
+        V, Vd, g = self.all_gaps(dx)
+        return V, Vd, (g.min(axis=1) if g.size else np.zeros(0))
+
+    def all_gaps(self, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(V, dV/dt, every gap (n x n_gaps)) at the rows of ``dx``."""
         X = np.tile(self.op.x_trim, (dx.shape[0], 1))
         X[:, list(REDUCED_INDEX)] += dx
         b = self.sampling.batch
@@ -323,11 +363,75 @@ class Evaluator:
             parts = [one(c) for c in chunks]
         self.count += X.shape[0]
         if not parts:
-            return np.zeros(0), np.zeros(0), np.zeros(0)
+            return np.zeros(0), np.zeros(0), np.zeros((0, n_g))
         V = np.concatenate([q[0] for q in parts])
         Vd = np.concatenate([q[1] for q in parts])
-        g = np.concatenate([q[2] for q in parts]).min(axis=1)
-        return V, Vd, g
+        return V, Vd, np.concatenate([q[2] for q in parts])
+
+
+#: the optimiser's starts per gap besides the linearised optimum, and their spread
+CONTACT_STARTS, CONTACT_SPREAD = 6, 0.5
+#: [m] a gap this close above track.min_gap counts as the contact the level is limited by
+CONTACT_TOLERANCE = 1e-12
+
+
+def contact_level(gaps: Callable[[np.ndarray], np.ndarray], P: np.ndarray, min_gap: float,
+                  seed: int = 0) -> tuple[float, np.ndarray | None]:
+    """(c, dx*): the largest c with every gap at or above ``min_gap`` on {V <= c}, computed,
+    not sampled: per gap g_j the smallest V(dx) = dx' P dx with g_j(trim + dx) <= min_gap
+    (SciPy's SLSQP in the whitened coordinates z = L' dx, V = |z|^2, the gaps' gradients by
+    central differences), from the linearised optimum (on g_j ~ g_j0 + a'dx:
+    dx = (min_gap - g_j0) P^-1 a / (a' P^-1 a), c_j = (g_j0 - min_gap)^2 / (a' P^-1 a))
+    and CONTACT_STARTS starts spread about it; the smallest over the gaps and starts, each
+    kept only where the gap there is at min_gap (a state in contact: every c above it holds
+    one). ``gaps(dx)``: every gap at the rows of dx (n x 10 reduced deviations). dx*: the
+    contact state on {V = c} (None: no gap reaches min_gap, c = inf)."""
+    from scipy.optimize import minimize
+
+    L = np.linalg.cholesky(P)
+    n = P.shape[0]
+
+    def dx_of(z: np.ndarray) -> np.ndarray:
+        return np.linalg.solve(L.T, z)
+
+    g0 = gaps(np.zeros((1, n)))[0]
+    rng = np.random.default_rng(seed)
+    best, best_dx = np.inf, None
+    for j in range(g0.size):
+        if not g0[j] > min_gap:
+            return 0.0, np.zeros(n)
+
+        def g(z: np.ndarray, j: int = j) -> float:
+            return float(gaps(dx_of(z)[None, :])[0, j])
+
+        def grad(z: np.ndarray, j: int = j) -> np.ndarray:
+            h = 1e-7 * max(1.0, float(np.linalg.norm(z)))
+            Z = np.vstack([z + h * e for e in np.eye(n)] + [z - h * e for e in np.eye(n)])
+            G = gaps(np.linalg.solve(L.T, Z.T).T)[:, j]
+            return (G[:n] - G[n:]) / (2 * h)
+
+        b = grad(np.zeros(n))  # the gap's gradient in z: a' dx = b' z
+        if not np.linalg.norm(b) > 0:
+            continue
+        z_lin = (min_gap - g0[j]) * b / (b @ b)
+        starts = [z_lin] + [z_lin + CONTACT_SPREAD * np.linalg.norm(z_lin)
+                            * rng.standard_normal(n) / np.sqrt(n)
+                            for _ in range(CONTACT_STARTS)]
+        for z0 in starts:
+            res = minimize(lambda z: float(z @ z), z0, jac=lambda z: 2 * z, method="SLSQP",
+                           constraints=[{"type": "ineq", "fun": lambda z, g=g: min_gap - g(z),
+                                         "jac": lambda z, grad=grad: -grad(z)}],
+                           options={"maxiter": 200, "ftol": 1e-14})
+            z = res.x
+            for _ in range(4):  # onto the contact along the ray (Newton in the ray's scale)
+                slope = float(grad(z) @ z)
+                if not (np.all(np.isfinite(z)) and slope < 0):
+                    break
+                z = z * (1.0 - (g(z) - min_gap) / slope)
+            # kept where the state is in contact, to CONTACT_TOLERANCE
+            if np.all(np.isfinite(z)) and g(z) <= min_gap + CONTACT_TOLERANCE and z @ z < best:
+                best, best_dx = float(z @ z), dx_of(z)
+    return best, best_dx
 
 
 def _directions(P: np.ndarray, sampling: Sampling) -> tuple[np.ndarray, int]:
@@ -344,11 +448,6 @@ def _directions(P: np.ndarray, sampling: Sampling) -> tuple[np.ndarray, int]:
     z /= np.linalg.norm(z, axis=1, keepdims=True)
     random = np.linalg.solve(L.T, z.T).T  # dx = L^-T z: V = |z|^2 = 1
     return np.vstack([fixed, random]), fixed.shape[0]
-
-
-def _fails(Vd: np.ndarray, gap: np.ndarray, min_gap: float) -> tuple[np.ndarray, np.ndarray]:
-    """(dV/dt not below 0, a gap not above min_gap); NaN counts as a failure of both."""
-    return ~(Vd < 0), ~(gap > min_gap)
 
 
 def sampled_search(failures: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
@@ -423,11 +522,20 @@ def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, cont
     D, _ = _directions(P, sampling)
     ev = Evaluator(lib, p, op, controller, P, sampling)
 
+    # contact: computed (contact_level); dV/dt < 0: sampled, inside the contact-free set
+    c_contact, touch = contact_level(lambda dx: ev.all_gaps(dx)[2], P, min_gap, sampling.seed)
+
     def failures(dx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        _, Vd, g = ev(dx)
-        return (*_fails(Vd, g, min_gap), Vd)
+        _, Vd, _ = ev(dx)
+        f_v = ~(Vd < 0)
+        return f_v, np.zeros_like(f_v), Vd
 
     lo, hi, limit, worst = sampled_search(failures, D, float(np.sqrt(default_V)), sampling)
+    if c_contact <= lo**2:
+        lo, hi, limit = float(np.sqrt(c_contact)), float(np.sqrt(c_contact)), "contact"
+        if touch is not None and c_contact > 0:  # the contact state leads the boundary runs
+            D = np.vstack([D, touch / np.sqrt(c_contact)])
+            worst = [D.shape[0] - 1]
     sampled = lo**2
     level, confirmations, shrinks = sampled, [], 0
     rejected: list[Confirmation] = []
@@ -442,9 +550,49 @@ def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, cont
             level *= CONFIRM_SHRINK
         if not all(c.ok for c in confirmations):
             level = 0.0
+    recovery: list[Recovery] = []
+    if confirm is not None and sampling.confirm > 0:
+        along = [("the default disturbance", d0, 1.0), ("the default disturbance reversed",
+                                                        -d0, 1.0)]
+        if worst and level > 0:
+            w = np.sqrt(level) * D[worst[0]]  # on the boundary: multiples of the boundary
+            along += [(f"the {limit}-limiting direction", w, 1.0),
+                      (f"the {limit}-limiting direction reversed", -w, 1.0)]
+        recovery = [Recovery(lbl, *recovery_bracket(confirm, d, P)) for lbl, d, _ in along]
     return SpeedRegion(op.speed, float(level), float(sampled),
                        float(hi**2), limit, ev.count, P, default_V, tuple(confirmations),
-                       shrinks, tuple(rejected), D[worst[0]] if worst else None)
+                       shrinks, tuple(rejected), D[worst[0]] if worst else None,
+                       tuple(recovery))
+
+
+#: recovery along a direction: multiples doubling from 1 up to RECOVERY_TOP, then bisections
+RECOVERY_TOP, RECOVERY_BISECTIONS = 32.0, 5
+
+
+def recovery_bracket(confirm: Callable[[np.ndarray, np.ndarray], tuple[str, float]],
+                     d: np.ndarray, P: np.ndarray) -> tuple[float, float]:
+    """(lo, hi): the runs of ``confirm`` (the firmware loop) recover from lo d and not from
+    hi d (hi inf: recovered up to RECOVERY_TOP d; lo 0: not even from d), multiples doubling
+    from 1, then RECOVERY_BISECTIONS bisections. A bracket of the first failure found along
+    the ray, not a proof that every smaller multiple recovers."""
+    def ok(m: float) -> bool:
+        return Confirmation("", *confirm(m * d, P)).ok
+
+    lo, hi, m = 0.0, float("inf"), 1.0
+    while m <= RECOVERY_TOP:
+        if not ok(m):
+            hi = m
+            break
+        lo, m = m, 2 * m
+    if not np.isfinite(hi):
+        return lo, hi
+    for _ in range(RECOVERY_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo, hi
 
 
 def _boundary_directions(D: np.ndarray, P: np.ndarray, worst: list[int],
@@ -506,6 +654,20 @@ def region_of_attraction(carriage, lib: SimulationLibrary, controller: str,
     return Region(controller, tuple(out), sampling, loop, n_fixed)
 
 
+def recovery_lines(region: Region) -> list[str]:
+    """Per speed, how far the firmware loop recovers along the default disturbance (both
+    signs, multiples of it) and along the limiting direction (both signs, multiples of the
+    boundary): beside the set, which is not the limit of recovery."""
+    out = [f"- {r.speed:.4g} m/s: " + "; ".join(x.text() for x in r.recovery)
+           for r in region.regions if r.recovery]
+    if not out:
+        return []
+    return [f"Recovery beyond the set ({region.loop} loop runs of {CONFIRM_T_END:g} s, "
+            f"multiples doubling to {RECOVERY_TOP:g}, {RECOVERY_BISECTIONS} bisections; the "
+            "default disturbance in multiples of itself, the limiting direction in multiples "
+            "of the boundary):", *out]
+
+
 def axis_rows(region: Region) -> list[list[str]]:
     """The markdown table's rows: speed, c, the extents (mm, mrad), the default multiple,
     what limits the level, the confirmation."""
@@ -533,6 +695,8 @@ def region_markdown(regions: Sequence[Region]) -> str:
                 "|" + "---|" * len(head)]
         out += ["| " + " | ".join(row) + " |" for row in axis_rows(reg)]
         out += ["", reg.statement(), ""]
+        rec = recovery_lines(reg)
+        out += [*rec, ""] if rec else []
     return "\n".join(out)
 
 
@@ -626,6 +790,7 @@ def study_lines(regions: Sequence[Region], embedded: str) -> list[str]:
                 + f" {r.disturbance_multiple:10.3g}  {r.limit}; {runs}/"
                 f"{len(r.confirmations)} settle{shrunk}")
         out.append("  " + reg.statement())
+        out += ["  " + x for x in recovery_lines(reg)]
     return out
 
 
@@ -645,4 +810,5 @@ def summary_lines(region: Region) -> list[str]:
                    + ("yes" if r.confirmed and r.level > 0 else "NO")
                    + (f" (c shrunk {r.shrinks}x)" if r.shrinks else "") + " |")
     out += ["", region.statement()]
-    return out
+    rec = recovery_lines(region)
+    return out + (["", *rec] if rec else [])

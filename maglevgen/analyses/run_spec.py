@@ -111,12 +111,15 @@ class RunVerdict:
 def judge_run(spec: RunSpec, settling: list[float | None], peak: np.ndarray,
               min_gap: float, speed_error: float | None, speed_loop: bool,
               saturated_time: float, budget: float | None,
-              start: np.ndarray | None = None) -> RunVerdict:
+              start: np.ndarray | None = None,
+              start_gap: float | None = None) -> RunVerdict:
     """The checks of the module docstring: ``settling`` and ``peak`` per axis (settling time
     [s] or None, peak |deviation|), ``min_gap`` the run's smallest gap [m], ``speed_error``
     its largest relative speed error after 1 s (None for a shorter run), ``speed_loop``
     whether the propulsion fed back the speed, ``saturated_time`` [s] at ``budget`` [N],
-    ``start`` the |deviation| per axis the run started from (noted where at a limit)."""
+    ``start`` the |deviation| per axis the run started from (noted where at a limit),
+    ``start_gap`` its smallest gap at the start [m] (noted where already below the margin:
+    the disturbed start itself fails, whatever the controller)."""
     worst = max((np.inf if s is None else s) for s in settling)
     checks = [RunCheck("settling time", None if np.isinf(worst) else float(worst),
                        spec.settling_time, "s", bool(worst <= spec.settling_time),
@@ -131,8 +134,12 @@ def judge_run(spec: RunSpec, settling: list[float | None], peak: np.ndarray,
         checks.append(RunCheck(f"peak {axis} deviation", float(p), lim, unit,
                                bool(p <= lim * (1 + DEVIATION_ROUNDING)), note))
     margin = min_gap - spec.min_gap
+    at = None if start_gap is None else start_gap - spec.min_gap
+    note = ("" if at is None or at >= spec.min_gap_margin else
+            f"(the disturbed start is already at {at:.4g} m: below the margin before the "
+            "controller acts)")
     checks.append(RunCheck("smallest gap margin", float(margin), spec.min_gap_margin, "m",
-                           bool(margin >= spec.min_gap_margin)))
+                           bool(margin >= spec.min_gap_margin), note))
     if speed_loop and speed_error is not None:
         checks.append(RunCheck("speed error after 1 s", float(speed_error),
                                spec.speed_tolerance, "%", bool(speed_error

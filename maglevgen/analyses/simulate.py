@@ -263,7 +263,7 @@ def spec_verdict(traj: Trajectory) -> RunVerdict | None:
                                      range(dev.shape[1])],
                      np.max(np.abs(dev), axis=0), float(np.min(traj.gaps)), traj.speed_error,
                      bool(traj.speed_gain), traj.saturated_time, traj.force_budget,
-                     np.abs(dev[0]))
+                     np.abs(dev[0]), float(np.min(traj.gaps[0])))
 
 
 def run_status(traj: Trajectory) -> str:
@@ -655,7 +655,8 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                   disturbance: dict[str, float] | None = None, tick: Tick | None = None,
                   speed_gain: float = 0.0,
                   force_budget: float | None = None,
-                  loop: str = "continuous") -> SimulationRun:
+                  loop: str = "continuous",
+                  disturbances: tuple[dict[str, float], ...] = ()) -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
 
     ``loop``: "firmware" runs every controller as the firmware does (`firmware_loop`: the
@@ -672,7 +673,9 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     trim; the speed loop then tracks v_min + envelope.launch_acceleration t. ``tick``,
     ``speed_gain`` and ``force_budget`` as in `simulate` (the defaults: the controller at
     every RK4 stage, no speed loop, no budget). Refuses a step above RK4's stability limit
-    for the stiffest closed-loop mode at the start speed.
+    for the stiffest closed-loop mode at the start speed. ``disturbances``: when given, one
+    run per controller and disturbance (in that order) instead of one from ``disturbance``,
+    the trim and schedule computed once (`worst_case.judged_signs`).
     """
     from maglevgen.analyses.envelope import (
         envelope_points,
@@ -721,20 +724,22 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     loop = {"tick": tick, "speed_gain": speed_gain, "force_budget": force_budget}
     trajs = []
     for c in controllers:
-        if scenario == "launch":
-            trajs.append(launch(lib, carriage.p, launch_schedule(carriage, lib, points, c, refs),
-                                op, v_end, carriage.params.vehicle.mass * a, dt, min_gap,
-                                max_time=1.5 * (v_end - op.speed) / a + 1.0,
-                                disturbance=disturbance, x_start=x_start, accel=a,
-                                **loop))
-            continue
-        if bar is None:
-            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
-                                  **loop))
-            continue
-        with bar(f"simulating {CONTROLLER_TITLES[c]}") as update:
-            trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, disturbance,
-                                  progress=update, **loop))
+        sched = (launch_schedule(carriage, lib, points, c, refs) if scenario == "launch"
+                 else None)
+        for dist in disturbances or (disturbance,):
+            if scenario == "launch":
+                trajs.append(launch(lib, carriage.p, sched, op, v_end,
+                                    carriage.params.vehicle.mass * a, dt, min_gap,
+                                    max_time=1.5 * (v_end - op.speed) / a + 1.0,
+                                    disturbance=dist, x_start=x_start, accel=a, **loop))
+                continue
+            if bar is None:
+                trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, dist,
+                                      **loop))
+                continue
+            with bar(f"simulating {CONTROLLER_TITLES[c]}") as update:
+                trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, dist,
+                                      progress=update, **loop))
     growth = max(float(np.max(e.real)) for e in eig.values())
     embedded = carriage.params.envelope.embedded_controller
     mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,

@@ -90,7 +90,8 @@ def _banner(sha256: str, precision: str, with_plant: bool) -> str:
 
 def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareLoop,
                     precision: str = "single", with_plant: bool = False,
-                    measured: dict | None = None) -> dict[str, str]:
+                    measured: dict | None = None, verdict: dict | None = None
+                    ) -> dict[str, str]:
     """Every file of the firmware folder (nothing written).
 
     ``table``: the table schedule of the embedded controller over the envelope
@@ -98,7 +99,9 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     budget; ``precision``: "single" for the board, "double" for a host check of the same
     code; ``with_plant``: maglev_dynamics in the same image too (a closed loop on the target,
     e.g. under QEMU); ``measured``: the tick's cost on the Cortex-M4 at the default carriage
-    (BENCHMARKS.md), quoted in the README.
+    (BENCHMARKS.md), quoted in the README; ``verdict``: the embedded controller's
+    verification (`maglevgen.build.EmbeddedVerdict.to_json`; None: not checked, said so),
+    into the README and the manifest.
     """
     opts = GenerateOptions(precision, "baked", "int32")
     embedded = carriage.params.envelope.embedded_controller
@@ -146,6 +149,8 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "table_error": max(table.errors.values()), "with_plant": with_plant,
         "flags": " ".join(FIRMWARE_FLAGS), "functions": [f["name"] for f in fn_table],
         "cost": cost, "error_defines": error_defines(),
+        "verdict": (verdict or {}).get("verdict", "not checked (rendered without "
+                                       "`maglevgen firmware`'s verification)"),
     }
     for name in ("maglev_tick.h", "maglev_tick.c", "main.c", "CMakeLists.txt",
                  "cortex-m4f.cmake", "README.md"):
@@ -158,6 +163,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "tick": {"function": "maglev_tick", "controller_tick": tick_fn,
                  "rate_hz": loop.tick_rate, "delay_ticks": int(loop.delay_ticks),
                  "speed_gain": loop.speed_gain, "force_budget": loop.force_budget},
+        "verification": verdict,
         "gain_table": table.manifest(), "functions": fn_table,
         "flags": list(FIRMWARE_FLAGS),
     }
@@ -177,11 +183,13 @@ def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
 
 
 def firmware_files(carriage: DerivedCarriage, precision: str = "single",
-                   with_plant: bool = False) -> dict[str, str]:
+                   with_plant: bool = False, verdict: dict | None = None) -> dict[str, str]:
     """The firmware folder of ``carriage`` (`render_firmware`): the table schedule over the
-    envelope and the loop from the compiled simulation library (cached on disk)."""
+    envelope and the loop from the compiled simulation library (cached on disk); ``verdict``:
+    the embedded controller's verification (`maglevgen.build.EmbeddedVerdict.to_json`)."""
     GenerateOptions(precision, "baked")  # an unknown precision: InputError before slow work
     lib = simulation_library(carriage.structure)
     v_min, v_max = resolve_range(carriage, lib)
     return render_firmware(carriage, gain_table(carriage, lib, v_min, v_max),
-                           firmware_loop(carriage, lib), precision, with_plant, MEASURED)
+                           firmware_loop(carriage, lib), precision, with_plant, MEASURED,
+                           verdict)

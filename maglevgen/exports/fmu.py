@@ -343,11 +343,12 @@ def _function(manifest: dict, name: str) -> dict:
 
 
 def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
-                 matrix_gains: tuple[list[float], list[float]] | None = None
-                 ) -> dict[str, str]:
+                 matrix_gains: tuple[list[float], list[float]] | None = None,
+                 verdict: str = "") -> dict[str, str]:
     """modelDescription.xml, the wrapper C, the sources' note and (FMI 3.0) the build
     description, as text, for FMI version ``fmi`` ("2" or "3"); ``matrix_gains``: the
-    (K_pos, K_rate) constants (column-major) of a controller whose gains are "matrix"."""
+    (K_pos, K_rate) constants (column-major) of a controller whose gains are "matrix";
+    ``verdict``: the controller's verification, appended to the model's description."""
     from maglevgen.codegen.emit import template_env
 
     man = model.manifest
@@ -385,7 +386,7 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
         "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
         "fmi": version,
         "max_delay": MAX_DELAY_TICKS, "array_of_force": _array_of_force(man),
-        "matrix_gains": matrix_gains,
+        "matrix_gains": matrix_gains, "verdict": verdict,
         # FMI 3.0: the independent variable time (unit s) beside the list's units
         "units3": [(u, fmi3_base_unit(u)) for u in sorted({*units, "s"})],
     }
@@ -436,12 +437,16 @@ def _quiet(_: str) -> None:
 def build_fmu(carriage, kind: str = "both", controller: str | None = None,
               cache_dir: Path | None = None, cc: str | None = None,
               progress: Progress = _quiet, fmi: str = DEFAULT_FMI,
-              loop: str = "continuous") -> bytes:
+              loop: str = "continuous",
+              verdict: str | Callable[[], str] = "") -> bytes:
     """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
     FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
     embeds (``envelope.embedded_controller``); ``loop`` (FMU_LOOPS): the start values of the
     tick's parameters, "firmware" those of `maglevgen.analyses.simulate.firmware_loop`, "continuous"
-    zeros (the law at every derivative evaluation)."""
+    zeros (the law at every derivative evaluation); ``verdict``: the controller's
+    verification (`maglevgen.build.EmbeddedVerdict.text`), in the model's description, or a
+    callable that returns it (or raises), called once the options are checked and before the
+    slow work."""
     from maglevgen.codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
     from maglevgen.infrastructure.cache import cache_root
     from maglevgen.runtime.compile import compile_object, compile_shared
@@ -456,6 +461,8 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
         raise InputError(f"--loop {loop!r}: expected one of {', '.join(FMU_LOOPS)}")
     headers = fmi_headers(fmi)  # before any slow work: FMPy missing is bad input
     _check_trim(carriage, cache_dir, cc, progress)
+    if callable(verdict):
+        verdict = verdict()
     tick = _tick(carriage, cache_dir, cc) if loop == "firmware" else FmuTick()
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
@@ -469,7 +476,7 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
         + ([] if fmi == "2" else [f"fmi{fmi}"])))) + "}"  # FMI 2.0's GUID as before
     matrix = (_matrix_gains(carriage, controller, cache_dir, cc)
               if model.controller.gains == "matrix" else None)
-    files = render_files(model, guid, fmi, matrix)
+    files = render_files(model, guid, fmi, matrix, verdict)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
         p.name for p in folder.iterdir() if p.suffix in (".c", ".h"))}
     sources[WRAPPER_C] = files[WRAPPER_C].encode()

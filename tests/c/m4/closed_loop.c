@@ -1,7 +1,7 @@
 /* The firmware folder's tick in closed loop with its float32 plant on the emulated Cortex-M4F
    (tests/test_firmware.py): N_TICKS ticks at MAGLEV_TICK_RATE, one RK4 step of maglev_dynamics
    per tick with the command held, the command of MAGLEV_TICK_DELAY ticks ago applied (the
-   first command until then, as the host loop does). Prints every sample's state as the hex
+   safe command until then, as the host loop does). Prints every sample's state as the hex
    of its float bits, one line per sample, then a NaN-measurement tick's return code and
    command, through semihosting. X0 and V_REF come from the test. */
 #include <math.h>
@@ -52,12 +52,19 @@ int main(void) {
         const float* a;
         put_hex("x", x, MAGLEV_NX);
         if (k == N_TICKS) break;
+        if (k == 0) {
+            /* the commands before the first computed one: the safe command, no array force
+               and the trim propulsion of the measured speed */
+            float g[MAGLEV_SCHEDULE_NOUT];
+            (void)maglev_schedule(sqrtf(x[MAGLEV_X_U] * x[MAGLEV_X_U] + x[MAGLEV_X_V]
+                                        * x[MAGLEV_X_V] + x[MAGLEV_X_W] * x[MAGLEV_X_W]), g);
+            for (d = 0; d < DEPTH; ++d) {
+                ring[d][0] = g[MAGLEV_SCHEDULE_OUT_F_PROP];
+                for (i = 1; i < MAGLEV_NU; ++i) ring[d][i] = 0.0f;
+            }
+        }
         rc = maglev_tick(x, V_REF, ring[k % DEPTH]);
         if (rc != MAGLEV_OK) break;
-        if (k == 0) {
-            for (d = 1; d < DEPTH; ++d)
-                for (i = 0; i < MAGLEV_NU; ++i) ring[d][i] = ring[0][i];
-        }
         a = ring[(k + 1) % DEPTH];  /* the command of MAGLEV_TICK_DELAY ticks ago */
         rc |= rhs(x, a, k1);
         for (i = 0; i < MAGLEV_NX; ++i) xt[i] = x[i] + half * k1[i];
