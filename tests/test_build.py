@@ -306,7 +306,11 @@ def test_unchanged_rebuild_regenerates_nothing(good: Path, capsys) -> None:
     assert main(["build", "--out", str(good), *FAST]) == 0
     out = capsys.readouterr().out
     # the count is the files on disk, as the build that wrote them said ("wrote N files")
-    assert f"is up to date ({len(before)} files; nothing regenerated)" in out, out
+    assert f"is up to date ({len(before)} files; nothing regenerated;" in out, out
+    # and the verdicts, as SUMMARY.md says them (its lines up to the outputs' list)
+    summary = (good / "SUMMARY.md").read_text()
+    verdicts = [t for t in summary.split("\nOutputs:")[0].splitlines() if t.startswith("- ")]
+    assert verdicts and all(t in out.splitlines() for t in verdicts), out
     assert tree(good) == before
     assert {p: p.stat().st_mtime_ns for p in good.rglob("*")} == mtimes
 
