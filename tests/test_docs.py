@@ -205,5 +205,6 @@ def test_the_notebook_names_the_default_embedded_controller() -> None:
     named = re.findall(r"default\s+embedded\s+controller\s+is\s+`(\w+)`", text)
     assert named == [default], (named, default)
     # and no other controller called the default one ("coupled, the default embedded ...")
-    others = [n for n in re.findall(r"(\w+)\W{1,4}the\s+default\s+embedded", text) if n != default]
+    others = [n for n in re.findall(r"\"(\w+)\"\)?`\W{1,4}the\s+default\s+embedded", text)
+              if n != default]
     assert not others, others
