@@ -19,9 +19,9 @@ from conftest import _COLD_LOG, BUILD_FAST, timed_run
 
 from maglevgen.infrastructure.progress import PULSE
 
-#: the longest silence allowed on stderr: the heartbeat's pulse and a second and a half for
-#: a loaded machine to schedule its thread
-SILENCE = PULSE + 1.5
+#: the longest silence allowed on stderr: the heartbeat's pulse and 2.5 s for a loaded machine
+#: to schedule its thread (measured: up to 2.1 s late at a load of 2 cores shared by 5 suites)
+SILENCE = PULSE + 2.5
 
 #: the stages a cold build announces as each starts (the words of their first lines)
 STAGES = ("deriving", "compiling", "simulations:", "envelope:", "region of attraction",

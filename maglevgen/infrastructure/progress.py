@@ -20,7 +20,7 @@ from contextlib import contextmanager
 __all__ = ["PULSE", "announce", "bar", "heartbeat", "held", "rate_bar", "step"]
 
 #: seconds without a line after which the heartbeat says the step is still going
-PULSE = 3.5
+PULSE = 3.0
 #: seconds after which an `announce`d command's line is printed (an input error found sooner
 #: is then the only line on stderr): the pulse, so the silence is no longer than elsewhere
 GRACE = PULSE
