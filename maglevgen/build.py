@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from maglevgen.params import LoadedParams
 
 __all__ = [
+    "MESSAGE_LIMIT",
     "STAMP",
     "SUMMARY",
     "BuildOptions",
@@ -50,6 +51,7 @@ __all__ = [
     "run_build",
     "summary_text",
     "up_to_date",
+    "verification_line",
 ]
 
 STAMP = "BUILD.json"

@@ -8,6 +8,7 @@ value the paper does not give written beside it).
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 import sys
@@ -67,6 +68,7 @@ __all__ = [
     "check_run_options",
     "default_params_path",
     "default_params_text",
+    "did_you_mean",
     "entry_limits",
     "flatten",
     "limits_text",
@@ -736,8 +738,6 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
 def did_you_mean(key: str) -> str:
     """`` (did you mean 'vehicle.mass'?)`` for a misspelt key: the closest of the schema's keys
     and tables (difflib, an array's name read as ``<name>``), or "" when none is close."""
-    import difflib
-
     known: set[str] = set()
     for row in schema_rows():
         parts = row[0].split(".")

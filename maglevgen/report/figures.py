@@ -10,6 +10,8 @@ from __future__ import annotations
 import io
 from typing import Any
 
+import numpy as np
+
 __all__ = ["damping_figure", "force_figures", "pole_map"]
 
 _RC = {
@@ -150,8 +152,6 @@ def damping_figure(d: dict[str, Any]) -> bytes:
         bx.set_xlabel(r"speed $v$ / (m/s)")
         bx.set_ylabel(r"largest $\mathrm{Re}\,s$ / s$^{-1}$")
         bx.set_title("Envelope with (solid) and without (dashed) the circuits' lag")
-        import numpy as np
-
         lows = [float(np.nanmin(np.asarray(v, dtype=float))) for v in d["max_real"].values()]
         bx.set_ylim(bottom=min(-1.0, 5 * min(lows)))  # the most damped line inside the frame
         _colour_and_style_legend(bx, list(d["controllers"]), controller_colors, styles)

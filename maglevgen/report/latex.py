@@ -31,8 +31,17 @@ from maglevgen.report.format import (
     tex_unit,
 )
 
-__all__ = ["INSTALL_HINT", "TEX_PACKAGES", "LatexBuild", "find_tex", "first_latex_error",
-           "latex_env", "overfull_boxes", "run_latex"]
+__all__ = [
+    "INSTALL_HINT",
+    "TEX_PACKAGES",
+    "LatexBuild",
+    "find_tex",
+    "first_latex_error",
+    "latex_env",
+    "overfull_boxes",
+    "run_latex",
+    "source_date_epoch",
+]
 
 
 def find_tex() -> str | None:

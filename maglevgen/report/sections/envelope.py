@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -28,8 +29,16 @@ from maglevgen.report.format import fcolumn, fnum, tex_escape
 from maglevgen.report.sections.verification import Check
 from maglevgen.runtime.library import simulation_library
 
-__all__ = ["ENVELOPE_FIGURE", "ROA_FIGURE", "envelope_checks", "envelope_context",
-           "envelope_section", "roa_context", "roa_section"]
+__all__ = [
+    "ENVELOPE_FIGURE",
+    "ROA_FIGURE",
+    "envelope_checks",
+    "envelope_context",
+    "envelope_section",
+    "roa_context",
+    "roa_section",
+    "roa_statement_tex",
+]
 
 # ============================================================================ envelope
 
@@ -200,8 +209,6 @@ def _roa_columns(regions) -> list[list[str]]:
 def roa_statement_tex(text: str) -> str:
     """The region's statement (plain text, also SUMMARY.md's) as LaTeX: escaped, with its
     mathematics typeset ({V <= c}, {V = c}, dV/dt < 0)."""
-    import re
-
     out = tex_escape(text)
     for plain, math in ((r"\{V \textless{}= c\}", r"$\{V \le c\}$"),
                         (r"\{V = c\}", r"$\{V = c\}$"),
