@@ -6,10 +6,14 @@ BIN    := $(VENV)/bin
 
 .PHONY: setup run test lint docs bench clean mutation planted-faults
 
+# pip's own lines (Collecting ..., Installing ...) say what it fetches: a first install takes
+# 1-3 minutes, and a silent one looks hung
 $(BIN)/maglevgen: pyproject.toml
+	@echo "make: creating $(VENV) with $(PYTHON) and installing maglevgen (editable) and its dependencies (SymPy, CasADi, NumPy, SciPy, python-control, Matplotlib; the test and docs extras: pytest, FMPy, Sphinx ...), 1-3 min the first time"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,docs]'
+	$(BIN)/pip install --progress-bar off -e '.[test,docs]'
+	@echo "make: installed maglevgen $$($(BIN)/python -c 'import maglevgen; print(maglevgen.__version__)') into $(VENV)"
 	touch $@
 
 setup: $(BIN)/maglevgen

@@ -3,8 +3,9 @@
 The pages that list facts read them from their one source: the CLI reference from the argparse
 parser (sphinx-argparse over maglevgen.cli.build_parser), the API reference from the numpydoc
 docstrings (autodoc), the parameter reference from the schema (maglevgen.params.schema_table,
-through the ``maglev-parameters`` directive of _ext/maglevdocs.py), the guides from the
-README's sections (myst-parser) and the examples from examples/.
+through the ``maglev-parameters`` directive of _ext/maglevdocs.py), the guides from
+docs/_guides/*.md and BENCHMARKS.md/TESTING.md (myst-parser, included) and the examples
+from examples/ (the notebook executed at build time).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ extensions = [
     "maglevdocs",
 ]
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
-exclude_patterns = ["_build"]
+exclude_patterns = ["_build", "_guides"]  # _guides: included by the pages
 root_doc = "index"
 
 # numpydoc: the docstrings' sections; no autosummary stubs (one page lists the whole API)
@@ -45,4 +46,7 @@ smartquotes = False  # TOML values and option strings stay copyable ("box", --se
 
 html_theme = "alabaster"
 html_title = f"maglevgen {__version__}"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+# maglev.css: code blocks and wide tables wrap or scroll inside the page (none cut at 1280 px)
+html_css_files = ["maglev.css"]
+html_theme_options = {"page_width": "min(1240px, 96vw)", "body_max_width": "none"}

@@ -11,6 +11,7 @@ file's checksum, so an unchanged rebuild verifies the tree and does nothing else
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
@@ -41,6 +42,7 @@ if TYPE_CHECKING:
     from maglevgen.params import LoadedParams
 
 __all__ = [
+    "MESSAGE_LIMIT",
     "STAMP",
     "SUMMARY",
     "BuildOptions",
@@ -59,6 +61,7 @@ __all__ = [
     "run_build",
     "summary_text",
     "up_to_date",
+    "verification_line",
     "verify_embedded",
 ]
 
@@ -185,10 +188,45 @@ class BuildResult:
         return [w for w in (self.warning, self.verification if allow_unstable else None) if w]
 
     def failure(self, allow_unstable: bool = False) -> VerificationError | None:
-        """The error of a failed verification (exit 3) unless ``allow_unstable``."""
+        """The error of a failed verification (exit 3) unless ``allow_unstable``: one short
+        line (`verification_line`), the whole reason as its details."""
         if self.verification is None or allow_unstable:
             return None
-        return VerificationError(self.verification)
+        return VerificationError(verification_line(self.verification, self.out_dir / SUMMARY),
+                                 self.verification)
+
+    def verdicts(self) -> str:
+        """SUMMARY.md's head: the parameter file and the verdicts, up to the outputs' list
+        (what an unchanged rebuild prints)."""
+        head = self.summary.split("\nOutputs:", 1)[0].rstrip()
+        return head.split("\n", 1)[1].strip() + "\n" if "\n" in head else head + "\n"
+
+
+def _shown(path: Path) -> str:
+    """``path`` as a user names it: relative to the working folder when inside it."""
+    try:
+        return str(Path(path).relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+#: the longest exit-3 line (the details are in SUMMARY.md and --debug)
+MESSAGE_LIMIT = 200
+
+
+def verification_line(reason: str, summary: Path, limit: int = MESSAGE_LIMIT) -> str:
+    """The one line `build` exits 3 with: which controller failed, the start of the first
+    failed check and where to read the rest (``summary``, --debug), within ``limit``
+    characters where the folder's name allows."""
+    m = re.match(r"verification failed: the embedded controller (\S+ = '[^']*') (.*)", reason)
+    key, rest = m.groups() if m else ("", reason.removeprefix("verification failed: "))
+    rest = re.sub(r" \((maglevgen |--allow)[^()]*\)$", "", rest)  # the commands: in the details
+    head = f"verification failed: {key}" if key else "verification failed"
+    tail = f" (all of it: {_shown(summary)}, or --debug; --allow-unstable to accept)"
+    room = max(limit - len(head) - len(tail) - 2, 24)
+    if len(rest) > room:
+        rest = rest[: room - 3].rsplit(" ", 1)[0].rstrip(",;") + "..."
+    return f"{head}{' ' if rest.startswith('is ') else ': '}{rest}{tail}"
 
 
 def build_folder(params: str | Path | None, overrides: Sequence[str], out_dir: str | Path,
@@ -199,9 +237,10 @@ def build_folder(params: str | Path | None, overrides: Sequence[str], out_dir: s
 
     An up-to-date folder is recognised from the parameter text alone (`cached_result`: no
     schema, numpy or derivation imported). Otherwise the input is checked before anything
-    slow is announced (the parameters, --t-end and --dt, the folder, the envelope's trim),
-    with the steps announced meanwhile held back (`progress.held`): bad input is then the
-    only line on stderr. ``controller``: the same as ``--set
+    slow is announced (the parameters, --t-end and --dt, the folder), with the steps
+    announced meanwhile held back (`progress.held`): bad input is then the only line on
+    stderr. The envelope's trim, which needs the compiled library, is checked next, with its
+    steps announced as they start (`check_build_inputs`). ``controller``: the same as ``--set
     envelope.embedded_controller="NAME"``. ``step`` announces the steps (None: quiet),
     ``bar`` opens a progress bar (`progress.bar`).
     """
@@ -215,25 +254,29 @@ def build_folder(params: str | Path | None, overrides: Sequence[str], out_dir: s
         return res
     from maglevgen.params import check_run_options, load_params
 
+    step = step or (lambda _: None)
     with progress.held():  # bad input found here is the only line on stderr
         for line in why:
             (step or (lambda _: None))(line)
         loaded = load_params(params, overrides)
         check_run_options(opts.t_end, opts.dt)
         check_writable(out_dir)  # before any work (the library, the model)
-        check_build_inputs(loaded)
-    return run_build(loaded, out_dir, opts, step=step or (lambda _: None), bar=bar)
+    # the checks that need the compiled library, announced as they go: on a cold cache they
+    # take minutes (a speed range without trim is then reported after those lines)
+    check_build_inputs(loaded, step)
+    return run_build(loaded, out_dir, opts, step=step, bar=bar)
 
 
 def _find_tex() -> str | None:
     return shutil.which("latexmk") or shutil.which("pdflatex")
 
 
-def check_build_inputs(loaded: LoadedParams) -> None:
-    """The checks of a build's input that need the compiled library, before anything slow
-    is announced: the envelope's speed range has a trim (envelope.v_min above lift-off);
-    an InputError naming the key otherwise. The library is cached for run_build, and so are
-    the other models' (`other_structures`), built meanwhile in a second process."""
+def check_build_inputs(loaded: LoadedParams, step: Callable[[str], None] = lambda _: None,
+                       ) -> None:
+    """The checks of a build's input that need the compiled library: the envelope's speed
+    range has a trim (envelope.v_min above lift-off); an InputError naming the key otherwise.
+    The library is cached for run_build, and so are the other models' (`other_structures`),
+    built meanwhile in a second process; ``step`` announces what a cold cache makes."""
     from maglevgen.analyses.envelope import resolve_range
     from maglevgen.carriage import DerivedCarriage
     from maglevgen.runtime.library import (
@@ -250,6 +293,9 @@ def check_build_inputs(loaded: LoadedParams) -> None:
     with child() as building:
         pending = (submit(building, "building the other models' libraries", build_libraries,
                           tuple(others)) if others else None)
+        if others:
+            step(f"deriving and compiling {len(others)} other models' libraries in a second "
+                 "process (cached afterwards)")
         lib = cached_simulation_library(carriage.structure)
         if lib is None:  # a cold cache: while gcc compiles the library (its own process),
             # this one lambdifies the model (the report's verification reads it; cached
@@ -257,12 +303,19 @@ def check_build_inputs(loaded: LoadedParams) -> None:
             # at the end of the build with nothing else left to overlap it. The derivation
             # first, alone: it and the lambdifying both hold the GIL, and gcc can only start
             # once it is done
-            runtime_sources(carriage.structure)
+            runtime_sources(carriage.structure, progress=step)
             with ThreadPoolExecutor(max_workers=1) as pool:
-                compiling = pool.submit(simulation_library, carriage.structure)
+                compiling = pool.submit(simulation_library, carriage.structure, progress=step)
+                step("lambdifying the model for the report's check while gcc compiles "
+                     "(cached afterwards)")
                 carriage.functions  # noqa: B018
+                if not compiling.done():
+                    step("compiling the simulation library (cached afterwards)")
                 lib = compiling.result()
+        step("envelope: checking the trim at envelope.v_min and v_max")
         resolve_range(carriage, lib)
+        if pending is not None and not pending.future.done():
+            step("waiting for the other models' libraries (second process)")
         if pending is not None:
             pending.result()
 
@@ -319,6 +372,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                 lib = compiling.result()
         # simulations (validates the speed's trim and the step against RK4's stability
         # limit); up to here a parameter edit has imported no SymPy, SciPy or CasADi
+        step(f"simulations: the hold runs of {len(CONTROLLERS)} controllers in the firmware "
+             f"loop ({opts.t_end:g} s at dt {opts.dt:g} s)")
         run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar,
                             loop="firmware")
         if pending is not None:
@@ -337,6 +392,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # which it already holds (forked with them) and nothing reads before the end.
     with child(shared={"trajectories": run.trajectories}) as drawing:
         figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
+        step("c/: the run-time-parameter C, the interface and the gain table")
         files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
         files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
@@ -361,14 +417,17 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files.update(stability_map)
         files.update({f"envelope/{n}": b for n, b in region_files.items()})
     files.update({f"report/{n}": b for n, b in report.items()})
+    step("SUMMARY.md, the schedule's C and the envelope's files; writing the folder")
     files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
     summary = summary_text(carriage, run, lib, env, report_outputs(report, opts), regions,
                            judged)
-    files[SUMMARY] = summary
     verification = embedded_verification(carriage, env, judged)
     _store_verdict(carriage, opts, EmbeddedVerdict.of(carriage, env, verification))
+    if verification is not None:  # the whole reason (`build` exits 3 with its first words)
+        summary += f"\nVerification failed (`maglevgen build` exits 3): {verification}.\n"
+    files[SUMMARY] = summary
     digests = {n: sha256_hex(b) for n, b in sorted(files.items())}
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,
                                "params_sha256": loaded.sha256,

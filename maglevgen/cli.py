@@ -196,7 +196,10 @@ def cmd_gains(args: argparse.Namespace) -> int:
 
 
 def cmd_envelope(args: argparse.Namespace) -> int:
-    env = _carriage(args).envelope(args.speeds, args.out or None)
+    carriage = _carriage(args)
+    _announce("envelope: each controller's closed-loop eigenvalues at "
+              f"{args.speeds or 50} speeds")
+    env = carriage.envelope(args.speeds, args.out or None)
     if args.json:
         print(json.dumps(env.report, indent=1))
         return 0
@@ -213,6 +216,9 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 
 def cmd_roa(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
+    _announce(f"roa: sampling the region of attraction of "
+              f"{args.controller or carriage.params.envelope.embedded_controller} at "
+              f"{args.speeds or 8} speeds, {args.samples or 3000} directions each")
     res = carriage.roa(args.speeds, args.controller, args.samples, args.seed, args.workers,
                        args.batch, args.out)
     if args.json:
@@ -231,7 +237,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from maglevgen.codegen.generate import GenerateOptions
 
     opts = GenerateOptions(args.precision, args.parameters, args.int, args.single_file)
-    paths = _carriage(args).generate(args.out, opts.precision, opts.parameters, opts.int_type,
+    carriage = _carriage(args)
+    _announce(f"generate: deriving and writing the C ({opts.command})")
+    paths = carriage.generate(args.out, opts.precision, opts.parameters, opts.int_type,
                                      opts.single_file)
     print(f"wrote {len(paths)} files to {shown_name(Path(args.out).resolve())} ({opts.command})")
     for path in paths:
@@ -244,6 +252,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 def cmd_firmware(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
+    _announce(f"firmware: the embedded controller "
+              f"{carriage.params.envelope.embedded_controller!r}'s C, its gain table and "
+              f"the checks of the folder ({args.precision} precision)")
     paths = carriage.firmware(args.out, args.precision, args.with_plant, args.allow_unstable)
     print(f"wrote {len(paths)} files to {shown_name(Path(args.out).resolve())} "
           "(the embedded controller "
@@ -288,7 +299,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
-    res = _carriage(args).montecarlo(args.samples, args.seed, args.controller, args.t_end,
+    carriage = _carriage(args)
+    _announce(f"montecarlo: {args.samples} samples over [tolerances], the compiled library "
+              "and the study first")
+    res = carriage.montecarlo(args.samples, args.seed, args.controller, args.t_end,
                                      args.dt, args.workers, args.scheduler, args.out or None,
                                      args.loop, progress=True)
     if args.json:
@@ -318,6 +332,7 @@ def cmd_fmu(args: argparse.Namespace) -> int:
     from maglevgen.exports.fmu import FMI_VERSIONS
 
     carriage = _carriage(args)
+    _announce(f"fmu: FMI {FMI_VERSIONS[args.fmi].label} {args.kind} FMU, compiled and checked")
     path = carriage.fmu(args.out, args.kind, args.controller, args.fmi, args.loop,
                         progress=True, allow_unstable=args.allow_unstable)
     controller = args.controller or carriage.params.envelope.embedded_controller
@@ -351,8 +366,9 @@ def cmd_build(args: argparse.Namespace) -> int:
     res = build_folder(args.params, args.overrides, Path(args.out), opts, args.controller,
                        step=progress.step, bar=progress.bar)
     if not res.rebuilt:
-        print(f"{shown_name(res.out_dir)} is up to date ({len(res.files)} files; nothing "
-              "regenerated)")
+        sys.stdout.write(res.verdicts())
+        print(f"\n{shown_name(res.out_dir)} is up to date ({len(res.files)} files; nothing "
+              "regenerated; the rest in SUMMARY.md there)")
     else:
         sys.stdout.write(res.summary)
         print(f"\nwrote {len(res.files)} files to {shown_name(res.out_dir)}:")
@@ -367,6 +383,14 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------- main
+
+
+def _announce(message: str) -> None:
+    """A command's first progress line, once its options are checked (the heartbeat then
+    follows it while nothing else is said)."""
+    from maglevgen.infrastructure import progress
+
+    progress.announce(message)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -600,7 +624,7 @@ def _json_default(o: object) -> object:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from maglevgen.infrastructure.cache import STORE
-    from maglevgen.infrastructure.progress import step
+    from maglevgen.infrastructure.progress import heartbeat, step
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -608,7 +632,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     func: Callable[[argparse.Namespace], int] = args.func
     debug = getattr(args, "debug", False)
     try:
-        with warnings.catch_warnings():
+        with heartbeat(), warnings.catch_warnings():
             if not debug:
                 # numpy's floating-point warnings (overflow in an extreme but valid carriage,
                 # whose outcome is checked and reported) and SciPy's: the command reports
@@ -617,6 +641,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return func(args)
     except MaglevError as exc:
         if debug:
+            details = getattr(exc, "details", None)
+            if details:
+                print(f"maglevgen: {details}", file=sys.stderr)
             raise
         print(f"maglevgen: error: {one_line(exc)}", file=sys.stderr)
         return exc.exit_code

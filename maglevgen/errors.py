@@ -26,3 +26,9 @@ class VerificationError(MaglevError):
     outputs are written all the same so that the engineer can read why."""
 
     exit_code = 3
+
+    def __init__(self, message: str, details: str | None = None) -> None:
+        super().__init__(message)
+        #: the whole reason (every failed check, its value, limit and command), which the
+        #: one-line message points to: SUMMARY.md holds it, and --debug prints it
+        self.details = details

@@ -8,6 +8,7 @@ value the paper does not give written beside it).
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 import sys
@@ -75,6 +76,7 @@ __all__ = [
     "check_run_options",
     "default_params_path",
     "default_params_text",
+    "did_you_mean",
     "entry_limits",
     "flatten",
     "limits_text",
@@ -931,18 +933,45 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
     node: Any = data
     for depth, key in enumerate(keys[:-1]):
         if not isinstance(node, dict) or key not in node:
-            raise InputError(f"--set {dotted}: unknown key {'.'.join(keys[: depth + 1])!r}")
+            bad = ".".join(keys[: depth + 1])
+            raise InputError(f"--set {dotted}: unknown key {bad!r}{did_you_mean(bad)}")
         node = node[key]
     # a key of the schema the file may omit (<name>: a table's key, any name)
     optional = any(re.fullmatch(re.escape(k).replace(re.escape("<name>"), r"[^.]+"), dotted)
                    for k, *_ in schema_rows())
     if not isinstance(node, dict) or (keys[-1] not in node and not optional):
-        raise InputError(f"--set {dotted}: unknown key {dotted!r}")
+        raise InputError(f"--set {dotted}: unknown key {dotted!r}{did_you_mean(dotted)}")
     node[keys[-1]] = value
 
 
 #: the longest --set value (a vector or a small table; a parameter file holds more)
 MAX_SET = 4000
+
+
+def did_you_mean(key: str) -> str:
+    """`` (did you mean 'vehicle.mass'?)`` for a misspelt key: the closest of the schema's keys
+    and tables (difflib, an array's name read as ``<name>``), or "" when none is close."""
+    known: set[str] = set()
+    for row in schema_rows():
+        parts = row[0].split(".")
+        known.update(".".join(parts[:i]) for i in range(1, len(parts) + 1))
+    parts = key.split(".")
+    generic = ".".join(["arrays", "<name>", *parts[2:]]) if parts[0] == "arrays" and len(
+        parts) > 1 else key
+    parent, _, last = generic.rpartition(".")
+    siblings = sorted(k.rpartition(".")[2] for k in known if k.rpartition(".")[0] == parent)
+    close = [f"{parent}.{c}" if parent else c
+             for c in difflib.get_close_matches(last, siblings, n=1, cutoff=0.6)]
+    # a misspelt table further up: the closest whole key
+    depth = generic.count(".")
+    close = close or difflib.get_close_matches(
+        generic, sorted(k for k in known if k.count(".") == depth), n=1, cutoff=0.8)
+    if not close or close[0] == generic:
+        return ""
+    suggestion = close[0]
+    if generic != key and suggestion.startswith("arrays.<name>"):
+        suggestion = suggestion.replace("<name>", parts[1], 1)
+    return f" (did you mean {suggestion!r}?)"
 
 
 def parse_override(item: str) -> tuple[str, Any]:
@@ -1005,7 +1034,7 @@ def validate(data: dict[str, Any], origin: str) -> Parameters:
         if err["type"] == "missing":
             raise InputError(f"{origin}: missing key {key}") from None
         if err["type"] == "extra_forbidden":
-            raise InputError(f"{origin}: unknown key {key}") from None
+            raise InputError(f"{origin}: unknown key {key}{did_you_mean(key)}") from None
         value = _lookup(data, loc)
         msg = msg.removeprefix("Value error, ")
         raise InputError(f"{origin}: {key} = {_short(value)}: {msg}") from None

@@ -18,6 +18,7 @@ Tests that use a fixture compiling the generated C get ``needs_cc`` automaticall
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import tempfile
@@ -120,19 +121,40 @@ def _cold_build(cache: str, out: str) -> bool:
     libraries instead of deriving the same ones side by side; its output is the
     `default_build` fixture. Its result is judged by the build's own tests; a build that
     fails is printed here, and the tests then build (and fail) on their own."""
-    import subprocess
     import sys
     import time
 
     start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "maglevgen.cli", "build", "--out", out,
-                           *BUILD_FAST], env={**os.environ, "MAGLEVGEN_CACHE": cache},
-                          capture_output=True, text=True)
-    tail = done.stderr.strip().splitlines()[-1:] if done.returncode != 0 else []
+    code, lines = timed_run([sys.executable, "-m", "maglevgen.cli", "build", "--out", out,
+                             *BUILD_FAST], {**os.environ, "MAGLEVGEN_CACHE": cache})
+    # its stderr with each line's time, for test_build's check of the longest silence
+    log = os.path.join(os.path.dirname(out), "stderr.json")
+    with open(log, "w") as f:
+        json.dump({"exit": code, "seconds": time.perf_counter() - start, "lines": lines}, f)
+    os.environ[_COLD_LOG] = log
+    tail = [line for _, line in lines[-1:]] if code != 0 else []
     sys.stderr.write(f"maglevgen tests: cold build of the default carriage into the run's "
-                     f"cache: exit {done.returncode} in {time.perf_counter() - start:.0f} s"
+                     f"cache: exit {code} in {time.perf_counter() - start:.0f} s"
                      f"{' (' + tail[0] + ')' if tail else ''}\n")
-    return done.returncode == 0
+    return code == 0
+
+
+_COLD_LOG = "MAGLEVGEN_TEST_COLD_BUILD_LOG"  # the cold build's timestamped stderr (json)
+
+
+def timed_run(cmd: list[str], env: dict[str, str]) -> tuple[int, list[tuple[float, str]]]:
+    """Run ``cmd``; its exit code and its stderr's lines, each with the seconds since the
+    start at which it arrived, the process's end last as (t, "")."""
+    import subprocess
+    import time
+
+    start = time.monotonic()
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    assert proc.stderr is not None
+    lines = [(time.monotonic() - start, line.rstrip("\n")) for line in proc.stderr]
+    code = proc.wait()
+    return code, [*lines, (time.monotonic() - start, "")]
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -140,6 +162,7 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     if folder is not None:
         os.environ.pop(_SHARED_CACHE, None)
         os.environ.pop(_DEFAULT_BUILD, None)
+        os.environ.pop(_COLD_LOG, None)
         folder.cleanup()
         config._maglev_build.cleanup()
 

@@ -94,7 +94,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.report.figures": ("matplotlib only when figures are drawn",
                                  ("matplotlib", "cycler", "math")),
     "maglevgen.infrastructure.progress": (
-        "rich (and the clock) only when a terminal shows progress", ("rich", "time")),
+        "rich only when a terminal shows progress (the heartbeat reads the clock at once)",
+        ("rich",)),
     "maglevgen.derive.riccati": ("python-control is a reference only", ("control",)),
     "maglevgen.derive.paper": ("sympy.physics.units for the paper's printed units",
                                ("sympy",)),

@@ -313,7 +313,11 @@ def test_unchanged_rebuild_regenerates_nothing(good: Path, capsys) -> None:
     assert main(["build", "--out", str(good), *FAST]) == 0
     out = capsys.readouterr().out
     # the count is the files on disk, as the build that wrote them said ("wrote N files")
-    assert f"is up to date ({len(before)} files; nothing regenerated)" in out, out
+    assert f"is up to date ({len(before)} files; nothing regenerated;" in out, out
+    # and the verdicts, as SUMMARY.md says them (its lines up to the outputs' list)
+    summary = (good / "SUMMARY.md").read_text()
+    verdicts = [t for t in summary.split("\nOutputs:")[0].splitlines() if t.startswith("- ")]
+    assert verdicts and all(t in out.splitlines() for t in verdicts), out
     assert tree(good) == before
     assert {p: p.stat().st_mtime_ns for p in good.rglob("*")} == mtimes
 
@@ -657,7 +661,16 @@ def test_summary_and_tables_have_no_raw_python_text(good: Path) -> None:
 
 # ------------------------------------------------------------------------------ the README
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+REPO = Path(__file__).resolve().parents[1]
+README = REPO / "README.md"
+
+
+def _readme_and_site() -> str:
+    """The README and the documentation site's own text (its pages and the guides they
+    include): every number either states is checked here."""
+    docs = REPO / "docs"
+    return "\n\n".join(p.read_text() for p in [README, *sorted(docs.glob("*.rst")),
+                                                  *sorted((docs / "_guides").glob("*.md"))])
 _NUM_RE = re.compile(r"[-+]?\d+(?:\.\d+)?")
 
 
@@ -677,7 +690,7 @@ def test_the_readme_states_the_numbers_the_build_prints(good: Path) -> None:
     them) states is the one the default build prints: envelope.json's verdicts, SUMMARY.md's
     stiffness differences and accelerating trim, c/manifest.json's gain-table bound. A README
     that goes stale fails here."""
-    readme = README.read_text()
+    readme = _readme_and_site()
     env = json.loads((good / "envelope/envelope.json").read_text())
     summary = (good / "SUMMARY.md").read_text()
     flat_summary = re.sub(r"\s+", " ", summary)
@@ -734,6 +747,22 @@ def test_the_readme_states_the_numbers_the_build_prints(good: Path) -> None:
     table = json.loads((good / "c/manifest.json").read_text())["gain_table"]
     assert "holds its gains to 1e-3 of each matrix's largest entry" in re.sub(r"\s+", " ", readme)
     assert table["bound"] == 1e-3 and table["worst_relative_error"] <= table["bound"]
+
+
+def test_the_readme_and_the_site_state_one_measurement_of_the_first_build() -> None:
+    """The first build's times that the README and the site state are those of the one
+    measurement BENCHMARKS.md records (its paragraph naming them), and no page repeats an
+    older guess."""
+    text = re.sub(r"\s+", " ", _readme_and_site())
+    bench = re.sub(r"\s+", " ", (REPO / "BENCHMARKS.md").read_text())
+    assert "half a minute" not in text
+    stated = re.findall(r"\b(\d+ min \d+ s|\d+(?:\.\d+)? s) (?:of wall-clock|for ``maglevgen "
+                        r"build --no-pdf``|wall)", text)
+    stated += re.findall(r"(?:empty cache: )(\d+(?:\.\d+)? s)", text)
+    assert stated, "no first-build time stated"
+    measured = bench[bench.index("from an empty MAGLEVGEN_CACHE"):][:1200]
+    for t in stated:
+        assert t.replace(" s", "") in measured, (t, measured[:300])
 
 def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage) -> None:
     """What a cold build derives and compiles in its second process: the other force law's

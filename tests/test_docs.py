@@ -130,3 +130,81 @@ def test_guides_theory_and_examples_are_rendered(site: Path) -> None:
         last = [ln for ln in script.read_text().splitlines() if ln.strip()][-1].strip()
         assert html.unescape(last) in examples, script.name  # the whole source is shown
     assert "carriage.envelope(n_speeds=N_SPEEDS)" in examples  # the notebook's cells
+    # with their outputs, executed at build time: the plant's states as the API names them,
+    # each controller's envelope verdict and the envelope's plot
+    page = (site / "examples.html").read_text()
+    assert re.search(r"10 states: \[('\w+', ){9}'\w+'\]", examples), "no cell output"
+    assert "stable across" in examples and "data:image/png;base64," in page
+
+
+def test_the_readme_is_short_and_points_to_every_page(site: Path) -> None:
+    """The README is a screen or two (the two commands, what and for whom, the verdicts, the
+    site's parts); every page of the site is named there by its source, and each page it
+    names exists."""
+    readme = (REPO / "README.md").read_text()
+    assert len(readme.splitlines()) <= 80, len(readme.splitlines())
+    assert "make run" in readme and "make test" in readme
+    pages = {p.stem for p in DOCS.glob("*.rst")} - {"index"}
+    named = set(re.findall(r"`(\w+)\.rst`", readme))
+    assert named == pages, (pages - named, named - pages)
+    for stem in pages:
+        assert (site / f"{stem}.html").is_file(), stem
+
+
+def test_benchmarks_and_testing_are_included_not_copied(site: Path) -> None:
+    """The site's benchmarks and testing pages carry BENCHMARKS.md's and TESTING.md's text
+    (a sentence from each, read from the files), and docs/ holds no copy of either."""
+    for name, page in (("BENCHMARKS.md", "benchmarks"), ("TESTING.md", "testing")):
+        source = (REPO / name).read_text()
+        para = next(ln for ln in source.splitlines()[1:]
+                    if len(ln) > 60 and not set("`[*|_<") & set(ln))
+        assert " ".join(para.split()) in _text(site / f"{page}.html"), (name, para)
+        assert f"../{name}" in (DOCS / f"{page}.rst").read_text()
+        copies = [p for p in DOCS.rglob("*.md") if para in p.read_text()]
+        assert not copies, copies
+
+
+def test_no_code_block_or_table_is_cut_at_1280px(site: Path) -> None:
+    """The site's stylesheet wraps code blocks, lets wide tables scroll in their own box and
+    widens alabaster's fixed 940 px column (what cut the parameter table and the commands'
+    code at a 1280 px window): every page links it, and its rules are those."""
+    css = (site / "_static" / "maglev.css").read_text()
+    rules = dict(re.findall(r"([^{}]+)\{([^}]*)\}", re.sub(r"/\*.*?\*/", "", css, flags=re.S)))
+    rules = {" ".join(k.split()): v for k, v in rules.items()}
+    assert "pre-wrap" in rules["pre"]
+    assert "overflow-x: auto" in rules["table.docutils"]
+    assert "max-width: 100%" in rules["table.docutils"]
+    assert "width: auto" in rules["div.document"]
+    for page in site.glob("*.html"):
+        if page.name in ("genindex.html", "search.html", "py-modindex.html"):
+            continue
+        assert "_static/maglev.css" in page.read_text(), page.name
+
+
+def test_the_summary_guide_follows_summary_md(site: Path, default_build: Path) -> None:
+    """"Reading SUMMARY.md" names the parts of the default build's SUMMARY.md by the words
+    that open each, in the file's order."""
+    guide = (DOCS / "getting_started.rst").read_text()
+    part = guide[guide.index("Reading SUMMARY.md"):guide.index("Exit codes")]
+    openers = re.findall(r"^\d+\. ``([^`]+)``", part, re.M)
+    assert len(openers) >= 8, openers
+    summary = (default_build / "SUMMARY.md").read_text()
+    where = [summary.find(o) for o in openers]
+    assert all(w >= 0 for w in where), dict(zip(openers, where, strict=True))
+    assert where == sorted(where), dict(zip(openers, where, strict=True))
+
+
+def test_the_notebook_names_the_default_embedded_controller() -> None:
+    """Where the example notebook names the default embedded controller, it names the one the
+    default parameter file sets (envelope.embedded_controller)."""
+    import json
+
+    nb = json.loads((REPO / "examples" / "linearization_envelope.ipynb").read_text())
+    text = " ".join("".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "markdown")
+    default = load_params().params.envelope.embedded_controller
+    named = re.findall(r"default\s+embedded\s+controller\s+is\s+`(\w+)`", text)
+    assert named == [default], (named, default)
+    # and no other controller called the default one ("coupled, the default embedded ...")
+    others = [n for n in re.findall(r"\"(\w+)\"\)?`\W{1,4}the\s+default\s+embedded", text)
+              if n != default]
+    assert not others, others

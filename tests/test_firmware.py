@@ -1096,3 +1096,87 @@ def test_firmware_verifies_before_it_writes(carriage: DerivedCarriage, sim_lib, 
     assert ver["verified"] is True and ver["spec"] == "[control.spec]"
     assert ver["range_m_per_s"] == pytest.approx([v_min, v_max], rel=1e-12)
     assert f"**Verdict**: {ver['verdict']}." in (good / "README.md").read_text()
+
+
+# ------------------------------------------------------------- the folder's own checks
+
+
+@pytest.fixture(scope="module")
+def qemu_folder(firmware, carriage: DerivedCarriage, tmp_path_factory) -> Path:
+    """`maglevgen firmware --with-plant`'s folder (single precision): it carries run_qemu.sh."""
+    from maglevgen.exports.firmware import MEASURED, render_firmware
+
+    folder = tmp_path_factory.mktemp("firmware_qemu")
+    write_output(render_firmware(carriage, firmware["table"], firmware["loop"], "single", True,
+                                 MEASURED), folder)
+    return folder
+
+
+def test_run_qemu_says_which_tool_is_missing(qemu_folder: Path, tmp_path: Path) -> None:
+    """Without the cross-compiler on PATH the script runs nothing: one line naming the tool,
+    exit 77 (automake's "skipped")."""
+    import shutil
+    import subprocess
+
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for tool in ("dirname", "mkdir"):
+        (bin_dir / tool).symlink_to(shutil.which(tool))
+    run = subprocess.run([shutil.which("sh"), "run_qemu.sh"], cwd=qemu_folder,
+                         env={"PATH": str(bin_dir)}, capture_output=True, text=True)
+    assert run.returncode == 77, run.stdout + run.stderr
+    lines = run.stdout.splitlines()
+    assert len(lines) == 1 and "arm-none-eabi-gcc not found" in lines[0], lines
+    assert not (qemu_folder / "qemu_build").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.needs_arm("qemu-system-arm")
+def test_run_qemu_runs_the_closed_loop_and_counts_a_tick(qemu_folder: Path, firmware,
+                                                        tmp_path: Path) -> None:
+    """`sh run_qemu.sh` in the folder: the closed loop's line (the tick rate of the firmware
+    loop, its ticks), a result that agrees with the heave it prints (settled: within 5 % of
+    the 1 mm start), and one tick's instructions within 10 % of bench/firmware_tick.py's
+    recorded count (its own driver, bench/c/bench_tick.c, a state 1 mm / 1 mrad off)."""
+    import shutil
+    import subprocess
+
+    from maglevgen.exports.firmware import MEASURED, QEMU_TICKS
+
+    folder = tmp_path / "fw"
+    shutil.copytree(qemu_folder, folder)
+    run = subprocess.run(["sh", "run_qemu.sh"], cwd=folder, capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, run.stdout + run.stderr
+    out = run.stdout
+    loop = re.search(r"(\d+) ticks at (\d+) Hz.*heave deviation at the end: (-?\d+) um", out)
+    assert loop, out
+    assert int(loop[1]) == QEMU_TICKS and int(loop[2]) == round(firmware["loop"].tick_rate)
+    settled = abs(int(loop[3])) < 50
+    assert ("result: settled" in out) == settled and settled, out
+    per_tick = int(re.search(r"per tick: (\d+) instructions", out)[1])
+    assert abs(per_tick / MEASURED["instructions"] - 1) < 0.1, (per_tick, MEASURED)
+
+
+@pytest.mark.needs_cc
+def test_the_host_example_prints_what_it_runs(firmware, tmp_path: Path) -> None:
+    """main.c built for a host as the folder's CMake does (MAGLEV_HOST_EXAMPLE): it says how
+    many ticks of which controller it runs (the numbers of its own defines and of
+    maglev_tick.h) and how they ended, and exits 0."""
+    import subprocess
+
+    src = firmware["folders"]["double"]
+    exe = tmp_path / "example"
+    subprocess.run(["gcc", "-std=c99", "-DMAGLEV_HOST_EXAMPLE", "-I", str(src),
+                    *(str(src / f) for f in ("main.c", "maglev_tick.c", "maglev_gain_table.c",
+                                             "maglev_functions.c")), "-lm", "-o", str(exe)],
+                   check=True, capture_output=True, text=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stdout + run.stderr
+    ticks = re.search(r"#define MAGLEV_EXAMPLE_TICKS (\d+)", (src / "main.c").read_text())[1]
+    rate = re.search(r"#define MAGLEV_TICK_RATE \(?([0-9.]+)", (src / "maglev_tick.h")
+                     .read_text())[1]
+    lines = run.stdout.splitlines()
+    assert lines[0].startswith(f"maglev_firmware_example: {ticks} ticks of maglev_tick"), lines
+    assert f"{float(rate):g} Hz" in lines[0], (lines[0], rate)
+    assert lines[-1].endswith("every tick returned MAGLEV_OK (exit 0)"), lines

@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -50,7 +51,8 @@ def wheel(tmp_path_factory) -> tuple[Path, str]:
     where it is (no download of setuptools), else pip's isolated build."""
     out = tmp_path_factory.mktemp("wheel")
     offline = all(importlib.util.find_spec(m) for m in ("setuptools", "wheel"))
-    cmd = [sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", str(out), str(REPO)]
+    # -v: pip passes the build backend's own output on (its deprecation banners among it)
+    cmd = [sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", "-w", str(out), str(REPO)]
     proc = subprocess.run(cmd + (["--no-build-isolation"] if offline else []),
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -71,6 +73,20 @@ def test_wheel_holds_every_file_of_the_package(wheel) -> None:
     assert not missing, missing
     assert "maglevgen/templates/report/trim.tex.j2" in names  # the report's templates
     assert not any(n.startswith(("tests/", "docs/", "generated/", "bench/")) for n in names)
+
+
+def test_wheel_builds_without_a_deprecation_warning(wheel) -> None:
+    """setuptools warns of what it will stop accepting (a `project.license` table: "By
+    2027-Feb-18 ... your builds will no longer be supported"); the build prints none of it,
+    and the wheel's metadata carries the licence as an SPDX expression (PEP 639)."""
+    whl, log = wheel
+    flagged = [line for line in log.splitlines()
+               if re.search(r"deprecat|BuildBackendWarning|no longer be supported", line, re.I)]
+    assert not flagged, "\n".join(flagged)
+    with zipfile.ZipFile(whl) as zf:
+        (meta,) = [n for n in zf.namelist() if n.endswith(".dist-info/METADATA")]
+        headers = zf.read(meta).decode().split("\n\n", 1)[0].splitlines()
+    assert "License-Expression: MIT" in headers, headers
 
 
 def test_installed_command_runs_outside_the_checkout(wheel, tmp_path: Path,

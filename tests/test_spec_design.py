@@ -17,6 +17,7 @@ import sympy as sp
 from scipy.optimize import brentq
 
 from maglevgen.analyses.envelope import compute_envelope
+from maglevgen.build import MESSAGE_LIMIT
 from maglevgen.control import embeddable, names
 from maglevgen.control.sampled import Tick, loop_gain, loop_model, sampled_eigenvalues
 from maglevgen.control.spec import axis_force_limits, rate_weight, spec_weights
@@ -194,9 +195,16 @@ def test_build_exits_3_naming_the_spec_the_embedded_design_fails(tmp_path) -> No
     assert proc.returncode == 3, proc.stderr
     err = [line for line in proc.stderr.splitlines() if "error" in line]
     assert len(err) == 1, proc.stderr
-    assert "'spec'" in err[0] and "FAILS" in err[0] and "for v in [" in err[0]
-    assert "20 Hz" in err[0]
-    assert "FAILS" in (out / "SUMMARY.md").read_text()
+    assert "'spec'" in err[0] and "FAILS" in err[0] and "SUMMARY.md" in err[0]
+    assert len(err[0].replace(str(out), "build")) <= MESSAGE_LIMIT + len("maglevgen: error: ")
+    # the whole reason in SUMMARY.md: the speed range and the tick rate
+    (why,) = [line for line in (out / "SUMMARY.md").read_text().splitlines()
+              if line.startswith("Verification failed")]
+    assert "'spec'" in why and "FAILS" in why and "for v in [" in why and "20 Hz" in why
+    # an unchanged rebuild prints the verdicts, exits 3 again, and --debug gives the reason
+    again = subprocess.run([*proc.args, "--debug"], capture_output=True, text=True)
+    assert again.returncode != 0 and "FAILS" in again.stdout
+    assert why.split(": ", 1)[1].rstrip(".") in again.stderr
 
 
 @pytest.mark.slow  # one build (about a minute warm)
@@ -228,14 +236,15 @@ def test_build_exits_3_naming_the_run_spec_the_embedded_design_fails(tmp_path,
     assert proc.returncode == 3, proc.stderr
     err = [line for line in proc.stderr.splitlines() if "error" in line]
     assert len(err) == 1, proc.stderr
-    line = err[0]
+    assert len(err[0].replace(str(out), "build")) <= MESSAGE_LIMIT + len("maglevgen: error: ")
+    summary = (out / "SUMMARY.md").read_text()
+    (line,) = [t for t in summary.splitlines() if t.startswith("Verification failed")]
     assert "'spec'" in line and "for v in [" not in line  # the linear verdict passes
     found = re.search(r"FAILS peak lateral deviation ([0-9.e-]+) m \(limit 0\.0012 m\)"
                       rf" in the hold run at {v_max:.4g} m/s", line)
     assert found, line
     assert float(found.group(1)) >= bound * (1 - 1e-3)
     assert "maglevgen simulate --controller spec --speed 40" in line
-    summary = (out / "SUMMARY.md").read_text()
     assert f"- hold run at {v_max:.4g} m/s: FAILS peak lateral deviation" in summary
     again = subprocess.run([*args, "--allow-unstable"], capture_output=True, text=True)
     assert again.returncode == 0 and "warning: verification failed" in again.stderr

@@ -9,14 +9,13 @@
     Every script of examples/ (its docstring and its source), in name order, so that a new
     example appears without editing the page.
 ``maglev-notebook``
-    A Jupyter notebook's cells (markdown as text, code as Python blocks), read with the
-    standard library's json so the documentation build needs no notebook package.
+    A Jupyter notebook's cells (markdown as text, code as Python blocks), each code cell with
+    its outputs: the notebook is executed at build time (nbclient, the docs extra).
 """
 
 from __future__ import annotations
 
 import ast
-import json
 import re
 from pathlib import Path
 
@@ -132,17 +131,55 @@ def _markdown_to_rst(text: str) -> list[str]:
     return [*out, ""]
 
 
+def _executed(path: Path) -> list[dict]:
+    """The notebook's cells after running it top to bottom in a Jupyter kernel (nbclient, the
+    docs extra), in a temporary folder: the page shows what the code prints today. A cell
+    that fails fails the build (-W turns the warning into an error)."""
+    import subprocess
+    import tempfile
+
+    import nbformat
+    from nbclient import NotebookClient
+
+    nb = nbformat.read(path, as_version=4)
+    with tempfile.TemporaryDirectory() as tmp:
+        NotebookClient(nb, timeout=600, kernel_name="python3",
+                       resources={"metadata": {"path": tmp}}).execute(
+                           stderr=subprocess.DEVNULL)  # the kernel's own notices: not the site's
+    return [dict(c) for c in nb.cells]
+
+
+def _outputs(cell: dict) -> list[str]:
+    """A code cell's outputs as reST: printed text as a text block, a PNG inline."""
+    lines: list[str] = []
+    for out in cell.get("outputs", []):
+        kind = out.get("output_type")
+        data = out.get("data", {})
+        text = out.get("text") if kind == "stream" else data.get("text/plain")
+        if "image/png" in data:
+            png = "".join(data["image/png"].split())
+            lines += [".. raw:: html", "",
+                      f'   <img class="maglev-output" alt="cell output" '
+                      f'src="data:image/png;base64,{png}">', ""]
+        elif text:
+            text = "".join(text) if isinstance(text, list) else text
+            lines += [".. code-block:: text", "   :class: maglev-output", ""]
+            lines += [f"   {line}" if line else "" for line in text.splitlines()]
+            lines.append("")
+    return lines
+
+
 class NotebookDirective(_Rst):
-    """A notebook's cells in order."""
+    """A notebook's cells in order, each code cell followed by its outputs (the notebook run
+    at build time, `_executed`)."""
 
     required_arguments = 1
 
     def run(self) -> list[nodes.Node]:
         path = (REPO / "docs" / self.arguments[0]).resolve()
         self.env.note_dependency(str(path))
-        nb = json.loads(path.read_text())
         lines: list[str] = []
-        for cell in nb["cells"]:
+        for cell in _executed(path):
             src = "".join(cell["source"])
             if cell["cell_type"] == "markdown":
                 lines += _markdown_to_rst(src)
@@ -150,6 +187,7 @@ class NotebookDirective(_Rst):
                 lines += [".. code-block:: python", ""]
                 lines += [f"   {line}" if line else "" for line in src.splitlines()]
                 lines.append("")
+                lines += _outputs(cell)
         return self._parse(lines)
 
 

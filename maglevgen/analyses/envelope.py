@@ -793,8 +793,10 @@ def stability_map_png(env: Envelope) -> bytes:
         ax.set_yscale("symlog", linthresh=1e-2)
         top = max(1.0, max(float(np.nanmax(c.max_real[np.isfinite(c.max_real)], initial=0))
                            for c in env.controllers.values()) * 2)
+        # most damped line (the embedded controller's, far left of zero) half a decade
+        # inside the frame, not on it
         bottom = min(-1.0, min(float(np.nanmin(c.max_real[np.isfinite(c.max_real)], initial=0))
-                               for c in env.controllers.values()) * 2)
+                               for c in env.controllers.values()) * 5)
         ax.set_ylim(bottom, top)
         ax.set_xlim(env.speeds[0], env.speeds[-1])
         ax.set_xlabel(r"speed $v$ / (m/s)")

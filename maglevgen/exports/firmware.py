@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from importlib import resources
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -53,6 +54,8 @@ TICK_INPUTS = {
 }
 ALLOCATE = "maglev_allocate"
 PLANT = "maglev_dynamics"  # --with-plant: the float32 plant in the image (HIL/SIL)
+#: run_qemu.sh's closed loop: ticks from the trim with the heave 1 mm off (1 s at 1 kHz)
+QEMU_TICKS = 1000
 
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README
@@ -135,6 +138,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     array_of_force = [i for i, (_, comps) in enumerate(structure.arrays) for _ in comps]
     cost = measured or {}
     tick_ctx = {
+        "ticks": QEMU_TICKS,
         "banner": text_banner, "precision": precision, "controller": embedded,
         "controller_title": registered(embedded).title, "tick_function": tick_fn,
         "tick_inputs": [name.upper() for name in TICK_INPUTS[tick_fn]],
@@ -155,6 +159,12 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     for name in ("maglev_tick.h", "maglev_tick.c", "main.c", "CMakeLists.txt",
                  "cortex-m4f.cmake", "README.md"):
         files[name] = env.get_template(f"firmware_{name}.j2").render(tick_ctx)
+    if with_plant and precision == "single" and cost:
+        # the closed loop on an emulated Cortex-M4F: `sh run_qemu.sh` (QEMU_FILES)
+        files["qemu_loop.c"] = env.get_template("firmware_qemu_loop.c.j2").render(tick_ctx)
+        files["run_qemu.sh"] = env.get_template("firmware_run_qemu.sh.j2").render(tick_ctx)
+        for name in ("qemu_startup.c", "qemu_link.ld"):
+            files[name] = (resources.files("maglevgen.templates") / f"firmware_{name}").read_text()
     files["MISRA_DEVIATIONS.md"] = deviation_list()
     manifest = {
         "generated_by": f"maglevgen {__version__}", "command": text_banner.split("`")[1],

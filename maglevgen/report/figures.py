@@ -10,6 +10,8 @@ from __future__ import annotations
 import io
 from typing import Any
 
+import numpy as np
+
 __all__ = ["damping_figure", "force_figures", "pole_map"]
 
 _RC = {
@@ -140,7 +142,7 @@ def damping_figure(d: dict[str, Any]) -> bytes:
         ax.set_xlabel(r"speed $v$ / (m/s)")
         ax.set_ylabel(r"magnetic damping $c_i = -m_i A_{ii}$")
         ax.set_title("Magnetic damping per axis (generated C, Jacobian at trim)")
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, fontsize=6)
+        _colour_and_style_legend(ax, list(d["axes"]), colors, styles)
         for j, title in enumerate(d["controllers"]):
             for name, ls in styles.items():
                 bx.plot(d["envelope_speeds"][name], d["max_real"][name][j], ls=ls,
@@ -150,6 +152,20 @@ def damping_figure(d: dict[str, Any]) -> bytes:
         bx.set_xlabel(r"speed $v$ / (m/s)")
         bx.set_ylabel(r"largest $\mathrm{Re}\,s$ / s$^{-1}$")
         bx.set_title("Envelope with (solid) and without (dashed) the circuits' lag")
-        bx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, fontsize=6)
-        fig.subplots_adjust(left=0.1, right=0.62, hspace=0.35, top=0.95, bottom=0.08)
+        lows = [float(np.nanmin(np.asarray(v, dtype=float))) for v in d["max_real"].values()]
+        bx.set_ylim(bottom=min(-1.0, 5 * min(lows)))  # the most damped line inside the frame
+        _colour_and_style_legend(bx, list(d["controllers"]), controller_colors, styles)
+        fig.subplots_adjust(left=0.1, right=0.66, hspace=0.35, top=0.95, bottom=0.08)
         return _png(fig)
+
+
+def _colour_and_style_legend(ax, names: list[str], colors: list[str],
+                             styles: dict[str, str]) -> None:
+    """One legend entry per colour (the axis or controller) and one per line style (the
+    model), at a size readable in print, instead of one per combination."""
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=colors[i], label=n) for i, n in enumerate(names)]
+    handles += [Line2D([], [], color="0.3", ls=ls, label=m) for m, ls in styles.items()]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0,
+              fontsize=8)

@@ -31,8 +31,17 @@ from maglevgen.report.format import (
     tex_unit,
 )
 
-__all__ = ["INSTALL_HINT", "TEX_PACKAGES", "LatexBuild", "find_tex", "first_latex_error",
-           "latex_env", "overfull_boxes", "run_latex"]
+__all__ = [
+    "INSTALL_HINT",
+    "TEX_PACKAGES",
+    "LatexBuild",
+    "find_tex",
+    "first_latex_error",
+    "latex_env",
+    "overfull_boxes",
+    "run_latex",
+    "source_date_epoch",
+]
 
 
 def find_tex() -> str | None:
@@ -112,6 +121,13 @@ def overfull_boxes(log: str) -> list[float]:
     return [float(m.group(1)) for m in _OVERFULL.finditer(log)]
 
 
+def source_date_epoch() -> str:
+    """The PDF's creation date (seconds since 1970): $SOURCE_DATE_EPOCH when set (the
+    reproducible-builds convention: the same date, the same bytes), else the build's time."""
+    given = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    return given if given.isdigit() else str(int(time.time()))
+
+
 def run_latex(folder: Path, timeout: float = 600.0) -> LatexBuild:
     """Build report.pdf from report.tex in ``folder`` with latexmk (or pdflatex, 3 passes)."""
     tool = find_tex()
@@ -122,7 +138,7 @@ def run_latex(folder: Path, timeout: float = 600.0) -> LatexBuild:
         cmds = [["latexmk", "-pdf", *_LATEX_FLAGS, "report.tex"]]
     else:
         cmds = [["pdflatex", *_LATEX_FLAGS, "report.tex"]] * 3
-    env = dict(os.environ, SOURCE_DATE_EPOCH="0", FORCE_SOURCE_DATE="1")
+    env = dict(os.environ, SOURCE_DATE_EPOCH=source_date_epoch(), FORCE_SOURCE_DATE="1")
     for cmd in cmds:
         try:
             proc = subprocess.run(

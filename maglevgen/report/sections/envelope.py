@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -24,12 +25,20 @@ from maglevgen.analyses.roa import (
 )
 from maglevgen.control.operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
 from maglevgen.report.display import matrix_tex
-from maglevgen.report.format import fnum, tex_escape
+from maglevgen.report.format import fcolumn, fnum, tex_escape
 from maglevgen.report.sections.verification import Check
 from maglevgen.runtime.library import simulation_library
 
-__all__ = ["ENVELOPE_FIGURE", "ROA_FIGURE", "envelope_checks", "envelope_context",
-           "envelope_section", "roa_context", "roa_section"]
+__all__ = [
+    "ENVELOPE_FIGURE",
+    "ROA_FIGURE",
+    "envelope_checks",
+    "envelope_context",
+    "envelope_section",
+    "roa_context",
+    "roa_section",
+    "roa_statement_tex",
+]
 
 # ============================================================================ envelope
 
@@ -181,9 +190,28 @@ def roa_context(regions) -> dict[str, Any]:
     """The region's table and statement (the first region: the embedded controller's)."""
     reg = regions[0]
     return {"figure": ROA_FIGURE, "controller": CONTROLLER_TITLES[reg.controller],
-            "statement": reg.statement(),
-            "rows": [{"speed": r.speed, "level": r.level,
-                      "extents": [r.extents[a] * AXIS_UNITS[a][1] for a in AXIS_NAMES],
-                      "multiple": r.disturbance_multiple, "limit": r.limit,
-                      "confirmed": r.confirmed and r.level > 0, "shrinks": r.shrinks}
-                     for r in reg.regions]}
+            "statement": roa_statement_tex(reg.statement()),
+            "rows": [{"speed": s, "level": c, "extents": list(e), "multiple": m,
+                      "limit": r.limit, "confirmed": r.confirmed and r.level > 0,
+                      "shrinks": r.shrinks}
+                     for r, s, c, m, *e in zip(reg.regions, *_roa_columns(reg.regions),
+                                               strict=True)]}
+
+
+def _roa_columns(regions) -> list[list[str]]:
+    """The region table's numbers, each column in one notation (`fcolumn`, 3 or 4 digits)."""
+    cols = [fcolumn([r.speed for r in regions], 4), fcolumn([r.level for r in regions], 3)]
+    cols += [fcolumn([r.extents[a] * AXIS_UNITS[a][1] for r in regions], 3)
+             for a in AXIS_NAMES]
+    return [*cols[:2], fcolumn([r.disturbance_multiple for r in regions], 3), *cols[2:]]
+
+
+def roa_statement_tex(text: str) -> str:
+    """The region's statement (plain text, also SUMMARY.md's) as LaTeX: escaped, with its
+    mathematics typeset ({V <= c}, {V = c}, dV/dt < 0)."""
+    out = tex_escape(text)
+    for plain, math in ((r"\{V \textless{}= c\}", r"$\{V \le c\}$"),
+                        (r"\{V = c\}", r"$\{V = c\}$"),
+                        (r"dV/dt \textless{} 0", r"$\dot V < 0$")):
+        out = out.replace(plain, math)
+    return re.sub(r"(?<![\w$])c(?= shrank| = 0)", "$c$", out)

@@ -9,6 +9,7 @@ import sympy as sp
 from maglevgen.analyses.queries import AcceleratingMargin
 from maglevgen.derive import conventions as cv
 from maglevgen.report.display import ltx
+from maglevgen.report.format import ROUNDOFF, fcolumn
 
 __all__ = ["trim_section"]
 
@@ -31,9 +32,15 @@ def trim_section(trep: dict,
         "residual": trep["residual"],
         "F_prop": trep["propulsion_force"],
         "states": [
-            (s.name, ltx(sp.Symbol(s.name)), trep["state"][s.name], s.unit, s.description)
-            for s in cv.STATES
+            (s.name, ltx(sp.Symbol(s.name)), value, s.unit, s.description)
+            for s, value in zip(cv.STATES, _state_column(trep["state"]), strict=True)
         ],
     }
 
 
+
+
+def _state_column(state: dict[str, float]) -> list[str]:
+    """The trim state's values as one table column (`fcolumn`: one notation, no raw
+    0.0000344784 beside 20), round-off of a structural zero printed as 0."""
+    return fcolumn([0.0 if abs(v) < ROUNDOFF else v for v in (state[s.name] for s in cv.STATES)])
