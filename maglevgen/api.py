@@ -1207,6 +1207,7 @@ class Carriage:
         """
         from maglevgen.analyses.montecarlo import (
             CONTROLLERS,
+            check_scheduler,
             default_workers,
             make_study,
             output_files,
@@ -1225,6 +1226,7 @@ class Carriage:
         if workers is not None and workers < 1:
             raise InputError(f"--workers {workers}: expected at least 1")
         _check_run_options(t_end, dt)
+        check_scheduler(scheduler)
         if out is not None:
             check_writable(Path(out))
         controllers = CONTROLLERS if choice == "all" else (choice,)

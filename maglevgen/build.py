@@ -312,7 +312,7 @@ def check_build_inputs(loaded: LoadedParams, step: Callable[[str], None] = lambd
                 if not compiling.done():
                     step("compiling the simulation library (cached afterwards)")
                 lib = compiling.result()
-        step("envelope: checking the trim at envelope.v_min and v_max")
+        progress.announce("envelope: checking the trim at envelope.v_min and v_max")
         resolve_range(carriage, lib)
         if pending is not None and not pending.future.done():
             step("waiting for the other models' libraries (second process)")

@@ -335,9 +335,11 @@ def test_a_tampered_output_is_rebuilt(fresh_build: Path) -> None:
 def test_parameter_change_rebuilds_without_rederiving_or_recompiling(
         good: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "heavy"
-    # the hold speed 6 m/s lies below the envelope's v_min (1.5 x lift-off, about 6.6 m/s)
+    # the hold speed 6 m/s lies below the envelope's v_min (1.6 x lift-off, about 7 m/s); the
+    # worst sign of the default disturbance starts that hold inside the 3 mm gap margin, so the
+    # build exits 3 and still writes every output
     assert main(["build", "--out", str(out), *FAST, "--set", "vehicle.mass=9.5",
-                 "--set", "operation.speed=6.0"]) == 0
+                 "--set", "operation.speed=6.0"]) == 3
     err = capsys.readouterr().err
     assert "deriving" not in err and "compiling" not in err
     # one warning line for the speed outside the envelope, and SUMMARY.md names every
@@ -460,6 +462,7 @@ def test_background_rendering_gives_the_files_of_an_in_process_run(good: Path, t
     built = {n.removeprefix("simulation/"): d for n, d in tree(good).items()
              if n.startswith("simulation/")}
     alone = tree(sim)
+    alone.pop(MARKER)  # the folder's own marker (the build keeps one at its root)
     for name in ("metrics.json", "metrics.md"):  # their headers name the command
         built.pop(name), alone.pop(name)
     assert built == alone

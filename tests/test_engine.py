@@ -154,7 +154,7 @@ def test_report_stiffness_and_trim_are_the_librarys(monkeypatch, sim_lib) -> Non
     ctx, _ = rp.build_context(fresh, rp.ReportOptions(verify_c=False, build_pdf=False))
 
     tp = queries.trim_point(fresh, sim_lib, None)
-    assert [v for _, _, v, _, _ in ctx["trim"]["states"]] == tp.x.tolist()
+    assert ctx["trim"]["values"] == tp.x.tolist()
     assert ctx["trim"]["F_prop"] == tp.f_prop
     np.testing.assert_allclose(tp.x, ref_trim.x, rtol=1e-9, atol=1e-12)
     K_tot = tp.K_magnetic + tp.K_other

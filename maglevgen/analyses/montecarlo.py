@@ -409,10 +409,7 @@ def dask_client(scheduler: str, workers: int):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=None)
         return Client(cluster)
-    import re
-
-    if not re.fullmatch(r"(tcp|tls)://[A-Za-z0-9_.\-\[\]:]+:\d{1,5}", scheduler):
-        raise InputError(f"--scheduler {scheduler!r}: expected 'local' or tcp://HOST:PORT")
+    check_scheduler(scheduler)
     try:
         return Client(scheduler, timeout="5s")
     except (OSError, TimeoutError) as exc:
@@ -895,8 +892,20 @@ def default_workers() -> int:
         os.cpu_count() or 1)
 
 
-__all__ = ["CONTROLLERS", "ChunkFailedError", "Result", "Study", "aggregate", "concat",
-           "contact_cause", "dask_client", "default_chunk", "default_workers", "input_label",
-           "make_study", "markdown", "output_files", "plots", "region_multiple", "run_chunk",
+__all__ = ["CONTROLLERS", "ChunkFailedError", "Result", "Study", "aggregate", "check_scheduler",
+           "concat", "contact_cause", "dask_client", "default_chunk", "default_workers",
+           "input_label", "make_study", "markdown", "output_files", "plots", "region_multiple",
+           "run_chunk",
            "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study", "sample_inputs",
            "sample_parameters", "study_regions", "summary_json", "table", "table_files", "wilson"]
+
+
+def check_scheduler(scheduler: str | None) -> None:
+    """``--scheduler``'s form: None, "local" or a Dask address (checked before any work, so
+    that a misspelt one is the only line on stderr)."""
+    import re
+
+    if scheduler is None or scheduler == "local":
+        return
+    if not re.fullmatch(r"(tcp|tls)://[A-Za-z0-9_.\-\[\]:]+:\d{1,5}", scheduler):
+        raise InputError(f"--scheduler {scheduler!r}: expected 'local' or tcp://HOST:PORT")

@@ -390,11 +390,23 @@ def contact_level(gaps: Callable[[np.ndarray], np.ndarray], P: np.ndarray, min_g
 
     L = np.linalg.cholesky(P)
     n = P.shape[0]
+    raw_gaps = gaps
+
+    def gaps(dx: np.ndarray) -> np.ndarray:
+        # the optimiser may step far outside the model's range (the closed loop not finite
+        # there): such rows are NaN, which SLSQP backs off from and the contact test drops
+        try:
+            return raw_gaps(dx)
+        except RuntimeError:
+            if dx.shape[0] == 1:
+                return np.full((1, g_size), np.nan)
+            return np.vstack([gaps(row[None, :]) for row in dx])
 
     def dx_of(z: np.ndarray) -> np.ndarray:
         return np.linalg.solve(L.T, z)
 
-    g0 = gaps(np.zeros((1, n)))[0]
+    g0 = raw_gaps(np.zeros((1, n)))[0]
+    g_size = g0.size
     rng = np.random.default_rng(seed)
     best, best_dx = np.inf, None
     for j in range(g0.size):

@@ -31,13 +31,13 @@ def trim_section(trep: dict,
         "lift_off": trep["lift_off_speed"],
         "residual": trep["residual"],
         "F_prop": trep["propulsion_force"],
+        # the library's numbers as they are (the table prints `states`, one notation)
+        "values": [trep["state"][s.name] for s in cv.STATES],
         "states": [
             (s.name, ltx(sp.Symbol(s.name)), value, s.unit, s.description)
             for s, value in zip(cv.STATES, _state_column(trep["state"]), strict=True)
         ],
     }
-
-
 
 
 def _state_column(state: dict[str, float]) -> list[str]:
