@@ -50,7 +50,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from maglevgen import control
+from maglevgen.control import names as controller_names
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, VerificationError
 from maglevgen.exports.fmu import DEFAULT_FMI
@@ -72,7 +72,6 @@ __all__ = ["Carriage", "EnvelopeResult", "Gains", "MonteCarloResult", "RegionRes
 
 STATE_NAMES: tuple[str, ...] = tuple(s.name for s in cv.STATES)
 AXES: tuple[str, ...] = tuple(cv.AXES)
-CONTROLLERS: tuple[str, ...] = control.names()
 
 
 def load(params: str | Path | None = None, overrides: Sequence[str] = ()) -> Carriage:
@@ -1036,7 +1035,6 @@ class Carriage:
         >>> float(runs.runs["spec"].x[0, 2] - runs.runs["spec"].x[-1, 2]) > 0
         True
         """
-        from maglevgen.analyses.simulate import CONTROLLERS as ALL
         from maglevgen.analyses.simulate import run_scenarios
 
         if controller != "all":
@@ -1052,7 +1050,7 @@ class Carriage:
             from maglevgen.infrastructure.output import check_writable
 
             check_writable(Path(out))  # before any work: a folder of the user's is refused
-        controllers = ALL if controller == "all" else (controller,)
+        controllers = controller_names() if controller == "all" else (controller,)
         # the library if this carriage has built it (cached_property's entry), else the one
         # run_scenarios builds after checking its options: bad input stays the only line
         lib = self.__dict__.get("_lib")
@@ -1206,7 +1204,6 @@ class Carriage:
         ['spec']
         """
         from maglevgen.analyses.montecarlo import (
-            CONTROLLERS,
             check_scheduler,
             default_workers,
             make_study,
@@ -1229,7 +1226,7 @@ class Carriage:
         check_scheduler(scheduler)
         if out is not None:
             check_writable(Path(out))
-        controllers = CONTROLLERS if choice == "all" else (choice,)
+        controllers = controller_names() if choice == "all" else (choice,)
         lib = self._lib
         study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
                            *run_loop(self._carriage, lib, loop))
@@ -1303,7 +1300,7 @@ class Carriage:
                                 batch=base.batch if batch is None else batch, workers=workers)
         if out is not None:
             check_writable(Path(out))
-        controllers = CONTROLLERS if choice == "all" else (choice,)
+        controllers = controller_names() if choice == "all" else (choice,)
         regions = roa.study(self._carriage, self._lib, controllers,
                             roa.DEFAULT_SPEEDS if n_speeds is None else n_speeds, sampling)
         paths: tuple[Path, ...] = ()
@@ -1644,9 +1641,8 @@ def _check_run_options(t_end: float, dt: float) -> None:
 
 
 def _check_controller(controller: str) -> None:
-    if controller not in CONTROLLERS:
-        raise InputError(f"--controller {controller!r}: expected one of "
-                         f"{', '.join(CONTROLLERS)}")
+    if controller not in (known := controller_names()):
+        raise InputError(f"--controller {controller!r}: expected one of {', '.join(known)}")
 
 
 def _simulation_result(run: SimulationRun, traj: Trajectory,

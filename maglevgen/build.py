@@ -338,8 +338,9 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         render_trajectories,
         trajectory_names,
     )
-    from maglevgen.analyses.simulate import CONTROLLERS, run_scenarios
+    from maglevgen.analyses.simulate import run_scenarios
     from maglevgen.carriage import DerivedCarriage
+    from maglevgen.control import names as controller_names
     from maglevgen.infrastructure.cache import STORE
     from maglevgen.runtime.library import (
         build_libraries,
@@ -372,9 +373,9 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                 lib = compiling.result()
         # simulations (validates the speed's trim and the step against RK4's stability
         # limit); up to here a parameter edit has imported no SymPy, SciPy or CasADi
-        step(f"simulations: the hold runs of {len(CONTROLLERS)} controllers in the firmware "
+        step(f"simulations: the hold runs of {len(controller_names())} controllers in the firmware "
              f"loop ({opts.t_end:g} s at dt {opts.dt:g} s)")
-        run = run_scenarios(carriage, CONTROLLERS, opts.t_end, opts.dt, lib=lib, bar=bar,
+        run = run_scenarios(carriage, controller_names(), opts.t_end, opts.dt, lib=lib, bar=bar,
                             loop="firmware")
         if pending is not None:
             pending.result()  # the envelope's model checks read them from the cache
@@ -734,7 +735,7 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
 
 def _summary_verdicts(carriage, run, env, regions) -> list[str]:
     """The file and overrides, then the envelope's verdicts and the region of attraction."""
-    from maglevgen.control.operating import CONTROLLER_TITLES
+    from maglevgen.control import title as controller_title
 
     embedded = carriage.params.envelope.embedded_controller
     loaded = carriage.loaded
@@ -748,7 +749,7 @@ def _summary_verdicts(carriage, run, env, regions) -> list[str]:
     lines += [f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
               "(envelope/envelope.md, envelope/stability_map.png, envelope/disk_margins.png):",
               ""]
-    lines += [f"- {CONTROLLER_TITLES[n]}{' (embedded in the firmware C)' if n == embedded else ''}"
+    lines += [f"- {controller_title(n)}{' (embedded in the firmware C)' if n == embedded else ''}"
               f": {c.verdict}; specification: {c.spec_verdict}"
               for n, c in env.controllers.items()]
     lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}.",

@@ -36,7 +36,6 @@ __all__ = [
     "ARRAY_NAME",
     "ARRAY_NAME_RULE",
     "BOX_DIMENSIONS",
-    "EMBEDDABLE_CONTROLLERS",
     "INERTIA_BOX",
     "NORMAL_TRUNCATION",
     "NOT_IN_MODEL",
@@ -427,7 +426,14 @@ class Track(_Section):
                         limits=(1e-6, 0.1, "a micrometre to 10 cm of mechanical clearance"))
 
 
-EMBEDDABLE_CONTROLLERS = embeddable()
+class _Embeddable:
+    """The embeddable controllers as the parameter table's choices, read from the registry
+    when asked (a controller registered after import is one)."""
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(embeddable())
+
+
 _ENVELOPE_SPEED = "a 1 cm/s crawl to 1 km/s, past any rail launcher"
 
 
@@ -459,13 +465,13 @@ class Envelope(_Section):
     embedded_controller: str = Field(
         default="spec", description="the controller the firmware C embeds and `build` "
         "verifies over the envelope", json_schema_extra={
-            "unit": "-", "choices": list(EMBEDDABLE_CONTROLLERS)})
+            "unit": "-", "choices": _Embeddable()})
 
     @field_validator("embedded_controller")
     @classmethod
     def _known_controller(cls, name: str) -> str:
-        if name not in EMBEDDABLE_CONTROLLERS:
-            raise ValueError(f"expected one of {', '.join(EMBEDDABLE_CONTROLLERS)}")
+        if name not in (known := embeddable()):
+            raise ValueError(f"expected one of {', '.join(known)}")
         return name
 
     @model_validator(mode="after")

@@ -28,6 +28,7 @@ from numpydoc.docscrape import ClassDoc, FunctionDoc
 import maglevgen
 from maglevgen import api
 from maglevgen.cli import main
+from maglevgen.control import names
 from maglevgen.infrastructure.output import MARKER
 from maglevgen.params import flatten
 
@@ -307,7 +308,7 @@ def test_poles_are_the_envelope_poles(default: maglevgen.Carriage) -> None:
     env = default.envelope(n_speeds=4)
     for i, v in enumerate(env.speeds):
         plant = default.linearize(float(v), model="reduced")
-        for controller in api.CONTROLLERS:
+        for controller in names():
             g = default.gains(float(v), controller)
             loop = control.feedback(plant, g.K)  # u = -K x (C = I): A - B K
             poles = loop.poles()

@@ -47,7 +47,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "stages are imported when something has to be built",
         ("maglevgen.infrastructure.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
          "maglevgen.analyses.envelope", "maglevgen.runtime.library",
-         "maglevgen.analyses.magnetic_damping", "maglevgen.control.operating",
+         "maglevgen.analyses.magnetic_damping", "maglevgen.control",
          "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
          "maglevgen.analyses.worst_case",

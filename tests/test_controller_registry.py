@@ -1,6 +1,8 @@
 """Adding a linear controller is one registration: a controller registered the way a module of
-maglevgen/control/ registers one reaches the CLI's choices, the API, the gains, the envelope,
-the simulations in the firmware loop and the FMU, with nothing else edited.
+maglevgen/control/ registers one, after `maglevgen.load()` (the registry is read where it is
+needed, never copied at import), reaches the CLI's choices, the API, the gains, the envelope,
+the simulations in the firmware loop, the firmware folder and the FMU, with nothing else
+edited.
 
 The example is the optimized damping (eqs 20-21) written as a general linear law (K_pos = 0,
 K_rate = diag(c)) run by the generic matrix tick (``maglev_coupled_control``) instead of the
@@ -17,12 +19,19 @@ from pathlib import Path
 
 import pytest
 
+# the tests of the example: one child process builds the FMU and verifies the firmware
+# folder's controller over the envelope (about 2.5 min of CPU)
+slow = pytest.mark.slow
+
 # The module a developer would add (maglevgen/control/<name>.py), then the checks, in a child
 # process: the registry of this test session stays as it is.
 _CHILD = r'''
 import json, sys
 import numpy as np
+import maglevgen
 from maglevgen.control import Controller, register
+
+c = maglevgen.load()  # before the controller exists
 
 def _damping_as_matrix(op):
     return np.zeros((5, 5)), np.diag(op.c_damping)
@@ -32,14 +41,12 @@ register(Controller(
     _damping_as_matrix, tick_function="maglev_coupled_control", fmu_gains="matrix",
     style={"color": "tab:red", "ls": "-.", "lw": 1.0}))
 
-import maglevgen
 from maglevgen.cli import build_parser
 
 out = {}
 sim_choices = next(a for a in build_parser()._subparsers._group_actions[0].choices[
     "simulate"]._actions if a.dest == "controller").choices
 out["simulate_choices"] = list(sim_choices)
-c = maglevgen.load()
 g_ex, g_d = c.gains(controller="example"), c.gains(controller="damping")
 out["gains"] = [g_ex.K.tolist(), g_d.K.tolist()]
 out["poles"] = [sorted(map(str, np.round(np.sort_complex(g.poles), 9)))
@@ -55,6 +62,11 @@ fmu = c.fmu(sys.argv[1], kind="cs", controller="example")
 res = simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=0.3, output_interval=1e-3,
                    output=list(runs[0].state_names))
 out["fmu_x"] = np.column_stack([res[s] for s in runs[0].state_names]).tolist()
+# the firmware folder with the example embedded (a parameter file may name it now); not
+# verified against [control.spec] (the damping law is not meant to meet it)
+fw = maglevgen.load(overrides=['envelope.embedded_controller="example"'])
+written = fw.firmware(sys.argv[2], precision="double", allow_unstable=True)
+out["firmware"] = {p.name: p.read_text() for p in written if p.suffix in (".c", ".h", ".md")}
 print(json.dumps(out))
 '''
 
@@ -62,16 +74,19 @@ print(json.dumps(out))
 @pytest.fixture(scope="module")
 def example(tmp_path_factory: pytest.TempPathFactory) -> dict:
     folder = tmp_path_factory.mktemp("example_controller")
-    proc = subprocess.run([sys.executable, "-c", _CHILD, str(folder / "fmu")],
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(folder / "fmu"),
+                           str(folder / "firmware")],
                           capture_output=True, text=True, timeout=1200)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.splitlines()[-1])
 
 
+@slow
 def test_a_registered_controller_is_a_choice_of_the_cli(example: dict) -> None:
     assert "example" in example["simulate_choices"]
 
 
+@slow
 def test_its_gains_and_poles_are_the_law_it_registers(example: dict) -> None:
     import numpy as np
 
@@ -80,6 +95,7 @@ def test_its_gains_and_poles_are_the_law_it_registers(example: dict) -> None:
     assert example["poles"][0] == example["poles"][1]
 
 
+@slow
 def test_the_envelope_judges_it(example: dict) -> None:
     import numpy as np
 
@@ -88,6 +104,7 @@ def test_the_envelope_judges_it(example: dict) -> None:
     assert example["verdict"]
 
 
+@slow
 def test_the_firmware_loop_runs_it_through_the_generic_tick(example: dict) -> None:
     """The generic matrix tick against the damping's diagonal one: the same law, so the same
     run up to the round-off of a 5 x 10 product against a diagonal one."""
@@ -100,6 +117,7 @@ def test_the_firmware_loop_runs_it_through_the_generic_tick(example: dict) -> No
     assert np.max(np.abs(x_ex - x_d) / scale) < 1e-9
 
 
+@slow
 def test_the_fmu_runs_it_as_the_simulation_does(example: dict) -> None:
     """The co-simulation FMU with the example built in, under FMPy, against the API's run
     (the same RK4 and tick arithmetic)."""
@@ -109,6 +127,29 @@ def test_the_fmu_runs_it_as_the_simulation_does(example: dict) -> None:
     assert x_fmu.shape == x_api.shape
     scale = np.max(np.abs(x_api), axis=0) + 1e-12
     assert np.max(np.abs(x_fmu - x_api) / scale) < 1e-9
+
+
+@slow
+def test_the_firmware_folder_embeds_it(example: dict) -> None:
+    """The firmware folder with ``envelope.embedded_controller = "example"``: its README names
+    it, its tick calls the generic matrix tick, and its gain table stores the registered law
+    (K_pos = 0, K_rate diagonal): no entry of K_pos, the five diagonal entries of K_rate."""
+    import re
+
+    from maglevgen.control.schedule import GAIN_TABLE_FIELDS
+
+    fw = example["firmware"]
+    assert "`example` (damping as a matrix)" in fw["README.md"]
+    assert "maglev_coupled_control(" in fw["maglev_tick.c"]
+    start, offsets = 0, {}
+    for name, size in GAIN_TABLE_FIELDS:
+        offsets[name], start = range(start, start + size), start + size
+    found = re.search(r"stored\[NSTORED\] = \{([^}]*)\}", fw["maglev_gain_table.c"])
+    assert found is not None
+    stored = {int(i) for i in found.group(1).split(",")}
+    n = int(len(offsets["K_rate"]) ** 0.5)
+    assert not stored & set(offsets["K_pos"])
+    assert stored & set(offsets["K_rate"]) == {offsets["K_rate"][i * (n + 1)] for i in range(n)}
 
 
 def test_nothing_else_names_a_controller(tmp_path: Path) -> None:
@@ -134,3 +175,28 @@ def test_nothing_else_names_a_controller(tmp_path: Path) -> None:
     planted = tmp_path / "planted.py"  # the check itself
     planted.write_text('SHOWN = ("damping", "lqr", "coupled")\n')
     assert listings(planted) == ["('damping', 'lqr', 'coupled')"]
+
+
+def test_nothing_else_compares_a_controller_name() -> None:
+    """No module outside maglevgen/control/ compares a value with a registered controller's
+    name (``name == "spec"``): what it branches on is a field of the `Controller`. (``loop``
+    has a vocabulary of its own, in which "none" is a loop, not a controller.)"""
+    import ast
+
+    from maglevgen.control import names
+
+    known = set(names())
+    root = Path(__file__).resolve().parents[1]
+
+    def comparisons(path: Path) -> list[str]:
+        return [ast.unparse(n) for n in ast.walk(ast.parse(path.read_text()))
+                if isinstance(n, ast.Compare)
+                and not any(isinstance(e, ast.Name) and e.id == "loop"
+                            for e in (n.left, *n.comparators))
+                and any(isinstance(e, ast.Constant) and e.value in known
+                        for e in (n.left, *n.comparators))]
+
+    found = {str(p.relative_to(root)): hits for folder in ("maglevgen", "runtime", "derive")
+             for p in (root / folder).rglob("*.py")
+             if "control" not in p.relative_to(root).parts and (hits := comparisons(p))}
+    assert found == {}

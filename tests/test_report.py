@@ -422,7 +422,7 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
     """Page 1 names every controller's verdict (from `maglevgen envelope`'s data, computed here
     by envelope.compute_envelope) and the count of checks; nowhere a SymPy/Python repr."""
     from maglevgen.analyses.envelope import compute_envelope
-    from maglevgen.control.operating import CONTROLLER_TITLES
+    from maglevgen.control import title
     from maglevgen.runtime.library import simulation_library
 
     pdf = str(default_report / "report.pdf")
@@ -432,7 +432,7 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
     env = compute_envelope(carriage, simulation_library(carriage.structure))
     for name, c in env.controllers.items():
         verdict = re.sub(r"\s+", " ", c.verdict.replace("\u2212", "-"))
-        assert f"{CONTROLLER_TITLES[name]}" in flat and verdict[:40] in flat, (name, verdict)
+        assert f"{title(name)}" in flat and verdict[:40] in flat, (name, verdict)
     assert re.search(r"Verification .*\d+ checks passed, \d+ failed", flat)
     text = _pdf_text(default_report / "report.pdf")
     for raw in ("Eq(", "sqrt(", "[["):

@@ -22,7 +22,6 @@ from scipy.signal import find_peaks
 
 from maglevgen.analyses.simulate import (
     AXIS_STATES,
-    CONTROLLERS,
     initial_state,
     reference_trajectory,
     rk4_stability_limit,
@@ -32,6 +31,7 @@ from maglevgen.analyses.simulate import (
 )
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
+from maglevgen.control import names as controller_names
 from maglevgen.control.symbolic_reference import allocation_matrix, axis_plants
 from maglevgen.errors import InputError
 from maglevgen.params import load_params
@@ -257,7 +257,7 @@ def test_rk4_stability_limit_matches_the_imaginary_axis_bound() -> None:
 
 def test_step_above_the_stability_limit_is_refused(carriage, sim_lib) -> None:
     with pytest.raises(InputError, match=r"RK4 stability limit 0\.0\d+ s"):
-        run_scenarios(carriage, CONTROLLERS, 1.0, 0.1, lib=sim_lib)
+        run_scenarios(carriage, controller_names(), 1.0, 0.1, lib=sim_lib)
 
 
 # ------------------------------------------------------------------ library and its cache
@@ -330,7 +330,7 @@ def test_cli_writes_trajectories_figures_and_metrics(cli_out: Path, carriage) ->
     assert names == sorted([".maglevgen-output.json", "lateral_yaw.png", "levitation_pitch.png",
                             "travel_roll.png",
                             "metrics.json", "metrics.md", "trajectories.npz",
-                            *(f"trajectory_{c}.csv" for c in CONTROLLERS)])
+                            *(f"trajectory_{c}.csv" for c in controller_names())])
     for png in cli_out.glob("*.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     header = (cli_out / "trajectory_lqr.csv").read_text().splitlines()[2].split(",")
@@ -348,7 +348,7 @@ def test_cli_writes_trajectories_figures_and_metrics(cli_out: Path, carriage) ->
     assert rows == reference.getvalue()
     metrics = json.loads((cli_out / "metrics.json").read_text())
     runs = {r["controller"]: r for r in metrics["runs"]}
-    assert set(runs) == set(CONTROLLERS)
+    assert set(runs) == set(controller_names())
     assert runs["damping"]["axes"]["vertical"]["settling_time"] is not None
     assert runs["none"]["axes"]["vertical"]["settling_time"] is None
     md = (cli_out / "metrics.md").read_text()

@@ -20,10 +20,10 @@ import numpy as np
 
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control import controller as registered_controller
+from maglevgen.control import names as controller_names
+from maglevgen.control import title as controller_title
 from maglevgen.control.margins import DiskMargins, delay_margin, disk_gain_phase, disk_margins
 from maglevgen.control.operating import (
-    CONTROLLER_TITLES,
-    CONTROLLERS,
     STABILITY_MARGIN,
     OperatingPoint,
     Weights,
@@ -397,22 +397,22 @@ class Envelope:
         fallback computed where that check fails, and the generated loop cannot run it."""
         c = self.controllers.get(name)
         if c is None or self.loop is None:
-            return (f"The firmware gets the {CONTROLLER_TITLES[name]} gains designed on the "
+            return (f"The firmware gets the {controller_title(name)} gains designed on the "
                     "continuous linearisation (not checked here on the sampled-data loop).")
         on = f"on the {self.loop.tick_text()}"
         if not registered_controller(name).tick_design:
-            return (f"The firmware gets the {CONTROLLER_TITLES[name]} gains designed on the "
+            return (f"The firmware gets the {controller_title(name)} gains designed on the "
                     f"continuous linearisation, which {on} "
                     f"{'meet' if c.meets_spec else 'fail'} [control.spec].")
         cont = c.continuous_gains
         cont_said = "" if cont is None else f" (on this loop: {cont.verdict})"
-        return (f"The {CONTROLLER_TITLES[name]} design is solved at the tick on the loop as "
+        return (f"The {controller_title(name)} design is solved at the tick on the loop as "
                 "built (DARE on the ZOH model with the delay and the actuator lag; gains on "
                 "the state, the commands in flight and the actuator forces the controller "
                 "predicts from its own commands), which "
                 f"{'meets' if c.meets_spec else 'fails'} [control.spec] {on}. The generated "
                 "full-state tick (maglev_coupled_control, ideal sensing) runs the continuous "
-                f"{CONTROLLER_TITLES[name]} gains from the table instead{cont_said}; the "
+                f"{controller_title(name)} gains from the table instead{cont_said}; the "
                 "output-feedback tick of issue 49 runs the design at the tick.")
 
     def robustness_verdict(self) -> str:
@@ -541,8 +541,9 @@ def loop_design(op: OperatingPoint, controller: str, setting: LoopSetting,
     (the controller's ``tick_design``, unless ``continuous``), else its continuous gains (no
     feedback of the commands in flight or of the actuators). ValueError / LinAlgError where
     the DARE has no stabilizing solution."""
-    if registered_controller(controller).tick_design and not continuous:
-        return loop_plant(op, setting).design()
+    c = registered_controller(controller)
+    if c.tick_design and c.weights is not None and not continuous:
+        return loop_plant(op, setting).design(c.weights)
     return LoopDesign(*op.gains(controller))
 
 
@@ -704,12 +705,12 @@ def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
 
 
 def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_SPEEDS,
-                     controllers: Sequence[str] = CONTROLLERS,
+                     controllers: Sequence[str] | None = None,
                      other_models: bool = True) -> Envelope:
     """Each controller's stability at ``n_speeds`` speeds spanning [v_min, v_max], on the
     continuous linearisation and, against ``[control.spec]``, on the sampled-data loop;
     ``other_models``: the embedded controller's gains also on each alternate model
-    (`model_checks`)."""
+    (`model_checks`). ``controllers``: default every registered one."""
     if not 2 <= n_speeds <= 100_000:
         raise InputError(f"--speeds {n_speeds}: expected 2 to 100000 speeds")
     v_min, v_max = resolve_range(carriage, lib)
@@ -718,7 +719,8 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     setting = loop_setting(carriage, points)
     out = {}
     embedded = carriage.params.envelope.embedded_controller
-    for c in controllers:
+    chosen = controller_names() if controllers is None else tuple(controllers)
+    for c in chosen:
         rows = np.array([closed_loop_stability(op, c) for op in points])
         max_real, min_damping = rows[:, 0], rows[:, 1]
         stable = max_real < -STABILITY_MARGIN
@@ -747,7 +749,7 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     mass = carriage.params.vehicle.mass
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
     checks = (model_checks(carriage, embedded, points, setting)
-              if other_models and embedded in controllers else ())
+              if other_models and embedded in chosen else ())
     m = carriage.params.model
     model = f"the {m.array_force} force law and {m.circuit_dynamics} circuits"
     return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks)
@@ -762,7 +764,7 @@ def envelope_markdown(env: Envelope) -> str:
              "it; x drops out, the forward speed is held by the propulsion. Stable: every real "
              f"part below -{STABILITY_MARGIN:g} 1/s.", "",
              "| controller | verdict |", "| --- | --- |"]
-    lines += [f"| {CONTROLLER_TITLES[n]} (`{n}`) | {c.verdict} |"
+    lines += [f"| {controller_title(n)} (`{n}`) | {c.verdict} |"
               for n, c in env.controllers.items()]
     pick = np.unique(np.linspace(0, env.speeds.size - 1, min(11, env.speeds.size)).astype(int))
     names = list(env.controllers)
@@ -788,7 +790,7 @@ def stability_map_png(env: Envelope) -> bytes:
         ax.axhspan(0, 1e9, color="#f6d5d5", lw=0, label="unstable (real part > 0)")
         ax.axhline(0.0, color="k", lw=0.8)
         for n, c in env.controllers.items():  # the registry's styles: coinciding lines show
-            ax.plot(env.speeds, c.max_real, marker=".", ms=3, label=f"{CONTROLLER_TITLES[n]}",
+            ax.plot(env.speeds, c.max_real, marker=".", ms=3, label=f"{controller_title(n)}",
                     **registered_controller(n).style)
         ax.set_yscale("symlog", linthresh=1e-2)
         top = max(1.0, max(float(np.nanmax(c.max_real[np.isfinite(c.max_real)], initial=0))

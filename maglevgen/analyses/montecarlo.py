@@ -43,9 +43,8 @@ from maglevgen.analyses.simulate import (
     simulate_batch,
 )
 from maglevgen.control import controller as registered_controller
+from maglevgen.control import title as controller_title
 from maglevgen.control.operating import (
-    CONTROLLER_TITLES,
-    CONTROLLERS,
     REDUCED_STATES,
     Weights,
     checked_trim,
@@ -623,7 +622,7 @@ def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
         mult = cols["region_multiple"][sel] if "region_multiple" in cols else np.array([])
         inside = (fail & (mult < 1)) if mult.size else np.zeros(0, bool)
         out[c] = {
-            "title": CONTROLLER_TITLES[c], "samples": int(sel.sum()), "runs": n_run,
+            "title": controller_title(c), "samples": int(sel.sum()), "runs": n_run,
             # failures from inside the sampled region of attraction: contradictions of it
             "failures_inside_region": int(inside.sum()),
             "failures_inside_region_samples": [int(i) for i in
@@ -784,9 +783,9 @@ def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, byt
                     n_runs = v.size
                     v = v[np.isfinite(v)]  # a run that never settled has no settling time
                     if v.size:
-                        ax.hist(v, bins=30, alpha=0.5, label=CONTROLLER_TITLES[c],
+                        ax.hist(v, bins=30, alpha=0.5, label=controller_title(c),
                                 color=_registry_color(c))
-                    counts.append(f"{CONTROLLER_TITLES[c]}: {v.size} of {n_runs}")
+                    counts.append(f"{controller_title(c)}: {v.size} of {n_runs}")
                 # how many runs each histogram holds (the settling times: the settled runs)
                 ax.text(0.98, 0.97, "\n".join(counts), transform=ax.transAxes, ha="right",
                         va="top", fontsize=6, bbox={"fc": "white", "alpha": 0.7, "lw": 0})
@@ -811,7 +810,7 @@ def plots(study: Study, cols: dict[str, np.ndarray], agg: dict) -> dict[str, byt
                        label="contact / diverging")
             ax.set_xlabel(input_label(study, kx))
             ax.set_ylabel(input_label(study, ky))
-            ax.set_title(CONTROLLER_TITLES[c])
+            ax.set_title(controller_title(c))
         handles, labels = axs[0, 0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=7,
                    bbox_to_anchor=(0.5, 1.0))  # above the panels, not over the points
@@ -892,7 +891,7 @@ def default_workers() -> int:
         os.cpu_count() or 1)
 
 
-__all__ = ["CONTROLLERS", "ChunkFailedError", "Result", "Study", "aggregate", "check_scheduler",
+__all__ = ["ChunkFailedError", "Result", "Study", "aggregate", "check_scheduler",
            "concat", "contact_cause", "dask_client", "default_chunk", "default_workers",
            "input_label", "make_study", "markdown", "output_files", "plots", "region_multiple",
            "run_chunk",

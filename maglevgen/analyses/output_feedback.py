@@ -74,11 +74,13 @@ class NoisyHold:
         return out
 
 
-def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str = "spec",
+def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str | None = None,
                t_end: float = 20.0, seed: int = 0, noise_scale: float = 1.0,
                point: EstimatorPoint | None = None) -> NoisyHold:
     """The output-feedback loop held at ``op``'s speed for ``t_end`` seconds (module
-    docstring); the noise drawn from numpy's default_rng(seed)."""
+    docstring); the noise drawn from numpy's default_rng(seed). ``controller``: default the
+    embedded one (``envelope.embedded_controller``)."""
+    controller = controller or params.envelope.embedded_controller
     layout = SensorLayout.of(params)
     tick = Tick.of(params)
     point = point or estimator_points(lib, p, params, [op])[0]

@@ -22,8 +22,9 @@ import sympy as sp
 
 from maglevgen.analyses.envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
 from maglevgen.carriage import DerivedCarriage, stiffness_rows
+from maglevgen.control import controller as registered
+from maglevgen.control import title as controller_title
 from maglevgen.control.operating import (
-    CONTROLLER_TITLES,
     N_AXES,
     REDUCED_STATES,
     AxisGains,
@@ -36,7 +37,6 @@ from maglevgen.control.operating import (
     operating_point,
     speed_mode,
 )
-from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.paper import paper_riccati
 from maglevgen.derive.riccati import lqr_gain_mp, riccati_solution_mp
@@ -342,15 +342,15 @@ def embedded_gains(carriage: DerivedCarriage, op: OperatingPoint) -> dict:
     `spec` design its per-axis weights."""
     name = carriage.params.envelope.embedded_controller
     K_pos, K_rate = op.gains(name)
-    out = {"controller": name, "title": CONTROLLER_TITLES[name], "speed": op.speed,
+    out = {"controller": name, "title": controller_title(name), "speed": op.speed,
            "axes": list(cv.AXES), "forces": [c.name for c in cv.CONTROLS],
            "a_ref": op.a_trim.tolist(), "K_pos": K_pos.tolist(), "K_rate": K_rate.tolist(),
            # on the coupled 10-state linearisation, as "coupled" gives the paper's designs'
            "closed_loop_poles": [[float(e.real), float(e.imag)] for e in
                                  sorted(np.linalg.eigvals(op.reduced_closed_loop(name)),
                                         key=_pole_key)]}
-    if name == "spec":
-        q1, q2, r = spec_weights(op)
+    if (weights := registered(name).weights) is not None:
+        q1, q2, r = weights(op)
         out["weights"] = {"q1": q1.tolist(), "q2": q2.tolist(), "r": r.tolist(),
                           "design_damping_ratio": op.weights.spec.zeta}
     return out
@@ -393,7 +393,7 @@ def verdict_lines(env, embedded: str) -> list[str]:
     out = [f"Envelope {env.v_min:.4g} to {env.v_max:.4g} m/s (maglevgen envelope):"]
     for name, c in env.controllers.items():
         mark = " [embedded]" if name == embedded else ""
-        out.append(f"  {CONTROLLER_TITLES[name] + mark:<28} {c.verdict}")
+        out.append(f"  {controller_title(name) + mark:<28} {c.verdict}")
         out.append(f"  {'':<28} specification: {c.spec_verdict}")
         if name == embedded and env.other_models:
             out.append(f"  {'':<28} its gains on the other models: "

@@ -63,7 +63,6 @@ from maglevgen.control.operating import (
     OperatingPoint,
     coupled_weights,
 )
-from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary
@@ -309,10 +308,11 @@ def lyapunov_matrix(op: OperatingPoint, controller: str) -> np.ndarray | None:
 
 
 def design_weights(op: OperatingPoint, controller: str) -> tuple[np.ndarray, np.ndarray]:
-    """(Q, R) of V's Lyapunov equation: the spec's (Bryson) weights for `spec`, the paper's
-    (q1, q2, r of [control], `operating.coupled_weights`) for every other controller."""
-    if controller == "spec":
-        return weighted_qr(op.rate_map, *spec_weights(op))
+    """(Q, R) of V's Lyapunov equation: the controller's own weights (`Controller.weights`:
+    the spec's Bryson weights for `spec`), else the paper's (q1, q2, r of [control],
+    `operating.coupled_weights`)."""
+    if (weights := registered(controller).weights) is not None:
+        return weighted_qr(op.rate_map, *weights(op))
     return coupled_weights(op.rate_map, op.weights)
 
 

@@ -14,7 +14,6 @@ from collections.abc import Sequence
 import numpy as np
 
 from maglevgen.analyses.simulate import (
-    CONTROLLER_TITLES,
     DISTURBANCE_DOC,
     SETTLING_BAND,
     Trajectory,
@@ -22,6 +21,7 @@ from maglevgen.analyses.simulate import (
     metrics,
 )
 from maglevgen.control import controller as registered_controller
+from maglevgen.control import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.infrastructure.columns import fcolumn_plain
 from maglevgen.infrastructure.workers import Shared, child, submit
@@ -60,7 +60,7 @@ def _style(controller: str) -> dict:
 
 
 def _label(traj: Trajectory) -> str:
-    name = CONTROLLER_TITLES[traj.controller]
+    name = controller_title(traj.controller)
     if traj.event:
         name += " (contact)" if traj.status == "contact" else f" ({traj.status})"
     return name
@@ -102,7 +102,7 @@ def trajectory_csv(traj: Trajectory, input_names: Sequence[str]) -> bytes:
     cols = columns(input_names, traj.gaps.shape[1])
     buf = io.StringIO()
     buf.write(f"# maglevgen simulate: controller {traj.controller} "
-              f"({CONTROLLER_TITLES[traj.controller]}), dt {traj.dt:g} s, status {traj.status}"
+              f"({controller_title(traj.controller)}), dt {traj.dt:g} s, status {traj.status}"
               f"{'; ' + traj.event if traj.event else ''}\n")
     buf.write(f"# initial disturbance: {disturbance_doc(traj.disturbance)}\n")
     buf.write(",".join(f"{n} [{u}]" for n, u in cols) + "\n")
@@ -273,7 +273,7 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
              "Settling time: the first time after which the deviation stays within "
              f"{SETTLING_BAND:.0%} of its peak; 'not settled' when it never does.", ""]
     for m in all_metrics:
-        lines += [f"## {CONTROLLER_TITLES[m['controller']]} (`{m['controller']}`)", "",
+        lines += [f"## {controller_title(m['controller'])} (`{m['controller']}`)", "",
                   f"Status: {m['status']}" + (f" ({m['event']})" if m["event"] else "")
                   + f"; {m['steps']} steps of {m['dt']:g} s to t = {m['t_end']:g} s; smallest "
                   f"gap {m['min_gap'] * 1e3:.3f} mm; speed {m['speed_start']:.4f} -> "
@@ -337,7 +337,7 @@ def speed_figure_png(trajs: Sequence[Trajectory]) -> bytes:
                 near = traj.t <= ZOOM_SECONDS
                 every = max(1, int(np.count_nonzero(near)) // PLOT_POINTS)
                 ax.plot(traj.speed[near][::every], y[near][::every],
-                        label=CONTROLLER_TITLES[traj.controller]
+                        label=controller_title(traj.controller)
                         + (f" ({traj.status})" if traj.status == "contact" else ""),
                         **_style(traj.controller))
                 tc, peak = peak_envelope(traj.t, y, PEAK_WINDOW)

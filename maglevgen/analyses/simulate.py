@@ -17,10 +17,10 @@ from functools import cached_property
 import numpy as np
 
 from maglevgen.analyses.run_spec import RunSpec, RunVerdict, judge_run
+from maglevgen.control import names as controller_names
+from maglevgen.control import title as controller_title
 from maglevgen.control.operating import (
     AXIS_STATES,
-    CONTROLLER_TITLES,
-    CONTROLLERS,
     STABILITY_MARGIN,
     OperatingPoint,
     SpeedMode,
@@ -686,8 +686,8 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     from maglevgen.runtime.library import simulation_library
 
     for c in controllers:
-        if c not in CONTROLLERS:
-            raise InputError(f"controller {c!r}: expected one of {', '.join(CONTROLLERS)}")
+        if c not in controller_names():
+            raise InputError(f"controller {c!r}: expected one of {', '.join(controller_names())}")
     if scenario not in SCENARIOS:
         raise InputError(f"--scenario {scenario!r}: expected one of {', '.join(SCENARIOS)}")
     lib = lib or simulation_library(carriage.structure, progress=announce or (lambda _: None))
@@ -737,7 +737,7 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                 trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, dist,
                                       **loop))
                 continue
-            with bar(f"simulating {CONTROLLER_TITLES[c]}") as update:
+            with bar(f"simulating {controller_title(c)}") as update:
                 trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, dist,
                                       progress=update, **loop))
     growth = max(float(np.max(e.real)) for e in eig.values())

@@ -37,7 +37,6 @@ from functools import cached_property
 import numpy as np
 
 from maglevgen.control import controller as registered_controller
-from maglevgen.control import names, titles
 from maglevgen.control.lqr import numerical_lqr, quadratic_cost
 from maglevgen.control.spec import SpecWeights
 from maglevgen.derive import conventions as cv
@@ -48,8 +47,6 @@ from maglevgen.runtime.library import SimulationLibrary
 
 __all__ = [
     "AXIS_STATES",
-    "CONTROLLERS",
-    "CONTROLLER_TITLES",
     "N_AXES",
     "REDUCED_INDEX",
     "REDUCED_STATES",
@@ -70,8 +67,6 @@ __all__ = [
     "stability",
 ]
 
-CONTROLLERS: tuple[str, ...] = names()
-CONTROLLER_TITLES: dict[str, str] = titles()
 AXIS_STATES: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in Q_STATES)
 # the coupled model's states (see the module docstring)
 REDUCED_STATES: tuple[str, ...] = ("y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r")

@@ -45,6 +45,7 @@ import numpy as np
 
 from maglevgen.control.lqr import numerical_dlqr, weighted_qr
 from maglevgen.control.operating import AXIS_STATES, N_AXES, REDUCED_STATES, OperatingPoint
+from maglevgen.control.registry import WeightsFn
 from maglevgen.control.sampled import LOOP_INDEX, LOOP_STATES, Tick, loop_model, zoh
 from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
@@ -226,13 +227,14 @@ class LoopPlant:
         Gam[fl.start:fl.start + N_AXES] = np.eye(N_AXES)
         return Phi, Gam
 
-    def design(self) -> LoopDesign:
-        """The `spec` weights (q1, q2, r per axis, `spec.spec_weights`) on `design_model`:
+    def design(self, weights: WeightsFn = spec_weights) -> LoopDesign:
+        """A controller's weights (q1, q2, r per axis, its `Controller.weights`; default the
+        `spec` design's, `spec.spec_weights`) on `design_model`:
         K = (R + G' P G)^-1 G' P Phi, P from SciPy's DARE, Q_a = blkdiag(Q, 0, 0) (the lag
         and the commands in flight carry no weight of their own: each command is weighed by R
         when it is computed). ValueError / LinAlgError where the DARE has no solution."""
         Phi, Gam = self.design_model()
-        q1, q2, r = spec_weights(self.op)
+        q1, q2, r = weights(self.op)
         Q, R = weighted_qr(self.op.rate_map, q1, q2, r)
         L = self.design_layout
         Qa = np.zeros_like(Phi)

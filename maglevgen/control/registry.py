@@ -11,9 +11,12 @@ import numpy as np
 if TYPE_CHECKING:
     from maglevgen.control.operating import OperatingPoint
 
-__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "titles"]
+__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "title",
+           "titles"]
 
 GainsFn = Callable[["OperatingPoint"], tuple[np.ndarray, np.ndarray]]
+# (q1, q2, r) per axis at an operating point: the position, rate and force weights
+WeightsFn = Callable[["OperatingPoint"], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -26,6 +29,14 @@ class Controller:
     ``tick_function``: the generated C function the firmware calls every tick (None: none).
     ``tick_design``: the loop's verdicts use its design at the tick on the loop as built
     (`maglevgen.control.plant`), else its continuous gains on that loop.
+    ``weights``: its own per-axis design weights (q1, q2, r) at an operating point, the ones
+    its tick design solves with, the region of attraction's Lyapunov function weighs by and the
+    report tabulates (as Bryson's rule on ``[control.spec]``); None: the paper's ``[control]``
+    weights (`operating.coupled_weights`).
+
+    Nothing outside maglevgen/control/ compares a controller's name: what a layer branches on
+    is a field here, and the registry is read when needed (a controller registered after
+    `maglevgen.load()` is a choice of every command).
     """
 
     name: str
@@ -39,7 +50,12 @@ class Controller:
     # designed at the tick on the loop as built (`plant.LoopPlant.design`: the delay, the
     # actuator lag) from its weights; False: its continuous gains are checked on that loop
     tick_design: bool = False
+    weights: WeightsFn | None = None
     style: dict = field(default_factory=dict)  # matplotlib line style
+
+    def __post_init__(self) -> None:
+        if self.tick_design and self.weights is None:
+            raise ValueError(f"controller {self.name!r}: a design at the tick needs its weights")
 
 
 REGISTRY: dict[str, Controller] = {}
@@ -69,6 +85,11 @@ def embeddable() -> tuple[str, ...]:
 def titles() -> dict[str, str]:
     """Name -> title, for tables and legends."""
     return {n: c.title for n, c in REGISTRY.items()}
+
+
+def title(name: str) -> str:
+    """The registered controller's title (KeyError as `controller`)."""
+    return controller(name).title
 
 
 def controller(name: str) -> Controller:

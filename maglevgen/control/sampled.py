@@ -25,6 +25,7 @@ import numpy as np
 from maglevgen.codegen.checks import MAX_DELAY_TICKS
 from maglevgen.control.lqr import numerical_dlqr, weighted_qr
 from maglevgen.control.operating import AXIS_STATES, N_AXES, REDUCED_STATES, OperatingPoint
+from maglevgen.control.registry import WeightsFn
 from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
@@ -101,9 +102,14 @@ def loop_gain(op: OperatingPoint, controller: str, k_v: float,
     row 5 the propulsion's speed feedback k_v dV (dV = (u du + v dv + w dw)/V at trim).
     ``design``: the operating point whose gains the controller uses (another model's, to
     check them on this one); default ``op``."""
+    return _loop_gain_of(op, *(design or op).gains(controller), k_v)
+
+
+def _loop_gain_of(op: OperatingPoint, K_pos: np.ndarray, K_rate: np.ndarray,
+                  k_v: float) -> np.ndarray:
+    """`loop_gain` with the axis gains (K_pos, K_rate) given."""
     A, _ = loop_model(op)
     n = len(LOOP_INDEX)
-    K_pos, K_rate = (design or op).gains(controller)
     S = np.zeros((N_AXES, n))
     S[range(N_AXES), range(N_AXES)] = 1.0
     axis_rows = [LOOP_INDEX.index(i) for i in AXIS_STATES]
@@ -178,8 +184,10 @@ class TickDesign:
     K_delay: np.ndarray  # 5 x 5 d on the generalized forces in flight (w[k-1], ..., w[k-d])
 
 
-def tick_design(op: OperatingPoint, tick: Tick) -> TickDesign:
-    """The `spec` weights (q1, q2, r per axis, `laws.spec.spec_weights`) on the tick: the
+def tick_design(op: OperatingPoint, tick: Tick, weights: WeightsFn = spec_weights
+                ) -> TickDesign:
+    """A controller's weights (q1, q2, r per axis, its `Controller.weights`; default the
+    `spec` design's, `spec.spec_weights`) on the tick: the
     reduced linearisation (A_r, B_gen) discretised exactly with ZOH over the period h
     (Phi, Gamma), augmented with the delay's commands in flight (`delay_augmented`), and the
     discrete LQR of that model, K = (R + Gamma_a' P Gamma_a)^-1 Gamma_a' P Phi_a with P from
@@ -188,7 +196,7 @@ def tick_design(op: OperatingPoint, tick: Tick) -> TickDesign:
     not K). The commands in flight carry no weight of their own: each is weighed by R when
     it is computed."""
     A_r, B_g = op.reduced
-    q1, q2, r = spec_weights(op)
+    q1, q2, r = weights(op)
     Q, R = weighted_qr(op.rate_map, q1, q2, r)
     Phi, Gamma = zoh(A_r, B_g, tick.period)
     Pa, Ga = delay_augmented(Phi, Gamma, tick.delay)
@@ -206,12 +214,7 @@ def tick_design_loop_gains(op: OperatingPoint, design: TickDesign, k_v: float
     `loop_gain`'s with the design's (K_pos, K_rate), row 5 the speed loop; K_delay (6 x 6 d)
     the design's feedback of the generalized forces in flight (the propulsion's in flight
     not fed back)."""
-    A, _ = loop_model(op)
-    K = loop_gain(op, "spec", k_v)
-    S = np.zeros((N_AXES, len(LOOP_INDEX)))
-    S[range(N_AXES), range(N_AXES)] = 1.0
-    C_rate = A[[LOOP_INDEX.index(i) for i in AXIS_STATES], :]
-    K[:N_AXES] = design.K_pos @ S + design.K_rate @ C_rate
+    K = _loop_gain_of(op, design.K_pos, design.K_rate, k_v)
     m = N_AXES + 1
     d = design.K_delay.shape[1] // N_AXES
     K_delay = np.zeros((m, d * m))

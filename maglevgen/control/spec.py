@@ -93,4 +93,5 @@ def _spec(op: OperatingPoint) -> tuple[np.ndarray, np.ndarray]:
 register(Controller(
     "spec", "spec LQR", "the coupled LQR with weights from [control.spec]: Bryson's rule on "
     "the allowed deviations and the force budget, the rate weight in closed form for the "
-    "damping ratio", _spec, style={"color": "tab:red", "ls": "-", "lw": 1.3}, tick_design=True))
+    "damping ratio", _spec, style={"color": "tab:red", "ls": "-", "lw": 1.3}, tick_design=True,
+    weights=spec_weights))

@@ -20,13 +20,16 @@ from maglevgen.report.display import ltx, matrix_tex
 from maglevgen.report.format import fnum, tex_escape
 from maglevgen.runtime.library import simulation_library
 
-__all__ = ["ACTUATOR_TEXT", "RUN_CONTROLLERS", "RUN_DT", "RUN_T_END", "actuator_comparison_section",
+__all__ = ["ACTUATOR_TEXT", "RUN_DT", "RUN_T_END", "actuator_comparison_section", "run_controllers",
            "with_actuators"]
 
-# the runs compared: `maglevgen simulate`'s hold (its default length and step) per design of
-# the paper that applies forces
-RUN_CONTROLLERS = tuple(n for n, c in REGISTRY.items() if c.paper and c.tick_function)
 RUN_T_END, RUN_DT = 10.0, 1e-3
+
+
+def run_controllers() -> tuple[str, ...]:
+    """The runs compared: `maglevgen simulate`'s hold (its default length and step) per design
+    of the paper that applies forces (read from the registry when the section is made)."""
+    return tuple(n for n, c in REGISTRY.items() if c.paper and c.tick_function)
 
 ACTUATOR_TEXT = {
     "paper": "eqs 22--23: a body-$z$ force on every array and an independent body-$y$ force on "
@@ -72,9 +75,9 @@ def actuator_comparison_section(carriage, progress: Callable[[str], None],
             "lost": _lost_direction(E) if rank < E.shape[0] else None,
         })
         if c is carriage and hold_runs is not None:
-            trajectories = tuple(hold_runs[k] for k in RUN_CONTROLLERS)
+            trajectories = tuple(hold_runs[k] for k in run_controllers())
         else:
-            trajectories = run_scenarios(c, RUN_CONTROLLERS, RUN_T_END, RUN_DT,
+            trajectories = run_scenarios(c, run_controllers(), RUN_T_END, RUN_DT,
                                          lib=lib).trajectories
         for traj in trajectories:
             m = metrics(traj)

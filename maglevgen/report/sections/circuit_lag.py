@@ -12,7 +12,7 @@ import sympy as sp
 from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.magnetic_damping import damping_across_speed
 from maglevgen.control import controller as registered_controller
-from maglevgen.control.operating import CONTROLLER_TITLES
+from maglevgen.control import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.circuit_lag import circuit_response
 from maglevgen.report.display import eq
@@ -82,7 +82,7 @@ def circuit_lag(carriage, lib, env, gains: dict) -> tuple[dict[str, Any], bytes]
                      "lqr_rate": float(g["K_closed_form"][1]),
                      "damping": float(g["damping_gain"])})
     envs = {now: env, other.params.model.circuit_dynamics: other_env}
-    rows = [{"title": CONTROLLER_TITLES[n],
+    rows = [{"title": controller_title(n),
              "first_order": envs["first-order"].controllers[n].verdict,
              "quasi_static": envs["quasi-static"].controllers[n].verdict,
              "ok_first_order": envs["first-order"].controllers[n].ok,
@@ -97,7 +97,7 @@ def circuit_lag(carriage, lib, env, gains: dict) -> tuple[dict[str, Any], bytes]
         "speeds": speeds, "speed": V, "v_c": ctx["v_c_value"], "models": list(MODELS),
         "axes": [f"{axis} ({_UNITS[axis]})" for axis in cv.AXES],
         "damping": {n: curves[n] for n in MODELS},
-        "controllers": [CONTROLLER_TITLES[n] for n in env.controllers],
+        "controllers": [controller_title(n) for n in env.controllers],
         "colors": [registered_controller(n).style.get("color", "k") for n in env.controllers],
         "envelope_speeds": {n: envs[n].speeds for n in MODELS},
         "max_real": {n: [envs[n].controllers[c].max_real for c in env.controllers]

@@ -23,7 +23,9 @@ from maglevgen.analyses.roa import (
     region_png,
     study,
 )
-from maglevgen.control.operating import CONTROLLER_TITLES, STABILITY_MARGIN, closed_loop_stability
+from maglevgen.control import controller as registered
+from maglevgen.control import title as controller_title
+from maglevgen.control.operating import STABILITY_MARGIN, closed_loop_stability
 from maglevgen.report.display import matrix_tex
 from maglevgen.report.format import fcolumn, fnum, tex_escape
 from maglevgen.report.sections.verification import Check
@@ -64,8 +66,9 @@ def envelope_checks(carriage, env) -> list[Check]:
     (op,) = envelope_points(carriage, simulation_library(carriage.structure), [speed])
     out = []
     embedded = carriage.params.envelope.embedded_controller
-    for name in [n for n in env.controllers if n != "none"]:  # every designed controller
-        title = tex_escape(CONTROLLER_TITLES[name]) + (" (embedded)" if name == embedded else "")
+    # every controller that applies forces
+    for name in [n for n in env.controllers if registered(n).tick_function is not None]:
+        title = tex_escape(controller_title(name)) + (" (embedded)" if name == embedded else "")
         out.append(Check(
             f"{title}: closed loop at {speed:.4g} m/s (largest real part, 1/s)",
             "eigenvalues (numpy) of the C Jacobians with the gains and allocation",
@@ -126,8 +129,8 @@ def _embedded_context(carriage, env, table: Mapping[str, Any]) -> dict[str, Any]
     errors = table.get("relative_error_by_field", {})
     s = carriage.params.control.spec
     return {
-        "name": name, "title": CONTROLLER_TITLES[name], "at": at,
-        "spec_design": name == "spec", "same_r": same_r,
+        "name": name, "title": controller_title(name), "at": at,
+        "spec_design": registered(name).weights is not None, "same_r": same_r,
         "deviation": [float(getattr(s.max_deviation, k)) for k in ("y", "z", "phi", "theta",
                                                                    "psi")],
         "design_damping_ratio": s.min_damping_ratio + s.damping_margin,
@@ -152,7 +155,7 @@ def envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> d
         "v_min": env.v_min, "v_max": env.v_max, "n": int(env.speeds.size),
         "figure": ENVELOPE_FIGURE,
         "launch_acceleration": carriage.params.envelope.launch_acceleration,
-        "rows": [{"title": CONTROLLER_TITLES[n], "name": n, "verdict": c.verdict,
+        "rows": [{"title": controller_title(n), "name": n, "verdict": c.verdict,
                   "ok": c.ok, "embedded": n == embedded, "spec_verdict": c.spec_verdict,
                   "spec_short": ("meets it" if c.meets_spec else "FAILS "
                                  + ", ".join(f.spec for f in c.spec_failures)),
@@ -160,7 +163,7 @@ def envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> d
         "spec_checked_on": env.checked_on(),
         "robustness": env.robustness_verdict(), "robust": env.robust,
         "spec": _spec_context(carriage),
-        "names": [CONTROLLER_TITLES[n] for n in names],
+        "names": [controller_title(n) for n in names],
         "gain_table": {"nodes": table["nodes"], "dense_grid": table["dense_grid"],
                        "bound": table["bound"], "worst": table["worst_relative_error"],
                        "by_field": [{"name": k, "error": float(v)} for k, v in
@@ -189,7 +192,7 @@ def roa_section(carriage, given: tuple[Any, bytes] | None):
 def roa_context(regions) -> dict[str, Any]:
     """The region's table and statement (the first region: the embedded controller's)."""
     reg = regions[0]
-    return {"figure": ROA_FIGURE, "controller": CONTROLLER_TITLES[reg.controller],
+    return {"figure": ROA_FIGURE, "controller": controller_title(reg.controller),
             "statement": roa_statement_tex(reg.statement()),
             "rows": [{"speed": s, "level": c, "extents": list(e), "multiple": m,
                       "limit": r.limit, "confirmed": r.confirmed and r.level > 0,
