@@ -42,6 +42,17 @@ class Structure:
     array_force: str = "point"
     circuit_dynamics: str = "quasi-static"
 
+    @property
+    def array_names(self) -> tuple[str, ...]:
+        """The arrays in the parameter file's order (that of the generated gaps)."""
+        return tuple(name for name, _ in self.arrays)
+
+    @property
+    def array_of_force(self) -> tuple[int, ...]:
+        """The array (0-based) of each control force, in the input order after F_prop
+        (`input_names_of`): what a per-array force budget sums over."""
+        return tuple(i for i, (_, comps) in enumerate(self.arrays) for _ in comps)
+
 
 def numbered(structure: Structure) -> Structure:
     """``structure`` with its arrays named by their place ("1", "2", ...), in the parameter

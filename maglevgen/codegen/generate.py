@@ -109,9 +109,7 @@ def render_c(functions: list[ca.Function], opts: GenerateOptions, text_banner: s
            "nu": len(model.input_names), "ng": len(model.arrays),
            "n_prepared": prepare.numel_out(0), "n_dynamics_prepared": dynamics_prepare.numel_out(0),
            "n_arrays": len(model.structure.arrays),
-           # the array of each control force, in the input order (structure.input_names_of)
-           "array_of_force": [i for i, (_, comps) in enumerate(model.structure.arrays)
-                              for _ in comps],
+           "array_of_force": model.structure.array_of_force,
            "max_delay": MAX_DELAY_TICKS, "api": {f.name: f for f in SIMULATE_API}}
     env = template_env()
     for name in SIMULATE_FILES:

@@ -135,7 +135,6 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     sizes = {k: max(f[f"sz_{k}"] for f in fn_table if f["name"] in (tick_fn, ALLOCATE))
              for k in ("arg", "res", "iw", "w")}
     structure = carriage.model.structure
-    array_of_force = [i for i, (_, comps) in enumerate(structure.arrays) for _ in comps]
     cost = measured or {}
     tick_ctx = {
         "ticks": QEMU_TICKS,
@@ -147,7 +146,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "k_v": c_literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
         "force_budget": c_literal(loop.force_budget, precision),
         "force_budget_value": loop.force_budget,
-        "n_arrays": len(structure.arrays), "array_of_force": array_of_force,
+        "n_arrays": len(structure.arrays), "array_of_force": structure.array_of_force,
         "sz": sizes, "nu": len(carriage.model.input_names), "offsets": offsets,
         "v_min": table.v_min, "v_max": table.v_max, "nodes": len(table.coeffs),
         "table_error": max(table.errors.values()), "with_plant": with_plant,

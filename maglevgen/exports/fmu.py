@@ -5,13 +5,13 @@ Everything in modelDescription.xml and in the wrapper's value-reference table co
 list of `FmuVariable` built from the manifest (names, units, descriptions, start values), the
 same for both FMI versions, and both files are rendered from it by the templates of the
 version (`FMI_VERSIONS`: fmu_model_description.xml.j2 and fmu_wrapper.c.j2 for 2.0,
-fmu3_model_description.xml.j2 and fmu3_wrapper.c.j2 with the version-independent model core
-fmu_core.c.j2 for 3.0). The model is the run-time-parameter C of the carriage's structure
-(the cached derivation of maglevgen.runtime.library): every function takes the parameter vector p,
-so
-a parameter set through fmi2SetReal (fmi3SetFloat64) before initialization behaves like
-``--set``: the trim (maglev_trim at ``operation.speed``), the gains (maglev_lqr_gains) and the
-allocation are computed from it when the FMU leaves initialization mode.
+fmu3_model_description.xml.j2 and fmu3_wrapper.c.j2 for 3.0), both wrappers around the one
+version-independent model core fmu_core.c.j2. The model is the run-time-parameter C of the
+carriage's structure (the cached derivation of maglevgen.runtime.library): every function takes
+the parameter vector p, so a parameter set through fmi2SetReal (fmi3SetFloat64) before
+initialization behaves like ``--set``: the trim (maglev_trim at ``operation.speed``), the
+gains (maglev_lqr_gains) and the allocation are computed from it when the FMU leaves
+initialization mode.
 
 Controllers come from the registry (maglevgen.control) through `fmu_controllers`: one entry per
 controller says how the wrapper gets the generalized forces u_gen (eqs 20-33) and which inputs
@@ -32,6 +32,7 @@ from pathlib import Path
 from maglevgen.codegen.checks import ERROR_CODES, MAX_DELAY_TICKS
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import Q_STATES
+from maglevgen.derive.structure import Structure
 from maglevgen.errors import InputError
 from maglevgen.version import __version__
 
@@ -220,12 +221,14 @@ class FmuVariable:
 @dataclass(frozen=True)
 class FmuModel:
     """What the templates need: the variables, their groups' first value reference, and the
-    indices into the parameter vector the wrapper reads."""
+    indices into the parameter vector the wrapper reads; ``structure``: the carriage's arrays
+    and their forces (the gaps' names, each force's array)."""
 
     variables: tuple[FmuVariable, ...]
     controller: FmuController
     kind: str
     manifest: dict
+    structure: Structure
 
     def first(self, group: str) -> int:
         return next((i for i, v in enumerate(self.variables) if v.group == group), -1)
@@ -234,20 +237,11 @@ class FmuModel:
         return sum(v.group == group for v in self.variables)
 
 
-def _array_names(manifest: dict) -> list[str]:
-    """Array names in the parameter file's order (that of the generated gaps)."""
-    names = []
-    for e in manifest["parameter_vector"]:
-        m = re.fullmatch(r"arrays\.([^.]+)\.nominal_gap", e["name"])
-        if m:
-            names.append(m.group(1))
-    return names
-
-
-def fmu_variables(manifest: dict, controller: FmuController, kind: str,
+def fmu_variables(manifest: dict, structure: Structure, controller: FmuController, kind: str,
                   tick: FmuTick | None = None) -> tuple[FmuVariable, ...]:
-    """Every FMU variable, in value-reference order, from the manifest; ``tick``: the start
-    values of the tick's parameters (a built-in controller's only; default: continuous)."""
+    """Every FMU variable, in value-reference order, from the manifest and the structure (the
+    arrays' gaps); ``tick``: the start values of the tick's parameters (a built-in
+    controller's only; default: continuous)."""
     from maglevgen.analyses.simulate import DISTURBANCE, DISTURBANCE_DOC
 
     states = manifest["states"]
@@ -260,7 +254,7 @@ def fmu_variables(manifest: dict, controller: FmuController, kind: str,
                         derivative=i + 1) for i, s in enumerate(states)]
     out += [FmuVariable(f"gap.{a}", "output", "continuous", "calculated", None, "m",
                         f"gap of array {a} (contact below track.min_gap)", "gap")
-            for a in _array_names(manifest)]
+            for a in structure.array_names]
     out += [FmuVariable(u["name"], "output", "continuous", "calculated", None, u["unit"],
                         f"{u['description']}, as applied", "force") for u in manifest["inputs"]]
     prop = manifest["inputs"][0]
@@ -317,7 +311,7 @@ def _per_second(unit: str) -> str:
                                                                                   f"{unit}/s")
 
 
-def build_model(manifest: dict, controller: str, kind: str,
+def build_model(manifest: dict, structure: Structure, controller: str, kind: str,
                 tick: FmuTick | None = None) -> FmuModel:
     if kind not in KINDS:
         raise InputError(f"--kind {kind!r}: expected one of {KINDS}")
@@ -326,7 +320,8 @@ def build_model(manifest: dict, controller: str, kind: str,
         raise InputError(f"--controller {controller!r}: expected one of "
                          f"{', '.join(controllers)}")
     ctl = controllers[controller]
-    return FmuModel(fmu_variables(manifest, ctl, kind, tick), ctl, kind, manifest)
+    return FmuModel(fmu_variables(manifest, structure, ctl, kind, tick), ctl, kind, manifest,
+                    structure)
 
 
 def _xml_escape(text: str) -> str:
@@ -385,7 +380,7 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
         "overrides": man["overrides"],
         "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
         "fmi": version,
-        "max_delay": MAX_DELAY_TICKS, "array_of_force": _array_of_force(man),
+        "max_delay": MAX_DELAY_TICKS, "array_of_force": model.structure.array_of_force,
         "matrix_gains": matrix_gains, "verdict": verdict,
         # FMI 3.0: the independent variable time (unit s) beside the list's units
         "units3": [(u, fmi3_base_unit(u)) for u in sorted({*units, "s"})],
@@ -396,19 +391,6 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
     if version.build_description:
         outputs.append(("buildDescription.xml", version.build_description))
     return {name: env.get_template(f"{tpl}.j2").render(ctx) for name, tpl in outputs}
-
-
-def _array_of_force(manifest: dict) -> list[int]:
-    """The array (0-based, in the order of the arrays' first force) of each control force:
-    inputs after F_prop are F_<component><array>."""
-    arrays: list[str] = []
-    out = []
-    for u in manifest["inputs"][1:]:
-        name = u["name"][3:]
-        if name not in arrays:
-            arrays.append(name)
-        out.append(arrays.index(name))
-    return out
 
 
 def fmi_headers(fmi: str = DEFAULT_FMI) -> Path:
@@ -468,7 +450,7 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     interface = render_interface(carriage, GenerateOptions("double", "runtime"), table)
     manifest = json.loads(interface["manifest.json"])
-    model = build_model(manifest, controller, kind, tick)
+    model = build_model(manifest, carriage.structure, controller, kind, tick)
     # the GUID names the model's content: same carriage, controller and kind, same GUID
     guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "maglevgen:" + json.dumps(
         [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
