@@ -38,7 +38,6 @@ import numpy as np
 
 from maglevgen.control import controller as registered_controller
 from maglevgen.control.lqr import numerical_lqr, quadratic_cost
-from maglevgen.control.spec import SpecWeights
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import Q_STATES
 from maglevgen.errors import InputError, NoTrimError
@@ -54,6 +53,7 @@ __all__ = [
     "AxisGains",
     "CoupledComparison",
     "OperatingPoint",
+    "SpecWeights",
     "SpeedMode",
     "Weights",
     "checked_accelerating_trim",
@@ -72,6 +72,24 @@ AXIS_STATES: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in Q_STATES)
 REDUCED_STATES: tuple[str, ...] = ("y", "z", "phi", "theta", "psi", "v", "w", "p", "q", "r")
 REDUCED_INDEX: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in REDUCED_STATES)
 N_AXES = len(cv.AXES)
+
+
+@dataclass(frozen=True)
+class SpecWeights:
+    """The specification's numbers the `spec` design uses (``[control.spec]``,
+    `maglevgen.control.spec`): here, beside the paper's `Weights` that carry them, so that
+    the design's module imports nothing of the operating point at run time."""
+
+    a_max: tuple[float, ...]  # allowed deviation per axis [m, m, rad, rad, rad]
+    force_budget: float  # [N] per array
+    zeta: float  # the per-axis design damping ratio
+
+    @classmethod
+    def of(cls, spec) -> SpecWeights:
+        """From a `maglevgen.params.ControlSpec`."""
+        dev = spec.max_deviation
+        return cls(tuple(float(getattr(dev, k)) for k in Q_STATES), float(spec.force_budget),
+                   float(spec.min_damping_ratio + spec.damping_margin))
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,6 @@ runs them through the same tick (`maglev_coupled_control`) from the table schedu
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -28,30 +27,12 @@ from maglevgen.control.registry import Controller, register
 if TYPE_CHECKING:
     from maglevgen.control.operating import OperatingPoint
 
-__all__ = ["AXIS_KEYS", "RATE_WEIGHT_FLOOR", "SpecWeights", "axis_force_limits", "rate_weight",
-           "spec_weights"]
+__all__ = ["RATE_WEIGHT_FLOOR", "axis_force_limits", "rate_weight", "spec_weights"]
 
-AXIS_KEYS = ("y", "z", "phi", "theta", "psi")
 # q2 where the closed form is not positive, relative to q1 m / sigma (the rate weight that
 # would weigh the axis' natural-frequency rate like its position): small, not zero, so that R
 # and Q stay definite
 RATE_WEIGHT_FLOOR = 1e-6
-
-
-@dataclass(frozen=True)
-class SpecWeights:
-    """The specification's numbers the design uses (``[control.spec]``)."""
-
-    a_max: tuple[float, ...]  # allowed deviation per axis [m, m, rad, rad, rad]
-    force_budget: float  # [N] per array
-    zeta: float  # the per-axis design damping ratio
-
-    @classmethod
-    def of(cls, spec) -> SpecWeights:
-        """From a `maglevgen.params.ControlSpec`."""
-        dev = spec.max_deviation
-        return cls(tuple(float(getattr(dev, k)) for k in AXIS_KEYS), float(spec.force_budget),
-                   float(spec.min_damping_ratio + spec.damping_margin))
 
 
 def axis_force_limits(T: np.ndarray, budget: float) -> np.ndarray:
@@ -71,7 +52,7 @@ def rate_weight(zeta: float, q1: np.ndarray, r: np.ndarray, k: np.ndarray,
 
 def spec_weights(op: OperatingPoint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(q1, q2, r) per axis at ``op``."""
-    s: SpecWeights = op.weights.spec
+    s = op.weights.spec
     if s is None:
         raise ValueError("the operating point carries no specification (Weights.spec)")
     q1 = 1.0 / np.asarray(s.a_max) ** 2
