@@ -158,7 +158,7 @@ def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float) -> 
 
 
 def envelope_points(carriage, lib: SimulationLibrary,
-                    speeds: Sequence[float]) -> list[OperatingPoint]:
+                    speeds: Sequence[float] | np.ndarray) -> list[OperatingPoint]:
     """Operating points at ``speeds`` (trim, gains, Jacobians: the generated C)."""
     w = Weights.of(carriage.params)
     min_gap = carriage.params.track.min_gap

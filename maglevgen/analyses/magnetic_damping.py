@@ -36,7 +36,7 @@ def axis_damping(op: OperatingPoint, axis_inertia: np.ndarray) -> np.ndarray:
     return -np.asarray(axis_inertia, dtype=float).ravel() * np.diag(op.A)[idx]
 
 
-def damping_across_speed(carriage, lib, speeds: Sequence[float]) -> np.ndarray:
+def damping_across_speed(carriage, lib, speeds: Sequence[float] | np.ndarray) -> np.ndarray:
     """c (n_speeds, 5) at each speed's trim, from the compiled library ``lib``."""
     points = envelope_points(carriage, lib, speeds)
     plants = lib.function("maglev_axis_plants")

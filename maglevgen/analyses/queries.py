@@ -352,7 +352,8 @@ def embedded_gains(carriage: DerivedCarriage, op: OperatingPoint) -> dict:
     if (weights := registered(name).weights) is not None:
         q1, q2, r = weights(op)
         out["weights"] = {"q1": q1.tolist(), "q2": q2.tolist(), "r": r.tolist(),
-                          "design_damping_ratio": op.weights.spec.zeta}
+                          "design_damping_ratio": None if op.weights.spec is None
+                          else op.weights.spec.zeta}
     return out
 
 

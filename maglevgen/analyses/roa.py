@@ -648,7 +648,8 @@ def confirmation_run(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
 
 
 def region_of_attraction(carriage, lib: SimulationLibrary, controller: str,
-                         speeds: Sequence[float], sampling: Sampling = COMMAND_SAMPLING,
+                         speeds: Sequence[float] | np.ndarray,
+                         sampling: Sampling = COMMAND_SAMPLING,
                          loop: str = "firmware",
                          progress: Callable[[float], None] | None = None) -> Region:
     """The region of ``controller`` at ``speeds`` (module docstring), the boundary confirmed

@@ -25,6 +25,7 @@ uncertainties", IEE Proc. D 129(6), 1982 (the D-scaled upper bound of mu).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,7 +158,7 @@ def disk_margins(M: np.ndarray, N: np.ndarray, C: np.ndarray, period: float,
     return DiskMargins(omega, multi, loops)
 
 
-def delay_margin(stable_with: callable, limit: int = MAX_EXTRA_TICKS) -> int:
+def delay_margin(stable_with: Callable[[int], bool], limit: int = MAX_EXTRA_TICKS) -> int:
     """The largest n <= ``limit`` such that ``stable_with(k)`` for every k <= n (-1: not
     stable without extra delay)."""
     n = -1
