@@ -368,6 +368,9 @@ def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: Deri
 
 # ------------------------------------------------------------------------------ Cortex-M4F
 
+# the start-up and linker script the firmware folder's run_qemu.sh uses (one copy, in templates/)
+QEMU_STARTUP = REPO / "templates" / "firmware_qemu_startup.c"
+QEMU_LINK = REPO / "templates" / "firmware_qemu_link.ld"
 M4_CPU = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16"]
 #: the issue's firmware flags (README, Firmware use)
 M4_FLAGS = [*M4_CPU, "-Os", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wdouble-promotion",
@@ -453,9 +456,9 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
     defines.append("-DSPEEDS=" + ",".join(f"{v!r}f" for v in speeds))
     subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-Os", "-std=gnu99", "-Wall", "-Werror",
                     "-fno-math-errno", "-ffunction-sections", "-fdata-sections", *defines,
-                    f"-I{src}", "-c", str(m4 / "startup.c"), str(m4 / "m4main.c")],
+                    f"-I{src}", "-c", str(QEMU_STARTUP), str(m4 / "m4main.c")],
                    cwd=src, check=True)
-    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
                     "-Wl,--gc-sections", "startup.o", "m4main.o", *objs, "-lm", "-lc",
                     "-o", "m4.elf"], cwd=src, check=True)
     run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
@@ -470,7 +473,7 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
     subprocess.run(["arm-none-eabi-gcc", *M4_FLAGS, "-Wmissing-prototypes", "-ffunction-sections",
                     "-fdata-sections", "-c", "maglev.c", "-o", "maglev.o"], cwd=one, check=True)
     assert _external(["arm-none-eabi-nm", str(one / "maglev.o")]) == _declared(one)
-    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
                     "-Wl,--gc-sections", "startup.o", "m4main.o", str(one / "maglev.o"),
                     "maglev_gain_table.o", "-lm", "-lc", "-o", "m4_single.elf"], cwd=src,
                    check=True)
@@ -910,9 +913,9 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
     defines = ["-DX0=" + ",".join(f"{float(v)!r}f" for v in x0),
                f"-DV_REF={float(v_ref)!r}f", f"-DN_TICKS={n_ticks}"]
     subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-Os", "-std=gnu99", "-Wall", "-Werror",
-                    "-fno-math-errno", *defines, "-I.", "-c", str(m4 / "startup.c"),
+                    "-fno-math-errno", *defines, "-I.", "-c", str(QEMU_STARTUP),
                     str(m4 / "closed_loop.c")], cwd=out, check=True)
-    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
                     "-Wl,--gc-sections", "startup.o", "closed_loop.o", *objs, "-lm", "-lc",
                     "-o", "loop.elf"], cwd=out, check=True)
     run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
