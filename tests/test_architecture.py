@@ -10,6 +10,7 @@ is pyproject's package-dir), every import counted, function-local ones included;
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import os
 import shutil
@@ -160,7 +161,8 @@ def _targets(module: str, node: ast.Import | ast.ImportFrom) -> list[str]:
     return out
 
 
-def _imports(module: str) -> list[tuple[str, bool]]:
+@functools.cache  # the sources do not change during a run; many tests walk the same graph
+def _imports(module: str) -> tuple[tuple[str, bool], ...]:
     """(target, function_local) for every import of ``module`` outside TYPE_CHECKING."""
     tree = ast.parse(MODULES[module].read_text())
     skip: set[int] = set()
@@ -170,9 +172,9 @@ def _imports(module: str) -> list[tuple[str, bool]]:
             skip.update(id(n) for n in ast.walk(node))
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
             local.update(id(n) for n in ast.walk(node))
-    return [(t, id(node) in local) for node in ast.walk(tree)
-            if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in skip
-            for t in _targets(module, node)]
+    return tuple((t, id(node) in local) for node in ast.walk(tree)
+                 if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in skip
+                 for t in _targets(module, node))
 
 
 def _graph() -> dict[str, set[str]]:
