@@ -405,6 +405,7 @@ def _installed_copy(dest: Path) -> Path:
     return top
 
 
+@pytest.mark.slow  # three cold derivations in a copy of the package
 def test_editing_a_memoised_modules_source_misses_the_cache(tmp_path: Path) -> None:
     """control/symbolic_reference.py memoises `_minimum_norm` across processes: an edit to it,
     or to a module it imports, is a miss; an edit to a module it does not depend on is a hit."""
