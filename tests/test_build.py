@@ -766,6 +766,15 @@ def test_the_readme_and_the_site_state_one_measurement_of_the_first_build() -> N
     measured = bench[bench.index("from an empty MAGLEVGEN_CACHE"):][:1200]
     for t in stated:
         assert t.replace(" s", "") in measured, (t, measured[:300])
+    # and every CPU time stated beside them (user, system), as the measurement gives it
+    cpu = re.findall(r"\b(\d+(?:\.\d+)?) s (?:of )?(?:user|system)\b", text)
+    assert len(cpu) >= 4, cpu
+    for t in cpu:
+        assert re.search(rf"\b{re.escape(t)} s (?:user|system)", measured), (t, measured[:300])
+    # `make bench`'s duration: the one BENCHMARKS.md's header gives for its last run
+    took = re.search(r"the run took (\S+) min", bench)[1]
+    said = re.findall(r"`make bench` \([^)]*?(\d+(?:\.\d+)?) min", text)
+    assert said == [took], (said, took)
 
 def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage) -> None:
     """What a cold build derives and compiles in its second process: the other force law's
