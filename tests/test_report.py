@@ -213,6 +213,17 @@ def test_no_page_of_the_builds_report_is_under_half_full(default_build: Path,
 
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
+def test_no_page_of_the_report_commands_pdf_is_under_half_full(default_report: Path) -> None:
+    """The same for `maglevgen report` alone (no simulation chapter: other floats, other
+    breaks), on the PDF the module has built already."""
+    pdf = default_report / "report.pdf"
+    fill, ends = page_fill(pdf), chapter_ends(pdf)
+    thin = {i + 1: round(f, 2) for i, f in enumerate(fill) if f < HALF_FULL and i + 1 not in ends}
+    assert not thin, f"pages under half full (page: share of the text block): {thin}"
+
+
+@pytest.mark.needs_cc
+@pytest.mark.needs_tex
 def test_pdf_metadata_has_title_author_and_the_given_date(default_report: Path) -> None:
     """pdfinfo (poppler) reads the title, the author ("maglevgen": the parameter file names
     none) and the creation date SOURCE_DATE_EPOCH gave (datetime's reading of the epoch)."""
