@@ -168,6 +168,7 @@ def chapter_ends(pdf: Path) -> set[int]:
     return ends
 
 
+@pytest.mark.needs_tex  # poppler's pdftoppm and pdfinfo
 def test_the_page_fill_check_flags_a_half_empty_page(tmp_path: Path) -> None:
     """The measure on a PDF made without LaTeX (matplotlib's PDF backend, A4): a page of 60
     lines spans its text block, a page of 5 lines at its top is flagged, the last page is a
