@@ -738,14 +738,21 @@ def test_the_readme_states_the_numbers_the_build_prints(good: Path) -> None:
     again = _readme_statement(readme, "default carriage `spec` meets it across", ";")
     assert_printed(again, printed("spec"))
     # the accelerating trim at v_min (SUMMARY.md's line)
-    pitch = re.search(r"at 5 m/s\^2 and v_min it pitches (\S+) mrad", re.sub(r"\s+", " ", readme))
+    flat = re.sub(r"\s+", " ", readme)
+    pitches = re.findall(r"at 5 m/s\^2 and v_min it pitches (\S+) mrad", flat)
     acc = re.search(r"Accelerating trim at \S+ m/s and (\S+) m/s\^2 .*?\((\S+) mrad from the "
                     r"constant-speed trim\)", summary)
-    assert float(acc[1]) == 5.0 and float(pitch[1]) == -float(acc[2])
-    # the circuits' characteristic speed R/(kL), stated to 3 digits
-    vc = re.search(r"R/\(kL\) = (\S+) m/s", readme)[1]
+    assert pitches and float(acc[1]) == 5.0
+    assert all(float(p) == -float(acc[2]) for p in pitches), (pitches, acc[2])
+    # the circuits' characteristic speed R/(kL), stated to 3 digits, wherever it is stated
     printed_vc = re.search(r"characteristic speed (\S+) m/s", summary)[1]
-    assert float(vc) == pytest.approx(float(printed_vc), abs=0.006)
+    vcs = re.findall(r"R/\(kL\) = (\d\S*) m/s", flat)
+    assert vcs and all(float(vc) == pytest.approx(float(printed_vc), abs=0.006) for vc in vcs)
+    # the coupled LQR's damping ratio at the paper's weights, wherever a page repeats it
+    ratios = re.findall(r"damps to a ratio of (\S+?)[ ,;)]", flat)
+    assert len(ratios) >= 2, ratios
+    for r in ratios:
+        assert_printed(r, printed("coupled"))
     # the gain table's bound
     table = json.loads((good / "c/manifest.json").read_text())["gain_table"]
     assert "holds its gains to 1e-3 of each matrix's largest entry" in re.sub(r"\s+", " ", readme)
@@ -766,6 +773,15 @@ def test_the_readme_and_the_site_state_one_measurement_of_the_first_build() -> N
     measured = bench[bench.index("from an empty MAGLEVGEN_CACHE"):][:1200]
     for t in stated:
         assert t.replace(" s", "") in measured, (t, measured[:300])
+    # and every CPU time stated beside them (user, system), as the measurement gives it
+    cpu = re.findall(r"\b(\d+(?:\.\d+)?) s (?:of )?(?:user|system)\b", text)
+    assert len(cpu) >= 4, cpu
+    for t in cpu:
+        assert re.search(rf"\b{re.escape(t)} s (?:user|system)", measured), (t, measured[:300])
+    # `make bench`'s duration: the one BENCHMARKS.md's header gives for its last run
+    took = re.search(r"the run took (\S+) min", bench)[1]
+    said = re.findall(r"`make bench` \([^)]*?(\d+(?:\.\d+)?) min", text)
+    assert said == [took], (said, took)
 
 def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage) -> None:
     """What a cold build derives and compiles in its second process: the other force law's
