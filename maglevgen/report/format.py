@@ -145,6 +145,19 @@ def tex_escape(text: object) -> str:
     return "".join(out)
 
 
+def tex_verdict(text: str) -> str:
+    """A verdict line (`maglevgen.analyses.verdicts`: Markdown, code in backticks) typeset so
+    that the PDF's text reads as SUMMARY.md's line without its backticks: code in typewriter,
+    no "--" ligature, a straight quote."""
+    parts = str(text).split("`")
+    out = []
+    for i, part in enumerate(parts):
+        esc = (re.sub("-(?=-)", "-{}", tex_escape(part)).replace("'", r"\textquotesingle{}")
+               .replace(r"\_", r"{\ttfamily\char95}"))  # OT1's \_ is a rule, not a glyph
+        out.append(rf"\texttt{{{esc}}}" if i % 2 else esc)
+    return "".join(out)
+
+
 def tex_breakable(text: object) -> str:
     """Escaped text with break points after , / * = ( [ so that long tokens can wrap."""
     out = re.sub(r"(,|/|\*|=|\(|\[)", r"\1\\allowbreak{}", tex_escape(text))
