@@ -926,7 +926,8 @@ def default_workers() -> int:
 
 __all__ = ["CONTROLLERS", "ChunkFailedError", "Result", "Study", "aggregate", "check_scheduler",
            "concat", "contact_cause", "dask_client", "default_chunk", "default_workers",
-           "input_label", "make_study", "markdown", "output_files", "plots", "region_multiple",
+           "design_text", "input_label", "make_study", "markdown", "nominal_design",
+           "output_files", "plots", "region_multiple",
            "run_chunk",
            "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study", "sample_inputs",
            "sample_parameters", "study_regions", "summary_json", "table", "table_files", "wilson"]

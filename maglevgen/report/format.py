@@ -26,6 +26,7 @@ __all__ = [
     "tex_key",
     "tex_prose",
     "tex_unit",
+    "tex_verdict",
 ]
 
 # A value below this fraction of its table's largest is round-off of a structural zero: printed

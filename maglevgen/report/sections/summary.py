@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from maglevgen.report.format import faxis_unit, tex_verdict
+from maglevgen.report.latex import latex_env
 
 __all__ = ["summary", "verdict_context", "verdict_tex"]
 
@@ -44,8 +45,6 @@ def verdict_tex(verdict) -> str:
     """The first page's verdict block (templates/report/verdict.tex.j2): the lines of
     `maglevgen.analyses.verdicts.EmbeddedVerdict.lines`, which SUMMARY.md and stdout print,
     typeset (`tex_verdict`)."""
-    from maglevgen.report.latex import latex_env  # local: latex imports this module's peers
-
     return latex_env().get_template("report/verdict.tex.j2").render(vd=verdict_context(verdict))
 
 
