@@ -1150,14 +1150,17 @@ class Carriage:
     def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
                    t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
                    scheduler: str | None = None, out: str | Path | None = None,
-                   loop: str = "firmware", progress: bool = False) -> MonteCarloResult:
+                   loop: str = "firmware", progress: bool = False,
+                   redesign: bool = False) -> MonteCarloResult:
         """Monte-Carlo robustness over the parameter file's ``[tolerances]``, as
         ``maglevgen montecarlo``.
 
         Each sample draws the toleranced parameters, a speed and an initial disturbance from
         its own ``numpy.random.SeedSequence(seed, spawn_key=(i,))``, so the results do not
-        depend on the worker count; the compiled C trims (eqs 1-4, 8-12), computes the gains
-        (eqs 20-33) and runs the closed loop (RK4) of every controller asked for.
+        depend on the worker count; the compiled C trims the sample (eqs 1-4, 8-12) and runs
+        the closed loop (RK4) of every controller asked for, designed (eqs 20-33) on the
+        nominal carriage at the sample's speed, as the firmware flies (``redesign``: on the
+        sample's own parameters instead).
 
         Parameters
         ----------
@@ -1184,6 +1187,9 @@ class Carriage:
         progress : bool, optional
             Announce the slow steps on stderr, and the runs' rate (a progress bar on a
             terminal).
+        redesign : bool, optional
+            Re-design each sample's controller for its own parameters, as if the firmware
+            knew them (``--redesign``; default False: the nominal design, as flown).
 
         Returns
         -------
@@ -1232,7 +1238,7 @@ class Carriage:
         controllers = CONTROLLERS if choice == "all" else (choice,)
         lib = self._lib
         study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
-                           *run_loop(self._carriage, lib, loop))
+                           *run_loop(self._carriage, lib, loop), redesign=bool(redesign))
         k = len(controllers)
         if progress:
             with steps.rate_bar("Monte Carlo", samples * k) as tick:
@@ -1364,6 +1370,7 @@ class Carriage:
         >>> "maglev.h" in names and "manifest.json" in names
         True
         """
+        from maglevgen.analyses.verdicts import generate_example
         from maglevgen.codegen.generate import GenerateOptions, render, write_output
 
         opts = GenerateOptions(precision, parameters, int_type, single_file)  # checks them
@@ -1372,7 +1379,9 @@ class Carriage:
             from maglevgen.analyses.envelope import speed_range
 
             speeds = speed_range(self._carriage)
-        return list(write_output(render(self._carriage, opts, speeds), Path(out)))
+        # main.c's example: the embedded controller at a speed where it is verified
+        example = generate_example(self._carriage, self._lib)
+        return list(write_output(render(self._carriage, opts, speeds, example), Path(out)))
 
     def firmware(self, out: str | Path, precision: str = "single",
                  with_plant: bool = False, allow_unstable: bool = False) -> list[Path]:

@@ -304,14 +304,14 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
               "and the study first")
     res = carriage.montecarlo(args.samples, args.seed, args.controller, args.t_end,
                                      args.dt, args.workers, args.scheduler, args.out or None,
-                                     args.loop, progress=True)
+                                     args.loop, progress=True, redesign=args.redesign)
     if args.json:
         print(json.dumps(res.summary, indent=1))
     else:
         t = res.summary["timing"]
         print(f"{args.samples} samples x {len(res.summary['controllers'])} controller(s): "
               f"{t['runs']} runs in {t['seconds']:.3g} s ({t['runs_per_s']:.4g} runs/s, "
-              f"{t['workers']})")
+              f"{t['workers']}); controller {res.summary['controller_design']}")
         for c, a in res.summary["controllers"].items():
             lo, hi = a["contact_ci95"]
             p = a["contact_probability"]
@@ -517,6 +517,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="default: envelope.embedded_controller")
     _run_options(mc)
     _loop_option(mc)
+    mc.add_argument("--redesign", action="store_true",
+                    help="re-design the controller for each sample's own parameters, as if "
+                         "the firmware knew them (default: the nominal design, as the "
+                         "firmware flies)")
     mc.add_argument("--workers", type=int, metavar="K",
                     help="worker processes (default: every core); with --scheduler local, "
                          "the LocalCluster's workers")

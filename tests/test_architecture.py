@@ -48,12 +48,18 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "stages are imported when something has to be built",
         ("maglevgen.infrastructure.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
          "maglevgen.analyses.envelope", "maglevgen.runtime.library",
-         "maglevgen.analyses.magnetic_damping", "maglevgen.control.operating",
+         "maglevgen.analyses.magnetic_damping",
          "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
-         "maglevgen.analyses.worst_case",
+         "maglevgen.analyses.verdicts",
          "maglevgen.analyses.queries", "maglevgen.infrastructure.texsetup", "maglevgen.report",
          "maglevgen.report.figures", "numpy", "maglevgen.analyses.roa")),
+    "maglevgen.analyses.verdicts": (
+        "`build` imports it at its top (the unchanged rebuild): the analyses it judges with "
+        "load when a verdict is computed",
+        ("maglevgen.analyses.envelope", "maglevgen.analyses.roa", "maglevgen.analyses.simulate",
+         "maglevgen.analyses.worst_case", "maglevgen.control.operating",
+         "maglevgen.infrastructure.cache", "numpy")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
         "symbolic layers load when a carriage first needs them",
@@ -106,7 +112,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "each method imports the stage it runs, as the CLI's commands do (a script that only "
         "simulates loads no SymPy); pandas and python-control only where they are returned",
         ("control", "maglevgen.build", "maglevgen.carriage", "maglevgen.exports.firmware",
-         "maglevgen.codegen.generate",
+         "maglevgen.codegen.generate", "maglevgen.analyses.verdicts",
          "maglevgen.derive.structure", "maglevgen.analyses.envelope", "maglevgen.exports.fmu",
          "maglevgen.analyses.montecarlo", "maglevgen.control.operating",
          "maglevgen.infrastructure.output", "maglevgen.params", "maglevgen.report",

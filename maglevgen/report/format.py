@@ -26,6 +26,7 @@ __all__ = [
     "tex_key",
     "tex_prose",
     "tex_unit",
+    "tex_verdict",
 ]
 
 # A value below this fraction of its table's largest is round-off of a structural zero: printed
@@ -142,6 +143,19 @@ def tex_escape(text: object) -> str:
         else:
             ascii_ = unicodedata.normalize("NFKD", ch).encode("ascii", "ignore").decode()
             out.append(ascii_ or "?")
+    return "".join(out)
+
+
+def tex_verdict(text: str) -> str:
+    """A verdict line (`maglevgen.analyses.verdicts`: Markdown, code in backticks) typeset so
+    that the PDF's text reads as SUMMARY.md's line without its backticks: code in typewriter,
+    no "--" ligature, a straight quote."""
+    parts = str(text).split("`")
+    out = []
+    for i, part in enumerate(parts):
+        esc = (re.sub("-(?=-)", "-{}", tex_escape(part)).replace("'", r"\textquotesingle{}")
+               .replace(r"\_", r"{\ttfamily\char95}"))  # OT1's \_ is a rule, not a glyph
+        out.append(rf"\texttt{{{esc}}}" if i % 2 else esc)
     return "".join(out)
 
 
