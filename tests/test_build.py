@@ -322,6 +322,7 @@ def test_unchanged_rebuild_regenerates_nothing(good: Path, capsys) -> None:
     assert {p: p.stat().st_mtime_ns for p in good.rglob("*")} == mtimes
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_a_tampered_output_is_rebuilt(fresh_build: Path) -> None:
     out = fresh_build
     ref = tree(out)
@@ -332,6 +333,7 @@ def test_a_tampered_output_is_rebuilt(fresh_build: Path) -> None:
     assert tree(out) == ref
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_parameter_change_rebuilds_without_rederiving_or_recompiling(
         good: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "heavy"
@@ -430,6 +432,7 @@ def _broken(*_a, **_k) -> None:
     raise RuntimeError("simulated failure")
 
 
+@pytest.mark.slow  # a whole build up to the failing stage, four times
 @pytest.mark.parametrize(("module", "stage", "expected"), [
     ("maglevgen.build", "_report_files",
      "maglevgen: internal error: RuntimeError: simulated failure (rerun with --debug)"),

@@ -615,6 +615,7 @@ def test_make_run_installs_tex_where_it_may(tmp_path: Path, monkeypatch, capsys,
         assert not ok and ran == [] and err.count("\n") == 1 and "no apt-get" in err
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_summary_says_why_the_pdf_was_skipped(good: Path, tmp_path: Path, monkeypatch) -> None:
     """--no-pdf, and no TeX on the machine: the summary lists report.tex alone and says why."""
     assert "report/ (report.tex; report.pdf skipped: --no-pdf was given)" in (
