@@ -197,9 +197,7 @@ def cmd_gains(args: argparse.Namespace) -> int:
 
 def cmd_envelope(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
-    _announce("envelope: each controller's closed-loop eigenvalues at "
-              f"{args.speeds or 50} speeds")
-    env = carriage.envelope(args.speeds, args.out or None)
+    env = carriage.envelope(args.speeds, args.out or None, progress=True)
     if args.json:
         print(json.dumps(env.report, indent=1))
         return 0
@@ -216,11 +214,8 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 
 def cmd_roa(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
-    _announce(f"roa: sampling the region of attraction of "
-              f"{args.controller or carriage.params.envelope.embedded_controller} at "
-              f"{args.speeds or 8} speeds, {args.samples or 3000} directions each")
     res = carriage.roa(args.speeds, args.controller, args.samples, args.seed, args.workers,
-                       args.batch, args.out)
+                       args.batch, args.out, progress=True)
     if args.json:
         print(json.dumps(res.report, indent=1))
         return 0
@@ -300,8 +295,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
-    _announce(f"montecarlo: {args.samples} samples over [tolerances], the compiled library "
-              "and the study first")
     res = carriage.montecarlo(args.samples, args.seed, args.controller, args.t_end,
                                      args.dt, args.workers, args.scheduler, args.out or None,
                                      args.loop, progress=True)
