@@ -656,7 +656,11 @@ class Carriage:
         >>> bool(launch.x[4] < trim.x[4] and launch.propulsion_force > trim.propulsion_force)
         True
         """
+        from maglevgen.params import check_option
+
         v = self._speed(speed)
+        check_option("--acceleration", acceleration, -MAX_ACCELERATION, MAX_ACCELERATION,
+                     "m/s^2", "braking or launching at up to 100 g")
         rep = _commands().trim_report(self._carriage, v, acceleration=float(acceleration))
         arrays = rep["arrays"]
         names = tuple(arrays)
@@ -893,7 +897,7 @@ class Carriage:
         import control
 
         coords = dict(zip(cv.Q_STATES, AXES, strict=True))
-        name = coords.get(axis, axis)
+        name = coords.get(axis, axis) if isinstance(axis, str) else None
         if name not in AXES:
             raise InputError(f"axis {axis!r}: expected one of {', '.join(AXES)} "
                              f"(or {', '.join(cv.Q_STATES)})")
@@ -1691,6 +1695,8 @@ def _check_run_options(t_end: float, dt: float) -> None:
 
 #: the most worker processes or threads a study starts (more is a typo, not a machine)
 MAX_WORKERS = 1024
+#: the largest |acceleration| of an accelerating trim (envelope.launch_acceleration's bound)
+MAX_ACCELERATION = 1e3
 _MAX_PATH = 4096  # PATH_MAX
 _MAX_SEED = 2**128 - 1  # numpy's SeedSequence's entropy: any non-negative int; bounded here
 
@@ -1770,6 +1776,10 @@ def _disturbance(given: Mapping[str, float] | Sequence[str] | None) -> dict[str,
         return None
     if isinstance(given, str):  # one "STATE=VALUE" would iterate by character
         given = (given,)
+    if not isinstance(given, Mapping) and not (
+            isinstance(given, Sequence) and all(isinstance(i, str) for i in given)):
+        raise InputError(f"--disturbance {_shown(given)}: expected STATE=VALUE strings or a "
+                         "mapping state -> value")
     items = ([(f"{k}={v}", k, v) for k, v in given.items()] if isinstance(given, Mapping)
              else [(item, *item.partition("=")[::2]) for item in given])
     out = {}

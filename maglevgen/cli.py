@@ -169,8 +169,10 @@ def cmd_gains(args: argparse.Namespace) -> int:
           "or kg m^2;\n   K2 in N s/m or N m s/rad; the last column: each gain's largest "
           "relative error against the 50-digit reference)")
     c = rep["coupled"]
+    cost = {k: "unbounded (unstable)" if c[k] is None else f"{c[k]:.6g}"
+            for k in ("cost_per_axis_design", "cost_coupled_lqr")}
     print(f"\nOn the coupled 10-state linearisation: cost of the per-axis design "
-          f"{c['cost_per_axis_design']:.6g}, of the coupled LQR {c['cost_coupled_lqr']:.6g}; "
+          f"{cost['cost_per_axis_design']}, of the coupled LQR {cost['cost_coupled_lqr']}; "
           f"slowest poles {max(p[0] for p in c['poles_per_axis_design']):.4g} and "
           f"{max(p[0] for p in c['poles_coupled_lqr']):.4g} 1/s")
     print("The paper's eq 31-32 gain (K1 = (k^2 + 1)^(1/2) - 1) is not the LQR gain: its P does "

@@ -10,6 +10,7 @@ any work (no library, no computation): the expected option names and ranges are 
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -61,6 +62,12 @@ API_CASES = [
     ("trim", {"speed": "x"}, "--speed"),  # TypeError from math.isfinite
     ("trim", {"speed": 10**400}, "--speed"),  # OverflowError: int too large for a float
     ("gains", {"speed": [1.0]}, "--speed"),
+    ("trim", {"acceleration": "x"}, "--acceleration"),  # ValueError from float()
+    ("trim", {"acceleration": 10**400}, "--acceleration"),  # OverflowError
+    ("trim", {"acceleration": math.inf}, "--acceleration"),
+    ("axis_plant", {"axis": []}, "axis"),  # TypeError: unhashable type
+    ("simulate", {"disturbance": 2.5}, "--disturbance"),  # TypeError: not iterable
+    ("simulate", {"disturbance": b"x"}, "--disturbance"),  # AttributeError: partition
     ("envelope", {"n_speeds": 0}, "--speeds"),  # ran with the default 50 speeds
     ("envelope", {"n_speeds": 2.5}, "--speeds"),  # TypeError from numpy's linspace
     ("envelope", {"out": 1}, "--out"),  # TypeError from pathlib
@@ -101,3 +108,18 @@ def test_a_bad_api_argument_is_an_input_error_naming_it(
     assert message.startswith(option + " "), message
     assert "\n" not in message
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.txt"]
+
+
+def test_an_unbounded_cost_is_null_in_the_gains_json() -> None:
+    """vehicle.length = 0.001 m (the bottom of its range; found by the fuzzer's part (b)): the
+    per-axis design is unstable on the coupled linearisation, and its LQR cost, infinite,
+    reached `gains --json` as `Infinity`, which JSON (RFC 8259) does not have. Now null,
+    exactly where the design's poles reported beside it do not all decay."""
+    rep = maglevgen.load(overrides=["vehicle.length=0.001"]).gains_report()
+    json.dumps(rep, allow_nan=False)  # raises on a non-finite number
+    c = rep["coupled"]
+    for cost, poles in (("cost_per_axis_design", "poles_per_axis_design"),
+                        ("cost_coupled_lqr", "poles_coupled_lqr")):
+        unstable = max(p[0] for p in c[poles]) >= 0
+        assert (c[cost] is None) == unstable, (cost, c[cost], c[poles])
+    assert c["cost_per_axis_design"] is None  # the case found
