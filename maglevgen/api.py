@@ -1406,6 +1406,9 @@ class Carriage:
         from maglevgen.codegen.generate import GenerateOptions, render, write_output
 
         out = _path("--out", out)
+        for option, value in (("--precision", precision), ("--parameters", parameters),
+                              ("--int", int_type)):
+            _choice_text(option, value)
         opts = GenerateOptions(precision, parameters, int_type,
                                _flag("--single-file", single_file))  # checks them
         speeds = None
@@ -1595,6 +1598,8 @@ class Carriage:
 
         out = _path("--out", out)
         _flag("--allow-unstable", allow_unstable)
+        for option, value in (("--kind", kind), ("--fmi", fmi), ("--loop", loop)):
+            _choice_text(option, value)
         embedded = self.params.envelope.embedded_controller
         controller = controller or embedded
         if controller == embedded:  # verified before anything is written (after the options)
@@ -1662,6 +1667,7 @@ class Carriage:
         from maglevgen.build import BuildOptions, build_folder
 
         out = _path("--out", out)
+        _check_run_options(t_end, dt)  # their types too, before the options' JSON
         opts = BuildOptions(t_end=t_end, dt=dt, pdf=_flag("--no-pdf", pdf),
                             allow_unstable=_flag("--allow-unstable", allow_unstable))
         res = build_folder(self._source, self._overrides, Path(out), opts, controller,
@@ -1736,6 +1742,14 @@ def _path(option: str, value: object) -> Path:
     if bad is not None:
         raise InputError(f"{option} {_shown(value)}: the path {bad}")
     return Path(text)
+
+
+def _choice_text(option: str, value: object) -> None:
+    """A choice argument is a string (its own check then names the choices): a list or a
+    dict gave "unhashable type" from the table it is looked up in."""
+    if not isinstance(value, str):
+        raise InputError(f"{option} {_shown(value)}: expected a string naming one of its "
+                         "choices")
 
 
 def _flag(option: str, value: object) -> bool:

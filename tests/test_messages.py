@@ -90,6 +90,9 @@ API_CASES = [
     ("fmu", {"out": "o", "allow_unstable": "yes"}, "--allow-unstable"),
     ("build", {"out": "a\nb"}, "--out"),  # a newline in a folder's name
     ("build", {"out": "o", "pdf": "false"}, "--no-pdf"),  # "false" is true
+    ("generate", {"out": "o", "int_type": []}, "--int"),  # TypeError: unhashable type
+    ("fmu", {"out": "o", "fmi": {}}, "--fmi"),  # TypeError: unhashable type
+    ("build", {"out": "o", "t_end": 1j}, "--t-end"),  # TypeError from json.dumps
 ]
 
 
@@ -123,3 +126,12 @@ def test_an_unbounded_cost_is_null_in_the_gains_json() -> None:
         unstable = max(p[0] for p in c[poles]) >= 0
         assert (c[cost] is None) == unstable, (cost, c[cost], c[poles])
     assert c["cost_per_axis_design"] is None  # the case found
+
+
+def test_an_array_out_of_reach_leaves_the_gains_json_finite() -> None:
+    """arrays.1.position = [-1000, -1000, -1000] m (the corner of its range; the fuzzer's part
+    (b)): the array has no lift and no drag, and the speed mode's fixed-gap drag slope was
+    0/0 = NaN in `gains --json`. JSON (RFC 8259) has no NaN: every number finite."""
+    rep = maglevgen.load(overrides=["arrays.1.position=[-1000.0, -1000.0, -1000.0]"]
+                         ).gains_report()
+    json.dumps(rep, allow_nan=False)  # raises on a non-finite number
