@@ -1598,10 +1598,18 @@ class Carriage:
 
         out = _path("--out", out)
         _flag("--allow-unstable", allow_unstable)
-        for option, value in (("--kind", kind), ("--fmi", fmi), ("--loop", loop)):
+        from maglevgen.exports.fmu import FMI_VERSIONS, FMU_LOOPS, KINDS
+
+        # every choice before the verification (minutes) that the embedded controller gets
+        for option, value, choices in (("--kind", kind, KINDS), ("--fmi", fmi, FMI_VERSIONS),
+                                       ("--loop", loop, FMU_LOOPS)):
             _choice_text(option, value)
+            if value not in choices:
+                raise InputError(f"{option} {value!r}: expected one of {', '.join(choices)}")
         embedded = self.params.envelope.embedded_controller
-        controller = controller or embedded
+        controller = embedded if controller is None else controller
+        if controller != "external":
+            _check_controller(controller)
         if controller == embedded:  # verified before anything is written (after the options)
             def verdict() -> str:
                 return self._verified(allow_unstable, progress).text()
@@ -1668,6 +1676,11 @@ class Carriage:
 
         out = _path("--out", out)
         _check_run_options(t_end, dt)  # their types too, before the options' JSON
+        if controller is not None and (not isinstance(controller, str) or not controller):
+            # (a name is checked by the schema, as envelope.embedded_controller)
+            raise InputError(f"--controller {_shown(controller)}: expected one of "
+                             f"{', '.join(control.embeddable())} (a controller the firmware "
+                             "can embed)")
         opts = BuildOptions(t_end=t_end, dt=dt, pdf=_flag("--no-pdf", pdf),
                             allow_unstable=_flag("--allow-unstable", allow_unstable))
         res = build_folder(self._source, self._overrides, Path(out), opts, controller,

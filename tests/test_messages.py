@@ -92,6 +92,9 @@ API_CASES = [
     ("build", {"out": "o", "pdf": "false"}, "--no-pdf"),  # "false" is true
     ("generate", {"out": "o", "int_type": []}, "--int"),  # TypeError: unhashable type
     ("fmu", {"out": "o", "fmi": {}}, "--fmi"),  # TypeError: unhashable type
+    ("fmu", {"out": "o", "kind": "x"}, "--kind"),  # after the verification's minutes
+    ("fmu", {"out": "o", "controller": ""}, "--controller"),  # the embedded one, verified
+    ("build", {"out": "o", "controller": 0}, "--controller"),  # the default, built
     ("build", {"out": "o", "t_end": 1j}, "--t-end"),  # TypeError from json.dumps
 ]
 
