@@ -1742,16 +1742,18 @@ def _check_loop(loop: str) -> None:
 
 
 def _path(option: str, value: object) -> Path:
-    """A folder or file argument (``--out``, ``--simulation``) as a Path: a str or path-like
-    that is a user text (no control character, NUL included; bounded), or an InputError
-    naming the option (a number or None gave a TypeError from pathlib)."""
+    """A folder or file argument (``--out``, ``--simulation``) as a Path: a non-empty str or
+    path-like without NUL, at most PATH_MAX long, or an InputError naming the option (a
+    number or None gave a TypeError from pathlib, a NUL a ValueError)."""
     from maglevgen.infrastructure.text import check_text
 
     text = os.fspath(value) if isinstance(value, (str, os.PathLike)) else None
     if not isinstance(text, str) or not text:
         raise InputError(f"{option} {_shown(value)}: expected a folder's path (a non-empty "
                          "str or pathlib.Path)")
-    bad = check_text(text, _MAX_PATH)
+    # a NUL no file name can hold (the OS's ValueError); other characters are the user's to
+    # choose: a folder's name is shown escaped (shown_name), not refused
+    bad = check_text(text, _MAX_PATH) if "\0" in text or len(text) > _MAX_PATH else None
     if bad is not None:
         raise InputError(f"{option} {_shown(value)}: the path {bad}")
     return Path(text)

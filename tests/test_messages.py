@@ -88,7 +88,7 @@ API_CASES = [
     ("report", {"out": "o", "simulation": 0}, "--simulation"),  # 0 read as no simulation
     ("fmu", {"out": 3.5}, "--out"),
     ("fmu", {"out": "o", "allow_unstable": "yes"}, "--allow-unstable"),
-    ("build", {"out": "a\nb"}, "--out"),  # a newline in a folder's name
+    ("build", {"out": "a\0b"}, "--out"),  # ValueError: embedded null byte
     ("build", {"out": "o", "pdf": "false"}, "--no-pdf"),  # "false" is true
     ("generate", {"out": "o", "int_type": []}, "--int"),  # TypeError: unhashable type
     ("fmu", {"out": "o", "fmi": {}}, "--fmi"),  # TypeError: unhashable type
