@@ -245,7 +245,7 @@ def test_the_pdf_date_is_the_builds_without_source_date_epoch(monkeypatch) -> No
     import time
 
     monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)
-    assert abs(int(latex.source_date_epoch()) - time.time()) < 5
+    assert abs(int(latex.source_date_epoch()) - time.time()) < 120  # a loaded machine's slack
     monkeypatch.setenv("SOURCE_DATE_EPOCH", "1234567890")
     assert latex.source_date_epoch() == "1234567890"
 

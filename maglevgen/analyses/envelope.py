@@ -58,6 +58,7 @@ from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
 __all__ = [
     "DEFAULT_SPEEDS",
+    "MAX_SPEEDS",
     "MODEL_CHOICES",
     "ControllerEnvelope",
     "Envelope",
@@ -710,6 +711,10 @@ def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
     return tuple(out)
 
 
+#: the most speeds of an envelope (`maglevgen envelope --speeds`)
+MAX_SPEEDS = 100_000
+
+
 def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_SPEEDS,
                      controllers: Sequence[str] = CONTROLLERS,
                      other_models: bool = True) -> Envelope:
@@ -717,8 +722,8 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     continuous linearisation and, against ``[control.spec]``, on the sampled-data loop;
     ``other_models``: the embedded controller's gains also on each alternate model
     (`model_checks`)."""
-    if not 2 <= n_speeds <= 100_000:
-        raise InputError(f"--speeds {n_speeds}: expected 2 to 100000 speeds")
+    if not 2 <= n_speeds <= MAX_SPEEDS:
+        raise InputError(f"--speeds {n_speeds}: expected 2 to {MAX_SPEEDS} speeds")
     v_min, v_max = resolve_range(carriage, lib)
     speeds = np.linspace(v_min, v_max, n_speeds)
     points = envelope_points(carriage, lib, speeds)

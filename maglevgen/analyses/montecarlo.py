@@ -924,10 +924,10 @@ def default_workers() -> int:
         os.cpu_count() or 1)
 
 
-__all__ = ["CONTROLLERS", "ChunkFailedError", "Result", "Study", "aggregate", "check_scheduler",
-           "concat", "contact_cause", "dask_client", "default_chunk", "default_workers",
-           "design_text", "input_label", "make_study", "markdown", "nominal_design",
-           "output_files", "plots", "region_multiple",
+__all__ = ["CONTROLLERS", "MAX_SAMPLES", "ChunkFailedError", "Result", "Study", "aggregate",
+           "check_scheduler", "concat", "contact_cause", "dask_client", "default_chunk",
+           "default_workers", "design_text", "input_label", "make_study", "markdown",
+           "nominal_design", "output_files", "plots", "region_multiple",
            "run_chunk",
            "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study", "sample_inputs",
            "sample_parameters", "study_regions", "summary_json", "table", "table_files", "wilson"]
@@ -940,5 +940,8 @@ def check_scheduler(scheduler: str | None) -> None:
 
     if scheduler is None or scheduler == "local":
         return
-    if not re.fullmatch(r"(tcp|tls)://[A-Za-z0-9_.\-\[\]:]+:\d{1,5}", scheduler):
-        raise InputError(f"--scheduler {scheduler!r}: expected 'local' or tcp://HOST:PORT")
+    m = (re.fullmatch(r"(tcp|tls)://[A-Za-z0-9_.\-\[\]:]+:(\d{1,5})", scheduler)
+         if isinstance(scheduler, str) else None)
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise InputError(f"--scheduler {scheduler!r}: expected 'local' or tcp://HOST:PORT "
+                         "(a port from 1 to 65535)")
