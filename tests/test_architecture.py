@@ -115,7 +115,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.codegen.generate", "maglevgen.analyses.verdicts",
          "maglevgen.derive.structure", "maglevgen.analyses.envelope", "maglevgen.exports.fmu",
          "maglevgen.analyses.montecarlo", "maglevgen.control.operating",
-         "maglevgen.infrastructure.output", "maglevgen.params", "maglevgen.report",
+         "maglevgen.infrastructure.output", "maglevgen.infrastructure.text",
+         "maglevgen.params", "maglevgen.report",
          "maglevgen.analyses.roa", "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
          "maglevgen.analyses.queries", "pandas")),
     "maglevgen.analyses.montecarlo": (

@@ -558,6 +558,7 @@ def test_concurrent_builds_into_one_folder_end_consistent(tmp_path: Path, good: 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shared"]
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_interrupted_build_leaves_the_previous_output(good: Path, monkeypatch) -> None:
     before, names = tree(good), siblings(good)
     from maglevgen.infrastructure import output

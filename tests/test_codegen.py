@@ -371,6 +371,7 @@ def test_example_builds_with_cmake_and_runs(baked: dict[str, Path], tmp_path: Pa
     assert abs(values[2]) < 0.01  # the trim's heave, near the nominal gap
 
 
+@pytest.mark.slow  # the library compiled under ASan/UBSan
 @pytest.mark.needs_cc("gcc")
 def test_sanitizers_on_random_inputs(baked: dict[str, Path], tmp_path: Path) -> None:
     """ASan + UBSan on a driver that calls every function with random inputs."""

@@ -459,8 +459,8 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
                     f"-I{src}", "-c", str(QEMU_STARTUP), str(m4 / "m4main.c")],
                    cwd=src, check=True)
     subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
-                    "-Wl,--gc-sections", "startup.o", "m4main.o", *objs, "-lm", "-lc",
-                    "-o", "m4.elf"], cwd=src, check=True)
+                    "-Wl,--gc-sections", f"{QEMU_STARTUP.stem}.o", "m4main.o", *objs, "-lm",
+                    "-lc", "-o", "m4.elf"], cwd=src, check=True)
     run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
                           "-kernel", "m4.elf"], cwd=src, capture_output=True, text=True,
                          timeout=120, check=True)
@@ -474,7 +474,8 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
                     "-fdata-sections", "-c", "maglev.c", "-o", "maglev.o"], cwd=one, check=True)
     assert _external(["arm-none-eabi-nm", str(one / "maglev.o")]) == _declared(one)
     subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
-                    "-Wl,--gc-sections", "startup.o", "m4main.o", str(one / "maglev.o"),
+                    "-Wl,--gc-sections", f"{QEMU_STARTUP.stem}.o", "m4main.o",
+                    str(one / "maglev.o"),
                     "maglev_gain_table.o", "-lm", "-lc", "-o", "m4_single.elf"], cwd=src,
                    check=True)
     run_one = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic",
@@ -525,6 +526,7 @@ def _external(nm: list[str]) -> set[str]:
     return {ln.split()[-1] for ln in out.splitlines() if re.match(r"^[0-9a-f]+ [TDRBC] ", ln)}
 
 
+@pytest.mark.slow  # two firmware builds compiled in full
 @pytest.mark.needs_cc
 def test_single_file_is_the_two_file_build(carriage: DerivedCarriage, tmp_path: Path) -> None:
     """`generate --single-file`: one translation unit, maglev.c, that compiles warning-free
@@ -585,6 +587,7 @@ def test_single_file_is_the_two_file_build(carriage: DerivedCarriage, tmp_path: 
                                   np.concatenate(trajectories[1][2]))
 
 
+@pytest.mark.slow  # a cross-compiled build of its own
 @pytest.mark.needs_arm("arm-none-eabi-objdump", "arm-none-eabi-nm")
 def test_m4_square_root_is_the_fpu_instruction(carriage: DerivedCarriage, tmp_path: Path,
                                                rendered) -> None:
@@ -687,6 +690,7 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Derive
 # ------------------------------------------------------------------------------ --int int32
 
 
+@pytest.mark.slow  # two builds compiled in full
 @pytest.mark.needs_cc
 def test_int32_build_gives_the_int64_results(carriage: DerivedCarriage, tmp_path: Path,
                                              rendered) -> None:
@@ -916,7 +920,8 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
                     "-fno-math-errno", *defines, "-I.", "-c", str(QEMU_STARTUP),
                     str(m4 / "closed_loop.c")], cwd=out, check=True)
     subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
-                    "-Wl,--gc-sections", "startup.o", "closed_loop.o", *objs, "-lm", "-lc",
+                    "-Wl,--gc-sections", f"{QEMU_STARTUP.stem}.o", "closed_loop.o", *objs, "-lm",
+                    "-lc",
                     "-o", "loop.elf"], cwd=out, check=True)
     run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
                           "-kernel", "loop.elf"], cwd=out, capture_output=True, text=True,

@@ -77,6 +77,7 @@ def _run(sim_lib, carriage: DerivedCarriage, op, controller: str, t_end: float, 
 # ------------------------------------------------------------------ accuracy of the C RK4
 
 
+@pytest.mark.slow  # runs at four steps against solve_ivp, per controller
 @pytest.mark.parametrize("controller", ["none", "damping", "lqr"])
 def test_rk4_error_against_adaptive_reference_shrinks_as_dt4(sim_lib, carriage, op,
                                                              controller) -> None:

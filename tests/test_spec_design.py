@@ -184,6 +184,7 @@ def test_spec_design_meets_the_spec_and_the_paper_designs_fail_it(envelope, carr
                                                         "model.circuit_dynamics = quasi-static"}
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_build_exits_3_naming_the_spec_the_embedded_design_fails(tmp_path) -> None:
     """A 20 Hz controller with one tick of delay cannot hold the levitation modes (40-60
     rad/s): the spec design fails, build writes its outputs and exits 3 naming the spec and
