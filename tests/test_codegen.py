@@ -45,6 +45,7 @@ def _ext(runtime_lib: tuple[str, Path], name: str):
     return lambda *a: [o.squeeze() if o.size == 1 else o for o in fn(*a)]
 
 
+@pytest.mark.slow  # every function compiled as a CasADi external
 @pytest.mark.needs_cc
 def test_casadi_external_loads_every_function(carriage: DerivedCarriage, tmp_path: Path,
                                               rendered) -> None:

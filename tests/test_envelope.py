@@ -392,6 +392,7 @@ def test_build_exits_3_when_the_embedded_controller_is_unstable(tmp_path) -> Non
     assert again.returncode == 0 and "warning" in again.stderr
 
 
+@pytest.mark.slow  # the schedule table compiled and evaluated across the envelope
 def test_embedded_schedule_table_compiles_and_evaluates(carriage, sim_lib, tmp_path) -> None:
     """c/maglev_schedule.c (static const tables) compiled with the runtime C: the firmware's
     maglev_schedule_eval(&maglev_embedded_schedule, v) equals scipy's spline of the nodes."""

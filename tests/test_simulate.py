@@ -374,6 +374,7 @@ def test_cli_bad_step_exits_2_with_one_line(tmp_path: Path, sim_lib) -> None:
     assert not out.exists()
 
 
+@pytest.mark.slow  # runs against solve_ivp
 def test_reference_check_reports_small_deviation_and_catches_a_wrong_run(sim_lib, carriage,
                                                                          op) -> None:
     from maglevgen.analyses.simulate import reference_check
