@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: setup run test lint docs bench clean mutation planted-faults
+.PHONY: setup run test test-slow lint docs example-outputs bench clean mutation planted-faults
 
 # pip's own lines (Collecting ..., Installing ...) say what it fetches: a first install takes
 # 1-3 minutes, and a silent one looks hung
@@ -29,9 +29,15 @@ run: setup
 # TEST_WORKERS=2 matches CI's 2 cores; `make test TEST_WORKERS=0` runs in one process.
 TEST_WORKERS ?= 2
 
+# `make test` leaves out the tests marked `slow` (each over about 10 s alone: the full-length
+# runs, the cold and concurrent builds, the QEMU and MISRA passes) so that it stays under 15
+# minutes on 2 cores; `make test-slow` runs those. CI (.ci/run) runs both.
 test: setup
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow"
+
+test-slow: setup
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m slow
 
 lint: setup
 	$(BIN)/ruff check .
@@ -40,6 +46,11 @@ lint: setup
 # builds the same in the suite.
 docs: setup
 	$(BIN)/python -m sphinx -W --keep-going -b html docs docs/_build/html
+
+# The example scripts' outputs the site shows (docs/_examples/): each script of examples/ run
+# as a user runs it (a few minutes); tests/test_examples.py fails when they are not current.
+example-outputs: setup
+	$(BIN)/python docs/_ext/example_outputs.py
 
 # Benchmarks against the usual alternatives (a few minutes): writes BENCHMARKS.md and
 # bench/results.json.

@@ -5,7 +5,8 @@ parser (sphinx-argparse over maglevgen.cli.build_parser), the API reference from
 docstrings (autodoc), the parameter reference from the schema (maglevgen.params.schema_table,
 through the ``maglev-parameters`` directive of _ext/maglevdocs.py), the guides from
 docs/_guides/*.md and BENCHMARKS.md/TESTING.md (myst-parser, included) and the examples
-from examples/ (the notebook executed at build time).
+from examples/ (the notebook executed at build time; the scripts' outputs stored in
+docs/_examples/ by `make example-outputs` and checked current by tests/test_examples.py).
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ extensions = [
     "maglevdocs",
 ]
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
-exclude_patterns = ["_build", "_guides"]  # _guides: included by the pages
+# _guides: included by the pages; _examples: the examples' stored outputs (maglev-examples)
+exclude_patterns = ["_build", "_guides", "_examples"]
 root_doc = "index"
 
 # numpydoc: the docstrings' sections; no autosummary stubs (one page lists the whole API)

@@ -23,7 +23,7 @@ out = Path(sys.argv[1] if len(sys.argv) > 1 else "example_output/fmu_fmpy")
 carriage = maglevgen.load()
 path = carriage.fmu(out, kind="cs", controller="lqr")
 md = read_model_description(str(path))
-print(f"{path}: FMI {md.fmiVersion}, {len(md.modelVariables)} variables")
+print(f"{out / path.name}: FMI {md.fmiVersion}, {len(md.modelVariables)} variables")
 
 fmu = simulate_fmu(str(path), fmi_type="CoSimulation", stop_time=2.0, output_interval=1e-3,
                    output=["z", "phi"])

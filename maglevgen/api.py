@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -542,10 +543,8 @@ class Carriage:
     def __init__(self, params: str | Path | None = None, overrides: Sequence[str] = ()) -> None:
         from maglevgen.params import load_params
 
-        if isinstance(overrides, str):  # one "NAME=VALUE" would iterate by character
-            overrides = (overrides,)
-        self._source, self._overrides = params, tuple(overrides)  # what `build` rereads
-        self._loaded = load_params(params, self._overrides)
+        self._loaded = load_params(params, overrides)  # checks both arguments' types too
+        self._source, self._overrides = params, self._loaded.overrides  # what `build` rereads
 
     def __repr__(self) -> str:
         loaded = self._loaded
@@ -656,7 +655,11 @@ class Carriage:
         >>> bool(launch.x[4] < trim.x[4] and launch.propulsion_force > trim.propulsion_force)
         True
         """
+        from maglevgen.params import check_option
+
         v = self._speed(speed)
+        check_option("--acceleration", acceleration, -MAX_ACCELERATION, MAX_ACCELERATION,
+                     "m/s^2", "braking or launching at up to 100 g")
         rep = _commands().trim_report(self._carriage, v, acceleration=float(acceleration))
         arrays = rep["arrays"]
         names = tuple(arrays)
@@ -893,7 +896,7 @@ class Carriage:
         import control
 
         coords = dict(zip(cv.Q_STATES, AXES, strict=True))
-        name = coords.get(axis, axis)
+        name = coords.get(axis, axis) if isinstance(axis, str) else None
         if name not in AXES:
             raise InputError(f"axis {axis!r}: expected one of {', '.join(AXES)} "
                              f"(or {', '.join(cv.Q_STATES)})")
@@ -1039,7 +1042,8 @@ class Carriage:
 
         if controller != "all":
             _check_controller(controller)
-        if check and loop != "continuous":
+        out = None if out is None else _path("--out", out)
+        if _flag("--check", check) and loop != "continuous":
             raise InputError("--check: the DOP853 reference integrates the continuous "
                              "control law; add --loop continuous")
         if speed is not None:
@@ -1083,8 +1087,8 @@ class Carriage:
             scenario=run.scenario, speed=run.op.speed, propulsion_force=run.op.f_prop,
             release_speed=run.v_end, dt_limit=run.dt_limit, warning=run.warning, paths=paths)
 
-    def envelope(self, n_speeds: int | None = None,
-                 out: str | Path | None = None) -> EnvelopeResult:
+    def envelope(self, n_speeds: int | None = None, out: str | Path | None = None,
+                 progress: bool = False) -> EnvelopeResult:
         """Each controller's closed-loop stability across [v_min, v_max], with verdicts.
 
         The eigenvalues of the ten-state linearisation (`linearize` with
@@ -1097,6 +1101,8 @@ class Carriage:
             Speeds spanning the envelope (``--speeds``; default 50).
         out : str or pathlib.Path, optional
             Also write envelope.json, envelope.md and stability_map.png there (``--out``).
+        progress : bool, optional
+            Announce the computation on stderr once the arguments are checked.
 
         Returns
         -------
@@ -1118,11 +1124,20 @@ class Carriage:
         >>> env.verdicts["coupled"][:6]
         'stable'
         """
+        from maglevgen.analyses.envelope import DEFAULT_SPEEDS, MAX_SPEEDS
+        from maglevgen.params import check_count
+
         queries = _commands()
+        out = None if out is None else _path("--out", out)
+        if n_speeds is not None:  # 0 is refused, not the default
+            check_count("--speeds", n_speeds, 2, MAX_SPEEDS, "speeds spanning the envelope")
         if out is not None:
             from maglevgen.infrastructure.output import check_writable
 
             check_writable(Path(out))  # before any work: a folder of the user's is refused
+        if progress:  # once the arguments are checked: a bad one stays the only line
+            steps.announce("envelope: each controller's closed-loop eigenvalues at "
+                           f"{n_speeds or DEFAULT_SPEEDS} speeds")
         env = queries.envelope_of(self._carriage, n_speeds)
         rep = env.to_json()
         paths: tuple[Path, ...] = ()
@@ -1148,14 +1163,17 @@ class Carriage:
     def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
                    t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
                    scheduler: str | None = None, out: str | Path | None = None,
-                   loop: str = "firmware", progress: bool = False) -> MonteCarloResult:
+                   loop: str = "firmware", progress: bool = False,
+                   redesign: bool = False) -> MonteCarloResult:
         """Monte-Carlo robustness over the parameter file's ``[tolerances]``, as
         ``maglevgen montecarlo``.
 
         Each sample draws the toleranced parameters, a speed and an initial disturbance from
         its own ``numpy.random.SeedSequence(seed, spawn_key=(i,))``, so the results do not
-        depend on the worker count; the compiled C trims (eqs 1-4, 8-12), computes the gains
-        (eqs 20-33) and runs the closed loop (RK4) of every controller asked for.
+        depend on the worker count; the compiled C trims the sample (eqs 1-4, 8-12) and runs
+        the closed loop (RK4) of every controller asked for, designed (eqs 20-33) on the
+        nominal carriage at the sample's speed, as the firmware flies (``redesign``: on the
+        sample's own parameters instead).
 
         Parameters
         ----------
@@ -1180,8 +1198,11 @@ class Carriage:
         loop : {'firmware', 'continuous'}, optional
             How every run executes its controller (``--loop``; see `simulate`).
         progress : bool, optional
-            Announce the slow steps on stderr, and the runs' rate (a progress bar on a
-            terminal).
+            Announce the study once the arguments are checked, the slow steps on stderr,
+            and the runs' rate (a progress bar on a terminal).
+        redesign : bool, optional
+            Re-design each sample's controller for its own parameters, as if the firmware
+            knew them (``--redesign``; default False: the nominal design, as flown).
 
         Returns
         -------
@@ -1204,6 +1225,7 @@ class Carriage:
         ['spec']
         """
         from maglevgen.analyses.montecarlo import (
+            MAX_SAMPLES,
             check_scheduler,
             default_workers,
             make_study,
@@ -1212,24 +1234,29 @@ class Carriage:
         )
         from maglevgen.analyses.simulate import run_loop
         from maglevgen.infrastructure.output import check_writable, write_output
+        from maglevgen.params import check_count
 
-        choice = controller or self.params.envelope.embedded_controller
-        if choice != "all":
-            _check_controller(choice)
-        if not isinstance(samples, int) or samples <= 0:
-            raise InputError(f"--samples {samples}: expected a positive number of samples")
-        if seed < 0:  # numpy's SeedSequence takes non-negative integers only
-            raise InputError(f"--seed {seed}: expected a non-negative integer")
-        if workers is not None and workers < 1:
-            raise InputError(f"--workers {workers}: expected at least 1")
+        choice = _controller_choice(controller, self.params.envelope.embedded_controller)
+        check_count("--samples", samples, 1, MAX_SAMPLES, "the samples' table is held in "
+                    "memory")
+        check_count("--seed", seed, 0, _MAX_SEED, "numpy's SeedSequence takes non-negative "
+                    "integers")
+        if workers is not None:
+            check_count("--workers", workers, 1, MAX_WORKERS, "a process per worker")
         _check_run_options(t_end, dt)
+        _check_loop(loop)
         check_scheduler(scheduler)
         if out is not None:
-            check_writable(Path(out))
+            out = _path("--out", out)
+            check_writable(out)
+        if progress:  # once the arguments are checked: a bad one stays the only line
+            steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
+                           "library and the study first")
         controllers = controller_names() if choice == "all" else (choice,)
         lib = self._lib
         study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
-                           *run_loop(self._carriage, lib, loop))
+                           *run_loop(self._carriage, lib, loop),
+                           redesign=_flag("--redesign", redesign))
         k = len(controllers)
         if progress:
             with steps.rate_bar("Monte Carlo", samples * k) as tick:
@@ -1244,7 +1271,8 @@ class Carriage:
 
     def roa(self, n_speeds: int | None = None, controller: str | None = None,
             samples: int | None = None, seed: int = 0, workers: int = 1,
-            batch: int | None = None, out: str | Path | None = None) -> RegionResult:
+            batch: int | None = None, out: str | Path | None = None,
+            progress: bool = False) -> RegionResult:
         """A sampled region of attraction per speed, as ``maglevgen roa``.
 
         V = dx' P dx on the ten reduced states (P from the design's Lyapunov / Riccati
@@ -1269,6 +1297,8 @@ class Carriage:
             States per C call (``--batch``); the numbers do not change.
         out : str or pathlib.Path, optional
             Also write roa.json, roa.md and roa_extent.png there (``--out``).
+        progress : bool, optional
+            Announce the sampling on stderr once the arguments are checked.
 
         Returns
         -------
@@ -1289,10 +1319,22 @@ class Carriage:
         """
         from maglevgen.analyses import roa
         from maglevgen.infrastructure.output import check_writable, write_output
+        from maglevgen.params import check_count
 
-        choice = controller or self.params.envelope.embedded_controller
-        if choice != "all":
-            _check_controller(choice)
+        choice = _controller_choice(controller, self.params.envelope.embedded_controller)
+        if n_speeds is not None:
+            check_count("--speeds", n_speeds, 1, roa.MAX_SPEEDS, "speeds spanning the "
+                        "envelope")
+        if samples is not None:
+            check_count("--samples", samples, 1, roa.MAX_DIRECTIONS, "directions per speed, "
+                        "held in memory")
+        if batch is not None:
+            check_count("--batch", batch, 1, roa.MAX_BATCH, "states per C call, held in "
+                        "memory")
+        check_count("--seed", seed, 0, _MAX_SEED, "numpy's SeedSequence takes non-negative "
+                    "integers")
+        check_count("--workers", workers, 1, MAX_WORKERS, "a thread per worker")
+        out = None if out is None else _path("--out", out)
         base = roa.COMMAND_SAMPLING
         sampling = roa.Sampling(directions=base.directions if samples is None else samples,
                                 radii=base.radii, bisections=base.bisections,
@@ -1300,6 +1342,10 @@ class Carriage:
                                 batch=base.batch if batch is None else batch, workers=workers)
         if out is not None:
             check_writable(Path(out))
+        if progress:  # once the arguments are checked: a bad one stays the only line
+            steps.announce(f"roa: sampling the region of attraction of {choice} at "
+                           f"{n_speeds or roa.DEFAULT_SPEEDS} speeds, "
+                           f"{sampling.directions} directions each")
         controllers = controller_names() if choice == "all" else (choice,)
         regions = roa.study(self._carriage, self._lib, controllers,
                             roa.DEFAULT_SPEEDS if n_speeds is None else n_speeds, sampling)
@@ -1361,15 +1407,23 @@ class Carriage:
         >>> "maglev.h" in names and "manifest.json" in names
         True
         """
+        from maglevgen.analyses.verdicts import generate_example
         from maglevgen.codegen.generate import GenerateOptions, render, write_output
 
-        opts = GenerateOptions(precision, parameters, int_type, single_file)  # checks them
+        out = _path("--out", out)
+        for option, value in (("--precision", precision), ("--parameters", parameters),
+                              ("--int", int_type)):
+            _choice_text(option, value)
+        opts = GenerateOptions(precision, parameters, int_type,
+                               _flag("--single-file", single_file))  # checks them
         speeds = None
         if opts.parameters == "baked":  # the trim's accepted speeds baked with the parameters
             from maglevgen.analyses.envelope import speed_range
 
             speeds = speed_range(self._carriage)
-        return list(write_output(render(self._carriage, opts, speeds), Path(out)))
+        # main.c's example: the embedded controller at a speed where it is verified
+        example = generate_example(self._carriage, self._lib)
+        return list(write_output(render(self._carriage, opts, speeds, example), Path(out)))
 
     def firmware(self, out: str | Path, precision: str = "single",
                  with_plant: bool = False, allow_unstable: bool = False) -> list[Path]:
@@ -1418,7 +1472,10 @@ class Carriage:
         from maglevgen.exports.firmware import firmware_files
         from maglevgen.infrastructure.output import check_writable, write_output
 
-        check_writable(Path(out))
+        out = _path("--out", out)
+        _flag("--with-plant", with_plant)
+        _flag("--allow-unstable", allow_unstable)
+        check_writable(out)
         GenerateOptions(precision, "baked")  # an unknown precision: InputError first
         verdict = self._verified(allow_unstable)
         return list(write_output(firmware_files(self._carriage, precision, with_plant,
@@ -1476,7 +1533,9 @@ class Carriage:
         """
         from maglevgen.report import INSTALL_HINT, ReportOptions, write_report
 
-        opts = ReportOptions(simulation=Path(simulation) if simulation else None)
+        out = _path("--out", out)
+        opts = ReportOptions(simulation=None if simulation is None
+                             else _path("--simulation", simulation))
         res = write_report(self._carriage, Path(out), opts,
                            progress=steps.step if progress else _quiet)
         # a note and warnings: lines on stderr with `progress` (the command's), else warnings
@@ -1544,8 +1603,20 @@ class Carriage:
         from maglevgen.exports.fmu import FMU_NAME, build_fmu
         from maglevgen.infrastructure.output import write_output
 
+        out = _path("--out", out)
+        _flag("--allow-unstable", allow_unstable)
+        from maglevgen.exports.fmu import FMI_VERSIONS, FMU_LOOPS, KINDS
+
+        # every choice before the verification (minutes) that the embedded controller gets
+        for option, value, choices in (("--kind", kind, KINDS), ("--fmi", fmi, FMI_VERSIONS),
+                                       ("--loop", loop, FMU_LOOPS)):
+            _choice_text(option, value)
+            if value not in choices:
+                raise InputError(f"{option} {value!r}: expected one of {', '.join(choices)}")
         embedded = self.params.envelope.embedded_controller
-        controller = controller or embedded
+        controller = embedded if controller is None else controller
+        if controller != "external":
+            _check_controller(controller)
         if controller == embedded:  # verified before anything is written (after the options)
             def verdict() -> str:
                 return self._verified(allow_unstable, progress).text()
@@ -1610,7 +1681,15 @@ class Carriage:
         """
         from maglevgen.build import BuildOptions, build_folder
 
-        opts = BuildOptions(t_end=t_end, dt=dt, pdf=pdf, allow_unstable=allow_unstable)
+        out = _path("--out", out)
+        _check_run_options(t_end, dt)  # their types too, before the options' JSON
+        if controller is not None and (not isinstance(controller, str) or not controller):
+            # (a name is checked by the schema, as envelope.embedded_controller)
+            raise InputError(f"--controller {_shown(controller)}: expected one of "
+                             f"{', '.join(control.embeddable())} (a controller the firmware "
+                             "can embed)")
+        opts = BuildOptions(t_end=t_end, dt=dt, pdf=_flag("--no-pdf", pdf),
+                            allow_unstable=_flag("--allow-unstable", allow_unstable))
         res = build_folder(self._source, self._overrides, Path(out), opts, controller,
                            step=steps.step if progress else None,
                            bar=steps.bar if progress else None)
@@ -1640,9 +1719,72 @@ def _check_run_options(t_end: float, dt: float) -> None:
     check_run_options(t_end, dt)
 
 
+#: the most worker processes or threads a study starts (more is a typo, not a machine)
+MAX_WORKERS = 1024
+#: the largest |acceleration| of an accelerating trim (envelope.launch_acceleration's bound)
+MAX_ACCELERATION = 1e3
+_MAX_PATH = 4096  # PATH_MAX
+_MAX_SEED = 2**128 - 1  # numpy's SeedSequence's entropy: any non-negative int; bounded here
+
+
 def _check_controller(controller: str) -> None:
-    if controller not in (known := controller_names()):
-        raise InputError(f"--controller {controller!r}: expected one of {', '.join(known)}")
+    if not isinstance(controller, str) or controller not in (known := controller_names()):
+        raise InputError(f"--controller {_shown(controller)}: expected one of "
+                         f"{', '.join(known)}")
+
+
+def _controller_choice(controller: str | None, embedded: str) -> str:
+    """``--controller`` of a study: a registered name or "all"; None: the embedded one."""
+    choice = embedded if controller is None else controller
+    if choice != "all":
+        _check_controller(choice)
+    return choice
+
+
+def _check_loop(loop: str) -> None:
+    from maglevgen.analyses.simulate import LOOPS
+
+    if not isinstance(loop, str) or loop not in LOOPS:
+        raise InputError(f"--loop {_shown(loop)}: expected one of {', '.join(LOOPS)}")
+
+
+def _path(option: str, value: object) -> Path:
+    """A folder or file argument (``--out``, ``--simulation``) as a Path: a non-empty str or
+    path-like without NUL, at most PATH_MAX long, or an InputError naming the option (a
+    number or None gave a TypeError from pathlib, a NUL a ValueError)."""
+    from maglevgen.infrastructure.text import check_text
+
+    text = os.fspath(value) if isinstance(value, (str, os.PathLike)) else None
+    if not isinstance(text, str) or not text:
+        raise InputError(f"{option} {_shown(value)}: expected a folder's path (a non-empty "
+                         "str or pathlib.Path)")
+    # a NUL no file name can hold (the OS's ValueError); other characters are the user's to
+    # choose: a folder's name is shown escaped (shown_name), not refused
+    bad = check_text(text, _MAX_PATH) if "\0" in text or len(text) > _MAX_PATH else None
+    if bad is not None:
+        raise InputError(f"{option} {_shown(value)}: the path {bad}")
+    return Path(text)
+
+
+def _choice_text(option: str, value: object) -> None:
+    """A choice argument is a string (its own check then names the choices): a list or a
+    dict gave "unhashable type" from the table it is looked up in."""
+    if not isinstance(value, str):
+        raise InputError(f"{option} {_shown(value)}: expected a string naming one of its "
+                         "choices")
+
+
+def _flag(option: str, value: object) -> bool:
+    """A yes/no argument: True or False (a number or a string is a mistake: 'no' is true)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputError(f"{option} {_shown(value)}: expected True or False")
+    return bool(value)
+
+
+def _shown(value: object) -> str:
+    """A bad argument's value in a one-line message: its repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _simulation_result(run: SimulationRun, traj: Trajectory,
@@ -1670,6 +1812,10 @@ def _disturbance(given: Mapping[str, float] | Sequence[str] | None) -> dict[str,
         return None
     if isinstance(given, str):  # one "STATE=VALUE" would iterate by character
         given = (given,)
+    if not isinstance(given, Mapping) and not (
+            isinstance(given, Sequence) and all(isinstance(i, str) for i in given)):
+        raise InputError(f"--disturbance {_shown(given)}: expected STATE=VALUE strings or a "
+                         "mapping state -> value")
     items = ([(f"{k}={v}", k, v) for k, v in given.items()] if isinstance(given, Mapping)
              else [(item, *item.partition("=")[::2]) for item in given])
     out = {}

@@ -20,6 +20,15 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from maglevgen.analyses.verdicts import (
+    EmbeddedVerdict,
+    JudgedRun,
+    embedded_runs,
+    embedded_verdict,
+    embedded_verification,
+    store_verdict,
+    verify_embedded,
+)
 from maglevgen.errors import VerificationError
 from maglevgen.infrastructure import progress
 from maglevgen.infrastructure.cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
@@ -38,7 +47,6 @@ from maglevgen.infrastructure.workers import Job, PendingFiles, Shared, child, s
 from maglevgen.version import __version__
 
 if TYPE_CHECKING:
-    from maglevgen.analyses.run_spec import RunVerdict
     from maglevgen.params import LoadedParams
 
 __all__ = [
@@ -382,10 +390,14 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     step("envelope: stability of each controller across the speed range")
     env = compute_envelope(carriage, lib)
     step("the embedded controller's hold and launch runs against [control.spec]")
-    judged = embedded_runs(carriage, lib, env, run.op.speed, opts)
+    judged = embedded_runs(carriage, lib, env, run.op.speed, opts.t_end, opts.dt)
     step("envelope: the embedded controller's region of attraction (sampled)")
     regions = roa.study(carriage, lib, [carriage.params.envelope.embedded_controller],
                         roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
+    # every check deciding the exit code, once: SUMMARY.md, stdout and the report's first
+    # page print its lines
+    verdict = embedded_verdict(carriage, env, judged, regions[0])
+    store_verdict(carriage, verdict, opts.t_end, opts.dt)
     # One child draws every figure (one matplotlib import for the simulation's and the
     # report's) and writes the trajectories, while this process imports the symbolic layers
     # and builds the report's context. Its jobs in the order they are needed: the simulation
@@ -394,7 +406,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     with child(shared={"trajectories": run.trajectories}) as drawing:
         figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         step("c/: the run-time-parameter C, the interface and the gain table")
-        files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step)))
+        files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step),
+                              lib))
         files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
@@ -413,7 +426,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         report = _report_files(carriage, sim_files, opts, step, report_figures,
                                (env, stability_map["envelope/stability_map.png"]),
                                json.loads(files["c/manifest.json"])["gain_table"], run,
-                               (regions, region_files["roa_extent.png"]))
+                               (regions, region_files["roa_extent.png"]), verdict)
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
         files.update(stability_map)
         files.update({f"envelope/{n}": b for n, b in region_files.items()})
@@ -423,9 +436,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
     summary = summary_text(carriage, run, lib, env, report_outputs(report, opts), regions,
-                           judged)
-    verification = embedded_verification(carriage, env, judged)
-    _store_verdict(carriage, opts, EmbeddedVerdict.of(carriage, env, verification))
+                           judged, verdict)
+    verification = verdict.reason
     if verification is not None:  # the whole reason (`build` exits 3 with its first words)
         summary += f"\nVerification failed (`maglevgen build` exits 3): {verification}.\n"
     files[SUMMARY] = summary
@@ -497,177 +509,17 @@ def _stability_map(env) -> dict[str, bytes]:
     return out
 
 
-@dataclass(frozen=True)
-class JudgedRun:
-    """One run of the embedded controller that `build` judges against ``[control.spec]``."""
-
-    label: str  # "hold run at 40 m/s", "launch run (6.543 to 40 m/s)"
-    verdict: RunVerdict
-    command: str  # the `maglevgen simulate` that repeats it
-
-
-def embedded_runs(carriage, lib, env, speed: float, opts: BuildOptions
-                  ) -> tuple[JudgedRun, ...]:
-    """The embedded controller in the firmware loop, judged against ``[control.spec]``
-    (`maglevgen.analyses.run_spec`): held at envelope.v_min, at ``speed`` (the build's run
-    speed, operation.speed) and at
-    v_max for opts.t_end, and launched from v_min to v_max, the ends and the launch being
-    where the linear verdict's worst cases lie (the gains' ends of the table, the
-    accelerating trim's smallest gaps). Each from every sign combination of the default
-    disturbance, judged on the worst (`maglevgen.analyses.worst_case`)."""
-    from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
-    from maglevgen.analyses.worst_case import sign_combinations, worst_verdict
-
-    name = carriage.params.envelope.embedded_controller
-    combos = sign_combinations(DISTURBANCE)
-
-    def judged(sim) -> RunVerdict:
-        return worst_verdict([(d, spec_verdict(t)) for d, t in
-                              zip(combos, sim.trajectories, strict=True)])
-
-    out = []
-    for v in sorted({env.v_min, env.v_max, speed}):
-        sim = run_scenarios(carriage, (name,), opts.t_end, opts.dt, v, lib=lib,
-                            loop="firmware", disturbances=combos)
-        out.append(JudgedRun(f"hold run at {v:.4g} m/s", judged(sim),
-                             f"maglevgen simulate --controller {name} --speed {v:.4g} "
-                             "--disturbance STATE=VALUE ..."))
-    launched = run_scenarios(carriage, (name,), opts.t_end, opts.dt, lib=lib,
-                             scenario="launch", loop="firmware", disturbances=combos)
-    out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
-                         "m/s)", judged(launched),
-                         f"maglevgen simulate --controller {name} --scenario launch "
-                         "--disturbance STATE=VALUE ..."))
-    return tuple(out)
-
-
-@dataclass(frozen=True)
-class EmbeddedVerdict:
-    """The embedded controller's verdict as `build` decides its exit code (the linear spec on
-    every model checked and the judged runs, `embedded_verification`), for what `firmware`
-    and `fmu` write: the verdict, the spec, the model and the range."""
-
-    controller: str
-    reason: str | None  # why the verification failed (build exits 3), None: verified
-    model: str  # what the spec was checked on (Envelope.checked_on)
-    v_min: float
-    v_max: float
-
-    @classmethod
-    def of(cls, carriage, env, reason: str | None) -> EmbeddedVerdict:
-        return cls(carriage.params.envelope.embedded_controller, reason, env.checked_on(),
-                   float(env.v_min), float(env.v_max))
-
-    @property
-    def verified(self) -> bool:
-        return self.reason is None
-
-    def text(self) -> str:
-        """One line: verified (what, where, on what) or the failure."""
-        if self.reason is not None:
-            return f"NOT VERIFIED: {self.reason}"
-        return (f"verified: the embedded controller {self.controller!r} meets [control.spec] "
-                f"across [{self.v_min:.4g}, {self.v_max:.4g}] m/s, checked {self.model}, and "
-                "in its hold and launch runs in the firmware loop, each judged on the worst "
-                "sign combination of the default disturbance (the check `maglevgen build` "
-                "exits 3 on)")
-
-    def to_json(self) -> dict:
-        return {"verified": self.verified, "verdict": self.text(), "controller": self.controller,
-                "spec": "[control.spec]", "model": self.model,
-                "range_m_per_s": [self.v_min, self.v_max]}
-
-
-def _verdict_path(carriage, opts: BuildOptions) -> Path:
-    """Where a build leaves its verdict for `firmware` and `fmu` (the cache: keyed by the
-    parameters, the overrides, the toolchain and the runs' t_end and dt)."""
-    from maglevgen.infrastructure.cache import default_cache_dir
-
-    loaded = carriage.loaded
-    key = (ContentHash().text("params", loaded.sha256)
-           .text("overrides", "\0".join(loaded.overrides))
-           .text("toolchain", toolchain_fingerprint())
-           .text("runs", f"{opts.t_end!r} {opts.dt!r}").hexdigest())
-    return default_cache_dir() / "verdicts" / f"{key}.json"
-
-
-def _store_verdict(carriage, opts: BuildOptions, verdict: EmbeddedVerdict) -> None:
-    """Keep ``verdict`` for a later `firmware` or `fmu` (best effort: a cache)."""
-    from maglevgen.infrastructure.cache import write_atomic
-
-    path = _verdict_path(carriage, opts)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return
-    write_atomic(path, json.dumps({"controller": verdict.controller, "reason": verdict.reason,
-                                   "model": verdict.model, "v_min": verdict.v_min,
-                                   "v_max": verdict.v_max}).encode())
-
-
-def verify_embedded(carriage, lib, step: Callable[[str], None] = lambda _: None
-                    ) -> EmbeddedVerdict:
-    """The embedded controller's verdict, the same check as `build` (its linear spec across
-    the envelope on every model, its hold and launch runs on the worst disturbance signs, at
-    the build's default t_end and dt): the one a build of the same parameters left in the
-    cache, else computed here (and left for the next)."""
-    opts = BuildOptions()
-    path = _verdict_path(carriage, opts)
-    try:
-        got = json.loads(path.read_text())
-        return EmbeddedVerdict(got["controller"], got["reason"], got["model"],
-                               float(got["v_min"]), float(got["v_max"]))
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    from maglevgen.analyses.envelope import compute_envelope
-
-    step("verifying the embedded controller against [control.spec] (as `maglevgen build`; "
-         "cached afterwards)")
-    env = compute_envelope(carriage, lib)
-    judged = embedded_runs(carriage, lib, env, carriage.params.operation.speed, opts)
-    verdict = EmbeddedVerdict.of(carriage, env, embedded_verification(carriage, env, judged))
-    _store_verdict(carriage, opts, verdict)
-    return verdict
-
-
-def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = ()) -> str | None:
-    """None when the embedded controller is stable and meets ``[control.spec]`` across the
-    envelope (the linear verdict, on every model checked) and in each of ``runs``
-    (`embedded_runs`), else the one-line reason `build` exits 3 with: every failed spec, its
-    value, its limit and where."""
-    name = carriage.params.envelope.embedded_controller
-    c = env.controllers[name]
-    head = f"verification failed: the embedded controller envelope.embedded_controller = {name!r}"
-    if not c.ok:
-        return f"{head} is {c.verdict} (maglevgen envelope; --allow-unstable to accept)"
-    failed, where = [], []
-    if not c.meets_spec:
-        failed.append(f"{c.spec_verdict}, {env.checked_on()}")
-        where.append("maglevgen envelope")
-    if not env.robust:
-        failed.append("meets the specification on the carriage's model but its gains fail "
-                      f"it {env.robustness_verdict()}")
-        where.append("maglevgen envelope")
-    for r in runs:
-        if r.verdict is not None and not r.verdict.meets:
-            failed.append(f"{r.verdict.text()} in the {r.label}")
-            where.append(r.command)
-    if not failed:
-        return None
-    return (f"{head} " + "; ".join(failed) + f" ({'; '.join(dict.fromkeys(where))}; "
-            "--allow-unstable to accept)")
-
-
-def _c_files(carriage, folder: Path) -> dict[str, str | bytes]:
+def _c_files(carriage, folder: Path, lib) -> dict[str, str | bytes]:
     """c/: the cached run-time-parameter sources, and the interface files for these parameters
-    (maglev.h, main.c, CMake example, manifest)."""
+    (maglev.h, main.c with the embedded controller's example, CMake example, manifest)."""
+    from maglevgen.analyses.verdicts import generate_example
     from maglevgen.codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
 
     files: dict[str, str | bytes] = {f"c/{f.name}": f.read_bytes()
                                      for f in sorted(folder.iterdir()) if f.suffix in (".c", ".h")}
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     for name, text in render_interface(carriage, GenerateOptions("double", "runtime"),
-                                       table).items():
+                                       table, None, generate_example(carriage, lib)).items():
         files[f"c/{name}"] = text
     return files
 
@@ -685,18 +537,18 @@ def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
                   step, figures: Job, envelope, gain_table: Mapping, run,
-                  region=None) -> dict[str, bytes]:
+                  region=None, verdict: EmbeddedVerdict | None = None) -> dict[str, bytes]:
     """report.tex (+ report.pdf) with the simulation figures and its own ``figures``;
     ``gain_table``: c/manifest.json's entry (the report shows its numbers); ``run``: the
     build's hold runs, which the actuator comparison reuses when they have its length and step;
-    ``region``: (the regions of attraction, their figure)."""
+    ``region``: (the regions of attraction, their figure); ``verdict``: the first page's."""
     from maglevgen.report import RUN_DT, RUN_T_END, report_files
 
     same = (opts.t_end, opts.dt) == (RUN_T_END, RUN_DT) and run.scenario == "hold"
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,
                         envelope=envelope, gain_table=gain_table,
                         hold_runs={t.controller: t for t in run.trajectories} if same else None,
-                        roa=region)
+                        roa=region, verdict=verdict)
 
 
 def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
@@ -712,11 +564,13 @@ def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
 
 
 def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
-                 regions=None, judged: tuple[JudgedRun, ...] = ()) -> str:
+                 regions=None, judged: tuple[JudgedRun, ...] = (),
+                 verdict: EmbeddedVerdict | None = None) -> str:
     """Where each output is, and the numbers an engineer checks first; ``report``: what
     report/ holds (see `report_outputs`); ``regions``: the embedded controller's region of
     attraction (maglevgen.analyses.roa), when computed; ``judged``: the embedded controller's
-    runs against [control.spec] (`embedded_runs`)."""
+    runs against [control.spec] (`embedded_runs`); ``verdict``: the block deciding the exit
+    code (`maglevgen.analyses.verdicts`; default: from ``env``, ``judged`` and ``regions``)."""
     from maglevgen.analyses.queries import stiffness_table
 
     rows = stiffness_table(carriage, lib, run.op.speed)
@@ -725,7 +579,9 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     kinds = (("Translation", (0, 1), {"k": _md_unit(rows[0].unit), "m": "kg", "c": "N s/m"}),
              ("Rotation", (2, 3, 4), {"k": _md_unit(rows[2].unit), "m": "kg m^2",
                                       "c": "N m s/rad"}))
-    lines = [*_summary_verdicts(carriage, run, env, regions),
+    if verdict is None:
+        verdict = embedded_verdict(carriage, env, judged, regions[0] if regions else None)
+    lines = [*_summary_verdicts(carriage, run, env, regions, verdict),
              *_summary_trim(carriage, run, lib, env, report),
              *_summary_axes(carriage, run, lib, rows, kinds),
              *_summary_paper(carriage, run, lib, rows),
@@ -733,10 +589,10 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     return "\n".join(lines) + "\n"
 
 
-def _summary_verdicts(carriage, run, env, regions) -> list[str]:
-    """The file and overrides, then the envelope's verdicts and the region of attraction."""
-    from maglevgen.control import title as controller_title
-
+def _summary_verdicts(carriage, run, env, regions, verdict: EmbeddedVerdict) -> list[str]:
+    """The file and overrides, then the verdict block (`EmbeddedVerdict.lines`: every check
+    deciding the exit code, then the findings about the other controllers), what the
+    specification was checked on, and the region of attraction."""
     embedded = carriage.params.envelope.embedded_controller
     loaded = carriage.loaded
     # the file's name and the overrides as the user typed them: escaped (maglevgen's text)
@@ -746,17 +602,11 @@ def _summary_verdicts(carriage, run, env, regions) -> list[str]:
              f"overrides: {sets}.", ""]
     if run.warning:
         lines += [f"Warning: {run.warning}.", ""]
-    lines += [f"Envelope verdicts, {env.v_min:.4g} to {env.v_max:.4g} m/s "
-              "(envelope/envelope.md, envelope/stability_map.png, envelope/disk_margins.png):",
-              ""]
-    lines += [f"- {controller_title(n)}{' (embedded in the firmware C)' if n == embedded else ''}"
-              f": {c.verdict}; specification: {c.spec_verdict}"
-              for n, c in env.controllers.items()]
-    lines += ["", f"The specification ([control.spec]) was checked {env.checked_on()}.",
+    lines += [*verdict.lines(), "",
+              "Details: envelope/envelope.md, envelope/stability_map.png, "
+              "envelope/disk_margins.png, envelope/roa.md, simulation/metrics.md.", "",
+              f"The specification ([control.spec]) was checked {env.checked_on()}.",
               env.firmware_design(embedded)]
-    if env.other_models:
-        lines += [f"The embedded controller's gains on the other models: "
-                  f"{env.robustness_verdict()}."]
     if regions:
         from maglevgen.analyses.roa import summary_lines
 
@@ -845,22 +695,11 @@ def _summary_paper(carriage, run, lib, rows) -> list[str]:
 
 
 def _summary_runs(carriage, run, judged) -> list[str]:
-    """The simulations' statuses, their runs against [control.spec] and the embedded
-    controller's judged runs."""
+    """The simulations' statuses and their runs against [control.spec] (the embedded
+    controller's judged runs are in the verdict block)."""
     lines = [f"Simulation `{traj.controller}`: {traj.status}"
              + (f" ({traj.event})" if traj.event else "") for traj in run.trajectories]
     lines += _run_spec_lines(run)
-    if judged:
-        from maglevgen.analyses.simulate import DISTURBANCE
-        from maglevgen.analyses.worst_case import sign_combinations
-
-        n_signs = len(sign_combinations(DISTURBANCE))
-        lines += ["", f"The embedded controller `{carriage.params.envelope.embedded_controller}` "
-                  "in the firmware loop against [control.spec] at the envelope's ends and in "
-                  f"the launch, each run from every one of the {n_signs} sign combinations of "
-                  "the default disturbance and judged on the worst (each check's worst value, "
-                  "with the signs where it occurs; `build` exits 3 when one fails):", "",
-                  *(f"- {r.label}: {r.verdict.text()}" for r in judged)]
     return lines
 
 

@@ -169,8 +169,10 @@ def cmd_gains(args: argparse.Namespace) -> int:
           "or kg m^2;\n   K2 in N s/m or N m s/rad; the last column: each gain's largest "
           "relative error against the 50-digit reference)")
     c = rep["coupled"]
+    cost = {k: "unbounded (unstable)" if c[k] is None else f"{c[k]:.6g}"
+            for k in ("cost_per_axis_design", "cost_coupled_lqr")}
     print(f"\nOn the coupled 10-state linearisation: cost of the per-axis design "
-          f"{c['cost_per_axis_design']:.6g}, of the coupled LQR {c['cost_coupled_lqr']:.6g}; "
+          f"{cost['cost_per_axis_design']}, of the coupled LQR {cost['cost_coupled_lqr']}; "
           f"slowest poles {max(p[0] for p in c['poles_per_axis_design']):.4g} and "
           f"{max(p[0] for p in c['poles_coupled_lqr']):.4g} 1/s")
     print("The paper's eq 31-32 gain (K1 = (k^2 + 1)^(1/2) - 1) is not the LQR gain: its P does "
@@ -197,9 +199,7 @@ def cmd_gains(args: argparse.Namespace) -> int:
 
 def cmd_envelope(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
-    _announce("envelope: each controller's closed-loop eigenvalues at "
-              f"{args.speeds or 50} speeds")
-    env = carriage.envelope(args.speeds, args.out or None)
+    env = carriage.envelope(args.speeds, args.out or None, progress=True)
     if args.json:
         print(json.dumps(env.report, indent=1))
         return 0
@@ -216,11 +216,8 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 
 def cmd_roa(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
-    _announce(f"roa: sampling the region of attraction of "
-              f"{args.controller or carriage.params.envelope.embedded_controller} at "
-              f"{args.speeds or 8} speeds, {args.samples or 3000} directions each")
     res = carriage.roa(args.speeds, args.controller, args.samples, args.seed, args.workers,
-                       args.batch, args.out)
+                       args.batch, args.out, progress=True)
     if args.json:
         print(json.dumps(res.report, indent=1))
         return 0
@@ -300,18 +297,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     carriage = _carriage(args)
-    _announce(f"montecarlo: {args.samples} samples over [tolerances], the compiled library "
-              "and the study first")
     res = carriage.montecarlo(args.samples, args.seed, args.controller, args.t_end,
                                      args.dt, args.workers, args.scheduler, args.out or None,
-                                     args.loop, progress=True)
+                                     args.loop, progress=True, redesign=args.redesign)
     if args.json:
         print(json.dumps(res.summary, indent=1))
     else:
         t = res.summary["timing"]
         print(f"{args.samples} samples x {len(res.summary['controllers'])} controller(s): "
               f"{t['runs']} runs in {t['seconds']:.3g} s ({t['runs_per_s']:.4g} runs/s, "
-              f"{t['workers']})")
+              f"{t['workers']}); controller {res.summary['controller_design']}")
         for c, a in res.summary["controllers"].items():
             lo, hi = a["contact_ci95"]
             p = a["contact_probability"]
@@ -517,6 +512,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="default: envelope.embedded_controller")
     _run_options(mc)
     _loop_option(mc)
+    mc.add_argument("--redesign", action="store_true",
+                    help="re-design the controller for each sample's own parameters, as if "
+                         "the firmware knew them (default: the nominal design, as the "
+                         "firmware flies)")
     mc.add_argument("--workers", type=int, metavar="K",
                     help="worker processes (default: every core); with --scheduler local, "
                          "the LocalCluster's workers")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import re
 import sys
 from collections.abc import Iterator, Sequence
@@ -70,6 +71,7 @@ __all__ = [
     "Vec3",
     "Vehicle",
     "annotate_with_units",
+    "check_count",
     "check_key_option",
     "check_option",
     "check_run_options",
@@ -1048,9 +1050,21 @@ def validate(data: dict[str, Any], origin: str) -> Parameters:
 
 def load_params(path: str | Path | None = None, overrides: Sequence[str] = ()) -> LoadedParams:
     """Load a parameter file (the default carriage when ``path`` is None) and apply overrides."""
+    if isinstance(overrides, str):  # one "NAME=VALUE" would iterate by character
+        overrides = (overrides,)
+    if not isinstance(overrides, Sequence) or not all(isinstance(o, str) for o in overrides):
+        raise InputError(f"--set {_short(overrides)}: expected NAME=VALUE strings (a list "
+                         "of them)")
     if path is None:
         text, origin = default_params_text(), DEFAULT_PARAMS_NAME
     else:
+        if not isinstance(path, (str, os.PathLike)) or isinstance(os.fspath(path), bytes) \
+                or not os.fspath(path):
+            raise InputError(f"--params {_short(path)}: expected a parameter file's path (a "
+                             "non-empty str or pathlib.Path)")
+        bad = check_text(os.fspath(path), 4096)
+        if bad is not None:
+            raise InputError(f"--params {_short(path)}: the path {bad}")
         p = Path(path)
         origin = str(p)
         try:
@@ -1209,11 +1223,32 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
     return rows
 
 
-def check_option(option: str, value: float, lo: float, hi: float, unit: str, why: str) -> None:
-    """A command-line number inside [lo, hi], or a one-line InputError naming it."""
-    if not (math.isfinite(value) and lo <= value <= hi):
-        raise InputError(f"{option} {value:g}: outside the range {limits_text(lo, hi, unit)} "
+def check_option(option: str, value: Any, lo: float, hi: float, unit: str, why: str) -> None:
+    """A command-line number inside [lo, hi], or a one-line InputError naming it (a value
+    that is no real number, from the Python API, too)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{option} {_short(value)}: expected a number in "
+                         f"{limits_text(lo, hi, unit)}")
+    try:
+        inside = math.isfinite(value) and lo <= value <= hi
+    except OverflowError:  # an int past a float's range
+        inside = False
+    if not inside:
+        shown = f"{value:g}" if isinstance(value, (float, np.floating)) else _short(value)
+        raise InputError(f"{option} {shown}: outside the range {limits_text(lo, hi, unit)} "
                          f"({why})")
+
+
+def check_count(option: str, value: Any, lo: int, hi: int, why: str) -> int:
+    """A command-line count (``--samples``, ``--speeds``, ``--workers``, ``--seed``...) that is
+    a whole number in [lo, hi], or a one-line InputError naming it: a bool, a float, a string
+    or None from the Python API included (each gave a TypeError or ValueError deep in the
+    work, or an allocation of terabytes)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (
+            lo <= value <= hi):
+        raise InputError(f"{option} {_short(value)}: expected a whole number from {lo} to "
+                         f"{hi} ({why})")
+    return int(value)
 
 
 def check_run_options(t_end: float, dt: float) -> None:

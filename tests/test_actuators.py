@@ -77,7 +77,8 @@ def test_normal_actuators_leave_roll_about_the_lines_crossing_uncontrolled() -> 
     assert np.linalg.matrix_rank(effectiveness("paper")) == 5
 
 
-@pytest.mark.parametrize("actuators", ["paper", "normal"])
+# "normal": a derivation of its own (slow)
+@pytest.mark.parametrize("actuators", ["paper", pytest.param("normal", marks=pytest.mark.slow)])
 def test_derived_allocation_is_the_pseudoinverse(actuators: str) -> None:
     """controllers.allocation_matrix (derive.allocation's minimum-norm T) = pinv(E)."""
     c = DerivedCarriage(load_params(overrides=[f'control.actuators="{actuators}"']))
@@ -261,6 +262,7 @@ def normal_firmware(normal_carriage, normal_lib, tmp_path_factory):
     return GeneratedLibrary(out / "maglev.so", "single", "int32")
 
 
+@pytest.mark.slow  # a firmware folder for the normal-actuator carriage
 @pytest.mark.needs_cc
 def test_firmware_allocation_with_normal_actuators(normal_firmware) -> None:
     """The firmware's maglev_allocate (single, baked) gives one force per array, numpy's

@@ -163,6 +163,7 @@ def test_launch_is_the_cli_launch(default: maglevgen.Carriage,
     assert run.metrics["speed_end"] >= env["release_speed"] > run.metrics["speed_start"]
 
 
+@pytest.mark.slow  # two reports built
 def test_report_is_the_cli_report(default: maglevgen.Carriage,
                                   capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert main(["report", "--out", str(tmp_path / "cli")]) == 0
@@ -222,19 +223,20 @@ def test_api_rejects_unknown_names(default: maglevgen.Carriage) -> None:
             call()
 
 
-def test_montecarlo_is_the_cli_study(default: maglevgen.Carriage, capsys) -> None:
+def test_montecarlo_is_the_cli_study(default: maglevgen.Carriage, capsys, tmp_path: Path
+                                    ) -> None:
     """The same seed gives the CLI's per-controller results (the timing aside)."""
     opts = dict(samples=6, seed=3, t_end=0.5, workers=1)
     api = default.montecarlo(controller="all", **opts)
     assert main(["montecarlo", "--json", "--controller", "all", "--samples", "6", "--seed",
-                 "3", "--t-end", "0.5", "--workers", "1"]) == 0
+                 "3", "--t-end", "0.5", "--workers", "1", "--out", str(tmp_path / "mc")]) == 0
     cli = json.loads(capsys.readouterr().out)
     assert api["controllers"] == cli["controllers"]
     assert set(api["controllers"]) == {"none", "damping", "lqr", "coupled", "spec"}
 
 
 def test_both_array_force_laws_reach_the_api_and_the_study(default: maglevgen.Carriage,
-                                                             capsys) -> None:
+                                                             capsys, tmp_path: Path) -> None:
     """model.array_force = "point" through the API: its trim against the test's root solve of
     eq 3 at the face centres (gaps at the closest corners); its Monte-Carlo study is the CLI's
     and differs from the distributed law's (the choice reaches the workers)."""
@@ -251,7 +253,8 @@ def test_both_array_force_laws_reach_the_api_and_the_study(default: maglevgen.Ca
     opts = dict(samples=4, seed=5, t_end=0.3, workers=1)
     api_point = point.montecarlo(controller="coupled", **opts)
     cli = cli_json(capsys, "montecarlo", "--json", "--controller", "coupled", "--samples", "4",
-                   "--seed", "5", "--t-end", "0.3", "--workers", "1", "--set", law)
+                   "--seed", "5", "--t-end", "0.3", "--workers", "1", "--set", law,
+                   "--out", str(tmp_path / "mc"))
     assert api_point["controllers"] == cli["controllers"]
     assert default.montecarlo(controller="coupled", **opts)["controllers"] \
         != api_point["controllers"]
@@ -401,6 +404,7 @@ def test_docstrings_document_every_parameter(name: str, obj: object, kind: str) 
         f"{name}: no Raises section"
 
 
+@pytest.mark.slow  # the examples build, export an FMU and a firmware folder: minutes
 def test_docstring_examples_run() -> None:
     """Every Examples section in maglevgen/api.py runs (the report's only where TeX does:
     skipped, see its docstring)."""

@@ -10,6 +10,7 @@ is pyproject's package-dir), every import counted, function-local ones included;
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import os
 import shutil
@@ -50,9 +51,15 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.analyses.magnetic_damping", "maglevgen.control",
          "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
-         "maglevgen.analyses.worst_case",
+         "maglevgen.analyses.verdicts",
          "maglevgen.analyses.queries", "maglevgen.infrastructure.texsetup", "maglevgen.report",
          "maglevgen.report.figures", "numpy", "maglevgen.analyses.roa")),
+    "maglevgen.analyses.verdicts": (
+        "`build` imports it at its top (the unchanged rebuild): the analyses it judges with "
+        "load when a verdict is computed",
+        ("maglevgen.analyses.envelope", "maglevgen.analyses.roa", "maglevgen.analyses.simulate",
+         "maglevgen.analyses.worst_case", "maglevgen.control", "maglevgen.control.operating",
+         "maglevgen.infrastructure.cache", "numpy")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
         "symbolic layers load when a carriage first needs them",
@@ -105,10 +112,11 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "each method imports the stage it runs, as the CLI's commands do (a script that only "
         "simulates loads no SymPy); pandas and python-control only where they are returned",
         ("control", "maglevgen.build", "maglevgen.carriage", "maglevgen.exports.firmware",
-         "maglevgen.codegen.generate",
+         "maglevgen.codegen.generate", "maglevgen.analyses.verdicts",
          "maglevgen.derive.structure", "maglevgen.analyses.envelope", "maglevgen.exports.fmu",
          "maglevgen.analyses.montecarlo", "maglevgen.control.operating",
-         "maglevgen.infrastructure.output", "maglevgen.params", "maglevgen.report",
+         "maglevgen.infrastructure.output", "maglevgen.infrastructure.text",
+         "maglevgen.params", "maglevgen.report",
          "maglevgen.analyses.roa", "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
          "maglevgen.analyses.queries", "pandas")),
     "maglevgen.analyses.montecarlo": (
@@ -160,7 +168,8 @@ def _targets(module: str, node: ast.Import | ast.ImportFrom) -> list[str]:
     return out
 
 
-def _imports(module: str) -> list[tuple[str, bool]]:
+@functools.cache  # the sources do not change during a run; many tests walk the same graph
+def _imports(module: str) -> tuple[tuple[str, bool], ...]:
     """(target, function_local) for every import of ``module`` outside TYPE_CHECKING."""
     tree = ast.parse(MODULES[module].read_text())
     skip: set[int] = set()
@@ -170,9 +179,9 @@ def _imports(module: str) -> list[tuple[str, bool]]:
             skip.update(id(n) for n in ast.walk(node))
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
             local.update(id(n) for n in ast.walk(node))
-    return [(t, id(node) in local) for node in ast.walk(tree)
-            if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in skip
-            for t in _targets(module, node)]
+    return tuple((t, id(node) in local) for node in ast.walk(tree)
+                 if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in skip
+                 for t in _targets(module, node))
 
 
 def _graph() -> dict[str, set[str]]:
@@ -403,6 +412,7 @@ def _installed_copy(dest: Path) -> Path:
     return top
 
 
+@pytest.mark.slow  # three cold derivations in a copy of the package
 def test_editing_a_memoised_modules_source_misses_the_cache(tmp_path: Path) -> None:
     """control/symbolic_reference.py memoises `_minimum_norm` across processes: an edit to it,
     or to a module it imports, is a miss; an edit to a module it does not depend on is a hit."""

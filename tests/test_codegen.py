@@ -45,6 +45,7 @@ def _ext(runtime_lib: tuple[str, Path], name: str):
     return lambda *a: [o.squeeze() if o.size == 1 else o for o in fn(*a)]
 
 
+@pytest.mark.slow  # every function compiled as a CasADi external
 @pytest.mark.needs_cc
 def test_casadi_external_loads_every_function(carriage: DerivedCarriage, tmp_path: Path,
                                               rendered) -> None:
@@ -314,6 +315,50 @@ def test_no_writable_globals_and_only_maglev_symbols(baked: dict[str, Path],
                 assert int(line.split()[1]) == 0, line
 
 
+@pytest.mark.slow  # compiles the whole generated C (tens of seconds on a loaded machine)
+@pytest.mark.needs_cc("gcc")
+def test_generate_example_flies_the_embedded_controller_where_verified(
+        carriage: DerivedCarriage, rendered, sim_lib, tmp_path: Path) -> None:
+    """`maglevgen generate`'s main.c with the embedded controller's example: it says what it
+    runs (the controller, the speed inside the envelope) and the verdict there, and its run
+    from the default disturbance ends within 1 um / 1 urad of the trim, as a closed loop
+    built here from the same gains (numpy eigenvalues of the C Jacobians with the allocation,
+    `OperatingPoint.reduced_closed_loop`) decaying at its slowest rate predicts."""
+    from maglevgen.analyses.envelope import resolve_range
+    from maglevgen.analyses.verdicts import generate_example
+    from maglevgen.control.operating import Weights, operating_point
+
+    example = generate_example(carriage, sim_lib)
+    v_min, v_max = resolve_range(carriage, sim_lib)
+    name = carriage.params.envelope.embedded_controller
+    assert example["controller"] == name and v_min <= example["speed"] <= v_max
+    op = operating_point(sim_lib, carriage.p, example["speed"], carriage.params.track.min_gap,
+                         Weights.of(carriage.params))
+    rate = -np.max(np.linalg.eigvals(op.reduced_closed_loop(name)).real)
+    assert example["verified"] == (rate >= carriage.params.control.spec.min_decay_rate)
+    # the fixture's render (the same functions), its interface files rendered with the example
+    from maglevgen.codegen.interface import render_interface
+
+    opts = GenerateOptions("double", "baked")
+    files = dict(rendered(carriage, opts, speed_range(carriage)))
+    table = json.loads(files["manifest.json"])["functions"]
+    files.update(render_interface(carriage, opts, table, speed_range(carriage), example))
+    src = tmp_path / "gen"
+    write_output(files, src)
+    exe = tmp_path / "ex"
+    subprocess.run(["gcc", "-std=c99", "-O0", "-o", str(exe), *(str(src / f) for f in (
+        "main.c", "maglev_functions.c", "maglev_simulate.c")), "-lm"], check=True)
+    out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout
+    lines = out.splitlines()
+    assert f"the embedded controller {name} " in lines[0]
+    assert f"{example['speed']:.4g} m/s" in lines[0]
+    assert lines[1] == f"verdict: {example['verdict']}"
+    devs = [float(ln.split()[-1]) for ln in lines[3:8]]
+    # 2 s at the slowest decay from a few mm / mrad: far below 1e-6 (the speed drifts slowly)
+    assert rate * 2.0 > np.log(1e-3 / 1e-6)
+    assert all(abs(d) < 1e-6 for d in devs), out
+
+
 @pytest.mark.needs_cc("cmake")
 def test_example_builds_with_cmake_and_runs(baked: dict[str, Path], tmp_path: Path) -> None:
     build = tmp_path / "build"
@@ -324,9 +369,10 @@ def test_example_builds_with_cmake_and_runs(baked: dict[str, Path], tmp_path: Pa
                          check=True).stdout
     values = [float(line.split("=")[1]) for line in out.splitlines() if "x[" in line]
     assert len(values) == 12 and all(np.isfinite(values))
-    assert abs(values[2]) < 0.01  # still levitating near the trim heave
+    assert abs(values[2]) < 0.01  # the trim's heave, near the nominal gap
 
 
+@pytest.mark.slow  # the library compiled under ASan/UBSan
 @pytest.mark.needs_cc("gcc")
 def test_sanitizers_on_random_inputs(baked: dict[str, Path], tmp_path: Path) -> None:
     """ASan + UBSan on a driver that calls every function with random inputs."""

@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import psutil
 import pytest
 
 pytest.importorskip("distributed")
@@ -49,7 +50,15 @@ def test_a_study_that_loses_its_only_worker_fails_in_time(tmp_path: Path) -> Non
                                   "--samples", "20000", "--scheduler", address],
                                  env=env, cwd=tmp_path, stdout=subprocess.PIPE,
                                  stderr=subprocess.PIPE, text=True)
-        time.sleep(15)  # the study submitted and running on the worker
+        # the study submitted and running on the worker: the worker busy (its CPU time
+        # grows), however long a loaded machine takes to load the carriage and connect
+        busy = psutil.Process(worker.pid)
+        idle = sum(busy.cpu_times()[:2])
+        deadline = time.monotonic() + 600
+        while sum(busy.cpu_times()[:2]) < idle + 2.0:
+            assert study.poll() is None, study.communicate()
+            assert time.monotonic() < deadline, "the worker never ran the study"
+            time.sleep(0.2)
         assert study.poll() is None, study.communicate()
         worker.send_signal(signal.SIGKILL)
         worker.wait()

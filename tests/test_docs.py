@@ -135,6 +135,21 @@ def test_guides_theory_and_examples_are_rendered(site: Path) -> None:
     page = (site / "examples.html").read_text()
     assert re.search(r"10 states: \[('\w+', ){9}'\w+'\]", examples), "no cell output"
     assert "stable across" in examples and "data:image/png;base64," in page
+    # each script's stored output under it (tests/test_examples.py: the same as a run now),
+    # its figures copied into the site byte for byte
+    sys.path.insert(0, str(DOCS / "_ext"))
+    from example_outputs import scripts, stored
+
+    for script in scripts():
+        text, figures = stored(script)
+        assert text.strip(), script.name
+        for line in text.splitlines():
+            assert " ".join(html.unescape(line).split()) in examples, (script.name, line)
+        for rel, png in figures.items():
+            assert f"example_output/{rel}" in examples, rel
+            shown = [p for p in (site / "_images").glob(f"{png.stem}*{png.suffix}")
+                     if p.read_bytes() == png.read_bytes()]
+            assert shown, rel
 
 
 def test_the_readme_is_short_and_points_to_every_page(site: Path) -> None:
@@ -208,3 +223,29 @@ def test_the_notebook_names_the_default_embedded_controller() -> None:
     others = [n for n in re.findall(r"\"(\w+)\"\)?`\W{1,4}the\s+default\s+embedded", text)
               if n != default]
     assert not others, others
+
+
+GUIDES = DOCS / "_guides"
+# a cross-reference left as plain words: "(see Report below)", "see Firmware use",
+# "BENCHMARKS.md section 9"
+_PLAIN_REF = re.compile(r"\bsee (?!\{doc\}|\{ref\}|:doc:|:ref:|\[)[A-Z][\w-]*|"
+                        r"\b[A-Z][\w-]* (?:below|above)\)|\(see (?:below|above)\)|"
+                        r"BENCHMARKS\.md,? \(?section \d", re.M)
+
+
+def test_the_guides_cross_references_are_links_that_resolve(site: Path) -> None:
+    """The guides moved from the README into docs/_guides say "see ..." as Sphinx links, not
+    as the README's section names ("see Report below"), and each link is in the built page
+    that includes the guide (the build's -W has already failed any that does not resolve)."""
+    texts = {p: p.read_text() for p in [*GUIDES.glob("*.md"), *DOCS.glob("*.rst")]}
+    plain = [(p.name, m.group(0)) for p, t in texts.items() for m in _PLAIN_REF.finditer(t)]
+    assert not plain, plain
+    links = 0
+    for rst in DOCS.glob("*.rst"):
+        for guide in re.findall(r"\.\. include:: _guides/(\S+\.md)", texts[rst]):
+            page = (site / f"{rst.stem}.html").read_text()
+            for kind, target in re.findall(r"\{(doc|ref)\}`([^`]+)`", texts[GUIDES / guide]):
+                want = f'href="{target}.html' if kind == "doc" else f'#{target}"'
+                assert want in page, (rst.name, guide, target)
+                links += 1
+    assert links >= 10, links

@@ -268,6 +268,7 @@ def _launch_reference(carriage: DerivedCarriage, sched: Schedule, x0: np.ndarray
     return sol.y.T
 
 
+@pytest.mark.slow  # launch runs at four steps against solve_ivp
 def test_launch_run_converges_to_the_reference_as_dt4(carriage, sim_lib) -> None:
     """maglev_launch with the schedule evaluated at every RK4 stage against solve_ivp on the
     SymPy model with the same schedule: the error shrinks as dt^4 between two step sizes."""
@@ -372,6 +373,7 @@ def test_bad_envelope_input_is_one_line_exit_2(tmp_path) -> None:
         assert len(lines) == 1 and key in lines[0], proc.stderr
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_build_exits_3_when_the_embedded_controller_is_unstable(tmp_path) -> None:
     """The per-axis LQR embedded with the point force law: outputs written, SUMMARY says
     UNSTABLE, exit 3 with one line; --allow-unstable turns it into a warning (exit 0)."""
@@ -390,6 +392,7 @@ def test_build_exits_3_when_the_embedded_controller_is_unstable(tmp_path) -> Non
     assert again.returncode == 0 and "warning" in again.stderr
 
 
+@pytest.mark.slow  # the schedule table compiled and evaluated across the envelope
 def test_embedded_schedule_table_compiles_and_evaluates(carriage, sim_lib, tmp_path) -> None:
     """c/maglev_schedule.c (static const tables) compiled with the runtime C: the firmware's
     maglev_schedule_eval(&maglev_embedded_schedule, v) equals scipy's spline of the nodes."""

@@ -1,29 +1,39 @@
-"""Every script in examples/ runs on the default carriage and writes what it says it writes.
+"""Every script in examples/ runs on the default carriage and writes what it says it writes,
+and what it prints and draws is what the documentation site shows under it.
 
-Each runs in its own process (as a user runs it) into a temporary folder; the derivation and
-compile cache is the session's (conftest.private_cache, inherited through the environment).
+Each runs in its own process, as a user runs it (``python examples/<name>``, no argument, its
+default ``example_output/`` in a temporary folder); the derivation and compile cache is the
+session's (conftest.private_cache, inherited through the environment). The site's copy of its
+outputs (docs/_examples/, stored by ``make example-outputs``) is a snapshot of a run, not a
+reference for the numbers: its check is that the page is current (this run's stdout and
+pixels equal the stored ones), while the examples' numbers are checked against independent
+references by the tests of the API they call.
 """
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "docs" / "_ext"))
+import example_outputs
+
 pytestmark = pytest.mark.needs_cc  # the examples run the compiled library
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 PNG = b"\x89PNG\r\n\x1a\n"
-# what each example must leave in its output folder
+# what each example must leave in its default output folder (example_output/...)
 OUTPUTS = {
-    "regenerate_c.py": ("default/maglev.h", "heavier/maglev.h", "heavier/manifest.json"),
-    "linearization.py": ("bode_heave.png", "step_heave.png"),
-    "lqr_across_speed.py": ("lqr_across_speed.csv", "lqr_across_speed.png"),
-    "montecarlo_study.py": ("lqr/montecarlo.md", "coupled/montecarlo.json",
-                            "coupled/histograms.png"),
-    "fmu_fmpy.py": ("maglev.fmu", "fmu_heave.png"),
+    "regenerate_c.py": ("regenerate_c/default/maglev.h", "regenerate_c/heavier/maglev.h",
+                        "regenerate_c/heavier/manifest.json"),
+    "linearization.py": ("linearization/bode_heave.png", "linearization/step_heave.png"),
+    "lqr_across_speed.py": ("lqr_across_speed/lqr_across_speed.csv",
+                            "lqr_across_speed/lqr_across_speed.png"),
+    "montecarlo_study.py": ("montecarlo/lqr/montecarlo.md", "montecarlo/coupled/montecarlo.json",
+                            "montecarlo/coupled/histograms.png"),
+    "fmu_fmpy.py": ("fmu_fmpy/maglev.fmu", "fmu_fmpy/fmu_heave.png"),
 }
 
 
@@ -33,9 +43,10 @@ def test_every_example_is_run() -> None:
 
 @pytest.mark.parametrize("name", sorted(OUTPUTS))
 def test_example_runs(name: str, tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, str(EXAMPLES / name), str(out)], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=600)
+    from matplotlib.testing.compare import compare_images
+
+    proc = example_outputs.run(EXAMPLES / name, tmp_path, timeout=600)
+    out = tmp_path / example_outputs.DEFAULT_OUT
     assert proc.returncode == 0, proc.stderr
     # stderr: nothing but the one-time progress of a fresh cache (the test's private one)
     noise = [ln for ln in proc.stderr.splitlines()
@@ -47,7 +58,18 @@ def test_example_runs(name: str, tmp_path: Path) -> None:
         if rel.endswith(".png"):
             assert data.startswith(PNG), rel
     if name == "lqr_across_speed.py":  # a row per speed, the coupled LQR stable at each
-        table = np.loadtxt(out / "lqr_across_speed.csv", delimiter=",", skiprows=1)
+        table = np.loadtxt(out / "lqr_across_speed/lqr_across_speed.csv", delimiter=",",
+                           skiprows=1)
         assert table.shape == (12, 7) and np.all(table[:, 4] < 0)
     if name == "regenerate_c.py":  # the mass change reached the baked C
         assert "maglev.h" in proc.stdout.split("changed by")[1].splitlines()[0]
+    # the site shows this run: the same stdout, the same figures pixel for pixel
+    # (matplotlib's compare_images: RMS over the pixels; PNG metadata does not count)
+    text, figures = example_outputs.stored(EXAMPLES / name)
+    assert proc.stdout == text, (f"{name}'s output is not what docs/_examples shows "
+                                 f"(make example-outputs):\n{proc.stdout}")
+    assert sorted(proc.figures) == sorted(figures), (sorted(proc.figures), sorted(figures))
+    for rel, png in figures.items():
+        diff = compare_images(str(png), str(proc.figures[rel]), tol=0, in_decorator=True)
+        assert diff is None, (f"{rel} differs from the site's copy (make example-outputs): "
+                              f"{diff}")

@@ -368,6 +368,9 @@ def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: Deri
 
 # ------------------------------------------------------------------------------ Cortex-M4F
 
+# the start-up and linker script the firmware folder's run_qemu.sh uses (one copy, in templates/)
+QEMU_STARTUP = REPO / "templates" / "firmware_qemu_startup.c"
+QEMU_LINK = REPO / "templates" / "firmware_qemu_link.ld"
 M4_CPU = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16"]
 #: the issue's firmware flags (README, Firmware use)
 M4_FLAGS = [*M4_CPU, "-Os", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wdouble-promotion",
@@ -453,11 +456,11 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
     defines.append("-DSPEEDS=" + ",".join(f"{v!r}f" for v in speeds))
     subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-Os", "-std=gnu99", "-Wall", "-Werror",
                     "-fno-math-errno", "-ffunction-sections", "-fdata-sections", *defines,
-                    f"-I{src}", "-c", str(m4 / "startup.c"), str(m4 / "m4main.c")],
+                    f"-I{src}", "-c", str(QEMU_STARTUP), str(m4 / "m4main.c")],
                    cwd=src, check=True)
-    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
-                    "-Wl,--gc-sections", "startup.o", "m4main.o", *objs, "-lm", "-lc",
-                    "-o", "m4.elf"], cwd=src, check=True)
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
+                    "-Wl,--gc-sections", f"{QEMU_STARTUP.stem}.o", "m4main.o", *objs, "-lm",
+                    "-lc", "-o", "m4.elf"], cwd=src, check=True)
     run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
                           "-kernel", "m4.elf"], cwd=src, capture_output=True, text=True,
                          timeout=120, check=True)
@@ -470,8 +473,9 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
     subprocess.run(["arm-none-eabi-gcc", *M4_FLAGS, "-Wmissing-prototypes", "-ffunction-sections",
                     "-fdata-sections", "-c", "maglev.c", "-o", "maglev.o"], cwd=one, check=True)
     assert _external(["arm-none-eabi-nm", str(one / "maglev.o")]) == _declared(one)
-    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
-                    "-Wl,--gc-sections", "startup.o", "m4main.o", str(one / "maglev.o"),
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
+                    "-Wl,--gc-sections", f"{QEMU_STARTUP.stem}.o", "m4main.o",
+                    str(one / "maglev.o"),
                     "maglev_gain_table.o", "-lm", "-lc", "-o", "m4_single.elf"], cwd=src,
                    check=True)
     run_one = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic",
@@ -522,6 +526,7 @@ def _external(nm: list[str]) -> set[str]:
     return {ln.split()[-1] for ln in out.splitlines() if re.match(r"^[0-9a-f]+ [TDRBC] ", ln)}
 
 
+@pytest.mark.slow  # two firmware builds compiled in full
 @pytest.mark.needs_cc
 def test_single_file_is_the_two_file_build(carriage: DerivedCarriage, tmp_path: Path) -> None:
     """`generate --single-file`: one translation unit, maglev.c, that compiles warning-free
@@ -582,6 +587,7 @@ def test_single_file_is_the_two_file_build(carriage: DerivedCarriage, tmp_path: 
                                   np.concatenate(trajectories[1][2]))
 
 
+@pytest.mark.slow  # a cross-compiled build of its own
 @pytest.mark.needs_arm("arm-none-eabi-objdump", "arm-none-eabi-nm")
 def test_m4_square_root_is_the_fpu_instruction(carriage: DerivedCarriage, tmp_path: Path,
                                                rendered) -> None:
@@ -684,6 +690,7 @@ def test_tick_path_misra_findings_are_all_justified(gain_table, carriage: Derive
 # ------------------------------------------------------------------------------ --int int32
 
 
+@pytest.mark.slow  # two builds compiled in full
 @pytest.mark.needs_cc
 def test_int32_build_gives_the_int64_results(carriage: DerivedCarriage, tmp_path: Path,
                                              rendered) -> None:
@@ -910,10 +917,11 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
     defines = ["-DX0=" + ",".join(f"{float(v)!r}f" for v in x0),
                f"-DV_REF={float(v_ref)!r}f", f"-DN_TICKS={n_ticks}"]
     subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-Os", "-std=gnu99", "-Wall", "-Werror",
-                    "-fno-math-errno", *defines, "-I.", "-c", str(m4 / "startup.c"),
+                    "-fno-math-errno", *defines, "-I.", "-c", str(QEMU_STARTUP),
                     str(m4 / "closed_loop.c")], cwd=out, check=True)
-    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(m4 / "link.ld"),
-                    "-Wl,--gc-sections", "startup.o", "closed_loop.o", *objs, "-lm", "-lc",
+    subprocess.run(["arm-none-eabi-gcc", *M4_CPU, "-nostartfiles", "-T", str(QEMU_LINK),
+                    "-Wl,--gc-sections", f"{QEMU_STARTUP.stem}.o", "closed_loop.o", *objs, "-lm",
+                    "-lc",
                     "-o", "loop.elf"], cwd=out, check=True)
     run = subprocess.run(["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-semihosting",
                           "-kernel", "loop.elf"], cwd=out, capture_output=True, text=True,

@@ -272,6 +272,7 @@ def test_cli_writes_the_fmu_and_rejects_bad_input(tmp_path: Path, sim_lib) -> No
     assert validate_fmu(str(out / "maglev.fmu")) == []  # the good output is kept
 
 
+@pytest.mark.slow  # the FMU rebuilt from its sources
 def test_sources_rebuild_the_binary(fmus, tmp_path: Path) -> None:
     """The listed sources and FMPy's headers are enough: the rebuilt binary, put in place of
     the shipped one, gives the same trajectory."""
@@ -292,6 +293,7 @@ def test_sources_rebuild_the_binary(fmus, tmp_path: Path) -> None:
     _assert_close(_states(rebuilt), _states(shipped), 1e-12)
 
 
+@pytest.mark.slow  # an FMU of the normal-actuator carriage
 def test_normal_actuators_fmu_reproduces_maglevgen_simulate(tmp_path: Path) -> None:
     """control.actuators = "normal" (one force along each array's normal): the FMU (both
     kinds) passes FMPy's validator, outputs one force per array (F_n1..F_n6), and its

@@ -174,6 +174,7 @@ def test_external_controller_with_zero_forces_is_the_open_loop(fmus, carriage: D
     assert push["F_z3"][0] == pytest.approx(5.0 * op.allocation[4, 1], rel=1e-12)
 
 
+@pytest.mark.slow  # CVode and DOP853 runs (the FMI 2.0 twin stays in the default run)
 def test_me_with_cvode_agrees_with_dop853_on_the_sympy_model(fmus, carriage: DerivedCarriage,
                                                              op) -> None:
     t_end, rtol = 0.5, 1e-10

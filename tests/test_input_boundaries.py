@@ -422,6 +422,7 @@ def test_mutated_parameter_files_give_finite_json_or_one_line(tmp_path_factory, 
 
 # ------------------------------------------------------------------------------ injection
 
+@pytest.mark.slow  # a whole build of its own
 def test_a_name_with_an_underscore_reaches_c_and_latex_only_escaped(tmp_path: Path) -> None:
     """A valid name with the one LaTeX-special character names allow: in report.tex only as
     ``up\\_Front9``; in the C only in identifiers and one-line comments."""
@@ -502,6 +503,7 @@ sys.exit(main(["build", "--out", sys.argv[2], "--t-end", "1", "--no-pdf",
 """
 
 
+@pytest.mark.slow  # a whole build of its own
 @pytest.mark.parametrize("stage", ["writing", "old", "between"])
 def test_a_killed_build_leaves_nothing_after_the_next_build(fresh_build: Path,
                                                             stage: str) -> None:
@@ -613,6 +615,7 @@ def test_make_run_installs_tex_where_it_may(tmp_path: Path, monkeypatch, capsys,
         assert not ok and ran == [] and err.count("\n") == 1 and "no apt-get" in err
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_summary_says_why_the_pdf_was_skipped(good: Path, tmp_path: Path, monkeypatch) -> None:
     """--no-pdf, and no TeX on the machine: the summary lists report.tex alone and says why."""
     assert "report/ (report.tex; report.pdf skipped: --no-pdf was given)" in (

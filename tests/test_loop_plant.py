@@ -336,6 +336,7 @@ def test_spec_verdict_is_its_design_at_the_tick_on_the_lagged_loop(carriage, sim
     assert e.margins is not None and "disk margins at the actuators" in e.spec_verdict
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_build_exits_3_naming_a_10_ms_actuator_lag(tmp_path, carriage, sim_lib) -> None:
     """A 10 ms actuator lag: at v_min the multi-loop disk is below the spec's 40 degrees (mu
     at the worst frequency at least the lower bound found here, the disk at most 1/mu); the

@@ -76,9 +76,53 @@ def test_dask_local_cluster_gives_the_same_results(small) -> None:
         _same(one, run_dask(study, 6, client, chunk=2))
 
 
-def test_a_sample_equals_maglevgen_simulate(small, tmp_path: Path) -> None:
-    """The sample's parameters, speed and disturbance given to `maglevgen simulate`."""
-    carriage, _, cols = small
+def _sample_p(carriage: DerivedCarriage, cols: dict[str, np.ndarray], i: int) -> np.ndarray:
+    """Row ``i``'s parameter vector: the file's values with the row's sampled keys."""
+    names = [e.name for e in carriage.entries]
+    p = carriage.p.copy()
+    for key in carriage.params.tolerances.parameters:
+        p[names.index(key)] = cols[key][i]
+    return p
+
+
+def test_a_sample_flies_the_nominal_design(small, sim_lib) -> None:
+    """As the firmware flies (the default): one sample's run equals, bit for bit (the same C
+    call, maglev_simulate, in the batch driver and alone), `simulate` of the sampled carriage
+    (its parameters rebuilt here from the row) from its own trim plus the row's disturbance,
+    with the controller designed on the NOMINAL carriage at the row's speed (operating_point
+    of the file's parameters: gains, reference, feed-forward); and it differs from the same
+    run with the controller re-designed for the sample (what --redesign does)."""
+    from maglevgen.analyses.simulate import metrics, simulate
+    from maglevgen.control.operating import Weights, operating_point
+
+    carriage, study, cols = small
+    assert not study.redesign
+    rows = np.flatnonzero((cols["controller"] == "coupled") & (cols["status"] != "no trim")
+                          & (cols["status"] != "rejected"))
+    i = int(rows[0])
+    p = _sample_p(carriage, cols, i)
+    speed, min_gap = float(cols["speed"][i]), carriage.params.track.min_gap
+    weights = Weights.of(carriage.params)
+    own = operating_point(sim_lib, p, speed, min_gap, weights)
+    nominal = operating_point(sim_lib, carriage.p, speed, min_gap, weights)
+    dist = {s: float(cols[f"disturbance.{s}"][i]) for s in ("y", "z", "phi", "theta", "psi")}
+    flown = metrics(simulate(sim_lib, p, own, "coupled", 0.4, 1e-3, min_gap, dist,
+                             controller_op=nominal))
+    assert flown["status"] == cols["status"][i]
+    assert flown["min_gap"] == cols["min_gap"][i]
+    for axis in cv.AXES:
+        assert flown["axes"][axis]["peak_deviation"] == cols[f"peak.{axis}"][i], axis
+    redesigned = metrics(simulate(sim_lib, p, own, "coupled", 0.4, 1e-3, min_gap, dist))
+    assert redesigned["min_gap"] != flown["min_gap"]
+
+
+def test_a_redesigned_sample_equals_maglevgen_simulate(small, tmp_path: Path) -> None:
+    """--redesign: the sample's parameters, speed and disturbance given to `maglevgen
+    simulate`, which designs the controller for the parameters it is given."""
+    import dataclasses
+
+    carriage, study, _ = small
+    cols = run_local(dataclasses.replace(study, redesign=True), 3, workers=1)
     rows = np.flatnonzero((cols["controller"] == "coupled")
                           & np.isin(cols["status"], ["settled", "not settled", "diverging",
                                                      "contact"]))
@@ -165,7 +209,9 @@ def test_contact_interval_covers_an_independent_estimate(private_cache) -> None:
     carriage = DerivedCarriage(load_params(None, [SPEEDS, 'model.array_force="point"',
                                            'model.circuit_dynamics="quasi-static"']))
     sim_lib = simulation_library(carriage.structure)
-    study = make_study(carriage, sim_lib, ("damping",), t_end=3.0, dt=1e-3, seed=11)
+    # --redesign: the reference below designs each sample's damping for its own parameters
+    study = make_study(carriage, sim_lib, ("damping",), t_end=3.0, dt=1e-3, seed=11,
+                       redesign=True)
     result = run_study(study, 80, workers=2)
     agg = result.summary["controllers"]["damping"]
     k = agg["status_counts"]["contact"]
@@ -292,6 +338,7 @@ def test_failure_correlation_is_reported_only_when_runs_failed(failures: int) ->
 
     stat = {"median": 0.1, "p95": 0.2, "max": 0.3}
     summary = {"samples": 10, "seed": 0, "t_end": 1.0, "dt": 1e-3, "speed_range": [10, 40],
+               "controller_design": "as the firmware flies",
                "timing": {"runs": 10, "seconds": 1.0, "runs_per_s": 10.0, "workers": "1"},
                "controllers": {"spec": {
                    "title": "spec LQR", "runs": 10, "contact_probability": failures / 10,

@@ -136,3 +136,46 @@ def test_a_killed_montecarlo_leaves_no_worker(tmp_path: Path) -> None:
     pids = _kill_when_workers_run(["montecarlo", "--samples", "4000", "--workers", "2",
                                    "--t-end", "1"], tmp_path, 2, 900)
     assert _wait_gone(pids) == []
+
+
+def _descendants(pid: int) -> list[psutil.Process]:
+    try:
+        return psutil.Process(pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+
+
+def _cmdline(p: psutil.Process) -> str:
+    try:
+        return " ".join(p.cmdline())
+    except psutil.Error:
+        return ""
+
+
+@pytest.mark.slow
+def test_a_killed_montecarlo_on_a_local_dask_cluster_leaves_no_process(tmp_path: Path) -> None:
+    """`montecarlo --scheduler local`: the LocalCluster's worker processes (started by
+    multiprocessing's spawn, `spawn_main` in their command line) and every other process
+    below the command (the resource tracker...) are gone `GRACE` seconds after a SIGKILL of
+    the command, found in the process table while it ran."""
+    pytest.importorskip("distributed")
+    proc = subprocess.Popen([sys.executable, "-m", "maglevgen.cli", "montecarlo", "--samples",
+                             "100000", "--workers", "2", "--t-end", "1", "--scheduler",
+                             "local"], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 900
+        while len([p for p in _descendants(proc.pid) if "spawn_main" in _cmdline(p)]) < 2:
+            if proc.poll() is not None:
+                pytest.fail(f"the command ended (exit {proc.returncode}) before its cluster "
+                            f"started: {proc.stderr.read().decode()[-500:]}")
+            assert time.monotonic() < deadline, "no Dask worker started in time"
+            time.sleep(0.1)
+        time.sleep(2.0)  # the workers registered with the scheduler and running chunks
+        pids = [p.pid for p in _descendants(proc.pid)]
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert len(pids) >= 2
+    assert _wait_gone(pids) == []
+

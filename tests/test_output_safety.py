@@ -225,6 +225,7 @@ def test_a_file_added_to_a_build_is_refused_not_deleted(fresh_build: Path, capsy
     assert _digests(out) == before
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_a_file_replaced_by_a_link_is_rebuilt_and_its_target_kept(fresh_build: Path,
                                                                   tmp_path: Path,
                                                                   capsys) -> None:

@@ -77,6 +77,7 @@ def _run(sim_lib, carriage: DerivedCarriage, op, controller: str, t_end: float, 
 # ------------------------------------------------------------------ accuracy of the C RK4
 
 
+@pytest.mark.slow  # runs at four steps against solve_ivp, per controller
 @pytest.mark.parametrize("controller", ["none", "damping", "lqr"])
 def test_rk4_error_against_adaptive_reference_shrinks_as_dt4(sim_lib, carriage, op,
                                                              controller) -> None:
@@ -373,6 +374,7 @@ def test_cli_bad_step_exits_2_with_one_line(tmp_path: Path, sim_lib) -> None:
     assert not out.exists()
 
 
+@pytest.mark.slow  # runs against solve_ivp
 def test_reference_check_reports_small_deviation_and_catches_a_wrong_run(sim_lib, carriage,
                                                                          op) -> None:
     from maglevgen.analyses.simulate import reference_check

@@ -184,6 +184,7 @@ def test_spec_design_meets_the_spec_and_the_paper_designs_fail_it(envelope, carr
                                                         "model.circuit_dynamics = quasi-static"}
 
 
+@pytest.mark.slow  # a whole build of its own
 def test_build_exits_3_naming_the_spec_the_embedded_design_fails(tmp_path) -> None:
     """A 20 Hz controller with one tick of delay cannot hold the levitation modes (40-60
     rad/s): the spec design fails, build writes its outputs and exits 3 naming the spec and
@@ -246,7 +247,8 @@ def test_build_exits_3_naming_the_run_spec_the_embedded_design_fails(tmp_path,
     assert found, line
     assert float(found.group(1)) >= bound * (1 - 1e-3)
     assert "maglevgen simulate --controller spec --speed 40" in line
-    assert f"- hold run at {v_max:.4g} m/s: FAILS peak lateral deviation" in summary
+    assert re.search(rf"^- hold run at {v_max:.4g} m/s( \([^)]*\))?: FAILS peak lateral deviation",
+                     summary, re.M), summary
     again = subprocess.run([*args, "--allow-unstable"], capture_output=True, text=True)
     assert again.returncode == 0 and "warning: verification failed" in again.stderr
 

@@ -10,6 +10,7 @@ import errno
 import html
 import re
 import subprocess
+import unicodedata
 from pathlib import Path
 
 import pytest
@@ -76,24 +77,63 @@ def test_a_set_value_with_a_second_key_is_refused() -> None:
 
 HOSTILE = ("caf\u00e9 \u03bb \u03c2 \u4e2d \u00b5 \U0001f600 \u00e9\u0301 $x^2$ 50% #1 a_b {c} "
            "~ \\ \0\x01\x7f\x1b[31m \u202e")
+# accented Latin letters, Greek and CJK: typeset (the first two) or shown as code points
+INTERNATIONAL = ("M\u00fcller & Sch\u00f6n, \u00c5ngstr\u00f6m-Institut, caf\u00e9 "
+                 "\u00d1and\u00fa fa\u00e7ade; Stra\u00dfe; \u03b1 = \u03c9/\u03bb, \u0394 \u03a9; "
+                 "\u4e2d\u6587\u8cc7\u6599 (\U0001f600)")
+TEMPLATE = Path(__file__).resolve().parents[1] / "templates" / "report.tex.j2"
+
+
+def _typeset(tmp_path: Path, body: str) -> str:
+    """``body`` in a document with the report's own preamble (templates/report.tex.j2: its
+    class, packages and font encoding), built by pdflatex and read back by pdftotext (NFC)."""
+    template = TEMPLATE.read_text()
+    preamble = template[template.index("\\documentclass"):template.index("\\begin{document}")]
+    doc = tmp_path / "t.tex"
+    doc.write_text(preamble.replace("\\VAR{version}", "test")
+                   + f"\\begin{{document}}\n{body}\n\\end{{document}}\n")
+    done = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", doc.name],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:]
+    assert "Missing character" not in (tmp_path / "t.log").read_text()
+    text = subprocess.run(["pdftotext", "t.pdf", "-"], cwd=tmp_path, capture_output=True,
+                          text=True, check=True).stdout
+    return unicodedata.normalize("NFC", text)
 
 
 @pytest.mark.needs_tex
 def test_escaped_unicode_and_control_characters_typeset(tmp_path: Path) -> None:
-    """pdflatex (the report's engine) typesets the escaped text; what it prints keeps every
-    ASCII letter of the input."""
+    """pdflatex (the report's engine, with the report's preamble) typesets the escaped text;
+    what it prints keeps every ASCII letter of the input and the accented and Greek letters."""
     escaped = tex_escape(HOSTILE)
     assert all(32 <= ord(c) < 127 or c == "\n" for c in escaped), escaped
-    doc = tmp_path / "t.tex"
-    doc.write_text("\\documentclass{article}\\usepackage[T1]{fontenc}\\begin{document}\n"
-                   f"{escaped}\n\\end{{document}}\n")
-    done = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", doc.name],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout[-2000:]
-    text = subprocess.run(["pdftotext", "t.pdf", "-"], cwd=tmp_path, capture_output=True,
-                          text=True, check=True).stdout
-    for word in ("cafe", "50%", "#1", "a_b", "{c}", "[31m"):
+    text = _typeset(tmp_path, escaped)
+    for word in ("caf\u00e9", "\u03bb", "50%", "#1", "{c}", "[31m", "[U+4E2D]", "[U+1F600]"):
         assert word in text, text
+    assert re.search("a[ _]b", text), text  # OT1's underscore is a rule: pdftotext's space
+
+
+@pytest.mark.needs_tex
+def test_a_provenance_in_greek_accents_and_cjk_reaches_the_pdf(tmp_path: Path) -> None:
+    """A provenance note with accented Latin, Greek and CJK text, as the report's parameter
+    table takes it (`provenance_of` of a validated file, `tex_escape`): the accented and Greek
+    letters typeset as themselves, the CJK shown as its code points (no font for it in the
+    TeX Live packages the report needs), nothing dropped."""
+    from maglevgen.params import load_params
+    from maglevgen.report.sections.parameters import provenance_of
+
+    loaded = load_params(_with_provenance(tmp_path, INTERNATIONAL))
+    note = next(n for k in ("vehicle.mass", "halbach.remanence", "vehicle.length")
+                if (n := provenance_of(k, loaded.params.provenance)) is not None
+                and n.text == INTERNATIONAL)
+    text = " ".join(_typeset(tmp_path, tex_escape(note.text)).split())
+    expected = ("M\u00fcller & Sch\u00f6n, \u00c5ngstr\u00f6m-Institut, caf\u00e9 \u00d1and\u00fa "
+                "fa\u00e7ade; Stra\u00dfe; \u03b1 = \u03c9/\u03bb,")
+    assert expected in text, text
+    # capital Delta: pdftotext reads the glyph's name as U+2206 (increment)
+    assert "\u03a9" in text and ("\u0394" in text or "\u2206" in text), text
+    # (a line may break after each code point)
+    assert "[U+4E2D][U+6587][U+8CC7][U+6599]([U+1F600])" in text.replace(" ", ""), text
 
 
 NAMES = ["carriage_llnl.toml", "x\x1b[31mred\x1b[0m.toml", "<script>alert(1)</script>.toml",

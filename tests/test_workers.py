@@ -81,10 +81,11 @@ def test_a_child_that_dies_is_reported() -> None:
 def test_leaving_the_block_by_an_error_stops_the_child() -> None:
     start = time.monotonic()
     with pytest.raises(KeyError), child() as pool:
-        jobs = [submit(pool, "sleeping", _sleep_then, i, 30.0) for i in range(3)]
+        jobs = [submit(pool, "sleeping", _sleep_then, i, 600.0) for i in range(3)]
         time.sleep(0.2)  # the first job has started
         raise KeyError("an error elsewhere")
-    assert time.monotonic() - start < 25.0  # not the 30 s of the first job (loaded machine: slack)
+    # not the 600 s of the first job; a loaded machine's slack for the stop (idle: under 1 s)
+    assert time.monotonic() - start < 300.0
     for job in jobs:
         assert job.future.cancelled() or job.future.exception() is not None
 

@@ -6,8 +6,10 @@
     default carriage's parameter vector (maglevgen.params.flatten) with each value's
     provenance (the file's ``[provenance]`` table: "paper" with where, or "assumed" with why).
 ``maglev-examples``
-    Every script of examples/ (its docstring and its source), in name order, so that a new
-    example appears without editing the page.
+    Every script of examples/ (its docstring, its source, then what running it printed and
+    drew: the outputs stored in docs/_examples/, which tests/test_examples.py checks are those
+    of running it now; _ext/example_outputs.py), in name order, so that a new example appears
+    without editing the page.
 ``maglev-notebook``
     A Jupyter notebook's cells (markdown as text, code as Python blocks), each code cell with
     its outputs: the notebook is executed at build time (nbclient, the docs extra).
@@ -95,13 +97,16 @@ class ParametersDirective(_Rst):
 
 
 class ExamplesDirective(_Rst):
-    """Each example script: a section with its docstring and its source."""
+    """Each example script: a section with its docstring, its source and its stored
+    outputs (stdout, then each figure captioned with the path the script wrote it to)."""
 
     has_content = False
 
     def run(self) -> list[nodes.Node]:
+        from example_outputs import DEFAULT_OUT, STORE, scripts, stored
+
         lines: list[str] = []
-        for path in sorted(EXAMPLES.glob("*.py")):
+        for path in scripts():
             self.env.note_dependency(str(path))
             doc = ast.get_docstring(ast.parse(path.read_text())) or ""
             rel = Path("..") / path.relative_to(REPO)
@@ -109,6 +114,18 @@ class ExamplesDirective(_Rst):
             lines += [f"    {line}" for line in doc.splitlines()]
             lines += ["", f".. literalinclude:: {rel.as_posix()}", "   :language: python",
                       "   :lines: " + f"{_after_docstring(path)}-", ""]
+            text, figures = stored(path)
+            self.env.note_dependency(str(STORE / path.stem / "output.txt"))
+            lines += [f"Its output (``python examples/{path.name}``):", "",
+                      ".. code-block:: text", "   :class: maglev-output", ""]
+            lines += [f"   {line}" if line else "" for line in text.splitlines()]
+            lines.append("")
+            for name, png in figures.items():
+                self.env.note_dependency(str(png))
+                src = "/" + png.relative_to(REPO / "docs").as_posix()
+                lines += [f".. figure:: {src}", f"   :alt: {DEFAULT_OUT}/{name}",
+                          "   :class: maglev-output", "",
+                          f"   ``{DEFAULT_OUT}/{name}``", ""]
         return self._parse(lines)
 
 

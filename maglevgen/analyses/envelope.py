@@ -58,6 +58,7 @@ from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
 __all__ = [
     "DEFAULT_SPEEDS",
+    "MAX_SPEEDS",
     "MODEL_CHOICES",
     "ControllerEnvelope",
     "Envelope",
@@ -549,21 +550,23 @@ def loop_design(op: OperatingPoint, controller: str, setting: LoopSetting,
 
 def loop_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
                    design: OperatingPoint | None = None,
-                   continuous: bool = False) -> tuple[float, float, float]:
+                   continuous: bool = False) -> tuple[float, float, float, float]:
     """(largest real part, smallest damping ratio, largest real part of the levitation modes,
-    i.e. all but the speed loop's) of the loop as built at ``op`` with ``controller``'s gains
-    from ``design`` (default ``op``; ``continuous``: its continuous gains even where it is
-    designed at the tick); (inf, nan, inf) where it has none."""
+    i.e. all but the speed loop's, largest real part of the speed loop's modes; -inf where it
+    has none) of the loop as built at ``op`` with ``controller``'s gains from ``design``
+    (default ``op``; ``continuous``: its continuous gains even where it is designed at the
+    tick); (inf, nan, inf, inf) where it has none."""
     try:
         gains = loop_design(design or op, controller, setting, continuous)
     except (np.linalg.LinAlgError, ValueError):
-        return float("inf"), float("nan"), float("inf")
+        return float("inf"), float("nan"), float("inf"), float("inf")
     if not all(np.all(np.isfinite(k)) for k in (gains.K_pos, gains.K_rate)):
-        return float("inf"), float("nan"), float("inf")
+        return float("inf"), float("nan"), float("inf"), float("inf")
     s, speed = loop_plant(op, setting).modes(gains)
     finite = np.isfinite(s)
     max_real, min_damping = stability(s[finite])
-    return max_real, min_damping, float(np.max(s[finite & ~speed].real))
+    speed_real = float(np.max(s[finite & speed].real)) if np.any(finite & speed) else -np.inf
+    return max_real, min_damping, float(np.max(s[finite & ~speed].real)), speed_real
 
 
 def sampled_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
@@ -633,15 +636,20 @@ def spec_failures(carriage, speeds: np.ndarray, max_real: np.ndarray,
 
 def spec_verdict_text(speeds: np.ndarray, failures: tuple[SpecFailure, ...],
                       max_real: np.ndarray, min_damping: np.ndarray,
-                      levitation_real: np.ndarray | None = None) -> str:
-    """"meets the specification across [a, b] m/s (...)" or the failures, "; "-separated."""
+                      levitation_real: np.ndarray | None = None,
+                      speed_real: np.ndarray | None = None) -> str:
+    """"meets the specification across [a, b] m/s (...)" or the failures, "; "-separated;
+    the slowest decay per loop (levitation, speed loop) where ``levitation_real`` and
+    ``speed_real`` give each loop's largest real part."""
     if failures:
         return "; ".join(f.text() for f in failures)
-    lev = ("" if levitation_real is None else
-           f", slowest levitation decay {-np.max(levitation_real):.4g} 1/s")
+    decay = f"slowest decay {-np.max(max_real):.4g} 1/s"
+    if levitation_real is not None:
+        decay = f"slowest decay per loop: levitation {-np.max(levitation_real):.4g} 1/s"
+        if speed_real is not None and np.all(np.isfinite(speed_real)):
+            decay += f", speed loop {-np.max(speed_real):.4g} 1/s"
     return (f"meets the specification across [{speeds[0]:.4g}, {speeds[-1]:.4g}] m/s "
-            f"(smallest damping ratio {np.nanmin(min_damping):.3g}, slowest decay "
-            f"{-np.max(max_real):.4g} 1/s{lev})")
+            f"(smallest damping ratio {np.nanmin(min_damping):.3g}, {decay})")
 
 
 @dataclass(frozen=True)
@@ -704,6 +712,10 @@ def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
     return tuple(out)
 
 
+#: the most speeds of an envelope (`maglevgen envelope --speeds`)
+MAX_SPEEDS = 100_000
+
+
 def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_SPEEDS,
                      controllers: Sequence[str] | None = None,
                      other_models: bool = True) -> Envelope:
@@ -711,8 +723,8 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     continuous linearisation and, against ``[control.spec]``, on the sampled-data loop;
     ``other_models``: the embedded controller's gains also on each alternate model
     (`model_checks`). ``controllers``: default every registered one."""
-    if not 2 <= n_speeds <= 100_000:
-        raise InputError(f"--speeds {n_speeds}: expected 2 to 100000 speeds")
+    if not 2 <= n_speeds <= MAX_SPEEDS:
+        raise InputError(f"--speeds {n_speeds}: expected 2 to {MAX_SPEEDS} speeds")
     v_min, v_max = resolve_range(carriage, lib)
     speeds = np.linspace(v_min, v_max, n_speeds)
     points = envelope_points(carriage, lib, speeds)
@@ -733,7 +745,7 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
             pick = np.unique(np.linspace(0, len(points) - 1, MARGIN_SPEEDS).round().astype(int))
             margins = loop_margins(carriage, [points[i] for i in pick], c, setting)
             failures += margins.failures(carriage.params.control.spec)
-        said = spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1], sd[:, 2])
+        said = spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1], sd[:, 2], sd[:, 3])
         if margins is not None and not failures:
             said += f"; {margins.text()}"
         continuous = None
@@ -741,7 +753,7 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
             cd = np.array([loop_stability(op, c, setting, continuous=True) for op in points])
             cf = spec_failures(carriage, speeds, cd[:, 0], cd[:, 1], cd[:, 2])
             continuous = TickDesignCheck(cd[:, 0], cd[:, 1], cf, spec_verdict_text(
-                speeds, cf, cd[:, 0], cd[:, 1], cd[:, 2]))
+                speeds, cf, cd[:, 0], cd[:, 1], cd[:, 2], cd[:, 3]))
         out[c] = ControllerEnvelope(c, max_real, min_damping, stable, ranges,
                                     verdict_text(c, speeds, max_real, ranges), sd[:, 0],
                                     sd[:, 1], failures, said, None, sd[:, 2], continuous,

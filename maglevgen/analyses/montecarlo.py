@@ -1,11 +1,19 @@
 """Monte-Carlo robustness over the carriage's tolerances (`maglevgen montecarlo`).
 
 Each sample draws the parameters listed in the file's ``[tolerances]`` (normal, truncated at
-+-4 sigma, or uniform about the file's value), a hold speed and an initial disturbance; then,
-per controller, the trim, the gains and one closed-loop RK4 run (the hold scenario of
-`maglevgen simulate`) all in the compiled run-time-parameter C (the parameters are arguments
-of the C, so nothing is regenerated or recompiled), and the run's status and per-axis metrics
++-4 sigma, or uniform about the file's value), a hold speed (by default uniform over the
+envelope's [v_min, v_max]) and an initial disturbance; then, per controller, one closed-loop
+RK4 run (the hold scenario of `maglevgen simulate`) from the sampled carriage's own trim plus
+the disturbance, all in the compiled run-time-parameter C (the parameters are arguments of the
+C, so nothing is regenerated or recompiled), and the run's status and per-axis metrics
 (maglevgen.analyses.simulate.metrics).
+
+As the firmware flies (the default): the controller is the NOMINAL carriage's design at the
+sample's speed, its gains, its reference and its feed-forward propulsion (what the firmware's
+table and schedule hold, designed once on the file's values), flying the sampled carriage,
+which the firmware does not know. ``--redesign`` (`Study.redesign`) instead re-trims and
+re-designs the controller for each sample's own parameters, as if the firmware knew them: an
+optimistic bound, named as such in the output.
 
 Reproducibility: sample i draws from ``SeedSequence(seed, spawn_key=(i,))`` (numpy's i-th
 child of the seed), so its result depends on (seed, i) alone, never on the worker count or
@@ -46,6 +54,7 @@ from maglevgen.control import controller as registered_controller
 from maglevgen.control import title as controller_title
 from maglevgen.control.operating import (
     REDUCED_STATES,
+    OperatingPoint,
     Weights,
     checked_trim,
     operating_point,
@@ -90,6 +99,9 @@ class Study:
     tick: Any = None
     speed_gain: float = 0.0
     force_budget: float | None = None
+    # True: each sample's controller re-designed for its own parameters (``--redesign``);
+    # False: the nominal design at the sample's speed, as the firmware flies (module docstring)
+    redesign: bool = False
     # per controller the nominal carriage's sampled region of attraction over the speed range
     # (maglevgen.analyses.roa at BUILD_SAMPLING, without boundary runs): (speeds, P / c per speed,
     # NaN where there is none), for each sample's ``region_multiple``
@@ -182,11 +194,12 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     prepared = _prepare(study, index, lib)
     if isinstance(prepared, list):
         return prepared
-    p, op, disturbance, row = prepared
+    p, op, design, disturbance, row = prepared
     return [_run_row(study, lib, p, row, c,
                      simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance,
                               tick=study.tick, speed_gain=study.speed_gain,
-                              force_budget=study.force_budget), op, disturbance)
+                              force_budget=study.force_budget, controller_op=design),
+                     op, disturbance)
             for c in study.controllers]
 
 
@@ -205,23 +218,24 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
         if isinstance(prepared, list):
             out.append(prepared)
             continue
-        p, op, disturbance, row = prepared
+        p, op, design, disturbance, row = prepared
         out.append(None)
         for c in study.controllers:
-            jobs.append((p, op, c, disturbance))
+            jobs.append((p, op, c, disturbance, design))
             owners.append((len(out) - 1, row))
     trajectories = simulate_batch(lib, jobs, study.t_end, study.dt, study.min_gap,
                                   tick=study.tick, speed_gain=study.speed_gain,
                                   force_budget=study.force_budget, threads=threads)
     runs: dict[int, list[dict]] = {}
-    for (k, row), (p, op, c, d), traj in zip(owners, jobs, trajectories, strict=True):
+    for (k, row), (p, op, c, d, _), traj in zip(owners, jobs, trajectories, strict=True):
         runs.setdefault(k, []).append(_run_row(study, lib, p, row, c, traj, op, d))
     return [r for k, rows in enumerate(out) for r in (rows if rows is not None else runs[k])]
 
 
 def _prepare(study: Study, index: int, lib):
-    """Sample ``index``'s (p, operating point, disturbance, row maker), or its rows when it
-    has no run (rejected, no trim)."""
+    """Sample ``index``'s (p, its operating point, the controller's operating point (the
+    nominal carriage's at the sample's speed, or the sample's own with ``study.redesign``),
+    disturbance, row maker), or its rows when it has no run (rejected, no trim)."""
     draws = sample_inputs(study, index)
     base = {"sample": index, **dict(zip(study.columns, draws.tolist(), strict=True))}
     disturbance = {s: float(d) for (s, _), d in
@@ -252,7 +266,14 @@ def _prepare(study: Study, index: int, lib):
         op = operating_point(lib, p, float(draws[0]), study.min_gap, study.weights)
     except NoTrimError as exc:
         return [row(c, "no trim", str(exc)) for c in study.controllers]
-    return p, op, disturbance, row
+    design = op if study.redesign else nominal_design(study, lib, float(draws[0]))
+    return p, op, design, disturbance, row
+
+
+def nominal_design(study: Study, lib, speed: float) -> OperatingPoint:
+    """The nominal carriage's operating point at ``speed``: the design the firmware flies
+    every sampled carriage with (its gains, reference and feed-forward)."""
+    return operating_point(lib, np.array(study.p), speed, study.min_gap, study.weights)
 
 
 def _run_row(study: Study, lib, p, row, controller: str, traj, op,
@@ -488,13 +509,13 @@ def run_dask(study: Study, n: int, client, chunk: int | None = None,
 
 def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: float,
                seed: int, tick=None, speed_gain: float = 0.0,
-               force_budget: float | None = None) -> Study:
+               force_budget: float | None = None, redesign: bool = False) -> Study:
     """The study of a carriage's [tolerances]; the speed range defaults to the envelope's.
     Refuses a step above RK4's stability limit at the range's ends (nominal parameters).
     ``tick`` (maglevgen.analyses.simulate.Tick), ``speed_gain``, ``force_budget``: how the
     controller
     runs in every sample, as in maglevgen.analyses.simulate.simulate (the defaults: at every RK4
-    stage, no speed loop, no budget)."""
+    stage, no speed loop, no budget); ``redesign``: `Study.redesign`."""
     control_loop(dt, tick, speed_gain, force_budget, 1.0)  # refused before any sample
 
     params = carriage.params
@@ -530,7 +551,7 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
         speed=speed, disturbance=tuple((s, float(a)) for s, a in tol.disturbance.items()),
         controllers=tuple(controllers), t_end=float(t_end), dt=float(dt),
         min_gap=float(params.track.min_gap), weights=w, seed=int(seed), tick=tick,
-        speed_gain=float(speed_gain), force_budget=force_budget,
+        speed_gain=float(speed_gain), force_budget=force_budget, redesign=bool(redesign),
         regions=study_regions(carriage, lib, controllers, speed))
 
 
@@ -662,13 +683,24 @@ def summary_json(study: Study, n: int, agg: dict, timing: dict) -> dict:
         "tolerances": {k: ({"normal": s} if not math.isnan(s) else {"uniform": h})
                        for k, s, h in zip(study.keys, study.sigma, study.half, strict=True)},
         "per_sample_seed": "numpy SeedSequence(seed, spawn_key=(sample,))",
+        "controller_design": design_text(study),
         "confidence": "95 % Wilson score interval",
         "controllers": agg, "timing": timing,
     })
 
 
+def design_text(study: Study) -> str:
+    """How each sample's controller was designed, in words (the module docstring)."""
+    if study.redesign:
+        return ("redesigned per sample (--redesign): each sampled carriage re-trimmed and its "
+                "controller re-designed for its own parameters, as if the firmware knew them")
+    return ("as the firmware flies: the nominal carriage's design at each sample's speed (its "
+            "gains, reference and feed-forward propulsion) on the sampled carriage")
+
+
 def markdown(summary: dict) -> str:
     lines = ["# Monte-Carlo robustness", "",
+             f"Controller: {summary['controller_design']}.", "",
              f"{summary['samples']} samples (seed {summary['seed']}) of {summary['t_end']:g} s "
              f"at dt = {summary['dt']:g} s, speed uniform in [{summary['speed_range'][0]:.4g}, "
              f"{summary['speed_range'][1]:.4g}] m/s; {summary['timing']['runs']} runs in "
@@ -891,9 +923,10 @@ def default_workers() -> int:
         os.cpu_count() or 1)
 
 
-__all__ = ["ChunkFailedError", "Result", "Study", "aggregate", "check_scheduler",
-           "concat", "contact_cause", "dask_client", "default_chunk", "default_workers",
-           "input_label", "make_study", "markdown", "output_files", "plots", "region_multiple",
+__all__ = ["MAX_SAMPLES", "ChunkFailedError", "Result", "Study", "aggregate",
+           "check_scheduler", "concat", "contact_cause", "dask_client", "default_chunk",
+           "default_workers", "design_text", "input_label", "make_study", "markdown",
+           "nominal_design", "output_files", "plots", "region_multiple",
            "run_chunk",
            "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study", "sample_inputs",
            "sample_parameters", "study_regions", "summary_json", "table", "table_files", "wilson"]
@@ -906,5 +939,8 @@ def check_scheduler(scheduler: str | None) -> None:
 
     if scheduler is None or scheduler == "local":
         return
-    if not re.fullmatch(r"(tcp|tls)://[A-Za-z0-9_.\-\[\]:]+:\d{1,5}", scheduler):
-        raise InputError(f"--scheduler {scheduler!r}: expected 'local' or tcp://HOST:PORT")
+    m = (re.fullmatch(r"(tcp|tls)://[A-Za-z0-9_.\-\[\]:]+:(\d{1,5})", scheduler)
+         if isinstance(scheduler, str) else None)
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise InputError(f"--scheduler {scheduler!r}: expected 'local' or tcp://HOST:PORT "
+                         "(a port from 1 to 65535)")

@@ -13,6 +13,7 @@ numerical LQR of each axis and the 50-digit closed form (mpmath).
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -306,8 +307,10 @@ def gains_report(carriage: DerivedCarriage, speed: float | None,
         "axes": {g.axis: g.to_json(Q, R) for g in gains},
         "coupled": {
             "states": list(REDUCED_STATES),
-            "cost_per_axis_design": cc.cost_per_axis,
-            "cost_coupled_lqr": cc.cost_coupled,
+            # null where the design is unstable on the coupled model (an unbounded cost):
+            # JSON has no infinity, and no command prints a non-finite number
+            "cost_per_axis_design": _finite_or_none(cc.cost_per_axis),
+            "cost_coupled_lqr": _finite_or_none(cc.cost_coupled),
             "poles_per_axis_design": poles(cc.poles_per_axis),
             "poles_coupled_lqr": poles(cc.poles_coupled),
             "poles_damping": poles(cc.poles_damping),
@@ -370,6 +373,10 @@ def coupled_comparison(op: OperatingPoint):
     A_r, B_g = op.reduced
     return compare_designs(A_r, B_g, op.rate_map, op.weights, feedback("lqr"), op.K_coupled,
                            feedback("damping"))
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
 
 
 def _pole_key(e: complex) -> tuple[float, float]:

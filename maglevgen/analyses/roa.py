@@ -67,7 +67,8 @@ from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary
 
-__all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "Confirmation", "Evaluator", "Recovery", "Region",
+__all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "MAX_BATCH", "MAX_DIRECTIONS", "MAX_SPEEDS",
+           "Confirmation", "Evaluator", "Recovery", "Region",
            "Sampling", "SpeedRegion", "axis_rows", "confirmation_run", "contact_level",
            "default_deviation", "design_weights", "lyapunov_matrix", "recovery_bracket",
            "recovery_lines", "region_markdown", "region_of_attraction", "region_png",
@@ -88,6 +89,11 @@ CONFIRM_SHRINK, CONFIRM_ROUNDS = 0.64, 6
 CONFIRM_T_END, CONFIRM_DT = 6.0, 1e-3
 
 
+#: the most directions per speed, states per C call and speeds (`maglevgen roa`): the
+#: states of a speed are held in memory, ten doubles each
+MAX_DIRECTIONS, MAX_BATCH, MAX_SPEEDS = 1_000_000, 1_000_000, 1000
+
+
 @dataclass(frozen=True)
 class Sampling:
     """How densely the set is sampled and how the work is split.
@@ -106,13 +112,16 @@ class Sampling:
     workers: int = 1
 
     def __post_init__(self) -> None:
-        for name, low in (("directions", 1), ("radii", 2), ("bisections", 0), ("confirm", 0),
-                          ("batch", 1), ("workers", 1)):
+        for name, low, high in (("directions", 1, MAX_DIRECTIONS), ("radii", 2, 10_000),
+                                ("bisections", 0, 64), ("confirm", 0, 10_000),
+                                ("batch", 1, MAX_BATCH), ("workers", 1, 1024),
+                                ("seed", 0, 2**128 - 1)):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) \
-                    or value < low:
+                    or not low <= value <= high:
                 option = "--samples" if name == "directions" else f"--{name}"
-                raise InputError(f"{option} {value!r}: expected a whole number >= {low}")
+                raise InputError(f"{option} {value!r}: expected a whole number from {low} "
+                                 f"to {high}")
 
 
 #: the command's resolution and the build's (seconds, not minutes)
@@ -757,8 +766,8 @@ def study(carriage, lib: SimulationLibrary, controllers: Sequence[str],
           loop: str = "firmware",
           progress: Callable[[float], None] | None = None) -> list[Region]:
     """The region of each of ``controllers`` at ``n_speeds`` speeds spanning the envelope."""
-    if not isinstance(n_speeds, (int, np.integer)) or not 1 <= n_speeds <= 1000:
-        raise InputError(f"--speeds {n_speeds!r}: expected 1 to 1000 speeds")
+    if not isinstance(n_speeds, (int, np.integer)) or not 1 <= n_speeds <= MAX_SPEEDS:
+        raise InputError(f"--speeds {n_speeds!r}: expected 1 to {MAX_SPEEDS} speeds")
     v_min, v_max = resolve_range(carriage, lib)
     speeds = np.linspace(v_min, v_max, n_speeds) if n_speeds > 1 else np.array([v_min])
     out = []

@@ -366,9 +366,16 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
              t_end: float, dt: float, min_gap: float,
              disturbance: dict[str, float] | None = None,
              progress: Progress | None = None, tick: Tick | None = None,
-             speed_gain: float = 0.0, force_budget: float | None = None) -> Trajectory:
+             speed_gain: float = 0.0, force_budget: float | None = None,
+             controller_op: OperatingPoint | None = None) -> Trajectory:
     """The hold scenario in C: RK4 from the disturbed trim to ``t_end`` or contact, the
     propulsion at the trim drag and the gains fixed at the trim speed's.
+
+    ``controller_op``: the operating point the controller was designed at, when it is not
+    the plant's ``op`` (the firmware's nominal design flying a carriage whose parameters
+    ``p`` differ from the nominal: `maglevgen montecarlo`): its gains, its reference and its
+    feed-forward propulsion; the run still starts from ``op``'s trim plus the disturbance,
+    and is measured against ``p``'s own trim.
 
     ``tick``: the controller runs at the tick with its delay, the command held between ticks
     (None: at every RK4 stage); ``speed_gain``: k_v of the speed loop F_prop = F_trim +
@@ -378,7 +385,8 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
     """
     n_steps = _check_steps(t_end, dt)
     disturbance = DISTURBANCE if disturbance is None else disturbance
-    first = hold_run(p, op, controller, dt, disturbance, tick, speed_gain, force_budget)
+    first = hold_run(p, op, controller, dt, disturbance, tick, speed_gain, force_budget,
+                     controller_op)
     n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     xs, us, gs = [], [], []
     done, status, saturated = 0, 0, 0
@@ -409,13 +417,16 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
 
 def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
              disturbance: dict[str, float], tick: Tick | None = None, speed_gain: float = 0.0,
-             force_budget: float | None = None) -> BatchRun:
-    """maglev_simulate's inputs for `simulate`'s run (the disturbed trim, the trim drag, the
-    controller's gains at op, p and the loop): what `simulate_batch` runs."""
-    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed)
-    K_pos, K_rate = (k.ravel(order="F") for k in op.gains(controller))
-    return BatchRun(initial_state(op, disturbance), float(op.f_prop), K_pos, K_rate,
-                    op.a_trim, p, loop)
+             force_budget: float | None = None,
+             controller_op: OperatingPoint | None = None) -> BatchRun:
+    """maglev_simulate's inputs for `simulate`'s run (the disturbed trim of ``op``, the trim
+    drag, the gains and the reference of ``controller_op`` (default ``op``), p and the loop):
+    what `simulate_batch` runs."""
+    design = op if controller_op is None else controller_op
+    loop = control_loop(dt, tick, speed_gain, force_budget, design.speed)
+    K_pos, K_rate = (k.ravel(order="F") for k in design.gains(controller))
+    return BatchRun(initial_state(op, disturbance), float(design.f_prop), K_pos, K_rate,
+                    design.a_trim, p, loop)
 
 
 def hold_trajectory(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
@@ -436,22 +447,23 @@ def hold_trajectory(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
     return traj
 
 
-def simulate_batch(lib: SimulationLibrary, jobs: list[tuple[np.ndarray, OperatingPoint, str,
-                                                             dict[str, float]]],
+def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
                    t_end: float, dt: float, min_gap: float, tick: Tick | None = None,
                    speed_gain: float = 0.0, force_budget: float | None = None,
                    threads: int = 0) -> list[Trajectory]:
-    """`simulate` of each job (p, op, controller, disturbance), the runs in one call of the C
-    batch driver on ``threads`` threads (0: every core): the same trajectories, in order."""
+    """`simulate` of each job (p, op, controller, disturbance[, controller_op]), the runs in
+    one call of the C batch driver on ``threads`` threads (0: every core): the same
+    trajectories, in order."""
     n_steps = _check_steps(t_end, dt)
     if not jobs:
         return []
-    runs = [hold_run(p, op, c, dt, d, tick, speed_gain, force_budget) for p, op, c, d in jobs]
+    runs = [hold_run(p, op, c, dt, d, tick, speed_gain, force_budget, *design)
+            for p, op, c, d, *design in jobs]
     op0 = jobs[0][1]
     done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
                               op0.gaps.size, threads)
     return [hold_trajectory(lib, p, op, c, dt, min_gap, d, run, tick, speed_gain, force_budget)
-            for (p, op, c, d), run in zip(jobs, done, strict=True)]
+            for (p, op, c, d, *_), run in zip(jobs, done, strict=True)]
 
 
 def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: OperatingPoint,

@@ -149,10 +149,12 @@ def render_runtime_sources(model: CarriageModel, precision: str = "double") -> d
 
 
 def render(carriage: DerivedCarriage, opts: GenerateOptions,
-           speed_range: tuple[float, float] | None = None) -> dict[str, str]:
+           speed_range: tuple[float, float] | None = None,
+           example: dict | None = None) -> dict[str, str]:
     """Every output file's name and text (nothing written). ``speed_range``: the envelope's
     (v_min, v_max) (maglevgen.analyses.envelope.speed_range), baked into the trim's checks with the
-    parameters; required with baked parameters."""
+    parameters; required with baked parameters. ``example``: main.c's controller
+    (`render_interface`)."""
     if opts.parameters == "baked" and speed_range is None:
         raise ValueError("baked parameters need the envelope's speed range")
     built = build_functions(carriage.model, precision=opts.precision)
@@ -165,7 +167,7 @@ def render(carriage: DerivedCarriage, opts: GenerateOptions,
                      speed_range if baked else None)
     c_text = files[SINGLE_FILE if opts.single_file else f"{C_NAME}.c"]
     files.update(render_interface(carriage, opts, function_table(fns, c_text),
-                                  speed_range if baked else None))
+                                  speed_range if baked else None, example))
     files["MISRA_DEVIATIONS.md"] = deviation_list()
     return files
 

@@ -20,6 +20,7 @@ from maglevgen.codegen.simulate_api import manifest_entries
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
+from maglevgen.infrastructure.text import c_string
 from maglevgen.params import entry_limits
 from maglevgen.version import __version__
 
@@ -154,10 +155,15 @@ def c_sources(opts: GenerateOptions) -> list[str]:
 
 
 def render_interface(carriage: DerivedCarriage, opts: GenerateOptions, table: list[dict],
-                     speed_range: tuple[float, float] | None = None) -> dict[str, str]:
+                     speed_range: tuple[float, float] | None = None,
+                     example: dict | None = None) -> dict[str, str]:
     """The parameter-dependent files: maglev.h, main.c, CMakeLists.txt, README.md, manifest.
-    ``speed_range``: the baked trim's [v_min, v_max] (None: v > 0)."""
+    ``speed_range``: the baked trim's [v_min, v_max] (None: v > 0); ``example``: the
+    controller main.c runs (`maglevgen.analyses.verdicts.generate_example`: the embedded
+    controller's gains at a verified speed and the verdict there; None: main.c only trims)."""
     ctx = interface_context(carriage, opts, table, speed_range)
+    if example is not None:
+        ctx = {**ctx, **_example_context(example, ctx)}
     env = template_env()
     files = {name: env.get_template(f"{name}.j2").render(ctx)
              for name in ("maglev.h", "main.c", "CMakeLists.txt", "README.md")}
@@ -166,6 +172,18 @@ def render_interface(carriage: DerivedCarriage, opts: GenerateOptions, table: li
         manifest["trim_speed_range"] = [float(v) for v in speed_range]
     files["manifest.json"] = json.dumps(manifest, indent=2) + "\n"
     return files
+
+
+def _example_context(example: dict, ctx: dict) -> dict:
+    """main.c's example: the speed, the gains, and its two printed lines as C strings
+    (`c_string`: the one escaping of text reaching C)."""
+    seconds = ctx["n_steps"] * float(ctx["dt"])
+    what = (f"maglevgen example: the embedded controller {example['controller']} "
+            f"({example['title']}), its gains at {example['speed']:.4g} m/s, in the closed loop "
+            f"of maglev_rk4_step for {seconds:g} s from the default disturbance")
+    return {"speed": c_literal(example["speed"], "double"),
+            "example": {**example, "what": c_string(what, 72),
+                        "verdict_c": c_string(example["verdict"], 72)}}
 
 
 def interface_context(carriage: DerivedCarriage, opts: GenerateOptions, table: list[dict],
@@ -190,7 +208,7 @@ def interface_context(carriage: DerivedCarriage, opts: GenerateOptions, table: l
         "states": cv.STATES, "inputs": inputs, "controls": cv.CONTROLS, "params": params,
         "functions": [{**f, "checks": entry_checks(f, runtime, work)} for f in table],
         "speed": c_literal(carriage.params.operation.speed, "double"),
-        "dt": "1e-3", "n_steps": 2000, "error_defines": error_defines(),
+        "dt": "1e-3", "n_steps": 2000, "error_defines": error_defines(), "example": None,
         "c_sources": c_sources(opts),
         "speed_range": None if speed_range is None
         else [c_literal(v, "double") for v in speed_range],

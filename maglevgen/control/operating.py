@@ -475,7 +475,9 @@ def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: 
     # eq 3 at a fixed gap: F_D = F_L r, r = R/(omega L) = v_c/V, F_D ~ r/(1 + r^2), so
     # dF_D/dV = -F_D (1 - r^2) / ((1 + r^2) V); r from the C's drag/lift of each array.
     lift, drag = (a.ravel() for a in lib.function("maglev_array_forces")(op.x_trim, p))
-    r = drag / lift
+    # an array out of the track's reach (its gap metres wide) has no lift and no drag: it adds
+    # nothing to the slope (0/0 made the slope NaN, printed by `gains --json`)
+    r = np.divide(drag, lift, out=np.zeros_like(drag), where=lift != 0)
     fixed = float(-np.sum(drag * (1 - r**2) / ((1 + r**2) * V)))
     # the speed mode: the eigenvector with the largest share in u (x, a pure integrator, aside)
     A_cl = op.full_closed_loop(controller)[1:, 1:]

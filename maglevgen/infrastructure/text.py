@@ -13,7 +13,8 @@ from __future__ import annotations
 import re
 import unicodedata
 
-__all__ = ["MAX_TEXT", "check_text", "control_character", "markdown_code", "shown_name"]
+__all__ = ["MAX_TEXT", "c_string", "check_text", "control_character", "markdown_code",
+           "shown_name"]
 
 #: the longest user text kept (a provenance note, a name): longer is a mistake, not a note
 MAX_TEXT = 2000
@@ -62,3 +63,26 @@ def markdown_code(text: object) -> str:
     run = max((len(m) for m in re.findall(r"`+", shown)), default=0)
     pad = " " if shown.startswith("`") or shown.endswith("`") else ""
     return f"{'`' * (run + 1)}{pad}{shown}{pad}{'`' * (run + 1)}"
+
+
+def c_string(text: object, width: int = 80) -> str:
+    """``text`` as a C string literal (ASCII; backslash, quote and anything outside the
+    printable ASCII escaped as octal), split into adjacent literals of at most ``width``
+    characters of text at spaces, one per line, for a generated source's line length."""
+    out = []
+    for ch in str(text):
+        if ch in '\\"':
+            out.append("\\" + ch)
+        elif " " <= ch <= "~" and ch != "?":  # "?" escaped: no trigraph can form
+            out.append(ch)
+        else:
+            out.extend(f"\\{b:03o}" for b in ch.encode("utf-8"))
+    words, lines, line = "".join(out).split(" "), [], ""
+    for w in words:
+        if line and len(line) + 1 + len(w) > width:
+            lines.append(line + " ")
+            line = w
+        else:
+            line = f"{line} {w}" if line else w
+    lines.append(line)
+    return "\n".join(f'"{ln}"' for ln in lines)

@@ -26,6 +26,7 @@ __all__ = [
     "tex_key",
     "tex_prose",
     "tex_unit",
+    "tex_verdict",
 ]
 
 # A value below this fraction of its table's largest is round-off of a structural zero: printed
@@ -116,32 +117,107 @@ _TEX_ESCAPES = {
 }
 
 
-#: the Greek small letters LaTeX has a command for (omicron is an o)
+#: the Greek letters LaTeX has a command for (the capitals not drawn as Latin letters)
 _TEX_GREEK = frozenset(("alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta",
                         "iota", "kappa", "lamda", "mu", "nu", "xi", "pi", "rho", "sigma", "tau",
-                        "upsilon", "phi", "chi", "psi", "omega"))
+                        "upsilon", "phi", "chi", "psi", "omega", "final sigma", "Gamma", "Delta",
+                        "Theta", "Lamda", "Xi", "Pi", "Sigma", "Upsilon", "Phi", "Psi",
+                        "Omega"))
+_GREEK_COMMAND = {"lamda": "lambda", "Lamda": "Lambda", "final sigma": "varsigma"}
+#: Greek capitals drawn as Latin ones (LaTeX has no command for them), and omicron
+_GREEK_AS_LATIN = {"Alpha": "A", "Beta": "B", "Epsilon": "E", "Zeta": "Z", "Eta": "H",
+                   "Iota": "I", "Kappa": "K", "Mu": "M", "Nu": "N", "Omicron": "O", "Rho": "P",
+                   "Tau": "T", "Chi": "X", "omicron": "o"}
+#: letters of Latin alphabets with a LaTeX command (OT1, the report's font encoding)
+_TEX_LETTERS = {"ß": r"\ss{}", "æ": r"\ae{}", "Æ": r"\AE{}", "œ": r"\oe{}", "Œ": r"\OE{}",
+                "ø": r"\o{}", "Ø": r"\O{}", "ł": r"\l{}", "Ł": r"\L{}", "ı": r"\i{}",
+                "ȷ": r"\j{}", "¿": "?`", "¡": "!`", "§": r"\S{}", "¶": r"\P{}",
+                "©": r"\copyright{}", "£": r"\pounds{}", "‘": "`", "\u00a0": "~",
+                "≤": r"$\le$", "≥": r"$\ge$", "≈": r"$\approx$", "≠": r"$\neq$",
+                "→": r"$\to$", "∞": r"$\infty$", "²": r"$^2$", "³": r"$^3$", "¹": r"$^1$",
+                "√": r"$\surd$", "∂": r"$\partial$", "−": "$-$", "′": r"$'$"}
+#: combining marks that are LaTeX text accents in OT1 (an ogonek, say, is not: escaped)
+_TEX_ACCENTS = {"\u0300": "`", "\u0301": "'", "\u0302": "^", "\u0303": "~", "\u0304": "=",
+                "\u0306": "u", "\u0307": ".", "\u0308": '"', "\u030a": "r", "\u030b": "H",
+                "\u030c": "v", "\u0323": "d", "\u0327": "c", "\u0331": "b"}
+_UNSAFE = ("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp")
+
+
+def _tex_char(ch: str) -> str | None:
+    """One character without combining marks as LaTeX, or None where LaTeX has none."""
+    if ch in _TEX_ESCAPES:
+        return _TEX_ESCAPES[ch]
+    if ch in "\n\t\r":
+        return " " if ch != "\n" else ch  # white space: LaTeX's meaning unchanged
+    if unicodedata.category(ch) in _UNSAFE:
+        return "?"
+    if ord(ch) < 128:
+        return ch
+    if ch in _TEX_LETTERS:
+        return _TEX_LETTERS[ch]
+    name = unicodedata.name(ch, "")
+    if name.startswith(("GREEK SMALL LETTER ", "GREEK CAPITAL LETTER ")):
+        letter = name.split(" LETTER ", 1)[1].lower()
+        if name.startswith("GREEK CAPITAL"):
+            letter = letter.capitalize()
+        if letter in _GREEK_AS_LATIN:
+            return _GREEK_AS_LATIN[letter]
+        if letter in _TEX_GREEK:
+            return f"$\\{_GREEK_COMMAND.get(letter, letter)}$"
+    compat = unicodedata.normalize("NFKD", ch)  # a ligature, a full-width letter: its letters
+    if compat != ch and all(32 <= ord(c) < 127 for c in compat):
+        return "".join(_TEX_ESCAPES.get(c, c) for c in compat)
+    return None
+
+
+def _escaped_code_points(text: str) -> str:
+    """What LaTeX cannot typeset, shown as its code points: [U+4E2D] (a break point after)."""
+    return "".join(f"[U+{ord(c):04X}]\\allowbreak{{}}" for c in text)
 
 
 def tex_escape(text: object) -> str:
-    """Text made safe for LaTeX: special characters escaped, other non-ASCII transliterated,
-    control characters (which the parameter file's validation refuses) shown as ``?``."""
+    """Text made safe for LaTeX, in ASCII: special characters escaped; accented Latin letters
+    as LaTeX accents on their letter (e acute as \\'{e}), Greek letters as math symbols, other
+    letters and signs with a LaTeX command as that command (all in the report's OT1 fonts,
+    which pdftotext reads back as the characters); anything else (CJK, emoji, Cyrillic...)
+    shown as its code points, [U+4E2D]; control characters (which the parameter file's
+    validation refuses) as ``?``."""
     out = []
-    for ch in str(text):
-        name = unicodedata.name(ch, "")
-        greek = name[19:].lower() if name.startswith("GREEK SMALL LETTER ") else ""
-        if ch in _TEX_ESCAPES:
-            out.append(_TEX_ESCAPES[ch])
-        elif ch in "\n\t\r":
-            out.append(" " if ch != "\n" else ch)  # white space: LaTeX's meaning unchanged
-        elif unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"):
-            out.append("?")
-        elif ord(ch) < 128:
-            out.append(ch)
-        elif greek in _TEX_GREEK:
-            out.append(rf"$\{'lambda' if greek == 'lamda' else greek}$")
-        else:
-            ascii_ = unicodedata.normalize("NFKD", ch).encode("ascii", "ignore").decode()
-            out.append(ascii_ or "?")
+    # a base character and the combining marks on it, from the decomposed text
+    for group in re.findall(r".[\u0300-\u036f]*|[\u0300-\u036f]+", unicodedata.normalize(
+            "NFD", str(text)), flags=re.DOTALL):
+        base, marks = group[0], group[1:]
+        if unicodedata.combining(base):
+            out.append(_escaped_code_points(group))
+            continue
+        if not marks:
+            tex = _tex_char(base)
+            out.append(tex if tex is not None else _escaped_code_points(base))
+            continue
+        if base.isascii() and base.isalpha() and all(m in _TEX_ACCENTS for m in marks):
+            tex = {"i": r"\i{}", "j": r"\j{}"}.get(base, base)  # dotless under an accent
+            for m in marks:
+                tex = f"\\{_TEX_ACCENTS[m]}{{{tex}}}"
+            out.append(tex)
+        elif base.isalpha():  # a mark OT1 has no accent for, or a letter it cannot accent
+            out.append(_escaped_code_points(unicodedata.normalize("NFC", group)))
+        else:  # marks on a space or a sign: the sign, and the marks shown
+            tex = _tex_char(base)
+            out.append((tex if tex is not None else _escaped_code_points(base))
+                       + _escaped_code_points(marks))
+    return "".join(out)
+
+
+def tex_verdict(text: str) -> str:
+    """A verdict line (`maglevgen.analyses.verdicts`: Markdown, code in backticks) typeset so
+    that the PDF's text reads as SUMMARY.md's line without its backticks: code in typewriter,
+    no "--" ligature, a straight quote."""
+    parts = str(text).split("`")
+    out = []
+    for i, part in enumerate(parts):
+        esc = (re.sub("-(?=-)", "-{}", tex_escape(part)).replace("'", r"\textquotesingle{}")
+               .replace(r"\_", r"{\ttfamily\char95}"))  # OT1's \_ is a rule, not a glyph
+        out.append(rf"\texttt{{{esc}}}" if i % 2 else esc)
     return "".join(out)
 
 

@@ -30,6 +30,7 @@ from maglevgen.analyses.queries import (  # the CLI's numbers, from the C
     trim_point,
     trim_report,
 )
+from maglevgen.analyses.verdicts import cached_verdict, embedded_verdict
 from maglevgen.errors import MaglevError
 from maglevgen.infrastructure.output import write_output
 from maglevgen.infrastructure.workers import process_pool
@@ -81,6 +82,9 @@ class ReportOptions:
     hold_runs: Mapping[str, Any] | None = None
     # the embedded controller's region of attraction (regions, figure PNG) when computed
     roa: tuple[Any, bytes] | None = None
+    # the build's verdict (`maglevgen.analyses.verdicts.EmbeddedVerdict`): the first page's
+    # block; None: a build's cached one, else the linear checks only, said so
+    verdict: Any = None
 
 
 class Pending(Protocol):
@@ -192,6 +196,10 @@ def build_context(
     rows, notes = parameter_rows(loaded)
     envelope = envelope_context(carriage, env, options.gain_table)
     envelope["roa"] = roa_context(regions)
+    # the verdict deciding `build`'s exit code, as SUMMARY.md prints it (one source)
+    verdict = (options.verdict or cached_verdict(carriage)
+               or embedded_verdict(carriage, env, (), regions[0] if regions else None,
+                                   complete=False))
     ctx: dict[str, Any] = {
         "version": __version__,
         "titles": SECTION_TITLES,
@@ -213,7 +221,8 @@ def build_context(
         "envelope": envelope,
         "simulation": sim,
         "poles": {"figure": POLE_FIGURE, "sets": poles, "speed_mode": gains["speed_mode"]},
-        "summary": summary(trep, gains, paper, checks, envelope, sections["stiffness"], lag),
+        "summary": summary(trep, gains, paper, checks, envelope, sections["stiffness"], lag,
+                           verdict),
         "figures": sorted(f for f in files if f.startswith("fig_")),
     }
     return ctx, files
@@ -266,7 +275,7 @@ def render_report(
     failed = [
         re.sub(r"\\texttt\{([^}]*)\}|\\", r"\1", c.what).replace("\\_", "_")
         for c in ctx["checks"]
-        if c.status == "FAIL"
+        if c.status == "FAIL" and not c.finding
     ]
     result = LatexBuild(None, False, 0.0)
     if not (options.build_pdf and latex.find_tex() is not None):
@@ -310,16 +319,19 @@ def report_files(
     gain_table: Mapping[str, Any] | None = None,
     hold_runs: Mapping[str, Any] | None = None,
     roa: tuple[Any, bytes] | None = None,
+    verdict: Any = None,
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
     ``simulation``: the files of a `maglevgen simulate` run (name -> content), or None;
     ``figures``: the report's figures being drawn already (see `build_context`);
     ``gain_table``: c/manifest.json's entry of the firmware table (else fitted here);
-    ``hold_runs``: ReportOptions.hold_runs; ``roa``: ReportOptions.roa.
+    ``hold_runs``: ReportOptions.hold_runs; ``roa``: ReportOptions.roa; ``verdict``:
+    ReportOptions.verdict.
     """
     options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope,
-                            gain_table=gain_table, hold_runs=hold_runs, roa=roa)
+                            gain_table=gain_table, hold_runs=hold_runs, roa=roa,
+                            verdict=verdict)
     return render_report(carriage, options, progress, figures=figures).files
 
 

@@ -60,7 +60,9 @@ def envelope_section(carriage, given: tuple[Any, bytes] | None):
 
 def envelope_checks(carriage, env) -> list[Check]:
     """Stability rows: each designed controller at the design speed and across the envelope
-    (a row fails when the closed loop has an eigenvalue with real part >= -margin)."""
+    (a row fails when the closed loop has an eigenvalue with real part >= -margin); the
+    controllers other than the embedded one are findings about their design (`Check.finding`),
+    not the toolchain's checks."""
 
     speed = carriage.params.operation.speed
     (op,) = envelope_points(carriage, simulation_library(carriage.structure), [speed])
@@ -72,11 +74,13 @@ def envelope_checks(carriage, env) -> list[Check]:
         out.append(Check(
             f"{title}: closed loop at {speed:.4g} m/s (largest real part, 1/s)",
             "eigenvalues (numpy) of the C Jacobians with the gains and allocation",
-            closed_loop_stability(op, name)[0], -STABILITY_MARGIN, unit="1/s"))
+            closed_loop_stability(op, name)[0], -STABILITY_MARGIN, unit="1/s",
+            finding=name != embedded))
         out.append(Check(
             f"{title}: closed loop across [{env.v_min:.4g}, {env.v_max:.4g}] m/s (largest "
             "real part, 1/s)", f"the same at {env.speeds.size} speeds",
-            float(np.max(env.controllers[name].max_real)), -STABILITY_MARGIN, unit="1/s"))
+            float(np.max(env.controllers[name].max_real)), -STABILITY_MARGIN, unit="1/s",
+            finding=name != embedded))
     return out
 
 

@@ -94,11 +94,15 @@ def paper_comparison_section(gains: dict, trep: dict) -> dict[str, Any]:
         ],
         "axes": axes,
         "slowest": slowest,
-        "cost_per_axis": coupled["cost_per_axis_design"],
-        "cost_coupled": coupled["cost_coupled_lqr"],
+        # an unbounded cost (a loop unstable on the coupled model) is null in the JSON
+        "cost_per_axis": _cost(coupled["cost_per_axis_design"]),
+        "cost_coupled": _cost(coupled["cost_coupled_lqr"]),
         "riccati_notes": riccati_notes,
         "allocation_notes": paper_discrepancies_allocation(),
         "pitch": trep["pitch_paper_form"],
     }
 
 
+def _cost(value: float | None) -> float:
+    """A design's LQR cost as the report prints it: infinity where the JSON has null."""
+    return float("inf") if value is None else value

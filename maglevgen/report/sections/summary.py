@@ -6,9 +6,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from maglevgen.report.format import faxis_unit
+from maglevgen.report.format import faxis_unit, tex_verdict
+from maglevgen.report.latex import latex_env
 
-__all__ = ["summary"]
+__all__ = ["summary", "verdict_context", "verdict_tex"]
 
 
 def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:
@@ -40,13 +41,34 @@ def _by_kind(rows: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
             "gains": [r for r in rows if "stiffness" not in r["what"]]}
 
 
+def verdict_tex(verdict) -> str:
+    """The first page's verdict block (templates/report/verdict.tex.j2): the lines of
+    `maglevgen.analyses.verdicts.EmbeddedVerdict.lines`, which SUMMARY.md and stdout print,
+    typeset (`tex_verdict`)."""
+    return latex_env().get_template("report/verdict.tex.j2").render(vd=verdict_context(verdict))
+
+
+def verdict_context(verdict) -> dict[str, Any]:
+    """The verdict block (`maglevgen.analyses.verdicts.EmbeddedVerdict.lines`, as SUMMARY.md
+    prints it) typeset: the head, the checks deciding the exit code, the findings."""
+    return {"head": tex_verdict(verdict.head()), "verified": verdict.verified,
+            "complete": verdict.complete,
+            "checks": [{"text": tex_verdict(c.line()), "ok": c.ok} for c in verdict.checks],
+            "findings_head": tex_verdict(verdict.findings_head()),
+            "findings": [tex_verdict(c.line()) for c in verdict.findings]}
+
+
 def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
-            stiffness: dict, lag: dict) -> dict[str, Any]:
+            stiffness: dict, lag: dict, verdict) -> dict[str, Any]:
     """What the first page shows (plain data; the template formats it); ``lag``: the circuit
-    lag section's context (each axis's magnetic damping at the design speed)."""
-    status = [c.status for c in checks]
+    lag section's context (each axis's magnetic damping at the design speed); ``verdict``:
+    the embedded controller's (`maglevgen.analyses.verdicts.EmbeddedVerdict`), the block
+    SUMMARY.md and stdout print."""
+    own = [c for c in checks if not c.finding]
+    status = [c.status for c in own]
     magnetic = {a["axis"]: a[lag["model"].replace("-", "_")] for a in lag["axes"]}
     return {
+        "verdict_tex": verdict_tex(verdict),
         "verdicts": envelope["rows"],
         "embedded": envelope["embedded"],
         "spec_checked_on": envelope["spec_checked_on"],
@@ -62,5 +84,7 @@ def summary(trep: dict, gains: dict, paper: dict, checks: list, envelope: dict,
         "circuit_dynamics": lag["model"],
         "passed": status.count("pass"), "failed": status.count("FAIL"),
         "not_run": status.count("not run"),
-        "failed_checks": [c.what for c in checks if c.status == "FAIL"],  # LaTeX text
+        "failed_checks": [c.what for c in own if c.status == "FAIL"],  # LaTeX text
+        # the other designs' failed rows: findings about them (the paper's), apart
+        "design_findings": [c.what for c in checks if c.finding and c.status == "FAIL"],
     }

@@ -26,6 +26,9 @@ class Check:
     bound: float
     note: str = ""  # why it was not run
     unit: str = "1"  # of the error and the bound (LaTeX text): "1" for a relative error
+    # a finding about a design other than the embedded one (the paper's): listed apart from
+    # the toolchain's own checks, not counted as a failed verification
+    finding: bool = False
 
     @property
     def status(self) -> str:
