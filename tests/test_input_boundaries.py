@@ -631,3 +631,19 @@ def test_summary_says_why_the_pdf_was_skipped(good: Path, tmp_path: Path, monkey
     summary = (out / "SUMMARY.md").read_text()
     assert "report.pdf skipped: TeX is not installed: `apt-get install" in summary
     assert "report/report.pdf" not in tree(out) and "report/report.tex" in tree(out)
+
+
+def test_eq15s_ratio_without_a_front_upper_array_is_null_not_infinite(capsys) -> None:
+    """arrays.3.position = [0, 0, 0] (a range-edge value of issue 54's fuzzer) moves the only
+    upper array in front of the centre of mass onto it: eq 15's F_z3 does not exist, and the
+    trim's JSON said -Infinity (not JSON). Now null, every other number finite."""
+    rc = main(["trim", "--json", "--set", "arrays.3.position=[0, 0, 0]"])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    data = json.loads(out, parse_constant=_no_constant)
+    arrays = DEFAULT_DATA["arrays"]
+    # the reference: the parameter file's own geometry, with array 3 moved to the origin
+    front_upper = [k for k, a in arrays.items()
+                   if k != "3" and a["position"][0] > 0 and a["normal"][2] > 0]
+    assert front_upper == []
+    assert data["pitch_paper_form"]["net_front_ratio"] is None

@@ -190,7 +190,8 @@ def stiffness_table(carriage: DerivedCarriage, lib: SimulationLibrary, speed: fl
                           tp.K_magnetic + tp.K_other)
 
 
-def pitch_paper_form(carriage: DerivedCarriage, tp: TrimPoint, printed: float) -> dict[str, float]:
+def pitch_paper_form(carriage: DerivedCarriage, tp: TrimPoint,
+                     printed: float) -> dict[str, float | None]:
     """Eq 15's pitch stiffness as printed, with its net front force replaced by the sum of the
     arrays' stiffness contributions, and derived (K_st0's pitch entry from the C) [N m/rad].
 
@@ -210,13 +211,15 @@ def pitch_paper_form(carriage: DerivedCarriage, tp: TrimPoint, printed: float) -
     x = np.array([a.position[0] for a in arrays])
     n_z = np.array([a.normal[2] for a in arrays])
     front = x > 0
+    upper = float(np.sum((tp.lift * np.maximum(n_z, 0))[front]))
     return {
         "printed": float(printed),
         "sum_of_contributions": float(2 * k * np.sum(tp.lift * n_z**2 * x**2)),
         "derived": float(tp.K_magnetic[3, 3]),
-        # eq 15's ratio (F_z3 - F_z1 - F_z2)/F_z3, printed 0.06, at this trim
-        "net_front_ratio": float(np.sum((tp.lift * n_z)[front])
-                                 / np.sum((tp.lift * np.maximum(n_z, 0))[front])),
+        # eq 15's ratio (F_z3 - F_z1 - F_z2)/F_z3, printed 0.06, at this trim; None: no array
+        # lifts from above in front of the centre of mass (eq 15's F_z3 does not exist)
+        "net_front_ratio": (float(np.sum((tp.lift * n_z)[front])) / upper if upper > 0
+                            else None),
     }
 
 
