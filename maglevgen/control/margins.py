@@ -45,14 +45,15 @@ def disk_gain_phase(alpha: float) -> tuple[float, float]:
 
 
 def _osborne(M: np.ndarray) -> np.ndarray:
-    """Osborne's balancing of |M|: the diagonal d that equalises each row's and column's
-    off-diagonal 2-norms of D |M| D^-1 (a start for the D-scaling, and itself an upper bound)."""
-    absM = np.abs(M)
-    d = np.ones(M.shape[0])
+    """Osborne's balancing of |M| for a stack of matrices (..., n, n): the diagonals d that
+    equalise each row's and column's off-diagonal 2-norms of D |M| D^-1 (a start for the
+    D-scaling, and itself an upper bound), all frequencies at once."""
+    n = M.shape[-1]
+    off2 = np.abs(M) ** 2 * (1.0 - np.eye(n))
+    d = np.ones(M.shape[:-1])
     for _ in range(50):
-        S = absM * d[:, None] / d[None, :]
-        col = np.sqrt(np.maximum(np.sum(S**2, axis=0) - np.diag(S) ** 2, 0))
-        row = np.sqrt(np.maximum(np.sum(S**2, axis=1) - np.diag(S) ** 2, 0))
+        S2 = off2 * (d[..., :, None] / d[..., None, :]) ** 2
+        col, row = np.sqrt(np.sum(S2, axis=-2)), np.sqrt(np.sum(S2, axis=-1))
         ok = (col > 0) & (row > 0)
         step = np.where(ok, np.sqrt(np.sqrt(np.where(ok, col, 1) / np.where(ok, row, 1))), 1.0)
         d *= step
@@ -61,29 +62,49 @@ def _osborne(M: np.ndarray) -> np.ndarray:
     return d
 
 
+def _sigma_max(M: np.ndarray) -> np.ndarray:
+    """The largest singular value of each matrix of a stack (..., n, n)."""
+    return np.linalg.svd(M, compute_uv=False)[..., 0]
+
+
 def _scaled_norm(M: np.ndarray, d: np.ndarray) -> float:
-    return float(np.linalg.norm(M * d[:, None] / d[None, :], 2))
+    return float(_sigma_max(M * d[:, None] / d[None, :]))
+
+
+def _scaled_norm_grad(M: np.ndarray, x: np.ndarray) -> tuple[float, np.ndarray]:
+    """sigma_max(D M D^-1) with D = diag(exp([0, x])), and its gradient in x: with A v =
+    sigma u and u^H A = sigma v^H, d sigma / d log d_i = sigma (|u_i|^2 - |v_i|^2)."""
+    d = np.exp(np.r_[0.0, x])
+    U, s, Vh = np.linalg.svd(M * d[:, None] / d[None, :])
+    grad = s[0] * (np.abs(U[:, 0]) ** 2 - np.abs(Vh[0]) ** 2)
+    return float(s[0]), grad[1:]
 
 
 def mu_upper_bound(M: np.ndarray, refine: bool = True) -> float:
     """inf_D sigma_max(D M D^-1), D positive diagonal: mu's upper bound for a structure of
-    complex scalars; Osborne's balancing (`_osborne`) as the start, then (``refine``) BFGS and
-    a short Nelder-Mead search on log D with the first entry fixed at 1. Without ``refine``: the
-    bound at Osborne's D, never below the refined one."""
+    complex scalars; Osborne's balancing (`_osborne`) as the start, then (``refine``) BFGS on
+    log D with sigma_max's analytic gradient and a short Nelder-Mead search from there (where
+    the largest singular value is repeated it has no gradient), the first entry fixed at 1.
+    Without ``refine``: the bound at Osborne's D, never below the refined one."""
+    if M.shape[0] == 1:
+        return float(abs(M[0, 0]))
+    start = float(_osborne_bounds(M[None])[0])
+    return _refined(M, start) if refine else start
+
+
+def _osborne_bounds(Ms: np.ndarray) -> np.ndarray:
+    """min(sigma_max at Osborne's D, sigma_max) of each matrix of a stack (F, n, n)."""
+    d = _osborne(Ms)
+    return np.minimum(_sigma_max(Ms * d[:, :, None] / d[:, None, :]), _sigma_max(Ms))
+
+
+def _refined(M: np.ndarray, start: float) -> float:
+    """`mu_upper_bound`'s search from Osborne's D; never above ``start``."""
     import scipy.optimize  # local: see lqr.numerical_lqr
 
-    n = M.shape[0]
-    if n == 1:
-        return float(abs(M[0, 0]))
     d = _osborne(M)
-    start = min(_scaled_norm(M, d), float(np.linalg.norm(M, 2)))
-    if not refine:
-        return start
-    x0 = np.log(d[1:] / d[0])
-    # BFGS on log D (sigma_max is smooth where the largest singular value is simple, as at
-    # the optimum of a generic M), then Nelder-Mead from there where that stalls
-    res = scipy.optimize.minimize(lambda x: _scaled_norm(M, np.exp(np.r_[0.0, x])), x0,
-                                  method="BFGS", options={"gtol": 1e-9})
+    res = scipy.optimize.minimize(lambda x: _scaled_norm_grad(M, x), np.log(d[1:] / d[0]),
+                                  jac=True, method="BFGS", options={"gtol": 1e-10})
     res2 = scipy.optimize.minimize(lambda x: _scaled_norm(M, np.exp(np.r_[0.0, x])), res.x,
                                    method="Nelder-Mead",
                                    options={"xatol": 1e-6, "fatol": 1e-10, "maxiter": 1500})
@@ -144,7 +165,7 @@ def disk_margins(M: np.ndarray, N: np.ndarray, C: np.ndarray, period: float,
     loops = 1.0 / np.maximum(np.abs(np.diagonal(Ms, axis1=1, axis2=2)).T, 1e-300)
     # Osborne's bound at every frequency (a disk no larger than the refined one), refined
     # where it is smallest until no unrefined frequency can hold a smaller disk
-    multi = np.array([1.0 / mu_upper_bound(Mk, refine=False) for Mk in Ms])
+    multi = 1.0 / (np.abs(Ms[:, 0, 0]) if m == 1 else _osborne_bounds(Ms))
     refined = np.zeros(omega.size, dtype=bool)
     while True:
         open_ = np.where(refined, np.inf, multi)
