@@ -1,6 +1,6 @@
 """Messages as promised (issue 54): a small fuzzer of bad input, range edges and API arguments.
 
-    python bench/fuzz_messages.py [--part a|b|c|all] [--timeout S] [--cli-edges]
+    python bench/fuzz_messages.py [--part a|b|c|all] [--timeout S] [--cli-edges] [--from KEY]
 
 The promise (README, the developer guide): bad input gives exit 2 and ONE line on stderr, an
 internal failure exit 1, and a command never exits 0 with a non-finite number in its output;
@@ -429,9 +429,16 @@ def _np(o: Any) -> Any:
     return repr(o)
 
 
-def part_b(timeout: float, limit: int | None, cli_edges: bool) -> tuple[int, list[dict]]:
+def part_b(timeout: float, limit: int | None, cli_edges: bool,
+           start: str | None = None) -> tuple[int, list[dict]]:
     findings, n = [], 0
-    for key, lo, hi, vec, integer in numeric_keys():
+    keys = numeric_keys()
+    if start is not None:  # resume at a key, in the file's order
+        names = [k[0] for k in keys]
+        if start not in names:
+            raise SystemExit(f"--from {start!r}: not a numeric key of the default file")
+        keys = keys[names.index(start):]
+    for key, lo, hi, vec, integer in keys:
         for v, inside in edge_values(lo, hi, integer):
             value = [v] * len(dict(leaves(DEFAULT))[key]) if vec else v
             item = f"{key}={toml_value(value)}"
@@ -552,6 +559,8 @@ def main() -> None:
     ap.add_argument("--timeout", type=float, default=120.0)
     ap.add_argument("--limit", type=int, default=None, help="at most N cases per part")
     ap.add_argument("--cli-edges", action="store_true")
+    ap.add_argument("--from", dest="start", default=None,
+                    help="part b: start at this key (file order), e.g. to resume a run")
     args = ap.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     import maglevgen.api  # imported once, before the forks
@@ -564,8 +573,10 @@ def main() -> None:
         results["a"] = {"cases": n, "findings": f}
         log(f"(a) {len(f)} of {n} bad-input runs not exit 2 with one line")
     if args.part in ("b", "all"):
-        n, f = part_b(args.timeout, args.limit, args.cli_edges)
-        results["b"] = {"cases": n, "findings": f, "cli_edges": args.cli_edges}
+        n, f = part_b(args.timeout, args.limit, args.cli_edges, args.start)
+        # a resumed run keeps the earlier run's part b beside it
+        results["b" if args.start is None else f"b from {args.start}"] = {
+            "cases": n, "findings": f, "cli_edges": args.cli_edges}
         log(f"(b) {len(f)} of {n} range-edge values")
     if args.part in ("c", "all"):
         n, f, review = part_c(min(args.timeout, 30.0), args.limit)

@@ -51,6 +51,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from maglevgen.control import embeddable as embeddable_controllers
 from maglevgen.control import names as controller_names
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, VerificationError
@@ -1686,7 +1687,7 @@ class Carriage:
         if controller is not None and (not isinstance(controller, str) or not controller):
             # (a name is checked by the schema, as envelope.embedded_controller)
             raise InputError(f"--controller {_shown(controller)}: expected one of "
-                             f"{', '.join(control.embeddable())} (a controller the firmware "
+                             f"{', '.join(embeddable_controllers())} (a controller the firmware "
                              "can embed)")
         opts = BuildOptions(t_end=t_end, dt=dt, pdf=_flag("--no-pdf", pdf),
                             allow_unstable=_flag("--allow-unstable", allow_unstable))
