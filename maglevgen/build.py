@@ -439,7 +439,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                            judged, verdict)
     verification = verdict.reason
     if verification is not None:  # the whole reason (`build` exits 3 with its first words)
-        summary += f"\nVerification failed (`maglevgen build` exits 3): {verification}.\n"
+        said = verification.removeprefix("verification failed: ")
+        summary += f"\nVerification failed (`maglevgen build` exits 3): {said}.\n"
     files[SUMMARY] = summary
     digests = {n: sha256_hex(b) for n, b in sorted(files.items())}
     files[STAMP] = json.dumps({"key": key, "maglevgen": __version__,

@@ -371,4 +371,5 @@ def test_build_exits_3_naming_a_10_ms_actuator_lag(tmp_path, carriage, sim_lib) 
     (line,) = [t for t in (out / "SUMMARY.md").read_text().splitlines()
                if t.startswith("Verification failed")]
     assert "'spec'" in line and "10 ms actuator lag" in line
+    assert line.lower().count("verification failed") == 1, line  # said once, not twice
     assert "FAILS multi-loop disk phase margin >= 40 deg" in line

@@ -94,12 +94,14 @@ class EmbeddedVerdict:
             return (f"{what}: NOT VERIFIED HERE: the linear checks only; the judged runs and "
                     "the region of attraction that also decide `maglevgen build`'s exit code "
                     "were not run for this report (`maglevgen build` runs them)")
+        n = len(self.checks)
         if self.reason is None:
-            return (f"{what}: VERIFIED, all {len(self.checks)} checks below pass "
-                    "(`maglevgen build` exits 0)")
+            checks = "the check below passes" if n == 1 else f"all {n} checks below pass"
+            return f"{what}: VERIFIED, {checks} (`maglevgen build` exits 0)"
         failed = sum(not c.ok for c in self.checks)
-        return (f"{what}: FAILS, {failed} of {len(self.checks)} checks below fail "
-                "(`maglevgen build` exits 3 unless --allow-unstable)")
+        checks = (f"{failed} of {n} checks below {'fails' if failed == 1 else 'fail'}" if n > 1
+                  else "the check below fails")
+        return f"{what}: FAILS, {checks} (`maglevgen build` exits 3 unless --allow-unstable)"
 
     def findings_head(self) -> str:
         return ("Findings about the other controllers (the paper's designs and the coupled "
