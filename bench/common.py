@@ -12,6 +12,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "bench"
+# one-off experiments (their results recorded in BENCHMARKS.md), not run by `make bench`
+EXPERIMENTS = BENCH / "experiments"
 REFERENCE_DIR = BENCH / "reference"
 DRIVER_DIR = BENCH / "c"
 BENCHMARKS = ROOT / "BENCHMARKS.md"

@@ -4,7 +4,7 @@ on every core (at least 1.8x on 2), 10^4 samples (under a minute), and the same 
 Python loop over SciPy (the trim by SciPy's root finding on the lambdified model, the run by
 solve_ivp) as the ratio. The study is the CLI's default: the default [tolerances], the embedded
 controller, ``--loop firmware`` (its tick, delay, speed loop and force budget), 10 s at 1 kHz
-(10^4 RK4 steps), seed 0; bench/batch.py splits the same path into its stages.
+(10^4 RK4 steps), seed 0; bench/experiments/batch.py splits the same path into its stages.
 
     python bench/montecarlo.py [--quick] [--big N]   (also part of `make bench`)
 """

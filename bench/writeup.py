@@ -8,7 +8,8 @@ from importlib import import_module
 from pathlib import Path
 
 # BENCHMARKS.md from this line to its end holds the sections other scripts record on their own
-# (bench/paired_rebuild.py, firmware.py, embed_targets.py, roa.py, batch.py, the issues' runs):
+# (bench/firmware.py, roa.py, bench/experiments/paired_rebuild.py, embed_targets.py, batch.py,
+# the issues' runs):
 # a full run regenerates what is above the line and carries the rest over byte for byte.
 KEPT_MARKER = "<!-- recorded separately: kept by make bench -->"
 FIRMWARE_BEGIN = "<!-- firmware benchmark: bench/firmware.py -->"

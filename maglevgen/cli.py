@@ -682,7 +682,7 @@ def run() -> None:
 
     `gc.freeze` first: the interpreter's final garbage collection then skips the objects
     alive at exit (SymPy's caches and expression graphs: about 0.6 s of a rebuild's 5 s,
-    bench/paired_rebuild.py); their memory goes back with the process.
+    bench/experiments/paired_rebuild.py); their memory goes back with the process.
     """
     code = main()
     gc.freeze()

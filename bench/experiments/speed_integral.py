@@ -7,7 +7,8 @@ feedforward, k_v of the envelope's loop; with the integral, the gains of
 C loop's today), RK4 at 0.1 ms in a Python loop over the compiled functions.
 
 Not a timed benchmark: it records the speed error the issue's target names, since the C loop
-(maglev_simulate) does not run the integral yet. Usage: .venv/bin/python bench/speed_integral.py
+(maglev_simulate) does not run the integral yet.
+Usage: .venv/bin/python bench/experiments/speed_integral.py
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ the generated C): the largest relative difference of maglev_dynamics, maglev_jac
 maglev_stiffness and maglev_trim over random states about the trim (not a test: both sides
 are the program's; the tests check each against its independent references).
 
-    .venv/bin/python bench/law_values.py OLD.so NEW.so [--law distributed]
+    .venv/bin/python bench/experiments/law_values.py OLD.so NEW.so [--law distributed]
 """
 
 from __future__ import annotations

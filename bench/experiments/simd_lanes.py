@@ -1,6 +1,6 @@
 """What evaluating several Monte-Carlo samples' dynamics at once in SIMD lanes would buy.
 
-    .venv/bin/python bench/simd_lanes.py [--reps N] [--out FILE]
+    .venv/bin/python bench/experiments/simd_lanes.py [--reps N] [--out FILE]
 
 An experiment, not a feature: the distributed law's `maglev_dynamics_prepared` (the function
 the firmware loop evaluates at every RK4 stage, 78 % of a Monte-Carlo run's C) as CasADi
@@ -23,10 +23,12 @@ import argparse
 import json
 import re
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
-from common import BENCH, DRIVER_DIR, log, run, summary
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
+from common import DRIVER_DIR, EXPERIMENTS, log, run, summary
 from law_instructions import dynamics, shared_library
 from laws import write_input
 
@@ -112,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--reps", type=int, default=9)
     ap.add_argument("--calls", type=int, default=40_000)
-    ap.add_argument("--out", type=Path, default=BENCH / "simd_lanes_results.json")
+    ap.add_argument("--out", type=Path, default=EXPERIMENTS / "simd_lanes_results.json")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_lanes_"))
     carriage = DerivedCarriage(load_params())

@@ -10,21 +10,24 @@
 - `montecarlo --samples 400` (seed 3, the default tolerances): no contact (--montecarlo; else
   the last recorded study is kept).
 
-    python bench/embed_targets.py [--montecarlo]
+    python bench/experiments/embed_targets.py [--montecarlo]
 
-Writes bench/embed_targets_results.json and its section of BENCHMARKS.md. Not timings: the
-numbers are the controller's, the same on any machine.
+Writes bench/experiments/embed_targets_results.json and its section of BENCHMARKS.md. Not
+timings: the numbers are the controller's, the same on any machine.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from common import ROOT, log, replace_section
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
+from common import EXPERIMENTS, log, replace_section
 
 from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.simulate import metrics, run_scenarios
@@ -32,7 +35,7 @@ from maglevgen.carriage import DerivedCarriage
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
-RESULTS = ROOT / "bench" / "embed_targets_results.json"
+RESULTS = EXPERIMENTS / "embed_targets_results.json"
 BEGIN = "<!-- embed_targets: begin -->"
 END = "<!-- embed_targets: end -->"
 MC_SAMPLES, MC_SEED = 400, 3
@@ -127,8 +130,9 @@ def montecarlo(carriage: DerivedCarriage, lib) -> dict:
 def section(r: dict) -> list[str]:
     s, la = r["sampled"], r["launch"]
     yes = {True: "yes", False: "**no**"}
-    lines = [BEGIN, f"## Issue 34: the embedded controller's targets (bench/embed_targets.py, "
-             f"{r['date_utc']} UTC; raw: bench/embed_targets_results.json)", "",
+    lines = [BEGIN, "## Issue 34: the embedded controller's targets "
+             "(bench/experiments/embed_targets.py, "
+             f"{r['date_utc']} UTC; raw: bench/experiments/embed_targets_results.json)", "",
              f"Default carriage, embedded controller `{r['controller']}`, runs in the firmware "
              f"loop ({s['loop']}, force budget {la['force_budget']:g} N per array).", "",
              "| target | measured | met |", "| --- | --- | --- |",

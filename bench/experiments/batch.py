@@ -6,7 +6,7 @@ CLI runs it (maglevgen.analyses.montecarlo.run_local: chunks on 1 and on 2 worke
 where
 the batch path's time goes, stage by stage (thread CPU time of this process, one pass).
 
-    .venv/bin/python bench/batch.py [--samples N] [--reps R] [--out FILE] [--no-write]
+    .venv/bin/python bench/experiments/batch.py [--samples N] [--reps R] [--out FILE] [--no-write]
 
 Writes its section of BENCHMARKS.md (between BEGIN and END) unless --no-write.
 
@@ -26,7 +26,8 @@ import sys
 import time
 from pathlib import Path
 
-from common import BENCH, log, paired_ratios, replace_section, summary
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
+from common import EXPERIMENTS, log, paired_ratios, replace_section, summary
 
 from maglevgen.analyses.montecarlo import (
     _prepare,
@@ -41,7 +42,7 @@ from maglevgen.carriage import DerivedCarriage
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
-BEGIN = "<!-- batch benchmark (bench/batch.py) -->"
+BEGIN = "<!-- batch benchmark (bench/experiments/batch.py) -->"
 END = "<!-- end of batch benchmark -->"
 
 
@@ -49,8 +50,9 @@ def section(r: dict) -> list[str]:
     """The BENCHMARKS.md section of a run's results ``r`` (what main writes to --out)."""
     lo, hi = r["load_average_start"], r["load_average_end"]
     lines = [BEGIN, "",
-             f"### Monte Carlo in C: runs per second (bench/batch.py, {r['date']}; raw: "
-             "bench/batch_results.json)", "",
+             "### Monte Carlo in C: runs per second (bench/experiments/batch.py, "
+             f"{r['date']}; raw: "
+             "bench/experiments/batch_results.json)", "",
              f"The default study of `maglevgen montecarlo` ({r['controller']} controller, "
              f"`--loop {r['loop']}`, 10 s at 1 kHz, seed 0), {r['samples']} samples, "
              f"{r['reps']} repeats, the variants alternating, all in one run; load average "
@@ -124,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--samples", type=int, default=8)
     ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--out", type=Path, default=BENCH / "batch_results.json")
+    ap.add_argument("--out", type=Path, default=EXPERIMENTS / "batch_results.json")
     ap.add_argument("--no-write", action="store_true", help="leave BENCHMARKS.md alone")
     args = ap.parse_args(argv)
     load_start = os.getloadavg()

@@ -1,7 +1,7 @@
 """Issue 20's constraint: the parameter-edit rebuild after the restructure, paired against the
 commit before it.
 
-    python bench/paired_rebuild.py [--base 53a46aa] [--repeats 7] [--json out.json]
+    python bench/experiments/paired_rebuild.py [--base 53a46aa] [--repeats 7] [--json out.json]
 
 Both toolchains are copied into their installed layout (pyproject's package-dir: derive/,
 runtime/ and templates/ under maglevgen/) and run from there through PYTHONPATH, each with a
@@ -23,6 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
 from common import ROOT, log, paired_ratios, summary
 
 LAYOUT = (("maglevgen", ""), ("derive", "derive"), ("runtime", "runtime"),

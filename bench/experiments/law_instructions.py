@@ -1,6 +1,6 @@
 """How much of the distributed force law's C is its special functions: CasADi instruction counts.
 
-    .venv/bin/python bench/law_instructions.py [--time] [--reps N] [--out FILE]
+    .venv/bin/python bench/experiments/law_instructions.py [--time] [--reps N] [--out FILE]
 
 Builds `maglev_dynamics` (x, u, p) and its per-stage part `maglev_dynamics_prepared` (after
 CasADi's extract_parametric, as maglevgen.codegen.functions builds them) from the default
@@ -29,13 +29,16 @@ import argparse
 import dataclasses
 import json
 import shutil
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
 import sympy as sp
-from common import BENCH, DRIVER_DIR, log, paired_ratios, run, summary
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
+from common import DRIVER_DIR, EXPERIMENTS, log, paired_ratios, run, summary
 from laws import write_input
 
 from maglevgen.carriage import DerivedCarriage
@@ -125,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--time", action="store_true", help="also time each variant in C")
     ap.add_argument("--reps", type=int, default=9)
     ap.add_argument("--calls", type=int, default=20_000)
-    ap.add_argument("--out", type=Path, default=BENCH / "law_instructions_results.json")
+    ap.add_argument("--out", type=Path, default=EXPERIMENTS / "law_instructions_results.json")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_law_instructions_"))
     base = DerivedCarriage(load_params())

@@ -1,6 +1,6 @@
 """The distributed force law's C against the point law's, per function, in one run.
 
-    .venv/bin/python bench/laws.py [--reps N] [--out FILE] [LABEL=LIBRARY.so ...]
+    .venv/bin/python bench/experiments/laws.py [--reps N] [--out FILE] [LABEL=LIBRARY.so ...]
 
 Builds (or reuses) the run-time-parameter library of the default carriage under each force
 law (maglevgen.runtime.library.simulation_library: the cache of MAGLEVGEN_CACHE), writes each one's
@@ -23,7 +23,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from common import BENCH, DRIVER_DIR, log, paired_ratios, run, summary
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
+from common import DRIVER_DIR, EXPERIMENTS, log, paired_ratios, run, summary
 
 from maglevgen.analyses.simulate import DISTURBANCE, initial_state
 from maglevgen.carriage import DerivedCarriage
@@ -60,7 +62,7 @@ def write_input(carriage: DerivedCarriage, lib, path: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--reps", type=int, default=7)
-    ap.add_argument("--out", type=Path, default=BENCH / "laws_results.json")
+    ap.add_argument("--out", type=Path, default=EXPERIMENTS / "laws_results.json")
     ap.add_argument("extra", nargs="*", help="LABEL=LIBRARY.so (LABEL starts with a law)")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_laws_"))

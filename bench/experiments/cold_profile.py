@@ -2,8 +2,8 @@
 (every process sampled, --subprocesses) with a C compiler wrapper that logs each gcc's CPU
 time, then the sampled time per process and stage.
 
-    .venv/bin/python bench/cold_profile.py [--work DIR] [--rate HZ] [--out FILE]
-    .venv/bin/python bench/cold_profile.py --raw FILE --cc-log FILE   (only the tables)
+    .venv/bin/python bench/experiments/cold_profile.py [--work DIR] [--rate HZ] [--out FILE]
+    .venv/bin/python bench/experiments/cold_profile.py --raw FILE --cc-log FILE   (only the tables)
 
 Needs py-spy (`pip install py-spy`). py-spy counts the time a process is running or waiting
 for a core, so on a loaded machine the seconds overstate CPU time; the shares within a
@@ -26,7 +26,8 @@ import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
-from common import BENCH, ROOT, log
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
+from common import EXPERIMENTS, ROOT, log
 
 # stages (a frame and what the table calls it), in the build's order
 STAGES = (
@@ -111,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=int, default=20, help="py-spy samples per second")
     ap.add_argument("--raw", type=Path, help="an existing py-spy raw file: only the tables")
     ap.add_argument("--cc-log", type=Path, help="with --raw: the wrapper's compile log")
-    ap.add_argument("--out", type=Path, default=BENCH / "cold_profile_results.json")
+    ap.add_argument("--out", type=Path, default=EXPERIMENTS / "cold_profile_results.json")
     args = ap.parse_args(argv)
     if args.raw:
         cc = compiles(args.cc_log) if args.cc_log else []
