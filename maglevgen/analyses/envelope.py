@@ -276,7 +276,10 @@ class ControllerEnvelope:
                 "spec_failures": [{"spec": f.spec, "ranges": [list(r) for r in f.ranges],
                                    "worst": f.worst, "worst_speed": f.worst_speed}
                                   for f in self.spec_failures],
-                "firmware_design": "continuous",
+                # the gains the firmware's table would carry for this controller
+                # (`tick_table_rows`: its design at the tick where it has one)
+                "firmware_design": "tick" if registered_controller(self.controller).tick_design
+                else "continuous",
                 "tick_design": None if self.tick_design is None else self.tick_design.to_json(),
                 "levitation_max_real": None if self.levitation_real is None
                 else self.levitation_real.tolist(),
@@ -415,8 +418,8 @@ class Envelope:
     def firmware_design(self, name: str) -> str:
         """Which design of controller ``name`` (the embedded one) the firmware gets and why,
         in one sentence: the gains designed on the continuous linearisation, checked on the
-        sampled-data loop; for `spec`, the design at the tick (`TickDesignCheck`) is the
-        fallback computed where that check fails, and the generated loop cannot run it."""
+        sampled-data loop; for a controller designed at the tick (`spec`), that design, which
+        the firmware's tick runs and the host simulation's loop does not yet."""
         c = self.controllers.get(name)
         if c is None or self.loop is None:
             return (f"The firmware gets the {controller_title(name)} gains designed on the "
@@ -427,7 +430,7 @@ class Envelope:
                     f"continuous linearisation, which {on} "
                     f"{'meet' if c.meets_spec else 'fail'} [control.spec].")
         cont = c.continuous_gains
-        cont_said = "" if cont is None else f" (on this loop: {cont.verdict})"
+        cont_said = "" if cont is None else f" (those gains on the loop as built: {cont.verdict})"
         return (f"The {controller_title(name)} design is solved at the tick on the loop as "
                 "built (DARE on the ZOH model with the delay and the actuator lag; gains on "
                 "the state, the commands in flight and the actuator forces the controller "
@@ -437,8 +440,8 @@ class Envelope:
                 "from its table, the commands in flight, the predicted actuator forces and "
                 "the speed integral in a caller-owned state; the host simulation's firmware "
                 "loop (maglev_coupled_control at each tick: the holds, the launch, Monte Carlo "
-                f"and ROA runs) still runs the continuous {controller_title(name)} gains on the "
-                f"plant without the lag{cont_said}.")
+                f"and ROA runs) still runs the continuous {controller_title(name)} gains, on "
+                f"the plant without the lag{cont_said}.")
 
     def robustness_verdict(self) -> str:
         """The embedded controller's gains on the other models, in one sentence."""
