@@ -435,3 +435,105 @@ def test_tick_closed_loop_on_the_linearised_plant_has_the_dlqr_loop_eigenvalues(
         assert np.min(np.abs(z_c - z)) <= 1e-6 * (1 + abs(z)), (z, z_c)
     for z in z_c:
         assert np.min(np.abs(z_r - z)) <= 1e-6 * (1 + abs(z)), z
+
+
+_HOSTILE_HARNESS = r"""
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include "maglev_tick.h"
+
+static const double hostile[] = {NAN, INFINITY, -INFINITY, 1e30, -1e30, 1e300, 4.9e-324,
+                                 -4.9e-324, 2.2e-308, 0.0, -0.0, -1.0};
+#define NH ((int)(sizeof hostile / sizeof hostile[0]))
+#define NS ((int)(sizeof(maglev_tick_state) / sizeof(double)))
+
+/* after any call: a known code; on an error the command all zeros; the state finite */
+static int check(int rc, const double* u, const maglev_tick_state* s, long* bad) {
+    const double* v = (const double*)s;
+    int i;
+    if (rc != MAGLEV_OK && rc != MAGLEV_ERR_NONFINITE && rc != MAGLEV_ERR_NONFINITE_OUTPUT
+        && rc != MAGLEV_ERR_ARGUMENT) ++*bad;
+    for (i = 0; i < MAGLEV_NU; ++i) {
+        if (rc != MAGLEV_OK && u[i] != 0.0) ++*bad;
+        if (!isfinite(u[i])) ++*bad;
+    }
+    for (i = 0; i < NS; ++i) {
+        if (!isfinite(v[i])) ++*bad;
+    }
+    return rc;
+}
+
+int main(void) {
+    double x0[MAGLEV_NX] = {X0}, x[MAGLEV_NX], u[MAGLEV_NU];
+    maglev_tick_state s;
+    long calls = 0, bad = 0, errors = 0;
+    int h, i, k, rc;
+    /* a hostile value in each state entry, then in all, for a few ticks each */
+    for (h = 0; h < NH; ++h) {
+        for (i = -1; i < MAGLEV_NX; ++i) {
+            memcpy(x, x0, sizeof x);
+            if (i < 0) { for (k = 0; k < MAGLEV_NX; ++k) x[k] = hostile[h]; }
+            else x[i] = hostile[h];
+            maglev_tick_init(&s);
+            for (k = 0; k < 3; ++k) {
+                rc = check(maglev_tick(&s, k == 1 ? x : x0, V_REF, u), u, &s, &bad);
+                errors += rc != MAGLEV_OK;
+                ++calls;
+            }
+        }
+        /* the speed reference */
+        maglev_tick_init(&s);
+        rc = check(maglev_tick(&s, x0, hostile[h], u), u, &s, &bad);
+        errors += rc != MAGLEV_OK;
+        ++calls;
+        /* the controller's own state, one entry then all */
+        for (i = -1; i < NS; ++i) {
+            double* v = (double*)&s;
+            maglev_tick_init(&s);
+            if (i < 0) { for (k = 0; k < NS; ++k) v[k] = hostile[h]; } else v[i] = hostile[h];
+            for (k = 0; k < 3; ++k) {
+                rc = check(maglev_tick(&s, x0, V_REF, u), u, &s, &bad);
+                errors += rc != MAGLEV_OK;
+                ++calls;
+            }
+        }
+    }
+    /* NULL pointers */
+    maglev_tick_init(&s);
+    if (maglev_tick(NULL, x0, V_REF, u) != MAGLEV_ERR_ARGUMENT) ++bad;
+    if (maglev_tick(&s, NULL, V_REF, u) != MAGLEV_ERR_ARGUMENT) ++bad;
+    if (maglev_tick(&s, x0, V_REF, NULL) != MAGLEV_ERR_ARGUMENT) ++bad;
+    if (maglev_tick_init(NULL) != MAGLEV_ERR_ARGUMENT) ++bad;
+    printf("calls %ld errors %ld bad %ld\n", calls, errors, bad);
+    return bad != 0;
+}
+"""
+
+
+@pytest.mark.needs_cc
+def test_tick_under_sanitizers_with_hostile_values(tick_lib, op) -> None:
+    """maglev_tick under ASan and UBSan (no recovery) with hostile values (NaN, +-inf,
+    +-1e30, 1e300, denormals, +-0, -1; the set of test_failsafe.py) in each entry of the
+    state x and in all of them, in the speed reference, and in each entry of the
+    controller's state and in all of them, then NULL pointers: no sanitizer report, every
+    code one the header documents, the command zero on an error and finite always, the
+    controller's state finite after every call (a non-finite one reset); and an error for
+    at least each call with a NaN or infinity in x, v_ref or the controller's state."""
+    from test_failsafe import SANITIZE
+
+    folder = tick_lib["folder"]
+    (folder / "hostile.c").write_text(_HOSTILE_HARNESS)
+    x0 = ",".join(repr(float(v)) for v in op.x_trim)
+    run = subprocess.run(["cc", "-std=c99", "-g", "-O1", *SANITIZE, f"-DX0={x0}",
+                          f"-DV_REF={float(op.speed)!r}", "hostile.c", "maglev_tick.c",
+                          "maglev_gain_table.c", "maglev_functions.c", "-lm", "-o", "hostile"],
+                         cwd=folder, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    out = subprocess.run([str(folder / "hostile")], cwd=folder, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0 and not out.stderr, out.stdout + out.stderr
+    calls, errors, bad = (int(v) for v in out.stdout.split()[1::2])
+    n_state = 5 * max(tick_lib["loop"].delay_ticks, 1) + 6
+    assert bad == 0 and calls > 500, out.stdout
+    assert errors >= 3 * (12 + 1) + 3 + 3 * (n_state + 1), out.stdout
