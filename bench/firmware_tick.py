@@ -122,22 +122,23 @@ def measure() -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_tick_") as tmp:
         folder = Path(tmp) / "fw"
         write_output(firmware_files(carriage), folder)
-        m4 = ROOT / "tests" / "c" / "m4"
+        # the start-up and linker script the firmware folder's run_qemu.sh uses
+        templates = ROOT / "templates"
         objs = []
         for name in SOURCES:
             run(["arm-none-eabi-gcc", *FIRMWARE_FLAGS, "-ffunction-sections", "-fdata-sections",
                  "-fstack-usage", "-fcallgraph-info=su", "-c", f"{name}.c", "-o", f"{name}.o"],
                 cwd=folder)
             objs.append(f"{name}.o")
-        run(["arm-none-eabi-gcc", *CPU, "-Os", "-c", m4 / "startup.c", "-o", "startup.o"],
-            cwd=folder)
+        run(["arm-none-eabi-gcc", *CPU, "-Os", "-c", templates / "firmware_qemu_startup.c",
+             "-o", "startup.o"], cwd=folder)
         profiles = {}
         for n in (1, 11):
             run(["arm-none-eabi-gcc", *FIRMWARE_FLAGS, f"-DN_TICKS={n}", "-I.", "-c",
                  BENCH / "c" / "bench_tick.c", "-o", "bench_tick.o"], cwd=folder)
-            run(["arm-none-eabi-gcc", *CPU, "-nostartfiles", "-T", m4 / "link.ld",
-                 "-Wl,--gc-sections", "startup.o", "bench_tick.o", *objs, "-lm", "-lc", "-o",
-                 f"tick{n}.elf"], cwd=folder)
+            run(["arm-none-eabi-gcc", *CPU, "-nostartfiles", "-T",
+                 templates / "firmware_qemu_link.ld", "-Wl,--gc-sections", "startup.o",
+                 "bench_tick.o", *objs, "-lm", "-lc", "-o", f"tick{n}.elf"], cwd=folder)
             dis = _disassembly(folder / f"tick{n}.elf")
             pcs = _trace(folder, f"tick{n}.elf")
             profiles[n] = (dis, *_profile(pcs, dis))
@@ -191,8 +192,9 @@ def section(r: dict) -> list[str]:
     funcs = ", ".join(f"`{k}` {v}" for k, v in r["by_function"].items())
     return [BEGIN, "## 9. The embedded controller's tick on the Cortex-M4F "
             "(`maglevgen firmware`; bench/firmware_tick.py)", "",
-            "`maglev_tick` of the default carriage (the `spec` controller: table schedule, "
-            "coupled control, speed loop, allocation, force budget), built with the folder "
+            "`maglev_tick` of the default carriage (the `spec` controller designed at the "
+            "tick: table schedule, coupled control, the delay and actuator-lag compensation "
+            "with its state, speed loop, allocation, force budget), built with the folder "
             "README's flags and run under QEMU mps2-an386 with one instruction per "
             "translation block and the execution log: every executed instruction counted "
             "(the run with 11 ticks minus the run with 1, over 10; newlib's sinf/cosf "

@@ -233,24 +233,24 @@ def firmware(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     """The table schedule over the envelope's range (fitted here, as maglevgen.analyses.envelope's
     gain_table does), the firmware loop, the exact rows at speeds, and the firmware folder
     (`render_firmware`, no plant) of each precision."""
-    from maglevgen.analyses.envelope import envelope_points, resolve_range
-    from maglevgen.control.schedule import GainTable, gain_table_row
+    from maglevgen.analyses.envelope import resolve_range, schedule_setting, tick_table_rows
+    from maglevgen.control.schedule import GainTable, tick_table_fields
     from maglevgen.exports.firmware import firmware_loop, render_firmware
 
     v_min, v_max = resolve_range(carriage, sim_lib)
+    setting = schedule_setting(carriage, sim_lib, v_min, v_max)
 
     def rows(vs):
-        embedded = carriage.params.envelope.embedded_controller
-        return np.array([gain_table_row(op, embedded)
-                         for op in envelope_points(carriage, sim_lib, vs)])
+        return tick_table_rows(carriage, sim_lib, setting, vs)
 
-    table = GainTable.fit(rows, v_min, v_max)
+    table = GainTable.fit(rows, v_min, v_max, tick_table_fields(setting.tick.delay))
     loop = firmware_loop(carriage, sim_lib)
     folders = {}
     for precision in ("single", "double"):
         folders[precision] = tmp_path_factory.mktemp(f"firmware_{precision}")
         write_output(render_firmware(carriage, table, loop, precision), folders[precision])
-    return {"table": table, "loop": loop, "rows": rows, "folders": folders}
+    return {"table": table, "loop": loop, "rows": rows, "folders": folders,
+            "setting": setting}
 
 
 @pytest.fixture(scope="module")
@@ -269,13 +269,17 @@ def gain_table(firmware):
     return firmware["table"], firmware["folders"]["single"], libs, firmware["rows"]
 
 
-def _schedule_c(lib: Path, precision: str, v: float) -> tuple[int, np.ndarray]:
-    from maglevgen.control.schedule import GAIN_TABLE_NY
+def _schedule_c(lib: Path, precision: str, v: float, ny: int | None = None
+                ) -> tuple[int, np.ndarray]:
+    """maglev_schedule(v) of a compiled table: (code, its ``ny`` outputs; default the
+    firmware table's, `tick_table_fields` at the default delay)."""
+    from maglevgen.control.schedule import tick_table_fields
 
+    ny = ny or sum(n for _, n in tick_table_fields(1))
     real = ctypes.c_double if precision == "double" else ctypes.c_float
     fn = ctypes.CDLL(str(lib)).maglev_schedule
     fn.argtypes = [real, ctypes.POINTER(real)]
-    out = (real * GAIN_TABLE_NY)(*([7.0] * GAIN_TABLE_NY))
+    out = (real * ny)(*([7.0] * ny))
     rc = fn(v, out)
     return rc, np.array(out[:], dtype=float)
 
@@ -289,19 +293,21 @@ def test_table_schedule_against_exact_schedule(gain_table, carriage: DerivedCarr
     gains, SciPy's CARE for the coupled LQR): every field within GAIN_TABLE_BOUND of its
     scale (single precision: plus float32 rounding); the per-axis gains also against the
     50-digit Riccati solution (mpmath) at three speeds, with the same measure."""
-    from maglevgen.control.schedule import GAIN_TABLE_BOUND, GAIN_TABLE_FIELDS, field_errors
+    from maglevgen.control.schedule import GAIN_TABLE_BOUND, field_errors
     from maglevgen.derive.riccati import lqr_gain_mp
 
     table, _, libs, rows = gain_table
+    ny = table.coeffs.shape[1]
     speeds = np.random.default_rng(5).uniform(table.v_min, table.v_max, 200)
-    got = np.array([_schedule_c(libs[precision], precision, v) for v in speeds],
+    got = np.array([_schedule_c(libs[precision], precision, v, ny) for v in speeds],
                    dtype=object)
     assert all(rc == 0 for rc in got[:, 0])
     approx = np.array(list(got[:, 1]), dtype=float)
     exact = rows(speeds)
-    errors = field_errors(approx, exact)
+    errors = field_errors(approx, exact, table.fields)
     slack = 1.0 if precision == "double" else 1.05
-    assert set(errors) == {name for name, _ in GAIN_TABLE_FIELDS}
+    assert set(errors) == {"F_prop", "a_ref", "K", "c_damping", "K_pos", "K_rate", "K_lag",
+                           "K_delay"}
     assert max(errors.values()) <= GAIN_TABLE_BOUND * slack, errors
     # per-axis K (offset 6, 5 x 2 column-major) against mpmath's 50-digit LQR of the plants
     q1, q2 = carriage.params.control.state_weights
@@ -341,27 +347,51 @@ def test_table_schedule_return_codes(gain_table) -> None:
 
 
 @pytest.mark.needs_cc
-def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, carriage: DerivedCarriage,
+def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, firmware,
+                                                      carriage: DerivedCarriage,
                                                       sim_lib) -> None:
-    """Between the table's nodes (midpoints), the ten-state closed loop with the table's
-    gains of the embedded controller has eigenvalues within 1 % of |lambda| (and 1e-3 1/s)
-    of those with the exact gains (scipy CARE), and stays stable."""
-    from maglevgen.analyses.envelope import envelope_points
+    """Between the table's nodes (midpoints), the design model at the tick (the reduced body,
+    the actuator lag on the generalized forces, the commands in flight; `plant.LoopPlant`)
+    closed with the table's gains of the embedded controller (K_pos, K_rate, K_lag, K_delay)
+    has its continuous-equivalent eigenvalues ln(z)/h within 1 % of |lambda| (and 1e-3 1/s)
+    of those closed with control.dlqr's gains on the same model, and stays stable."""
+    import control
+
+    from maglevgen.analyses.envelope import envelope_points, loop_plant
+    from maglevgen.control.lqr import weighted_qr
     from maglevgen.control.schedule import GainTable
+    from maglevgen.control.spec import spec_weights
 
     table, _, libs, _ = gain_table
+    setting = firmware["setting"]
+    h, d = setting.tick.period, setting.tick.delay
+    f, i = {}, 0
+    for name, n in table.fields:
+        f[name] = slice(i, i + n)
+        i += n
     nodes = GainTable.nodes(len(table.coeffs), table.v_min, table.v_max)
     mids = 0.5 * (nodes[1:] + nodes[:-1])
     for op in envelope_points(carriage, sim_lib, mids):
-        _, row = _schedule_c(libs["double"], "double", op.speed)
-        K_pos = row[21:46].reshape(5, 5, order="F")
-        K_rate = row[46:71].reshape(5, 5, order="F")
-        A_r, B_g = op.reduced
-        S = np.eye(5, A_r.shape[0])
-        ev_table = np.linalg.eigvals(A_r - B_g @ (K_pos @ S + K_rate @ op.rate_map))
-        ev_exact = np.linalg.eigvals(op.reduced_closed_loop(
-            carriage.params.envelope.embedded_controller))
-        assert np.max(ev_table.real) < 0
+        _, row = _schedule_c(libs["double"], "double", op.speed, table.coeffs.shape[1])
+        K_pos = row[f["K_pos"]].reshape(5, 5, order="F")
+        K_rate = row[f["K_rate"]].reshape(5, 5, order="F")
+        K_table = np.hstack([K_pos @ np.eye(5, 10) + K_rate @ op.rate_map,
+                             row[f["K_lag"]].reshape(5, 5, order="F"),
+                             row[f["K_delay"]].reshape(5, 5 * d, order="F")])
+        Phi, Gam = loop_plant(op, setting).design_model()
+        q1, q2, r = spec_weights(op)
+        Q, R = weighted_qr(op.rate_map, q1, q2, r)
+        Qa = np.zeros_like(Phi)
+        Qa[:10, :10] = Q
+        K_exact, _, _ = control.dlqr(Phi, Gam, Qa, R)
+
+        def s_plane(K: np.ndarray, Phi: np.ndarray = Phi, Gam: np.ndarray = Gam
+                    ) -> np.ndarray:
+            z = np.linalg.eigvals(Phi - Gam @ np.asarray(K))
+            assert np.max(np.abs(z)) < 1
+            return np.log(z[np.abs(z) > 1e-9].astype(complex)) / h
+
+        ev_table, ev_exact = s_plane(K_table), s_plane(K_exact)
         for lam in ev_exact:  # each exact eigenvalue has a table one nearby
             assert np.min(np.abs(ev_table - lam)) <= 1e-2 * abs(lam) + 1e-3, (op.speed, lam)
 
@@ -417,7 +447,6 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
     import subprocess
 
     from maglevgen.codegen.cpass import DOUBLE_MATH
-    from maglevgen.control.schedule import GAIN_TABLE_NY
 
     table, table_dir, table_libs, _ = gain_table
     src = tmp_path / "m4"
@@ -504,8 +533,9 @@ def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path
     forces = lib.function("maglev_allocate")(u_gen)[0].ravel()
     damping = lib.function("maglev_damping_control")(x, M4_INPUTS["C_DAMPING"])[0].ravel()
     expected = [u_gen, forces, damping]
-    expected += [_schedule_c(table_libs["double"], "double", v)[1] for v in speeds]
-    got = [take(5), take(len(forces)), take(5)] + [take(GAIN_TABLE_NY) for _ in speeds]
+    ny = table.coeffs.shape[1]
+    expected += [_schedule_c(table_libs["double"], "double", v, ny)[1] for v in speeds]
+    got = [take(5), take(len(forces)), take(5)] + [take(ny) for _ in speeds]
     assert pos == len(lines)
     for want, have in zip(expected, got, strict=True):
         assert np.max(np.abs(have - want)) <= 1e-5 * np.max(np.abs(want)), (want, have)
@@ -760,7 +790,9 @@ def test_firmware_headers_compile_together_in_any_order(firmware, tmp_path: Path
                             + f"typedef char real_size[sizeof(maglev_real) == {size} ? 1 : -1];\n"
                             "int use(maglev_real v, maglev_real* u);\n"
                             "int use(maglev_real v, maglev_real* u) {\n"
-                            "    return maglev_schedule(v, u) + maglev_tick(u, v, u)\n"
+                            "    maglev_tick_state s;\n"
+                            "    return maglev_schedule(v, u) + maglev_tick_init(&s)\n"
+                            "        + maglev_tick(&s, u, v, u)\n"
                             "        + (int)sizeof(real_size);\n}\n")
             for cc in ("gcc", "clang"):
                 run = subprocess.run([cc, *STRICT, "-c", unit.name, "-o", f"{order}_{cc}.o"],
@@ -875,16 +907,17 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
     one RK4 step of the float32 maglev_dynamics per tick with the command held, 1 s from the
     default disturbance of the trim at the default speed. Reference: RK4 in numpy at the same
     tick over the host double library's dynamics, its coupled control and allocation (run-time
-    parameters), the table evaluated by numpy's chebval, the speed loop and the budget
-    written here.
+    parameters), the table evaluated by numpy's chebval, the designed tick's lag and delay
+    compensation (plant.py's controller), the speed loop and the budget written here.
 
     The bound (per state, linear error propagation): the target's error obeys
-    e[k+1] = Phi e[k] + d[k], Phi the one-tick map's Jacobian at the trim (state and the
-    commands on their way, central differences of the reference), d the float32 rounding of
-    one tick: ROUNDINGS * u32 * (max |x| over the run + dt |f| + dt m g sum_j |B_ij|) for the
-    state (m g sum |B|: the size of the lift and weight terms that cancel in each
-    acceleration, B from the host's Jacobians) and ROUNDINGS * u32 * (|command| + budget) for
-    the command. So
+    e[k+1] = Phi e[k] + d[k], Phi the one-tick map's Jacobian at the trim (state, the
+    commands on their way and the controller's state, central differences of the
+    reference), d the float32 rounding of one tick: ROUNDINGS * u32 * (max |x| over the
+    run + dt |f| + dt m g sum_j |B_ij|) for the state (m g sum |B|: the size of the lift
+    and weight terms that cancel in each acceleration, B from the host's Jacobians),
+    ROUNDINGS * u32 * (|command| + budget) for the command and ROUNDINGS * u32 * budget for
+    the controller's state. So
     |e[n]| <= sum_{j<=n} |Phi^j| d, checked for every state at every sample; the disturbance's
     response is at least 100 times the bound on the heave (the check can tell a wrong
     controller). Then a NaN in the measured heave: the tick returns MAGLEV_ERR_NONFINITE and
@@ -894,7 +927,6 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
     from maglevgen.analyses.simulate import DISTURBANCE, initial_state
     from maglevgen.cli import main
     from maglevgen.control import controller
-    from maglevgen.control.schedule import GAIN_TABLE_FIELDS
     from maglevgen.derive import conventions as cv
     from maglevgen.exports.firmware import FIRMWARE_FLAGS, TICK_INPUTS
 
@@ -942,23 +974,37 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
     dyn, ctl, alloc = (sim_lib.function(n) for n in ("maglev_dynamics", tick_fn,
                                                      "maglev_allocate"))
     field, i = {}, 0
-    for name, size in GAIN_TABLE_FIELDS:
+    for name, size in table.fields:
         field[name] = slice(i, i + size)
         i += size
     array_of = np.array([i for i, (_, comps) in enumerate(carriage.model.structure.arrays)
                          for _ in comps])
     budget = loop.force_budget
+    nd = loop.delay_ticks
+    nq = 5 * max(nd, 1)
+    lag = float(np.exp(-1.0 / (loop.tick_rate * loop.actuator_lag)))
 
-    def command(x: np.ndarray) -> np.ndarray:
+    def command(x: np.ndarray, cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The designed tick (maglevgen.control.plant's controller) on the state x with the
+        controller's state cs = (in flight, newest first; w_hat; xi): (command, next cs)."""
         v = float(np.linalg.norm(x[6:9]))
         g = table(v)
+        q, w_hat, xi = cs[:nq], cs[nq:nq + 5], cs[-1]
         (u_gen,) = ctl(x, *[g[field[n]] for n in TICK_INPUTS[tick_fn]], p)
-        (F,) = alloc(u_gen, p)
+        w = u_gen.ravel() - g[field["K_lag"]].reshape(5, 5, order="F") @ w_hat
+        if nd > 0:
+            w = w - g[field["K_delay"]].reshape(5, nq, order="F") @ q
+        (F,) = alloc(w, p)
         F = F.ravel()
         norm = np.sqrt(np.bincount(array_of, F ** 2))
         F = F * np.where(norm > budget, budget / np.maximum(norm, 1e-300), 1.0)[array_of]
-        return np.concatenate([[g[field["F_prop"]][0] + loop.speed_gain * (float(v_ref) - v)],
-                               F])
+        f_prop = g[field["F_prop"]][0] + loop.speed_gain * (float(v_ref) - v) \
+            - loop.speed_integral * xi
+        applied = q[-5:] if nd > 0 else w
+        q1 = np.concatenate([w, q[:-5]]) if nd > 0 else q
+        cs1 = np.concatenate([q1, lag * w_hat + (1 - lag) * applied,
+                              [xi + dt * (v - float(v_ref))]])
+        return np.concatenate([[f_prop], F]), cs1
 
     def f(x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return dyn(x, u, p)[0].ravel()
@@ -970,37 +1016,41 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
         k4 = f(x + dt * k3, u)
         return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
-    def tick(x: np.ndarray, queue: list[np.ndarray]) -> tuple[np.ndarray, list]:
+    def tick(x: np.ndarray, queue: list[np.ndarray], cs: np.ndarray
+             ) -> tuple[np.ndarray, list, np.ndarray]:
         """One tick: the command of delay ticks ago applied (queue[0]), the new one queued."""
-        c = command(x)
+        c, cs1 = command(x, cs)
         if depth == 1:
-            return rk4(x, c), queue
-        return rk4(x, queue[0]), [*queue[1:], c]
+            return rk4(x, c), queue, cs1
+        return rk4(x, queue[0]), [*queue[1:], c], cs1
 
     x = x0.astype(float)
-    first = command(x)
+    cs0 = np.zeros(nq + 6)  # maglev_tick_init
+    first, _ = command(x, cs0)
     # before the first computed command: the safe one, no array force and the table's trim
     # propulsion at the measured speed
     safe = np.zeros(first.size)
     safe[0] = table(float(np.linalg.norm(x[6:9])))[field["F_prop"]][0]
     queue = [safe] * (depth - 1)
+    cs = cs0
     ref = [x]
     for _ in range(n_ticks):
-        x, queue = tick(x, queue)
+        x, queue, cs = tick(x, queue, cs)
         ref.append(x)
     ref = np.array(ref)
 
-    # the bound: the one-tick map's Jacobian Phi at the trim, z = (x, queued commands)
+    # the bound: the one-tick map's Jacobian Phi at the trim, z = (x, queued commands, the
+    # controller's state)
     nx, nu = 12, first.size
     x_trim = op.x_trim.astype(float)
-    c_trim = command(x_trim)
+    c_trim, _ = command(x_trim, cs0)
 
     def step(z: np.ndarray) -> np.ndarray:
         q = [z[nx + k * nu: nx + (k + 1) * nu] for k in range(depth - 1)]
-        x1, q1 = tick(z[:nx], q)
-        return np.concatenate([x1, *q1])
+        x1, q1, cs1 = tick(z[:nx], q, z[nx + (depth - 1) * nu:])
+        return np.concatenate([x1, *q1, cs1])
 
-    z0 = np.concatenate([x_trim, *[c_trim] * (depth - 1)])
+    z0 = np.concatenate([x_trim, *[c_trim] * (depth - 1), cs0])
     h = 1e-6 * np.maximum(1.0, np.abs(z0))
     Phi = np.column_stack([(step(z0 + h[j] * e) - step(z0 - h[j] * e)) / (2 * h[j])
                            for j, e in enumerate(np.eye(z0.size))])
@@ -1009,7 +1059,8 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
     d_x = ROUNDINGS * U32 * (np.abs(ref).max(axis=0) + dt * (
         np.abs(f(x_trim, c_trim)) + weight * np.abs(B).sum(axis=1)))
     d_c = ROUNDINGS * U32 * (np.abs(c_trim) + budget)
-    d = np.concatenate([d_x, *[d_c] * (depth - 1)])
+    d_s = ROUNDINGS * U32 * np.full(nq + 6, budget)  # the state's forces, rounded each tick
+    d = np.concatenate([d_x, *[d_c] * (depth - 1), d_s])
     power, bound = np.eye(z0.size), np.zeros(z0.size)
     for _ in range(n_ticks + 1):
         bound += np.abs(power) @ d

@@ -8,10 +8,11 @@ int main(void) {
     maglev_real x[MAGLEV_NX];
     maglev_real u[MAGLEV_NU];
     maglev_real g[MAGLEV_SCHEDULE_NOUT];
+    maglev_tick_state state;
     const maglev_real v = (maglev_real)(0.5 * (MAGLEV_SCHEDULE_V_MIN + MAGLEV_SCHEDULE_V_MAX));
     int i;
     int k;
-    int rc = maglev_schedule(v, g);
+    int rc = maglev_schedule(v, g) | maglev_tick_init(&state);
     for (i = 0; i < MAGLEV_NX; ++i) {
         x[i] = (maglev_real)0;
     }
@@ -21,7 +22,7 @@ int main(void) {
     x[MAGLEV_X_U] = v;
     x[MAGLEV_X_W] = (maglev_real)1e-3;
     for (k = 0; k < N_TICKS; ++k) {
-        rc |= maglev_tick(x, v, u);
+        rc |= maglev_tick(&state, x, v, u);
     }
     bench_sink = rc;
     return 0;

@@ -49,6 +49,7 @@ from maglevgen.control.schedule import (
     Schedule,
     accelerating_references,
     gain_table_row,
+    tick_table_fields,
 )
 from maglevgen.derive.search import lowest_trim_speed
 from maglevgen.derive.structure import input_names_of
@@ -85,12 +86,14 @@ __all__ = [
     "model_checks",
     "resolve_range",
     "sampled_stability",
+    "schedule_setting",
     "spec_failures",
     "spec_verdict_text",
     "speed_range",
     "stability_map_png",
     "tick_design_check",
     "tick_design_stability",
+    "tick_table_rows",
     "unstable_ranges",
     "verdict_text",
 ]
@@ -147,15 +150,33 @@ def speed_range(carriage) -> tuple[float, float]:
     return resolve_range(carriage, simulation_library(carriage.structure))
 
 
-def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float) -> GainTable:
-    """The firmware's table schedule over [v_min, v_max] fitted to the exact schedule (the
-    operating points' trim and the embedded controller's gains, `gain_table_row`); its
-    manifest() is what
-    c/manifest.json and the report show."""
+def schedule_setting(carriage, lib: SimulationLibrary, v_min: float, v_max: float
+                     ) -> LoopSetting:
+    """`loop_setting` over the schedule's nodes (envelope.schedule_nodes speeds spanning
+    [v_min, v_max]): the loop the firmware runs and its table is designed for."""
+    return loop_setting(carriage, envelope_points(carriage, lib, np.linspace(
+        v_min, v_max, carriage.params.envelope.schedule_nodes)))
+
+
+def tick_table_rows(carriage, lib: SimulationLibrary, setting: LoopSetting,
+                    speeds: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The firmware table's exact rows at ``speeds`` (`schedule.tick_table_fields`): the trim
+    and the embedded controller's design at the tick on the loop as built (`loop_design`)."""
     embedded = carriage.params.envelope.embedded_controller
-    return GainTable.fit(lambda vs: np.array([gain_table_row(op, embedded) for op in
-                                              envelope_points(carriage, lib, vs)]),
-                         v_min, v_max)
+    return np.array([gain_table_row(op, embedded, loop_design(op, embedded, setting),
+                                    setting.tick.delay)
+                     for op in envelope_points(carriage, lib, speeds)])
+
+
+def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float,
+               setting: LoopSetting | None = None) -> GainTable:
+    """The firmware's table schedule over [v_min, v_max] fitted to the exact schedule
+    (`tick_table_rows`: the operating points' trim and the embedded controller's design at
+    the tick on ``setting``'s loop, default `schedule_setting`); its manifest() is what
+    c/manifest.json and the report show."""
+    setting = setting or schedule_setting(carriage, lib, v_min, v_max)
+    return GainTable.fit(lambda vs: tick_table_rows(carriage, lib, setting, vs), v_min, v_max,
+                         tick_table_fields(setting.tick.delay))
 
 
 def envelope_points(carriage, lib: SimulationLibrary,
@@ -231,7 +252,7 @@ class ControllerEnvelope:
     # the levitation modes' largest real part on the loop as built (all but the speed loop's)
     levitation_real: np.ndarray | None = None
     # a controller designed at the tick: its continuous gains on the same loop (what the
-    # generated full-state tick, maglev_coupled_control, runs)
+    # host simulation's firmware loop, maglev_coupled_control at each tick, runs)
     continuous_gains: TickDesignCheck | None = None
     margins: LoopMargins | None = None  # the embedded controller's, at MARGIN_SPEEDS speeds
 
@@ -255,7 +276,10 @@ class ControllerEnvelope:
                 "spec_failures": [{"spec": f.spec, "ranges": [list(r) for r in f.ranges],
                                    "worst": f.worst, "worst_speed": f.worst_speed}
                                   for f in self.spec_failures],
-                "firmware_design": "continuous",
+                # the gains the firmware's table would carry for this controller
+                # (`tick_table_rows`: its design at the tick where it has one)
+                "firmware_design": "tick" if registered_controller(self.controller).tick_design
+                else "continuous",
                 "tick_design": None if self.tick_design is None else self.tick_design.to_json(),
                 "levitation_max_real": None if self.levitation_real is None
                 else self.levitation_real.tolist(),
@@ -394,8 +418,8 @@ class Envelope:
     def firmware_design(self, name: str) -> str:
         """Which design of controller ``name`` (the embedded one) the firmware gets and why,
         in one sentence: the gains designed on the continuous linearisation, checked on the
-        sampled-data loop; for `spec`, the design at the tick (`TickDesignCheck`) is the
-        fallback computed where that check fails, and the generated loop cannot run it."""
+        sampled-data loop; for a controller designed at the tick (`spec`), that design, which
+        the firmware's tick runs and the host simulation's loop does not yet."""
         c = self.controllers.get(name)
         if c is None or self.loop is None:
             return (f"The firmware gets the {controller_title(name)} gains designed on the "
@@ -406,15 +430,18 @@ class Envelope:
                     f"continuous linearisation, which {on} "
                     f"{'meet' if c.meets_spec else 'fail'} [control.spec].")
         cont = c.continuous_gains
-        cont_said = "" if cont is None else f" (on this loop: {cont.verdict})"
+        cont_said = "" if cont is None else f" (those gains on the loop as built: {cont.verdict})"
         return (f"The {controller_title(name)} design is solved at the tick on the loop as "
                 "built (DARE on the ZOH model with the delay and the actuator lag; gains on "
                 "the state, the commands in flight and the actuator forces the controller "
                 "predicts from its own commands), which "
-                f"{'meets' if c.meets_spec else 'fails'} [control.spec] {on}. The generated "
-                "full-state tick (maglev_coupled_control, ideal sensing) runs the continuous "
-                f"{controller_title(name)} gains from the table instead{cont_said}; the "
-                "output-feedback tick of issue 49 runs the design at the tick.")
+                f"{'meets' if c.meets_spec else 'fails'} [control.spec] {on}. The firmware's "
+                "tick (maglev_tick, ideal sensing: the full state measured) runs this design "
+                "from its table, the commands in flight, the predicted actuator forces and "
+                "the speed integral in a caller-owned state; the host simulation's firmware "
+                "loop (maglev_coupled_control at each tick: the holds, the launch, Monte Carlo "
+                f"and ROA runs) still runs the continuous {controller_title(name)} gains, on "
+                f"the plant without the lag{cont_said}.")
 
     def robustness_verdict(self) -> str:
         """The embedded controller's gains on the other models, in one sentence."""
@@ -507,6 +534,9 @@ class LoopSetting:
     speed_gain: float  # k_v [N s/m], one value over the envelope
     bandwidth: float  # the speed pole it guarantees at least [1/s]
     actuator_lag: float = 0.0  # [s] each array force's first-order lag ([actuators])
+    # k_i [N/m] of the speed error's integral (`plant.LoopPlant.k_i`): 0, none, the loop the
+    # verdicts close today; the firmware tick runs this value
+    speed_integral: float = 0.0
 
     def tick_text(self) -> str:
         """"sampled-data loop at <rate> Hz with <n> tick(s) of delay[ and a <tau> ms actuator
@@ -533,7 +563,8 @@ def loop_setting(carriage, points: Sequence[OperatingPoint]) -> LoopSetting:
 
 def loop_plant(op: OperatingPoint, setting: LoopSetting) -> LoopPlant:
     """The loop as built at ``op`` (`plant.LoopPlant`: tick, delay, actuator lag, speed loop)."""
-    return LoopPlant(op, setting.tick, setting.actuator_lag, setting.speed_gain)
+    return LoopPlant(op, setting.tick, setting.actuator_lag, setting.speed_gain,
+                     setting.speed_integral)
 
 
 def loop_design(op: OperatingPoint, controller: str, setting: LoopSetting,

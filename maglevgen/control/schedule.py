@@ -24,6 +24,7 @@ from maglevgen.control.operating import (
 if TYPE_CHECKING:
     from scipy.interpolate import CubicSpline
 
+    from maglevgen.control.plant import LoopDesign
     from maglevgen.runtime.library import SimulationLibrary
 
 __all__ = [
@@ -48,6 +49,7 @@ __all__ = [
     "gain_table_sources",
     "node_values",
     "schedule_c_source",
+    "tick_table_fields",
 ]
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give
@@ -171,6 +173,15 @@ def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
 GAIN_TABLE_FIELDS = (("F_prop", 1), ("a_ref", N_AXES), ("K", 2 * N_AXES),
                      ("c_damping", N_AXES), ("K_pos", N_AXES**2), ("K_rate", N_AXES**2))
 GAIN_TABLE_NY = sum(n for _, n in GAIN_TABLE_FIELDS)
+
+
+def tick_table_fields(delay: int) -> tuple[tuple[str, int], ...]:
+    """The firmware table's row for the design at the tick (`plant.LoopDesign`) with ``delay``
+    ticks of delay: GAIN_TABLE_FIELDS (K_pos and K_rate the tick design's), then K_lag (the
+    gain on the predicted lagged generalized forces, 5 x 5) and K_delay (on the generalized
+    forces in flight, newest first, 5 x 5 delay; absent without delay), column-major."""
+    extra = (("K_lag", N_AXES**2),) + ((("K_delay", N_AXES**2 * delay),) if delay > 0 else ())
+    return GAIN_TABLE_FIELDS + extra
 #: the stated bound: each field's worst error over the envelope, relative to the field's
 #: largest magnitude over the envelope (a gain matrix is judged as a whole: its entries that
 #: are zero by symmetry are not divided by themselves)
@@ -190,11 +201,27 @@ def _field_slices(fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS
     return out
 
 
-def gain_table_row(op: OperatingPoint, controller: str) -> np.ndarray:
-    """(F_prop, a_ref, K column-major, c_damping, K_pos, K_rate column-major) at a speed."""
-    K_pos, K_rate = op.gains(controller)
-    return np.concatenate([[op.f_prop], op.a_trim, op.K.ravel(order="F"), op.c_damping,
-                           K_pos.ravel(order="F"), K_rate.ravel(order="F")])
+def gain_table_row(op: OperatingPoint, controller: str, design: LoopDesign | None = None,
+                   delay: int = 0) -> np.ndarray:
+    """(F_prop, a_ref, K column-major, c_damping, K_pos, K_rate column-major) at a speed: the
+    controller's continuous gains (GAIN_TABLE_FIELDS); with ``design`` (its design at the
+    tick on the loop as built, ``delay`` ticks of delay) the row of `tick_table_fields`:
+    K_pos and K_rate the design's, then K_lag and K_delay (zero where the design has none)."""
+    if design is None:
+        K_pos, K_rate = op.gains(controller)
+    else:
+        K_pos, K_rate = design.K_pos, design.K_rate
+    row = [[op.f_prop], op.a_trim, op.K.ravel(order="F"), op.c_damping,
+           K_pos.ravel(order="F"), K_rate.ravel(order="F")]
+    if design is not None:
+        K_lag = design.K_lag if design.K_lag is not None and design.K_lag.size \
+            else np.zeros((N_AXES, N_AXES))
+        K_delay = design.K_delay if design.K_delay is not None \
+            else np.zeros((N_AXES, N_AXES * delay))
+        if K_delay.shape != (N_AXES, N_AXES * delay):
+            raise ValueError(f"K_delay {K_delay.shape}: not 5 x 5 x {delay} ticks of delay")
+        row += [K_lag.ravel(order="F"), K_delay.ravel(order="F")]
+    return np.concatenate(row)
 
 
 def field_errors(approx: np.ndarray, exact: np.ndarray,
@@ -300,7 +327,7 @@ def gain_table_sources(table: GainTable) -> dict[str, str]:
     n, ny = table.coeffs.shape
     a, b = 1.0 / table.v_max, 1.0 / table.v_min
     fields = [(name, first, size) for (name, size), (first, _) in zip(
-        GAIN_TABLE_FIELDS, _field_slices(), strict=True)]
+        table.fields, _field_slices(table.fields), strict=True)]
     ctx = {"v_min": table.v_min, "v_max": table.v_max, "ny": ny, "nterms": n,
            "fields": fields, "errors": table.errors, "dense_grid": DENSE_GRID,
            "bound": GAIN_TABLE_BOUND, "stored": table.stored, "coeffs": table.coeffs,

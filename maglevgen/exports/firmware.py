@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points, gain_table, loop_setting, resolve_range
+from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
 from maglevgen.codegen.checks import check_entries, error_defines
 from maglevgen.codegen.cpass import generate_c
 from maglevgen.codegen.emit import c_literal, render
@@ -30,7 +30,7 @@ from maglevgen.codegen.generate import function_table
 from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_context, template_env
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
-from maglevgen.control.schedule import GAIN_TABLE_FIELDS, GainTable, gain_table_sources
+from maglevgen.control.schedule import GainTable, gain_table_sources
 from maglevgen.runtime.library import simulation_library
 from maglevgen.version import __version__
 
@@ -60,8 +60,8 @@ QEMU_TICKS = 1000
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README
 MEASURED: dict = {
-    "instructions": 4969, "cycles": 8084, "share_percent": 4.81, "clock_mhz": 168,
-    "stack_bytes": 528,
+    "instructions": 7427, "cycles": 12099, "share_percent": 7.20, "clock_mhz": 168,
+    "stack_bytes": 752,
     "method": "every instruction QEMU mps2-an386 executes, newlib's sinf/cosf included",
     "cycle_model": "Cortex-M4/FPv4-SP instruction timings, zero wait states",
 }
@@ -75,6 +75,14 @@ class FirmwareLoop:
     delay_ticks: int  # ticks from computing a command to applying it
     speed_gain: float  # k_v [N s/m] (`maglevgen.analyses.envelope.loop_setting`)
     force_budget: float  # [N] per array
+    actuator_lag: float = 0.0  # [s] tau of each array force's lag ([actuators])
+    speed_integral: float = 0.0  # k_i [N/m] (`LoopSetting.speed_integral`)
+
+    @property
+    def lag_pole(self) -> float:
+        """a = exp(-h/tau): the lag over one held tick (0 without a lag; `plant.LoopPlant`)."""
+        return float(np.exp(-1.0 / (self.tick_rate * self.actuator_lag))) \
+            if self.actuator_lag > 0 else 0.0
 
 
 def firmware_functions(controller_tick: str, with_plant: bool = False) -> tuple[str, ...]:
@@ -128,8 +136,11 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     files["maglev.h"] = env.get_template("maglev.h.j2").render(ctx)
     files.update(gain_table_sources(table))
 
+    if "K_lag" not in dict(table.fields):
+        raise ValueError("the firmware's table carries the design at the tick "
+                         "(`maglevgen.analyses.envelope.gain_table`)")
     offsets, i = {}, 0
-    for name, size in GAIN_TABLE_FIELDS:
+    for name, size in table.fields:
         offsets[name] = i
         i += size
     sizes = {k: max(f[f"sz_{k}"] for f in fn_table if f["name"] in (tick_fn, ALLOCATE))
@@ -144,6 +155,10 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "tick_rate": c_literal(loop.tick_rate, precision), "tick_rate_value": loop.tick_rate,
         "delay_ticks": int(loop.delay_ticks),
         "k_v": c_literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
+        "k_i": c_literal(loop.speed_integral, precision),
+        "tick_period": c_literal(1.0 / loop.tick_rate, precision),
+        "lag_pole": c_literal(loop.lag_pole, precision),
+        "lag_gain": c_literal(1.0 - loop.lag_pole, precision), "tau": loop.actuator_lag,
         "force_budget": c_literal(loop.force_budget, precision),
         "force_budget_value": loop.force_budget,
         "n_arrays": len(structure.arrays), "array_of_force": structure.array_of_force,
@@ -171,7 +186,11 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "params_sha256": carriage.loaded.sha256, "embedded_controller": embedded,
         "tick": {"function": "maglev_tick", "controller_tick": tick_fn,
                  "rate_hz": loop.tick_rate, "delay_ticks": int(loop.delay_ticks),
-                 "speed_gain": loop.speed_gain, "force_budget": loop.force_budget},
+                 "speed_gain": loop.speed_gain, "speed_integral": loop.speed_integral,
+                 "actuator_lag_s": loop.actuator_lag, "lag_pole": loop.lag_pole,
+                 "force_budget": loop.force_budget,
+                 "design": "the embedded controller's design at the tick on the loop as "
+                           "built (maglevgen.control.plant), ideal sensing"},
         "verification": verdict,
         "gain_table": table.manifest(), "functions": fn_table,
         "flags": list(FIRMWARE_FLAGS),
@@ -183,12 +202,10 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
 def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
     """The tick, delay, speed-loop gain and budget the build's firmware runs verify
     (`maglevgen.analyses.envelope.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
-    v_lo, v_hi = resolve_range(carriage, lib)
-    points = envelope_points(carriage, lib, np.linspace(
-        v_lo, v_hi, carriage.params.envelope.schedule_nodes))
-    setting = loop_setting(carriage, points)
+    setting = schedule_setting(carriage, lib, *resolve_range(carriage, lib))
     return FirmwareLoop(setting.tick.rate, setting.tick.delay, float(setting.speed_gain),
-                        float(carriage.params.control.spec.force_budget))
+                        float(carriage.params.control.spec.force_budget),
+                        float(setting.actuator_lag), float(setting.speed_integral))
 
 
 def firmware_files(carriage: DerivedCarriage, precision: str = "single",

@@ -44,10 +44,12 @@ int main(void) {
     float x[MAGLEV_NX], xt[MAGLEV_NX], k1[MAGLEV_NX], k2[MAGLEV_NX], k3[MAGLEV_NX],
         k4[MAGLEV_NX];
     float ring[DEPTH][MAGLEV_NU];
+    maglev_tick_state state;
     const float dt = 1.0f / MAGLEV_TICK_RATE, half = dt / 2.0f, sixth = dt / 6.0f;
     float rc_f;
     int i, d, k, rc = 0;
     for (i = 0; i < MAGLEV_NX; ++i) x[i] = x0[i];
+    if (maglev_tick_init(&state) != MAGLEV_OK) return 1;
     for (k = 0;; ++k) {
         const float* a;
         put_hex("x", x, MAGLEV_NX);
@@ -63,7 +65,7 @@ int main(void) {
                 for (i = 1; i < MAGLEV_NU; ++i) ring[d][i] = 0.0f;
             }
         }
-        rc = maglev_tick(x, V_REF, ring[k % DEPTH]);
+        rc = maglev_tick(&state, x, V_REF, ring[k % DEPTH]);
         if (rc != MAGLEV_OK) break;
         a = ring[(k + 1) % DEPTH];  /* the command of MAGLEV_TICK_DELAY ticks ago */
         rc |= rhs(x, a, k1);
@@ -82,7 +84,7 @@ int main(void) {
     /* a NaN in the measured heave: the tick's code and its command (set to 7 before) */
     x[MAGLEV_X_Z] = NAN;
     for (i = 0; i < MAGLEV_NU; ++i) ring[0][i] = 7.0f;
-    rc_f = (float)maglev_tick(x, V_REF, ring[0]);
+    rc_f = (float)maglev_tick(&state, x, V_REF, ring[0]);
     put_hex("n", &rc_f, 1);
     put_hex("u", ring[0], MAGLEV_NU);
     return 0;
