@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -55,6 +56,9 @@ from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
 from maglevgen.runtime.library import SimulationLibrary, simulation_library
+
+if TYPE_CHECKING:
+    from maglevgen.analyses.sensing import SensingCheck
 
 __all__ = [
     "DEFAULT_SPEEDS",
@@ -382,6 +386,9 @@ class Envelope:
     model: str = ""  # the linearisation's model choices, in words
     # the embedded controller's gains on the alternate models (`model_checks`)
     other_models: tuple[ModelCheck, ...] = ()
+    # the embedded controller's sensors, Kalman filter and whole loop with the estimator
+    # (maglevgen.analyses.sensing; None: no [sensors], or the embedded controller not run)
+    sensing: SensingCheck | None = None
 
     def checked_on(self) -> str:
         """The model and loop the specification verdicts were computed on, in words."""
@@ -436,7 +443,8 @@ class Envelope:
                 "delay_ticks": None if self.loop is None else self.loop.tick.delay,
                 "actuator_lag": None if self.loop is None else self.loop.actuator_lag,
                 "other_models": [{"model": c.model, "ok": c.ok, "verdict": c.text()}
-                                 for c in self.other_models]}
+                                 for c in self.other_models],
+                "sensing": None if self.sensing is None else self.sensing.to_json()}
 
 
 def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,
@@ -762,9 +770,15 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
     checks = (model_checks(carriage, embedded, points, setting)
               if other_models and embedded in chosen else ())
+    sensing = None
+    if carriage.params.sensors is not None and embedded in chosen:
+        from maglevgen.analyses.sensing import sensing_check
+
+        sensing = sensing_check(carriage, lib, points, setting, embedded)
     m = carriage.params.model
     model = f"the {m.array_force} force law and {m.circuit_dynamics} circuits"
-    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks)
+    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks,
+                    sensing)
 
 
 def envelope_markdown(env: Envelope) -> str:

@@ -204,6 +204,10 @@ def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = (),
         failed.append("meets the specification on the carriage's model but its gains fail "
                       f"it {env.robustness_verdict()}")
         where.append("maglevgen envelope")
+    if env.sensing is not None and (why := env.sensing.reason()) is not None:
+        failed.append(f"{why} (with {env.sensing.sensors}, across [{env.v_min:.4g}, "
+                      f"{env.v_max:.4g}] m/s)")
+        where.append("maglevgen envelope")
     for r in runs:
         if r.verdict is not None and not r.verdict.meets:
             failed.append(f"{r.verdict.text()} in the {r.label}")
@@ -254,6 +258,11 @@ def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
     if env.other_models:
         checks.append(VerdictLine("its gains on the other models, across " + span,
                                   env.robustness_verdict(), bool(env.robust)))
+    if (sc := env.sensing) is not None:
+        checks += [VerdictLine(sc.observability_subject(), sc.observability_text(),
+                               bool(sc.observable and not sc.estimation)),
+                   VerdictLine(sc.loop_subject(), sc.loop_text(),
+                               bool(sc.observable and not sc.failures))]
     n_signs = len(sign_combinations(DISTURBANCE))
     checks += [VerdictLine(f"{r.label} (firmware loop, worst of {n_signs} disturbance sign "
                            "combinations)", r.verdict.text(), bool(r.verdict.meets))
