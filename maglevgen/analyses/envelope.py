@@ -15,10 +15,10 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from maglevgen.analyses.sensing import SensingCheck, sensing_check
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control import controller as registered_controller
 from maglevgen.control import names as controller_names
@@ -56,9 +56,6 @@ from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
 from maglevgen.runtime.library import SimulationLibrary, simulation_library
-
-if TYPE_CHECKING:
-    from maglevgen.analyses.sensing import SensingCheck
 
 __all__ = [
     "DEFAULT_SPEEDS",
@@ -772,9 +769,19 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
               if other_models and embedded in chosen else ())
     sensing = None
     if carriage.params.sensors is not None and embedded in chosen:
-        from maglevgen.analyses.sensing import sensing_check
+        def design_or_none(op: OperatingPoint) -> LoopDesign | None:
+            try:
+                return loop_design(op, embedded, setting)
+            except (np.linalg.LinAlgError, ValueError):
+                return None
 
-        sensing = sensing_check(carriage, lib, points, setting, embedded)
+        def judge(sd: np.ndarray) -> tuple[tuple[SpecFailure, ...], str]:
+            f = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1], sd[:, 2])
+            return f, spec_verdict_text(speeds, f, sd[:, 0], sd[:, 1], sd[:, 2], sd[:, 3])
+
+        sensing = sensing_check(carriage, lib, points, setting, embedded,
+                                [(loop_plant(op, setting), design_or_none(op))
+                                 for op in points], judge)
     m = carriage.params.model
     model = f"the {m.array_force} force law and {m.circuit_dynamics} circuits"
     return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks,

@@ -20,11 +20,13 @@ Jacobians):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
+from maglevgen.control import controller as registered_controller
 from maglevgen.control.estimation import (
     ESTIMATION_SHARE,
     EstimatorPoint,
@@ -39,6 +41,7 @@ from maglevgen.control.estimation import (
     why_blind,
 )
 from maglevgen.control.operating import OperatingPoint, stability
+from maglevgen.control.plant import LoopDesign, LoopPlant
 from maglevgen.derive import conventions as cv
 
 __all__ = ["SensingCheck", "sensing_check"]
@@ -149,16 +152,13 @@ class SensingCheck:
 
 
 def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
-                  controller: str) -> SensingCheck:
+                  controller: str, loops: Sequence[tuple[LoopPlant, LoopDesign | None]],
+                  judge: Callable[[np.ndarray], tuple[tuple, str]]) -> SensingCheck:
     """`SensingCheck` of ``controller`` (the embedded one) at ``points`` with the loop of
-    ``setting`` (envelope.LoopSetting)."""
-    from maglevgen.analyses.envelope import (
-        loop_design,
-        loop_plant,
-        spec_failures,
-        spec_verdict_text,
-    )
-
+    ``setting`` (envelope.LoopSetting): ``loops`` its plant and gains at each point (None:
+    no design there), ``judge`` the envelope's verdict on the per-speed rows (largest real
+    part, smallest damping ratio, levitation and speed loops' largest real parts):
+    (failures, verdict text)."""
     params = carriage.params
     layout = SensorLayout.of(params)
     speeds = np.array([op.speed for op in points])
@@ -170,7 +170,7 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
     blind: dict[str, str] = {}
     blind_at: list[float] = []
     states: tuple[str, ...] = ()
-    for op in points:
+    for op, (plant, gains) in zip(points, loops, strict=True):
         model = estimator_model(lib, carriage.p, op, params, layout, tau)
         states = model.states
         obs = observability(model)
@@ -190,10 +190,7 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
         estimated.append(EstimatorPoint(model, obs, design))
         gain.append(float(np.linalg.norm(design.M[:model.n_x], 2)))
         err.append(np.sqrt(np.clip(np.diag(design.P_updated)[:model.n_x], 0.0, None)))
-        plant = loop_plant(op, setting)
-        try:
-            gains = loop_design(op, controller, setting)
-        except (np.linalg.LinAlgError, ValueError):
+        if gains is None:
             rows.append((np.inf, nan, np.inf, np.inf))
             filt.append(nan)
             continue
@@ -207,14 +204,11 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
     estimation: tuple[str, ...] = ()
     if not blind:
         estimation = tuple(estimation_failures(estimated, params))
-        failures = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1], sd[:, 2])
-        verdict = spec_verdict_text(speeds, failures, sd[:, 0], sd[:, 1], sd[:, 2], sd[:, 3])
+        failures, verdict = judge(sd)
     else:
         failures, verdict = (), "not computed: no Kalman filter"
-    from maglevgen.control import registry
-
     design_said = ("the `spec` design at the tick on the loop as built"
-                   if registry.controller(controller).tick_design
+                   if registered_controller(controller).tick_design
                    else "its continuous gains")
     return SensingCheck(
         speeds, layout.describe(), controller,
@@ -230,8 +224,6 @@ def _loop_numbers(loop: np.ndarray, model, plant, period: float
     """(largest real part, smallest damping ratio, the levitation modes' largest real part,
     the speed loop's) of `loop_as_built`: the modes split by participation factors (as
     control.plant.LoopPlant.modes) on `loop_as_built_speed_states`."""
-    import scipy.linalg
-
     z, left, right = scipy.linalg.eig(loop, left=True, right=True)
     scale = np.einsum("ij,ij->j", left.conj(), right)
     part = np.abs(left.conj() * right / np.where(np.abs(scale) > 0, scale, 1.0))
