@@ -144,3 +144,24 @@ def test_face_centre_gap_sensors_without_an_imu_fail_the_verdict_naming_why(
     assert "face centres only" in verdict.reason and "no gyro" in verdict.reason
     (line,) = [c for c in verdict.checks if "observability" in c.subject]
     assert not line.ok and line.text.startswith("FAILS") and "phi:" in line.text
+
+
+def test_the_reports_gap_jacobian_equals_the_geometrys_differences(carriage) -> None:
+    """The sensing section's symbolic row dd/d(y, z, phi, theta, psi) at the design pose,
+    evaluated at each default gap sensor's point and face normal, equals the central
+    differences of the numpy geometry's readings (tests/independent_reference.py)."""
+    import sympy as sp
+
+    from maglevgen.control.estimation import SensorLayout
+    from maglevgen.report.sections.sensing import gap_jacobian
+
+    J, b, n = gap_jacobian()
+    params = carriage.params
+    layout = SensorLayout.of(params)
+    Hx, _ = ref.sensor_jacobians_fd(params, np.zeros(12), np.zeros(12))
+    pose = [cv.STATE_INDEX[s] for s in ("y", "z", "phi", "theta", "psi")]
+    for i, g in enumerate(layout.gaps):
+        subs = dict(zip([*b, *n], [*g.point, *g.normal], strict=True))
+        row = np.array(J.subs(subs).evalf(), dtype=float).ravel()
+        np.testing.assert_allclose(row, Hx[i, pose], atol=1e-7)
+    assert sp.simplify(J[2].subs({b[1]: 0, n[0]: 0, n[1]: 0, n[2]: 1})) == 0  # roll unseen

@@ -25,11 +25,13 @@ from typing import TYPE_CHECKING
 from maglevgen.infrastructure.hashing import ContentHash
 
 if TYPE_CHECKING:
+    from maglevgen.analyses.output_feedback import NoisyHold
     from maglevgen.analyses.roa import Region
     from maglevgen.analyses.run_spec import RunVerdict
 
 __all__ = ["RUN_DT", "RUN_T_END", "EmbeddedVerdict", "JudgedRun", "VerdictLine",
-           "cached_verdict", "embedded_runs", "embedded_verdict", "embedded_verification",
+           "build_holds", "cached_verdict", "embedded_runs", "embedded_verdict",
+           "embedded_verification",
            "generate_example", "store_verdict", "verify_embedded"]
 
 #: the judged runs' length [s] and step [s] (`maglevgen build`'s defaults)
@@ -177,6 +179,15 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
     return tuple(out)
 
 
+def build_holds(carriage, lib, env) -> tuple[NoisyHold, ...]:
+    """The build's noisy holds (output_feedback.noisy_holds) when the file has [sensors]."""
+    if carriage.params.sensors is None or env.sensing is None or not env.sensing.observable:
+        return ()
+    from maglevgen.analyses.output_feedback import noisy_holds
+
+    return noisy_holds(carriage, lib, env.v_min, env.v_max)
+
+
 def _region_failures(region: Region | None) -> list[str]:
     """The speeds of ``region`` where no region of attraction was confirmed."""
     if region is None:
@@ -185,7 +196,8 @@ def _region_failures(region: Region | None) -> list[str]:
 
 
 def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = (),
-                          region: Region | None = None) -> str | None:
+                          region: Region | None = None,
+                          holds: tuple[NoisyHold, ...] = ()) -> str | None:
     """None when the embedded controller is stable and meets ``[control.spec]`` across the
     envelope (the linear verdict, on every model checked), in each of ``runs``
     (`embedded_runs`) and has a region of attraction confirmed at every speed of ``region``
@@ -212,6 +224,13 @@ def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = (),
         if r.verdict is not None and not r.verdict.meets:
             failed.append(f"{r.verdict.text()} in the {r.label}")
             where.append(r.command)
+    for scale, group in _hold_groups(holds):
+        bad_holds = [f"{h.speed:.4g} m/s: " + ", ".join(f)
+                     for h in group if (f := h.failures(carriage.params.track.min_gap))]
+        if bad_holds:
+            failed.append(f"misses issue 49's targets in its noisy holds with the sensor "
+                          f"noise x {scale:g} ({'; '.join(bad_holds)})")
+            where.append("maglevgen build")
     if bad := _region_failures(region):
         failed.append(f"has no region of attraction confirmed at {', '.join(bad)} m/s (the "
                       "firmware loop does not settle from the boundary of the set)")
@@ -220,6 +239,38 @@ def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = (),
         return None
     return (f"{head} " + "; ".join(failed) + f" ({'; '.join(dict.fromkeys(where))}; "
             "--allow-unstable to accept)")
+
+
+def _hold_groups(holds: tuple[NoisyHold, ...]) -> list[tuple[float, list[NoisyHold]]]:
+    """The noisy holds grouped by their noise scale, in order."""
+    scales = sorted({h.noise_scale for h in holds})
+    return [(sc, [h for h in holds if h.noise_scale == sc]) for sc in scales]
+
+
+def _hold_lines(holds: tuple[NoisyHold, ...], min_gap: float) -> list[VerdictLine]:
+    """The noisy holds as checks, one per noise scale: where, how long, in which loop, the
+    targets, and the worst hold's numbers."""
+    from maglevgen.analyses.output_feedback import NOISE_BUDGET_SHARE, NOISE_FORCE_SHARE
+
+    out = []
+    for scale, group in _hold_groups(holds):
+        speeds = ", ".join(f"{h.speed:.4g}" for h in group)
+        subject = (f"noisy holds, sensor noise x {scale:g}, {group[0].t_end:g} s at {speeds} "
+                   "m/s from trim (the output-feedback loop as built run in Python around the "
+                   "C plant and the C measurement equations, the Kalman filter, the `spec` "
+                   "design at the tick, the delay, the actuator lag and the force budget; not "
+                   "the generated tick)")
+        target = (f"each array's force RMS <= {100 * NOISE_FORCE_SHARE:g} % of "
+                  "control.spec.force_budget, no tick at the budget, settled" if scale <= 1
+                  else f"no contact, <= {100 * NOISE_BUDGET_SHARE:g} % of the ticks at the "
+                  "budget")
+        worst = max(group, key=lambda h: (h.worst_share, float(max(h.at_budget))))
+        bad = [f"{h.speed:.4g} m/s: " + ", ".join(f) for h in group
+               if (f := h.failures(min_gap))]
+        text = (f"FAILS issue 49's targets ({target}): " + "; ".join(bad) if bad
+                else f"meets issue 49's targets ({target}); worst: {worst.summary()}")
+        out.append(VerdictLine(subject, text, not bad))
+    return out
 
 
 def _region_line(region: Region) -> VerdictLine:
@@ -240,10 +291,11 @@ def _region_line(region: Region) -> VerdictLine:
 
 
 def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
-                     region: Region | None = None, complete: bool = True
-                     ) -> EmbeddedVerdict:
-    """The verdict of the module docstring from the envelope ``env``, the judged ``runs`` and
-    the embedded controller's ``region``; ``complete`` False: the runs and the region were
+                     region: Region | None = None, complete: bool = True,
+                     holds: tuple[NoisyHold, ...] = ()) -> EmbeddedVerdict:
+    """The verdict of the module docstring from the envelope ``env``, the judged ``runs``,
+    the embedded controller's ``region`` and its noisy ``holds``
+    (maglevgen.analyses.output_feedback); ``complete`` False: the runs and the region were
     not made (the report alone says so instead of a verdict)."""
     from maglevgen.analyses.simulate import DISTURBANCE
     from maglevgen.analyses.worst_case import sign_combinations
@@ -267,13 +319,14 @@ def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
     checks += [VerdictLine(f"{r.label} (firmware loop, worst of {n_signs} disturbance sign "
                            "combinations)", r.verdict.text(), bool(r.verdict.meets))
                for r in runs]
+    checks += _hold_lines(holds, carriage.params.track.min_gap)
     if region is not None:
         checks.append(_region_line(region))
     findings = tuple(VerdictLine(f"{controller_title(n)} (`{n}`), linear, across {span}",
                                  f"{e.verdict}; specification: {e.spec_verdict}",
                                  bool(e.ok and e.meets_spec))
                      for n, e in env.controllers.items() if n != name)
-    reason = embedded_verification(carriage, env, runs, region)
+    reason = embedded_verification(carriage, env, runs, region, holds)
     # one decision: the lines' and the reason's (both from the same checks)
     assert (reason is None) == all(x.ok for x in checks) or not complete, (reason, checks)
     return EmbeddedVerdict(name, reason, env.checked_on(), float(env.v_min), float(env.v_max),
@@ -335,7 +388,8 @@ def verify_embedded(carriage, lib, step: Callable[[str], None] = lambda _: None
     judged = embedded_runs(carriage, lib, env, carriage.params.operation.speed)
     name = carriage.params.envelope.embedded_controller
     (region,) = roa.study(carriage, lib, [name], roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
-    verdict = embedded_verdict(carriage, env, judged, region)
+    holds = build_holds(carriage, lib, env)
+    verdict = embedded_verdict(carriage, env, judged, region, holds=holds)
     store_verdict(carriage, verdict)
     return verdict
 
