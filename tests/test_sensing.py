@@ -165,3 +165,38 @@ def test_the_reports_gap_jacobian_equals_the_geometrys_differences(carriage) -> 
         row = np.array(J.subs(subs).evalf(), dtype=float).ravel()
         np.testing.assert_allclose(row, Hx[i, pose], atol=1e-7)
     assert sp.simplify(J[2].subs({b[1]: 0, n[0]: 0, n[1]: 0, n[2]: 1})) == 0  # roll unseen
+
+
+def test_noisy_holds_decide_the_verdict_by_the_issues_targets(carriage,
+                                                              sensing_envelope) -> None:
+    """Holds made up here (no run): 2.2 N RMS of a 20 N budget with the file's noise misses
+    the 10 % target, 2 % of the ticks at the budget with five times the noise misses the 1 %
+    one, a gap at track.min_gap is contact; the verdict's lines and its exit-3 reason say
+    which; holds within the targets pass."""
+    from maglevgen.analyses.output_feedback import NoisyHold
+
+    budget = carriage.params.control.spec.force_budget
+    min_gap = carriage.params.track.min_gap
+
+    def hold(speed, scale, rms, at_budget, gap, settled=True):
+        return NoisyHold(speed, 1.0, scale, ("1", "2"), np.array([rms, 0.1]),
+                         np.array([3 * rms, 0.3]), np.array([at_budget, 0.0]), budget,
+                         np.array([1e-6, 1e-6]), gap,
+                         {"phi": 1e-5, "theta": 1e-5, "psi": 1e-5},
+                         dict.fromkeys(cv.Q_STATES, 1e-6), dict.fromkeys(cv.Q_STATES, 1e-6),
+                         settled)
+
+    good = (hold(7.0, 1.0, 0.4, 0.0, 8e-3), hold(7.0, 5.0, 2.0, 0.0, 8e-3))
+    verdict = embedded_verdict(carriage, sensing_envelope, holds=good, complete=False)
+    lines = [c for c in verdict.checks if c.subject.startswith("noisy holds")]
+    assert len(lines) == 2 and all(c.ok for c in lines) and verdict.reason is None
+    assert "not the generated tick" in lines[0].subject
+    bad = (hold(7.0, 1.0, 0.11 * budget, 0.0, 8e-3), hold(40.0, 1.0, 0.4, 0.0, 8e-3, False),
+           hold(7.0, 5.0, 2.0, 0.02, min_gap))
+    verdict = embedded_verdict(carriage, sensing_envelope, holds=bad, complete=False)
+    lines = [c for c in verdict.checks if c.subject.startswith("noisy holds")]
+    assert [c.ok for c in lines] == [False, False]
+    assert "force RMS 11 % of the budget" in lines[0].text
+    assert "40 m/s: not settled" in lines[0].text
+    assert "contact" in lines[1].text and "2 % of the ticks at the budget" in lines[1].text
+    assert verdict.reason is not None and "noisy holds with the sensor noise x 5" in verdict.reason

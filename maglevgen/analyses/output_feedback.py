@@ -121,7 +121,7 @@ class NoisyHold:
                 "of ticks at the budget, smallest gap "
                 f"{1e3 * self.min_gap:.4g} mm, gap RMS <= {1e6 * np.max(self.gap_rms):.3g} um, "
                 f"attitude RMS <= {1e6 * max(self.attitude_rms.values()):.3g} urad, estimation "
-                f"error <= {ratio:.2g} x the filter's sqrt(P)"
+                f"error <= {ratio:.2g} x the filter's sqrt(P) (designed for noise x 1)"
                 + ("" if self.settled else ", NOT settled"))
 
     def lines(self) -> list[str]:

@@ -122,8 +122,10 @@ class EmbeddedVerdict:
         return (f"verified: the embedded controller {self.controller!r} meets [control.spec] "
                 f"across [{self.v_min:.4g}, {self.v_max:.4g}] m/s, checked {self.model}, in "
                 "its hold and launch runs in the firmware loop, each judged on the worst "
-                "sign combination of the default disturbance, and with a region of attraction "
-                "confirmed at every speed studied (the check `maglevgen build` exits 3 on)")
+                "sign combination of the default disturbance, with a region of attraction "
+                "confirmed at every speed studied, and, where the file has [sensors], with "
+                "its sensors observing what it needs, its Kalman filter, the whole loop with "
+                "the estimator and its noisy holds (the check `maglevgen build` exits 3 on)")
 
     def to_json(self) -> dict:
         return {"verified": self.verified, "verdict": self.text(), "controller": self.controller,

@@ -19,7 +19,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.rigid_body import rotation_body_to_inertial
 from maglevgen.derive.sensors import GapSensorSymbols, gap_reading
 from maglevgen.report.display import ltx, matrix_tex
-from maglevgen.report.format import fcolumn, fnum, tex_escape, tex_verdict
+from maglevgen.report.format import fcolumn, fnum, tex_escape, tex_unit, tex_verdict
 
 __all__ = ["DISK_MARGIN_FIGURE", "TABLE_SPEEDS", "gap_jacobian", "gap_jacobian_tex",
            "sensing_section"]
@@ -69,7 +69,7 @@ def _sensor_rows(params, layout: SensorLayout) -> list[dict[str, str]]:
             what, where, unit = "position along the track", "--", "m"
         rows.append({"name": tex_escape(name), "what": tex_escape(what),
                      "where": tex_escape(where), "noise": fnum(float(sd[i]), 3),
-                     "unit": tex_escape(unit)})
+                     "unit": tex_unit(unit)})
     if layout.imu_point is not None:
         for r in rows:
             if r["where"] == "IMU":
