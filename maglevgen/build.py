@@ -388,17 +388,20 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                             loop="firmware")
         if pending is not None:
             pending.result()  # the envelope's model checks read them from the cache
-    step("envelope: stability of each controller across the speed range")
-    env = compute_envelope(carriage, lib)
-    # the noisy holds of the output-feedback loop (a Python loop, about 10 s of the
-    # machine's per 20 s hold) in a child, while this process runs the judged runs and the
+    # the noisy holds of the output-feedback loop (a Python loop, a few seconds per 20 s hold)
+    # in a child from here, while this process runs the envelope, the judged runs and the
     # region of attraction
-    with child(shared={"carriage": carriage, "lib": lib, "env": env}) as holding:
+    from maglevgen.analyses.envelope import resolve_range
+
+    v_min, v_max = resolve_range(carriage, lib)
+    with child(shared={"carriage": carriage, "lib": lib}) as holding:
         holds_job = submit(holding, "the noisy holds of the output-feedback loop", build_holds,
-                           Shared("carriage"), Shared("lib"), Shared("env"))
-        if env.sensing is not None:
+                           Shared("carriage"), Shared("lib"), v_min, v_max, opts.t_end)
+        if carriage.params.sensors is not None:
             step("the embedded controller's noisy holds with its sensors and Kalman filter "
                  "(output-feedback loop, in a second process)")
+        step("envelope: stability of each controller across the speed range")
+        env = compute_envelope(carriage, lib)
         step("the embedded controller's hold and launch runs against [control.spec]")
         judged = embedded_runs(carriage, lib, env, run.op.speed, opts.t_end, opts.dt)
         step("envelope: the embedded controller's region of attraction (sampled)")

@@ -54,9 +54,10 @@ BUILD_HOLD, HOLD_SPEED, NOISE_SCALES = 20.0, 20.0, (1.0, 5.0)
 #: times the noise at most NOISE_BUDGET_SHARE of the ticks at the budget (and no contact)
 NOISE_FORCE_SHARE, NOISE_BUDGET_SHARE = 0.10, 0.01
 
-# 0.5 ms at 1 kHz: the plant's fastest open-loop mode is about 60 1/s, the 2 ms actuator lag's
-# pole 500 1/s (h/tau = 0.25, well inside RK4's stability region)
-RK4_STEPS_PER_TICK = 2
+# one RK4 step per tick (1 ms at 1 kHz): the plant's fastest open-loop mode is about 60 1/s
+# (h lambda = 0.06); the actuator lag is integrated exactly (its force at each RK4 stage from
+# the held command), so its 500 1/s pole sets no step
+RK4_STEPS_PER_TICK = 1
 #: a settled run: its last quarter's RMS gap deviation at most this times its second quarter's
 SETTLED = 1.5
 
@@ -219,13 +220,17 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     est_err = np.zeros((n_ticks, n_x))
     gaps_trim = np.ravel(gaps_fn(op.x_trim, p)[0])
     V = op.speed
-    cmd_applied = queue[-1] if queue else np.zeros(n_cmd)
+    cmd_applied = np.zeros(n_cmd)  # with no delay: the previous tick's command
     zc = np.zeros(L.size)
     for k in range(n_ticks):
         t = k * tick.period
+        # the command applied over this tick: the oldest in flight (computed d ticks ago);
+        # the accelerometer reads the dynamics under it (with no delay, the sensors read
+        # before this tick's command exists: the previous one)
+        if d:
+            cmd_applied = queue[-1]
         du_applied = _inputs(cmd_applied, T)
-        u_now = u_trim + np.concatenate([du_applied[:1], F if tau > 0 else du_applied[1:]])
-        xdot = np.ravel(dynamics(x, u_now, p)[0])
+        xdot = _rhs(dynamics, x, F, u_trim, du_applied, tau, p, 0.0)
         y = np.empty(len(layout.names))
         for j, g in enumerate(layout.gaps):
             y[j] = float(np.ravel(gap_fn(x, g.point, g.normal, g.nominal_gap)[0])[0])
@@ -263,16 +268,18 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
         z_pred = model.Phi @ z_post + model.Gamma @ du
         if d == 0:
             cmd_applied = cmd
+            xdot = None  # the command changed: the first stage again
         else:
             queue.insert(0, cmd)
-            cmd_applied = queue.pop()
+            queue.pop()  # cmd_applied: applied over this tick
         if tau > 0:
             a = plant.lag_pole
             w_hat = a * w_hat + (1 - a) * cmd_applied[:n5]
-        # the plant over the tick with the command applied now (held), the lag integrated
+        # the plant over the tick with the command applied now (held), the lag exact
         du_hold = _inputs(cmd_applied, T)
-        for _ in range(RK4_STEPS_PER_TICK):
-            x, F = _rk4(dynamics, x, F, u_trim, du_hold, tau, p, h)
+        for j in range(RK4_STEPS_PER_TICK):
+            x, F = _rk4(dynamics, x, F, u_trim, du_hold, tau, p, h,
+                        xdot if j == 0 else None)
         forces[k] = [np.linalg.norm(du_hold[1 + first[i]:1 + first[i] + comps[i]])
                      for i in range(len(arrays))]
         gaps[k] = np.ravel(gaps_fn(x, p)[0])
@@ -324,19 +331,25 @@ def _structure_arrays(params) -> list[tuple[str, tuple[str, ...]]]:
     return list(structure_of(params).arrays)
 
 
-def _rk4(f, x: np.ndarray, F: np.ndarray, u_trim: np.ndarray, du: np.ndarray, tau: float,
-         p: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """One RK4 step of the body and the lagged array forces (tau F' = F_c - F; tau = 0:
-    F = F_c) with the command ``du`` (F_prop, F_c) held."""
+def _rhs(f, x: np.ndarray, F0: np.ndarray, u_trim: np.ndarray, du: np.ndarray, tau: float,
+         p: np.ndarray, s: float) -> np.ndarray:
+    """xdot at ``s`` seconds into a tick with the command ``du`` (F_prop, F_c) held from the
+    lagged forces F0: F(s) = F_c + (F0 - F_c) exp(-s/tau), exact (tau = 0: F = F_c)."""
     Fc = du[1:]
+    Fs = Fc + (F0 - Fc) * np.exp(-s / tau) if tau > 0 else Fc
+    return np.ravel(f(x, u_trim + np.concatenate([du[:1], Fs]), p)[0])
 
-    def rhs(xx: np.ndarray, FF: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        u = u_trim + np.concatenate([du[:1], FF if tau > 0 else Fc])
-        return np.ravel(f(xx, u, p)[0]), ((Fc - FF) / tau if tau > 0 else np.zeros_like(FF))
 
-    k1 = rhs(x, F)
-    k2 = rhs(x + h / 2 * k1[0], F + h / 2 * k1[1])
-    k3 = rhs(x + h / 2 * k2[0], F + h / 2 * k2[1])
-    k4 = rhs(x + h * k3[0], F + h * k3[1])
-    return (x + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
-            F + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
+def _rk4(f, x: np.ndarray, F: np.ndarray, u_trim: np.ndarray, du: np.ndarray, tau: float,
+         p: np.ndarray, h: float, k1: np.ndarray | None = None
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """One RK4 step of the body with the command ``du`` held, the lagged array forces exact
+    at each stage (`_rhs`); ``k1``: the first stage when the caller has it. Returns (x, F)
+    after the step."""
+    k1 = _rhs(f, x, F, u_trim, du, tau, p, 0.0) if k1 is None else k1
+    k2 = _rhs(f, x + h / 2 * k1, F, u_trim, du, tau, p, h / 2)
+    k3 = _rhs(f, x + h / 2 * k2, F, u_trim, du, tau, p, h / 2)
+    k4 = _rhs(f, x + h * k3, F, u_trim, du, tau, p, h)
+    Fc = du[1:]
+    F_end = Fc + (F - Fc) * np.exp(-h / tau) if tau > 0 else Fc.copy()
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), F_end

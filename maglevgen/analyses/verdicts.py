@@ -181,13 +181,21 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
     return tuple(out)
 
 
-def build_holds(carriage, lib, env) -> tuple[NoisyHold, ...]:
-    """The build's noisy holds (output_feedback.noisy_holds) when the file has [sensors]."""
-    if carriage.params.sensors is None or env.sensing is None or not env.sensing.observable:
+def build_holds(carriage, lib, v_min: float, v_max: float, t_end: float = RUN_T_END
+                ) -> tuple[NoisyHold, ...]:
+    """The build's noisy holds (output_feedback.noisy_holds) over [v_min, v_max], their
+    length BUILD_HOLD (20 s) scaled as the build's runs' ``t_end`` to RUN_T_END (a build with
+    --t-end 1 holds for 2 s); none when the file has no [sensors] or they cannot observe what
+    the controller needs (no filter: the sensing check fails the verdict then)."""
+    if carriage.params.sensors is None:
         return ()
-    from maglevgen.analyses.output_feedback import noisy_holds
+    from maglevgen.analyses.output_feedback import BUILD_HOLD, noisy_holds
+    from maglevgen.errors import InputError
 
-    return noisy_holds(carriage, lib, env.v_min, env.v_max)
+    try:
+        return noisy_holds(carriage, lib, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
+    except InputError:  # estimation.check_observable
+        return ()
 
 
 def _region_failures(region: Region | None) -> list[str]:
@@ -390,7 +398,7 @@ def verify_embedded(carriage, lib, step: Callable[[str], None] = lambda _: None
     judged = embedded_runs(carriage, lib, env, carriage.params.operation.speed)
     name = carriage.params.envelope.embedded_controller
     (region,) = roa.study(carriage, lib, [name], roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
-    holds = build_holds(carriage, lib, env)
+    holds = build_holds(carriage, lib, env.v_min, env.v_max)
     verdict = embedded_verdict(carriage, env, judged, region, holds=holds)
     store_verdict(carriage, verdict)
     return verdict
