@@ -200,3 +200,32 @@ def test_noisy_holds_decide_the_verdict_by_the_issues_targets(carriage,
     assert "40 m/s: not settled" in lines[0].text
     assert "contact" in lines[1].text and "2 % of the ticks at the budget" in lines[1].text
     assert verdict.reason is not None and "noisy holds with the sensor noise x 5" in verdict.reason
+
+
+def test_a_set_blind_to_the_pose_fails_the_verdict_naming_the_states(carriage, sim_lib) -> None:
+    """The track sensor alone: the needed states in the null space of python-control's obsv
+    of the model assembled here (its track row) are exactly those the verdict names, each
+    "not seen by the track sensor"; the verdict fails (exit 3), the whole loop has no filter."""
+    from maglevgen.control.estimation import NEEDED_STATES
+
+    params = carriage.params.model_copy(update={"sensors": carriage.params.sensors.model_copy(
+        update={"gap": None, "gap_sensors": {}, "imu": None})})
+    loaded = carriage.loaded
+    blind = DerivedCarriage(LoadedParams(params, loaded.source, loaded.sha256,
+                                         (*loaded.overrides, "track sensor alone")))
+    env = compute_envelope(blind, sim_lib, 2, controllers=("spec",), other_models=False)
+    (op,) = envelope_points(blind, sim_lib, [env.speeds[0]])
+    Phi, C, _, _, _ = _reference_filter(carriage.params, op, TAU)
+    Ob = control.obsv(Phi[:12, :12], C[-1:, :12])
+    rank = np.linalg.matrix_rank(Ob)
+    Vt = np.linalg.svd(Ob)[2]
+    expected = {cv.STATE_NAMES[i] for i in range(12)
+                if np.linalg.norm(Vt[rank:, i]) > 1e-6} & set(NEEDED_STATES)
+    sc = env.sensing
+    assert not sc.observable and int(sc.rank[0]) == rank
+    named = {b.split(":")[0] for b in sc.blind}
+    assert named == expected and all("not seen by the track sensor" in b for b in sc.blind)
+    verdict = embedded_verdict(blind, env, complete=False)
+    assert verdict.reason is not None and "cannot observe what it needs" in verdict.reason
+    (line,) = [c for c in verdict.checks if "whole loop with the estimator" in c.subject]
+    assert not line.ok and "no Kalman filter" in line.text

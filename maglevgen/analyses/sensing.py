@@ -212,7 +212,8 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
                    else "its continuous gains")
     return SensingCheck(
         speeds, layout.describe(), controller,
-        f"the `{controller}` gains ({design_said}; the gains the output-feedback tick runs)",
+        f"the `{controller}` gains ({design_said}, which the output-feedback tick is to run; "
+        "the generated full-state tick runs the continuous gains)",
         setting.tick_text(), len(states), np.array(rank), np.array(small), np.array(large),
         tuple(blind.values()), tuple(dict.fromkeys(blind_at)), err_a, states, estimation,
         np.array(gain), sd[:, 0], sd[:, 1], sd[:, 2], sd[:, 3], np.array(filt), failures,
