@@ -56,6 +56,7 @@ class SensingCheck:
     controller: str
     gains: str  # which gains the whole loop closes, in words
     loop: str  # the loop in words (tick, delay, lag)
+    loop_short: str  # the same, in a few words
     n_states: int  # the plant's states the observability matrix holds
     rank: np.ndarray  # per speed
     smallest: np.ndarray  # smallest singular value (noise-scaled), per speed
@@ -120,6 +121,25 @@ class SensingCheck:
         fk = int(np.argmax(self.filter_real))
         return (f"{self.verdict}; the filter's own modes decay at least at "
                 f"{-self.filter_real[fk]:.4g} 1/s")
+
+    def verdict_subject(self) -> str:
+        """The verdict block's line (short: page 1 of the report carries the block)."""
+        return (f"sensing, linear, across {self._span()} ({self.sensors}; the Kalman filter "
+                f"at the tick; the whole loop with the `{self.controller}` design at the tick "
+                f"on the estimate, {self.loop_short})")
+
+    def verdict_text(self) -> str:
+        if self.blind:
+            return "FAILS: cannot observe " + "; ".join(self.blind)
+        if self.estimation or self.failures:
+            return "FAILS: " + "; ".join(
+                [*self.estimation, *(f"whole loop {f.text()}" for f in self.failures)])
+        return (f"observable at every speed (rank {self.n_states} of {self.n_states}, smallest "
+                f"singular value {np.min(self.smallest):.3g}); each axis estimated within "
+                f"{ESTIMATION_SHARE:g} x control.spec.max_deviation; whole loop: smallest "
+                f"damping ratio {np.min(self.min_damping):.3g}, slowest levitation decay "
+                f"{np.min(-self.levitation_real):.4g} 1/s (filter's modes at least "
+                f"{np.min(-self.filter_real):.4g} 1/s)")
 
     def reason(self) -> str | None:
         """What fails, in one clause (`verdicts.embedded_verification`), None: all pass."""
@@ -214,7 +234,9 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
         speeds, layout.describe(), controller,
         f"the `{controller}` gains ({design_said}, which the output-feedback tick is to run; "
         "the generated full-state tick runs the continuous gains)",
-        setting.tick_text(), len(states), np.array(rank), np.array(small), np.array(large),
+        setting.tick_text(),
+        f"{setting.tick.rate:g} Hz, {setting.tick.delay} tick delay, {1e3 * tau:.3g} ms lag",
+        len(states), np.array(rank), np.array(small), np.array(large),
         tuple(blind.values()), tuple(dict.fromkeys(blind_at)), err_a, states, estimation,
         np.array(gain), sd[:, 0], sd[:, 1], sd[:, 2], sd[:, 3], np.array(filt), failures,
         verdict)
