@@ -265,17 +265,17 @@ def _hold_lines(holds: tuple[NoisyHold, ...], min_gap: float) -> list[VerdictLin
     speeds = ", ".join(dict.fromkeys(f"{h.speed:.4g}" for h in holds))
     scales = " and ".join(f"x {sc:g}" for sc, _ in _hold_groups(holds))
     subject = (f"noisy holds, {holds[0].t_end:g} s at {speeds} m/s, sensor noise {scales} "
-               "(the output-feedback loop as built in Python around the C plant; not the "
-               "generated tick)")
+               "(Python loop around the C plant, not the generated tick)")
     bad = [f"x {h.noise_scale:g} at {h.speed:.4g} m/s: " + ", ".join(f)
            for h in holds if (f := h.failures(min_gap))]
     if bad:
         return [VerdictLine(subject, "FAILS issue 49's targets: " + "; ".join(bad), False)]
-    shares = "; ".join(f"x {sc:g} {100 * max(h.worst_share for h in g):.2g} %"
+    shares = ", ".join(f"{100 * max(h.worst_share for h in g):.2g} % (x {sc:g})"
                        for sc, g in _hold_groups(holds))
     at = 100 * max(float(max(h.at_budget)) for h in holds)
-    return [VerdictLine(subject, f"meets issue 49's targets: force RMS at most {shares} of "
-                        f"control.spec.force_budget, {at:.2g} % of ticks at it, smallest gap "
+    ticks = "no tick" if at == 0 else f"{at:.2g} % of ticks"
+    return [VerdictLine(subject, f"meets issue 49's targets: force RMS <= {shares} of the "
+                        f"budget, {ticks} at it, smallest gap "
                         f"{1e3 * min(h.min_gap for h in holds):.4g} mm, settled", True)]
 
 
