@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from maglevgen.errors import InputError
 from maglevgen.infrastructure.hashing import ContentHash
 
 if TYPE_CHECKING:
@@ -190,7 +191,6 @@ def build_holds(carriage, lib, v_min: float, v_max: float, t_end: float = RUN_T_
     if carriage.params.sensors is None:
         return ()
     from maglevgen.analyses.output_feedback import BUILD_HOLD, noisy_holds
-    from maglevgen.errors import InputError
 
     try:
         return noisy_holds(carriage, lib, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
