@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 from maglevgen.analyses.verdicts import (
     EmbeddedVerdict,
     JudgedRun,
+    build_holds,
     embedded_runs,
     embedded_verdict,
     embedded_verification,
@@ -387,16 +388,29 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                             loop="firmware")
         if pending is not None:
             pending.result()  # the envelope's model checks read them from the cache
-    step("envelope: stability of each controller across the speed range")
-    env = compute_envelope(carriage, lib)
-    step("the embedded controller's hold and launch runs against [control.spec]")
-    judged = embedded_runs(carriage, lib, env, run.op.speed, opts.t_end, opts.dt)
-    step("envelope: the embedded controller's region of attraction (sampled)")
-    regions = roa.study(carriage, lib, [carriage.params.envelope.embedded_controller],
-                        roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
+    # the noisy holds of the output-feedback loop (a Python loop, a few seconds per 20 s hold)
+    # in a child from here, while this process runs the envelope, the judged runs and the
+    # region of attraction
+    from maglevgen.analyses.envelope import resolve_range
+
+    v_min, v_max = resolve_range(carriage, lib)
+    with child(shared={"carriage": carriage, "lib": lib}) as holding:
+        holds_job = submit(holding, "the noisy holds of the output-feedback loop", build_holds,
+                           Shared("carriage"), Shared("lib"), v_min, v_max, opts.t_end)
+        if carriage.params.sensors is not None:
+            step("the embedded controller's noisy holds with its sensors and Kalman filter "
+                 "(output-feedback loop, in a second process)")
+        step("envelope: stability of each controller across the speed range")
+        env = compute_envelope(carriage, lib)
+        step("the embedded controller's hold and launch runs against [control.spec]")
+        judged = embedded_runs(carriage, lib, env, run.op.speed, opts.t_end, opts.dt)
+        step("envelope: the embedded controller's region of attraction (sampled)")
+        regions = roa.study(carriage, lib, [carriage.params.envelope.embedded_controller],
+                            roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
+        holds = holds_job.result()
     # every check deciding the exit code, once: SUMMARY.md, stdout and the report's first
     # page print its lines
-    verdict = embedded_verdict(carriage, env, judged, regions[0])
+    verdict = embedded_verdict(carriage, env, judged, regions[0], holds=holds)
     store_verdict(carriage, verdict, opts.t_end, opts.dt)
     # One child draws every figure (one matplotlib import for the simulation's and the
     # report's) and writes the trajectories, while this process imports the symbolic layers
@@ -426,7 +440,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         report = _report_files(carriage, sim_files, opts, step, report_figures,
                                (env, stability_map["envelope/stability_map.png"]),
                                json.loads(files["c/manifest.json"])["gain_table"], run,
-                               (regions, region_files["roa_extent.png"]), verdict)
+                               (regions, region_files["roa_extent.png"]), verdict, holds)
         files.update({f"simulation/{n}": sim_files[n] for n in sim_files})
         files.update(stability_map)
         files.update({f"envelope/{n}": b for n, b in region_files.items()})
@@ -538,18 +552,20 @@ def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
                   step, figures: Job, envelope, gain_table: Mapping, run,
-                  region=None, verdict: EmbeddedVerdict | None = None) -> dict[str, bytes]:
+                  region=None, verdict: EmbeddedVerdict | None = None,
+                  holds: tuple = ()) -> dict[str, bytes]:
     """report.tex (+ report.pdf) with the simulation figures and its own ``figures``;
     ``gain_table``: c/manifest.json's entry (the report shows its numbers); ``run``: the
     build's hold runs, which the actuator comparison reuses when they have its length and step;
-    ``region``: (the regions of attraction, their figure); ``verdict``: the first page's."""
+    ``region``: (the regions of attraction, their figure); ``verdict``: the first page's;
+    ``holds``: the noisy holds (the sensing section's table)."""
     from maglevgen.report import RUN_DT, RUN_T_END, report_files
 
     same = (opts.t_end, opts.dt) == (RUN_T_END, RUN_DT) and run.scenario == "hold"
     return report_files(carriage, sim_files, pdf=opts.pdf, progress=step, figures=figures,
                         envelope=envelope, gain_table=gain_table,
                         hold_runs={t.controller: t for t in run.trajectories} if same else None,
-                        roa=region, verdict=verdict)
+                        roa=region, verdict=verdict, holds=holds)
 
 
 def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:

@@ -58,7 +58,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "`build` imports it at its top (the unchanged rebuild): the analyses it judges with "
         "load when a verdict is computed",
         ("maglevgen.analyses.envelope", "maglevgen.analyses.roa", "maglevgen.analyses.simulate",
-         "maglevgen.analyses.worst_case", "maglevgen.control", "maglevgen.control.operating",
+         "maglevgen.analyses.worst_case", "maglevgen.analyses.output_feedback",
+         "maglevgen.control", "maglevgen.control.operating",
          "maglevgen.infrastructure.cache", "numpy")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "

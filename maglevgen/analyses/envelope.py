@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from maglevgen.analyses.sensing import SensingCheck, sensing_check
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control import controller as registered_controller
 from maglevgen.control import names as controller_names
@@ -406,6 +407,9 @@ class Envelope:
     model: str = ""  # the linearisation's model choices, in words
     # the embedded controller's gains on the alternate models (`model_checks`)
     other_models: tuple[ModelCheck, ...] = ()
+    # the embedded controller's sensors, Kalman filter and whole loop with the estimator
+    # (maglevgen.analyses.sensing; None: no [sensors], or the embedded controller not run)
+    sensing: SensingCheck | None = None
 
     def checked_on(self) -> str:
         """The model and loop the specification verdicts were computed on, in words."""
@@ -463,7 +467,8 @@ class Envelope:
                 "delay_ticks": None if self.loop is None else self.loop.tick.delay,
                 "actuator_lag": None if self.loop is None else self.loop.actuator_lag,
                 "other_models": [{"model": c.model, "ok": c.ok, "verdict": c.text()}
-                                 for c in self.other_models]}
+                                 for c in self.other_models],
+                "sensing": None if self.sensing is None else self.sensing.to_json()}
 
 
 def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,
@@ -793,9 +798,25 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
     checks = (model_checks(carriage, embedded, points, setting)
               if other_models and embedded in chosen else ())
+    sensing = None
+    if carriage.params.sensors is not None and embedded in chosen:
+        def design_or_none(op: OperatingPoint) -> LoopDesign | None:
+            try:
+                return loop_design(op, embedded, setting)
+            except (np.linalg.LinAlgError, ValueError):
+                return None
+
+        def judge(sd: np.ndarray) -> tuple[tuple[SpecFailure, ...], str]:
+            f = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1], sd[:, 2])
+            return f, spec_verdict_text(speeds, f, sd[:, 0], sd[:, 1], sd[:, 2], sd[:, 3])
+
+        sensing = sensing_check(carriage, lib, points, setting, embedded,
+                                [(loop_plant(op, setting), design_or_none(op))
+                                 for op in points], judge)
     m = carriage.params.model
     model = f"the {m.array_force} force law and {m.circuit_dynamics} circuits"
-    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks)
+    return Envelope(speeds, v_min, v_max, out, np.array(speed_poles), setting, model, checks,
+                    sensing)
 
 
 def envelope_markdown(env: Envelope) -> str:

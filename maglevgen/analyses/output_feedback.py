@@ -1,40 +1,65 @@
 """The output-feedback loop as built, run: the nonlinear plant (the generated C's dynamics,
-RK4) read by noisy sensors (the generated C's measurement equations, derive/sensors.py, with
-each reading's noise, quantization and bias of ``[sensors]``, seeded), the steady-state Kalman
-filter at the tick (maglevgen.control.estimation) and the embedded controller's gains on its
-estimate, the command applied after the tick's delay and saturated at each array's force
-budget.
+RK4) with each array's control force through its first-order lag ([actuators]
+time_constant), read by noisy sensors (the generated C's measurement equations,
+derive/sensors.py, with each reading's noise, quantization and bias of ``[sensors]``, seeded),
+the steady-state Kalman filter at the tick on the ZOH model with the delay and the lag
+(maglevgen.control.estimation), and the embedded controller as the loop as built runs it
+(control.plant.LoopPlant: the `spec` design at the tick, its gains on the updated estimate,
+on its commands in flight and on its prediction of the lagged forces), the command applied
+after the tick's delay and saturated at each array's force budget.
+
+This is a Python loop around the C plant and the C measurement equations, not the generated
+output-feedback tick (issue 49's C side): the same equations, run here.
 
 A hold at one speed from trim (the estimate starts at trim too): what the sensors' noise
-alone costs. Metrics: each array's control force, RMS and peak, and the share of ticks it
-sits at the budget; the gaps' and the attitude's RMS deviation from trim; the estimation
-error's RMS per state against the filter's own prediction (sqrt of P after the update).
+alone costs. Metrics: each array's control force command, RMS and peak, and the share of
+ticks it sits at the budget; the gaps' and the attitude's RMS deviation from trim; the
+estimation error's RMS per state against the filter's own prediction (sqrt of P after the
+update); whether the run settled (its last quarter's gap deviation no larger than SETTLED
+times its second quarter's: a stationary loop, not one that drifts or grows).
 
-Not in this loop (yet): the anti-alias filters' lag (their noise bandwidth is in the
-readings' variance), the actuators' lag (issue 49's other half), a process disturbance.
+Not in this loop: the anti-alias filters' lag (their noise bandwidth is in the readings'
+variance), a process disturbance.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from maglevgen.analyses.envelope import envelope_points
 from maglevgen.carriage import structure_of
+from maglevgen.control import controller as registered_controller
 from maglevgen.control.estimation import (
     EstimatorPoint,
     SensorLayout,
-    estimate_gain,
     estimator_points,
     measurement_model,
 )
 from maglevgen.control.operating import OperatingPoint
-from maglevgen.control.sampled import Tick, loop_gain, speed_gain
+from maglevgen.control.plant import LoopDesign, LoopPlant
+from maglevgen.control.sampled import LOOP_STATES, Tick, speed_gain
 from maglevgen.derive import conventions as cv
 
-__all__ = ["NoisyHold", "noisy_hold"]
+__all__ = ["BUILD_HOLD", "HOLD_SPEED", "NOISE_BUDGET_SHARE", "NOISE_FORCE_SHARE", "NOISE_SCALES",
+           "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds"]
 
-RK4_STEPS_PER_TICK = 2  # 0.5 ms at 1 kHz: the plant's fastest open-loop mode is about 60 1/s
+#: the build's noisy holds: their length [s], the speed held besides the envelope's ends
+#: [m/s], and the sensor noise scales (the file's noise, and five times it)
+BUILD_HOLD, HOLD_SPEED, NOISE_SCALES = 20.0, 20.0, (1.0, 5.0)
+#: issue 49's targets for a noisy hold: with the file's noise each array's force RMS at most
+#: this share of control.spec.force_budget (and no tick at the budget, settled); with five
+#: times the noise at most NOISE_BUDGET_SHARE of the ticks at the budget (and no contact)
+NOISE_FORCE_SHARE, NOISE_BUDGET_SHARE = 0.10, 0.01
+
+# one RK4 step per tick (1 ms at 1 kHz): the plant's fastest open-loop mode is about 60 1/s
+# (h lambda = 0.06); the actuator lag is integrated exactly (its force at each RK4 stage from
+# the held command), so its 500 1/s pole sets no step
+RK4_STEPS_PER_TICK = 1
+#: a settled run: its last quarter's RMS gap deviation at most this times its second quarter's
+SETTLED = 1.5
 
 
 @dataclass(frozen=True)
@@ -54,6 +79,51 @@ class NoisyHold:
     attitude_rms: dict[str, float]  # [rad] phi, theta, psi from trim
     estimation_rms: dict[str, float]  # per estimated state, z - z_hat[k|k]
     estimation_predicted: dict[str, float]  # sqrt(P after the update)'s diagonal
+    settled: bool = True  # stationary (SETTLED)
+    seconds: float = 0.0  # [s] wall-clock time of the run
+
+    @property
+    def worst_share(self) -> float:
+        """The largest array's force RMS as a share of the budget."""
+        return float(np.max(self.force_rms) / self.budget)
+
+    def failures(self, min_gap: float) -> list[str]:
+        """What misses issue 49's targets (NOISE_FORCE_SHARE, NOISE_BUDGET_SHARE; contact:
+        a gap at or below ``min_gap``, track.min_gap), one clause each; empty: met."""
+        out = []
+        if not self.min_gap > min_gap:
+            out.append(f"contact (smallest gap {1e3 * self.min_gap:.4g} mm, track.min_gap "
+                       f"{1e3 * min_gap:.4g} mm)")
+        budget_share = float(np.max(self.at_budget))
+        if self.noise_scale <= 1.0:
+            if self.worst_share > NOISE_FORCE_SHARE:
+                out.append(f"force RMS {100 * self.worst_share:.3g} % of the budget (target "
+                           f"<= {100 * NOISE_FORCE_SHARE:g} %)")
+            if budget_share > 0:
+                out.append(f"{100 * budget_share:.3g} % of the ticks at the budget (target: "
+                           "none)")
+            if not self.settled:
+                out.append("not settled")
+        elif budget_share > NOISE_BUDGET_SHARE:
+            out.append(f"{100 * budget_share:.3g} % of the ticks at the budget (target <= "
+                       f"{100 * NOISE_BUDGET_SHARE:g} %)")
+        return out
+
+    def summary(self) -> str:
+        """One clause: the worst array's force RMS and peak, the ticks at the budget, the
+        smallest gap, the gap and attitude RMS, the estimation error against P."""
+        i = int(np.argmax(self.force_rms))
+        ratio = max(self.estimation_rms[s] / self.estimation_predicted[s]
+                    for s in cv.Q_STATES if self.estimation_predicted[s] > 0)
+        return (f"noise x {self.noise_scale:g} at {self.speed:.4g} m/s: force RMS "
+                f"{self.force_rms[i]:.3g} N ({100 * self.worst_share:.2g} % of "
+                f"{self.budget:g} N, array {self.arrays[i]}), peak "
+                f"{np.max(self.force_peak):.3g} N, {100 * float(np.max(self.at_budget)):.2g} % "
+                "of ticks at the budget, smallest gap "
+                f"{1e3 * self.min_gap:.4g} mm, gap RMS <= {1e6 * np.max(self.gap_rms):.3g} um, "
+                f"attitude RMS <= {1e6 * max(self.attitude_rms.values()):.3g} urad, estimation "
+                f"error <= {ratio:.2g} x the filter's sqrt(P) (designed for noise x 1)"
+                + ("" if self.settled else ", NOT settled"))
 
     def lines(self) -> list[str]:
         """Plain-text lines for a terminal or BENCHMARKS.md."""
@@ -76,17 +146,34 @@ class NoisyHold:
 
 def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str | None = None,
                t_end: float = 20.0, seed: int = 0, noise_scale: float = 1.0,
-               point: EstimatorPoint | None = None) -> NoisyHold:
+               point: EstimatorPoint | None = None, plant: LoopPlant | None = None,
+               gains: LoopDesign | None = None) -> NoisyHold:
     """The output-feedback loop held at ``op``'s speed for ``t_end`` seconds (module
     docstring); the noise drawn from numpy's default_rng(seed). ``controller``: default the
-    embedded one (``envelope.embedded_controller``)."""
+    embedded one (``envelope.embedded_controller``); ``plant`` and ``gains``: the loop as
+    built and its gains (default: LoopPlant at ``op`` with the file's tick, lag and the speed
+    loop's k_v, and the controller's design on it, as the envelope's verdict)."""
+    start = time.perf_counter()
     controller = controller or params.envelope.embedded_controller
     layout = SensorLayout.of(params)
     tick = Tick.of(params)
-    point = point or estimator_points(lib, p, params, [op])[0]
+    tau = float(params.actuators.time_constant)
+    if plant is None:
+        k_v = speed_gain(params.vehicle.mass, op.trim_drag_slope,
+                         params.control.spec.speed_bandwidth)
+        plant = LoopPlant(op, tick, tau, k_v)
+    if gains is None:
+        c = registered_controller(controller)
+        gains = (plant.design(c.weights) if c.tick_design and c.weights is not None
+                 else LoopDesign(*op.gains(controller)))
+    point = point or estimator_points(lib, p, params, [op], tau)[0]
     model, design = point.model, point.design
-    k_v = speed_gain(params.vehicle.mass, op.trim_drag_slope, params.control.spec.speed_bandwidth)
-    K_u = estimate_gain(model, op, loop_gain(op, controller, k_v))
+    K_c = plant.controller_gains(gains)
+    L = plant.loop_layout
+    T = op.allocation
+    T_pinv = np.linalg.pinv(T)
+    n5 = T.shape[1]
+    n_cmd = K_c.shape[0]
     meas = measurement_model(lib, p, op, layout)
     s = params.sensors
     rng = np.random.default_rng(seed)
@@ -118,9 +205,13 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     u_trim = np.zeros(n_u)
     u_trim[0] = op.f_prop
     keep = [cv.STATE_INDEX[st] for st in model.states]
-    queue = [np.zeros(n_u) for _ in range(tick.delay)]  # commands in flight, newest first
+    body = [model.states.index(st) for st in LOOP_STATES]
+    d = tick.delay
+    queue = [np.zeros(n_cmd) for _ in range(d)]  # the controller's commands in flight
+    w_hat = np.zeros(n5)  # its prediction of the lagged generalized forces
     z_pred = np.zeros(model.Phi.shape[0])
     x = op.x_trim.copy()
+    F = np.zeros(n_u - 1)  # the lagged array forces (deviation from trim: zero)
     h = tick.period / RK4_STEPS_PER_TICK
     n_ticks = round(t_end * tick.rate)
     forces = np.zeros((n_ticks, len(arrays)))
@@ -129,11 +220,17 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     est_err = np.zeros((n_ticks, n_x))
     gaps_trim = np.ravel(gaps_fn(op.x_trim, p)[0])
     V = op.speed
-    du_applied = queue[-1] if queue else np.zeros(n_u)
+    cmd_applied = np.zeros(n_cmd)  # with no delay: the previous tick's command
+    zc = np.zeros(L.size)
     for k in range(n_ticks):
         t = k * tick.period
-        u_applied = u_trim + du_applied
-        xdot = np.ravel(dynamics(x, u_applied, p)[0])
+        # the command applied over this tick: the oldest in flight (computed d ticks ago);
+        # the accelerometer reads the dynamics under it (with no delay, the sensors read
+        # before this tick's command exists: the previous one)
+        if d:
+            cmd_applied = queue[-1]
+        du_applied = _inputs(cmd_applied, T)
+        xdot = _rhs(dynamics, x, F, u_trim, du_applied, tau, p, 0.0)
         y = np.empty(len(layout.names))
         for j, g in enumerate(layout.gaps):
             y[j] = float(np.ravel(gap_fn(x, g.point, g.normal, g.nominal_gap)[0])[0])
@@ -150,32 +247,48 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             y_ref[-1] += V * t  # the trim moves along the track
         dz_true = x - op.x_trim
         dz_true[0] -= V * t
-        # the update, the control on the updated estimate, the prediction
-        innov = (y - y_ref) - model.C @ z_pred - (model.D @ du_applied if tick.delay == 0
-                                                  else 0.0)
+        # the update, the control on the updated estimate (and on what the controller knows:
+        # its commands in flight, its prediction of the lag), the prediction
+        innov = (y - y_ref) - model.C @ z_pred - (model.D @ du_applied if d == 0 else 0.0)
         z_post = z_pred + design.M @ innov
-        du = -K_u @ z_post
+        zc[L["body"]] = z_post[body]
+        if d:
+            zc[L["in_flight"]] = np.concatenate(queue)
+        if tau > 0:
+            zc[L["prediction"]] = w_hat
+        cmd = -K_c @ zc
+        du = _inputs(cmd, T)
         for i in range(len(arrays)):  # each array's control force saturated at the budget
             sl = slice(1 + first[i], 1 + first[i] + comps[i])
             norm = np.linalg.norm(du[sl])
             if norm > budget:
                 du[sl] *= budget / norm
+        cmd[:n5] = T_pinv @ du[1:]  # what it sent, saturated
         est_err[k] = dz_true[keep] - z_post[:n_x]
         z_pred = model.Phi @ z_post + model.Gamma @ du
-        if tick.delay == 0:
-            du_applied = du
+        if d == 0:
+            cmd_applied = cmd
+            xdot = None  # the command changed: the first stage again
         else:
-            queue.insert(0, du)
-            du_applied = queue.pop()
-        # the plant over the tick with the command applied now (held)
-        u_hold = u_trim + du_applied
-        for _ in range(RK4_STEPS_PER_TICK):
-            x = _rk4(dynamics, x, u_hold, p, h)
-        forces[k] = [np.linalg.norm(du_applied[1 + first[i]:1 + first[i] + comps[i]])
+            queue.insert(0, cmd)
+            queue.pop()  # cmd_applied: applied over this tick
+        if tau > 0:
+            a = plant.lag_pole
+            w_hat = a * w_hat + (1 - a) * cmd_applied[:n5]
+        # the plant over the tick with the command applied now (held), the lag exact
+        du_hold = _inputs(cmd_applied, T)
+        for j in range(RK4_STEPS_PER_TICK):
+            x, F = _rk4(dynamics, x, F, u_trim, du_hold, tau, p, h,
+                        xdot if j == 0 else None)
+        forces[k] = [np.linalg.norm(du_hold[1 + first[i]:1 + first[i] + comps[i]])
                      for i in range(len(arrays))]
         gaps[k] = np.ravel(gaps_fn(x, p)[0])
         att[k] = x[3:6] - op.x_trim[3:6]
     predicted = np.sqrt(np.clip(np.diag(design.P_updated)[:n_x], 0.0, None))
+    dev = np.linalg.norm(gaps - gaps_trim, axis=1)
+    quarter = max(n_ticks // 4, 1)
+    settled = bool(np.all(np.isfinite(dev)) and np.sqrt(np.mean(dev[-quarter:] ** 2))
+                   <= SETTLED * np.sqrt(np.mean(dev[quarter:2 * quarter] ** 2)))
     return NoisyHold(
         op.speed, t_end, noise_scale, arrays, np.sqrt(np.mean(forces**2, axis=0)),
         np.max(forces, axis=0), np.mean(forces >= budget * (1 - 1e-9), axis=0), budget,
@@ -183,7 +296,34 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
         dict(zip(("phi", "theta", "psi"), np.sqrt(np.mean(att**2, axis=0)).tolist(),
                  strict=True)),
         dict(zip(model.states, np.sqrt(np.mean(est_err**2, axis=0)).tolist(), strict=True)),
-        dict(zip(model.states, predicted.tolist(), strict=True)))
+        dict(zip(model.states, predicted.tolist(), strict=True)), settled,
+        time.perf_counter() - start)
+
+
+def hold_speeds(v_min: float, v_max: float) -> tuple[float, ...]:
+    """The build's hold speeds: v_min, HOLD_SPEED (within the envelope) and v_max."""
+    return tuple(sorted({float(v_min), float(min(max(HOLD_SPEED, v_min), v_max)),
+                         float(v_max)}))
+
+
+def noisy_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
+                seed: int = 1) -> tuple[NoisyHold, ...]:
+    """The build's noisy holds: at each of `hold_speeds` with each of NOISE_SCALES, the
+    embedded controller, the same seed."""
+    params = carriage.params
+    points = envelope_points(carriage, lib, hold_speeds(v_min, v_max))
+    tau = float(params.actuators.time_constant)
+    est = estimator_points(lib, carriage.p, params, points, tau)
+    return tuple(noisy_hold(lib, carriage.p, params, op, t_end=t_end, seed=seed,
+                            noise_scale=scale, point=e)
+                 for op, e in zip(points, est, strict=True) for scale in NOISE_SCALES)
+
+
+def _inputs(cmd: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """The dynamics' input deviation (F_prop, the array forces T w) of a command (the five
+    generalized forces w, then the propulsion's deviation)."""
+    n5 = T.shape[1]
+    return np.concatenate([cmd[n5:n5 + 1], T @ cmd[:n5]])
 
 
 def _structure_arrays(params) -> list[tuple[str, tuple[str, ...]]]:
@@ -191,12 +331,25 @@ def _structure_arrays(params) -> list[tuple[str, tuple[str, ...]]]:
     return list(structure_of(params).arrays)
 
 
-def _rk4(f, x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float) -> np.ndarray:
-    def rhs(xx: np.ndarray) -> np.ndarray:
-        return np.ravel(f(xx, u, p)[0])
+def _rhs(f, x: np.ndarray, F0: np.ndarray, u_trim: np.ndarray, du: np.ndarray, tau: float,
+         p: np.ndarray, s: float) -> np.ndarray:
+    """xdot at ``s`` seconds into a tick with the command ``du`` (F_prop, F_c) held from the
+    lagged forces F0: F(s) = F_c + (F0 - F_c) exp(-s/tau), exact (tau = 0: F = F_c)."""
+    Fc = du[1:]
+    Fs = Fc + (F0 - Fc) * np.exp(-s / tau) if tau > 0 else Fc
+    return np.ravel(f(x, u_trim + np.concatenate([du[:1], Fs]), p)[0])
 
-    k1 = rhs(x)
-    k2 = rhs(x + h / 2 * k1)
-    k3 = rhs(x + h / 2 * k2)
-    k4 = rhs(x + h * k3)
-    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+def _rk4(f, x: np.ndarray, F: np.ndarray, u_trim: np.ndarray, du: np.ndarray, tau: float,
+         p: np.ndarray, h: float, k1: np.ndarray | None = None
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """One RK4 step of the body with the command ``du`` held, the lagged array forces exact
+    at each stage (`_rhs`); ``k1``: the first stage when the caller has it. Returns (x, F)
+    after the step."""
+    k1 = _rhs(f, x, F, u_trim, du, tau, p, 0.0) if k1 is None else k1
+    k2 = _rhs(f, x + h / 2 * k1, F, u_trim, du, tau, p, h / 2)
+    k3 = _rhs(f, x + h / 2 * k2, F, u_trim, du, tau, p, h / 2)
+    k4 = _rhs(f, x + h * k3, F, u_trim, du, tau, p, h)
+    Fc = du[1:]
+    F_end = Fc + (F - Fc) * np.exp(-h / tau) if tau > 0 else Fc.copy()
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), F_end

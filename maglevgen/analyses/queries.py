@@ -409,6 +409,11 @@ def verdict_lines(env, embedded: str) -> list[str]:
         if name == embedded and env.other_models:
             out.append(f"  {'':<28} its gains on the other models: "
                        f"{env.robustness_verdict()}")
+    if env.sensing is not None:
+        sc = env.sensing
+        out.append(f"  sensing [embedded]: {sc.observability_subject()}: "
+                   f"{sc.observability_text()}")
+        out.append(f"  {'':<28} {sc.loop_subject()}: {sc.loop_text()}")
     out.append(f"  (specification checked {env.checked_on()})")
     out.append(f"  {env.firmware_design(embedded)}")
     return out

@@ -22,14 +22,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from maglevgen.errors import InputError
 from maglevgen.infrastructure.hashing import ContentHash
 
 if TYPE_CHECKING:
+    from maglevgen.analyses.output_feedback import NoisyHold
     from maglevgen.analyses.roa import Region
     from maglevgen.analyses.run_spec import RunVerdict
 
 __all__ = ["RUN_DT", "RUN_T_END", "EmbeddedVerdict", "JudgedRun", "VerdictLine",
-           "cached_verdict", "embedded_runs", "embedded_verdict", "embedded_verification",
+           "build_holds", "cached_verdict", "embedded_runs", "embedded_verdict",
+           "embedded_verification",
            "generate_example", "store_verdict", "verify_embedded"]
 
 #: the judged runs' length [s] and step [s] (`maglevgen build`'s defaults)
@@ -122,8 +125,10 @@ class EmbeddedVerdict:
         return (f"verified: the embedded controller {self.controller!r} meets [control.spec] "
                 f"across [{self.v_min:.4g}, {self.v_max:.4g}] m/s, checked {self.model}, in "
                 "its hold and launch runs in the firmware loop, each judged on the worst "
-                "sign combination of the default disturbance, and with a region of attraction "
-                "confirmed at every speed studied (the check `maglevgen build` exits 3 on)")
+                "sign combination of the default disturbance, with a region of attraction "
+                "confirmed at every speed studied, and, where the file has [sensors], with "
+                "its sensors observing what it needs, its Kalman filter, the whole loop with "
+                "the estimator and its noisy holds (the check `maglevgen build` exits 3 on)")
 
     def to_json(self) -> dict:
         return {"verified": self.verified, "verdict": self.text(), "controller": self.controller,
@@ -179,6 +184,22 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
     return tuple(out)
 
 
+def build_holds(carriage, lib, v_min: float, v_max: float, t_end: float = RUN_T_END
+                ) -> tuple[NoisyHold, ...]:
+    """The build's noisy holds (output_feedback.noisy_holds) over [v_min, v_max], their
+    length BUILD_HOLD (20 s) scaled as the build's runs' ``t_end`` to RUN_T_END (a build with
+    --t-end 1 holds for 2 s); none when the file has no [sensors] or they cannot observe what
+    the controller needs (no filter: the sensing check fails the verdict then)."""
+    if carriage.params.sensors is None:
+        return ()
+    from maglevgen.analyses.output_feedback import BUILD_HOLD, noisy_holds
+
+    try:
+        return noisy_holds(carriage, lib, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
+    except InputError:  # estimation.check_observable
+        return ()
+
+
 def _region_failures(region: Region | None) -> list[str]:
     """The speeds of ``region`` where no region of attraction was confirmed."""
     if region is None:
@@ -187,7 +208,8 @@ def _region_failures(region: Region | None) -> list[str]:
 
 
 def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = (),
-                          region: Region | None = None) -> str | None:
+                          region: Region | None = None,
+                          holds: tuple[NoisyHold, ...] = ()) -> str | None:
     """None when the embedded controller is stable and meets ``[control.spec]`` across the
     envelope (the linear verdict, on every model checked), in each of ``runs``
     (`embedded_runs`) and has a region of attraction confirmed at every speed of ``region``
@@ -206,10 +228,21 @@ def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = (),
         failed.append("meets the specification on the carriage's model but its gains fail "
                       f"it {env.robustness_verdict()}")
         where.append("maglevgen envelope")
+    if env.sensing is not None and (why := env.sensing.reason()) is not None:
+        failed.append(f"{why} (with {env.sensing.sensors}, across [{env.v_min:.4g}, "
+                      f"{env.v_max:.4g}] m/s)")
+        where.append("maglevgen envelope")
     for r in runs:
         if r.verdict is not None and not r.verdict.meets:
             failed.append(f"{r.verdict.text()} in the {r.label}")
             where.append(r.command)
+    for scale, group in _hold_groups(holds):
+        bad_holds = [f"{h.speed:.4g} m/s: " + ", ".join(f)
+                     for h in group if (f := h.failures(carriage.params.track.min_gap))]
+        if bad_holds:
+            failed.append(f"misses issue 49's targets in its noisy holds with the sensor "
+                          f"noise x {scale:g} ({'; '.join(bad_holds)})")
+            where.append("maglevgen build")
     if bad := _region_failures(region):
         failed.append(f"has no region of attraction confirmed at {', '.join(bad)} m/s (the "
                       "firmware loop does not settle from the boundary of the set)")
@@ -218,6 +251,34 @@ def embedded_verification(carriage, env, runs: tuple[JudgedRun, ...] = (),
         return None
     return (f"{head} " + "; ".join(failed) + f" ({'; '.join(dict.fromkeys(where))}; "
             "--allow-unstable to accept)")
+
+
+def _hold_groups(holds: tuple[NoisyHold, ...]) -> list[tuple[float, list[NoisyHold]]]:
+    """The noisy holds grouped by their noise scale, in order."""
+    scales = sorted({h.noise_scale for h in holds})
+    return [(sc, [h for h in holds if h.noise_scale == sc]) for sc in scales]
+
+
+def _hold_lines(holds: tuple[NoisyHold, ...], min_gap: float) -> list[VerdictLine]:
+    """The noisy holds as one check: where, how long, in which loop, and the worst numbers
+    against issue 49's targets (output_feedback.NoisyHold.failures)."""
+    if not holds:
+        return []
+    speeds = ", ".join(dict.fromkeys(f"{h.speed:.4g}" for h in holds))
+    scales = " and ".join(f"x {sc:g}" for sc, _ in _hold_groups(holds))
+    subject = (f"noisy holds, {holds[0].t_end:g} s at {speeds} m/s, sensor noise {scales} "
+               "(Python loop around the C plant, not the generated tick)")
+    bad = [f"x {h.noise_scale:g} at {h.speed:.4g} m/s: " + ", ".join(f)
+           for h in holds if (f := h.failures(min_gap))]
+    if bad:
+        return [VerdictLine(subject, "FAILS issue 49's targets: " + "; ".join(bad), False)]
+    shares = ", ".join(f"{100 * max(h.worst_share for h in g):.2g} % (x {sc:g})"
+                       for sc, g in _hold_groups(holds))
+    at = 100 * max(float(max(h.at_budget)) for h in holds)
+    ticks = "no tick" if at == 0 else f"{at:.2g} % of ticks"
+    return [VerdictLine(subject, f"meets issue 49's targets: force RMS <= {shares} of the "
+                        f"budget, {ticks} at it, smallest gap "
+                        f"{1e3 * min(h.min_gap for h in holds):.4g} mm, settled", True)]
 
 
 def _region_line(region: Region) -> VerdictLine:
@@ -238,10 +299,11 @@ def _region_line(region: Region) -> VerdictLine:
 
 
 def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
-                     region: Region | None = None, complete: bool = True
-                     ) -> EmbeddedVerdict:
-    """The verdict of the module docstring from the envelope ``env``, the judged ``runs`` and
-    the embedded controller's ``region``; ``complete`` False: the runs and the region were
+                     region: Region | None = None, complete: bool = True,
+                     holds: tuple[NoisyHold, ...] = ()) -> EmbeddedVerdict:
+    """The verdict of the module docstring from the envelope ``env``, the judged ``runs``,
+    the embedded controller's ``region`` and its noisy ``holds``
+    (maglevgen.analyses.output_feedback); ``complete`` False: the runs and the region were
     not made (the report alone says so instead of a verdict)."""
     from maglevgen.analyses.simulate import DISTURBANCE
     from maglevgen.analyses.worst_case import sign_combinations
@@ -256,17 +318,20 @@ def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
     if env.other_models:
         checks.append(VerdictLine("its gains on the other models, across " + span,
                                   env.robustness_verdict(), bool(env.robust)))
+    if (sc := env.sensing) is not None:
+        checks.append(VerdictLine(sc.verdict_subject(), sc.verdict_text(), bool(sc.ok)))
     n_signs = len(sign_combinations(DISTURBANCE))
     checks += [VerdictLine(f"{r.label} (firmware loop, worst of {n_signs} disturbance sign "
                            "combinations)", r.verdict.text(), bool(r.verdict.meets))
                for r in runs]
+    checks += _hold_lines(holds, carriage.params.track.min_gap)
     if region is not None:
         checks.append(_region_line(region))
     findings = tuple(VerdictLine(f"{controller_title(n)} (`{n}`), linear, across {span}",
                                  f"{e.verdict}; specification: {e.spec_verdict}",
                                  bool(e.ok and e.meets_spec))
                      for n, e in env.controllers.items() if n != name)
-    reason = embedded_verification(carriage, env, runs, region)
+    reason = embedded_verification(carriage, env, runs, region, holds)
     # one decision: the lines' and the reason's (both from the same checks)
     assert (reason is None) == all(x.ok for x in checks) or not complete, (reason, checks)
     return EmbeddedVerdict(name, reason, env.checked_on(), float(env.v_min), float(env.v_max),
@@ -328,7 +393,8 @@ def verify_embedded(carriage, lib, step: Callable[[str], None] = lambda _: None
     judged = embedded_runs(carriage, lib, env, carriage.params.operation.speed)
     name = carriage.params.envelope.embedded_controller
     (region,) = roa.study(carriage, lib, [name], roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
-    verdict = embedded_verdict(carriage, env, judged, region)
+    holds = build_holds(carriage, lib, env.v_min, env.v_max)
+    verdict = embedded_verdict(carriage, env, judged, region, holds=holds)
     store_verdict(carriage, verdict)
     return verdict
 

@@ -54,10 +54,13 @@ __all__ = [
     "kalman_fields",
     "kalman_row",
     "kalman_table",
+    "loop_as_built",
+    "loop_as_built_speed_states",
     "measurement_model",
     "observability",
     "process_noise",
     "whole_loop",
+    "why_blind",
 ]
 
 #: the states the controller needs (the loop's: every state but the track position x)
@@ -219,41 +222,66 @@ class EstimatorModel:
     D: np.ndarray
     Q: np.ndarray
     R: np.ndarray
-    states: tuple[str, ...]  # the plant's states it holds; then the commands in flight
+    states: tuple[str, ...]  # the plant's states it holds; then the lag's, then the queue
     names: tuple[str, ...]  # the readings
+    n_lag: int = 0  # the lagged array forces after the plant's states (0: instant actuators)
 
     @property
     def n_x(self) -> int:
         return len(self.states)
 
+    @property
+    def queue(self) -> slice:
+        """The commands in flight (newest first, each the dynamics' inputs)."""
+        return slice(self.n_x + self.n_lag, self.Phi.shape[0])
+
 
 def estimator_model(lib, p: np.ndarray, op: OperatingPoint, params,
-                    layout: SensorLayout | None = None) -> EstimatorModel:
+                    layout: SensorLayout | None = None, tau: float = 0.0) -> EstimatorModel:
     """`EstimatorModel` at ``op``: the C's Jacobians (A, B) discretised with ZOH over the tick
     (sampled.zoh), the delay's commands in flight (sampled.delay_augmented), the sensors'
     linearisation (`measurement_model`), the process noise of `process_noise` over one tick
     (`discrete_noise`) and each reading's variance (`SensorLayout.variances`). Without a track
     sensor the track position x (an integrator nothing else depends on, which nothing then
-    reads) is left out: no filter could hold its error bounded."""
+    reads) is left out: no filter could hold its error bounded.
+
+    ``tau`` > 0 [s]: each array force lags its command, tau F' = F_c - F ([actuators]
+    time_constant, as control.plant.LoopPlant), and the lagged forces F are states of the
+    model after the plant's: the accelerometer reads them (its D on the array forces moves to
+    F's columns), the propulsion stays instant. No process noise enters F: the filter knows
+    it from its own commands."""
     layout = layout or SensorLayout.of(params)
     tick = Tick.of(params)
     meas = measurement_model(lib, p, op, layout)
     keep = [i for i, s in enumerate(cv.STATE_NAMES) if layout.track or s != "x"]
     A, B, C = op.A[np.ix_(keep, keep)], op.B[keep], meas.C[:, keep]
-    Phi, Gamma = zoh(A, B, tick.period)
-    Pa, Ga = delay_augmented(Phi, Gamma, tick.delay)
     n, m, d = A.shape[0], B.shape[1], tick.delay
-    Ca = np.zeros((C.shape[0], Pa.shape[0]))
-    Ca[:, :n] = C
-    Da = meas.D
-    if d > 0:  # the command applied at tick k is the oldest in flight
-        Ca[:, n + (d - 1) * m:] = meas.D
-        Da = np.zeros_like(meas.D)
+    nf = m - 1 if tau > 0 else 0
     G, W = process_noise(op, params)
+    Ac, Bc, Gc = A, B, G[keep]
+    Cc, D = C, meas.D.copy()
+    if nf:  # (dx, F): the array columns of B through the lag
+        Ac = np.zeros((n + nf, n + nf))
+        Ac[:n, :n], Ac[:n, n:] = A, B[:, 1:]
+        Ac[n:, n:] = -np.eye(nf) / tau
+        Bc = np.zeros((n + nf, m))
+        Bc[:n, 0], Bc[n:, 1:] = B[:, 0], np.eye(nf) / tau
+        Gc = np.vstack([G[keep], np.zeros((nf, G.shape[1]))])
+        Cc = np.hstack([C, D[:, 1:]])
+        D[:, 1:] = 0.0
+    Phi, Gamma = zoh(Ac, Bc, tick.period)
+    Pa, Ga = delay_augmented(Phi, Gamma, d)
+    nc = n + nf
+    Ca = np.zeros((C.shape[0], Pa.shape[0]))
+    Ca[:, :nc] = Cc
+    Da = D
+    if d > 0:  # the command applied at tick k is the oldest in flight
+        Ca[:, nc + (d - 1) * m:] = D
+        Da = np.zeros_like(D)
     Qa = np.zeros_like(Pa)
-    Qa[:n, :n] = discrete_noise(A, G[keep], W, tick.period)
+    Qa[:nc, :nc] = discrete_noise(Ac, Gc, W, tick.period)
     return EstimatorModel(op.speed, Pa, Ga, Ca, Da, Qa, np.diag(layout.variances),
-                          tuple(cv.STATE_NAMES[i] for i in keep), meas.names)
+                          tuple(cv.STATE_NAMES[i] for i in keep), meas.names, nf)
 
 
 @dataclass(frozen=True)
@@ -349,22 +377,23 @@ class EstimatorPoint:
         return dict(zip(self.model.states, d.tolist(), strict=True))
 
 
-def estimator_points(lib, p: np.ndarray, params, points: list[OperatingPoint]
-                     ) -> list[EstimatorPoint]:
-    """`EstimatorPoint` at each operating point (e.g. the envelope's speeds). InputError (exit
-    2) when the sensor set cannot observe a state the controller needs at some speed
-    (`check_observable`): no filter exists then."""
+def estimator_points(lib, p: np.ndarray, params, points: list[OperatingPoint],
+                     tau: float = 0.0) -> list[EstimatorPoint]:
+    """`EstimatorPoint` at each operating point (e.g. the envelope's speeds; ``tau``: the
+    actuator lag in the model, `estimator_model`). InputError (exit 2) when the sensor set
+    cannot observe a state the controller needs at some speed (`check_observable`): no
+    filter exists then."""
     layout = SensorLayout.of(params)
     out = []
     for op in points:
-        model = estimator_model(lib, p, op, params, layout)
+        model = estimator_model(lib, p, op, params, layout, tau)
         obs = observability(model)
         check_observable(obs, layout, params)
         out.append(EstimatorPoint(model, obs, kalman(model)))
     return out
 
 
-def _why_blind(state: str, layout: SensorLayout, params) -> str:
+def why_blind(state: str, layout: SensorLayout, params) -> str:
     """What in the sensor set leaves ``state`` unseen, in a few words."""
     gs = params.sensors.gap_sensors.values()
     centred = bool(gs) and all(g.across == 0 and g.along == 0 for g in gs)
@@ -378,9 +407,9 @@ def _why_blind(state: str, layout: SensorLayout, params) -> str:
 
 def check_observable(obs: Observability, layout: SensorLayout, params) -> None:
     """InputError naming each state the controller needs that the sensors cannot observe at
-    ``obs``'s speed, and why (`_why_blind`)."""
+    ``obs``'s speed, and why (`why_blind`)."""
     if obs.unobservable:
-        what = "; ".join(f"{s}: {_why_blind(s, layout, params)}" for s in obs.unobservable)
+        what = "; ".join(f"{s}: {why_blind(s, layout, params)}" for s in obs.unobservable)
         raise InputError(f"sensors: cannot observe what the controller needs at "
                          f"{obs.speed:g} m/s (rank {obs.rank} of {obs.n}): {what}")
 
@@ -397,9 +426,10 @@ def estimation_failures(points: list[EstimatorPoint], params) -> list[str]:
         worst = max(points, key=lambda e: e.error_std[state])
         err = worst.error_std[state]
         if err > limit:
-            out.append(f"{state}: estimated to {err:.3g} (1 sigma) at {worst.model.speed:g} m/s, "
+            out.append(f"{state}: estimated to {err:.3g} (1 sigma) at "
+                       f"{worst.model.speed:.4g} m/s, "
                        f"more than {ESTIMATION_SHARE:g} x control.spec.max_deviation.{state} = "
-                       f"{limit:.3g} ({_why_blind(state, layout, params)})")
+                       f"{limit:.3g} ({why_blind(state, layout, params)})")
     return out
 
 
@@ -463,3 +493,89 @@ def continuous_equivalent(loop: np.ndarray, period: float) -> np.ndarray:
     z = np.linalg.eigvals(loop).astype(complex)
     small = np.abs(z) < 1e-300
     return np.where(small, -np.inf + 0j, np.log(np.where(small, 1.0, z)) / period)
+
+
+def loop_as_built(model: EstimatorModel, design: KalmanDesign, plant, gains) -> np.ndarray:
+    """The discrete output-feedback loop as built: the plant at the tick with its delay and
+    actuator lag (``model``, `estimator_model` with the lag of ``plant``), the sensors, the
+    Kalman filter ``design``, and the controller of ``plant`` (control.plant.LoopPlant) with
+    ``gains`` (its `LoopDesign`, e.g. the `spec` design at the tick): its gains on the body
+    states act on the updated estimate, those on the commands in flight and on its own
+    prediction of the lagged generalized forces on what it knows exactly (its commands).
+
+    State (z, e, w_hat): z the model's (plant, lagged forces, commands in flight), e = z -
+    z_hat[k|k-1] the filter's error, w_hat the controller's prediction (LoopPlant's
+    "prediction" block). With z_hat[k|k] = z - (I - M C) e and the command c = -K_c (body of
+    z_hat[k|k], the generalized forces and propulsion in flight, w_hat):
+    z+ = Phi z + Gamma E c, e+ = Phi (I - M C) e, w_hat+ = a w_hat + (1 - a) w_applied;
+    E maps the six commands to the dynamics' inputs (F_prop, then T w: the allocation).
+    The track position (its column in z is its own unit vector: eigenvalue 1) is left out."""
+    op, L = plant.op, plant.loop_layout
+    if plant.k_i:
+        raise NotImplementedError("the speed integral in the loop with the estimator")
+    K_c = plant.controller_gains(gains)  # 6 x L.size
+    n_cmd, N = K_c.shape[0], model.Phi.shape[0]
+    T = op.allocation  # nf x 5
+    n5 = T.shape[1]
+    T_pinv = np.linalg.pinv(T)
+    m, d = model.Gamma.shape[1], plant.tick.delay
+    E = np.zeros((m, n_cmd))  # commands (5 generalized forces, F_prop) -> dynamics' inputs
+    E[0, n5] = 1.0
+    E[1:, :n5] = T
+    Kb = np.zeros((n_cmd, N))  # on z_hat[k|k]: the body states
+    for j, name in enumerate(LOOP_STATES):
+        Kb[:, model.states.index(name)] = K_c[:, L["body"].start + j]
+    Kq = np.zeros((n_cmd, N))  # on z: the commands in flight (exactly known)
+    q0 = model.queue.start
+    if d:
+        fl = L["in_flight"]
+        for j in range(d):
+            cmd_cols = K_c[:, fl.start + j * n_cmd:fl.start + (j + 1) * n_cmd]
+            Kq[:, q0 + j * m] += cmd_cols[:, n5]  # F_prop in flight
+            Kq[:, q0 + j * m + 1:q0 + (j + 1) * m] += cmd_cols[:, :n5] @ T_pinv
+    n_w = L["prediction"].stop - L["prediction"].start
+    Kw = K_c[:, L["prediction"]]
+    IMC = np.eye(N) - design.M @ model.C
+    GE = model.Gamma @ E
+    # c = Cz z + Ce e + Cw w_hat
+    Cz, Ce, Cw = -(Kb + Kq), Kb @ IMC, -Kw
+    n = 2 * N + n_w
+    loop = np.zeros((n, n))
+    loop[:N, :N] = model.Phi + GE @ Cz
+    loop[:N, N:2 * N] = GE @ Ce
+    loop[:N, 2 * N:] = GE @ Cw
+    loop[N:2 * N, N:2 * N] = model.Phi @ IMC
+    if n_w:
+        a = plant.lag_pole
+        w = 2 * N
+        loop[w:, w:] = a * np.eye(n_w)
+        if d:  # the oldest in flight is applied: its generalized forces
+            oldest = slice(q0 + (d - 1) * m + 1, q0 + d * m)
+            loop[w:, oldest] += (1 - a) * T_pinv
+        else:
+            loop[w:, :N] += (1 - a) * Cz[:n5]
+            loop[w:, N:2 * N] += (1 - a) * Ce[:n5]
+            loop[w:, w:] += (1 - a) * Cw[:n5]
+    if "x" in model.states:
+        i = model.states.index("x")
+        keep = [j for j in range(n) if j != i]
+        loop = loop[np.ix_(keep, keep)]
+    return loop
+
+
+def loop_as_built_speed_states(model: EstimatorModel, n_prediction: int) -> np.ndarray:
+    """Mask of the speed loop's states in `loop_as_built`'s order: the forward speed u, the
+    propulsion commands in flight, and the filter's errors on x and u (the along-track
+    estimate)."""
+    N = model.Phi.shape[0]
+    mask = np.zeros(2 * N + n_prediction, dtype=bool)
+    m, q0 = model.Gamma.shape[1], model.queue.start
+    mask[model.states.index("u")] = True
+    mask[N + model.states.index("u")] = True
+    if "x" in model.states:
+        mask[N + model.states.index("x")] = True
+    for j in range((N - q0) // m):
+        mask[q0 + j * m] = True
+    if "x" in model.states:
+        mask = np.delete(mask, model.states.index("x"))
+    return mask

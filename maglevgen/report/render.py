@@ -56,6 +56,7 @@ from maglevgen.report.sections.parameters import model_choices, parameter_rows
 from maglevgen.report.sections.poles import POLE_FIGURE, pole_sets
 from maglevgen.report.sections.riccati import riccati_section
 from maglevgen.report.sections.rigid_body import rigid_body_section
+from maglevgen.report.sections.sensing import sensing_section
 from maglevgen.report.sections.simulation import Simulation, simulation_section
 from maglevgen.report.sections.stiffness import stiffness_section
 from maglevgen.report.sections.summary import summary
@@ -85,6 +86,9 @@ class ReportOptions:
     # the build's verdict (`maglevgen.analyses.verdicts.EmbeddedVerdict`): the first page's
     # block; None: a build's cached one, else the linear checks only, said so
     verdict: Any = None
+    # the build's noisy holds of the output-feedback loop (output_feedback.NoisyHold); ():
+    # the sensing section shows none
+    holds: tuple[Any, ...] = ()
 
 
 class Pending(Protocol):
@@ -110,6 +114,7 @@ SECTION_TITLES: dict[str, str] = {
     "paper": "Paper versus derivation",
     "verification": "Verification",
     "envelope": "Operating envelope",
+    "sensing": "Sensors and estimation",
     "simulation": "Simulation",
 }
 
@@ -193,6 +198,8 @@ def build_context(
     files[ROA_FIGURE] = roa_png
     files[POLE_FIGURE] = pole_map(poles)
     files[CIRCUIT_LAG_FIGURE] = lag_png
+    sensing, sensing_files = sensing_section(carriage, env, options.holds)
+    files.update(sensing_files)
     rows, notes = parameter_rows(loaded)
     envelope = envelope_context(carriage, env, options.gain_table)
     envelope["roa"] = roa_context(regions)
@@ -219,6 +226,7 @@ def build_context(
         "paper": paper,
         "checks": checks,
         "envelope": envelope,
+        "sensing": sensing,
         "simulation": sim,
         "poles": {"figure": POLE_FIGURE, "sets": poles, "speed_mode": gains["speed_mode"]},
         "summary": summary(trep, gains, paper, checks, envelope, sections["stiffness"], lag,
@@ -320,6 +328,7 @@ def report_files(
     hold_runs: Mapping[str, Any] | None = None,
     roa: tuple[Any, bytes] | None = None,
     verdict: Any = None,
+    holds: tuple[Any, ...] = (),
 ) -> dict[str, bytes]:
     """The report's files in memory, for a caller that writes them itself (`maglevgen build`).
 
@@ -327,11 +336,11 @@ def report_files(
     ``figures``: the report's figures being drawn already (see `build_context`);
     ``gain_table``: c/manifest.json's entry of the firmware table (else fitted here);
     ``hold_runs``: ReportOptions.hold_runs; ``roa``: ReportOptions.roa; ``verdict``:
-    ReportOptions.verdict.
+    ReportOptions.verdict; ``holds``: ReportOptions.holds.
     """
     options = ReportOptions(simulation=simulation, build_pdf=pdf, envelope=envelope,
                             gain_table=gain_table, hold_runs=hold_runs, roa=roa,
-                            verdict=verdict)
+                            verdict=verdict, holds=tuple(holds))
     return render_report(carriage, options, progress, figures=figures).files
 
 
