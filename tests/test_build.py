@@ -130,8 +130,13 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
     reduced = [i for i, s in enumerate(cv.STATES) if s.name not in ("x", "u")]
     (T,) = sim_lib.function("maglev_allocation_matrix")(p)
     table, exact = [], []
+    # the table's length from its header: the tick's K_lag and K_delay follow the six fields
+    # checked here (tests/test_tick_state.py checks those against the design at the tick)
+    nout = int(re.search(r"#define MAGLEV_SCHEDULE_NOUT (\d+)",
+                         (good / "c/maglev_gain_table.h").read_text()).group(1))
+    assert nout >= sum(n for _, n in fields)
     for v in np.linspace(gt["v_min"], gt["v_max"], gt["dense_grid"]):
-        out = (ctypes.c_double * 71)()
+        out = (ctypes.c_double * nout)()
         assert schedule(v, out) == 0
         table.append(np.array(out[:]))
         x, f_prop = (np.ravel(a) for a in sim_lib.function("maglev_trim")(v, p))
@@ -169,7 +174,8 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
         assert math.isclose(value, gt["relative_error_by_field"][name], rel_tol=1e-3,
                             abs_tol=1e-4 * gt["bound"]), \
             (name, value, gt["relative_error_by_field"][name])
-    assert math.isclose(max(errors.values()), gt["worst_relative_error"], rel_tol=1e-3)
+    assert max(errors.values()) <= gt["worst_relative_error"] * (1 + 1e-3)
+    assert gt["worst_relative_error"] == max(gt["relative_error_by_field"].values())
     assert gt["worst_relative_error"] <= gt["bound"]
 
 
