@@ -383,6 +383,7 @@ def test_without_tex_the_tex_is_written_and_the_install_named(
         "circuit_lag_damping.png",
         "envelope_region_of_attraction.png",
         "envelope_stability_map.png",
+        "fig_disk_margins.png",
         "fig_force_gap.png",
         "fig_force_speed.png",
         "pole_map.png",
