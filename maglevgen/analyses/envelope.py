@@ -192,13 +192,18 @@ def envelope_points(carriage, lib: SimulationLibrary,
 
 
 def launch_schedule(carriage, lib: SimulationLibrary, points: Sequence[OperatingPoint],
-                    controller: str, references: list[Reference] | None = None) -> Schedule:
+                    controller: str, references: list[Reference] | None = None,
+                    setting: LoopSetting | None = None) -> Schedule:
     """The launch's schedule of ``controller`` at ``points``: the reference and the
     propulsion feedforward of the accelerating trim at envelope.launch_acceleration
-    (`launch_references`), the gains of the constant-speed linearisation (the points')."""
+    (`launch_references`), the gains of the constant-speed linearisation (the points'):
+    the controller's continuous gains, or with ``setting`` its gains on that loop as built
+    (`loop_design`: the design at the tick with K_lag and K_delay, what the firmware runs)."""
     a = carriage.params.envelope.launch_acceleration
     refs = launch_references(carriage, lib, points) if references is None else references
-    return Schedule.from_points(list(points), controller, refs, a)
+    designs = None if setting is None else [loop_design(op, controller, setting)
+                                            for op in points]
+    return Schedule.from_points(list(points), controller, refs, a, designs)
 
 
 def launch_references(carriage, lib: SimulationLibrary,
