@@ -94,10 +94,10 @@ class NumpyLaw:
 def test_host_ticks_on_the_lagged_plant_against_solve_ivp(carriage, sim_lib, loop) -> None:
     """Four ticks at 1 kHz (RK4 at 10 us) from the default disturbance with a speed integral
     (k_i = m b^2) and the force budget engaged: the C's states and applied inputs (the
-    propulsion, the lagged array forces) at every sample against the numpy law with the plant (the lambdified SymPy model and each array
-    force's lag tau f' = u - f as states) integrated by DOP853 from tick to tick, the command
-    applied after the delay, the safe one (trim propulsion, no array force) first; within
-    1e-9 (SI units, 1 + the value)."""
+    propulsion, the lagged array forces) at every sample against the numpy law with the
+    plant (the lambdified SymPy model and each array force's lag tau f' = u - f as states)
+    integrated by DOP853 from tick to tick, the command applied after the delay, the safe
+    one (trim propulsion, no array force) first; within 1e-9 (SI units, 1 + the value)."""
     import dataclasses
 
     from scipy.integrate import solve_ivp
