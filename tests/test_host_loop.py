@@ -152,13 +152,26 @@ def test_host_ticks_on_the_lagged_plant_against_solve_ivp(carriage, sim_lib, loo
     assert np.abs(u_ref[-1, 1:]).max() > 1e-2  # the lagged forces are exercised
 
 
-def _held_rk4_loop(carriage, sim_lib, op, gains, tick, k_v: float, budget: float,
+def _fixed_gains(op, gains, d: int):
+    """`_held_rk4_loop`'s gains_at for the fixed gains of a hold: (F_ff, a_ref, K_pos, K_rate,
+    K_lag, K_delay), the matrices flat, column-major (zero where the design has none)."""
+    K_lag = gains.K_lag.ravel(order="F") if gains.K_lag is not None and gains.K_lag.size \
+        else np.zeros(25)
+    K_delay = gains.K_delay.ravel(order="F") if gains.K_delay is not None \
+        else np.zeros(25 * d)
+    row = (float(op.f_prop), op.a_trim, gains.K_pos.ravel(order="F"),
+           gains.K_rate.ravel(order="F"), K_lag, K_delay)
+    return lambda _speed: row
+
+
+def _held_rk4_loop(carriage, sim_lib, gains_at, v_ref, tick, k_v: float, budget: float,
                    x0: np.ndarray, dt: float, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """The loop as maglev_simulate.h describes it, in Python floats around the library's
     generated functions (maglev_dynamics, maglev_coupled_control, maglev_allocation_matrix):
-    the command at each tick (the law's sums in the C's order), applied after the delay and
-    held, the safe command first; RK4 with the array forces through the lag's exponential at
-    the stage times (tau = 0: the command itself)."""
+    the command at each tick (the law's sums in the C's order) with the gains
+    ``gains_at(measured speed)`` (`_fixed_gains`) and the speed reference ``v_ref(t)``,
+    applied after the delay and held, the safe command first; RK4 with the array forces
+    through the lag's exponential at the stage times (tau = 0: the command itself)."""
     p = carriage.p
     dyn = sim_lib.function("maglev_dynamics")
     ctrl = sim_lib.function("maglev_coupled_control")
@@ -166,23 +179,19 @@ def _held_rk4_loop(carriage, sim_lib, op, gains, tick, k_v: float, budget: float
     nf = T_m.shape[0]
     T = np.asarray(T_m, dtype=float).ravel(order="F")
     groups = _groups(carriage)
-    K_pos, K_rate = gains.K_pos.ravel(order="F"), gains.K_rate.ravel(order="F")
-    K_lag = gains.K_lag.ravel(order="F") if gains.K_lag is not None and gains.K_lag.size \
-        else np.zeros(25)
     d, tau = tick.delay, tick.lag
-    K_delay = gains.K_delay.ravel(order="F") if gains.K_delay is not None \
-        else np.zeros(25 * d)
     steps = tick.steps(dt)
     h = steps * dt
     pole = math.exp(-h / tau) if tau > 0 else 0.0
     e_half = math.exp(-(dt / 2) / tau) if tau > 0 else 0.0
     e_full = math.exp(-dt / tau) if tau > 0 else 0.0
     q, w_hat, xi = [0.0] * (5 * d), [0.0] * 5, 0.0
-    safe = [float(op.f_prop)] + [0.0] * nf
+    x = np.array(x0, dtype=float)
+    speed0 = math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8])
+    safe = [gains_at(speed0)[0]] + [0.0] * nf
     ring = [safe] * d
     act = [0.0] * (nf + 1)
     applied = safe
-    x = np.array(x0, dtype=float)
     xs, us = [x.copy()], []
 
     def rhs(xx, uu):
@@ -191,9 +200,11 @@ def _held_rk4_loop(carriage, sim_lib, op, gains, tick, k_v: float, budget: float
 
     for k in range(n_steps + 1):
         if k % steps == 0:
-            (ug,) = ctrl(x, K_pos, K_rate, op.a_trim, p)
-            ug = np.asarray(ug, dtype=float).ravel()
             speed = math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8])
+            f_ff, a_ref, K_pos, K_rate, K_lag, K_delay = gains_at(speed)
+            (ug,) = ctrl(x, K_pos, K_rate, a_ref, p)
+            ug = np.asarray(ug, dtype=float).ravel()
+            r = v_ref(k * dt)
             w = []
             for i in range(5):
                 acc = float(ug[i])
@@ -202,7 +213,7 @@ def _held_rk4_loop(carriage, sim_lib, op, gains, tick, k_v: float, budget: float
                 for j in range(5 * d):
                     acc -= K_delay[i + 5 * j] * q[j]
                 w.append(acc)
-            u = [(float(op.f_prop) + k_v * (op.speed - speed)) - tick.speed_integral * xi]
+            u = [(f_ff + k_v * (r - speed)) - tick.speed_integral * xi]
             for i in range(nf):
                 f = 0.0
                 for j in range(5):
@@ -214,7 +225,7 @@ def _held_rk4_loop(carriage, sim_lib, op, gains, tick, k_v: float, budget: float
             scale = [budget / math.sqrt(s) if s > budget * budget else 1.0 for s in sq]
             for i in range(nf):
                 u[1 + i] *= scale[groups[i]]
-            xi += h * (speed - op.speed)
+            xi += h * (speed - r)
             old = q[5 * d - 5:] if d else w
             w_hat = [pole * w_hat[i] + (1.0 - pole) * old[i] for i in range(5)]
             if d:
@@ -263,11 +274,67 @@ def test_host_loop_is_the_held_rk4_loop_bit_for_bit(carriage, sim_lib, loop, con
     traj = simulate(sim_lib, carriage.p, op, controller, n_steps * dt, dt,
                     carriage.params.track.min_gap, DISTURBANCE, tick=tick, speed_gain=k_v,
                     force_budget=budget)
-    x, u = _held_rk4_loop(carriage, sim_lib, op, gains, tick, k_v, budget,
+    x, u = _held_rk4_loop(carriage, sim_lib, _fixed_gains(op, gains, tick.delay),
+                          lambda _t: op.speed, tick, k_v, budget,
                           initial_state(op, DISTURBANCE), dt, n_steps)
     np.testing.assert_array_equal(traj.x, x)
     np.testing.assert_array_equal(traj.u, u)
     assert np.abs(u[-1, 1:]).max() > 1e-3  # computed commands applied
+
+
+@pytest.mark.needs_cc
+def test_launch_flies_the_scheduled_design_at_the_tick(carriage, sim_lib, loop) -> None:
+    """The first eight ticks of the launch (maglev_launch, the firmware loop, the schedule of
+    `envelope.launch_schedule` on the loop as built: K_lag and K_delay in the spline's
+    extended row) against `_held_rk4_loop` with the gains scipy's spline of the same nodes
+    gives at each tick's measured speed, the feed-forward F_drag + m a and the ramp
+    v_ref(t) = v_min + a t: within 1e-10 (1 + the value; the two splines' last digits). The
+    nodes' K_lag and K_delay are the design's at the tick, not zero."""
+    from maglevgen.analyses.envelope import (
+        envelope_points,
+        launch_references,
+        launch_schedule,
+        resolve_range,
+    )
+    from maglevgen.analyses.simulate import DISTURBANCE, firmware_gains, initial_state, launch
+    from maglevgen.control.operating import checked_accelerating_trim
+    from maglevgen.control.schedule import K_DELAY, K_LAG, Schedule
+
+    _, tick, k_v, budget = loop
+    v_lo, v_hi = resolve_range(carriage, sim_lib)
+    points = envelope_points(carriage, sim_lib, np.linspace(v_lo, v_hi, 8))
+    refs = launch_references(carriage, sim_lib, points)
+    sched = launch_schedule(carriage, sim_lib, points, "spec", refs, tick.setting(k_v))
+    d = tick.delay
+    design = firmware_gains(points[0], "spec", tick)
+    np.testing.assert_array_equal(sched.values[0, K_LAG:K_DELAY],
+                                  design.K_lag.ravel(order="F"))
+    np.testing.assert_array_equal(sched.values[0, K_DELAY:K_DELAY + 25 * d],
+                                  design.K_delay.ravel(order="F"))
+    assert not np.any(sched.values[:, K_DELAY + 25 * d:])
+    a = carriage.params.envelope.launch_acceleration
+    m, min_gap = carriage.params.vehicle.mass, carriage.params.track.min_gap
+    op = points[0]
+    x_start = checked_accelerating_trim(sim_lib, carriage.p, op.speed, a, min_gap)[0]
+    dt, n_steps = 1e-4, 80
+    traj = launch(sim_lib, carriage.p, sched, op, v_hi, m * a, dt, min_gap, n_steps * dt,
+                  disturbance=DISTURBANCE, x_start=x_start, tick=tick, speed_gain=k_v,
+                  force_budget=budget, accel=a)
+    assert traj.c_status == 0 and traj.x.shape[0] == n_steps + 1
+
+    def gains_at(speed: float):
+        row = sched.at(speed)
+        f_drag, a_ref, K_pos, K_rate = Schedule.unpack(row)
+        return (f_drag + m * a, a_ref, K_pos.ravel(order="F"), K_rate.ravel(order="F"),
+                row[K_LAG:K_DELAY], row[K_DELAY:K_DELAY + 25 * d])
+
+    x, u = _held_rk4_loop(carriage, sim_lib, gains_at,
+                          lambda t: min(op.speed + a * t, v_hi), tick, k_v, budget,
+                          initial_state(op, DISTURBANCE, x_start), dt, n_steps)
+    err_x = np.abs(traj.x - x) / (1 + np.abs(x))
+    err_u = np.abs(traj.u - u) / (1 + np.abs(u))
+    assert err_x.max() <= 1e-10 and err_u.max() <= 1e-10, (err_x.max(), err_u.max())
+    assert np.abs(u[-1, 1:]).max() > 1e-3
 
 
 def _whole_loop(carriage, sim_lib, op, gains, tick, k_v: float) -> np.ndarray:
