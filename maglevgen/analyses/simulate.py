@@ -684,7 +684,8 @@ def metrics(traj: Trajectory) -> dict:
         "speed_error": _speed_error(traj, speed), "saturated_time": traj.saturated_time,
         # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
         "tick": None if traj.tick is None else {"rate": traj.tick.rate,
-                                                "delay": traj.tick.delay},
+                                                "delay": traj.tick.delay,
+                                                "actuator_lag": getattr(traj.tick, "lag", 0.0)},
         "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
         # the run against [control.spec] (`spec_verdict`; None for a run without limits)
