@@ -30,6 +30,9 @@
 #define NA 6 /* arrays */
 #define NY MAGLEV_SCHEDULE_NY
 #define SQRT(v) sqrt(v)
+#define EXP(v) exp(v)
+#define LAW_NAXES 5 /* the generalized forces of the tick's law */
+#define NQ (MAGLEV_SIM_MAX_DELAY * LAW_NAXES) /* the most generalized forces in flight */
 
 /* the array (0 .. NA - 1) of each control force u[1 ..], in the MAGLEV_U_* order */
 static const int ARRAY_OF_FORCE[NU - 1] = { 0, 0, 1, 1, 2, 3, 3, 4, 4, 5 };
@@ -40,6 +43,73 @@ typedef struct {
     maglev_int iw[SZ_IW + 1];
     maglev_real w[SZ_W + 1];
 } work;
+
+/* ---- The tick's control law: one source (templates/maglev_tick_law.c.j2) included by the
+   firmware's maglev_tick.c and by the host simulation's firmware loop (maglev_simulate.c), so
+   that the loop the simulations judge is the one the firmware runs. The includer defines
+   LAW_NAXES (the generalized forces: MAGLEV_NAXES) and maglev_real. One statement per line,
+   braces everywhere, no parameter modified (MISRA C:2012 15.6, 17.8). ---- */
+
+/* w = u_gen - K_lag w_hat - K_delay in_flight: the generalized forces of the design at the
+   tick (maglevgen.control.plant), each sum in the order j = 0, 1, ..; K_lag (LAW_NAXES x
+   LAW_NAXES) and K_delay (LAW_NAXES x n_flight) column-major, w_hat the predicted lagged
+   generalized forces, in_flight the n_flight generalized forces computed at the last ticks
+   (newest first, LAW_NAXES per tick of delay; n_flight 0 without delay). Returns 1 when every
+   w is finite, else 0. */
+static int tick_law_forces(const maglev_real* u_gen, const maglev_real* K_lag,
+                           const maglev_real* K_delay, const maglev_real* w_hat,
+                           const maglev_real* in_flight, int n_flight, maglev_real* w) {
+    int ok = 1;
+    int i;
+    int j;
+    for (i = 0; i < LAW_NAXES; ++i) {
+        maglev_real acc = u_gen[i];
+        for (j = 0; j < LAW_NAXES; ++j) {
+            acc -= K_lag[i + (LAW_NAXES * j)] * w_hat[j];
+        }
+        for (j = 0; j < n_flight; ++j) {
+            acc -= K_delay[i + (LAW_NAXES * j)] * in_flight[j];
+        }
+        w[i] = acc;
+        if ((acc - acc) != (maglev_real)0) {
+            ok = 0;
+        }
+    }
+    return ok;
+}
+
+/* the speed loop: F_prop = F_ff + k_v (v_ref - v) - k_i xi (xi the speed error's integral) */
+static maglev_real tick_law_propulsion(maglev_real f_ff, maglev_real k_v, maglev_real k_i,
+                                       maglev_real v_ref, maglev_real speed, maglev_real xi) {
+    return (f_ff + (k_v * (v_ref - speed))) - (k_i * xi);
+}
+
+/* the law's state after a tick that sent the generalized forces w: the prediction of the
+   lagged forces moves on with the command applied during the tick (the oldest in flight; w
+   itself without delay), w_hat = a w_hat + (1 - a) w_applied (a = lag_pole = exp(-h / tau),
+   lag_gain = 1 - a: exact for a held command through the lag), and w joins the commands in
+   flight as the newest */
+static void tick_law_advance(maglev_real* w_hat, maglev_real* in_flight, int n_flight,
+                             maglev_real lag_pole, maglev_real lag_gain,
+                             const maglev_real* w) {
+    int i;
+    for (i = 0; i < LAW_NAXES; ++i) {
+        maglev_real applied = w[i];
+        if (n_flight > 0) {
+            applied = in_flight[(n_flight - LAW_NAXES) + i];
+        }
+        w_hat[i] = (lag_pole * w_hat[i]) + (lag_gain * applied);
+    }
+    for (i = n_flight - 1; i >= LAW_NAXES; --i) {
+        in_flight[i] = in_flight[i - LAW_NAXES];
+    }
+    if (n_flight > 0) {
+        for (i = 0; i < LAW_NAXES; ++i) {
+            in_flight[i] = w[i];
+        }
+    }
+}
+
 
 static int all_finite(const maglev_real* v, int n) {
     int i;
@@ -141,7 +211,16 @@ static int loop_valid(const maglev_control_loop* loop) {
     return loop == 0 || (loop->tick_steps >= 0 && loop->delay_ticks >= 0
                          && loop->delay_ticks <= MAGLEV_SIM_MAX_DELAY && isfinite(loop->k_v)
                          && isfinite(loop->v_ref) && isfinite(loop->accel)
-                         && !isnan(loop->force_budget));
+                         && !isnan(loop->force_budget) && isfinite(loop->tau)
+                         && loop->tau >= 0 && isfinite(loop->k_i)
+                         && (loop->tick_steps > 0 || (loop->tau == 0 && loop->k_i == 0)));
+}
+
+/* the tick law's gains of maglev_simulate's loop: given and finite, or NULL */
+static int law_gains_ok(const maglev_control_loop* loop) {
+    return loop == 0 || ((loop->K_lag == 0 || all_finite(loop->K_lag, 25))
+                         && (loop->K_delay == 0
+                             || all_finite(loop->K_delay, 25 * loop->delay_ticks)));
 }
 
 /* the loop without a maglev_control_loop: the feedback at every stage, F_prop as given, no
@@ -182,16 +261,30 @@ static int gains_at(const loop_run* r, const maglev_real* x, maglev_real* buf,
     return 0;
 }
 
+/* the tick law's state between ticks (maglev_tick_state's): the generalized forces in flight
+   (newest first), their lagged prediction, the speed error's integral; and its constants */
+typedef struct {
+    maglev_real in_flight[NQ + 1];
+    maglev_real w_hat[LAW_NAXES];
+    maglev_real xi;
+    int n_flight;        /* LAW_NAXES delay_ticks */
+    maglev_real h;       /* [s] the tick's period */
+    maglev_real pole;    /* exp(-h / tau), 0 without a lag */
+    maglev_real gain;    /* 1 - pole */
+} law_state;
+
 /* the command at state x and time t with the gains g: the propulsion
-     F_prop = F_drag + F_extra + k_v (v_ref(t) - |(u, v, w)|),  v_ref(t) = v_ref + accel t
-   (capped at v_end in a launch), and the array forces T u_gen with
+     F_prop = F_drag + F_extra + k_v (v_ref(t) - |(u, v, w)|) - k_i xi,
+   v_ref(t) = v_ref + accel t (capped at v_end in a launch), and the array forces T w with
      u_gen = -(K_pos (a - a_ref) + K_rate a_dot)  (maglev_coupled_control),
-   each array's scaled down to the budget. Returns -1 on a generated function's error, else 1
-   when an array saturated, 0 when none did. */
+     w = u_gen - K_lag w_hat - K_delay (in flight)  (law: the tick's law, which then moves
+   its state on; NULL, the continuous loop: w = u_gen), each array's scaled down to the
+   budget. Returns -1 on a generated function's error, else 1 when an array saturated, 0 when
+   none did. */
 static int command(work* ws, const loop_run* r, const maglev_real* x, maglev_real t,
-                   const maglev_real* g, maglev_real* u) {
+                   const maglev_real* g, law_state* law, maglev_real* u) {
     const maglev_control_loop* loop = r->loop;
-    maglev_real u_gen[5], v_ref = loop->v_ref + loop->accel * t;
+    maglev_real u_gen[5], w[5], speed = SPEED(x), v_ref = loop->v_ref + loop->accel * t;
     int i, j;
     if (r->launch && v_ref > r->v_end) v_ref = r->v_end;
     ws->arg[0] = x;
@@ -200,10 +293,21 @@ static int command(work* ws, const loop_run* r, const maglev_real* x, maglev_rea
     ws->arg[3] = g + MAGLEV_SCHEDULE_A_REF;
     ws->res[0] = u_gen;
     if (maglev_coupled_control(ws->arg, ws->res, ws->iw, ws->w, 0)) return -1;
-    u[0] = g[MAGLEV_SCHEDULE_F_DRAG] + r->F_extra + loop->k_v * (v_ref - SPEED(x));
+    if (law != 0) {
+        /* a non-finite w goes on to the plant: the run then ends MAGLEV_SIM_NONFINITE */
+        (void)tick_law_forces(u_gen, g + MAGLEV_SCHEDULE_K_LAG, g + MAGLEV_SCHEDULE_K_DELAY,
+                              law->w_hat, law->in_flight, law->n_flight, w);
+        u[0] = tick_law_propulsion(g[MAGLEV_SCHEDULE_F_DRAG] + r->F_extra, loop->k_v,
+                                   loop->k_i, v_ref, speed, law->xi);
+        law->xi += law->h * (speed - v_ref);
+        tick_law_advance(law->w_hat, law->in_flight, law->n_flight, law->pole, law->gain, w);
+    } else {
+        for (j = 0; j < 5; ++j) w[j] = u_gen[j];
+        u[0] = g[MAGLEV_SCHEDULE_F_DRAG] + r->F_extra + loop->k_v * (v_ref - speed);
+    }
     for (i = 0; i < NU - 1; ++i) {
         maglev_real f = 0;
-        for (j = 0; j < 5; ++j) f += r->T[i + j * (NU - 1)] * u_gen[j];
+        for (j = 0; j < 5; ++j) f += r->T[i + j * (NU - 1)] * w[j];
         u[1 + i] = f;
     }
     return budget_active(loop->force_budget) ? saturate(u + 1, loop->force_budget) : 0;
@@ -237,7 +341,7 @@ static int stage_rhs(work* ws, const loop_run* r, const maglev_real* x, maglev_r
         for (i = 0; i < NX; ++i) xdot[i] = (maglev_real)NAN;
         return 2;
     }
-    s = command(ws, r, x, t, g, u);
+    s = command(ws, r, x, t, g, 0, u);
     if (s < 0 || held_rhs(ws, x, u, xdot)) return -1;
     return s;
 }
@@ -257,13 +361,28 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
     /* the commands on their way (computed, not yet applied): a ring of delay_ticks + 1 */
     maglev_real ring[(MAGLEV_SIM_MAX_DELAY + 1) * NU], applied[NU], u_stage[NU], buf[NY];
     maglev_real k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], held[NY];
+    /* the plant's inputs through the actuator lag: at the step's start, middle and end */
+    maglev_real act[NU], act_half[NU], act_end[NU];
     int ring_sat[MAGLEV_SIM_MAX_DELAY + 1];
     const maglev_real half = dt / (maglev_real)2, sixth = dt / (maglev_real)6;
     const long long tick = r->loop->tick_steps;
     const int depth = r->loop->delay_ticks + 1;
+    const maglev_real tau = r->loop->tau;
+    /* the lag over half a step and a step (tau > 0 only) */
+    const maglev_real e_half = tau > 0 ? EXP(-half / tau) : 0;
+    const maglev_real e_full = tau > 0 ? EXP(-dt / tau) : 0;
     const maglev_real* hold = 0;
+    law_state law;
     int i, d, w = 0, sat = 0;
     long long k, n_sat = 0;
+    for (i = 0; i < NQ + 1; ++i) law.in_flight[i] = 0;
+    for (i = 0; i < LAW_NAXES; ++i) law.w_hat[i] = 0;
+    law.xi = 0;
+    law.n_flight = LAW_NAXES * r->loop->delay_ticks;
+    law.h = (maglev_real)tick * dt;
+    law.pole = tau > 0 ? EXP(-law.h / tau) : 0;
+    law.gain = (maglev_real)1 - law.pole;
+    for (i = 0; i < NU; ++i) act[i] = 0; /* the actuators at rest */
 
     for (i = 0; i < NX; ++i) x_traj[i] = x0[i];
     for (k = 0;; ++k) {
@@ -294,7 +413,7 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
                         ring_sat[d] = 0;
                     }
                 }
-                if ((s = command(ws, r, x, t, g, slot)) < 0) {
+                if ((s = command(ws, r, x, t, g, &law, slot)) < 0) {
                     *status = MAGLEV_SIM_ERROR;
                     break;
                 }
@@ -302,9 +421,20 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
                 w = (w + 1) % depth; /* the oldest command, and where the next one goes */
                 for (i = 0; i < NU; ++i) applied[i] = ring[w * NU + i];
                 sat = ring_sat[w];
+                act[0] = applied[0]; /* the propulsion without lag */
             }
-            for (i = 0; i < NU; ++i) u[i] = applied[i];
-            if (held_rhs(ws, x, applied, k1)) {
+            if (tau > 0) {
+                /* f(t_k + s) = u + (f(t_k) - u) exp(-s / tau), the held command u */
+                act_half[0] = act_end[0] = applied[0];
+                for (i = 1; i < NU; ++i) {
+                    act_half[i] = applied[i] + (act[i] - applied[i]) * e_half;
+                    act_end[i] = applied[i] + (act[i] - applied[i]) * e_full;
+                }
+            } else {
+                for (i = 0; i < NU; ++i) act[i] = act_half[i] = act_end[i] = applied[i];
+            }
+            for (i = 0; i < NU; ++i) u[i] = act[i];
+            if (held_rhs(ws, x, act, k1)) {
                 *status = MAGLEV_SIM_ERROR;
                 break;
             }
@@ -335,11 +465,12 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
             maglev_real* x_next = x_traj + (k + 1) * NX;
             for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k1[i];
             if (tick > 0) {
-                err |= held_rhs(ws, xt, applied, k2);
+                err |= held_rhs(ws, xt, act_half, k2);
                 for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k2[i];
-                err |= held_rhs(ws, xt, applied, k3);
+                err |= held_rhs(ws, xt, act_half, k3);
                 for (i = 0; i < NX; ++i) xt[i] = x[i] + dt * k3[i];
-                err |= held_rhs(ws, xt, applied, k4);
+                err |= held_rhs(ws, xt, act_end, k4);
+                for (i = 0; i < NU; ++i) act[i] = act_end[i];
             } else {
                 err |= stage_rhs(ws, r, xt, t + half, hold, u_stage, k2) < 0;
                 for (i = 0; i < NX; ++i) xt[i] = x[i] + half * k2[i];
@@ -373,7 +504,7 @@ long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_ste
 
     if (status == 0 || !run_arguments_ok(x0, dt, n_steps, gap_min, x_traj, u_traj, gap_traj)
         || !isfinite(F_prop) || !finite_vector(K_pos, 25) || !finite_vector(K_rate, 25)
-        || !finite_vector(a_ref, 5) || !loop_valid(loop)) {
+        || !finite_vector(a_ref, 5) || !loop_valid(loop) || !law_gains_ok(loop)) {
         return refuse(status);
     }
     if (saturated != 0) *saturated = 0;
@@ -393,6 +524,11 @@ long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_ste
         for (i = 0; i < 25; ++i) {
             fixed[MAGLEV_SCHEDULE_K_POS + i] = K_pos[i];
             fixed[MAGLEV_SCHEDULE_K_RATE + i] = K_rate[i];
+            fixed[MAGLEV_SCHEDULE_K_LAG + i] = loop->K_lag != 0 ? loop->K_lag[i] : 0;
+        }
+        for (i = 0; i < 25 * MAGLEV_SIM_MAX_DELAY; ++i) {
+            fixed[MAGLEV_SCHEDULE_K_DELAY + i] =
+                loop->K_delay != 0 && i < 25 * loop->delay_ticks ? loop->K_delay[i] : 0;
         }
         r.schedule = 0;
         r.fixed = fixed;

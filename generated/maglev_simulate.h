@@ -61,13 +61,27 @@ extern "C" {
  *   delayed command arrives, the safe command is applied (no array force, the propulsion's
  *   feedforward F_ff at the speed of x0, no speed feedback). The plant between ticks:
  *   RK4 on maglev_dynamics with the input held. tick_steps = 0: the command at every stage.
- * - The speed loop: F_prop = F_ff + k_v (v_ref(t) - |(u, v, w)|), |(u, v, w)| measured with
- *   the command, v_ref(t) = v_ref + accel t (maglev_launch: at most v_end), F_ff the given
+ * - The tick's law (tick_steps > 0; templates/maglev_tick_law.c.j2, the source the firmware's
+ *   maglev_tick runs): the generalized forces w = u_gen - K_lag w_hat - K_delay (in flight),
+ *   w_hat the prediction of the lagged generalized forces, w_hat = a w_hat + (1 - a) w_applied
+ *   (a = exp(-h / tau), h = tick_steps dt), the in-flight generalized forces those computed at
+ *   the last delay_ticks ticks, newest first (before the first: zero, the safe command's).
+ *   K_lag (25) and K_delay (25 delay_ticks), column-major: maglev_simulate's from the loop's
+ *   pointers (NULL: zero), maglev_launch's from the schedule. Zero gains give w = u_gen.
+ * - The actuator lag (tau > 0, tick_steps > 0 only): each array's applied control force f
+ *   follows tau f' = u - f with u the held command, evaluated exactly at each RK4 stage,
+ *   f(t) = u + (f(t_k) - u) exp(-(t - t_k) / tau); f = 0 at t = 0. u_traj then holds the
+ *   plant's inputs (the propulsion and f) at each sample. tau = 0: f = u (no lag).
+ * - The speed loop: F_prop = F_ff + k_v (v_ref(t) - |(u, v, w)|) - k_i xi, |(u, v, w)|
+ *   measured with the command, xi += h (|(u, v, w)| - v_ref(t)) at each tick (k_i: tick_steps
+ *   > 0 only), v_ref(t) = v_ref + accel t (maglev_launch: at most v_end), F_ff the given
  *   F_prop (maglev_simulate) or F_drag(v) + F_extra (maglev_launch). k_v = 0: F_ff alone.
  * - The force budget: each array's control force (the vector of its components) is scaled
  *   down to force_budget where its norm exceeds it; force_budget <= 0 or infinite: no limit.
- * tick_steps < 0, delay_ticks outside [0, MAGLEV_SIM_MAX_DELAY] or a non-finite k_v, v_ref,
- * accel or NaN budget: refused at entry (MAGLEV_SIM_ARGUMENT, -1, nothing written).
+ * tick_steps < 0, delay_ticks outside [0, MAGLEV_SIM_MAX_DELAY], a non-finite k_v, v_ref,
+ * accel, k_i or NaN budget, tau negative or not finite, tau or k_i not 0 with tick_steps = 0,
+ * or (maglev_simulate) a non-finite K_lag or K_delay value: refused at entry
+ * (MAGLEV_SIM_ARGUMENT, -1, nothing written).
  */
 #define MAGLEV_SIM_MAX_DELAY 4 /* the largest delay_ticks */
 
@@ -78,6 +92,10 @@ typedef struct {
     maglev_real v_ref;        /* [m/s] the speed reference at t = 0 */
     maglev_real accel;        /* [m/s^2] the speed reference's slope */
     maglev_real force_budget; /* [N] per array: |control force| at most this */
+    maglev_real tau;          /* [s] each array force's first-order lag; 0: none */
+    maglev_real k_i;          /* [N/m] gain on the speed error's integral */
+    const maglev_real* K_lag;   /* maglev_simulate: 25 on the predicted lagged forces, or NULL */
+    const maglev_real* K_delay; /* maglev_simulate: 25 delay_ticks on those in flight, or NULL */
 } maglev_control_loop;
 
 long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_steps,
@@ -92,14 +110,18 @@ long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_ste
  * speed v over n uniformly spaced nodes v0, v0 + dv, ... (y: the values, d2y: their second
  * derivatives in v at the nodes, both n rows of MAGLEV_SCHEDULE_NY, row-major). Per node:
  * the trim drag F_drag [N], the reference a_ref (trim y, z, phi, theta, psi), then K_pos and
- * K_rate (5 x 5 each, column-major) of one controller; the toolchain fills the table from
- * the trim and the gains at each node (maglevgen envelope / simulate --scenario launch).
+ * K_rate (5 x 5 each, column-major) of one controller, then the tick law's K_lag (5 x 5) and
+ * K_delay (5 x 5 MAGLEV_SIM_MAX_DELAY, of which a loop reads its delay_ticks' first 25
+ * delay_ticks; zero for a controller without them); the toolchain fills the table from the
+ * trim and the gains at each node (maglevgen envelope / simulate --scenario launch).
  */
 #define MAGLEV_SCHEDULE_F_DRAG 0
 #define MAGLEV_SCHEDULE_A_REF 1
 #define MAGLEV_SCHEDULE_K_POS 6
 #define MAGLEV_SCHEDULE_K_RATE 31
-#define MAGLEV_SCHEDULE_NY 56
+#define MAGLEV_SCHEDULE_K_LAG 56
+#define MAGLEV_SCHEDULE_K_DELAY 81
+#define MAGLEV_SCHEDULE_NY 181
 #define MAGLEV_SCHEDULE_OK 0          /* v inside [v0, v0 + (n - 1) dv] */
 #define MAGLEV_SCHEDULE_CLAMPED 1     /* v outside: the end node's values */
 #define MAGLEV_SCHEDULE_NONFINITE 2   /* v is not finite: out untouched */

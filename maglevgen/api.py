@@ -941,8 +941,10 @@ class Carriage:
         dt : float, optional
             RK4 step [s] (default 1e-3); refused above RK4's stability limit.
         loop : {'firmware', 'continuous'}, optional
-            ``firmware`` (default): the controller at the tick of ``[control.spec]`` with
-            its delay, the speed loop and the force budget (``--loop``); ``continuous``: the
+            ``firmware`` (default): the firmware tick's law at the tick of
+            ``[control.spec]`` with its delay, each controller's gains on the loop as built
+            (the ``spec`` design at the tick), the speed loop and the force budget, on the
+            plant with the actuator lag of ``[actuators]`` (``--loop``); ``continuous``: the
             paper's law at every RK4 stage under the trim propulsion.
         disturbance : mapping of str to float, or sequence of str, optional
             The initial deviation from trim (``--disturbance``): state name to value

@@ -489,7 +489,8 @@ def other_structures(carriage) -> list:
 def _schedule_c(carriage, lib, env) -> str:
     """c/maglev_schedule.c: the embedded controller's launch schedule over ``env``'s range
     (what maglev_launch runs: the accelerating trim's reference and drag at
-    envelope.launch_acceleration, the constant-speed gains; envelope.launch_schedule)."""
+    envelope.launch_acceleration, the constant-speed gains on the envelope's loop as built,
+    the design at the tick with its K_lag and K_delay; envelope.launch_schedule)."""
     import numpy as np
 
     from maglevgen.analyses.envelope import envelope_points, launch_schedule
@@ -498,7 +499,8 @@ def _schedule_c(carriage, lib, env) -> str:
     nodes = np.linspace(env.v_min, env.v_max, carriage.params.envelope.schedule_nodes)
     points = envelope_points(carriage, lib, nodes)
     return schedule_c_source(launch_schedule(carriage, lib, points,
-                                             carriage.params.envelope.embedded_controller))
+                                             carriage.params.envelope.embedded_controller,
+                                             setting=env.loop))
 
 
 def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:

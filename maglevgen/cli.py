@@ -55,9 +55,11 @@ def _run_options(p: argparse.ArgumentParser) -> None:
 
 def _loop_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loop", choices=("firmware", "continuous"), default="firmware",
-                   help="firmware (default): each controller at the tick of [control.spec] "
-                        "with its delay, the speed loop and the force budget; continuous: "
-                        "the paper's law at every RK4 stage under the trim propulsion")
+                   help="firmware (default): the firmware tick's law at the tick of "
+                        "[control.spec] with its delay, each controller's gains on the loop "
+                        "as built, the speed loop and the force budget, on the plant with the "
+                        "actuator lag of [actuators]; continuous: the paper's law at every "
+                        "RK4 stage under the trim propulsion")
 
 
 def _carriage(args: argparse.Namespace) -> Carriage:

@@ -135,8 +135,11 @@ class ControlLoop:
 
     ``tick_steps`` RK4 steps per control tick (0: the command at every RK4 stage), the command
     applied ``delay_ticks`` ticks after its tick and held between; the speed loop
-    F_prop = F_ff + ``k_v`` (v_ref(t) - |(u, v, w)|), v_ref(t) = ``v_ref`` + ``accel`` t; each
-    array's control force limited to ``force_budget`` [N] (<= 0 or inf: no limit).
+    F_prop = F_ff + ``k_v`` (v_ref(t) - |(u, v, w)|) - ``k_i`` xi, v_ref(t) = ``v_ref`` +
+    ``accel`` t, xi the speed error's integral; each array's control force limited to
+    ``force_budget`` [N] (<= 0 or inf: no limit) and lagged by ``tau`` [s] in the plant (0: no
+    lag); the tick law's gains ``k_lag`` (25) and ``k_delay`` (25 delay_ticks), column-major
+    (maglev_simulate's; empty: zero, the generalized forces u_gen as computed).
     """
 
     tick_steps: int = 0
@@ -145,6 +148,10 @@ class ControlLoop:
     v_ref: float = 0.0  # [m/s]
     accel: float = 0.0  # [m/s^2]
     force_budget: float = 0.0  # [N]
+    tau: float = 0.0  # [s]
+    k_i: float = 0.0  # [N/m]
+    k_lag: tuple[float, ...] = ()
+    k_delay: tuple[float, ...] = ()
 
 
 class Run(NamedTuple):
@@ -191,7 +198,8 @@ class SimulationLibrary(GeneratedLibrary):
         class _Loop(ctypes.Structure):  # maglev_control_loop (maglev_simulate.h)
             _fields_ = [("tick_steps", ctypes.c_longlong), ("delay_ticks", ctypes.c_int),
                         ("k_v", real), ("v_ref", real), ("accel", real),
-                        ("force_budget", real)]
+                        ("force_budget", real), ("tau", real), ("k_i", real),
+                        ("K_lag", ptr), ("K_delay", ptr)]
 
         self._Loop = _Loop
 
@@ -221,12 +229,29 @@ class SimulationLibrary(GeneratedLibrary):
         fn.argtypes = [self._ctypes[a.ctype] for a in f.arguments_for("runtime")]
         return fn
 
-    def _loop(self, loop: ControlLoop | None):
-        """The maglev_control_loop of ``loop`` (a pointer), or NULL for None."""
+    def _loop_struct(self, loop: ControlLoop, keep: list):
+        """The maglev_control_loop of ``loop``; the arrays its pointers address go into
+        ``keep`` (alive as long as the caller holds it)."""
+        real = self._real
+        P = ctypes.POINTER(ctypes.c_float if real == np.float32 else ctypes.c_double)
+
+        def gains(values: tuple[float, ...]):
+            if not values:
+                return None
+            a = np.ascontiguousarray(values, dtype=real)
+            keep.append(a)
+            return a.ctypes.data_as(P)
+
+        return self._Loop(loop.tick_steps, loop.delay_ticks, loop.k_v, loop.v_ref, loop.accel,
+                          loop.force_budget, loop.tau, loop.k_i, gains(loop.k_lag),
+                          gains(loop.k_delay))
+
+    def _loop(self, loop: ControlLoop | None, keep: list):
+        """The maglev_control_loop of ``loop`` (a pointer), or NULL for None (``keep``: as
+        `_loop_struct`)."""
         if loop is None:
             return None
-        return ctypes.byref(self._Loop(loop.tick_steps, loop.delay_ticks, loop.k_v, loop.v_ref,
-                                       loop.accel, loop.force_budget))
+        return ctypes.byref(self._loop_struct(loop, keep))
 
     def launch(self, x0: np.ndarray, dt: float, n_steps: int, v_end: float, f_extra: float,
                hold_steps: int, schedule, p: np.ndarray, gap_min: float, n_u: int,
@@ -245,8 +270,9 @@ class SimulationLibrary(GeneratedLibrary):
         u = np.zeros((n_steps + 1, n_u), dtype=real)
         g = np.zeros((n_steps + 1, n_gaps), dtype=real)
         status, saturated = ctypes.c_int(-1), ctypes.c_longlong(0)
+        keep: list = []
         last = self._launch(x0c.ctypes.data_as(P), dt, n_steps, v_end, f_extra, hold_steps,
-                            ctypes.byref(sched), self._loop(loop), pc.ctypes.data_as(P),
+                            ctypes.byref(sched), self._loop(loop, keep), pc.ctypes.data_as(P),
                             gap_min, x.ctypes.data_as(P), u.ctypes.data_as(P),
                             g.ctypes.data_as(P), ctypes.byref(saturated), ctypes.byref(status))
         _refused("maglev_launch", status.value)
@@ -269,8 +295,9 @@ class SimulationLibrary(GeneratedLibrary):
         def c(a: np.ndarray):
             return a.ctypes.data_as(ptr)
 
+        keep: list = []
         last = self._simulate(c(ins[0]), dt, n_steps, f_prop, c(ins[1]), c(ins[2]), c(ins[3]),
-                              self._loop(loop), c(ins[4]), gap_min, c(x), c(u), c(g),
+                              self._loop(loop, keep), c(ins[4]), gap_min, c(x), c(u), c(g),
                               ctypes.byref(saturated), ctypes.byref(status))
         _refused("maglev_simulate", status.value)
         n = int(last) + 1
@@ -345,8 +372,8 @@ class SimulationLibrary(GeneratedLibrary):
                              for f in ("x0", "k_pos", "k_rate", "a_ref", "p"))
         fp = np.ascontiguousarray([r.f_prop for r in runs], dtype=real)
         plain = ControlLoop()  # the plain loop, as NULL: maglev_simulate's loop_plain
-        loops = (self._Loop * n)(*[self._Loop(lp.tick_steps, lp.delay_ticks, lp.k_v,
-                                             lp.v_ref, lp.accel, lp.force_budget)
+        keep: list = []
+        loops = (self._Loop * n)(*[self._loop_struct(lp, keep)
                                   for lp in (r.loop or plain for r in runs)])
         n_x, rows = x0.shape[1], n_steps + 1
         x = np.zeros((n, rows, n_x), dtype=real)

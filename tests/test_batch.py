@@ -12,22 +12,32 @@ import numpy as np
 import pytest
 
 from maglevgen.analyses.montecarlo import make_study, run_sample, run_samples_batch
-from maglevgen.analyses.simulate import Weights, operating_point, simulate, simulate_batch
+from maglevgen.analyses.simulate import (
+    FirmwareTick,
+    Weights,
+    operating_point,
+    simulate,
+    simulate_batch,
+)
 from maglevgen.control.sampled import Tick
 
 
 @pytest.mark.needs_cc
-@pytest.mark.parametrize("tick", [None, Tick(250.0, 1)], ids=["continuous", "ticked"])
+@pytest.mark.parametrize("tick", [None, Tick(250.0, 1), FirmwareTick(250.0, 1, 2e-3)],
+                         ids=["continuous", "ticked", "firmware"])
 def test_batch_runs_equal_the_per_sample_runs(carriage, sim_lib, op, tick) -> None:
     """Three runs (two controllers at the nominal parameters, one of them again on a 4 %
     heavier carriage with its own trim and gains), with the speed loop and a force budget on
-    the ticked loop, on two threads: x, u, gaps, status and saturated time equal."""
+    the ticked loop, on two threads: x, u, gaps, status and saturated time equal. On the
+    firmware loop (the actuator lag, the tick's law) the second controller is `spec`, its
+    design at the tick (K_lag and K_delay through the loop's pointers, per run)."""
     p2 = carriage.p.copy()
     p2[carriage.structure.param_names.index("vehicle.mass")] *= 1.04
     op2 = operating_point(sim_lib, p2, op.speed, carriage.params.track.min_gap,
                           Weights.of(carriage.params))
     dist = {"z": 2e-3, "phi": 4e-3}
-    jobs = [(carriage.p, op, "lqr", dist), (carriage.p, op, "coupled", dist),
+    second = "spec" if isinstance(tick, FirmwareTick) else "coupled"
+    jobs = [(carriage.p, op, "lqr", dist), (carriage.p, op, second, dist),
             (p2, op2, "lqr", {"y": -1e-3})]
     kw = {"tick": tick, "speed_gain": 500.0 if tick else 0.0,
           "force_budget": 2e3 if tick else None}

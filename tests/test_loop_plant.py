@@ -312,8 +312,9 @@ def test_spec_verdict_is_its_design_at_the_tick_on_the_lagged_loop(carriage, sim
                                                                    default_envelope) -> None:
     """The envelope's loop numbers for `spec` are those of the loop assembled here with the
     2 ms lag and dlqr's gains (smallest damping ratio, largest real part at each speed): it
-    meets [control.spec]; its continuous gains (what the full-state tick runs) lose the
-    damping ratio on the same loop, and the sentence on the firmware says both."""
+    meets [control.spec]; its continuous gains lose the damping ratio on the same loop, and
+    the sentence on the firmware says both and that the host's firmware loop runs the
+    design on the plant with the lag."""
     from maglevgen.analyses.envelope import envelope_points
 
     env = default_envelope
@@ -332,7 +333,8 @@ def test_spec_verdict_is_its_design_at_the_tick_on_the_lagged_loop(carriage, sim
     assert e.meets_spec and not e.continuous_gains.meets_spec
     said = env.firmware_design("spec")
     assert "2 ms actuator lag" in said and "meets [control.spec]" in said
-    assert "maglev_coupled_control" in said and "FAILS damping ratio >= 0.5" in said
+    assert "runs the same law" in said and "on the plant with the actuator lag" in said
+    assert "continuous spec LQR gains on the same loop: FAILS damping ratio >= 0.5" in said
     assert e.margins is not None and "disk margins at the actuators" in e.spec_verdict
 
 

@@ -192,13 +192,18 @@ def envelope_points(carriage, lib: SimulationLibrary,
 
 
 def launch_schedule(carriage, lib: SimulationLibrary, points: Sequence[OperatingPoint],
-                    controller: str, references: list[Reference] | None = None) -> Schedule:
+                    controller: str, references: list[Reference] | None = None,
+                    setting: LoopSetting | None = None) -> Schedule:
     """The launch's schedule of ``controller`` at ``points``: the reference and the
     propulsion feedforward of the accelerating trim at envelope.launch_acceleration
-    (`launch_references`), the gains of the constant-speed linearisation (the points')."""
+    (`launch_references`), the gains of the constant-speed linearisation (the points'):
+    the controller's continuous gains, or with ``setting`` its gains on that loop as built
+    (`loop_design`: the design at the tick with K_lag and K_delay, what the firmware runs)."""
     a = carriage.params.envelope.launch_acceleration
     refs = launch_references(carriage, lib, points) if references is None else references
-    return Schedule.from_points(list(points), controller, refs, a)
+    designs = None if setting is None else [loop_design(op, controller, setting)
+                                            for op in points]
+    return Schedule.from_points(list(points), controller, refs, a, designs)
 
 
 def launch_references(carriage, lib: SimulationLibrary,
@@ -253,7 +258,7 @@ class ControllerEnvelope:
     # the levitation modes' largest real part on the loop as built (all but the speed loop's)
     levitation_real: np.ndarray | None = None
     # a controller designed at the tick: its continuous gains on the same loop (what the
-    # host simulation's firmware loop, maglev_coupled_control at each tick, runs)
+    # host simulation's firmware loop ran before issue 50, and a plain `Tick` still runs)
     continuous_gains: TickDesignCheck | None = None
     margins: LoopMargins | None = None  # the embedded controller's, at MARGIN_SPEEDS speeds
 
@@ -423,7 +428,7 @@ class Envelope:
         """Which design of controller ``name`` (the embedded one) the firmware gets and why,
         in one sentence: the gains designed on the continuous linearisation, checked on the
         sampled-data loop; for a controller designed at the tick (`spec`), that design, which
-        the firmware's tick runs and the host simulation's loop does not yet."""
+        the firmware's tick and the host simulation's firmware loop run."""
         c = self.controllers.get(name)
         if c is None or self.loop is None:
             return (f"The firmware gets the {controller_title(name)} gains designed on the "
@@ -434,7 +439,8 @@ class Envelope:
                     f"continuous linearisation, which {on} "
                     f"{'meet' if c.meets_spec else 'fail'} [control.spec].")
         cont = c.continuous_gains
-        cont_said = "" if cont is None else f" (those gains on the loop as built: {cont.verdict})"
+        cont_said = "" if cont is None else (f"; the continuous {controller_title(name)} gains "
+                                             f"on the same loop: {cont.verdict}")
         return (f"The {controller_title(name)} design is solved at the tick on the loop as "
                 "built (DARE on the ZOH model with the delay and the actuator lag; gains on "
                 "the state, the commands in flight and the actuator forces the controller "
@@ -443,9 +449,9 @@ class Envelope:
                 "tick (maglev_tick, ideal sensing: the full state measured) runs this design "
                 "from its table, the commands in flight, the predicted actuator forces and "
                 "the speed integral in a caller-owned state; the host simulation's firmware "
-                "loop (maglev_coupled_control at each tick: the holds, the launch, Monte Carlo "
-                f"and ROA runs) still runs the continuous {controller_title(name)} gains, on "
-                f"the plant without the lag{cont_said}.")
+                "loop (the holds, the launch, Monte Carlo and ROA runs) runs the same law (one "
+                "C source) with this design on the plant with the actuator lag"
+                f"{cont_said}.")
 
     def robustness_verdict(self) -> str:
         """The embedded controller's gains on the other models, in one sentence."""

@@ -246,6 +246,10 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
     how = (f"The controller runs at a {tick['rate']:g} Hz tick, its command applied "
            f"{tick['delay']} tick(s) after sampling and held in between"
            if tick else "The controller is evaluated at every RK4 stage (continuous)")
+    if tick and tick.get("actuator_lag"):
+        how += (" (the firmware tick's law, each controller's gains on the loop as built); "
+                "each array's control force follows its command through a "
+                f"{tick['actuator_lag'] * 1e3:g} ms first-order lag")
     if first.get("force_budget"):
         how += f"; each array's control force is limited to {first['force_budget']:g} N"
     how += ". "

@@ -47,11 +47,13 @@ __all__ = [
     "RUN_STATUSES",
     "SCENARIOS",
     "SETTLING_BAND",
+    "FirmwareTick",
     "Progress",
     "SimulationRun",
     "Trajectory",
     "control_loop",
     "disturbance_doc",
+    "firmware_gains",
     "firmware_loop",
     "hold_run",
     "hold_trajectory",
@@ -108,17 +110,60 @@ Progress = Callable[[float], None]
 LOOPS: tuple[str, ...] = ("firmware", "continuous")
 
 
-def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[Tick, float, float]:
-    """(tick, k_v, force budget) of [control.spec]: the tick and its delay, the speed loop's
-    one gain over the envelope (`envelope.loop_setting`, the gain the envelope's verdicts
-    used) and the per-array force budget."""
+@dataclass(frozen=True)
+class FirmwareTick(Tick):
+    """The firmware's tick (`Tick`: rate and delay) with the rest of the loop as built: each
+    array force's first-order ``lag`` [s] in the plant ([actuators] time_constant) and the
+    speed error's integral gain ``speed_integral`` [N/m]. A run at a FirmwareTick runs the
+    firmware tick's law (templates/maglev_tick_law.c.j2) with each controller's gains on this
+    loop (`firmware_gains`: the design at the tick where the controller has one); a run at a
+    plain `Tick` runs the controller's continuous gains on the plant without the lag (the host
+    loop before issue 50)."""
+
+    lag: float = 0.0  # [s]
+    speed_integral: float = 0.0  # [N/m]
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (isinstance(self.lag, (int, float)) and np.isfinite(self.lag) and self.lag >= 0):
+            raise InputError(f"actuator lag {self.lag!r} s: must be a finite number >= 0")
+        if not (isinstance(self.speed_integral, (int, float))
+                and np.isfinite(self.speed_integral) and self.speed_integral >= 0):
+            raise InputError(f"speed integral gain {self.speed_integral!r} N/m: must be a "
+                             "finite number >= 0")
+
+    def setting(self, speed_gain: float = 0.0):
+        """The `envelope.LoopSetting` of this loop (``speed_gain``: its k_v)."""
+        from maglevgen.analyses.envelope import LoopSetting
+
+        return LoopSetting(Tick(self.rate, self.delay), float(speed_gain), 0.0, self.lag,
+                           self.speed_integral)
+
+
+def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick):
+    """``controller``'s gains on the loop ``tick`` describes (`envelope.loop_design`, a
+    `plant.LoopDesign`): its design at the tick on the loop as built where it has one (the
+    `spec` controller: K_pos, K_rate, K_lag, K_delay, what the firmware's table holds), else
+    its continuous gains (K_lag, K_delay None: fed back with zero gains)."""
+    from maglevgen.analyses.envelope import loop_design
+
+    return loop_design(op, controller, tick.setting())
+
+
+def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[FirmwareTick, float, float]:
+    """(tick, k_v, force budget) of [control.spec]: the tick and its delay with the actuator
+    lag and the speed integral (`FirmwareTick`), the speed loop's one gain over the envelope
+    (`envelope.loop_setting`, the gain the envelope's verdicts used) and the per-array force
+    budget."""
     from maglevgen.analyses.envelope import envelope_points, loop_setting, resolve_range
 
     v_lo, v_hi = resolve_range(carriage, lib)
     points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi, carriage.params
                                                         .envelope.schedule_nodes))
     setting = loop_setting(carriage, points)
-    return setting.tick, setting.speed_gain, float(carriage.params.control.spec.force_budget)
+    tick = FirmwareTick(setting.tick.rate, setting.tick.delay, float(setting.actuator_lag),
+                        float(setting.speed_integral))
+    return tick, setting.speed_gain, float(carriage.params.control.spec.force_budget)
 
 
 def run_loop(carriage, lib: SimulationLibrary,
@@ -138,9 +183,11 @@ def speed_loop_gain(mode: SpeedMode, bandwidth: float) -> float:
 
 
 def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: float | None,
-                 v_ref: float, accel: float = 0.0) -> ControlLoop | None:
-    """The C loop's settings (maglev_control_loop), or None for today's loop: the controller
-    at every RK4 stage, the propulsion without speed feedback, no budget. Validates them."""
+                 v_ref: float, accel: float = 0.0, design=None) -> ControlLoop | None:
+    """The C loop's settings (maglev_control_loop), or None for the continuous loop: the
+    controller at every RK4 stage, the propulsion without speed feedback, no budget.
+    Validates them. A `FirmwareTick` adds the actuator lag and the speed integral;
+    ``design`` (a `plant.LoopDesign`): the tick law's K_lag and K_delay of maglev_simulate."""
     if not (isinstance(speed_gain, (int, float)) and np.isfinite(speed_gain)
             and speed_gain >= 0):
         raise InputError(f"speed gain {speed_gain!r} N s/m: must be a finite number >= 0")
@@ -151,8 +198,15 @@ def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: 
     if tick is None and speed_gain == 0 and force_budget is None:
         return None
     budget = 0.0 if force_budget is None or np.isinf(force_budget) else float(force_budget)
+    law: dict = {}
+    if isinstance(tick, FirmwareTick):
+        law = {"tau": float(tick.lag), "k_i": float(tick.speed_integral)}
+    if design is not None:
+        for key, K in (("k_lag", design.K_lag), ("k_delay", design.K_delay)):
+            if K is not None and K.size:
+                law[key] = tuple(float(v) for v in K.ravel(order="F"))
     return ControlLoop(0 if tick is None else tick.steps(dt), 0 if tick is None else tick.delay,
-                       float(speed_gain), float(v_ref), float(accel), budget)
+                       float(speed_gain), float(v_ref), float(accel), budget, **law)
 
 
 def rk4_stability_limit(eigenvalues: np.ndarray) -> float:
@@ -423,8 +477,13 @@ def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
     drag, the gains and the reference of ``controller_op`` (default ``op``), p and the loop):
     what `simulate_batch` runs."""
     design = op if controller_op is None else controller_op
-    loop = control_loop(dt, tick, speed_gain, force_budget, design.speed)
-    K_pos, K_rate = (k.ravel(order="F") for k in design.gains(controller))
+    if isinstance(tick, FirmwareTick):
+        gains = firmware_gains(design, controller, tick)
+        loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, design=gains)
+        K_pos, K_rate = (k.ravel(order="F") for k in (gains.K_pos, gains.K_rate))
+    else:
+        loop = control_loop(dt, tick, speed_gain, force_budget, design.speed)
+        K_pos, K_rate = (k.ravel(order="F") for k in design.gains(controller))
     return BatchRun(initial_state(op, disturbance), float(design.f_prop), K_pos, K_rate,
                     design.a_trim, p, loop)
 
@@ -625,7 +684,8 @@ def metrics(traj: Trajectory) -> dict:
         "speed_error": _speed_error(traj, speed), "saturated_time": traj.saturated_time,
         # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
         "tick": None if traj.tick is None else {"rate": traj.tick.rate,
-                                                "delay": traj.tick.delay},
+                                                "delay": traj.tick.delay,
+                                                "actuator_lag": getattr(traj.tick, "lag", 0.0)},
         "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
         # the run against [control.spec] (`spec_verdict`; None for a run without limits)
@@ -735,9 +795,10 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
     loop = {"tick": tick, "speed_gain": speed_gain, "force_budget": force_budget}
     trajs = []
+    setting = tick.setting(speed_gain) if isinstance(tick, FirmwareTick) else None
     for c in controllers:
-        sched = (launch_schedule(carriage, lib, points, c, refs) if scenario == "launch"
-                 else None)
+        sched = (launch_schedule(carriage, lib, points, c, refs, setting)
+                 if scenario == "launch" else None)
         for dist in disturbances or (disturbance,):
             if scenario == "launch":
                 trajs.append(launch(lib, carriage.p, sched, op, v_end,

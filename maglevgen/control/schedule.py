@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from maglevgen.codegen.checks import MAX_DELAY_TICKS
 from maglevgen.control.operating import (
     AXIS_STATES,
     N_AXES,
@@ -36,6 +37,8 @@ __all__ = [
     "GAIN_TABLE_FIELDS",
     "GAIN_TABLE_NODES",
     "GAIN_TABLE_NY",
+    "K_DELAY",
+    "K_LAG",
     "K_POS",
     "K_RATE",
     "NY",
@@ -52,9 +55,13 @@ __all__ = [
     "tick_table_fields",
 ]
 
-# one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give
+# one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give: the
+# drag, the reference, K_pos and K_rate, then the tick law's K_lag and K_delay (room for
+# MAX_DELAY_TICKS ticks; zero for a controller without them)
 F_DRAG, A_REF, K_POS, K_RATE = 0, 1, 1 + N_AXES, 1 + N_AXES + N_AXES**2
-NY = 1 + N_AXES + 2 * N_AXES**2
+K_LAG = K_RATE + N_AXES**2
+K_DELAY = K_LAG + N_AXES**2
+NY = K_DELAY + N_AXES**2 * MAX_DELAY_TICKS
 DEFAULT_NODES = 64
 
 
@@ -83,13 +90,23 @@ def accelerating_references(lib: SimulationLibrary, p: np.ndarray,
 
 
 def node_values(op: OperatingPoint, controller: str,
-                reference: Reference | None = None) -> np.ndarray:
-    """(F_drag, a_ref, K_pos column-major, K_rate column-major) of a controller at a node; the
-    trim's F_drag and a_ref, or ``reference``'s."""
-    K_pos, K_rate = op.gains(controller)
+                reference: Reference | None = None,
+                design: LoopDesign | None = None) -> np.ndarray:
+    """(F_drag, a_ref, K_pos, K_rate, K_lag, K_delay, each matrix column-major) of a
+    controller at a node; the trim's F_drag and a_ref, or ``reference``'s; the controller's
+    continuous gains (K_lag, K_delay zero), or ``design``'s (its design at the tick on the
+    loop as built, `plant.LoopDesign`: the gains the firmware's tick runs)."""
+    K_pos, K_rate = op.gains(controller) if design is None else (design.K_pos, design.K_rate)
     f_drag, a_ref = (op.f_prop, op.a_trim) if reference is None \
         else (reference.f_drag, reference.a_ref)
-    return np.concatenate([[f_drag], a_ref, K_pos.ravel(order="F"), K_rate.ravel(order="F")])
+    tick = np.zeros(NY - K_LAG)
+    if design is not None and design.K_lag is not None and design.K_lag.size:
+        tick[:N_AXES**2] = design.K_lag.ravel(order="F")
+    if design is not None and design.K_delay is not None and design.K_delay.size:
+        k_delay = design.K_delay.ravel(order="F")
+        tick[N_AXES**2:N_AXES**2 + k_delay.size] = k_delay
+    return np.concatenate([[f_drag], a_ref, K_pos.ravel(order="F"), K_rate.ravel(order="F"),
+                           tick])
 
 
 @dataclass(frozen=True)
@@ -108,10 +125,12 @@ class Schedule:
     @classmethod
     def from_points(cls, points: list[OperatingPoint], controller: str,
                     references: list[Reference] | None = None,
-                    acceleration: float = 0.0) -> Schedule:
+                    acceleration: float = 0.0,
+                    designs: list[LoopDesign] | None = None) -> Schedule:
         """The schedule of ``controller`` at the points' speeds; ``references`` (one per point,
         `accelerating_references` at ``acceleration``): the reference and drag in place of
-        the constant-speed trim's."""
+        the constant-speed trim's; ``designs`` (one per point): the controller's gains on the
+        loop as built (`node_values`) in place of its continuous gains."""
         speeds = np.array([op.speed for op in points])
         if len(speeds) < 2 or not np.allclose(np.diff(speeds), speeds[1] - speeds[0]):
             raise ValueError("a schedule needs two or more uniformly spaced nodes")
@@ -120,10 +139,13 @@ class Schedule:
         if references is None and acceleration != 0:
             raise ValueError("an accelerating schedule needs the accelerating trim's "
                              "references")
+        if designs is not None and len(designs) != len(points):
+            raise ValueError("a schedule needs one design per node")
         refs = references if references is not None else [None] * len(points)
+        des = designs if designs is not None else [None] * len(points)
         return cls(controller, speeds,
-                   np.array([node_values(op, controller, r)
-                             for op, r in zip(points, refs, strict=True)]),
+                   np.array([node_values(op, controller, r, d)
+                             for op, r, d in zip(points, refs, des, strict=True)]),
                    float(acceleration))
 
     @property
@@ -148,7 +170,7 @@ class Schedule:
         """(F_drag, a_ref, K_pos, K_rate) from one row of values."""
         return (float(row[F_DRAG]), row[A_REF:K_POS],
                 row[K_POS:K_RATE].reshape(N_AXES, N_AXES, order="F"),
-                row[K_RATE:].reshape(N_AXES, N_AXES, order="F"))
+                row[K_RATE:K_LAG].reshape(N_AXES, N_AXES, order="F"))
 
 
 def schedule_c_source(schedule: Schedule, precision: str = "double") -> str:
