@@ -249,3 +249,28 @@ def test_the_kalman_table_holds_dlqe_gains_across_the_envelope(sim_lib, carriage
         M = P @ model.C.T @ np.linalg.inv(model.C @ P @ model.C.T + model.R)
         got = table(float(v)).reshape(12, -1, order="F")
         assert np.max(np.abs(got - M[:12])) <= GAIN_TABLE_BOUND * np.max(np.abs(M[:12])), v
+
+
+def test_a_noisy_hold_that_reaches_the_track_stops_there(sim_lib, carriage) -> None:
+    """Positive position feedback far above the arrays' stiffness (2e6 N/m, N m/rad on every
+    axis, with a budget that lets it act): the carriage hits the track within a few ticks. The
+    hold stops at the tick a gap reaches zero instead of integrating through the rail, and
+    says so: diverged at that time, contact, not settled, its metrics those of the ticks
+    before (finite)."""
+    from maglevgen.analyses.output_feedback import noisy_hold
+    from maglevgen.control.plant import LoopDesign
+
+    params = carriage.params.model_copy(update={
+        "actuators": carriage.params.actuators.model_copy(update={"force_limit": 1e5}),
+        "control": carriage.params.control.model_copy(update={
+            "spec": carriage.params.control.spec.model_copy(update={"force_budget": 1e5})})})
+    op = _op(sim_lib, carriage, 20.0)
+    zero = np.zeros((5, 5))
+    hold = noisy_hold(sim_lib, carriage.p, params, op, t_end=1.0, seed=3,
+                      gains=LoopDesign(-2e6 * np.eye(5), zero, zero, zero))
+    assert hold.diverged is not None and 0 < hold.diverged < 0.1
+    assert hold.min_gap <= 0 and not hold.settled
+    failures = hold.failures(params.track.min_gap)
+    assert failures[0] == f"diverged at {hold.diverged:.3g} s" and "contact" in failures[1]
+    assert np.all(np.isfinite(hold.force_rms)) and np.all(np.isfinite(hold.gap_rms))
+    assert "DIVERGED" in hold.summary()

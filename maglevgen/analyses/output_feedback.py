@@ -16,7 +16,9 @@ alone costs. Metrics: each array's control force command, RMS and peak, and the 
 ticks it sits at the budget; the gaps' and the attitude's RMS deviation from trim; the
 estimation error's RMS per state against the filter's own prediction (sqrt of P after the
 update); whether the run settled (its last quarter's gap deviation no larger than SETTLED
-times its second quarter's: a stationary loop, not one that drifts or grows).
+times its second quarter's: a stationary loop, not one that drifts or grows). A run whose
+carriage reaches the track (a gap at zero) or whose dynamics leave the finite numbers stops
+there: it diverged, and its metrics are those of the ticks before.
 
 Not in this loop: the anti-alias filters' lag (their noise bandwidth is in the readings'
 variance), a process disturbance.
@@ -42,6 +44,7 @@ from maglevgen.control.operating import OperatingPoint
 from maglevgen.control.plant import LoopDesign, LoopPlant
 from maglevgen.control.sampled import LOOP_STATES, Tick, speed_gain
 from maglevgen.derive import conventions as cv
+from maglevgen.runtime.ffi import GeneratedFunctionError
 
 __all__ = ["BUILD_HOLD", "HOLD_SPEED", "NOISE_BUDGET_SHARE", "NOISE_FORCE_SHARE", "NOISE_SCALES",
            "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds"]
@@ -54,10 +57,11 @@ BUILD_HOLD, HOLD_SPEED, NOISE_SCALES = 20.0, 20.0, (1.0, 5.0)
 #: times the noise at most NOISE_BUDGET_SHARE of the ticks at the budget (and no contact)
 NOISE_FORCE_SHARE, NOISE_BUDGET_SHARE = 0.10, 0.01
 
-# one RK4 step per tick (1 ms at 1 kHz): the plant's fastest open-loop mode is about 60 1/s
-# (h lambda = 0.06); the actuator lag is integrated exactly (its force at each RK4 stage from
-# the held command), so its 500 1/s pole sets no step
-RK4_STEPS_PER_TICK = 1
+# RK4 steps of at most 1 ms (one per tick at 1 kHz): the plant's fastest open-loop mode is
+# about 60 1/s (h lambda = 0.06; a 20 Hz tick in one step would sit at RK4's stability
+# limit); the actuator lag is integrated exactly (its force at each RK4 stage from the held
+# command), so its 500 1/s pole sets no step
+RK4_MAX_STEP = 1e-3
 #: a settled run: its last quarter's RMS gap deviation at most this times its second quarter's
 SETTLED = 1.5
 
@@ -81,6 +85,7 @@ class NoisyHold:
     estimation_predicted: dict[str, float]  # sqrt(P after the update)'s diagonal
     settled: bool = True  # stationary (SETTLED)
     seconds: float = 0.0  # [s] wall-clock time of the run
+    diverged: float | None = None  # [s] when the run stopped (module docstring), None: ran
 
     @property
     def worst_share(self) -> float:
@@ -91,6 +96,8 @@ class NoisyHold:
         """What misses issue 49's targets (NOISE_FORCE_SHARE, NOISE_BUDGET_SHARE; contact:
         a gap at or below ``min_gap``, track.min_gap), one clause each; empty: met."""
         out = []
+        if self.diverged is not None:
+            out.append(f"diverged at {self.diverged:.3g} s")
         if not self.min_gap > min_gap:
             out.append(f"contact (smallest gap {1e3 * self.min_gap:.4g} mm, track.min_gap "
                        f"{1e3 * min_gap:.4g} mm)")
@@ -123,7 +130,8 @@ class NoisyHold:
                 f"{1e3 * self.min_gap:.4g} mm, gap RMS <= {1e6 * np.max(self.gap_rms):.3g} um, "
                 f"attitude RMS <= {1e6 * max(self.attitude_rms.values()):.3g} urad, estimation "
                 f"error <= {ratio:.2g} x the filter's sqrt(P) (designed for noise x 1)"
-                + ("" if self.settled else ", NOT settled"))
+                + ("" if self.settled else ", NOT settled")
+                + ("" if self.diverged is None else f", DIVERGED at {self.diverged:.3g} s"))
 
     def lines(self) -> list[str]:
         """Plain-text lines for a terminal or BENCHMARKS.md."""
@@ -212,7 +220,8 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     z_pred = np.zeros(model.Phi.shape[0])
     x = op.x_trim.copy()
     F = np.zeros(n_u - 1)  # the lagged array forces (deviation from trim: zero)
-    h = tick.period / RK4_STEPS_PER_TICK
+    n_steps = max(1, int(np.ceil(tick.period / RK4_MAX_STEP - 1e-9)))
+    h = tick.period / n_steps
     n_ticks = round(t_end * tick.rate)
     forces = np.zeros((n_ticks, len(arrays)))
     gaps = np.zeros((n_ticks, len(arrays)))
@@ -221,6 +230,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     gaps_trim = np.ravel(gaps_fn(op.x_trim, p)[0])
     V = op.speed
     cmd_applied = np.zeros(n_cmd)  # with no delay: the previous tick's command
+    diverged, min_gap = None, np.inf
     zc = np.zeros(L.size)
     for k in range(n_ticks):
         t = k * tick.period
@@ -277,27 +287,42 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             w_hat = a * w_hat + (1 - a) * cmd_applied[:n5]
         # the plant over the tick with the command applied now (held), the lag exact
         du_hold = _inputs(cmd_applied, T)
-        for j in range(RK4_STEPS_PER_TICK):
-            x, F = _rk4(dynamics, x, F, u_trim, du_hold, tau, p, h,
-                        xdot if j == 0 else None)
+        try:
+            for j in range(n_steps):
+                x, F = _rk4(dynamics, x, F, u_trim, du_hold, tau, p, h,
+                            xdot if j == 0 else None)
+            gap_k = np.ravel(gaps_fn(x, p)[0])
+        except GeneratedFunctionError:  # the state left the finite numbers
+            gap_k = np.full(len(arrays), np.nan)
+        if not np.all(gap_k > 0):  # the track reached, or no state: the run ends here
+            diverged = (k + 1) * tick.period
+            min_gap = float(np.nanmin(gap_k, initial=0.0))
+            forces, gaps, att, est_err = (a[:k] for a in (forces, gaps, att, est_err))
+            n_ticks = k
+            break
         forces[k] = [np.linalg.norm(du_hold[1 + first[i]:1 + first[i] + comps[i]])
                      for i in range(len(arrays))]
-        gaps[k] = np.ravel(gaps_fn(x, p)[0])
+        gaps[k] = gap_k
         att[k] = x[3:6] - op.x_trim[3:6]
     predicted = np.sqrt(np.clip(np.diag(design.P_updated)[:n_x], 0.0, None))
+    if n_ticks == 0:  # diverged within the first tick: nothing to average
+        forces, gaps, att, est_err = (np.full((1, a.shape[1]), np.nan)
+                                      for a in (forces, gaps, att, est_err))
     dev = np.linalg.norm(gaps - gaps_trim, axis=1)
     quarter = max(n_ticks // 4, 1)
-    settled = bool(np.all(np.isfinite(dev)) and np.sqrt(np.mean(dev[-quarter:] ** 2))
+    settled = bool(diverged is None and np.all(np.isfinite(dev))
+                   and np.sqrt(np.mean(dev[-quarter:] ** 2))
                    <= SETTLED * np.sqrt(np.mean(dev[quarter:2 * quarter] ** 2)))
     return NoisyHold(
         op.speed, t_end, noise_scale, arrays, np.sqrt(np.mean(forces**2, axis=0)),
         np.max(forces, axis=0), np.mean(forces >= budget * (1 - 1e-9), axis=0), budget,
-        np.sqrt(np.mean((gaps - gaps_trim) ** 2, axis=0)), float(np.min(gaps)),
+        np.sqrt(np.mean((gaps - gaps_trim) ** 2, axis=0)),
+        min(float(np.min(gaps)), min_gap),
         dict(zip(("phi", "theta", "psi"), np.sqrt(np.mean(att**2, axis=0)).tolist(),
                  strict=True)),
         dict(zip(model.states, np.sqrt(np.mean(est_err**2, axis=0)).tolist(), strict=True)),
         dict(zip(model.states, predicted.tolist(), strict=True)), settled,
-        time.perf_counter() - start)
+        time.perf_counter() - start, diverged)
 
 
 def hold_speeds(v_min: float, v_max: float) -> tuple[float, ...]:

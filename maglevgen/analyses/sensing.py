@@ -30,6 +30,7 @@ from maglevgen.control import controller as registered_controller
 from maglevgen.control.estimation import (
     ESTIMATION_SHARE,
     EstimatorPoint,
+    NoKalmanFilterError,
     SensorLayout,
     continuous_equivalent,
     estimation_failures,
@@ -118,9 +119,11 @@ class SensingCheck:
     def loop_text(self) -> str:
         if self.blind:
             return "FAILS: no Kalman filter (the sensors cannot observe the loop's states)"
-        fk = int(np.argmax(self.filter_real))
+        known = self.filter_real[np.isfinite(self.filter_real)]
+        if known.size < self.filter_real.size:  # no filter (or no gains) somewhere
+            return self.verdict
         return (f"{self.verdict}; the filter's own modes decay at least at "
-                f"{-self.filter_real[fk]:.4g} 1/s")
+                f"{-np.max(known):.4g} 1/s")
 
     def verdict_subject(self) -> str:
         """The verdict block's line (short: page 1 of the report carries the block; the long
@@ -146,7 +149,7 @@ class SensingCheck:
         if self.blind:
             out.append("its sensors cannot observe what it needs: " + "; ".join(self.blind))
         elif self.estimation:
-            out.append("its Kalman filter estimates too coarsely: "
+            out.append("its Kalman filter fails: "
                        + "; ".join(self.estimation))
         if self.failures:
             out.append("the whole loop with the estimator "
@@ -188,6 +191,7 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
     rows, filt = [], []
     blind: dict[str, str] = {}
     blind_at: list[float] = []
+    no_filter: list[str] = []  # NoKalmanFilterError's sentence at each speed without one
     states: tuple[str, ...] = ()
     for op, (plant, gains) in zip(points, loops, strict=True):
         model = estimator_model(lib, carriage.p, op, params, layout, tau)
@@ -205,7 +209,15 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
             rows.append((np.inf, nan, np.inf, np.inf))
             filt.append(np.inf)
             continue
-        design = kalman(model)
+        try:
+            design = kalman(model)
+        except NoKalmanFilterError as exc:
+            no_filter.append(str(exc))
+            gain.append(nan)
+            err.append(np.full(model.n_x, nan))
+            rows.append((np.inf, nan, np.inf, np.inf))
+            filt.append(np.inf)
+            continue
         estimated.append(EstimatorPoint(model, obs, design))
         gain.append(float(np.linalg.norm(design.M[:model.n_x], 2)))
         err.append(np.sqrt(np.clip(np.diag(design.P_updated)[:model.n_x], 0.0, None)))
@@ -221,11 +233,14 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
     err_a = np.array(err)
     sd = np.array(rows)
     estimation: tuple[str, ...] = ()
-    if not blind:
+    if blind:
+        failures, verdict = (), "not computed: no Kalman filter"
+    elif no_filter:
+        estimation = tuple(no_filter)
+        failures, verdict = (), "FAILS: not computed where there is no Kalman filter"
+    else:
         estimation = tuple(estimation_failures(estimated, params))
         failures, verdict = judge(sd)
-    else:
-        failures, verdict = (), "not computed: no Kalman filter"
     design_said = ("the `spec` design at the tick on the loop as built"
                    if registered_controller(controller).tick_design
                    else "its continuous gains")

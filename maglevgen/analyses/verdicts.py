@@ -189,14 +189,16 @@ def build_holds(carriage, lib, v_min: float, v_max: float, t_end: float = RUN_T_
     """The build's noisy holds (output_feedback.noisy_holds) over [v_min, v_max], their
     length BUILD_HOLD (20 s) scaled as the build's runs' ``t_end`` to RUN_T_END (a build with
     --t-end 1 holds for 2 s); none when the file has no [sensors] or they cannot observe what
-    the controller needs (no filter: the sensing check fails the verdict then)."""
+    the controller needs or SciPy's DARE finds no filter (the sensing check fails the verdict
+    then)."""
     if carriage.params.sensors is None:
         return ()
     from maglevgen.analyses.output_feedback import BUILD_HOLD, noisy_holds
+    from maglevgen.control.estimation import NoKalmanFilterError
 
     try:
         return noisy_holds(carriage, lib, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
-    except InputError:  # estimation.check_observable
+    except (InputError, NoKalmanFilterError):  # estimation.check_observable, kalman
         return ()
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "GapSensorGeometry",
     "KalmanDesign",
     "MeasurementModel",
+    "NoKalmanFilterError",
     "Observability",
     "SensorLayout",
     "check_observable",
@@ -345,10 +346,27 @@ class KalmanDesign:
     P_updated: np.ndarray  # cov(z[k] - z[k|k]) = (I - M C) P: what the controller's uses
 
 
+class NoKalmanFilterError(ArithmeticError):
+    """SciPy's DARE found no steady-state filter for an `EstimatorModel` (its Phi is singular
+    with the delay and Q singular; at a slow tick, e.g. 50 Hz at 39 m/s on the default
+    carriage, the pencil is too ill-conditioned to order): a failed design, which the sensing
+    check reports, not an internal error."""
+
+    def __init__(self, speed: float, why: str) -> None:
+        super().__init__(f"no steady-state Kalman filter at {speed:.4g} m/s (SciPy's "
+                         f"solve_discrete_are: {why.split(';')[0].rstrip('.')})")
+        self.speed = speed
+
+
 def kalman(model: EstimatorModel) -> KalmanDesign:
     """`KalmanDesign` of ``model``: P from SciPy's solve_discrete_are on the dual problem
-    (Phi', C', Q, R)."""
-    P = scipy.linalg.solve_discrete_are(model.Phi.T, model.C.T, model.Q, model.R)
+    (Phi', C', Q, R); `NoKalmanFilterError` when it has none."""
+    try:
+        P = scipy.linalg.solve_discrete_are(model.Phi.T, model.C.T, model.Q, model.R)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise NoKalmanFilterError(model.speed, str(exc)) from exc
+    if not np.all(np.isfinite(P)):
+        raise NoKalmanFilterError(model.speed, "a covariance that is not finite")
     P = (P + P.T) / 2
     S = model.C @ P @ model.C.T + model.R
     M = np.linalg.solve(S, model.C @ P).T
