@@ -370,6 +370,24 @@ class ControlSpec(_Section):
         default=5.0, description="the speed loop's closed-loop pole (the propulsion's "
         "feedback on the forward speed, beside the feedforward of the trim drag and m a)",
         json_schema_extra={"unit": "1/s", "limits": list(_RATE)})
+    speed_integral_ratio: float = Field(
+        default=0.5, description="the speed loop's integral action: the propulsion also "
+        "feeds back the speed error's integral, with the gains that put the speed loop's "
+        "poles at -speed_bandwidth and at -this x speed_bandwidth where the drag slope is "
+        "lowest (`plant.speed_loop_gains`), so that a drag the feedforward misses leaves no "
+        "steady speed error; 0: none (a steady error of dF_D / k_v). 0.5: the integral's "
+        "pole at half the bandwidth (its zero at a third), at least 1.7/s over the default "
+        "envelope against min_decay_rate 1/s",
+        json_schema_extra={"unit": "1", "limits": [0.0, 1.0, "none to a double pole at "
+                                                   "the bandwidth"]})
+    speed_integral_limit: float = Field(
+        default=100.0, description="the largest propulsion the speed integral may add or "
+        "remove, |k_i xi| (anti-windup: the integral is clamped there at each tick, so "
+        "that a speed error the drive cannot remove builds no unbounded correction). 100 N: "
+        "twice the largest correction B0 -10 % or R, L +-30 % need over the default "
+        "envelope (L -30 %: 47 N at 20 m/s; bench/experiments/speed_integral.py); the trim "
+        "drag peaks at 143 N",
+        json_schema_extra={"unit": "N", "limits": [0.0, 1e7, "none to 1000 t"]})
 
 
 class Control(_Section):

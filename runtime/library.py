@@ -136,7 +136,8 @@ class ControlLoop:
     ``tick_steps`` RK4 steps per control tick (0: the command at every RK4 stage), the command
     applied ``delay_ticks`` ticks after its tick and held between; the speed loop
     F_prop = F_ff + ``k_v`` (v_ref(t) - |(u, v, w)|) - ``k_i`` xi, v_ref(t) = ``v_ref`` +
-    ``accel`` t, xi the speed error's integral; each array's control force limited to
+    ``accel`` t, xi the speed error's integral, clamped at each tick to |k_i xi| <= ``i_max``
+    [N] (anti-windup; inf: no clamp); each array's control force limited to
     ``force_budget`` [N] (<= 0 or inf: no limit) and lagged by ``tau`` [s] in the plant (0: no
     lag); the tick law's gains ``k_lag`` (25) and ``k_delay`` (25 delay_ticks), column-major
     (maglev_simulate's; empty: zero, the generalized forces u_gen as computed).
@@ -150,6 +151,7 @@ class ControlLoop:
     force_budget: float = 0.0  # [N]
     tau: float = 0.0  # [s]
     k_i: float = 0.0  # [N/m]
+    i_max: float = float("inf")  # [N]
     k_lag: tuple[float, ...] = ()
     k_delay: tuple[float, ...] = ()
 
@@ -199,7 +201,7 @@ class SimulationLibrary(GeneratedLibrary):
             _fields_ = [("tick_steps", ctypes.c_longlong), ("delay_ticks", ctypes.c_int),
                         ("k_v", real), ("v_ref", real), ("accel", real),
                         ("force_budget", real), ("tau", real), ("k_i", real),
-                        ("K_lag", ptr), ("K_delay", ptr)]
+                        ("i_max", real), ("K_lag", ptr), ("K_delay", ptr)]
 
         self._Loop = _Loop
 
@@ -243,7 +245,7 @@ class SimulationLibrary(GeneratedLibrary):
             return a.ctypes.data_as(P)
 
         return self._Loop(loop.tick_steps, loop.delay_ticks, loop.k_v, loop.v_ref, loop.accel,
-                          loop.force_budget, loop.tau, loop.k_i, gains(loop.k_lag),
+                          loop.force_budget, loop.tau, loop.k_i, loop.i_max, gains(loop.k_lag),
                           gains(loop.k_delay))
 
     def _loop(self, loop: ControlLoop | None, keep: list):

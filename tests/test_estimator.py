@@ -206,6 +206,44 @@ def test_whole_loop_equals_the_loop_assembled_on_the_estimate(sim_lib, carriage,
     assert np.max(s.real) < -params.control.spec.min_decay_rate
 
 
+def test_loop_as_built_with_the_speed_integral_separates(sim_lib, carriage) -> None:
+    """The output-feedback loop as built with the speed integral (`loop_as_built`, the default
+    loop's k_v and k_i, the `spec` design at the tick, 2 ms lag, one tick of delay) has the
+    separation principle's eigenvalues: the full-state loop's (control.plant.LoopPlant's
+    closed loop) and the filter's, Phi (I - M C), within 1e-7; and the speed-loop modes its
+    mask picks include the integral's slow real pole."""
+    from maglevgen.analyses.envelope import loop_setting
+    from maglevgen.control.estimation import loop_as_built, loop_as_built_speed_states
+    from maglevgen.control.plant import LoopPlant
+    from maglevgen.control.sampled import Tick
+
+    params = carriage.params
+    op = _op(sim_lib, carriage, 20.0)
+    setting = loop_setting(carriage, [op])
+    assert setting.speed_integral > 0
+    tau = float(params.actuators.time_constant)
+    plant = LoopPlant(op, Tick.of(params), tau, setting.speed_gain, setting.speed_integral)
+    gains = plant.design()
+    model = estimator_model(sim_lib, carriage.p, op, params, tau=tau)
+    design = kalman(model)
+    loop = loop_as_built(model, design, plant, gains)
+    full = np.linalg.eigvals(plant.closed_loop(gains))
+    filt = np.linalg.eigvals(model.Phi @ (np.eye(model.Phi.shape[0]) - design.M @ model.C))
+    # the two layouts hold the commands in flight differently (the generalized forces, or
+    # the array forces): they differ by eigenvalues at 0 only, left out on both sides
+    ref_z = np.concatenate([full, filt])
+    ref_z = ref_z[np.abs(ref_z) > 1e-4]
+    got = np.linalg.eigvals(loop)
+    got = got[np.abs(got) > 1e-4]
+    key = lambda z: (round(z.real, 6), round(abs(z.imag), 6))  # noqa: E731
+    assert got.size == ref_z.size
+    np.testing.assert_allclose(sorted(got, key=key), sorted(ref_z, key=key), atol=1e-7)
+    slow = ref_z[np.argmax(np.abs(ref_z))]  # the integral's pole, the loop's slowest
+    assert abs(slow.imag) < 1e-12 and np.log(slow.real) * params.control.spec.tick_rate < -1
+    mask = loop_as_built_speed_states(model, 5, 1)
+    assert mask.size == loop.shape[0] and mask[-1]
+
+
 @pytest.mark.slow
 def test_a_noisy_hold_estimates_the_pose_as_the_filter_predicts(sim_lib, carriage) -> None:
     """The output-feedback loop on the nonlinear C plant with the sensors' noise (no process

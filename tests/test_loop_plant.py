@@ -206,33 +206,41 @@ def test_levitation_and_speed_modes_split_by_participation(loop) -> None:
 
 def test_speed_integral_removes_the_steady_error(op, carriage) -> None:
     """A drag the feed-forward misses (dF): the speed error of m V' = -(slope + k_v) dV - k_i xi
-    - dF, xi' = dV tends to -dF/(slope + k_v) without the integral and to 0 with it (solve_ivp
-    on the model written here, and the final-value theorem); the loop's own closed loop with
-    the integral has its speed modes as the characteristic polynomial's double root says."""
+    - dF, xi' = dV tends to -dF/(slope + k_v) without the integral (ratio r = 0) and to 0 with
+    it (r = 0.5, 1; solve_ivp on the model written here, and the final-value theorem); the
+    characteristic polynomial's roots are -b and -r b (numpy.roots); the loop's own closed
+    loop with the integral has its speed modes where that polynomial says."""
     m, b = carriage.params.vehicle.mass, carriage.params.control.spec.speed_bandwidth
     slope = op.trim_drag_slope
     dF = 5.0  # [N]
-    for integral in (False, True):
-        k_v, k_i = speed_loop_gains(m, slope, b, integral)
+    for ratio in (0.0, 0.5, 1.0):
+        k_v, k_i = speed_loop_gains(m, slope, b, ratio)
+        if ratio:
+            assert np.allclose(np.sort(np.roots([m, slope + k_v, k_i]).real), [-b, -ratio * b],
+                               rtol=1e-6)
+        else:
+            assert k_i == 0 and (slope + k_v) / m == pytest.approx(b, rel=1e-12)
 
         def rhs(t, y, k_v=k_v, k_i=k_i):
             dV, xi = y
             return [(-(slope + k_v) * dV - k_i * xi - dF) / m, dV]
 
-        sol = scipy.integrate.solve_ivp(rhs, (0, 10.0), [0.0, 0.0], rtol=1e-10, atol=1e-12)
+        sol = scipy.integrate.solve_ivp(rhs, (0, 20.0), [0.0, 0.0], rtol=1e-10, atol=1e-12)
         final = sol.y[0, -1]
-        if integral:
+        if ratio:
             assert abs(final) < 1e-6  # FVT: s dV(s) -> 0 with the integrator
         else:
             assert final == pytest.approx(-dF / (slope + k_v), rel=1e-6)
-    k_v, k_i = speed_loop_gains(m, slope, b)
-    assert np.allclose(np.roots([m, slope + k_v, k_i]), [-b, -b], rtol=1e-6)
-    plant = LoopPlant(op, Tick(1000.0, 1), TAU, k_v, k_i)
-    s, speed = plant.modes(plant.design())
-    # two modes of the speed loop near -b (the double root splits under the coupling and the
-    # tick), the product of the pair within 10 % of b^2
-    pair = np.sort_complex(s[speed & (np.abs(s) < 50)])
-    assert len(pair) == 2 and abs(np.prod(pair) / b**2 - 1) < 0.1
+    for ratio in (1.0, carriage.params.control.spec.speed_integral_ratio):
+        k_v, k_i = speed_loop_gains(m, slope, b, ratio)
+        plant = LoopPlant(op, Tick(1000.0, 1), TAU, k_v, k_i)
+        s, speed = plant.modes(plant.design())
+        # two modes of the speed loop near -b and -r b (the roots move under the coupling and
+        # the tick), the pair's sum and product within 10 % of the polynomial's
+        pair = np.sort_complex(s[speed & (np.abs(s) < 50)])
+        assert len(pair) == 2, pair
+        assert abs(np.sum(pair).real / (-(1 + ratio) * b) - 1) < 0.1, (ratio, pair)
+        assert abs(np.prod(pair) / (ratio * b**2) - 1) < 0.1, (ratio, pair)
 
 
 def _reference_loop(op, k_v: float, tau: float, gains: tuple | None = None) -> np.ndarray:

@@ -13,7 +13,6 @@ trim propulsion's slope from the SymPy/SciPy trim (derive.trim) at neighbouring 
 from __future__ import annotations
 
 import ctypes
-import dataclasses
 import subprocess
 from pathlib import Path
 
@@ -29,9 +28,9 @@ OK = 0
 
 @pytest.fixture(scope="module")
 def tick_lib(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
-    """The firmware folder in double precision with a speed integral k_i = m b^2 (the double
-    root of the speed loop at -b, so that the xi term is exercised; the default loop has
-    none), compiled into a host library."""
+    """The firmware folder in double precision with the default loop (its speed integral and
+    clamp, control.spec.speed_integral_ratio and speed_integral_limit), compiled into a host
+    library."""
     from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
     from maglevgen.codegen.checks import ERROR_CODES
     from maglevgen.codegen.generate import write_output
@@ -40,9 +39,8 @@ def tick_lib(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     v_min, v_max = resolve_range(carriage, sim_lib)
     setting = schedule_setting(carriage, sim_lib, v_min, v_max)
     table = gain_table(carriage, sim_lib, v_min, v_max, setting)
-    b = carriage.params.control.spec.speed_bandwidth
-    loop = dataclasses.replace(firmware_loop(carriage, sim_lib),
-                               speed_integral=carriage.params.vehicle.mass * b**2)
+    loop = firmware_loop(carriage, sim_lib)
+    assert loop.speed_integral > 0 and 0 < loop.integral_limit < np.inf
     folder = tmp_path_factory.mktemp("tick_state")
     write_output(render_firmware(carriage, table, loop, "double"), folder)
     so = folder / "tick.so"
@@ -125,7 +123,7 @@ class NumpyTick:
     w = -(K_pos (a - a_ref) + K_rate a') - K_lag w_hat - K_delay (in flight, newest first),
     F = T w scaled per array to the budget, F_prop = F_ff(V) + k_v (v_ref - V) - k_i xi; then
     w_hat = a w_hat + (1 - a) w_applied (the oldest in flight), w joins the queue,
-    xi += h (V - v_ref)."""
+    xi += h (V - v_ref), clamped to |k_i xi| <= i_max (anti-windup)."""
 
     def __init__(self, carriage: DerivedCarriage, table, loop, T: np.ndarray) -> None:
         self.c, self.table, self.loop, self.T = carriage, table, loop, T
@@ -162,7 +160,13 @@ class NumpyTick:
         k_v, k_i = self.loop.speed_gain, self.loop.speed_integral
         f_prop = (g[self.f["F_prop"]][0] + k_v * (v_ref - V)) - k_i * self.xi
         self.advance(w)
-        self.xi = self.xi + (1.0 / self.loop.tick_rate) * (V - v_ref)
+        k_i, i_max = self.loop.speed_integral, self.loop.integral_limit
+        xi = self.xi + (1.0 / self.loop.tick_rate) * (V - v_ref)
+        if k_i * xi > i_max:
+            xi = i_max / k_i
+        if k_i * xi < -i_max:
+            xi = -i_max / k_i
+        self.xi = xi
         return np.concatenate([[f_prop], F])
 
     def advance(self, w: np.ndarray) -> None:
@@ -269,6 +273,36 @@ def test_tick_error_codes_and_state(tick_lib, carriage, op) -> None:
     u = np.full(nu, 7.0)
     rc = c._tick(None, x.ctypes.data_as(P), 20.0, u.ctypes.data_as(P))
     assert rc == ERR_ARGUMENT() and np.all(u == 0)
+
+
+@pytest.mark.needs_cc
+def test_tick_speed_integral_is_clamped(tick_lib, carriage, op) -> None:
+    """Anti-windup: a speed error the loop does not remove (v_ref 5 m/s above the speed, tick
+    after tick) grows xi by h (V - v_ref) until k_i xi reaches -i_max
+    (control.spec.speed_integral_limit), then xi stays at -i_max / k_i exactly and the
+    propulsion's integral part at +i_max; the first tick with the error reversed moves xi
+    back from the bound at once (no stored excess to unwind)."""
+    loop = tick_lib["loop"]
+    k_i, i_max, h = loop.speed_integral, loop.integral_limit, 1.0 / loop.tick_rate
+    c = CTick(tick_lib["so"], loop.delay_ticks, carriage.model.u.shape[0])
+    x = op.x_trim.astype(float).copy()
+    V = float(np.sqrt((x[6] * x[6] + x[7] * x[7]) + x[8] * x[8]))
+    g = _clenshaw(tick_lib["table"], V)
+    f_ff = g[_fields(tick_lib["table"])["F_prop"]][0]
+    v_ref = V + 5.0
+    n_free = int(np.floor(i_max / k_i / (5.0 * h)))  # ticks before the bound
+    assert 10 < n_free < 1000
+    xi = 0.0
+    for k in range(n_free + 20):
+        rc, u = c(x, v_ref)
+        assert rc == OK
+        assert u[0] == (f_ff + loop.speed_gain * (v_ref - V)) - k_i * xi, k
+        xi = c.state()[2]
+        if k < n_free - 1:
+            assert k_i * xi > -i_max
+    assert xi == -i_max / k_i
+    rc, _ = c(x, V - 5.0)
+    assert rc == OK and c.state()[2] == xi + h * (V - (V - 5.0))
 
 
 def ERR_ARGUMENT() -> int:

@@ -1,82 +1,69 @@
-"""The speed loop with and without integral action on a carriage whose drag the feedforward
-misses (issue 49: B0 -10 %, R +30 %): a 10 s hold at each speed, the nonlinear generated
-dynamics (maglev_dynamics) of the perturbed carriage, the controller of the nominal one
-(its continuous spec gains through maglev_coupled_control, its trim propulsion as the
-feedforward, k_v of the envelope's loop; with the integral, the gains of
-`plant.speed_loop_gains`), at the 1 kHz tick with one tick of delay and no actuator lag (the
-C loop's today), RK4 at 0.1 ms in a Python loop over the compiled functions.
+"""The speed loop with and without integral action on a carriage whose drag the feed-forward
+misses (issue 49: B0 -10 %, R and L +-30 %): a 6 s hold at v_min, 20 m/s and v_max in the
+host's firmware loop (maglev_simulate with a FirmwareTick: the tick law of the firmware, the
+`spec` design at the tick, one tick of delay, the 2 ms actuator lag, the force budget), the
+plant the perturbed carriage, the controller the nominal one (its design, reference and
+feed-forward: `simulate(..., controller_op=...)`, as `maglevgen montecarlo` flies its
+samples), from the undisturbed perturbed trim. Three speed loops: P (k_v of
+`sampled.speed_gain`, no integral: the loop before the integral), PI at the default
+control.spec.speed_integral_ratio, and PI with r = 1 (a double pole at the bandwidth).
 
-Not a timed benchmark: it records the speed error the issue's target names, since the C loop
-(maglev_simulate) does not run the integral yet.
+Not a timed benchmark: it records the speed errors the issue's target names.
 Usage: .venv/bin/python bench/experiments/speed_integral.py
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points, loop_setting, resolve_range
+from maglevgen.analyses.envelope import envelope_points, resolve_range
+from maglevgen.analyses.simulate import firmware_loop, simulate
 from maglevgen.carriage import DerivedCarriage
-from maglevgen.control.operating import checked_trim
 from maglevgen.control.plant import speed_loop_gains
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
-CASES = (("B0 -10 %", "halbach.remanence=1.26"), ("R +30 %", "circuit.resistance=1.95e-3"))
-T_END, TICK, STEPS = 10.0, 1e-3, 10  # [s], [s], RK4 steps per tick
-
-
-def hold(lib, p_plant, p_nominal, op, k_v: float, k_i: float, x0: np.ndarray) -> np.ndarray:
-    """The speed V(t) at each tick of a hold at op.speed (the plant's parameters p_plant, the
-    controller's p_nominal)."""
-    dyn, ctl = lib.function("maglev_dynamics"), lib.function("maglev_coupled_control")
-    K_pos, K_rate = op.gains("spec")
-    a_ref = op.a_trim
-    T = op.allocation
-    x, xi, v_ref, dt = x0.copy(), 0.0, op.speed, TICK / STEPS
-    applied = None
-    out = []
-    for _ in range(round(T_END / TICK)):
-        V = float(np.linalg.norm(x[6:9]))
-        out.append(V)
-        (u_gen,) = ctl(x, K_pos, K_rate, a_ref, p_nominal)
-        u = np.r_[op.f_prop + k_v * (v_ref - V) + k_i * xi, T @ u_gen.ravel()]
-        xi += TICK * (v_ref - V)
-        u_now, applied = (applied if applied is not None else u), u  # one tick of delay
-        def f(y: np.ndarray, u_now: np.ndarray = u_now) -> np.ndarray:
-            return dyn(y, u_now, p_plant)[0].ravel()
-
-        for _ in range(STEPS):
-            k1 = f(x)
-            k2 = f(x + dt / 2 * k1)
-            k3 = f(x + dt / 2 * k2)
-            k4 = f(x + dt * k3)
-            x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return np.array(out)
+CASES = (("B0 -10 %", "halbach.remanence=1.26"), ("R +30 %", "circuit.resistance=1.95e-3"),
+         ("R -30 %", "circuit.resistance=1.05e-3"), ("L +30 %", "circuit.inductance=3.38e-6"),
+         ("L -30 %", "circuit.inductance=1.82e-6"))
+T_END, DT = 6.0, 1e-3  # [s]
+STILL = {k: 0.0 for k in ("y", "z", "phi", "theta", "psi")}
 
 
 if __name__ == "__main__":
     nominal = DerivedCarriage(load_params())
     lib = simulation_library(nominal.structure)
-    p_nominal = nominal.p
+    tick, k_v, budget = firmware_loop(nominal, lib)
+    spec, m = nominal.params.control.spec, nominal.params.vehicle.mass
+    b, r = spec.speed_bandwidth, spec.speed_integral_ratio
     v_lo, v_hi = resolve_range(nominal, lib)
-    nodes = envelope_points(nominal, lib, np.linspace(v_lo, v_hi, 64))
-    setting = loop_setting(nominal, nodes)
-    m, b = nominal.params.vehicle.mass, nominal.params.control.spec.speed_bandwidth
-    k_v_pi, k_i = max(speed_loop_gains(m, op.trim_drag_slope, b) for op in nodes)
-    print(f"P: k_v = {setting.speed_gain:.4g} N s/m; PI: k_v = {k_v_pi:.4g} N s/m, "
-          f"k_i = {k_i:.4g} N/m")
-    print("| carriage | speed [m/s] | loop | speed error after 10 s [%] | largest in the "
-          "last second [%] |")
-    print("| --- | --- | --- | --- | --- |")
+    slope = min(op.trim_drag_slope for op in envelope_points(
+        nominal, lib, np.linspace(v_lo, v_hi, nominal.params.envelope.schedule_nodes)))
+    k_v1, k_i1 = speed_loop_gains(m, slope, b, 1.0)
+    loops = (("P", dataclasses.replace(tick, speed_integral=0.0), k_v - m * b * r),
+             (f"PI r={r:g}", tick, k_v),
+             ("PI r=1", dataclasses.replace(tick, speed_integral=k_i1), k_v1))
+    for name, t, kv in loops:
+        print(f"{name}: k_v = {kv:.4g} N s/m, k_i = {t.speed_integral:.4g} N/m, "
+              f"|k_i xi| <= {t.integral_limit:g} N")
+    print("| carriage | speed [m/s] | loop | error at 6 s [%] | largest after 1 s [%] | "
+          "largest after 3 s [%] | propulsion - feed-forward at 6 s [N] |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for label, override in CASES:
         plant = DerivedCarriage(load_params(overrides=[override]))
         for v in (v_lo, 20.0, v_hi):
-            (op,) = envelope_points(nominal, lib, [v])
-            x0, _, _ = checked_trim(lib, plant.p, v, plant.params.track.min_gap)
-            for name, kv, ki in (("P", setting.speed_gain, 0.0), ("PI", k_v_pi, k_i)):
-                V = hold(lib, plant.p, p_nominal, op, kv, ki, x0)
-                err = 100 * (V - v) / v
-                last = err[-round(1.0 / TICK):]
+            (op_n,) = envelope_points(nominal, lib, [v])
+            (op_p,) = envelope_points(plant, lib, [v])
+            for name, t, kv in loops:
+                tr = simulate(lib, plant.p, op_p, "spec", T_END, DT,
+                              plant.params.track.min_gap, STILL, tick=t, speed_gain=kv,
+                              force_budget=budget, controller_op=op_n)
+                assert tr.c_status == 0
+                err = 100 * (tr.speed - v) / v
+                extra = tr.u[-1, 0] - op_n.f_prop  # the drag the feed-forward misses
                 print(f"| {label} | {v:.4g} | {name} | {err[-1]:+.4f} | "
-                      f"{last[np.argmax(np.abs(last))]:+.4f} |", flush=True)
+                      f"{np.max(np.abs(err[tr.t > 1])):.4f} | "
+                      f"{np.max(np.abs(err[tr.t > 3])):.4f} | "
+                      f"{extra:+.2f} |", flush=True)

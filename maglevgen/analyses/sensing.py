@@ -264,8 +264,10 @@ def _loop_numbers(loop: np.ndarray, model, plant, period: float
     z, left, right = scipy.linalg.eig(loop, left=True, right=True)
     scale = np.einsum("ij,ij->j", left.conj(), right)
     part = np.abs(left.conj() * right / np.where(np.abs(scale) > 0, scale, 1.0))
-    n_w = plant.loop_layout["prediction"].stop - plant.loop_layout["prediction"].start
-    mask = loop_as_built_speed_states(model, n_w)
+    L = plant.loop_layout
+    n_w = L["prediction"].stop - L["prediction"].start
+    mask = loop_as_built_speed_states(model, n_w,
+                                      L["speed_integral"].stop - L["speed_integral"].start)
     speed = part[mask].sum(axis=0) > 0.5 * part.sum(axis=0)
     small = np.abs(z) < 1e-300
     s = np.log(np.where(small, 1.0, z.astype(complex))) / period

@@ -114,7 +114,8 @@ LOOPS: tuple[str, ...] = ("firmware", "continuous")
 class FirmwareTick(Tick):
     """The firmware's tick (`Tick`: rate and delay) with the rest of the loop as built: each
     array force's first-order ``lag`` [s] in the plant ([actuators] time_constant) and the
-    speed error's integral gain ``speed_integral`` [N/m]. A run at a FirmwareTick runs the
+    speed error's integral gain ``speed_integral`` [N/m], its propulsion |k_i xi| clamped at
+    ``integral_limit`` [N] (anti-windup; inf: none). A run at a FirmwareTick runs the
     firmware tick's law (templates/maglev_tick_law.c.j2) with each controller's gains on this
     loop (`firmware_gains`: the design at the tick where the controller has one); a run at a
     plain `Tick` runs the controller's continuous gains on the plant without the lag (the host
@@ -122,6 +123,7 @@ class FirmwareTick(Tick):
 
     lag: float = 0.0  # [s]
     speed_integral: float = 0.0  # [N/m]
+    integral_limit: float = float("inf")  # [N]
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -131,13 +133,17 @@ class FirmwareTick(Tick):
                 and np.isfinite(self.speed_integral) and self.speed_integral >= 0):
             raise InputError(f"speed integral gain {self.speed_integral!r} N/m: must be a "
                              "finite number >= 0")
+        if not (isinstance(self.integral_limit, (int, float))
+                and self.integral_limit >= 0):
+            raise InputError(f"speed integral limit {self.integral_limit!r} N: must be a "
+                             "number >= 0 (inf: none)")
 
     def setting(self, speed_gain: float = 0.0):
         """The `envelope.LoopSetting` of this loop (``speed_gain``: its k_v)."""
         from maglevgen.analyses.envelope import LoopSetting
 
         return LoopSetting(Tick(self.rate, self.delay), float(speed_gain), 0.0, self.lag,
-                           self.speed_integral)
+                           self.speed_integral, float(self.integral_limit))
 
 
 def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick):
@@ -152,9 +158,9 @@ def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick):
 
 def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[FirmwareTick, float, float]:
     """(tick, k_v, force budget) of [control.spec]: the tick and its delay with the actuator
-    lag and the speed integral (`FirmwareTick`), the speed loop's one gain over the envelope
-    (`envelope.loop_setting`, the gain the envelope's verdicts used) and the per-array force
-    budget."""
+    lag and the speed integral and its clamp (`FirmwareTick`), the speed loop's one gain over
+    the envelope (`envelope.loop_setting`, the gains the envelope's verdicts used) and the
+    per-array force budget."""
     from maglevgen.analyses.envelope import envelope_points, loop_setting, resolve_range
 
     v_lo, v_hi = resolve_range(carriage, lib)
@@ -162,7 +168,7 @@ def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[FirmwareTick, float
                                                         .envelope.schedule_nodes))
     setting = loop_setting(carriage, points)
     tick = FirmwareTick(setting.tick.rate, setting.tick.delay, float(setting.actuator_lag),
-                        float(setting.speed_integral))
+                        float(setting.speed_integral), float(setting.speed_integral_limit))
     return tick, setting.speed_gain, float(carriage.params.control.spec.force_budget)
 
 
@@ -200,7 +206,8 @@ def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: 
     budget = 0.0 if force_budget is None or np.isinf(force_budget) else float(force_budget)
     law: dict = {}
     if isinstance(tick, FirmwareTick):
-        law = {"tau": float(tick.lag), "k_i": float(tick.speed_integral)}
+        law = {"tau": float(tick.lag), "k_i": float(tick.speed_integral),
+               "i_max": float(tick.integral_limit)}
     if design is not None:
         for key, K in (("k_lag", design.K_lag), ("k_delay", design.K_delay)):
             if K is not None and K.size:

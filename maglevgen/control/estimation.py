@@ -521,16 +521,16 @@ def loop_as_built(model: EstimatorModel, design: KalmanDesign, plant, gains) -> 
     states act on the updated estimate, those on the commands in flight and on its own
     prediction of the lagged generalized forces on what it knows exactly (its commands).
 
-    State (z, e, w_hat): z the model's (plant, lagged forces, commands in flight), e = z -
+    State (z, e, w_hat, xi): z the model's (plant, lagged forces, commands in flight), e = z -
     z_hat[k|k-1] the filter's error, w_hat the controller's prediction (LoopPlant's
-    "prediction" block). With z_hat[k|k] = z - (I - M C) e and the command c = -K_c (body of
-    z_hat[k|k], the generalized forces and propulsion in flight, w_hat):
-    z+ = Phi z + Gamma E c, e+ = Phi (I - M C) e, w_hat+ = a w_hat + (1 - a) w_applied;
-    E maps the six commands to the dynamics' inputs (F_prop, then T w: the allocation).
-    The track position (its column in z is its own unit vector: eigenvalue 1) is left out."""
+    "prediction" block), xi the speed error's integral where the plant has k_i > 0 (its
+    "speed_integral" block). With z_hat[k|k] = z - (I - M C) e and the command c = -K_c (body
+    of z_hat[k|k], the generalized forces and propulsion in flight, w_hat, xi):
+    z+ = Phi z + Gamma E c, e+ = Phi (I - M C) e, w_hat+ = a w_hat + (1 - a) w_applied,
+    xi+ = xi + h dV(z_hat[k|k]) (the speed on the estimate); E maps the six commands to the
+    dynamics' inputs (F_prop, then T w: the allocation). The track position (its column in
+    z is its own unit vector: eigenvalue 1) is left out."""
     op, L = plant.op, plant.loop_layout
-    if plant.k_i:
-        raise NotImplementedError("the speed integral in the loop with the estimator")
     K_c = plant.controller_gains(gains)  # 6 x L.size
     n_cmd, N = K_c.shape[0], model.Phi.shape[0]
     T = op.allocation  # nf x 5
@@ -552,12 +552,15 @@ def loop_as_built(model: EstimatorModel, design: KalmanDesign, plant, gains) -> 
             Kq[:, q0 + j * m] += cmd_cols[:, n5]  # F_prop in flight
             Kq[:, q0 + j * m + 1:q0 + (j + 1) * m] += cmd_cols[:, :n5] @ T_pinv
     n_w = L["prediction"].stop - L["prediction"].start
+    n_xi = L["speed_integral"].stop - L["speed_integral"].start
     Kw = K_c[:, L["prediction"]]
     IMC = np.eye(N) - design.M @ model.C
     GE = model.Gamma @ E
-    # c = Cz z + Ce e + Cw w_hat
-    Cz, Ce, Cw = -(Kb + Kq), Kb @ IMC, -Kw
-    n = 2 * N + n_w
+    # c = Cz z + Ce e + Cw (w_hat, xi)
+    Cz, Ce = -(Kb + Kq), Kb @ IMC
+    Cw = -np.hstack([Kw, K_c[:, L["speed_integral"]]])
+    n = 2 * N + n_w + n_xi
+    w, xi = slice(2 * N, 2 * N + n_w), slice(2 * N + n_w, n)
     loop = np.zeros((n, n))
     loop[:N, :N] = model.Phi + GE @ Cz
     loop[:N, N:2 * N] = GE @ Ce
@@ -565,15 +568,23 @@ def loop_as_built(model: EstimatorModel, design: KalmanDesign, plant, gains) -> 
     loop[N:2 * N, N:2 * N] = model.Phi @ IMC
     if n_w:
         a = plant.lag_pole
-        w = 2 * N
-        loop[w:, w:] = a * np.eye(n_w)
+        loop[w, w] = a * np.eye(n_w)
         if d:  # the oldest in flight is applied: its generalized forces
             oldest = slice(q0 + (d - 1) * m + 1, q0 + d * m)
-            loop[w:, oldest] += (1 - a) * T_pinv
+            loop[w, oldest] += (1 - a) * T_pinv
         else:
-            loop[w:, :N] += (1 - a) * Cz[:n5]
-            loop[w:, N:2 * N] += (1 - a) * Ce[:n5]
-            loop[w:, w:] += (1 - a) * Cw[:n5]
+            loop[w, :N] += (1 - a) * Cz[:n5]
+            loop[w, N:2 * N] += (1 - a) * Ce[:n5]
+            loop[w, 2 * N:] += (1 - a) * Cw[:n5]
+    if n_xi:  # xi+ = xi + h dV on the updated estimate z - (I - M C) e
+        row = plant.speed_row()
+        Sv = np.zeros(N)
+        for j, name in enumerate(LOOP_STATES):
+            Sv[model.states.index(name)] = row[L["body"].start + j]
+        h = plant.tick.period
+        loop[xi, :N] = h * Sv
+        loop[xi, N:2 * N] = -h * Sv @ IMC
+        loop[xi, xi] = 1.0
     if "x" in model.states:
         i = model.states.index("x")
         keep = [j for j in range(n) if j != i]
@@ -581,12 +592,14 @@ def loop_as_built(model: EstimatorModel, design: KalmanDesign, plant, gains) -> 
     return loop
 
 
-def loop_as_built_speed_states(model: EstimatorModel, n_prediction: int) -> np.ndarray:
+def loop_as_built_speed_states(model: EstimatorModel, n_prediction: int,
+                               n_integral: int = 0) -> np.ndarray:
     """Mask of the speed loop's states in `loop_as_built`'s order: the forward speed u, the
-    propulsion commands in flight, and the filter's errors on x and u (the along-track
-    estimate)."""
+    propulsion commands in flight, the filter's errors on x and u (the along-track
+    estimate) and the speed error's integral (``n_integral``: 1 where the loop has one)."""
     N = model.Phi.shape[0]
-    mask = np.zeros(2 * N + n_prediction, dtype=bool)
+    mask = np.zeros(2 * N + n_prediction + n_integral, dtype=bool)
+    mask[2 * N + n_prediction:] = True
     m, q0 = model.Gamma.shape[1], model.queue.start
     mask[model.states.index("u")] = True
     mask[N + model.states.index("u")] = True

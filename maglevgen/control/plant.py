@@ -24,8 +24,10 @@ The controller (ideal sensing: x measured at each tick) is
 
 with w_hat its prediction of the lagged generalized forces from its own applied commands,
 w_hat[k+1] = a w_hat[k] + (1 - a) w_applied[k], a = exp(-h/tau) (exact for a held command),
-and xi the speed error's integral (integral action: a drag the feedforward misses leaves no
-steady speed error; k_i = 0, the C loop's today, leaves xi out of the layout). K_x, K_q, K_a
+and xi the speed error's integral (integral action, `speed_loop_gains`: a drag the
+feedforward misses leaves no steady speed error; k_i = 0 leaves xi out of the layout). The C
+tick clamps xi so that |k_i xi| stays within control.spec.speed_integral_limit (anti-windup);
+the linear loop here is the unclamped one. K_x, K_q, K_a
 are the discrete LQR of the design model (`design_model`): the reduced linearisation with the
 lag on the generalized forces and the commands in flight, the `spec` weights on the body
 states, none on the lag and the queue.
@@ -95,14 +97,16 @@ class Layout:
 
 
 def speed_loop_gains(mass: float, drag_slope: float, bandwidth: float,
-                     integral: bool = True) -> tuple[float, float]:
+                     integral_ratio: float = 1.0) -> tuple[float, float]:
     """(k_v [N s/m], k_i [N/m]) of the speed loop m dV' = -(dF_D,trim/dV) dV + dF_prop with
     dF_prop = -k_v dV - k_i int dV: the characteristic polynomial m s^2 + (slope + k_v) s + k_i
-    has its double root at -``bandwidth``, k_v = 2 m b - slope and k_i = m b^2; without the
-    integral (``integral`` False) k_v = m b - slope puts the one pole there."""
-    if integral:
-        return float(2 * mass * bandwidth - drag_slope), float(mass * bandwidth**2)
-    return float(mass * bandwidth - drag_slope), 0.0
+    = m (s + b)(s + r b) has its roots at -``bandwidth`` (b) and -``integral_ratio`` b (r),
+    k_v = m b (1 + r) - slope and k_i = m r b^2; r = 1 a double root at -b, r = 0 no integral
+    (k_v = m b - slope puts the one pole at -b, `sampled.speed_gain`)."""
+    if not (np.isfinite(integral_ratio) and integral_ratio >= 0):
+        raise ValueError(f"integral ratio {integral_ratio!r}: must be a finite number >= 0")
+    r = float(integral_ratio)
+    return float(mass * bandwidth * (1 + r) - drag_slope), float(mass * r * bandwidth**2)
 
 
 @dataclass(frozen=True)

@@ -77,6 +77,18 @@ class FirmwareLoop:
     force_budget: float  # [N] per array
     actuator_lag: float = 0.0  # [s] tau of each array force's lag ([actuators])
     speed_integral: float = 0.0  # k_i [N/m] (`LoopSetting.speed_integral`)
+    # [N] |k_i xi| at most this (`LoopSetting.speed_integral_limit`): finite where k_i > 0
+    speed_integral_limit: float = float("inf")
+
+    def __post_init__(self) -> None:
+        if self.speed_integral > 0 and not np.isfinite(self.speed_integral_limit):
+            raise ValueError("the firmware's speed integral needs a finite limit "
+                             f"(speed_integral_limit {self.speed_integral_limit!r} N)")
+
+    @property
+    def integral_limit(self) -> float:
+        """The limit the C clamps |k_i xi| at: the given one, 0 without an integral."""
+        return float(self.speed_integral_limit) if self.speed_integral > 0 else 0.0
 
     @property
     def lag_pole(self) -> float:
@@ -156,6 +168,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "delay_ticks": int(loop.delay_ticks),
         "k_v": c_literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
         "k_i": c_literal(loop.speed_integral, precision),
+        "i_max": c_literal(loop.integral_limit, precision),
         "tick_period": c_literal(1.0 / loop.tick_rate, precision),
         "lag_pole": c_literal(loop.lag_pole, precision),
         "lag_gain": c_literal(1.0 - loop.lag_pole, precision), "tau": loop.actuator_lag,
@@ -187,6 +200,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "tick": {"function": "maglev_tick", "controller_tick": tick_fn,
                  "rate_hz": loop.tick_rate, "delay_ticks": int(loop.delay_ticks),
                  "speed_gain": loop.speed_gain, "speed_integral": loop.speed_integral,
+                 "speed_integral_limit": loop.integral_limit,
                  "actuator_lag_s": loop.actuator_lag, "lag_pole": loop.lag_pole,
                  "force_budget": loop.force_budget,
                  "design": "the embedded controller's design at the tick on the loop as "
@@ -205,7 +219,8 @@ def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
     setting = schedule_setting(carriage, lib, *resolve_range(carriage, lib))
     return FirmwareLoop(setting.tick.rate, setting.tick.delay, float(setting.speed_gain),
                         float(carriage.params.control.spec.force_budget),
-                        float(setting.actuator_lag), float(setting.speed_integral))
+                        float(setting.actuator_lag), float(setting.speed_integral),
+                        float(setting.speed_integral_limit))
 
 
 def firmware_files(carriage: DerivedCarriage, precision: str = "single",

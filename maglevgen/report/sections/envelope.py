@@ -92,6 +92,9 @@ def _spec_context(carriage) -> dict[str, Any]:
             "design_damping_ratio": s.min_damping_ratio + s.damping_margin,
             "force_budget": s.force_budget, "tick_rate": s.tick_rate,
             "delay_ticks": s.delay_ticks, "speed_bandwidth": s.speed_bandwidth,
+            "speed_integral_ratio": s.speed_integral_ratio,
+            "speed_integral_pole": s.speed_integral_ratio * s.speed_bandwidth,
+            "speed_integral_limit": s.speed_integral_limit,
             "min_gap_margin": s.min_gap_margin,
             "deviation": {"y": d.y * 1e3, "z": d.z * 1e3, "phi": d.phi * 1e3,
                           "theta": d.theta * 1e3, "psi": d.psi * 1e3}}
