@@ -253,16 +253,19 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
     if first.get("force_budget"):
         how += f"; each array's control force is limited to {first['force_budget']:g} N"
     how += ". "
+    k_i = (tick or {}).get("speed_integral") or 0.0
+    integral = (f", k_i = {k_i:.4g} N/m on the speed error's integral, clamped at "
+                f"{tick['integral_limit']:g} N" if k_i > 0 else "")
     scenario = how + (
         "Launch: from the accelerating trim at the envelope's v_min the carriage accelerates "
         "to v_max under that trim's propulsion (its drag plus m a); the gains, the reference "
         "(the accelerating trim at the current speed) and the drag follow the gain schedule "
         "at the measured speed"
-        + (f", and a speed loop (k_v = {first['speed_gain']:.4g} N s/m) tracks the commanded "
-           "speed ramp." if speed_loop else ".")
+        + (f", and a speed loop (k_v = {first['speed_gain']:.4g} N s/m{integral}) tracks the "
+           "commanded speed ramp." if speed_loop else ".")
         if launch else
         (f"The propulsion holds the speed: the trim drag as feedforward and a speed loop "
-         f"(k_v = {first['speed_gain']:.4g} N s/m) on the forward speed."
+         f"(k_v = {first['speed_gain']:.4g} N s/m{integral}) on the forward speed."
          if speed_loop else
          "The propulsion force is held at its trim value; the along-track speed is not "
          "controlled and drifts" + (f": {speed_mode['explanation']}." if speed_mode else ".")))

@@ -690,9 +690,13 @@ def metrics(traj: Trajectory) -> dict:
         "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
         "speed_error": _speed_error(traj, speed), "saturated_time": traj.saturated_time,
         # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
-        "tick": None if traj.tick is None else {"rate": traj.tick.rate,
-                                                "delay": traj.tick.delay,
-                                                "actuator_lag": getattr(traj.tick, "lag", 0.0)},
+        "tick": None if traj.tick is None else {
+            "rate": traj.tick.rate, "delay": traj.tick.delay,
+            "actuator_lag": getattr(traj.tick, "lag", 0.0),
+            # k_i [N/m] and the clamp of |k_i xi| [N] (None: no integral)
+            "speed_integral": getattr(traj.tick, "speed_integral", 0.0),
+            "integral_limit": (float(traj.tick.integral_limit)
+                               if getattr(traj.tick, "speed_integral", 0.0) > 0 else None)},
         "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
         # the run against [control.spec] (`spec_verdict`; None for a run without limits)

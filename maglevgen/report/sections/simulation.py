@@ -175,6 +175,8 @@ def _metrics(data: Any) -> dict[str, Any]:
         "tick_rate": _number(tick.get("rate")) if tick else None,
         "delay_ticks": _number(tick.get("delay")) if tick else None,
         "actuator_lag": _number(tick.get("actuator_lag")) if tick else None,
+        "speed_integral": _number(tick.get("speed_integral")) if tick else None,
+        "integral_limit": _number(tick.get("integral_limit")) if tick else None,
         "force_budget": _number(first.get("force_budget")),
         "speed_mode": _speed_mode(data.get("speed_mode")),
         "metrics": _flatten_metrics(scalars)[:40],
