@@ -571,3 +571,14 @@ def test_tick_under_sanitizers_with_hostile_values(tick_lib, op) -> None:
     n_state = 5 * max(tick_lib["loop"].delay_ticks, 1) + 6
     assert bad == 0 and calls > 500, out.stdout
     assert errors >= 3 * (12 + 1) + 3 + 3 * (n_state + 1), out.stdout
+
+
+def test_the_firmware_integral_needs_a_finite_clamp() -> None:
+    """FirmwareLoop: a speed integral without a finite speed_integral_limit is refused (the C
+    clamp needs a number); without an integral the header's MAGLEV_TICK_I_MAX is 0."""
+    from maglevgen.exports.firmware import FirmwareLoop
+
+    with pytest.raises(ValueError, match="finite limit"):
+        FirmwareLoop(1000.0, 1, 60.0, 20.0, 2e-3, 116.0)
+    assert FirmwareLoop(1000.0, 1, 60.0, 20.0, 2e-3, 116.0, 100.0).integral_limit == 100.0
+    assert FirmwareLoop(1000.0, 1, 60.0, 20.0, 2e-3).integral_limit == 0.0
