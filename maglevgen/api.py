@@ -42,7 +42,7 @@ import json
 import math
 import os
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -1620,9 +1620,11 @@ class Carriage:
         controller = embedded if controller is None else controller
         if controller != "external":
             _check_controller(controller)
+        verdict: str | Callable[[], str]
         if controller == embedded:  # verified before anything is written (after the options)
-            def verdict() -> str:
+            def verdict_now() -> str:
                 return self._verified(allow_unstable, progress).text()
+            verdict = verdict_now
         else:
             verdict = (f"controller {controller!r}: not the embedded controller {embedded!r}, "
                        "not verified by maglevgen against [control.spec]")

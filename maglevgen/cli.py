@@ -285,6 +285,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if run.specification is not None:
             print(f"  {'':<8} specification: {run.specification}")
     for run in runs.runs.values() if args.check else ():
+        if run.check is None:
+            continue
         state, worst = max(run.check.items(), key=lambda kv: kv[1]["relative_to_peak"])
         print(f"  check {run.controller:<8} largest deviation from the adaptive reference: "
               f"{state} {worst['max_abs']:.3g} ({worst['relative_to_peak']:.2g} of its peak)")
