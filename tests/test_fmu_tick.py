@@ -204,11 +204,13 @@ def test_me_integrates_the_lagged_forces_as_states(fmus, host, me_reference, fmi
     assert _scaled(host["early"].x, ref.x) > 100 * err_host
 
 
-def test_bad_tick_settings_are_refused(fmus) -> None:
+def test_bad_tick_settings_are_refused(fmus, carriage, tmp_path) -> None:
     """A tick whose period is not a whole number of rk4_step, a negative actuator lag or speed
     integral gain, a lag or integral with the continuous law: the FMU refuses each at
     initialization (fmi2ExitInitializationMode answers fmi2Error, FMPy raises) with a message
-    saying which; a non-finite law gain already at fmi2SetReal. FMPy runs in a fresh
+    saying which; a non-finite law gain already at fmi2SetReal. Model exchange of an FMU
+    exported with --loop continuous (no lagged forces among its states) refuses a lag. FMPy
+    runs in a fresh
     interpreter: in the suite's worker, the ctypes callbacks of the model-exchange runs before
     (CVode's right-hand side, the logger) can fire in this test's error path, which once ended
     the worker with a segfault and once failed this test on their exceptions."""
@@ -227,15 +229,27 @@ def test_bad_tick_settings_are_refused(fmus) -> None:
               "    except FMICallException as exc:\n"
               "        print('refused:', exc, '|', ' '.join(log))\n"
               "        continue\n"
-              "    sys.exit(5)\n")
-    run = subprocess.run([sys.executable, "-c", script, str(fmus("2"))], capture_output=True,
-                         text=True, timeout=300)
+              "    sys.exit(5)\n"
+              "log = []\n"
+              "try:\n"
+              "    simulate_fmu(sys.argv[2], fmi_type='ModelExchange', stop_time=0.01,\n"
+              "                 start_values={'tick_rate': 1000.0, 'actuator_lag': 2e-3},\n"
+              "                 logger=lambda *a: log.append(a[-1].decode()))\n"
+              "except FMICallException as exc:\n"
+              "    print('refused:', exc, '|', ' '.join(log))\n"
+              "    sys.exit(0)\n"
+              "sys.exit(6)\n")
+    continuous = tmp_path / "continuous.fmu"
+    continuous.write_bytes(build_fmu(carriage, "me", "spec", loop="continuous"))
+    run = subprocess.run([sys.executable, "-c", script, str(fmus("2")), str(continuous)],
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, (run.returncode, run.stdout, run.stderr[-2000:])
     lines = run.stdout.splitlines()
-    assert len(lines) == 5, lines
-    assert all("fmi2ExitInitializationMode" in lines[i] for i in (0, 1, 2, 4)), lines
+    assert len(lines) == 6, lines
+    assert all("fmi2ExitInitializationMode" in lines[i] for i in (0, 1, 2, 4, 5)), lines
     assert "not a whole multiple of rk4_step" in lines[0]
     assert "actuator_lag -0.001 s" in lines[1] and "speed_integral -1 N/m" in lines[2]
     assert "fmi2SetReal" in lines[3] and "nan is not finite" in lines[3], lines[3]
     # the firmware FMU's lag and integral start non-zero: tick_rate 0 alone is refused
     assert "act at the tick only" in lines[4]
+    assert "needs the lagged array forces as continuous states" in lines[5], lines[5]
