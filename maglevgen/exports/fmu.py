@@ -269,13 +269,12 @@ def fmu_variables(manifest: dict, structure: Structure, controller: FmuControlle
                     "at the start)", "state") for s in states]
     # the loop as built: each array force through its lag is a continuous state after the
     # carriage's (model exchange's integrator takes it; co-simulation sets it exactly)
-    lagged = ([{"name": f"actuator.{u['name']}", "unit": u["unit"]}
-               for u in manifest["inputs"][1:]]
-              if controller.law == "axis" and t.firmware else [])
+    forces = manifest["inputs"][1:] if controller.law == "axis" and t.firmware else []
+    lagged = [{"name": f"actuator.{u['name']}", "unit": u["unit"]} for u in forces]
     out += [FmuVariable(a["name"], "local", "continuous", "calculated", None, a["unit"],
                         f"{u['description']} through the actuator's first-order lag "
                         "(actuator_lag; 0 at the start, the actuators at rest)", "state")
-            for a, u in zip(lagged, manifest["inputs"][1:], strict=False)]
+            for a, u in zip(lagged, forces, strict=True)]
     out += [FmuVariable(f"der({s['name']})", "local", "continuous", "calculated", None,
                         _per_second(s["unit"]), f"time derivative of {s['name']}", "derivative",
                         derivative=i + 1) for i, s in enumerate([*states, *lagged])]
