@@ -578,10 +578,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
                           "(3.0); the same variables, controllers and start values")
     fmu.add_argument("--loop", choices=FMU_LOOPS, default="firmware",
-                     help="firmware (default): the built-in controller at the tick of "
-                          "[control.spec] with its delay, the speed loop and the force budget "
-                          "(the start values of tick_rate, delay_ticks, speed_gain, "
-                          "force_budget); continuous: the law at every derivative evaluation")
+                     help="firmware (default): the loop as built, as `simulate --loop "
+                          "firmware` flies it: the built-in controller's tick law at the tick "
+                          "of [control.spec] with its delay and design gains, the speed loop "
+                          "and its integral, the force budget, each array force's lag in the "
+                          "plant (the start values of tick_rate, delay_ticks, speed_gain, "
+                          "force_budget, actuator_lag, speed_integral, K_lag, K_delay); "
+                          "continuous: the paper's law at every derivative evaluation")
     fmu.add_argument("--out", default="build/fmu", metavar="DIR",
                      help="output folder of maglev.fmu (default: ./build/fmu)")
     fmu.add_argument("--allow-unstable", action="store_true",
