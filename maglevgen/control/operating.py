@@ -244,7 +244,7 @@ def _checked(lib: SimulationLibrary, p: np.ndarray, speed: float, acceleration: 
     x_trim, f_trim = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)
-    u[0] = f_prop
+    u[0] = f_trim
     acc = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()[6:]
     acc[:3] -= x_trim[6:9] * (acceleration / speed)
     gaps = lib.function("maglev_gaps")(x_trim, p)[0].ravel()
