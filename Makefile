@@ -34,6 +34,7 @@ TEST_WORKERS ?= 2
 # minutes on 2 cores; `make test-slow` runs those. CI (.ci/run) runs both.
 test: setup
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow"
 
 test-slow: setup

@@ -14,6 +14,7 @@ a shared subexpression again at every use.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import sympy as sp
 from sympy.core.basic import Basic
@@ -22,7 +23,7 @@ from sympy.core.function import ArgumentIndexError
 __all__ = ["Differentiator", "jacobian", "xreplace"]
 
 
-def _generic_function(cls: type) -> bool:
+def _generic_function(cls: Any) -> bool:
     """Whether SymPy differentiates ``cls`` by Function's chain rule (its fdiff per argument)."""
     return (issubclass(cls, sp.Function)
             and cls._eval_derivative is sp.Function._eval_derivative

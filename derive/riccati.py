@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cache, partial
+from typing import Any, TypeAlias
 
 import mpmath
 import numpy as np
@@ -53,9 +54,11 @@ __all__ = [
 ]
 
 # A matrix in any of the three representations riccati_residual accepts.
-MatrixLike = sp.MatrixBase | mpmath.matrix | np.ndarray | Sequence[Sequence[float]]
+MatrixLike: TypeAlias = "sp.MatrixBase | mpmath.matrix | np.ndarray | Sequence[Sequence[float]]"
 # A real number: a float, an exact string ("9.3"), an mpmath or a SymPy number.
-RealLike = float | int | str | mpmath.mpf | sp.Expr
+RealLike: TypeAlias = "float | int | str | mpmath.mpf | sp.Expr"
+# One axis's (k, m, q1, q2, r).
+AxisPoint: TypeAlias = tuple[float, float, float, float, float]
 
 # Generic symbols of the derivation; user values are substituted for them afterwards.
 _k = sp.Symbol("k", real=True)
@@ -113,14 +116,19 @@ def riccati_residual(A: MatrixLike, B: MatrixLike, Q: MatrixLike, R: MatrixLike,
 
     Works on SymPy matrices, mpmath matrices or float arrays, returning the same kind.
     """
+    a: Any
+    b: Any
+    q: Any
+    r: Any
+    p: Any
     if isinstance(P, sp.MatrixBase):
-        A, B, Q, R, P = (sp.Matrix(X) for X in (A, B, Q, R, P))
-        return A.T * P + P * A - P * B * R.inv() * B.T * P + Q
+        a, b, q, r, p = (sp.Matrix(X) for X in (A, B, Q, R, P))
+        return a.T * p + p * a - p * b * r.inv() * b.T * p + q
     if isinstance(P, mpmath.matrix):
-        A, B, Q, R = (_to_mp(X) for X in (A, B, Q, R))
-        return A.T * P + P * A - P * B * mpmath.inverse(R) * B.T * P + Q
-    A, B, Q, R, P = (np.atleast_2d(np.asarray(X, dtype=float)) for X in (A, B, Q, R, P))
-    return A.T @ P + P @ A - P @ B @ np.linalg.solve(R, B.T @ P) + Q
+        a, b, q, r = (_to_mp(X) for X in (A, B, Q, R))
+        return a.T * P + P * a - P * b * mpmath.inverse(r) * b.T * P + q
+    a, b, q, r, p = (np.atleast_2d(np.asarray(X, dtype=float)) for X in (A, B, Q, R, P))
+    return a.T @ p + p @ a - p @ b @ np.linalg.solve(r, b.T @ p) + q
 
 
 def _to_mp(X: MatrixLike) -> mpmath.matrix:
@@ -138,10 +146,10 @@ def riccati_relative_residual(A: MatrixLike, B: MatrixLike, Q: MatrixLike, R: Ma
 
     Evaluated at the working precision of the caller's mpmath context.
     """
-    A, B, Q, R, P = (_to_mp(X) for X in (A, B, Q, R, P))
-    terms = (A.T * P, P * A, P * B * mpmath.inverse(R) * B.T * P, Q)
+    a, b, q, r, p = (_to_mp(X) for X in (A, B, Q, R, P))
+    terms = (a.T * p, p * a, p * b * mpmath.inverse(r) * b.T * p, q)
     scale = sum(mpmath.mnorm(T, "inf") for T in terms)
-    return float(mpmath.mnorm(riccati_residual(A, B, Q, R, P), "inf") / scale)
+    return float(mpmath.mnorm(riccati_residual(a, b, q, r, p), "inf") / scale)
 
 
 def _factor_radicands(expr: sp.Expr) -> sp.Expr:
@@ -174,7 +182,7 @@ def _are_equations() -> tuple[sp.Expr, sp.Expr, sp.Expr]:
     """The (1,1), (1,2), (2,2) entries of eq 30 for the generic axis."""
     A, B = axis_matrices(_k, _m)
     P = sp.Matrix([[_p11, _p12], [_p12, _p22]])
-    M = riccati_residual(A, B, sp.diag(_q1, _q2), sp.Matrix([[_r]]), P)
+    M: Any = riccati_residual(A, B, sp.diag(_q1, _q2), sp.Matrix([[_r]]), P)
     return M[0, 0], M[0, 1], M[1, 1]
 
 
@@ -346,7 +354,7 @@ def riccati_solution_mp(k: RealLike, m: RealLike, q1: RealLike = 1, q2: RealLike
         return mpmath.matrix(_mpmath_functions()[1](*(mpmath.mpf(v) for v in (k, m, q1, q2, r))))
 
 
-def default_sweep() -> list[tuple[float, float, float, float, float]]:
+def default_sweep() -> list[AxisPoint]:
     """(k, m, q1, q2, r) points: log sweeps m in [1e-3, 1e4], |k| in [1e-3, 1e7], both signs."""
     masses = np.logspace(-3, 4, 8)
     stiffness = np.logspace(-3, 7, 11)
@@ -357,7 +365,7 @@ def default_sweep() -> list[tuple[float, float, float, float, float]]:
 class LqrSweep:
     """Per-point max componentwise relative gain errors against the 50-digit closed form."""
 
-    points: tuple[tuple[float, ...], ...]
+    points: tuple[AxisPoint, ...]
     control_lqr: np.ndarray
     scipy_care: np.ndarray
     stable_float64: np.ndarray
@@ -389,7 +397,7 @@ def _numerical_gains(k: float, m: float, q1: float, q2: float, r: float
     return np.ravel(K_control), np.ravel(np.linalg.solve(R, B.T @ P))
 
 
-def numerical_lqr_error_sweep(points: Sequence[tuple[float, ...]] | None = None) -> LqrSweep:
+def numerical_lqr_error_sweep(points: Sequence[AxisPoint] | None = None) -> LqrSweep:
     """Measure the gain errors of control.lqr, scipy CARE and both closed-form evaluations.
 
     Each is compared with ``lqr_gain_mp`` at 50 digits over ``points`` (``default_sweep()``).

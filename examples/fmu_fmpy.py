@@ -27,8 +27,8 @@ print(f"{out / path.name}: FMI {md.fmiVersion}, {len(md.modelVariables)} variabl
 
 fmu = simulate_fmu(str(path), fmi_type="CoSimulation", stop_time=2.0, output_interval=1e-3,
                    output=["z", "phi"])
-# the same controller in maglev_simulate's firmware loop, on the plant with [actuators]' lag,
-# which the FMU's plant does not have yet (issue 49): the two differ by the lag's effect
+# the same controller in maglev_simulate's firmware loop: the loop the FMU runs (its default
+# --loop firmware: the tick law, the speed loop, the budget, the actuator lag in the plant)
 run = carriage.simulate(controller="lqr", t_end=2.0)
 
 fig, axes = plt.subplots(2, 1, figsize=(6, 5), sharex=True)

@@ -42,7 +42,7 @@ import json
 import math
 import os
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -1574,8 +1574,11 @@ class Carriage:
             The FMI version (``--fmi``): 2.0 (default,
             ``maglevgen.exports.fmu.DEFAULT_FMI``) or 3.0, the same variables.
         loop : {'firmware', 'continuous'}, optional
-            ``--loop``: the built-in controller at the tick of ``[control.spec]`` with its
-            delay, the speed loop and the force budget (default), or at every derivative
+            ``--loop``: the loop as built, as ``simulate(loop="firmware")`` flies it
+            (default): the built-in controller's tick law at the tick of ``[control.spec]``
+            with its delay and its gains at the tick, the speed loop and its integral, the
+            force budget and each array force's first-order lag in the plant (model
+            exchange: as continuous states); or the paper's law at every derivative
             evaluation (the start values of the FMU's tick parameters).
         progress : bool, optional
             Announce the slow steps (code generation, compilation) on stderr.
@@ -1620,9 +1623,11 @@ class Carriage:
         controller = embedded if controller is None else controller
         if controller != "external":
             _check_controller(controller)
+        verdict: str | Callable[[], str]
         if controller == embedded:  # verified before anything is written (after the options)
-            def verdict() -> str:
+            def verdict_now() -> str:
                 return self._verified(allow_unstable, progress).text()
+            verdict = verdict_now
         else:
             verdict = (f"controller {controller!r}: not the embedded controller {embedded!r}, "
                        "not verified by maglevgen against [control.spec]")

@@ -266,7 +266,7 @@ def build_folder(params: str | Path | None, overrides: Sequence[str], out_dir: s
     step = step or (lambda _: None)
     with progress.held():  # bad input found here is the only line on stderr
         for line in why:
-            (step or (lambda _: None))(line)
+            step(line)
         loaded = load_params(params, overrides)
         check_run_options(opts.t_end, opts.dt)
         check_writable(out_dir)  # before any work (the library, the model)

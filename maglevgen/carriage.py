@@ -161,7 +161,8 @@ class DerivedCarriage:
 
     def _array_roles(self) -> tuple[list[int], list[int]]:
         """Indices of upper arrays (normal along z only) and of the others (lower, lateral)."""
-        upper, lower = [], []
+        upper: list[int] = []
+        lower: list[int] = []
         for i, arr in enumerate(self.params.arrays.values()):
             (upper if abs(arr.normal[2]) > 1 - 1e-9 else lower).append(i)
         return upper, lower

@@ -285,6 +285,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if run.specification is not None:
             print(f"  {'':<8} specification: {run.specification}")
     for run in runs.runs.values() if args.check else ():
+        if run.check is None:
+            continue
         state, worst = max(run.check.items(), key=lambda kv: kv[1]["relative_to_peak"])
         print(f"  check {run.controller:<8} largest deviation from the adaptive reference: "
               f"{state} {worst['max_abs']:.3g} ({worst['relative_to_peak']:.2g} of its peak)")
@@ -576,10 +578,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
                           "(3.0); the same variables, controllers and start values")
     fmu.add_argument("--loop", choices=FMU_LOOPS, default="firmware",
-                     help="firmware (default): the built-in controller at the tick of "
-                          "[control.spec] with its delay, the speed loop and the force budget "
-                          "(the start values of tick_rate, delay_ticks, speed_gain, "
-                          "force_budget); continuous: the law at every derivative evaluation")
+                     help="firmware (default): the loop as built, as `simulate --loop "
+                          "firmware` flies it: the built-in controller's tick law at the tick "
+                          "of [control.spec] with its delay and design gains, the speed loop "
+                          "and its integral, the force budget, each array force's lag in the "
+                          "plant (the start values of tick_rate, delay_ticks, speed_gain, "
+                          "force_budget, actuator_lag, speed_integral, K_lag, K_delay); "
+                          "continuous: the paper's law at every derivative evaluation")
     fmu.add_argument("--out", default="build/fmu", metavar="DIR",
                      help="output folder of maglev.fmu (default: ./build/fmu)")
     fmu.add_argument("--allow-unstable", action="store_true",

@@ -21,6 +21,7 @@ from typing import Annotated, Any, get_args, get_origin
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic.fields import FieldInfo
 
 from maglevgen.control import embeddable
 from maglevgen.derive.conventions import (
@@ -139,6 +140,12 @@ def limits_text(lo: float, hi: float, unit: str) -> str:
     return f"[{lo:g}, {hi:g}]" + (f" {unit}" if unit and unit != "1" else "")
 
 
+def _extra(info: FieldInfo) -> dict[str, Any]:
+    """A field's json_schema_extra: its unit, limits (lo, hi, why), choices, paper."""
+    extra = info.json_schema_extra
+    return dict(extra) if isinstance(extra, dict) else {}
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
 
@@ -149,7 +156,7 @@ class _Section(BaseModel):
         if not isinstance(data, dict):
             return data  # the type check reports it
         for field, info in cls.model_fields.items():
-            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+            extra = _extra(info)
             if field not in data or "limits" not in extra:
                 continue
             value = data[field]
@@ -485,7 +492,7 @@ class Envelope(_Section):
     embedded_controller: str = Field(
         default="spec", description="the controller the firmware C embeds and `build` "
         "verifies over the envelope", json_schema_extra={
-            "unit": "-", "choices": _Embeddable()})
+            "unit": "-", "choices": _Embeddable()})  # type: ignore[dict-item]  # read live
 
     @field_validator("embedded_controller")
     @classmethod
@@ -566,7 +573,10 @@ class Tolerance(_Section):
     @property
     def half_width(self) -> float:
         """The support's half-width: every sample lies within value +- this."""
-        return NORMAL_TRUNCATION * self.normal if self.normal is not None else float(self.uniform)
+        if self.normal is not None:
+            return NORMAL_TRUNCATION * self.normal
+        assert self.uniform is not None  # one of the two, validated
+        return float(self.uniform)
 
 
 
@@ -715,7 +725,7 @@ class Sensors(_Section):
                               "[sensors.gap_sensors] (where they sit)")
         return self
 
-    def groups(self) -> dict[str, BaseModel]:
+    def groups(self) -> dict[str, GapSensors | Imu | TrackSensor]:
         """The fitted groups by name (gap, imu, track)."""
         return {k: v for k, v in (("gap", self.gap), ("imu", self.imu), ("track", self.track))
                 if v is not None}
@@ -1120,7 +1130,7 @@ class ParamEntry:
 
 def _field_meta(model: type[BaseModel], field: str) -> tuple[str, str]:
     info = model.model_fields[field]
-    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+    extra = _extra(info)
     return str(extra.get("unit", "")), info.description or ""
 
 
@@ -1155,7 +1165,7 @@ def schema_leaves(obj: BaseModel, prefix: str = "") -> Iterator[SchemaLeaf]:
             for name, item in value.items():
                 yield from schema_leaves(item, f"{key}.{name}.")
         else:
-            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+            extra = _extra(info)
             vals = tuple(float(v) for v in value) if isinstance(value, list) else (float(value),)
             yield SchemaLeaf(key, vals, str(extra.get("unit", "")), info.description or "",
                              str(extra.get("paper", "")), isinstance(value, list))
@@ -1200,9 +1210,9 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
                 rows.append((f"{name}.<name>", "-", "a gap sensor, by its name (a table "
                              "key)", "", "any TOML key"))
                 walk(GapSensor, name + ".<name>.")
-            elif (model is Parameters and field == "sensors") or (
-                    model is Sensors and _table_of(ann) is not None):
-                walk(_table_of(ann), name + ".")  # an optional table (sensors, its groups)
+            elif ((model is Parameters and field == "sensors") or model is Sensors) and (
+                    table := _table_of(ann)) is not None:
+                walk(table, name + ".")  # an optional table (sensors, its groups)
             elif model is GapSensor and field == "array":
                 rows.append((name, "-", info.description or "", "", "a key of [arrays]"))
             elif model is Vehicle and field == "inertia_cg":
@@ -1210,7 +1220,7 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
                              f"a table, or \"{INERTIA_BOX}\""))
                 walk(Inertia, name + ".")
             elif model is Tolerances and field in ("parameters", "disturbance"):
-                extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+                extra = _extra(info)
                 if field == "disturbance":
                     lo, hi, why = extra["limits"]
                     rows.append((name, str(extra["unit"]), info.description or "",
@@ -1225,7 +1235,7 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
                              ARRAY_NAME_RULE.removeprefix("an array name must be ")))
                 walk(Array, name + ".<name>.")
             else:
-                extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+                extra = _extra(info)
                 unit = str(extra.get("unit", ""))
                 if "choices" in extra:
                     rows.append((name, unit, info.description or "",

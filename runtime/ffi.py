@@ -9,6 +9,7 @@ from __future__ import annotations
 import ctypes
 import threading
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -61,7 +62,7 @@ class GeneratedFunction:
         self._w_t = creal * self._sz_w
         self._local = threading.local()
 
-    def _dense_shape(self, sp: ctypes.POINTER) -> tuple[int, int]:
+    def _dense_shape(self, sp: Any) -> tuple[int, int]:  # a ctypes pointer to casadi_int
         rows, cols = sp[0], sp[1]
         if sp[2] == 1:  # CasADi's compact form of a dense pattern: (rows, cols, 1)
             return rows, cols

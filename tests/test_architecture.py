@@ -59,7 +59,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "load when a verdict is computed",
         ("maglevgen.analyses.envelope", "maglevgen.analyses.roa", "maglevgen.analyses.simulate",
          "maglevgen.analyses.worst_case", "maglevgen.analyses.output_feedback",
-         "maglevgen.control", "maglevgen.control.operating",
+         "maglevgen.control", "maglevgen.control.estimation", "maglevgen.control.operating",
          "maglevgen.infrastructure.cache", "numpy")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "

@@ -62,13 +62,11 @@ fmu = c.fmu(sys.argv[1], kind="cs", controller="example")
 res = simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=0.3, output_interval=1e-3,
                    output=list(runs[0].state_names))
 out["fmu_x"] = np.column_stack([res[s] for s in runs[0].state_names]).tolist()
-# the FMU's firmware loop: the tick, delay, speed loop and budget on the plant without the
-# actuator lag (a plain Tick on the host; the FMU flying the loop as built is issue 49's)
-from maglevgen.analyses.simulate import Tick, firmware_loop, run_scenarios
-ft, k_v, budget = firmware_loop(c._carriage, c._lib)
+# the FMU's firmware loop: the loop as built (the tick's law with the example's gains, the
+# speed loop and its integral, the budget, the actuator lag), as `simulate --loop firmware`
+from maglevgen.analyses.simulate import run_scenarios
 out["fmu_ref"] = run_scenarios(c._carriage, ("example",), 0.3, 1e-3, lib=c._lib,
-                               tick=Tick(ft.rate, ft.delay), speed_gain=k_v,
-                               force_budget=budget).trajectories[0].x.tolist()
+                               loop="firmware").trajectories[0].x.tolist()
 # the firmware folder with the example embedded (a parameter file may name it now); not
 # verified against [control.spec] (the damping law is not meant to meet it)
 fw = maglevgen.load(overrides=['envelope.embedded_controller="example"'])
@@ -126,8 +124,8 @@ def test_the_firmware_loop_runs_it_through_the_generic_tick(example: dict) -> No
 
 @slow
 def test_the_fmu_runs_it_as_the_simulation_does(example: dict) -> None:
-    """The co-simulation FMU with the example built in, under FMPy, against the host's run of
-    the FMU's loop (the same RK4 and tick arithmetic; the tick without the actuator lag)."""
+    """The co-simulation FMU with the example built in, under FMPy, against the host's
+    firmware loop (the same RK4, lag and tick arithmetic)."""
     import numpy as np
 
     x_fmu, x_api = np.array(example["fmu_x"]), np.array(example["fmu_ref"])

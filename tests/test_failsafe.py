@@ -963,20 +963,22 @@ print(json.dumps({"calls": n, "bad": bad}))
 
 
 @pytest.mark.needs_cc
+@pytest.mark.parametrize("loop", ["continuous", "firmware"])
 def test_fmu_hostile_values_and_out_of_order_calls(carriage: DerivedCarriage, sim_lib,
-                                                   tmp_path: Path) -> None:
+                                                   tmp_path: Path, loop: str) -> None:
     """Through FMPy (in a child process, so that a crash is a failure, not the end of the
     run): NaN, +-inf, +-1e30, denormals, zero and -1 into every real parameter and input
     before initialization, and out-of-order calls (a step before initialization, entering
     it twice, NaN/inf/negative/zero/huge communication steps and times; model exchange:
     the hostile values as every state and as the time): each is refused (fmi2Error or
-    fmi2Discard) or followed by OK calls with every real finite."""
+    fmi2Discard) or followed by OK calls with every real finite. Both loops: the firmware
+    loop's FMU adds the tick law's gains, the lag and the lagged forces' states."""
     import sys
 
     from maglevgen.exports.fmu import build_fmu
 
     path = tmp_path / "m.fmu"
-    path.write_bytes(build_fmu(carriage, "both", "lqr"))
+    path.write_bytes(build_fmu(carriage, "both", "lqr", loop=loop))
     hostile = [float("nan"), float("inf"), float("-inf"), 1e30, -1e30, 5e-324, 0.0, -1.0]
     driver = _FMU_DRIVER.replace("HOSTILE", repr(hostile).replace("nan", "float('nan')")
                                  .replace("inf", "float('inf')"))

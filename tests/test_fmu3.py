@@ -24,8 +24,6 @@ from fmpy.validation import validate_fmu
 from maglevgen.analyses.simulate import (
     AXIS_STATES,
     DISTURBANCE,
-    Tick,
-    firmware_loop,
     reference_trajectory,
     run_scenarios,
 )
@@ -255,7 +253,8 @@ def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: 
                                                      sim_lib) -> None:
     """The default controller is the one the firmware embeds, run as the firmware runs it
     (--loop firmware, the default): the CLI's FMU follows the host's firmware loop of that
-    controller at the same tick, delay, speed loop and budget bit for bit."""
+    controller (`run_scenarios(loop="firmware")`: its design at the tick, the speed loop, the
+    budget, the actuator lag) bit for bit."""
     out = tmp_path / "out"
     ok = subprocess.run([sys.executable, "-m", "maglevgen.cli", "fmu", "--fmi", "3", "--kind",
                          "cs", "--out", str(out)], capture_output=True, text=True)
@@ -263,13 +262,10 @@ def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: 
     embedded = carriage.params.envelope.embedded_controller
     assert "FMI 3.0" in ok.stdout and f"controller {embedded}" in ok.stdout
     assert read_model_description(str(out / "maglev.fmu")).fmiVersion == "3.0"
-    # the FMU's firmware loop: the tick, delay, speed loop and budget with the controller's
-    # continuous gains on the plant without the actuator lag (a plain Tick on the host);
-    # flying the loop as built in the FMU is issue 49's open part
-    ft, k_v, budget = firmware_loop(carriage, sim_lib)
+    # the FMU's firmware loop: the loop as built (the design at the tick, the speed loop and
+    # its integral, the budget, the actuator lag), as `maglevgen simulate --loop firmware`
     ref = run_scenarios(carriage, (embedded,), 0.5, 1e-3, lib=sim_lib,
-                        tick=Tick(ft.rate, ft.delay), speed_gain=k_v,
-                        force_budget=budget).trajectories[0]
+                        loop="firmware").trajectories[0]
     res = simulate_fmu(str(out / "maglev.fmu"), fmi_type="CoSimulation", stop_time=0.5,
                        output_interval=1e-3, output=STATES)
     assert np.array_equal(_states(res), ref.x)

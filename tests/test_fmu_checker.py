@@ -35,11 +35,15 @@ def _check(path: Path) -> tuple[int, str]:
 
 
 @pytest.mark.parametrize("fmi", ["2", "3"])
-@pytest.mark.parametrize("kind", ["me", "cs"])
+@pytest.mark.parametrize(("kind", "loop"), [("me", "continuous"), ("cs", "continuous"),
+                                            ("both", "firmware")])
 def test_the_toolbox_checker_and_fmpy_accept_the_fmu(tmp_path: Path, carriage: DerivedCarriage,
-                                                     sim_lib, fmi: str, kind: str) -> None:
+                                                     sim_lib, fmi: str, kind: str,
+                                                     loop: str) -> None:
+    """Each kind; the firmware loop's FMU (the CLI's default) with the lagged array forces as
+    continuous states besides the carriage's."""
     path = tmp_path / "maglev.fmu"
-    path.write_bytes(build_fmu(carriage, kind, fmi=fmi))
+    path.write_bytes(build_fmu(carriage, kind, fmi=fmi, loop=loop))
     code, log = _check(path)
     assert code == 0, log
     assert f"compliant with FMI-{fmi}.0" in log, log

@@ -45,17 +45,38 @@ def _tracked() -> list[str]:
             if p.is_file() and "__pycache__" not in p.parts]
 
 
+def _source_copy(dest: Path) -> Path:
+    """The checkout's tracked files copied to ``dest`` (without git: the tree less what a
+    build or a run leaves): setuptools builds in the source tree, and its build/ folder in
+    the checkout would stand where `maglevgen build` writes by default."""
+    if shutil.which("git") and (REPO / ".git").exists():
+        files = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True,
+                               text=True, check=True).stdout.split("\0")
+        for name in filter(None, files):
+            if (REPO / name).is_file():
+                (dest / name).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(REPO / name, dest / name)
+        return dest
+    shutil.copytree(REPO, dest, dirs_exist_ok=True, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "build", "*.egg-info", "__pycache__", "_build", ".pytest_cache"))
+    return dest
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> tuple[Path, str]:
-    """The wheel `pip wheel .` builds, offline: the build backend already installed is used
-    where it is (no download of setuptools), else pip's isolated build."""
+    """The wheel `pip wheel .` builds from a copy of the checkout (`_source_copy`), offline:
+    the build backend already installed is used where it is (no download of setuptools),
+    else pip's isolated build. The checkout gains no build/ folder."""
     out = tmp_path_factory.mktemp("wheel")
+    src = _source_copy(tmp_path_factory.mktemp("source"))
+    had_build = (REPO / "build").exists()
     offline = all(importlib.util.find_spec(m) for m in ("setuptools", "wheel"))
     # -v: pip passes the build backend's own output on (its deprecation banners among it)
-    cmd = [sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", "-w", str(out), str(REPO)]
+    cmd = [sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", "-w", str(out), str(src)]
     proc = subprocess.run(cmd + (["--no-build-isolation"] if offline else []),
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    assert had_build or not (REPO / "build").exists()
     (whl,) = out.glob("maglevgen-*.whl")
     return whl, proc.stdout + proc.stderr
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -348,6 +349,11 @@ class LoopMargins:
                 "delay_margin_ticks": self.delay.tolist(), "text": self.text()}
 
 
+def _stable_with_delay(plant: LoopPlant, gains: LoopDesign, extra: int) -> bool:
+    """Whether ``plant``'s closed loop with ``gains`` and ``extra`` ticks of delay is stable."""
+    return bool(np.max(np.abs(np.linalg.eigvals(plant.closed_loop(gains, extra)))) < 1)
+
+
 def loop_margins(carriage, points: Sequence[OperatingPoint], controller: str,
                  setting: LoopSetting) -> LoopMargins:
     """`LoopMargins` of ``controller`` (its gains as `loop_design`) at ``points``."""
@@ -355,8 +361,7 @@ def loop_margins(carriage, points: Sequence[OperatingPoint], controller: str,
     for op in points:
         plant, gains = loop_plant(op, setting), loop_design(op, controller, setting)
         curves.append(disk_margins(*plant.open_loop(gains), setting.tick.period))
-        delays.append(delay_margin(lambda k, p=plant, g=gains: bool(
-            np.max(np.abs(np.linalg.eigvals(p.closed_loop(g, k)))) < 1)))
+        delays.append(delay_margin(partial(_stable_with_delay, plant, gains)))
     return LoopMargins(np.array([op.speed for op in points]),
                        np.array([c.multi for c in curves]),
                        np.array([c.per_loop for c in curves]), np.array(delays),

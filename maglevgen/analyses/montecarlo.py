@@ -858,7 +858,7 @@ def table_files(cols: dict[str, np.ndarray]) -> dict[str, bytes]:
         import pyarrow.parquet as pq
     except ImportError:
         buf = io.BytesIO()
-        np.savez(buf, **cols)
+        np.savez(buf, **cols)  # type: ignore[arg-type]  # numpy's stub types allow_pickle here
         names = list(cols)
         lines = [",".join(names)]
         for i in range(len(cols[names[0]])):

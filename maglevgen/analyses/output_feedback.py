@@ -278,7 +278,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
         z_pred = model.Phi @ z_post + model.Gamma @ du
         if d == 0:
             cmd_applied = cmd
-            xdot = None  # the command changed: the first stage again
+            xdot = None  # type: ignore[assignment]  # the command changed: stage 1 again
         else:
             queue.insert(0, cmd)
             queue.pop()  # cmd_applied: applied over this tick

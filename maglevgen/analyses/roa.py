@@ -401,7 +401,7 @@ def contact_level(gaps: Callable[[np.ndarray], np.ndarray], P: np.ndarray, min_g
     n = P.shape[0]
     raw_gaps = gaps
 
-    def gaps(dx: np.ndarray) -> np.ndarray:
+    def finite_gaps(dx: np.ndarray) -> np.ndarray:
         # the optimiser may step far outside the model's range (the closed loop not finite
         # there): such rows are NaN, which SLSQP backs off from and the contact test drops
         try:
@@ -409,7 +409,7 @@ def contact_level(gaps: Callable[[np.ndarray], np.ndarray], P: np.ndarray, min_g
         except RuntimeError:
             if dx.shape[0] == 1:
                 return np.full((1, g_size), np.nan)
-            return np.vstack([gaps(row[None, :]) for row in dx])
+            return np.vstack([finite_gaps(row[None, :]) for row in dx])
 
     def dx_of(z: np.ndarray) -> np.ndarray:
         return np.linalg.solve(L.T, z)
@@ -423,12 +423,12 @@ def contact_level(gaps: Callable[[np.ndarray], np.ndarray], P: np.ndarray, min_g
             return 0.0, np.zeros(n)
 
         def g(z: np.ndarray, j: int = j) -> float:
-            return float(gaps(dx_of(z)[None, :])[0, j])
+            return float(finite_gaps(dx_of(z)[None, :])[0, j])
 
         def grad(z: np.ndarray, j: int = j) -> np.ndarray:
             h = 1e-7 * max(1.0, float(np.linalg.norm(z)))
             Z = np.vstack([z + h * e for e in np.eye(n)] + [z - h * e for e in np.eye(n)])
-            G = gaps(np.linalg.solve(L.T, Z.T).T)[:, j]
+            G = finite_gaps(np.linalg.solve(L.T, Z.T).T)[:, j]
             return (G[:n] - G[n:]) / (2 * h)
 
         b = grad(np.zeros(n))  # the gap's gradient in z: a' dx = b' z

@@ -11,8 +11,10 @@ on the lambdified SymPy model, as an independent check.
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -103,7 +105,7 @@ _AXIS_COLUMNS: slice | list[int] = (
     else list(AXIS_STATES))
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls
 
-Progress = Callable[[float], None]
+Progress = Callable[[int], None]
 
 
 # how a run executes its controller: as the firmware does, or the paper's continuous law
@@ -463,7 +465,9 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
         saturated += run.saturated_steps
         final = status != 0 or done + chunk == n_steps
         keep = slice(None) if final else slice(None, -1)  # chunks share their end sample
-        xs.append(x[keep]), us.append(u[keep]), gs.append(g[keep])
+        xs.append(x[keep])
+        us.append(u[keep])
+        gs.append(g[keep])
         done += run.last
         if progress is not None:
             progress(done / n_steps)
@@ -733,7 +737,8 @@ class SimulationRun:
 def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: float,
                   speed: float | None = None, lib: SimulationLibrary | None = None,
                   announce: Callable[[str], None] | None = None,
-                  bar: Callable[[str], object] | None = None,
+                  bar: Callable[[str], AbstractContextManager[Callable[[int], None]]]
+                  | None = None,
                   scenario: str = "hold",
                   disturbance: dict[str, float] | None = None, tick: Tick | None = None,
                   speed_gain: float = 0.0,
@@ -797,14 +802,15 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                                    else "--speed")
     eig = {c: np.linalg.eigvals(op.full_closed_loop(c)) for c in controllers}
     limits = {c: rk4_stability_limit(e) for c, e in eig.items()}
-    worst = min(limits, key=limits.get)
+    worst = min(limits, key=lambda c: limits[c])
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
     if loop != "continuous":
         tick, speed_gain, force_budget = run_loop(carriage, lib, loop)
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
-    loop = {"tick": tick, "speed_gain": speed_gain, "force_budget": force_budget}
+    loop_kw: dict[str, Any] = {"tick": tick, "speed_gain": speed_gain,
+                               "force_budget": force_budget}
     trajs = []
     setting = tick.setting(speed_gain) if isinstance(tick, FirmwareTick) else None
     for c in controllers:
@@ -812,18 +818,19 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                  if scenario == "launch" else None)
         for dist in disturbances or (disturbance,):
             if scenario == "launch":
+                assert sched is not None and v_end is not None  # the launch's, set above
                 trajs.append(launch(lib, carriage.p, sched, op, v_end,
                                     carriage.params.vehicle.mass * a, dt, min_gap,
                                     max_time=1.5 * (v_end - op.speed) / a + 1.0,
-                                    disturbance=dist, x_start=x_start, accel=a, **loop))
+                                    disturbance=dist, x_start=x_start, accel=a, **loop_kw))
                 continue
             if bar is None:
                 trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, dist,
-                                      **loop))
+                                      **loop_kw))
                 continue
             with bar(f"simulating {controller_title(c)}") as update:
                 trajs.append(simulate(lib, carriage.p, op, c, t_end, dt, min_gap, dist,
-                                      progress=update, **loop))
+                                      progress=update, **loop_kw))
     growth = max(float(np.max(e.real)) for e in eig.values())
     embedded = carriage.params.envelope.embedded_controller
     mode = speed_mode(lib, carriage.p, op, carriage.params.vehicle.mass,

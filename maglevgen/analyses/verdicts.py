@@ -165,8 +165,8 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
     combos = sign_combinations(DISTURBANCE)
 
     def judged(sim) -> RunVerdict:
-        return worst_verdict([(d, spec_verdict(t)) for d, t in
-                              zip(combos, sim.trajectories, strict=True)])
+        runs = [(d, spec_verdict(t)) for d, t in zip(combos, sim.trajectories, strict=True)]
+        return worst_verdict([(d, v) for d, v in runs if v is not None])
 
     out = []
     for v in sorted({env.v_min, env.v_max, speed}):

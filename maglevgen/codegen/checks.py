@@ -116,7 +116,8 @@ def work_sizes(source: str) -> dict[str, tuple[int, int, int, int]]:
     pat = re.compile(r"int (\w+)_work\(casadi_int \*sz_arg[^{]*\{\s*"
                      r"if \(sz_arg!=0\) \*sz_arg = (\d+);\s*if \(sz_res!=0\) \*sz_res = (\d+);"
                      r"\s*if \(sz_iw!=0\) \*sz_iw = (\d+);\s*if \(sz_w!=0\) \*sz_w = (\d+);")
-    return {m.group(1): tuple(int(g) for g in m.groups()[1:]) for m in pat.finditer(source)}
+    return {m.group(1): (int(m.group(2)), int(m.group(3)), int(m.group(4)), int(m.group(5)))
+            for m in pat.finditer(source)}
 
 
 def _sizes(io: Sequence[Mapping]) -> list[int]:

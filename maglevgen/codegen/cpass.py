@@ -47,8 +47,9 @@ import subprocess
 import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple, cast, get_args
 
 import casadi as ca
 
@@ -137,7 +138,7 @@ def tokenize(src: str) -> list[Token]:
     append = tokens.append
     line_start, in_pp = True, False
     for m in _LEX.finditer(src):
-        kind = m.lastgroup
+        kind = m.lastgroup or ""  # every alternative of _LEX is a named group
         if kind == "newline":
             line_start, in_pp = True, False
         elif kind != "space":
@@ -669,7 +670,7 @@ def postprocess(src: str, precision: Precision) -> str:
     return _mark_unused_params(out, tokens)
 
 
-def codegen_options(precision: Precision, int_type: str = "long long int") -> dict[str, object]:
+def codegen_options(precision: Precision, int_type: str = "long long int") -> dict[str, Any]:
     """The ``casadi.CodeGenerator`` options used by :func:`generate_c`.
 
     ``with_header`` for the API declarations; no ``main``/``mex`` entry points (they need stdio
@@ -689,7 +690,7 @@ def codegen_options(precision: Precision, int_type: str = "long long int") -> di
 def generate_c(
     functions: list[ca.Function],
     name: str,
-    precision: Precision,
+    precision: str,
     *,
     int_type: str = "long long int",
 ) -> dict[str, str]:
@@ -701,7 +702,10 @@ def generate_c(
     """
     if not functions:
         raise ValueError("generate_c needs at least one casadi.Function")
-    cg = ca.CodeGenerator(name, codegen_options(precision, int_type))
+    if precision not in get_args(Precision):
+        raise ValueError(f"precision {precision!r}: expected one of {get_args(Precision)}")
+    prec = cast(Precision, precision)
+    cg = ca.CodeGenerator(name, codegen_options(prec, int_type))
     for fn in functions:
         cg.add(fn)
     with tempfile.TemporaryDirectory(prefix="cpass_") as tmp:
@@ -714,10 +718,11 @@ def generate_c(
     # templates/casadi_output.j2
     guard = re.sub(r"\W", "_", name).upper() + "_H"
     return {f"{name}{sfx}": render("casadi_output.j2", file=f"{name}{sfx}", body=body,
-                                   casadi_version=ca.__version__, precision=precision,
+                                   casadi_version=ca.__version__,  # type: ignore[attr-defined]
+                                   precision=precision,
                                    guard=guard if sfx == ".h" else None)
-            for sfx, body in ((".c", static_helpers(postprocess(raw[".c"], precision))),
-                              (".h", _own_types(postprocess(raw[".h"], precision))))}
+            for sfx, body in ((".c", static_helpers(postprocess(raw[".c"], prec))),
+                              (".h", _own_types(postprocess(raw[".h"], prec))))}
 
 
 def _own_types(header: str) -> str:
@@ -727,14 +732,20 @@ def _own_types(header: str) -> str:
     for macro, own in (("casadi_real", "maglev_real"), ("casadi_int", "maglev_int")):
         pattern = re.compile(rf"/\* Fixed at generation time \(maglevgen cpass\): the code "
                              rf"depends on it\. \*/\n#undef {macro}\n#define {macro} ([^\n]+)\n")
-        header, n = pattern.subn(
-            lambda m, macro=macro, own=own: f"/* {macro} of the .c, fixed at generation time "
-            f"(maglevgen cpass) */\ntypedef {m.group(1)} {own};\n", header)
+        header, n = pattern.subn(partial(_own_typedef, macro, own), header)
         if n != 1:
             raise ValueError(f"generated header does not pin {macro} once")
-        header = _map_code(header, lambda code, macro=macro, own=own:
-                           re.sub(rf"\b{macro}\b", own, code))
+        header = _map_code(header, partial(_renamed, macro, own))
     return header
+
+
+def _own_typedef(macro: str, own: str, m: re.Match[str]) -> str:
+    return (f"/* {macro} of the .c, fixed at generation time (maglevgen cpass) */\n"
+            f"typedef {m.group(1)} {own};\n")
+
+
+def _renamed(macro: str, own: str, code: str) -> str:
+    return re.sub(rf"\b{macro}\b", own, code)
 
 
 def compile_check(sources: dict[str, str], flags: list[str], cc: str = "gcc") -> None:

@@ -10,6 +10,7 @@ header, manifest) reads the Function objects made to it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -363,7 +364,7 @@ def _allocation_io(model: CarriageModel, p: ca.SX, io: dict) -> tuple[ca.SX, ca.
     E = _effectiveness(model, p)
     normal = any(NORMAL_AXIS in comps for _, comps in model.structure.arrays)
     T_normal = _pseudo_inverse(E) if normal else None
-    forces = T_normal @ u_gen if normal else E.T @ ca.solve(E @ E.T, u_gen)
+    forces = T_normal @ u_gen if T_normal is not None else E.T @ ca.solve(E @ E.T, u_gen)
     io["allocate"] = {"u_gen": u_gen, "p": p}, {"F_arrays": forces}
     io["effectiveness"] = {"p": p}, {"E": E}
     return E, T_normal
@@ -470,7 +471,7 @@ def _finished(fn: ca.Function) -> ca.Function:
     if not sx and all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
         return fn
     sym = ca.SX.sym if sx else ca.MX.sym
-    ins = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in())]
+    ins: list[Any] = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in())]
     with casadi_rewriting_off():  # rebuilding the nodes must not undo the shared reciprocals
         outs = [ca.densify(o) for o in fn.call(ins)]
         return ca.Function(fn.name(), ins, outs, fn.name_in(), fn.name_out(), {"cse": sx})
@@ -586,6 +587,6 @@ def bake(fn: ca.Function, p_value: np.ndarray) -> ca.Function:
     """
     sx = fn.is_a("SXFunction")
     sym = ca.SX.sym if sx else ca.MX.sym
-    ins = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in() - 1)]
+    ins: list[Any] = [sym(fn.name_in(i), fn.sparsity_in(i)) for i in range(fn.n_in() - 1)]
     outs = fn.call([*ins, ca.DM(p_value)])
     return ca.Function(fn.name(), ins, outs, fn.name_in()[:-1], fn.name_out(), {"cse": sx})

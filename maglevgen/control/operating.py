@@ -241,10 +241,10 @@ def _checked(lib: SimulationLibrary, p: np.ndarray, speed: float, acceleration: 
              ) -> tuple[np.ndarray, float, np.ndarray]:
     """The C's trim checked here as well: the accelerations of maglev_dynamics at it less those
     of the translation at ``acceleration`` below 1e-8, every gap above ``min_gap``."""
-    x_trim, f_prop = x_trim.ravel(), float(f_prop.ravel()[0])
+    x_trim, f_trim = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)
-    u[0] = f_prop
+    u[0] = f_trim
     acc = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()[6:]
     acc[:3] -= x_trim[6:9] * (acceleration / speed)
     gaps = lib.function("maglev_gaps")(x_trim, p)[0].ravel()
@@ -255,7 +255,7 @@ def _checked(lib: SimulationLibrary, p: np.ndarray, speed: float, acceleration: 
     if np.min(gaps) < min_gap:
         raise NoTrimError(f"no trim at {speed:g} m/s{moving} with every gap above "
                           f"track.min_gap = {min_gap:g} m (smallest {np.min(gaps):.4g} m)")
-    return x_trim, f_prop, gaps
+    return x_trim, f_trim, gaps
 
 
 def coupled_weights(C_rate: np.ndarray, w: Weights) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ stage keeps RK4's fourth order (a C0 or C1 interpolant would not).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -233,7 +233,7 @@ def gain_table_row(op: OperatingPoint, controller: str, design: LoopDesign | Non
         K_pos, K_rate = op.gains(controller)
     else:
         K_pos, K_rate = design.K_pos, design.K_rate
-    row = [[op.f_prop], op.a_trim, op.K.ravel(order="F"), op.c_damping,
+    row: list[Any] = [[op.f_prop], op.a_trim, op.K.ravel(order="F"), op.c_damping,
            K_pos.ravel(order="F"), K_rate.ravel(order="F")]
     if design is not None:
         K_lag = design.K_lag if design.K_lag is not None and design.K_lag.size \

@@ -53,8 +53,9 @@ def rate_weight(zeta: float, q1: np.ndarray, r: np.ndarray, k: np.ndarray,
 def spec_weights(op: OperatingPoint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(q1, q2, r) per axis at ``op``."""
     s = op.weights.spec
-    if s is None:
-        raise ValueError("the operating point carries no specification (Weights.spec)")
+    if s is None or op.plants is None:
+        raise ValueError("the operating point carries no specification (Weights.spec) or no "
+                         "axis plants")
     q1 = 1.0 / np.asarray(s.a_max) ** 2
     r = 1.0 / axis_force_limits(op.allocation, s.force_budget) ** 2
     k, m = op.plants[:, 0], op.plants[:, 1]

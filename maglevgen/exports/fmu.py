@@ -74,21 +74,36 @@ FMU_NAME = "maglev.fmu"
 # enters the trim, the gains or the allocation, computed once at initialization ("fixed").
 TUNABLE_PARAMETERS = frozenset({"track.min_gap"})
 DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s default
-# how the FMU's built-in controller runs (the fixed parameters tick_rate, delay_ticks,
-# speed_gain and force_budget; `build_fmu`'s ``loop``): "firmware" as the firmware runs it
-# (maglevgen.analyses.simulate.firmware_loop: the tick of [control.spec] with its delay, the speed
-# loop, the force budget), "continuous" the paper's law at every derivative evaluation
+# how the FMU's built-in controller runs (the fixed parameters of the "tick" group;
+# `build_fmu`'s ``loop``): "firmware" the loop as built, as `maglevgen simulate --loop firmware`
+# flies it (maglevgen.analyses.simulate.firmware_loop and firmware_gains: the tick law of
+# templates/maglev_tick_law.c.j2 at the tick of [control.spec] with its delay and the
+# controller's gains at the tick, the speed loop and its integral, the force budget, each array
+# force's first-order lag in the plant, as continuous states in model exchange), "continuous"
+# the paper's law at every derivative evaluation
 FMU_LOOPS: tuple[str, ...] = ("firmware", "continuous")
 
 
 @dataclass(frozen=True)
 class FmuTick:
-    """The start values of the tick's parameters (0 everywhere: the continuous law)."""
+    """The start values of the tick's parameters (0 everywhere: the continuous law).
+
+    ``lag``: each array force's first-order lag [s] in the plant ([actuators] time_constant);
+    ``speed_integral``: k_i [N/m] on the speed error's integral; ``k_lag`` (25) and
+    ``k_delay`` (25 MAX_DELAY_TICKS, of which a loop reads its first 25 delay_ticks): the tick
+    law's gains on the predicted lagged generalized forces and on those in flight, column-major
+    (templates/maglev_tick_law.c.j2; empty: zero); ``firmware``: the loop as built, whose FMU
+    carries the lagged array forces as continuous states (model exchange integrates them)."""
 
     rate: float = 0.0  # [Hz]
     delay: int = 0  # [ticks]
     speed_gain: float = 0.0  # [N s/m]
     force_budget: float = 0.0  # [N], 0: no limit
+    lag: float = 0.0  # [s]
+    speed_integral: float = 0.0  # [N/m]
+    k_lag: tuple[float, ...] = ()
+    k_delay: tuple[float, ...] = ()
+    firmware: bool = False
 
 
 @dataclass(frozen=True)
@@ -241,17 +256,28 @@ def fmu_variables(manifest: dict, structure: Structure, controller: FmuControlle
                   tick: FmuTick | None = None) -> tuple[FmuVariable, ...]:
     """Every FMU variable, in value-reference order, from the manifest and the structure (the
     arrays' gaps); ``tick``: the start values of the tick's parameters (a built-in
-    controller's only; default: continuous)."""
+    controller's only; default: continuous). The continuous states are the carriage's, then,
+    for a built-in controller on the firmware loop (``tick.firmware``), each array force
+    component through its lag (``actuator.<force>``), their derivatives in the same order."""
     from maglevgen.analyses.simulate import DISTURBANCE, DISTURBANCE_DOC
 
     states = manifest["states"]
+    t = tick or FmuTick()
     out: list[FmuVariable] = [
         FmuVariable(s["name"], "output", "continuous", "calculated", None, s["unit"],
                     f"{s['description']} (trim at operation.speed plus disturbance.{s['name']} "
                     "at the start)", "state") for s in states]
+    # the loop as built: each array force through its lag is a continuous state after the
+    # carriage's (model exchange's integrator takes it; co-simulation sets it exactly)
+    forces = manifest["inputs"][1:] if controller.law == "axis" and t.firmware else []
+    lagged = [{"name": f"actuator.{u['name']}", "unit": u["unit"]} for u in forces]
+    out += [FmuVariable(a["name"], "local", "continuous", "calculated", None, a["unit"],
+                        f"{u['description']} through the actuator's first-order lag "
+                        "(actuator_lag; 0 at the start, the actuators at rest)", "state")
+            for a, u in zip(lagged, forces, strict=True)]
     out += [FmuVariable(f"der({s['name']})", "local", "continuous", "calculated", None,
                         _per_second(s["unit"]), f"time derivative of {s['name']}", "derivative",
-                        derivative=i + 1) for i, s in enumerate(states)]
+                        derivative=i + 1) for i, s in enumerate([*states, *lagged])]
     out += [FmuVariable(f"gap.{a}", "output", "continuous", "calculated", None, "m",
                         f"gap of array {a} (contact below track.min_gap)", "gap")
             for a in structure.array_names]
@@ -282,7 +308,6 @@ def fmu_variables(manifest: dict, structure: Structure, controller: FmuControlle
                                f"initial {s['name']} minus its trim value (default: "
                                f"{DISTURBANCE_DOC})", "disturbance"))
     if controller.law == "axis":
-        t = tick or FmuTick()
         fixed = " (fixed: set before initialization)"
         out += [
             FmuVariable("tick_rate", "parameter", "fixed", "exact", t.rate, "1/s",
@@ -298,12 +323,41 @@ def fmu_variables(manifest: dict, structure: Structure, controller: FmuControlle
                         "(operation.speed - |(u, v, w)|)" + fixed, "tick"),
             FmuVariable("force_budget", "parameter", "fixed", "exact", t.force_budget, "N",
                         "each array's control force limited to this at the tick; 0: no "
-                        "limit" + fixed, "tick")]
+                        "limit" + fixed, "tick"),
+            FmuVariable("actuator_lag", "parameter", "fixed", "exact", t.lag, "s",
+                        "each array's control force follows the command through a first-order "
+                        "lag of this time constant (the tick only; 0: no lag)" + fixed, "tick"),
+            FmuVariable("speed_integral", "parameter", "fixed", "exact", t.speed_integral,
+                        "N/m", "speed loop's gain on the speed error's integral at the tick: "
+                        "F_prop - speed_integral xi, xi += (|(u, v, w)| - operation.speed) / "
+                        "tick_rate" + fixed, "tick")]
+        # the tick law's gains (column-major): on the predicted lagged generalized forces, and
+        # on those in flight, newest first, a 5 x 5 block per tick of delay up to the most
+        na = len(Q_STATES)
+        k_lag = _padded(t.k_lag, na * na)
+        k_delay = _padded(t.k_delay, na * na * MAX_DELAY_TICKS)
+        out += [FmuVariable(f"K_lag[{i % na + 1},{i // na + 1}]", "parameter", "fixed",
+                            "exact", v, "1", "the tick law's gain from the predicted lagged "
+                            f"generalized force {i // na + 1} to generalized force "
+                            f"{i % na + 1} (w = u_gen - K_lag w_hat - K_delay w_flight)"
+                            + fixed, "tick") for i, v in enumerate(k_lag)]
+        out += [FmuVariable(f"K_delay[{i % na + 1},{i // na + 1}]", "parameter", "fixed",
+                            "exact", v, "1", "the tick law's gain from generalized force "
+                            f"{i // na % na + 1} computed {i // (na * na) + 1} tick(s) before "
+                            f"to generalized force {i % na + 1} (columns past 5 delay_ticks "
+                            "unused)" + fixed, "tick") for i, v in enumerate(k_delay)]
     if kind in ("cs", "both"):
         out.append(FmuVariable("rk4_step", "parameter", "fixed", "exact", DEFAULT_INTERNAL_STEP,
                                "s", "internal RK4 step of co-simulation; every communication "
                                "step must be a whole multiple of it", "step"))
     return tuple(out)
+
+
+def _padded(values: tuple[float, ...], n: int) -> tuple[float, ...]:
+    """``values`` followed by zeros up to ``n`` (refused when longer)."""
+    if len(values) > n:
+        raise ValueError(f"{len(values)} gains where at most {n} fit")
+    return (*map(float, values), *(0.0,) * (n - len(values)))
 
 
 def _per_second(unit: str) -> str:
@@ -364,7 +418,7 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
         "sources": sources, "identifier": MODEL_IDENTIFIER,
         "first": {g: model.first(g) for g in groups},
         "count": {g: model.count(g) for g in groups},
-        "n_vars": len(model.variables), "sizes": sizes,
+        "n_vars": len(model.variables), "sizes": sizes, "nx": len(man["states"]),
         "n_prepared": _function(man, "maglev_closed_loop_prepared")["inputs"][1]["rows"],
         "n_alloc": _function(man, "maglev_allocation_matrix")["outputs"][0]["rows"],
         "axis_states": [cv.STATE_INDEX[s] for s in Q_STATES],
@@ -424,8 +478,10 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
     FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
     embeds (``envelope.embedded_controller``); ``loop`` (FMU_LOOPS): the start values of the
-    tick's parameters, "firmware" those of `maglevgen.analyses.simulate.firmware_loop`, "continuous"
-    zeros (the law at every derivative evaluation); ``verdict``: the controller's
+    tick's parameters, "firmware" those of `maglevgen.analyses.simulate.firmware_loop` with the
+    controller's `firmware_gains` at operation.speed (a "matrix" controller's K_pos and K_rate
+    too) and the lagged array forces as states, "continuous" zeros (the law at every
+    derivative evaluation); ``verdict``: the controller's
     verification (`maglevgen.build.EmbeddedVerdict.text`), in the model's description, or a
     callable that returns it (or raises), called once the options are checked and before the
     slow work."""
@@ -445,7 +501,9 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     _check_trim(carriage, cache_dir, cc, progress)
     if callable(verdict):
         verdict = verdict()
-    tick = _tick(carriage, cache_dir, cc) if loop == "firmware" else FmuTick()
+    builtin = controller in fmu_controllers() and controller != EXTERNAL.name
+    tick, design = (_tick(carriage, controller if builtin else None, cache_dir, cc)
+                    if loop == "firmware" else (FmuTick(), None))
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     interface = render_interface(carriage, GenerateOptions("double", "runtime"), table)
@@ -456,7 +514,7 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
         [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
          json.loads(json.dumps([v.__dict__ for v in model.variables]))]
         + ([] if fmi == "2" else [f"fmi{fmi}"])))) + "}"  # FMI 2.0's GUID as before
-    matrix = (_matrix_gains(carriage, controller, cache_dir, cc)
+    matrix = (_matrix_gains(carriage, controller, cache_dir, cc, design)
               if model.controller.gains == "matrix" else None)
     files = render_files(model, guid, fmi, matrix, verdict)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
@@ -487,29 +545,50 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
                  **{f"sources/{n}": d for n, d in sources.items()}})
 
 
-def _matrix_gains(carriage, controller: str, cache_dir: Path | None, cc: str | None
-                  ) -> tuple[list[float], list[float]]:
+def _matrix_gains(carriage, controller: str, cache_dir: Path | None, cc: str | None,
+                  design=None) -> tuple[list[float], list[float]]:
     """``controller``'s (K_pos, K_rate) at operation.speed, column-major: the constants
-    MATRIX_K_POS and MATRIX_K_RATE of the wrapper (templates/fmu_tick.c.j2)."""
-    from maglevgen.control.operating import Weights, operating_point
-    from maglevgen.runtime.library import simulation_library
+    MATRIX_K_POS and MATRIX_K_RATE of the wrapper (templates/fmu_tick.c.j2); ``design`` (a
+    `plant.LoopDesign`, the firmware loop's `firmware_gains`): its K_pos and K_rate instead of
+    the continuous gains."""
+    if design is None:
+        from maglevgen.control.operating import Weights, operating_point
+        from maglevgen.runtime.library import simulation_library
 
-    lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
-    op = operating_point(lib, carriage.p, carriage.params.operation.speed,
-                         carriage.params.track.min_gap, Weights.of(carriage.params))
-    K_pos, K_rate = op.gains(controller)
+        lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
+        op = operating_point(lib, carriage.p, carriage.params.operation.speed,
+                             carriage.params.track.min_gap, Weights.of(carriage.params))
+        K_pos, K_rate = op.gains(controller)
+    else:
+        K_pos, K_rate = design.K_pos, design.K_rate
     return ([float(v) for v in K_pos.ravel(order="F")],
             [float(v) for v in K_rate.ravel(order="F")])
 
 
-def _tick(carriage, cache_dir: Path | None, cc: str | None) -> FmuTick:
-    """The firmware loop's settings (`simulate.firmware_loop`) as the tick's start values."""
-    from maglevgen.analyses.simulate import firmware_loop
+def _tick(carriage, controller: str | None, cache_dir: Path | None, cc: str | None):
+    """(the firmware loop's settings (`simulate.firmware_loop`) as the tick's start values,
+    ``controller``'s gains on it (`simulate.firmware_gains` at operation.speed: the design at
+    the tick where it has one, a `plant.LoopDesign`; None for ``controller`` None)): what
+    `maglevgen simulate --loop firmware` flies."""
+    from maglevgen.analyses.simulate import firmware_gains, firmware_loop
+    from maglevgen.control.operating import Weights, operating_point
     from maglevgen.runtime.library import simulation_library
 
     lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
     tick, k_v, budget = firmware_loop(carriage, lib)
-    return FmuTick(float(tick.rate), int(tick.delay), float(k_v), float(budget))
+    design = None
+    if controller is not None:
+        op = operating_point(lib, carriage.p, carriage.params.operation.speed,
+                             carriage.params.track.min_gap, Weights.of(carriage.params))
+        design = firmware_gains(op, controller, tick)
+
+    def flat(K) -> tuple[float, ...]:
+        return () if K is None else tuple(float(v) for v in K.ravel(order="F"))
+
+    return FmuTick(float(tick.rate), int(tick.delay), float(k_v), float(budget),
+                   float(tick.lag), float(tick.speed_integral),
+                   flat(None if design is None else design.K_lag),
+                   flat(None if design is None else design.K_delay), firmware=True), design
 
 
 def _check_trim(carriage, cache_dir: Path | None, cc: str | None, progress: Progress) -> None:

@@ -217,12 +217,12 @@ def rate_bar(description: str, total: int, unit: str = "runs") -> Iterator[Calla
                                       TimeRemainingColumn(), transient=True,
                                       console=_console()) as prog:
         task = prog.add_task(description, total=total, rate="")
-        count = [0]
+        advanced = [0]
 
         def advance(k: int) -> None:
-            count[0] += k
+            advanced[0] += k
             dt = time.perf_counter() - t0
             prog.update(task, advance=k,
-                        rate=f"{count[0] / dt:.4g} {unit}/s" if dt > 0 else "")
+                        rate=f"{advanced[0] / dt:.4g} {unit}/s" if dt > 0 else "")
 
         yield advance

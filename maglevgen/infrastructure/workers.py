@@ -86,11 +86,12 @@ def _call(fn: Callable[..., Any], args: tuple) -> Any:
 def child(shared: Mapping[str, Any] | None = None) -> Iterator[Executor]:
     """One worker that runs jobs in order; ``shared`` reaches it by fork, not by pickle.
     Leaving the block by an exception stops the worker (its jobs fail or are cancelled)."""
-    init = {"initializer": _hold, "initargs": (dict(shared or {}),)}
+    initargs = (dict(shared or {}),)
     if "fork" in multiprocessing.get_all_start_methods():
-        pool: Executor = process_pool(1, mp_context=multiprocessing.get_context("fork"), **init)
+        pool: Executor = process_pool(1, mp_context=multiprocessing.get_context("fork"),
+                                      initializer=_hold, initargs=initargs)
     else:
-        pool = ThreadPoolExecutor(1, **init)
+        pool = ThreadPoolExecutor(1, initializer=_hold, initargs=initargs)
     try:
         yield pool
     except BaseException:

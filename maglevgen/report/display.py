@@ -57,7 +57,8 @@ def _brace_group(s: str, i: int) -> tuple[str, int]:
         return "", i
     if s[i] != "{":
         if s[i] == "\\":
-            m = re.match(r"\\[A-Za-z]+|\\.", s[i:])
+            m = re.match(r"\\[A-Za-z]+|\\.?", s[i:], re.DOTALL)  # matches at any backslash
+            assert m is not None
             return m.group(0), i + len(m.group(0))
         return s[i], i + 1
     depth, j = 0, i
@@ -116,7 +117,8 @@ def _tex_width(s: str) -> float:
     while i < len(s):
         c = s[i]
         if c == "\\":
-            m = re.match(r"\\([A-Za-z]+|.)", s[i:])
+            m = re.match(r"\\([A-Za-z]+|.?)", s[i:], re.DOTALL)  # matches at any backslash
+            assert m is not None
             name = m.group(1)
             i += len(m.group(0))
             if name in ("frac", "dfrac", "tfrac"):

@@ -8,13 +8,18 @@ SymPy. Axis labels are symbol and unit; legends sit outside the data.
 from __future__ import annotations
 
 import io
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 __all__ = ["damping_figure", "force_figures", "pole_map"]
 
-_RC = {
+def _rc_without_cycle() -> Any:
+    """_RC less its colour cycle (typed Any: matplotlib's stub wants Literal keys)."""
+    return {k: v for k, v in _RC.items() if k != "axes.prop_cycle"}
+
+
+_RC: dict[str, Any] = {
     "font.family": "DejaVu Sans",
     "font.size": 9,
     "axes.grid": True,
@@ -46,7 +51,7 @@ def force_figures(curves: dict[str, Any]) -> dict[str, bytes]:
     c = curves
     n_c, speed, v_c = c["circuits"], c["speed"], c["v_c"]
     out = {}
-    with mpl.rc_context(rc):
+    with mpl.rc_context(cast(Any, rc)):  # matplotlib's stub: Literal keys
         fig = Figure(figsize=(6.0, 3.4))
         ax = fig.add_subplot()
         ax.plot(c["gap"] * 1e3, c["lift_gap"], label=f"lift, {n_c:g} circuits")
@@ -91,7 +96,7 @@ def pole_map(sets: dict[str, list[tuple[float, float]]]) -> bytes:
     import matplotlib as mpl
     from matplotlib.figure import Figure
 
-    with mpl.rc_context({k: v for k, v in _RC.items() if k != "axes.prop_cycle"}):
+    with mpl.rc_context(_rc_without_cycle()):
         fig = Figure(figsize=(6.4, 3.8))
         ax = fig.add_subplot()
         reach = max((math.hypot(*p) for ps in sets.values() for p in ps), default=1.0) * 1.1
@@ -126,7 +131,7 @@ def damping_figure(d: dict[str, Any]) -> bytes:
     colors = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"]
     controller_colors = d.get("colors") or colors  # the registry's, where the caller gives them
     styles = dict(zip(d["models"], ("-", "--"), strict=True))
-    with mpl.rc_context({k: v for k, v in _RC.items() if k != "axes.prop_cycle"}):
+    with mpl.rc_context(_rc_without_cycle()):
         fig = Figure(figsize=(7.0, 6.4))
         ax, bx = fig.subplots(2, 1)
         for i, label in enumerate(d["axes"]):
