@@ -255,7 +255,7 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
     how += ". "
     k_i = (tick or {}).get("speed_integral") or 0.0
     integral = (f", k_i = {k_i:.4g} N/m on the speed error's integral, clamped at "
-                f"{tick['integral_limit']:g} N" if k_i > 0 else "")
+                f"{tick['integral_limit']:g} N" if tick and k_i > 0 else "")
     scenario = how + (
         "Launch: from the accelerating trim at the envelope's v_min the carriage accelerates "
         "to v_max under that trim's propulsion (its drag plus m a); the gains, the reference "

@@ -700,7 +700,8 @@ def metrics(traj: Trajectory) -> dict:
             # k_i [N/m] and the clamp of |k_i xi| [N] (None: no integral)
             "speed_integral": getattr(traj.tick, "speed_integral", 0.0),
             "integral_limit": (float(traj.tick.integral_limit)
-                               if getattr(traj.tick, "speed_integral", 0.0) > 0 else None)},
+                               if isinstance(traj.tick, FirmwareTick)
+                               and traj.tick.speed_integral > 0 else None)},
         "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
         # the run against [control.spec] (`spec_verdict`; None for a run without limits)
