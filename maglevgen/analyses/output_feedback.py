@@ -240,7 +240,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
         if d:
             cmd_applied = queue[-1]
         du_applied = _inputs(cmd_applied, T)
-        xdot = _rhs(dynamics, x, F, u_trim, du_applied, tau, p, 0.0)
+        xdot: np.ndarray | None = _rhs(dynamics, x, F, u_trim, du_applied, tau, p, 0.0)
         y = np.empty(len(layout.names))
         for j, g in enumerate(layout.gaps):
             y[j] = float(np.ravel(gap_fn(x, g.point, g.normal, g.nominal_gap)[0])[0])
@@ -278,7 +278,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
         z_pred = model.Phi @ z_post + model.Gamma @ du
         if d == 0:
             cmd_applied = cmd
-            xdot = None  # type: ignore[assignment]  # the command changed: stage 1 again
+            xdot = None  # the command changed: the first stage again
         else:
             queue.insert(0, cmd)
             queue.pop()  # cmd_applied: applied over this tick
