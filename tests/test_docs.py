@@ -249,3 +249,23 @@ def test_the_guides_cross_references_are_links_that_resolve(site: Path) -> None:
                 assert want in page, (rst.name, guide, target)
                 links += 1
     assert links >= 10, links
+
+
+def test_no_tracked_file_keeps_a_merge_conflict_marker() -> None:
+    """git's own list of tracked files (``git ls-files``), each text file read: no line is a
+    conflict marker a merge left (Sphinx renders them in Markdown without a warning)."""
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True,
+                           check=True).stdout.decode().split("\0")
+    marker = re.compile(r"^(<{7}|>{7}) ", re.MULTILINE)
+    found = []
+    for name in filter(None, files):
+        path = REPO / name
+        if not path.is_file():
+            continue
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:  # a binary file
+            continue
+        found += [f"{name}:{text.count(chr(10), 0, m.start()) + 1}"
+                  for m in marker.finditer(text)]
+    assert found == [], found
