@@ -128,6 +128,32 @@ static void tick_law_advance(maglev_real* w_hat, maglev_real* in_flight, int n_f
 }
 
 
+/* ---- The plant's actuator lag over one RK4 step: one source (templates/maglev_plant_lag.c.j2)
+   included by the host simulation's firmware loop (maglev_simulate.c) and the FMU's tick
+   (fmu_tick.c), so that their plants are the same. The includer defines maglev_real. ---- */
+
+/* the plant's inputs half a step and a step on from the step's start: each array force
+   (indices 1 .. n - 1) follows the held command u through its first-order lag from f0,
+   f(s) = u + (f0 - u) exp(-s / tau), exact (e_half, e_full: exp(-h / 2 tau), exp(-h / tau));
+   lagged 0 (no lag): f = u. The propulsion (index 0) has no lag. */
+static void plant_lag_inputs(const maglev_real* u, const maglev_real* f0, int n, int lagged,
+                             maglev_real e_half, maglev_real e_full, maglev_real* u_half,
+                             maglev_real* u_end) {
+    int i;
+    u_half[0] = u[0];
+    u_end[0] = u[0];
+    for (i = 1; i < n; ++i) {
+        if (lagged) {
+            u_half[i] = u[i] + (f0[i] - u[i]) * e_half;
+            u_end[i] = u[i] + (f0[i] - u[i]) * e_full;
+        } else {
+            u_half[i] = u[i];
+            u_end[i] = u[i];
+        }
+    }
+}
+
+
 static int all_finite(const maglev_real* v, int n) {
     int i;
     for (i = 0; i < n; ++i) {
@@ -441,16 +467,10 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
                 sat = ring_sat[w];
                 act[0] = applied[0]; /* the propulsion without lag */
             }
-            if (tau > 0) {
-                /* f(t_k + s) = u + (f(t_k) - u) exp(-s / tau), the held command u */
-                act_half[0] = act_end[0] = applied[0];
-                for (i = 1; i < NU; ++i) {
-                    act_half[i] = applied[i] + (act[i] - applied[i]) * e_half;
-                    act_end[i] = applied[i] + (act[i] - applied[i]) * e_full;
-                }
-            } else {
-                for (i = 0; i < NU; ++i) act[i] = act_half[i] = act_end[i] = applied[i];
+            if (!(tau > 0)) {
+                for (i = 0; i < NU; ++i) act[i] = applied[i];
             }
+            plant_lag_inputs(applied, act, NU, tau > 0, e_half, e_full, act_half, act_end);
             for (i = 0; i < NU; ++i) u[i] = act[i];
             if (held_rhs(ws, x, act, k1)) {
                 *status = MAGLEV_SIM_ERROR;

@@ -243,12 +243,14 @@ def test_speed_integral_removes_the_steady_error(op, carriage) -> None:
         assert abs(np.prod(pair) / (ratio * b**2) - 1) < 0.1, (ratio, pair)
 
 
-def _reference_loop(op, k_v: float, tau: float, gains: tuple | None = None) -> np.ndarray:
+def _reference_loop(op, k_v: float, tau: float, gains: tuple | None = None,
+                    k_i: float = 0.0) -> np.ndarray:
     """Eigenvalues (continuous-equivalent) of the loop as built at 1 kHz with one tick of
     delay, assembled here: c2d of the lagged plant (`_plant_continuous`); the controller
     w = -(K_x x + K_q w[k-1] + K_a w_hat) with K from control.dlqr on the design model
     (`_reference_gains`) or ``gains`` = (K_pos, K_rate) alone; w_hat[k+1] = a w_hat +
-    (1 - a) w[k-1]; the propulsion -k_v dV, applied a tick late like w."""
+    (1 - a) w[k-1]; the propulsion -k_v dV - k_i xi, applied a tick late like w, with the
+    speed error's integral xi[k+1] = xi[k] + h dV[k] (k_i = 0: no integral)."""
     h = 1e-3
     Ac, Bc = _plant_continuous(op, tau)
     sysd = control.c2d(control.ss(Ac, Bc, np.eye(Ac.shape[0]), 0), h, "zoh")
@@ -269,10 +271,10 @@ def _reference_loop(op, k_v: float, tau: float, gains: tuple | None = None) -> n
     cV = np.zeros(11)
     cV[[10, 5, 6]] = vel
     a = np.exp(-h / tau)
-    N = n + nf + 6 + 5  # plant, (w, p) in flight, w_hat
+    N = n + nf + 6 + 5 + 1  # plant, (w, p) in flight, w_hat, xi
     X = np.zeros((N, N))
-    pl, fw, fp, wh = slice(0, n + nf), slice(n + nf, n + nf + 5), n + nf + 5, slice(
-        n + nf + 6, N)
+    pl, fw, fp, wh, xi = slice(0, n + nf), slice(n + nf, n + nf + 5), n + nf + 5, slice(
+        n + nf + 6, N - 1), N - 1
     X[pl, pl] = Phi
     X[pl, fw] = Gam[:, :nf] @ T
     X[pl, fp] = Gam[:, nf]
@@ -282,6 +284,11 @@ def _reference_loop(op, k_v: float, tau: float, gains: tuple | None = None) -> n
     X[fp, :n] = -k_v * cV
     X[wh, wh] = a * np.eye(5)
     X[wh, fw] = (1 - a) * np.eye(5)
+    X[fp, xi] = -k_i
+    X[xi, :n] = h * cV
+    X[xi, xi] = 1.0
+    if k_i == 0:  # xi then feeds nothing: leave its unit eigenvalue out
+        X = X[:-1, :-1]
     z = np.linalg.eigvals(X).astype(complex)
     z = z[np.abs(z) > 1e-12]
     return np.log(z) / h
@@ -329,12 +336,13 @@ def test_spec_verdict_is_its_design_at_the_tick_on_the_lagged_loop(carriage, sim
     spec = carriage.params.control.spec
     e = env.controllers["spec"]
     for i, op in enumerate(envelope_points(carriage, sim_lib, env.speeds)):
-        s = _reference_loop(op, env.loop.speed_gain, TAU)
+        s = _reference_loop(op, env.loop.speed_gain, TAU, k_i=env.loop.speed_integral)
         zeta = np.min(-s.real / np.abs(s))
         assert e.sampled_min_damping[i] == pytest.approx(zeta, rel=1e-6)
         assert e.sampled_max_real[i] == pytest.approx(np.max(s.real), rel=1e-6)
         assert zeta >= spec.min_damping_ratio
-        s_c = _reference_loop(op, env.loop.speed_gain, TAU, op.gains("spec"))
+        s_c = _reference_loop(op, env.loop.speed_gain, TAU, op.gains("spec"),
+                              env.loop.speed_integral)
         zeta_c = np.min(-s_c.real / np.abs(s_c))
         assert e.continuous_gains.min_damping[i] == pytest.approx(zeta_c, rel=1e-6)
         assert zeta_c < spec.min_damping_ratio

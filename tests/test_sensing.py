@@ -98,7 +98,8 @@ def test_default_sensors_observe_and_the_whole_loop_meets_the_spec(carriage, sim
         assert sc.rank[i] == np.linalg.matrix_rank(Ob) == 12
         assert sc.smallest[i] == pytest.approx(sv[-1], rel=1e-3)
         z_f = np.linalg.eigvals(Phi - L @ C)
-        s_ref = np.concatenate([_reference_loop(op, env.loop.speed_gain, TAU),
+        s_ref = np.concatenate([_reference_loop(op, env.loop.speed_gain, TAU,
+                                                k_i=env.loop.speed_integral),
                                 np.log(z_f[np.abs(z_f) > 1e-9].astype(complex)) / h])
         zeta = np.min(-s_ref.real / np.abs(s_ref))
         zetas.append(zeta)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points
+from maglevgen.analyses.envelope import envelope_points, loop_plant, schedule_setting
 from maglevgen.carriage import structure_of
 from maglevgen.control import controller as registered_controller
 from maglevgen.control.estimation import (
@@ -41,8 +41,8 @@ from maglevgen.control.estimation import (
     measurement_model,
 )
 from maglevgen.control.operating import OperatingPoint
-from maglevgen.control.plant import LoopDesign, LoopPlant
-from maglevgen.control.sampled import LOOP_STATES, Tick, speed_gain
+from maglevgen.control.plant import LoopDesign, LoopPlant, speed_loop_gains
+from maglevgen.control.sampled import LOOP_STATES, Tick
 from maglevgen.derive import conventions as cv
 from maglevgen.runtime.ffi import GeneratedFunctionError
 
@@ -155,21 +155,27 @@ class NoisyHold:
 def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str | None = None,
                t_end: float = 20.0, seed: int = 0, noise_scale: float = 1.0,
                point: EstimatorPoint | None = None, plant: LoopPlant | None = None,
-               gains: LoopDesign | None = None) -> NoisyHold:
+               gains: LoopDesign | None = None, integral_limit: float = float("inf")
+               ) -> NoisyHold:
     """The output-feedback loop held at ``op``'s speed for ``t_end`` seconds (module
     docstring); the noise drawn from numpy's default_rng(seed). ``controller``: default the
     embedded one (``envelope.embedded_controller``); ``plant`` and ``gains``: the loop as
     built and its gains (default: LoopPlant at ``op`` with the file's tick, lag and the speed
-    loop's k_v, and the controller's design on it, as the envelope's verdict)."""
+    loop's (k_v, k_i) at ``op`` (`plant.speed_loop_gains`), and the controller's design on it,
+    as the envelope's verdict). With k_i > 0 the speed error's integral runs on the estimate,
+    clamped as the C tick clamps it: |k_i xi| <= ``integral_limit`` [N] (default: the file's
+    control.spec.speed_integral_limit where ``plant`` is not given)."""
     start = time.perf_counter()
     controller = controller or params.envelope.embedded_controller
     layout = SensorLayout.of(params)
     tick = Tick.of(params)
     tau = float(params.actuators.time_constant)
     if plant is None:
-        k_v = speed_gain(params.vehicle.mass, op.trim_drag_slope,
-                         params.control.spec.speed_bandwidth)
-        plant = LoopPlant(op, tick, tau, k_v)
+        spec = params.control.spec
+        k_v, k_i = speed_loop_gains(params.vehicle.mass, op.trim_drag_slope,
+                                    spec.speed_bandwidth, spec.speed_integral_ratio)
+        plant = LoopPlant(op, tick, tau, k_v, k_i)
+        integral_limit = float(spec.speed_integral_limit)
     if gains is None:
         c = registered_controller(controller)
         gains = (plant.design(c.weights) if c.tick_design and c.weights is not None
@@ -232,6 +238,9 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     cmd_applied = np.zeros(n_cmd)  # with no delay: the previous tick's command
     diverged, min_gap = None, np.inf
     zc = np.zeros(L.size)
+    speed_row = plant.speed_row()
+    xi = 0.0  # the speed error's integral (k_i > 0), clamped as the C tick clamps it
+    xi_max = integral_limit / plant.k_i if plant.k_i > 0 else 0.0
     for k in range(n_ticks):
         t = k * tick.period
         # the command applied over this tick: the oldest in flight (computed d ticks ago);
@@ -266,7 +275,11 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             zc[L["in_flight"]] = np.concatenate(queue)
         if tau > 0:
             zc[L["prediction"]] = w_hat
+        if plant.k_i > 0:
+            zc[L["speed_integral"]] = xi
         cmd = -K_c @ zc
+        if plant.k_i > 0:  # tick_law_integral: xi + h dV, clamped
+            xi = float(np.clip(xi + tick.period * (speed_row @ zc), -xi_max, xi_max))
         du = _inputs(cmd, T)
         for i in range(len(arrays)):  # each array's control force saturated at the budget
             sl = slice(1 + first[i], 1 + first[i] + comps[i])
@@ -339,8 +352,10 @@ def noisy_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD_
     points = envelope_points(carriage, lib, hold_speeds(v_min, v_max))
     tau = float(params.actuators.time_constant)
     est = estimator_points(lib, carriage.p, params, points, tau)
+    setting = schedule_setting(carriage, lib, v_min, v_max)  # the firmware's speed loop
     return tuple(noisy_hold(lib, carriage.p, params, op, t_end=t_end, seed=seed,
-                            noise_scale=scale, point=e)
+                            noise_scale=scale, point=e, plant=loop_plant(op, setting),
+                            integral_limit=setting.speed_integral_limit)
                  for op, e in zip(points, est, strict=True) for scale in NOISE_SCALES)
 
 

@@ -60,9 +60,9 @@ __all__ = [
 
 # What the cached C of the derivation depends on besides the generator's source closure.
 # (every template render_runtime_sources renders or imports)
-DERIVATION_TEMPLATES = ("maglev_simulate.*.j2", "maglev_tick_law.c.j2", "maglev_checks.c.j2",
-                        "maglev_errors.h.j2", "c_prototype.h.j2", "casadi_output.j2",
-                        "generated_file.j2")
+DERIVATION_TEMPLATES = ("maglev_simulate.*.j2", "maglev_tick_law.c.j2",
+                        "maglev_plant_lag.c.j2", "maglev_checks.c.j2", "maglev_errors.h.j2",
+                        "c_prototype.h.j2", "casadi_output.j2", "generated_file.j2")
 DERIVATION_LIBS = ("casadi", "sympy", "numpy", "cloudpickle")
 # Everything a build's outputs depend on.
 ALL_PACKAGES = ("maglevgen", "maglevgen.derive", "maglevgen.codegen", "maglevgen.runtime",
