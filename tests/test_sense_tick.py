@@ -597,3 +597,34 @@ def test_sense_tick_under_sanitizers_with_hostile_readings(sense, carriage, sim_
     # reading and in all; in all, no gap is usable: MAGLEV_ERR_SENSOR
     assert sensor >= 6 and left_out >= 6 * (ny + 1), out.stdout
     assert errors >= sensor, out.stdout
+
+
+@pytest.mark.slow
+def test_the_firmware_sense_table_holds_the_estimator_within_its_bound(carriage,
+                                                                       sim_lib) -> None:
+    """`maglevgen firmware`'s sense table (sense_schedule: the GainTable fit with its dense
+    check): its stated errors within GAIN_TABLE_BOUND, and at four speeds between its nodes
+    each field within the bound of the exact rows (sense_plants), relative to the field's
+    largest magnitude over those speeds and the ends; the manifest states the same table."""
+    from maglevgen.analyses.envelope import envelope_points, resolve_range
+    from maglevgen.control import estimation as est
+    from maglevgen.control.schedule import GAIN_TABLE_BOUND
+    from maglevgen.exports.firmware import firmware_loop, sense_schedule
+
+    v_min, v_max = resolve_range(carriage, sim_lib)
+    loop = firmware_loop(carriage, sim_lib)
+    sch = sense_schedule(carriage, sim_lib, v_min, v_max, loop)
+    assert sch is not None
+    assert max(sch.table.errors.values()) <= GAIN_TABLE_BOUND
+    speeds = np.concatenate([[v_min, v_max], np.random.default_rng(49).uniform(v_min, v_max, 4)])
+    exact = np.array([sp.row() for sp in est.sense_plants(
+        sim_lib, carriage.p, carriage.params, envelope_points(carriage, sim_lib, speeds),
+        loop.actuator_lag, loop.delay_ticks)])
+    got = sch.table(speeds)
+    for name, sl in _fields(sch.table).items():
+        scale = np.max(np.abs(exact[:, sl]))
+        assert np.max(np.abs(got[:, sl] - exact[:, sl])) <= GAIN_TABLE_BOUND * scale, name
+    m = sch.manifest()
+    assert m["table"]["nodes"] == len(sch.table.coeffs)
+    assert [r["name"] for r in m["readings"]] == list(est.SensorLayout.of(
+        carriage.params).names)

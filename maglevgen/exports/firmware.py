@@ -32,6 +32,7 @@ from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
 from maglevgen.control.schedule import GainTable, gain_table_sources
 from maglevgen.derive import conventions as cv
+from maglevgen.errors import InputError
 from maglevgen.runtime.library import simulation_library
 from maglevgen.version import __version__
 
@@ -98,6 +99,8 @@ class FirmwareLoop:
             if self.actuator_lag > 0 else 0.0
 
 
+#: the sense tick's readings at most: one bit each in C's unsigned long (32 bits at least)
+MAX_READINGS = 32
 #: what each kind of reading is, its unit (the sense tick's header and the manifest)
 READING_KINDS = {"gap": ("m", "gap sensor {name}: the gap along its face's normal"),
                  "gyro": ("rad/s", "gyro: body rate about {axis}"),
@@ -154,8 +157,9 @@ def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
     if params.sensors is None:
         return None
     layout = est.SensorLayout.of(params)
-    if len(layout.names) > 32:
-        raise ValueError(f"{len(layout.names)} readings: the sense tick's flags word holds 32")
+    if len(layout.names) > MAX_READINGS:
+        raise InputError(f"sensors: {len(layout.names)} readings; the sense tick's flags "
+                         f"word holds {MAX_READINGS} (fewer gap sensors)")
     table = est.sense_table(lib, carriage.p, params,
                             lambda v: envelope_points(carriage, lib, [v])[0], v_min, v_max,
                             loop.actuator_lag, loop.delay_ticks)
@@ -273,6 +277,8 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "flags": " ".join(FIRMWARE_FLAGS), "functions": [f["name"] for f in fn_table],
         "cost": cost, "error_defines": error_defines(),
         "sense": None if sense is None else _sense_context(sense, precision),
+        "sense_nodes": 0 if sense is None else len(sense.table.coeffs),
+        "sense_error": 0.0 if sense is None else max(sense.table.errors.values()),
         "verdict": (verdict or {}).get("verdict", "not checked (rendered without "
                                        "`maglevgen firmware`'s verification)"),
     }
