@@ -259,6 +259,7 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
     forces, the commands in flight) and the rejected readings bit for bit; the command to
     1e-12 of its scale (CasADi's rates and allocation against SymPy's and pinv)."""
     from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.control import estimation as est
 
     fx = sense
     sch, loop = fx["schedule"], fx["loop"]
@@ -269,11 +270,11 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
     speeds = [sch.table.v_min, 0.5 * (sch.table.v_min + sch.table.v_max), sch.table.v_max]
     for op in envelope_points(carriage, sim_lib, speeds):
         c = CSense(fx)
-        y0 = np.zeros(nps.ny)
+        y0 = est.measurement_model(sim_lib, carriage.p, op, fx["layout"]).y_trim.copy()
         y0[-1] = 12.5  # the track sensor: the position the estimate starts at
         assert c.init(y0, all_valid, op.speed) == OK
         st = c.state()
-        assert st["x_pred"][0] == 12.5 and st["rejected"] == 0  # zeros: each in its range
+        assert st["x_pred"][0] == 12.5 and st["rejected"] == 0
         st["x_pred"][2] += 1e-3
         st["x_pred"][3] += 2e-3
         c.set_state(st)
@@ -628,3 +629,49 @@ def test_the_firmware_sense_table_holds_the_estimator_within_its_bound(carriage,
     assert m["table"]["nodes"] == len(sch.table.coeffs)
     assert [r["name"] for r in m["readings"]] == list(est.SensorLayout.of(
         carriage.params).names)
+
+
+@pytest.mark.needs_cc
+def test_sense_init_takes_the_pose_from_the_gaps(sense, carriage, sim_lib) -> None:
+    """maglev_sense_init from readings of a carriage 1 mm / 1-2 mrad off the trim (each gap
+    sensor's reading from the generated maglev_gap_reading at that state: the nonlinear
+    geometry): the pose within 2 % of the offset (the linearisation's error) and equal to
+    numpy's lstsq on the table's C and y_trim to 1e-9 of it; the velocities and rates the
+    trim's, the track position the track sensor's; with only the four lower gaps usable
+    (four readings, five pose states) the pose stays at the trim."""
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.control import estimation as est
+
+    fx = sense
+    layout, sch = fx["layout"], fx["schedule"]
+    (op,) = envelope_points(carriage, sim_lib, [17.0])
+    meas = est.measurement_model(sim_lib, carriage.p, op, layout)
+    offset = np.array([1e-3, -1e-3, 2e-3, -1e-3, 1.5e-3])  # y, z, phi, theta, psi
+    x_true = op.x_trim.astype(float).copy()
+    x_true[1:6] += offset
+    gap_fn = sim_lib.function("maglev_gap_reading")
+    y = meas.y_trim.copy()
+    for j, g in enumerate(layout.gaps):
+        y[j] = float(np.ravel(gap_fn(x_true, g.point, g.normal, g.nominal_gap)[0])[0])
+    y[-1] = 3.0
+    c = CSense(fx)
+    all_valid = (1 << len(y)) - 1
+    assert c.init(y, all_valid, op.speed) == OK
+    x = c.state()["x_pred"]
+    row = _clenshaw(sch.table, op.speed)
+    f = _fields(sch.table)
+    x_t = row[f["x_trim"]].copy()
+    x_t[6] += op.speed
+    dp = x[1:6] - x_t[1:6]
+    assert np.max(np.abs(dp - offset)) <= 0.02 * np.max(np.abs(offset)), (dp, offset)
+    ny, ng = len(y), sch.n_gap
+    C = row[f["C"]].reshape(ny, -1, order="F")[:ng, [sch.states.index(s) for s in
+                                                    ("y", "z", "phi", "theta", "psi")]]
+    ref = np.linalg.lstsq(C, y[:ng] - row[f["y_trim"]][:ng], rcond=None)[0]
+    assert np.max(np.abs(dp - ref)) <= 1e-9 * np.max(np.abs(ref)), (dp, ref)
+    assert x[0] == 3.0
+    np.testing.assert_array_equal(x[6:], x_t[6:])
+    lower = sum(1 << j for j, g in enumerate(layout.gaps) if g.array in ("1", "2", "4", "5"))
+    assert bin(lower).count("1") == 4
+    assert c.init(y, lower | (1 << (ny - 1)), op.speed) == OK
+    np.testing.assert_array_equal(c.state()["x_pred"][1:6], x_t[1:6])

@@ -175,6 +175,7 @@ def _sense_context(sense: SenseSchedule, precision: str) -> dict:
     names = sense.readings
     return {"n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
             "state_index": [cv.STATE_INDEX[s] for s in sense.states],
+            "pose_index": [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")],
             "track_index": names.index("track_x") if "track_x" in names else -1,
             "readings": sense.reading_rows(),
             "lo": [c_literal(float(v), precision) for v in sense.ranges[:, 0]],
