@@ -103,7 +103,11 @@ def sense(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
         const = replace(table, coeffs=coeffs, stored=tuple(int(j) for j in np.flatnonzero(row)))
         return build(const, schedule, tmp_path_factory.mktemp("sense_frozen"))
 
+    def render(precision: str, out: Path) -> None:
+        write_output(render_firmware(carriage, table, loop, precision, sense=schedule), out)
+
     return {"so": build(table, schedule, folder), "table": table, "loop": loop,
+            "render": render,
             "setting": setting, "folder": folder, "schedule": schedule, "layout": layout,
             "nu": nu, "frozen": frozen, "codes": {k: v for k, (v, _) in ERROR_CODES.items()}}
 
@@ -675,3 +679,33 @@ def test_sense_init_takes_the_pose_from_the_gaps(sense, carriage, sim_lib) -> No
     assert bin(lower).count("1") == 4
     assert c.init(y, lower | (1 << (ny - 1)), op.speed) == OK
     np.testing.assert_array_equal(c.state()["x_pred"][1:6], x_t[1:6])
+
+
+@pytest.mark.needs_arm("arm-none-eabi-gcc", "arm-none-eabi-nm")
+def test_sense_tick_builds_for_the_cortex_m4(sense, tmp_path: Path) -> None:
+    """The single-precision folder with the sense tick cross-compiled for the Cortex-M4F with
+    the README's flags (warnings as errors): no double arithmetic (__aeabi_d*, f2d, d2f) nor
+    double libm call, no .data/.bss (no writable static state), every defined external
+    symbol maglev_*, and maglev_sense_init / maglev_sense_tick / maglev_sense_schedule among
+    them."""
+    from maglevgen.codegen.cpass import DOUBLE_MATH
+    from maglevgen.exports.firmware import FIRMWARE_FLAGS
+
+    sense["render"]("single", tmp_path)
+    objs = []
+    for name in ("maglev_tick", "maglev_gain_table", "maglev_sense_table", "maglev_functions"):
+        run = subprocess.run(["arm-none-eabi-gcc", *FIRMWARE_FLAGS, "-c", f"{name}.c", "-o",
+                              f"{name}.o"], cwd=tmp_path, capture_output=True, text=True)
+        assert run.returncode == 0, (name, run.stderr)
+        objs.append(f"{name}.o")
+    symbols = subprocess.run(["arm-none-eabi-nm", *objs], cwd=tmp_path, check=True,
+                             capture_output=True, text=True).stdout
+    lines = [ln.split() for ln in symbols.splitlines() if ln.strip() and ":" not in ln]
+    undefined = {ln[-1] for ln in lines if ln[-2] == "U"}
+    defined = {ln[-1] for ln in lines if len(ln) == 3 and ln[1] in "TDRB"}
+    assert not {u for u in undefined if u.startswith(("__aeabi_d", "__aeabi_f2d",
+                                                      "__aeabi_d2f"))}, undefined
+    assert not undefined & DOUBLE_MATH, undefined & DOUBLE_MATH
+    assert not [ln for ln in lines if len(ln) == 3 and ln[1] in "dDbB"], lines
+    assert all(d.startswith("maglev_") for d in defined), defined
+    assert {"maglev_sense_init", "maglev_sense_tick", "maglev_sense_schedule"} <= defined
