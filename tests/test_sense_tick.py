@@ -709,3 +709,19 @@ def test_sense_tick_builds_for_the_cortex_m4(sense, tmp_path: Path) -> None:
     assert not [ln for ln in lines if len(ln) == 3 and ln[1] in "dDbB"], lines
     assert all(d.startswith("maglev_") for d in defined), defined
     assert {"maglev_sense_init", "maglev_sense_tick", "maglev_sense_schedule"} <= defined
+
+
+def test_the_readme_quotes_the_recorded_sense_tick_cost() -> None:
+    """The sense tick's cost the folder's README quotes (MEASURED["sense"]) is the one
+    bench/firmware_tick.py recorded (bench/firmware_tick_results.json, "sense_tick"), its
+    share the cycles over a 1 kHz period at the recorded clock (recomputed here)."""
+    import json
+
+    from maglevgen.exports.firmware import MEASURED
+
+    recorded = json.loads((Path(__file__).resolve().parents[1] / "bench"
+                           / "firmware_tick_results.json").read_text())["sense_tick"]
+    for key in ("instructions", "cycles", "stack_bytes"):
+        assert MEASURED["sense"][key] == recorded[key], key
+    assert MEASURED["sense"]["share_percent"] == pytest.approx(
+        100 * recorded["cycles"] / (recorded["clock_mhz"] * 1e6 / 1000), abs=0.005)

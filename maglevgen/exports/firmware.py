@@ -21,7 +21,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
+from maglevgen.analyses.envelope import (
+    envelope_points,
+    gain_table,
+    resolve_range,
+    schedule_setting,
+)
 from maglevgen.codegen.checks import check_entries, error_defines
 from maglevgen.codegen.cpass import generate_c
 from maglevgen.codegen.emit import c_literal, render
@@ -30,6 +35,7 @@ from maglevgen.codegen.generate import function_table
 from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_context, template_env
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
+from maglevgen.control import estimation as est
 from maglevgen.control.schedule import GainTable, gain_table_sources
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
@@ -137,8 +143,6 @@ class SenseSchedule:
         return out
 
     def manifest(self) -> dict:
-        from maglevgen.control import estimation as est
-
         return {"function": "maglev_sense_tick", "init": "maglev_sense_init",
                 "readings": self.reading_rows(), "estimator_states": list(self.states),
                 "lagged_forces": self.n_lag,
@@ -153,9 +157,6 @@ def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
                    loop: FirmwareLoop) -> SenseSchedule | None:
     """The sense tick's schedule of ``carriage`` over [v_min, v_max] with ``loop``'s delay
     and actuator lag; None when the parameter file has no [sensors] (no sense tick)."""
-    from maglevgen.analyses.envelope import envelope_points
-    from maglevgen.control import estimation as est
-
     params = carriage.params
     if params.sensors is None:
         return None
@@ -173,8 +174,6 @@ def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
 
 
 def _sense_context(sense: SenseSchedule, precision: str) -> dict:
-    from maglevgen.control import estimation as est
-
     names = sense.readings
     return {"n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
             "state_index": [cv.STATE_INDEX[s] for s in sense.states],
