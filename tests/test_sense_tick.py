@@ -725,3 +725,76 @@ def test_the_readme_quotes_the_recorded_sense_tick_cost() -> None:
         assert MEASURED["sense"][key] == recorded[key], key
     assert MEASURED["sense"]["share_percent"] == pytest.approx(
         100 * recorded["cycles"] / (recorded["clock_mhz"] * 1e6 / 1000), abs=0.005)
+
+
+@pytest.mark.needs_cc
+def test_sense_tick_holds_the_nonlinear_carriage_on_noisy_readings(sense, carriage,
+                                                                     sim_lib) -> None:
+    """The C sense tick flying the nonlinear plant for 1.5 s at 20 m/s (the generated
+    dynamics by RK4 with each array force's lag exact, as output_feedback.noisy_hold; the
+    command applied one tick after it was computed; each reading from the generated
+    measurement equations plus white noise of its variance, seeded) from a heave 0.5 mm off
+    the trim: every tick MAGLEV_OK, no contact, the heave back within 50 um, each array's
+    force RMS over the last second within control.spec's 10 % of the budget, and the
+    prediction's error over the last second of the order the filter predicts (its RMS on
+    the gaps' states within 0.5 to 2 times sqrt of the DARE's a-priori P)."""
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.analyses.output_feedback import _rhs, _rk4
+    from maglevgen.control import estimation as est
+
+    fx = sense
+    layout, loop, nu = fx["layout"], fx["loop"], fx["nu"]
+    params, p = carriage.params, carriage.p
+    (op,) = envelope_points(carriage, sim_lib, [20.0])
+    (point,) = est.estimator_points(sim_lib, p, params, [op], loop.actuator_lag)
+    tau, h = loop.actuator_lag, 1.0 / loop.tick_rate
+    dynamics = sim_lib.function("maglev_dynamics")
+    gap_fn, imu_fn = sim_lib.function("maglev_gap_reading"), sim_lib.function(
+        "maglev_imu_reading")
+    gaps_fn = sim_lib.function("maglev_gaps")
+    rng = np.random.default_rng(49)
+    sigma = np.sqrt(layout.variances)
+    ng = len(layout.gaps)
+    u_trim = np.zeros(nu)
+    u_trim[0] = op.f_prop
+    groups = np.array([i for i, (_, comps) in enumerate(carriage.structure.arrays)
+                       for _ in comps])
+
+    def readings(x: np.ndarray, F: np.ndarray, du: np.ndarray) -> np.ndarray:
+        y = np.empty(len(sigma))
+        for j, g in enumerate(layout.gaps):
+            y[j] = float(np.ravel(gap_fn(x, g.point, g.normal, g.nominal_gap)[0])[0])
+        xdot = _rhs(dynamics, x, F, u_trim, du, tau, p, 0.0)
+        gyro, acc, _, _ = imu_fn(x, xdot, layout.imu_point, p)
+        y[ng:ng + 6] = np.concatenate([np.ravel(gyro), np.ravel(acc)])
+        y[-1] = x[0]
+        return y + sigma * rng.standard_normal(len(y))
+
+    x = op.x_trim.astype(float).copy()
+    x[2] += 5e-4
+    F = np.zeros(nu - 1)
+    applied = u_trim.copy()  # before the first command: the trim's (maglev_sense_init)
+    c = CSense(fx)
+    all_valid = (1 << len(sigma)) - 1
+    assert c.init(readings(x, F, applied - u_trim), all_valid, op.speed) == OK
+    n = 1500
+    forces = np.zeros((n, len(carriage.structure.arrays)))
+    err = np.zeros((n, 12))
+    min_gap = np.inf
+    for k in range(n):
+        du = applied - u_trim
+        rc, u = c(readings(x, F, du), all_valid, op.speed)
+        assert rc == OK, k
+        x, F = _rk4(dynamics, x, F, u_trim, du, tau, p, h)
+        applied = u
+        forces[k] = np.sqrt(np.bincount(groups, u[1:] ** 2))
+        err[k] = c.state()["x_pred"] - x  # the prediction for the next tick
+        min_gap = min(min_gap, float(np.min(gaps_fn(x, p)[0])))
+    assert min_gap > params.track.min_gap
+    assert abs(x[2] - op.x_trim[2]) < 5e-5
+    rms = np.sqrt(np.mean(forces[500:] ** 2, axis=0))
+    assert np.max(rms) <= 0.1 * params.control.spec.force_budget, rms
+    predicted = np.sqrt(np.diag(point.design.P)[:12])
+    got = np.sqrt(np.mean(err[500:] ** 2, axis=0))
+    for i in (1, 2, 3, 4, 5):  # y, z, phi, theta, psi: what the gaps read
+        assert 0.5 <= got[i] / predicted[i] <= 2.0, (i, got[i], predicted[i])
