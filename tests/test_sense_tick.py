@@ -798,3 +798,35 @@ def test_sense_tick_holds_the_nonlinear_carriage_on_noisy_readings(sense, carria
     got = np.sqrt(np.mean(err[500:] ** 2, axis=0))
     for i in (1, 2, 3, 4, 5):  # y, z, phi, theta, psi: what the gaps read
         assert 0.5 <= got[i] / predicted[i] <= 2.0, (i, got[i], predicted[i])
+
+
+@pytest.mark.parametrize("speed", [7.0, 20.0, 40.0])
+def test_the_update_without_some_readings_still_converges(sense, carriage, sim_lib,
+                                                          speed: float) -> None:
+    """What the sense tick does with a reading left out (its innovation 0, the steady-state
+    M kept): the filter's error dynamics Phi (I - M S C), S the readings kept, stay stable
+    (eigenvalues within 0.99 of the unit circle, numpy) with each gap sensor left out, with
+    the IMU, the gyro or the accelerometer left out and with both left upper gaps out; without
+    the track sensor the along-track position is left to the prediction (an eigenvalue 1:
+    nothing else reads it) and the rest stays stable."""
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.control import estimation as est
+
+    names = sense["layout"].names
+    (point,) = est.estimator_points(sim_lib, carriage.p, carriage.params,
+                                    envelope_points(carriage, sim_lib, [speed]),
+                                    sense["loop"].actuator_lag)
+    m, d = point.model, point.design
+    n = m.Phi.shape[0]
+
+    def moduli(left_out) -> np.ndarray:
+        S = np.diag([0.0 if name in left_out else 1.0 for name in names])
+        return np.sort(np.abs(np.linalg.eigvals(m.Phi @ (np.eye(n) - d.M @ S @ m.C))))
+
+    gaps = [name for name in names if name.startswith("gap_")]
+    imu = [name for name in names if name.startswith(("gyro", "accel"))]
+    cases = [[g] for g in gaps] + [imu, imu[:3], imu[3:], ["gap_g3l", "gap_g6l"]]
+    for left_out in cases:
+        assert moduli(left_out)[-1] < 0.99, left_out
+    z = moduli(["track_x"])
+    assert abs(z[-1] - 1.0) < 1e-9 and z[-2] < 1.0
