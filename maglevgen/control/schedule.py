@@ -331,8 +331,10 @@ class GainTable:
                 "worst_relative_error": max(self.errors.values()),
                 "relative_error_by_field": self.errors,
                 "values_stored": len(self.stored),
+                # the stored indices: unsigned char, or unsigned short past 256 outputs
                 "table_bytes_single": int(len(self.coeffs) * len(self.stored)
-                                          * precision_bytes + len(self.stored))}
+                                          * precision_bytes + len(self.stored)
+                                          * (1 if self.coeffs.shape[1] <= 256 else 2))}
 
 
 def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
