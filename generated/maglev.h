@@ -51,6 +51,7 @@ extern "C" {
 #define MAGLEV_ERR_INTERNAL 6  /* the CasADi function itself returned an error (outputs zeroed) */
 #define MAGLEV_ERR_PARAMETER 7  /* an entry of the run-time parameter vector p is outside its range in the parameter schema (`maglevgen params schema`: e.g. a mass, wavelength, resistance or inductance not positive) (outputs zeroed) */
 #define MAGLEV_ERR_ARGUMENT 8  /* a required pointer is NULL (arg, res, a work array the function uses, a table), or a count, size or step is out of range (outputs zeroed where they can be reached) */
+#define MAGLEV_ERR_SENSOR 9  /* no usable reading of a sensor the function needs (the sense tick: no gap reading flagged valid, finite and in its range) (outputs zeroed) */
 
 /* Speeds [m/s] the schedule functions accept (the envelope's v_min, v_max; else MAGLEV_ERR_SPEED) */
 #define MAGLEV_V_MIN 6.979656219482422

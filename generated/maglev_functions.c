@@ -56325,6 +56325,7 @@ CASADI_SYMBOL_EXPORT int maglev_imu_reading_work_bytes(casadi_int *sz_arg, casad
 #define MAGLEV_ERR_INTERNAL 6  /* the CasADi function itself returned an error (outputs zeroed) */
 #define MAGLEV_ERR_PARAMETER 7  /* an entry of the run-time parameter vector p is outside its range in the parameter schema (`maglevgen params schema`: e.g. a mass, wavelength, resistance or inductance not positive) (outputs zeroed) */
 #define MAGLEV_ERR_ARGUMENT 8  /* a required pointer is NULL (arg, res, a work array the function uses, a table), or a count, size or step is out of range (outputs zeroed where they can be reached) */
+#define MAGLEV_ERR_SENSOR 9  /* no usable reading of a sensor the function needs (the sense tick: no gap reading flagged valid, finite and in its range) (outputs zeroed) */
 
 static int maglev_all_finite(const casadi_real* a, int n) {
   int i;

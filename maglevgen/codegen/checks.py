@@ -65,6 +65,9 @@ ERROR_CODES: dict[str, tuple[int, str]] = {
     "MAGLEV_ERR_ARGUMENT": (8, "a required pointer is NULL (arg, res, a work array the "
                                "function uses, a table), or a count, size or step is out of "
                                "range (outputs zeroed where they can be reached)"),
+    "MAGLEV_ERR_SENSOR": (9, "no usable reading of a sensor the function needs (the sense "
+                             "tick: no gap reading flagged valid, finite and in its range) "
+                             "(outputs zeroed)"),
 }
 ERROR_NAMES: dict[int, str] = {v: k for k, (v, _) in ERROR_CODES.items()}
 

@@ -77,9 +77,14 @@ DEVIATIONS: tuple[Deviation, ...] = (
     Deviation("2.5", "maglev_functions.h", (FILE_SCOPE,),
               "CasADi's NAME_SZ_ARG/RES/IW/W work-size macros", _KEPT),
     Deviation("2.5", "maglev_tick.h", (FILE_SCOPE,),
-              "MAGLEV_TICK_RATE and MAGLEV_TICK_DELAY: the loop maglev_tick is to run in",
-              "the caller's settings (its timer and command pipeline); maglev_tick itself "
-              "computes one command"),
+              "MAGLEV_TICK_RATE and MAGLEV_TICK_DELAY: the loop maglev_tick is to run in; "
+              "the sense tick's MAGLEV_SENSE_Y_* reading indices and MAGLEV_SENSE_ALL_VALID",
+              "the caller's settings (its timer and command pipeline) and the order in which "
+              "it fills the readings; the ticks themselves compute one command"),
+    Deviation("2.5", "maglev_sense_table.h", (FILE_SCOPE,),
+              "MAGLEV_SENSE_SCHEDULE_* range and output offsets, MAGLEV_* return codes",
+              "the documented interface of maglev_sense_schedule (the same template as "
+              "maglev_gain_table.h); the .c needs only some of them"),
     Deviation("8.4", _C, (*_QUERIES, "maglev_*_casadi_*"),
               "CasADi's query functions of each entry point (work sizes, names, sparsity)",
               "declared in maglev_functions.h, which the .c does not include (CasADi's "
@@ -108,6 +113,10 @@ DEVIATIONS: tuple[Deviation, ...] = (
               "`if (out == 0)`: a NULL output refused (MAGLEV_ERR_ARGUMENT)",
               "the same 0 as the generated functions' checks, so that the firmware's C uses "
               "one form (NULL needs <stddef.h>)"),
+    Deviation("11.9", "maglev_sense_table.c", ("maglev_sense_schedule",),
+              "`if (out == 0)`: a NULL output refused (MAGLEV_ERR_ARGUMENT)",
+              "maglev_gain_table.c's template (one source), rendered for the sense tick's "
+              "estimator"),
     Deviation("12.3", _C, ("casadi_f*",),
               "`casadi_real a0, a1, ...;` work variables declared in one statement",
               "declarations at the top of a generated function: " + _KEPT),

@@ -331,12 +331,20 @@ class GainTable:
                 "worst_relative_error": max(self.errors.values()),
                 "relative_error_by_field": self.errors,
                 "values_stored": len(self.stored),
+                # the stored indices: unsigned char, or unsigned short past 256 outputs
                 "table_bytes_single": int(len(self.coeffs) * len(self.stored)
-                                          * precision_bytes + len(self.stored))}
+                                          * precision_bytes + len(self.stored)
+                                          * (1 if self.coeffs.shape[1] <= 256 else 2))}
 
 
-def gain_table_sources(table: GainTable) -> dict[str, str]:
-    """maglev_gain_table.h and .c: ``maglev_schedule(v, out)`` from static const tables.
+def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
+                       function: str = "maglev_schedule", prefix: str = "MAGLEV_SCHEDULE",
+                       title: str = "gain schedule", summary: str = "") -> dict[str, str]:
+    """``stem``.h and .c (default maglev_gain_table): ``function(v, out)`` (default
+    maglev_schedule) from static const tables, its macros ``prefix``_* (the range, the row's
+    size and each field's offset); ``title`` and ``summary`` (comment lines, " * " each: what
+    out holds) describe the table in the header (default: the controller's gain table). One
+    template for every such table (the controller's, the sense tick's estimator).
 
     maglev_real is the generated functions' (the header includes maglev_functions.h, the one
     definition of the type): the table has the precision of the C beside it; no libm call, no
@@ -356,6 +364,7 @@ def gain_table_sources(table: GainTable) -> dict[str, str]:
            "t_scale": 2.0 / (b - a), "t_offset": (a + b) / (b - a),
            "error_defines": error_defines(("MAGLEV_OK", "MAGLEV_ERR_NONFINITE",
                                            "MAGLEV_ERR_SPEED", "MAGLEV_ERR_ARGUMENT"),
-                                          docs=False)}
-    return {name: render(f"{name}.j2", **ctx)
-            for name in ("maglev_gain_table.h", "maglev_gain_table.c")}
+                                          docs=False),
+           "stem": stem, "function": function, "prefix": prefix, "title": title,
+           "summary": summary}
+    return {f"{stem}{ext}": render(f"maglev_gain_table{ext}.j2", **ctx) for ext in (".h", ".c")}

@@ -21,7 +21,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
+from maglevgen.analyses.envelope import (
+    envelope_points,
+    gain_table,
+    resolve_range,
+    schedule_setting,
+)
 from maglevgen.codegen.checks import check_entries, error_defines
 from maglevgen.codegen.cpass import generate_c
 from maglevgen.codegen.emit import c_literal, render
@@ -30,15 +35,18 @@ from maglevgen.codegen.generate import function_table
 from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_context, template_env
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
+from maglevgen.control import estimation as est
 from maglevgen.control.schedule import GainTable, gain_table_sources
+from maglevgen.derive import conventions as cv
+from maglevgen.errors import InputError
 from maglevgen.runtime.library import simulation_library
 from maglevgen.version import __version__
 
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["FIRMWARE_FLAGS", "TICK_INPUTS", "FirmwareLoop", "firmware_files",
-           "firmware_functions", "firmware_loop", "render_firmware"]
+__all__ = ["FIRMWARE_FLAGS", "TICK_INPUTS", "FirmwareLoop", "SenseSchedule", "firmware_files",
+           "firmware_functions", "firmware_loop", "render_firmware", "sense_schedule"]
 
 #: the Cortex-M4F flags of the folder's README and toolchain file (the firmware build)
 FIRMWARE_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",
@@ -60,8 +68,11 @@ QEMU_TICKS = 1000
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README
 MEASURED: dict = {
-    "instructions": 7427, "cycles": 12099, "share_percent": 7.20, "clock_mhz": 168,
-    "stack_bytes": 752,
+    "instructions": 7455, "cycles": 12154, "share_percent": 7.23, "clock_mhz": 168,
+    "stack_bytes": 784,
+    # maglev_sense_tick: the estimator's table evaluated every tick is most of it
+    "sense": {"instructions": 52696, "cycles": 85932, "share_percent": 51.15,
+              "stack_bytes": 5512},
     "method": "every instruction QEMU mps2-an386 executes, newlib's sinf/cosf included",
     "cycle_model": "Cortex-M4/FPv4-SP instruction timings, zero wait states",
 }
@@ -97,6 +108,84 @@ class FirmwareLoop:
             if self.actuator_lag > 0 else 0.0
 
 
+#: the sense tick's readings at most: one bit each in C's unsigned long (32 bits at least)
+MAX_READINGS = 32
+#: what each kind of reading is, its unit (the sense tick's header and the manifest)
+READING_KINDS = {"gap": ("m", "gap sensor {name}: the gap along its face's normal"),
+                 "gyro": ("rad/s", "gyro: body rate about {axis}"),
+                 "accel": ("m/s^2", "accelerometer: specific force along body {axis}"),
+                 "track": ("m", "track sensor: position along the track")}
+
+
+@dataclass(frozen=True)
+class SenseSchedule:
+    """What the sense tick needs beyond the law's: the estimator's table over speed
+    (`maglevgen.control.estimation.sense_table`), its plant states, lagged forces, readings
+    (names, plausible ranges) and the gap readings' count (the first ones)."""
+
+    table: GainTable
+    states: tuple[str, ...]  # the estimator's plant states (EstimatorModel.states)
+    n_lag: int
+    readings: tuple[str, ...]  # SensorLayout.names
+    ranges: np.ndarray  # (n_readings, 2) estimation.reading_ranges
+    n_gap: int
+
+    def reading_rows(self) -> list[dict]:
+        """Each reading: its name, index, unit, what it is and its plausible range."""
+        out = []
+        for i, name in enumerate(self.readings):
+            kind, _, rest = name.partition("_")
+            unit, what = READING_KINDS[kind]
+            axis = {"p": "x", "q": "y", "r": "z"}.get(rest, rest)
+            out.append({"name": name, "index": i, "unit": unit,
+                        "what": what.format(name=rest, axis=axis),
+                        "lo": float(self.ranges[i, 0]), "hi": float(self.ranges[i, 1])})
+        return out
+
+    def manifest(self) -> dict:
+        return {"function": "maglev_sense_tick", "init": "maglev_sense_init",
+                "readings": self.reading_rows(), "estimator_states": list(self.states),
+                "lagged_forces": self.n_lag,
+                "plausible_ranges": {"gap": f"[0, {est.GAP_RANGE:g} x nominal gap]",
+                                     "gyro_rad_s": est.GYRO_RANGE,
+                                     "accel_m_s2": est.ACCEL_RANGE,
+                                     "track_m": est.TRACK_RANGE},
+                "table": self.table.manifest()}
+
+
+def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
+                   loop: FirmwareLoop) -> SenseSchedule | None:
+    """The sense tick's schedule of ``carriage`` over [v_min, v_max] with ``loop``'s delay
+    and actuator lag; None when the parameter file has no [sensors] (no sense tick)."""
+    params = carriage.params
+    if params.sensors is None:
+        return None
+    layout = est.SensorLayout.of(params)
+    if len(layout.names) > MAX_READINGS:
+        raise InputError(f"sensors: {len(layout.names)} readings; the sense tick's flags "
+                         f"word holds {MAX_READINGS} (fewer gap sensors)")
+    table = est.sense_table(lib, carriage.p, params,
+                            lambda v: envelope_points(carriage, lib, [v])[0], v_min, v_max,
+                            loop.actuator_lag, loop.delay_ticks)
+    n_lag = len(carriage.model.input_names) - 1 if loop.actuator_lag > 0 else 0
+    states = tuple(s for s in cv.STATE_NAMES if layout.track or s != "x")
+    return SenseSchedule(table, states, n_lag, layout.names, est.reading_ranges(layout),
+                         len(layout.gaps))
+
+
+def _sense_context(sense: SenseSchedule, precision: str) -> dict:
+    names = sense.readings
+    return {"n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
+            "state_index": [cv.STATE_INDEX[s] for s in sense.states],
+            "pose_index": [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")],
+            "track_index": names.index("track_x") if "track_x" in names else -1,
+            "readings": sense.reading_rows(),
+            "lo": [c_literal(float(v), precision) for v in sense.ranges[:, 0]],
+            "hi": [c_literal(float(v), precision) for v in sense.ranges[:, 1]],
+            "gap_range": est.GAP_RANGE, "gyro_range": est.GYRO_RANGE,
+            "accel_range": est.ACCEL_RANGE, "track_range": est.TRACK_RANGE}
+
+
 def firmware_functions(controller_tick: str, with_plant: bool = False) -> tuple[str, ...]:
     """The generated functions of the firmware folder, in maglev_functions.c's order."""
     if controller_tick not in TICK_INPUTS:
@@ -113,8 +202,8 @@ def _banner(sha256: str, precision: str, with_plant: bool) -> str:
 
 def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareLoop,
                     precision: str = "single", with_plant: bool = False,
-                    measured: dict | None = None, verdict: dict | None = None
-                    ) -> dict[str, str]:
+                    measured: dict | None = None, verdict: dict | None = None,
+                    sense: SenseSchedule | None = None) -> dict[str, str]:
     """Every file of the firmware folder (nothing written).
 
     ``table``: the table schedule of the embedded controller over the envelope
@@ -124,7 +213,8 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     e.g. under QEMU); ``measured``: the tick's cost on the Cortex-M4 at the default carriage
     (BENCHMARKS.md), quoted in the README; ``verdict``: the embedded controller's
     verification (`maglevgen.build.EmbeddedVerdict.to_json`; None: not checked, said so),
-    into the README and the manifest.
+    into the README and the manifest; ``sense``: the estimator's schedule
+    (`sense_schedule`; None: maglev_tick alone, ideal sensing).
     """
     opts = GenerateOptions(precision, "baked", "int32")
     embedded = carriage.params.envelope.embedded_controller
@@ -147,6 +237,15 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     env = template_env()
     files["maglev.h"] = env.get_template("maglev.h.j2").render(ctx)
     files.update(gain_table_sources(table))
+    if sense is not None:
+        files.update(gain_table_sources(
+            sense.table, "maglev_sense_table", "maglev_sense_schedule",
+            "MAGLEV_SENSE_SCHEDULE", "estimator schedule (the sense tick's)",
+            " * out[MAGLEV_SENSE_SCHEDULE_NOUT] = the estimator at v (maglev_tick.h's\n"
+            " * maglev_sense_tick): F_prop [N] (trim propulsion), x_trim (the trim state, its u\n"
+            " * less v), y_trim (the readings at trim), Phi_minus_I, Gamma, C, D and M (the\n"
+            " * update's gain), column-major, on the estimator's plant states and lagged forces,\n"
+            " * at the offsets above."))
 
     if "K_lag" not in dict(table.fields):
         raise ValueError("the firmware's table carries the design at the tick "
@@ -180,6 +279,9 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "table_error": max(table.errors.values()), "with_plant": with_plant,
         "flags": " ".join(FIRMWARE_FLAGS), "functions": [f["name"] for f in fn_table],
         "cost": cost, "error_defines": error_defines(),
+        "sense": None if sense is None else _sense_context(sense, precision),
+        "sense_nodes": 0 if sense is None else len(sense.table.coeffs),
+        "sense_error": 0.0 if sense is None else max(sense.table.errors.values()),
         "verdict": (verdict or {}).get("verdict", "not checked (rendered without "
                                        "`maglevgen firmware`'s verification)"),
     }
@@ -206,6 +308,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
                  "design": "the embedded controller's design at the tick on the loop as "
                            "built (maglevgen.control.plant), ideal sensing"},
         "verification": verdict,
+        "sense_tick": None if sense is None else sense.manifest(),
         "gain_table": table.manifest(), "functions": fn_table,
         "flags": list(FIRMWARE_FLAGS),
     }
@@ -231,6 +334,7 @@ def firmware_files(carriage: DerivedCarriage, precision: str = "single",
     GenerateOptions(precision, "baked")  # an unknown precision: InputError before slow work
     lib = simulation_library(carriage.structure)
     v_min, v_max = resolve_range(carriage, lib)
-    return render_firmware(carriage, gain_table(carriage, lib, v_min, v_max),
-                           firmware_loop(carriage, lib), precision, with_plant, MEASURED,
-                           verdict)
+    loop = firmware_loop(carriage, lib)
+    return render_firmware(carriage, gain_table(carriage, lib, v_min, v_max), loop, precision,
+                           with_plant, MEASURED, verdict,
+                           sense_schedule(carriage, lib, v_min, v_max, loop))
