@@ -435,6 +435,7 @@ def _worst_stack(ci_text: str, root: str) -> int:
     return worst(root, frozenset())
 
 
+@pytest.mark.slow  # two cross-compiles and a QEMU run: ~170 s loaded
 @pytest.mark.needs_arm("qemu-system-arm", "arm-none-eabi-nm", "arm-none-eabi-size")
 def test_cortex_m4_build_and_run(gain_table, carriage: DerivedCarriage, tmp_path: Path,
                                  rendered) -> None:

@@ -249,6 +249,7 @@ def test_errors_are_status_codes_with_a_message(fmus) -> None:
     fmu.freeInstance()
 
 
+@pytest.mark.slow  # the CLI verifies the embedded controller before it writes: ~200 s loaded
 def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: DerivedCarriage,
                                                      sim_lib) -> None:
     """The default controller is the one the firmware embeds, run as the firmware runs it
