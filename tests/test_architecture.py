@@ -23,7 +23,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 # pyproject.toml [tool.setuptools.package-dir]
-LAYOUT = {"maglevgen": "maglevgen", "maglevgen.infrastructure": "maglevgen/infrastructure",
+LAYOUT = {"maglevgen": "maglevgen", "maglevgen.params": "maglevgen/params",
+          "maglevgen.infrastructure": "maglevgen/infrastructure",
           "maglevgen.derive": "derive", "maglevgen.codegen": "maglevgen/codegen",
           "maglevgen.runtime": "runtime", "maglevgen.control": "maglevgen/control",
           "maglevgen.analyses": "maglevgen/analyses", "maglevgen.exports": "maglevgen/exports",
@@ -126,8 +127,9 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("distributed", "maglevgen.analyses.envelope", "maglevgen.runtime.library",
          "maglevgen.params", "maglevgen.analyses.roa", "matplotlib", "pyarrow", "re",
          "warnings")),
-    "maglevgen.params": ("the schema validates without the derivation's conventions unless a "
-                         "tolerance names a state", ("maglevgen.derive.conventions",)),
+    "maglevgen.params.sections": ("the schema validates without the derivation's conventions "
+                                  "unless a tolerance names a state",
+                                  ("maglevgen.derive.conventions",)),
     "maglevgen.report.display": ("SymPy and the number formats only when a display is built",
                                  ("maglevgen.report.format", "sympy")),
 }
@@ -249,7 +251,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 # The one import against the order, and why: the schema checks a controller's name against
 # the registry, whose definitions import nothing of the application outside themselves
 # (test_the_controller_definitions_stand_alone).
-UPWARD_IMPORTS = {("maglevgen.params", "maglevgen.control")}
+UPWARD_IMPORTS = {("maglevgen.params.sections", "maglevgen.control")}
 CONTROLLER_DEFINITIONS = ("maglevgen.control", "maglevgen.control.registry",
                           "maglevgen.control.paper_designs", "maglevgen.control.spec",
                           "maglevgen.control.lqr")

@@ -75,7 +75,8 @@ class ParametersDirective(_Rst):
     def run(self) -> list[nodes.Node]:
         from maglevgen.params import default_params_path, flatten, load_params, schema_table
 
-        self.env.note_dependency(str(REPO / "maglevgen" / "params.py"))
+        for source in sorted((REPO / "maglevgen" / "params").glob("*.py")):  # the schema
+            self.env.note_dependency(str(source))
         self.env.note_dependency(str(default_params_path()))
         loaded = load_params()
         values = [(e.name, repr(float(e.value)), e.unit,

@@ -37,9 +37,10 @@ __all__ = [
 ]
 
 # The installed packages (pyproject's package-dir maps derive/, runtime/ under maglevgen.)
-PACKAGES = ("maglevgen", "maglevgen.infrastructure", "maglevgen.derive", "maglevgen.codegen",
-            "maglevgen.runtime", "maglevgen.control", "maglevgen.analyses", "maglevgen.exports",
-            "maglevgen.report", "maglevgen.report.sections", "maglevgen.templates")
+PACKAGES = ("maglevgen", "maglevgen.params", "maglevgen.infrastructure",
+            "maglevgen.derive", "maglevgen.codegen", "maglevgen.runtime", "maglevgen.control",
+            "maglevgen.analyses", "maglevgen.exports", "maglevgen.report",
+            "maglevgen.report.sections", "maglevgen.templates")
 
 
 def sha256_hex(data: bytes | str) -> str:
