@@ -1,6 +1,6 @@
 """maglevgen: Inductrack maglev carriage dynamics and control, derived symbolically, as C.
 
-The Python API (maglevgen/api.py): ``maglevgen.load(params, overrides)`` returns a
+The Python API (maglevgen/api/): ``maglevgen.load(params, overrides)`` returns a
 `Carriage` whose methods mirror the commands (trim, gains, linearize, simulate, envelope,
 generate, report, fmu). It is imported when first used, so ``import maglevgen`` (and the
 command line) stays light.

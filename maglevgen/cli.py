@@ -1,4 +1,4 @@
-"""The `maglevgen` command: a printer over the Python API (maglevgen/api.py).
+"""The `maglevgen` command: a printer over the Python API (maglevgen/api/).
 
 Each command parses its arguments, calls the API method of the same name (`build`, which
 answers an up-to-date folder without numpy, calls the function that method calls:

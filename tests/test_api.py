@@ -1,4 +1,4 @@
-"""The Python API (maglevgen/api.py) against the command line and python-control.
+"""The Python API (maglevgen/api/) against the command line and python-control.
 
 - Every number the API returns for a report is the one the CLI prints (``--json``), for the
   default carriage and a changed one; bad input raises the exception whose message the CLI
@@ -27,6 +27,7 @@ from numpydoc.docscrape import ClassDoc, FunctionDoc
 
 import maglevgen
 from maglevgen import api
+from maglevgen.api import arguments, core, results, studies, writers
 from maglevgen.cli import main
 from maglevgen.control import names
 from maglevgen.infrastructure.output import MARKER
@@ -35,6 +36,8 @@ from maglevgen.params import flatten
 # every test runs the compiled library (the API's, or the CLI's)
 pytestmark = pytest.mark.needs_cc
 
+# the package's modules: the examples' doctest reads each (its own objects only)
+API_MODULES = (api, arguments, core, results, studies, writers)
 CHANGED = ("vehicle.mass=10.5", "control.state_weights=[2.0, 0.5]")
 SPEED = 15.0
 
@@ -350,6 +353,16 @@ def test_gains_are_control_lqr(default: maglevgen.Carriage,
 # ----------------------------------------------------------------------- docstrings
 
 
+def _members(cls: type) -> dict[str, object]:
+    """A class's members defined in maglevgen: its own and its bases' there (`Carriage` is
+    composed of the API's core, studies and writers), the most derived winning."""
+    out: dict[str, object] = {}
+    for base in reversed(cls.__mro__):
+        if base.__module__.split(".")[0] == "maglevgen":
+            out.update(vars(base))
+    return out
+
+
 def _public_names() -> list[tuple[str, object, str]]:
     """(name, object, kind) of every public name of maglevgen.api and of its classes."""
     out: list[tuple[str, object, str]] = []
@@ -357,7 +370,7 @@ def _public_names() -> list[tuple[str, object, str]]:
         obj = getattr(api, name)
         out.append((name, obj, "class" if inspect.isclass(obj) else "function"))
         if inspect.isclass(obj):
-            for attr, member in vars(obj).items():
+            for attr, member in _members(obj).items():
                 if attr.startswith("_"):
                     continue
                 if isinstance(member, property):
@@ -406,11 +419,27 @@ def test_docstrings_document_every_parameter(name: str, obj: object, kind: str) 
 
 @pytest.mark.slow  # the examples build, export an FMU and a firmware folder: minutes
 def test_docstring_examples_run() -> None:
-    """Every Examples section in maglevgen/api.py runs (the report's only where TeX does:
+    """Every Examples section in maglevgen/api/ runs (the report's only where TeX does:
     skipped, see its docstring)."""
-    res = doctest.testmod(api, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
-    assert res.failed == 0
-    assert res.attempted >= 40
+    attempted = 0
+    for module in API_MODULES:
+        res = doctest.testmod(module,
+                              optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+        assert res.failed == 0, module.__name__
+        attempted += res.attempted
+    assert attempted >= 40
+
+
+def test_the_examples_are_found_in_every_module_of_the_api() -> None:
+    """The modules the examples test runs hold every example of the package (a doctest
+    finder reads a module's own objects only)."""
+    names = {f"maglevgen.api.{p.stem}" for p in Path(api.__file__).parent.glob("*.py")}
+    assert {m.__name__ for m in API_MODULES} == names - {"maglevgen.api.__init__"} | {
+        "maglevgen.api"}
+    finder = doctest.DocTestFinder()
+    found = {t.name.rsplit(".", 1)[-1] for m in API_MODULES for t in finder.find(m)
+             if t.examples}
+    assert {"load", "Carriage", "trim", "simulate", "fmu", "to_dataframe"} <= found
 
 
 def test_public_names_are_exported_lazily() -> None:

@@ -55,13 +55,15 @@ def _inventory(site: Path) -> set[str]:
 
 
 def _public_api() -> list[str]:
-    """Every public object: maglevgen.__all__ and the public members of its classes."""
+    """Every public object: maglevgen.__all__ and the public members of its classes (those
+    defined in maglevgen: `Carriage`'s come from the API's core, studies and writers)."""
     names = [f"maglevgen.{n}" for n in maglevgen.__all__]
     for n in maglevgen.__all__:
         obj = getattr(maglevgen, n)
         if inspect.isclass(obj) and not issubclass(obj, BaseException):
+            ours = [vars(b) for b in obj.__mro__ if b.__module__.split(".")[0] == "maglevgen"]
             names += [f"maglevgen.{n}.{m}" for m, _ in inspect.getmembers(obj)
-                      if not m.startswith("_") and m in vars(obj)]
+                      if not m.startswith("_") and any(m in v for v in ours)]
     return names
 
 

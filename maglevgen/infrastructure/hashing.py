@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 # The installed packages (pyproject's package-dir maps derive/, runtime/ under maglevgen.)
-PACKAGES = ("maglevgen", "maglevgen.params", "maglevgen.infrastructure",
+PACKAGES = ("maglevgen", "maglevgen.api", "maglevgen.params", "maglevgen.infrastructure",
             "maglevgen.derive", "maglevgen.codegen", "maglevgen.runtime", "maglevgen.control",
             "maglevgen.analyses", "maglevgen.exports", "maglevgen.report",
             "maglevgen.report.sections", "maglevgen.templates")
