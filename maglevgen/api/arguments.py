@@ -1,5 +1,4 @@
-"""The API's argument checks: each refuses a bad value with the one-line message of the
-command-line option it stands for, before any work."""
+"""The API's argument checks: a bad value refused with its option's one-line message."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The carriage's core: its parameters, model and compiled library, and what one
-operating point gives (trim, gains, the linearisation, an axis' plant)."""
+"""The carriage's core: parameters, model and library; trim, gains and linear models."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The API's results: plain frozen dataclasses of numpy arrays and JSON data, one per
-method that returns more than a number (what the matching command prints or writes)."""
+"""The API's result types: frozen dataclasses of what each command prints or writes."""
 
 from __future__ import annotations
 

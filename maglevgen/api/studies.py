@@ -1,5 +1,4 @@
-"""The carriage's studies: closed-loop runs, the stability envelope, Monte Carlo over the
-tolerances and the region of attraction, each as its command computes it."""
+"""The carriage's studies: runs, the envelope, Monte Carlo, the region of attraction."""
 
 from __future__ import annotations
 

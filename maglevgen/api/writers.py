@@ -1,5 +1,4 @@
-"""The carriage's writers: the C, the firmware folder, the report, the FMU and the whole
-build, each written as its command writes it."""
+"""The carriage's writers: the C, the firmware folder, the report, the FMU, the build."""
 
 from __future__ import annotations
 

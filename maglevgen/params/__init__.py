@@ -1,6 +1,6 @@
 """The parameter file: schema (names, units, meaning), loading, overrides and validation.
 
-The schema below is the single source of truth for parameter names and units; the C header,
+The schema is the single source of truth for parameter names and units; the C header,
 the manifest, the report tables and ``maglevgen params show`` all read it. Values live in the
 TOML file (the default one describes the LLNL carriage of the paper, with the reason for each
 value the paper does not give written beside it).

@@ -1,5 +1,4 @@
-"""The whole parameter document: `Parameters` with the rules across its sections, the
-provenance of its values, the array names' rule, its nesting depth and each entry's range."""
+"""The whole parameter document: `Parameters`, its provenance, the rules across sections."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The schema's building blocks: a section's model, its range check and the error a rule
-raises, and the helpers that read a field's unit and limits."""
+"""The schema's building blocks: a section's model and range check, the schema's error."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Loading a parameter file: reading the TOML, the `--set` overrides, and validation with a
-one-line error that names the key and the value."""
+"""Loading a parameter file: the TOML, the `--set` overrides, the one-line errors."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Command-line numbers and counts checked against the schema's ranges, with the one-line
-message that names the option."""
+"""Command-line numbers and counts checked against the schema's ranges."""
 
 from __future__ import annotations
 

@@ -1,6 +1,4 @@
-"""The parameter file's reference for people: every key's unit, meaning, paper value and
-allowed range as rows (`maglevgen params schema`, the documentation's table), and a TOML
-text with each key's unit written beside it."""
+"""The schema as rows for people (`params schema`, the docs), and units annotated in TOML."""
 
 from __future__ import annotations
 

@@ -1,6 +1,4 @@
-"""The parameter file's sections: one pydantic model per table (vehicle, halbach, circuit,
-arrays, operation, control, actuators, track, envelope, model, tolerances, sensors), each
-field with its unit, meaning and physically meaningful range."""
+"""The parameter file's sections: one model per table, each field with its unit and range."""
 
 from __future__ import annotations
 

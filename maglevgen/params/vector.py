@@ -1,5 +1,4 @@
-"""The parameter vector: the schema flattened, in file order, into the scalar entries the
-symbolic model and the generated C take."""
+"""The parameter vector: the schema flattened into the scalar entries the model and C take."""
 
 from __future__ import annotations
 
