@@ -186,6 +186,40 @@ static int schedule_ok(const maglev_spline_schedule* s) {
         && isfinite(s->v0 + (maglev_real)(s->n - 1) * s->dv);
 }
 
+/* where a valid schedule s is evaluated at v (finite): the interval j and the weights a, b
+   of its nodes j and j + 1, v clamped to the nodes (MAGLEV_SCHEDULE_CLAMPED) */
+static int schedule_interval(const maglev_spline_schedule* s, maglev_real v, int* j,
+                             maglev_real* a, maglev_real* b) {
+    const maglev_real v_last = s->v0 + (maglev_real)(s->n - 1) * s->dv;
+    maglev_real pos;
+    int rc = MAGLEV_SCHEDULE_OK;
+    if (v < s->v0) {
+        v = s->v0;
+        rc = MAGLEV_SCHEDULE_CLAMPED;
+    } else if (v > v_last) {
+        v = v_last;
+        rc = MAGLEV_SCHEDULE_CLAMPED;
+    }
+    pos = (v - s->v0) / s->dv;
+    /* the interval: pos is at most n - 1 up to rounding; compared before the conversion so
+       that no rounding makes an index past the table */
+    *j = pos >= (maglev_real)(s->n - 2) ? s->n - 2 : (int)pos;
+    *b = pos - (maglev_real)*j;
+    *a = (maglev_real)1 - *b;
+    return rc;
+}
+
+/* output i of the spline on interval j with weights a, b (schedule_interval) */
+static maglev_real schedule_value(const maglev_spline_schedule* s, int j, maglev_real a,
+                                  maglev_real b, int i) {
+    const maglev_real h2 = s->dv * s->dv / (maglev_real)6;
+    const maglev_real y0 = s->y[j * MAGLEV_SCHEDULE_NY + i];
+    const maglev_real y1 = s->y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
+    const maglev_real m0 = s->d2y[j * MAGLEV_SCHEDULE_NY + i];
+    const maglev_real m1 = s->d2y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
+    return a * y0 + b * y1 + ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h2;
+}
+
 /* the run's answer to an invalid argument: nothing written, status MAGLEV_SIM_ARGUMENT */
 static long long refuse(int* status) {
     if (status != 0) *status = MAGLEV_SIM_ARGUMENT;
@@ -318,7 +352,8 @@ typedef struct {
 } law_state;
 
 /* the command at state x and time t with the gains g: the propulsion
-     F_prop = F_drag + F_extra + k_v (v_ref(t) - |(u, v, w)|) - k_i xi,
+     F_prop = F_drag + F_extra + k_v (v_ref(t) - |(u, v, w)|) - k_i xi
+   (the tick's law: F_drag at v_ref(t) from the schedule, else g's; the continuous loop: g's),
    v_ref(t) = v_ref + accel t (capped at v_end in a launch), and the array forces T w with
      u_gen = -(K_pos (a - a_ref) + K_rate a_dot)  (maglev_coupled_control),
      w = u_gen - K_lag w_hat - K_delay (in flight)  (law: the tick's law, which then moves
@@ -338,10 +373,19 @@ static int command(work* ws, const loop_run* r, const maglev_real* x, maglev_rea
     ws->res[0] = u_gen;
     if (maglev_coupled_control(ws->arg, ws->res, ws->iw, ws->w, 0)) return -1;
     if (law != 0) {
+        /* the feedforward at the reference, as the firmware's tick takes it (the fixed
+           values of a hold are the reference's) */
+        maglev_real f_ff = g[MAGLEV_SCHEDULE_F_DRAG];
+        if (r->schedule != 0) {
+            maglev_real a, b;
+            int j;
+            (void)schedule_interval(r->schedule, v_ref, &j, &a, &b);
+            f_ff = schedule_value(r->schedule, j, a, b, MAGLEV_SCHEDULE_F_DRAG);
+        }
         /* a non-finite w goes on to the plant: the run then ends MAGLEV_SIM_NONFINITE */
         (void)tick_law_forces(u_gen, g + MAGLEV_SCHEDULE_K_LAG, g + MAGLEV_SCHEDULE_K_DELAY,
                               law->w_hat, law->in_flight, law->n_flight, w);
-        u[0] = tick_law_propulsion(g[MAGLEV_SCHEDULE_F_DRAG] + r->F_extra, loop->k_v,
+        u[0] = tick_law_propulsion(f_ff + r->F_extra, loop->k_v,
                                    loop->k_i, v_ref, speed, law->xi);
         law->xi = tick_law_integral(law->xi, law->h, speed, v_ref, loop->k_i, loop->i_max);
         tick_law_advance(law->w_hat, law->in_flight, law->n_flight, law->pole, law->gain, w);
@@ -628,8 +672,8 @@ long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_ste
    Gain schedule: natural cubic spline over uniformly spaced speeds (see maglev_simulate.h) */
 
 int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_real* out) {
-    maglev_real v_last, a, b, h2, pos;
-    int j, i, rc = MAGLEV_SCHEDULE_OK;
+    maglev_real a, b;
+    int j, i, rc;
     if (out == 0 || !schedule_ok(s)) {
         if (out != 0) {
             for (i = 0; i < MAGLEV_SCHEDULE_NY; ++i) out[i] = 0;
@@ -637,28 +681,8 @@ int maglev_schedule_eval(const maglev_spline_schedule* s, maglev_real v, maglev_
         return MAGLEV_SCHEDULE_INVALID;
     }
     if (!isfinite(v)) return MAGLEV_SCHEDULE_NONFINITE;
-    v_last = s->v0 + (maglev_real)(s->n - 1) * s->dv;
-    if (v < s->v0) {
-        v = s->v0;
-        rc = MAGLEV_SCHEDULE_CLAMPED;
-    } else if (v > v_last) {
-        v = v_last;
-        rc = MAGLEV_SCHEDULE_CLAMPED;
-    }
-    pos = (v - s->v0) / s->dv;
-    /* the interval: pos is at most n - 1 up to rounding; compared before the conversion so
-       that no rounding makes an index past the table */
-    j = pos >= (maglev_real)(s->n - 2) ? s->n - 2 : (int)pos;
-    b = pos - (maglev_real)j;
-    a = (maglev_real)1 - b;
-    h2 = s->dv * s->dv / (maglev_real)6;
-    for (i = 0; i < MAGLEV_SCHEDULE_NY; ++i) {
-        const maglev_real y0 = s->y[j * MAGLEV_SCHEDULE_NY + i];
-        const maglev_real y1 = s->y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
-        const maglev_real m0 = s->d2y[j * MAGLEV_SCHEDULE_NY + i];
-        const maglev_real m1 = s->d2y[(j + 1) * MAGLEV_SCHEDULE_NY + i];
-        out[i] = a * y0 + b * y1 + ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h2;
-    }
+    rc = schedule_interval(s, v, &j, &a, &b);
+    for (i = 0; i < MAGLEV_SCHEDULE_NY; ++i) out[i] = schedule_value(s, j, a, b, i);
     if (!all_finite(out, MAGLEV_SCHEDULE_NY)) {  /* non-finite table values, or an overflow */
         for (i = 0; i < MAGLEV_SCHEDULE_NY; ++i) out[i] = 0;
         return MAGLEV_SCHEDULE_INVALID;

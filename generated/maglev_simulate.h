@@ -75,8 +75,9 @@ extern "C" {
  * - The speed loop: F_prop = F_ff + k_v (v_ref(t) - |(u, v, w)|) - k_i xi, |(u, v, w)|
  *   measured with the command, xi += h (|(u, v, w)| - v_ref(t)) at each tick, then clamped
  *   to |k_i xi| <= i_max (anti-windup; k_i: tick_steps > 0 only), v_ref(t) = v_ref + accel t
- *   (maglev_launch: at most v_end), F_ff the given F_prop (maglev_simulate) or F_drag(v) +
- *   F_extra (maglev_launch). k_v = 0: F_ff alone.
+ *   (maglev_launch: at most v_end), F_ff the given F_prop (maglev_simulate) or
+ *   F_drag(v_ref(t)) + F_extra (maglev_launch: the feedforward at the reference, as the
+ *   firmware's tick; the continuous loop's at the measured speed). k_v = 0: F_ff alone.
  * - The force budget: each array's control force (the vector of its components) is scaled
  *   down to force_budget where its norm exceeds it; force_budget <= 0 or infinite: no limit.
  * tick_steps < 0, delay_ticks outside [0, MAGLEV_SIM_MAX_DELAY], a non-finite k_v, v_ref,

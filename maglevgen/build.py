@@ -512,7 +512,7 @@ def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
     table = gain_table(carriage, lib, env.v_min, env.v_max)
     data = json.loads(manifest)
     data["gain_table"] = table.manifest()
-    return {**{f"c/{n}": t for n, t in gain_table_sources(table).items()},
+    return {**{f"c/{n}": t for n, t in gain_table_sources(table, one_output="F_prop").items()},
             "c/manifest.json": json.dumps(data, indent=2) + "\n"}
 
 

@@ -13,6 +13,7 @@ import casadi as ca
 import numpy as np
 import pytest
 from independent_reference import contact_gaps
+from numbers_in_text import differences
 
 from maglevgen.analyses.envelope import speed_range
 from maglevgen.carriage import DerivedCarriage
@@ -418,6 +419,11 @@ _VERSION_LINES = (
 )
 
 
+#: a number of generated/ against a fresh generation: far below any change of the model or
+#: of a design, above the spread of LAPACK builds (1e-12 relative seen in main.c's gains)
+GENERATED_RTOL = 1e-9
+
+
 def _without_version_banners(name: str, data: bytes) -> tuple[bytes, dict]:
     """The file with the library versions blanked out, and the versions it recorded."""
     text = data.decode()
@@ -433,31 +439,38 @@ def _without_version_banners(name: str, data: bytes) -> tuple[bytes, dict]:
 
 @pytest.mark.slow
 def test_generated_folder_is_current(tmp_path: Path) -> None:
-    """generated/ equals a fresh generation, under two hash seeds, from another working folder.
+    """generated/ equals a fresh generation from another working folder, and two fresh
+    generations under two hash seeds equal each other byte for byte.
 
     Not a numeric check (regenerating generated/ would accept a wrong physics): it checks that
     the committed output is current and deterministic. Library version banners are left out of
     the comparison; when the versions differ the failure says so, as a changed CasADi may
-    change its C output with no change in the numbers.
+    change its C output with no change in the numbers. Against the committed folder each
+    number counts to GENERATED_RTOL (tests/numbers_in_text.py): the example main.c prints
+    Riccati gains to 12 digits, whose last differ between LAPACK builds.
     """
     repo = REPO / "generated"
     expected = {p.name: _without_version_banners(p.name, p.read_bytes())
                 for p in repo.iterdir()}
     recorded = expected["manifest.json"][1]
+    runs = {}
     for seed in ("0", "4242"):
         out = tmp_path / f"gen-{seed}"
         env = {**os.environ, "PYTHONHASHSEED": seed}
         subprocess.run([sys.executable, "-m", "maglevgen.cli", "generate", "--out", str(out)],
                        check=True, cwd=tmp_path, env=env, capture_output=True)
-        fresh = {p.name: _without_version_banners(p.name, p.read_bytes())
-                 for p in out.iterdir()}
-        now = fresh["manifest.json"][1]
-        note = "" if now == recorded else f" (versions differ: generated/ has {recorded}, " \
-            f"this environment {now}; regenerate with `maglevgen generate --out generated`)"
-        assert sorted(fresh) == sorted(expected), f"file names differ{note}"
-        for name in sorted(fresh):
-            assert fresh[name][0] == expected[name][0], \
-                f"generated/{name} differs from a fresh generation at PYTHONHASHSEED={seed}{note}"
+        runs[seed] = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert runs["0"] == runs["4242"], "the generation depends on PYTHONHASHSEED"
+    fresh = {name: _without_version_banners(name, data) for name, data in runs["0"].items()}
+    now = fresh["manifest.json"][1]
+    note = "" if now == recorded else f" (versions differ: generated/ has {recorded}, " \
+        f"this environment {now}; regenerate with `maglevgen generate --out generated`)"
+    assert sorted(fresh) == sorted(expected), f"file names differ{note}"
+    for name in sorted(fresh):
+        changed = differences(fresh[name][0].decode(), expected[name][0].decode(),
+                              GENERATED_RTOL)
+        assert not changed, (f"generated/{name} differs from a fresh generation: "
+                             f"{changed[:5]}{note}")
 
 
 def test_version_banners_are_all_that_is_left_out() -> None:

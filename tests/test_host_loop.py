@@ -180,7 +180,8 @@ def _held_rk4_loop(carriage, sim_lib, gains_at, v_ref, tick, k_v: float, budget:
     """The loop as maglev_simulate.h describes it, in Python floats around the library's
     generated functions (maglev_dynamics, maglev_coupled_control, maglev_allocation_matrix):
     the command at each tick (the law's sums in the C's order) with the gains
-    ``gains_at(measured speed)`` (`_fixed_gains`) and the speed reference ``v_ref(t)``,
+    ``gains_at(measured speed)`` (`_fixed_gains`), the speed reference ``v_ref(t)`` and the
+    propulsion's feedforward ``gains_at(v_ref(t))[0]``,
     applied after the delay and held, the safe command first; RK4 with the array forces
     through the lag's exponential at the stage times (tau = 0: the command itself)."""
     p = carriage.p
@@ -212,10 +213,11 @@ def _held_rk4_loop(carriage, sim_lib, gains_at, v_ref, tick, k_v: float, budget:
     for k in range(n_steps + 1):
         if k % steps == 0:
             speed = math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8])
-            f_ff, a_ref, K_pos, K_rate, K_lag, K_delay = gains_at(speed)
+            _, a_ref, K_pos, K_rate, K_lag, K_delay = gains_at(speed)
             (ug,) = ctrl(x, K_pos, K_rate, a_ref, p)
             ug = np.asarray(ug, dtype=float).ravel()
             r = v_ref(k * dt)
+            f_ff = gains_at(r)[0]  # the feedforward at the reference, as the firmware's
             w = []
             for i in range(5):
                 acc = float(ug[i])

@@ -57,11 +57,13 @@ def _groups(carriage: DerivedCarriage) -> np.ndarray:
 
 def _command(carriage: DerivedCarriage, x: np.ndarray, t: float, gains_at, k_v: float, v_ref_at,
              budget: float | None = None) -> np.ndarray:
-    """The command from the state x sampled at t: F_prop = F_ff + k_v (v_ref(t) - V) and the
-    minimum-norm array forces of u_gen = -(K_pos (a - a_ref) + K_rate a'), each array's
-    scaled down to ``budget``; ``gains_at(V)`` -> F_ff, a_ref, K_pos, K_rate."""
+    """The command from the state x sampled at t: F_prop = F_ff(v_ref(t)) + k_v (v_ref(t) - V)
+    (the firmware's feedforward at the reference) and the minimum-norm array forces of
+    u_gen = -(K_pos (a - a_ref) + K_rate a'), each array's scaled down to ``budget``;
+    ``gains_at(V)`` -> F_ff, a_ref, K_pos, K_rate."""
     V = float(np.linalg.norm(x[6:9]))
-    f_ff, a_ref, K_pos, K_rate = gains_at(V)
+    _, a_ref, K_pos, K_rate = gains_at(V)
+    f_ff = gains_at(v_ref_at(t))[0]
     n_u = carriage.model.u.shape[0]
     rates = carriage.functions.xdot(x, np.zeros(n_u), carriage.p).ravel()[AX]  # kinematics
     F = _allocation(carriage) @ -(K_pos @ (x[AX] - a_ref) + K_rate @ rates)
@@ -158,7 +160,7 @@ def test_launch_with_tick_delay_and_speed_loop_matches_solve_ivp(carriage, sim_l
     held = _held_commands(carriage, traj, steps, 1, gains, k_v, v_ref)
     np.testing.assert_allclose(traj.u, held, rtol=1e-9, atol=1e-9 * np.abs(held).max())
     # the speed loop acts: F_prop differs from its feedforward by more than rounding
-    ff = np.array([gains(np.linalg.norm(traj.x[max(0, k // steps - 1) * steps, 6:9]))[0]
+    ff = np.array([gains(v_ref(traj.t[max(0, k // steps - 1) * steps]))[0]
                    for k in range(traj.t.size)])
     assert np.max(np.abs(traj.u[:, 0] - ff)) > 1e-3
     x0 = initial_state(op, DISTURBANCE)

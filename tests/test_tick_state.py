@@ -121,7 +121,7 @@ def _fields(table) -> dict[str, slice]:
 class NumpyTick:
     """plant.py's controller (its module docstring), written out here:
     w = -(K_pos (a - a_ref) + K_rate a') - K_lag w_hat - K_delay (in flight, newest first),
-    F = T w scaled per array to the budget, F_prop = F_ff(V) + k_v (v_ref - V) - k_i xi; then
+    F = T w scaled per array to the budget, F_prop = F_ff(v_ref) + k_v (v_ref - V) - k_i xi; then
     w_hat = a w_hat + (1 - a) w_applied (the oldest in flight), w joins the queue,
     xi += h (V - v_ref), clamped to |k_i xi| <= i_max (anti-windup)."""
 
@@ -152,13 +152,14 @@ class NumpyTick:
         return w, g, V
 
     def __call__(self, x: np.ndarray, v_ref: float) -> np.ndarray:
-        w, g, V = self.w(x)
+        w, _, V = self.w(x)
         F = self.T @ w
         norms = np.sqrt(np.bincount(self.groups, F**2))
         budget = self.loop.force_budget
         F = F * np.where(norms > budget, budget / np.maximum(norms, 1e-300), 1.0)[self.groups]
         k_v, k_i = self.loop.speed_gain, self.loop.speed_integral
-        f_prop = (g[self.f["F_prop"]][0] + k_v * (v_ref - V)) - k_i * self.xi
+        f_ff = _clenshaw(self.table, v_ref)[self.f["F_prop"]][0]  # at the reference
+        f_prop = (f_ff + k_v * (v_ref - V)) - k_i * self.xi
         self.advance(w)
         k_i, i_max = self.loop.speed_integral, self.loop.integral_limit
         xi = self.xi + (1.0 / self.loop.tick_rate) * (V - v_ref)
@@ -215,7 +216,7 @@ def test_tick_follows_the_designed_controller_tick_by_tick(tick_lib, carriage, s
             # bit for bit: the integral, the propulsion (the C's xi before the tick), the
             # queue's shift and the prediction from the C's own previous state
             V = float(np.sqrt((x[6] * x[6] + x[7] * x[7]) + x[8] * x[8]))
-            g = _clenshaw(table, V)
+            g = _clenshaw(table, v_ref)
             f_prop = (g[ref.f["F_prop"]][0] + loop.speed_gain * (v_ref - V)) \
                 - loop.speed_integral * xi_old
             assert u[0] == f_prop, (op.speed, k, u[0] - f_prop)
@@ -287,9 +288,9 @@ def test_tick_speed_integral_is_clamped(tick_lib, carriage, op) -> None:
     c = CTick(tick_lib["so"], loop.delay_ticks, carriage.model.u.shape[0])
     x = op.x_trim.astype(float).copy()
     V = float(np.sqrt((x[6] * x[6] + x[7] * x[7]) + x[8] * x[8]))
-    g = _clenshaw(tick_lib["table"], V)
-    f_ff = g[_fields(tick_lib["table"])["F_prop"]][0]
     v_ref = V + 5.0
+    g = _clenshaw(tick_lib["table"], v_ref)
+    f_ff = g[_fields(tick_lib["table"])["F_prop"]][0]  # the feedforward at the reference
     n_free = int(np.floor(i_max / k_i / (5.0 * h)))  # ticks before the bound
     assert 10 < n_free < 1000
     xi = 0.0
@@ -320,8 +321,9 @@ def test_tick_closed_loop_on_the_linearised_plant_has_the_dlqr_loop_eigenvalues(
     through its lag, control.c2d's ZOH over the tick, the command applied after the delay)
     against the same plant closed by the controller built here from control.dlqr's gains on
     the augmented design model (the reduced body, the lag on the generalized forces, the
-    commands in flight; control.c2d), the exact prediction, and the speed loop with the trim
-    propulsion's slope (derive.trim): the eigenvalues agree to 1e-6 of |z| (1 + its size)."""
+    commands in flight; control.c2d), the exact prediction, the reference a_ref's slope
+    (derive.trim) and the speed loop (its feedforward at the reference: no slope of the trim
+    propulsion): the eigenvalues agree to 1e-6 of |z| (1 + its size)."""
     import control
 
     from maglevgen.analyses.envelope import envelope_points
@@ -428,12 +430,12 @@ def test_tick_closed_loop_on_the_linearised_plant_has_the_dlqr_loop_eigenvalues(
     Kp = np.linalg.solve(M_ax.T, K_body.T).T
     K_pos, K_rate = Kp[:, :5], Kp[:, 5:]
     Kw_x = K_pos @ np.eye(12)[AX] + K_rate @ A[AX]
-    # the trim propulsion's slope along the trim curve, the feedforward's at the measured speed,
-    # and of its pose, the scheduled reference a_ref (derive.trim at v0 +- dv)
+    # the slope of the trim's pose along the trim curve, the scheduled reference a_ref at the
+    # measured speed (derive.trim at v0 +- dv); the feedforward is at the reference v_ref, so
+    # the propulsion's row has no slope of the trim propulsion
     dv = 1e-3 * v0
     hi, lo = (solve_trim(carriage.functions, p, v, carriage.params.track.min_gap)
               for v in (v0 + dv, v0 - dv))
-    slope = (hi.u[0] - lo.u[0]) / (2 * dv)
     a_ref_slope = (np.asarray(hi.x)[AX] - np.asarray(lo.x)[AX]) / (2 * dv)
     dV = np.zeros(12)
     dV[6:9] = x0[6:9] / np.linalg.norm(x0[6:9])
@@ -441,14 +443,14 @@ def test_tick_closed_loop_on_the_linearised_plant_has_the_dlqr_loop_eigenvalues(
     ref_u = np.zeros((nu, 12 + nq + 6))
     ref_s = np.zeros((nq + 6, 12 + nq + 6))
     # w = -Kw_x x + K_pos a_ref' dV - K_delay q - K_lag w_hat; F = T w;
-    # F_prop = (slope - k_v) dV - k_i xi
+    # F_prop = -k_v dV - k_i xi
     W = np.zeros((5, 12 + nq + 6))
     W[:, :12] = -Kw_x + np.outer(K_pos @ a_ref_slope, dV)
     if d > 0:
         W[:, 12:12 + nq] = -K_delay
     W[:, 12 + nq:12 + nq + 5] = -K_lag
     ref_u[1:] = T @ W
-    ref_u[0, :12] = (slope - loop.speed_gain) * dV
+    ref_u[0, :12] = -loop.speed_gain * dV
     ref_u[0, -1] = -loop.speed_integral
     # next state: the queue (w newest), w_hat = a w_hat + (1 - a) oldest, xi += h dV
     if d > 0:

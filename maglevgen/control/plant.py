@@ -22,7 +22,9 @@ The controller (ideal sensing: x measured at each tick) is
     F_prop[k] = F_ff - k_v dV[k] - k_i xi[k],   xi[k+1] = xi[k] + h dV[k]
     F_c = T w                                                         (allocation, eqs 22-23)
 
-with w_hat its prediction of the lagged generalized forces from its own applied commands,
+with F_ff the trim propulsion at the speed reference (the C tick's feedforward,
+`maglev_schedule_f_prop`: an input, so the speed loop keeps the plant's own drag slope),
+w_hat its prediction of the lagged generalized forces from its own applied commands,
 w_hat[k+1] = a w_hat[k] + (1 - a) w_applied[k], a = exp(-h/tau) (exact for a held command),
 and xi the speed error's integral (integral action, `speed_loop_gains`: a drag the
 feedforward misses leaves no steady speed error; k_i = 0 leaves xi out of the layout). The C

@@ -339,12 +339,15 @@ class GainTable:
 
 def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
                        function: str = "maglev_schedule", prefix: str = "MAGLEV_SCHEDULE",
-                       title: str = "gain schedule", summary: str = "") -> dict[str, str]:
+                       title: str = "gain schedule", summary: str = "",
+                       one_output: str | None = None) -> dict[str, str]:
     """``stem``.h and .c (default maglev_gain_table): ``function(v, out)`` (default
     maglev_schedule) from static const tables, its macros ``prefix``_* (the range, the row's
     size and each field's offset); ``title`` and ``summary`` (comment lines, " * " each: what
     out holds) describe the table in the header (default: the controller's gain table). One
     template for every such table (the controller's, the sense tick's estimator).
+    ``one_output``: a one-value field also evaluated alone, ``function``_<field>(v, out)
+    (the tick's propulsion feedforward at the speed reference).
 
     maglev_real is the generated functions' (the header includes maglev_functions.h, the one
     definition of the type): the table has the precision of the C beside it; no libm call, no
@@ -366,5 +369,11 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
                                            "MAGLEV_ERR_SPEED", "MAGLEV_ERR_ARGUMENT"),
                                           docs=False),
            "stem": stem, "function": function, "prefix": prefix, "title": title,
-           "summary": summary}
+           "summary": summary, "one_output": None}
+    if one_output is not None:
+        first, size = next((f, s) for name, f, s in fields if name == one_output)
+        if size != 1:
+            raise ValueError(f"one_output {one_output!r}: a field of one value expected")
+        slot = list(table.stored).index(first) if first in table.stored else None
+        ctx["one_output"] = {"name": one_output, "slot": slot}
     return {f"{stem}{ext}": render(f"maglev_gain_table{ext}.j2", **ctx) for ext in (".h", ".c")}

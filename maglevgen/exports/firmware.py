@@ -236,7 +236,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     ctx["banner"] = text_banner
     env = template_env()
     files["maglev.h"] = env.get_template("maglev.h.j2").render(ctx)
-    files.update(gain_table_sources(table))
+    files.update(gain_table_sources(table, one_output="F_prop"))
     if sense is not None:
         files.update(gain_table_sources(
             sense.table, "maglev_sense_table", "maglev_sense_schedule",
