@@ -173,9 +173,107 @@ def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
                          len(layout.gaps))
 
 
-def _sense_context(sense: SenseSchedule, precision: str) -> dict:
+#: the sense tick's refresh of its estimator's varying values: one slice a tick into the
+#: buffer not in use, the buffers swapped when it is full (every this many ticks)
+SENSE_REFRESH_TICKS = 4
+
+
+def sense_refresh_bound(table: GainTable, acceleration: float, tick_rate: float,
+                        grid: int = 2001) -> dict[str, float]:
+    """What the sense tick's refresh costs against evaluating its table every tick: the values
+    in use were evaluated at the scheduled speed of at most 2 x SENSE_REFRESH_TICKS ticks
+    before (a refresh's ticks, then the ticks it is in use), when the speed moves by at most
+    ``acceleration`` [m/s^2] a second; per field, the largest change of any of its values over
+    that speed change on ``grid`` speeds, relative to the field's largest magnitude (the
+    table's error measure)."""
+    from maglevgen.control.schedule import _field_slices
+
+    dv = acceleration * 2 * SENSE_REFRESH_TICKS / tick_rate
+    v = np.linspace(table.v_min, table.v_max, grid)
+    rows = table(v)
+    moved = np.abs(table(np.minimum(v + dv, table.v_max)) - rows)
+    return {name: float(np.max(moved[:, i:i + n]) / (np.max(np.abs(rows[:, i:i + n])) or 1.0))
+            for (name, _), (i, n) in zip(table.fields, _field_slices(table.fields), strict=True)}
+
+
+def refresh_slices(table: GainTable) -> list[int]:
+    """The refresh's slices: slice k evaluates the varying values [out[k], out[k + 1]) (the
+    order of `schedule.varying_values`), SENSE_REFRESH_TICKS of them of about equal cost
+    (a value's Clenshaw steps, its terms - 1, and about as much again for the value)."""
+    from maglevgen.control.schedule import value_terms, varying_values
+
+    terms = value_terms(table.coeffs)[varying_values(table)]
+    cost = np.concatenate([[0.0], np.cumsum(terms)])  # (terms - 1) + 1 a value
+    goals = cost[-1] * np.arange(1, SENSE_REFRESH_TICKS) / SENSE_REFRESH_TICKS
+    cuts = [int(np.argmin(np.abs(cost - g))) for g in goals]
+    return [0, *cuts, len(terms)]
+
+
+def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list[str]]:
+    """The estimator's products as straight-line C over the values its table stores (a
+    sparsity fixed at generation: a value zero over the envelope is no term), a one-term value
+    a constant, a varying one tab[k] (`schedule.varying_values`: the refresh's cache). Each
+    sum in the order of the dense loops it replaces (ascending index), so the result is theirs
+    bit for bit (a zero term adds +-0)."""
+    from maglevgen.control.schedule import _field_slices, value_terms, varying_values
+
+    table = sense.table
+    first = {name: i for (name, _), (i, _) in zip(table.fields, _field_slices(table.fields),
+                                                  strict=True)}
+    terms = value_terms(table.coeffs)
+    vary = {j: k for k, j in enumerate(varying_values(table))}
+    stored = set(table.stored)
+    ne, nl, ny = len(sense.states), sense.n_lag, len(sense.readings)
+    nc = ne + nl
+    idx = [cv.STATE_INDEX[s] for s in sense.states]
+
+    def val(field: str, i: int) -> str | None:
+        j = first[field] + i
+        if j not in stored:
+            return None
+        if terms[j] > 1:
+            return f"tab[{vary[j]}]"
+        return f"R({c_literal(float(table.coeffs[0, j]))})"
+
+    trim = [f"x_trim[{i}] = {val('x_trim', i) or 'R(0)'};" for i in range(len(cv.STATE_NAMES))]
+    innov = []
+    for j in range(ny):
+        yt = val("y_trim", j)
+        innov.append(f"acc = y[{j}] - {yt};" if yt else f"acc = y[{j}];")
+        innov += [f"acc -= {c} * dz[{i}];" for i in range(nc) if (c := val("C", j + ny * i))]
+        innov += [f"acc -= {d} * du[{i}];" for i in range(nu) if (d := val("D", j + ny * i))]
+        innov.append(f"e[{j}] = acc;")
+    update = []
+    for i in range(ne):
+        update.append("acc = R(0);")
+        update += [f"acc += {m} * e[{j}];" for j in range(ny) if (m := val("M", i + ne * j))]
+        update += [f"x_hat[{idx[i]}] += acc;", f"dz[{i}] += acc;"]
+    predict = []
+    for i in range(ne):
+        predict.append(f"acc = dz[{i}];")
+        predict += [f"acc += {a} * dz[{j}];" for j in range(nc)
+                    if (a := val("Phi_minus_I", i + ne * j))]
+        predict += [f"acc += {b} * du[{j}];" for j in range(nu)
+                    if (b := val("Gamma", i + ne * j))]
+        predict.append(f"x_pred[{idx[i]}] = x_trim[{idx[i]}] + acc;")
+    pose = [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")]
+    pose_rows = [f"cp[{k + sense.n_gap * i}] = {val('C', k + ny * pose[i]) or 'R(0)'};"
+                 for i in range(len(pose)) for k in range(sense.n_gap)]
+    pose_rows += [f"yt[{k}] = {val('y_trim', k) or 'R(0)'};" for k in range(sense.n_gap)]
+    return {"trim": trim, "f_prop": [val("F_prop", 0) or "R(0)"], "innov": innov,
+            "correct": update, "predict": predict, "pose_rows": pose_rows}
+
+
+def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: float,
+                   acceleration: float) -> dict:
+    from maglevgen.control.schedule import varying_values
+
     names = sense.readings
-    return {"n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
+    return {"code": _sense_code(sense, nu), "n_vary": len(varying_values(sense.table)),
+            "refresh_ticks": SENSE_REFRESH_TICKS, "slices": refresh_slices(sense.table),
+            "acceleration": acceleration,
+            "refresh_bound": sense_refresh_bound(sense.table, acceleration, tick_rate),
+            "n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
             "state_index": [cv.STATE_INDEX[s] for s in sense.states],
             "pose_index": [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")],
             "track_index": names.index("track_x") if "track_x" in names else -1,
@@ -245,7 +343,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
             " * maglev_sense_tick): F_prop [N] (trim propulsion), x_trim (the trim state, its u\n"
             " * less v), y_trim (the readings at trim), Phi_minus_I, Gamma, C, D and M (the\n"
             " * update's gain), column-major, on the estimator's plant states and lagged forces,\n"
-            " * at the offsets above."))
+            " * at the offsets above.", varying=True))
 
     if "K_lag" not in dict(table.fields):
         raise ValueError("the firmware's table carries the design at the tick "
@@ -279,7 +377,9 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "table_error": max(table.errors.values()), "with_plant": with_plant,
         "flags": " ".join(FIRMWARE_FLAGS), "functions": [f["name"] for f in fn_table],
         "cost": cost, "error_defines": error_defines(),
-        "sense": None if sense is None else _sense_context(sense, precision),
+        "sense": None if sense is None else _sense_context(
+            sense, precision, len(carriage.model.input_names), loop.tick_rate,
+            carriage.params.envelope.launch_acceleration),
         "sense_nodes": 0 if sense is None else len(sense.table.coeffs),
         "sense_error": 0.0 if sense is None else max(sense.table.errors.values()),
         "verdict": (verdict or {}).get("verdict", "not checked (rendered without "
