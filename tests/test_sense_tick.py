@@ -867,3 +867,60 @@ def test_the_update_without_some_readings_still_converges(sense, carriage, sim_l
         assert moduli(left_out)[-1] < 0.99, left_out
     z = moduli(["track_x"])
     assert abs(z[-1] - 1.0) < 1e-9 and z[-2] < 1.0
+
+
+@pytest.mark.needs_cc
+def test_the_sense_cache_is_within_its_stated_bound_of_evaluating_every_tick(
+        sense, carriage, sim_lib) -> None:
+    """The cost of the cache against evaluating the estimator's table every tick: the C tick
+    from near v_min with the predicted forward speed ramped at 0.9 x
+    envelope.launch_acceleration (set before each tick; readings the filter's own, noiseless)
+    for 5 refreshes. After each tick the speed of the table in use is within
+    launch_acceleration x 2 MAGLEV_SENSE_REFRESH_TICKS ticks of the speed scheduled for the
+    next tick, the cache holds the table at its speed bit for bit, and each field of the table
+    in use is within exports.firmware.sense_refresh_bound (the bound maglev_tick.h states) of
+    the table at the scheduled speed, relative to the field's largest magnitude."""
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.control import estimation as est
+    from maglevgen.exports.firmware import SENSE_REFRESH_TICKS, sense_refresh_bound
+
+    fx = sense
+    sch, loop, table = fx["schedule"], fx["loop"], fx["schedule"].table
+    a, h = carriage.params.envelope.launch_acceleration, 1.0 / loop.tick_rate
+    bound = sense_refresh_bound(table, a, loop.tick_rate)
+    header = (fx["folder"] / "maglev_tick.h").read_text()
+    for name, err in bound.items():
+        assert f"{name} {err:.1e}" in header, name
+    nps = NumpySense(fx)
+    rows = table(np.linspace(table.v_min, table.v_max, 2001))
+    f = _fields(table)
+    scale = {name: np.max(np.abs(rows[:, sl])) or 1.0 for name, sl in f.items()}
+    v0 = table.v_min + 0.5
+    (op,) = envelope_points(carriage, sim_lib, [v0])
+    c = CSense(fx)
+    all_valid = (1 << nps.ny) - 1
+    y0 = est.measurement_model(sim_lib, carriage.p, op, fx["layout"]).y_trim
+    assert c.init(y0, all_valid, v0) == OK
+    rng = np.random.default_rng(0)
+    worst = dict.fromkeys(f, 0.0)
+    for k in range(5 * SENSE_REFRESH_TICKS):
+        st = c.state()
+        st["x_pred"][6] = v0 + 0.9 * a * h * k
+        c.set_state(st)
+        rc, _ = c(_readings(fx, nps, st, rng, scale=0.0), all_valid, float(st["x_pred"][6]))
+        assert rc == OK, k
+        after = c.state()
+        x = after["x_pred"]
+        v_now = min(max(float(np.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2)), table.v_min),
+                    table.v_max)
+        v_use = float(after["v_tab"][after["use"]])
+        assert abs(v_now - v_use) <= a * 2 * SENSE_REFRESH_TICKS * h, (k, v_now, v_use)
+        row_use, row_now = _clenshaw(table, v_use), _clenshaw(table, v_now)
+        np.testing.assert_array_equal(after["tab"][after["use"]][:len(nps.varying)],
+                                      row_use[nps.varying])
+        for name, sl in f.items():
+            worst[name] = max(worst[name],
+                              float(np.max(np.abs(row_use[sl] - row_now[sl]))) / scale[name])
+    for name in f:
+        assert worst[name] <= bound[name] * (1 + 1e-9), (name, worst[name], bound[name])
+    assert max(worst.values()) > 0  # the cache lagged the speed

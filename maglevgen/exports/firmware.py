@@ -260,7 +260,22 @@ def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list[str]]:
     pose_rows = [f"cp[{k + sense.n_gap * i}] = {val('C', k + ny * pose[i]) or 'R(0)'};"
                  for i in range(len(pose)) for k in range(sense.n_gap)]
     pose_rows += [f"yt[{k}] = {val('y_trim', k) or 'R(0)'};" for k in range(sense.n_gap)]
+    # the refresh's slices: each varying value's Clenshaw written out with its coefficients
+    # (maglev_sense_schedule_varying's operations; its first step, (t2 0 - 0) + c = c, taken)
+    refresh = []
+    bounds = refresh_slices(table)
+    order = varying_values(table)
+    for k in range(len(bounds) - 1):
+        lines = []
+        for i in range(bounds[k], bounds[k + 1]):
+            c = [c_literal(float(x)) for x in table.coeffs[:terms[order[i]], order[i]]]
+            lines += [f"b1 = R({c[-1]});", "b2 = R(0);"]
+            for ck in reversed(c[1:-1]):
+                lines += [f"b0 = ((t2 * b1) - b2) + R({ck});", "b2 = b1;", "b1 = b0;"]
+            lines.append(f"tab[{i}] = ((t * b1) - b2) + R({c[0]});")
+        refresh.append(lines)
     return {"trim": trim, "f_prop": [val("F_prop", 0) or "R(0)"], "innov": innov,
+            "refresh": refresh,
             "correct": update, "predict": predict, "pose_rows": pose_rows}
 
 
@@ -271,6 +286,12 @@ def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: flo
     names = sense.readings
     return {"code": _sense_code(sense, nu), "n_vary": len(varying_values(sense.table)),
             "refresh_ticks": SENSE_REFRESH_TICKS, "slices": refresh_slices(sense.table),
+            # maglev_sense_table.c's V_MIN, V_MAX, T_SCALE, T_OFFSET: the same text, so the
+            # same constants (gain_table_sources)
+            "v_min": c_literal(sense.table.v_min), "v_max": c_literal(sense.table.v_max),
+            "t_scale": c_literal(2.0 / (1.0 / sense.table.v_min - 1.0 / sense.table.v_max)),
+            "t_offset": c_literal((1.0 / sense.table.v_max + 1.0 / sense.table.v_min)
+                                  / (1.0 / sense.table.v_min - 1.0 / sense.table.v_max)),
             "acceleration": acceleration,
             "refresh_bound": sense_refresh_bound(sense.table, acceleration, tick_rate),
             "n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
