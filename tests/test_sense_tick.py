@@ -577,6 +577,32 @@ int main(void) {
                 ++calls;
             }
         }
+        /* the cache: each value of the table in use, then both speeds; after two refreshes'
+           ticks every cached value finite again (a bad value in use shows as a bad estimate
+           or prediction: a reset; the other buffer is rewritten before it is used) */
+        for (i = -1; i < MAGLEV_SENSE_SCHEDULE_NVARY; ++i) {
+            maglev_sense_init(&s, y0, ALL, V_REF);
+            if (i < 0) { s.v_tab[0] = hostile[h]; s.v_tab[1] = hostile[h]; }
+            else s.tab[s.use][i] = hostile[h];
+            for (k = 0; k <= 2 * MAGLEV_SENSE_REFRESH_TICKS; ++k) {
+                rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+                errors += rc != MAGLEV_OK;
+                ++calls;
+            }
+            for (k = 0; k < MAGLEV_SENSE_SCHEDULE_NVARY; ++k) {
+                if (!isfinite(s.tab[0][k]) || !isfinite(s.tab[1][k])) ++bad;
+            }
+            if (!isfinite(s.v_tab[0]) || !isfinite(s.v_tab[1])) ++bad;
+        }
+    }
+    /* the cache's index and slice out of range: taken in range, no access outside */
+    maglev_sense_init(&s, y0, ALL, V_REF);
+    s.use = 12345U;
+    s.slice = 99999U;
+    for (k = 0; k < 3; ++k) {
+        rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+        if (s.use > 1U || s.slice >= (unsigned)MAGLEV_SENSE_REFRESH_TICKS) ++bad;
+        ++calls;
     }
     /* every reading flagged invalid; then the gaps only */
     maglev_sense_init(&s, y0, ALL, V_REF);
@@ -606,7 +632,9 @@ def test_sense_tick_under_sanitizers_with_hostile_readings(sense, carriage, sim_
     """maglev_sense_init / maglev_sense_tick under ASan and UBSan (no recovery) with hostile
     values (NaN, +-inf, +-1e30, 1e300, denormals, +-0, -1; the set of test_failsafe.py) in
     each reading and in all of them (at a tick and as the first readings), in the speed
-    reference, and in each entry of the estimator's state and in all of them; every reading
+    reference, and in each entry of the estimator's state and in all of them, in each value of
+    the cache in use and in its speeds (every cached value finite again after two refreshes'
+    ticks), the cache's index and slice out of range; every reading
     flagged invalid, then the gaps; NULL pointers: no sanitizer report, every code one the
     header documents, the command zero on an error and finite always, the state finite after
     every call (a non-finite one reset), a non-finite reading left out (its bit in
