@@ -913,7 +913,7 @@ def test_the_sense_cache_is_within_its_stated_bound_of_evaluating_every_tick(
     from maglevgen.exports.firmware import SENSE_REFRESH_TICKS, sense_refresh_bound
 
     fx = sense
-    sch, loop, table = fx["schedule"], fx["loop"], fx["schedule"].table
+    loop, table = fx["loop"], fx["schedule"].table
     a, h = carriage.params.envelope.launch_acceleration, 1.0 / loop.tick_rate
     bound = sense_refresh_bound(table, a, loop.tick_rate)
     header = (fx["folder"] / "maglev_tick.h").read_text()

@@ -210,7 +210,7 @@ def refresh_slices(table: GainTable) -> list[int]:
     return [0, *cuts, len(terms)]
 
 
-def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list[str]]:
+def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list]:
     """The estimator's products as straight-line C over the values its table stores (a
     sparsity fixed at generation: a value zero over the envelope is no term), a one-term value
     a constant, a varying one tab[k] (`schedule.varying_values`: the refresh's cache). Each
@@ -263,17 +263,17 @@ def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list[str]]:
     pose_rows += [f"yt[{k}] = {val('y_trim', k) or 'R(0)'};" for k in range(sense.n_gap)]
     # the refresh's slices: each varying value's Clenshaw written out with its coefficients
     # (maglev_sense_schedule_varying's operations; its first step, (t2 0 - 0) + c = c, taken)
-    refresh = []
+    refresh: list[list[str]] = []
     bounds = refresh_slices(table)
     order = varying_values(table)
     for k in range(len(bounds) - 1):
         lines = []
         for i in range(bounds[k], bounds[k + 1]):
-            c = [c_literal(float(x)) for x in table.coeffs[:terms[order[i]], order[i]]]
-            lines += [f"b1 = R({c[-1]});", "b2 = R(0);"]
-            for ck in reversed(c[1:-1]):
+            cs = [c_literal(float(x)) for x in table.coeffs[:terms[order[i]], order[i]]]
+            lines += [f"b1 = R({cs[-1]});", "b2 = R(0);"]
+            for ck in reversed(cs[1:-1]):
                 lines += [f"b0 = ((t2 * b1) - b2) + R({ck});", "b2 = b1;", "b1 = b0;"]
-            lines.append(f"tab[{i}] = ((t * b1) - b2) + R({c[0]});")
+            lines.append(f"tab[{i}] = ((t * b1) - b2) + R({cs[0]});")
         refresh.append(lines)
     return {"trim": trim, "f_prop": [val("F_prop", 0) or "R(0)"], "innov": innov,
             "refresh": refresh,
