@@ -311,7 +311,8 @@ class GainTable:
         ``drop_share`` x GAIN_TABLE_BOUND of its field's scale on the dense grid (`truncated`;
         0: none dropped): the C's Clenshaw runs over a value's own terms, and a value
         constant over speed to that keeps one (the sense tick's code holds it as a literal);
-        the bound is checked on the truncated table."""
+        the node count is the undropped fit's, and the terms are dropped only where the
+        table stays within the bound (or, past it, within the undropped table's error)."""
         from numpy.polynomial import chebyshev
 
         dense = np.linspace(v_min, v_max, DENSE_GRID)
@@ -330,15 +331,21 @@ class GainTable:
             mask = np.zeros(coeffs.shape[1], dtype=bool)
             mask[list(stored)] = True
             coeffs[:, ~mask] = 0.0
-            if drop_share > 0:
-                coeffs = truncated(coeffs, cls.t_of(dense, v_min, v_max),
-                                   drop_share * GAIN_TABLE_BOUND * scale)
             table = cls(v_min, v_max, coeffs, {}, stored, fields)
             errors = field_errors(table(dense), exact, fields)
             table = cls(v_min, v_max, coeffs, errors, stored, fields)
             if max(errors.values()) <= GAIN_TABLE_BOUND:
                 break
         assert table is not None
+        if drop_share > 0:
+            # the nodes as without dropping (the rows evaluated, the node count: the same);
+            # the dropped terms kept only if the table stays within the bound
+            coeffs = truncated(table.coeffs, cls.t_of(dense, v_min, v_max),
+                               drop_share * GAIN_TABLE_BOUND * scale)
+            errors = field_errors(cls(v_min, v_max, coeffs, {}, stored, fields)(dense), exact,
+                                  fields)
+            if max(errors.values()) <= max(GAIN_TABLE_BOUND, max(table.errors.values())):
+                table = cls(v_min, v_max, coeffs, errors, stored, fields)
         return table
 
     def manifest(self, precision_bytes: int = 4) -> dict:
