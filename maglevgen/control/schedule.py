@@ -355,10 +355,13 @@ class GainTable:
                 "worst_relative_error": max(self.errors.values()),
                 "relative_error_by_field": self.errors,
                 "values_stored": len(self.stored),
-                # the stored indices: unsigned char, or unsigned short past 256 outputs
-                "table_bytes_single": int(len(self.coeffs) * len(self.stored)
+                "coefficients_stored": int(np.sum(value_terms(self.coeffs)[list(self.stored)])),
+                # each value's own terms; the stored indices (unsigned char, or unsigned short
+                # past 256 outputs) and each value's first coefficient (unsigned short)
+                "table_bytes_single": int(np.sum(value_terms(self.coeffs)[list(self.stored)])
                                           * precision_bytes + len(self.stored)
-                                          * (1 if self.coeffs.shape[1] <= 256 else 2))}
+                                          * (1 if self.coeffs.shape[1] <= 256 else 2)
+                                          + 2 * (len(self.stored) + 1))}
 
 
 def truncated(coeffs: np.ndarray, t: np.ndarray, tol: np.ndarray) -> np.ndarray:
