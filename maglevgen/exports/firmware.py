@@ -61,6 +61,8 @@ TICK_INPUTS = {
     "maglev_damping_control": ("c_damping",),
 }
 ALLOCATE = "maglev_allocate"
+#: the sensors' measurement functions (codegen.functions): the QEMU loop's readings of the plant
+READINGS = ("maglev_gap_reading", "maglev_imu_reading")
 PLANT = "maglev_dynamics"  # --with-plant: the float32 plant in the image (HIL/SIL)
 #: run_qemu.sh's closed loop: ticks from the trim with the heave 1 mm off (1 s at 1 kHz)
 QEMU_TICKS = 1000
@@ -306,11 +308,30 @@ def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: flo
             "accel_range": est.ACCEL_RANGE, "track_range": est.TRACK_RANGE}
 
 
-def firmware_functions(controller_tick: str, with_plant: bool = False) -> tuple[str, ...]:
-    """The generated functions of the firmware folder, in maglev_functions.c's order."""
+def firmware_functions(controller_tick: str, with_plant: bool = False,
+                       readings: bool = False) -> tuple[str, ...]:
+    """The generated functions of the firmware folder, in maglev_functions.c's order;
+    ``readings`` (with the plant): the sensors' measurement functions too (the QEMU loop's
+    sense tick reads the plant through them)."""
     if controller_tick not in TICK_INPUTS:
         raise ValueError(f"no firmware tick for {controller_tick!r}")
-    return (controller_tick, ALLOCATE) + ((PLANT,) if with_plant else ())
+    return (controller_tick, ALLOCATE) + ((PLANT,) if with_plant else ()) + (
+        READINGS if with_plant and readings else ())
+
+
+def _sense_plant(carriage: DerivedCarriage, precision: str) -> dict:
+    """The QEMU loop's sensors on the plant: each gap sensor's body point, face normal and
+    nominal gap, the IMU's point, each reading's noise (its standard deviation at the tick:
+    estimation.SensorLayout), as C literals."""
+    layout = est.SensorLayout.of(carriage.params)
+
+    def lits(v) -> str:
+        return ", ".join(c_literal(float(x), precision) for x in np.ravel(v))
+
+    return {"gaps": [{"point": lits(g.point), "normal": lits(g.normal),
+                      "nominal": c_literal(g.nominal_gap, precision)} for g in layout.gaps],
+            "imu_point": None if layout.imu_point is None else lits(layout.imu_point),
+            "sigma": lits(np.sqrt(layout.variances)), "track": bool(layout.track)}
 
 
 def _banner(sha256: str, precision: str, with_plant: bool) -> str:
@@ -341,7 +362,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     tick_fn = registered(embedded).tick_function
     if tick_fn is None or tick_fn not in TICK_INPUTS:
         raise ValueError(f"the embedded controller {embedded!r} has no firmware tick")
-    names = firmware_functions(tick_fn, with_plant)
+    names = firmware_functions(tick_fn, with_plant, sense is not None)
     built = build_functions(carriage.model, precision=precision).functions
     fns = [f for f in bake_all(tuple(built), carriage.p) if f.name() in names]
     fns.sort(key=lambda f: names.index(f.name()))
@@ -399,6 +420,8 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "table_error": max(table.errors.values()), "with_plant": with_plant,
         "flags": " ".join(FIRMWARE_FLAGS), "functions": [f["name"] for f in fn_table],
         "cost": cost, "error_defines": error_defines(),
+        "sense_plant": (_sense_plant(carriage, precision) if sense is not None and with_plant
+                        else None),
         "sense": None if sense is None else _sense_context(
             sense, precision, len(carriage.model.input_names), loop.tick_rate,
             carriage.params.envelope.launch_acceleration),
