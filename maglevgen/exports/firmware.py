@@ -8,6 +8,14 @@ force budget (maglev_tick.c), an example main.c, a CMake project with a Cortex-M
 file, the MISRA deviation list and a README saying what to call when. The host/HIL files
 (Newton trim, spline schedule, maglev_simulate) stay with `maglevgen generate`.
 
+With ``[sensors]`` the tick also has maglev_sense_tick (the Kalman filter on the readings, the
+same law): its estimator's products are generated straight-line over the values its table
+(maglev_sense_table.c) stores, a value constant over speed as a literal (`_sense_code`); its
+varying values are cached in the caller's state and refreshed a slice a tick over
+SENSE_REFRESH_TICKS ticks (`refresh_slices`), at a cost against evaluating the table every
+tick that `sense_refresh_bound` states in maglev_tick.h. With the plant, the QEMU loop flies
+maglev_sense_tick on the plant's readings too (`READINGS`).
+
 Writers return (file name, text) pairs; `maglevgen.infrastructure.output.write_output` alone
 touches the disk.
 """
