@@ -230,7 +230,7 @@ def section(r: dict) -> list[str]:
             "`maglev_schedule` (the Chebyshev table, Clenshaw over each stored value's own "
             "terms: the fit drops a value's terms within a tenth of the table's bound; with "
             "every value's 8 terms the tick was 7,455 instructions, ~12,154 cycles) is most of "
-            "the tick; the generated coupled control and allocation are a fifth of it.", "",
+            "the tick; the generated coupled control and allocation are an eighth of it.", "",
             *([("`maglev_sense_tick` by function: " + ", ".join(
                 f"`{k}` {v}" for k, v in list(s["by_function"].items())[:8])
                 + ". The estimator's products run over its table's nonzero values only (a "
