@@ -1172,6 +1172,21 @@ def qemu_folder(firmware, carriage: DerivedCarriage, tmp_path_factory) -> Path:
     return folder
 
 
+@pytest.fixture(scope="module")
+def qemu_sense_folder(firmware, carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> Path:
+    """The same with the sense tick (sense_schedule): its run_qemu.sh flies both ticks."""
+    from maglevgen.analyses.envelope import resolve_range
+    from maglevgen.exports.firmware import MEASURED, render_firmware, sense_schedule
+
+    sense = sense_schedule(carriage, sim_lib, *resolve_range(carriage, sim_lib),
+                           firmware["loop"])
+    assert sense is not None
+    folder = tmp_path_factory.mktemp("firmware_qemu_sense")
+    write_output(render_firmware(carriage, firmware["table"], firmware["loop"], "single", True,
+                                 MEASURED, sense=sense), folder)
+    return folder
+
+
 def test_run_qemu_says_which_tool_is_missing(qemu_folder: Path, tmp_path: Path) -> None:
     """Without the cross-compiler on PATH the script runs nothing: one line naming the tool,
     exit 77 (automake's "skipped")."""
@@ -1192,19 +1207,21 @@ def test_run_qemu_says_which_tool_is_missing(qemu_folder: Path, tmp_path: Path) 
 
 @pytest.mark.slow
 @pytest.mark.needs_arm("qemu-system-arm")
-def test_run_qemu_runs_the_closed_loop_and_counts_a_tick(qemu_folder: Path, firmware,
+def test_run_qemu_runs_the_closed_loop_and_counts_a_tick(qemu_sense_folder: Path, firmware,
                                                         tmp_path: Path) -> None:
     """`sh run_qemu.sh` in the folder: the closed loop's line (the tick rate of the firmware
     loop, its ticks), a result that agrees with the heave it prints (settled: within 5 % of
-    the 1 mm start), and one tick's instructions within 10 % of bench/firmware_tick.py's
-    recorded count (its own driver, bench/c/bench_tick.c, a state 1 mm / 1 mrad off)."""
+    the 1 mm start); the same for maglev_sense_tick on the plant's readings (seeded noise: its
+    every tick MAGLEV_OK, settled too); and one tick's instructions within 10 % of
+    bench/firmware_tick.py's recorded count (its own driver, bench/c/bench_tick.c, a state
+    1 mm / 1 mrad off)."""
     import shutil
     import subprocess
 
     from maglevgen.exports.firmware import MEASURED, QEMU_TICKS
 
     folder = tmp_path / "fw"
-    shutil.copytree(qemu_folder, folder)
+    shutil.copytree(qemu_sense_folder, folder)
     run = subprocess.run(["sh", "run_qemu.sh"], cwd=folder, capture_output=True, text=True,
                          timeout=600)
     assert run.returncode == 0, run.stdout + run.stderr
@@ -1214,6 +1231,11 @@ def test_run_qemu_runs_the_closed_loop_and_counts_a_tick(qemu_folder: Path, firm
     assert int(loop[1]) == QEMU_TICKS and int(loop[2]) == round(firmware["loop"].tick_rate)
     settled = abs(int(loop[3])) < 50
     assert ("result: settled" in out) == settled and settled, out
+    sensed = re.search(r"sense tick on the plant's readings \((\d+) readings, seeded noise\): "
+                       r"(\d+) ticks; heave deviation at the end: (-?\d+) um", out)
+    assert sensed, out
+    assert int(sensed[2]) == QEMU_TICKS and abs(int(sensed[3])) < 50, out
+    assert "result (sense tick): settled" in out, out
     per_tick = int(re.search(r"per tick: (\d+) instructions", out)[1])
     assert abs(per_tick / MEASURED["instructions"] - 1) < 0.1, (per_tick, MEASURED)
 

@@ -3,7 +3,8 @@ on the sensors' readings, the law of maglev_tick on the updated estimate, the pr
 its schedule (estimation.sense_table).
 
 References: the estimator's equations written out here in numpy (the table by Clenshaw in the
-C's order, the update, the prediction with the lag and the queue) and the law of
+C's order at the speed of the cache in use, the update, the prediction with the lag and the
+queue, the cache's refresh a slice a tick) and the law of
 test_tick_state.NumpyTick (SymPy's rates, pinv of the SymPy effectiveness); the table's rows
 against the EstimatorModel and KalmanDesign matrices and M against control.dlqe; the closed
 loop of the C tick (linearised by central differences) around the plant built here
@@ -119,17 +120,26 @@ def _law_state(delay: int) -> type[ctypes.Structure]:
     return Law
 
 
+#: the cache's fields of the state (after `rejected`)
+CACHE = ("tab", "v_tab", "use", "slice")
+
+
 class CSense:
     """maglev_sense_init / maglev_sense_tick of the compiled folder through ctypes."""
 
     def __init__(self, fx: dict, so: Path | None = None) -> None:
+        from maglevgen.control.schedule import varying_values
+
         d, nu, n_lag = fx["loop"].delay_ticks, fx["nu"], fx["schedule"].n_lag
+        nv = max(len(varying_values(fx["schedule"].table)), 1)
 
         class State(ctypes.Structure):
             _fields_ = [("x_pred", ctypes.c_double * 12),
                         ("f_pred", ctypes.c_double * max(n_lag, 1)),
                         ("u_flight", ctypes.c_double * (nu * max(d, 1))),
-                        ("law", _law_state(d)), ("rejected", ctypes.c_ulong)]
+                        ("law", _law_state(d)), ("rejected", ctypes.c_ulong),
+                        ("tab", (ctypes.c_double * nv) * 2), ("v_tab", ctypes.c_double * 2),
+                        ("use", ctypes.c_uint), ("slice", ctypes.c_uint)]
 
         lib = ctypes.CDLL(str(so or fx["so"]))
         P = ctypes.POINTER(ctypes.c_double)
@@ -157,7 +167,8 @@ class CSense:
         return {"x_pred": np.array(s.x_pred[:]), "f_pred": np.array(s.f_pred[:self.n_lag]),
                 "u_flight": np.array(s.u_flight[:]), "in_flight": np.array(s.law.in_flight[:]),
                 "w_hat": np.array(s.law.w_hat[:]), "xi": float(s.law.xi),
-                "rejected": int(s.rejected)}
+                "rejected": int(s.rejected), "tab": np.array([s.tab[0][:], s.tab[1][:]]),
+                "v_tab": np.array(s.v_tab[:]), "use": int(s.use), "slice": int(s.slice)}
 
     def set_state(self, st: dict) -> None:
         s = self.s
@@ -168,17 +179,29 @@ class CSense:
             for i, v in enumerate(st[name]):
                 getattr(s.law, name)[i] = float(v)
         s.law.xi = float(st["xi"])
+        if "tab" in st:  # the cache too
+            for b in range(2):
+                for i, v in enumerate(st["tab"][b]):
+                    s.tab[b][i] = float(v)
+                s.v_tab[b] = float(st["v_tab"][b])
+            s.use, s.slice = int(st["use"]), int(st["slice"])
 
 
 class NumpySense:
     """The sense tick's estimator (maglev_tick.h's equations), written out here in Python
-    floats in the C's order: the schedule at the predicted speed, the update on the usable
-    readings, and (given the command) the prediction with the exact lag and the queue."""
+    floats in the C's order: the table at the speed of the cache in use, the update on the
+    usable readings, and (given the command) the prediction with the exact lag and the
+    queue, then the cache's refresh (a slice at the other buffer's speed; after the last, the
+    swap and the next refresh's speed: the new prediction's)."""
 
     def __init__(self, fx: dict) -> None:
+        from maglevgen.control.schedule import varying_values
         from maglevgen.derive import conventions as cv
+        from maglevgen.exports.firmware import SENSE_REFRESH_TICKS, refresh_slices
 
         self.sch, self.loop, self.nu = fx["schedule"], fx["loop"], fx["nu"]
+        self.varying = varying_values(self.sch.table)
+        self.slices, self.ticks = refresh_slices(self.sch.table), SENSE_REFRESH_TICKS
         self.f = _fields(self.sch.table)
         self.idx = [cv.STATE_INDEX[s] for s in self.sch.states]
         self.ne, self.nl, self.ny = len(self.idx), self.sch.n_lag, len(self.sch.readings)
@@ -187,8 +210,7 @@ class NumpySense:
         table, f, ne, nc, ny, nu = (self.sch.table, self.f, self.ne, self.ne + self.nl,
                                     self.ny, self.nu)
         x = st["x_pred"]
-        v = float(np.sqrt((x[6] * x[6] + x[7] * x[7]) + x[8] * x[8]))
-        vc = min(max(v, table.v_min), table.v_max)
+        vc = float(st["v_tab"][st["use"]])
         g = _clenshaw(table, vc)
         x_trim = g[f["x_trim"]].copy()
         x_trim[6] += vc
@@ -240,7 +262,20 @@ class NumpySense:
                            for i in range(self.nl)])
         q = st["u_flight"]
         u_flight = np.concatenate([u, q[:-nu]]) if len(q) > nu else np.array(u, dtype=float)
-        return {"x_pred": x_pred, "f_pred": f_pred, "u_flight": u_flight}
+        tab, v_tab, use, k = st["tab"].copy(), st["v_tab"].copy(), st["use"], st["slice"]
+        back = 1 - use
+        row = _clenshaw(self.sch.table, float(v_tab[back]))
+        for i in range(self.slices[k], self.slices[k + 1]):
+            tab[back, i] = row[self.varying[i]]
+        k += 1
+        if k == self.ticks:
+            table = self.sch.table
+            v = float(np.sqrt((x_pred[6] * x_pred[6] + x_pred[7] * x_pred[7])
+                              + x_pred[8] * x_pred[8]))
+            use, k = back, 0
+            v_tab[1 - back] = min(max(v, table.v_min), table.v_max)
+        return {"x_pred": x_pred, "f_pred": f_pred, "u_flight": u_flight, "tab": tab,
+                "v_tab": v_tab, "use": use, "slice": k}
 
 
 def _readings(fx: dict, nps: NumpySense, st: dict, rng, scale: float = 3.0) -> np.ndarray:
@@ -260,8 +295,8 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
     some flagged invalid or out of range: from the C's state before each tick, the numpy
     update, the law (NumpyTick with the C's law state) on its estimate and the numpy
     prediction with the C's command. The estimator's state after the tick (prediction, lagged
-    forces, the commands in flight) and the rejected readings bit for bit; the command to
-    1e-12 of its scale (CasADi's rates and allocation against SymPy's and pinv)."""
+    forces, the commands in flight, the cache) and the rejected readings bit for bit; the
+    command to 1e-12 of its scale (CasADi's rates and allocation against SymPy's and pinv)."""
     from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control import estimation as est
 
@@ -284,7 +319,7 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
         c.set_state(st)
         law = NumpyTick(carriage, fx["table"], loop, T)
         v_ref = op.speed * 1.01
-        exercised = 0
+        exercised = swaps = 0
         for k in range(20):
             st = c.state()
             y = _readings(fx, nps, st, rng)
@@ -306,10 +341,12 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
             assert np.max(np.abs(u[1:] - u_ref[1:])) <= 1e-12 * scale_f, (op.speed, k)
             assert u[0] == pytest.approx(u_ref[0], rel=1e-13)
             pred = nps.predict(st, up, u)
-            for name in ("x_pred", "f_pred", "u_flight"):
+            for name in ("x_pred", "f_pred", "u_flight", *CACHE):
                 np.testing.assert_array_equal(after[name], pred[name], err_msg=f"{name} {k}")
+            swaps += after["use"] != st["use"]
             assert after["xi"] == law.xi
         assert exercised >= 3
+        assert swaps >= 4  # the cache refreshed, in use at a speed other than the init's
         assert np.max(np.abs(c.state()["f_pred"])) > 1e-3  # the lag is exercised
 
 
@@ -404,7 +441,7 @@ def test_sense_tick_closed_loop_has_the_loop_as_built_eigenvalues(sense, carriag
         return np.concatenate([np.ravel(st[k]) for k in keys])
 
     def unpack(z: np.ndarray) -> dict:
-        out, i = {}, 0
+        out, i = {k: base[k] for k in CACHE}, 0  # each tick from the init's cache
         for k, n in zip(keys, sizes, strict=True):
             out[k] = z[i:i + n] if k != "xi" else float(z[i])
             i += n
@@ -540,6 +577,32 @@ int main(void) {
                 ++calls;
             }
         }
+        /* the cache: each value of the table in use, then both speeds; after two refreshes'
+           ticks every cached value finite again (a bad value in use shows as a bad estimate
+           or prediction: a reset; the other buffer is rewritten before it is used) */
+        for (i = -1; i < MAGLEV_SENSE_SCHEDULE_NVARY; ++i) {
+            maglev_sense_init(&s, y0, ALL, V_REF);
+            if (i < 0) { s.v_tab[0] = hostile[h]; s.v_tab[1] = hostile[h]; }
+            else s.tab[s.use][i] = hostile[h];
+            for (k = 0; k <= 2 * MAGLEV_SENSE_REFRESH_TICKS; ++k) {
+                rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+                errors += rc != MAGLEV_OK;
+                ++calls;
+            }
+            for (k = 0; k < MAGLEV_SENSE_SCHEDULE_NVARY; ++k) {
+                if (!isfinite(s.tab[0][k]) || !isfinite(s.tab[1][k])) ++bad;
+            }
+            if (!isfinite(s.v_tab[0]) || !isfinite(s.v_tab[1])) ++bad;
+        }
+    }
+    /* the cache's index and slice out of range: taken in range, no access outside */
+    maglev_sense_init(&s, y0, ALL, V_REF);
+    s.use = 12345U;
+    s.slice = 99999U;
+    for (k = 0; k < 3; ++k) {
+        rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+        if (s.use > 1U || s.slice >= (unsigned)MAGLEV_SENSE_REFRESH_TICKS) ++bad;
+        ++calls;
     }
     /* every reading flagged invalid; then the gaps only */
     maglev_sense_init(&s, y0, ALL, V_REF);
@@ -569,7 +632,9 @@ def test_sense_tick_under_sanitizers_with_hostile_readings(sense, carriage, sim_
     """maglev_sense_init / maglev_sense_tick under ASan and UBSan (no recovery) with hostile
     values (NaN, +-inf, +-1e30, 1e300, denormals, +-0, -1; the set of test_failsafe.py) in
     each reading and in all of them (at a tick and as the first readings), in the speed
-    reference, and in each entry of the estimator's state and in all of them; every reading
+    reference, and in each entry of the estimator's state and in all of them, in each value of
+    the cache in use and in its speeds (every cached value finite again after two refreshes'
+    ticks), the cache's index and slice out of range; every reading
     flagged invalid, then the gaps; NULL pointers: no sanitizer report, every code one the
     header documents, the command zero on an error and finite always, the state finite after
     every call (a non-finite one reset), a non-finite reading left out (its bit in
@@ -830,3 +895,60 @@ def test_the_update_without_some_readings_still_converges(sense, carriage, sim_l
         assert moduli(left_out)[-1] < 0.99, left_out
     z = moduli(["track_x"])
     assert abs(z[-1] - 1.0) < 1e-9 and z[-2] < 1.0
+
+
+@pytest.mark.needs_cc
+def test_the_sense_cache_is_within_its_stated_bound_of_evaluating_every_tick(
+        sense, carriage, sim_lib) -> None:
+    """The cost of the cache against evaluating the estimator's table every tick: the C tick
+    from near v_min with the predicted forward speed ramped at 0.9 x
+    envelope.launch_acceleration (set before each tick; readings the filter's own, noiseless)
+    for 5 refreshes. After each tick the speed of the table in use is within
+    launch_acceleration x 2 MAGLEV_SENSE_REFRESH_TICKS ticks of the speed scheduled for the
+    next tick, the cache holds the table at its speed bit for bit, and each field of the table
+    in use is within exports.firmware.sense_refresh_bound (the bound maglev_tick.h states) of
+    the table at the scheduled speed, relative to the field's largest magnitude."""
+    from maglevgen.analyses.envelope import envelope_points
+    from maglevgen.control import estimation as est
+    from maglevgen.exports.firmware import SENSE_REFRESH_TICKS, sense_refresh_bound
+
+    fx = sense
+    loop, table = fx["loop"], fx["schedule"].table
+    a, h = carriage.params.envelope.launch_acceleration, 1.0 / loop.tick_rate
+    bound = sense_refresh_bound(table, a, loop.tick_rate)
+    header = (fx["folder"] / "maglev_tick.h").read_text()
+    for name, err in bound.items():
+        assert f"{name} {err:.1e}" in header, name
+    nps = NumpySense(fx)
+    rows = table(np.linspace(table.v_min, table.v_max, 2001))
+    f = _fields(table)
+    scale = {name: np.max(np.abs(rows[:, sl])) or 1.0 for name, sl in f.items()}
+    v0 = table.v_min + 0.5
+    (op,) = envelope_points(carriage, sim_lib, [v0])
+    c = CSense(fx)
+    all_valid = (1 << nps.ny) - 1
+    y0 = est.measurement_model(sim_lib, carriage.p, op, fx["layout"]).y_trim
+    assert c.init(y0, all_valid, v0) == OK
+    rng = np.random.default_rng(0)
+    worst = dict.fromkeys(f, 0.0)
+    for k in range(5 * SENSE_REFRESH_TICKS):
+        st = c.state()
+        st["x_pred"][6] = v0 + 0.9 * a * h * k
+        c.set_state(st)
+        rc, _ = c(_readings(fx, nps, st, rng, scale=0.0), all_valid, float(st["x_pred"][6]))
+        assert rc == OK, k
+        after = c.state()
+        x = after["x_pred"]
+        v_now = min(max(float(np.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2)), table.v_min),
+                    table.v_max)
+        v_use = float(after["v_tab"][after["use"]])
+        assert abs(v_now - v_use) <= a * 2 * SENSE_REFRESH_TICKS * h, (k, v_now, v_use)
+        row_use, row_now = _clenshaw(table, v_use), _clenshaw(table, v_now)
+        np.testing.assert_array_equal(after["tab"][after["use"]][:len(nps.varying)],
+                                      row_use[nps.varying])
+        for name, sl in f.items():
+            worst[name] = max(worst[name],
+                              float(np.max(np.abs(row_use[sl] - row_now[sl]))) / scale[name])
+    for name in f:
+        assert worst[name] <= bound[name] * (1 + 1e-9), (name, worst[name], bound[name])
+    assert max(worst.values()) > 0  # the cache lagged the speed

@@ -30,15 +30,18 @@ OK = 0
 def tick_lib(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     """The firmware folder in double precision with the default loop (its speed integral and
     clamp, control.spec.speed_integral_ratio and speed_integral_limit), compiled into a host
-    library."""
-    from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
+    library. Its table is the fit without dropped terms (drop_share 0): it interpolates the
+    rows at its nodes, which the closed-loop eigenvalue test takes as exact."""
+    from maglevgen.analyses.envelope import resolve_range, schedule_setting, tick_table_rows
     from maglevgen.codegen.checks import ERROR_CODES
     from maglevgen.codegen.generate import write_output
+    from maglevgen.control.schedule import GainTable, tick_table_fields
     from maglevgen.exports.firmware import firmware_loop, render_firmware
 
     v_min, v_max = resolve_range(carriage, sim_lib)
     setting = schedule_setting(carriage, sim_lib, v_min, v_max)
-    table = gain_table(carriage, sim_lib, v_min, v_max, setting)
+    table = GainTable.fit(lambda vs: tick_table_rows(carriage, sim_lib, setting, vs), v_min,
+                          v_max, tick_table_fields(setting.tick.delay), drop_share=0.0)
     loop = firmware_loop(carriage, sim_lib)
     assert loop.speed_integral > 0 and 0 < loop.integral_limit < np.inf
     folder = tmp_path_factory.mktemp("tick_state")

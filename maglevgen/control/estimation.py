@@ -727,7 +727,9 @@ def sense_table(lib, p: np.ndarray, params, operating_at, v_min: float, v_max: f
                 tau: float, delay: int) -> GainTable:
     """The sense tick's schedule over [v_min, v_max] (`sense_fields`, `sense_plants`) in the
     controller's table machinery (schedule.GainTable: a Chebyshev series in 1/v, the fewest
-    nodes within GAIN_TABLE_BOUND of each field's largest magnitude on a dense grid);
+    nodes within GAIN_TABLE_BOUND of each field's largest magnitude on a dense grid, each
+    value's terms cut to schedule.DROP_SHARE of that bound: most of the filter's values are
+    constant over speed to it);
     ``operating_at(v)``: the operating point at a speed. ValueError when M's rows left out
     exceed M_DROPPED_SHARE at some speed (the filter would need them)."""
     layout = SensorLayout.of(params)

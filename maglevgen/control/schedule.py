@@ -32,6 +32,7 @@ __all__ = [
     "A_REF",
     "DEFAULT_NODES",
     "DENSE_GRID",
+    "DROP_SHARE",
     "F_DRAG",
     "GAIN_TABLE_BOUND",
     "GAIN_TABLE_FIELDS",
@@ -53,6 +54,9 @@ __all__ = [
     "node_values",
     "schedule_c_source",
     "tick_table_fields",
+    "truncated",
+    "value_terms",
+    "varying_values",
 ]
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give: the
@@ -211,6 +215,10 @@ GAIN_TABLE_BOUND = 1e-3
 GAIN_TABLE_NODES = tuple(range(8, 41, 2))  # node counts tried, the smallest within the bound
 DENSE_GRID = 201  # about 25 speeds between adjacent nodes: the error curve is smooth there
 ZERO_VALUE = 1e-9  # relative to the field's scale: a value this small everywhere is zero
+#: the share of GAIN_TABLE_BOUND each value's dropped Chebyshev terms may cost (`truncated`):
+#: measured on the default carriage, the controller's table keeps 166 Clenshaw steps of 490
+#: (9 of its 70 values constant), the sense tick's estimator 403 of 3262 (339 of 466)
+DROP_SHARE = 0.1
 
 
 def _field_slices(fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS
@@ -295,9 +303,16 @@ class GainTable:
 
     @classmethod
     def fit(cls, row_at, v_min: float, v_max: float,
-            fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS) -> GainTable:
+            fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS,
+            drop_share: float = DROP_SHARE) -> GainTable:
         """The smallest table of GAIN_TABLE_NODES within GAIN_TABLE_BOUND on a dense grid
-        (the largest when none is); ``row_at(speeds)`` gives the exact rows of ``fields``."""
+        (the largest when none is); ``row_at(speeds)`` gives the exact rows of ``fields``.
+        Each value's trailing terms are dropped (zeroed) while what they add stays within
+        ``drop_share`` x GAIN_TABLE_BOUND of its field's scale on the dense grid (`truncated`;
+        0: none dropped): the C's Clenshaw runs over a value's own terms, and a value
+        constant over speed to that keeps one (the sense tick's code holds it as a literal);
+        the node count is the undropped fit's, and the terms are dropped only where the
+        table stays within the bound (or, past it, within the undropped table's error)."""
         from numpy.polynomial import chebyshev
 
         dense = np.linspace(v_min, v_max, DENSE_GRID)
@@ -322,6 +337,15 @@ class GainTable:
             if max(errors.values()) <= GAIN_TABLE_BOUND:
                 break
         assert table is not None
+        if drop_share > 0:
+            # the nodes as without dropping (the rows evaluated, the node count: the same);
+            # the dropped terms kept only if the table stays within the bound
+            coeffs = truncated(table.coeffs, cls.t_of(dense, v_min, v_max),
+                               drop_share * GAIN_TABLE_BOUND * scale)
+            errors = field_errors(cls(v_min, v_max, coeffs, {}, stored, fields)(dense), exact,
+                                  fields)
+            if max(errors.values()) <= max(GAIN_TABLE_BOUND, max(table.errors.values())):
+                table = cls(v_min, v_max, coeffs, errors, stored, fields)
         return table
 
     def manifest(self, precision_bytes: int = 4) -> dict:
@@ -331,15 +355,49 @@ class GainTable:
                 "worst_relative_error": max(self.errors.values()),
                 "relative_error_by_field": self.errors,
                 "values_stored": len(self.stored),
-                # the stored indices: unsigned char, or unsigned short past 256 outputs
-                "table_bytes_single": int(len(self.coeffs) * len(self.stored)
+                "coefficients_stored": int(np.sum(value_terms(self.coeffs)[list(self.stored)])),
+                # each value's own terms; the stored indices (unsigned char, or unsigned short
+                # past 256 outputs) and each value's first coefficient (unsigned short)
+                "table_bytes_single": int(np.sum(value_terms(self.coeffs)[list(self.stored)])
                                           * precision_bytes + len(self.stored)
-                                          * (1 if self.coeffs.shape[1] <= 256 else 2))}
+                                          * (1 if self.coeffs.shape[1] <= 256 else 2)
+                                          + 2 * (len(self.stored) + 1))}
+
+
+def truncated(coeffs: np.ndarray, t: np.ndarray, tol: np.ndarray) -> np.ndarray:
+    """``coeffs`` (terms x values, Chebyshev) with each value's trailing terms zeroed: the
+    fewest leading terms whose series is within tol (per value) of the whole series at t.
+    Zero trailing terms leave Clenshaw's result bit for bit (its b's stay +0 through them)."""
+    from numpy.polynomial import chebyshev
+
+    out = coeffs.copy()
+    whole = chebyshev.chebval(t, coeffs)  # (values, points)
+    done = np.zeros(coeffs.shape[1], dtype=bool)
+    for k in range(1, len(coeffs)):
+        ok = ~done & (np.max(np.abs(chebyshev.chebval(t, coeffs[:k]) - whole), axis=1) <= tol)
+        out[k:, ok] = 0.0
+        done |= ok
+    return out
+
+
+def varying_values(table: GainTable) -> list[int]:
+    """The table's values of more than one term (indices into the row), in stored order:
+    what ``function``_varying evaluates; the others are constant over speed."""
+    terms = value_terms(table.coeffs)
+    return [j for j in table.stored if terms[j] > 1]
+
+
+def value_terms(coeffs: np.ndarray) -> np.ndarray:
+    """Each value's terms: 1 + the index of its last nonzero coefficient (1 when none)."""
+    nz = coeffs != 0
+    last = len(coeffs) - 1 - np.argmax(nz[::-1], axis=0)
+    return np.where(nz.any(axis=0), last + 1, 1)
 
 
 def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
                        function: str = "maglev_schedule", prefix: str = "MAGLEV_SCHEDULE",
                        title: str = "gain schedule", summary: str = "",
+                       varying: bool = False,
                        one_output: str | None = None) -> dict[str, str]:
     """``stem``.h and .c (default maglev_gain_table): ``function(v, out)`` (default
     maglev_schedule) from static const tables, its macros ``prefix``_* (the range, the row's
@@ -352,12 +410,17 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
     maglev_real is the generated functions' (the header includes maglev_functions.h, the one
     definition of the type): the table has the precision of the C beside it; no libm call, no
     writable data. Returns 0, MAGLEV_ERR_NONFINITE (out zeroed) or MAGLEV_ERR_SPEED (v outside
-    [v_min, v_max]: out holds the nearer end's values).
+    [v_min, v_max]: out holds the nearer end's values). Each value's series is stored to its
+    last nonzero term (`value_terms`: `GainTable.fit`'s drop_share zeroes the rest).
+    ``varying``: also ``function``_varying(v, from, count, out), the values of more than one
+    term (`varying_values`) from..from+count-1 into out[] at those indices (the sense tick's
+    refresh: one slice a tick; the one-term values are constants in its code).
     """
     from maglevgen.codegen.checks import error_defines  # local: jinja2 only when C is written
     from maglevgen.codegen.emit import render
 
     n, ny = table.coeffs.shape
+    terms = [int(k) for k in value_terms(table.coeffs)[list(table.stored)]]
     a, b = 1.0 / table.v_max, 1.0 / table.v_min
     fields = [(name, first, size) for (name, size), (first, _) in zip(
         table.fields, _field_slices(table.fields), strict=True)]
@@ -369,7 +432,9 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
                                            "MAGLEV_ERR_SPEED", "MAGLEV_ERR_ARGUMENT"),
                                           docs=False),
            "stem": stem, "function": function, "prefix": prefix, "title": title,
-           "summary": summary, "one_output": None}
+           "summary": summary, "terms": terms, "offsets": [0, *np.cumsum(terms).tolist()],
+           "varying": [i for i, n in enumerate(terms) if n > 1] if varying else [],
+           "one_output": None}
     if one_output is not None:
         first, size = next((f, s) for name, f, s in fields if name == one_output)
         if size != 1:

@@ -8,6 +8,14 @@ force budget (maglev_tick.c), an example main.c, a CMake project with a Cortex-M
 file, the MISRA deviation list and a README saying what to call when. The host/HIL files
 (Newton trim, spline schedule, maglev_simulate) stay with `maglevgen generate`.
 
+With ``[sensors]`` the tick also has maglev_sense_tick (the Kalman filter on the readings, the
+same law): its estimator's products are generated straight-line over the values its table
+(maglev_sense_table.c) stores, a value constant over speed as a literal (`_sense_code`); its
+varying values are cached in the caller's state and refreshed a slice a tick over
+SENSE_REFRESH_TICKS ticks (`refresh_slices`), at a cost against evaluating the table every
+tick that `sense_refresh_bound` states in maglev_tick.h. With the plant, the QEMU loop flies
+maglev_sense_tick on the plant's readings too (`READINGS`).
+
 Writers return (file name, text) pairs; `maglevgen.infrastructure.output.write_output` alone
 touches the disk.
 """
@@ -61,6 +69,8 @@ TICK_INPUTS = {
     "maglev_damping_control": ("c_damping",),
 }
 ALLOCATE = "maglev_allocate"
+#: the sensors' measurement functions (codegen.functions): the QEMU loop's readings of the plant
+READINGS = ("maglev_gap_reading", "maglev_imu_reading")
 PLANT = "maglev_dynamics"  # --with-plant: the float32 plant in the image (HIL/SIL)
 #: run_qemu.sh's closed loop: ticks from the trim with the heave 1 mm off (1 s at 1 kHz)
 QEMU_TICKS = 1000
@@ -68,11 +78,12 @@ QEMU_TICKS = 1000
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README
 MEASURED: dict = {
-    "instructions": 7455, "cycles": 12154, "share_percent": 7.23, "clock_mhz": 168,
+    "instructions": 5448, "cycles": 8996, "share_percent": 5.35, "clock_mhz": 168,
     "stack_bytes": 784,
-    # maglev_sense_tick: the estimator's table evaluated every tick is most of it
-    "sense": {"instructions": 52696, "cycles": 85932, "share_percent": 51.15,
-              "stack_bytes": 5512},
+    # maglev_sense_tick: the estimator's products over its table's nonzero values, a slice of
+    # its cache's refresh, the law (52696 instructions, 51 % with the table every tick)
+    "sense": {"instructions": 8588, "cycles": 14554, "share_percent": 8.66,
+              "stack_bytes": 1216},
     "method": "every instruction QEMU mps2-an386 executes, newlib's sinf/cosf included",
     "cycle_model": "Cortex-M4/FPv4-SP instruction timings, zero wait states",
 }
@@ -173,9 +184,128 @@ def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
                          len(layout.gaps))
 
 
-def _sense_context(sense: SenseSchedule, precision: str) -> dict:
+#: the sense tick's refresh of its estimator's varying values: one slice a tick into the
+#: buffer not in use, the buffers swapped when it is full (every this many ticks)
+SENSE_REFRESH_TICKS = 4
+
+
+def sense_refresh_bound(table: GainTable, acceleration: float, tick_rate: float,
+                        grid: int = 2001) -> dict[str, float]:
+    """What the sense tick's refresh costs against evaluating its table every tick: the values
+    in use were evaluated at the scheduled speed of at most 2 x SENSE_REFRESH_TICKS ticks
+    before (a refresh's ticks, then the ticks it is in use), when the speed moves by at most
+    ``acceleration`` [m/s^2] a second; per field, the largest change of any of its values over
+    that speed change on ``grid`` speeds, relative to the field's largest magnitude (the
+    table's error measure)."""
+    from maglevgen.control.schedule import _field_slices
+
+    dv = acceleration * 2 * SENSE_REFRESH_TICKS / tick_rate
+    v = np.linspace(table.v_min, table.v_max, grid)
+    rows = table(v)
+    moved = np.abs(table(np.minimum(v + dv, table.v_max)) - rows)
+    return {name: float(np.max(moved[:, i:i + n]) / (np.max(np.abs(rows[:, i:i + n])) or 1.0))
+            for (name, _), (i, n) in zip(table.fields, _field_slices(table.fields), strict=True)}
+
+
+def refresh_slices(table: GainTable) -> list[int]:
+    """The refresh's slices: slice k evaluates the varying values [out[k], out[k + 1]) (the
+    order of `schedule.varying_values`), SENSE_REFRESH_TICKS of them of about equal cost
+    (a value's Clenshaw steps, its terms - 1, and about as much again for the value)."""
+    from maglevgen.control.schedule import value_terms, varying_values
+
+    terms = value_terms(table.coeffs)[varying_values(table)]
+    cost = np.concatenate([[0.0], np.cumsum(terms)])  # (terms - 1) + 1 a value
+    goals = cost[-1] * np.arange(1, SENSE_REFRESH_TICKS) / SENSE_REFRESH_TICKS
+    cuts = [int(np.argmin(np.abs(cost - g))) for g in goals]
+    return [0, *cuts, len(terms)]
+
+
+def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list]:
+    """The estimator's products as straight-line C over the values its table stores (a
+    sparsity fixed at generation: a value zero over the envelope is no term), a one-term value
+    a constant, a varying one tab[k] (`schedule.varying_values`: the refresh's cache). Each
+    sum in the order of the dense loops it replaces (ascending index), so the result is theirs
+    bit for bit (a zero term adds +-0)."""
+    from maglevgen.control.schedule import _field_slices, value_terms, varying_values
+
+    table = sense.table
+    first = {name: i for (name, _), (i, _) in zip(table.fields, _field_slices(table.fields),
+                                                  strict=True)}
+    terms = value_terms(table.coeffs)
+    vary = {j: k for k, j in enumerate(varying_values(table))}
+    stored = set(table.stored)
+    ne, nl, ny = len(sense.states), sense.n_lag, len(sense.readings)
+    nc = ne + nl
+    idx = [cv.STATE_INDEX[s] for s in sense.states]
+
+    def val(field: str, i: int) -> str | None:
+        j = first[field] + i
+        if j not in stored:
+            return None
+        if terms[j] > 1:
+            return f"tab[{vary[j]}]"
+        return f"R({c_literal(float(table.coeffs[0, j]))})"
+
+    trim = [f"x_trim[{i}] = {val('x_trim', i) or 'R(0)'};" for i in range(len(cv.STATE_NAMES))]
+    innov = []
+    for j in range(ny):
+        yt = val("y_trim", j)
+        innov.append(f"acc = y[{j}] - {yt};" if yt else f"acc = y[{j}];")
+        innov += [f"acc -= {c} * dz[{i}];" for i in range(nc) if (c := val("C", j + ny * i))]
+        innov += [f"acc -= {d} * du[{i}];" for i in range(nu) if (d := val("D", j + ny * i))]
+        innov.append(f"e[{j}] = acc;")
+    update = []
+    for i in range(ne):
+        update.append("acc = R(0);")
+        update += [f"acc += {m} * e[{j}];" for j in range(ny) if (m := val("M", i + ne * j))]
+        update += [f"x_hat[{idx[i]}] += acc;", f"dz[{i}] += acc;"]
+    predict = []
+    for i in range(ne):
+        predict.append(f"acc = dz[{i}];")
+        predict += [f"acc += {a} * dz[{j}];" for j in range(nc)
+                    if (a := val("Phi_minus_I", i + ne * j))]
+        predict += [f"acc += {b} * du[{j}];" for j in range(nu)
+                    if (b := val("Gamma", i + ne * j))]
+        predict.append(f"x_pred[{idx[i]}] = x_trim[{idx[i]}] + acc;")
+    pose = [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")]
+    pose_rows = [f"cp[{k + sense.n_gap * i}] = {val('C', k + ny * pose[i]) or 'R(0)'};"
+                 for i in range(len(pose)) for k in range(sense.n_gap)]
+    pose_rows += [f"yt[{k}] = {val('y_trim', k) or 'R(0)'};" for k in range(sense.n_gap)]
+    # the refresh's slices: each varying value's Clenshaw written out with its coefficients
+    # (maglev_sense_schedule_varying's operations; its first step, (t2 0 - 0) + c = c, taken)
+    refresh: list[list[str]] = []
+    bounds = refresh_slices(table)
+    order = varying_values(table)
+    for k in range(len(bounds) - 1):
+        lines = []
+        for i in range(bounds[k], bounds[k + 1]):
+            cs = [c_literal(float(x)) for x in table.coeffs[:terms[order[i]], order[i]]]
+            lines += [f"b1 = R({cs[-1]});", "b2 = R(0);"]
+            for ck in reversed(cs[1:-1]):
+                lines += [f"b0 = ((t2 * b1) - b2) + R({ck});", "b2 = b1;", "b1 = b0;"]
+            lines.append(f"tab[{i}] = ((t * b1) - b2) + R({cs[0]});")
+        refresh.append(lines)
+    return {"trim": trim, "f_prop": [val("F_prop", 0) or "R(0)"], "innov": innov,
+            "refresh": refresh,
+            "correct": update, "predict": predict, "pose_rows": pose_rows}
+
+
+def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: float,
+                   acceleration: float) -> dict:
+    from maglevgen.control.schedule import varying_values
+
     names = sense.readings
-    return {"n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
+    return {"code": _sense_code(sense, nu), "n_vary": len(varying_values(sense.table)),
+            "refresh_ticks": SENSE_REFRESH_TICKS, "slices": refresh_slices(sense.table),
+            # maglev_sense_table.c's V_MIN, V_MAX, T_SCALE, T_OFFSET: the same text, so the
+            # same constants (gain_table_sources)
+            "v_min": c_literal(sense.table.v_min), "v_max": c_literal(sense.table.v_max),
+            "t_scale": c_literal(2.0 / (1.0 / sense.table.v_min - 1.0 / sense.table.v_max)),
+            "t_offset": c_literal((1.0 / sense.table.v_max + 1.0 / sense.table.v_min)
+                                  / (1.0 / sense.table.v_min - 1.0 / sense.table.v_max)),
+            "acceleration": acceleration,
+            "refresh_bound": sense_refresh_bound(sense.table, acceleration, tick_rate),
+            "n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
             "state_index": [cv.STATE_INDEX[s] for s in sense.states],
             "pose_index": [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")],
             "track_index": names.index("track_x") if "track_x" in names else -1,
@@ -186,11 +316,30 @@ def _sense_context(sense: SenseSchedule, precision: str) -> dict:
             "accel_range": est.ACCEL_RANGE, "track_range": est.TRACK_RANGE}
 
 
-def firmware_functions(controller_tick: str, with_plant: bool = False) -> tuple[str, ...]:
-    """The generated functions of the firmware folder, in maglev_functions.c's order."""
+def firmware_functions(controller_tick: str, with_plant: bool = False,
+                       readings: bool = False) -> tuple[str, ...]:
+    """The generated functions of the firmware folder, in maglev_functions.c's order;
+    ``readings`` (with the plant): the sensors' measurement functions too (the QEMU loop's
+    sense tick reads the plant through them)."""
     if controller_tick not in TICK_INPUTS:
         raise ValueError(f"no firmware tick for {controller_tick!r}")
-    return (controller_tick, ALLOCATE) + ((PLANT,) if with_plant else ())
+    return (controller_tick, ALLOCATE) + ((PLANT,) if with_plant else ()) + (
+        READINGS if with_plant and readings else ())
+
+
+def _sense_plant(carriage: DerivedCarriage, precision: str) -> dict:
+    """The QEMU loop's sensors on the plant: each gap sensor's body point, face normal and
+    nominal gap, the IMU's point, each reading's noise (its standard deviation at the tick:
+    estimation.SensorLayout), as C literals."""
+    layout = est.SensorLayout.of(carriage.params)
+
+    def lits(v) -> str:
+        return ", ".join(c_literal(float(x), precision) for x in np.ravel(v))
+
+    return {"gaps": [{"point": lits(g.point), "normal": lits(g.normal),
+                      "nominal": c_literal(g.nominal_gap, precision)} for g in layout.gaps],
+            "imu_point": None if layout.imu_point is None else lits(layout.imu_point),
+            "sigma": lits(np.sqrt(layout.variances)), "track": bool(layout.track)}
 
 
 def _banner(sha256: str, precision: str, with_plant: bool) -> str:
@@ -221,7 +370,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     tick_fn = registered(embedded).tick_function
     if tick_fn is None or tick_fn not in TICK_INPUTS:
         raise ValueError(f"the embedded controller {embedded!r} has no firmware tick")
-    names = firmware_functions(tick_fn, with_plant)
+    names = firmware_functions(tick_fn, with_plant, sense is not None)
     built = build_functions(carriage.model, precision=precision).functions
     fns = [f for f in bake_all(tuple(built), carriage.p) if f.name() in names]
     fns.sort(key=lambda f: names.index(f.name()))
@@ -245,7 +394,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
             " * maglev_sense_tick): F_prop [N] (trim propulsion), x_trim (the trim state, its u\n"
             " * less v), y_trim (the readings at trim), Phi_minus_I, Gamma, C, D and M (the\n"
             " * update's gain), column-major, on the estimator's plant states and lagged forces,\n"
-            " * at the offsets above."))
+            " * at the offsets above.", varying=True))
 
     if "K_lag" not in dict(table.fields):
         raise ValueError("the firmware's table carries the design at the tick "
@@ -279,7 +428,11 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "table_error": max(table.errors.values()), "with_plant": with_plant,
         "flags": " ".join(FIRMWARE_FLAGS), "functions": [f["name"] for f in fn_table],
         "cost": cost, "error_defines": error_defines(),
-        "sense": None if sense is None else _sense_context(sense, precision),
+        "sense_plant": (_sense_plant(carriage, precision) if sense is not None and with_plant
+                        else None),
+        "sense": None if sense is None else _sense_context(
+            sense, precision, len(carriage.model.input_names), loop.tick_rate,
+            carriage.params.envelope.launch_acceleration),
         "sense_nodes": 0 if sense is None else len(sense.table.coeffs),
         "sense_error": 0.0 if sense is None else max(sense.table.errors.values()),
         "verdict": (verdict or {}).get("verdict", "not checked (rendered without "
