@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from maglevgen.control.lqr import solve_dare
 from maglevgen.control.operating import OperatingPoint
 from maglevgen.control.sampled import LOOP_STATES, Tick, delay_augmented, zoh
 from maglevgen.control.schedule import GainTable
@@ -369,10 +370,11 @@ class NoKalmanFilterError(ArithmeticError):
 
 
 def kalman(model: EstimatorModel) -> KalmanDesign:
-    """`KalmanDesign` of ``model``: P from SciPy's solve_discrete_are on the dual problem
-    (Phi', C', Q, R); `NoKalmanFilterError` when it has none."""
+    """`KalmanDesign` of ``model``: P from `lqr.solve_dare` (SciPy's solve_discrete_are, or
+    the doubling where SciPy's reordering refuses) on the dual problem (Phi', C', Q, R);
+    `NoKalmanFilterError` when it has none."""
     try:
-        P = scipy.linalg.solve_discrete_are(model.Phi.T, model.C.T, model.Q, model.R)
+        P = solve_dare(model.Phi.T, model.C.T, model.Q, model.R)
     except (ValueError, np.linalg.LinAlgError) as exc:
         raise NoKalmanFilterError(model.speed, str(exc)) from exc
     if not np.all(np.isfinite(P)):
