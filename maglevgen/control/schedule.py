@@ -49,6 +49,7 @@ __all__ = [
     "Schedule",
     "accelerating_references",
     "field_errors",
+    "field_slices",
     "gain_table_row",
     "gain_table_sources",
     "node_values",
@@ -221,7 +222,7 @@ ZERO_VALUE = 1e-9  # relative to the field's scale: a value this small everywher
 DROP_SHARE = 0.1
 
 
-def _field_slices(fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS
+def field_slices(fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS
                   ) -> list[tuple[int, int]]:
     """(first index, size) of each field of a row."""
     out, i = [], 0
@@ -321,7 +322,7 @@ class GainTable:
         # vertical axes' cross gains, the trim's y, phi, psi) are not stored: a zero output
         # within ZERO_VALUE of each field's scale, counted in the errors like any other
         scale = np.concatenate([np.full(n, np.max(np.abs(exact[:, i:i + n])) or 1.0)
-                                for i, n in _field_slices(fields)])
+                                for i, n in field_slices(fields)])
         stored = tuple(int(j) for j in np.flatnonzero(np.max(np.abs(exact), axis=0)
                                                       > ZERO_VALUE * scale))
         table = None
@@ -423,7 +424,7 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
     terms = [int(k) for k in value_terms(table.coeffs)[list(table.stored)]]
     a, b = 1.0 / table.v_max, 1.0 / table.v_min
     fields = [(name, first, size) for (name, size), (first, _) in zip(
-        table.fields, _field_slices(table.fields), strict=True)]
+        table.fields, field_slices(table.fields), strict=True)]
     ctx = {"v_min": table.v_min, "v_max": table.v_max, "ny": ny, "nterms": n,
            "fields": fields, "errors": table.errors, "dense_grid": DENSE_GRID,
            "bound": GAIN_TABLE_BOUND, "stored": table.stored, "coeffs": table.coeffs,

@@ -44,7 +44,13 @@ from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_conte
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
 from maglevgen.control import estimation as est
-from maglevgen.control.schedule import GainTable, gain_table_sources
+from maglevgen.control.schedule import (
+    GainTable,
+    field_slices,
+    gain_table_sources,
+    value_terms,
+    varying_values,
+)
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import simulation_library
@@ -53,8 +59,9 @@ from maglevgen.version import __version__
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["FIRMWARE_FLAGS", "TICK_INPUTS", "FirmwareLoop", "SenseSchedule", "firmware_files",
-           "firmware_functions", "firmware_loop", "render_firmware", "sense_schedule"]
+__all__ = ["FIRMWARE_FLAGS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "FirmwareLoop", "SenseSchedule",
+           "firmware_files", "firmware_functions", "firmware_loop", "refresh_slices",
+           "render_firmware", "sense_refresh_bound", "sense_schedule"]
 
 #: the Cortex-M4F flags of the folder's README and toolchain file (the firmware build)
 FIRMWARE_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",
@@ -197,21 +204,19 @@ def sense_refresh_bound(table: GainTable, acceleration: float, tick_rate: float,
     ``acceleration`` [m/s^2] a second; per field, the largest change of any of its values over
     that speed change on ``grid`` speeds, relative to the field's largest magnitude (the
     table's error measure)."""
-    from maglevgen.control.schedule import _field_slices
 
     dv = acceleration * 2 * SENSE_REFRESH_TICKS / tick_rate
     v = np.linspace(table.v_min, table.v_max, grid)
     rows = table(v)
     moved = np.abs(table(np.minimum(v + dv, table.v_max)) - rows)
     return {name: float(np.max(moved[:, i:i + n]) / (np.max(np.abs(rows[:, i:i + n])) or 1.0))
-            for (name, _), (i, n) in zip(table.fields, _field_slices(table.fields), strict=True)}
+            for (name, _), (i, n) in zip(table.fields, field_slices(table.fields), strict=True)}
 
 
 def refresh_slices(table: GainTable) -> list[int]:
     """The refresh's slices: slice k evaluates the varying values [out[k], out[k + 1]) (the
     order of `schedule.varying_values`), SENSE_REFRESH_TICKS of them of about equal cost
     (a value's Clenshaw steps, its terms - 1, and about as much again for the value)."""
-    from maglevgen.control.schedule import value_terms, varying_values
 
     terms = value_terms(table.coeffs)[varying_values(table)]
     cost = np.concatenate([[0.0], np.cumsum(terms)])  # (terms - 1) + 1 a value
@@ -226,10 +231,9 @@ def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list]:
     a constant, a varying one tab[k] (`schedule.varying_values`: the refresh's cache). Each
     sum in the order of the dense loops it replaces (ascending index), so the result is theirs
     bit for bit (a zero term adds +-0)."""
-    from maglevgen.control.schedule import _field_slices, value_terms, varying_values
 
     table = sense.table
-    first = {name: i for (name, _), (i, _) in zip(table.fields, _field_slices(table.fields),
+    first = {name: i for (name, _), (i, _) in zip(table.fields, field_slices(table.fields),
                                                   strict=True)}
     terms = value_terms(table.coeffs)
     vary = {j: k for k, j in enumerate(varying_values(table))}
@@ -292,7 +296,6 @@ def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list]:
 
 def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: float,
                    acceleration: float) -> dict:
-    from maglevgen.control.schedule import varying_values
 
     names = sense.readings
     return {"code": _sense_code(sense, nu), "n_vary": len(varying_values(sense.table)),
