@@ -141,19 +141,19 @@ class FirmwareTick(Tick):
                              "number >= 0 (inf: none)")
 
     def setting(self, speed_gain: float = 0.0):
-        """The `envelope.LoopSetting` of this loop (``speed_gain``: its k_v)."""
-        from maglevgen.analyses.envelope import LoopSetting
+        """The `loop.LoopSetting` of this loop (``speed_gain``: its k_v)."""
+        from maglevgen.analyses.loop import LoopSetting
 
         return LoopSetting(Tick(self.rate, self.delay), float(speed_gain), 0.0, self.lag,
                            self.speed_integral, float(self.integral_limit))
 
 
 def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick):
-    """``controller``'s gains on the loop ``tick`` describes (`envelope.loop_design`, a
+    """``controller``'s gains on the loop ``tick`` describes (`loop.loop_design`, a
     `plant.LoopDesign`): its design at the tick on the loop as built where it has one (the
     `spec` controller: K_pos, K_rate, K_lag, K_delay, what the firmware's table holds), else
     its continuous gains (K_lag, K_delay None: fed back with zero gains)."""
-    from maglevgen.analyses.envelope import loop_design
+    from maglevgen.analyses.loop import loop_design
 
     return loop_design(op, controller, tick.setting())
 
@@ -161,9 +161,10 @@ def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick):
 def firmware_loop(carriage, lib: SimulationLibrary) -> tuple[FirmwareTick, float, float]:
     """(tick, k_v, force budget) of [control.spec]: the tick and its delay with the actuator
     lag and the speed integral and its clamp (`FirmwareTick`), the speed loop's one gain over
-    the envelope (`envelope.loop_setting`, the gains the envelope's verdicts used) and the
+    the envelope (`loop.loop_setting`, the gains the envelope's verdicts used) and the
     per-array force budget."""
-    from maglevgen.analyses.envelope import envelope_points, loop_setting, resolve_range
+    from maglevgen.analyses.envelope import envelope_points, resolve_range
+    from maglevgen.analyses.loop import loop_setting
 
     v_lo, v_hi = resolve_range(carriage, lib)
     points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi, carriage.params
