@@ -364,7 +364,8 @@ def test_a_start_in_contact_is_counted_apart(carriage, sim_lib, op) -> None:
     in-flight contact probability, whose interval is scipy's Wilson interval of the rest."""
     from independent_reference import contact_gaps
 
-    from maglevgen.analyses.montecarlo import CONTACT_CAUSES, _in_flight, contact_cause
+    from maglevgen.analyses.montecarlo import CONTACT_CAUSES, contact_cause
+    from maglevgen.analyses.montecarlo_report import _in_flight
     from maglevgen.analyses.simulate import initial_state, metrics, simulate
 
     min_gap = carriage.params.track.min_gap

@@ -12,13 +12,22 @@ maglevgen/control/operating.py.
 
 from __future__ import annotations
 
-import io
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
+from maglevgen.analyses.envelope_figures import disk_margins_png, stability_map_png
+from maglevgen.analyses.loop import (
+    LoopSetting,
+    loop_design,
+    loop_plant,
+    loop_setting,
+    loop_stability,
+    sampled_stability,
+    tick_design_stability,
+)
 from maglevgen.analyses.sensing import SensingCheck, sensing_check
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control import controller as registered_controller
@@ -33,17 +42,9 @@ from maglevgen.control.operating import (
     closed_loop_stability,
     operating_point,
     speed_mode,
-    stability,
 )
-from maglevgen.control.plant import LoopDesign, LoopPlant, speed_loop_gains
-from maglevgen.control.sampled import (
-    Tick,
-    loop_gain,
-    loop_model,
-    sampled_eigenvalues,
-    tick_design,
-    tick_design_loop_gains,
-)
+from maglevgen.control.plant import LoopDesign, LoopPlant
+from maglevgen.control.sampled import Tick
 from maglevgen.control.schedule import (
     GainTable,
     Reference,
@@ -541,115 +542,6 @@ def grid_ranges(speeds: np.ndarray, bad: np.ndarray) -> tuple[tuple[float, float
     return tuple(out)
 
 
-@dataclass(frozen=True)
-class LoopSetting:
-    """How the firmware runs every controller: its tick and the speed loop's gain."""
-
-    tick: Tick
-    speed_gain: float  # k_v [N s/m], one value over the envelope
-    bandwidth: float  # the speed pole it guarantees at least [1/s]
-    actuator_lag: float = 0.0  # [s] each array force's first-order lag ([actuators])
-    # k_i [N/m] of the speed error's integral (`plant.LoopPlant.k_i`; 0: none), and the
-    # largest propulsion |k_i xi| it may add [N] (the C tick's anti-windup clamp; inf: none)
-    speed_integral: float = 0.0
-    speed_integral_limit: float = float("inf")
-
-    def tick_text(self) -> str:
-        """"sampled-data loop at <rate> Hz with <n> tick(s) of delay[ and a <tau> ms actuator
-        lag]"."""
-        delay = f"{self.tick.delay} tick{'s' if self.tick.delay != 1 else ''} of delay"
-        lag = (f" and a {self.actuator_lag * 1e3:.3g} ms actuator lag" if self.actuator_lag > 0
-               else ", instant actuators")
-        return f"sampled-data loop at {self.tick.rate:g} Hz with {delay}{lag}"
-
-    def text(self) -> str:
-        integral = (f", k_i = {self.speed_integral:.4g} N/m (|k_i xi| <= "
-                    f"{self.speed_integral_limit:.4g} N)" if self.speed_integral > 0 else "")
-        return (f"{self.tick_text()}, zero-order hold, speed loop k_v = "
-                f"{self.speed_gain:.4g} N s/m{integral}")
-
-
-def loop_setting(carriage, points: Sequence[OperatingPoint]) -> LoopSetting:
-    """The tick of ``[control.spec]`` and the speed loop's gains (`plant.speed_loop_gains`
-    with control.spec.speed_integral_ratio r): one constant (k_v, k_i) over the points, k_v
-    the largest over them, so that the loop m s^2 + (slope + k_v) s + k_i has its poles at
-    -speed_bandwidth and -r speed_bandwidth where the drag slope is lowest (r = 0: the one
-    pole, at least as fast as speed_bandwidth at every speed); the integral clamped at
-    control.spec.speed_integral_limit."""
-    spec, mass = carriage.params.control.spec, carriage.params.vehicle.mass
-    k_v, k_i = max(speed_loop_gains(mass, op.trim_drag_slope, spec.speed_bandwidth,
-                                    spec.speed_integral_ratio) for op in points)
-    return LoopSetting(Tick.of(carriage.params), k_v, float(spec.speed_bandwidth),
-                       float(carriage.params.actuators.time_constant), k_i,
-                       float(spec.speed_integral_limit))
-
-
-def loop_plant(op: OperatingPoint, setting: LoopSetting) -> LoopPlant:
-    """The loop as built at ``op`` (`plant.LoopPlant`: tick, delay, actuator lag, speed loop)."""
-    return LoopPlant(op, setting.tick, setting.actuator_lag, setting.speed_gain,
-                     setting.speed_integral)
-
-
-def loop_design(op: OperatingPoint, controller: str, setting: LoopSetting,
-                continuous: bool = False) -> LoopDesign:
-    """``controller``'s gains on the loop as built: its design at the tick on `loop_plant`
-    (the controller's ``tick_design``, unless ``continuous``), else its continuous gains (no
-    feedback of the commands in flight or of the actuators). ValueError / LinAlgError where
-    the DARE has no stabilizing solution."""
-    c = registered_controller(controller)
-    if c.tick_design and c.weights is not None and not continuous:
-        return loop_plant(op, setting).design(c.weights)
-    return LoopDesign(*op.gains(controller))
-
-
-def loop_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
-                   design: OperatingPoint | None = None,
-                   continuous: bool = False) -> tuple[float, float, float, float]:
-    """(largest real part, smallest damping ratio, largest real part of the levitation modes,
-    i.e. all but the speed loop's, largest real part of the speed loop's modes; -inf where it
-    has none) of the loop as built at ``op`` with ``controller``'s gains from ``design``
-    (default ``op``; ``continuous``: its continuous gains even where it is designed at the
-    tick); (inf, nan, inf, inf) where it has none."""
-    try:
-        gains = loop_design(design or op, controller, setting, continuous)
-    except (np.linalg.LinAlgError, ValueError):
-        return float("inf"), float("nan"), float("inf"), float("inf")
-    if not all(np.all(np.isfinite(k)) for k in (gains.K_pos, gains.K_rate)):
-        return float("inf"), float("nan"), float("inf"), float("inf")
-    s, speed = loop_plant(op, setting).modes(gains)
-    finite = np.isfinite(s)
-    max_real, min_damping = stability(s[finite])
-    speed_real = float(np.max(s[finite & speed].real)) if np.any(finite & speed) else -np.inf
-    return max_real, min_damping, float(np.max(s[finite & ~speed].real)), speed_real
-
-
-def sampled_stability(op: OperatingPoint, controller: str, setting: LoopSetting,
-                      design: OperatingPoint | None = None) -> tuple[float, float]:
-    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op`` without
-    the actuator lag and with the continuous gains of ``design`` (default ``op``): the loop
-    `loop_stability` had before [actuators]."""
-    A, B = loop_model(op)
-    K = loop_gain(op, controller, setting.speed_gain, design)
-    if not np.all(np.isfinite(K)):
-        return float("inf"), float("nan")
-    s = sampled_eigenvalues(A, B, K, setting.tick)
-    return stability(s[np.isfinite(s)])
-
-
-def tick_design_stability(op: OperatingPoint, setting: LoopSetting) -> tuple[float, float]:
-    """(largest real part, smallest damping ratio) of the sampled-data loop at ``op`` with
-    the `spec` weights designed at the tick (`sampled.tick_design`, its feedback of the
-    commands in flight included); (inf, nan) where the DARE has no stabilizing solution."""
-    try:
-        design = tick_design(op, setting.tick)
-    except (np.linalg.LinAlgError, ValueError):
-        return float("inf"), float("nan")
-    A, B = loop_model(op)
-    K, K_delay = tick_design_loop_gains(op, design, setting.speed_gain)
-    s = sampled_eigenvalues(A, B, K, setting.tick, K_delay)
-    return stability(s[np.isfinite(s)])
-
-
 def tick_design_check(carriage, speeds: np.ndarray, points: Sequence[OperatingPoint],
                       setting: LoopSetting) -> TickDesignCheck:
     """`tick_design_stability` at ``points`` against ``[control.spec]``."""
@@ -859,73 +751,3 @@ def envelope_markdown(env: Envelope) -> str:
         lines.append(f"| {env.speeds[i]:.3f} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
-
-def stability_map_png(env: Envelope) -> bytes:
-    """Largest real part against speed, one line per controller, zero marked (PNG bytes)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    with plt.rc_context({"font.size": 9}):
-        fig, ax = plt.subplots(figsize=(7, 4))
-        ax.axhspan(0, 1e9, color="#f6d5d5", lw=0, label="unstable (real part > 0)")
-        ax.axhline(0.0, color="k", lw=0.8)
-        for n, c in env.controllers.items():  # the registry's styles: coinciding lines show
-            ax.plot(env.speeds, c.max_real, marker=".", ms=3, label=f"{controller_title(n)}",
-                    **registered_controller(n).style)
-        ax.set_yscale("symlog", linthresh=1e-2)
-        top = max(1.0, max(float(np.nanmax(c.max_real[np.isfinite(c.max_real)], initial=0))
-                           for c in env.controllers.values()) * 2)
-        # most damped line (the embedded controller's, far left of zero) half a decade
-        # inside the frame, not on it
-        bottom = min(-1.0, min(float(np.nanmin(c.max_real[np.isfinite(c.max_real)], initial=0))
-                               for c in env.controllers.values()) * 5)
-        ax.set_ylim(bottom, top)
-        ax.set_xlim(env.speeds[0], env.speeds[-1])
-        ax.set_xlabel(r"speed $v$ / (m/s)")
-        ax.set_ylabel(r"largest $\mathrm{Re}\,s$ of the closed loop / s$^{-1}$")
-        ax.grid(True, lw=0.3)
-        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
-        ax.set_title("Stability across the envelope (symmetric log scale)")
-        fig.subplots_adjust(left=0.11, right=0.7, bottom=0.12, top=0.92)
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
-        plt.close(fig)
-    return buf.getvalue()
-
-
-def disk_margins_png(margins: LoopMargins) -> bytes:
-    """The embedded loop's balanced disk margin against frequency at each margin speed, in
-    phase (2 atan(alpha/2)): every array force at once (multi-loop, solid) and the weakest
-    channel alone (dashed), the spec's min_disk_phase_margin marked (PNG bytes)."""
-    limit = margins.min_phase
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    def phase(alpha: np.ndarray) -> np.ndarray:
-        return np.degrees(2 * np.arctan(np.minimum(alpha, 1e6) / 2))
-
-    with plt.rc_context({"font.size": 9}):
-        fig, ax = plt.subplots(figsize=(7, 4))
-        colours = plt.cm.viridis(np.linspace(0, 0.9, len(margins.speeds)))
-        for v, c, col in zip(margins.speeds, margins.curves, colours, strict=True):
-            ax.semilogx(c.omega, phase(c.alpha_multi), color=col, lw=1.2,
-                        label=f"{v:.4g} m/s, multi-loop")
-            i = c.worst_loop()
-            ax.semilogx(c.omega, phase(c.alpha_loops[i]), color=col, lw=0.8, ls="--",
-                        label=f"{v:.4g} m/s, {margins.channels[i]} alone")
-        ax.axhline(limit, color="tab:red", lw=0.8, label=f"spec: {limit:g} deg")
-        ax.set_ylim(0, 90)
-        ax.set_xlabel(r"frequency $\omega$ / (rad/s)")
-        ax.set_ylabel("disk margin in phase / deg")
-        ax.grid(True, lw=0.3, which="both")
-        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7)
-        ax.set_title("Disk margins at the actuators (balanced, broken at each array force)")
-        fig.subplots_adjust(left=0.09, right=0.68, bottom=0.12, top=0.92)
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
-        plt.close(fig)
-    return buf.getvalue()

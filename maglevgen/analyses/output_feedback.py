@@ -31,7 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points, loop_plant, schedule_setting
+from maglevgen.analyses.envelope import envelope_points, schedule_setting
+from maglevgen.analyses.loop import loop_plant
 from maglevgen.carriage import structure_of
 from maglevgen.control import controller as registered_controller
 from maglevgen.control.estimation import (

@@ -177,7 +177,7 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
                   controller: str, loops: Sequence[tuple[LoopPlant, LoopDesign | None]],
                   judge: Callable[[np.ndarray], tuple[tuple, str]]) -> SensingCheck:
     """`SensingCheck` of ``controller`` (the embedded one) at ``points`` with the loop of
-    ``setting`` (envelope.LoopSetting): ``loops`` its plant and gains at each point (None:
+    ``setting`` (loop.LoopSetting): ``loops`` its plant and gains at each point (None:
     no design there), ``judge`` the envelope's verdict on the per-speed rows (largest real
     part, smallest damping ratio, levitation and speed loops' largest real parts):
     (failures, verdict text)."""

@@ -102,7 +102,7 @@ class FirmwareLoop:
 
     tick_rate: float  # [Hz]
     delay_ticks: int  # ticks from computing a command to applying it
-    speed_gain: float  # k_v [N s/m] (`maglevgen.analyses.envelope.loop_setting`)
+    speed_gain: float  # k_v [N s/m] (`maglevgen.analyses.loop.loop_setting`)
     force_budget: float  # [N] per array
     actuator_lag: float = 0.0  # [s] tau of each array force's lag ([actuators])
     speed_integral: float = 0.0  # k_i [N/m] (`LoopSetting.speed_integral`)
@@ -474,7 +474,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
 
 def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
     """The tick, delay, speed-loop gain and budget the build's firmware runs verify
-    (`maglevgen.analyses.envelope.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
+    (`maglevgen.analyses.loop.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
     setting = schedule_setting(carriage, lib, *resolve_range(carriage, lib))
     return FirmwareLoop(setting.tick.rate, setting.tick.delay, float(setting.speed_gain),
                         float(carriage.params.control.spec.force_budget),

@@ -12,8 +12,8 @@ from maglevgen.analyses.envelope import (
     compute_envelope,
     envelope_points,
     gain_table,
-    stability_map_png,
 )
+from maglevgen.analyses.envelope_figures import stability_map_png
 from maglevgen.analyses.queries import displayed_gains, embedded_gains
 from maglevgen.analyses.roa import (
     AXIS_NAMES,

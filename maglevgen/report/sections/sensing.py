@@ -1,8 +1,8 @@
 """Section: sensors and estimation (issue 49). The measurement equations (derive/sensors.py),
 the sensor set of ``[sensors]``, observability and the Kalman filter across the envelope
 (maglevgen.analyses.sensing, the envelope's `SensingCheck`), the embedded loop's disk margins
-against frequency (envelope.disk_margins_png), and the noisy holds of the output-feedback loop
-(maglevgen.analyses.output_feedback) the build ran."""
+against frequency (envelope_figures.disk_margins_png), and the noisy holds of the
+output-feedback loop (maglevgen.analyses.output_feedback) the build ran."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from maglevgen.analyses.envelope import disk_margins_png
+from maglevgen.analyses.envelope_figures import disk_margins_png
 from maglevgen.control.estimation import SensorLayout
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.rigid_body import rotation_body_to_inertial
