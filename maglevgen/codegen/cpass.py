@@ -53,6 +53,7 @@ from typing import Any, Literal, NamedTuple, cast, get_args
 
 import casadi as ca
 
+from maglevgen.codegen.branches import guard_discarded_branches
 from maglevgen.codegen.emit import float_literal, render
 
 Precision = Literal["double", "single"]
@@ -695,7 +696,8 @@ def generate_c(
     int_type: str = "long long int",
 ) -> dict[str, str]:
     """Generate ``{name}.c`` and ``{name}.h`` for ``functions`` and post-process them (the .c
-    with its runtime helpers static: `static_helpers`).
+    with its runtime helpers static: `static_helpers`, and each if_else's discarded side
+    skipped: `maglevgen.codegen.branches.guard_discarded_branches`).
 
     The result depends only on the functions, ``name``, ``precision`` and ``int_type``: the
     generator runs in a private temporary directory, and any trace of that path is refused.
@@ -721,7 +723,8 @@ def generate_c(
                                    casadi_version=ca.__version__,  # type: ignore[attr-defined]
                                    precision=precision,
                                    guard=guard if sfx == ".h" else None)
-            for sfx, body in ((".c", static_helpers(postprocess(raw[".c"], prec))),
+            for sfx, body in ((".c", guard_discarded_branches(
+                                  static_helpers(postprocess(raw[".c"], prec)))),
                               (".h", _own_types(postprocess(raw[".h"], prec))))}
 
 
