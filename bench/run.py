@@ -34,6 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import alternatives as alt
+import casadi_peer
 import envelope as envelope_bench
 import native
 import peers as peers_bench
@@ -895,6 +896,8 @@ def main(argv: list[str] | None = None) -> int:
         stage("peers", lambda: peers_bench.run_peers(
             7 if args.quick else 21, overrides=PAPER_OVERRIDES
         ))
+        # CasADi's own codegen on the closed loop (issue 53): its own section, kept
+        stage("casadi_peer", lambda: casadi_peer.run_section(3 if args.quick else 9))
     results["machine"]["loadavg_end"] = os.getloadavg()
     # the Python contenders, measured as stages of their own, in their sections
     for key, section in (("dynamics_python", "dynamics"), ("closed_loop_python", "closed_loop")):
