@@ -47,12 +47,15 @@ def _mp(fn: type, v: mpmath.mpf) -> mpmath.mpf:
 @pytest.fixture(scope="module")
 def family(tmp_path_factory) -> tuple[ca.Function, Path, str]:
     """f(u, w): the four special functions of u and of w (each argument's closed forms share
-    one exp), sinhc(u) L(w), and t = sin(u) w, which the closed form of sinhc(t) also reads
-    (a value used outside the branch: it must not be guarded); compiled through generate_c."""
+    one exp), sinhc(u) L(w), t = sin(u) w, which the closed form of sinhc(t) also reads, and
+    a Piecewise whose second side g is an output too (values used outside the branch: they
+    must not be guarded); compiled through generate_c."""
     x, y = sp.symbols("x y", real=True)
     u, w = ca.SX.sym("u"), ca.SX.sym("w")
     t = sp.sin(x) * y
-    exprs = [f(a) for a in (x, y) for f in FAMILY] + [sinhc(x) * langevin(y), sinhc(t), t]
+    g = sp.cos(x) * y + sp.sin(x * y) * x - y**3 / 3
+    exprs = [f(a) for a in (x, y) for f in FAMILY] + [
+        sinhc(x) * langevin(y), sinhc(t), t, sp.Piecewise((x**2, x < 0.5), (g, True)), g]
     outs = [to_casadi(e, {x: u, y: w}) for e in exprs]
     fn = ca.Function("br_family", [u, w], [ca.vertcat(*outs)], ["u", "w"], ["out"],
                      {"cse": True})
@@ -87,15 +90,19 @@ def test_guarded_c_equals_casadi_and_mpmath(family, u: float) -> None:
         np.testing.assert_allclose(got[ok], want[ok], rtol=1e-14, atol=0)
         mu, mw = mpmath.mpf(u), mpmath.mpf(w)
         mt = mpmath.sin(mu) * mw
+        mg = mpmath.cos(mu) * mw + mpmath.sin(mu * mw) * mu - mw**3 / 3
         refs = [_mp(f, a) for a in (mu, mw) for f in FAMILY] + [
-            _mp(sinhc, mu) * _mp(langevin, mw), _mp(sinhc, mt), mt]
+            _mp(sinhc, mu) * _mp(langevin, mw), _mp(sinhc, mt), mt,
+            mu**2 if mu < 0.5 else mg, mg]
         for k, ref in enumerate(refs):
             if not np.isfinite(got[k]):
                 assert abs(u) > 700 and FAMILY[k % 4] is sinhc, k  # sinh(800) overflows
                 continue
-            # L'' = -2/u^3 + 2 cosh/sinh^3 cancels about 4000-fold at the switch
+            # L'' = -2/u^3 + 2 cosh/sinh^3 cancels about 4000-fold at the switch; g's terms
+            # cancel where it passes zero
             rel = 2e-12 if k in (3, 7) else 1e-13
-            assert got[k] == pytest.approx(float(ref), rel=rel, abs=1e-15), (k, u, w)
+            scale = 1e-15 if k < 11 else 1e-15 * (1 + abs(u) + abs(w)) ** 3
+            assert got[k] == pytest.approx(float(ref), rel=rel, abs=scale), (k, u, w)
 
 
 def test_the_model_stage_equals_casadi(carriage, sim_lib, op, monkeypatch) -> None:
