@@ -40,7 +40,7 @@ from laws import write_input
 
 from maglevgen.analyses.simulate import DISTURBANCE, hold_run, run_loop
 from maglevgen.carriage import DerivedCarriage
-from maglevgen.codegen import cpass
+from maglevgen.codegen import branches, cpass
 from maglevgen.codegen.branches import guard_discarded_branches
 from maglevgen.codegen.casadi_model import casadi_model
 from maglevgen.codegen.cpass import postprocess, static_helpers
@@ -66,14 +66,23 @@ def pair(carriage: DerivedCarriage) -> tuple[ca.Function, ca.Function]:
     return _prepared(f, 2, "d")
 
 
-def sources(prepare: ca.Function, prepared: ca.Function) -> dict[str, str]:
+def sources(prepare: ca.Function, prepared: ca.Function,
+            thresholds: tuple[int, ...] = ()) -> dict[str, str]:
+    """The pair's C before and now (and, for each of ``thresholds``, with the pass's MIN_RUN
+    at that value: "MIN_RUN=k"), and the counting build."""
     gen = ca.CodeGenerator("maglev_bench.c", {"with_header": False})
     gen.add(prepare)
     gen.add(prepared)
     both = static_helpers(postprocess(gen.dump(), "double"))
     guarded = guard_discarded_branches(both)
-    return {"both sides (before)": both, "taken side (now)": guarded,
-            "counting": counting(guarded)}
+    out = {"both sides (before)": both, "taken side (now)": guarded}
+    for k in thresholds:
+        saved, branches.MIN_RUN = branches.MIN_RUN, k
+        try:
+            out[f"MIN_RUN={k}"] = guard_discarded_branches(both)
+        finally:
+            branches.MIN_RUN = saved
+    return {**out, "counting": counting(guarded)}
 
 
 def counting(guarded: str) -> str:
@@ -158,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reps", type=int, default=15)
     ap.add_argument("--calls", type=int, default=20_000)
     ap.add_argument("--rounds", type=int, default=9)
+    ap.add_argument("--thresholds", type=int, nargs="*", default=[],
+                    help="also time the pass with MIN_RUN at each of these values")
     ap.add_argument("--out", type=Path, default=BENCH / "branches_results.json")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_branches_"))
@@ -165,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     log("functions and C")
     prepare, prepared = pair(carriage)
     libs = {}
-    for k, (label, text) in enumerate(sources(prepare, prepared).items()):
+    for k, (label, text) in enumerate(sources(prepare, prepared,
+                                              tuple(args.thresholds)).items()):
         libs[label] = work / f"lib{k}.so"
         libs[label].with_suffix(".c").write_text(text)
         run(["gcc", *DEFAULT_FLAGS, "-o", libs[label], libs[label].with_suffix(".c"), "-lm"])
@@ -197,6 +209,8 @@ def main(argv: list[str] | None = None) -> int:
     out = {"reps": args.reps, "calls": args.calls, "statements_per_stage": counts,
            "max_relative_difference_to_casadi": agreement,
            "ns_per_stage": {k: summary(v) for k, v in ns.items()},
+           "ratio_to_before": {k: paired_ratios(v, ns["both sides (before)"])
+                               for k, v in ns.items()},
            "ratio_now_to_before": paired_ratios(ns["taken side (now)"],
                                                 ns["both sides (before)"])}
     log(f"closed loop: {args.rounds} rounds of {RUNS} runs per library")
@@ -207,7 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     print("| build | C statements per stage | ns per stage (median) | max rel. diff. to CasADi |")
     print("| --- | --- | --- | --- |")
     for label in timed:
-        print(f"| {label} | {counts[label]} | {out['ns_per_stage'][label]['median']:.0f} | "
+        ratio = out["ratio_to_before"][label]["median"]
+        print(f"| {label} | {counts.get(label, '')} | "
+              f"{out['ns_per_stage'][label]['median']:.0f} (x{ratio:.3f}) | "
               f"{agreement[label]:.1e} |")
     print(f"ratio now/before per repeat: median {out['ratio_now_to_before']['median']:.3f}")
     cl = out["closed_loop"]

@@ -94,7 +94,9 @@ def _guards(lines: list[_Line]) -> list[int | None]:
         assert n_var is not None
         later = writes[n_var]
         k = bisect_left(later, g + 1)
-        if k < len(later) and later[k] < i:  # N assigned again before this statement
+        # N assigned again before this statement (implied by the markers reading g after i;
+        # checked all the same)
+        if k < len(later) and later[k] < i:
             continue
         guard[i] = g
     return guard
