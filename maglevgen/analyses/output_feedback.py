@@ -33,6 +33,7 @@ import numpy as np
 
 from maglevgen.analyses.envelope import envelope_points, schedule_setting
 from maglevgen.analyses.loop import loop_plant
+from maglevgen.analyses.sim_loop import reading_noise
 from maglevgen.carriage import structure_of
 from maglevgen.control import controller as registered_controller
 from maglevgen.control.estimation import (
@@ -87,6 +88,8 @@ class NoisyHold:
     settled: bool = True  # stationary (SETTLED)
     seconds: float = 0.0  # [s] wall-clock time of the run
     diverged: float | None = None  # [s] when the run stopped (module docstring), None: ran
+    # [m] each array's gap after each tick (ticks x arrays): the run's gaps, for a comparison
+    gap_series: np.ndarray | None = None
 
     @property
     def worst_share(self) -> float:
@@ -190,23 +193,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     n5 = T.shape[1]
     n_cmd = K_c.shape[0]
     meas = measurement_model(lib, p, op, layout)
-    s = params.sensors
-    rng = np.random.default_rng(seed)
-    sigma = np.sqrt(layout.variances) * noise_scale
     n_gap = len(layout.gaps)
-    bias = np.zeros(len(layout.names))
-    if s.imu is not None:  # each axis's in-run bias, its sign drawn once per run
-        bias[n_gap:n_gap + 3] = s.imu.gyro_bias * rng.choice((-1.0, 1.0), 3)
-        bias[n_gap + 3:n_gap + 6] = s.imu.accel_bias * rng.choice((-1.0, 1.0), 3)
-    bias *= noise_scale
-    step = np.zeros(len(layout.names))
-    if s.gap is not None:
-        step[:n_gap] = s.gap.resolution
-    if s.track is not None:
-        step[-1] = s.track.resolution
-    # the readings' white noise: the quantization is applied to the reading, so leave its
-    # share out of the drawn noise
-    white = np.sqrt(np.clip(sigma**2 - (step * noise_scale) ** 2 / 12, 0.0, None))
 
     dynamics = lib.function("maglev_dynamics")
     gap_fn, imu_fn = lib.function("maglev_gap_reading"), lib.function("maglev_imu_reading")
@@ -230,6 +217,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     n_steps = max(1, int(np.ceil(tick.period / RK4_MAX_STEP - 1e-9)))
     h = tick.period / n_steps
     n_ticks = round(t_end * tick.rate)
+    noise, q = reading_noise(params, layout, n_ticks, seed, noise_scale)
     forces = np.zeros((n_ticks, len(arrays)))
     gaps = np.zeros((n_ticks, len(arrays)))
     att = np.zeros((n_ticks, 3))
@@ -259,8 +247,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             y[n_gap:n_gap + 6] = np.concatenate([np.ravel(gyro), np.ravel(acc)])
         if layout.track:
             y[-1] = x[0]
-        y = y + bias + white * rng.standard_normal(len(y))
-        q = step * noise_scale
+        y = y + noise[k]
         y = np.where(q > 0, np.round(y / np.where(q > 0, q, 1.0)) * q, y)
         y_ref = meas.y_trim.copy()
         if layout.track:
@@ -336,7 +323,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
                  strict=True)),
         dict(zip(model.states, np.sqrt(np.mean(est_err**2, axis=0)).tolist(), strict=True)),
         dict(zip(model.states, predicted.tolist(), strict=True)), settled,
-        time.perf_counter() - start, diverged)
+        time.perf_counter() - start, diverged, gaps)
 
 
 def hold_speeds(v_min: float, v_max: float) -> tuple[float, ...]:
