@@ -48,20 +48,26 @@ def _high_pass(s: np.ndarray, width: int = 50) -> np.ndarray:
 
 
 def test_sensed_hold_flies_as_the_numpy_output_feedback_loop(held) -> None:
-    """Same plant, same noise: each array's gap deviation has the numpy loop's RMS (within
-    25 %) and, tick by tick, its fast part follows the numpy loop's (correlation >= 0.75):
-    the firmware's estimator and law do what the design's do. A table whose readings at trim
-    are 0.18 mm off (the bound relative to the accelerometer's 9.81 m/s^2) gave 40-95 um of
-    RMS against 4-6 um here."""
+    """Same plant, same noise: tick by tick, each array's gap deviation above 20 Hz (less its
+    50-tick moving average) follows the numpy loop's (correlation >= 0.75, RMS within 15 %),
+    and the whole deviation has its RMS within 35 %: the firmware's estimator and law do
+    what the design's do. The slow part agrees in size, not tick by tick: the firmware starts
+    its estimate from the first readings and schedules its tables on the estimated speed,
+    the numpy loop starts at the trim at one speed. A table whose readings at trim were
+    0.18 mm off (the bound relative to the accelerometer's 9.81 m/s^2) gave 40-95 um of RMS
+    against 4-6 um here."""
     traj, ref = held
     assert traj.c_status == 0 and traj.sensing.tick_error == 0
     c = (traj.gaps[1:] - traj.op.gaps)[SKIP:]
     py = (ref.gap_series - traj.op.gaps)[SKIP:]
     rms_c, rms_py = np.sqrt(np.mean(c**2, axis=0)), np.sqrt(np.mean(py**2, axis=0))
-    assert np.all(np.abs(rms_c / rms_py - 1) < 0.25), (rms_c, rms_py)
-    corr = [np.corrcoef(_high_pass(c[:, j]), _high_pass(py[:, j]))[0, 1]
-            for j in range(c.shape[1])]
+    assert np.all(np.abs(rms_c / rms_py - 1) < 0.35), (rms_c, rms_py)
+    fast_c = np.array([_high_pass(c[:, j]) for j in range(c.shape[1])])
+    fast_py = np.array([_high_pass(py[:, j]) for j in range(c.shape[1])])
+    corr = [np.corrcoef(a, b)[0, 1] for a, b in zip(fast_c, fast_py, strict=True)]
     assert min(corr) >= 0.75, corr
+    ratio = np.std(fast_c, axis=1) / np.std(fast_py, axis=1)
+    assert np.all(np.abs(ratio - 1) < 0.15), ratio
 
 
 def test_sensed_metrics_say_what_the_run_did(held) -> None:
@@ -142,10 +148,11 @@ def test_a_tick_without_a_usable_gap_ends_the_run_with_the_sense_ticks_code(
     from maglevgen.analyses.sim_loop import control_loop, sensing
     from maglevgen.analyses.simulate import initial_state
     from maglevgen.codegen.checks import ERROR_CODES
-    from maglevgen.control.operating import operating_point
+    from maglevgen.control.operating import Weights, operating_point
 
     tick, k_v, budget = sensed_tick
-    op = operating_point(sim_lib, carriage.p, SPEED, carriage.params.track.min_gap)
+    op = operating_point(sim_lib, carriage.p, SPEED, carriage.params.track.min_gap,
+                         Weights.of(carriage.params))
     sense = sensing(tick, 101)
     sense.noise[10:, :len(tick.firmware.layout.gaps)] = np.nan
     loop = control_loop(1e-3, tick, k_v, budget, op.speed, sense=sense)
