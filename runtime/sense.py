@@ -54,6 +54,10 @@ class SenseLibrary:
         self.init = ctypes.cast(self._lib.maglev_host_sense_init, ctypes.c_void_p).value
         self.tick = ctypes.cast(self._lib.maglev_host_sense_tick, ctypes.c_void_p).value
 
+    def __reduce__(self):
+        """Another process loads the same library (its signature checked again there)."""
+        return (SenseLibrary, (self.path,))
+
     def new_state(self) -> np.ndarray:
         """Storage for one run's maglev_sense_state (8-byte aligned; the run initialises it)."""
         return np.zeros(-(-self.state_size // 8), dtype=np.float64)

@@ -10,7 +10,7 @@ on the lambdified SymPy model, as an independent check.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -431,19 +431,21 @@ def hold_trajectory(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
 def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
                    t_end: float, dt: float, min_gap: float, tick: Tick | None = None,
                    speed_gain: float = 0.0, force_budget: float | None = None,
-                   threads: int = 0) -> list[Trajectory]:
+                   threads: int = 0, seeds: Sequence[int] | None = None) -> list[Trajectory]:
     """`simulate` of each job (p, op, controller, disturbance[, controller_op]), the runs in
     one call of the C batch driver on ``threads`` threads (0: every core): the same
-    trajectories, in order."""
+    trajectories, in order. At a `SensedTick` each run draws its own noise: from ``seeds``
+    (one per job), else the tick's seed plus the job's place."""
     n_steps = _check_steps(t_end, dt)
     if not jobs:
         return []
-    # each run on the sensors draws its own noise: the tick's seed plus its place in the batch
-    ticks = [replace(tick, seed=tick.seed + i) if isinstance(tick, SensedTick) else tick
-             for i in range(len(jobs))]
+    seeds = seeds if seeds is not None else [
+        (tick.seed if isinstance(tick, SensedTick) else 0) + i for i in range(len(jobs))]
+    ticks = [replace(tick, seed=int(s)) if isinstance(tick, SensedTick) else tick
+             for s in seeds]
     runs = [hold_run(p, op, c, dt, d, tk, speed_gain, force_budget, *design,
-                     n_steps=n_steps, record=False) for (p, op, c, d, *design), tk in zip(jobs, ticks,
-                                                                             strict=True)]
+                     n_steps=n_steps, record=False)
+            for (p, op, c, d, *design), tk in zip(jobs, ticks, strict=True)]
     op0 = jobs[0][1]
     done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
                               op0.gaps.size, threads)
