@@ -296,7 +296,7 @@ static int sense_valid(const maglev_sensing* s) {
            && s->ny == s->n_gap + (s->imu_point != 0 ? 6 : 0) + s->track && s->ny >= 1
            && s->ny <= MAGLEV_SIM_MAX_READINGS && s->n_noise >= 0 && s->n_rows >= 0
            && (s->noise != 0 || s->n_noise == 0)
-           && ((s->readings == 0 && s->predicted == 0) || s->n_rows > 0);
+           && ((s->readings == 0 && s->predicted == 0 && s->commands == 0) || s->n_rows > 0);
 }
 
 static int loop_valid(const maglev_control_loop* loop) {
@@ -518,6 +518,9 @@ static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, lon
         if (s->predicted != 0) {
             /* the prediction: maglev_sense_state's first member, x_pred[MAGLEV_NX] */
             for (i = 0; i < NX; ++i) s->predicted[n * NX + i] = ((const maglev_real*)s->state)[i];
+        }
+        if (s->commands != 0) {
+            for (i = 0; i < NU; ++i) s->commands[n * NU + i] = u[i];
         }
     }
     if (rc != 0) {

@@ -99,7 +99,8 @@ extern "C" {
  *   F_extra added to the propulsion (maglev_launch). A sense function's error code ends the
  *   run (MAGLEV_SIM_ERROR, the code in tick_error). Each tick's readings and the sense
  *   state's first MAGLEV_NX values (maglev_sense_state.x_pred: the prediction for the next
- *   tick) go to readings and predicted (n_rows rows each, when not NULL).
+ *   tick) and the command it returned (before F_extra) go to readings, predicted and
+ *   commands (n_rows rows each, when not NULL).
  */
 #define MAGLEV_SIM_MAX_DELAY 4 /* the largest delay_ticks */
 #define MAGLEV_SIM_MAX_READINGS 32 /* the most readings of a sense */
@@ -127,6 +128,7 @@ typedef struct {
     long long n_noise;
     maglev_real* readings;          /* n_rows x ny: each tick's readings, or NULL */
     maglev_real* predicted;         /* n_rows x MAGLEV_NX: the prediction after each tick */
+    maglev_real* commands;          /* n_rows x MAGLEV_NU: the sense tick's command, or NULL */
     long long n_rows;
     int tick_error;                 /* out: the sense function's code that ended the run */
 } maglev_sensing;

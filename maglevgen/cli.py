@@ -521,7 +521,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--controller", choices=_Controllers(extra=("all",)), metavar="NAME",
                     help="default: envelope.embedded_controller")
     _run_options(mc)
-    _loop_option(mc)
+    _loop_option(mc, sensed=True)
     mc.add_argument("--redesign", action="store_true",
                     help="re-design the controller for each sample's own parameters, as if "
                          "the firmware knew them (default: the nominal design, as the "

@@ -211,7 +211,8 @@ class SimulationLibrary(GeneratedLibrary):
                         ("gap_point", ptr), ("gap_normal", ptr), ("gap_nominal", ptr),
                         ("imu_point", ptr), ("step", ptr), ("noise", ptr),
                         ("n_noise", ctypes.c_longlong), ("readings", ptr), ("predicted", ptr),
-                        ("n_rows", ctypes.c_longlong), ("tick_error", ctypes.c_int)]
+                        ("commands", ptr), ("n_rows", ctypes.c_longlong),
+                        ("tick_error", ctypes.c_int)]
 
         self._Sensing = _Sensing
 

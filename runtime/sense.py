@@ -92,7 +92,8 @@ class Sensing:
     the track position is read, each reading's resolution (0: not rounded) and the noise
     added at each tick (rows of the readings; None: none), in the readings' order (gaps, the
     gyro's p q r, the accelerometer's x y z, the track). ``rows``: ticks whose readings and
-    prediction the run records (`readings`, `predicted`); after a run, ``tick_error`` holds
+    prediction the run records (`readings`, `predicted`; with ``n_inputs``, the plant's
+    input count, the sense tick's commands too: `commands`); after a run, ``tick_error`` holds
     the sense function's code that ended it (0: none did). One Sensing serves one run at a
     time: it holds the sense tick's state."""
 
@@ -105,8 +106,10 @@ class Sensing:
     step: np.ndarray
     noise: np.ndarray | None = None
     rows: int = 0
+    n_inputs: int = 0  # the plant's inputs (MAGLEV_NU): the commands' width; 0: not kept
     readings: np.ndarray = field(init=False)
     predicted: np.ndarray = field(init=False)
+    commands: np.ndarray = field(init=False)
     _state: np.ndarray = field(init=False, repr=False)
     _struct: object = field(default=None, init=False, repr=False)
 
@@ -124,6 +127,7 @@ class Sensing:
             raise ValueError(f"{self.step.size} resolutions for {self.ny} readings")
         self.readings = np.zeros((self.rows, self.ny))
         self.predicted = np.zeros((self.rows, 12))
+        self.commands = np.zeros((self.rows if self.n_inputs else 0, self.n_inputs))
         self._state = self.library.new_state()
 
     @property
@@ -154,6 +158,6 @@ class Sensing:
             c(self.gap_point), c(self.gap_normal), c(self.gap_nominal), c(self.imu_point),
             c(self.step), c(self.noise), 0 if self.noise is None else self.noise.shape[0],
             c(self.readings) if self.rows else None, c(self.predicted) if self.rows else None,
-            self.rows, 0)
+            c(self.commands) if self.commands.size else None, self.rows, 0)
         self._struct = s
         return s

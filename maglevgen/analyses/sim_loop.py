@@ -197,10 +197,11 @@ def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
     return bias * noise_scale + white * rng.standard_normal((n_ticks, ny)), step
 
 
-def sensing(tick: SensedTick, n_ticks: int, record: bool = True) -> Sensing:
+def sensing(tick: SensedTick, n_ticks: int, record: bool = True, n_inputs: int = 0
+            ) -> Sensing:
     """A run's `Sensing` of ``tick``: its sensors, ``n_ticks`` ticks of noise
     (`reading_noise` with the tick's seed and scale) and, ``record``, each tick's readings
-    and prediction kept."""
+    and prediction kept (and its command, given the plant's ``n_inputs``)."""
     fw = tick.firmware
     assert fw is not None  # SensedTick refuses None
     layout = fw.layout
@@ -208,7 +209,8 @@ def sensing(tick: SensedTick, n_ticks: int, record: bool = True) -> Sensing:
     return Sensing(fw.library, np.array([g.point for g in layout.gaps]).reshape(-1, 3),
                    np.array([g.normal for g in layout.gaps]).reshape(-1, 3),
                    np.array([g.nominal_gap for g in layout.gaps]), layout.imu_point,
-                   layout.track, step, noise, n_ticks if record else 0)
+                   layout.track, step, noise, n_ticks if record else 0,
+                   n_inputs if record else 0)
 
 
 def estimation_error(sense: Sensing, x: np.ndarray, tick_steps: int) -> np.ndarray:

@@ -398,7 +398,7 @@ def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
     design = op if controller_op is None else controller_op
     if isinstance(tick, FirmwareTick):
         gains = firmware_gains(design, controller, tick)
-        sense = (sensing(tick, n_steps // tick.steps(dt) + 1, record)
+        sense = (sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
                  if isinstance(tick, SensedTick) else None)
         loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, design=gains,
                             sense=sense)
@@ -484,8 +484,8 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
         raise InputError("launch with a speed loop: the commanded acceleration (the speed "
                          "reference's slope) is 0 while the thrust accelerates")
     n_steps = _check_steps(max_time, dt)
-    sense = (sensing(tick, n_steps // tick.steps(dt) + 1) if isinstance(tick, SensedTick)
-             else None)
+    sense = (sensing(tick, n_steps // tick.steps(dt) + 1, True, op.B.shape[1])
+             if isinstance(tick, SensedTick) else None)
     loop = control_loop(dt, tick, speed_gain, force_budget, op.speed, accel, sense=sense)
     x0 = initial_state(op, disturbance, x_start)
     run = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps, schedule, p, min_gap,

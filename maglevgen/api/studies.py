@@ -334,8 +334,11 @@ class Studies(CarriageCore):
             an existing Dask scheduler (``"tcp://host:8786"``).
         out : str or pathlib.Path, optional
             Folder for ``samples.parquet``, ``montecarlo.md``/``.json`` and the plots.
-        loop : {'firmware', 'continuous'}, optional
-            How every run executes its controller (``--loop``; see `simulate`).
+        loop : {'firmware', 'sensed', 'continuous'}, optional
+            How every run executes its controller (``--loop``; see `simulate`); ``sensed``:
+            the embedded controller's sense tick on each sampled carriage, the sensor noise
+            of each sample from ``SeedSequence(seed, spawn_key=(i, 1))`` (not with
+            ``redesign``).
         progress : bool, optional
             Announce the study once the arguments are checked, the slow steps on stderr,
             and the runs' rate (a progress bar on a terminal).
@@ -392,6 +395,16 @@ class Studies(CarriageCore):
             steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
                            "library and the study first")
         controllers = controller_names() if choice == "all" else (choice,)
+        if loop == "sensed":  # the firmware's sense tick: its one controller, its tables
+            embedded = self.params.envelope.embedded_controller
+            if choice == "all":
+                controllers = (embedded,)
+            elif choice != embedded:
+                raise InputError(f"--loop sensed: the firmware's sense tick flies the embedded "
+                                 f"controller ({embedded!r}), not {choice!r}")
+            if redesign:
+                raise InputError("--redesign with --loop sensed: the firmware's tables are the "
+                                 "nominal carriage's (a re-design per sample is not flown)")
         lib = self._lib
         study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
                            *run_loop(self._carriage, lib, loop),
