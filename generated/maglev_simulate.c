@@ -19,7 +19,8 @@
                            maglev_allocation_matrix_SZ_##what, maglev_closed_loop_SZ_##what), \
                       MAX4(maglev_dynamics_SZ_##what, maglev_gaps_SZ_##what, \
                            maglev_coupled_control_SZ_##what, maglev_dynamics_prepared_SZ_##what), \
-                      maglev_dynamics_prepare_SZ_##what, 0)
+                      MAX3(maglev_dynamics_prepare_SZ_##what, maglev_gap_reading_SZ_##what, \
+                           maglev_imu_reading_SZ_##what), 0)
 #define SZ_ARG SZ(ARG)
 #define SZ_RES SZ(RES)
 #define SZ_IW SZ(IW)
@@ -31,6 +32,7 @@
 #define NY MAGLEV_SCHEDULE_NY
 #define SQRT(v) sqrt(v)
 #define EXP(v) exp(v)
+#define NEARBYINT(v) nearbyint(v)
 #define LAW_NAXES 5 /* the generalized forces of the tick's law */
 #define NQ (MAGLEV_SIM_MAX_DELAY * LAW_NAXES) /* the most generalized forces in flight */
 
@@ -284,8 +286,22 @@ static int budget_active(maglev_real budget) {
     return budget > 0 && isfinite(budget);
 }
 
+/* a sense a run can fly: its functions, state and arrays given, its counts consistent (the
+   arrays' lengths are the caller's part) */
+static int sense_valid(const maglev_sensing* s) {
+    return s->init != 0 && s->tick != 0 && s->state != 0 && s->step != 0 && s->n_gap >= 0
+           && (s->n_gap == 0 || (s->gap_point != 0 && s->gap_normal != 0
+                                 && s->gap_nominal != 0))
+           && (s->track == 0 || s->track == 1)
+           && s->ny == s->n_gap + (s->imu_point != 0 ? 6 : 0) + s->track && s->ny >= 1
+           && s->ny <= MAGLEV_SIM_MAX_READINGS && s->n_noise >= 0 && s->n_rows >= 0
+           && (s->noise != 0 || s->n_noise == 0)
+           && ((s->readings == 0 && s->predicted == 0 && s->commands == 0) || s->n_rows > 0);
+}
+
 static int loop_valid(const maglev_control_loop* loop) {
-    return loop == 0 || (loop->tick_steps >= 0 && loop->delay_ticks >= 0
+    return loop == 0 || ((loop->sense == 0 || (loop->tick_steps > 0 && sense_valid(loop->sense)))
+                         && loop->tick_steps >= 0 && loop->delay_ticks >= 0
                          && loop->delay_ticks <= MAGLEV_SIM_MAX_DELAY && isfinite(loop->k_v)
                          && isfinite(loop->v_ref) && isfinite(loop->accel)
                          && !isnan(loop->force_budget) && isfinite(loop->tau)
@@ -441,6 +457,87 @@ static int sample_gaps(work* ws, const loop_run* r, const maglev_real* x, maglev
     return maglev_gaps(ws->arg, ws->res, ws->iw, ws->w, 0);
 }
 
+/* the sensors' readings of the plant at x (xdot: its rates under the inputs acting now), in
+   the sense's order: the gap sensors, the IMU's gyro and accelerometer, the track position */
+static int sensor_readings(work* ws, const loop_run* r, const maglev_real* x,
+                           const maglev_real* xdot, maglev_real* y) {
+    const maglev_sensing* s = r->loop->sense;
+    int j;
+    for (j = 0; j < s->n_gap; ++j) {
+        ws->arg[0] = x;
+        ws->arg[1] = s->gap_point + 3 * j;
+        ws->arg[2] = s->gap_normal + 3 * j;
+        ws->arg[3] = s->gap_nominal + j;
+        ws->res[0] = y + j;
+        ws->res[1] = 0;
+        if (maglev_gap_reading(ws->arg, ws->res, ws->iw, ws->w, 0)) return 1;
+    }
+    if (s->imu_point != 0) {
+        ws->arg[0] = x;
+        ws->arg[1] = xdot;
+        ws->arg[2] = s->imu_point;
+        ws->res[0] = y + s->n_gap;
+        ws->res[1] = y + s->n_gap + 3;
+        ws->res[2] = 0;
+        ws->res[3] = 0;
+        if (maglev_imu_reading(ws->arg, ws->res, ws->iw, ws->w, 0)) return 1;
+    }
+    if (s->track) y[s->ny - 1] = x[0];
+    return 0;
+}
+
+/* the sense tick's command at tick n (time t, state x): the readings with the plant's inputs
+   acting now (the propulsion of `next`, the command applied over this tick; the array forces
+   through the lag from act, else next's), the tick's noise added and each rounded to its
+   step; the sense tick (its init first at n = 0) writes u, then F_extra joins the
+   propulsion. Returns -1 on an error (a generated function's, or the sense function's code
+   in tick_error), else 1 when an array's control force is at the budget, 0 when none is. */
+static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, long long n,
+                          maglev_real t, const maglev_real* next, const maglev_real* act,
+                          int lagged, maglev_real* u) {
+    maglev_sensing* s = r->loop->sense;
+    const maglev_real budget = r->loop->force_budget;
+    maglev_real u_now[NU], xdot[NX], y[MAGLEV_SIM_MAX_READINGS], sq[NA];
+    maglev_real v_ref = r->loop->v_ref + r->loop->accel * t;
+    const unsigned long valid = s->ny >= 32 ? 0xFFFFFFFFUL : (1UL << s->ny) - 1UL;
+    int i, rc;
+    if (r->launch && v_ref > r->v_end) v_ref = r->v_end;
+    u_now[0] = next[0];
+    for (i = 1; i < NU; ++i) u_now[i] = lagged ? act[i] : next[i];
+    if (held_rhs(ws, x, u_now, xdot) || sensor_readings(ws, r, x, xdot, y)) return -1;
+    for (i = 0; i < s->ny; ++i) {
+        if (n < s->n_noise) y[i] += s->noise[n * s->ny + i];
+        if (s->step[i] > 0) y[i] = NEARBYINT(y[i] / s->step[i]) * s->step[i];
+    }
+    rc = n == 0 ? s->init(s->state, y, valid, v_ref) : 0;
+    if (rc == 0) rc = s->tick(s->state, y, valid, v_ref, u);
+    if (n < s->n_rows) {
+        if (s->readings != 0) {
+            for (i = 0; i < s->ny; ++i) s->readings[n * s->ny + i] = y[i];
+        }
+        if (s->predicted != 0) {
+            /* the prediction: maglev_sense_state's first member, x_pred[MAGLEV_NX] */
+            for (i = 0; i < NX; ++i) s->predicted[n * NX + i] = ((const maglev_real*)s->state)[i];
+        }
+        if (s->commands != 0) {
+            for (i = 0; i < NU; ++i) s->commands[n * NU + i] = u[i];
+        }
+    }
+    if (rc != 0) {
+        s->tick_error = rc;
+        return -1;
+    }
+    u[0] += r->F_extra;
+    if (!budget_active(budget)) return 0;
+    for (i = 0; i < NA; ++i) sq[i] = 0;
+    for (i = 0; i < NU - 1; ++i) sq[ARRAY_OF_FORCE[i]] += u[1 + i] * u[1 + i];
+    for (i = 0; i < NA; ++i) {
+        /* at the budget: the law scaled it there (to rounding) */
+        if (SQRT(sq[i]) >= budget * ((maglev_real)1 - (maglev_real)1e-9)) return 1;
+    }
+    return 0;
+}
+
 /* the run with r->loop not plain: the tick-held (tick_steps > 0) or the continuous loop */
 static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, maglev_real dt,
                           long long n_steps, maglev_real gap_min, maglev_real* x_traj,
@@ -501,7 +598,13 @@ static long long run_loop(work* ws, const loop_run* r, const maglev_real* x0, ma
                         ring_sat[d] = 0;
                     }
                 }
-                if ((s = command(ws, r, x, t, g, &law, slot)) < 0) {
+                if (r->loop->sense != 0) {
+                    s = sensed_command(ws, r, x, k / tick, t, ring + ((w + 1) % depth) * NU,
+                                       act, tau > 0, slot);
+                } else {
+                    s = command(ws, r, x, t, g, &law, slot);
+                }
+                if (s < 0) {
                     *status = MAGLEV_SIM_ERROR;
                     break;
                 }

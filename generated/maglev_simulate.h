@@ -83,10 +83,55 @@ extern "C" {
  * tick_steps < 0, delay_ticks outside [0, MAGLEV_SIM_MAX_DELAY], a non-finite k_v, v_ref,
  * accel or k_i, a negative k_i, a NaN or negative i_max, a NaN budget, tau negative or not
  * finite, tau or k_i not 0 with tick_steps = 0, or (maglev_simulate) a non-finite K_lag or
- * K_delay value: refused at entry
+ * K_delay value, or a sense (below) that is not valid: refused at entry
  * (MAGLEV_SIM_ARGUMENT, -1, nothing written).
+ * - The sensors (sense not NULL, tick_steps > 0): the loop a carriage flies, on readings.
+ *   At each tick the run reads the plant as the sensors of maglevgen.control.estimation's
+ *   SensorLayout do: each gap sensor by maglev_gap_reading (its body point, face normal and
+ *   nominal gap), the IMU by maglev_imu_reading at its point (the accelerometer from the
+ *   plant's rates under the inputs acting at that instant: the command applied over this
+ *   tick, with delay_ticks = 0 the previous one, through the lag), the track position x[0];
+ *   adds the tick's row of noise (white noise and bias, drawn by the caller) and rounds each
+ *   reading to its step (0: not rounded); and gives them, each flagged valid, to the
+ *   firmware's sense tick through the pointers: init at the first tick (at v_ref(0)), then
+ *   tick with v_ref(t). Its command (the propulsion and the array forces, within the
+ *   budget: the firmware's law) takes the state-feedback command's place in the delay line,
+ *   F_extra added to the propulsion (maglev_launch). A sense function's error code ends the
+ *   run (MAGLEV_SIM_ERROR, the code in tick_error). Each tick's readings and the sense
+ *   state's first MAGLEV_NX values (maglev_sense_state.x_pred: the prediction for the next
+ *   tick) and the command it returned (before F_extra) go to readings, predicted and
+ *   commands (n_rows rows each, when not NULL).
  */
 #define MAGLEV_SIM_MAX_DELAY 4 /* the largest delay_ticks */
+#define MAGLEV_SIM_MAX_READINGS 32 /* the most readings of a sense */
+
+/* the firmware's maglev_sense_init and maglev_sense_tick with the state passed untyped */
+typedef int (*maglev_sense_init_fn)(void* state, const maglev_real* y, unsigned long valid,
+                                    maglev_real v0);
+typedef int (*maglev_sense_tick_fn)(void* state, const maglev_real* y, unsigned long valid,
+                                    maglev_real v_ref, maglev_real* u);
+
+/* the sensors and the sense tick of a run (maglev_control_loop.sense; see above) */
+typedef struct {
+    maglev_sense_init_fn init;
+    maglev_sense_tick_fn tick;
+    void* state;                    /* the sense tick's state: the caller's storage */
+    int ny;                         /* readings: n_gap gaps, 6 IMU (imu_point), 1 track */
+    int n_gap;
+    int track;                      /* 1: the last reading is the track position x[0] */
+    const maglev_real* gap_point;   /* n_gap x 3 [m]: each gap sensor's body point */
+    const maglev_real* gap_normal;  /* n_gap x 3: its face's normal */
+    const maglev_real* gap_nominal; /* n_gap [m]: its nominal gap */
+    const maglev_real* imu_point;   /* 3 [m]: the IMU's body point; NULL: no IMU */
+    const maglev_real* step;        /* ny [SI]: each reading's resolution; 0: not rounded */
+    const maglev_real* noise;       /* n_noise x ny added to the readings; NULL: none */
+    long long n_noise;
+    maglev_real* readings;          /* n_rows x ny: each tick's readings, or NULL */
+    maglev_real* predicted;         /* n_rows x MAGLEV_NX: the prediction after each tick */
+    maglev_real* commands;          /* n_rows x MAGLEV_NU: the sense tick's command, or NULL */
+    long long n_rows;
+    int tick_error;                 /* out: the sense function's code that ended the run */
+} maglev_sensing;
 
 typedef struct {
     long long tick_steps;     /* RK4 steps per control tick; 0: the command at every stage */
@@ -100,6 +145,7 @@ typedef struct {
     maglev_real i_max;        /* [N] |k_i xi| at most this (anti-windup); infinite: no clamp */
     const maglev_real* K_lag;   /* maglev_simulate: 25 on the predicted lagged forces, or NULL */
     const maglev_real* K_delay; /* maglev_simulate: 25 delay_ticks on those in flight, or NULL */
+    maglev_sensing* sense;      /* the sensors and the sense tick; NULL: the state, exact */
 } maglev_control_loop;
 
 long long maglev_simulate(const maglev_real* x0, maglev_real dt, long long n_steps,

@@ -388,7 +388,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
                             loop="firmware")
         if pending is not None:
             pending.result()  # the envelope's model checks read them from the cache
-    # the noisy holds of the output-feedback loop (a Python loop, a few seconds per 20 s hold)
+    # the noisy holds of the output-feedback loop (the firmware's sense tick, about 3 s per
+    # 20 s hold)
     # in a child from here, while this process runs the envelope, the judged runs and the
     # region of attraction
     from maglevgen.analyses.envelope import resolve_range

@@ -37,6 +37,7 @@ from maglevgen.runtime.compile import (
     trusted,
 )
 from maglevgen.runtime.ffi import GeneratedLibrary
+from maglevgen.runtime.sense import Sensing
 
 __all__ = [
     "BATCH_SOURCE",
@@ -140,7 +141,9 @@ class ControlLoop:
     [N] (anti-windup; inf: no clamp); each array's control force limited to
     ``force_budget`` [N] (<= 0 or inf: no limit) and lagged by ``tau`` [s] in the plant (0: no
     lag); the tick law's gains ``k_lag`` (25) and ``k_delay`` (25 delay_ticks), column-major
-    (maglev_simulate's; empty: zero, the generalized forces u_gen as computed).
+    (maglev_simulate's; empty: zero, the generalized forces u_gen as computed); ``sense``
+    (tick_steps > 0): the loop on the sensors' readings through the firmware's sense tick
+    (`maglevgen.runtime.sense.Sensing`) in place of the exact state's feedback.
     """
 
     tick_steps: int = 0
@@ -154,6 +157,7 @@ class ControlLoop:
     i_max: float = float("inf")  # [N]
     k_lag: tuple[float, ...] = ()
     k_delay: tuple[float, ...] = ()
+    sense: Sensing | None = None  # the sensors and the firmware's sense tick (runtime.sense)
 
 
 class Run(NamedTuple):
@@ -197,11 +201,27 @@ class SimulationLibrary(GeneratedLibrary):
         real = ctypes.c_float if precision == "single" else ctypes.c_double
         ptr = ctypes.POINTER(real)
 
+        init_fn = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ptr, ctypes.c_ulong, real)
+        tick_fn = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ptr, ctypes.c_ulong, real,
+                                   ptr)
+
+        class _Sensing(ctypes.Structure):  # maglev_sensing (maglev_simulate.h)
+            _fields_ = [("init", init_fn), ("tick", tick_fn), ("state", ctypes.c_void_p),
+                        ("ny", ctypes.c_int), ("n_gap", ctypes.c_int), ("track", ctypes.c_int),
+                        ("gap_point", ptr), ("gap_normal", ptr), ("gap_nominal", ptr),
+                        ("imu_point", ptr), ("step", ptr), ("noise", ptr),
+                        ("n_noise", ctypes.c_longlong), ("readings", ptr), ("predicted", ptr),
+                        ("commands", ptr), ("n_rows", ctypes.c_longlong),
+                        ("tick_error", ctypes.c_int)]
+
+        self._Sensing = _Sensing
+
         class _Loop(ctypes.Structure):  # maglev_control_loop (maglev_simulate.h)
             _fields_ = [("tick_steps", ctypes.c_longlong), ("delay_ticks", ctypes.c_int),
                         ("k_v", real), ("v_ref", real), ("accel", real),
                         ("force_budget", real), ("tau", real), ("k_i", real),
-                        ("i_max", real), ("K_lag", ptr), ("K_delay", ptr)]
+                        ("i_max", real), ("K_lag", ptr), ("K_delay", ptr),
+                        ("sense", ctypes.POINTER(_Sensing))]
 
         self._Loop = _Loop
 
@@ -244,9 +264,15 @@ class SimulationLibrary(GeneratedLibrary):
             keep.append(a)
             return a.ctypes.data_as(P)
 
+        sense = None
+        if loop.sense is not None:
+            if real != np.float64:
+                raise ValueError("the sense tick runs in double precision: a double library")
+            sense = ctypes.pointer(loop.sense.struct(self._Sensing))
+            keep.append(sense)
         return self._Loop(loop.tick_steps, loop.delay_ticks, loop.k_v, loop.v_ref, loop.accel,
                           loop.force_budget, loop.tau, loop.k_i, loop.i_max, gains(loop.k_lag),
-                          gains(loop.k_delay))
+                          gains(loop.k_delay), sense)
 
     def _loop(self, loop: ControlLoop | None, keep: list):
         """The maglev_control_loop of ``loop`` (a pointer), or NULL for None (``keep``: as

@@ -91,8 +91,9 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "a hold run needs neither the envelope nor SciPy (the launch and --check do)",
         ("maglevgen.analyses.envelope", "maglevgen.runtime.library", "scipy")),
     "maglevgen.analyses.sim_loop": (
-        "a hold run needs no envelope (the firmware loop's setting does)",
-        ("maglevgen.analyses.envelope", "maglevgen.analyses.loop")),
+        "a hold run needs no envelope (the firmware loop's setting does, and the sensors' "
+        "loop its firmware)",
+        ("maglevgen.analyses.envelope", "maglevgen.analyses.loop", "maglevgen.analyses.sensed")),
     "maglevgen.exports.fmu": (
         "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
         ("maglevgen.codegen.interface", "maglevgen.codegen.emit",

@@ -383,3 +383,49 @@ def test_a_start_in_contact_is_counted_apart(carriage, sim_lib, op) -> None:
     ref = binomtest(2, 97).proportion_ci(0.95, method="wilson")
     assert (got["starts_in_contact"], got["runs"], got["contacts"]) == (3, 97, 2)
     assert got["ci95"] == pytest.approx([ref.low, ref.high], rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def sensed_study(sim_lib):
+    """A small study on the sensors: the embedded controller's sense tick on each sample."""
+    from maglevgen.analyses.sim_loop import run_loop
+
+    carriage = DerivedCarriage(load_params(None, [SPEEDS]))
+    tick, k_v, budget = run_loop(carriage, sim_lib, "sensed")
+    study = make_study(carriage, sim_lib, ("spec",), t_end=0.3, dt=1e-3, seed=5, tick=tick,
+                       speed_gain=k_v, force_budget=budget)
+    return carriage, study, run_local(study, 4, workers=1)
+
+
+def test_a_sample_on_the_sensors_has_its_own_noise_whatever_the_chunks(sensed_study,
+                                                                        sim_lib) -> None:
+    """Each sample's sensor noise comes from (seed, sample) alone: the rows do not depend on
+    the workers or the chunks (bit for bit), and sample i's run equals `simulate` of its
+    carriage at a SensedTick seeded with SeedSequence(seed, spawn_key=(i, 1))'s first word."""
+    from dataclasses import replace
+
+    from maglevgen.analyses.simulate import metrics, simulate
+    from maglevgen.control.operating import Weights, operating_point
+
+    carriage, study, one = sensed_study
+    _same(one, run_local(study, 4, workers=2, chunk=1))
+    i = int(np.flatnonzero(one["status"] != "no trim")[0])
+    p = _sample_p(carriage, one, i)
+    speed, min_gap = float(one["speed"][i]), carriage.params.track.min_gap
+    weights = Weights.of(carriage.params)
+    own = operating_point(sim_lib, p, speed, min_gap, weights)
+    nominal = operating_point(sim_lib, carriage.p, speed, min_gap, weights)
+    dist = {s: float(one[f"disturbance.{s}"][i]) for s in ("y", "z", "phi", "theta", "psi")}
+    seed = int(np.random.SeedSequence(5, spawn_key=(i, 1)).generate_state(1)[0])
+    tick = replace(study.tick, seed=seed)
+    run = simulate(sim_lib, p, own, "spec", 0.3, 1e-3, min_gap, dist, tick=tick,
+                   speed_gain=study.speed_gain, force_budget=study.force_budget,
+                   controller_op=nominal)
+    flown = metrics(run)
+    assert flown["min_gap"] == one["min_gap"][i]
+    for axis in cv.AXES:
+        assert flown["axes"][axis]["peak_deviation"] == one[f"peak.{axis}"][i], axis
+    other = simulate(sim_lib, p, own, "spec", 0.3, 1e-3, min_gap, dist,
+                     tick=replace(tick, seed=seed + 1), speed_gain=study.speed_gain,
+                     force_budget=study.force_budget, controller_op=nominal)
+    assert not np.array_equal(other.x[-1], run.x[-1])  # another seed's noise, another run

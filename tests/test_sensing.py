@@ -191,7 +191,7 @@ def test_noisy_holds_decide_the_verdict_by_the_issues_targets(carriage,
     good = (hold(7.0, 1.0, 0.4, 0.0, 8e-3), hold(7.0, 5.0, 2.0, 0.0, 8e-3))
     verdict = embedded_verdict(carriage, sensing_envelope, holds=good, complete=False)
     (line,) = [c for c in verdict.checks if c.subject.startswith("noisy holds")]
-    assert line.ok and verdict.reason is None and "not the generated tick" in line.subject
+    assert line.ok and verdict.reason is None and "the firmware's sense tick" in line.subject
     assert "force RMS <= 2 % (x 1), 10 % (x 5) of the budget, no tick at it" in line.text
     bad = (hold(7.0, 1.0, 0.11 * budget, 0.0, 8e-3), hold(40.0, 1.0, 0.4, 0.0, 8e-3, False),
            hold(7.0, 5.0, 2.0, 0.02, min_gap))

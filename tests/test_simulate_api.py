@@ -26,7 +26,8 @@ _ARGUMENT = re.compile(r"^(const )?(maglev_real|long long|int|maglev_control_loo
                        r"maglev_spline_schedule|maglev_simulate_fn)(\*)? ([A-Za-z_]\w*)$")
 # typedef struct { ... } NAME; with one "TYPE NAME[, NAME];" member per line
 _STRUCT = re.compile(r"typedef struct \{\n(.*?)\n\} (maglev_\w+);", re.S)
-_MEMBER = re.compile(r"^\s*(const )?(maglev_real|long long|int)(\*)? ([\w, ]+);")
+_MEMBER = re.compile(r"^\s*(const )?(maglev_real|long long|int|void|maglev_sensing|"
+                     r"maglev_sense_init_fn|maglev_sense_tick_fn)(\*)? ([\w, ]+);")
 
 WANTED = {"maglev_simulate", "maglev_launch", "maglev_lyapunov_batch"}
 
@@ -64,14 +65,46 @@ def _scalar(c_type: str):
             "int": ctypes.c_int}[c_type]
 
 
+# a member's ctypes description from the C alone: the sense functions' pointer types by
+# their arguments (maglev_simulate.h's typedefs), a nested struct by its members
+_SENSE_FUNCTIONS = {
+    "maglev_sense_init_fn": (ctypes.c_int, ctypes.c_void_p, ctypes.POINTER(ctypes.c_double),
+                             ctypes.c_ulong, ctypes.c_double),
+    "maglev_sense_tick_fn": (ctypes.c_int, ctypes.c_void_p, ctypes.POINTER(ctypes.c_double),
+                             ctypes.c_ulong, ctypes.c_double, ctypes.POINTER(ctypes.c_double))}
+
+
+def _member(t: str, p: bool, structs: dict):
+    if t in _SENSE_FUNCTIONS:
+        return ("function", _SENSE_FUNCTIONS[t])
+    if t == "void":
+        assert p, "a void member"
+        return ("address",)
+    if t in structs:
+        assert p, f"{t} held by value"
+        return ("pointer to", tuple((n, _member(mt, mp, structs)) for n, mt, mp in structs[t]))
+    return ctypes.POINTER(_scalar(t)) if p else _scalar(t)
+
+
+def _ctypes_member(t):
+    """The same description of a ctypes member type."""
+    if t is ctypes.c_void_p:
+        return ("address",)
+    if hasattr(t, "_restype_"):
+        return ("function", (t._restype_, *t._argtypes_))
+    if hasattr(t, "_type_") and isinstance(t._type_, type) and issubclass(t._type_,
+                                                                         ctypes.Structure):
+        return ("pointer to", tuple((n, _ctypes_member(mt)) for n, mt in t._type_._fields_))
+    return t
+
+
 def _expected(base: str, pointer: bool, structs: dict):
     """The ctypes type of an argument, from the C alone (the double library)."""
     if base == "maglev_simulate_fn":  # a function pointer, passed as an address
         return ("function pointer",)
     if base in structs:
         assert pointer, f"{base} passed by value"
-        return ("struct", tuple((n, _scalar(t) if not p else ctypes.POINTER(_scalar(t)))
-                                for n, t, p in structs[base]))
+        return ("struct", tuple((n, _member(t, p, structs)) for n, t, p in structs[base]))
     return ("pointer", _scalar(base)) if pointer else ("scalar", _scalar(base))
 
 
@@ -81,7 +114,7 @@ def _actual(t):
         return ("function pointer",)
     if hasattr(t, "_type_") and isinstance(t._type_, type) and issubclass(t._type_,
                                                                          ctypes.Structure):
-        return ("struct", tuple(t._type_._fields_))
+        return ("struct", tuple((n, _ctypes_member(mt)) for n, mt in t._type_._fields_))
     if hasattr(t, "contents"):
         return ("pointer", t._type_)
     return ("scalar", t)

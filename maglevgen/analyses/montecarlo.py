@@ -36,7 +36,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -58,6 +58,7 @@ from maglevgen.analyses.montecarlo_report import SAMPLE_STATUSES as SAMPLE_STATU
 from maglevgen.analyses.montecarlo_report import STATUSES as STATUSES
 from maglevgen.analyses.montecarlo_report import WORST as WORST
 from maglevgen.analyses.montecarlo_report import Z95 as Z95
+from maglevgen.analyses.sim_loop import SensedTick
 from maglevgen.analyses.simulate import (
     control_loop,
     metrics,
@@ -204,7 +205,7 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     p, op, design, disturbance, row = prepared
     return [_run_row(study, lib, p, row, c,
                      simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance,
-                              tick=study.tick, speed_gain=study.speed_gain,
+                              tick=_sample_tick(study, index), speed_gain=study.speed_gain,
                               force_budget=study.force_budget, controller_op=design),
                      op, disturbance)
             for c in study.controllers]
@@ -219,7 +220,7 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
     library's C, as `run_sample` makes them."""
     lib = lib or _library(study.structure)
     out: list[list[dict] | None] = []
-    jobs, owners = [], []
+    jobs, owners, seeds = [], [], []
     for i in indices:
         prepared = _prepare(study, int(i), lib)
         if isinstance(prepared, list):
@@ -230,13 +231,28 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
         for c in study.controllers:
             jobs.append((p, op, c, disturbance, design))
             owners.append((len(out) - 1, row))
+            seeds.append(_noise_seed(study, int(i)))
     trajectories = simulate_batch(lib, jobs, study.t_end, study.dt, study.min_gap,
                                   tick=study.tick, speed_gain=study.speed_gain,
-                                  force_budget=study.force_budget, threads=threads)
+                                  force_budget=study.force_budget, threads=threads,
+                                  seeds=seeds)
     runs: dict[int, list[dict]] = {}
     for (k, row), (p, op, c, d, _), traj in zip(owners, jobs, trajectories, strict=True):
         runs.setdefault(k, []).append(_run_row(study, lib, p, row, c, traj, op, d))
     return [r for k, rows in enumerate(out) for r in (rows if rows is not None else runs[k])]
+
+
+def _noise_seed(study: Study, index: int) -> int:
+    """Sample ``index``'s sensor noise seed (a run on the sensors): from (seed, index) alone,
+    a stream apart from the sample's draws."""
+    return int(np.random.SeedSequence(study.seed, spawn_key=(index, 1)).generate_state(1)[0])
+
+
+def _sample_tick(study: Study, index: int):
+    """The study's tick for sample ``index``: at a `SensedTick`, with the sample's own noise."""
+    tick = study.tick
+    return replace(tick, seed=_noise_seed(study, index)) if isinstance(tick, SensedTick) \
+        else tick
 
 
 def _prepare(study: Study, index: int, lib):

@@ -8,8 +8,10 @@ the steady-state Kalman filter at the tick on the ZOH model with the delay and t
 on its commands in flight and on its prediction of the lagged forces), the command applied
 after the tick's delay and saturated at each array's force budget.
 
-This is a Python loop around the C plant and the C measurement equations, not the generated
-output-feedback tick (issue 49's C side): the same equations, run here.
+`noisy_hold` is a Python loop around the C plant and the C measurement equations, the
+design's equations written out apart from the firmware's C: the reference the firmware's own
+sense tick is held against (tests/test_sensed.py). The build's holds fly that sense tick
+(`sensed_holds`, `simulate --loop sensed`).
 
 A hold at one speed from trim (the estimate starts at trim too): what the sensors' noise
 alone costs. Metrics: each array's control force command, RMS and peak, and the share of
@@ -27,12 +29,14 @@ variance), a process disturbance.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from maglevgen.analyses.envelope import envelope_points, schedule_setting
 from maglevgen.analyses.loop import loop_plant
+from maglevgen.analyses.sim_loop import estimation_error, reading_noise, run_loop
+from maglevgen.analyses.simulate import simulate
 from maglevgen.carriage import structure_of
 from maglevgen.control import controller as registered_controller
 from maglevgen.control.estimation import (
@@ -48,7 +52,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.runtime.ffi import GeneratedFunctionError
 
 __all__ = ["BUILD_HOLD", "HOLD_SPEED", "NOISE_BUDGET_SHARE", "NOISE_FORCE_SHARE", "NOISE_SCALES",
-           "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds"]
+           "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds", "sensed_holds"]
 
 #: the build's noisy holds: their length [s], the speed held besides the envelope's ends
 #: [m/s], and the sensor noise scales (the file's noise, and five times it)
@@ -87,6 +91,8 @@ class NoisyHold:
     settled: bool = True  # stationary (SETTLED)
     seconds: float = 0.0  # [s] wall-clock time of the run
     diverged: float | None = None  # [s] when the run stopped (module docstring), None: ran
+    # [m] each array's gap after each tick (ticks x arrays): the run's gaps, for a comparison
+    gap_series: np.ndarray | None = None
 
     @property
     def worst_share(self) -> float:
@@ -190,23 +196,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     n5 = T.shape[1]
     n_cmd = K_c.shape[0]
     meas = measurement_model(lib, p, op, layout)
-    s = params.sensors
-    rng = np.random.default_rng(seed)
-    sigma = np.sqrt(layout.variances) * noise_scale
     n_gap = len(layout.gaps)
-    bias = np.zeros(len(layout.names))
-    if s.imu is not None:  # each axis's in-run bias, its sign drawn once per run
-        bias[n_gap:n_gap + 3] = s.imu.gyro_bias * rng.choice((-1.0, 1.0), 3)
-        bias[n_gap + 3:n_gap + 6] = s.imu.accel_bias * rng.choice((-1.0, 1.0), 3)
-    bias *= noise_scale
-    step = np.zeros(len(layout.names))
-    if s.gap is not None:
-        step[:n_gap] = s.gap.resolution
-    if s.track is not None:
-        step[-1] = s.track.resolution
-    # the readings' white noise: the quantization is applied to the reading, so leave its
-    # share out of the drawn noise
-    white = np.sqrt(np.clip(sigma**2 - (step * noise_scale) ** 2 / 12, 0.0, None))
 
     dynamics = lib.function("maglev_dynamics")
     gap_fn, imu_fn = lib.function("maglev_gap_reading"), lib.function("maglev_imu_reading")
@@ -230,6 +220,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     n_steps = max(1, int(np.ceil(tick.period / RK4_MAX_STEP - 1e-9)))
     h = tick.period / n_steps
     n_ticks = round(t_end * tick.rate)
+    noise, q = reading_noise(params, layout, n_ticks, seed, noise_scale)
     forces = np.zeros((n_ticks, len(arrays)))
     gaps = np.zeros((n_ticks, len(arrays)))
     att = np.zeros((n_ticks, 3))
@@ -259,8 +250,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             y[n_gap:n_gap + 6] = np.concatenate([np.ravel(gyro), np.ravel(acc)])
         if layout.track:
             y[-1] = x[0]
-        y = y + bias + white * rng.standard_normal(len(y))
-        q = step * noise_scale
+        y = y + noise[k]
         y = np.where(q > 0, np.round(y / np.where(q > 0, q, 1.0)) * q, y)
         y_ref = meas.y_trim.copy()
         if layout.track:
@@ -336,7 +326,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
                  strict=True)),
         dict(zip(model.states, np.sqrt(np.mean(est_err**2, axis=0)).tolist(), strict=True)),
         dict(zip(model.states, predicted.tolist(), strict=True)), settled,
-        time.perf_counter() - start, diverged)
+        time.perf_counter() - start, diverged, gaps)
 
 
 def hold_speeds(v_min: float, v_max: float) -> tuple[float, ...]:
@@ -358,6 +348,65 @@ def noisy_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD_
                             noise_scale=scale, point=e, plant=loop_plant(op, setting),
                             integral_limit=setting.speed_integral_limit)
                  for op, e in zip(points, est, strict=True) for scale in NOISE_SCALES)
+
+
+def sensed_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
+                 seed: int = 1) -> tuple[NoisyHold, ...]:
+    """The build's noisy holds as the firmware flies them: at each of `hold_speeds` with each
+    of NOISE_SCALES, from the trim, the firmware's own sense tick compiled for the host
+    (`simulate --loop sensed`: maglevgen.analyses.sensed) on the plant's readings with the
+    noise of ``seed``, the lag and the delay. The metrics of `noisy_hold` from the run: each
+    array's commanded control force (what the budget limits), the gaps and the attitude at
+    each tick, and the sense tick's prediction error against the filter's a-priori sqrt(P)
+    (the state at the next tick less the prediction)."""
+
+    params = carriage.params
+    tick, k_v, budget = run_loop(carriage, lib, "sensed", seed)
+    points = envelope_points(carriage, lib, hold_speeds(v_min, v_max))
+    est = estimator_points(lib, carriage.p, params, points, float(params.actuators.time_constant))
+    n_steps = max(1, int(np.ceil(tick.period / RK4_MAX_STEP - 1e-9)))
+    dt = tick.period / n_steps
+    structure = _structure_arrays(params)
+    comps = [len(c) for _, c in structure]
+    first = np.cumsum([0, *comps])[:-1]
+    out = []
+    for op, e in zip(points, est, strict=True):
+        model, design = e.model, e.design
+        predicted = np.sqrt(np.clip(np.diag(design.P)[:len(model.states)], 0.0, None))
+        for scale in NOISE_SCALES:
+            start = time.perf_counter()
+            traj = simulate(lib, carriage.p, op, params.envelope.embedded_controller, t_end,
+                            dt, params.track.min_gap, {},
+                            tick=replace(tick, noise_scale=scale), speed_gain=k_v,
+                            force_budget=budget)
+            sense = traj.sensing
+            rows = traj.x.shape[0]
+            ticks = slice(0, rows, n_steps)
+            n_ticks = min(sense.rows, (rows - 1) // n_steps + 1)
+            cmd = sense.commands[:n_ticks, 1:]
+            forces = np.array([np.linalg.norm(cmd[:, f:f + n], axis=1)
+                               for f, n in zip(first, comps, strict=True)]).T
+            gaps = traj.gaps[ticks] - op.gaps
+            dev = np.linalg.norm(gaps, axis=1)
+            quarter = max(dev.size // 4, 1)
+            err = estimation_error(sense, traj.x, n_steps)
+            att = traj.x[ticks, 3:6] - op.x_trim[3:6]
+            ended = traj.c_status != 0
+            out.append(NoisyHold(
+                op.speed, t_end, scale, tuple(name for name, _ in structure),
+                np.sqrt(np.mean(forces**2, axis=0)), np.max(forces, axis=0),
+                np.mean(forces >= budget * (1 - 1e-9), axis=0), float(budget),
+                np.sqrt(np.mean(gaps**2, axis=0)), float(np.min(traj.gaps)),
+                dict(zip(("phi", "theta", "psi"), np.sqrt(np.mean(att**2, axis=0)).tolist(),
+                         strict=True)),
+                {s: float(np.sqrt(np.mean(err[:, cv.STATE_INDEX[s]] ** 2)))
+                 for s in model.states},
+                dict(zip(model.states, predicted.tolist(), strict=True)),
+                bool(not ended and np.sqrt(np.mean(dev[-quarter:] ** 2))
+                     <= SETTLED * np.sqrt(np.mean(dev[quarter:2 * quarter] ** 2))),
+                time.perf_counter() - start, float(traj.t[-1]) if ended else None,
+                traj.gaps[ticks][1:]))
+    return tuple(out)
 
 
 def _inputs(cmd: np.ndarray, T: np.ndarray) -> np.ndarray:

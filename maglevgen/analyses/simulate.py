@@ -10,9 +10,9 @@ on the lambdified SymPy model, as an independent check.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
@@ -22,10 +22,13 @@ from maglevgen.analyses.run_spec import RunSpec, RunVerdict, judge_run
 from maglevgen.analyses.sim_loop import (
     LOOPS,
     FirmwareTick,
+    SensedTick,
     control_loop,
     firmware_gains,
     firmware_loop,
     run_loop,
+    sensed_metrics,
+    sensing,
     speed_loop_gain,
 )
 from maglevgen.control import names as controller_names
@@ -49,6 +52,7 @@ from maglevgen.derive.conventions import DISTURBANCE, Q_STATES
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.runtime.library import BatchRun, Run, SimulationLibrary
+from maglevgen.runtime.sense import Sensing
 
 __all__ = [
     "CHUNK_STEPS",
@@ -163,6 +167,7 @@ class Trajectory:
     speed_gain: float = 0.0  # k_v of the speed loop [N s/m]
     force_budget: float | None = None  # [N] per array, None: no limit
     run_spec: RunSpec | None = None  # the limits the run is judged against (`spec_verdict`)
+    sensing: Sensing | None = None  # a run on the sensors: its readings and predictions
 
     @property
     def speed_error(self) -> float | None:
@@ -348,7 +353,7 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
     n_steps = _check_steps(t_end, dt)
     disturbance = DISTURBANCE if disturbance is None else disturbance
     first = hold_run(p, op, controller, dt, disturbance, tick, speed_gain, force_budget,
-                     controller_op)
+                     controller_op, n_steps)
     n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     xs, us, gs = [], [], []
     done, status, saturated = 0, 0, 0
@@ -375,21 +380,28 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
         x0 = x[-1]
     whole = Run(done, status, np.concatenate(xs), np.concatenate(us), np.concatenate(gs),
                 saturated)
-    return hold_trajectory(lib, p, op, controller, dt, min_gap, disturbance, whole, tick,
+    traj = hold_trajectory(lib, p, op, controller, dt, min_gap, disturbance, whole, tick,
                            speed_gain, force_budget)
+    traj.sensing = None if loop is None else loop.sense
+    return traj
 
 
 def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
              disturbance: dict[str, float], tick: Tick | None = None, speed_gain: float = 0.0,
              force_budget: float | None = None,
-             controller_op: OperatingPoint | None = None) -> BatchRun:
-    """maglev_simulate's inputs for `simulate`'s run (the disturbed trim of ``op``, the trim
-    drag, the gains and the reference of ``controller_op`` (default ``op``), p and the loop):
-    what `simulate_batch` runs."""
+             controller_op: OperatingPoint | None = None, n_steps: int = 0,
+             record: bool = True) -> BatchRun:
+    """maglev_simulate's inputs for `simulate`'s run of ``n_steps`` steps (the disturbed trim
+    of ``op``, the trim drag, the gains and the reference of ``controller_op`` (default
+    ``op``), p and the loop; at a `SensedTick`, the run's sensors and noise, each tick's
+    readings and prediction kept when ``record``): what `simulate_batch` runs."""
     design = op if controller_op is None else controller_op
     if isinstance(tick, FirmwareTick):
         gains = firmware_gains(design, controller, tick)
-        loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, design=gains)
+        sense = (sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
+                 if isinstance(tick, SensedTick) else None)
+        loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, design=gains,
+                            sense=sense)
         K_pos, K_rate = (k.ravel(order="F") for k in (gains.K_pos, gains.K_rate))
     else:
         loop = control_loop(dt, tick, speed_gain, force_budget, design.speed)
@@ -419,20 +431,29 @@ def hold_trajectory(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
 def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
                    t_end: float, dt: float, min_gap: float, tick: Tick | None = None,
                    speed_gain: float = 0.0, force_budget: float | None = None,
-                   threads: int = 0) -> list[Trajectory]:
+                   threads: int = 0, seeds: Sequence[int] | None = None) -> list[Trajectory]:
     """`simulate` of each job (p, op, controller, disturbance[, controller_op]), the runs in
     one call of the C batch driver on ``threads`` threads (0: every core): the same
-    trajectories, in order."""
+    trajectories, in order. At a `SensedTick` each run draws its own noise: from ``seeds``
+    (one per job), else the tick's seed plus the job's place."""
     n_steps = _check_steps(t_end, dt)
     if not jobs:
         return []
-    runs = [hold_run(p, op, c, dt, d, tick, speed_gain, force_budget, *design)
-            for p, op, c, d, *design in jobs]
+    seeds = seeds if seeds is not None else [
+        (tick.seed if isinstance(tick, SensedTick) else 0) + i for i in range(len(jobs))]
+    ticks = [replace(tick, seed=int(s)) if isinstance(tick, SensedTick) else tick
+             for s in seeds]
+    runs = [hold_run(p, op, c, dt, d, tk, speed_gain, force_budget, *design,
+                     n_steps=n_steps, record=False)
+            for (p, op, c, d, *design), tk in zip(jobs, ticks, strict=True)]
     op0 = jobs[0][1]
     done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
                               op0.gaps.size, threads)
-    return [hold_trajectory(lib, p, op, c, dt, min_gap, d, run, tick, speed_gain, force_budget)
-            for (p, op, c, d, *_), run in zip(jobs, done, strict=True)]
+    out = [hold_trajectory(lib, p, op, c, dt, min_gap, d, run, tk, speed_gain, force_budget)
+           for (p, op, c, d, *_), run, tk in zip(jobs, done, ticks, strict=True)]
+    for traj, r in zip(out, runs, strict=True):
+        traj.sensing = None if r.loop is None else r.loop.sense
+    return out
 
 
 def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: OperatingPoint,
@@ -463,7 +484,9 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
         raise InputError("launch with a speed loop: the commanded acceleration (the speed "
                          "reference's slope) is 0 while the thrust accelerates")
     n_steps = _check_steps(max_time, dt)
-    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed, accel)
+    sense = (sensing(tick, n_steps // tick.steps(dt) + 1, True, op.B.shape[1])
+             if isinstance(tick, SensedTick) else None)
+    loop = control_loop(dt, tick, speed_gain, force_budget, op.speed, accel, sense=sense)
     x0 = initial_state(op, disturbance, x_start)
     run = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps, schedule, p, min_gap,
                      op.allocation.shape[0] + 1, op.gaps.size, loop)
@@ -473,7 +496,7 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
                       dict(disturbance), scenario="launch",
                       speed_reference=np.minimum(op.speed + accel * t, v_end),
                       saturated_time=run.saturated_steps * dt, tick=tick,
-                      speed_gain=float(speed_gain), force_budget=force_budget)
+                      speed_gain=float(speed_gain), force_budget=force_budget, sensing=sense)
     traj.event = _contact_event(t, g, float(traj.speed[-1]), min_gap, status)
     # deviations from the scheduled reference (the trim at each sample's speed; the
     # accelerating trim for a schedule at the launch's acceleration)
@@ -605,7 +628,9 @@ def metrics(traj: Trajectory) -> dict:
         "axes": axes,
         # the run against [control.spec] (`spec_verdict`; None for a run without limits)
         "spec": None if (verdict := spec_verdict(traj)) is None else verdict.to_json(),
+        "sensing": sensed_metrics(traj),
     }
+
 
 
 # ------------------------------------------------------------------------------- the job
@@ -706,6 +731,14 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
+    if loop == "sensed":
+        embedded = carriage.params.envelope.embedded_controller
+        others = [c for c in controllers if c != embedded]
+        if others:
+            raise InputError(f"--loop sensed: the firmware's sense tick flies the embedded "
+                             f"controller ({embedded!r}, envelope.embedded_controller), not "
+                             f"{', '.join(map(repr, others))}; --loop firmware runs any "
+                             "controller on the exact state")
     if loop != "continuous":
         tick, speed_gain, force_budget = run_loop(carriage, lib, loop)
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run

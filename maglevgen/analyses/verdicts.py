@@ -186,18 +186,19 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
 
 def build_holds(carriage, lib, v_min: float, v_max: float, t_end: float = RUN_T_END
                 ) -> tuple[NoisyHold, ...]:
-    """The build's noisy holds (output_feedback.noisy_holds) over [v_min, v_max], their
+    """The build's noisy holds as the firmware flies them (output_feedback.sensed_holds: its
+    sense tick, compiled for the host, on the plant's noisy readings) over [v_min, v_max], their
     length BUILD_HOLD (20 s) scaled as the build's runs' ``t_end`` to RUN_T_END (a build with
     --t-end 1 holds for 2 s); none when the file has no [sensors] or they cannot observe what
     the controller needs or SciPy's DARE finds no filter (the sensing check fails the verdict
     then)."""
     if carriage.params.sensors is None:
         return ()
-    from maglevgen.analyses.output_feedback import BUILD_HOLD, noisy_holds
+    from maglevgen.analyses.output_feedback import BUILD_HOLD, sensed_holds
     from maglevgen.control.estimation import NoKalmanFilterError
 
     try:
-        return noisy_holds(carriage, lib, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
+        return sensed_holds(carriage, lib, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
     except (InputError, NoKalmanFilterError):  # estimation.check_observable, kalman
         return ()
 
@@ -269,7 +270,7 @@ def _hold_lines(holds: tuple[NoisyHold, ...], min_gap: float) -> list[VerdictLin
     speeds = ", ".join(dict.fromkeys(f"{h.speed:.4g}" for h in holds))
     scales = " and ".join(f"x {sc:g}" for sc, _ in _hold_groups(holds))
     subject = (f"noisy holds, {holds[0].t_end:g} s at {speeds} m/s, sensor noise {scales} "
-               "(Python loop around the C plant, not the generated tick)")
+               "(the firmware's sense tick on the plant's noisy readings)")
     bad = [f"x {h.noise_scale:g} at {h.speed:.4g} m/s: " + ", ".join(f)
            for h in holds if (f := h.failures(min_gap))]
     if bad:

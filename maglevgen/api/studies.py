@@ -69,11 +69,15 @@ class Studies(CarriageCore):
             Simulated time of ``hold`` [s] (default 10); ``launch`` runs until v_max.
         dt : float, optional
             RK4 step [s] (default 1e-3); refused above RK4's stability limit.
-        loop : {'firmware', 'continuous'}, optional
+        loop : {'firmware', 'sensed', 'continuous'}, optional
             ``firmware`` (default): the firmware tick's law at the tick of
             ``[control.spec]`` with its delay, each controller's gains on the loop as built
             (the ``spec`` design at the tick), the speed loop and the force budget, on the
-            plant with the actuator lag of ``[actuators]`` (``--loop``); ``continuous``: the
+            plant with the actuator lag of ``[actuators]``, the state measured exactly
+            (``--loop``); ``sensed``: the embedded controller as the firmware flies it on the
+            sensors of ``[sensors]``: the firmware's own C (its sense tick: the Kalman filter
+            and the law over its tables) compiled for the host, on the plant's readings with
+            their noise (seeded, reproducible), the lag and the delay; ``continuous``: the
             paper's law at every RK4 stage under the trim propulsion.
         disturbance : mapping of str to float, or sequence of str, optional
             The initial deviation from trim (``--disturbance``): state name to value
@@ -133,8 +137,9 @@ class Studies(CarriageCore):
             Simulated time of ``hold`` [s] (default 10; ``--t-end``).
         dt : float, optional
             RK4 step [s] (default 1e-3; ``--dt``).
-        loop : {'firmware', 'continuous'}, optional
-            How each controller runs (``--loop``; see `simulate`).
+        loop : {'firmware', 'sensed', 'continuous'}, optional
+            How each controller runs (``--loop``; see `simulate`); ``sensed`` flies the
+            embedded controller alone (``"all"`` is then that one).
         disturbance : mapping of str to float, or sequence of str, optional
             The initial deviation from trim (``--disturbance``; see `simulate`).
         check : bool, optional
@@ -187,6 +192,8 @@ class Studies(CarriageCore):
 
             check_writable(Path(out))  # before any work: a folder of the user's is refused
         controllers = controller_names() if controller == "all" else (controller,)
+        if loop == "sensed" and controller == "all":  # the firmware flies one controller
+            controllers = (self._carriage.params.envelope.embedded_controller,)
         # the library if this carriage has built it (cached_property's entry), else the one
         # run_scenarios builds after checking its options: bad input stays the only line
         lib = self.__dict__.get("_lib")
@@ -327,8 +334,11 @@ class Studies(CarriageCore):
             an existing Dask scheduler (``"tcp://host:8786"``).
         out : str or pathlib.Path, optional
             Folder for ``samples.parquet``, ``montecarlo.md``/``.json`` and the plots.
-        loop : {'firmware', 'continuous'}, optional
-            How every run executes its controller (``--loop``; see `simulate`).
+        loop : {'firmware', 'sensed', 'continuous'}, optional
+            How every run executes its controller (``--loop``; see `simulate`); ``sensed``:
+            the embedded controller's sense tick on each sampled carriage, the sensor noise
+            of each sample from ``SeedSequence(seed, spawn_key=(i, 1))`` (not with
+            ``redesign``).
         progress : bool, optional
             Announce the study once the arguments are checked, the slow steps on stderr,
             and the runs' rate (a progress bar on a terminal).
@@ -385,6 +395,16 @@ class Studies(CarriageCore):
             steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
                            "library and the study first")
         controllers = controller_names() if choice == "all" else (choice,)
+        if loop == "sensed":  # the firmware's sense tick: its one controller, its tables
+            embedded = self.params.envelope.embedded_controller
+            if choice == "all":
+                controllers = (embedded,)
+            elif choice != embedded:
+                raise InputError(f"--loop sensed: the firmware's sense tick flies the embedded "
+                                 f"controller ({embedded!r}), not {choice!r}")
+            if redesign:
+                raise InputError("--redesign with --loop sensed: the firmware's tables are the "
+                                 "nominal carriage's (a re-design per sample is not flown)")
         lib = self._lib
         study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
                            *run_loop(self._carriage, lib, loop),

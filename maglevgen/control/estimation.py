@@ -28,7 +28,7 @@ import scipy.linalg
 from maglevgen.control.lqr import solve_dare
 from maglevgen.control.operating import OperatingPoint
 from maglevgen.control.sampled import LOOP_STATES, Tick, delay_augmented, zoh
-from maglevgen.control.schedule import GainTable
+from maglevgen.control.schedule import GAIN_TABLE_BOUND, GainTable, field_scales, field_slices
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
@@ -40,7 +40,9 @@ __all__ = [
     "M_DROPPED_SHARE",
     "NEEDED_STATES",
     "NULL_SPACE_SHARE",
+    "OWN_SCALE_FLOOR",
     "TRACK_RANGE",
+    "TRIM_READING_SHARE",
     "EstimatorModel",
     "EstimatorPoint",
     "GapSensorGeometry",
@@ -70,6 +72,7 @@ __all__ = [
     "reading_ranges",
     "sense_fields",
     "sense_plants",
+    "sense_scales",
     "sense_table",
     "whole_loop",
     "why_blind",
@@ -750,5 +753,48 @@ def sense_table(lib, p: np.ndarray, params, operating_at, v_min: float, v_max: f
     n_states = len(cv.STATES) - (0 if layout.track else 1)
     n_inputs = operating_at(v_min).B.shape[1]
     n_lag = n_inputs - 1 if tau > 0 else 0
+    sigma = np.sqrt(layout.variances)
+
+    def scales(exact: np.ndarray, fields: tuple[tuple[str, int], ...]) -> np.ndarray:
+        return sense_scales(exact, fields, sigma)
+
     return GainTable.fit(rows, v_min, v_max,
-                         sense_fields(n_states, n_lag, n_inputs, len(layout.names)))
+                         sense_fields(n_states, n_lag, n_inputs, len(layout.names)),
+                         value_scale=scales)
+
+
+#: a reading's row (column) of C, D or M smaller than this share of its field's largest
+#: value everywhere is measured against the field's (its values do not matter below that)
+OWN_SCALE_FLOOR = 1e-6
+
+
+#: the sense table's readings at trim: each within this share of the reading's noise (its
+#: standard deviation at the tick), an absolute bound (`sense_scales`)
+TRIM_READING_SHARE = 0.1
+
+
+def sense_scales(exact: np.ndarray, fields: tuple[tuple[str, int], ...],
+                 sigma: np.ndarray) -> np.ndarray:
+    """Each value's scale in the sense table's bound (schedule.GainTable.fit's
+    ``value_scale``; GAIN_TABLE_BOUND x scale is what a value may be off), from the dense
+    grid's ``exact`` rows and each reading's noise ``sigma`` at the tick. A field's largest
+    value is its values' measure (schedule.field_scales) where they share a unit, not where
+    they mix the readings': the readings at trim (gaps of 15 mm beside the accelerometer's
+    9.81 m/s^2, which made a gap's trim 0.18 mm off within the bound) are each bound to
+    TRIM_READING_SHARE of its noise; C's and D's rows and M's columns, one reading each, to
+    their own largest magnitude."""
+    scale = field_scales(exact, fields)
+    ny = sigma.size
+    for (name, n), (i, _) in zip(fields, field_slices(fields), strict=True):
+        block = np.max(np.abs(exact[:, i:i + n]), axis=0)
+        if name == "y_trim":
+            scale[i:i + n] = TRIM_READING_SHARE * sigma / GAIN_TABLE_BOUND
+        elif name in ("C", "D"):  # column-major ny x k: reading j's row is j, j + ny, ...
+            per = block.reshape(-1, ny).max(axis=0)
+            per = np.where(per > OWN_SCALE_FLOOR * scale[i], per, scale[i])
+            scale[i:i + n] = np.tile(per, n // ny)
+        elif name == "M":  # column-major k x ny: reading j's column is a run of k
+            per = block.reshape(ny, -1).max(axis=1)
+            per = np.where(per > OWN_SCALE_FLOOR * scale[i], per, scale[i])
+            scale[i:i + n] = np.repeat(per, n // ny)
+    return scale

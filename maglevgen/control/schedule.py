@@ -49,6 +49,7 @@ __all__ = [
     "Schedule",
     "accelerating_references",
     "field_errors",
+    "field_scales",
     "field_slices",
     "gain_table_row",
     "gain_table_sources",
@@ -255,17 +256,23 @@ def gain_table_row(op: OperatingPoint, controller: str, design: LoopDesign | Non
     return np.concatenate(row)
 
 
+def field_scales(exact: np.ndarray,
+                 fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS) -> np.ndarray:
+    """Each value's scale (GAIN_TABLE_BOUND's measure): its field's largest |exact| over the
+    rows (1 for a field zero everywhere)."""
+    return np.concatenate([np.full(n, np.max(np.abs(exact[:, i:i + n])) or 1.0)
+                           for i, n in field_slices(fields)])
+
+
 def field_errors(approx: np.ndarray, exact: np.ndarray,
-                 fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS) -> dict[str, float]:
-    """Each field's worst |approx - exact| over the rows, relative to the field's largest
-    |exact| (GAIN_TABLE_BOUND's measure)."""
-    out, i = {}, 0
-    for name, n in fields:
-        scale = float(np.max(np.abs(exact[:, i:i + n])))
-        err = float(np.max(np.abs(approx[:, i:i + n] - exact[:, i:i + n])))
-        out[name] = err / scale if scale > 0 else err
-        i += n
-    return out
+                 fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS,
+                 scale: np.ndarray | None = None) -> dict[str, float]:
+    """Each field's worst |approx - exact| over the rows, relative to each value's ``scale``
+    (default `field_scales`: the field's largest |exact|; GAIN_TABLE_BOUND's measure)."""
+    scale = field_scales(exact, fields) if scale is None else scale
+    rel = np.abs(approx - exact) / scale
+    return {name: float(np.max(rel[:, i:i + n])) for (name, _), (i, n)
+            in zip(fields, field_slices(fields), strict=True)}
 
 
 @dataclass(frozen=True)
@@ -305,7 +312,7 @@ class GainTable:
     @classmethod
     def fit(cls, row_at, v_min: float, v_max: float,
             fields: tuple[tuple[str, int], ...] = GAIN_TABLE_FIELDS,
-            drop_share: float = DROP_SHARE) -> GainTable:
+            drop_share: float = DROP_SHARE, value_scale=None) -> GainTable:
         """The smallest table of GAIN_TABLE_NODES within GAIN_TABLE_BOUND on a dense grid
         (the largest when none is); ``row_at(speeds)`` gives the exact rows of ``fields``.
         Each value's trailing terms are dropped (zeroed) while what they add stays within
@@ -313,7 +320,9 @@ class GainTable:
         0: none dropped): the C's Clenshaw runs over a value's own terms, and a value
         constant over speed to that keeps one (the sense tick's code holds it as a literal);
         the node count is the undropped fit's, and the terms are dropped only where the
-        table stays within the bound (or, past it, within the undropped table's error)."""
+        table stays within the bound (or, past it, within the undropped table's error).
+        ``value_scale(exact)``: each value's scale from the dense grid's exact rows (default
+        `field_scales`), where a field's largest value is not the measure of its values."""
         from numpy.polynomial import chebyshev
 
         dense = np.linspace(v_min, v_max, DENSE_GRID)
@@ -321,8 +330,7 @@ class GainTable:
         # values that vanish over the envelope (by the carriage's symmetry: the lateral and
         # vertical axes' cross gains, the trim's y, phi, psi) are not stored: a zero output
         # within ZERO_VALUE of each field's scale, counted in the errors like any other
-        scale = np.concatenate([np.full(n, np.max(np.abs(exact[:, i:i + n])) or 1.0)
-                                for i, n in field_slices(fields)])
+        scale = (field_scales if value_scale is None else value_scale)(exact, fields)
         stored = tuple(int(j) for j in np.flatnonzero(np.max(np.abs(exact), axis=0)
                                                       > ZERO_VALUE * scale))
         table = None
@@ -333,7 +341,7 @@ class GainTable:
             mask[list(stored)] = True
             coeffs[:, ~mask] = 0.0
             table = cls(v_min, v_max, coeffs, {}, stored, fields)
-            errors = field_errors(table(dense), exact, fields)
+            errors = field_errors(table(dense), exact, fields, scale)
             table = cls(v_min, v_max, coeffs, errors, stored, fields)
             if max(errors.values()) <= GAIN_TABLE_BOUND:
                 break
@@ -344,7 +352,7 @@ class GainTable:
             coeffs = truncated(table.coeffs, cls.t_of(dense, v_min, v_max),
                                drop_share * GAIN_TABLE_BOUND * scale)
             errors = field_errors(cls(v_min, v_max, coeffs, {}, stored, fields)(dense), exact,
-                                  fields)
+                                  fields, scale)
             if max(errors.values()) <= max(GAIN_TABLE_BOUND, max(table.errors.values())):
                 table = cls(v_min, v_max, coeffs, errors, stored, fields)
         return table

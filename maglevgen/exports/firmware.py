@@ -1,20 +1,9 @@
 """`maglevgen firmware`: the folder a user builds for the board.
 
-The single-precision C of the embedded controller's path only (``envelope.embedded_controller``):
-the table schedule (maglev_gain_table.c, `maglevgen.control.schedule.gain_table_sources`), the
-controller's per-tick function and the allocation (maglev_functions.c, baked, with the checked
-entry points of maglevgen.codegen.checks), the tick that joins them with the speed loop and the
-force budget (maglev_tick.c), an example main.c, a CMake project with a Cortex-M4F toolchain
-file, the MISRA deviation list and a README saying what to call when. The host/HIL files
-(Newton trim, spline schedule, maglev_simulate) stay with `maglevgen generate`.
-
-With ``[sensors]`` the tick also has maglev_sense_tick (the Kalman filter on the readings, the
-same law): its estimator's products are generated straight-line over the values its table
-(maglev_sense_table.c) stores, a value constant over speed as a literal (`_sense_code`); its
-varying values are cached in the caller's state and refreshed a slice a tick over
-SENSE_REFRESH_TICKS ticks (`refresh_slices`), at a cost against evaluating the table every
-tick that `sense_refresh_bound` states in maglev_tick.h. With the plant, the QEMU loop flies
-maglev_sense_tick on the plant's readings too (`READINGS`).
+What the folder holds and how it is rendered: maglevgen.analyses.firmware_sources. Here: the
+loop and tables the build's verification used, computed from the compiled simulation library,
+and the tick's measured cost quoted in the README. The host/HIL files (Newton trim, spline
+schedule, maglev_simulate) stay with `maglevgen generate`.
 
 Writers return (file name, text) pairs; `maglevgen.infrastructure.output.write_output` alone
 touches the disk.
@@ -22,65 +11,32 @@ touches the disk.
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
-from importlib import resources
 from typing import TYPE_CHECKING
 
-import numpy as np
-
-from maglevgen.analyses.envelope import (
-    envelope_points,
-    gain_table,
-    resolve_range,
-    schedule_setting,
+from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
+from maglevgen.analyses.firmware_sources import (
+    FIRMWARE_FLAGS,
+    QEMU_TICKS,
+    SENSE_REFRESH_TICKS,
+    TICK_INPUTS,
+    FirmwareLoop,
+    SenseSchedule,
+    firmware_functions,
+    refresh_slices,
+    render_firmware,
+    sense_refresh_bound,
+    sense_schedule,
 )
-from maglevgen.codegen.checks import check_entries, error_defines
-from maglevgen.codegen.cpass import generate_c
-from maglevgen.codegen.emit import c_literal, render
-from maglevgen.codegen.functions import bake_all, build_functions
-from maglevgen.codegen.generate import function_table
-from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_context, template_env
-from maglevgen.codegen.misra import deviation_list
-from maglevgen.control import controller as registered
-from maglevgen.control import estimation as est
-from maglevgen.control.schedule import (
-    GainTable,
-    field_slices,
-    gain_table_sources,
-    value_terms,
-    varying_values,
-)
-from maglevgen.derive import conventions as cv
-from maglevgen.errors import InputError
+from maglevgen.codegen.interface import GenerateOptions
 from maglevgen.runtime.library import simulation_library
-from maglevgen.version import __version__
 
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["FIRMWARE_FLAGS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "FirmwareLoop", "SenseSchedule",
-           "firmware_files", "firmware_functions", "firmware_loop", "refresh_slices",
-           "render_firmware", "sense_refresh_bound", "sense_schedule"]
-
-#: the Cortex-M4F flags of the folder's README and toolchain file (the firmware build)
-FIRMWARE_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",
-                  "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wdouble-promotion",
-                  "-Wfloat-conversion", "-Werror", "-fno-math-errno")
-
-#: each per-tick function's inputs after the state x: the gain table's fields they read
-#: (maglevgen.control.schedule.GAIN_TABLE_FIELDS), in the function's input order
-TICK_INPUTS = {
-    "maglev_coupled_control": ("K_pos", "K_rate", "a_ref"),
-    "maglev_lqr_control": ("K", "a_ref"),
-    "maglev_damping_control": ("c_damping",),
-}
-ALLOCATE = "maglev_allocate"
-#: the sensors' measurement functions (codegen.functions): the QEMU loop's readings of the plant
-READINGS = ("maglev_gap_reading", "maglev_imu_reading")
-PLANT = "maglev_dynamics"  # --with-plant: the float32 plant in the image (HIL/SIL)
-#: run_qemu.sh's closed loop: ticks from the trim with the heave 1 mm off (1 s at 1 kHz)
-QEMU_TICKS = 1000
+__all__ = ["FIRMWARE_FLAGS", "MEASURED", "QEMU_TICKS", "SENSE_REFRESH_TICKS", "TICK_INPUTS",
+           "FirmwareLoop", "SenseSchedule", "firmware_files", "firmware_functions",
+           "firmware_loop", "refresh_slices", "render_firmware", "sense_refresh_bound",
+           "sense_schedule"]
 
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README
@@ -89,397 +45,18 @@ MEASURED: dict = {
     "stack_bytes": 792,
     # maglev_sense_tick: the estimator's products over its table's nonzero values, a slice of
     # its cache's refresh, the law (52696 instructions, 51 % with the table every tick)
-    "sense": {"instructions": 8674, "cycles": 14706, "share_percent": 8.75,
-              "stack_bytes": 1224},
+    "sense": {"instructions": 8927, "cycles": 15252, "share_percent": 9.08,
+              "stack_bytes": 1176},
     "method": "every instruction QEMU mps2-an386 executes, newlib's sinf/cosf included",
     "cycle_model": "Cortex-M4/FPv4-SP instruction timings, zero wait states",
 }
 
 
-@dataclass(frozen=True)
-class FirmwareLoop:
-    """How the firmware runs the controller ([control.spec] and the envelope's speed loop)."""
-
-    tick_rate: float  # [Hz]
-    delay_ticks: int  # ticks from computing a command to applying it
-    speed_gain: float  # k_v [N s/m] (`maglevgen.analyses.loop.loop_setting`)
-    force_budget: float  # [N] per array
-    actuator_lag: float = 0.0  # [s] tau of each array force's lag ([actuators])
-    speed_integral: float = 0.0  # k_i [N/m] (`LoopSetting.speed_integral`)
-    # [N] |k_i xi| at most this (`LoopSetting.speed_integral_limit`): finite where k_i > 0
-    speed_integral_limit: float = float("inf")
-
-    def __post_init__(self) -> None:
-        if self.speed_integral > 0 and not np.isfinite(self.speed_integral_limit):
-            raise ValueError("the firmware's speed integral needs a finite limit "
-                             f"(speed_integral_limit {self.speed_integral_limit!r} N)")
-
-    @property
-    def integral_limit(self) -> float:
-        """The limit the C clamps |k_i xi| at: the given one, 0 without an integral."""
-        return float(self.speed_integral_limit) if self.speed_integral > 0 else 0.0
-
-    @property
-    def lag_pole(self) -> float:
-        """a = exp(-h/tau): the lag over one held tick (0 without a lag; `plant.LoopPlant`)."""
-        return float(np.exp(-1.0 / (self.tick_rate * self.actuator_lag))) \
-            if self.actuator_lag > 0 else 0.0
-
-
-#: the sense tick's readings at most: one bit each in C's unsigned long (32 bits at least)
-MAX_READINGS = 32
-#: what each kind of reading is, its unit (the sense tick's header and the manifest)
-READING_KINDS = {"gap": ("m", "gap sensor {name}: the gap along its face's normal"),
-                 "gyro": ("rad/s", "gyro: body rate about {axis}"),
-                 "accel": ("m/s^2", "accelerometer: specific force along body {axis}"),
-                 "track": ("m", "track sensor: position along the track")}
-
-
-@dataclass(frozen=True)
-class SenseSchedule:
-    """What the sense tick needs beyond the law's: the estimator's table over speed
-    (`maglevgen.control.estimation.sense_table`), its plant states, lagged forces, readings
-    (names, plausible ranges) and the gap readings' count (the first ones)."""
-
-    table: GainTable
-    states: tuple[str, ...]  # the estimator's plant states (EstimatorModel.states)
-    n_lag: int
-    readings: tuple[str, ...]  # SensorLayout.names
-    ranges: np.ndarray  # (n_readings, 2) estimation.reading_ranges
-    n_gap: int
-
-    def reading_rows(self) -> list[dict]:
-        """Each reading: its name, index, unit, what it is and its plausible range."""
-        out = []
-        for i, name in enumerate(self.readings):
-            kind, _, rest = name.partition("_")
-            unit, what = READING_KINDS[kind]
-            axis = {"p": "x", "q": "y", "r": "z"}.get(rest, rest)
-            out.append({"name": name, "index": i, "unit": unit,
-                        "what": what.format(name=rest, axis=axis),
-                        "lo": float(self.ranges[i, 0]), "hi": float(self.ranges[i, 1])})
-        return out
-
-    def manifest(self) -> dict:
-        return {"function": "maglev_sense_tick", "init": "maglev_sense_init",
-                "readings": self.reading_rows(), "estimator_states": list(self.states),
-                "lagged_forces": self.n_lag,
-                "plausible_ranges": {"gap": f"[0, {est.GAP_RANGE:g} x nominal gap]",
-                                     "gyro_rad_s": est.GYRO_RANGE,
-                                     "accel_m_s2": est.ACCEL_RANGE,
-                                     "track_m": est.TRACK_RANGE},
-                "table": self.table.manifest()}
-
-
-def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
-                   loop: FirmwareLoop) -> SenseSchedule | None:
-    """The sense tick's schedule of ``carriage`` over [v_min, v_max] with ``loop``'s delay
-    and actuator lag; None when the parameter file has no [sensors] (no sense tick)."""
-    params = carriage.params
-    if params.sensors is None:
-        return None
-    layout = est.SensorLayout.of(params)
-    if len(layout.names) > MAX_READINGS:
-        raise InputError(f"sensors: {len(layout.names)} readings; the sense tick's flags "
-                         f"word holds {MAX_READINGS} (fewer gap sensors)")
-    table = est.sense_table(lib, carriage.p, params,
-                            lambda v: envelope_points(carriage, lib, [v])[0], v_min, v_max,
-                            loop.actuator_lag, loop.delay_ticks)
-    n_lag = len(carriage.model.input_names) - 1 if loop.actuator_lag > 0 else 0
-    states = tuple(s for s in cv.STATE_NAMES if layout.track or s != "x")
-    return SenseSchedule(table, states, n_lag, layout.names, est.reading_ranges(layout),
-                         len(layout.gaps))
-
-
-#: the sense tick's refresh of its estimator's varying values: one slice a tick into the
-#: buffer not in use, the buffers swapped when it is full (every this many ticks)
-SENSE_REFRESH_TICKS = 4
-
-
-def sense_refresh_bound(table: GainTable, acceleration: float, tick_rate: float,
-                        grid: int = 2001) -> dict[str, float]:
-    """What the sense tick's refresh costs against evaluating its table every tick: the values
-    in use were evaluated at the scheduled speed of at most 2 x SENSE_REFRESH_TICKS ticks
-    before (a refresh's ticks, then the ticks it is in use), when the speed moves by at most
-    ``acceleration`` [m/s^2] a second; per field, the largest change of any of its values over
-    that speed change on ``grid`` speeds, relative to the field's largest magnitude (the
-    table's error measure)."""
-
-    dv = acceleration * 2 * SENSE_REFRESH_TICKS / tick_rate
-    v = np.linspace(table.v_min, table.v_max, grid)
-    rows = table(v)
-    moved = np.abs(table(np.minimum(v + dv, table.v_max)) - rows)
-    return {name: float(np.max(moved[:, i:i + n]) / (np.max(np.abs(rows[:, i:i + n])) or 1.0))
-            for (name, _), (i, n) in zip(table.fields, field_slices(table.fields), strict=True)}
-
-
-def refresh_slices(table: GainTable) -> list[int]:
-    """The refresh's slices: slice k evaluates the varying values [out[k], out[k + 1]) (the
-    order of `schedule.varying_values`), SENSE_REFRESH_TICKS of them of about equal cost
-    (a value's Clenshaw steps, its terms - 1, and about as much again for the value)."""
-
-    terms = value_terms(table.coeffs)[varying_values(table)]
-    cost = np.concatenate([[0.0], np.cumsum(terms)])  # (terms - 1) + 1 a value
-    goals = cost[-1] * np.arange(1, SENSE_REFRESH_TICKS) / SENSE_REFRESH_TICKS
-    cuts = [int(np.argmin(np.abs(cost - g))) for g in goals]
-    return [0, *cuts, len(terms)]
-
-
-def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list]:
-    """The estimator's products as straight-line C over the values its table stores (a
-    sparsity fixed at generation: a value zero over the envelope is no term), a one-term value
-    a constant, a varying one tab[k] (`schedule.varying_values`: the refresh's cache). Each
-    sum in the order of the dense loops it replaces (ascending index), so the result is theirs
-    bit for bit (a zero term adds +-0)."""
-
-    table = sense.table
-    first = {name: i for (name, _), (i, _) in zip(table.fields, field_slices(table.fields),
-                                                  strict=True)}
-    terms = value_terms(table.coeffs)
-    vary = {j: k for k, j in enumerate(varying_values(table))}
-    stored = set(table.stored)
-    ne, nl, ny = len(sense.states), sense.n_lag, len(sense.readings)
-    nc = ne + nl
-    idx = [cv.STATE_INDEX[s] for s in sense.states]
-
-    def val(field: str, i: int) -> str | None:
-        j = first[field] + i
-        if j not in stored:
-            return None
-        if terms[j] > 1:
-            return f"tab[{vary[j]}]"
-        return f"R({c_literal(float(table.coeffs[0, j]))})"
-
-    trim = [f"x_trim[{i}] = {val('x_trim', i) or 'R(0)'};" for i in range(len(cv.STATE_NAMES))]
-    innov = []
-    for j in range(ny):
-        yt = val("y_trim", j)
-        innov.append(f"acc = y[{j}] - {yt};" if yt else f"acc = y[{j}];")
-        innov += [f"acc -= {c} * dz[{i}];" for i in range(nc) if (c := val("C", j + ny * i))]
-        innov += [f"acc -= {d} * du[{i}];" for i in range(nu) if (d := val("D", j + ny * i))]
-        innov.append(f"e[{j}] = acc;")
-    update = []
-    for i in range(ne):
-        update.append("acc = R(0);")
-        update += [f"acc += {m} * e[{j}];" for j in range(ny) if (m := val("M", i + ne * j))]
-        update += [f"x_hat[{idx[i]}] += acc;", f"dz[{i}] += acc;"]
-    predict = []
-    for i in range(ne):
-        predict.append(f"acc = dz[{i}];")
-        predict += [f"acc += {a} * dz[{j}];" for j in range(nc)
-                    if (a := val("Phi_minus_I", i + ne * j))]
-        predict += [f"acc += {b} * du[{j}];" for j in range(nu)
-                    if (b := val("Gamma", i + ne * j))]
-        predict.append(f"x_pred[{idx[i]}] = x_trim[{idx[i]}] + acc;")
-    pose = [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")]
-    pose_rows = [f"cp[{k + sense.n_gap * i}] = {val('C', k + ny * pose[i]) or 'R(0)'};"
-                 for i in range(len(pose)) for k in range(sense.n_gap)]
-    pose_rows += [f"yt[{k}] = {val('y_trim', k) or 'R(0)'};" for k in range(sense.n_gap)]
-    # the refresh's slices: each varying value's Clenshaw written out with its coefficients
-    # (maglev_sense_schedule_varying's operations; its first step, (t2 0 - 0) + c = c, taken)
-    refresh: list[list[str]] = []
-    bounds = refresh_slices(table)
-    order = varying_values(table)
-    for k in range(len(bounds) - 1):
-        lines = []
-        for i in range(bounds[k], bounds[k + 1]):
-            cs = [c_literal(float(x)) for x in table.coeffs[:terms[order[i]], order[i]]]
-            lines += [f"b1 = R({cs[-1]});", "b2 = R(0);"]
-            for ck in reversed(cs[1:-1]):
-                lines += [f"b0 = ((t2 * b1) - b2) + R({ck});", "b2 = b1;", "b1 = b0;"]
-            lines.append(f"tab[{i}] = ((t * b1) - b2) + R({cs[0]});")
-        refresh.append(lines)
-    return {"trim": trim, "f_prop": [val("F_prop", 0) or "R(0)"], "innov": innov,
-            "refresh": refresh,
-            "correct": update, "predict": predict, "pose_rows": pose_rows}
-
-
-def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: float,
-                   acceleration: float) -> dict:
-
-    names = sense.readings
-    return {"code": _sense_code(sense, nu), "n_vary": len(varying_values(sense.table)),
-            "refresh_ticks": SENSE_REFRESH_TICKS, "slices": refresh_slices(sense.table),
-            # maglev_sense_table.c's V_MIN, V_MAX, T_SCALE, T_OFFSET: the same text, so the
-            # same constants (gain_table_sources)
-            "v_min": c_literal(sense.table.v_min), "v_max": c_literal(sense.table.v_max),
-            "t_scale": c_literal(2.0 / (1.0 / sense.table.v_min - 1.0 / sense.table.v_max)),
-            "t_offset": c_literal((1.0 / sense.table.v_max + 1.0 / sense.table.v_min)
-                                  / (1.0 / sense.table.v_min - 1.0 / sense.table.v_max)),
-            "acceleration": acceleration,
-            "refresh_bound": sense_refresh_bound(sense.table, acceleration, tick_rate),
-            "n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
-            "state_index": [cv.STATE_INDEX[s] for s in sense.states],
-            "pose_index": [sense.states.index(s) for s in ("y", "z", "phi", "theta", "psi")],
-            "track_index": names.index("track_x") if "track_x" in names else -1,
-            "readings": sense.reading_rows(),
-            "lo": [c_literal(float(v), precision) for v in sense.ranges[:, 0]],
-            "hi": [c_literal(float(v), precision) for v in sense.ranges[:, 1]],
-            "gap_range": est.GAP_RANGE, "gyro_range": est.GYRO_RANGE,
-            "accel_range": est.ACCEL_RANGE, "track_range": est.TRACK_RANGE}
-
-
-def firmware_functions(controller_tick: str, with_plant: bool = False,
-                       readings: bool = False) -> tuple[str, ...]:
-    """The generated functions of the firmware folder, in maglev_functions.c's order;
-    ``readings`` (with the plant): the sensors' measurement functions too (the QEMU loop's
-    sense tick reads the plant through them)."""
-    if controller_tick not in TICK_INPUTS:
-        raise ValueError(f"no firmware tick for {controller_tick!r}")
-    return (controller_tick, ALLOCATE) + ((PLANT,) if with_plant else ()) + (
-        READINGS if with_plant and readings else ())
-
-
-def _sense_plant(carriage: DerivedCarriage, precision: str) -> dict:
-    """The QEMU loop's sensors on the plant: each gap sensor's body point, face normal and
-    nominal gap, the IMU's point, each reading's noise (its standard deviation at the tick:
-    estimation.SensorLayout), as C literals."""
-    layout = est.SensorLayout.of(carriage.params)
-
-    def lits(v) -> str:
-        return ", ".join(c_literal(float(x), precision) for x in np.ravel(v))
-
-    return {"gaps": [{"point": lits(g.point), "normal": lits(g.normal),
-                      "nominal": c_literal(g.nominal_gap, precision)} for g in layout.gaps],
-            "imu_point": None if layout.imu_point is None else lits(layout.imu_point),
-            "sigma": lits(np.sqrt(layout.variances)), "track": bool(layout.track)}
-
-
-def _banner(sha256: str, precision: str, with_plant: bool) -> str:
-    extra = ("" if precision == "single" else f" --precision {precision}") + (
-        " --with-plant" if with_plant else "")
-    return (f"Generated by maglevgen {__version__} (`maglevgen firmware{extra}`) from parameter "
-            f"file sha256 {sha256}. Do not edit: regenerate.")
-
-
-def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareLoop,
-                    precision: str = "single", with_plant: bool = False,
-                    measured: dict | None = None, verdict: dict | None = None,
-                    sense: SenseSchedule | None = None) -> dict[str, str]:
-    """Every file of the firmware folder (nothing written).
-
-    ``table``: the table schedule of the embedded controller over the envelope
-    (`maglevgen.analyses.envelope.gain_table`); ``loop``: its tick, delay, speed-loop gain and force
-    budget; ``precision``: "single" for the board, "double" for a host check of the same
-    code; ``with_plant``: maglev_dynamics in the same image too (a closed loop on the target,
-    e.g. under QEMU); ``measured``: the tick's cost on the Cortex-M4 at the default carriage
-    (BENCHMARKS.md), quoted in the README; ``verdict``: the embedded controller's
-    verification (`maglevgen.build.EmbeddedVerdict.to_json`; None: not checked, said so),
-    into the README and the manifest; ``sense``: the estimator's schedule
-    (`sense_schedule`; None: maglev_tick alone, ideal sensing).
-    """
-    opts = GenerateOptions(precision, "baked", "int32")
-    embedded = carriage.params.envelope.embedded_controller
-    tick_fn = registered(embedded).tick_function
-    if tick_fn is None or tick_fn not in TICK_INPUTS:
-        raise ValueError(f"the embedded controller {embedded!r} has no firmware tick")
-    names = firmware_functions(tick_fn, with_plant, sense is not None)
-    built = build_functions(carriage.model, precision=precision).functions
-    fns = [f for f in bake_all(tuple(built), carriage.p) if f.name() in names]
-    fns.sort(key=lambda f: names.index(f.name()))
-    text_banner = _banner(carriage.loaded.sha256, precision, with_plant)
-    sources = generate_c(fns, C_NAME, precision, int_type="int")
-    sources[f"{C_NAME}.c"] = check_entries(sources[f"{C_NAME}.c"], function_table(fns),
-                                           precision, False, "0")
-    files = {name: render("generated_file.j2", banner=text_banner, text=text)
-             for name, text in sources.items()}
-    fn_table = function_table(fns, files[f"{C_NAME}.c"])
-    ctx = interface_context(carriage, opts, fn_table, None)
-    ctx["banner"] = text_banner
-    env = template_env()
-    files["maglev.h"] = env.get_template("maglev.h.j2").render(ctx)
-    files.update(gain_table_sources(table, one_output="F_prop"))
-    if sense is not None:
-        files.update(gain_table_sources(
-            sense.table, "maglev_sense_table", "maglev_sense_schedule",
-            "MAGLEV_SENSE_SCHEDULE", "estimator schedule (the sense tick's)",
-            " * out[MAGLEV_SENSE_SCHEDULE_NOUT] = the estimator at v (maglev_tick.h's\n"
-            " * maglev_sense_tick): F_prop [N] (trim propulsion), x_trim (the trim state, its u\n"
-            " * less v), y_trim (the readings at trim), Phi_minus_I, Gamma, C, D and M (the\n"
-            " * update's gain), column-major, on the estimator's plant states and lagged forces,\n"
-            " * at the offsets above.", varying=True))
-
-    if "K_lag" not in dict(table.fields):
-        raise ValueError("the firmware's table carries the design at the tick "
-                         "(`maglevgen.analyses.envelope.gain_table`)")
-    offsets, i = {}, 0
-    for name, size in table.fields:
-        offsets[name] = i
-        i += size
-    sizes = {k: max(f[f"sz_{k}"] for f in fn_table if f["name"] in (tick_fn, ALLOCATE))
-             for k in ("arg", "res", "iw", "w")}
-    structure = carriage.model.structure
-    cost = measured or {}
-    tick_ctx = {
-        "ticks": QEMU_TICKS,
-        "banner": text_banner, "precision": precision, "controller": embedded,
-        "controller_title": registered(embedded).title, "tick_function": tick_fn,
-        "tick_inputs": [name.upper() for name in TICK_INPUTS[tick_fn]],
-        "tick_rate": c_literal(loop.tick_rate, precision), "tick_rate_value": loop.tick_rate,
-        "delay_ticks": int(loop.delay_ticks),
-        "k_v": c_literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
-        "k_i": c_literal(loop.speed_integral, precision),
-        "i_max": c_literal(loop.integral_limit, precision),
-        "tick_period": c_literal(1.0 / loop.tick_rate, precision),
-        "lag_pole": c_literal(loop.lag_pole, precision),
-        "lag_gain": c_literal(1.0 - loop.lag_pole, precision), "tau": loop.actuator_lag,
-        "force_budget": c_literal(loop.force_budget, precision),
-        "force_budget_value": loop.force_budget,
-        "n_arrays": len(structure.arrays), "array_of_force": structure.array_of_force,
-        "sz": sizes, "nu": len(carriage.model.input_names), "offsets": offsets,
-        "v_min": table.v_min, "v_max": table.v_max, "nodes": len(table.coeffs),
-        "table_error": max(table.errors.values()), "with_plant": with_plant,
-        "flags": " ".join(FIRMWARE_FLAGS), "functions": [f["name"] for f in fn_table],
-        "cost": cost, "error_defines": error_defines(),
-        "sense_plant": (_sense_plant(carriage, precision) if sense is not None and with_plant
-                        else None),
-        "sense": None if sense is None else _sense_context(
-            sense, precision, len(carriage.model.input_names), loop.tick_rate,
-            carriage.params.envelope.launch_acceleration),
-        "sense_nodes": 0 if sense is None else len(sense.table.coeffs),
-        "sense_error": 0.0 if sense is None else max(sense.table.errors.values()),
-        "verdict": (verdict or {}).get("verdict", "not checked (rendered without "
-                                       "`maglevgen firmware`'s verification)"),
-    }
-    for name in ("maglev_tick.h", "maglev_tick.c", "main.c", "CMakeLists.txt",
-                 "cortex-m4f.cmake", "README.md"):
-        files[name] = env.get_template(f"firmware_{name}.j2").render(tick_ctx)
-    if with_plant and precision == "single" and cost:
-        # the closed loop on an emulated Cortex-M4F: `sh run_qemu.sh` (QEMU_FILES)
-        files["qemu_loop.c"] = env.get_template("firmware_qemu_loop.c.j2").render(tick_ctx)
-        files["run_qemu.sh"] = env.get_template("firmware_run_qemu.sh.j2").render(tick_ctx)
-        for name in ("qemu_startup.c", "qemu_link.ld"):
-            files[name] = (resources.files("maglevgen.templates") / f"firmware_{name}").read_text()
-    files["MISRA_DEVIATIONS.md"] = deviation_list()
-    manifest = {
-        "generated_by": f"maglevgen {__version__}", "command": text_banner.split("`")[1],
-        "precision": precision, "parameters": "baked", "casadi_int": "int",
-        "params_sha256": carriage.loaded.sha256, "embedded_controller": embedded,
-        "tick": {"function": "maglev_tick", "controller_tick": tick_fn,
-                 "rate_hz": loop.tick_rate, "delay_ticks": int(loop.delay_ticks),
-                 "speed_gain": loop.speed_gain, "speed_integral": loop.speed_integral,
-                 "speed_integral_limit": loop.integral_limit,
-                 "actuator_lag_s": loop.actuator_lag, "lag_pole": loop.lag_pole,
-                 "force_budget": loop.force_budget,
-                 "design": "the embedded controller's design at the tick on the loop as "
-                           "built (maglevgen.control.plant), ideal sensing"},
-        "verification": verdict,
-        "sense_tick": None if sense is None else sense.manifest(),
-        "gain_table": table.manifest(), "functions": fn_table,
-        "flags": list(FIRMWARE_FLAGS),
-    }
-    files["manifest.json"] = json.dumps(manifest, indent=2) + "\n"
-    return files
-
-
 def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
     """The tick, delay, speed-loop gain and budget the build's firmware runs verify
     (`maglevgen.analyses.loop.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
-    setting = schedule_setting(carriage, lib, *resolve_range(carriage, lib))
-    return FirmwareLoop(setting.tick.rate, setting.tick.delay, float(setting.speed_gain),
-                        float(carriage.params.control.spec.force_budget),
-                        float(setting.actuator_lag), float(setting.speed_integral),
-                        float(setting.speed_integral_limit))
+    return FirmwareLoop.of(schedule_setting(carriage, lib, *resolve_range(carriage, lib)),
+                           float(carriage.params.control.spec.force_budget))
 
 
 def firmware_files(carriage: DerivedCarriage, precision: str = "single",

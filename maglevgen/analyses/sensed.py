@@ -1,0 +1,58 @@
+"""Runs on the sensors, as the firmware flies: the embedded controller's firmware folder
+(`firmware_sources.render_firmware`: its gain table, its estimator's table, maglev_sense_tick)
+compiled for the host in double precision (`maglevgen.runtime.sense`), flown by
+maglev_simulate's tick-held loop around the run-time-parameter plant with the actuator lag
+and the delay: at each tick the plant is read by the generated measurement functions of the
+sensors of ``[sensors]`` (control.estimation.SensorLayout), the run's noise is added
+(`output_feedback.reading_noise`: white noise and the IMU's bias, seeded; each reading rounded
+to its resolution), and the firmware's sense tick (maglev_sense_init at the first tick from the
+first readings, then maglev_sense_tick) computes the command, as it does on the board.
+
+This is the loop the verdicts of the output-feedback loop are about: the same C, its tables
+interpolated over speed, its estimator started from the readings, not from the trim.
+`output_feedback.noisy_hold` (numpy's estimator at one speed around the same plant) is the
+independent reference the tests hold it against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
+from maglevgen.analyses.firmware_sources import FirmwareLoop, render_firmware, sense_schedule
+from maglevgen.control.estimation import SensorLayout
+from maglevgen.runtime.library import SimulationLibrary
+from maglevgen.runtime.sense import SenseLibrary, sense_library
+
+__all__ = ["SensedFirmware", "sensed_firmware"]
+
+
+@dataclass(frozen=True, eq=False)
+class SensedFirmware:
+    """The embedded controller's firmware for the host: its loop (tick, delay, speed loop,
+    budget, lag), its speed range, its sensors, its compiled sense tick and the parameters
+    it was built from."""
+
+    loop: FirmwareLoop
+    v_min: float  # [m/s] the tables' range
+    v_max: float
+    layout: SensorLayout
+    library: SenseLibrary
+    params: object  # the carriage's parameters (its [sensors]: the runs' noise)
+
+
+def sensed_firmware(carriage, lib: SimulationLibrary) -> SensedFirmware:
+    """The firmware `maglevgen firmware` writes for ``carriage``, in double precision with its
+    sense tick, compiled for the host (cached by its content); InputError without
+    ``[sensors]`` (nothing to fly on)."""
+    params = carriage.params
+    layout = SensorLayout.of(params)  # InputError without [sensors]
+    v_min, v_max = resolve_range(carriage, lib)
+    loop = FirmwareLoop.of(schedule_setting(carriage, lib, v_min, v_max),
+                           float(params.control.spec.force_budget))
+    sense = sense_schedule(carriage, lib, v_min, v_max, loop)
+    assert sense is not None  # [sensors] is there: SensorLayout.of refused otherwise
+    files = render_firmware(carriage, gain_table(carriage, lib, v_min, v_max), loop, "double",
+                            sense=sense)
+    return SensedFirmware(loop, float(v_min), float(v_max), layout, sense_library(files),
+                          params)
