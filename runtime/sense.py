@@ -51,8 +51,12 @@ class SenseLibrary:
         size = self._lib.maglev_host_sense_state_size
         size.restype, size.argtypes = ctypes.c_size_t, []
         self.state_size = int(size())
-        self.init = ctypes.cast(self._lib.maglev_host_sense_init, ctypes.c_void_p).value
-        self.tick = ctypes.cast(self._lib.maglev_host_sense_tick, ctypes.c_void_p).value
+        init = ctypes.cast(self._lib.maglev_host_sense_init, ctypes.c_void_p).value
+        tick = ctypes.cast(self._lib.maglev_host_sense_tick, ctypes.c_void_p).value
+        if init is None or tick is None:
+            raise MaglevError(f"{path}: no sense tick in the library")
+        self.init: int = init
+        self.tick: int = tick
 
     def __reduce__(self):
         """Another process loads the same library (its signature checked again there)."""

@@ -35,7 +35,7 @@ import numpy as np
 
 from maglevgen.analyses.envelope import envelope_points, schedule_setting
 from maglevgen.analyses.loop import loop_plant
-from maglevgen.analyses.sim_loop import estimation_error, reading_noise, run_loop
+from maglevgen.analyses.sim_loop import SensedTick, estimation_error, reading_noise, run_loop
 from maglevgen.analyses.simulate import simulate
 from maglevgen.carriage import structure_of
 from maglevgen.control import controller as registered_controller
@@ -362,6 +362,7 @@ def sensed_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD
 
     params = carriage.params
     tick, k_v, budget = run_loop(carriage, lib, "sensed", seed)
+    assert isinstance(tick, SensedTick) and budget is not None  # the sensed loop's
     points = envelope_points(carriage, lib, hold_speeds(v_min, v_max))
     est = estimator_points(lib, carriage.p, params, points, float(params.actuators.time_constant))
     n_steps = max(1, int(np.ceil(tick.period / RK4_MAX_STEP - 1e-9)))
@@ -380,6 +381,7 @@ def sensed_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD
                             tick=replace(tick, noise_scale=scale), speed_gain=k_v,
                             force_budget=budget)
             sense = traj.sensing
+            assert sense is not None  # a run at a SensedTick records its sensing
             rows = traj.x.shape[0]
             ticks = slice(0, rows, n_steps)
             n_ticks = min(sense.rows, (rows - 1) // n_steps + 1)

@@ -443,8 +443,8 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
         (tick.seed if isinstance(tick, SensedTick) else 0) + i for i in range(len(jobs))]
     ticks = [replace(tick, seed=int(s)) if isinstance(tick, SensedTick) else tick
              for s in seeds]
-    runs = [hold_run(p, op, c, dt, d, tk, speed_gain, force_budget, *design,
-                     n_steps=n_steps, record=False)
+    runs = [hold_run(p, op, c, dt, d, tk, speed_gain, force_budget,
+                     design[0] if design else None, n_steps=n_steps, record=False)
             for (p, op, c, d, *design), tk in zip(jobs, ticks, strict=True)]
     op0 = jobs[0][1]
     done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
