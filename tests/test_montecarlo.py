@@ -85,6 +85,20 @@ def _sample_p(carriage: DerivedCarriage, cols: dict[str, np.ndarray], i: int) ->
     return p
 
 
+def _sample_run_inputs(carriage: DerivedCarriage, cols: dict[str, np.ndarray], i: int, sim_lib):
+    """Row ``i``'s carriage rebuilt here: (p, its own operating point, the nominal carriage's
+    at the row's speed, the row's disturbance, track.min_gap)."""
+    from maglevgen.control.operating import Weights, operating_point
+
+    p = _sample_p(carriage, cols, i)
+    speed, min_gap = float(cols["speed"][i]), carriage.params.track.min_gap
+    weights = Weights.of(carriage.params)
+    own = operating_point(sim_lib, p, speed, min_gap, weights)
+    nominal = operating_point(sim_lib, carriage.p, speed, min_gap, weights)
+    dist = {s: float(cols[f"disturbance.{s}"][i]) for s in ("y", "z", "phi", "theta", "psi")}
+    return p, own, nominal, dist, min_gap
+
+
 def test_a_sample_flies_the_nominal_design(small, sim_lib) -> None:
     """As the firmware flies (the default): one sample's run equals, bit for bit (the same C
     call, maglev_simulate, in the batch driver and alone), `simulate` of the sampled carriage
@@ -93,19 +107,13 @@ def test_a_sample_flies_the_nominal_design(small, sim_lib) -> None:
     of the file's parameters: gains, reference, feed-forward); and it differs from the same
     run with the controller re-designed for the sample (what --redesign does)."""
     from maglevgen.analyses.simulate import metrics, simulate
-    from maglevgen.control.operating import Weights, operating_point
 
     carriage, study, cols = small
     assert not study.redesign
     rows = np.flatnonzero((cols["controller"] == "coupled") & (cols["status"] != "no trim")
                           & (cols["status"] != "rejected"))
     i = int(rows[0])
-    p = _sample_p(carriage, cols, i)
-    speed, min_gap = float(cols["speed"][i]), carriage.params.track.min_gap
-    weights = Weights.of(carriage.params)
-    own = operating_point(sim_lib, p, speed, min_gap, weights)
-    nominal = operating_point(sim_lib, carriage.p, speed, min_gap, weights)
-    dist = {s: float(cols[f"disturbance.{s}"][i]) for s in ("y", "z", "phi", "theta", "psi")}
+    p, own, nominal, dist, min_gap = _sample_run_inputs(carriage, cols, i, sim_lib)
     flown = metrics(simulate(sim_lib, p, own, "coupled", 0.4, 1e-3, min_gap, dist,
                              controller_op=nominal))
     assert flown["status"] == cols["status"][i]
@@ -405,17 +413,11 @@ def test_a_sample_on_the_sensors_has_its_own_noise_whatever_the_chunks(sensed_st
     from dataclasses import replace
 
     from maglevgen.analyses.simulate import metrics, simulate
-    from maglevgen.control.operating import Weights, operating_point
 
     carriage, study, one = sensed_study
     _same(one, run_local(study, 4, workers=2, chunk=1))
     i = int(np.flatnonzero(one["status"] != "no trim")[0])
-    p = _sample_p(carriage, one, i)
-    speed, min_gap = float(one["speed"][i]), carriage.params.track.min_gap
-    weights = Weights.of(carriage.params)
-    own = operating_point(sim_lib, p, speed, min_gap, weights)
-    nominal = operating_point(sim_lib, carriage.p, speed, min_gap, weights)
-    dist = {s: float(one[f"disturbance.{s}"][i]) for s in ("y", "z", "phi", "theta", "psi")}
+    p, own, nominal, dist, min_gap = _sample_run_inputs(carriage, one, i, sim_lib)
     seed = int(np.random.SeedSequence(5, spawn_key=(i, 1)).generate_state(1)[0])
     tick = replace(study.tick, seed=seed)
     run = simulate(sim_lib, p, own, "spec", 0.3, 1e-3, min_gap, dist, tick=tick,
