@@ -31,6 +31,7 @@ from maglevgen.analyses.envelope import speed_range
 from maglevgen.analyses.output_feedback import hold_speeds, noisy_holds
 from maglevgen.analyses.sensing import sensing_check
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
@@ -47,12 +48,12 @@ def measure() -> dict:
     params = c.params
     v_min, v_max = speed_range(c)
     name = params.envelope.embedded_controller
-    ops = env_mod.envelope_points(c, lib, np.linspace(v_min, v_max, N_SPEEDS))
+    ops = Plant(c, lib).points(np.linspace(v_min, v_max, N_SPEEDS))
     setting = env_mod.loop_setting(c, ops)
     loops = [(env_mod.loop_plant(op, setting), env_mod.loop_design(op, name, setting))
              for op in ops]
     t0 = time.perf_counter()
-    sc = sensing_check(c, lib, ops, setting, name, loops, lambda sd: ((), ""))
+    sc = sensing_check(Plant(c, lib), ops, setting, name, loops, lambda sd: ((), ""))
     seconds = time.perf_counter() - t0
     rows = [{"speed": float(v), "rank": int(sc.rank[i]), "n": sc.n_states,
              "smallest_singular_value": float(sc.smallest[i]),
@@ -63,7 +64,7 @@ def measure() -> dict:
             for i, v in enumerate(sc.speeds)]
     log(f"noisy holds at {', '.join(f'{v:.4g}' for v in hold_speeds(v_min, v_max))} m/s")
     t0 = time.perf_counter()
-    hs = noisy_holds(c, lib, v_min, v_max, T_HOLD, seed=1)
+    hs = noisy_holds(Plant(c, lib), v_min, v_max, T_HOLD, seed=1)
     hold_seconds = time.perf_counter() - t0
     holds = [{"speed": h.speed, "noise_scale": h.noise_scale, "lines": h.lines(),
               "force_rms_max": float(np.max(h.force_rms)),

@@ -31,10 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points, schedule_setting
 from maglevgen.analyses.loop import loop_plant
 from maglevgen.carriage import structure_of
 from maglevgen.control import controller as registered_controller
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import (
     EstimatorPoint,
     SensorLayout,
@@ -345,15 +345,16 @@ def hold_speeds(v_min: float, v_max: float) -> tuple[float, ...]:
                          float(v_max)}))
 
 
-def noisy_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
+def noisy_holds(plant: Plant, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
                 seed: int = 1) -> tuple[NoisyHold, ...]:
     """The build's noisy holds: at each of `hold_speeds` with each of NOISE_SCALES, the
     embedded controller, the same seed."""
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
-    points = envelope_points(carriage, lib, hold_speeds(v_min, v_max))
+    points = plant.points(hold_speeds(v_min, v_max))
     tau = float(params.actuators.time_constant)
     est = estimator_points(lib, carriage.p, params, points, tau)
-    setting = schedule_setting(carriage, lib, v_min, v_max)  # the firmware's speed loop
+    setting = plant.loop  # the firmware's speed loop
     return tuple(noisy_hold(lib, carriage.p, params, op, t_end=t_end, seed=seed,
                             noise_scale=scale, point=e, plant=loop_plant(op, setting),
                             integral_limit=setting.speed_integral_limit)

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
-from maglevgen.analyses.envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
+from maglevgen.analyses.envelope import DEFAULT_SPEEDS, compute_envelope
 from maglevgen.carriage import DerivedCarriage, stiffness_rows
 from maglevgen.control import controller as registered
 from maglevgen.control import title as controller_title
+from maglevgen.control.carriage_plant import Plant, lift_off_speed
 from maglevgen.control.operating import (
     N_AXES,
     REDUCED_STATES,
@@ -395,7 +396,8 @@ def library_of(carriage: DerivedCarriage) -> SimulationLibrary:
 def envelope_of(carriage: DerivedCarriage, n_speeds: int | None = None,
                 lib: SimulationLibrary | None = None, other_models: bool = True):
     """The envelope of a carriage through its compiled library (maglevgen.analyses.envelope)."""
-    return compute_envelope(carriage, lib or library_of(carriage), n_speeds or DEFAULT_SPEEDS,
+    return compute_envelope(Plant(carriage, lib or library_of(carriage)),
+                            n_speeds or DEFAULT_SPEEDS,
                             other_models=other_models)
 
 

@@ -13,11 +13,13 @@ from maglevgen.api.arguments import MAX_ACCELERATION, check_controller, commands
 from maglevgen.api.results import Gains, TrimResult
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
+from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
 
 if TYPE_CHECKING:
     import control
 
     from maglevgen.carriage import DerivedCarriage
+    from maglevgen.control.carriage_plant import Plant
     from maglevgen.control.operating import OperatingPoint
     from maglevgen.params import Parameters
     from maglevgen.runtime.library import SimulationLibrary
@@ -88,8 +90,17 @@ class CarriageCore:
         return DerivedCarriage(self._loaded)
 
     @cached_property
+    def _plant(self) -> Plant:
+        """The one `Plant` of this carriage (library, speed range, operating points, loop as
+        built) that every study and writer hands down; its library loads on first use, the
+        steps announced on stderr (`queries.library_of`)."""
+        from maglevgen.control.carriage_plant import Plant
+
+        return Plant(self._carriage, progress=steps.step)
+
+    @property
     def _lib(self) -> SimulationLibrary:
-        return commands().library_of(self._carriage)
+        return self._plant.lib
 
     # ----------------------------------------------------------------------- checks
 

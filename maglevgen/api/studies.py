@@ -20,6 +20,7 @@ from maglevgen.api.arguments import (
     controller_choice,
     flag,
     initial_disturbance,
+    quiet,
 )
 from maglevgen.api.core import CarriageCore
 from maglevgen.api.results import (
@@ -187,11 +188,15 @@ class Studies(CarriageCore):
 
             check_writable(Path(out))  # before any work: a folder of the user's is refused
         controllers = controller_names() if controller == "all" else (controller,)
-        # the library if this carriage has built it (cached_property's entry), else the one
-        # run_scenarios builds after checking its options: bad input stays the only line
-        lib = self.__dict__.get("_lib")
-        run = run_scenarios(self._carriage, controllers, t_end, dt, speed, lib=lib,
-                            announce=steps.step if progress else None,
+        # this carriage's plant; its library, when not loaded yet, loads once run_scenarios has
+        # checked its options (bad input stays the only line), announced only with progress
+        plant = self._plant
+        if not plant.loaded:
+            from maglevgen.control.carriage_plant import Plant
+
+            plant = self.__dict__["_plant"] = Plant(
+                self._carriage, progress=steps.step if progress else quiet)
+        run = run_scenarios(plant, controllers, t_end, dt, speed,
                             bar=steps.bar if progress else None, scenario=scenario,
                             disturbance=initial, loop=loop)
         paths: tuple[Path, ...] = ()
@@ -385,9 +390,8 @@ class Studies(CarriageCore):
             steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
                            "library and the study first")
         controllers = controller_names() if choice == "all" else (choice,)
-        lib = self._lib
-        study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
-                           *run_loop(self._carriage, lib, loop),
+        study = make_study(self._plant, controllers, t_end, dt, seed,
+                           *run_loop(self._plant, loop),
                            redesign=flag("--redesign", redesign))
         k = len(controllers)
         if progress:
@@ -479,7 +483,7 @@ class Studies(CarriageCore):
                            f"{n_speeds or roa.DEFAULT_SPEEDS} speeds, "
                            f"{sampling.directions} directions each")
         controllers = controller_names() if choice == "all" else (choice,)
-        regions = roa.study(self._carriage, self._lib, controllers,
+        regions = roa.study(self._plant, controllers,
                             roa.DEFAULT_SPEEDS if n_speeds is None else n_speeds, sampling)
         paths: tuple[Path, ...] = ()
         if out is not None:

@@ -29,12 +29,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.analyses.envelope import (
-    envelope_points,
-    gain_table,
-    resolve_range,
-    schedule_setting,
-)
 from maglevgen.codegen.checks import check_entries, error_defines
 from maglevgen.codegen.cpass import generate_c
 from maglevgen.codegen.emit import c_literal, render
@@ -44,6 +38,8 @@ from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_conte
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
 from maglevgen.control import estimation as est
+from maglevgen.control.built_loop import LoopSetting
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.schedule import (
     GainTable,
     field_slices,
@@ -53,13 +49,12 @@ from maglevgen.control.schedule import (
 )
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
-from maglevgen.runtime.library import simulation_library
 from maglevgen.version import __version__
 
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["FIRMWARE_FLAGS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "FirmwareLoop", "SenseSchedule",
+__all__ = ["FIRMWARE_FLAGS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "SenseSchedule",
            "firmware_files", "firmware_functions", "firmware_loop", "refresh_slices",
            "render_firmware", "sense_refresh_bound", "sense_schedule"]
 
@@ -94,36 +89,6 @@ MEASURED: dict = {
     "method": "every instruction QEMU mps2-an386 executes, newlib's sinf/cosf included",
     "cycle_model": "Cortex-M4/FPv4-SP instruction timings, zero wait states",
 }
-
-
-@dataclass(frozen=True)
-class FirmwareLoop:
-    """How the firmware runs the controller ([control.spec] and the envelope's speed loop)."""
-
-    tick_rate: float  # [Hz]
-    delay_ticks: int  # ticks from computing a command to applying it
-    speed_gain: float  # k_v [N s/m] (`maglevgen.analyses.loop.loop_setting`)
-    force_budget: float  # [N] per array
-    actuator_lag: float = 0.0  # [s] tau of each array force's lag ([actuators])
-    speed_integral: float = 0.0  # k_i [N/m] (`LoopSetting.speed_integral`)
-    # [N] |k_i xi| at most this (`LoopSetting.speed_integral_limit`): finite where k_i > 0
-    speed_integral_limit: float = float("inf")
-
-    def __post_init__(self) -> None:
-        if self.speed_integral > 0 and not np.isfinite(self.speed_integral_limit):
-            raise ValueError("the firmware's speed integral needs a finite limit "
-                             f"(speed_integral_limit {self.speed_integral_limit!r} N)")
-
-    @property
-    def integral_limit(self) -> float:
-        """The limit the C clamps |k_i xi| at: the given one, 0 without an integral."""
-        return float(self.speed_integral_limit) if self.speed_integral > 0 else 0.0
-
-    @property
-    def lag_pole(self) -> float:
-        """a = exp(-h/tau): the lag over one held tick (0 without a lag; `plant.LoopPlant`)."""
-        return float(np.exp(-1.0 / (self.tick_rate * self.actuator_lag))) \
-            if self.actuator_lag > 0 else 0.0
 
 
 #: the sense tick's readings at most: one bit each in C's unsigned long (32 bits at least)
@@ -171,10 +136,11 @@ class SenseSchedule:
                 "table": self.table.manifest()}
 
 
-def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
-                   loop: FirmwareLoop) -> SenseSchedule | None:
-    """The sense tick's schedule of ``carriage`` over [v_min, v_max] with ``loop``'s delay
+def sense_schedule(plant: Plant, v_min: float, v_max: float,
+                   loop: LoopSetting) -> SenseSchedule | None:
+    """The sense tick's schedule of ``plant`` over [v_min, v_max] with ``loop``'s delay
     and actuator lag; None when the parameter file has no [sensors] (no sense tick)."""
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
     if params.sensors is None:
         return None
@@ -183,7 +149,7 @@ def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
         raise InputError(f"sensors: {len(layout.names)} readings; the sense tick's flags "
                          f"word holds {MAX_READINGS} (fewer gap sensors)")
     table = est.sense_table(lib, carriage.p, params,
-                            lambda v: envelope_points(carriage, lib, [v])[0], v_min, v_max,
+                            plant.point, v_min, v_max,
                             loop.actuator_lag, loop.delay_ticks)
     n_lag = len(carriage.model.input_names) - 1 if loop.actuator_lag > 0 else 0
     states = tuple(s for s in cv.STATE_NAMES if layout.track or s != "x")
@@ -352,7 +318,7 @@ def _banner(sha256: str, precision: str, with_plant: bool) -> str:
             f"file sha256 {sha256}. Do not edit: regenerate.")
 
 
-def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareLoop,
+def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetting,
                     precision: str = "single", with_plant: bool = False,
                     measured: dict | None = None, verdict: dict | None = None,
                     sense: SenseSchedule | None = None) -> dict[str, str]:
@@ -368,6 +334,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     into the README and the manifest; ``sense``: the estimator's schedule
     (`sense_schedule`; None: maglev_tick alone, ideal sensing).
     """
+    loop.check_embeddable()
     opts = GenerateOptions(precision, "baked", "int32")
     embedded = carriage.params.envelope.embedded_controller
     tick_fn = registered(embedded).tick_function
@@ -419,7 +386,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "delay_ticks": int(loop.delay_ticks),
         "k_v": c_literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
         "k_i": c_literal(loop.speed_integral, precision),
-        "i_max": c_literal(loop.integral_limit, precision),
+        "i_max": c_literal(loop.c_integral_limit, precision),
         "tick_period": c_literal(1.0 / loop.tick_rate, precision),
         "lag_pole": c_literal(loop.lag_pole, precision),
         "lag_gain": c_literal(1.0 - loop.lag_pole, precision), "tau": loop.actuator_lag,
@@ -458,7 +425,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "tick": {"function": "maglev_tick", "controller_tick": tick_fn,
                  "rate_hz": loop.tick_rate, "delay_ticks": int(loop.delay_ticks),
                  "speed_gain": loop.speed_gain, "speed_integral": loop.speed_integral,
-                 "speed_integral_limit": loop.integral_limit,
+                 "speed_integral_limit": loop.c_integral_limit,
                  "actuator_lag_s": loop.actuator_lag, "lag_pole": loop.lag_pole,
                  "force_budget": loop.force_budget,
                  "design": "the embedded controller's design at the tick on the loop as "
@@ -472,25 +439,23 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
     return files
 
 
-def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
+def firmware_loop(plant: Plant) -> LoopSetting:
     """The tick, delay, speed-loop gain and budget the build's firmware runs verify
-    (`maglevgen.analyses.loop.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
-    setting = schedule_setting(carriage, lib, *resolve_range(carriage, lib))
-    return FirmwareLoop(setting.tick.rate, setting.tick.delay, float(setting.speed_gain),
-                        float(carriage.params.control.spec.force_budget),
-                        float(setting.actuator_lag), float(setting.speed_integral),
-                        float(setting.speed_integral_limit))
+    (`Plant.loop`: `loop_setting` over the schedule's nodes, ``[control.spec]``), checked
+    embeddable (a speed integral needs a finite clamp: ValueError)."""
+    plant.loop.check_embeddable()
+    return plant.loop
 
 
-def firmware_files(carriage: DerivedCarriage, precision: str = "single",
+def firmware_files(plant: Plant, precision: str = "single",
                    with_plant: bool = False, verdict: dict | None = None) -> dict[str, str]:
-    """The firmware folder of ``carriage`` (`render_firmware`): the table schedule over the
-    envelope and the loop from the compiled simulation library (cached on disk); ``verdict``:
+    """The firmware folder of ``plant``'s carriage (`render_firmware`): the table schedule over
+    the envelope and the loop as built (`Plant.loop`); ``verdict``:
     the embedded controller's verification (`maglevgen.build.EmbeddedVerdict.to_json`)."""
     GenerateOptions(precision, "baked")  # an unknown precision: InputError before slow work
-    lib = simulation_library(carriage.structure)
-    v_min, v_max = resolve_range(carriage, lib)
-    loop = firmware_loop(carriage, lib)
-    return render_firmware(carriage, gain_table(carriage, lib, v_min, v_max), loop, precision,
+    carriage = plant.carriage
+    v_min, v_max = plant.speed_range
+    loop = firmware_loop(plant)
+    return render_firmware(carriage, plant.gain_table(v_min, v_max), loop, precision,
                            with_plant, MEASURED, verdict,
-                           sense_schedule(carriage, lib, v_min, v_max, loop))
+                           sense_schedule(plant, v_min, v_max, loop))
