@@ -183,17 +183,12 @@ def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
     return p
 
 
-_LIBRARIES: dict[Any, Any] = {}
-
-
 def _library(structure):
     """The compiled library in this process (generated and compiled on a worker where its
-    cache lacks it), loaded once."""
-    if structure not in _LIBRARIES:
-        from maglevgen.runtime.library import simulation_library
+    cache lacks it), loaded once (`runtime.library.loaded_library`)."""
+    from maglevgen.runtime.library import loaded_library
 
-        _LIBRARIES[structure] = simulation_library(structure)
-    return _LIBRARIES[structure]
+    return loaded_library(structure)
 
 
 def run_sample(study: Study, index: int, lib=None) -> list[dict]:
