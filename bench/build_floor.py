@@ -64,7 +64,8 @@ def main() -> None:
     from maglevgen.report.figures import force_figures
 
     # as the build draws them (maglevgen.build._draw_report_figures): at the library's trim
-    curves = force_curves(carriage, trim_point(carriage, lib, None), lib)
+    plant = Plant(carriage, lib)
+    curves = force_curves(plant, trim_point(plant, None))
     out["report_figures"], _ = _cpu(force_figures, curves)
     out["trajectories"], _ = _cpu(render_trajectories, run.trajectories, run.input_names)
     out["total"] = sum(out.values())

@@ -425,7 +425,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files.update(_gain_table_c(plant, env, files["c/manifest.json"]))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
-        report_figures = _draw_report_figures(drawing, carriage, lib)
+        report_figures = _draw_report_figures(drawing, plant)
         mapping = submit(drawing, "drawing the stability map", _stability_map, env)
         region_fig = submit(drawing, "drawing the region of attraction", roa.study_files,
                             regions)
@@ -449,7 +449,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     files["c/maglev_schedule.c"] = _schedule_c(plant, env)
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
-    summary = summary_text(carriage, run, lib, env, report_outputs(report, opts), regions,
+    summary = summary_text(plant, run, env, report_outputs(report, opts), regions,
                            judged, verdict)
     verification = verdict.reason
     if verification is not None:  # the whole reason (`build` exits 3 with its first words)
@@ -538,7 +538,7 @@ def _c_files(carriage, folder: Path, plant) -> dict[str, str | bytes]:
     return files
 
 
-def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
+def _draw_report_figures(drawing: Executor, plant) -> Job:
     """Have ``drawing`` draw the report's force figures at the compiled library's trim (the
     curves are the library's array forces; v_c, eq 3's displayed form, imports SymPy)."""
     from maglevgen.analyses.queries import trim_point
@@ -546,7 +546,7 @@ def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
     from maglevgen.report.figures import force_figures
 
     return submit(drawing, "drawing the report figures", force_figures,
-                  force_curves(carriage, trim_point(carriage, lib, None), lib))
+                  force_curves(plant, trim_point(plant, None)))
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
@@ -579,7 +579,7 @@ def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
     return f"report/ ({names}; report.pdf skipped: {why})"
 
 
-def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
+def summary_text(plant, run, env, report: str = "report/ (report.tex)",
                  regions=None, judged: tuple[JudgedRun, ...] = (),
                  verdict: EmbeddedVerdict | None = None) -> str:
     """Where each output is, and the numbers an engineer checks first; ``report``: what
@@ -589,7 +589,8 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     code (`maglevgen.analyses.verdicts`; default: from ``env``, ``judged`` and ``regions``)."""
     from maglevgen.analyses.queries import stiffness_table
 
-    rows = stiffness_table(carriage, lib, run.op.speed)
+    carriage = plant.carriage
+    rows = stiffness_table(plant, run.op.speed)
     # one table per kind of axis, so that each column is one quantity in one unit
     # (units as a person writes them: a '*' in a Markdown table starts emphasis)
     kinds = (("Translation", (0, 1), {"k": _md_unit(rows[0].unit), "m": "kg", "c": "N s/m"}),
@@ -598,9 +599,9 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     if verdict is None:
         verdict = embedded_verdict(carriage, env, judged, regions[0] if regions else None)
     lines = [*_summary_verdicts(carriage, run, env, regions, verdict),
-             *_summary_trim(carriage, run, lib, env, report),
-             *_summary_axes(carriage, run, lib, rows, kinds),
-             *_summary_paper(carriage, run, lib, rows),
+             *_summary_trim(plant, run, env, report),
+             *_summary_axes(carriage, run, plant.lib, rows, kinds),
+             *_summary_paper(plant, run, rows),
              *_summary_runs(carriage, run, judged)]
     return "\n".join(lines) + "\n"
 
@@ -630,10 +631,11 @@ def _summary_verdicts(carriage, run, env, regions, verdict: EmbeddedVerdict) -> 
     return lines
 
 
-def _summary_trim(carriage, run, lib, env, report: str) -> list[str]:
+def _summary_trim(plant, run, env, report: str) -> list[str]:
     """The outputs, the trim at the design speed and the accelerating trim at v_min."""
     from maglevgen.analyses.queries import accelerating_margins
 
+    carriage = plant.carriage
     op = run.op
     names = list(carriage.params.arrays)
     return ["",
@@ -645,7 +647,7 @@ def _summary_trim(carriage, run, lib, env, report: str) -> list[str]:
             "per array: " + ", ".join(f"{n} {g * 1e3:.3f} mm" for n, g in zip(names, op.gaps,
                                                                               strict=True))
             + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
-            accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), ""]
+            accelerating_margins(plant, [env.v_min])[0].sentence(), ""]
 
 
 def _summary_axes(carriage, run, lib, rows, kinds) -> list[str]:
@@ -690,11 +692,11 @@ def _summary_axes(carriage, run, lib, rows, kinds) -> list[str]:
     return lines
 
 
-def _summary_paper(carriage, run, lib, rows) -> list[str]:
+def _summary_paper(plant, run, rows) -> list[str]:
     """Where the paper's printed forms differ from the derivation."""
     from maglevgen.analyses.queries import pitch_paper_form, trim_point
 
-    pitch = pitch_paper_form(carriage, trim_point(carriage, lib, run.op.speed),
+    pitch = pitch_paper_form(plant.carriage, trim_point(plant, run.op.speed),
                              next(r.paper_value for r in rows if r.axis == "pitch"))
     return ["Paper discrepancies found (details and evidence in the report):",
             "- printed stiffnesses (eqs 13-19) differ from the derived K_st0: "

@@ -119,7 +119,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "trim, gains and linear models load the model when first asked; python-control only "
         "where it is returned",
         ("control", "maglevgen.carriage", "maglevgen.control.operating",
-         "maglevgen.control.carriage_plant", "maglevgen.derive.structure", "maglevgen.params")),
+         "maglevgen.derive.structure", "maglevgen.params")),
     "maglevgen.api.studies": (
         "each study imports the analysis it runs, as its command does",
         ("maglevgen.analyses.envelope", "maglevgen.analyses.montecarlo", "maglevgen.analyses.roa",

@@ -260,7 +260,7 @@ def test_pdf_has_every_section_and_the_gains_command_numbers(
     flat = re.sub(r"\s+", " ", text)
     for title in rp.SECTION_TITLES.values():
         assert title in flat, f"section {title!r} missing from the PDF"
-    _assert_gains_match(_gain_rows(text, ""), gains_report(carriage, None))
+    _assert_gains_match(_gain_rows(text, ""), gains_report(Plant(carriage), None))
     assert "No simulation results were given" in flat
 
 
@@ -268,7 +268,7 @@ def test_pdf_has_every_section_and_the_gains_command_numbers(
 @pytest.mark.needs_tex
 def test_changed_mass_changes_the_report(mass_report: Path, default_report: Path) -> None:
     heavy = DerivedCarriage(load_params(None, [f"vehicle.mass={MASS}"]))
-    ref = gains_report(heavy, None)
+    ref = gains_report(Plant(heavy), None)
     text = _pdf_text(mass_report / "report.pdf")
     rows = _gain_rows(text, "")
     _assert_gains_match(rows, ref)

@@ -13,7 +13,6 @@ from maglevgen.api.arguments import MAX_ACCELERATION, check_controller, commands
 from maglevgen.api.results import Gains, TrimResult
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
-from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
 
 if TYPE_CHECKING:
     import control
@@ -93,10 +92,8 @@ class CarriageCore:
     def _plant(self) -> Plant:
         """The one `Plant` of this carriage (library, speed range, operating points, loop as
         built) that every study and writer hands down; its library loads on first use, the
-        steps announced on stderr (`queries.library_of`)."""
-        from maglevgen.control.carriage_plant import Plant
-
-        return Plant(self._carriage, progress=steps.step)
+        steps announced on stderr (`queries.plant_of`)."""
+        return commands().plant_of(self._carriage)
 
     @property
     def _lib(self) -> SimulationLibrary:
@@ -164,7 +161,7 @@ class CarriageCore:
         v = self._speed(speed)
         check_option("--acceleration", acceleration, -MAX_ACCELERATION, MAX_ACCELERATION,
                      "m/s^2", "braking or launching at up to 100 g")
-        rep = commands().trim_report(self._carriage, v, acceleration=float(acceleration))
+        rep = commands().trim_report(self._plant, v, acceleration=float(acceleration))
         arrays = rep["arrays"]
         names = tuple(arrays)
         return TrimResult(
@@ -212,7 +209,7 @@ class CarriageCore:
         2
         """
         v = self._speed(speed)  # before the model is built
-        return commands().gains_report(self._carriage, v)
+        return commands().gains_report(self._plant, v)
 
     def verdicts(self) -> tuple[dict[str, Any], tuple[str, ...]]:
         """The envelope's verdicts that ``maglevgen trim`` and ``gains`` print first.
@@ -244,7 +241,7 @@ class CarriageCore:
         >>> entry["embedded"], lines[0].startswith("Envelope")
         ('spec', True)
         """
-        entry, lines = commands().envelope_verdicts(self._carriage)
+        entry, lines = commands().envelope_verdicts(self._plant)
         return entry, tuple(lines)
 
     def gains(self, speed: float | None = None, controller: str = "lqr") -> Gains:
@@ -407,8 +404,8 @@ class CarriageCore:
         i = AXES.index(name)
         queries = commands()
         v = self._speed(speed)
-        lib = queries.library_of(self._carriage)
-        v = queries.trim_point(self._carriage, lib, v).speed  # or no trim
+        lib = self._lib
+        v = queries.trim_point(self._plant, v).speed  # or no trim
         k, m = (float(a.ravel()[i]) for a in lib.function("maglev_axis_plants")(
             v, self._carriage.p))
         q = cv.Q_STATES[i]

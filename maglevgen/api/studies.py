@@ -275,7 +275,7 @@ class Studies(CarriageCore):
         if progress:  # once the arguments are checked: a bad one stays the only line
             steps.announce("envelope: each controller's closed-loop eigenvalues at "
                            f"{n_speeds or DEFAULT_SPEEDS} speeds")
-        env = queries.envelope_of(self._carriage, n_speeds)
+        env = queries.envelope_of(self._plant, n_speeds)
         rep = env.to_json()
         paths: tuple[Path, ...] = ()
         if out is not None:

@@ -244,17 +244,19 @@ class Plant:
 
     # ------------------------------------------------------------- model choices
 
-    def with_model(self, array_force: str | None = None,
-                   circuit_dynamics: str | None = None) -> Plant:
+    def with_model(self, array_force: str | None = None, circuit_dynamics: str | None = None,
+                   progress: Callable[[str], None] | None = None) -> Plant:
         """The same plant with model.array_force and/or model.circuit_dynamics changed (its
-        own derivation and library, built once per plant); itself when nothing changes."""
+        own derivation and library, built once per plant); itself when nothing changes.
+        ``progress``: where that library's steps are announced (default: this plant's), when
+        this call first makes it."""
         m = self.params.model
         key = (array_force or m.array_force, circuit_dynamics or m.circuit_dynamics)
         if key == (m.array_force, m.circuit_dynamics):
             return self
         if key not in self._models:
             other = self.carriage.with_array_force(key[0]).with_circuit_dynamics(key[1])
-            self._models[key] = Plant(other, progress=self._progress,
+            self._models[key] = Plant(other, progress=progress or self._progress,
                                       cache_dir=self._cache_dir, cc=self._cc)
         return self._models[key]
 

@@ -152,17 +152,16 @@ def build_context(
     progress("report: region of attraction (sampled, in the compiled library)")
     regions, roa_png = roa_section(plant, options.roa)
     progress("report: trim and stiffness")
-    lib = plant.lib
-    trim = trim_point(carriage, lib, None)  # the compiled library's trim, as `maglevgen trim`
+    trim = trim_point(plant, None)  # the compiled library's trim, as `maglevgen trim`
     pool = None
     if figures is None:
         pool = process_pool(1, mp_context=multiprocessing.get_context("fork"))
-        own: Future = pool.submit(force_figures, force_curves(carriage, trim, lib))
+        own: Future = pool.submit(force_figures, force_curves(plant, trim))
         figures = own
     try:
-        trep = trim_report(carriage, None, lib)
+        trep = trim_report(plant, None)
         progress("report: LQR gains, coupled comparison and allocation")
-        gains = gains_report(carriage, None, lib)
+        gains = gains_report(plant, None)
         progress("report: symbolic forms")
         force = force_law_section(carriage, trim, trep)
         progress("report: the circuits' lag (the other circuit model's library and envelope)")
@@ -177,8 +176,8 @@ def build_context(
             "circuit_lag": lag,
             "geometry": geometry_section(carriage, gains),
             "trim": trim_section(
-                trep, accelerating_margins(carriage, lib, _margin_speeds(carriage, env))),
-            "stiffness": stiffness_section(carriage, trim, trep, gains, lib),
+                trep, accelerating_margins(plant, _margin_speeds(carriage, env))),
+            "stiffness": stiffness_section(plant, trim, trep, gains),
             "damping": alloc,
             "riccati": riccati_section(gains),
         }
@@ -186,7 +185,7 @@ def build_context(
         paper = paper_comparison_section(gains, trep)
         progress("report: verification")
         checks = verification_section(
-            carriage, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
+            plant, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
         ) + envelope_checks(plant, env)
         progress("report: figures")
         poles = pole_sets(gains)
