@@ -301,7 +301,7 @@ def test_launch_run_converges_to_the_reference_as_dt4(carriage, sim_lib) -> None
 def test_launch_follows_the_accelerating_trim_found_here(carriage, sim_lib,
                                                          controller: str) -> None:
     """An undisturbed launch from 8 to 12 m/s at envelope.launch_acceleration with the launch
-    schedule (reference and feedforward of the accelerating trim, envelope.launch_schedule)
+    schedule (reference and feedforward of the accelerating trim, Plant.launch_schedule)
     from the accelerating trim at 8 m/s: at five speeds on the way the pitch and heave are
     those of the root of the static balances with the d'Alembert load -m a at the CG solved
     here (independent_reference) within a tenth of that trim's offset from the constant-speed

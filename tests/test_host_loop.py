@@ -299,7 +299,7 @@ def test_host_loop_is_the_held_rk4_loop_bit_for_bit(carriage, sim_lib, loop, con
 @pytest.mark.needs_cc
 def test_launch_flies_the_scheduled_design_at_the_tick(carriage, sim_lib, loop) -> None:
     """The first eight ticks of the launch (maglev_launch, the firmware loop, the schedule of
-    `envelope.launch_schedule` on the loop as built: K_lag and K_delay in the spline's
+    `Plant.launch_schedule` on the loop as built: K_lag and K_delay in the spline's
     extended row) against `_held_rk4_loop` with the gains scipy's spline of the same nodes
     gives at each tick's measured speed, the feed-forward F_drag + m a and the ramp
     v_ref(t) = v_min + a t: within 1e-10 (1 + the value; the two splines' last digits). The

@@ -325,9 +325,10 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetti
     """Every file of the firmware folder (nothing written).
 
     ``table``: the table schedule of the embedded controller over the envelope
-    (`maglevgen.analyses.envelope.gain_table`); ``loop``: its tick, delay, speed-loop gain and force
-    budget; ``precision``: "single" for the board, "double" for a host check of the same
-    code; ``with_plant``: maglev_dynamics in the same image too (a closed loop on the target,
+    (`maglevgen.control.carriage_plant.Plant.gain_table`); ``loop``: the loop as built
+    (`Plant.loop`: its tick, delay, speed-loop gains, actuator lag and force budget);
+    ``precision``: "single" for the board, "double" for a host check of the same code;
+    ``with_plant``: maglev_dynamics in the same image too (a closed loop on the target,
     e.g. under QEMU); ``measured``: the tick's cost on the Cortex-M4 at the default carriage
     (BENCHMARKS.md), quoted in the README; ``verdict``: the embedded controller's
     verification (`maglevgen.build.EmbeddedVerdict.to_json`; None: not checked, said so),
@@ -368,7 +369,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetti
 
     if "K_lag" not in dict(table.fields):
         raise ValueError("the firmware's table carries the design at the tick "
-                         "(`maglevgen.analyses.envelope.gain_table`)")
+                         "(`maglevgen.control.carriage_plant.Plant.gain_table`)")
     offsets, i = {}, 0
     for name, size in table.fields:
         offsets[name] = i
