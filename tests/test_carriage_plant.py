@@ -47,6 +47,18 @@ def test_cached_points_equal_the_direct_ones(plant: Plant, carriage: DerivedCarr
     assert plant.point(float(speeds[1])) is got[1]
 
 
+def test_the_cache_keeps_at_most_its_bound(carriage: DerivedCarriage, sim_lib,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past MAX_CACHED_POINTS a point is solved again when asked again (the same numbers),
+    so that a long-lived plant's memory stays bounded."""
+    monkeypatch.setattr(cp, "MAX_CACHED_POINTS", 2)
+    plant = Plant(carriage, sim_lib)
+    first = plant.points([18.0, 19.0, 20.0])
+    again = plant.points([18.0, 19.0, 20.0])
+    assert again[0] is first[0] and again[1] is first[1] and again[2] is not first[2]
+    np.testing.assert_array_equal(again[2].A, first[2].A)
+
+
 def test_one_library_load_for_every_use(carriage: DerivedCarriage, sim_lib,
                                         monkeypatch: pytest.MonkeyPatch) -> None:
     """A plant built without a library loads it on first use, once: the speed range, the

@@ -41,7 +41,11 @@ if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
     from maglevgen.params import Parameters
 
-__all__ = ["Plant", "lift_off_speed"]
+__all__ = ["MAX_CACHED_POINTS", "Plant", "lift_off_speed"]
+
+#: the most operating points a plant keeps (an envelope of up to 100 000 speeds holds its own
+#: list while it runs; the plant of a long-lived `maglevgen.Carriage` keeps no more than this)
+MAX_CACHED_POINTS = 4096
 
 
 def _quiet(_: str) -> None:
@@ -152,7 +156,8 @@ class Plant:
 
     def points(self, speeds: Sequence[float] | np.ndarray) -> list[OperatingPoint]:
         """Operating points at ``speeds`` (trim, gains, Jacobians: the generated C), each
-        solved once per plant; an InputError where one has no trim."""
+        solved once per plant (up to MAX_CACHED_POINTS kept); an InputError where one has no
+        trim."""
         out = []
         for v in speeds:
             key = float(v)
@@ -163,7 +168,8 @@ class Plant:
                                          Weights.of(self.params))
                 except NoTrimError as exc:
                     raise InputError(f"envelope: {exc}") from None
-                self._points[key] = op
+                if len(self._points) < MAX_CACHED_POINTS:
+                    self._points[key] = op
             out.append(op)
         return out
 
