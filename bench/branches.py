@@ -46,6 +46,7 @@ from maglevgen.codegen.casadi_model import casadi_model
 from maglevgen.codegen.cpass import postprocess, static_helpers
 from maglevgen.codegen.functions import _prepared
 from maglevgen.codegen.generate import render_runtime_sources
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import Weights, operating_point
 from maglevgen.derive.model import build_model
 from maglevgen.derive.structure import numbered
@@ -140,7 +141,7 @@ def closed_loop(carriage: DerivedCarriage, libs: dict[str, SimulationLibrary],
     pr = carriage.params
     op = operating_point(now, carriage.p, float(pr.operation.speed), pr.track.min_gap,
                          Weights.of(pr))
-    tick, k_v, budget = run_loop(carriage, now, "firmware")
+    tick, k_v, budget = run_loop(Plant(carriage, now), "firmware")
     run = hold_run(carriage.p, op, pr.envelope.embedded_controller, DT, DISTURBANCE, tick,
                    k_v, budget)
     n_steps, n_u = round(T_END / DT), op.allocation.shape[0] + 1

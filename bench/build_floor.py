@@ -28,6 +28,7 @@ import os  # noqa: E402
 from maglevgen.analyses.simulate import run_scenarios  # noqa: E402
 from maglevgen.carriage import DerivedCarriage  # noqa: E402
 from maglevgen.control import names as controller_names  # noqa: E402
+from maglevgen.control.carriage_plant import Plant  # noqa: E402
 from maglevgen.params import load_params  # noqa: E402
 from maglevgen.runtime.library import cached_simulation_library  # noqa: E402
 
@@ -44,7 +45,7 @@ def main() -> None:
     lib = cached_simulation_library(carriage.structure)
     if lib is None:
         raise SystemExit("build_floor.py: no cached library: run a build first")
-    run = run_scenarios(carriage, controller_names(), 10.0, 1e-3, lib=lib, bar=None)
+    run = run_scenarios(Plant(carriage, lib), controller_names(), 10.0, 1e-3, bar=None)
     out = {"startup_to_simulations": time.process_time() - CPU0}
 
     def import_matplotlib() -> None:
@@ -63,7 +64,8 @@ def main() -> None:
     from maglevgen.report.figures import force_figures
 
     # as the build draws them (maglevgen.build._draw_report_figures): at the library's trim
-    curves = force_curves(carriage, trim_point(carriage, lib, None), lib)
+    plant = Plant(carriage, lib)
+    curves = force_curves(plant, trim_point(plant, None))
     out["report_figures"], _ = _cpu(force_figures, curves)
     out["trajectories"], _ = _cpu(render_trajectories, run.trajectories, run.input_names)
     out["total"] = sum(out.values())

@@ -18,9 +18,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import BENCH, log, summary
 
-from maglevgen.analyses.envelope import compute_envelope, envelope_points, resolve_range
+from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.simulate import initial_state, launch
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.schedule import Schedule
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
@@ -92,12 +93,12 @@ def _python_launch(carriage: DerivedCarriage, sched: Schedule, x0: np.ndarray, f
 def run(repeats: int = 5) -> dict:
     carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
-    compute_envelope(carriage, lib, N_SPEEDS)  # warm: library loaded, functions resolved
+    compute_envelope(Plant(carriage, lib), N_SPEEDS)  # warm: library loaded, functions resolved
     log(f"envelope: {N_SPEEDS} speeds x 4 controllers, compiled library")
     c_times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        env = compute_envelope(carriage, lib, N_SPEEDS)
+        env = compute_envelope(Plant(carriage, lib), N_SPEEDS)
         c_times.append(time.perf_counter() - t0)
     carriage.functions  # noqa: B018  (lambdify once, outside the timing)
     log("envelope: the same with SciPy/python-control on the lambdified model")
@@ -108,8 +109,8 @@ def run(repeats: int = 5) -> dict:
         py_times.append(time.perf_counter() - t0)
     agree = max(float(np.max(np.abs(py[n] - env.controllers[n].max_real))) for n in py)
 
-    v_lo, v_hi = resolve_range(carriage, lib)
-    points = envelope_points(carriage, lib, np.linspace(v_lo, v_hi,
+    v_lo, v_hi = Plant(carriage, lib).speed_range
+    points = Plant(carriage, lib).points(np.linspace(v_lo, v_hi,
                                                         carriage.params.envelope.schedule_nodes))
     sched = Schedule.from_points(points, "coupled")
     f_extra = carriage.params.vehicle.mass * carriage.params.envelope.launch_acceleration

@@ -28,9 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import BENCH, ROOT, log, paired_ratios, replace_section, run, summary, worst_stack
 
-from maglevgen.analyses.envelope import gain_table, resolve_range, speed_range
+from maglevgen.analyses.envelope import speed_range
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.generate import GenerateOptions, render, render_tick_sources, write_output
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.schedule import GainTable, gain_table_sources
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
@@ -67,8 +68,8 @@ def _sources(carriage: DerivedCarriage, folder: Path) -> GainTable:
     write_output(render(carriage, GenerateOptions("single", "baked", "int32"),
                         speed_range(carriage)), folder)
     lib = simulation_library(carriage.structure)
-    v_min, v_max = resolve_range(carriage, lib)
-    table = gain_table(carriage, lib, v_min, v_max)
+    v_min, v_max = Plant(carriage, lib).speed_range
+    table = Plant(carriage, lib).gain_table(v_min, v_max)
     for name, text in gain_table_sources(table).items():
         (folder / name).write_text(text)
     return table

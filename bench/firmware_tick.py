@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import BENCH, ROOT, log, replace_section, run, worst_stack
 
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.exports.firmware import FIRMWARE_FLAGS, firmware_files
 from maglevgen.infrastructure.output import write_output
 from maglevgen.params import load_params
@@ -125,7 +126,7 @@ def measure() -> dict:
     carriage = DerivedCarriage(load_params())
     with tempfile.TemporaryDirectory(prefix="bench_tick_") as tmp:
         folder = Path(tmp) / "fw"
-        write_output(firmware_files(carriage), folder)
+        write_output(firmware_files(Plant(carriage)), folder)
         # the start-up and linker script the firmware folder's run_qemu.sh uses
         templates = ROOT / "templates"
         objs = []

@@ -33,6 +33,7 @@ from maglevgen.analyses.montecarlo import (
 )
 from maglevgen.analyses.simulate import AXIS_STATES, hold_run, run_loop
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import operating_point
 from maglevgen.derive import conventions as cv
 from maglevgen.params import load_params
@@ -98,8 +99,8 @@ def run(quick: bool = False, big: int | None = None) -> dict:
     carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     controller = carriage.params.envelope.embedded_controller
-    tick, k_v, budget = run_loop(carriage, lib, "firmware")
-    study = make_study(carriage, lib, (controller,), T_END, DT, 0, tick, k_v, budget)
+    tick, k_v, budget = run_loop(Plant(carriage, lib), "firmware")
+    study = make_study(Plant(carriage, lib), (controller,), T_END, DT, 0, tick, k_v, budget)
     load_start = os.getloadavg()
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     n = 40 if quick else 400

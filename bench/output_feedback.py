@@ -33,6 +33,7 @@ from maglevgen.analyses.envelope import speed_range
 from maglevgen.analyses.output_feedback import hold_speeds, noisy_holds, sensed_holds
 from maglevgen.analyses.sensing import sensing_check
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
@@ -49,12 +50,12 @@ def measure() -> dict:
     params = c.params
     v_min, v_max = speed_range(c)
     name = params.envelope.embedded_controller
-    ops = env_mod.envelope_points(c, lib, np.linspace(v_min, v_max, N_SPEEDS))
+    ops = Plant(c, lib).points(np.linspace(v_min, v_max, N_SPEEDS))
     setting = env_mod.loop_setting(c, ops)
     loops = [(env_mod.loop_plant(op, setting), env_mod.loop_design(op, name, setting))
              for op in ops]
     t0 = time.perf_counter()
-    sc = sensing_check(c, lib, ops, setting, name, loops, lambda sd: ((), ""))
+    sc = sensing_check(Plant(c, lib), ops, setting, name, loops, lambda sd: ((), ""))
     seconds = time.perf_counter() - t0
     rows = [{"speed": float(v), "rank": int(sc.rank[i]), "n": sc.n_states,
              "smallest_singular_value": float(sc.smallest[i]),
@@ -65,10 +66,11 @@ def measure() -> dict:
             for i, v in enumerate(sc.speeds)]
     log(f"noisy holds at {', '.join(f'{v:.4g}' for v in hold_speeds(v_min, v_max))} m/s")
     t0 = time.perf_counter()
-    hs = sensed_holds(c, lib, v_min, v_max, T_HOLD, seed=1)
+    plant = Plant(c, lib)
+    hs = sensed_holds(plant, v_min, v_max, T_HOLD, seed=1)
     hold_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
-    ref = noisy_holds(c, lib, v_min, v_max, T_HOLD, seed=1)
+    ref = noisy_holds(plant, v_min, v_max, T_HOLD, seed=1)
     ref_seconds = time.perf_counter() - t0
 
     def row(h) -> dict:

@@ -25,8 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import BENCH, ROOT
 
 from maglevgen.analyses import roa
-from maglevgen.analyses.envelope import envelope_points
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import AXIS_STATES, REDUCED_INDEX
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
@@ -48,7 +48,7 @@ def _median(fn, rounds: int = 3) -> float:
 def main() -> None:
     carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
-    (op,) = envelope_points(carriage, lib, [carriage.params.operation.speed])
+    (op,) = Plant(carriage, lib).points([carriage.params.operation.speed])
     P = roa.lyapunov_matrix(op, "spec")
     rng = np.random.default_rng(0)
     L = np.linalg.cholesky(P)

@@ -286,8 +286,8 @@ def check_build_inputs(loaded: LoadedParams, step: Callable[[str], None] = lambd
     range has a trim (envelope.v_min above lift-off); an InputError naming the key otherwise.
     The library is cached for run_build, and so are the other models' (`other_structures`),
     built meanwhile in a second process; ``step`` announces what a cold cache makes."""
-    from maglevgen.analyses.envelope import resolve_range
     from maglevgen.carriage import DerivedCarriage
+    from maglevgen.control.carriage_plant import Plant
     from maglevgen.runtime.library import (
         build_libraries,
         cached_simulation_library,
@@ -322,7 +322,7 @@ def check_build_inputs(loaded: LoadedParams, step: Callable[[str], None] = lambd
                     step("compiling the simulation library (cached afterwards)")
                 lib = compiling.result()
         progress.announce("envelope: checking the trim at envelope.v_min and v_max")
-        resolve_range(carriage, lib)
+        Plant(carriage, lib).speed_range  # noqa: B018  (an InputError naming the key)
         if pending is not None and not pending.future.done():
             step("waiting for the other models' libraries (second process)")
         if pending is not None:
@@ -350,6 +350,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     from maglevgen.analyses.simulate import run_scenarios
     from maglevgen.carriage import DerivedCarriage
     from maglevgen.control import names as controller_names
+    from maglevgen.control.carriage_plant import Plant
     from maglevgen.infrastructure.cache import STORE
     from maglevgen.runtime.library import (
         build_libraries,
@@ -384,7 +385,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         # limit); up to here a parameter edit has imported no SymPy, SciPy or CasADi
         step(f"simulations: the hold runs of {len(controller_names())} controllers in the firmware "
              f"loop ({opts.t_end:g} s at dt {opts.dt:g} s)")
-        run = run_scenarios(carriage, controller_names(), opts.t_end, opts.dt, lib=lib, bar=bar,
+        plant = Plant(carriage, lib)
+        run = run_scenarios(plant, controller_names(), opts.t_end, opts.dt, bar=bar,
                             loop="firmware")
         if pending is not None:
             pending.result()  # the envelope's model checks read them from the cache
@@ -392,21 +394,19 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     # 20 s hold)
     # in a child from here, while this process runs the envelope, the judged runs and the
     # region of attraction
-    from maglevgen.analyses.envelope import resolve_range
-
-    v_min, v_max = resolve_range(carriage, lib)
-    with child(shared={"carriage": carriage, "lib": lib}) as holding:
+    v_min, v_max = plant.speed_range
+    with child(shared={"plant": plant}) as holding:
         holds_job = submit(holding, "the noisy holds of the output-feedback loop", build_holds,
-                           Shared("carriage"), Shared("lib"), v_min, v_max, opts.t_end)
+                           Shared("plant"), v_min, v_max, opts.t_end)
         if carriage.params.sensors is not None:
             step("the embedded controller's noisy holds with its sensors and Kalman filter "
                  "(output-feedback loop, in a second process)")
         step("envelope: stability of each controller across the speed range")
-        env = compute_envelope(carriage, lib)
+        env = compute_envelope(plant)
         step("the embedded controller's hold and launch runs against [control.spec]")
-        judged = embedded_runs(carriage, lib, env, run.op.speed, opts.t_end, opts.dt)
+        judged = embedded_runs(plant, env, run.op.speed, opts.t_end, opts.dt)
         step("envelope: the embedded controller's region of attraction (sampled)")
-        regions = roa.study(carriage, lib, [carriage.params.envelope.embedded_controller],
+        regions = roa.study(plant, [carriage.params.envelope.embedded_controller],
                             roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
         holds = holds_job.result()
     # every check deciding the exit code, once: SUMMARY.md, stdout and the report's first
@@ -422,11 +422,11 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         figures = submit(drawing, "drawing the figures", render_figures, Shared("trajectories"))
         step("c/: the run-time-parameter C, the interface and the gain table")
         files.update(_c_files(carriage, runtime_sources(carriage.structure, progress=step),
-                              lib))
-        files.update(_gain_table_c(carriage, lib, env, files["c/manifest.json"]))
+                              plant))
+        files.update(_gain_table_c(plant, env, files["c/manifest.json"]))
         files["lib/libmaglev.so"] = lib.path.read_bytes()
         step("report: trim and force figures")
-        report_figures = _draw_report_figures(drawing, carriage, lib)
+        report_figures = _draw_report_figures(drawing, plant)
         mapping = submit(drawing, "drawing the stability map", _stability_map, env)
         region_fig = submit(drawing, "drawing the region of attraction", roa.study_files,
                             regions)
@@ -447,10 +447,10 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         files.update({f"envelope/{n}": b for n, b in region_files.items()})
     files.update({f"report/{n}": b for n, b in report.items()})
     step("SUMMARY.md, the schedule's C and the envelope's files; writing the folder")
-    files["c/maglev_schedule.c"] = _schedule_c(carriage, lib, env)
+    files["c/maglev_schedule.c"] = _schedule_c(plant, env)
     files["envelope/envelope.json"] = json.dumps(env.to_json(), indent=1) + "\n"
     files["envelope/envelope.md"] = envelope_markdown(env)
-    summary = summary_text(carriage, run, lib, env, report_outputs(report, opts), regions,
+    summary = summary_text(plant, run, env, report_outputs(report, opts), regions,
                            judged, verdict)
     verification = verdict.reason
     if verification is not None:  # the whole reason (`build` exits 3 with its first words)
@@ -487,30 +487,27 @@ def other_structures(carriage) -> list:
     return [s for i, s in enumerate(out) if s != carriage.structure and s not in out[:i]]
 
 
-def _schedule_c(carriage, lib, env) -> str:
+def _schedule_c(plant, env) -> str:
     """c/maglev_schedule.c: the embedded controller's launch schedule over ``env``'s range
     (what maglev_launch runs: the accelerating trim's reference and drag at
     envelope.launch_acceleration, the constant-speed gains on the envelope's loop as built,
-    the design at the tick with its K_lag and K_delay; envelope.launch_schedule)."""
+    the design at the tick with its K_lag and K_delay; `Plant.launch_schedule`)."""
     import numpy as np
 
-    from maglevgen.analyses.envelope import envelope_points, launch_schedule
     from maglevgen.control.schedule import schedule_c_source
 
-    nodes = np.linspace(env.v_min, env.v_max, carriage.params.envelope.schedule_nodes)
-    points = envelope_points(carriage, lib, nodes)
-    return schedule_c_source(launch_schedule(carriage, lib, points,
-                                             carriage.params.envelope.embedded_controller,
-                                             setting=env.loop))
+    nodes = np.linspace(env.v_min, env.v_max, plant.params.envelope.schedule_nodes)
+    return schedule_c_source(plant.launch_schedule(plant.points(nodes),
+                                                   plant.params.envelope.embedded_controller,
+                                                   setting=env.loop))
 
 
-def _gain_table_c(carriage, lib, env, manifest: str | bytes) -> dict[str, str]:
+def _gain_table_c(plant, env, manifest: str | bytes) -> dict[str, str]:
     """c/maglev_gain_table.{c,h}: the firmware's table schedule over ``env``'s range, and its
     measured worst error added to c/manifest.json (``gain_table``)."""
-    from maglevgen.analyses.envelope import gain_table
     from maglevgen.control.schedule import gain_table_sources
 
-    table = gain_table(carriage, lib, env.v_min, env.v_max)
+    table = plant.gain_table(env.v_min, env.v_max)
     data = json.loads(manifest)
     data["gain_table"] = table.manifest()
     return {**{f"c/{n}": t for n, t in gain_table_sources(table, one_output="F_prop").items()},
@@ -527,7 +524,7 @@ def _stability_map(env) -> dict[str, bytes]:
     return out
 
 
-def _c_files(carriage, folder: Path, lib) -> dict[str, str | bytes]:
+def _c_files(carriage, folder: Path, plant) -> dict[str, str | bytes]:
     """c/: the cached run-time-parameter sources, and the interface files for these parameters
     (maglev.h, main.c with the embedded controller's example, CMake example, manifest)."""
     from maglevgen.analyses.verdicts import generate_example
@@ -537,12 +534,12 @@ def _c_files(carriage, folder: Path, lib) -> dict[str, str | bytes]:
                                      for f in sorted(folder.iterdir()) if f.suffix in (".c", ".h")}
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     for name, text in render_interface(carriage, GenerateOptions("double", "runtime"),
-                                       table, None, generate_example(carriage, lib)).items():
+                                       table, None, generate_example(plant)).items():
         files[f"c/{name}"] = text
     return files
 
 
-def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
+def _draw_report_figures(drawing: Executor, plant) -> Job:
     """Have ``drawing`` draw the report's force figures at the compiled library's trim (the
     curves are the library's array forces; v_c, eq 3's displayed form, imports SymPy)."""
     from maglevgen.analyses.queries import trim_point
@@ -550,7 +547,7 @@ def _draw_report_figures(drawing: Executor, carriage, lib) -> Job:
     from maglevgen.report.figures import force_figures
 
     return submit(drawing, "drawing the report figures", force_figures,
-                  force_curves(carriage, trim_point(carriage, lib, None), lib))
+                  force_curves(plant, trim_point(plant, None)))
 
 
 def _report_files(carriage, sim_files: Mapping[str, bytes], opts: BuildOptions,
@@ -583,7 +580,7 @@ def report_outputs(report: Mapping[str, bytes], opts: BuildOptions) -> str:
     return f"report/ ({names}; report.pdf skipped: {why})"
 
 
-def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
+def summary_text(plant, run, env, report: str = "report/ (report.tex)",
                  regions=None, judged: tuple[JudgedRun, ...] = (),
                  verdict: EmbeddedVerdict | None = None) -> str:
     """Where each output is, and the numbers an engineer checks first; ``report``: what
@@ -593,7 +590,8 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     code (`maglevgen.analyses.verdicts`; default: from ``env``, ``judged`` and ``regions``)."""
     from maglevgen.analyses.queries import stiffness_table
 
-    rows = stiffness_table(carriage, lib, run.op.speed)
+    carriage = plant.carriage
+    rows = stiffness_table(plant, run.op.speed)
     # one table per kind of axis, so that each column is one quantity in one unit
     # (units as a person writes them: a '*' in a Markdown table starts emphasis)
     kinds = (("Translation", (0, 1), {"k": _md_unit(rows[0].unit), "m": "kg", "c": "N s/m"}),
@@ -602,9 +600,9 @@ def summary_text(carriage, run, lib, env, report: str = "report/ (report.tex)",
     if verdict is None:
         verdict = embedded_verdict(carriage, env, judged, regions[0] if regions else None)
     lines = [*_summary_verdicts(carriage, run, env, regions, verdict),
-             *_summary_trim(carriage, run, lib, env, report),
-             *_summary_axes(carriage, run, lib, rows, kinds),
-             *_summary_paper(carriage, run, lib, rows),
+             *_summary_trim(plant, run, env, report),
+             *_summary_axes(carriage, run, plant.lib, rows, kinds),
+             *_summary_paper(plant, run, rows),
              *_summary_runs(carriage, run, judged)]
     return "\n".join(lines) + "\n"
 
@@ -634,10 +632,11 @@ def _summary_verdicts(carriage, run, env, regions, verdict: EmbeddedVerdict) -> 
     return lines
 
 
-def _summary_trim(carriage, run, lib, env, report: str) -> list[str]:
+def _summary_trim(plant, run, env, report: str) -> list[str]:
     """The outputs, the trim at the design speed and the accelerating trim at v_min."""
     from maglevgen.analyses.queries import accelerating_margins
 
+    carriage = plant.carriage
     op = run.op
     names = list(carriage.params.arrays)
     return ["",
@@ -649,7 +648,7 @@ def _summary_trim(carriage, run, lib, env, report: str) -> list[str]:
             "per array: " + ", ".join(f"{n} {g * 1e3:.3f} mm" for n, g in zip(names, op.gaps,
                                                                               strict=True))
             + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",
-            accelerating_margins(carriage, lib, [env.v_min])[0].sentence(), ""]
+            accelerating_margins(plant, [env.v_min])[0].sentence(), ""]
 
 
 def _summary_axes(carriage, run, lib, rows, kinds) -> list[str]:
@@ -694,11 +693,11 @@ def _summary_axes(carriage, run, lib, rows, kinds) -> list[str]:
     return lines
 
 
-def _summary_paper(carriage, run, lib, rows) -> list[str]:
+def _summary_paper(plant, run, rows) -> list[str]:
     """Where the paper's printed forms differ from the derivation."""
     from maglevgen.analyses.queries import pitch_paper_form, trim_point
 
-    pitch = pitch_paper_form(carriage, trim_point(carriage, lib, run.op.speed),
+    pitch = pitch_paper_form(plant.carriage, trim_point(plant, run.op.speed),
                              next(r.paper_value for r in rows if r.axis == "pitch"))
     return ["Paper discrepancies found (details and evidence in the report):",
             "- printed stiffnesses (eqs 13-19) differ from the derived K_st0: "

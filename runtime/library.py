@@ -52,6 +52,7 @@ __all__ = [
     "build_libraries",
     "cached_simulation_library",
     "derivation_key",
+    "loaded_library",
     "runtime_sources",
     "simulation_library",
 ]
@@ -448,6 +449,18 @@ def simulation_library(structure: Structure, precision: str = "double",
     lib = _cached(folder, cc, cache_dir) or compile_shared(
         _sources(folder), cc=cc, cache_dir=cache_root(cache_dir) / "lib", progress=progress)
     return SimulationLibrary(lib, precision, folder)
+
+
+_LOADED: dict[Structure, SimulationLibrary] = {}
+
+
+def loaded_library(structure: Structure) -> SimulationLibrary:
+    """`simulation_library` of ``structure`` (double precision, the default cache), loaded
+    once in this process: what a worker process reuses for every chunk of a study it runs
+    (`maglevgen.analyses.montecarlo`)."""
+    if structure not in _LOADED:
+        _LOADED[structure] = simulation_library(structure)
+    return _LOADED[structure]
 
 
 def _cached(folder: Path, cc: str | None, cache_dir: Path | None) -> Path | None:

@@ -12,6 +12,7 @@ import scipy.linalg
 import sympy as sp
 
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.symbolic_reference import allocation_matrix
 from maglevgen.params import load_params
 
@@ -249,13 +250,12 @@ def normal_firmware(normal_carriage, normal_lib, tmp_path_factory):
     int32`) with normal actuators, compiled for the host with WARN; its library."""
     import subprocess
 
-    from maglevgen.analyses.envelope import resolve_range
     from maglevgen.codegen.generate import GenerateOptions, render, write_output
     from runtime.ffi import GeneratedLibrary
 
     out = tmp_path_factory.mktemp("normal_firmware")
     write_output(render(normal_carriage, GenerateOptions("single", "baked", "int32"),
-                        resolve_range(normal_carriage, normal_lib)), out)
+                        Plant(normal_carriage, normal_lib).speed_range), out)
     cc = subprocess.run(["cc", *WARN, "-O1", "-fPIC", "-shared", "maglev_functions.c", "-o",
                          "maglev.so", "-lm"], cwd=out, capture_output=True, text=True)
     assert cc.returncode == 0 and not cc.stderr, cc.stderr[-3000:]

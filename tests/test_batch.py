@@ -19,6 +19,7 @@ from maglevgen.analyses.simulate import (
     simulate,
     simulate_batch,
 )
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.sampled import Tick
 
 
@@ -55,7 +56,7 @@ def test_batch_runs_equal_the_per_sample_runs(carriage, sim_lib, op, tick) -> No
 def test_batch_study_rows_equal_the_per_sample_rows(carriage, sim_lib) -> None:
     """Five samples of a study (seed 5, two controllers) through run_samples_batch on two
     threads and through run_sample one by one: the same rows, NaN where NaN."""
-    study = make_study(carriage, sim_lib, ("damping", "lqr"), t_end=0.2, dt=1e-3, seed=5)
+    study = make_study(Plant(carriage, sim_lib), ("damping", "lqr"), t_end=0.2, dt=1e-3, seed=5)
     want = [r for i in range(5) for r in run_sample(study, i, sim_lib)]
     got = run_samples_batch(study, range(5), sim_lib, threads=2)
     assert len(got) == len(want) == 10

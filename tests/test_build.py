@@ -35,6 +35,7 @@ from test_params_cli import BAD, edited, write_input
 
 from maglevgen.build import STAMP, BuildOptions, run_build, up_to_date
 from maglevgen.cli import main
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.infrastructure.cache import key_file
 from maglevgen.infrastructure.output import MARKER
 from maglevgen.params import load_params
@@ -110,7 +111,6 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
     import control
     from independent_reference import ise_optimal_damping
 
-    from maglevgen.analyses.envelope import schedule_setting, tick_table_rows
     from maglevgen.control.schedule import tick_table_fields
     from maglevgen.derive import conventions as cv
     from maglevgen.runtime.compile import compile_shared
@@ -148,11 +148,11 @@ def test_gain_table_error_is_the_manifests_and_reproduced(good: Path, carriage,
         c = [ise_optimal_damping(k[i], mass[i]) if k[i] > 0 else 0.0 for i in range(5)]
         exact.append(np.concatenate([f_prop, x[axes], K.ravel(order="F"), c]))
     assert carriage.params.envelope.embedded_controller == "spec"
-    setting = schedule_setting(carriage, sim_lib, gt["v_min"], gt["v_max"])
+    setting = Plant(carriage, sim_lib).loop
     tick_fields = tick_table_fields(setting.tick.delay)
     assert tick_fields[:4] == fields and sum(n for _, n in tick_fields) == nout
     n_first = sum(n for _, n in fields)
-    design = tick_table_rows(carriage, sim_lib, setting, speeds)[:, n_first:]
+    design = Plant(carriage, sim_lib).tick_table_rows(setting, speeds)[:, n_first:]
     exact = [np.concatenate([e, d]) for e, d in zip(exact, design, strict=True)]
     fields = tick_fields
     table, exact = np.array(table), np.array(exact)

@@ -18,6 +18,7 @@ from numbers_in_text import differences
 from maglevgen.analyses.envelope import speed_range
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.generate import GenerateOptions, render, write_output
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.symbolic_reference import axis_plants
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import lqr_gain_mp
@@ -325,12 +326,11 @@ def test_generate_example_flies_the_embedded_controller_where_verified(
     from the default disturbance ends within 1 um / 1 urad of the trim, as a closed loop
     built here from the same gains (numpy eigenvalues of the C Jacobians with the allocation,
     `OperatingPoint.reduced_closed_loop`) decaying at its slowest rate predicts."""
-    from maglevgen.analyses.envelope import resolve_range
     from maglevgen.analyses.verdicts import generate_example
     from maglevgen.control.operating import Weights, operating_point
 
-    example = generate_example(carriage, sim_lib)
-    v_min, v_max = resolve_range(carriage, sim_lib)
+    example = generate_example(Plant(carriage, sim_lib))
+    v_min, v_max = Plant(carriage, sim_lib).speed_range
     name = carriage.params.envelope.embedded_controller
     assert example["controller"] == name and v_min <= example["speed"] <= v_max
     op = operating_point(sim_lib, carriage.p, example["speed"], carriage.params.track.min_gap,

@@ -15,6 +15,7 @@ from independent_reference import contact_gaps
 from maglevgen.analyses import queries
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.symbolic_reference import allocation_matrix, carriage_gains, effectiveness
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.numeric import magnetic_stiffness, other_stiffness
@@ -116,8 +117,8 @@ def test_trim_and_gains_never_use_the_lambdified_model(monkeypatch, sim_lib) -> 
 
     monkeypatch.setattr(DerivedCarriage, "functions", property(forbidden))
     monkeypatch.setattr(DerivedCarriage, "trim", forbidden)
-    t = queries.trim_report(fresh, None, sim_lib)
-    g = queries.gains_report(fresh, None, sim_lib)
+    t = queries.trim_report(Plant(fresh, sim_lib), None)
+    g = queries.gains_report(Plant(fresh, sim_lib), None)
     assert t["speed"] == g["speed"] == fresh.params.operation.speed
     assert set(g["axes"]) == set(cv.AXES)
 
@@ -127,7 +128,7 @@ def test_no_trim_names_the_lift_off_speed(sim_lib, carriage: DerivedCarriage) ->
 
     v_off = carriage.lift_off_speed()  # SciPy on the lambdified model: the reference
     with pytest.raises(NoTrimError, match=r"^no trim at speed 1 m/s: .*lift-off needs ") as err:
-        queries.trim_point(carriage, sim_lib, 1.0)
+        queries.trim_point(Plant(carriage, sim_lib), 1.0)
     assert float(str(err.value).rsplit("needs ", 1)[1].split()[0]) == pytest.approx(v_off,
                                                                                     rel=1e-3)
 
@@ -157,7 +158,7 @@ def test_report_stiffness_and_trim_are_the_librarys(monkeypatch, sim_lib) -> Non
         monkeypatch.setattr(DerivedCarriage, name, forbidden)
     ctx, _ = rp.build_context(fresh, rp.ReportOptions(verify_c=False, build_pdf=False))
 
-    tp = queries.trim_point(fresh, sim_lib, None)
+    tp = queries.trim_point(Plant(fresh, sim_lib), None)
     assert ctx["trim"]["values"] == tp.x.tolist()
     assert ctx["trim"]["F_prop"] == tp.f_prop
     np.testing.assert_allclose(tp.x, ref_trim.x, rtol=1e-9, atol=1e-12)

@@ -19,10 +19,11 @@ import pytest
 from independent_reference import spec_weights_reference
 from scipy.integrate import solve_ivp
 
-from maglevgen.analyses.envelope import STABILITY_MARGIN, compute_envelope, envelope_points
+from maglevgen.analyses.envelope import STABILITY_MARGIN, compute_envelope
 from maglevgen.analyses.simulate import AXIS_STATES, initial_state, launch
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.schedule import Schedule
 from maglevgen.control.symbolic_reference import effectiveness
 from maglevgen.derive import conventions as cv
@@ -73,7 +74,7 @@ QUASI_STATIC = 'model.circuit_dynamics="quasi-static"'
 
 @pytest.fixture(scope="module")
 def envelope(carriage: DerivedCarriage, sim_lib):
-    return compute_envelope(carriage, sim_lib, 12)
+    return compute_envelope(Plant(carriage, sim_lib), 12)
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +93,7 @@ def point_lib(point_carriage: DerivedCarriage):
 
 @pytest.fixture(scope="module")
 def point_envelope(point_carriage: DerivedCarriage, point_lib):
-    return compute_envelope(point_carriage, point_lib, 12)
+    return compute_envelope(Plant(point_carriage, point_lib), 12)
 
 
 @pytest.mark.parametrize("index", [0, 3, 6, 11])
@@ -148,7 +149,7 @@ def test_unstable_range_edges_are_where_the_sign_changes(point_carriage, point_e
 def test_stable_range_gives_a_stable_verdict(point_lib) -> None:
     """With the envelope above the per-axis LQR's unstable range its verdict is stable."""
     c = DerivedCarriage(load_params(None, [POINT, QUASI_STATIC, "envelope.v_min=17.0"]))
-    env = compute_envelope(c, point_lib, 8, ("lqr",))
+    env = compute_envelope(Plant(c, point_lib), 8, ("lqr",))
     assert env.controllers["lqr"].ok
     ev = _reference_eigenvalues(c, 17.0)["lqr"]
     assert np.max(ev.real) < 0
@@ -158,7 +159,7 @@ def test_heavier_carriage_is_unstable_at_the_design_speed(point_lib) -> None:
     """The issue's case (point force law): mass 12 kg makes the per-axis LQR unstable at
     20 m/s."""
     c = DerivedCarriage(load_params(None, [POINT, QUASI_STATIC, "vehicle.mass=12"]))
-    env = compute_envelope(c, point_lib, 8, ("lqr", "coupled"))
+    env = compute_envelope(Plant(c, point_lib), 8, ("lqr", "coupled"))
     assert max(float(np.max(_reference_eigenvalues(c, 20.0)["lqr"].real)), 0) > 0
     assert any(lo <= 20.0 <= hi for lo, hi in env.controllers["lqr"].unstable_ranges)
     assert env.controllers["coupled"].ok
@@ -176,7 +177,7 @@ def test_simulation_agrees_with_the_verdict(request, law, controller, speed, sta
     (maglev_launch without the acceleration force) and the gains stay those of the speed."""
     carriage, lib = (request.getfixturevalue(n) for n in (
         ("point_carriage", "point_lib") if law == "point" else ("carriage", "sim_lib")))
-    points = envelope_points(carriage, lib, np.linspace(speed - 2.0, speed + 2.0, 5))
+    points = Plant(carriage, lib).points(np.linspace(speed - 2.0, speed + 2.0, 5))
     op = points[2]
     worst = float(np.max(np.linalg.eigvals(op.reduced_closed_loop(controller)).real))
     assert (worst < -0.05) if stable else (worst > 0.2)
@@ -198,7 +199,7 @@ def test_simulation_agrees_with_the_verdict(request, law, controller, speed, sta
 def test_schedule_eval_in_c_equals_scipy_spline(carriage, sim_lib) -> None:
     """maglev_schedule_eval (C) against scipy's natural CubicSpline of the same nodes, with
     clamping outside the range and the non-finite code."""
-    points = envelope_points(carriage, sim_lib, np.linspace(8.0, 30.0, 9))
+    points = Plant(carriage, sim_lib).points(np.linspace(8.0, 30.0, 9))
     sched = Schedule.from_points(points, "coupled")
     spline = sched.spline
     y = np.ascontiguousarray(sched.values)
@@ -230,7 +231,7 @@ def test_schedule_eval_in_c_equals_scipy_spline(carriage, sim_lib) -> None:
 def test_schedule_gains_reproduce_the_coupled_lqr(carriage, sim_lib) -> None:
     """At a node, the scheduled (K_pos, K_rate) written in (a, a') equal python-control's
     coupled LQR K (on the reduced state) through the rate map."""
-    points = envelope_points(carriage, sim_lib, [25.0, 26.0])
+    points = Plant(carriage, sim_lib).points([25.0, 26.0])
     op = points[0]
     _, _, K_pos, K_rate = Schedule.unpack(Schedule.from_points(points, "coupled").values[0])
     A = op.A
@@ -272,7 +273,7 @@ def _launch_reference(carriage: DerivedCarriage, sched: Schedule, x0: np.ndarray
 def test_launch_run_converges_to_the_reference_as_dt4(carriage, sim_lib) -> None:
     """maglev_launch with the schedule evaluated at every RK4 stage against solve_ivp on the
     SymPy model with the same schedule: the error shrinks as dt^4 between two step sizes."""
-    points = envelope_points(carriage, sim_lib, np.linspace(7.0, 12.0, 11))
+    points = Plant(carriage, sim_lib).points(np.linspace(7.0, 12.0, 11))
     sched = Schedule.from_points(points, "coupled")
     f_extra = carriage.params.vehicle.mass * 5.0
     trajs = [launch(sim_lib, carriage.p, sched, points[0], 40.0, f_extra, dt,
@@ -300,7 +301,7 @@ def test_launch_run_converges_to_the_reference_as_dt4(carriage, sim_lib) -> None
 def test_launch_follows_the_accelerating_trim_found_here(carriage, sim_lib,
                                                          controller: str) -> None:
     """An undisturbed launch from 8 to 12 m/s at envelope.launch_acceleration with the launch
-    schedule (reference and feedforward of the accelerating trim, envelope.launch_schedule)
+    schedule (reference and feedforward of the accelerating trim, Plant.launch_schedule)
     from the accelerating trim at 8 m/s: at five speeds on the way the pitch and heave are
     those of the root of the static balances with the d'Alembert load -m a at the CG solved
     here (independent_reference) within a tenth of that trim's offset from the constant-speed
@@ -308,14 +309,13 @@ def test_launch_follows_the_accelerating_trim_found_here(carriage, sim_lib,
     0.15 mm; the run's deviation from its equilibrium (the schedule's) is as small."""
     from independent_reference import reference_trim
 
-    from maglevgen.analyses.envelope import launch_schedule
     from maglevgen.control.operating import checked_accelerating_trim
 
     prm = carriage.params
     a, min_gap = prm.envelope.launch_acceleration, prm.track.min_gap
-    points = envelope_points(carriage, sim_lib, np.linspace(8.0, 12.0, 9))
+    points = Plant(carriage, sim_lib).points(np.linspace(8.0, 12.0, 9))
     x_start = checked_accelerating_trim(sim_lib, carriage.p, 8.0, a, min_gap)[0]
-    traj = launch(sim_lib, carriage.p, launch_schedule(carriage, sim_lib, points, controller),
+    traj = launch(sim_lib, carriage.p, Plant(carriage, sim_lib).launch_schedule(points, controller),
                   points[0], 12.0, prm.vehicle.mass * a, 1e-3, min_gap, max_time=2.0,
                   disturbance={}, x_start=x_start)
     assert traj.c_status == 0 and traj.speed[-1] >= 12.0
@@ -402,7 +402,7 @@ def test_embedded_schedule_table_compiles_and_evaluates(carriage, sim_lib, tmp_p
     from maglevgen.runtime.compile import compile_shared
     from maglevgen.runtime.library import runtime_sources
 
-    points = envelope_points(carriage, sim_lib, np.linspace(7.0, 40.0, 12))
+    points = Plant(carriage, sim_lib).points(np.linspace(7.0, 40.0, 12))
     sched = Schedule.from_points(points, "coupled")
     src = tmp_path / "src"
     shutil.copytree(runtime_sources(carriage.structure), src)

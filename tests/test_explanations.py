@@ -20,6 +20,7 @@ import pytest
 from independent_reference import array_state, reference_trim, stiffness_fd
 
 from maglevgen.analyses.queries import trim_report
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import Weights, operating_point, speed_mode
 from maglevgen.derive import conventions as cv
 
@@ -151,7 +152,7 @@ def test_pitch_corrected_form_is_the_derived_stiffness_and_the_printed_is_not(ca
     assert abs(printed / K_fd - 1) > 0.5
     if prm.model.array_force == "distributed":
         assert (K_fd - K_point) / K_point > 0.01  # the tilt term (2 % here) is not round-off
-    rep = trim_report(carriage, v)["pitch_paper_form"]
+    rep = trim_report(Plant(carriage), v)["pitch_paper_form"]
     assert rep["sum_of_contributions"] == pytest.approx(corrected, rel=1e-6)
     assert rep["derived"] == pytest.approx(K_fd, rel=1e-5)
     assert rep["printed"] == pytest.approx(printed, rel=1e-9)

@@ -19,6 +19,7 @@ from maglevgen.analyses.envelope import speed_range
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.checks import ERROR_CODES
 from maglevgen.codegen.generate import GenerateOptions, write_output
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.runtime.compile import compile_shared
 from maglevgen.runtime.ffi import GeneratedFunctionError, GeneratedLibrary
 
@@ -233,18 +234,17 @@ def firmware(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     """The table schedule over the envelope's range (fitted here, as maglevgen.analyses.envelope's
     gain_table does), the firmware loop, the exact rows at speeds, and the firmware folder
     (`render_firmware`, no plant) of each precision."""
-    from maglevgen.analyses.envelope import resolve_range, schedule_setting, tick_table_rows
     from maglevgen.control.schedule import GainTable, tick_table_fields
     from maglevgen.exports.firmware import firmware_loop, render_firmware
 
-    v_min, v_max = resolve_range(carriage, sim_lib)
-    setting = schedule_setting(carriage, sim_lib, v_min, v_max)
+    v_min, v_max = Plant(carriage, sim_lib).speed_range
+    setting = Plant(carriage, sim_lib).loop
 
     def rows(vs):
-        return tick_table_rows(carriage, sim_lib, setting, vs)
+        return Plant(carriage, sim_lib).tick_table_rows(setting, vs)
 
     table = GainTable.fit(rows, v_min, v_max, tick_table_fields(setting.tick.delay))
-    loop = firmware_loop(carriage, sim_lib)
+    loop = firmware_loop(Plant(carriage, sim_lib))
     folders = {}
     for precision in ("single", "double"):
         folders[precision] = tmp_path_factory.mktemp(f"firmware_{precision}")
@@ -357,7 +357,7 @@ def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, firmware,
     of those closed with control.dlqr's gains on the same model, and stays stable."""
     import control
 
-    from maglevgen.analyses.envelope import envelope_points, loop_plant
+    from maglevgen.analyses.envelope import loop_plant
     from maglevgen.control.lqr import weighted_qr
     from maglevgen.control.schedule import GainTable
     from maglevgen.control.spec import spec_weights
@@ -371,7 +371,7 @@ def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, firmware,
         i += n
     nodes = GainTable.nodes(len(table.coeffs), table.v_min, table.v_max)
     mids = 0.5 * (nodes[1:] + nodes[:-1])
-    for op in envelope_points(carriage, sim_lib, mids):
+    for op in Plant(carriage, sim_lib).points(mids):
         _, row = _schedule_c(libs["double"], "double", op.speed, table.coeffs.shape[1])
         K_pos = row[f["K_pos"]].reshape(5, 5, order="F")
         K_rate = row[f["K_rate"]].reshape(5, 5, order="F")
@@ -1126,11 +1126,10 @@ def test_firmware_verifies_before_it_writes(carriage: DerivedCarriage, sim_lib, 
     writes nothing; with --allow-unstable it writes the folder, whose README and manifest
     carry the failed verdict. The default carriage's folder says verified, the spec, the
     model and the range."""
-    from maglevgen.analyses.envelope import envelope_points, resolve_range
     from maglevgen.cli import main
 
-    v_min, v_max = resolve_range(carriage, sim_lib)
-    ops = envelope_points(carriage, sim_lib, np.linspace(v_min, v_max, 5))
+    v_min, v_max = Plant(carriage, sim_lib).speed_range
+    ops = Plant(carriage, sim_lib).points(np.linspace(v_min, v_max, 5))
     delay = carriage.params.control.spec.delay_ticks
     assert max(_sampled_loop_growth(op, 50.0, delay) for op in ops) > 1.0
     assert max(_sampled_loop_growth(op, 1000.0, delay) for op in ops) < 1.0
@@ -1175,10 +1174,9 @@ def qemu_folder(firmware, carriage: DerivedCarriage, tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def qemu_sense_folder(firmware, carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> Path:
     """The same with the sense tick (sense_schedule): its run_qemu.sh flies both ticks."""
-    from maglevgen.analyses.envelope import resolve_range
     from maglevgen.exports.firmware import MEASURED, render_firmware, sense_schedule
 
-    sense = sense_schedule(carriage, sim_lib, *resolve_range(carriage, sim_lib),
+    sense = sense_schedule(Plant(carriage, sim_lib), *Plant(carriage, sim_lib).speed_range,
                            firmware["loop"])
     assert sense is not None
     folder = tmp_path_factory.mktemp("firmware_qemu_sense")

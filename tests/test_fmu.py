@@ -20,6 +20,7 @@ from fmpy.validation import validate_fmu
 
 from maglevgen.analyses.simulate import AXIS_STATES, reference_trajectory, run_scenarios
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu, fmi_headers, fmu_controllers
 from maglevgen.params import load_params
@@ -99,7 +100,7 @@ def test_cs_reproduces_maglevgen_simulate(fmus, carriage: DerivedCarriage, sim_l
                                           controller: str) -> None:
     """The CS FMU with a built-in controller against `maglevgen simulate` at the same step
     (the coupled LQR's full 5 x 5 gains, the others' diagonal ones)."""
-    run = run_scenarios(carriage, (controller,), 1.0, 1e-3, lib=sim_lib)
+    run = run_scenarios(Plant(carriage, sim_lib), (controller,), 1.0, 1e-3)
     ref = run.trajectories[0]
     res = simulate_fmu(str(fmus("cs", controller)), fmi_type="CoSimulation", stop_time=1.0,
                        output_interval=1e-3, output=STATES)
@@ -130,7 +131,7 @@ def test_me_with_cvode_agrees_with_solve_ivp_on_the_sympy_model(fmus, carriage: 
 
 def test_mass_set_through_fmpy_equals_set_on_the_command_line(fmus, sim_lib) -> None:
     heavy = DerivedCarriage(load_params(None, ["vehicle.mass=10.5"]))
-    ref = run_scenarios(heavy, ("lqr",), 0.5, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(Plant(heavy, sim_lib), ("lqr",), 0.5, 1e-3).trajectories[0]
     res = simulate_fmu(str(fmus("cs")), fmi_type="CoSimulation", stop_time=0.5,
                        output_interval=1e-3, output=STATES,
                        start_values={"vehicle.mass": 10.5})
@@ -217,7 +218,7 @@ def test_external_controller_takes_the_generalized_forces(fmus, carriage, sim_li
     md = read_model_description(str(fmus("cs", "external")))
     assert {v.name for v in md.modelVariables if v.causality == "input"} == {
         "dF_prop", *(c.name for c in cv.CONTROLS)}
-    ref = run_scenarios(carriage, ("none",), 0.3, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(Plant(carriage, sim_lib), ("none",), 0.3, 1e-3).trajectories[0]
     res = simulate_fmu(str(fmus("cs", "external")), fmi_type="CoSimulation", stop_time=0.3,
                        output_interval=1e-3, output=STATES)
     _assert_close(_states(res), ref.x, 1e-9)
@@ -313,7 +314,7 @@ def test_normal_actuators_fmu_reproduces_maglevgen_simulate(tmp_path: Path) -> N
     forces = [f"F_n{i}" for i in range(1, 7)]
     outputs = {v.name for v in md.modelVariables if v.causality == "output"}
     assert {"F_prop", *forces} <= outputs and not any(n.startswith("F_y") for n in outputs)
-    ref = run_scenarios(normal, ("lqr",), 0.5, 1e-3, lib=lib).trajectories[0]
+    ref = run_scenarios(Plant(normal, lib), ("lqr",), 0.5, 1e-3).trajectories[0]
     assert ref.u.shape[1] == 7
     res = simulate_fmu(str(path), fmi_type="CoSimulation", stop_time=0.5,
                        output_interval=1e-3, output=[*STATES, *forces])

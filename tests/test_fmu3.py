@@ -28,6 +28,7 @@ from maglevgen.analyses.simulate import (
     run_scenarios,
 )
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import FMI_VERSIONS, build_fmu
 
@@ -141,7 +142,7 @@ def test_unit_definitions_are_the_si_dimensions(fmus) -> None:
 def test_cs_reproduces_maglevgen_simulate(fmus, carriage: DerivedCarriage, sim_lib) -> None:
     """Same RK4 arithmetic as `maglevgen simulate`: the trajectory bit for bit, at one
     internal step per communication step and at ten."""
-    ref = run_scenarios(carriage, ("lqr",), 1.0, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(Plant(carriage, sim_lib), ("lqr",), 1.0, 1e-3).trajectories[0]
     res = simulate_fmu(str(fmus("both")), fmi_type="CoSimulation", stop_time=1.0,
                        output_interval=1e-3, output=STATES)
     assert np.array_equal(res["time"], ref.t)
@@ -154,7 +155,7 @@ def test_cs_reproduces_maglevgen_simulate(fmus, carriage: DerivedCarriage, sim_l
 @pytest.mark.parametrize("controller", ["damping", "none"])
 def test_cs_other_controllers_reproduce_maglevgen_simulate(fmus, carriage: DerivedCarriage, sim_lib,
                                                            controller: str) -> None:
-    ref = run_scenarios(carriage, (controller,), 0.3, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(Plant(carriage, sim_lib), (controller,), 0.3, 1e-3).trajectories[0]
     res = simulate_fmu(str(fmus("cs", controller)), fmi_type="CoSimulation", stop_time=0.3,
                        output_interval=1e-3, output=STATES)
     assert np.array_equal(_states(res), ref.x)
@@ -165,7 +166,7 @@ def test_external_controller_with_zero_forces_is_the_open_loop(fmus, carriage: D
     md = read_model_description(str(fmus("cs", "external")))
     assert {v.name for v in md.modelVariables if v.causality == "input"} == {
         "dF_prop", *(c.name for c in cv.CONTROLS)}
-    ref = run_scenarios(carriage, ("none",), 0.3, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(Plant(carriage, sim_lib), ("none",), 0.3, 1e-3).trajectories[0]
     res = simulate_fmu(str(fmus("cs", "external")), fmi_type="CoSimulation", stop_time=0.3,
                        output_interval=1e-3, output=STATES)
     _assert_close(_states(res), ref.x, 1e-9)
@@ -265,7 +266,7 @@ def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: 
     assert read_model_description(str(out / "maglev.fmu")).fmiVersion == "3.0"
     # the FMU's firmware loop: the loop as built (the design at the tick, the speed loop and
     # its integral, the budget, the actuator lag), as `maglevgen simulate --loop firmware`
-    ref = run_scenarios(carriage, (embedded,), 0.5, 1e-3, lib=sim_lib,
+    ref = run_scenarios(Plant(carriage, sim_lib), (embedded,), 0.5, 1e-3,
                         loop="firmware").trajectories[0]
     res = simulate_fmu(str(out / "maglev.fmu"), fmi_type="CoSimulation", stop_time=0.5,
                        output_interval=1e-3, output=STATES)

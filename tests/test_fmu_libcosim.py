@@ -29,6 +29,7 @@ from fmpy import read_model_description
 
 from maglevgen.analyses.simulate import AXIS_STATES, reference_trajectory, run_scenarios
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu
 from maglevgen.params import load_params
@@ -78,7 +79,7 @@ def cs_fmu(tmp_path_factory, carriage: DerivedCarriage, sim_lib) -> Path:
 
 def test_libcosim_run_is_maglevgen_simulate_bit_for_bit(cs_fmu: Path, carriage: DerivedCarriage,
                                                        sim_lib) -> None:
-    ref = run_scenarios(carriage, ("lqr",), 1.0, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(Plant(carriage, sim_lib), ("lqr",), 1.0, 1e-3).trajectories[0]
     t, x = _run(cs_fmu, 1_000_000_000, {})
     assert t.size >= 990 and t[0] == 0 and np.all(np.diff(t) == STEP_NS)
     k = t // STEP_NS
@@ -88,7 +89,7 @@ def test_libcosim_run_is_maglevgen_simulate_bit_for_bit(cs_fmu: Path, carriage: 
 
 def test_libcosim_start_value_is_the_command_line_set(cs_fmu: Path, sim_lib) -> None:
     heavy = DerivedCarriage(load_params(None, ["vehicle.mass=10.5"]))
-    ref = run_scenarios(heavy, ("lqr",), 0.5, 1e-3, lib=sim_lib).trajectories[0]
+    ref = run_scenarios(Plant(heavy, sim_lib), ("lqr",), 0.5, 1e-3).trajectories[0]
     t, x = _run(cs_fmu, 500_000_000, {"vehicle.mass": 10.5})
     assert np.array_equal(x, ref.x[t // STEP_NS])
 

@@ -24,7 +24,8 @@ import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
 
-from maglevgen.analyses.simulate import firmware_gains, firmware_loop, simulate
+from maglevgen.analyses.simulate import firmware_gains, run_loop, simulate
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu
 
@@ -52,7 +53,7 @@ def fmus(tmp_path_factory, carriage):
 def host(carriage, sim_lib, op):
     """The firmware loop on the host (`firmware_loop`: its FirmwareTick with the lag and the
     speed integral), and the same loop with one tick less of delay."""
-    tick, k_v, budget = firmware_loop(carriage, sim_lib)
+    tick, k_v, budget = run_loop(Plant(carriage, sim_lib), "firmware")
     assert tick.lag > 0  # the plant's lag is exercised
 
     def run(delay: int):

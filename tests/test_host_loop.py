@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 
 AX = [1, 2, 3, 4, 5]  # y, z, phi, theta, psi in the state
 SPEED = 20.0  # [m/s] inside the envelope
@@ -28,9 +29,9 @@ SPEED = 20.0  # [m/s] inside the envelope
 @pytest.fixture(scope="module")
 def loop(carriage: DerivedCarriage, sim_lib):
     """(operating point at SPEED, the firmware's tick with its lag, k_v, budget)."""
-    from maglevgen.analyses.simulate import Weights, firmware_loop, operating_point
+    from maglevgen.analyses.simulate import Weights, operating_point, run_loop
 
-    tick, k_v, budget = firmware_loop(carriage, sim_lib)
+    tick, k_v, budget = run_loop(Plant(carriage, sim_lib), "firmware")
     op = operating_point(sim_lib, carriage.p, SPEED, carriage.params.track.min_gap,
                          Weights.of(carriage.params))
     return op, tick, k_v, budget
@@ -298,26 +299,20 @@ def test_host_loop_is_the_held_rk4_loop_bit_for_bit(carriage, sim_lib, loop, con
 @pytest.mark.needs_cc
 def test_launch_flies_the_scheduled_design_at_the_tick(carriage, sim_lib, loop) -> None:
     """The first eight ticks of the launch (maglev_launch, the firmware loop, the schedule of
-    `envelope.launch_schedule` on the loop as built: K_lag and K_delay in the spline's
+    `Plant.launch_schedule` on the loop as built: K_lag and K_delay in the spline's
     extended row) against `_held_rk4_loop` with the gains scipy's spline of the same nodes
     gives at each tick's measured speed, the feed-forward F_drag + m a and the ramp
     v_ref(t) = v_min + a t: within 1e-10 (1 + the value; the two splines' last digits). The
     nodes' K_lag and K_delay are the design's at the tick, not zero."""
-    from maglevgen.analyses.envelope import (
-        envelope_points,
-        launch_references,
-        launch_schedule,
-        resolve_range,
-    )
     from maglevgen.analyses.simulate import DISTURBANCE, firmware_gains, initial_state, launch
     from maglevgen.control.operating import checked_accelerating_trim
     from maglevgen.control.schedule import K_DELAY, K_LAG, Schedule
 
     _, tick, k_v, budget = loop
-    v_lo, v_hi = resolve_range(carriage, sim_lib)
-    points = envelope_points(carriage, sim_lib, np.linspace(v_lo, v_hi, 8))
-    refs = launch_references(carriage, sim_lib, points)
-    sched = launch_schedule(carriage, sim_lib, points, "spec", refs, tick.setting(k_v))
+    v_lo, v_hi = Plant(carriage, sim_lib).speed_range
+    points = Plant(carriage, sim_lib).points(np.linspace(v_lo, v_hi, 8))
+    refs = Plant(carriage, sim_lib).launch_references(points)
+    sched = Plant(carriage, sim_lib).launch_schedule(points, "spec", refs, tick.setting(k_v))
     d = tick.delay
     design = firmware_gains(points[0], "spec", tick)
     np.testing.assert_array_equal(sched.values[0, K_LAG:K_DELAY],
@@ -487,18 +482,17 @@ def test_speed_integral_holds_the_speed_under_parameter_errors(carriage, sim_lib
     error is below 1e-3 of the proportional one and within the spec."""
     import dataclasses
 
-    from maglevgen.analyses.envelope import envelope_points, resolve_range
     from maglevgen.analyses.run_spec import SPEED_TOLERANCE
-    from maglevgen.analyses.simulate import firmware_gains, firmware_loop, simulate
+    from maglevgen.analyses.simulate import firmware_gains, run_loop, simulate
     from maglevgen.params import load_params
 
-    tick, k_v, budget = firmware_loop(carriage, sim_lib)
+    tick, k_v, budget = run_loop(Plant(carriage, sim_lib), "firmware")
     assert tick.speed_integral > 0  # on by default
     m, b = carriage.params.vehicle.mass, carriage.params.control.spec.speed_bandwidth
-    v = resolve_range(carriage, sim_lib)[0]
+    v = Plant(carriage, sim_lib).speed_range[0]
     plant = DerivedCarriage(load_params(overrides=[override]))
-    (nominal,) = envelope_points(carriage, sim_lib, [v])
-    (op,) = envelope_points(plant, sim_lib, [v])
+    (nominal,) = Plant(carriage, sim_lib).points([v])
+    (op,) = Plant(plant, sim_lib).points([v])
     # the proportional loop's gain, m b - slope (`sampled.speed_gain`): k_v = m b (1 + r) - slope
     k_v_p = k_v - m * b * carriage.params.control.spec.speed_integral_ratio
     gains = firmware_gains(nominal, "spec", tick)

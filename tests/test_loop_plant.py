@@ -19,6 +19,7 @@ import scipy.integrate
 import scipy.linalg
 
 from maglevgen.analyses.envelope import loop_setting
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.margins import disk_gain_phase, disk_margins
 from maglevgen.control.plant import LoopPlant, speed_loop_gains
 from maglevgen.control.sampled import LOOP_STATES, Tick
@@ -320,7 +321,7 @@ def _reference_gains(op, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray
 def default_envelope(carriage, sim_lib):
     from maglevgen.analyses.envelope import compute_envelope
 
-    return compute_envelope(carriage, sim_lib, 3, controllers=("spec",), other_models=False)
+    return compute_envelope(Plant(carriage, sim_lib), 3, controllers=("spec",), other_models=False)
 
 
 def test_spec_verdict_is_its_design_at_the_tick_on_the_lagged_loop(carriage, sim_lib,
@@ -330,12 +331,11 @@ def test_spec_verdict_is_its_design_at_the_tick_on_the_lagged_loop(carriage, sim
     meets [control.spec]; its continuous gains lose the damping ratio on the same loop, and
     the sentence on the firmware says both and that the host's firmware loop runs the
     design on the plant with the lag."""
-    from maglevgen.analyses.envelope import envelope_points
 
     env = default_envelope
     spec = carriage.params.control.spec
     e = env.controllers["spec"]
-    for i, op in enumerate(envelope_points(carriage, sim_lib, env.speeds)):
+    for i, op in enumerate(Plant(carriage, sim_lib).points(env.speeds)):
         s = _reference_loop(op, env.loop.speed_gain, TAU, k_i=env.loop.speed_integral)
         zeta = np.min(-s.real / np.abs(s))
         assert e.sampled_min_damping[i] == pytest.approx(zeta, rel=1e-6)
@@ -363,10 +363,9 @@ def test_build_exits_3_naming_a_10_ms_actuator_lag(tmp_path, carriage, sim_lib) 
     import subprocess
     import sys
 
-    from maglevgen.analyses.envelope import envelope_points, resolve_range
 
-    v_min, _ = resolve_range(carriage, sim_lib)
-    (op,) = envelope_points(carriage, sim_lib, [v_min])
+    v_min, _ = Plant(carriage, sim_lib).speed_range
+    (op,) = Plant(carriage, sim_lib).points([v_min])
     setting = loop_setting(carriage, [op])
     plant = LoopPlant(op, setting.tick, 10e-3, setting.speed_gain)
     M, N, C = plant.open_loop(plant.design())

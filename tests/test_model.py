@@ -10,6 +10,7 @@ from independent_reference import reference_trim
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
 from maglevgen.codegen.casadi_model import casadi_model
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import NoTrimError
 from maglevgen.params import load_params
@@ -182,7 +183,7 @@ def test_force_figure_curves_are_eq3_from_the_library(carriage: DerivedCarriage,
     arr = list(prm.arrays.values())[upper]
     gaps = np.array([prm.track.min_gap, 0.01, 0.02, 0.05, 0.02, 0.02])
     speeds = np.array([20.0, 20.0, 20.0, 20.0, 0.5, 80.0])
-    lift, drag = array_force_curves(carriage, sim_lib, upper, gaps, speeds)
+    lift, drag = array_force_curves(Plant(carriage, sim_lib), upper, gaps, speeds)
     ratio = c.resistance / (k * speeds * c.inductance)
     F = (arr.circuits * B0**2 * h.width**2 / (2 * k * c.inductance) / (1 + ratio**2)
          * np.exp(-2 * k * gaps))

@@ -29,6 +29,7 @@ from maglevgen.analyses.montecarlo import (
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
 from maglevgen.control import names
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.params import load_params
 
@@ -47,7 +48,7 @@ def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
 @pytest.fixture(scope="module")
 def small(sim_lib):
     carriage = DerivedCarriage(load_params(None, [SPEEDS]))
-    study = make_study(carriage, sim_lib, ("damping", "coupled"), t_end=0.4, dt=1e-3, seed=7)
+    study = make_study(Plant(carriage, sim_lib), ("damping", "coupled"), t_end=0.4, dt=1e-3, seed=7)
     return carriage, study, run_local(study, 6, workers=1)
 
 
@@ -218,7 +219,7 @@ def test_contact_interval_covers_an_independent_estimate(private_cache) -> None:
                                            'model.circuit_dynamics="quasi-static"']))
     sim_lib = simulation_library(carriage.structure)
     # --redesign: the reference below designs each sample's damping for its own parameters
-    study = make_study(carriage, sim_lib, ("damping",), t_end=3.0, dt=1e-3, seed=11,
+    study = make_study(Plant(carriage, sim_lib), ("damping",), t_end=3.0, dt=1e-3, seed=11,
                        redesign=True)
     result = run_study(study, 80, workers=2)
     agg = result.summary["controllers"]["damping"]
@@ -242,7 +243,7 @@ def test_samples_breaking_a_cross_key_rule_are_rejected_and_counted(sim_lib) -> 
     """A nominal gap drawn at or below track.min_gap (2 mm) is rejected, not run."""
     carriage = DerivedCarriage(load_params(None, [
         'tolerances.parameters={"arrays.3.nominal_gap" = {uniform = 0.0135}}', SPEEDS]))
-    study = make_study(carriage, sim_lib, ("coupled",), t_end=0.02, dt=1e-3, seed=3)
+    study = make_study(Plant(carriage, sim_lib), ("coupled",), t_end=0.02, dt=1e-3, seed=3)
     cols = run_local(study, 40, workers=1)
     below = cols["arrays.3.nominal_gap"] <= carriage.params.track.min_gap
     assert below.any() and not below.all()
@@ -399,8 +400,9 @@ def sensed_study(sim_lib):
     from maglevgen.analyses.sim_loop import run_loop
 
     carriage = DerivedCarriage(load_params(None, [SPEEDS]))
-    tick, k_v, budget = run_loop(carriage, sim_lib, "sensed")
-    study = make_study(carriage, sim_lib, ("spec",), t_end=0.3, dt=1e-3, seed=5, tick=tick,
+    plant = Plant(carriage, sim_lib)
+    tick, k_v, budget = run_loop(plant, "sensed")
+    study = make_study(plant, ("spec",), t_end=0.3, dt=1e-3, seed=5, tick=tick,
                        speed_gain=k_v, force_budget=budget)
     return carriage, study, run_local(study, 4, workers=1)
 

@@ -25,6 +25,7 @@ from maglevgen import report as rp
 from maglevgen.analyses.queries import gains_report
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.errors import InputError, MaglevError
 from maglevgen.infrastructure import output
 from maglevgen.params import default_params_text, load_params
@@ -259,7 +260,7 @@ def test_pdf_has_every_section_and_the_gains_command_numbers(
     flat = re.sub(r"\s+", " ", text)
     for title in rp.SECTION_TITLES.values():
         assert title in flat, f"section {title!r} missing from the PDF"
-    _assert_gains_match(_gain_rows(text, ""), gains_report(carriage, None))
+    _assert_gains_match(_gain_rows(text, ""), gains_report(Plant(carriage), None))
     assert "No simulation results were given" in flat
 
 
@@ -267,7 +268,7 @@ def test_pdf_has_every_section_and_the_gains_command_numbers(
 @pytest.mark.needs_tex
 def test_changed_mass_changes_the_report(mass_report: Path, default_report: Path) -> None:
     heavy = DerivedCarriage(load_params(None, [f"vehicle.mass={MASS}"]))
-    ref = gains_report(heavy, None)
+    ref = gains_report(Plant(heavy), None)
     text = _pdf_text(mass_report / "report.pdf")
     rows = _gain_rows(text, "")
     _assert_gains_match(rows, ref)
@@ -524,14 +525,13 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
     controller's and the count of checks; nowhere a SymPy/Python repr."""
     from maglevgen.analyses.envelope import compute_envelope
     from maglevgen.control import title
-    from maglevgen.runtime.library import simulation_library
 
     pdf = str(default_report / "report.pdf")
     pages = {n: subprocess.run(["pdftotext", "-f", "1", "-l", str(n), pdf, "-"], check=True,
                                capture_output=True, text=True).stdout for n in (1, 2)}
     page1, flat = (re.sub(r"\s+", " ", unicodedata.normalize("NFKC", pages[n])
                           .replace("\u2212", "-")) for n in (1, 2))
-    env = compute_envelope(carriage, simulation_library(carriage.structure))
+    env = compute_envelope(Plant(carriage))
     for name, c in env.controllers.items():
         verdict = re.sub(r"\s+", " ", c.verdict.replace("\u2212", "-"))
         on = page1 if name == carriage.params.envelope.embedded_controller else flat

@@ -17,6 +17,7 @@ from independent_reference import contact_gaps
 from scipy.integrate import solve_ivp
 
 from maglevgen.analyses import roa
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.lqr import weighted_qr
 from maglevgen.control.operating import AXIS_STATES, REDUCED_INDEX
 from maglevgen.control.spec import spec_weights
@@ -186,7 +187,7 @@ def test_montecarlo_column_places_each_sample_against_the_region(sim_lib) -> Non
     from maglevgen.params import load_params
 
     carriage = DerivedCarriage(load_params(None, ["tolerances.speed=[15.0, 25.0]"]))
-    study = make_study(carriage, sim_lib, ("spec",), t_end=0.4, dt=1e-3, seed=3)
+    study = make_study(Plant(carriage, sim_lib), ("spec",), t_end=0.4, dt=1e-3, seed=3)
     cols = run_local(study, 6, workers=1)
     m = cols["region_multiple"]
     assert np.all(np.isfinite(m)) and np.all(m > 0)
@@ -246,10 +247,9 @@ def _reduced_gaps(prm, op, dx: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def speeds_ops(sim_lib, carriage):
-    from maglevgen.analyses.envelope import envelope_points, resolve_range
 
-    v_min, v_max = resolve_range(carriage, sim_lib)
-    return envelope_points(carriage, sim_lib, [v_min, 20.9, v_max])
+    v_min, v_max = Plant(carriage, sim_lib).speed_range
+    return Plant(carriage, sim_lib).points([v_min, 20.9, v_max])
 
 
 def test_contact_level_is_the_closed_form_on_linearised_gaps(speeds_ops, carriage) -> None:

@@ -14,11 +14,12 @@ from maglevgen.analyses.run_spec import SPEED_TOLERANCE, RunSpec, judge_run
 from maglevgen.analyses.simulate import (
     AXIS_STATES,
     SETTLING_BAND,
-    firmware_loop,
     metrics,
+    run_loop,
     simulate,
     spec_verdict,
 )
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 
 T_END = 1.5  # [s] past the first second, where the speed error is judged
@@ -26,7 +27,7 @@ T_END = 1.5  # [s] past the first second, where the speed error is judged
 
 @pytest.fixture(scope="module")
 def hold_run(carriage, sim_lib, op):
-    tick, k_v, budget = firmware_loop(carriage, sim_lib)
+    tick, k_v, budget = run_loop(Plant(carriage, sim_lib), "firmware")
     traj = simulate(sim_lib, carriage.p, op, "spec", T_END, 1e-3,
                     carriage.params.track.min_gap, tick=tick, speed_gain=k_v,
                     force_budget=budget)
@@ -150,12 +151,12 @@ def test_a_yaw_at_speed_starts_a_drift_no_budget_stops_within_the_disturbance(ca
     default) is met by none; the file's limit leaves the room, and the run keeps to it."""
     from independent_reference import lateral_drift_overshoot, rotation
 
-    from maglevgen.analyses.envelope import resolve_range
     from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios
 
     prm, spec = carriage.params, carriage.params.control.spec
-    v_max = resolve_range(carriage, sim_lib)[1]
-    traj = run_scenarios(carriage, ("spec",), 0.3, 1e-3, v_max, lib=sim_lib,
+    plant = Plant(carriage, sim_lib)
+    v_max = plant.speed_range[1]
+    traj = run_scenarios(plant, ("spec",), 0.3, 1e-3, v_max,
                          loop="firmware").trajectories[0]
     x0 = traj.x[0]
     v0 = float((rotation(*x0[3:6]) @ x0[6:9])[1])

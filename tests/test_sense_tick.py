@@ -24,6 +24,7 @@ import pytest
 from test_tick_state import NumpyTick, _allocation, _clenshaw, _fields
 
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 
 OK = 0
 NODES = 10  # the test's tables: Chebyshev interpolants at this many nodes (no dense check)
@@ -48,26 +49,18 @@ def _interpolant(rows, v_min: float, v_max: float, fields):
 def sense(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     """The firmware folder in double precision with the sense tick (tables interpolating the
     exact schedules at NODES nodes), compiled into a host library."""
-    from maglevgen.analyses.envelope import (
-        envelope_points,
-        resolve_range,
-        schedule_setting,
-        tick_table_rows,
-    )
     from maglevgen.codegen.checks import ERROR_CODES
     from maglevgen.codegen.generate import write_output
     from maglevgen.control import estimation as est
     from maglevgen.control.schedule import tick_table_fields
     from maglevgen.derive import conventions as cv
-    from maglevgen.exports.firmware import FirmwareLoop, SenseSchedule, render_firmware
+    from maglevgen.exports.firmware import SenseSchedule, render_firmware
 
     params = carriage.params
-    v_min, v_max = resolve_range(carriage, sim_lib)
-    setting = schedule_setting(carriage, sim_lib, v_min, v_max)
-    loop = FirmwareLoop(setting.tick.rate, setting.tick.delay, float(setting.speed_gain),
-                        float(params.control.spec.force_budget), float(setting.actuator_lag),
-                        float(setting.speed_integral), float(setting.speed_integral_limit))
-    table = _interpolant(lambda vs: tick_table_rows(carriage, sim_lib, setting, vs), v_min,
+    plant = Plant(carriage, sim_lib)
+    v_min, v_max = plant.speed_range
+    setting = loop = plant.loop
+    table = _interpolant(lambda vs: plant.tick_table_rows(setting, vs), v_min,
                          v_max, tick_table_fields(setting.tick.delay))
     layout = est.SensorLayout.of(params)
     nu = carriage.model.u.shape[0]
@@ -76,7 +69,7 @@ def sense(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     fields = est.sense_fields(len(states), n_lag, nu, len(layout.names))
 
     def sense_rows(vs):
-        pts = envelope_points(carriage, sim_lib, vs)
+        pts = plant.points(vs)
         return np.array([sp.row() for sp in est.sense_plants(
             sim_lib, carriage.p, params, pts, loop.actuator_lag, loop.delay_ticks)])
 
@@ -98,7 +91,7 @@ def sense(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
         """The library with the law's table constant at its exact row at speed v: the
         feedforward and the reference not scheduled on the estimated speed, as in the loop as
         built (control.plant: F_ff and a_ref fixed); the estimator's table as above."""
-        row = tick_table_rows(carriage, sim_lib, setting, [v])[0]
+        row = Plant(carriage, sim_lib).tick_table_rows(setting, [v])[0]
         coeffs = np.zeros_like(table.coeffs)
         coeffs[0] = row
         const = replace(table, coeffs=coeffs, stored=tuple(int(j) for j in np.flatnonzero(row)))
@@ -297,7 +290,6 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
     prediction with the C's command. The estimator's state after the tick (prediction, lagged
     forces, the commands in flight, the cache) and the rejected readings bit for bit; the
     command to 1e-12 of its scale (CasADi's rates and allocation against SymPy's and pinv)."""
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control import estimation as est
 
     fx = sense
@@ -307,7 +299,7 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
     all_valid = (1 << nps.ny) - 1
     rng = np.random.default_rng(4949)
     speeds = [sch.table.v_min, 0.5 * (sch.table.v_min + sch.table.v_max), sch.table.v_max]
-    for op in envelope_points(carriage, sim_lib, speeds):
+    for op in Plant(carriage, sim_lib).points(speeds):
         c = CSense(fx)
         y0 = est.measurement_model(sim_lib, carriage.p, op, fx["layout"]).y_trim.copy()
         y0[-1] = 12.5  # the track sensor: the position the estimate starts at
@@ -360,7 +352,6 @@ def test_sense_table_rows_are_the_estimators_matrices_and_m_is_dlqes(sense, carr
     P C' (C P C' + R)^-1 with P from control.dlqe to 1e-8 of M's largest entry."""
     import control
 
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control import estimation as est
     from maglevgen.control.schedule import GainTable
 
@@ -369,7 +360,7 @@ def test_sense_table_rows_are_the_estimators_matrices_and_m_is_dlqes(sense, carr
     params, tau, d = carriage.params, loop.actuator_lag, loop.delay_ticks
     f = _fields(sch.table)
     nodes = GainTable.nodes(NODES, sch.table.v_min, sch.table.v_max)
-    (op,) = envelope_points(carriage, sim_lib, [nodes[3]])
+    (op,) = Plant(carriage, sim_lib).points([nodes[3]])
     (point,) = est.estimator_points(sim_lib, carriage.p, params, [op], tau)
     model, design = point.model, point.design
     n, nl = model.n_x, model.n_lag
@@ -388,7 +379,7 @@ def test_sense_table_rows_are_the_estimators_matrices_and_m_is_dlqes(sense, carr
                                atol=1e-15)
     assert np.max(np.abs(design.M[n:])) <= est.M_DROPPED_SHARE * np.max(np.abs(design.M))
     for v in (sch.table.v_min, 20.0, sch.table.v_max):
-        (opv,) = envelope_points(carriage, sim_lib, [v])
+        (opv,) = Plant(carriage, sim_lib).points([v])
         (sp,) = est.sense_plants(sim_lib, carriage.p, params, [opv], tau, d)
         m = est.estimator_model(sim_lib, carriage.p, opv, params, tau=tau)
         _, P, _ = control.dlqe(m.Phi, np.eye(m.Phi.shape[0]), m.C, m.Q, m.R)
@@ -412,7 +403,7 @@ def test_sense_tick_closed_loop_has_the_loop_as_built_eigenvalues(sense, carriag
     both ways; the along-track position's z = 1 aside."""
     import control
 
-    from maglevgen.analyses.envelope import envelope_points, loop_design, loop_plant
+    from maglevgen.analyses.envelope import loop_design, loop_plant
     from maglevgen.control import estimation as est
     from maglevgen.control.schedule import GainTable
 
@@ -421,7 +412,7 @@ def test_sense_tick_closed_loop_has_the_loop_as_built_eigenvalues(sense, carriag
     params, tau, d, h = carriage.params, loop.actuator_lag, loop.delay_ticks, 1 / loop.tick_rate
     assert d == 1  # the plant below takes the oldest command of the tick's queue
     nodes = GainTable.nodes(NODES, sch.table.v_min, sch.table.v_max)
-    (op,) = envelope_points(carriage, sim_lib, [nodes[NODES // 2]])
+    (op,) = Plant(carriage, sim_lib).points([nodes[NODES // 2]])
     nf = nu - 1  # the array forces
     x0 = op.x_trim.astype(float)
     u0 = np.concatenate([[op.f_prop], np.zeros(nf)])
@@ -642,11 +633,10 @@ def test_sense_tick_under_sanitizers_with_hostile_readings(sense, carriage, sim_
     they are."""
     from test_failsafe import SANITIZE
 
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control import estimation as est
 
     folder = sense["folder"]
-    (op,) = envelope_points(carriage, sim_lib, [20.0])
+    (op,) = Plant(carriage, sim_lib).points([20.0])
     y0 = est.measurement_model(sim_lib, carriage.p, op, sense["layout"]).y_trim.copy()
     y0[-1] = 100.0
     (folder / "hostile_sense.c").write_text(_HOSTILE_HARNESS)
@@ -676,19 +666,18 @@ def test_the_firmware_sense_table_holds_the_estimator_within_its_bound(carriage,
     check): its stated errors within GAIN_TABLE_BOUND, and at four speeds between its nodes
     each field within the bound of the exact rows (sense_plants), relative to the field's
     largest magnitude over those speeds and the ends; the manifest states the same table."""
-    from maglevgen.analyses.envelope import envelope_points, resolve_range
     from maglevgen.control import estimation as est
     from maglevgen.control.schedule import GAIN_TABLE_BOUND
     from maglevgen.exports.firmware import firmware_loop, sense_schedule
 
-    v_min, v_max = resolve_range(carriage, sim_lib)
-    loop = firmware_loop(carriage, sim_lib)
-    sch = sense_schedule(carriage, sim_lib, v_min, v_max, loop)
+    v_min, v_max = Plant(carriage, sim_lib).speed_range
+    loop = firmware_loop(Plant(carriage, sim_lib))
+    sch = sense_schedule(Plant(carriage, sim_lib), v_min, v_max, loop)
     assert sch is not None
     assert max(sch.table.errors.values()) <= GAIN_TABLE_BOUND
     speeds = np.concatenate([[v_min, v_max], np.random.default_rng(49).uniform(v_min, v_max, 4)])
     exact = np.array([sp.row() for sp in est.sense_plants(
-        sim_lib, carriage.p, carriage.params, envelope_points(carriage, sim_lib, speeds),
+        sim_lib, carriage.p, carriage.params, Plant(carriage, sim_lib).points(speeds),
         loop.actuator_lag, loop.delay_ticks)])
     got = sch.table(speeds)
     for name, sl in _fields(sch.table).items():
@@ -708,12 +697,11 @@ def test_sense_init_takes_the_pose_from_the_gaps(sense, carriage, sim_lib) -> No
     numpy's lstsq on the table's C and y_trim to 1e-9 of it; the velocities and rates the
     trim's, the track position the track sensor's; with only the four lower gaps usable
     (four readings, five pose states) the pose stays at the trim."""
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control import estimation as est
 
     fx = sense
     layout, sch = fx["layout"], fx["schedule"]
-    (op,) = envelope_points(carriage, sim_lib, [17.0])
+    (op,) = Plant(carriage, sim_lib).points([17.0])
     meas = est.measurement_model(sim_lib, carriage.p, op, layout)
     offset = np.array([1e-3, -1e-3, 2e-3, -1e-3, 1.5e-3])  # y, z, phi, theta, psi
     x_true = op.x_trim.astype(float).copy()
@@ -803,14 +791,13 @@ def test_sense_tick_holds_the_nonlinear_carriage_on_noisy_readings(sense, carria
     force RMS over the last second within control.spec's 10 % of the budget, and the
     prediction's error over the last second of the order the filter predicts (its RMS on
     the gaps' states within 0.5 to 2 times sqrt of the DARE's a-priori P)."""
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.analyses.output_feedback import _rhs, _rk4
     from maglevgen.control import estimation as est
 
     fx = sense
     layout, loop, nu = fx["layout"], fx["loop"], fx["nu"]
     params, p = carriage.params, carriage.p
-    (op,) = envelope_points(carriage, sim_lib, [20.0])
+    (op,) = Plant(carriage, sim_lib).points([20.0])
     (point,) = est.estimator_points(sim_lib, p, params, [op], loop.actuator_lag)
     tau, h = loop.actuator_lag, 1.0 / loop.tick_rate
     dynamics = sim_lib.function("maglev_dynamics")
@@ -874,12 +861,11 @@ def test_the_update_without_some_readings_still_converges(sense, carriage, sim_l
     the IMU, the gyro or the accelerometer left out and with both left upper gaps out; without
     the track sensor the along-track position is left to the prediction (an eigenvalue 1:
     nothing else reads it) and the rest stays stable."""
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control import estimation as est
 
     names = sense["layout"].names
     (point,) = est.estimator_points(sim_lib, carriage.p, carriage.params,
-                                    envelope_points(carriage, sim_lib, [speed]),
+                                    Plant(carriage, sim_lib).points([speed]),
                                     sense["loop"].actuator_lag)
     m, d = point.model, point.design
     n = m.Phi.shape[0]
@@ -908,7 +894,6 @@ def test_the_sense_cache_is_within_its_stated_bound_of_evaluating_every_tick(
     next tick, the cache holds the table at its speed bit for bit, and each field of the table
     in use is within exports.firmware.sense_refresh_bound (the bound maglev_tick.h states) of
     the table at the scheduled speed, relative to the field's largest magnitude."""
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control import estimation as est
     from maglevgen.exports.firmware import SENSE_REFRESH_TICKS, sense_refresh_bound
 
@@ -924,7 +909,7 @@ def test_the_sense_cache_is_within_its_stated_bound_of_evaluating_every_tick(
     f = _fields(table)
     scale = {name: np.max(np.abs(rows[:, sl])) or 1.0 for name, sl in f.items()}
     v0 = table.v_min + 0.5
-    (op,) = envelope_points(carriage, sim_lib, [v0])
+    (op,) = Plant(carriage, sim_lib).points([v0])
     c = CSense(fx)
     all_valid = (1 << nps.ny) - 1
     y0 = est.measurement_model(sim_lib, carriage.p, op, fx["layout"]).y_trim

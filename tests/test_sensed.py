@@ -26,8 +26,9 @@ SPEED, SECONDS, SKIP = 20.0, 3.0, 500  # the compared hold; its first ticks (the
 @pytest.fixture(scope="module")
 def sensed_tick(carriage: DerivedCarriage, sim_lib):
     from maglevgen.analyses.sim_loop import run_loop
+    from maglevgen.control.carriage_plant import Plant
 
-    return run_loop(carriage, sim_lib, "sensed")
+    return run_loop(Plant(carriage, sim_lib), "sensed")
 
 
 @pytest.fixture(scope="module")
@@ -36,8 +37,10 @@ def held(carriage: DerivedCarriage, sim_lib, sensed_tick):
     from maglevgen.analyses.output_feedback import noisy_hold
     from maglevgen.analyses.simulate import run_scenarios
 
-    run = run_scenarios(carriage, ("spec",), SECONDS, 1e-3, SPEED, lib=sim_lib, loop="sensed",
-                        disturbance={})
+    from maglevgen.control.carriage_plant import Plant
+
+    run = run_scenarios(Plant(carriage, sim_lib), ("spec",), SECONDS, 1e-3, SPEED,
+                        loop="sensed", disturbance={})
     traj = run.trajectories[0]
     ref = noisy_hold(sim_lib, carriage.p, carriage.params, traj.op, t_end=SECONDS, seed=0)
     return traj, ref
@@ -94,16 +97,17 @@ def test_the_sense_tables_readings_at_trim_are_within_a_tenth_of_their_noise(
     """Between the table's nodes, each reading at trim is within TRIM_READING_SHARE of its
     noise of the exact value, and C's rows within GAIN_TABLE_BOUND of their own largest
     entry: the exact rows from the DARE at each speed (estimation.sense_plants)."""
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.analyses.firmware_sources import sense_schedule
+    from maglevgen.control.carriage_plant import Plant
     from maglevgen.control import estimation as est
     from maglevgen.control.schedule import GAIN_TABLE_BOUND, field_slices
 
     fw = sensed_tick[0].firmware
-    table = sense_schedule(carriage, sim_lib, fw.v_min, fw.v_max, fw.loop).table
+    plant = Plant(carriage, sim_lib)
+    table = sense_schedule(plant, fw.v_min, fw.v_max, fw.loop).table
     speeds = np.linspace(fw.v_min, fw.v_max, 9)[1:-1] + 0.37  # off the nodes
     exact = np.array([sp.row() for sp in est.sense_plants(
-        sim_lib, carriage.p, carriage.params, envelope_points(carriage, sim_lib, speeds),
+        sim_lib, carriage.p, carriage.params, plant.points(speeds),
         fw.loop.actuator_lag, fw.loop.delay_ticks)])
     approx = table(speeds)
     where = dict(zip((n for n, _ in table.fields), field_slices(table.fields), strict=True))

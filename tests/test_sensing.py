@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 from test_loop_plant import TAU, _reference_loop
 
-from maglevgen.analyses.envelope import compute_envelope, envelope_points
+from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.verdicts import embedded_verdict
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.params import LoadedParams, load_params
 
@@ -28,7 +29,7 @@ SPEEDS = 3  # the envelope's grid in these tests: both ends and the middle
 
 @pytest.fixture(scope="module")
 def sensing_envelope(carriage, sim_lib):
-    return compute_envelope(carriage, sim_lib, SPEEDS, controllers=("spec",),
+    return compute_envelope(Plant(carriage, sim_lib), SPEEDS, controllers=("spec",),
                             other_models=False)
 
 
@@ -91,7 +92,7 @@ def test_default_sensors_observe_and_the_whole_loop_meets_the_spec(carriage, sim
     params = carriage.params
     h = 1.0 / params.control.spec.tick_rate
     zetas = []
-    for i, op in enumerate(envelope_points(carriage, sim_lib, env.speeds)):
+    for i, op in enumerate(Plant(carriage, sim_lib).points(env.speeds)):
         Phi, C, L, R, _ = _reference_filter(params, op, TAU, h)
         Ob = control.obsv(Phi[:12, :12], C[:, :12] / np.sqrt(np.diag(R))[:, None])
         sv = np.linalg.svd(Ob, compute_uv=False)
@@ -129,8 +130,8 @@ def test_face_centre_gap_sensors_without_an_imu_fail_the_verdict_naming_why(
         update={"imu": None})})
     blind = DerivedCarriage(LoadedParams(params, loaded.source, loaded.sha256,
                                          (*loaded.overrides, "sensors.imu removed")))
-    env = compute_envelope(blind, sim_lib, 2, controllers=("spec",), other_models=False)
-    (op,) = envelope_points(blind, sim_lib, [env.speeds[-1]])
+    env = compute_envelope(Plant(blind, sim_lib), 2, controllers=("spec",), other_models=False)
+    (op,) = Plant(blind, sim_lib).points([env.speeds[-1]])
     # the reference filter without the IMU's rows (the file's IMU numbers go unused)
     _, C, _, R, P = _reference_filter(loaded.params, op, TAU, imu=False)
     S = C @ P @ C.T + R
@@ -215,8 +216,8 @@ def test_a_set_blind_to_the_pose_fails_the_verdict_naming_the_states(carriage, s
     loaded = carriage.loaded
     blind = DerivedCarriage(LoadedParams(params, loaded.source, loaded.sha256,
                                          (*loaded.overrides, "track sensor alone")))
-    env = compute_envelope(blind, sim_lib, 2, controllers=("spec",), other_models=False)
-    (op,) = envelope_points(blind, sim_lib, [env.speeds[0]])
+    env = compute_envelope(Plant(blind, sim_lib), 2, controllers=("spec",), other_models=False)
+    (op,) = Plant(blind, sim_lib).points([env.speeds[0]])
     Phi, C, _, _, _ = _reference_filter(carriage.params, op, TAU)
     Ob = control.obsv(Phi[:12, :12], C[-1:, :12])
     rank = np.linalg.matrix_rank(Ob)

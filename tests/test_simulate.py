@@ -32,6 +32,7 @@ from maglevgen.analyses.simulate import (
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
 from maglevgen.control import names as controller_names
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.symbolic_reference import allocation_matrix, axis_plants
 from maglevgen.errors import InputError
 from maglevgen.params import load_params
@@ -258,7 +259,7 @@ def test_rk4_stability_limit_matches_the_imaginary_axis_bound() -> None:
 
 def test_step_above_the_stability_limit_is_refused(carriage, sim_lib) -> None:
     with pytest.raises(InputError, match=r"RK4 stability limit 0\.0\d+ s"):
-        run_scenarios(carriage, controller_names(), 1.0, 0.1, lib=sim_lib)
+        run_scenarios(Plant(carriage, sim_lib), controller_names(), 1.0, 0.1)
 
 
 # ------------------------------------------------------------------ library and its cache

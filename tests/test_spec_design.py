@@ -19,6 +19,7 @@ from scipy.optimize import brentq
 from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.build import MESSAGE_LIMIT
 from maglevgen.control import embeddable, names
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.sampled import Tick, loop_gain, loop_model, sampled_eigenvalues
 from maglevgen.control.spec import axis_force_limits, rate_weight, spec_weights
 from maglevgen.derive import conventions as cv
@@ -151,7 +152,7 @@ def test_sampled_eigenvalues_equal_c2d_with_the_delay(op, controller, tick) -> N
 
 @pytest.fixture(scope="module")
 def envelope(carriage, sim_lib):
-    return compute_envelope(carriage, sim_lib, 5)
+    return compute_envelope(Plant(carriage, sim_lib), 5)
 
 
 def test_spec_design_meets_the_spec_and_the_paper_designs_fail_it(envelope, carriage,
@@ -159,11 +160,10 @@ def test_spec_design_meets_the_spec_and_the_paper_designs_fail_it(envelope, carr
     """The default carriage: the spec design's sampled-data loop (c2d here) has every damping
     ratio >= 0.5 and decays faster than 1/s at every envelope speed; the paper's LQRs fail
     the damping ratio. The verdicts say so and name where they were checked."""
-    from maglevgen.analyses.envelope import envelope_points
 
     spec = carriage.params.control.spec
     tick = Tick(spec.tick_rate, spec.delay_ticks)
-    points = envelope_points(carriage, sim_lib, envelope.speeds)
+    points = Plant(carriage, sim_lib).points(envelope.speeds)
     k_v = envelope.loop.speed_gain
     for op in points:
         for name, meets in (("spec", True), ("lqr", False), ("coupled", False)):
@@ -257,7 +257,6 @@ def test_embedded_gains_on_the_point_force_law(envelope, carriage, sim_lib) -> N
     """The spec design's gains (on the distributed law) closed around the point law's loop,
     assembled here with c2d from the point law's own C Jacobians: the verdict's ModelCheck
     says what the eigenvalues say."""
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.carriage import DerivedCarriage
     from maglevgen.params import load_params
     from maglevgen.runtime.library import simulation_library
@@ -266,8 +265,8 @@ def test_embedded_gains_on_the_point_force_law(envelope, carriage, sim_lib) -> N
     point = DerivedCarriage(load_params(None, ['model.array_force="point"']))
     spec = carriage.params.control.spec
     tick = Tick(spec.tick_rate, spec.delay_ticks)
-    ours = envelope_points(carriage, sim_lib, envelope.speeds)
-    theirs = envelope_points(point, simulation_library(point.structure), envelope.speeds)
+    ours = Plant(carriage, sim_lib).points(envelope.speeds)
+    theirs = Plant(point, simulation_library(point.structure)).points(envelope.speeds)
     meets = True
     for design, op in zip(ours, theirs, strict=True):
         # the point law's loop with the distributed design's gains

@@ -19,6 +19,7 @@ from independent_reference import array_state, rotation, stiffness_fd
 
 from maglevgen.analyses.queries import trim_point
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.linearize import STIFFNESS_PARTS
 from maglevgen.params import Parameters, load_params
@@ -157,7 +158,7 @@ def test_library_parts_are_the_derivations_split(carriage: DerivedCarriage, poin
     K_st0 + K_other, and agrees with the lambdified split (the SymPy it is generated from)."""
     for c in (carriage, point):
         lib = simulation_library(c.structure)
-        tp = trim_point(c, lib, None)
+        tp = trim_point(Plant(c, lib), None)
         got = dict(zip(STIFFNESS_PARTS, lib.function("maglev_stiffness_parts")(
             tp.x, tp.f_prop, c.p), strict=True))
         total = tp.K_magnetic + tp.K_other

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from maglevgen.analyses.envelope import envelope_points
 from maglevgen.analyses.simulate import (
     AXIS_STATES,
     DISTURBANCE,
@@ -29,6 +28,7 @@ from maglevgen.analyses.simulate import (
     speed_loop_gain,
 )
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import speed_mode
 from maglevgen.control.schedule import Schedule
 from maglevgen.control.symbolic_reference import effectiveness
@@ -137,7 +137,7 @@ def test_launch_with_tick_delay_and_speed_loop_matches_solve_ivp(carriage, sim_l
     """maglev_launch at a 100 Hz tick (10 RK4 steps) with one tick of delay and the speed
     loop tracking v0 + a t, the gains scheduled at the tick, against the same loop by DOP853;
     the held inputs against the commands computed here from the run's own tick samples."""
-    points = envelope_points(carriage, sim_lib, np.linspace(7.0, 12.0, 11))
+    points = Plant(carriage, sim_lib).points(np.linspace(7.0, 12.0, 11))
     sched = Schedule.from_points(points, "damping")
     op, mass, accel = points[0], carriage.params.vehicle.mass, 5.0
     k_v = speed_loop_gain(speed_mode(sim_lib, carriage.p, op, mass, "damping"),
@@ -262,7 +262,7 @@ def test_without_a_tick_the_loop_is_maglev_rk4_step(carriage, sim_lib, op) -> No
                           tick=Tick(1.0 / DT, 0))
         assert not np.array_equal(ticked.x, expected)
     # the launch: a loop of zeros is the loop without one
-    points = envelope_points(carriage, sim_lib, np.linspace(7.0, 12.0, 6))
+    points = Plant(carriage, sim_lib).points(np.linspace(7.0, 12.0, 6))
     sched = Schedule.from_points(points, "coupled")
     x0 = initial_state(points[0], DISTURBANCE)
     runs = [sim_lib.launch(x0, DT, 200, 40.0, 40.0, 1, sched, carriage.p, min_gap,
@@ -371,7 +371,7 @@ def test_montecarlo_samples_run_the_loop_they_are_given(carriage, sim_lib) -> No
 
     rows = {}
     for budget in (1e-6, None):
-        study = make_study(carriage, sim_lib, ("damping",), 0.2, DT, seed=3,
+        study = make_study(Plant(carriage, sim_lib), ("damping",), 0.2, DT, seed=3,
                            tick=Tick(1000.0, 1), speed_gain=10.0, force_budget=budget)
         assert (study.tick, study.speed_gain, study.force_budget) == (Tick(1000.0, 1), 10.0,
                                                                       budget)
@@ -380,4 +380,4 @@ def test_montecarlo_samples_run_the_loop_they_are_given(carriage, sim_lib) -> No
     assert rows[1e-6]["saturated_time"] == pytest.approx(0.2 - 1e-3)
     assert rows[None]["saturated_time"] == 0.0
     with pytest.raises(InputError, match=re.escape("tick rate 300.0")):
-        make_study(carriage, sim_lib, ("damping",), 0.2, DT, seed=3, tick=Tick(300.0, 1))
+        make_study(Plant(carriage, sim_lib), ("damping",), 0.2, DT, seed=3, tick=Tick(300.0, 1))

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 
 AX = [1, 2, 3, 4, 5]  # y, z, phi, theta, psi in the state
 REDUCED = [1, 2, 3, 4, 5, 7, 8, 9, 10, 11]  # the design's body states
@@ -32,18 +33,18 @@ def tick_lib(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     clamp, control.spec.speed_integral_ratio and speed_integral_limit), compiled into a host
     library. Its table is the fit without dropped terms (drop_share 0): it interpolates the
     rows at its nodes, which the closed-loop eigenvalue test takes as exact."""
-    from maglevgen.analyses.envelope import resolve_range, schedule_setting, tick_table_rows
     from maglevgen.codegen.checks import ERROR_CODES
     from maglevgen.codegen.generate import write_output
     from maglevgen.control.schedule import GainTable, tick_table_fields
     from maglevgen.exports.firmware import firmware_loop, render_firmware
 
-    v_min, v_max = resolve_range(carriage, sim_lib)
-    setting = schedule_setting(carriage, sim_lib, v_min, v_max)
-    table = GainTable.fit(lambda vs: tick_table_rows(carriage, sim_lib, setting, vs), v_min,
+    plant = Plant(carriage, sim_lib)
+    v_min, v_max = plant.speed_range
+    setting = plant.loop
+    table = GainTable.fit(lambda vs: plant.tick_table_rows(setting, vs), v_min,
                           v_max, tick_table_fields(setting.tick.delay), drop_share=0.0)
-    loop = firmware_loop(carriage, sim_lib)
-    assert loop.speed_integral > 0 and 0 < loop.integral_limit < np.inf
+    loop = firmware_loop(plant)
+    assert loop.speed_integral > 0 and 0 < loop.c_integral_limit < np.inf
     folder = tmp_path_factory.mktemp("tick_state")
     write_output(render_firmware(carriage, table, loop, "double"), folder)
     so = folder / "tick.so"
@@ -164,7 +165,7 @@ class NumpyTick:
         f_ff = _clenshaw(self.table, v_ref)[self.f["F_prop"]][0]  # at the reference
         f_prop = (f_ff + k_v * (v_ref - V)) - k_i * self.xi
         self.advance(w)
-        k_i, i_max = self.loop.speed_integral, self.loop.integral_limit
+        k_i, i_max = self.loop.speed_integral, self.loop.c_integral_limit
         xi = self.xi + (1.0 / self.loop.tick_rate) * (V - v_ref)
         if k_i * xi > i_max:
             xi = i_max / k_i
@@ -195,7 +196,6 @@ def test_tick_follows_the_designed_controller_tick_by_tick(tick_lib, carriage, s
     own previous state) bit for bit; the generalized forces and array forces (CasADi's rates
     and allocation against SymPy's and pinv: another order of operations) to 1e-12 of their
     scale."""
-    from maglevgen.analyses.envelope import envelope_points
 
     table, loop = tick_lib["table"], tick_lib["loop"]
     nu = carriage.model.u.shape[0]
@@ -203,7 +203,7 @@ def test_tick_follows_the_designed_controller_tick_by_tick(tick_lib, carriage, s
     T = _allocation(carriage)
     rng = np.random.default_rng(49)
     speeds = [table.v_min, 0.5 * (table.v_min + table.v_max), table.v_max]
-    for op in envelope_points(carriage, sim_lib, speeds):
+    for op in Plant(carriage, sim_lib).points(speeds):
         c, ref = CTick(tick_lib["so"], d, nu), NumpyTick(carriage, table, loop, T)
         v_ref = op.speed * 1.01
         worst = 0.0
@@ -287,7 +287,7 @@ def test_tick_speed_integral_is_clamped(tick_lib, carriage, op) -> None:
     propulsion's integral part at +i_max; the first tick with the error reversed moves xi
     back from the bound at once (no stored excess to unwind)."""
     loop = tick_lib["loop"]
-    k_i, i_max, h = loop.speed_integral, loop.integral_limit, 1.0 / loop.tick_rate
+    k_i, i_max, h = loop.speed_integral, loop.c_integral_limit, 1.0 / loop.tick_rate
     c = CTick(tick_lib["so"], loop.delay_ticks, carriage.model.u.shape[0])
     x = op.x_trim.astype(float).copy()
     V = float(np.sqrt((x[6] * x[6] + x[7] * x[7]) + x[8] * x[8]))
@@ -329,7 +329,6 @@ def test_tick_closed_loop_on_the_linearised_plant_has_the_dlqr_loop_eigenvalues(
     propulsion): the eigenvalues agree to 1e-6 of |z| (1 + its size)."""
     import control
 
-    from maglevgen.analyses.envelope import envelope_points
     from maglevgen.control.lqr import weighted_qr
     from maglevgen.control.schedule import GainTable
     from maglevgen.control.spec import spec_weights
@@ -340,7 +339,7 @@ def test_tick_closed_loop_on_the_linearised_plant_has_the_dlqr_loop_eigenvalues(
     nf, d, h = nu - 1, loop.delay_ticks, 1.0 / loop.tick_rate
     tau = loop.actuator_lag
     nodes = GainTable.nodes(len(table.coeffs), table.v_min, table.v_max)
-    (op,) = envelope_points(carriage, sim_lib, [nodes[len(nodes) // 2]])
+    (op,) = Plant(carriage, sim_lib).points([nodes[len(nodes) // 2]])
     x0, v0 = op.x_trim.astype(float), op.speed
     p = carriage.p
     u0 = np.concatenate([[op.f_prop], np.zeros(nf)])
@@ -579,11 +578,17 @@ def test_tick_under_sanitizers_with_hostile_values(tick_lib, op) -> None:
 
 
 def test_the_firmware_integral_needs_a_finite_clamp() -> None:
-    """FirmwareLoop: a speed integral without a finite speed_integral_limit is refused (the C
-    clamp needs a number); without an integral the header's MAGLEV_TICK_I_MAX is 0."""
-    from maglevgen.exports.firmware import FirmwareLoop
+    """The loop as built (`LoopSetting`): a speed integral without a finite
+    speed_integral_limit is refused by the firmware (the C clamp needs a number); without an
+    integral the header's MAGLEV_TICK_I_MAX is 0."""
+    from maglevgen.control.built_loop import LoopSetting
+    from maglevgen.control.sampled import Tick
+
+    def loop(*rest: float) -> LoopSetting:
+        return LoopSetting(Tick(1000.0, 1), 60.0, 0.0, *rest)
 
     with pytest.raises(ValueError, match="finite limit"):
-        FirmwareLoop(1000.0, 1, 60.0, 20.0, 2e-3, 116.0)
-    assert FirmwareLoop(1000.0, 1, 60.0, 20.0, 2e-3, 116.0, 100.0).integral_limit == 100.0
-    assert FirmwareLoop(1000.0, 1, 60.0, 20.0, 2e-3).integral_limit == 0.0
+        loop(2e-3, 116.0).check_embeddable()
+    loop(2e-3, 116.0, 100.0).check_embeddable()
+    assert loop(2e-3, 116.0, 100.0).c_integral_limit == 100.0
+    assert loop(2e-3).c_integral_limit == 0.0

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.report.sections.summary import verdict_tex
 
 pytestmark = pytest.mark.needs_tex
@@ -83,7 +84,7 @@ def test_page_one_carries_the_failing_verdict_and_never_meets(default_build: Pat
 
     carriage = DerivedCarriage(load_params(
         None, ["control.spec.min_levitation_decay_rate=500"]))
-    env = compute_envelope(carriage, sim_lib, 3, ("spec", "lqr"), other_models=False)
+    env = compute_envelope(Plant(carriage, sim_lib), 3, ("spec", "lqr"), other_models=False)
     verdict = embedded_verdict(carriage, env)
     assert verdict.reason is not None  # what `build` exits 3 with
     lines = [ln.removeprefix("- ") for ln in verdict.lines() if ln.strip()]

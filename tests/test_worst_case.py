@@ -14,6 +14,7 @@ import pytest
 from maglevgen.analyses.run_spec import RunCheck, RunVerdict
 from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
 from maglevgen.analyses.worst_case import sign_combinations, signs_text, worst_verdict
+from maglevgen.control.carriage_plant import Plant
 
 
 def test_every_sign_combination_once() -> None:
@@ -55,7 +56,7 @@ def test_worst_launch_against_a_brute_force_of_all_32(carriage, sim_lib) -> None
     min_gap = carriage.params.track.min_gap
     name = carriage.params.envelope.embedded_controller
     combos = sign_combinations(DISTURBANCE)
-    sim = run_scenarios(carriage, (name,), 10.0, 1e-3, lib=sim_lib, scenario="launch",
+    sim = run_scenarios(Plant(carriage, sim_lib), (name,), 10.0, 1e-3, scenario="launch",
                         loop="firmware", disturbances=combos)
     v = worst_verdict([(d, spec_verdict(t)) for d, t in zip(combos, sim.trajectories,
                                                              strict=True)])

@@ -39,6 +39,7 @@ from maglevgen.analyses.montecarlo import (
 )
 from maglevgen.analyses.simulate import hold_run, hold_trajectory, run_loop
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
@@ -133,8 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     controller = carriage.params.envelope.embedded_controller
-    tick, k_v, budget = run_loop(carriage, lib, "firmware")
-    study = make_study(carriage, lib, (controller,), 10.0, 1e-3, 0, tick, k_v, budget)
+    tick, k_v, budget = run_loop(Plant(carriage, lib), "firmware")
+    study = make_study(Plant(carriage, lib), (controller,), 10.0, 1e-3, 0, tick, k_v, budget)
     idx = range(args.samples)
     runs, n_u, n_g = [], 0, 0
     for i in idx:  # the bare loop's inputs: the study's runs, prepared once

@@ -32,6 +32,7 @@ from common import EXPERIMENTS, log, replace_section
 from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.simulate import metrics, run_scenarios
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
@@ -42,7 +43,7 @@ MC_SAMPLES, MC_SEED = 400, 3
 
 
 def sampled_loop(carriage: DerivedCarriage, lib) -> dict:
-    env = compute_envelope(carriage, lib, 50, controllers=(carriage.params.envelope
+    env = compute_envelope(Plant(carriage, lib), 50, controllers=(carriage.params.envelope
                                                            .embedded_controller,))
     c = env.controllers[carriage.params.envelope.embedded_controller]
     return {"v_min": env.v_min, "v_max": env.v_max, "speeds": int(env.speeds.size),
@@ -60,7 +61,7 @@ def low_ticks(lib) -> list[dict]:
     out = []
     for rate in LOW_TICKS:
         c = DerivedCarriage(load_params(overrides=[f"control.spec.tick_rate={rate:g}"]))
-        e = compute_envelope(c, lib, 9, controllers=("spec",), other_models=False)
+        e = compute_envelope(Plant(c, lib), 9, controllers=("spec",), other_models=False)
         spec = e.controllers["spec"]
         cont = spec.continuous_gains  # the continuous design on the loop as built
         row = {"rate": rate, "continuous_min_damping": float(np.nanmin(cont.min_damping)),
@@ -77,7 +78,7 @@ def holds(carriage: DerivedCarriage, lib, v_min: float, v_max: float) -> list[di
     out = []
     name = carriage.params.envelope.embedded_controller
     for v in (v_min, 20.0, v_max):
-        run = run_scenarios(carriage, (name,), 10.0, 1e-3, v, lib=lib, loop="firmware")
+        run = run_scenarios(Plant(carriage, lib), (name,), 10.0, 1e-3, v, loop="firmware")
         m = metrics(run.trajectories[0])
         settle = [a["settling_time"] for a in m["axes"].values()]
         traj = run.trajectories[0]
@@ -93,7 +94,7 @@ def holds(carriage: DerivedCarriage, lib, v_min: float, v_max: float) -> list[di
 
 def launch_run(carriage: DerivedCarriage, lib) -> dict:
     name = carriage.params.envelope.embedded_controller
-    run = run_scenarios(carriage, (name,), 10.0, 1e-3, lib=lib, scenario="launch",
+    run = run_scenarios(Plant(carriage, lib), (name,), 10.0, 1e-3, scenario="launch",
                         loop="firmware")
     traj = run.trajectories[0]
     m = metrics(traj)
@@ -117,8 +118,8 @@ def montecarlo(carriage: DerivedCarriage, lib) -> dict:
     from maglevgen.analyses.simulate import run_loop
 
     name = carriage.params.envelope.embedded_controller
-    study = make_study(carriage, lib, (name,), 10.0, 1e-3, MC_SEED,
-                       *run_loop(carriage, lib, "firmware"))
+    study = make_study(Plant(carriage, lib), (name,), 10.0, 1e-3, MC_SEED,
+                       *run_loop(Plant(carriage, lib), "firmware"))
     t0 = time.perf_counter()
     result = run_study(study, MC_SAMPLES, 1, None)
     c = result.summary["controllers"][name]

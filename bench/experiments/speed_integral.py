@@ -18,9 +18,9 @@ import dataclasses
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points, resolve_range
-from maglevgen.analyses.simulate import firmware_loop, simulate
+from maglevgen.analyses.simulate import run_loop, simulate
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.plant import speed_loop_gains
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
@@ -35,12 +35,12 @@ STILL = {k: 0.0 for k in ("y", "z", "phi", "theta", "psi")}
 if __name__ == "__main__":
     nominal = DerivedCarriage(load_params())
     lib = simulation_library(nominal.structure)
-    tick, k_v, budget = firmware_loop(nominal, lib)
+    tick, k_v, budget = run_loop(Plant(nominal, lib), "firmware")
     spec, m = nominal.params.control.spec, nominal.params.vehicle.mass
     b, r = spec.speed_bandwidth, spec.speed_integral_ratio
-    v_lo, v_hi = resolve_range(nominal, lib)
-    slope = min(op.trim_drag_slope for op in envelope_points(
-        nominal, lib, np.linspace(v_lo, v_hi, nominal.params.envelope.schedule_nodes)))
+    v_lo, v_hi = Plant(nominal, lib).speed_range
+    slope = min(op.trim_drag_slope for op in Plant(nominal, lib).points(
+        np.linspace(v_lo, v_hi, nominal.params.envelope.schedule_nodes)))
     k_v1, k_i1 = speed_loop_gains(m, slope, b, 1.0)
     loops = (("P", dataclasses.replace(tick, speed_integral=0.0), k_v - m * b * r),
              (f"PI r={r:g}", tick, k_v),
@@ -54,8 +54,8 @@ if __name__ == "__main__":
     for label, override in CASES:
         plant = DerivedCarriage(load_params(overrides=[override]))
         for v in (v_lo, 20.0, v_hi):
-            (op_n,) = envelope_points(nominal, lib, [v])
-            (op_p,) = envelope_points(plant, lib, [v])
+            (op_n,) = Plant(nominal, lib).points([v])
+            (op_p,) = Plant(plant, lib).points([v])
             for name, t, kv in loops:
                 tr = simulate(lib, plant.p, op_p, "spec", T_END, DT,
                               plant.params.track.min_gap, STILL, tick=t, speed_gain=kv,

@@ -33,31 +33,19 @@ from maglevgen.carriage import DerivedCarriage
 from maglevgen.control import controller as registered_controller
 from maglevgen.control import names as controller_names
 from maglevgen.control import title as controller_title
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.margins import DiskMargins, delay_margin, disk_gain_phase, disk_margins
 from maglevgen.control.operating import (
     STABILITY_MARGIN,
     OperatingPoint,
-    Weights,
-    checked_trim,
     closed_loop_stability,
-    operating_point,
     speed_mode,
 )
 from maglevgen.control.plant import LoopDesign, LoopPlant
 from maglevgen.control.sampled import Tick
-from maglevgen.control.schedule import (
-    GainTable,
-    Reference,
-    Schedule,
-    accelerating_references,
-    gain_table_row,
-    tick_table_fields,
-)
-from maglevgen.derive.search import lowest_trim_speed
 from maglevgen.derive.structure import input_names_of
-from maglevgen.errors import InputError, NoTrimError
+from maglevgen.errors import InputError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
-from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
 __all__ = [
     "DEFAULT_SPEEDS",
@@ -74,28 +62,20 @@ __all__ = [
     "compute_envelope",
     "disk_margins_png",
     "envelope_markdown",
-    "envelope_points",
-    "gain_table",
     "grid_ranges",
-    "launch_references",
-    "launch_schedule",
-    "lift_off_speed",
     "loop_design",
     "loop_margins",
     "loop_plant",
     "loop_setting",
     "loop_stability",
     "model_checks",
-    "resolve_range",
     "sampled_stability",
-    "schedule_setting",
     "spec_failures",
     "spec_verdict_text",
     "speed_range",
     "stability_map_png",
     "tick_design_check",
     "tick_design_stability",
-    "tick_table_rows",
     "unstable_ranges",
     "verdict_text",
 ]
@@ -105,119 +85,11 @@ MARGIN_SPEEDS = 5  # speeds of the grid (both ends among them) where the margins
 _EDGE_STEPS = 20  # bisections that locate the edge of a stable range between two grid speeds
 
 
-def lift_off_speed(lib: SimulationLibrary, p: np.ndarray, min_gap: float,
-                   v_hi: float, v_limit: float | None = None) -> float:
-    """The lowest speed with a trim (the Newton solve in C converges and every gap is above
-    track.min_gap), by bisection between 0 and ``v_hi`` (derive.search). ``v_limit``: when
-    ``v_hi`` has no trim, the search goes on at 4, 16, ... times ``v_hi`` up to it (inf when
-    none has one); None: an InputError naming envelope.v_max instead."""
-    def has_trim(v: float) -> bool:
-        try:
-            checked_trim(lib, p, v, min_gap)
-        except NoTrimError:
-            return False
-        return True
-
-    v = lowest_trim_speed(has_trim, 0.0, v_hi, v_hi if v_limit is None else v_limit, grow=4.0)
-    if v == float("inf") and v_limit is None:
-        raise InputError(f"envelope.v_max = {v_hi:g}: the carriage has no trim at this speed "
-                         "(see `maglevgen trim --speed`)")
-    return v
-
-
-def resolve_range(carriage, lib: SimulationLibrary) -> tuple[float, float]:
-    """(v_min, v_max) of the parameter file's envelope, v_min from the lift-off speed when
-    the file omits it; an InputError naming the key when the range has no trim."""
-    env = carriage.params.envelope
-    min_gap = carriage.params.track.min_gap
-    if env.v_min is not None:
-        for key, v in (("envelope.v_min", env.v_min), ("envelope.v_max", env.v_max)):
-            try:
-                checked_trim(lib, carriage.p, v, min_gap)
-            except NoTrimError:
-                raise InputError(f"{key} = {v:g}: the carriage has no trim at this speed "
-                                 "(below lift-off?); see `maglevgen trim --speed`") from None
-        return float(env.v_min), float(env.v_max)
-    v_lift = lift_off_speed(lib, carriage.p, min_gap, env.v_max)
-    v_min = (1 + env.lift_off_margin) * v_lift
-    if not v_min < env.v_max:
-        raise InputError(f"envelope.v_max = {env.v_max:g}: not above the default v_min "
-                         f"{v_min:.4g} m/s ((1 + lift_off_margin) x lift-off {v_lift:.4g} m/s)")
-    return v_min, float(env.v_max)
-
-
-def speed_range(carriage) -> tuple[float, float]:
-    """`resolve_range` through the carriage's compiled simulation library (cached on disk):
-    what `maglevgen generate` bakes into the trim's checks and the firmware table spans."""
-    return resolve_range(carriage, simulation_library(carriage.structure))
-
-
-def schedule_setting(carriage, lib: SimulationLibrary, v_min: float, v_max: float
-                     ) -> LoopSetting:
-    """`loop_setting` over the schedule's nodes (envelope.schedule_nodes speeds spanning
-    [v_min, v_max]): the loop the firmware runs and its table is designed for."""
-    return loop_setting(carriage, envelope_points(carriage, lib, np.linspace(
-        v_min, v_max, carriage.params.envelope.schedule_nodes)))
-
-
-def tick_table_rows(carriage, lib: SimulationLibrary, setting: LoopSetting,
-                    speeds: Sequence[float] | np.ndarray) -> np.ndarray:
-    """The firmware table's exact rows at ``speeds`` (`schedule.tick_table_fields`): the trim
-    and the embedded controller's design at the tick on the loop as built (`loop_design`)."""
-    embedded = carriage.params.envelope.embedded_controller
-    return np.array([gain_table_row(op, embedded, loop_design(op, embedded, setting),
-                                    setting.tick.delay)
-                     for op in envelope_points(carriage, lib, speeds)])
-
-
-def gain_table(carriage, lib: SimulationLibrary, v_min: float, v_max: float,
-               setting: LoopSetting | None = None) -> GainTable:
-    """The firmware's table schedule over [v_min, v_max] fitted to the exact schedule
-    (`tick_table_rows`: the operating points' trim and the embedded controller's design at
-    the tick on ``setting``'s loop, default `schedule_setting`); its manifest() is what
-    c/manifest.json and the report show."""
-    setting = setting or schedule_setting(carriage, lib, v_min, v_max)
-    return GainTable.fit(lambda vs: tick_table_rows(carriage, lib, setting, vs), v_min, v_max,
-                         tick_table_fields(setting.tick.delay))
-
-
-def envelope_points(carriage, lib: SimulationLibrary,
-                    speeds: Sequence[float] | np.ndarray) -> list[OperatingPoint]:
-    """Operating points at ``speeds`` (trim, gains, Jacobians: the generated C)."""
-    w = Weights.of(carriage.params)
-    min_gap = carriage.params.track.min_gap
-    try:
-        return [operating_point(lib, carriage.p, float(v), min_gap, w) for v in speeds]
-    except NoTrimError as exc:
-        raise InputError(f"envelope: {exc}") from None
-
-
-def launch_schedule(carriage, lib: SimulationLibrary, points: Sequence[OperatingPoint],
-                    controller: str, references: list[Reference] | None = None,
-                    setting: LoopSetting | None = None) -> Schedule:
-    """The launch's schedule of ``controller`` at ``points``: the reference and the
-    propulsion feedforward of the accelerating trim at envelope.launch_acceleration
-    (`launch_references`), the gains of the constant-speed linearisation (the points'):
-    the controller's continuous gains, or with ``setting`` its gains on that loop as built
-    (`loop_design`: the design at the tick with K_lag and K_delay, what the firmware runs)."""
-    a = carriage.params.envelope.launch_acceleration
-    refs = launch_references(carriage, lib, points) if references is None else references
-    designs = None if setting is None else [loop_design(op, controller, setting)
-                                            for op in points]
-    return Schedule.from_points(list(points), controller, refs, a, designs)
-
-
-def launch_references(carriage, lib: SimulationLibrary,
-                      points: Sequence[OperatingPoint]) -> list[Reference]:
-    """`accelerating_references` at envelope.launch_acceleration for ``points``; InputError
-    (naming the key) where the carriage has no accelerating trim."""
-    prm = carriage.params
-    a = prm.envelope.launch_acceleration
-    try:
-        return accelerating_references(lib, carriage.p, list(points), a, prm.vehicle.mass,
-                                       prm.track.min_gap)
-    except NoTrimError as exc:
-        raise InputError(f"envelope.launch_acceleration = {a:g}: {exc}") from None
+def speed_range(carriage: DerivedCarriage) -> tuple[float, float]:
+    """The speed range of ``carriage``'s plant (`Plant.speed_range`, through its compiled
+    simulation library, cached on disk): what `maglevgen generate` bakes into the trim's
+    checks and the firmware table spans."""
+    return Plant(carriage).speed_range
 
 
 @dataclass(frozen=True)
@@ -284,7 +156,7 @@ class ControllerEnvelope:
                                    "worst": f.worst, "worst_speed": f.worst_speed}
                                   for f in self.spec_failures],
                 # the gains the firmware's table would carry for this controller
-                # (`tick_table_rows`: its design at the tick where it has one)
+                # (`Plant.tick_table_rows`: its design at the tick where it has one)
                 "firmware_design": "tick" if registered_controller(self.controller).tick_design
                 else "continuous",
                 "tick_design": None if self.tick_design is None else self.tick_design.to_json(),
@@ -482,13 +354,12 @@ class Envelope:
                 "sensing": None if self.sensing is None else self.sensing.to_json()}
 
 
-def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,
-          v_unstable: float) -> float:
+def _edge(plant: Plant, controller: str, v_stable: float, v_unstable: float) -> float:
     """The speed between a stable and an unstable grid speed where stability is lost."""
     a, b = v_stable, v_unstable
     for _ in range(_EDGE_STEPS):
         mid = 0.5 * (a + b)
-        (op,) = envelope_points(carriage, lib, [mid])
+        op = plant.point(mid)
         if closed_loop_stability(op, controller)[0] < -STABILITY_MARGIN:
             a = mid
         else:
@@ -496,7 +367,7 @@ def _edge(carriage, lib: SimulationLibrary, controller: str, v_stable: float,
     return b
 
 
-def unstable_ranges(carriage, lib: SimulationLibrary, controller: str, speeds: np.ndarray,
+def unstable_ranges(plant: Plant, controller: str, speeds: np.ndarray,
                     stable: np.ndarray) -> tuple[tuple[float, float], ...]:
     """The speed intervals where the closed loop is unstable, edges located by bisection."""
     ranges = []
@@ -508,9 +379,8 @@ def unstable_ranges(carriage, lib: SimulationLibrary, controller: str, speeds: n
         j = i
         while j + 1 < n and not stable[j + 1]:
             j += 1
-        lo = speeds[i] if i == 0 else _edge(carriage, lib, controller, speeds[i - 1], speeds[i])
-        hi = speeds[j] if j == n - 1 else _edge(carriage, lib, controller, speeds[j + 1],
-                                                speeds[j])
+        lo = speeds[i] if i == 0 else _edge(plant, controller, speeds[i - 1], speeds[i])
+        hi = speeds[j] if j == n - 1 else _edge(plant, controller, speeds[j + 1], speeds[j])
         ranges.append((float(lo), float(hi)))
         i = j + 1
     return tuple(ranges)
@@ -637,15 +507,18 @@ def alternate_models(carriage) -> list[tuple[str, DerivedCarriage]]:
     return out
 
 
-def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
+def model_checks(plant: Plant, controller: str, points: Sequence[OperatingPoint],
                  setting: LoopSetting) -> tuple[ModelCheck, ...]:
     """``controller``'s gains at ``points`` on each alternate model's sampled-data loop at the
-    same speeds (each model's own trim and Jacobians, from its own compiled library)."""
+    same speeds (each model's own trim and Jacobians, from its own compiled library: the
+    plant's `Plant.with_model`)."""
+    carriage = plant.carriage
     speeds = np.array([op.speed for op in points])
     out = []
     for label, alt in alternate_models(carriage):
         try:
-            alt_points = envelope_points(alt, simulation_library(alt.structure), speeds)
+            alt_points = plant.with_model(alt.params.model.array_force,
+                                          alt.params.model.circuit_dynamics).points(speeds)
         except InputError as exc:
             out.append(ModelCheck(label, (SpecFailure(f"a trim ({exc})", ((speeds[0],
                                                                           speeds[-1]),),
@@ -662,7 +535,7 @@ def model_checks(carriage, controller: str, points: Sequence[OperatingPoint],
 MAX_SPEEDS = 100_000
 
 
-def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_SPEEDS,
+def compute_envelope(plant: Plant, n_speeds: int = DEFAULT_SPEEDS,
                      controllers: Sequence[str] | None = None,
                      other_models: bool = True) -> Envelope:
     """Each controller's stability at ``n_speeds`` speeds spanning [v_min, v_max], on the
@@ -671,10 +544,11 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
     (`model_checks`). ``controllers``: default every registered one."""
     if not 2 <= n_speeds <= MAX_SPEEDS:
         raise InputError(f"--speeds {n_speeds}: expected 2 to {MAX_SPEEDS} speeds")
-    v_min, v_max = resolve_range(carriage, lib)
+    carriage, lib = plant.carriage, plant.lib
+    v_min, v_max = plant.speed_range
     speeds = np.linspace(v_min, v_max, n_speeds)
-    points = envelope_points(carriage, lib, speeds)
-    setting = loop_setting(carriage, points)
+    points = plant.points(speeds)
+    setting = plant.setting(points)
     out = {}
     embedded = carriage.params.envelope.embedded_controller
     chosen = controller_names() if controllers is None else tuple(controllers)
@@ -682,7 +556,7 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
         rows = np.array([closed_loop_stability(op, c) for op in points])
         max_real, min_damping = rows[:, 0], rows[:, 1]
         stable = max_real < -STABILITY_MARGIN
-        ranges = unstable_ranges(carriage, lib, c, speeds, stable)
+        ranges = unstable_ranges(plant, c, speeds, stable)
         # the loop as built: the tick, its delay, the actuator lag, the speed loop
         sd = np.array([loop_stability(op, c, setting) for op in points])
         failures = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1], sd[:, 2])
@@ -706,7 +580,7 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
                                     margins)
     mass = carriage.params.vehicle.mass
     speed_poles = [speed_mode(lib, carriage.p, op, mass, embedded).eigenvalue for op in points]
-    checks = (model_checks(carriage, embedded, points, setting)
+    checks = (model_checks(plant, embedded, points, setting)
               if other_models and embedded in chosen else ())
     sensing = None
     if carriage.params.sensors is not None and embedded in chosen:
@@ -720,7 +594,7 @@ def compute_envelope(carriage, lib: SimulationLibrary, n_speeds: int = DEFAULT_S
             f = spec_failures(carriage, speeds, sd[:, 0], sd[:, 1], sd[:, 2])
             return f, spec_verdict_text(speeds, f, sd[:, 0], sd[:, 1], sd[:, 2], sd[:, 3])
 
-        sensing = sensing_check(carriage, lib, points, setting, embedded,
+        sensing = sensing_check(plant, points, setting, embedded,
                                 [(loop_plant(op, setting), design_or_none(op))
                                  for op in points], judge)
     m = carriage.params.model

@@ -26,7 +26,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points
 from maglevgen.codegen.checks import check_entries, error_defines
 from maglevgen.codegen.cpass import generate_c
 from maglevgen.codegen.emit import c_literal, render
@@ -36,6 +35,8 @@ from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_conte
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
 from maglevgen.control import estimation as est
+from maglevgen.control.built_loop import LoopSetting
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.schedule import (
     GainTable,
     field_slices,
@@ -51,7 +52,7 @@ if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
 __all__ = ["ALLOCATE", "FIRMWARE_FLAGS", "MAX_READINGS", "PLANT", "QEMU_TICKS", "READINGS",
-           "READING_KINDS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "FirmwareLoop", "SenseSchedule",
+           "READING_KINDS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "SenseSchedule",
            "firmware_functions", "refresh_slices", "render_firmware", "sense_refresh_bound",
            "sense_schedule"]
 
@@ -74,44 +75,6 @@ PLANT = "maglev_dynamics"  # --with-plant: the float32 plant in the image (HIL/S
 #: run_qemu.sh's closed loop: ticks from the trim with the heave 1 mm off (1 s at 1 kHz)
 QEMU_TICKS = 1000
 
-
-
-@dataclass(frozen=True)
-class FirmwareLoop:
-    """How the firmware runs the controller ([control.spec] and the envelope's speed loop)."""
-
-    tick_rate: float  # [Hz]
-    delay_ticks: int  # ticks from computing a command to applying it
-    speed_gain: float  # k_v [N s/m] (`maglevgen.analyses.loop.loop_setting`)
-    force_budget: float  # [N] per array
-    actuator_lag: float = 0.0  # [s] tau of each array force's lag ([actuators])
-    speed_integral: float = 0.0  # k_i [N/m] (`LoopSetting.speed_integral`)
-    # [N] |k_i xi| at most this (`LoopSetting.speed_integral_limit`): finite where k_i > 0
-    speed_integral_limit: float = float("inf")
-
-    def __post_init__(self) -> None:
-        if self.speed_integral > 0 and not np.isfinite(self.speed_integral_limit):
-            raise ValueError("the firmware's speed integral needs a finite limit "
-                             f"(speed_integral_limit {self.speed_integral_limit!r} N)")
-
-    @classmethod
-    def of(cls, setting, force_budget: float) -> FirmwareLoop:
-        """The firmware's loop of a `maglevgen.analyses.loop.LoopSetting` (the envelope's
-        tick, delay, speed loop, lag and integral) with the per-array ``force_budget`` [N]."""
-        return cls(setting.tick.rate, setting.tick.delay, float(setting.speed_gain),
-                   float(force_budget), float(setting.actuator_lag),
-                   float(setting.speed_integral), float(setting.speed_integral_limit))
-
-    @property
-    def integral_limit(self) -> float:
-        """The limit the C clamps |k_i xi| at: the given one, 0 without an integral."""
-        return float(self.speed_integral_limit) if self.speed_integral > 0 else 0.0
-
-    @property
-    def lag_pole(self) -> float:
-        """a = exp(-h/tau): the lag over one held tick (0 without a lag; `plant.LoopPlant`)."""
-        return float(np.exp(-1.0 / (self.tick_rate * self.actuator_lag))) \
-            if self.actuator_lag > 0 else 0.0
 
 
 #: the sense tick's readings at most: one bit each in C's unsigned long (32 bits at least)
@@ -159,10 +122,11 @@ class SenseSchedule:
                 "table": self.table.manifest()}
 
 
-def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
-                   loop: FirmwareLoop) -> SenseSchedule | None:
-    """The sense tick's schedule of ``carriage`` over [v_min, v_max] with ``loop``'s delay
+def sense_schedule(plant: Plant, v_min: float, v_max: float,
+                   loop: LoopSetting) -> SenseSchedule | None:
+    """The sense tick's schedule of ``plant`` over [v_min, v_max] with ``loop``'s delay
     and actuator lag; None when the parameter file has no [sensors] (no sense tick)."""
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
     if params.sensors is None:
         return None
@@ -171,7 +135,7 @@ def sense_schedule(carriage: DerivedCarriage, lib, v_min: float, v_max: float,
         raise InputError(f"sensors: {len(layout.names)} readings; the sense tick's flags "
                          f"word holds {MAX_READINGS} (fewer gap sensors)")
     table = est.sense_table(lib, carriage.p, params,
-                            lambda v: envelope_points(carriage, lib, [v])[0], v_min, v_max,
+                            plant.point, v_min, v_max,
                             loop.actuator_lag, loop.delay_ticks)
     n_lag = len(carriage.model.input_names) - 1 if loop.actuator_lag > 0 else 0
     states = tuple(s for s in cv.STATE_NAMES if layout.track or s != "x")
@@ -340,22 +304,24 @@ def _banner(sha256: str, precision: str, with_plant: bool) -> str:
             f"file sha256 {sha256}. Do not edit: regenerate.")
 
 
-def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareLoop,
+def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetting,
                     precision: str = "single", with_plant: bool = False,
                     measured: dict | None = None, verdict: dict | None = None,
                     sense: SenseSchedule | None = None) -> dict[str, str]:
     """Every file of the firmware folder (nothing written).
 
     ``table``: the table schedule of the embedded controller over the envelope
-    (`maglevgen.analyses.envelope.gain_table`); ``loop``: its tick, delay, speed-loop gain and force
-    budget; ``precision``: "single" for the board, "double" for a host check of the same
-    code; ``with_plant``: maglev_dynamics in the same image too (a closed loop on the target,
+    (`maglevgen.control.carriage_plant.Plant.gain_table`); ``loop``: the loop as built
+    (`Plant.loop`: its tick, delay, speed-loop gains, actuator lag and force budget);
+    ``precision``: "single" for the board, "double" for a host check of the same code;
+    ``with_plant``: maglev_dynamics in the same image too (a closed loop on the target,
     e.g. under QEMU); ``measured``: the tick's cost on the Cortex-M4 at the default carriage
     (BENCHMARKS.md), quoted in the README; ``verdict``: the embedded controller's
     verification (`maglevgen.build.EmbeddedVerdict.to_json`; None: not checked, said so),
     into the README and the manifest; ``sense``: the estimator's schedule
     (`sense_schedule`; None: maglev_tick alone, ideal sensing).
     """
+    loop.check_embeddable()
     opts = GenerateOptions(precision, "baked", "int32")
     embedded = carriage.params.envelope.embedded_controller
     tick_fn = registered(embedded).tick_function
@@ -389,7 +355,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
 
     if "K_lag" not in dict(table.fields):
         raise ValueError("the firmware's table carries the design at the tick "
-                         "(`maglevgen.analyses.envelope.gain_table`)")
+                         "(`maglevgen.control.carriage_plant.Plant.gain_table`)")
     offsets, i = {}, 0
     for name, size in table.fields:
         offsets[name] = i
@@ -407,7 +373,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "delay_ticks": int(loop.delay_ticks),
         "k_v": c_literal(loop.speed_gain, precision), "k_v_value": loop.speed_gain,
         "k_i": c_literal(loop.speed_integral, precision),
-        "i_max": c_literal(loop.integral_limit, precision),
+        "i_max": c_literal(loop.c_integral_limit, precision),
         "tick_period": c_literal(1.0 / loop.tick_rate, precision),
         "lag_pole": c_literal(loop.lag_pole, precision),
         "lag_gain": c_literal(1.0 - loop.lag_pole, precision), "tau": loop.actuator_lag,
@@ -446,7 +412,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: FirmwareL
         "tick": {"function": "maglev_tick", "controller_tick": tick_fn,
                  "rate_hz": loop.tick_rate, "delay_ticks": int(loop.delay_ticks),
                  "speed_gain": loop.speed_gain, "speed_integral": loop.speed_integral,
-                 "speed_integral_limit": loop.integral_limit,
+                 "speed_integral_limit": loop.c_integral_limit,
                  "actuator_lag_s": loop.actuator_lag, "lag_pole": loop.lag_pole,
                  "force_budget": loop.force_budget,
                  "design": "the embedded controller's design at the tick on the loop as "

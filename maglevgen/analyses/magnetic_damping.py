@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import OperatingPoint
 from maglevgen.derive import conventions as cv
 
@@ -36,8 +36,8 @@ def axis_damping(op: OperatingPoint, axis_inertia: np.ndarray) -> np.ndarray:
     return -np.asarray(axis_inertia, dtype=float).ravel() * np.diag(op.A)[idx]
 
 
-def damping_across_speed(carriage, lib, speeds: Sequence[float] | np.ndarray) -> np.ndarray:
-    """c (n_speeds, 5) at each speed's trim, from the compiled library ``lib``."""
-    points = envelope_points(carriage, lib, speeds)
-    plants = lib.function("maglev_axis_plants")
-    return np.array([axis_damping(op, plants(op.speed, carriage.p)[1]) for op in points])
+def damping_across_speed(plant: Plant, speeds: Sequence[float] | np.ndarray) -> np.ndarray:
+    """c (n_speeds, 5) at each speed's trim, from the plant's compiled library."""
+    points = plant.points(speeds)
+    plants = plant.lib.function("maglev_axis_plants")
+    return np.array([axis_damping(op, plants(op.speed, plant.p)[1]) for op in points])

@@ -66,6 +66,7 @@ from maglevgen.analyses.simulate import (
     simulate,
     simulate_batch,
 )
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import (
     REDUCED_STATES,
     OperatingPoint,
@@ -183,17 +184,12 @@ def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
     return p
 
 
-_LIBRARIES: dict[Any, Any] = {}
-
-
 def _library(structure):
     """The compiled library in this process (generated and compiled on a worker where its
-    cache lacks it), loaded once."""
-    if structure not in _LIBRARIES:
-        from maglevgen.runtime.library import simulation_library
+    cache lacks it), loaded once (`runtime.library.loaded_library`)."""
+    from maglevgen.runtime.library import loaded_library
 
-        _LIBRARIES[structure] = simulation_library(structure)
-    return _LIBRARIES[structure]
+    return loaded_library(structure)
 
 
 def run_sample(study: Study, index: int, lib=None) -> list[dict]:
@@ -327,7 +323,7 @@ def region_multiple(study: Study, controller: str, speed: float,
     return float(np.sqrt(max(dx @ Mv.reshape(M.shape[1:]) @ dx, 0.0)))
 
 
-def study_regions(carriage, lib, controllers: Sequence[str],
+def study_regions(plant: Plant, controllers: Sequence[str],
                   speed: tuple[float, float]) -> dict:
     """`Study.regions`: each controller's sampled region (maglevgen.analyses.roa, BUILD_SAMPLING, no
     boundary runs: the study's own runs are the test of it) at BUILD_SPEEDS speeds."""
@@ -336,7 +332,7 @@ def study_regions(carriage, lib, controllers: Sequence[str],
     speeds = np.linspace(speed[0], speed[1], roa.BUILD_SPEEDS)
     out = {}
     for c in controllers:
-        reg = roa.region_of_attraction(carriage, lib, c, speeds, roa.BUILD_SAMPLING,
+        reg = roa.region_of_attraction(plant, c, speeds, roa.BUILD_SAMPLING,
                                        loop="none")
         M = np.array([r.P / r.level if r.level > 0 else np.full(r.P.shape, np.nan)
                       for r in reg.regions])
@@ -529,7 +525,7 @@ def run_dask(study: Study, n: int, client, chunk: int | None = None,
 # ------------------------------------------------------------------------------ the study
 
 
-def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: float,
+def make_study(plant: Plant, controllers: Sequence[str], t_end: float, dt: float,
                seed: int, tick=None, speed_gain: float = 0.0,
                force_budget: float | None = None, redesign: bool = False) -> Study:
     """The study of a carriage's [tolerances]; the speed range defaults to the envelope's.
@@ -540,14 +536,13 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
     stage, no speed loop, no budget); ``redesign``: `Study.redesign`."""
     control_loop(dt, tick, speed_gain, force_budget, 1.0)  # refused before any sample
 
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
     tol = params.tolerances
     if tol.speed is not None:
         speed = (float(tol.speed[0]), float(tol.speed[1]))
     else:
-        from maglevgen.analyses.envelope import resolve_range
-
-        speed = resolve_range(carriage, lib)
+        speed = plant.speed_range
     w = Weights.of(params)
     for v in speed:
         try:
@@ -574,7 +569,7 @@ def make_study(carriage, lib, controllers: Sequence[str], t_end: float, dt: floa
         controllers=tuple(controllers), t_end=float(t_end), dt=float(dt),
         min_gap=float(params.track.min_gap), weights=w, seed=int(seed), tick=tick,
         speed_gain=float(speed_gain), force_budget=force_budget, redesign=bool(redesign),
-        regions=study_regions(carriage, lib, controllers, speed))
+        regions=study_regions(plant, controllers, speed))
 
 
 @dataclass

@@ -33,12 +33,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points, schedule_setting
 from maglevgen.analyses.loop import loop_plant
 from maglevgen.analyses.sim_loop import SensedTick, estimation_error, reading_noise, run_loop
 from maglevgen.analyses.simulate import simulate
 from maglevgen.carriage import structure_of
 from maglevgen.control import controller as registered_controller
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import (
     EstimatorPoint,
     SensorLayout,
@@ -335,22 +335,23 @@ def hold_speeds(v_min: float, v_max: float) -> tuple[float, ...]:
                          float(v_max)}))
 
 
-def noisy_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
+def noisy_holds(plant: Plant, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
                 seed: int = 1) -> tuple[NoisyHold, ...]:
     """The build's noisy holds: at each of `hold_speeds` with each of NOISE_SCALES, the
     embedded controller, the same seed."""
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
-    points = envelope_points(carriage, lib, hold_speeds(v_min, v_max))
+    points = plant.points(hold_speeds(v_min, v_max))
     tau = float(params.actuators.time_constant)
     est = estimator_points(lib, carriage.p, params, points, tau)
-    setting = schedule_setting(carriage, lib, v_min, v_max)  # the firmware's speed loop
+    setting = plant.loop  # the firmware's speed loop
     return tuple(noisy_hold(lib, carriage.p, params, op, t_end=t_end, seed=seed,
                             noise_scale=scale, point=e, plant=loop_plant(op, setting),
                             integral_limit=setting.speed_integral_limit)
                  for op, e in zip(points, est, strict=True) for scale in NOISE_SCALES)
 
 
-def sensed_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
+def sensed_holds(plant: Plant, v_min: float, v_max: float, t_end: float = BUILD_HOLD,
                  seed: int = 1) -> tuple[NoisyHold, ...]:
     """The build's noisy holds as the firmware flies them: at each of `hold_speeds` with each
     of NOISE_SCALES, from the trim, the firmware's own sense tick compiled for the host
@@ -359,11 +360,11 @@ def sensed_holds(carriage, lib, v_min: float, v_max: float, t_end: float = BUILD
     array's commanded control force (what the budget limits), the gaps and the attitude at
     each tick, and the sense tick's prediction error against the filter's a-priori sqrt(P)
     (the state at the next tick less the prediction)."""
-
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
-    tick, k_v, budget = run_loop(carriage, lib, "sensed", seed)
+    tick, k_v, budget = run_loop(plant, "sensed", seed)
     assert isinstance(tick, SensedTick) and budget is not None  # the sensed loop's
-    points = envelope_points(carriage, lib, hold_speeds(v_min, v_max))
+    points = plant.points(hold_speeds(v_min, v_max))
     est = estimator_points(lib, carriage.p, params, points, float(params.actuators.time_constant))
     n_steps = max(1, int(np.ceil(tick.period / RK4_MAX_STEP - 1e-9)))
     dt = tick.period / n_steps

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
-from maglevgen.analyses.envelope import DEFAULT_SPEEDS, compute_envelope, lift_off_speed
+from maglevgen.analyses.envelope import DEFAULT_SPEEDS, compute_envelope
 from maglevgen.carriage import DerivedCarriage, stiffness_rows
 from maglevgen.control import controller as registered
 from maglevgen.control import title as controller_title
+from maglevgen.control.carriage_plant import Plant, lift_off_speed
 from maglevgen.control.operating import (
     N_AXES,
     REDUCED_STATES,
@@ -44,7 +45,6 @@ from maglevgen.derive.riccati import lqr_gain_mp, riccati_solution_mp
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.infrastructure import progress
-from maglevgen.runtime.library import SimulationLibrary, simulation_library
 
 __all__ = [
     "GAIN_ROUNDOFF",
@@ -58,9 +58,9 @@ __all__ = [
     "envelope_of",
     "envelope_verdicts",
     "gains_report",
-    "library_of",
     "pitch_paper_form",
     "plain_formula",
+    "plant_of",
     "stiffness_table",
     "trim_point",
     "trim_report",
@@ -88,20 +88,20 @@ def _speed(carriage: DerivedCarriage, speed: float | None) -> float:
     return float(carriage.params.operation.speed if speed is None else speed)
 
 
-def _lift_off(carriage: DerivedCarriage, lib: SimulationLibrary) -> float:
+def _lift_off(plant: Plant) -> float:
     """The lowest speed with a trim (bisection on the C's trim up to envelope.v_max, or
     further where the carriage has no trim there: 4, 16, ... times it up to the first above
     1e4 m/s); inf when none."""
-    return lift_off_speed(lib, carriage.p, carriage.params.track.min_gap,
-                          float(carriage.params.envelope.v_max), v_limit=4e4)
+    return lift_off_speed(plant.lib, plant.p, plant.min_gap,
+                          float(plant.params.envelope.v_max), v_limit=4e4)
 
 
-def trim_point(carriage: DerivedCarriage, lib: SimulationLibrary, speed: float | None,
-               acceleration: float = 0.0) -> TrimPoint:
+def trim_point(plant: Plant, speed: float | None, acceleration: float = 0.0) -> TrimPoint:
     """The checked trim at ``speed`` (default operation.speed) and what the trim table shows;
     NoTrimError naming the lift-off speed when there is none. ``acceleration`` [m/s^2]: the
     accelerating trim (`checked_accelerating_trim`: eqs 1-2 with the d'Alembert load at the
     CG); its residual is the accelerations' departure from the translation at a."""
+    carriage, lib = plant.carriage, plant.lib
     v = _speed(carriage, speed)
     p = carriage.p
     try:
@@ -114,7 +114,7 @@ def trim_point(carriage: DerivedCarriage, lib: SimulationLibrary, speed: float |
         # the checked trim's own pointer to `maglevgen trim` is dropped: this is what that
         # command prints, and the lift-off speed below says where a trim starts
         why = re.sub(r"; see `maglevgen trim[^`]*`", "", str(exc).split(": ", 1)[-1])
-        v_off = _lift_off(carriage, lib) if v > 0 else float("nan")
+        v_off = _lift_off(plant) if v > 0 else float("nan")
         hint = f"; lift-off needs {v_off:.4g} m/s" if np.isfinite(v_off) else ""
         moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
         raise NoTrimError(f"no trim at speed {v:g} m/s{moving}: {why}{hint}") from None
@@ -166,15 +166,16 @@ class AcceleratingMargin:
                 f"{self.min_gap * 1e3:g} mm), F_prop {self.f_prop_accelerating:.4g} N.")
 
 
-def accelerating_margins(carriage: DerivedCarriage, lib: SimulationLibrary, speeds: Sequence[float],
+def accelerating_margins(plant: Plant, speeds: Sequence[float],
                          acceleration: float | None = None) -> list[AcceleratingMargin]:
     """`AcceleratingMargin` at each speed, at ``acceleration`` (default
     envelope.launch_acceleration)."""
+    carriage = plant.carriage
     a = carriage.params.envelope.launch_acceleration if acceleration is None else acceleration
     names = list(carriage.params.arrays)
     out = []
     for v in speeds:
-        still, moving = (trim_point(carriage, lib, v, acc) for acc in (0.0, a))
+        still, moving = (trim_point(plant, v, acc) for acc in (0.0, a))
         i = int(np.argmin(moving.gaps))
         out.append(AcceleratingMargin(
             float(v), float(a), float(still.x[4]), float(moving.x[4]), float(still.x[2]),
@@ -183,10 +184,10 @@ def accelerating_margins(carriage: DerivedCarriage, lib: SimulationLibrary, spee
     return out
 
 
-def stiffness_table(carriage: DerivedCarriage, lib: SimulationLibrary, speed: float | None):
+def stiffness_table(plant: Plant, speed: float | None):
     """Per-axis stiffness at the C's trim: derived K_st0 (and with gravity) beside eqs 13-19."""
-    tp = trim_point(carriage, lib, speed)
-    return stiffness_rows(carriage.paper_stiffness_inputs(tp), tp.K_magnetic,
+    tp = trim_point(plant, speed)
+    return stiffness_rows(plant.carriage.paper_stiffness_inputs(tp), tp.K_magnetic,
                           tp.K_magnetic + tp.K_other)
 
 
@@ -223,13 +224,11 @@ def pitch_paper_form(carriage: DerivedCarriage, tp: TrimPoint,
     }
 
 
-def trim_report(carriage: DerivedCarriage, speed: float | None,
-                lib: SimulationLibrary | None = None,
-                acceleration: float = 0.0) -> dict:
+def trim_report(plant: Plant, speed: float | None, acceleration: float = 0.0) -> dict:
     """Everything `maglevgen trim` prints, as plain data; ``acceleration`` [m/s^2]: of the
     accelerating trim (`trim_point`)."""
-    lib = lib or library_of(carriage)
-    tp = trim_point(carriage, lib, speed, acceleration)
+    carriage = plant.carriage
+    tp = trim_point(plant, speed, acceleration)
     kin = carriage.paper_stiffness_inputs(tp)
     rows = stiffness_rows(kin, tp.K_magnetic, tp.K_magnetic + tp.K_other)
     names = list(carriage.params.arrays)
@@ -241,7 +240,7 @@ def trim_report(carriage: DerivedCarriage, speed: float | None,
         "state_units": {s.name: s.unit for s in cv.STATES},
         "propulsion_force": tp.f_prop,
         "residual": tp.residual,
-        "lift_off_speed": _lift_off(carriage, lib),
+        "lift_off_speed": _lift_off(plant),
         "arrays": {n: {"gap": float(g), "lift": float(fl), "drag": float(fd)}
                    for n, g, fl, fd in zip(names, tp.gaps, tp.lift, tp.drag, strict=True)},
         "stiffness": {
@@ -286,11 +285,10 @@ def axis_gains(axis: str, k: float, m: float, K: np.ndarray, c: float,
                      float(c) if k > 0 else None)
 
 
-def gains_report(carriage: DerivedCarriage, speed: float | None,
-                 lib: SimulationLibrary | None = None) -> dict:
+def gains_report(plant: Plant, speed: float | None) -> dict:
     """Everything `maglevgen gains` prints, as plain data."""
-    lib = lib or library_of(carriage)
-    v = trim_point(carriage, lib, speed).speed  # the trim, or why there is none
+    v = trim_point(plant, speed).speed  # the trim, or why there is none
+    carriage, lib = plant.carriage, plant.lib
     w = Weights.of(carriage.params)
     op = operating_point(lib, carriage.p, v, carriage.params.track.min_gap, w)
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(v, carriage.p))
@@ -386,16 +384,16 @@ def _pole_key(e: complex) -> tuple[float, float]:
     return (float(e.real), float(e.imag))
 
 
-def library_of(carriage: DerivedCarriage) -> SimulationLibrary:
-    """The carriage's compiled run-time-parameter library (cached; built with the steps
-    announced on stderr): what every query here, the API and the commands run."""
-    return simulation_library(carriage.structure, progress=progress.step)
+def plant_of(carriage: DerivedCarriage) -> Plant:
+    """The carriage's plant, its compiled run-time-parameter library loaded on first use
+    (cached; built with the steps announced on stderr): what every query here, the API and
+    the commands run."""
+    return Plant(carriage, progress=progress.step)
 
 
-def envelope_of(carriage: DerivedCarriage, n_speeds: int | None = None,
-                lib: SimulationLibrary | None = None, other_models: bool = True):
-    """The envelope of a carriage through its compiled library (maglevgen.analyses.envelope)."""
-    return compute_envelope(carriage, lib or library_of(carriage), n_speeds or DEFAULT_SPEEDS,
+def envelope_of(plant: Plant, n_speeds: int | None = None, other_models: bool = True):
+    """The envelope of a plant through its compiled library (maglevgen.analyses.envelope)."""
+    return compute_envelope(plant, n_speeds or DEFAULT_SPEEDS,
                             other_models=other_models)
 
 
@@ -419,15 +417,15 @@ def verdict_lines(env, embedded: str) -> list[str]:
     return out
 
 
-def envelope_verdicts(carriage: DerivedCarriage) -> tuple[dict, list[str]]:
+def envelope_verdicts(plant: Plant) -> tuple[dict, list[str]]:
     """The envelope's verdicts `maglevgen trim` and `gains` print first: the entry their
     ``--json`` report holds under "envelope" and the lines. A carriage whose envelope has no
     trim still gets its trim and gains: the entry is then the reason, ``{"error": ...}``."""
     try:
-        env = envelope_of(carriage, other_models=False)  # `envelope` and `build` do
+        env = envelope_of(plant, other_models=False)  # `envelope` and `build` do
     except InputError as exc:
         return {"error": str(exc)}, [f"Envelope not computed: {exc}"]
-    embedded = carriage.params.envelope.embedded_controller
+    embedded = plant.params.envelope.embedded_controller
     entry = {"v_min": env.v_min, "v_max": env.v_max, "embedded": embedded,
              "verdicts": {n: c.verdict for n, c in env.controllers.items()},
              "stable": {n: c.ok for n, c in env.controllers.items()},

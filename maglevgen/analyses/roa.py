@@ -31,7 +31,7 @@ signs), each at radii doubling from 1/1024 of the default disturbance's to the f
 with a failure, then on a uniform grid of ``radii`` radii up to that shell, then ``bisections``
 bisections between the last passing and the first failing radius. Then, as the firmware runs
 the controller (the tick, its delay, the zero-order hold, the speed loop and the force budget
-of [control.spec]: `simulate.firmware_loop`), closed-loop runs from ``confirm`` states on the
+of [control.spec]: `Plant.loop`), closed-loop runs from ``confirm`` states on the
 boundary {V = c} must all settle without contact; where one does not, c shrinks
 (CONFIRM_SHRINK) until every run settles.
 
@@ -52,10 +52,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maglevgen.analyses.envelope import envelope_points, resolve_range
 from maglevgen.analyses.roa_contact import CONTACT_STARTS, contact_level
 from maglevgen.analyses.simulate import DISTURBANCE, run_loop, simulate
 from maglevgen.control import controller as registered
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.lqr import weighted_qr
 from maglevgen.control.operating import (
     N_AXES,
@@ -580,17 +580,18 @@ def confirmation_run(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
     return run
 
 
-def region_of_attraction(carriage, lib: SimulationLibrary, controller: str,
+def region_of_attraction(plant: Plant, controller: str,
                          speeds: Sequence[float] | np.ndarray,
                          sampling: Sampling = COMMAND_SAMPLING,
                          loop: str = "firmware",
                          progress: Callable[[float], None] | None = None) -> Region:
     """The region of ``controller`` at ``speeds`` (module docstring), the boundary confirmed
     by runs of ``loop`` ("firmware": the tick-held loop of [control.spec]; "none": no runs)."""
+    carriage, lib = plant.carriage, plant.lib
     min_gap = carriage.params.track.min_gap
-    settings = None if loop == "none" else run_loop(carriage, lib, loop)
+    settings = None if loop == "none" else run_loop(plant, loop)
     out = []
-    for i, op in enumerate(envelope_points(carriage, lib, speeds)):
+    for i, op in enumerate(plant.points(speeds)):
         confirm = (None if settings is None else
                    confirmation_run(lib, carriage.p, op, controller, min_gap, settings))
         out.append(speed_region(lib, carriage.p, op, controller, min_gap, sampling, confirm))
@@ -685,14 +686,14 @@ def region_png(regions: Sequence[Region]) -> bytes:
 DEFAULT_SPEEDS, BUILD_SPEEDS = 8, 4
 
 
-def study(carriage, lib: SimulationLibrary, controllers: Sequence[str],
+def study(plant: Plant, controllers: Sequence[str],
           n_speeds: int = DEFAULT_SPEEDS, sampling: Sampling = COMMAND_SAMPLING,
           loop: str = "firmware",
           progress: Callable[[float], None] | None = None) -> list[Region]:
     """The region of each of ``controllers`` at ``n_speeds`` speeds spanning the envelope."""
     if not isinstance(n_speeds, (int, np.integer)) or not 1 <= n_speeds <= MAX_SPEEDS:
         raise InputError(f"--speeds {n_speeds!r}: expected 1 to {MAX_SPEEDS} speeds")
-    v_min, v_max = resolve_range(carriage, lib)
+    v_min, v_max = plant.speed_range
     speeds = np.linspace(v_min, v_max, n_speeds) if n_speeds > 1 else np.array([v_min])
     out = []
     for i, c in enumerate(controllers):
@@ -700,7 +701,7 @@ def study(carriage, lib: SimulationLibrary, controllers: Sequence[str],
             if progress is not None:
                 progress((i + f) / len(controllers))
 
-        out.append(region_of_attraction(carriage, lib, c, speeds, sampling, loop, step))
+        out.append(region_of_attraction(plant, c, speeds, sampling, loop, step))
     return out
 
 

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
-from maglevgen.analyses.firmware_sources import FirmwareLoop, render_firmware, sense_schedule
+from maglevgen.analyses.firmware_sources import render_firmware, sense_schedule
+from maglevgen.control.built_loop import LoopSetting
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import SensorLayout
-from maglevgen.runtime.library import SimulationLibrary
 from maglevgen.runtime.sense import SenseLibrary, sense_library
 
 __all__ = ["SensedFirmware", "sensed_firmware"]
@@ -33,7 +33,7 @@ class SensedFirmware:
     budget, lag), its speed range, its sensors, its compiled sense tick and the parameters
     it was built from."""
 
-    loop: FirmwareLoop
+    loop: LoopSetting
     v_min: float  # [m/s] the tables' range
     v_max: float
     layout: SensorLayout
@@ -41,18 +41,19 @@ class SensedFirmware:
     params: object  # the carriage's parameters (its [sensors]: the runs' noise)
 
 
-def sensed_firmware(carriage, lib: SimulationLibrary) -> SensedFirmware:
-    """The firmware `maglevgen firmware` writes for ``carriage``, in double precision with its
-    sense tick, compiled for the host (cached by its content); InputError without
+def sensed_firmware(plant: Plant) -> SensedFirmware:
+    """The firmware `maglevgen firmware` writes for ``plant``'s carriage, in double precision
+    with its sense tick, compiled for the host (cached by its content); InputError without
     ``[sensors]`` (nothing to fly on)."""
+    carriage = plant.carriage
     params = carriage.params
     layout = SensorLayout.of(params)  # InputError without [sensors]
-    v_min, v_max = resolve_range(carriage, lib)
-    loop = FirmwareLoop.of(schedule_setting(carriage, lib, v_min, v_max),
-                           float(params.control.spec.force_budget))
-    sense = sense_schedule(carriage, lib, v_min, v_max, loop)
+    v_min, v_max = plant.speed_range
+    loop = plant.loop
+    loop.check_embeddable()
+    sense = sense_schedule(plant, v_min, v_max, loop)
     assert sense is not None  # [sensors] is there: SensorLayout.of refused otherwise
-    files = render_firmware(carriage, gain_table(carriage, lib, v_min, v_max), loop, "double",
+    files = render_firmware(carriage, plant.gain_table(v_min, v_max), loop, "double",
                             sense=sense)
     return SensedFirmware(loop, float(v_min), float(v_max), layout, sense_library(files),
                           params)

@@ -27,6 +27,8 @@ import numpy as np
 import scipy.linalg
 
 from maglevgen.control import controller as registered_controller
+from maglevgen.control.built_loop import LoopSetting
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import (
     ESTIMATION_SHARE,
     EstimatorPoint,
@@ -173,7 +175,7 @@ class SensingCheck:
                                "verdict": self.verdict}}
 
 
-def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
+def sensing_check(plant: Plant, points: Sequence[OperatingPoint], setting: LoopSetting,
                   controller: str, loops: Sequence[tuple[LoopPlant, LoopDesign | None]],
                   judge: Callable[[np.ndarray], tuple[tuple, str]]) -> SensingCheck:
     """`SensingCheck` of ``controller`` (the embedded one) at ``points`` with the loop of
@@ -181,6 +183,7 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
     no design there), ``judge`` the envelope's verdict on the per-speed rows (largest real
     part, smallest damping ratio, levitation and speed loops' largest real parts):
     (failures, verdict text)."""
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
     layout = SensorLayout.of(params)
     speeds = np.array([op.speed for op in points])
@@ -193,7 +196,7 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
     blind_at: list[float] = []
     no_filter: list[str] = []  # NoKalmanFilterError's sentence at each speed without one
     states: tuple[str, ...] = ()
-    for op, (plant, gains) in zip(points, loops, strict=True):
+    for op, (built, gains) in zip(points, loops, strict=True):
         model = estimator_model(lib, carriage.p, op, params, layout, tau)
         states = model.states
         obs = observability(model)
@@ -225,8 +228,8 @@ def sensing_check(carriage, lib, points: Sequence[OperatingPoint], setting,
             rows.append((np.inf, nan, np.inf, np.inf))
             filt.append(nan)
             continue
-        loop = loop_as_built(model, design, plant, gains)
-        rows.append(_loop_numbers(loop, model, plant, setting.tick.period))
+        loop = loop_as_built(model, design, built, gains)
+        rows.append(_loop_numbers(loop, model, built, setting.tick.period))
         fs = continuous_equivalent(model.Phi @ (np.eye(model.Phi.shape[0])
                                                 - design.M @ model.C), setting.tick.period)
         filt.append(float(np.max(fs[np.isfinite(fs.real)].real)))

@@ -25,7 +25,6 @@ from maglevgen.analyses.sim_loop import (
     SensedTick,
     control_loop,
     firmware_gains,
-    firmware_loop,
     run_loop,
     sensed_metrics,
     sensing,
@@ -33,6 +32,7 @@ from maglevgen.analyses.sim_loop import (
 )
 from maglevgen.control import names as controller_names
 from maglevgen.control import title as controller_title
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import (
     AXIS_STATES,
     STABILITY_MARGIN,
@@ -69,7 +69,6 @@ __all__ = [
     "control_loop",
     "disturbance_doc",
     "firmware_gains",
-    "firmware_loop",
     "hold_run",
     "hold_trajectory",
     "initial_state",
@@ -659,9 +658,8 @@ class SimulationRun:
                 "speed_mode": None if self.speed_mode is None else self.speed_mode.to_json()}
 
 
-def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: float,
-                  speed: float | None = None, lib: SimulationLibrary | None = None,
-                  announce: Callable[[str], None] | None = None,
+def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: float,
+                  speed: float | None = None,
                   bar: Callable[[str], AbstractContextManager[Callable[[int], None]]]
                   | None = None,
                   scenario: str = "hold",
@@ -672,7 +670,7 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                   disturbances: tuple[dict[str, float], ...] = ()) -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
 
-    ``loop``: "firmware" runs every controller as the firmware does (`firmware_loop`: the
+    ``loop``: "firmware" runs every controller as the firmware does (`Plant.loop`: the
     tick and delay of [control.spec], the speed loop at speed_bandwidth, the force budget);
     "continuous" (the paper's) evaluates it at every RK4 stage under the trim propulsion,
     unless ``tick``, ``speed_gain`` or ``force_budget`` say otherwise.
@@ -682,7 +680,7 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     disturbed accelerating trim at the envelope's v_min to v_max under the propulsion of the
     accelerating trim at envelope.launch_acceleration (its drag plus m a), the reference that
     trim's pose and the gains those of the constant-speed linearisation, scheduled
-    (`launch`, `envelope.launch_schedule`): the runs are judged against the accelerating
+    (`launch`, `Plant.launch_schedule`): the runs are judged against the accelerating
     trim; the speed loop then tracks v_min + envelope.launch_acceleration t. ``tick``,
     ``speed_gain`` and ``force_budget`` as in `simulate` (the defaults: the controller at
     every RK4 stage, no speed loop, no budget). Refuses a step above RK4's stability limit
@@ -690,31 +688,22 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
     run per controller and disturbance (in that order) instead of one from ``disturbance``,
     the trim and schedule computed once (`worst_case.judged_signs`).
     """
-    from maglevgen.analyses.envelope import (
-        envelope_points,
-        launch_references,
-        launch_schedule,
-        resolve_range,
-    )
-    from maglevgen.runtime.library import simulation_library
-
     for c in controllers:
         if c not in controller_names():
             raise InputError(f"controller {c!r}: expected one of {', '.join(controller_names())}")
     if scenario not in SCENARIOS:
         raise InputError(f"--scenario {scenario!r}: expected one of {', '.join(SCENARIOS)}")
-    lib = lib or simulation_library(carriage.structure, progress=announce or (lambda _: None))
+    carriage, lib = plant.carriage, plant.lib
     min_gap = carriage.params.track.min_gap
     weights = Weights.of(carriage.params)
     v_end, warning = None, None
     if scenario == "launch":
         if speed is not None:
             raise InputError("--speed: the launch starts at envelope.v_min; set that instead")
-        v_lo, v_end = resolve_range(carriage, lib)
-        points = envelope_points(carriage, lib, np.linspace(v_lo, v_end, carriage.params
-                                                            .envelope.schedule_nodes))
+        v_end = plant.speed_range[1]
+        points = plant.points(plant.schedule_speeds())
         op = points[0]
-        refs = launch_references(carriage, lib, points)
+        refs = plant.launch_references(points)
         a = carriage.params.envelope.launch_acceleration
         # the start: the accelerating trim at v_min (the pose of refs[0], the speed along x)
         x_start = checked_accelerating_trim(lib, carriage.p, op.speed, a, min_gap)[0]
@@ -723,7 +712,7 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
         if not (np.isfinite(v) and v > 0):
             raise InputError(f"--speed {v!r}: must be a positive speed in m/s")
         op = operating_point(lib, carriage.p, v, min_gap, weights)
-        warning = outside_envelope(carriage, lib, v, "operation.speed" if speed is None
+        warning = outside_envelope(plant, v, "operation.speed" if speed is None
                                    else "--speed")
     eig = {c: np.linalg.eigvals(op.full_closed_loop(c)) for c in controllers}
     limits = {c: rk4_stability_limit(e) for c, e in eig.items()}
@@ -740,14 +729,14 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                              f"{', '.join(map(repr, others))}; --loop firmware runs any "
                              "controller on the exact state")
     if loop != "continuous":
-        tick, speed_gain, force_budget = run_loop(carriage, lib, loop)
+        tick, speed_gain, force_budget = run_loop(plant, loop)
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
     loop_kw: dict[str, Any] = {"tick": tick, "speed_gain": speed_gain,
                                "force_budget": force_budget}
     trajs = []
     setting = tick.setting(speed_gain) if isinstance(tick, FirmwareTick) else None
     for c in controllers:
-        sched = (launch_schedule(carriage, lib, points, c, refs, setting)
+        sched = (plant.launch_schedule(points, c, refs, setting)
                  if scenario == "launch" else None)
         for dist in disturbances or (disturbance,):
             if scenario == "launch":
@@ -777,14 +766,12 @@ def run_scenarios(carriage, controllers: tuple[str, ...], t_end: float, dt: floa
                          warning)
 
 
-def outside_envelope(carriage, lib: SimulationLibrary, speed: float, key: str) -> str | None:
+def outside_envelope(plant: Plant, speed: float, key: str) -> str | None:
     """One line when ``speed`` lies outside the envelope [v_min, v_max] (where the embedded
     controller is verified and the firmware's table holds), else None; None also when the
     envelope itself has no trim (the commands that need it say so)."""
-    from maglevgen.analyses.envelope import resolve_range
-
     try:
-        v_lo, v_hi = resolve_range(carriage, lib)
+        v_lo, v_hi = plant.speed_range
     except InputError:
         return None
     if v_lo <= speed <= v_hi:

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from maglevgen.analyses.output_feedback import NoisyHold
     from maglevgen.analyses.roa import Region
     from maglevgen.analyses.run_spec import RunVerdict
+    from maglevgen.control.carriage_plant import Plant
 
 __all__ = ["RUN_DT", "RUN_T_END", "EmbeddedVerdict", "JudgedRun", "VerdictLine",
            "build_holds", "cached_verdict", "embedded_runs", "embedded_verdict",
@@ -150,7 +151,7 @@ class EmbeddedVerdict:
                    tuple(VerdictLine.from_json(c) for c in d["findings"]), str(d["title"]))
 
 
-def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
+def embedded_runs(plant: Plant, env, speed: float, t_end: float = RUN_T_END,
                   dt: float = RUN_DT) -> tuple[JudgedRun, ...]:
     """The embedded controller in the firmware loop, judged against ``[control.spec]``
     (`maglevgen.analyses.run_spec`): held at envelope.v_min, at ``speed`` (the build's run
@@ -161,7 +162,7 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
     from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
     from maglevgen.analyses.worst_case import sign_combinations, worst_verdict
 
-    name = carriage.params.envelope.embedded_controller
+    name = plant.params.envelope.embedded_controller
     combos = sign_combinations(DISTURBANCE)
 
     def judged(sim) -> RunVerdict:
@@ -170,13 +171,13 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
 
     out = []
     for v in sorted({env.v_min, env.v_max, speed}):
-        sim = run_scenarios(carriage, (name,), t_end, dt, v, lib=lib,
-                            loop="firmware", disturbances=combos)
+        sim = run_scenarios(plant, (name,), t_end, dt, v, loop="firmware",
+                            disturbances=combos)
         out.append(JudgedRun(f"hold run at {v:.4g} m/s", judged(sim),
                              f"maglevgen simulate --controller {name} --speed {v:.4g} "
                              "--disturbance STATE=VALUE ..."))
-    launched = run_scenarios(carriage, (name,), t_end, dt, lib=lib,
-                             scenario="launch", loop="firmware", disturbances=combos)
+    launched = run_scenarios(plant, (name,), t_end, dt, scenario="launch", loop="firmware",
+                             disturbances=combos)
     out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
                          "m/s)", judged(launched),
                          f"maglevgen simulate --controller {name} --scenario launch "
@@ -184,7 +185,7 @@ def embedded_runs(carriage, lib, env, speed: float, t_end: float = RUN_T_END,
     return tuple(out)
 
 
-def build_holds(carriage, lib, v_min: float, v_max: float, t_end: float = RUN_T_END
+def build_holds(plant: Plant, v_min: float, v_max: float, t_end: float = RUN_T_END
                 ) -> tuple[NoisyHold, ...]:
     """The build's noisy holds as the firmware flies them (output_feedback.sensed_holds: its
     sense tick, compiled for the host, on the plant's noisy readings) over [v_min, v_max], their
@@ -192,13 +193,13 @@ def build_holds(carriage, lib, v_min: float, v_max: float, t_end: float = RUN_T_
     --t-end 1 holds for 2 s); none when the file has no [sensors] or they cannot observe what
     the controller needs or SciPy's DARE finds no filter (the sensing check fails the verdict
     then)."""
-    if carriage.params.sensors is None:
+    if plant.params.sensors is None:
         return ()
     from maglevgen.analyses.output_feedback import BUILD_HOLD, sensed_holds
     from maglevgen.control.estimation import NoKalmanFilterError
 
     try:
-        return sensed_holds(carriage, lib, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
+        return sensed_holds(plant, v_min, v_max, BUILD_HOLD * t_end / RUN_T_END)
     except (InputError, NoKalmanFilterError):  # estimation.check_observable, kalman
         return ()
 
@@ -378,12 +379,13 @@ def cached_verdict(carriage, t_end: float = RUN_T_END, dt: float = RUN_DT
         return None
 
 
-def verify_embedded(carriage, lib, step: Callable[[str], None] = lambda _: None
+def verify_embedded(plant: Plant, step: Callable[[str], None] = lambda _: None
                     ) -> EmbeddedVerdict:
     """The embedded controller's verdict, the same check as `build` (its linear spec across
     the envelope on every model, its hold and launch runs on the worst disturbance signs, at
     the build's default t_end and dt, its region of attraction): the one a build of the same
     parameters left in the cache, else computed here (and left for the next)."""
+    carriage = plant.carriage
     got = cached_verdict(carriage)
     if got is not None:
         return got
@@ -392,26 +394,24 @@ def verify_embedded(carriage, lib, step: Callable[[str], None] = lambda _: None
 
     step("verifying the embedded controller against [control.spec] (as `maglevgen build`; "
          "cached afterwards)")
-    env = compute_envelope(carriage, lib)
-    judged = embedded_runs(carriage, lib, env, carriage.params.operation.speed)
+    env = compute_envelope(plant)
+    judged = embedded_runs(plant, env, carriage.params.operation.speed)
     name = carriage.params.envelope.embedded_controller
-    (region,) = roa.study(carriage, lib, [name], roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
-    holds = build_holds(carriage, lib, env.v_min, env.v_max)
+    (region,) = roa.study(plant, [name], roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
+    holds = build_holds(plant, env.v_min, env.v_max)
     verdict = embedded_verdict(carriage, env, judged, region, holds=holds)
     store_verdict(carriage, verdict)
     return verdict
 
 
 
-def generate_example(carriage, lib) -> dict:
+def generate_example(plant: Plant) -> dict:
     """What `maglevgen generate`'s example main.c runs and says: the embedded controller's
     gains at operation.speed (moved into the envelope [v_min, v_max] where it lies outside),
     the speed and the verdict at that speed on the loop the example runs (the controller at
     every RK4 stage of maglev_rk4_step, the propulsion held at the trim drag: the ten-state
     closed loop of eqs 24-33) against [control.spec]'s stability, damping ratio and decay
     rate; the firmware loop's verdict is `maglevgen build`'s (said in the line)."""
-
-    from maglevgen.analyses.envelope import resolve_range
     from maglevgen.control import title as controller_title
     from maglevgen.control.operating import (
         STABILITY_MARGIN,
@@ -420,9 +420,10 @@ def generate_example(carriage, lib) -> dict:
         operating_point,
     )
 
+    carriage, lib = plant.carriage, plant.lib
     params = carriage.params
     name = params.envelope.embedded_controller
-    v_min, v_max = resolve_range(carriage, lib)
+    v_min, v_max = plant.speed_range
     speed = float(min(max(params.operation.speed, v_min), v_max))
     op = operating_point(lib, carriage.p, speed, params.track.min_gap, Weights.of(params))
     K_pos, K_rate = op.gains(name)

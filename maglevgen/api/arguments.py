@@ -21,7 +21,7 @@ __all__ = ["MAX_ACCELERATION", "MAX_SEED", "MAX_WORKERS", "as_path", "check_choi
 
 def commands() -> ModuleType:
     """The module holding the functions behind the commands (trim_report, gains_report,
-    envelope_of, envelope_verdicts, verdict_lines, library_of): the one place this API
+    envelope_of, envelope_verdicts, verdict_lines, plant_of): the one place this API
     names it."""
     from maglevgen.analyses import queries
 

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     import control
 
     from maglevgen.carriage import DerivedCarriage
+    from maglevgen.control.carriage_plant import Plant
     from maglevgen.control.operating import OperatingPoint
     from maglevgen.params import Parameters
     from maglevgen.runtime.library import SimulationLibrary
@@ -88,8 +89,15 @@ class CarriageCore:
         return DerivedCarriage(self._loaded)
 
     @cached_property
+    def _plant(self) -> Plant:
+        """The one `Plant` of this carriage (library, speed range, operating points, loop as
+        built) that every study and writer hands down; its library loads on first use, the
+        steps announced on stderr (`queries.plant_of`)."""
+        return commands().plant_of(self._carriage)
+
+    @property
     def _lib(self) -> SimulationLibrary:
-        return commands().library_of(self._carriage)
+        return self._plant.lib
 
     # ----------------------------------------------------------------------- checks
 
@@ -153,7 +161,7 @@ class CarriageCore:
         v = self._speed(speed)
         check_option("--acceleration", acceleration, -MAX_ACCELERATION, MAX_ACCELERATION,
                      "m/s^2", "braking or launching at up to 100 g")
-        rep = commands().trim_report(self._carriage, v, acceleration=float(acceleration))
+        rep = commands().trim_report(self._plant, v, acceleration=float(acceleration))
         arrays = rep["arrays"]
         names = tuple(arrays)
         return TrimResult(
@@ -201,7 +209,7 @@ class CarriageCore:
         2
         """
         v = self._speed(speed)  # before the model is built
-        return commands().gains_report(self._carriage, v)
+        return commands().gains_report(self._plant, v)
 
     def verdicts(self) -> tuple[dict[str, Any], tuple[str, ...]]:
         """The envelope's verdicts that ``maglevgen trim`` and ``gains`` print first.
@@ -233,7 +241,7 @@ class CarriageCore:
         >>> entry["embedded"], lines[0].startswith("Envelope")
         ('spec', True)
         """
-        entry, lines = commands().envelope_verdicts(self._carriage)
+        entry, lines = commands().envelope_verdicts(self._plant)
         return entry, tuple(lines)
 
     def gains(self, speed: float | None = None, controller: str = "lqr") -> Gains:
@@ -396,8 +404,8 @@ class CarriageCore:
         i = AXES.index(name)
         queries = commands()
         v = self._speed(speed)
-        lib = queries.library_of(self._carriage)
-        v = queries.trim_point(self._carriage, lib, v).speed  # or no trim
+        lib = self._lib
+        v = queries.trim_point(self._plant, v).speed  # or no trim
         k, m = (float(a.ravel()[i]) for a in lib.function("maglev_axis_plants")(
             v, self._carriage.p))
         q = cv.Q_STATES[i]

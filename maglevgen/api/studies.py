@@ -20,6 +20,7 @@ from maglevgen.api.arguments import (
     controller_choice,
     flag,
     initial_disturbance,
+    quiet,
 )
 from maglevgen.api.core import CarriageCore
 from maglevgen.api.results import (
@@ -194,11 +195,15 @@ class Studies(CarriageCore):
         controllers = controller_names() if controller == "all" else (controller,)
         if loop == "sensed" and controller == "all":  # the firmware flies one controller
             controllers = (self._carriage.params.envelope.embedded_controller,)
-        # the library if this carriage has built it (cached_property's entry), else the one
-        # run_scenarios builds after checking its options: bad input stays the only line
-        lib = self.__dict__.get("_lib")
-        run = run_scenarios(self._carriage, controllers, t_end, dt, speed, lib=lib,
-                            announce=steps.step if progress else None,
+        # this carriage's plant; its library, when not loaded yet, loads once run_scenarios has
+        # checked its options (bad input stays the only line), announced only with progress
+        plant = self._plant
+        if not plant.loaded:
+            from maglevgen.control.carriage_plant import Plant
+
+            plant = self.__dict__["_plant"] = Plant(
+                self._carriage, progress=steps.step if progress else quiet)
+        run = run_scenarios(plant, controllers, t_end, dt, speed,
                             bar=steps.bar if progress else None, scenario=scenario,
                             disturbance=initial, loop=loop)
         paths: tuple[Path, ...] = ()
@@ -277,7 +282,7 @@ class Studies(CarriageCore):
         if progress:  # once the arguments are checked: a bad one stays the only line
             steps.announce("envelope: each controller's closed-loop eigenvalues at "
                            f"{n_speeds or DEFAULT_SPEEDS} speeds")
-        env = queries.envelope_of(self._carriage, n_speeds)
+        env = queries.envelope_of(self._plant, n_speeds)
         rep = env.to_json()
         paths: tuple[Path, ...] = ()
         if out is not None:
@@ -405,9 +410,8 @@ class Studies(CarriageCore):
             if redesign:
                 raise InputError("--redesign with --loop sensed: the firmware's tables are the "
                                  "nominal carriage's (a re-design per sample is not flown)")
-        lib = self._lib
-        study = make_study(self._carriage, lib, controllers, t_end, dt, seed,
-                           *run_loop(self._carriage, lib, loop),
+        study = make_study(self._plant, controllers, t_end, dt, seed,
+                           *run_loop(self._plant, loop),
                            redesign=flag("--redesign", redesign))
         k = len(controllers)
         if progress:
@@ -499,7 +503,7 @@ class Studies(CarriageCore):
                            f"{n_speeds or roa.DEFAULT_SPEEDS} speeds, "
                            f"{sampling.directions} directions each")
         controllers = controller_names() if choice == "all" else (choice,)
-        regions = roa.study(self._carriage, self._lib, controllers,
+        regions = roa.study(self._plant, controllers,
                             roa.DEFAULT_SPEEDS if n_speeds is None else n_speeds, sampling)
         paths: tuple[Path, ...] = ()
         if out is not None:

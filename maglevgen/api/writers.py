@@ -88,11 +88,9 @@ class Writers(CarriageCore):
                                flag("--single-file", single_file))  # checks them
         speeds = None
         if opts.parameters == "baked":  # the trim's accepted speeds baked with the parameters
-            from maglevgen.analyses.envelope import speed_range
-
-            speeds = speed_range(self._carriage)
+            speeds = self._plant.speed_range
         # main.c's example: the embedded controller at a speed where it is verified
-        example = generate_example(self._carriage, self._lib)
+        example = generate_example(self._plant)
         return list(write_output(render(self._carriage, opts, speeds, example), Path(out)))
 
     def firmware(self, out: str | Path, precision: str = "single",
@@ -148,7 +146,7 @@ class Writers(CarriageCore):
         check_writable(out)
         GenerateOptions(precision, "baked")  # an unknown precision: InputError first
         verdict = self._verified(allow_unstable)
-        return list(write_output(firmware_files(self._carriage, precision, with_plant,
+        return list(write_output(firmware_files(self._plant, precision, with_plant,
                                                 verdict.to_json()), Path(out)))
 
     def _verified(self, allow_unstable: bool, progress: bool = False):
@@ -156,8 +154,7 @@ class Writers(CarriageCore):
         a VerificationError (exit 3) when it fails and ``allow_unstable`` is not set."""
         from maglevgen.build import verify_embedded
 
-        verdict = verify_embedded(self._carriage, self._lib,
-                                  steps.step if progress else quiet)
+        verdict = verify_embedded(self._plant, steps.step if progress else quiet)
         if not verdict.verified and not allow_unstable:
             raise VerificationError(f"{verdict.reason}: nothing written")
         return verdict

@@ -5,7 +5,12 @@ controllers (``paper_designs``: the paper's; ``spec``: the design to ``[control.
 ``lqr`` (the Riccati solves they share), ``operating`` (trim, gains and the linearised closed
 loop at one speed, from the C), ``schedule`` (gain schedules over speed), ``sampled`` (the loop
 as the firmware runs it: tick, hold, delay, speed loop), ``plant`` (the loop as built with the
-actuator lag, from one state layout, and the `spec` design at the tick on it), ``margins``
+actuator lag at one operating point, from one state layout, and the `spec` design at the tick
+on it), ``built_loop`` (that loop's settings in one type, `LoopSetting`: tick, delay, lag,
+speed loop, budget, and what the C loop, the host run and the FMU read from it),
+``carriage_plant`` (the `Plant`: one carriage and model choice with its library, speed range,
+cached operating points, loop as built, gain table and launch schedule, what the analyses,
+exports and report take), ``margins``
 (disk and delay margins at the actuators) and ``symbolic_reference`` (the same designs on the
 lambdified SymPy model: the tests' reference).
 

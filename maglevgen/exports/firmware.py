@@ -11,15 +11,11 @@ touches the disk.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from maglevgen.analyses.envelope import gain_table, resolve_range, schedule_setting
 from maglevgen.analyses.firmware_sources import (
     FIRMWARE_FLAGS,
     QEMU_TICKS,
     SENSE_REFRESH_TICKS,
     TICK_INPUTS,
-    FirmwareLoop,
     SenseSchedule,
     firmware_functions,
     refresh_slices,
@@ -28,13 +24,11 @@ from maglevgen.analyses.firmware_sources import (
     sense_schedule,
 )
 from maglevgen.codegen.interface import GenerateOptions
-from maglevgen.runtime.library import simulation_library
-
-if TYPE_CHECKING:
-    from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.built_loop import LoopSetting
+from maglevgen.control.carriage_plant import Plant
 
 __all__ = ["FIRMWARE_FLAGS", "MEASURED", "QEMU_TICKS", "SENSE_REFRESH_TICKS", "TICK_INPUTS",
-           "FirmwareLoop", "SenseSchedule", "firmware_files", "firmware_functions",
+           "SenseSchedule", "firmware_files", "firmware_functions",
            "firmware_loop", "refresh_slices", "render_firmware", "sense_refresh_bound",
            "sense_schedule"]
 
@@ -52,22 +46,23 @@ MEASURED: dict = {
 }
 
 
-def firmware_loop(carriage: DerivedCarriage, lib) -> FirmwareLoop:
+def firmware_loop(plant: Plant) -> LoopSetting:
     """The tick, delay, speed-loop gain and budget the build's firmware runs verify
-    (`maglevgen.analyses.loop.loop_setting` over the schedule's nodes, ``[control.spec]``)."""
-    return FirmwareLoop.of(schedule_setting(carriage, lib, *resolve_range(carriage, lib)),
-                           float(carriage.params.control.spec.force_budget))
+    (`Plant.loop`: `loop_setting` over the schedule's nodes, ``[control.spec]``), checked
+    embeddable (a speed integral needs a finite clamp: ValueError)."""
+    plant.loop.check_embeddable()
+    return plant.loop
 
 
-def firmware_files(carriage: DerivedCarriage, precision: str = "single",
+def firmware_files(plant: Plant, precision: str = "single",
                    with_plant: bool = False, verdict: dict | None = None) -> dict[str, str]:
-    """The firmware folder of ``carriage`` (`render_firmware`): the table schedule over the
-    envelope and the loop from the compiled simulation library (cached on disk); ``verdict``:
+    """The firmware folder of ``plant``'s carriage (`render_firmware`): the table schedule over
+    the envelope and the loop as built (`Plant.loop`); ``verdict``:
     the embedded controller's verification (`maglevgen.build.EmbeddedVerdict.to_json`)."""
     GenerateOptions(precision, "baked")  # an unknown precision: InputError before slow work
-    lib = simulation_library(carriage.structure)
-    v_min, v_max = resolve_range(carriage, lib)
-    loop = firmware_loop(carriage, lib)
-    return render_firmware(carriage, gain_table(carriage, lib, v_min, v_max), loop, precision,
+    carriage = plant.carriage
+    v_min, v_max = plant.speed_range
+    loop = firmware_loop(plant)
+    return render_firmware(carriage, plant.gain_table(v_min, v_max), loop, precision,
                            with_plant, MEASURED, verdict,
-                           sense_schedule(carriage, lib, v_min, v_max, loop))
+                           sense_schedule(plant, v_min, v_max, loop))

@@ -28,6 +28,7 @@ import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from maglevgen.codegen.checks import ERROR_CODES, MAX_DELAY_TICKS
 from maglevgen.derive import conventions as cv
@@ -35,6 +36,11 @@ from maglevgen.derive.conventions import Q_STATES
 from maglevgen.derive.structure import Structure
 from maglevgen.errors import InputError
 from maglevgen.version import __version__
+
+if TYPE_CHECKING:
+    from maglevgen.control.carriage_plant import Plant
+    from maglevgen.control.operating import OperatingPoint
+    from maglevgen.control.plant import LoopDesign
 
 __all__ = [
     "DEFAULT_FMI",
@@ -76,7 +82,7 @@ TUNABLE_PARAMETERS = frozenset({"track.min_gap"})
 DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s default
 # how the FMU's built-in controller runs (the fixed parameters of the "tick" group;
 # `build_fmu`'s ``loop``): "firmware" the loop as built, as `maglevgen simulate --loop firmware`
-# flies it (maglevgen.analyses.simulate.firmware_loop and firmware_gains: the tick law of
+# flies it (maglevgen.control.carriage_plant.Plant.loop and firmware_gains: the tick law of
 # templates/maglev_tick_law.c.j2 at the tick of [control.spec] with its delay and the
 # controller's gains at the tick, the speed loop and its integral, the force budget, each array
 # force's first-order lag in the plant, as continuous states in model exchange), "continuous"
@@ -478,7 +484,7 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
     FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
     embeds (``envelope.embedded_controller``); ``loop`` (FMU_LOOPS): the start values of the
-    tick's parameters, "firmware" those of `maglevgen.analyses.simulate.firmware_loop` with the
+    tick's parameters, "firmware" those of the plant's loop as built (`Plant.loop`) with the
     controller's `firmware_gains` at operation.speed (a "matrix" controller's K_pos and K_rate
     too) and the lagged array forces as states, "continuous" zeros (the law at every
     derivative evaluation); ``verdict``: the controller's
@@ -498,11 +504,14 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
     if loop not in FMU_LOOPS:
         raise InputError(f"--loop {loop!r}: expected one of {', '.join(FMU_LOOPS)}")
     headers = fmi_headers(fmi)  # before any slow work: FMPy missing is bad input
-    _check_trim(carriage, cache_dir, cc, progress)
+    from maglevgen.control.carriage_plant import Plant
+
+    plant = Plant(carriage, progress=progress, cache_dir=cache_dir, cc=cc)
+    _check_trim(plant)
     if callable(verdict):
         verdict = verdict()
     builtin = controller in fmu_controllers() and controller != EXTERNAL.name
-    tick, design = (_tick(carriage, controller if builtin else None, cache_dir, cc)
+    tick, design = (_tick(plant, controller if builtin else None)
                     if loop == "firmware" else (FmuTick(), None))
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
@@ -514,7 +523,7 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
         [manifest["params_sha256"], manifest["overrides"], controller, kind, __version__,
          json.loads(json.dumps([v.__dict__ for v in model.variables]))]
         + ([] if fmi == "2" else [f"fmi{fmi}"])))) + "}"  # FMI 2.0's GUID as before
-    matrix = (_matrix_gains(carriage, controller, cache_dir, cc, design)
+    matrix = (_matrix_gains(plant, controller, design)
               if model.controller.gains == "matrix" else None)
     files = render_files(model, guid, fmi, matrix, verdict)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
@@ -545,60 +554,57 @@ def build_fmu(carriage, kind: str = "both", controller: str | None = None,
                  **{f"sources/{n}": d for n, d in sources.items()}})
 
 
-def _matrix_gains(carriage, controller: str, cache_dir: Path | None, cc: str | None,
-                  design=None) -> tuple[list[float], list[float]]:
+def _matrix_gains(plant: Plant, controller: str, design: LoopDesign | None = None
+                  ) -> tuple[list[float], list[float]]:
     """``controller``'s (K_pos, K_rate) at operation.speed, column-major: the constants
     MATRIX_K_POS and MATRIX_K_RATE of the wrapper (templates/fmu_tick.c.j2); ``design`` (a
     `plant.LoopDesign`, the firmware loop's `firmware_gains`): its K_pos and K_rate instead of
     the continuous gains."""
     if design is None:
-        from maglevgen.control.operating import Weights, operating_point
-        from maglevgen.runtime.library import simulation_library
-
-        lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
-        op = operating_point(lib, carriage.p, carriage.params.operation.speed,
-                             carriage.params.track.min_gap, Weights.of(carriage.params))
-        K_pos, K_rate = op.gains(controller)
+        K_pos, K_rate = _operation_point(plant).gains(controller)
     else:
         K_pos, K_rate = design.K_pos, design.K_rate
     return ([float(v) for v in K_pos.ravel(order="F")],
             [float(v) for v in K_rate.ravel(order="F")])
 
 
-def _tick(carriage, controller: str | None, cache_dir: Path | None, cc: str | None):
-    """(the firmware loop's settings (`simulate.firmware_loop`) as the tick's start values,
+def _operation_point(plant: Plant) -> OperatingPoint:
+    """The operating point at operation.speed (NoTrimError where it has no trim)."""
+    from maglevgen.control.operating import Weights, operating_point
+
+    return operating_point(plant.lib, plant.p, plant.params.operation.speed, plant.min_gap,
+                           Weights.of(plant.params))
+
+
+def _tick(plant: Plant, controller: str | None) -> tuple[FmuTick, LoopDesign | None]:
+    """(the firmware loop's settings (`Plant.loop`) as the tick's start values,
     ``controller``'s gains on it (`simulate.firmware_gains` at operation.speed: the design at
     the tick where it has one, a `plant.LoopDesign`; None for ``controller`` None)): what
     `maglevgen simulate --loop firmware` flies."""
-    from maglevgen.analyses.simulate import firmware_gains, firmware_loop
-    from maglevgen.control.operating import Weights, operating_point
-    from maglevgen.runtime.library import simulation_library
+    from maglevgen.control.built_loop import loop_design
 
-    lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc)
-    tick, k_v, budget = firmware_loop(carriage, lib)
+    loop = plant.loop
+    tick = loop.firmware_tick()
     design = None
     if controller is not None:
-        op = operating_point(lib, carriage.p, carriage.params.operation.speed,
-                             carriage.params.track.min_gap, Weights.of(carriage.params))
-        design = firmware_gains(op, controller, tick)
+        design = loop_design(_operation_point(plant), controller, tick.setting())
 
     def flat(K) -> tuple[float, ...]:
         return () if K is None else tuple(float(v) for v in K.ravel(order="F"))
 
-    return FmuTick(float(tick.rate), int(tick.delay), float(k_v), float(budget),
+    return FmuTick(float(tick.rate), int(tick.delay), float(loop.speed_gain),
+                   float(loop.force_budget),
                    float(tick.lag), float(tick.speed_integral),
                    flat(None if design is None else design.K_lag),
                    flat(None if design is None else design.K_delay), firmware=True), design
 
 
-def _check_trim(carriage, cache_dir: Path | None, cc: str | None, progress: Progress) -> None:
+def _check_trim(plant: Plant) -> None:
     """No FMU whose initialization would fail at its start values: the trim at
     operation.speed, checked as `maglevgen simulate` checks it (NoTrimError, exit 2)."""
-    from maglevgen.analyses.simulate import checked_trim
-    from maglevgen.runtime.library import simulation_library
+    from maglevgen.control.operating import checked_trim
 
-    lib = simulation_library(carriage.structure, cache_dir=cache_dir, cc=cc, progress=progress)
-    checked_trim(lib, carriage.p, carriage.params.operation.speed, carriage.params.track.min_gap)
+    checked_trim(plant.lib, plant.p, plant.params.operation.speed, plant.min_gap)
 
 
 def _zip(members: dict[str, bytes]) -> bytes:

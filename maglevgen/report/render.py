@@ -31,6 +31,7 @@ from maglevgen.analyses.queries import (  # the CLI's numbers, from the C
     trim_report,
 )
 from maglevgen.analyses.verdicts import cached_verdict, embedded_verdict
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.errors import MaglevError
 from maglevgen.infrastructure.output import write_output
 from maglevgen.infrastructure.workers import process_pool
@@ -62,7 +63,6 @@ from maglevgen.report.sections.stiffness import stiffness_section
 from maglevgen.report.sections.summary import summary
 from maglevgen.report.sections.trim import trim_section
 from maglevgen.report.sections.verification import verification_section
-from maglevgen.runtime.library import simulation_library
 from maglevgen.version import __version__
 
 __all__ = ["SECTION_TITLES", "Pending", "ReportFiles", "ReportOptions", "ReportResult",
@@ -147,25 +147,25 @@ def build_context(
     # bad input fails before the slow steps; a folder must come from these parameters
     sim, sim_files = simulation_section(options.simulation, loaded.sha256 if folder else None)
     progress("report: envelope (stability across speed, in the compiled library)")
-    env, env_png = envelope_section(carriage, options.envelope)
+    plant = Plant(carriage)  # its library loads quietly, as the envelope section loaded it
+    env, env_png = envelope_section(plant, options.envelope)
     progress("report: region of attraction (sampled, in the compiled library)")
-    regions, roa_png = roa_section(carriage, options.roa)
+    regions, roa_png = roa_section(plant, options.roa)
     progress("report: trim and stiffness")
-    lib = simulation_library(carriage.structure, progress=progress)
-    trim = trim_point(carriage, lib, None)  # the compiled library's trim, as `maglevgen trim`
+    trim = trim_point(plant, None)  # the compiled library's trim, as `maglevgen trim`
     pool = None
     if figures is None:
         pool = process_pool(1, mp_context=multiprocessing.get_context("fork"))
-        own: Future = pool.submit(force_figures, force_curves(carriage, trim, lib))
+        own: Future = pool.submit(force_figures, force_curves(plant, trim))
         figures = own
     try:
-        trep = trim_report(carriage, None, lib)
+        trep = trim_report(plant, None)
         progress("report: LQR gains, coupled comparison and allocation")
-        gains = gains_report(carriage, None, lib)
+        gains = gains_report(plant, None)
         progress("report: symbolic forms")
         force = force_law_section(carriage, trim, trep)
         progress("report: the circuits' lag (the other circuit model's library and envelope)")
-        lag, lag_png = circuit_lag(carriage, lib, env, gains)
+        lag, lag_png = circuit_lag(plant, env, gains)
         rigid = rigid_body_section()
         alloc = damping_allocation_section(gains)
         alloc["actuators"] = actuator_comparison_section(carriage, progress, options.hold_runs)
@@ -176,8 +176,8 @@ def build_context(
             "circuit_lag": lag,
             "geometry": geometry_section(carriage, gains),
             "trim": trim_section(
-                trep, accelerating_margins(carriage, lib, _margin_speeds(carriage, env))),
-            "stiffness": stiffness_section(carriage, trim, trep, gains, lib),
+                trep, accelerating_margins(plant, _margin_speeds(carriage, env))),
+            "stiffness": stiffness_section(plant, trim, trep, gains),
             "damping": alloc,
             "riccati": riccati_section(gains),
         }
@@ -185,8 +185,8 @@ def build_context(
         paper = paper_comparison_section(gains, trep)
         progress("report: verification")
         checks = verification_section(
-            carriage, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
-        ) + envelope_checks(carriage, env)
+            plant, gains, trep, rigid, alloc, paper, progress if options.verify_c else None
+        ) + envelope_checks(plant, env)
         progress("report: figures")
         poles = pole_sets(gains)
         files = dict(figures.result())
@@ -201,7 +201,7 @@ def build_context(
     sensing, sensing_files = sensing_section(carriage, env, options.holds)
     files.update(sensing_files)
     rows, notes = parameter_rows(loaded)
-    envelope = envelope_context(carriage, env, options.gain_table)
+    envelope = envelope_context(plant, env, options.gain_table)
     envelope["roa"] = roa_context(regions)
     # the verdict deciding `build`'s exit code, as SUMMARY.md prints it (one source)
     verdict = (options.verdict or cached_verdict(carriage)

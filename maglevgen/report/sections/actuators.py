@@ -14,11 +14,11 @@ import sympy as sp
 from maglevgen.analyses.simulate import metrics, run_scenarios
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control import REGISTRY
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive.structure import input_names_of
 from maglevgen.params import ACTUATOR_MODELS, LoadedParams
 from maglevgen.report.display import ltx, matrix_tex
 from maglevgen.report.format import fnum, tex_escape
-from maglevgen.runtime.library import simulation_library
 
 __all__ = ["ACTUATOR_TEXT", "RUN_DT", "RUN_T_END", "actuator_comparison_section", "run_controllers",
            "with_actuators"]
@@ -60,7 +60,8 @@ def actuator_comparison_section(carriage, progress: Callable[[str], None],
     for name in ACTUATOR_MODELS:
         progress(f"report: actuator model {name!r} (its library and runs)")
         c = with_actuators(carriage, name)
-        lib = simulation_library(c.structure, progress=progress)
+        plant = Plant(c, progress=progress)
+        lib = plant.lib
         (E,) = lib.function("maglev_effectiveness")(c.p)
         (T,) = lib.function("maglev_allocation_matrix")(c.p)
         E, T = np.asarray(E), np.asarray(T)
@@ -77,8 +78,8 @@ def actuator_comparison_section(carriage, progress: Callable[[str], None],
         if c is carriage and hold_runs is not None:
             trajectories = tuple(hold_runs[k] for k in run_controllers())
         else:
-            trajectories = run_scenarios(c, run_controllers(), RUN_T_END, RUN_DT,
-                                         lib=lib).trajectories
+            trajectories = run_scenarios(plant, run_controllers(), RUN_T_END,
+                                         RUN_DT).trajectories
         for traj in trajectories:
             m = metrics(traj)
             peaks.setdefault(traj.controller, {})[name] = {

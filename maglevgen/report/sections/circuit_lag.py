@@ -13,11 +13,11 @@ from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.magnetic_damping import damping_across_speed
 from maglevgen.control import controller as registered_controller
 from maglevgen.control import title as controller_title
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.circuit_lag import circuit_response
 from maglevgen.report.display import eq
 from maglevgen.report.figures import damping_figure
-from maglevgen.runtime.library import simulation_library
 
 __all__ = ["CIRCUIT_LAG_FIGURE", "circuit_lag"]
 
@@ -51,24 +51,25 @@ def _other(carriage):
     return carriage.with_circuit_dynamics(MODELS[1 - MODELS.index(now)])
 
 
-def circuit_lag(carriage, lib, env, gains: dict) -> tuple[dict[str, Any], bytes]:
+def circuit_lag(plant: Plant, env, gains: dict) -> tuple[dict[str, Any], bytes]:
     """The section's context and its figure (PNG bytes).
 
     ``env``: this carriage's envelope; the other circuit model's library and envelope are
     built here (one more derivation and compile when not cached); ``gains``:
     `summary.gains_report` (the controllers' rate gains at the design speed)."""
-    other = _other(carriage)
-    other_lib = simulation_library(other.structure)
-    other_env = compute_envelope(other, other_lib, other_models=False)
+    carriage = plant.carriage
+    other_plant = plant.with_model(circuit_dynamics=_other(carriage).params.model
+                                   .circuit_dynamics)
+    other = other_plant.carriage
+    other_env = compute_envelope(other_plant, other_models=False)
     speeds = np.linspace(env.v_min, env.v_max, _N_SPEEDS)
-    mine = damping_across_speed(carriage, lib, speeds)
-    theirs = damping_across_speed(other, other_lib, speeds)
+    mine = damping_across_speed(plant, speeds)
+    theirs = damping_across_speed(other_plant, speeds)
     now = carriage.params.model.circuit_dynamics
     curves = {now: mine, other.params.model.circuit_dynamics: theirs}
     V = carriage.params.operation.speed
-    at_v = {n: damping_across_speed(c, lb, [V])[0]
-            for n, c, lb in ((now, carriage, lib),
-                             (other.params.model.circuit_dynamics, other, other_lib))}
+    at_v = {n: damping_across_speed(pl, [V])[0]
+            for n, pl in ((now, plant), (other.params.model.circuit_dynamics, other_plant))}
     # entries below 1e-12 of the largest are round-off of a structural zero (the quasi-static
     # lateral: eq 3 has no lateral rate term at zero roll)
     scale = max(float(np.max(np.abs(c))) for c in at_v.values())

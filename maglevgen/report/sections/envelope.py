@@ -10,8 +10,6 @@ import numpy as np
 
 from maglevgen.analyses.envelope import (
     compute_envelope,
-    envelope_points,
-    gain_table,
 )
 from maglevgen.analyses.envelope_figures import stability_map_png
 from maglevgen.analyses.queries import displayed_gains, embedded_gains
@@ -25,11 +23,11 @@ from maglevgen.analyses.roa import (
 )
 from maglevgen.control import controller as registered
 from maglevgen.control import title as controller_title
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import STABILITY_MARGIN, closed_loop_stability
 from maglevgen.report.display import matrix_tex
 from maglevgen.report.format import fcolumn, fnum, tex_escape
 from maglevgen.report.sections.verification import Check
-from maglevgen.runtime.library import simulation_library
 
 __all__ = [
     "ENVELOPE_FIGURE",
@@ -48,24 +46,25 @@ ENVELOPE_FIGURE = "envelope_stability_map.png"
 ROA_FIGURE = "envelope_region_of_attraction.png"
 
 
-def envelope_section(carriage, given: tuple[Any, bytes] | None):
+def envelope_section(plant: Plant, given: tuple[Any, bytes] | None):
     """The envelope (maglevgen.analyses.envelope, through the compiled library) and its stability
     map:
     the caller's (``given``) when it has them (`maglevgen build`), else computed and drawn."""
     if given is not None:
         return given
-    env = compute_envelope(carriage, simulation_library(carriage.structure))
+    env = compute_envelope(plant)
     return env, stability_map_png(env)
 
 
-def envelope_checks(carriage, env) -> list[Check]:
+def envelope_checks(plant: Plant, env) -> list[Check]:
     """Stability rows: each designed controller at the design speed and across the envelope
     (a row fails when the closed loop has an eigenvalue with real part >= -margin); the
     controllers other than the embedded one are findings about their design (`Check.finding`),
     not the toolchain's checks."""
 
+    carriage = plant.carriage
     speed = carriage.params.operation.speed
-    (op,) = envelope_points(carriage, simulation_library(carriage.structure), [speed])
+    op = plant.point(speed)
     out = []
     embedded = carriage.params.envelope.embedded_controller
     # every controller that applies forces
@@ -106,18 +105,18 @@ def _gain_matrix(K) -> str:
     return matrix_tex(displayed_gains(K), lambda v: "0" if v == 0 else fnum(v, 4))
 
 
-def _embedded_context(carriage, env, table: Mapping[str, Any]) -> dict[str, Any]:
+def _embedded_context(plant: Plant, env, table: Mapping[str, Any]) -> dict[str, Any]:
     """The embedded controller in full: its weights (and, for `spec`, how they follow from
     ``[control.spec]``), its gains at v_min, the design speed and v_max (`gains --json`'s
     "embedded" entry at each, from the same code), the table schedule's error for its gains
     and its verdicts."""
+    carriage = plant.carriage
     name = carriage.params.envelope.embedded_controller
     design = carriage.params.operation.speed
     where = [("v_{\\min}", env.v_min), ("V", design), ("v_{\\max}", env.v_max)]
     if not env.v_min < design < env.v_max:  # the design speed outside: v_min and v_max only
         where = [where[0], where[2]]
-    points = envelope_points(carriage, simulation_library(carriage.structure),
-                             [v for _, v in where])
+    points = plant.points([v for _, v in where])
     at = []
     for (label, v), op in zip(where, points, strict=True):
         e = embedded_gains(carriage, op)
@@ -148,12 +147,13 @@ def _embedded_context(carriage, env, table: Mapping[str, Any]) -> dict[str, Any]
     }
 
 
-def envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def envelope_context(plant: Plant, env, table: Mapping[str, Any] | None = None
+                     ) -> dict[str, Any]:
     """The section's numbers; ``table``: the firmware table's manifest entry (c/manifest.json's
     ``gain_table``, which the build passes), else the same entry fitted here."""
+    carriage = plant.carriage
     if table is None:
-        table = gain_table(carriage, simulation_library(carriage.structure), env.v_min,
-                           env.v_max).manifest()
+        table = plant.gain_table(env.v_min, env.v_max).manifest()
 
     embedded = carriage.params.envelope.embedded_controller
     pick = np.unique(np.linspace(0, env.speeds.size - 1, min(9, env.speeds.size)).astype(int))
@@ -175,7 +175,7 @@ def envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> d
                        "bound": table["bound"], "worst": table["worst_relative_error"],
                        "by_field": [{"name": k, "error": float(v)} for k, v in
                                     table["relative_error_by_field"].items()]},
-        "embedded": _embedded_context(carriage, env, table),
+        "embedded": _embedded_context(plant, env, table),
         "table": [{"speed": float(env.speeds[i]),
                    "cells": [float(env.controllers[n].max_real[i]) for n in names]}
                   for i in pick],
@@ -184,14 +184,13 @@ def envelope_context(carriage, env, table: Mapping[str, Any] | None = None) -> d
 
 
 
-def roa_section(carriage, given: tuple[Any, bytes] | None):
+def roa_section(plant: Plant, given: tuple[Any, bytes] | None):
     """The embedded controller's sampled region of attraction (maglevgen.analyses.roa, at the
     build's
     resolution) and its figure: the caller's (``given``, `maglevgen build`) when it has them."""
     if given is not None:
         return given
-    regions = study(carriage, simulation_library(carriage.structure),
-                    [carriage.params.envelope.embedded_controller], BUILD_SPEEDS,
+    regions = study(plant, [plant.params.envelope.embedded_controller], BUILD_SPEEDS,
                     BUILD_SAMPLING)
     return regions, region_png(regions)
 

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.inductrack import drag_per_circuit, halbach_surface_field, lift_per_circuit
 from maglevgen.derive.memo import memoized
@@ -50,15 +51,16 @@ def _force_numbers(carriage) -> dict[sp.Symbol, float]:
     return num
 
 
-def array_force_curves(carriage, lib, array: int, gaps: np.ndarray, speeds: np.ndarray
+def array_force_curves(plant: Plant, array: int, gaps: np.ndarray, speeds: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Lift and drag of array ``array`` from the compiled library (maglev_array_forces) at
     zero attitude, its face-centre gap ``gaps[i]`` (the carriage moved along the array's
     normal) and forward speed ``speeds[i]``: eq 3 times the array's circuits for either force
     law (at zero attitude the distributed face has one gap across it)."""
+    carriage = plant.carriage
     arr = list(carriage.params.arrays.values())[array]
     n_z = arr.normal[2]  # gap = nominal gap + n . (0, y, z) at zero attitude
-    fn = lib.function("maglev_array_forces")
+    fn = plant.lib.function("maglev_array_forces")
     x = np.zeros(len(cv.STATES))
     out = np.zeros((2, len(gaps)))
     for i, (g, v) in enumerate(zip(gaps, speeds, strict=True)):
@@ -69,12 +71,13 @@ def array_force_curves(carriage, lib, array: int, gaps: np.ndarray, speeds: np.n
     return out[0], out[1]
 
 
-def force_curves(carriage, trim, lib) -> dict[str, Any]:
+def force_curves(plant: Plant, trim) -> dict[str, Any]:
     # ``trim``: summary.TrimPoint (speed, gaps, lift of every array, from the compiled library)
     """What the force figures draw, as plain numbers (they are drawn in another process):
     F_L and F_D (eq 3) of one upper array against the gap at the trim speed and against the
-    speed at the nominal gap (`array_force_curves`, the compiled library ``lib``), and every
+    speed at the nominal gap (`array_force_curves`, the plant's compiled library), and every
     array's point at trim."""
+    carriage = plant.carriage
     v_c = float(_force_law_forms(REPORT_SOURCE)["v_c"].xreplace(_force_numbers(carriage)))
     arrays = list(carriage.params.arrays.items())
     upper = [i for i, (_, a) in enumerate(arrays) if abs(a.normal[2]) > 1 - 1e-9]
@@ -83,9 +86,9 @@ def force_curves(carriage, trim, lib) -> dict[str, Any]:
     n_c, g0 = a_up.circuits, a_up.nominal_gap
     gap = np.linspace(carriage.params.track.min_gap, 0.05, 400)
     speed = np.linspace(0.0, max(3 * trim.speed, 3 * v_c), 400)
-    lift_gap, drag_gap = array_force_curves(carriage, lib, i_up, gap,
+    lift_gap, drag_gap = array_force_curves(plant, i_up, gap,
                                             np.full_like(gap, trim.speed))
-    lift_v, drag_v = array_force_curves(carriage, lib, i_up, np.full_like(speed, g0), speed)
+    lift_v, drag_v = array_force_curves(plant, i_up, np.full_like(speed, g0), speed)
     points: dict[tuple[float, float], list[str]] = {}
     dots = []
     for i, (name, a) in enumerate(arrays):

@@ -8,6 +8,7 @@ import numpy as np
 import sympy as sp
 
 from maglevgen.analyses.queries import trim_point
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.linearize import STIFFNESS_PARTS, design_pose_stiffness, generalized_mass_expr
 from maglevgen.derive.memo import memoized
@@ -28,7 +29,6 @@ from maglevgen.report.display import (
 )
 from maglevgen.report.format import fnum
 from maglevgen.report.symbols import K_SYM, array_labels, to_display
-from maglevgen.runtime.library import simulation_library
 
 __all__ = ["LAW_COLUMNS", "ROLL", "jacobian_unit", "stiffness_section"]
 
@@ -72,11 +72,12 @@ def _stiffness_display(structure, values: tuple[tuple[str, float], ...],
     return Display(tuple(lines)), mass_lines
 
 
-def stiffness_section(carriage, trim, trep: dict, gains: dict, lib) -> dict[str, Any]:
+def stiffness_section(plant: Plant, trim, trep: dict, gains: dict) -> dict[str, Any]:
     """The section's numbers, all from the compiled library (as `maglevgen trim` and `gains`
     print them): K_st0 and the gravity terms of ``trim`` (summary.TrimPoint, maglev_stiffness),
     A and B (maglev_jacobians at the trim), the generalized masses (maglev_axis_plants)."""
 
+    carriage = plant.carriage
     model = carriage.model
     lines, mass_lines = _stiffness_display(model.structure, _shown_values(carriage),
                                            REPORT_SOURCE)
@@ -112,14 +113,15 @@ def stiffness_section(carriage, trim, trep: dict, gains: dict, lib) -> dict[str,
                 "rel": r["paper_relative_difference"],
             }
         )
-    laws = _by_law(carriage, trim, lib)
+    laws = _by_law(plant, trim)
     for i, row in enumerate(rows):
         for law, d in laws.items():
             row[law] = None if d is None else float(d["magnetic"][i])
     inputs = [(ltx(syms[n]), v) for n, v in trep["paper_inputs"].items()]
-    u = np.zeros(lib.function("maglev_jacobians").shapes_in[1][0])
+    jacobians = plant.lib.function("maglev_jacobians")
+    u = np.zeros(jacobians.shapes_in[1][0])
     u[0] = trim.f_prop
-    A, B = lib.function("maglev_jacobians")(trim.x, u, carriage.p)
+    A, B = jacobians(trim.x, u, carriage.p)
     scale = np.max(np.abs(A))
     a_entries = [
         (
@@ -180,18 +182,17 @@ LAW_COLUMNS = (PAPER_ARRAY_FORCE,
                *(law for law in ARRAY_FORCE_LAWS if law != PAPER_ARRAY_FORCE))
 
 
-def _by_law(carriage, trim, lib) -> dict[str, dict[str, Any] | None]:
+def _by_law(plant: Plant, trim) -> dict[str, dict[str, Any] | None]:
     """Per array force law: the diagonal of K_st0 and of K_st0 + K_other from that law's
     compiled library at its trim, and of each part (maglev_stiffness_parts: the derivation's
     split, derive.linearize.STIFFNESS_PARTS, generated into that library); None where it has
-    no trim. ``lib``: the carriage's own library."""
+    no trim (each law's plant: `Plant.with_model`)."""
     out: dict[str, dict[str, Any] | None] = {}
     for law in LAW_COLUMNS:
-        other = carriage.with_array_force(law)
-        law_lib = lib if other is carriage else simulation_library(other.structure,
-                                                                   progress=progress.step)
+        law_plant = plant.with_model(array_force=law, progress=progress.step)
+        other, law_lib = law_plant.carriage, law_plant.lib
         try:
-            t = trim if other is carriage else trim_point(other, law_lib, None)
+            t = trim if law_plant is plant else trim_point(law_plant, None)
         except NoTrimError:
             out[law] = None
             continue

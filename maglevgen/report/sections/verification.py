@@ -9,9 +9,9 @@ from pathlib import Path
 import mpmath
 import numpy as np
 
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive.riccati import riccati_relative_residual
 from maglevgen.errors import MaglevError
-from maglevgen.runtime.library import simulation_library
 
 __all__ = ["Check", "Simulation", "verification_section"]
 
@@ -38,9 +38,8 @@ class Check:
 
 
 def _generated_c_checks(
-    carriage,
+    plant: Plant,
     gains: dict,
-    progress: Callable[[str], None],
     samples: int = 100,
     seed: int = 20240607,
 ) -> list[Check]:
@@ -63,12 +62,13 @@ def _generated_c_checks(
     )
     bounds = (1e-12, 1e-10, 1e-9, 1e-10)
     try:
-        lib = simulation_library(carriage.structure, progress=progress)
+        lib = plant.lib
     except MaglevError as exc:
         return [
             Check(w, r_, None, b, f"not run: {exc}")
             for w, r_, b in zip(what, refs, bounds, strict=True)
         ]
+    carriage = plant.carriage
     mf, p = carriage.functions, carriage.p
     trim = carriage.trim()  # the reference trim: SciPy on the lambdified model
     rng = np.random.default_rng(seed)
@@ -108,7 +108,7 @@ def _generated_c_checks(
 
 
 def verification_section(
-    carriage,
+    plant: Plant,
     gains: dict,
     trep: dict,
     rigid: dict,
@@ -177,7 +177,7 @@ def verification_section(
         ),
     ]
     if c_progress is not None:
-        checks += _generated_c_checks(carriage, gains, c_progress)
+        checks += _generated_c_checks(plant, gains)
     return checks
 
 
