@@ -36,7 +36,6 @@ def held(carriage: DerivedCarriage, sim_lib, sensed_tick):
     """The C hold on the sensors from trim at SPEED, and noisy_hold's with the same noise."""
     from maglevgen.analyses.output_feedback import noisy_hold
     from maglevgen.analyses.simulate import run_scenarios
-
     from maglevgen.control.carriage_plant import Plant
 
     run = run_scenarios(Plant(carriage, sim_lib), ("spec",), SECONDS, 1e-3, SPEED,
@@ -98,8 +97,8 @@ def test_the_sense_tables_readings_at_trim_are_within_a_tenth_of_their_noise(
     noise of the exact value, and C's rows within GAIN_TABLE_BOUND of their own largest
     entry: the exact rows from the DARE at each speed (estimation.sense_plants)."""
     from maglevgen.analyses.firmware_sources import sense_schedule
-    from maglevgen.control.carriage_plant import Plant
     from maglevgen.control import estimation as est
+    from maglevgen.control.carriage_plant import Plant
     from maglevgen.control.schedule import GAIN_TABLE_BOUND, field_slices
 
     fw = sensed_tick[0].firmware
