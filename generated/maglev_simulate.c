@@ -498,10 +498,13 @@ static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, lon
     maglev_sensing* s = r->loop->sense;
     const maglev_real budget = r->loop->force_budget;
     maglev_real u_now[NU], xdot[NX], y[MAGLEV_SIM_MAX_READINGS], sq[NA];
-    maglev_real v_ref = r->loop->v_ref + r->loop->accel * t;
+    maglev_real v_ref = r->loop->v_ref + r->loop->accel * t, a_ref = r->loop->accel;
     const unsigned long valid = s->ny >= 32 ? 0xFFFFFFFFUL : (1UL << s->ny) - 1UL;
     int i, rc;
-    if (r->launch && v_ref > r->v_end) v_ref = r->v_end;
+    if (r->launch && v_ref > r->v_end) {
+        v_ref = r->v_end;
+        a_ref = 0;
+    }
     u_now[0] = next[0];
     for (i = 1; i < NU; ++i) u_now[i] = lagged ? act[i] : next[i];
     if (held_rhs(ws, x, u_now, xdot) || sensor_readings(ws, r, x, xdot, y)) return -1;
@@ -510,7 +513,7 @@ static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, lon
         if (s->step[i] > 0) y[i] = NEARBYINT(y[i] / s->step[i]) * s->step[i];
     }
     rc = n == 0 ? s->init(s->state, y, valid, v_ref) : 0;
-    if (rc == 0) rc = s->tick(s->state, y, valid, v_ref, u);
+    if (rc == 0) rc = s->tick(s->state, y, valid, v_ref, a_ref, u);
     if (n < s->n_rows) {
         if (s->readings != 0) {
             for (i = 0; i < s->ny; ++i) s->readings[n * s->ny + i] = y[i];

@@ -94,9 +94,11 @@ extern "C" {
  *   adds the tick's row of noise (white noise and bias, drawn by the caller) and rounds each
  *   reading to its step (0: not rounded); and gives them, each flagged valid, to the
  *   firmware's sense tick through the pointers: init at the first tick (at v_ref(0)), then
- *   tick with v_ref(t). Its command (the propulsion and the array forces, within the
- *   budget: the firmware's law) takes the state-feedback command's place in the delay line,
- *   F_extra added to the propulsion (maglev_launch). A sense function's error code ends the
+ *   tick with v_ref(t) and its slope a_ref (accel; 0 once a launch's v_ref is capped at
+ *   v_end): the tick adds the acceleration's feedforward itself. Its command (the
+ *   propulsion and the array forces, within the budget: the firmware's law) takes the
+ *   state-feedback command's place in the delay line, F_extra added to the propulsion
+ *   (maglev_launch: an external force; a launch on the sensors passes 0). A sense function's error code ends the
  *   run (MAGLEV_SIM_ERROR, the code in tick_error). Each tick's readings and the sense
  *   state's first MAGLEV_NX values (maglev_sense_state.x_pred: the prediction for the next
  *   tick) and the command it returned (before F_extra) go to readings, predicted and
@@ -109,7 +111,7 @@ extern "C" {
 typedef int (*maglev_sense_init_fn)(void* state, const maglev_real* y, unsigned long valid,
                                     maglev_real v0);
 typedef int (*maglev_sense_tick_fn)(void* state, const maglev_real* y, unsigned long valid,
-                                    maglev_real v_ref, maglev_real* u);
+                                    maglev_real v_ref, maglev_real a_ref, maglev_real* u);
 
 /* the sensors and the sense tick of a run (maglev_control_loop.sense; see above) */
 typedef struct {

@@ -10,7 +10,7 @@
 size_t maglev_host_sense_state_size(void);
 int maglev_host_sense_init(void* s, const maglev_real* y, unsigned long valid, maglev_real v0);
 int maglev_host_sense_tick(void* s, const maglev_real* y, unsigned long valid,
-                           maglev_real v_ref, maglev_real* u);
+                           maglev_real v_ref, maglev_real a_ref, maglev_real* u);
 
 size_t maglev_host_sense_state_size(void) {
     return sizeof(maglev_sense_state);
@@ -21,6 +21,6 @@ int maglev_host_sense_init(void* s, const maglev_real* y, unsigned long valid, m
 }
 
 int maglev_host_sense_tick(void* s, const maglev_real* y, unsigned long valid,
-                           maglev_real v_ref, maglev_real* u) {
-    return maglev_sense_tick((maglev_sense_state*)s, y, valid, v_ref, u);
+                           maglev_real v_ref, maglev_real a_ref, maglev_real* u) {
+    return maglev_sense_tick((maglev_sense_state*)s, y, valid, v_ref, a_ref, u);
 }

@@ -25,6 +25,7 @@ from test_tick_state import NumpyTick, _allocation, _clenshaw, _fields
 
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control.carriage_plant import Plant
+from maglevgen.control.operating import AXIS_STATES
 
 OK = 0
 NODES = 10  # the test's tables: Chebyshev interpolants at this many nodes (no dense check)
@@ -52,6 +53,7 @@ def sense(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     from maglevgen.codegen.checks import ERROR_CODES
     from maglevgen.codegen.generate import write_output
     from maglevgen.control import estimation as est
+    from maglevgen.control import sense_table as stab
     from maglevgen.control.schedule import tick_table_fields
     from maglevgen.derive import conventions as cv
     from maglevgen.exports.firmware import SenseSchedule, render_firmware
@@ -66,16 +68,16 @@ def sense(carriage: DerivedCarriage, sim_lib, tmp_path_factory) -> dict:
     nu = carriage.model.u.shape[0]
     n_lag = nu - 1 if loop.actuator_lag > 0 else 0
     states = tuple(s for s in cv.STATE_NAMES if layout.track or s != "x")
-    fields = est.sense_fields(len(states), n_lag, nu, len(layout.names))
+    fields = stab.sense_fields(len(states), n_lag, nu, len(layout.names))
 
     def sense_rows(vs):
         pts = plant.points(vs)
-        return np.array([sp.row() for sp in est.sense_plants(
+        return np.array([sp.row() for sp in stab.sense_plants(
             sim_lib, carriage.p, params, pts, loop.actuator_lag, loop.delay_ticks)])
 
     sense_table = _interpolant(sense_rows, v_min, v_max, fields)
     schedule = SenseSchedule(sense_table, states, n_lag, layout.names,
-                             est.reading_ranges(layout), len(layout.gaps))
+                             stab.reading_ranges(layout), len(layout.gaps))
     folder = tmp_path_factory.mktemp("sense_tick")
 
     def build(table, schedule, folder) -> Path:
@@ -139,7 +141,8 @@ class CSense:
         self.nu, self.n_lag = nu, n_lag
         self._init, self._tick = lib.maglev_sense_init, lib.maglev_sense_tick
         self._init.argtypes = [ctypes.POINTER(State), P, ctypes.c_ulong, ctypes.c_double]
-        self._tick.argtypes = [ctypes.POINTER(State), P, ctypes.c_ulong, ctypes.c_double, P]
+        self._tick.argtypes = [ctypes.POINTER(State), P, ctypes.c_ulong, ctypes.c_double,
+                               ctypes.c_double, P]
         self.s = State()
 
     def init(self, y: np.ndarray, valid: int, v0: float) -> int:
@@ -147,12 +150,13 @@ class CSense:
         return self._init(ctypes.byref(self.s), ys.ctypes.data_as(ctypes.POINTER(
             ctypes.c_double)), valid, float(v0))
 
-    def __call__(self, y: np.ndarray, valid: int, v_ref: float) -> tuple[int, np.ndarray]:
+    def __call__(self, y: np.ndarray, valid: int, v_ref: float,
+                 a_ref: float = 0.0) -> tuple[int, np.ndarray]:
         P = ctypes.POINTER(ctypes.c_double)
         ys = np.ascontiguousarray(y, dtype=float)
         u = np.full(self.nu, 7.0)
         rc = self._tick(ctypes.byref(self.s), ys.ctypes.data_as(P), valid, float(v_ref),
-                        u.ctypes.data_as(P))
+                        float(a_ref), u.ctypes.data_as(P))
         return rc, u
 
     def state(self) -> dict:
@@ -282,10 +286,40 @@ def _readings(fx: dict, nps: NumpySense, st: dict, rng, scale: float = 3.0) -> n
     return y + scale * np.sqrt(fx["layout"].variances) * rng.standard_normal(nps.ny)
 
 
+def test_the_accelerating_trim_is_linear_in_the_acceleration_as_the_tick_takes_it(
+        sense, carriage, sim_lib) -> None:
+    """The table's accelerating change (x_accel, F_accel), scaled by a, against the trim
+    solved at a (maglev_trim_accelerating) less the steady one, at a = a_L / 2 and a_L (the
+    tick's trim is exact at a_L and linear in between) at three speeds: the pose within 2 %
+    of its change's largest entry, the body velocities within 2 % of theirs (w: the same
+    speed along the track at the other pitch); and F_accel within 5 % of the mass
+    (d'Alembert's m a, and the drag's change with the accelerating trim's pose)."""
+    from maglevgen.control.operating import checked_accelerating_trim, checked_trim
+
+    table = sense["schedule"].table
+    f = _fields(table)
+    a_launch = carriage.params.envelope.launch_acceleration
+    min_gap = carriage.params.track.min_gap
+    for v in (table.v_min, 0.5 * (table.v_min + table.v_max), table.v_max):
+        row = _clenshaw(table, v)
+        x0, f0 = checked_trim(sim_lib, carriage.p, v, min_gap)[:2]
+        for a in (0.5 * a_launch, a_launch):
+            xa, fa, _ = checked_accelerating_trim(sim_lib, carriage.p, v, a, min_gap)
+            for part in (list(AXIS_STATES), [6, 7, 8]):  # the pose, the body velocities
+                change = xa[part] - x0[part]
+                assert np.max(np.abs(change)) > 0
+                np.testing.assert_allclose(a * row[f["x_accel"]][part], change, rtol=0,
+                                           atol=0.02 * np.max(np.abs(change)))
+            assert a * float(row[f["F_accel"]][0]) == pytest.approx(fa - f0, rel=1e-2)
+        assert float(row[f["F_accel"]][0]) == pytest.approx(carriage.params.vehicle.mass,
+                                                            rel=5e-2)
+
+
 @pytest.mark.needs_cc
 def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, sim_lib) -> None:
     """20 ticks at three speeds from the trim with a heave and roll off it, noisy readings,
-    some flagged invalid or out of range: from the C's state before each tick, the numpy
+    some flagged invalid or out of range, the reference accelerating at 0, the launch's and
+    half the launch's acceleration: from the C's state before each tick, the numpy
     update, the law (NumpyTick with the C's law state) on its estimate and the numpy
     prediction with the C's command. The estimator's state after the tick (prediction, lagged
     forces, the commands in flight, the cache) and the rejected readings bit for bit; the
@@ -299,7 +333,10 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
     all_valid = (1 << nps.ny) - 1
     rng = np.random.default_rng(4949)
     speeds = [sch.table.v_min, 0.5 * (sch.table.v_min + sch.table.v_max), sch.table.v_max]
-    for op in Plant(carriage, sim_lib).points(speeds):
+    a_launch = carriage.params.envelope.launch_acceleration
+    assert a_launch > 0
+    for op, a_ref in zip(Plant(carriage, sim_lib).points(speeds),
+                         (0.0, a_launch, 0.5 * a_launch), strict=True):
         c = CSense(fx)
         y0 = est.measurement_model(sim_lib, carriage.p, op, fx["layout"]).y_trim.copy()
         y0[-1] = 12.5  # the track sensor: the position the estimate starts at
@@ -320,12 +357,15 @@ def test_sense_tick_follows_the_numpy_estimator_tick_by_tick(sense, carriage, si
                 valid &= ~(1 << int(rng.integers(nps.ny)))  # one flagged stale
             if k % 7 == 4:
                 y[int(rng.integers(sch.n_gap))] = 1.0  # a gap of 1 m: out of range
-            rc, u = c(y, valid, v_ref)
+            rc, u = c(y, valid, v_ref, a_ref)
             assert rc == OK, (op.speed, k, rc)
             up = nps.update(st, y, valid)
             law.in_flight, law.w_hat, law.xi = (st["in_flight"].copy(), st["w_hat"].copy(),
                                                st["xi"])
-            u_ref = law(up["x_hat"], v_ref)
+            # the law about the trim accelerating at a_ref: the estimate less its pose change
+            x_law = up["x_hat"] - a_ref * up["g"][nps.f["x_accel"]]
+            u_ref = law(x_law, v_ref)
+            u_ref[0] += a_ref * float(up["g"][nps.f["F_accel"]][0])
             after = c.state()
             assert after["rejected"] == up["rejected"], (k, after["rejected"])
             exercised += after["rejected"] != 0
@@ -353,6 +393,7 @@ def test_sense_table_rows_are_the_estimators_matrices_and_m_is_dlqes(sense, carr
     import control
 
     from maglevgen.control import estimation as est
+    from maglevgen.control import sense_table as stab
     from maglevgen.control.schedule import GainTable
 
     fx = sense
@@ -377,10 +418,10 @@ def test_sense_table_rows_are_the_estimators_matrices_and_m_is_dlqes(sense, carr
     assert np.all(model.Phi[n:n + nl, :n] == 0)
     np.testing.assert_allclose(model.Phi[n:n + nl, oldest][:, 1:], (1 - a) * np.eye(nl),
                                atol=1e-15)
-    assert np.max(np.abs(design.M[n:])) <= est.M_DROPPED_SHARE * np.max(np.abs(design.M))
+    assert np.max(np.abs(design.M[n:])) <= stab.M_DROPPED_SHARE * np.max(np.abs(design.M))
     for v in (sch.table.v_min, 20.0, sch.table.v_max):
         (opv,) = Plant(carriage, sim_lib).points([v])
-        (sp,) = est.sense_plants(sim_lib, carriage.p, params, [opv], tau, d)
+        (sp,) = stab.sense_plants(sim_lib, carriage.p, params, [opv], tau, d)
         m = est.estimator_model(sim_lib, carriage.p, opv, params, tau=tau)
         _, P, _ = control.dlqe(m.Phi, np.eye(m.Phi.shape[0]), m.C, m.Q, m.R)
         M = P @ m.C.T @ np.linalg.inv(m.C @ P @ m.C.T + m.R)
@@ -540,7 +581,7 @@ int main(void) {
             else y[i] = hostile[h];
             if (maglev_sense_init(&s, y0, ALL, V_REF) != MAGLEV_OK) ++bad;
             for (k = 0; k < 3; ++k) {
-                rc = check(maglev_sense_tick(&s, k == 1 ? y : y0, ALL, V_REF, u), u, &s, &bad);
+                rc = check(maglev_sense_tick(&s, k == 1 ? y : y0, ALL, V_REF, 0.0, u), u, &s, &bad);
                 errors += rc != MAGLEV_OK;
                 sensor += rc == MAGLEV_ERR_SENSOR;
                 if (k == 1 && i >= 0 && !isfinite(hostile[h]) && !((s.rejected >> i) & 1UL)) ++bad;
@@ -549,12 +590,18 @@ int main(void) {
             }
             /* the first readings hostile */
             rc = check(maglev_sense_init(&s, y, ALL, V_REF), u, &s, &bad);
-            rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+            rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, 0.0, u), u, &s, &bad);
             ++calls;
         }
         /* the speed reference, at init and at a tick */
         rc = maglev_sense_init(&s, y0, ALL, hostile[h]);
-        rc = check(maglev_sense_tick(&s, y0, ALL, hostile[h], u), u, &s, &bad);
+        rc = check(maglev_sense_tick(&s, y0, ALL, hostile[h], 0.0, u), u, &s, &bad);
+        errors += rc != MAGLEV_OK;
+        ++calls;
+        /* the reference's acceleration: a non-finite one an error, a finite one a command */
+        (void)maglev_sense_init(&s, y0, ALL, V_REF);
+        rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, hostile[h], u), u, &s, &bad);
+        if (!isfinite(hostile[h]) && rc != MAGLEV_ERR_NONFINITE) ++bad;
         errors += rc != MAGLEV_OK;
         ++calls;
         /* the estimator's own state, one entry then all */
@@ -563,7 +610,7 @@ int main(void) {
             maglev_sense_init(&s, y0, ALL, V_REF);
             if (i < 0) { for (k = 0; k < NS; ++k) v[k] = hostile[h]; } else v[i] = hostile[h];
             for (k = 0; k < 3; ++k) {
-                rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+                rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, 0.0, u), u, &s, &bad);
                 errors += rc != MAGLEV_OK;
                 ++calls;
             }
@@ -576,7 +623,7 @@ int main(void) {
             if (i < 0) { s.v_tab[0] = hostile[h]; s.v_tab[1] = hostile[h]; }
             else s.tab[s.use][i] = hostile[h];
             for (k = 0; k <= 2 * MAGLEV_SENSE_REFRESH_TICKS; ++k) {
-                rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+                rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, 0.0, u), u, &s, &bad);
                 errors += rc != MAGLEV_OK;
                 ++calls;
             }
@@ -591,24 +638,24 @@ int main(void) {
     s.use = 12345U;
     s.slice = 99999U;
     for (k = 0; k < 3; ++k) {
-        rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+        rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, 0.0, u), u, &s, &bad);
         if (s.use > 1U || s.slice >= (unsigned)MAGLEV_SENSE_REFRESH_TICKS) ++bad;
         ++calls;
     }
     /* every reading flagged invalid; then the gaps only */
     maglev_sense_init(&s, y0, ALL, V_REF);
-    rc = check(maglev_sense_tick(&s, y0, 0UL, V_REF, u), u, &s, &bad);
+    rc = check(maglev_sense_tick(&s, y0, 0UL, V_REF, 0.0, u), u, &s, &bad);
     if (rc != MAGLEV_ERR_SENSOR || s.rejected != ALL) ++bad;
-    rc = check(maglev_sense_tick(&s, y0, ALL & ~((1UL << MAGLEV_SENSE_NGAP) - 1UL), V_REF, u),
+    rc = check(maglev_sense_tick(&s, y0, ALL & ~((1UL << MAGLEV_SENSE_NGAP) - 1UL), V_REF, 0.0, u),
                u, &s, &bad);
     if (rc != MAGLEV_ERR_SENSOR) ++bad;
-    rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, u), u, &s, &bad);
+    rc = check(maglev_sense_tick(&s, y0, ALL, V_REF, 0.0, u), u, &s, &bad);
     if (rc != MAGLEV_OK) ++bad;
     /* NULL pointers: nothing written but a zero command */
     maglev_sense_init(&s, y0, ALL, V_REF);
-    if (maglev_sense_tick(NULL, y0, ALL, V_REF, u) != MAGLEV_ERR_ARGUMENT) ++bad;
-    if (maglev_sense_tick(&s, NULL, ALL, V_REF, u) != MAGLEV_ERR_ARGUMENT) ++bad;
-    if (maglev_sense_tick(&s, y0, ALL, V_REF, NULL) != MAGLEV_ERR_ARGUMENT) ++bad;
+    if (maglev_sense_tick(NULL, y0, ALL, V_REF, 0.0, u) != MAGLEV_ERR_ARGUMENT) ++bad;
+    if (maglev_sense_tick(&s, NULL, ALL, V_REF, 0.0, u) != MAGLEV_ERR_ARGUMENT) ++bad;
+    if (maglev_sense_tick(&s, y0, ALL, V_REF, 0.0, NULL) != MAGLEV_ERR_ARGUMENT) ++bad;
     if (maglev_sense_init(NULL, y0, ALL, V_REF) != MAGLEV_ERR_ARGUMENT) ++bad;
     if (maglev_sense_init(&s, NULL, ALL, V_REF) != MAGLEV_ERR_ARGUMENT) ++bad;
     printf("calls %ld errors %ld bad %ld sensor %ld left_out %ld\n", calls, errors, bad,
@@ -667,6 +714,7 @@ def test_the_firmware_sense_table_holds_the_estimator_within_its_bound(carriage,
     each field within the bound of the exact rows (sense_plants), relative to the field's
     largest magnitude over those speeds and the ends; the manifest states the same table."""
     from maglevgen.control import estimation as est
+    from maglevgen.control import sense_table as stab
     from maglevgen.control.schedule import GAIN_TABLE_BOUND
     from maglevgen.exports.firmware import firmware_loop, sense_schedule
 
@@ -676,7 +724,7 @@ def test_the_firmware_sense_table_holds_the_estimator_within_its_bound(carriage,
     assert sch is not None
     assert max(sch.table.errors.values()) <= GAIN_TABLE_BOUND
     speeds = np.concatenate([[v_min, v_max], np.random.default_rng(49).uniform(v_min, v_max, 4)])
-    exact = np.array([sp.row() for sp in est.sense_plants(
+    exact = np.array([sp.row() for sp in stab.sense_plants(
         sim_lib, carriage.p, carriage.params, Plant(carriage, sim_lib).points(speeds),
         loop.actuator_lag, loop.delay_ticks)])
     got = sch.table(speeds)

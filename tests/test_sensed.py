@@ -97,7 +97,7 @@ def test_the_sense_tables_readings_at_trim_are_within_a_tenth_of_their_noise(
     noise of the exact value, and C's rows within GAIN_TABLE_BOUND of their own largest
     entry: the exact rows from the DARE at each speed (estimation.sense_plants)."""
     from maglevgen.analyses.firmware_sources import sense_schedule
-    from maglevgen.control import estimation as est
+    from maglevgen.control import sense_table as stab
     from maglevgen.control.carriage_plant import Plant
     from maglevgen.control.schedule import GAIN_TABLE_BOUND, field_slices
 
@@ -105,7 +105,7 @@ def test_the_sense_tables_readings_at_trim_are_within_a_tenth_of_their_noise(
     plant = Plant(carriage, sim_lib)
     table = sense_schedule(plant, fw.v_min, fw.v_max, fw.loop).table
     speeds = np.linspace(fw.v_min, fw.v_max, 9)[1:-1] + 0.37  # off the nodes
-    exact = np.array([sp.row() for sp in est.sense_plants(
+    exact = np.array([sp.row() for sp in stab.sense_plants(
         sim_lib, carriage.p, carriage.params, plant.points(speeds),
         fw.loop.actuator_lag, fw.loop.delay_ticks)])
     approx = table(speeds)
@@ -113,7 +113,7 @@ def test_the_sense_tables_readings_at_trim_are_within_a_tenth_of_their_noise(
     i, n = where["y_trim"]
     sigma = np.sqrt(fw.layout.variances)
     assert np.all(np.abs(approx[:, i:i + n] - exact[:, i:i + n])
-                  <= est.TRIM_READING_SHARE * sigma * 1.5)
+                  <= stab.TRIM_READING_SHARE * sigma * 1.5)
     i, n = where["C"]
     ny = sigma.size
     for j in range(ny):

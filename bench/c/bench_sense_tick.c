@@ -21,7 +21,7 @@ int main(void) {
     }
     rc |= maglev_sense_init(&state, y, MAGLEV_SENSE_ALL_VALID, v);
     for (k = 0; k < N_TICKS; ++k) {
-        rc |= maglev_sense_tick(&state, y, MAGLEV_SENSE_ALL_VALID, v, u);
+        rc |= maglev_sense_tick(&state, y, MAGLEV_SENSE_ALL_VALID, v, 0.0, u);
     }
     bench_sink = rc;
     return 0;

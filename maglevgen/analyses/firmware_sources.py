@@ -35,6 +35,7 @@ from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_conte
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import controller as registered
 from maglevgen.control import estimation as est
+from maglevgen.control import sense_table as st
 from maglevgen.control.built_loop import LoopSetting
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.schedule import (
@@ -115,10 +116,10 @@ class SenseSchedule:
         return {"function": "maglev_sense_tick", "init": "maglev_sense_init",
                 "readings": self.reading_rows(), "estimator_states": list(self.states),
                 "lagged_forces": self.n_lag,
-                "plausible_ranges": {"gap": f"[0, {est.GAP_RANGE:g} x nominal gap]",
-                                     "gyro_rad_s": est.GYRO_RANGE,
-                                     "accel_m_s2": est.ACCEL_RANGE,
-                                     "track_m": est.TRACK_RANGE},
+                "plausible_ranges": {"gap": f"[0, {st.GAP_RANGE:g} x nominal gap]",
+                                     "gyro_rad_s": st.GYRO_RANGE,
+                                     "accel_m_s2": st.ACCEL_RANGE,
+                                     "track_m": st.TRACK_RANGE},
                 "table": self.table.manifest()}
 
 
@@ -134,12 +135,12 @@ def sense_schedule(plant: Plant, v_min: float, v_max: float,
     if len(layout.names) > MAX_READINGS:
         raise InputError(f"sensors: {len(layout.names)} readings; the sense tick's flags "
                          f"word holds {MAX_READINGS} (fewer gap sensors)")
-    table = est.sense_table(lib, carriage.p, params,
+    table = st.sense_table(lib, carriage.p, params,
                             plant.point, v_min, v_max,
                             loop.actuator_lag, loop.delay_ticks)
     n_lag = len(carriage.model.input_names) - 1 if loop.actuator_lag > 0 else 0
     states = tuple(s for s in cv.STATE_NAMES if layout.track or s != "x")
-    return SenseSchedule(table, states, n_lag, layout.names, est.reading_ranges(layout),
+    return SenseSchedule(table, states, n_lag, layout.names, st.reading_ranges(layout),
                          len(layout.gaps))
 
 
@@ -241,7 +242,12 @@ def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list]:
                 lines += [f"b0 = ((t2 * b1) - b2) + R({ck});", "b2 = b1;", "b1 = b0;"]
             lines.append(f"tab[{i}] = ((t * b1) - b2) + R({cs[0]});")
         refresh.append(lines)
+    # the law's estimate less the accelerating trim's change at the commanded acceleration a
+    # (the launch's reference), and that trim's propulsion change
+    accel = [f"x_law[{i}] -= a * {c};"
+             for i in range(len(cv.STATE_NAMES)) if (c := val("x_accel", i))]
     return {"trim": trim, "f_prop": [val("F_prop", 0) or "R(0)"], "innov": innov,
+            "accel": accel, "f_accel": [val("F_accel", 0) or "R(0)"],
             "refresh": refresh,
             "correct": update, "predict": predict, "pose_rows": pose_rows}
 
@@ -267,8 +273,8 @@ def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: flo
             "readings": sense.reading_rows(),
             "lo": [c_literal(float(v), precision) for v in sense.ranges[:, 0]],
             "hi": [c_literal(float(v), precision) for v in sense.ranges[:, 1]],
-            "gap_range": est.GAP_RANGE, "gyro_range": est.GYRO_RANGE,
-            "accel_range": est.ACCEL_RANGE, "track_range": est.TRACK_RANGE}
+            "gap_range": st.GAP_RANGE, "gyro_range": st.GYRO_RANGE,
+            "accel_range": st.ACCEL_RANGE, "track_range": st.TRACK_RANGE}
 
 
 def firmware_functions(controller_tick: str, with_plant: bool = False,

@@ -487,7 +487,9 @@ def launch(lib: SimulationLibrary, p: np.ndarray, schedule: Schedule, op: Operat
              if isinstance(tick, SensedTick) else None)
     loop = control_loop(dt, tick, speed_gain, force_budget, op.speed, accel, sense=sense)
     x0 = initial_state(op, disturbance, x_start)
-    run = lib.launch(x0, dt, n_steps, v_end, accel_force, hold_steps, schedule, p, min_gap,
+    # on the sensors the firmware's tick adds the acceleration's feedforward itself (a_ref)
+    f_extra = 0.0 if sense is not None else accel_force
+    run = lib.launch(x0, dt, n_steps, v_end, f_extra, hold_steps, schedule, p, min_gap,
                      op.allocation.shape[0] + 1, op.gaps.size, loop)
     status, x, u, g = run.status, run.x, run.u, run.gaps
     t = np.arange(x.shape[0]) * dt
