@@ -340,6 +340,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
 
     from maglevgen.analyses import roa
     from maglevgen.analyses.envelope import compute_envelope, envelope_markdown
+    from maglevgen.analyses.sim_loop import flown_loop
     from maglevgen.analyses.sim_output import (
         FIGURE_NAMES,
         render_figures,
@@ -407,7 +408,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
         judged = embedded_runs(plant, env, run.op.speed, opts.t_end, opts.dt)
         step("envelope: the embedded controller's region of attraction (sampled)")
         regions = roa.study(plant, [carriage.params.envelope.embedded_controller],
-                            roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
+                            roa.BUILD_SPEEDS, roa.BUILD_SAMPLING, flown_loop(plant))
         holds = holds_job.result()
     # every check deciding the exit code, once: SUMMARY.md, stdout and the report's first
     # page print its lines

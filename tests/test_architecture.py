@@ -53,7 +53,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.analyses.magnetic_damping", "maglevgen.control",
          "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
-         "maglevgen.analyses.verdicts",
+         "maglevgen.analyses.verdicts", "maglevgen.analyses.sim_loop",
          "maglevgen.analyses.queries", "maglevgen.infrastructure.texsetup", "maglevgen.report",
          "maglevgen.control.carriage_plant",
          "maglevgen.report.figures", "numpy", "maglevgen.analyses.roa")),
@@ -62,6 +62,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "load when a verdict is computed",
         ("maglevgen.analyses.envelope", "maglevgen.analyses.roa", "maglevgen.analyses.simulate",
          "maglevgen.analyses.worst_case", "maglevgen.analyses.output_feedback",
+         "maglevgen.analyses.sim_loop",
          "maglevgen.control", "maglevgen.control.estimation", "maglevgen.control.operating",
          "maglevgen.infrastructure.cache", "numpy")),
     "maglevgen.carriage": (

@@ -803,11 +803,12 @@ def test_other_structures_are_the_ones_the_envelope_and_the_report_read(carriage
 
 def test_the_default_build_judges_the_embedded_runs_and_passes(good: Path, carriage) -> None:
     """The default build's verification covers the embedded controller's runs: SUMMARY.md
-    lists its holds at v_min, operation.speed and v_max and its launch, each meeting the run
-    spec, and BUILD.json records no failure (exit 0, the fixture). The v_max hold's lateral
-    peak lies between the least any controller within the force budget reaches from the
-    default disturbance (the energy bound of `lateral_drift_overshoot` at the reference trim)
-    and the file's allowed deviation; the firmware's design is stated."""
+    lists its holds at v_min, operation.speed and v_max and its launch, each flown on the
+    sensors and meeting the run spec, and BUILD.json records no failure (exit 0, the
+    fixture). The v_max hold's lateral peak lies between the least any controller within the
+    force budget reaches from the default disturbance (the energy bound of
+    `lateral_drift_overshoot` at the reference trim) and the file's allowed deviation; the
+    firmware's design is stated."""
     from independent_reference import lateral_drift_overshoot
 
     from maglevgen.analyses.simulate import DISTURBANCE
@@ -817,7 +818,9 @@ def test_the_default_build_judges_the_embedded_runs_and_passes(good: Path, carri
     summary = (good / "SUMMARY.md").read_text()
     prm = carriage.params
     speeds = sorted({env["v_min"], prm.operation.speed, env["v_max"]})
-    judged = " (firmware loop, worst of 32 disturbance sign combinations): "
+    # as a carriage flies them: the sense tick on noisy readings
+    judged = (" (the firmware's sense tick on noisy readings, worst of 32 disturbance sign "
+              "combinations): ")
     for v in speeds:
         assert f"- hold run at {v:.4g} m/s{judged}meets the specification (" in summary, v
     launch = next(ln for ln in summary.splitlines() if ln.startswith("- launch run ("))

@@ -16,6 +16,7 @@ independent reference the tests hold it against.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 from maglevgen.analyses.firmware_sources import render_firmware, sense_schedule
@@ -41,10 +42,21 @@ class SensedFirmware:
     params: object  # the carriage's parameters (its [sensors]: the runs' noise)
 
 
+#: each plant's firmware for the host, kept while the plant lives: rendering its tables
+#: takes seconds, and a build flies it in its noisy holds and its launch
+_BUILT: weakref.WeakKeyDictionary[Plant, SensedFirmware] = weakref.WeakKeyDictionary()
+
+
 def sensed_firmware(plant: Plant) -> SensedFirmware:
     """The firmware `maglevgen firmware` writes for ``plant``'s carriage, in double precision
-    with its sense tick, compiled for the host (cached by its content); InputError without
-    ``[sensors]`` (nothing to fly on)."""
+    with its sense tick, compiled for the host (cached by its content on disk, and per plant
+    in memory); InputError without ``[sensors]`` (nothing to fly on)."""
+    if (built := _BUILT.get(plant)) is None:
+        built = _BUILT[plant] = _render(plant)
+    return built
+
+
+def _render(plant: Plant) -> SensedFirmware:
     carriage = plant.carriage
     params = carriage.params
     layout = SensorLayout.of(params)  # InputError without [sensors]

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from maglevgen.control.estimation import SensorLayout
 
 __all__ = ["LOOPS", "FirmwareTick", "SensedTick", "control_loop", "estimation_error",
-           "firmware_gains", "reading_noise", "run_loop", "sensed_metrics", "sensing",
+           "firmware_gains", "flown_loop", "reading_noise", "run_loop", "sensed_metrics", "sensing",
            "speed_loop_gain"]
 
 
@@ -32,6 +32,13 @@ __all__ = ["LOOPS", "FirmwareTick", "SensedTick", "control_loop", "estimation_er
 # embedded controller's sense tick), as it does on the exact state (ideal sensing), or the
 # paper's continuous law
 LOOPS: tuple[str, ...] = ("firmware", "sensed", "continuous")
+
+
+def flown_loop(plant: Plant) -> str:
+    """The loop the embedded controller flies on a carriage (the build's judged runs and its
+    region's confirmations): "sensed" (its sense tick on the readings) where the file has
+    [sensors], else "firmware" (the exact state: nothing says what is measured)."""
+    return "sensed" if plant.params.sensors is not None else "firmware"
 
 
 def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick) -> LoopDesign:

@@ -2,9 +2,10 @@
 
 Every check that decides the exit code (3: verification failed) is one `VerdictLine` here:
 the linear specification across the envelope on the loop as built, the gains on the other
-models, the judged hold and launch runs in the firmware loop (each on the worst sign
-combination of the default disturbance, `maglevgen.analyses.worst_case`) and the region of
-attraction (a region confirmed by firmware-loop runs at every speed of the build's study).
+models, the judged hold and launch runs (where the file has [sensors], flown by the
+firmware's sense tick on noisy readings; each on the worst sign combination of the default
+disturbance, `maglevgen.analyses.worst_case`) and the region of attraction (a region
+confirmed by firmware-loop runs at every speed of the build's study).
 `EmbeddedVerdict.lines` is the block that SUMMARY.md, `build`'s stdout and the report's first
 page print (the report typesets the same lines: `maglevgen.report.sections.summary`), and
 `EmbeddedVerdict.reason` the one reason `build` exits 3 with: both from the same checks, so
@@ -47,6 +48,12 @@ class JudgedRun:
     label: str  # "hold run at 40 m/s", "launch run (6.543 to 40 m/s)"
     verdict: RunVerdict
     command: str  # the `maglevgen simulate` that repeats it
+    loop: str = "firmware"  # the loop it flew (simulate's --loop): "firmware" or "sensed"
+
+    def loop_text(self) -> str:
+        """The loop in words, for the verdict's line."""
+        return ("the firmware's sense tick on noisy readings" if self.loop == "sensed"
+                else "firmware loop, ideal sensing")
 
 
 @dataclass(frozen=True)
@@ -125,7 +132,8 @@ class EmbeddedVerdict:
             return f"NOT VERIFIED: {self.reason}"
         return (f"verified: the embedded controller {self.controller!r} meets [control.spec] "
                 f"across [{self.v_min:.4g}, {self.v_max:.4g}] m/s, checked {self.model}, in "
-                "its hold and launch runs in the firmware loop, each judged on the worst "
+                "its hold and launch runs (where the file has [sensors] flown by the "
+                "firmware's sense tick on noisy readings), each judged on the worst "
                 "sign combination of the default disturbance, with a region of attraction "
                 "confirmed at every speed studied, and, where the file has [sensors], with "
                 "its sensors observing what it needs, its Kalman filter, the whole loop with "
@@ -153,12 +161,16 @@ class EmbeddedVerdict:
 
 def embedded_runs(plant: Plant, env, speed: float, t_end: float = RUN_T_END,
                   dt: float = RUN_DT) -> tuple[JudgedRun, ...]:
-    """The embedded controller in the firmware loop, judged against ``[control.spec]``
+    """The embedded controller as the firmware flies it, judged against ``[control.spec]``
     (`maglevgen.analyses.run_spec`): held at envelope.v_min, at ``speed`` (the build's run
     speed, operation.speed) and at v_max for ``t_end``, and launched from v_min to v_max, the
     ends and the launch being where the linear verdict's worst cases lie (the gains' ends of
     the table, the accelerating trim's smallest gaps). Each from every sign combination of the
-    default disturbance, judged on the worst (`maglevgen.analyses.worst_case`)."""
+    default disturbance, judged on the worst (`maglevgen.analyses.worst_case`). Where the file
+    has [sensors] every run flies the firmware's sense tick on noisy readings (seeded: the
+    same noise from every start), as a carriage flies it (the launch with its acceleration as
+    the reference's slope); without, the firmware loop on the exact state."""
+    from maglevgen.analyses.sim_loop import flown_loop
     from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
     from maglevgen.analyses.worst_case import sign_combinations, worst_verdict
 
@@ -169,19 +181,19 @@ def embedded_runs(plant: Plant, env, speed: float, t_end: float = RUN_T_END,
         runs = [(d, spec_verdict(t)) for d, t in zip(combos, sim.trajectories, strict=True)]
         return worst_verdict([(d, v) for d, v in runs if v is not None])
 
+    loop = flown_loop(plant)
     out = []
     for v in sorted({env.v_min, env.v_max, speed}):
-        sim = run_scenarios(plant, (name,), t_end, dt, v, loop="firmware",
-                            disturbances=combos)
+        sim = run_scenarios(plant, (name,), t_end, dt, v, loop=loop, disturbances=combos)
         out.append(JudgedRun(f"hold run at {v:.4g} m/s", judged(sim),
                              f"maglevgen simulate --controller {name} --speed {v:.4g} "
-                             "--disturbance STATE=VALUE ..."))
-    launched = run_scenarios(plant, (name,), t_end, dt, scenario="launch", loop="firmware",
+                             f"--loop {loop} --disturbance STATE=VALUE ...", loop))
+    launched = run_scenarios(plant, (name,), t_end, dt, scenario="launch", loop=loop,
                              disturbances=combos)
     out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
                          "m/s)", judged(launched),
                          f"maglevgen simulate --controller {name} --scenario launch "
-                         "--disturbance STATE=VALUE ..."))
+                         f"--loop {loop} --disturbance STATE=VALUE ...", loop))
     return tuple(out)
 
 
@@ -325,8 +337,8 @@ def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
     if (sc := env.sensing) is not None:
         checks.append(VerdictLine(sc.verdict_subject(), sc.verdict_text(), bool(sc.ok)))
     n_signs = len(sign_combinations(DISTURBANCE))
-    checks += [VerdictLine(f"{r.label} (firmware loop, worst of {n_signs} disturbance sign "
-                           "combinations)", r.verdict.text(), bool(r.verdict.meets))
+    checks += [VerdictLine(f"{r.label} ({r.loop_text()}, worst of {n_signs} disturbance "
+                           "sign combinations)", r.verdict.text(), bool(r.verdict.meets))
                for r in runs]
     checks += _hold_lines(holds, carriage.params.track.min_gap)
     if region is not None:
@@ -391,13 +403,15 @@ def verify_embedded(plant: Plant, step: Callable[[str], None] = lambda _: None
         return got
     from maglevgen.analyses import roa
     from maglevgen.analyses.envelope import compute_envelope
+    from maglevgen.analyses.sim_loop import flown_loop
 
     step("verifying the embedded controller against [control.spec] (as `maglevgen build`; "
          "cached afterwards)")
     env = compute_envelope(plant)
     judged = embedded_runs(plant, env, carriage.params.operation.speed)
     name = carriage.params.envelope.embedded_controller
-    (region,) = roa.study(plant, [name], roa.BUILD_SPEEDS, roa.BUILD_SAMPLING)
+    (region,) = roa.study(plant, [name], roa.BUILD_SPEEDS, roa.BUILD_SAMPLING,
+                          flown_loop(plant))
     holds = build_holds(plant, env.v_min, env.v_max)
     verdict = embedded_verdict(carriage, env, judged, region, holds=holds)
     store_verdict(carriage, verdict)

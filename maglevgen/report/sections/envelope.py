@@ -21,6 +21,7 @@ from maglevgen.analyses.roa import (
     region_png,
     study,
 )
+from maglevgen.analyses.sim_loop import flown_loop
 from maglevgen.control import controller as registered
 from maglevgen.control import title as controller_title
 from maglevgen.control.carriage_plant import Plant
@@ -191,7 +192,7 @@ def roa_section(plant: Plant, given: tuple[Any, bytes] | None):
     if given is not None:
         return given
     regions = study(plant, [plant.params.envelope.embedded_controller], BUILD_SPEEDS,
-                    BUILD_SAMPLING)
+                    BUILD_SAMPLING, flown_loop(plant))
     return regions, region_png(regions)
 
 
