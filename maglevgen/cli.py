@@ -53,19 +53,18 @@ def _run_options(p: argparse.ArgumentParser) -> None:
                    help="RK4 step [s] (default 1e-3)")
 
 
-def _loop_option(p: argparse.ArgumentParser, sensed: bool = False) -> None:
-    p.add_argument("--loop", choices=("firmware", "sensed", "continuous") if sensed
-                   else ("firmware", "continuous"), default="firmware",
-                   help="firmware (default): the firmware tick's law at the tick of "
-                        "[control.spec] with its delay, each controller's gains on the loop "
-                        "as built, the speed loop and the force budget, on the plant with the "
-                        "actuator lag of [actuators], the state measured exactly (ideal "
-                        "sensing)" + ("; sensed: the embedded controller as the firmware "
-                                      "flies it on the sensors of [sensors], its sense tick "
-                                      "(Kalman filter and law, compiled from the firmware's "
-                                      "C) on noisy readings (seeded)" if sensed else "")
-                        + "; continuous: the paper's law at every RK4 stage under the trim "
-                        "propulsion")
+def _loop_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--loop", choices=("firmware", "sensed", "continuous"), default=None,
+                   help="default: as a carriage flies, sensed for the embedded controller "
+                        "alone where the file has [sensors], else firmware. sensed: the "
+                        "embedded controller as the firmware flies it on the sensors of "
+                        "[sensors], its sense tick (Kalman filter and law, compiled from the "
+                        "firmware's C) on noisy readings (seeded); firmware: the firmware "
+                        "tick's law at the tick of [control.spec] with its delay, each "
+                        "controller's gains on the loop as built, the speed loop and the "
+                        "force budget, on the plant with the actuator lag of [actuators], the "
+                        "state measured exactly (ideal sensing); continuous: the paper's law "
+                        "at every RK4 stage under the trim propulsion")
 
 
 def _carriage(args: argparse.Namespace) -> Carriage:
@@ -505,7 +504,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "these, default: 1 mm / 2 mrad on each axis)")
     sim.add_argument("--out", default="build/simulation", metavar="DIR",
                      help="output folder (default: ./build/simulation)")
-    _loop_option(sim, sensed=True)
+    _loop_option(sim)
     sim.add_argument("--check", action="store_true",
                      help="also integrate each run with scipy's adaptive DOP853 on the SymPy "
                           "model and report the largest deviation (slow: seconds per run)")
@@ -521,7 +520,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--controller", choices=_Controllers(extra=("all",)), metavar="NAME",
                     help="default: envelope.embedded_controller")
     _run_options(mc)
-    _loop_option(mc, sensed=True)
+    _loop_option(mc)
     mc.add_argument("--redesign", action="store_true",
                     help="re-design the controller for each sample's own parameters, as if "
                          "the firmware knew them (default: the nominal design, as the "
@@ -549,7 +548,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     roa = sub.add_parser("roa", help="a sampled region of attraction of the controller per "
                                      "speed (V = x'Px, dV/dt < 0 on the nonlinear loop in C, "
-                                     "boundary runs of the firmware loop)")
+                                     "boundary runs as the firmware flies: on the "
+                                     "sensors for the embedded controller)")
     _common(roa)
     roa.add_argument("--speeds", type=int, default=None, metavar="N",
                      help="speeds spanning [v_min, v_max] (default 8)")

@@ -7,6 +7,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,8 +15,11 @@ from maglevgen.control import names as controller_names
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
+if TYPE_CHECKING:
+    from maglevgen.params import Parameters
+
 __all__ = ["MAX_ACCELERATION", "MAX_SEED", "MAX_WORKERS", "as_path", "check_choice_text",
-           "check_controller", "check_loop", "check_run_arguments", "commands",
+           "check_controller", "check_loop", "check_run_arguments", "chosen_loop", "commands",
            "controller_choice", "flag", "initial_disturbance", "quiet", "shown"]
 
 
@@ -65,6 +69,18 @@ def check_loop(loop: str) -> None:
 
     if not isinstance(loop, str) or loop not in LOOPS:
         raise InputError(f"--loop {shown(loop)}: expected one of {', '.join(LOOPS)}")
+
+
+def chosen_loop(loop: str | None, controllers: Sequence[str], params: Parameters) -> str:
+    """``--loop`` checked; None (the default): as a carriage flies, "sensed" (the firmware's
+    sense tick on the readings of [sensors]) when the embedded controller is the one asked
+    and the file has [sensors], else "firmware" (the exact state: other controllers have no
+    sense tick, and without [sensors] nothing says what is measured)."""
+    if loop is None:
+        alone = tuple(controllers) == (params.envelope.embedded_controller,)
+        return "sensed" if alone and params.sensors is not None else "firmware"
+    check_loop(loop)
+    return loop
 
 
 def as_path(option: str, value: object) -> Path:

@@ -16,6 +16,7 @@ from maglevgen.api.arguments import (
     check_controller,
     check_loop,
     check_run_arguments,
+    chosen_loop,
     commands,
     controller_choice,
     flag,
@@ -47,7 +48,7 @@ class Studies(CarriageCore):
 
     def simulate(self, controller: str = "lqr", scenario: str = "hold",
                  speed: float | None = None, t_end: float = 10.0,
-                 dt: float = 1e-3, loop: str = "firmware",
+                 dt: float = 1e-3, loop: str | None = None,
                  disturbance: Mapping[str, float] | Sequence[str] | None = None
                  ) -> SimulationResult:
         """A closed-loop run in the compiled C, as ``maglevgen simulate`` (figs 3-8).
@@ -71,7 +72,9 @@ class Studies(CarriageCore):
         dt : float, optional
             RK4 step [s] (default 1e-3); refused above RK4's stability limit.
         loop : {'firmware', 'sensed', 'continuous'}, optional
-            ``firmware`` (default): the firmware tick's law at the tick of
+            Default: as a carriage flies, ``sensed`` for the embedded controller where the
+            file has ``[sensors]``, else ``firmware``. ``firmware``: the firmware tick's law
+            at the tick of
             ``[control.spec]`` with its delay, each controller's gains on the loop as built
             (the ``spec`` design at the tick), the speed loop and the force budget, on the
             plant with the actuator lag of ``[actuators]``, the state measured exactly
@@ -117,7 +120,7 @@ class Studies(CarriageCore):
 
     def simulations(self, controller: str = "all", scenario: str = "hold",
                     speed: float | None = None, t_end: float = 10.0, dt: float = 1e-3,
-                    loop: str = "firmware",
+                    loop: str | None = None,
                     disturbance: Mapping[str, float] | Sequence[str] | None = None,
                     check: bool = False, out: str | Path | None = None,
                     progress: bool = False) -> SimulationRuns:
@@ -139,8 +142,9 @@ class Studies(CarriageCore):
         dt : float, optional
             RK4 step [s] (default 1e-3; ``--dt``).
         loop : {'firmware', 'sensed', 'continuous'}, optional
-            How each controller runs (``--loop``; see `simulate`); ``sensed`` flies the
-            embedded controller alone (``"all"`` is then that one).
+            How each controller runs (``--loop``; see `simulate`; default ``sensed`` for the
+            embedded controller alone where the file has ``[sensors]``, else ``firmware``);
+            ``sensed`` flies the embedded controller alone (``"all"`` is then that one).
         disturbance : mapping of str to float, or sequence of str, optional
             The initial deviation from trim (``--disturbance``; see `simulate`).
         check : bool, optional
@@ -195,6 +199,7 @@ class Studies(CarriageCore):
         controllers = controller_names() if controller == "all" else (controller,)
         if loop == "sensed" and controller == "all":  # the firmware flies one controller
             controllers = (self._carriage.params.envelope.embedded_controller,)
+        loop = chosen_loop(loop, controllers, self.params)
         # this carriage's plant; its library, when not loaded yet, loads once run_scenarios has
         # checked its options (bad input stays the only line), announced only with progress
         plant = self._plant
@@ -307,7 +312,7 @@ class Studies(CarriageCore):
     def montecarlo(self, samples: int = 1000, seed: int = 0, controller: str | None = None,
                    t_end: float = 10.0, dt: float = 1e-3, workers: int | None = None,
                    scheduler: str | None = None, out: str | Path | None = None,
-                   loop: str = "firmware", progress: bool = False,
+                   loop: str | None = None, progress: bool = False,
                    redesign: bool = False) -> MonteCarloResult:
         """Monte-Carlo robustness over the parameter file's ``[tolerances]``, as
         ``maglevgen montecarlo``.
@@ -340,10 +345,11 @@ class Studies(CarriageCore):
         out : str or pathlib.Path, optional
             Folder for ``samples.parquet``, ``montecarlo.md``/``.json`` and the plots.
         loop : {'firmware', 'sensed', 'continuous'}, optional
-            How every run executes its controller (``--loop``; see `simulate`); ``sensed``:
-            the embedded controller's sense tick on each sampled carriage, the sensor noise
-            of each sample from ``SeedSequence(seed, spawn_key=(i, 1))`` (not with
-            ``redesign``).
+            How every run executes its controller (``--loop``; see `simulate`; default
+            ``sensed`` for the embedded controller where the file has ``[sensors]`` and
+            ``redesign`` is not asked, else ``firmware``); ``sensed``: the embedded
+            controller's sense tick on each sampled carriage, the sensor noise of each sample
+            from ``SeedSequence(seed, spawn_key=(i, 1))`` (not with ``redesign``).
         progress : bool, optional
             Announce the study once the arguments are checked, the slow steps on stderr,
             and the runs' rate (a progress bar on a terminal).
@@ -391,7 +397,8 @@ class Studies(CarriageCore):
         if workers is not None:
             check_count("--workers", workers, 1, MAX_WORKERS, "a process per worker")
         check_run_arguments(t_end, dt)
-        check_loop(loop)
+        if loop is not None:
+            check_loop(loop)
         check_scheduler(scheduler)
         if out is not None:
             out = as_path("--out", out)
@@ -400,6 +407,9 @@ class Studies(CarriageCore):
             steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
                            "library and the study first")
         controllers = controller_names() if choice == "all" else (choice,)
+        if loop is None and redesign:  # a re-design per sample is not what the firmware flies
+            loop = "firmware"
+        loop = chosen_loop(loop, controllers, self.params)
         if loop == "sensed":  # the firmware's sense tick: its one controller, its tables
             embedded = self.params.envelope.embedded_controller
             if choice == "all":
@@ -434,8 +444,10 @@ class Studies(CarriageCore):
         V = dx' P dx on the ten reduced states (P from the design's Lyapunov / Riccati
         equation); the largest level c with dV/dt < 0 on the nonlinear closed loop (the
         generated C, batched in ``maglev_lyapunov_batch``) and every gap above track.min_gap
-        at every sampled state of {V <= c}, then confirmed by runs of the firmware loop from
-        states on {V = c} (`maglevgen.analyses.roa`). A sampled estimate, not a proof.
+        at every sampled state of {V <= c}, then confirmed by closed-loop runs from states
+        on {V = c} (`maglevgen.analyses.roa`): as a carriage flies, the firmware's sense tick
+        on noisy readings for the embedded controller alone where the file has [sensors],
+        else the firmware loop on the exact state. A sampled estimate, not a proof.
 
         Parameters
         ----------
@@ -504,7 +516,8 @@ class Studies(CarriageCore):
                            f"{sampling.directions} directions each")
         controllers = controller_names() if choice == "all" else (choice,)
         regions = roa.study(self._plant, controllers,
-                            roa.DEFAULT_SPEEDS if n_speeds is None else n_speeds, sampling)
+                            roa.DEFAULT_SPEEDS if n_speeds is None else n_speeds, sampling,
+                            chosen_loop(None, controllers, self.params))
         paths: tuple[Path, ...] = ()
         if out is not None:
             paths = tuple(write_output(roa.study_files(regions), Path(out)))
