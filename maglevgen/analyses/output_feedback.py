@@ -312,21 +312,35 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     if n_ticks == 0:  # diverged within the first tick: nothing to average
         forces, gaps, att, est_err = (np.full((1, a.shape[1]), np.nan)
                                       for a in (forces, gaps, att, est_err))
-    dev = np.linalg.norm(gaps - gaps_trim, axis=1)
-    quarter = max(n_ticks // 4, 1)
-    settled = bool(diverged is None and np.all(np.isfinite(dev))
+    return _hold_metrics(op.speed, t_end, noise_scale, arrays, forces, budget,
+                         gaps - gaps_trim, min(float(np.min(gaps)), min_gap), att,
+                         model.states, est_err, predicted, diverged,
+                         time.perf_counter() - start, gaps)
+
+
+def _hold_metrics(speed: float, t_end: float, noise_scale: float, arrays: tuple[str, ...],
+                  forces: np.ndarray, budget: float, gap_dev: np.ndarray, min_gap: float,
+                  att: np.ndarray, states: tuple[str, ...], est_err: np.ndarray,
+                  predicted: np.ndarray, ended_at: float | None, elapsed: float,
+                  gaps: np.ndarray) -> NoisyHold:
+    """A `NoisyHold` from a hold's rows per tick: each array's control force (ticks x
+    arrays), the gaps' deviation from trim, the attitude's (phi, theta, psi), the estimation
+    error on ``states`` (ticks x states) beside the filter's ``predicted`` sqrt(P). Settled:
+    the run did not end early (``ended_at`` None) and the gaps' deviation RMS over its last
+    quarter is at most SETTLED x that over its second."""
+    dev = np.linalg.norm(gap_dev, axis=1)
+    quarter = max(dev.size // 4, 1)
+    settled = bool(ended_at is None and np.all(np.isfinite(dev))
                    and np.sqrt(np.mean(dev[-quarter:] ** 2))
                    <= SETTLED * np.sqrt(np.mean(dev[quarter:2 * quarter] ** 2)))
     return NoisyHold(
-        op.speed, t_end, noise_scale, arrays, np.sqrt(np.mean(forces**2, axis=0)),
+        speed, t_end, noise_scale, arrays, np.sqrt(np.mean(forces**2, axis=0)),
         np.max(forces, axis=0), np.mean(forces >= budget * (1 - 1e-9), axis=0), budget,
-        np.sqrt(np.mean((gaps - gaps_trim) ** 2, axis=0)),
-        min(float(np.min(gaps)), min_gap),
+        np.sqrt(np.mean(gap_dev ** 2, axis=0)), min_gap,
         dict(zip(("phi", "theta", "psi"), np.sqrt(np.mean(att**2, axis=0)).tolist(),
                  strict=True)),
-        dict(zip(model.states, np.sqrt(np.mean(est_err**2, axis=0)).tolist(), strict=True)),
-        dict(zip(model.states, predicted.tolist(), strict=True)), settled,
-        time.perf_counter() - start, diverged, gaps)
+        dict(zip(states, np.sqrt(np.mean(est_err**2, axis=0)).tolist(), strict=True)),
+        dict(zip(states, predicted.tolist(), strict=True)), settled, elapsed, ended_at, gaps)
 
 
 def hold_speeds(v_min: float, v_max: float) -> tuple[float, ...]:
@@ -389,25 +403,14 @@ def sensed_holds(plant: Plant, v_min: float, v_max: float, t_end: float = BUILD_
             cmd = sense.commands[:n_ticks, 1:]
             forces = np.array([np.linalg.norm(cmd[:, f:f + n], axis=1)
                                for f, n in zip(first, comps, strict=True)]).T
-            gaps = traj.gaps[ticks] - op.gaps
-            dev = np.linalg.norm(gaps, axis=1)
-            quarter = max(dev.size // 4, 1)
             err = estimation_error(sense, traj.x, n_steps)
-            att = traj.x[ticks, 3:6] - op.x_trim[3:6]
             ended = traj.c_status != 0
-            out.append(NoisyHold(
-                op.speed, t_end, scale, tuple(name for name, _ in structure),
-                np.sqrt(np.mean(forces**2, axis=0)), np.max(forces, axis=0),
-                np.mean(forces >= budget * (1 - 1e-9), axis=0), float(budget),
-                np.sqrt(np.mean(gaps**2, axis=0)), float(np.min(traj.gaps)),
-                dict(zip(("phi", "theta", "psi"), np.sqrt(np.mean(att**2, axis=0)).tolist(),
-                         strict=True)),
-                {s: float(np.sqrt(np.mean(err[:, cv.STATE_INDEX[s]] ** 2)))
-                 for s in model.states},
-                dict(zip(model.states, predicted.tolist(), strict=True)),
-                bool(not ended and np.sqrt(np.mean(dev[-quarter:] ** 2))
-                     <= SETTLED * np.sqrt(np.mean(dev[quarter:2 * quarter] ** 2))),
-                time.perf_counter() - start, float(traj.t[-1]) if ended else None,
+            out.append(_hold_metrics(
+                op.speed, t_end, scale, tuple(name for name, _ in structure), forces,
+                float(budget), traj.gaps[ticks] - op.gaps, float(np.min(traj.gaps)),
+                traj.x[ticks, 3:6] - op.x_trim[3:6], model.states,
+                err[:, [cv.STATE_INDEX[s] for s in model.states]], predicted,
+                float(traj.t[-1]) if ended else None, time.perf_counter() - start,
                 traj.gaps[ticks][1:]))
     return tuple(out)
 

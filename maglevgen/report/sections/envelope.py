@@ -200,6 +200,8 @@ def roa_context(regions) -> dict[str, Any]:
     """The region's table and statement (the first region: the embedded controller's)."""
     reg = regions[0]
     return {"figure": ROA_FIGURE, "controller": controller_title(reg.controller),
+            "loop": ("the firmware's sense tick on noisy readings" if reg.loop == "sensed"
+                     else f"the {reg.loop} loop"),
             "statement": roa_statement_tex(reg.statement()),
             "rows": [{"speed": s, "level": c, "extents": list(e), "multiple": m,
                       "limit": r.limit, "confirmed": r.confirmed and r.level > 0,
