@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from maglevgen.analyses.sim_loop import FirmwareTick, SensedTick
 from maglevgen.analyses.simulate import RUN_STATUSES
 from maglevgen.control import controller as registered_controller
 from maglevgen.control import title as controller_title
@@ -164,12 +165,21 @@ def summary_json(study: Study, n: int, agg: dict, timing: dict) -> dict:
 
 
 def design_text(study: Study) -> str:
-    """How each sample's controller was designed, in words (the module docstring)."""
+    """How each sample's controller was designed and flown, in words (the module
+    docstring)."""
+    if isinstance(study.tick, SensedTick):
+        loop = ("; flown by the firmware's sense tick on the sampled carriage's noisy "
+                "readings, each sample's noise its own (--loop sensed)")
+    elif isinstance(study.tick, FirmwareTick):
+        loop = "; flown by the firmware loop on the exact state (--loop firmware)"
+    else:
+        loop = "; the paper's law at every RK4 stage (--loop continuous)"
     if study.redesign:
         return ("redesigned per sample (--redesign): each sampled carriage re-trimmed and its "
-                "controller re-designed for its own parameters, as if the firmware knew them")
+                "controller re-designed for its own parameters, as if the firmware knew them"
+                + loop)
     return ("as the firmware flies: the nominal carriage's design at each sample's speed (its "
-            "gains, reference and feed-forward propulsion) on the sampled carriage")
+            "gains, reference and feed-forward propulsion) on the sampled carriage" + loop)
 
 
 def markdown(summary: dict) -> str:
