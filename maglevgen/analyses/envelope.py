@@ -305,7 +305,7 @@ class Envelope:
         """Which design of controller ``name`` (the embedded one) the firmware gets and why,
         in one sentence: the gains designed on the continuous linearisation, checked on the
         sampled-data loop; for a controller designed at the tick (`spec`), that design, which
-        the firmware's tick and the host simulation's firmware loop run."""
+        the firmware's ticks and the host's runs fly."""
         c = self.controllers.get(name)
         if c is None or self.loop is None:
             return (f"The firmware gets the {controller_title(name)} gains designed on the "
@@ -322,13 +322,15 @@ class Envelope:
                 "built (DARE on the ZOH model with the delay and the actuator lag; gains on "
                 "the state, the commands in flight and the actuator forces the controller "
                 "predicts from its own commands), which "
-                f"{'meets' if c.meets_spec else 'fails'} [control.spec] {on}. The firmware's "
-                "tick (maglev_tick, ideal sensing: the full state measured) runs this design "
-                "from its table, the commands in flight, the predicted actuator forces and "
-                "the speed integral in a caller-owned state; the host simulation's firmware "
-                "loop (the holds, the launch, Monte Carlo and ROA runs) runs the same law (one "
-                "C source) with this design on the plant with the actuator lag"
-                f"{cont_said}.")
+                f"{'meets' if c.meets_spec else 'fails'} [control.spec] {on}. The firmware "
+                "runs this design from its table, the commands in flight, the predicted "
+                "actuator forces and the speed integral in a caller-owned state: its sense "
+                "tick (maglev_sense_tick) on a Kalman filter's estimate from the readings, "
+                "maglev_tick on the full state (ideal sensing, a reference); the host's runs "
+                "(the judged holds and launch, the region's confirmations, Monte Carlo) fly "
+                "the sense tick itself on the plant's noisy readings where the file has "
+                "[sensors], else the same law (one C source) on the exact state, on the plant "
+                f"with the actuator lag{cont_said}.")
 
     def robustness_verdict(self) -> str:
         """The embedded controller's gains on the other models, in one sentence."""
