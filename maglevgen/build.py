@@ -349,8 +349,8 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     )
     from maglevgen.analyses.simulate import run_scenarios
     from maglevgen.carriage import DerivedCarriage
-    from maglevgen.control import names as controller_names
     from maglevgen.control.carriage_plant import Plant
+    from maglevgen.controllers import names as controller_names
     from maglevgen.infrastructure.cache import STORE
     from maglevgen.runtime.library import (
         build_libraries,

@@ -29,7 +29,7 @@ _CHILD = r'''
 import json, sys
 import numpy as np
 import maglevgen
-from maglevgen.control import Controller, register
+from maglevgen.controllers import Controller, register
 
 c = maglevgen.load()  # before the controller exists
 
@@ -163,7 +163,7 @@ def test_nothing_else_names_a_controller(tmp_path: Path) -> None:
     iterates over the registry."""
     import ast
 
-    from maglevgen.control import names
+    from maglevgen.controllers import names
 
     known = set(names())
     root = Path(__file__).resolve().parents[1]
@@ -188,7 +188,7 @@ def test_nothing_else_compares_a_controller_name() -> None:
     has a vocabulary of its own, in which "none" is a loop, not a controller.)"""
     import ast
 
-    from maglevgen.control import names
+    from maglevgen.controllers import names
 
     known = set(names())
     root = Path(__file__).resolve().parents[1]

@@ -37,7 +37,6 @@ from maglevgen.analyses.loop import loop_plant
 from maglevgen.analyses.sim_loop import SensedTick, estimation_error, reading_noise, run_loop
 from maglevgen.analyses.simulate import simulate
 from maglevgen.carriage import structure_of
-from maglevgen.control import controller as registered_controller
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import (
     EstimatorPoint,
@@ -48,6 +47,7 @@ from maglevgen.control.estimation import (
 from maglevgen.control.operating import OperatingPoint
 from maglevgen.control.plant import LoopDesign, LoopPlant, speed_loop_gains
 from maglevgen.control.sampled import LOOP_STATES, Tick
+from maglevgen.controllers import controller as registered_controller
 from maglevgen.derive import conventions as cv
 from maglevgen.runtime.ffi import GeneratedFunctionError
 

@@ -54,7 +54,6 @@ import numpy as np
 
 from maglevgen.analyses.roa_contact import CONTACT_STARTS, contact_level
 from maglevgen.analyses.simulate import DISTURBANCE, run_loop, simulate
-from maglevgen.control import controller as registered
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.lqr import weighted_qr
 from maglevgen.control.operating import (
@@ -64,6 +63,7 @@ from maglevgen.control.operating import (
     OperatingPoint,
     coupled_weights,
 )
+from maglevgen.controllers import controller as registered
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary

@@ -30,8 +30,6 @@ from maglevgen.analyses.sim_loop import (
     sensing,
     speed_loop_gain,
 )
-from maglevgen.control import names as controller_names
-from maglevgen.control import title as controller_title
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import (
     AXIS_STATES,
@@ -47,6 +45,8 @@ from maglevgen.control.operating import (
 )
 from maglevgen.control.sampled import Tick
 from maglevgen.control.schedule import A_REF, K_POS, Schedule
+from maglevgen.controllers import names as controller_names
+from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import DISTURBANCE, Q_STATES
 from maglevgen.derive.structure import input_names_of

@@ -311,7 +311,7 @@ def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
     not made (the report alone says so instead of a verdict)."""
     from maglevgen.analyses.simulate import DISTURBANCE
     from maglevgen.analyses.worst_case import sign_combinations
-    from maglevgen.control import title as controller_title
+    from maglevgen.controllers import title as controller_title
 
     name = carriage.params.envelope.embedded_controller
     c = env.controllers[name]
@@ -412,13 +412,13 @@ def generate_example(plant: Plant) -> dict:
     every RK4 stage of maglev_rk4_step, the propulsion held at the trim drag: the ten-state
     closed loop of eqs 24-33) against [control.spec]'s stability, damping ratio and decay
     rate; the firmware loop's verdict is `maglevgen build`'s (said in the line)."""
-    from maglevgen.control import title as controller_title
     from maglevgen.control.operating import (
         STABILITY_MARGIN,
         Weights,
         closed_loop_stability,
         operating_point,
     )
+    from maglevgen.controllers import title as controller_title
 
     carriage, lib = plant.carriage, plant.lib
     params = carriage.params

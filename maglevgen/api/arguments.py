@@ -10,7 +10,7 @@ from types import ModuleType
 
 import numpy as np
 
-from maglevgen.control import names as controller_names
+from maglevgen.controllers import names as controller_names
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 

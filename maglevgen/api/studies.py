@@ -30,7 +30,7 @@ from maglevgen.api.results import (
     SimulationResult,
     SimulationRuns,
 )
-from maglevgen.control import names as controller_names
+from maglevgen.controllers import names as controller_names
 from maglevgen.errors import InputError
 from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
 
@@ -60,8 +60,10 @@ class Studies(CarriageCore):
 
         Parameters
         ----------
-        controller : {'lqr', 'coupled', 'damping', 'none'}, optional
-            The controller (default the paper's per-axis LQR).
+        controller : str, optional
+            A registered controller (``maglevgen.controllers.names()``: the paper's ``none``,
+            ``damping``, ``lqr`` and ``coupled``, ``spec``, and any registered since; default
+            the paper's per-axis LQR).
         scenario : {'hold', 'launch'}, optional
             The run (default hold).
         speed : float, optional

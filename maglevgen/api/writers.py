@@ -18,7 +18,7 @@ from maglevgen.api.arguments import (
 )
 from maglevgen.api.core import CarriageCore
 from maglevgen.api.results import ReportResult
-from maglevgen.control import embeddable as embeddable_controllers
+from maglevgen.controllers import embeddable as embeddable_controllers
 from maglevgen.errors import InputError, VerificationError
 from maglevgen.exports.fmu import DEFAULT_FMI
 from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
@@ -231,9 +231,10 @@ class Writers(CarriageCore):
             Output folder of ``maglev.fmu``.
         kind : {'both', 'me', 'cs'}, optional
             Model exchange, co-simulation or both (default).
-        controller : {'coupled', 'lqr', 'damping', 'none', 'external'}, optional
-            The controller inside the FMU (default: ``envelope.embedded_controller``, the
-            one the firmware embeds); ``external``: the generalized forces are inputs.
+        controller : str, optional
+            A registered controller (``maglevgen.controllers.names()``) inside the FMU
+            (default: ``envelope.embedded_controller``, the one the firmware embeds), or
+            ``external``: the generalized forces are inputs.
         fmi : {'2', '3'}, optional
             The FMI version (``--fmi``): 2.0 (default,
             ``maglevgen.exports.fmu.DEFAULT_FMI``) or 3.0, the same variables.

@@ -207,13 +207,14 @@ EXTERNAL = FmuController("external", "generalized control forces are inputs (min
 
 
 def fmu_controllers() -> dict[str, FmuController]:
-    """Every registered controller (maglevgen.control) as the wrapper runs it, and ``external``."""
+    """Every registered controller (`maglevgen.controllers`) as the wrapper runs it, and
+    ``external``."""
     from maglevgen import (
-        control,  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
+        controllers,  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
     )
 
     out = {}
-    for c in control.REGISTRY.values():
+    for c in controllers.REGISTRY.values():
         inputs, gains_at = FMU_GAINS[c.fmu_gains]
         out[c.name] = FmuController(c.name, c.description + gains_at, "axis", inputs=inputs,
                                     gains=c.fmu_gains)
