@@ -55,7 +55,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
          "maglevgen.analyses.verdicts",
          "maglevgen.analyses.queries", "maglevgen.infrastructure.texsetup", "maglevgen.report",
-         "maglevgen.control.carriage_plant",
+         "maglevgen.control.carriage_plant", "maglevgen.control.built_loop",
          "maglevgen.report.figures", "numpy", "maglevgen.analyses.roa")),
     "maglevgen.analyses.verdicts": (
         "`build` imports it at its top (the unchanged rebuild): the analyses it judges with "
@@ -63,7 +63,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.analyses.envelope", "maglevgen.analyses.roa", "maglevgen.analyses.simulate",
          "maglevgen.analyses.worst_case", "maglevgen.analyses.output_feedback",
          "maglevgen.controllers", "maglevgen.control.estimation", "maglevgen.control.operating",
-         "maglevgen.infrastructure.cache", "numpy")),
+         "maglevgen.control.built_loop", "maglevgen.infrastructure.cache", "numpy")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
         "symbolic layers load when a carriage first needs them",
@@ -98,8 +98,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.codegen.interface", "maglevgen.codegen.emit",
          "maglevgen.infrastructure.cache", "maglevgen.runtime.library",
          "maglevgen.control.operating", "maglevgen.runtime.compile",
-         "maglevgen.analyses.simulate", "maglevgen.controllers", "maglevgen.control.carriage_plant",
-         "maglevgen.control.built_loop", "fmpy")),
+         "maglevgen.analyses.simulate", "maglevgen.controllers", "maglevgen.control.built_loop",
+         "fmpy")),
     "maglevgen.analyses.envelope_figures": ("matplotlib only when a figure is drawn",
                                             ("matplotlib",)),
     "maglevgen.analyses.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
@@ -114,8 +114,9 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.derive.riccati": ("python-control is a reference only", ("control",)),
     "maglevgen.derive.paper": ("sympy.physics.units for the paper's printed units",
                                ("sympy",)),
-    "maglevgen": ("`import maglevgen` stays light: the Python API loads when first used "
-                  "(PEP 562)", ("maglevgen.api",)),
+    "maglevgen": ("`import maglevgen` stays light: the Python API and the registry of "
+                  "controllers load when first used (PEP 562)",
+                  ("maglevgen.api", "importlib")),
     # the API's package: each method imports the stage it runs, as the CLI's commands do (a
     # script that only simulates loads no SymPy)
     "maglevgen.api.core": (
@@ -127,17 +128,18 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "each study imports the analysis it runs, as its command does",
         ("maglevgen.analyses.envelope", "maglevgen.analyses.montecarlo", "maglevgen.analyses.roa",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
-         "maglevgen.control.carriage_plant",
+         "maglevgen.control.carriage_plant", "maglevgen.control.built_loop",
          "maglevgen.codegen.generate", "maglevgen.infrastructure.output", "maglevgen.params")),
     "maglevgen.api.writers": (
         "each writer imports the stage it runs, as its command does",
         ("maglevgen.analyses.verdicts", "maglevgen.build",
          "maglevgen.codegen.generate", "maglevgen.exports.firmware", "maglevgen.exports.fmu",
-         "maglevgen.infrastructure.output", "maglevgen.report")),
+         "maglevgen.control.carriage_plant", "maglevgen.infrastructure.output",
+         "maglevgen.report")),
     "maglevgen.api.arguments": (
         "a check imports what it checks against (the schema's ranges, the loops, the "
         "commands' functions) when it runs",
-        ("maglevgen.analyses.queries", "maglevgen.analyses.simulate",
+        ("maglevgen.analyses.queries", "maglevgen.control.built_loop",
          "maglevgen.infrastructure.text", "maglevgen.params")),
     "maglevgen.api.results": ("pandas only where a DataFrame is returned", ("pandas",)),
     "maglevgen.analyses.montecarlo": (

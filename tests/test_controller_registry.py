@@ -64,9 +64,9 @@ res = simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=0.3, output_inte
 out["fmu_x"] = np.column_stack([res[s] for s in runs[0].state_names]).tolist()
 # the FMU's firmware loop: the loop as built (the tick's law with the example's gains, the
 # speed loop and its integral, the budget, the actuator lag), as `simulate --loop firmware`
-from maglevgen.analyses.simulate import run_scenarios
+from maglevgen.analyses.simulate import Loop, run_scenarios
 out["fmu_ref"] = run_scenarios(c._plant, ("example",), 0.3, 1e-3,
-                               loop="firmware").trajectories[0].x.tolist()
+                               loop=Loop.FIRMWARE).trajectories[0].x.tolist()
 # the firmware folder with the example embedded (a parameter file may name it now); not
 # verified against [control.spec] (the damping law is not meant to meet it)
 fw = maglevgen.load(overrides=['envelope.embedded_controller="example"'])

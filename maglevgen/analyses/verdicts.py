@@ -161,6 +161,7 @@ def embedded_runs(plant: Plant, env, speed: float, t_end: float = RUN_T_END,
     default disturbance, judged on the worst (`maglevgen.analyses.worst_case`)."""
     from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
     from maglevgen.analyses.worst_case import sign_combinations, worst_verdict
+    from maglevgen.control.built_loop import Loop
 
     name = plant.params.envelope.embedded_controller
     combos = sign_combinations(DISTURBANCE)
@@ -171,12 +172,12 @@ def embedded_runs(plant: Plant, env, speed: float, t_end: float = RUN_T_END,
 
     out = []
     for v in sorted({env.v_min, env.v_max, speed}):
-        sim = run_scenarios(plant, (name,), t_end, dt, v, loop="firmware",
+        sim = run_scenarios(plant, (name,), t_end, dt, v, loop=Loop.FIRMWARE,
                             disturbances=combos)
         out.append(JudgedRun(f"hold run at {v:.4g} m/s", judged(sim),
                              f"maglevgen simulate --controller {name} --speed {v:.4g} "
                              "--disturbance STATE=VALUE ..."))
-    launched = run_scenarios(plant, (name,), t_end, dt, scenario="launch", loop="firmware",
+    launched = run_scenarios(plant, (name,), t_end, dt, scenario="launch", loop=Loop.FIRMWARE,
                              disturbances=combos)
     out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
                          "m/s)", judged(launched),

@@ -7,6 +7,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,9 +15,12 @@ from maglevgen.controllers import names as controller_names
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
+if TYPE_CHECKING:
+    from maglevgen.control.built_loop import Loop
+
 __all__ = ["MAX_ACCELERATION", "MAX_SEED", "MAX_WORKERS", "as_path", "check_choice_text",
-           "check_controller", "check_loop", "check_run_arguments", "commands",
-           "controller_choice", "flag", "initial_disturbance", "quiet", "shown"]
+           "check_controller", "check_run_arguments", "commands",
+           "controller_choice", "flag", "initial_disturbance", "loop_of", "quiet", "shown"]
 
 
 def commands() -> ModuleType:
@@ -60,11 +64,15 @@ def controller_choice(controller: str | None, embedded: str) -> str:
     return choice
 
 
-def check_loop(loop: str) -> None:
-    from maglevgen.analyses.simulate import LOOPS
+def loop_of(loop: object, choices: Sequence[str] | None = None) -> Loop:
+    """``--loop``: the `Loop` the string names (``choices``: the command's loops, default
+    every one), or an InputError naming them. The one place a loop string becomes a loop."""
+    from maglevgen.control.built_loop import Loop
 
-    if not isinstance(loop, str) or loop not in LOOPS:
-        raise InputError(f"--loop {shown(loop)}: expected one of {', '.join(LOOPS)}")
+    names = tuple(Loop) if choices is None else tuple(choices)
+    if not isinstance(loop, str) or loop not in names:
+        raise InputError(f"--loop {shown(loop)}: expected one of {', '.join(names)}")
+    return Loop(loop)
 
 
 def as_path(option: str, value: object) -> Path:

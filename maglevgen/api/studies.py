@@ -14,12 +14,12 @@ from maglevgen.api.arguments import (
     MAX_WORKERS,
     as_path,
     check_controller,
-    check_loop,
     check_run_arguments,
     commands,
     controller_choice,
     flag,
     initial_disturbance,
+    loop_of,
     quiet,
 )
 from maglevgen.api.core import CarriageCore
@@ -179,11 +179,13 @@ class Studies(CarriageCore):
         True
         """
         from maglevgen.analyses.simulate import run_scenarios
+        from maglevgen.control.built_loop import Loop
 
         if controller != "all":
             check_controller(controller)
         out = None if out is None else as_path("--out", out)
-        if flag("--check", check) and loop != "continuous":
+        run_loop = loop_of(loop)
+        if flag("--check", check) and run_loop is not Loop.CONTINUOUS:
             raise InputError("--check: the DOP853 reference integrates the continuous "
                              "control law; add --loop continuous")
         if speed is not None:
@@ -195,7 +197,7 @@ class Studies(CarriageCore):
 
             check_writable(Path(out))  # before any work: a folder of the user's is refused
         controllers = controller_names() if controller == "all" else (controller,)
-        if loop == "sensed" and controller == "all":  # the firmware flies one controller
+        if run_loop is Loop.SENSED and controller == "all":  # the firmware flies one
             controllers = (self._carriage.params.envelope.embedded_controller,)
         # this carriage's plant; its library, when not loaded yet, loads once run_scenarios has
         # checked its options (bad input stays the only line), announced only with progress
@@ -207,7 +209,7 @@ class Studies(CarriageCore):
                 self._carriage, progress=steps.step if progress else quiet)
         run = run_scenarios(plant, controllers, t_end, dt, speed,
                             bar=steps.bar if progress else None, scenario=scenario,
-                            disturbance=initial, loop=loop)
+                            disturbance=initial, loop=run_loop)
         paths: tuple[Path, ...] = ()
         if out is not None:
             from maglevgen.analyses.sim_output import render_results
@@ -382,6 +384,7 @@ class Studies(CarriageCore):
             run_study,
         )
         from maglevgen.analyses.simulate import run_loop
+        from maglevgen.control.built_loop import Loop
         from maglevgen.infrastructure.output import check_writable, write_output
         from maglevgen.params import check_count
 
@@ -393,7 +396,7 @@ class Studies(CarriageCore):
         if workers is not None:
             check_count("--workers", workers, 1, MAX_WORKERS, "a process per worker")
         check_run_arguments(t_end, dt)
-        check_loop(loop)
+        run = loop_of(loop)
         check_scheduler(scheduler)
         if out is not None:
             out = as_path("--out", out)
@@ -402,7 +405,7 @@ class Studies(CarriageCore):
             steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
                            "library and the study first")
         controllers = controller_names() if choice == "all" else (choice,)
-        if loop == "sensed":  # the firmware's sense tick: its one controller, its tables
+        if run is Loop.SENSED:  # the firmware's sense tick: its one controller, its tables
             embedded = self.params.envelope.embedded_controller
             if choice == "all":
                 controllers = (embedded,)
@@ -413,7 +416,7 @@ class Studies(CarriageCore):
                 raise InputError("--redesign with --loop sensed: the firmware's tables are the "
                                  "nominal carriage's (a re-design per sample is not flown)")
         study = make_study(self._plant, controllers, t_end, dt, seed,
-                           *run_loop(self._plant, loop),
+                           *run_loop(self._plant, run),
                            redesign=flag("--redesign", redesign))
         k = len(controllers)
         if progress:

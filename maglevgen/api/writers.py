@@ -13,6 +13,7 @@ from maglevgen.api.arguments import (
     check_controller,
     check_run_arguments,
     flag,
+    loop_of,
     quiet,
     shown,
 )
@@ -296,7 +297,15 @@ class Writers(CarriageCore):
         else:
             verdict = (f"controller {controller!r}: not the embedded controller {embedded!r}, "
                        "not verified by maglevgen against [control.spec]")
-        data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop,
+        # this carriage's plant; its library, when not loaded yet, loads announced only with
+        # progress (as `simulate`'s)
+        plant = self._plant
+        if not plant.loaded:
+            from maglevgen.control.carriage_plant import Plant
+
+            plant = self.__dict__["_plant"] = Plant(
+                self._carriage, progress=steps.step if progress else quiet)
+        data = build_fmu(plant, kind, controller, fmi=fmi, loop=loop_of(loop, FMU_LOOPS),
                          progress=steps.step if progress else quiet, verdict=verdict)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path
