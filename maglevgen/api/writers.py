@@ -277,7 +277,7 @@ class Writers(CarriageCore):
 
         out = as_path("--out", out)
         flag("--allow-unstable", allow_unstable)
-        from maglevgen.exports.fmu import FMI_VERSIONS, FMU_LOOPS, KINDS
+        from maglevgen.exports.fmu import EXTERNAL, FMI_VERSIONS, FMU_LOOPS, KINDS
 
         # every choice before the verification (minutes) that the embedded controller gets
         for option, value, choices in (("--kind", kind, KINDS), ("--fmi", fmi, FMI_VERSIONS),
@@ -287,7 +287,7 @@ class Writers(CarriageCore):
                 raise InputError(f"{option} {value!r}: expected one of {', '.join(choices)}")
         embedded = self.params.envelope.embedded_controller
         controller = embedded if controller is None else controller
-        if controller != "external":
+        if controller != EXTERNAL.name:  # the FMU's own: the forces are inputs
             check_controller(controller)
         verdict: str | Callable[[], str]
         if controller == embedded:  # verified before anything is written (after the options)
