@@ -27,8 +27,8 @@ import os  # noqa: E402
 
 from maglevgen.analyses.simulate import run_scenarios  # noqa: E402
 from maglevgen.carriage import DerivedCarriage  # noqa: E402
-from maglevgen.control import names as controller_names  # noqa: E402
 from maglevgen.control.carriage_plant import Plant  # noqa: E402
+from maglevgen.controllers import names as controller_names  # noqa: E402
 from maglevgen.params import load_params  # noqa: E402
 from maglevgen.runtime.library import cached_simulation_library  # noqa: E402
 

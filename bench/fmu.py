@@ -32,6 +32,7 @@ from maglevgen.analyses.simulate import (
     reference_trajectory,
 )
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu
 from maglevgen.params import load_params
@@ -59,7 +60,7 @@ def measure(repeats: int) -> dict:
         paths = {}
         for kind in ("cs", "me"):
             paths[kind] = Path(tmp) / f"{kind}.fmu"
-            paths[kind].write_bytes(build_fmu(carriage, kind, "lqr"))
+            paths[kind].write_bytes(build_fmu(Plant(carriage), kind, "lqr"))
         md = read_model_description(str(paths["cs"]))
         unzipped = extract(str(paths["cs"]))
 

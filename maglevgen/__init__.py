@@ -34,11 +34,16 @@ _API = frozenset({"Carriage", "EnvelopeResult", "Gains", "MonteCarloResult", "Re
 
 
 def __getattr__(name: str) -> Any:
-    """The API's names, imported from maglevgen.api when first asked for (PEP 562)."""
+    """The API's names, imported from maglevgen.api when first asked for (PEP 562), and the
+    registry of controllers, `maglevgen.controllers`."""
     if name in _API:
         from maglevgen import api
 
         return getattr(api, name)
+    if name == "controllers":
+        import importlib  # `from maglevgen import controllers` would come back here
+
+        return importlib.import_module("maglevgen.controllers")
     raise AttributeError(f"module 'maglevgen' has no attribute {name!r}")
 
 

@@ -350,8 +350,9 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
     )
     from maglevgen.analyses.simulate import run_scenarios
     from maglevgen.carriage import DerivedCarriage
-    from maglevgen.control import names as controller_names
+    from maglevgen.control.built_loop import Loop
     from maglevgen.control.carriage_plant import Plant
+    from maglevgen.controllers import names as controller_names
     from maglevgen.infrastructure.cache import STORE
     from maglevgen.runtime.library import (
         build_libraries,
@@ -388,7 +389,7 @@ def run_build(loaded: LoadedParams, out_dir: Path, opts: BuildOptions, step=prin
              f"loop ({opts.t_end:g} s at dt {opts.dt:g} s)")
         plant = Plant(carriage, lib)
         run = run_scenarios(plant, controller_names(), opts.t_end, opts.dt, bar=bar,
-                            loop="firmware")
+                            loop=Loop.FIRMWARE)
         if pending is not None:
             pending.result()  # the envelope's model checks read them from the cache
     # the noisy holds of the output-feedback loop (the firmware's sense tick, about 3 s per

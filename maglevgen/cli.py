@@ -416,9 +416,10 @@ class _Controllers:
         self.embeddable_only, self.extra = embeddable_only, extra
 
     def _names(self) -> tuple[str, ...]:
-        from maglevgen import control
+        from maglevgen import controllers
 
-        return (control.embeddable() if self.embeddable_only else control.names()) + self.extra
+        return ((controllers.embeddable() if self.embeddable_only else controllers.names())
+                + self.extra)
 
     def __iter__(self):
         return iter(self._names())

@@ -29,7 +29,7 @@ import maglevgen
 from maglevgen import api
 from maglevgen.api import arguments, core, results, studies, writers
 from maglevgen.cli import main
-from maglevgen.control import names
+from maglevgen.controllers import names
 from maglevgen.infrastructure.output import MARKER
 from maglevgen.params import flatten
 

@@ -40,7 +40,7 @@ LAYOUT = {"maglevgen": "maglevgen", "maglevgen.api": "maglevgen/api",
 _CLI_STAGES = ("maglevgen.build", "maglevgen.codegen.generate", "maglevgen.exports.fmu",
                "maglevgen.params", "maglevgen.infrastructure.progress",
                "maglevgen.analyses.queries", "maglevgen.infrastructure.cache",
-               "maglevgen.control", "numpy", "maglevgen.api")
+               "maglevgen.controllers", "numpy", "maglevgen.api")
 LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.cli": (
         "start-up: a command imports its own stage only; an up-to-date `maglevgen build` "
@@ -50,12 +50,12 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "stages are imported when something has to be built",
         ("maglevgen.infrastructure.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
          "maglevgen.analyses.envelope", "maglevgen.runtime.library",
-         "maglevgen.analyses.magnetic_damping", "maglevgen.control",
+         "maglevgen.analyses.magnetic_damping", "maglevgen.controllers",
          "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
          "maglevgen.analyses.verdicts", "maglevgen.analyses.sim_loop",
          "maglevgen.analyses.queries", "maglevgen.infrastructure.texsetup", "maglevgen.report",
-         "maglevgen.control.carriage_plant",
+         "maglevgen.control.carriage_plant", "maglevgen.control.built_loop",
          "maglevgen.report.figures", "numpy", "maglevgen.analyses.roa")),
     "maglevgen.analyses.verdicts": (
         "`build` imports it at its top (the unchanged rebuild): the analyses it judges with "
@@ -63,7 +63,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.analyses.envelope", "maglevgen.analyses.roa", "maglevgen.analyses.simulate",
          "maglevgen.analyses.worst_case", "maglevgen.analyses.output_feedback",
          "maglevgen.analyses.sim_loop",
-         "maglevgen.control", "maglevgen.control.estimation", "maglevgen.control.operating",
+         "maglevgen.controllers", "maglevgen.control.estimation", "maglevgen.control.operating",
          "maglevgen.infrastructure.cache", "numpy")),
     "maglevgen.carriage": (
         "`simulate` and the build's simulations run the compiled C without SymPy: the "
@@ -99,8 +99,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("maglevgen.codegen.interface", "maglevgen.codegen.emit",
          "maglevgen.infrastructure.cache", "maglevgen.runtime.library",
          "maglevgen.control.operating", "maglevgen.runtime.compile",
-         "maglevgen.analyses.simulate", "maglevgen.control", "maglevgen.control.carriage_plant",
-         "maglevgen.control.built_loop", "fmpy")),
+         "maglevgen.analyses.simulate", "maglevgen.controllers", "maglevgen.control.built_loop",
+         "fmpy")),
     "maglevgen.analyses.envelope_figures": ("matplotlib only when a figure is drawn",
                                             ("matplotlib",)),
     "maglevgen.analyses.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",
@@ -115,8 +115,9 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.derive.riccati": ("python-control is a reference only", ("control",)),
     "maglevgen.derive.paper": ("sympy.physics.units for the paper's printed units",
                                ("sympy",)),
-    "maglevgen": ("`import maglevgen` stays light: the Python API loads when first used "
-                  "(PEP 562)", ("maglevgen.api",)),
+    "maglevgen": ("`import maglevgen` stays light: the Python API and the registry of "
+                  "controllers load when first used (PEP 562)",
+                  ("maglevgen.api", "importlib")),
     # the API's package: each method imports the stage it runs, as the CLI's commands do (a
     # script that only simulates loads no SymPy)
     "maglevgen.api.core": (
@@ -128,17 +129,18 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "each study imports the analysis it runs, as its command does",
         ("maglevgen.analyses.envelope", "maglevgen.analyses.montecarlo", "maglevgen.analyses.roa",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
-         "maglevgen.control.carriage_plant",
+         "maglevgen.control.carriage_plant", "maglevgen.control.built_loop",
          "maglevgen.codegen.generate", "maglevgen.infrastructure.output", "maglevgen.params")),
     "maglevgen.api.writers": (
         "each writer imports the stage it runs, as its command does",
         ("maglevgen.analyses.verdicts", "maglevgen.build",
          "maglevgen.codegen.generate", "maglevgen.exports.firmware", "maglevgen.exports.fmu",
-         "maglevgen.infrastructure.output", "maglevgen.report")),
+         "maglevgen.control.carriage_plant", "maglevgen.infrastructure.output",
+         "maglevgen.report")),
     "maglevgen.api.arguments": (
         "a check imports what it checks against (the schema's ranges, the loops, the "
         "commands' functions) when it runs",
-        ("maglevgen.analyses.queries", "maglevgen.analyses.simulate",
+        ("maglevgen.analyses.queries", "maglevgen.control.built_loop",
          "maglevgen.infrastructure.text", "maglevgen.params")),
     "maglevgen.api.results": ("pandas only where a DataFrame is returned", ("pandas",)),
     "maglevgen.analyses.montecarlo": (
@@ -265,17 +267,18 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("maglevgen.params", "maglevgen.carriage"),
     ("maglevgen.codegen",),
     ("maglevgen.runtime",),
-    ("maglevgen.control",),
+    ("maglevgen.control", "maglevgen.controllers"),
     ("maglevgen.analyses",),
     ("maglevgen.exports",),
     ("maglevgen.report",),
     ("maglevgen.api", "maglevgen.build", "maglevgen.cli", "maglevgen"),
 )
 # The one import against the order, and why: the schema checks a controller's name against
-# the registry, whose definitions import nothing of the application outside themselves
-# (test_the_controller_definitions_stand_alone).
-UPWARD_IMPORTS = {("maglevgen.params.sections", "maglevgen.control")}
-CONTROLLER_DEFINITIONS = ("maglevgen.control", "maglevgen.control.registry",
+# the registry (`maglevgen.controllers`), whose definitions import nothing of the application
+# outside themselves (test_the_controller_definitions_stand_alone).
+UPWARD_IMPORTS = {("maglevgen.params.sections", "maglevgen.controllers")}
+CONTROLLER_DEFINITIONS = ("maglevgen.controllers", "maglevgen.control",
+                          "maglevgen.control.registry",
                           "maglevgen.control.paper_designs", "maglevgen.control.spec",
                           "maglevgen.control.lqr")
 

@@ -14,11 +14,10 @@ import numpy as np
 import pytest
 
 from maglevgen.carriage import DerivedCarriage
-from maglevgen.control import Controller, register
 from maglevgen.control import carriage_plant as cp
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import Weights, operating_point
-from maglevgen.control.registry import REGISTRY
+from maglevgen.controllers import REGISTRY, Controller, register
 from maglevgen.params import ARRAY_FORCE_LAWS
 
 

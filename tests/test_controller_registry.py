@@ -29,7 +29,7 @@ _CHILD = r'''
 import json, sys
 import numpy as np
 import maglevgen
-from maglevgen.control import Controller, register
+from maglevgen.controllers import Controller, register
 
 c = maglevgen.load()  # before the controller exists
 
@@ -64,9 +64,9 @@ res = simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=0.3, output_inte
 out["fmu_x"] = np.column_stack([res[s] for s in runs[0].state_names]).tolist()
 # the FMU's firmware loop: the loop as built (the tick's law with the example's gains, the
 # speed loop and its integral, the budget, the actuator lag), as `simulate --loop firmware`
-from maglevgen.analyses.simulate import run_scenarios
+from maglevgen.analyses.simulate import Loop, run_scenarios
 out["fmu_ref"] = run_scenarios(c._plant, ("example",), 0.3, 1e-3,
-                               loop="firmware").trajectories[0].x.tolist()
+                               loop=Loop.FIRMWARE).trajectories[0].x.tolist()
 # the firmware folder with the example embedded (a parameter file may name it now); not
 # verified against [control.spec] (the damping law is not meant to meet it)
 fw = maglevgen.load(overrides=['envelope.embedded_controller="example"'])
@@ -163,7 +163,7 @@ def test_nothing_else_names_a_controller(tmp_path: Path) -> None:
     iterates over the registry."""
     import ast
 
-    from maglevgen.control import names
+    from maglevgen.controllers import names
 
     known = set(names())
     root = Path(__file__).resolve().parents[1]
@@ -188,7 +188,7 @@ def test_nothing_else_compares_a_controller_name() -> None:
     has a vocabulary of its own, in which "none" is a loop, not a controller.)"""
     import ast
 
-    from maglevgen.control import names
+    from maglevgen.controllers import names
 
     known = set(names())
     root = Path(__file__).resolve().parents[1]

@@ -975,10 +975,12 @@ def test_fmu_hostile_values_and_out_of_order_calls(carriage: DerivedCarriage, si
     loop's FMU adds the tick law's gains, the lag and the lagged forces' states."""
     import sys
 
+    from maglevgen.control.built_loop import Loop
+    from maglevgen.control.carriage_plant import Plant
     from maglevgen.exports.fmu import build_fmu
 
     path = tmp_path / "m.fmu"
-    path.write_bytes(build_fmu(carriage, "both", "lqr", loop=loop))
+    path.write_bytes(build_fmu(Plant(carriage), "both", "lqr", loop=Loop(loop)))
     hostile = [float("nan"), float("inf"), float("-inf"), 1e30, -1e30, 5e-324, 0.0, -1.0]
     driver = _FMU_DRIVER.replace("HOSTILE", repr(hostile).replace("nan", "float('nan')")
                                  .replace("inf", "float('inf')"))

@@ -927,7 +927,7 @@ def test_firmware_closed_loop_on_the_m4_against_the_host(firmware, carriage: Der
 
     from maglevgen.analyses.simulate import DISTURBANCE, initial_state
     from maglevgen.cli import main
-    from maglevgen.control import controller
+    from maglevgen.controllers import controller
     from maglevgen.derive import conventions as cv
     from maglevgen.exports.firmware import FIRMWARE_FLAGS, TICK_INPUTS
 

@@ -28,6 +28,7 @@ from maglevgen.analyses.simulate import (
     run_scenarios,
 )
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import FMI_VERSIONS, build_fmu
@@ -51,7 +52,7 @@ def fmus(tmp_path_factory, carriage: DerivedCarriage, sim_lib):
     def get(kind: str, controller: str = "lqr") -> Path:
         if (kind, controller) not in made:
             path = folder / f"{kind}_{controller}.fmu"
-            path.write_bytes(build_fmu(carriage, kind, controller, fmi="3"))
+            path.write_bytes(build_fmu(Plant(carriage), kind, controller, fmi="3"))
             made[kind, controller] = path
         return made[kind, controller]
 
@@ -267,7 +268,7 @@ def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: 
     # the FMU's firmware loop: the loop as built (the design at the tick, the speed loop and
     # its integral, the budget, the actuator lag), as `maglevgen simulate --loop firmware`
     ref = run_scenarios(Plant(carriage, sim_lib), (embedded,), 0.5, 1e-3,
-                        loop="firmware").trajectories[0]
+                        loop=Loop.FIRMWARE).trajectories[0]
     res = simulate_fmu(str(out / "maglev.fmu"), fmi_type="CoSimulation", stop_time=0.5,
                        output_interval=1e-3, output=STATES)
     assert np.array_equal(_states(res), ref.x)

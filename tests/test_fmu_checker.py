@@ -21,6 +21,8 @@ import pytest
 from fmpy.validation import validate_fmu
 
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.built_loop import Loop
+from maglevgen.control.carriage_plant import Plant
 from maglevgen.exports.fmu import build_fmu
 
 # the test extra installs it (pyproject.toml) beside this interpreter
@@ -43,7 +45,7 @@ def test_the_toolbox_checker_and_fmpy_accept_the_fmu(tmp_path: Path, carriage: D
     """Each kind; the firmware loop's FMU (the CLI's default) with the lagged array forces as
     continuous states besides the carriage's."""
     path = tmp_path / "maglev.fmu"
-    path.write_bytes(build_fmu(carriage, kind, fmi=fmi, loop=loop))
+    path.write_bytes(build_fmu(Plant(carriage), kind, fmi=fmi, loop=Loop(loop)))
     code, log = _check(path)
     assert code == 0, log
     assert f"compliant with FMI-{fmi}.0" in log, log
@@ -56,7 +58,7 @@ def test_the_toolbox_checker_rejects_a_duplicate_variable_name(tmp_path: Path,
                                                                carriage: DerivedCarriage,
                                                                sim_lib) -> None:
     good = tmp_path / "good.fmu"
-    good.write_bytes(build_fmu(carriage, "cs", fmi="2"))
+    good.write_bytes(build_fmu(Plant(carriage), "cs", fmi="2"))
     bad = tmp_path / "bad.fmu"
     with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
         for item in src.infolist():

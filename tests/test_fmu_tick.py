@@ -25,6 +25,7 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 
 from maglevgen.analyses.simulate import firmware_gains, run_loop, simulate
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu
@@ -42,8 +43,8 @@ def fmus(tmp_path_factory, carriage):
     def get(fmi: str) -> Path:
         if fmi not in made:
             made[fmi] = folder / f"spec_fmi{fmi}.fmu"
-            made[fmi].write_bytes(build_fmu(carriage, "both", "spec", fmi=fmi,
-                                            loop="firmware"))
+            made[fmi].write_bytes(build_fmu(Plant(carriage), "both", "spec", fmi=fmi,
+                                            loop=Loop.FIRMWARE))
         return made[fmi]
 
     return get
@@ -241,7 +242,7 @@ def test_bad_tick_settings_are_refused(fmus, carriage, tmp_path) -> None:
               "    sys.exit(0)\n"
               "sys.exit(6)\n")
     continuous = tmp_path / "continuous.fmu"
-    continuous.write_bytes(build_fmu(carriage, "me", "spec", loop="continuous"))
+    continuous.write_bytes(build_fmu(Plant(carriage), "me", "spec", loop=Loop.CONTINUOUS))
     run = subprocess.run([sys.executable, "-c", script, str(fmus("2")), str(continuous)],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, (run.returncode, run.stdout, run.stderr[-2000:])

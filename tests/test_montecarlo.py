@@ -28,8 +28,8 @@ from maglevgen.analyses.montecarlo import (
 )
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
-from maglevgen.control import names
 from maglevgen.control.carriage_plant import Plant
+from maglevgen.controllers import names
 from maglevgen.derive import conventions as cv
 from maglevgen.params import load_params
 

@@ -524,7 +524,7 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
     computed here by envelope.compute_envelope), the summary (pages 1-2) every other
     controller's and the count of checks; nowhere a SymPy/Python repr."""
     from maglevgen.analyses.envelope import compute_envelope
-    from maglevgen.control import title
+    from maglevgen.controllers import title
 
     pdf = str(default_report / "report.pdf")
     pages = {n: subprocess.run(["pdftotext", "-f", "1", "-l", str(n), pdf, "-"], check=True,

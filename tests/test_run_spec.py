@@ -19,6 +19,7 @@ from maglevgen.analyses.simulate import (
     simulate,
     spec_verdict,
 )
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 
@@ -157,7 +158,7 @@ def test_a_yaw_at_speed_starts_a_drift_no_budget_stops_within_the_disturbance(ca
     plant = Plant(carriage, sim_lib)
     v_max = plant.speed_range[1]
     traj = run_scenarios(plant, ("spec",), 0.3, 1e-3, v_max,
-                         loop="firmware").trajectories[0]
+                         loop=Loop.FIRMWARE).trajectories[0]
     x0 = traj.x[0]
     v0 = float((rotation(*x0[3:6]) @ x0[6:9])[1])
     assert v0 == pytest.approx(v_max * np.sin(DISTURBANCE["psi"]), rel=0.01)

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.built_loop import Loop
 
 SPEED, SECONDS, SKIP = 20.0, 3.0, 500  # the compared hold; its first ticks (the start) left out
 
@@ -39,7 +40,7 @@ def held(carriage: DerivedCarriage, sim_lib, sensed_tick):
     from maglevgen.control.carriage_plant import Plant
 
     run = run_scenarios(Plant(carriage, sim_lib), ("spec",), SECONDS, 1e-3, SPEED,
-                        loop="sensed", disturbance={})
+                        loop=Loop.SENSED, disturbance={})
     traj = run.trajectories[0]
     ref = noisy_hold(sim_lib, carriage.p, carriage.params, traj.op, t_end=SECONDS, seed=0)
     return traj, ref

@@ -14,7 +14,7 @@ from scipy.integrate import cumulative_trapezoid
 
 from maglevgen.analyses import sim_output
 from maglevgen.analyses.simulate import Trajectory
-from maglevgen.control import controller as registered
+from maglevgen.controllers import controller as registered
 
 matplotlib.use("Agg")
 

@@ -31,9 +31,9 @@ from maglevgen.analyses.simulate import (
 )
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.cli import main
-from maglevgen.control import names as controller_names
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.symbolic_reference import allocation_matrix, axis_plants
+from maglevgen.controllers import names as controller_names
 from maglevgen.errors import InputError
 from maglevgen.params import load_params
 from maglevgen.runtime.compile import CompileError, compile_shared

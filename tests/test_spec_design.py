@@ -18,10 +18,10 @@ from scipy.optimize import brentq
 
 from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.build import MESSAGE_LIMIT
-from maglevgen.control import embeddable, names
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.sampled import Tick, loop_gain, loop_model, sampled_eigenvalues
 from maglevgen.control.spec import axis_force_limits, rate_weight, spec_weights
+from maglevgen.controllers import embeddable, names
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.spec_design import rate_weight_form
 

@@ -14,6 +14,7 @@ import pytest
 from maglevgen.analyses.run_spec import RunCheck, RunVerdict
 from maglevgen.analyses.simulate import DISTURBANCE, run_scenarios, spec_verdict
 from maglevgen.analyses.worst_case import sign_combinations, signs_text, worst_verdict
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 
 
@@ -57,7 +58,7 @@ def test_worst_launch_against_a_brute_force_of_all_32(carriage, sim_lib) -> None
     name = carriage.params.envelope.embedded_controller
     combos = sign_combinations(DISTURBANCE)
     sim = run_scenarios(Plant(carriage, sim_lib), (name,), 10.0, 1e-3, scenario="launch",
-                        loop="firmware", disturbances=combos)
+                        loop=Loop.FIRMWARE, disturbances=combos)
     v = worst_verdict([(d, spec_verdict(t)) for d, t in zip(combos, sim.trajectories,
                                                              strict=True)])
     (gap,) = [c for c in v.checks if c.name == "smallest gap margin"]

@@ -32,6 +32,7 @@ from common import EXPERIMENTS, log, replace_section
 from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.simulate import metrics, run_scenarios
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
@@ -78,7 +79,7 @@ def holds(carriage: DerivedCarriage, lib, v_min: float, v_max: float) -> list[di
     out = []
     name = carriage.params.envelope.embedded_controller
     for v in (v_min, 20.0, v_max):
-        run = run_scenarios(Plant(carriage, lib), (name,), 10.0, 1e-3, v, loop="firmware")
+        run = run_scenarios(Plant(carriage, lib), (name,), 10.0, 1e-3, v, loop=Loop.FIRMWARE)
         m = metrics(run.trajectories[0])
         settle = [a["settling_time"] for a in m["axes"].values()]
         traj = run.trajectories[0]
@@ -95,7 +96,7 @@ def holds(carriage: DerivedCarriage, lib, v_min: float, v_max: float) -> list[di
 def launch_run(carriage: DerivedCarriage, lib) -> dict:
     name = carriage.params.envelope.embedded_controller
     run = run_scenarios(Plant(carriage, lib), (name,), 10.0, 1e-3, scenario="launch",
-                        loop="firmware")
+                        loop=Loop.FIRMWARE)
     traj = run.trajectories[0]
     m = metrics(traj)
     late = traj.t > 1.0

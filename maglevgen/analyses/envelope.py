@@ -30,9 +30,6 @@ from maglevgen.analyses.loop import (
 )
 from maglevgen.analyses.sensing import SensingCheck, sensing_check
 from maglevgen.carriage import DerivedCarriage
-from maglevgen.control import controller as registered_controller
-from maglevgen.control import names as controller_names
-from maglevgen.control import title as controller_title
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.margins import DiskMargins, delay_margin, disk_gain_phase, disk_margins
 from maglevgen.control.operating import (
@@ -43,6 +40,9 @@ from maglevgen.control.operating import (
 )
 from maglevgen.control.plant import LoopDesign, LoopPlant
 from maglevgen.control.sampled import Tick
+from maglevgen.controllers import controller as registered_controller
+from maglevgen.controllers import names as controller_names
+from maglevgen.controllers import title as controller_title
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams

@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.control import controller as registered_controller
-from maglevgen.control import title as controller_title
+from maglevgen.controllers import controller as registered_controller
+from maglevgen.controllers import title as controller_title
 
 if TYPE_CHECKING:
     from maglevgen.analyses.envelope import Envelope, LoopMargins

@@ -33,7 +33,6 @@ from maglevgen.codegen.functions import bake_all, build_functions
 from maglevgen.codegen.generate import function_table
 from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_context, template_env
 from maglevgen.codegen.misra import deviation_list
-from maglevgen.control import controller as registered
 from maglevgen.control import estimation as est
 from maglevgen.control import sense_table as st
 from maglevgen.control.built_loop import LoopSetting
@@ -45,6 +44,7 @@ from maglevgen.control.schedule import (
     value_terms,
     varying_values,
 )
+from maglevgen.controllers import controller as registered
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.version import __version__

@@ -333,7 +333,7 @@ def study_regions(plant: Plant, controllers: Sequence[str],
     out = {}
     for c in controllers:
         reg = roa.region_of_attraction(plant, c, speeds, roa.BUILD_SAMPLING,
-                                       loop="none")
+                                       loop=None)
         M = np.array([r.P / r.level if r.level > 0 else np.full(r.P.shape, np.nan)
                       for r in reg.regions])
         out[c] = (speeds, M)

@@ -10,8 +10,8 @@ import numpy as np
 
 from maglevgen.analyses.sim_loop import FirmwareTick, SensedTick
 from maglevgen.analyses.simulate import RUN_STATUSES
-from maglevgen.control import controller as registered_controller
-from maglevgen.control import title as controller_title
+from maglevgen.controllers import controller as registered_controller
+from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
 
 if TYPE_CHECKING:

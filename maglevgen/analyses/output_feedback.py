@@ -37,7 +37,7 @@ from maglevgen.analyses.loop import loop_plant
 from maglevgen.analyses.sim_loop import SensedTick, estimation_error, reading_noise, run_loop
 from maglevgen.analyses.simulate import simulate
 from maglevgen.carriage import structure_of
-from maglevgen.control import controller as registered_controller
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import (
     EstimatorPoint,
@@ -48,6 +48,7 @@ from maglevgen.control.estimation import (
 from maglevgen.control.operating import OperatingPoint
 from maglevgen.control.plant import LoopDesign, LoopPlant, speed_loop_gains
 from maglevgen.control.sampled import LOOP_STATES, Tick
+from maglevgen.controllers import controller as registered_controller
 from maglevgen.derive import conventions as cv
 from maglevgen.runtime.ffi import GeneratedFunctionError
 
@@ -376,7 +377,7 @@ def sensed_holds(plant: Plant, v_min: float, v_max: float, t_end: float = BUILD_
     (the state at the next tick less the prediction)."""
     carriage, lib = plant.carriage, plant.lib
     params = carriage.params
-    tick, k_v, budget = run_loop(plant, "sensed", seed)
+    tick, k_v, budget = run_loop(plant, Loop.SENSED, seed)
     assert isinstance(tick, SensedTick) and budget is not None  # the sensed loop's
     points = plant.points(hold_speeds(v_min, v_max))
     est = estimator_points(lib, carriage.p, params, points, float(params.actuators.time_constant))

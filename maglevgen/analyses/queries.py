@@ -23,8 +23,6 @@ import sympy as sp
 
 from maglevgen.analyses.envelope import DEFAULT_SPEEDS, compute_envelope
 from maglevgen.carriage import DerivedCarriage, stiffness_rows
-from maglevgen.control import controller as registered
-from maglevgen.control import title as controller_title
 from maglevgen.control.carriage_plant import Plant, lift_off_speed
 from maglevgen.control.operating import (
     N_AXES,
@@ -39,6 +37,8 @@ from maglevgen.control.operating import (
     operating_point,
     speed_mode,
 )
+from maglevgen.controllers import controller as registered
+from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.paper import paper_riccati
 from maglevgen.derive.riccati import lqr_gain_mp, riccati_solution_mp

@@ -54,7 +54,7 @@ import numpy as np
 
 from maglevgen.analyses.roa_contact import CONTACT_STARTS, contact_level
 from maglevgen.analyses.simulate import DISTURBANCE, run_loop, simulate
-from maglevgen.control import controller as registered
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.lqr import weighted_qr
 from maglevgen.control.operating import (
@@ -64,6 +64,7 @@ from maglevgen.control.operating import (
     OperatingPoint,
     coupled_weights,
 )
+from maglevgen.controllers import controller as registered
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary
@@ -583,13 +584,14 @@ def confirmation_run(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
 def region_of_attraction(plant: Plant, controller: str,
                          speeds: Sequence[float] | np.ndarray,
                          sampling: Sampling = COMMAND_SAMPLING,
-                         loop: str = "firmware",
+                         loop: Loop | None = Loop.FIRMWARE,
                          progress: Callable[[float], None] | None = None) -> Region:
     """The region of ``controller`` at ``speeds`` (module docstring), the boundary confirmed
-    by runs of ``loop`` ("firmware": the tick-held loop of [control.spec]; "none": no runs)."""
+    by runs of ``loop`` (a `Loop`; ``FIRMWARE``: the tick-held loop of [control.spec]; None:
+    no runs)."""
     carriage, lib = plant.carriage, plant.lib
     min_gap = carriage.params.track.min_gap
-    settings = None if loop == "none" else run_loop(plant, loop)
+    settings = None if loop is None else run_loop(plant, loop)
     out = []
     for i, op in enumerate(plant.points(speeds)):
         confirm = (None if settings is None else
@@ -598,7 +600,8 @@ def region_of_attraction(plant: Plant, controller: str,
         if progress is not None:
             progress((i + 1) / len(speeds))
     n_fixed = 2 * (2 * len(REDUCED_STATES) + 1)
-    return Region(controller, tuple(out), sampling, loop, n_fixed)
+    return Region(controller, tuple(out), sampling, "none" if loop is None else loop.value,
+                  n_fixed)
 
 
 def recovery_lines(region: Region) -> list[str]:
@@ -688,7 +691,7 @@ DEFAULT_SPEEDS, BUILD_SPEEDS = 8, 4
 
 def study(plant: Plant, controllers: Sequence[str],
           n_speeds: int = DEFAULT_SPEEDS, sampling: Sampling = COMMAND_SAMPLING,
-          loop: str = "firmware",
+          loop: Loop | None = Loop.FIRMWARE,
           progress: Callable[[float], None] | None = None) -> list[Region]:
     """The region of each of ``controllers`` at ``n_speeds`` speeds spanning the envelope."""
     if not isinstance(n_speeds, (int, np.integer)) or not 1 <= n_speeds <= MAX_SPEEDS:

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from maglevgen.control import controller as registered_controller
 from maglevgen.control.built_loop import LoopSetting
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import (
@@ -45,6 +44,7 @@ from maglevgen.control.estimation import (
 )
 from maglevgen.control.operating import OperatingPoint, stability
 from maglevgen.control.plant import LoopDesign, LoopPlant
+from maglevgen.controllers import controller as registered_controller
 from maglevgen.derive import conventions as cv
 
 __all__ = ["SensingCheck", "sensing_check"]

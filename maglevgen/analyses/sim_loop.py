@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.control.built_loop import FirmwareTick, control_loop, loop_design
+from maglevgen.control.built_loop import FirmwareTick, Loop, control_loop, loop_design
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import OperatingPoint, SpeedMode
 from maglevgen.control.plant import LoopDesign
@@ -34,11 +34,11 @@ __all__ = ["LOOPS", "FirmwareTick", "SensedTick", "control_loop", "estimation_er
 LOOPS: tuple[str, ...] = ("firmware", "sensed", "continuous")
 
 
-def flown_loop(plant: Plant) -> str:
+def flown_loop(plant: Plant) -> Loop:
     """The loop the embedded controller flies on a carriage (the build's judged runs and its
-    region's confirmations): "sensed" (its sense tick on the readings) where the file has
-    [sensors], else "firmware" (the exact state: nothing says what is measured)."""
-    return "sensed" if plant.params.sensors is not None else "firmware"
+    region's confirmations): SENSED (its sense tick on the readings) where the file has
+    [sensors], else FIRMWARE (the exact state: nothing says what is measured)."""
+    return Loop.SENSED if plant.params.sensors is not None else Loop.FIRMWARE
 
 
 def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick) -> LoopDesign:
@@ -49,19 +49,20 @@ def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick) -> L
     return loop_design(op, controller, tick.setting())
 
 
-def run_loop(plant: Plant, loop: str, seed: int = 0,
+def run_loop(plant: Plant, loop: Loop, seed: int = 0,
              noise_scale: float = 1.0) -> tuple[Tick | None, float, float | None]:
-    """(tick, speed gain, force budget) of a run ``loop`` (LOOPS): the plant's loop as built
+    """(tick, speed gain, force budget) of a run ``loop``: the plant's loop as built
     (`Plant.loop`: its `FirmwareTick`, k_v and budget); that loop on the sensors (a
     `SensedTick` of `maglevgen.analyses.sensed.sensed_firmware`, its noise times
     ``noise_scale`` from ``seed``); or the paper's continuous law (None, 0, None)."""
-    if loop not in LOOPS:
+    if loop not in tuple(Loop):
         raise InputError(f"--loop {loop!r}: expected one of {', '.join(LOOPS)}")
-    if loop == "continuous":
+    loop = Loop(loop)
+    if loop is Loop.CONTINUOUS:
         return None, 0.0, None
     built = plant.loop
     tick = built.firmware_tick()
-    if loop == "sensed":
+    if loop is Loop.SENSED:
         from maglevgen.analyses.sensed import sensed_firmware
 
         tick = SensedTick(tick.rate, tick.delay, tick.lag, tick.speed_integral,

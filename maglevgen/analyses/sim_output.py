@@ -20,8 +20,8 @@ from maglevgen.analyses.simulate import (
     disturbance_doc,
     metrics,
 )
-from maglevgen.control import controller as registered_controller
-from maglevgen.control import title as controller_title
+from maglevgen.controllers import controller as registered_controller
+from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.infrastructure.columns import fcolumn_plain
 from maglevgen.infrastructure.workers import Shared, child, submit

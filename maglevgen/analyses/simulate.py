@@ -20,7 +20,6 @@ import numpy as np
 
 from maglevgen.analyses.run_spec import RunSpec, RunVerdict, judge_run
 from maglevgen.analyses.sim_loop import (
-    LOOPS,
     FirmwareTick,
     SensedTick,
     control_loop,
@@ -30,8 +29,7 @@ from maglevgen.analyses.sim_loop import (
     sensing,
     speed_loop_gain,
 )
-from maglevgen.control import names as controller_names
-from maglevgen.control import title as controller_title
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import (
     AXIS_STATES,
@@ -47,6 +45,8 @@ from maglevgen.control.operating import (
 )
 from maglevgen.control.sampled import Tick
 from maglevgen.control.schedule import A_REF, K_POS, Schedule
+from maglevgen.controllers import names as controller_names
+from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import DISTURBANCE, Q_STATES
 from maglevgen.derive.structure import input_names_of
@@ -58,11 +58,11 @@ __all__ = [
     "CHUNK_STEPS",
     "C_STATUS",
     "DISTURBANCE_DOC",
-    "LOOPS",
     "RUN_STATUSES",
     "SCENARIOS",
     "SETTLING_BAND",
     "FirmwareTick",
+    "Loop",
     "Progress",
     "SimulationRun",
     "Trajectory",
@@ -668,14 +668,15 @@ def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: 
                   disturbance: dict[str, float] | None = None, tick: Tick | None = None,
                   speed_gain: float = 0.0,
                   force_budget: float | None = None,
-                  loop: str = "continuous",
+                  loop: Loop = Loop.CONTINUOUS,
                   disturbances: tuple[dict[str, float], ...] = ()) -> SimulationRun:
     """Trim, gains and one closed-loop run per controller, all in the generated C.
 
-    ``loop``: "firmware" runs every controller as the firmware does (`Plant.loop`: the
-    tick and delay of [control.spec], the speed loop at speed_bandwidth, the force budget);
-    "continuous" (the paper's) evaluates it at every RK4 stage under the trim propulsion,
-    unless ``tick``, ``speed_gain`` or ``force_budget`` say otherwise.
+    ``loop`` (a `Loop`): ``FIRMWARE`` runs every controller as the firmware does
+    (`Plant.loop`: the tick and delay of [control.spec], the speed loop at speed_bandwidth,
+    the force budget); ``SENSED`` the embedded controller as the firmware flies it on the
+    sensors' readings; ``CONTINUOUS`` (the paper's) evaluates it at every RK4 stage under the
+    trim propulsion, unless ``tick``, ``speed_gain`` or ``force_budget`` say otherwise.
 
     ``hold``: from the disturbed trim at ``speed`` (default operation.speed) for ``t_end``
     with the propulsion at the trim drag and the gains of that speed. ``launch``: from the
@@ -695,6 +696,8 @@ def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: 
             raise InputError(f"controller {c!r}: expected one of {', '.join(controller_names())}")
     if scenario not in SCENARIOS:
         raise InputError(f"--scenario {scenario!r}: expected one of {', '.join(SCENARIOS)}")
+    if not isinstance(loop, Loop):
+        raise TypeError(f"loop {loop!r}: a Loop (the API parses the --loop string)")
     carriage, lib = plant.carriage, plant.lib
     min_gap = carriage.params.track.min_gap
     weights = Weights.of(carriage.params)
@@ -722,7 +725,7 @@ def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: 
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
-    if loop == "sensed":
+    if loop is Loop.SENSED:
         embedded = carriage.params.envelope.embedded_controller
         others = [c for c in controllers if c != embedded]
         if others:
@@ -730,7 +733,7 @@ def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: 
                              f"controller ({embedded!r}, envelope.embedded_controller), not "
                              f"{', '.join(map(repr, others))}; --loop firmware runs any "
                              "controller on the exact state")
-    if loop != "continuous":
+    if loop is not Loop.CONTINUOUS:
         tick, speed_gain, force_budget = run_loop(plant, loop)
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run
     loop_kw: dict[str, Any] = {"tick": tick, "speed_gain": speed_gain,

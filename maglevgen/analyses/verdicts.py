@@ -187,13 +187,13 @@ def embedded_runs(plant: Plant, env, speed: float, t_end: float = RUN_T_END,
         sim = run_scenarios(plant, (name,), t_end, dt, v, loop=loop, disturbances=combos)
         out.append(JudgedRun(f"hold run at {v:.4g} m/s", judged(sim),
                              f"maglevgen simulate --controller {name} --speed {v:.4g} "
-                             f"--loop {loop} --disturbance STATE=VALUE ...", loop))
+                             f"--loop {loop.value} --disturbance STATE=VALUE ...", loop.value))
     launched = run_scenarios(plant, (name,), t_end, dt, scenario="launch", loop=loop,
                              disturbances=combos)
     out.append(JudgedRun(f"launch run ({launched.op.speed:.4g} to {launched.v_end:.4g} "
                          "m/s)", judged(launched),
                          f"maglevgen simulate --controller {name} --scenario launch "
-                         f"--loop {loop} --disturbance STATE=VALUE ...", loop))
+                         f"--loop {loop.value} --disturbance STATE=VALUE ...", loop.value))
     return tuple(out)
 
 
@@ -323,7 +323,7 @@ def embedded_verdict(carriage, env, runs: tuple[JudgedRun, ...] = (),
     not made (the report alone says so instead of a verdict)."""
     from maglevgen.analyses.simulate import DISTURBANCE
     from maglevgen.analyses.worst_case import sign_combinations
-    from maglevgen.control import title as controller_title
+    from maglevgen.controllers import title as controller_title
 
     name = carriage.params.envelope.embedded_controller
     c = env.controllers[name]
@@ -426,13 +426,13 @@ def generate_example(plant: Plant) -> dict:
     every RK4 stage of maglev_rk4_step, the propulsion held at the trim drag: the ten-state
     closed loop of eqs 24-33) against [control.spec]'s stability, damping ratio and decay
     rate; the firmware loop's verdict is `maglevgen build`'s (said in the line)."""
-    from maglevgen.control import title as controller_title
     from maglevgen.control.operating import (
         STABILITY_MARGIN,
         Weights,
         closed_loop_stability,
         operating_point,
     )
+    from maglevgen.controllers import title as controller_title
 
     carriage, lib = plant.carriage, plant.lib
     params = carriage.params

@@ -11,16 +11,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.control import names as controller_names
+from maglevgen.controllers import names as controller_names
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
 if TYPE_CHECKING:
+    from maglevgen.control.built_loop import Loop
     from maglevgen.params import Parameters
 
 __all__ = ["MAX_ACCELERATION", "MAX_SEED", "MAX_WORKERS", "as_path", "check_choice_text",
-           "check_controller", "check_loop", "check_run_arguments", "chosen_loop", "commands",
-           "controller_choice", "flag", "initial_disturbance", "quiet", "shown"]
+           "check_controller", "check_run_arguments", "chosen_loop", "commands",
+           "controller_choice", "flag", "initial_disturbance", "loop_of", "quiet", "shown"]
 
 
 def commands() -> ModuleType:
@@ -64,23 +65,28 @@ def controller_choice(controller: str | None, embedded: str) -> str:
     return choice
 
 
-def check_loop(loop: str) -> None:
-    from maglevgen.analyses.simulate import LOOPS
+def loop_of(loop: object, choices: Sequence[str] | None = None) -> Loop:
+    """``--loop``: the `Loop` the string names (``choices``: the command's loops, default
+    every one), or an InputError naming them. The one place a loop string becomes a loop."""
+    from maglevgen.control.built_loop import Loop
 
-    if not isinstance(loop, str) or loop not in LOOPS:
-        raise InputError(f"--loop {shown(loop)}: expected one of {', '.join(LOOPS)}")
+    names = tuple(Loop) if choices is None else tuple(choices)
+    if not isinstance(loop, str) or loop not in names:
+        raise InputError(f"--loop {shown(loop)}: expected one of {', '.join(names)}")
+    return Loop(loop)
 
 
-def chosen_loop(loop: str | None, controllers: Sequence[str], params: Parameters) -> str:
-    """``--loop`` checked; None (the default): as a carriage flies, "sensed" (the firmware's
-    sense tick on the readings of [sensors]) when the embedded controller is the one asked
-    and the file has [sensors], else "firmware" (the exact state: other controllers have no
-    sense tick, and without [sensors] nothing says what is measured)."""
+def chosen_loop(loop: object, controllers: Sequence[str], params: Parameters) -> Loop:
+    """``--loop`` as `loop_of` parses it; None (the default): as a carriage flies, SENSED
+    (the firmware's sense tick on the readings of [sensors]) when the embedded controller is
+    the one asked and the file has [sensors], else FIRMWARE (the exact state: other
+    controllers have no sense tick, and without [sensors] nothing says what is measured)."""
+    from maglevgen.control.built_loop import Loop
+
     if loop is None:
         alone = tuple(controllers) == (params.envelope.embedded_controller,)
-        return "sensed" if alone and params.sensors is not None else "firmware"
-    check_loop(loop)
-    return loop
+        return Loop.SENSED if alone and params.sensors is not None else Loop.FIRMWARE
+    return loop_of(loop)
 
 
 def as_path(option: str, value: object) -> Path:

@@ -255,8 +255,10 @@ class CarriageCore:
         ----------
         speed : float, optional
             Forward speed [m/s]; default ``operation.speed``.
-        controller : {'lqr', 'coupled', 'damping', 'none'}, optional
-            The controller (default the paper's per-axis LQR).
+        controller : str, optional
+            A registered controller (``maglevgen.controllers.names()``: the paper's ``none``,
+            ``damping``, ``lqr`` and ``coupled``, ``spec``, and any registered since; default
+            the paper's per-axis LQR).
 
         Returns
         -------

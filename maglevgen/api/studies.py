@@ -14,13 +14,13 @@ from maglevgen.api.arguments import (
     MAX_WORKERS,
     as_path,
     check_controller,
-    check_loop,
     check_run_arguments,
     chosen_loop,
     commands,
     controller_choice,
     flag,
     initial_disturbance,
+    loop_of,
     quiet,
 )
 from maglevgen.api.core import CarriageCore
@@ -31,7 +31,7 @@ from maglevgen.api.results import (
     SimulationResult,
     SimulationRuns,
 )
-from maglevgen.control import names as controller_names
+from maglevgen.controllers import names as controller_names
 from maglevgen.errors import InputError
 from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
 
@@ -61,8 +61,10 @@ class Studies(CarriageCore):
 
         Parameters
         ----------
-        controller : {'lqr', 'coupled', 'damping', 'none'}, optional
-            The controller (default the paper's per-axis LQR).
+        controller : str, optional
+            A registered controller (``maglevgen.controllers.names()``: the paper's ``none``,
+            ``damping``, ``lqr`` and ``coupled``, ``spec``, and any registered since; default
+            the paper's per-axis LQR).
         scenario : {'hold', 'launch'}, optional
             The run (default hold).
         speed : float, optional
@@ -181,11 +183,13 @@ class Studies(CarriageCore):
         True
         """
         from maglevgen.analyses.simulate import run_scenarios
+        from maglevgen.control.built_loop import Loop
 
         if controller != "all":
             check_controller(controller)
         out = None if out is None else as_path("--out", out)
-        if flag("--check", check) and loop != "continuous":
+        asked = None if loop is None else loop_of(loop)  # None: as a carriage flies
+        if flag("--check", check) and asked is not Loop.CONTINUOUS:
             raise InputError("--check: the DOP853 reference integrates the continuous "
                              "control law; add --loop continuous")
         if speed is not None:
@@ -197,9 +201,9 @@ class Studies(CarriageCore):
 
             check_writable(Path(out))  # before any work: a folder of the user's is refused
         controllers = controller_names() if controller == "all" else (controller,)
-        if loop == "sensed" and controller == "all":  # the firmware flies one controller
+        if asked is Loop.SENSED and controller == "all":  # the firmware flies one
             controllers = (self._carriage.params.envelope.embedded_controller,)
-        loop = chosen_loop(loop, controllers, self.params)
+        run_loop = chosen_loop(asked, controllers, self.params)
         # this carriage's plant; its library, when not loaded yet, loads once run_scenarios has
         # checked its options (bad input stays the only line), announced only with progress
         plant = self._plant
@@ -210,7 +214,7 @@ class Studies(CarriageCore):
                 self._carriage, progress=steps.step if progress else quiet)
         run = run_scenarios(plant, controllers, t_end, dt, speed,
                             bar=steps.bar if progress else None, scenario=scenario,
-                            disturbance=initial, loop=loop)
+                            disturbance=initial, loop=run_loop)
         paths: tuple[Path, ...] = ()
         if out is not None:
             from maglevgen.analyses.sim_output import render_results
@@ -386,6 +390,7 @@ class Studies(CarriageCore):
             run_study,
         )
         from maglevgen.analyses.simulate import run_loop
+        from maglevgen.control.built_loop import Loop
         from maglevgen.infrastructure.output import check_writable, write_output
         from maglevgen.params import check_count
 
@@ -397,8 +402,7 @@ class Studies(CarriageCore):
         if workers is not None:
             check_count("--workers", workers, 1, MAX_WORKERS, "a process per worker")
         check_run_arguments(t_end, dt)
-        if loop is not None:
-            check_loop(loop)
+        asked = None if loop is None else loop_of(loop)  # None: as a carriage flies
         check_scheduler(scheduler)
         if out is not None:
             out = as_path("--out", out)
@@ -407,10 +411,10 @@ class Studies(CarriageCore):
             steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
                            "library and the study first")
         controllers = controller_names() if choice == "all" else (choice,)
-        if loop is None and redesign:  # a re-design per sample is not what the firmware flies
-            loop = "firmware"
-        loop = chosen_loop(loop, controllers, self.params)
-        if loop == "sensed":  # the firmware's sense tick: its one controller, its tables
+        if asked is None and redesign:  # a re-design per sample is not what the firmware flies
+            asked = Loop.FIRMWARE
+        run = chosen_loop(asked, controllers, self.params)
+        if run is Loop.SENSED:  # the firmware's sense tick: its one controller, its tables
             embedded = self.params.envelope.embedded_controller
             if choice == "all":
                 controllers = (embedded,)
@@ -421,7 +425,7 @@ class Studies(CarriageCore):
                 raise InputError("--redesign with --loop sensed: the firmware's tables are the "
                                  "nominal carriage's (a re-design per sample is not flown)")
         study = make_study(self._plant, controllers, t_end, dt, seed,
-                           *run_loop(self._plant, loop),
+                           *run_loop(self._plant, run),
                            redesign=flag("--redesign", redesign))
         k = len(controllers)
         if progress:

@@ -13,12 +13,13 @@ from maglevgen.api.arguments import (
     check_controller,
     check_run_arguments,
     flag,
+    loop_of,
     quiet,
     shown,
 )
 from maglevgen.api.core import CarriageCore
 from maglevgen.api.results import ReportResult
-from maglevgen.control import embeddable as embeddable_controllers
+from maglevgen.controllers import embeddable as embeddable_controllers
 from maglevgen.errors import InputError, VerificationError
 from maglevgen.exports.fmu import DEFAULT_FMI
 from maglevgen.infrastructure import progress as steps  # the commands' progress lines (stdlib only)
@@ -231,9 +232,10 @@ class Writers(CarriageCore):
             Output folder of ``maglev.fmu``.
         kind : {'both', 'me', 'cs'}, optional
             Model exchange, co-simulation or both (default).
-        controller : {'coupled', 'lqr', 'damping', 'none', 'external'}, optional
-            The controller inside the FMU (default: ``envelope.embedded_controller``, the
-            one the firmware embeds); ``external``: the generalized forces are inputs.
+        controller : str, optional
+            A registered controller (``maglevgen.controllers.names()``) inside the FMU
+            (default: ``envelope.embedded_controller``, the one the firmware embeds), or
+            ``external``: the generalized forces are inputs.
         fmi : {'2', '3'}, optional
             The FMI version (``--fmi``): 2.0 (default,
             ``maglevgen.exports.fmu.DEFAULT_FMI``) or 3.0, the same variables.
@@ -275,7 +277,7 @@ class Writers(CarriageCore):
 
         out = as_path("--out", out)
         flag("--allow-unstable", allow_unstable)
-        from maglevgen.exports.fmu import FMI_VERSIONS, FMU_LOOPS, KINDS
+        from maglevgen.exports.fmu import EXTERNAL, FMI_VERSIONS, FMU_LOOPS, KINDS
 
         # every choice before the verification (minutes) that the embedded controller gets
         for option, value, choices in (("--kind", kind, KINDS), ("--fmi", fmi, FMI_VERSIONS),
@@ -285,7 +287,7 @@ class Writers(CarriageCore):
                 raise InputError(f"{option} {value!r}: expected one of {', '.join(choices)}")
         embedded = self.params.envelope.embedded_controller
         controller = embedded if controller is None else controller
-        if controller != "external":
+        if controller != EXTERNAL.name:  # the FMU's own: the forces are inputs
             check_controller(controller)
         verdict: str | Callable[[], str]
         if controller == embedded:  # verified before anything is written (after the options)
@@ -295,7 +297,15 @@ class Writers(CarriageCore):
         else:
             verdict = (f"controller {controller!r}: not the embedded controller {embedded!r}, "
                        "not verified by maglevgen against [control.spec]")
-        data = build_fmu(self._carriage, kind, controller, fmi=fmi, loop=loop,
+        # this carriage's plant; its library, when not loaded yet, loads announced only with
+        # progress (as `simulate`'s)
+        plant = self._plant
+        if not plant.loaded:
+            from maglevgen.control.carriage_plant import Plant
+
+            plant = self.__dict__["_plant"] = Plant(
+                self._carriage, progress=steps.step if progress else quiet)
+        data = build_fmu(plant, kind, controller, fmi=fmi, loop=loop_of(loop, FMU_LOOPS),
                          progress=steps.step if progress else quiet, verdict=verdict)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path

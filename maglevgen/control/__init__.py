@@ -18,10 +18,12 @@ A controller is data (`Controller`): its name and title, whether the firmware ma
 whether it is one of the paper's designs, how its gains are computed at an operating point,
 the generated C tick that runs it, how the FMU carries its gains and how figures draw it.
 Every consumer (the CLI's choices, the API's validation, the operating point, the schedule,
-the envelope, the FMU, the report and the figures) reads `REGISTRY` when it needs it (no copy
-at import: a controller registered after `maglevgen.load()` is one), and branches on the
-controller's fields, never on its name; adding a linear controller is one module that calls
-`register` (see `spec`) and its test.
+the envelope, the FMU, the report and the figures) reads the registry through
+`maglevgen.controllers` (its public name, apart from python-control's ``control``) when it
+needs it (no copy at import: a controller registered after `maglevgen.load()` is one), and
+branches on the controller's fields, never on its name; adding a linear controller is one
+module that calls `register` (see `spec`) and its test. Loading this package registers the
+built-in controllers.
 
 Every controller here acts on the axis coordinates a = (y, z, phi, theta, psi) and their
 rates a' with 5 x 5 gain matrices, u_gen = -(K_pos (a - a_ref) + K_rate a').
@@ -30,16 +32,5 @@ rates a' with 5 x 5 gain matrices, u_gen = -(K_pos (a - a_ref) + K_rate a').
 from __future__ import annotations
 
 from maglevgen.control import paper_designs, spec  # noqa: F401  (each registers its controllers, in this order)
-from maglevgen.control.registry import (
-    REGISTRY,
-    Controller,
-    controller,
-    embeddable,
-    names,
-    register,
-    title,
-    titles,
-)
 
-__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "title",
-           "titles"]
+__all__: list[str] = []  # the registry's public name is `maglevgen.controllers`

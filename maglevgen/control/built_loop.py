@@ -2,6 +2,8 @@
 actuator lag, the speed loop's gains and the integral's clamp, the force budget; and what each
 consumer reads from it: the host run's tick (`FirmwareTick`), the C loop's struct
 (`control_loop`, maglev_control_loop), the controller's gains on that loop (`loop_design`).
+How a run executes its controller is a `Loop` (the API's and CLI's ``loop`` strings are its
+values, parsed there; below the API a run takes the member).
 
 `maglevgen.control.plant.LoopPlant` is this loop linearised at one operating point;
 `maglevgen.control.carriage_plant.Plant` builds the one `LoopSetting` of a carriage (over the
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from enum import Enum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,8 +30,27 @@ from maglevgen.runtime.sense import Sensing
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["FirmwareTick", "LoopSetting", "control_loop", "loop_design", "loop_plant",
+__all__ = ["FirmwareTick", "Loop", "LoopSetting", "control_loop", "loop_design", "loop_plant",
            "loop_setting"]
+
+
+class Loop(str, Enum):
+    """How a run executes its controller: ``FIRMWARE`` the loop as built on the exact state
+    (`Plant.loop`: the tick and delay of [control.spec], the actuator lag, the speed loop, the
+    force budget, each controller's gains on that loop); ``SENSED`` that loop on the sensors'
+    readings (the embedded controller's sense tick); ``CONTINUOUS`` the paper's law at every
+    RK4 stage. The values are the ``--loop`` strings of the API and the CLI, which parse them;
+    every function below the API takes the member."""
+
+    FIRMWARE = "firmware"
+    SENSED = "sensed"
+    CONTINUOUS = "continuous"
+
+    def __str__(self) -> str:  # its string, as a str (enum.StrEnum is Python 3.11's)
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
 
 
 @dataclass(frozen=True)

@@ -36,8 +36,8 @@ from functools import cached_property
 
 import numpy as np
 
-from maglevgen.control import controller as registered_controller
 from maglevgen.control.lqr import numerical_lqr, quadratic_cost
+from maglevgen.control.registry import controller as registered_controller
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import Q_STATES
 from maglevgen.errors import InputError, NoTrimError

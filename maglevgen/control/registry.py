@@ -1,4 +1,4 @@
-"""The registry of controllers: `Controller` and `register` (see maglevgen.control)."""
+"""The registry of controllers: `Controller` and `register` (public as `maglevgen.controllers`)."""
 
 from __future__ import annotations
 

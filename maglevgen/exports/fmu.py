@@ -38,6 +38,7 @@ from maglevgen.errors import InputError
 from maglevgen.version import __version__
 
 if TYPE_CHECKING:
+    from maglevgen.control.built_loop import Loop
     from maglevgen.control.carriage_plant import Plant
     from maglevgen.control.operating import OperatingPoint
     from maglevgen.control.plant import LoopDesign
@@ -80,9 +81,10 @@ FMU_NAME = "maglev.fmu"
 # enters the trim, the gains or the allocation, computed once at initialization ("fixed").
 TUNABLE_PARAMETERS = frozenset({"track.min_gap"})
 DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s default
-# how the FMU's built-in controller runs (the fixed parameters of the "tick" group;
-# `build_fmu`'s ``loop``): "firmware" the loop as built, as `maglevgen simulate --loop firmware`
-# flies it (maglevgen.control.carriage_plant.Plant.loop and firmware_gains: the tick law of
+# how the FMU's built-in controller runs (the fixed parameters of the "tick" group; the
+# ``--loop`` choices, parsed by the API; `build_fmu` takes the `Loop`): "firmware" the loop as
+# built, as `maglevgen simulate --loop firmware` flies it
+# (maglevgen.control.carriage_plant.Plant.loop and firmware_gains: the tick law of
 # templates/maglev_tick_law.c.j2 at the tick of [control.spec] with its delay and the
 # controller's gains at the tick, the speed loop and its integral, the force budget, each array
 # force's first-order lag in the plant, as continuous states in model exchange), "continuous"
@@ -207,13 +209,14 @@ EXTERNAL = FmuController("external", "generalized control forces are inputs (min
 
 
 def fmu_controllers() -> dict[str, FmuController]:
-    """Every registered controller (maglevgen.control) as the wrapper runs it, and ``external``."""
+    """Every registered controller (`maglevgen.controllers`) as the wrapper runs it, and
+    ``external``."""
     from maglevgen import (
-        control,  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
+        controllers,  # local: `maglevgen fmu --help` and the CLI's start stay numpy-free
     )
 
     out = {}
-    for c in control.REGISTRY.values():
+    for c in controllers.REGISTRY.values():
         inputs, gains_at = FMU_GAINS[c.fmu_gains]
         out[c.name] = FmuController(c.name, c.description + gains_at, "axis", inputs=inputs,
                                     gains=c.fmu_gains)
@@ -476,43 +479,45 @@ def _quiet(_: str) -> None:
     pass
 
 
-def build_fmu(carriage, kind: str = "both", controller: str | None = None,
+def build_fmu(plant: Plant, kind: str = "both", controller: str | None = None,
               cache_dir: Path | None = None, cc: str | None = None,
               progress: Progress = _quiet, fmi: str = DEFAULT_FMI,
-              loop: str = "continuous",
+              loop: Loop | None = None,
               verdict: str | Callable[[], str] = "") -> bytes:
-    """The .fmu archive's bytes for ``carriage`` (generated C from the cached derivation), an
-    FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller the firmware
-    embeds (``envelope.embedded_controller``); ``loop`` (FMU_LOOPS): the start values of the
-    tick's parameters, "firmware" those of the plant's loop as built (`Plant.loop`) with the
-    controller's `firmware_gains` at operation.speed (a "matrix" controller's K_pos and K_rate
-    too) and the lagged array forces as states, "continuous" zeros (the law at every
-    derivative evaluation); ``verdict``: the controller's
+    """The .fmu archive's bytes for ``plant``'s carriage (generated C from the cached
+    derivation), an FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller
+    the firmware embeds (``envelope.embedded_controller``); ``loop`` (a `Loop` of FMU_LOOPS,
+    None: ``CONTINUOUS``): the start values of the tick's parameters, ``FIRMWARE`` those of the
+    plant's loop as built (`Plant.loop`) with the controller's `firmware_gains` at
+    operation.speed (a "matrix" controller's K_pos and K_rate too) and the lagged array forces
+    as states, ``CONTINUOUS`` zeros (the law at every derivative evaluation); ``cache_dir``,
+    ``cc``: where and with what the FMU's own C is compiled; ``verdict``: the controller's
     verification (`maglevgen.build.EmbeddedVerdict.text`), in the model's description, or a
     callable that returns it (or raises), called once the options are checked and before the
     slow work."""
     from maglevgen.codegen.interface import FUNCTION_TABLE, GenerateOptions, render_interface
+    from maglevgen.control.built_loop import Loop
     from maglevgen.infrastructure.cache import cache_root
     from maglevgen.runtime.compile import compile_object, compile_shared
     from maglevgen.runtime.library import runtime_sources
 
+    carriage = plant.carriage
     if controller is None:
         controller = carriage.params.envelope.embedded_controller
     if fmi not in FMI_VERSIONS:
         raise InputError(f"--fmi {fmi!r}: expected one of {tuple(FMI_VERSIONS)}")
     version = FMI_VERSIONS[fmi]
-    if loop not in FMU_LOOPS:
-        raise InputError(f"--loop {loop!r}: expected one of {', '.join(FMU_LOOPS)}")
+    if loop is None:
+        loop = Loop.CONTINUOUS
+    if not isinstance(loop, Loop) or loop not in FMU_LOOPS:
+        raise ValueError(f"loop {loop!r}: the FMU's loops are {', '.join(FMU_LOOPS)} (a Loop)")
     headers = fmi_headers(fmi)  # before any slow work: FMPy missing is bad input
-    from maglevgen.control.carriage_plant import Plant
-
-    plant = Plant(carriage, progress=progress, cache_dir=cache_dir, cc=cc)
     _check_trim(plant)
     if callable(verdict):
         verdict = verdict()
     builtin = controller in fmu_controllers() and controller != EXTERNAL.name
     tick, design = (_tick(plant, controller if builtin else None)
-                    if loop == "firmware" else (FmuTick(), None))
+                    if loop is Loop.FIRMWARE else (FmuTick(), None))
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     interface = render_interface(carriage, GenerateOptions("double", "runtime"), table)

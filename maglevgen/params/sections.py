@@ -9,7 +9,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from maglevgen.control import embeddable
+from maglevgen.controllers import embeddable
 from maglevgen.derive.conventions import (
     DISTURBANCE,  # the initial disturbance of `maglevgen simulate`
 )

@@ -13,8 +13,8 @@ import sympy as sp
 
 from maglevgen.analyses.simulate import metrics, run_scenarios
 from maglevgen.carriage import DerivedCarriage
-from maglevgen.control import REGISTRY
 from maglevgen.control.carriage_plant import Plant
+from maglevgen.controllers import REGISTRY
 from maglevgen.derive.structure import input_names_of
 from maglevgen.params import ACTUATOR_MODELS, LoadedParams
 from maglevgen.report.display import ltx, matrix_tex

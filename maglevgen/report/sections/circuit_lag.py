@@ -11,9 +11,9 @@ import sympy as sp
 
 from maglevgen.analyses.envelope import compute_envelope
 from maglevgen.analyses.magnetic_damping import damping_across_speed
-from maglevgen.control import controller as registered_controller
-from maglevgen.control import title as controller_title
 from maglevgen.control.carriage_plant import Plant
+from maglevgen.controllers import controller as registered_controller
+from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.circuit_lag import circuit_response
 from maglevgen.report.display import eq

@@ -22,10 +22,10 @@ from maglevgen.analyses.roa import (
     study,
 )
 from maglevgen.analyses.sim_loop import flown_loop
-from maglevgen.control import controller as registered
-from maglevgen.control import title as controller_title
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import STABILITY_MARGIN, closed_loop_stability
+from maglevgen.controllers import controller as registered
+from maglevgen.controllers import title as controller_title
 from maglevgen.report.display import matrix_tex
 from maglevgen.report.format import fcolumn, fnum, tex_escape
 from maglevgen.report.sections.verification import Check
