@@ -398,10 +398,11 @@ class SimulationLibrary(GeneratedLibrary):
         return self._batch
 
     def _lanes_functions(self, cc: str | None = None):
-        """(maglev_lanes_simulate, maglev_lanes_width): templates/maglev_lanes.c with the
-        lane kernels of this library's maglev_dynamics_prepared (maglevgen.codegen.lanes),
-        compiled with -fopenmp against its derivation folder and linked against the library
-        itself (cached as every library is), loaded once."""
+        """(maglev_lanes_simulate, maglev_lanes_width, the loaded driver):
+        templates/maglev_lanes.c with the lane kernels of this library's
+        maglev_dynamics_prepared (maglevgen.codegen.lanes), compiled with -fopenmp against
+        its derivation folder and linked against the library itself (cached as every
+        library is), loaded once."""
         if self._lanes is None:
             if self.sources is None or self._real != np.float64:
                 raise RuntimeError("the lanes run a double library loaded with its sources")
@@ -423,7 +424,7 @@ class SimulationLibrary(GeneratedLibrary):
                 raise MaglevError(f"refusing to load {lib}: its signature does not verify")
             loaded = ctypes.CDLL(str(lib))
             self._lanes = (self._api(loaded, "maglev_lanes_simulate"),
-                           self._api(loaded, "maglev_lanes_width"))
+                           self._api(loaded, "maglev_lanes_width"), loaded)
         return self._lanes
 
     def lane_width(self, width: int = 0) -> int:

@@ -34,11 +34,16 @@
 #define LANES_MAX 8
 #define ALIGN __attribute__((aligned(8 * LANES_MAX)))
 
-typedef int (*lanes_kernel)(const double* x, const double* u, const double* d, double* xdot);
-int maglev_lanes_dynamics_w2(const double* x, const double* u, const double* d, double* xdot);
+/* the kernels (maglevgen.codegen.lanes, in double: a double library only) */
+typedef int (*lanes_kernel)(const maglev_real* x, const maglev_real* u, const maglev_real* d,
+                            maglev_real* xdot);
+int maglev_lanes_dynamics_w2(const maglev_real* x, const maglev_real* u, const maglev_real* d,
+                             maglev_real* xdot);
 #if defined(__x86_64__)
-int maglev_lanes_dynamics_w4(const double* x, const double* u, const double* d, double* xdot);
-int maglev_lanes_dynamics_w8(const double* x, const double* u, const double* d, double* xdot);
+int maglev_lanes_dynamics_w4(const maglev_real* x, const maglev_real* u, const maglev_real* d,
+                             maglev_real* xdot);
+int maglev_lanes_dynamics_w8(const maglev_real* x, const maglev_real* u, const maglev_real* d,
+                             maglev_real* xdot);
 #endif
 
 /* the batch: run i's inputs and outputs as maglev_batch_simulate (maglev_batch.c) takes them */
@@ -272,10 +277,33 @@ static void lanes_axpy(double* xt, const double* x, maglev_real h, const double*
     for (i = 0; i < NX * W; ++i) xt[i] = x[i] + h * k[i];
 }
 
+/* lane l's stage as maglev_dynamics_prepared checks it (the scalar loop calls it through
+   that check): 1 when its x, u and xdot are finite, 0 where the check returns an error */
+static int lane_stage_ok(const double* x, const double* u, const double* xdot, int l, int W) {
+    int i;
+    for (i = 0; i < NX; ++i) {
+        if (!isfinite(x[i * W + l]) || !isfinite(xdot[i * W + l])) return 0;
+    }
+    for (i = 0; i < NU; ++i) {
+        if (!isfinite(u[i * W + l])) return 0;
+    }
+    return 1;
+}
+
+/* the stage kernel on every lane, then each live lane's check (ok[l] cleared on a failure) */
+static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
+                        const stage_arrays* S, double* xdot, const int* live, int* ok, int W) {
+    int l;
+    (void)kernel(x, u, S->d, xdot);
+    for (l = 0; l < W; ++l) {
+        if (live[l] && !lane_stage_ok(x, u, xdot, l, W)) ok[l] = 0;
+    }
+}
+
 /* the runs *next hands out, W at a time in lock step, until none is left */
 static void lanes_fly(const batch* b, int W, lanes_kernel kernel, long long* next) {
     lane lanes[LANES_MAX];
-    int live[LANES_MAX];
+    int live[LANES_MAX], ok[LANES_MAX];
     stage_arrays arrays, *S = &arrays;
     work ws;
     const maglev_real half = b->dt / (maglev_real)2;
@@ -308,18 +336,30 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, long long* nex
             any |= live[l];
         }
         if (!any) break;
-        (void)kernel(S->x, S->u, S->d, S->k1);
+        for (l = 0; l < W; ++l) ok[l] = 1;
+        lanes_stage(kernel, S->x, S->u, S, S->k1, live, ok, W);
         for (l = 0; l < W; ++l) {
-            if (live[l]) live[l] = lane_check(&lanes[l], &ws, b);
+            if (!live[l]) continue;
+            if (!ok[l]) {
+                lane_end(&lanes[l], b, MAGLEV_SIM_ERROR); /* run_loop: k1's error */
+                live[l] = 0;
+            } else {
+                live[l] = lane_check(&lanes[l], &ws, b);
+            }
         }
         lanes_axpy(S->xt, S->x, half, S->k1, W);
-        (void)kernel(S->xt, S->u_half, S->d, S->k2);
+        lanes_stage(kernel, S->xt, S->u_half, S, S->k2, live, ok, W);
         lanes_axpy(S->xt, S->x, half, S->k2, W);
-        (void)kernel(S->xt, S->u_half, S->d, S->k3);
+        lanes_stage(kernel, S->xt, S->u_half, S, S->k3, live, ok, W);
         lanes_axpy(S->xt, S->x, b->dt, S->k3, W);
-        (void)kernel(S->xt, S->u_end, S->d, S->k4);
+        lanes_stage(kernel, S->xt, S->u_end, S, S->k4, live, ok, W);
         for (l = 0; l < W; ++l) {
-            if (live[l]) lane_finish_step(&lanes[l], S, l, W, b);
+            if (!live[l]) continue;
+            if (ok[l]) {
+                lane_finish_step(&lanes[l], S, l, W, b);
+            } else {
+                lane_end(&lanes[l], b, MAGLEV_SIM_ERROR); /* run_loop: a stage's error */
+            }
         }
     }
 }
