@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -432,20 +433,36 @@ class SimulationLibrary(GeneratedLibrary):
         it has, 8 with AVX-512F, 4 with AVX2, else 2); 0 when this CPU cannot run ``width``."""
         return int(self._lanes_functions()[1](width))
 
+    def _auto_lanes(self, n: int, threads: int) -> int | None:
+        """``lanes=0``'s lane count for n runs on ``threads``: the widest this CPU runs that
+        the runs of a thread fill (at least 2), or None (the scalar driver) for a single
+        precision library or where the lane driver does not compile."""
+        if self._real != np.float64 or self.sources is None:
+            return None
+        try:
+            widest = self.lane_width()
+        except CompileError:
+            return None
+        per_thread = n // max(1, threads if threads > 0 else (os.cpu_count() or 1))
+        return max(w for w in (2, 4, 8) if w <= widest and (w == 2 or w <= per_thread))
+
     def simulate_batch(self, runs: list[BatchRun], dt: float, n_steps: int, gap_min: float,
                        n_u: int, n_gaps: int, threads: int = 0,
                        lanes: int | None = None) -> list[Run]:
         """Every run of ``runs`` as `simulate` makes it (one maglev_simulate call each, the
         same numbers), in one call of the batch driver on ``threads`` threads (0: every core,
         OpenMP's default). ``lanes``: None, one maglev_simulate per run (maglev_batch.c);
-        else the lane driver (maglev_lanes.c) with that many lanes (0: `lane_width`'s
-        widest): the runs with a tick and no sense tick W at a time in SIMD lanes, the others
-        as maglev_simulate, each run the same numbers (tests/test_simd_batch.py)."""
+        else the lane driver (maglev_lanes.c) with that many lanes (0: `_auto_lanes`: the
+        widest the CPU runs and the runs fill, the scalar driver where there are none): the
+        runs with a tick and no sense tick W at a time in SIMD lanes, the others as
+        maglev_simulate, each run the same numbers (tests/test_simd_batch.py)."""
         real = self._real
         n = len(runs)
         if n == 0:
             return []
-        if lanes is not None and self.lane_width(lanes) == 0:
+        if lanes == 0:
+            lanes = self._auto_lanes(n, threads)
+        elif lanes is not None and self.lane_width(lanes) == 0:
             raise ValueError(f"{lanes} lanes: this CPU runs {self.lane_width()} at most "
                              "(2, 4 or 8)")
 
