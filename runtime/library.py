@@ -212,7 +212,7 @@ class SimulationLibrary(GeneratedLibrary):
         super().__init__(path, precision)
         self.sources = sources
         self._batch = None
-        self._lanes: tuple | None = None
+        self._lanes: dict[str, tuple] = {}  # lane math -> the lane driver's functions
         real = ctypes.c_float if precision == "single" else ctypes.c_double
         ptr = ctypes.POINTER(real)
 
@@ -398,23 +398,25 @@ class SimulationLibrary(GeneratedLibrary):
             self._batch = fn
         return self._batch
 
-    def _lanes_functions(self, cc: str | None = None):
+    def _lanes_functions(self, cc: str | None = None, math: str = "libm"):
         """(maglev_lanes_simulate, maglev_lanes_width, the loaded driver):
         templates/maglev_lanes.c with the lane kernels of this library's
-        maglev_dynamics_prepared (maglevgen.codegen.lanes), compiled with -fopenmp against
-        its derivation folder and linked against the library itself (cached as every
-        library is), loaded once."""
-        if self._lanes is None:
+        maglev_dynamics_prepared (maglevgen.codegen.lanes; ``math``: its exp, sin and cos),
+        compiled with -fopenmp against its derivation folder and linked against the library
+        itself (cached as every library is), loaded once."""
+        if math not in self._lanes:
             if self.sources is None or self._real != np.float64:
                 raise RuntimeError("the lanes run a double library loaded with its sources")
             from importlib import resources
 
-            kernels = lane_kernels((self.sources / "maglev_functions.c").read_text())
+            kernels = lane_kernels((self.sources / "maglev_functions.c").read_text(),
+                                   math=math)
             folder = self.path.parent / "lanes" / sha256_hex(kernels.encode())[:24]
             if not _write_text(folder / LANES_KERNELS, kernels):
                 raise MaglevError(f"cannot write the lane kernels into {folder}")
             src = Path(str(resources.files("maglevgen.templates") / LANES_SOURCE))
-            flags = (*DEFAULT_FLAGS, f"-I{self.sources}")
+            flags = (*DEFAULT_FLAGS, f"-I{self.sources}",
+                     *(["-Wl,--no-as-needed,-lmvec"] if math == "libmvec" else []))
             sources = [src, folder / LANES_KERNELS, self.path]
             try:
                 lib = compile_shared(sources, (*flags, "-fopenmp"), cc=cc,
@@ -424,9 +426,9 @@ class SimulationLibrary(GeneratedLibrary):
             if not trusted(lib):
                 raise MaglevError(f"refusing to load {lib}: its signature does not verify")
             loaded = ctypes.CDLL(str(lib))
-            self._lanes = (self._api(loaded, "maglev_lanes_simulate"),
-                           self._api(loaded, "maglev_lanes_width"), loaded)
-        return self._lanes
+            self._lanes[math] = (self._api(loaded, "maglev_lanes_simulate"),
+                                 self._api(loaded, "maglev_lanes_width"), loaded)
+        return self._lanes[math]
 
     def lane_width(self, width: int = 0) -> int:
         """The lanes `simulate_batch` runs with ``lanes=width`` on this CPU (0: the widest
@@ -448,14 +450,16 @@ class SimulationLibrary(GeneratedLibrary):
 
     def simulate_batch(self, runs: list[BatchRun], dt: float, n_steps: int, gap_min: float,
                        n_u: int, n_gaps: int, threads: int = 0,
-                       lanes: int | None = None) -> list[Run]:
+                       lanes: int | None = None, lane_math: str = "libm") -> list[Run]:
         """Every run of ``runs`` as `simulate` makes it (one maglev_simulate call each, the
         same numbers), in one call of the batch driver on ``threads`` threads (0: every core,
         OpenMP's default). ``lanes``: None, one maglev_simulate per run (maglev_batch.c);
         else the lane driver (maglev_lanes.c) with that many lanes (0: `_auto_lanes`: the
         widest the CPU runs and the runs fill, the scalar driver where there are none): the
         runs with a tick and no sense tick W at a time in SIMD lanes, the others as
-        maglev_simulate, each run the same numbers (tests/test_simd_batch.py)."""
+        maglev_simulate, each run the same numbers (tests/test_simd_batch.py). ``lane_math``
+        "libmvec": the lanes' exp, sin and cos by glibc's libmvec (bench/simd_batch.py's
+        experiment: no longer the scalar run's bits)."""
         real = self._real
         n = len(runs)
         if n == 0:
@@ -497,7 +501,7 @@ class SimulationLibrary(GeneratedLibrary):
             rc = self._batch_function()(ctypes.cast(self._simulate, ctypes.c_void_p), n,
                                         threads, *common)
         else:
-            rc = self._lanes_functions()[0](n, lanes, threads, *common)
+            rc = self._lanes_functions(math=lane_math)[0](n, lanes, threads, *common)
         if rc != 0:
             raise RuntimeError("the batch driver refused its arguments")
         out = []

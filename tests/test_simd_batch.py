@@ -166,3 +166,60 @@ def test_the_translation_refuses_what_it_does_not_know() -> None:
         lane_kernels(body, "f")
     ok = body.replace("tanh", "exp")
     assert "vexp4(a0)" in lane_kernels(ok, "f")
+
+
+_MVEC_HARNESS = """
+typedef double V4 __attribute__((vector_size(32)));
+#define F(f) \\
+__attribute__((target("avx2"))) V4 _ZGVdN4v_##f(V4 a); \\
+__attribute__((target("avx2"))) void mvec_##f(const double* a, double* r, long n) { \\
+    long i; int l; \\
+    for (i = 0; i + 4 <= n; i += 4) { \\
+        V4 v, w; for (l = 0; l < 4; ++l) v[l] = a[i + l]; \\
+        w = _ZGVdN4v_##f(v); for (l = 0; l < 4; ++l) r[i + l] = w[l]; \\
+    } \\
+}
+F(exp)
+F(sin)
+F(cos)
+"""
+
+
+@pytest.mark.needs_cc
+def test_libmvec_within_its_bound_against_mpmath(tmp_path, sim_lib) -> None:
+    """The lanes' other math (``lane_math="libmvec"``, bench/simd_batch.py's experiment):
+    glibc's AVX2 exp, sin and cos against mpmath at 50 digits, within 4 ulp (glibc's stated
+    bound for libmvec) over exp's whole finite range, sin and cos on [-1000, 1000] and on the
+    small angles the model takes them of (|a| <= 0.5)."""
+    import subprocess
+
+    import mpmath
+
+    if sim_lib.lane_width(4) != 4:
+        pytest.skip("no AVX2 on this CPU")
+    src = tmp_path / "mvec.c"
+    src.write_text(_MVEC_HARNESS)
+    lib_path = tmp_path / "libmvec_harness.so"
+    subprocess.run(["gcc", "-std=c99", "-O2", "-fPIC", "-shared", str(src), "-o",
+                    str(lib_path), "-Wl,--no-as-needed,-lmvec", "-lm"], check=True)
+    lib = ctypes.CDLL(str(lib_path))
+    rng = np.random.default_rng(53)
+    domains = {"exp": [(-745.0, 709.0), (-1.0, 1.0)],
+               "sin": [(-1000.0, 1000.0), (-0.5, 0.5)], "cos": [(-1000.0, 1000.0), (-0.5, 0.5)]}
+    mpmath.mp.dps = 50
+    worst = {}
+    for name, ranges in domains.items():
+        a = np.concatenate([rng.uniform(lo, hi, 400) for lo, hi in ranges])
+        r = np.zeros_like(a)
+        fn = getattr(lib, f"mvec_{name}")
+        real_p = ctypes.POINTER(ctypes.c_double)
+        fn(a.ctypes.data_as(real_p), r.ctypes.data_as(real_p), ctypes.c_long(a.size))
+        errs = []
+        for x, got in zip(a, r, strict=True):
+            ref = getattr(mpmath, name)(mpmath.mpf(float(x)))
+            ulp = np.spacing(abs(float(ref))) if float(ref) != 0 else 5e-324
+            if abs(float(ref)) < 2.2250738585072014e-308:  # subnormal results: absolute
+                ulp = 5e-324
+            errs.append(float(abs(mpmath.mpf(float(got)) - ref)) / ulp)
+        worst[name] = max(errs)
+    assert all(v <= 4.0 for v in worst.values()), worst

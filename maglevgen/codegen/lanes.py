@@ -13,9 +13,11 @@ kernels are compiled -std=c99, which keeps -ffp-contract=off, and without -mfma)
 - A guard of branches.py, ``if (N!=0) {``, runs its block when N is nonzero in *any* lane: no
   work on a branch that every lane discards; where the lanes disagree the block runs for all
   and the select keeps each lane's own side.
-- exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits);
-  glibc's libmvec is not used: its vector exp is within 4 ulp of the rounded result, not
-  equal to libm's, which the bit-for-bit contract here rules out.
+- exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits).
+  glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
+  functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
+  checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
+  Monte-Carlo batch rules out.
 
 A statement of a kind not listed is refused (`LaneError`), never passed through.
 """
@@ -24,7 +26,7 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["KERNEL_PREFIX", "WIDTHS", "LaneError", "function_body", "lane_kernels"]
+__all__ = ["KERNEL_PREFIX", "MATH", "WIDTHS", "LaneError", "function_body", "lane_kernels"]
 
 #: the lane counts generated, each with the x86 target its vectors use (the driver picks the
 #: widest the CPU has at run time; other CPUs get the W = 2 kernel, which any C compiler
@@ -49,16 +51,7 @@ _KERNEL_HEAD = """
 #if {guard}
 typedef double V{w} __attribute__((vector_size({bytes})));
 typedef long long VI{w} __attribute__((vector_size({bytes})));
-{target}static V{w} vexp{w}(V{w} a) {{
-  V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = exp(a[l]); return r;
-}}
-{target}static V{w} vsin{w}(V{w} a) {{
-  V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = sin(a[l]); return r;
-}}
-{target}static V{w} vcos{w}(V{w} a) {{
-  V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = cos(a[l]); return r;
-}}
-{target}static int vany{w}(VI{w} m) {{
+{math}{target}static int vany{w}(VI{w} m) {{
   int l, r = 0; for (l = 0; l < {w}; ++l) r |= m[l] != 0; return r;
 }}
 {target}int {prefix}{w}(const double* x, const double* u, const double* d, double* xdot) {{
@@ -72,6 +65,21 @@ typedef long long VI{w} __attribute__((vector_size({bytes})));
   arg[2] = (const V{w}*)d;
   res[0] = (V{w}*)xdot;
 """
+
+# exp, sin and cos of W lanes: libm's per lane (the scalar function's bits), or glibc's
+# libmvec (its vector ABI: b = SSE, d = AVX2, e = AVX-512), within 4 ulp of the rounded result
+_LIBM = """\
+{target}static V{w} v{f}{w}(V{w} a) {{
+  V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = {f}(a[l]); return r;
+}}
+"""
+_LIBMVEC = """\
+{target}V{w} _ZGV{isa}N{w}v_{f}(V{w} a);
+{target}static V{w} v{f}{w}(V{w} a) {{ return _ZGV{isa}N{w}v_{f}(a); }}
+"""
+_ISA = {2: "b", 4: "d", 8: "e"}
+#: the lane math of `lane_kernels`: libm per lane (bit for bit) or libmvec (link -lmvec)
+MATH = ("libm", "libmvec")
 
 _DECL = re.compile(r"^\s*casadi_real (a\d+(=0)?)(, a\d+(=0)?)*;$")
 _FORMS: list[tuple[re.Pattern[str], str]] = [
@@ -136,19 +144,27 @@ def _translate(body: str, w: int) -> list[str]:
     return out
 
 
-def lane_kernels(c_source: str, name: str = "maglev_dynamics_prepared") -> str:
+def lane_kernels(c_source: str, name: str = "maglev_dynamics_prepared",
+                 math: str = "libm") -> str:
     """C source of ``name`` (a generated function with inputs x, u, d and one output) in W
     lanes for each W of `WIDTHS`: ``int maglev_lanes_dynamics_wW(const double* x, const
     double* u, const double* d, double* xdot)``, arrays [entry][W]. The W > 2 kernels exist
     on x86-64 only, compiled for their target (``__attribute__((target))``): the caller
-    checks the CPU before calling one."""
+    checks the CPU before calling one. ``math``: exp, sin and cos by libm per lane (each lane
+    bit for bit the scalar function), or by glibc's libmvec ("libmvec": an experiment,
+    bench/simd_batch.py; within 4 ulp a call, so not the scalar's bits)."""
+    if math not in MATH:
+        raise ValueError(f"lane math {math!r}: one of {MATH}")
     body = function_body(c_source, name)
     parts = [_PRELUDE.format(name=name)]
     for w, target in WIDTHS.items():
+        attribute = f'__attribute__((target("{target}"))) ' if target else ""
+        helper = _LIBM if math == "libm" else _LIBMVEC
+        functions = "".join(helper.format(target=attribute, w=w, f=f, isa=_ISA[w])
+                            for f in ("exp", "sin", "cos"))
         parts.append(_KERNEL_HEAD.format(
-            guard="defined(__x86_64__)" if target else "1", w=w, bytes=8 * w,
-            prefix=KERNEL_PREFIX,
-            target=f'__attribute__((target("{target}"))) ' if target else ""))
+            guard="defined(__x86_64__)" if target or math == "libmvec" else "1", w=w,
+            bytes=8 * w, prefix=KERNEL_PREFIX, target=attribute, math=functions))
         parts.extend(_translate(body, w))
         parts.append("}\n#endif")
     return "\n".join(parts) + "\n"
