@@ -223,3 +223,27 @@ def test_libmvec_within_its_bound_against_mpmath(tmp_path, sim_lib) -> None:
             errs.append(float(abs(mpmath.mpf(float(got)) - ref)) / ulp)
         worst[name] = max(errs)
     assert all(v <= 4.0 for v in worst.values()), worst
+
+
+@pytest.mark.needs_cc
+def test_roa_confirmation_batch_equals_single_runs(carriage, sim_lib, op) -> None:
+    """roa's confirmation runs of one round go in one batch (the lanes): each (status,
+    V(end) / V(start)) is the one `simulate` gives for its deviation alone."""
+    from maglevgen.analyses import roa
+    from maglevgen.analyses.simulate import run_loop, simulate
+    from maglevgen.control.carriage_plant import Plant
+
+    min_gap = carriage.params.track.min_gap
+    tick, k_v, budget = loop = run_loop(Plant(carriage, sim_lib), "firmware")
+    P = roa.lyapunov_matrix(op, "spec")
+    assert P is not None
+    d0 = roa.default_deviation()
+    dxs = [m * d0 for m in (0.5, 1.0, -2.0, 40.0)]
+    got = roa.confirmation_run(sim_lib, carriage.p, op, "spec", min_gap, loop)(dxs, P)
+    index = list(roa.REDUCED_INDEX)
+    for dx, (status, ratio) in zip(dxs, got, strict=True):
+        traj = simulate(sim_lib, carriage.p, op, "spec", roa.CONFIRM_T_END, roa.CONFIRM_DT,
+                        min_gap, dict(zip(roa.REDUCED_STATES, map(float, dx), strict=True)),
+                        tick=tick, speed_gain=k_v, force_budget=budget)
+        end = traj.x[-1, index] - op.x_trim[index]
+        assert (status, ratio) == (traj.status, float(end @ P @ end / (dx @ P @ dx)))
