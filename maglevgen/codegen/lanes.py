@@ -160,7 +160,7 @@ def _pair_sincos(lines: list[str], w: int) -> list[str]:
     the two computes both, the second reads the other from a temporary. Paired only where a
     is not assigned between them and no brace (a guard's block) lies between."""
     out = list(lines)
-    temps = []
+    temps: list[str] = []
     for i, line in enumerate(out):
         m = _TRIG.match(line)
         if m is None or m.group(2) == m.group(5):
