@@ -34,17 +34,19 @@
 #define LANES_MAX 8
 #define ALIGN __attribute__((aligned(8 * LANES_MAX)))
 
-/* the kernels (maglevgen.codegen.lanes, in double: a double library only) */
-typedef int (*lanes_kernel)(const maglev_real* x, const maglev_real* u, const maglev_real* d,
-                            maglev_real* xdot);
-int maglev_lanes_dynamics_w2(const maglev_real* x, const maglev_real* u, const maglev_real* d,
-                             maglev_real* xdot);
+/* the kernels (maglevgen.codegen.lanes, in double: a double library only): in[i] the
+   function's input i, out[j] its output j, each [entry][W] */
+#define LANES_KERNEL(name) int name(const maglev_real* const* in, maglev_real* const* out)
+typedef LANES_KERNEL((*lanes_kernel));
+LANES_KERNEL(maglev_lanes_dynamics_w2);
+LANES_KERNEL(maglev_lanes_gaps_w2);
 #if defined(__x86_64__)
-int maglev_lanes_dynamics_w4(const maglev_real* x, const maglev_real* u, const maglev_real* d,
-                             maglev_real* xdot);
-int maglev_lanes_dynamics_w8(const maglev_real* x, const maglev_real* u, const maglev_real* d,
-                             maglev_real* xdot);
+LANES_KERNEL(maglev_lanes_dynamics_w4);
+LANES_KERNEL(maglev_lanes_gaps_w4);
+LANES_KERNEL(maglev_lanes_dynamics_w8);
+LANES_KERNEL(maglev_lanes_gaps_w8);
 #endif
+#define NP_MAX 256 /* the most parameters the lanes' gaps take (else maglev_gaps per lane) */
 
 /* the batch: run i's inputs and outputs as maglev_batch_simulate (maglev_batch.c) takes them */
 typedef struct {
@@ -69,13 +71,14 @@ typedef struct {
     maglev_real e_half, e_full;
     int ring_sat[MAGLEV_SIM_MAX_DELAY + 1];
     int w, sat, depth, lagged;
+    int gaps_lanes; /* the gaps in lanes: p passed maglev_gaps's checks (lane_start) */
 } lane;
 
 /* the lanes' stage arrays, [entry][W] */
 typedef struct {
     double x[NX * LANES_MAX] ALIGN, xt[NX * LANES_MAX] ALIGN;
     double u[NU * LANES_MAX] ALIGN, u_half[NU * LANES_MAX] ALIGN, u_end[NU * LANES_MAX] ALIGN;
-    double d[ND * LANES_MAX] ALIGN;
+    double d[ND * LANES_MAX] ALIGN, p[NP_MAX * LANES_MAX] ALIGN, g[NG * LANES_MAX] ALIGN;
     double k1[NX * LANES_MAX] ALIGN, k2[NX * LANES_MAX] ALIGN, k3[NX * LANES_MAX] ALIGN,
         k4[NX * LANES_MAX] ALIGN;
 } stage_arrays;
@@ -169,6 +172,16 @@ static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
         return 0;
     }
     for (j = 0; j < ND; ++j) S->d[j * W + l] = d[j];
+    /* the gaps in lanes when maglev_gaps takes this p (its checks of p pass for the whole run:
+       p does not change; of x only its output's finiteness is left, checked per step), else
+       maglev_gaps of the lane at each step */
+    L->gaps_lanes = 0;
+    if (b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
+        maglev_real g[NG];
+        L->r.p = p;
+        L->gaps_lanes = sample_gaps(ws, &L->r, b->x0 + i * NX, g) == 0;
+    }
+    for (j = 0; j < b->n_p && j < NP_MAX; ++j) S->p[j * W + l] = p[j];
     for (j = 0; j < NX; ++j) b->x_traj[i * (b->n_steps + 1) * NX + j] = b->x0[i * NX + j];
     L->run = i;
     L->k = 0;
@@ -237,12 +250,20 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
     return 1;
 }
 
-/* after k1: the gaps and their status, the last step. 1: the step goes on; 0: the run ended */
-static int lane_check(lane* L, work* ws, const batch* b) {
+/* after k1: the gaps (from the lanes' gaps kernel, S->g, or maglev_gaps of the lane) and
+   their status, the last step. 1: the step goes on; 0: the run ended */
+static int lane_check(lane* L, work* ws, const stage_arrays* S, int l, int W, const batch* b) {
     const maglev_real* x = lane_x(L, b);
     maglev_real* gaps = b->gap_traj + (L->run * (b->n_steps + 1) + L->k) * NG;
-    int s;
-    if (sample_gaps(ws, &L->r, x, gaps)) {
+    int i, s;
+    if (L->gaps_lanes) {
+        for (i = 0; i < NG; ++i) gaps[i] = S->g[i * W + l];
+        if (!all_finite(gaps, NG)) { /* maglev_gaps: an error, its output zeroed */
+            for (i = 0; i < NG; ++i) gaps[i] = 0;
+            lane_end(L, b, MAGLEV_SIM_ERROR);
+            return 0;
+        }
+    } else if (sample_gaps(ws, &L->r, x, gaps)) {
         lane_end(L, b, MAGLEV_SIM_ERROR);
         return 0;
     }
@@ -293,17 +314,24 @@ static int lane_stage_ok(const double* x, const double* u, const double* xdot, i
 /* the stage kernel on every lane, then each live lane's check (ok[l] cleared on a failure) */
 static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
                         const stage_arrays* S, double* xdot, const int* live, int* ok, int W) {
+    const double* in[3];
+    double* out[1];
     int l;
-    (void)kernel(x, u, S->d, xdot);
+    in[0] = x;
+    in[1] = u;
+    in[2] = S->d;
+    out[0] = xdot;
+    (void)kernel(in, out);
     for (l = 0; l < W; ++l) {
         if (live[l] && !lane_stage_ok(x, u, xdot, l, W)) ok[l] = 0;
     }
 }
 
 /* the runs *next hands out, W at a time in lock step, until none is left */
-static void lanes_fly(const batch* b, int W, lanes_kernel kernel, long long* next) {
+static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel gaps_kernel,
+                      long long* next) {
     lane lanes[LANES_MAX];
-    int live[LANES_MAX], ok[LANES_MAX];
+    int live[LANES_MAX], ok[LANES_MAX], any_gaps;
     stage_arrays arrays, *S = &arrays;
     work ws;
     const maglev_real half = b->dt / (maglev_real)2;
@@ -338,14 +366,24 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, long long* nex
         if (!any) break;
         for (l = 0; l < W; ++l) ok[l] = 1;
         lanes_stage(kernel, S->x, S->u, S, S->k1, live, ok, W);
+        any_gaps = 0;
         for (l = 0; l < W; ++l) {
-            if (!live[l]) continue;
-            if (!ok[l]) {
+            if (live[l] && !ok[l]) {
                 lane_end(&lanes[l], b, MAGLEV_SIM_ERROR); /* run_loop: k1's error */
                 live[l] = 0;
-            } else {
-                live[l] = lane_check(&lanes[l], &ws, b);
             }
+            any_gaps |= live[l] && lanes[l].gaps_lanes;
+        }
+        if (any_gaps) {
+            const double* in[2];
+            double* out[1];
+            in[0] = S->x;
+            in[1] = S->p;
+            out[0] = S->g;
+            (void)gaps_kernel(in, out);
+        }
+        for (l = 0; l < W; ++l) {
+            if (live[l]) live[l] = lane_check(&lanes[l], &ws, S, l, W, b);
         }
         lanes_axpy(S->xt, S->x, half, S->k1, W);
         lanes_stage(kernel, S->xt, S->u_half, S, S->k2, live, ok, W);
@@ -390,7 +428,7 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
                           maglev_real* u_traj, maglev_real* gap_traj, long long* last,
                           long long* saturated, int* status) {
     batch b;
-    lanes_kernel kernel = maglev_lanes_dynamics_w2;
+    lanes_kernel kernel = maglev_lanes_dynamics_w2, gaps_kernel = maglev_lanes_gaps_w2;
     long long next = 0;
     const int W = maglev_lanes_width(width);
     if (W == 0 || n_runs < 0 || nx != NX || nu != NU || ng != NG || n_p < 1 || n_steps < 0
@@ -400,8 +438,14 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
         return -1;
     }
 #if defined(__x86_64__)
-    if (W == 4) kernel = maglev_lanes_dynamics_w4;
-    if (W == 8) kernel = maglev_lanes_dynamics_w8;
+    if (W == 4) {
+        kernel = maglev_lanes_dynamics_w4;
+        gaps_kernel = maglev_lanes_gaps_w4;
+    }
+    if (W == 8) {
+        kernel = maglev_lanes_dynamics_w8;
+        gaps_kernel = maglev_lanes_gaps_w8;
+    }
 #endif
     b.n_runs = n_runs;
     b.n_p = n_p;
@@ -426,6 +470,6 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
 #else
     (void)threads;
 #endif
-    lanes_fly(&b, W, kernel, &next);
+    lanes_fly(&b, W, kernel, gaps_kernel, &next);
     return 0;
 }

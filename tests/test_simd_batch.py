@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from maglevgen.analyses.simulate import FirmwareTick, Weights, hold_run, operating_point
-from maglevgen.codegen.lanes import KERNEL_PREFIX, WIDTHS, LaneError, lane_kernels
+from maglevgen.codegen.lanes import WIDTHS, LaneError, kernel_name, lane_kernels
 from maglevgen.control.sampled import Tick
 
 DT = 1e-3
@@ -109,15 +109,16 @@ def test_lanes_equal_the_scalar_loop_over_ten_seconds(carriage, sim_lib, op, run
 
 
 @pytest.mark.needs_cc
-def test_lane_kernels_equal_the_scalar_stage(carriage, sim_lib, op) -> None:
-    """The translated maglev_dynamics_prepared in each lane count against the library's own,
-    lane by lane, on test_branches' poses about the trim (scales 0 to 0.3: the special
-    functions' arguments on both sides of the series switch, test_branches checks that),
-    the poses mixed across lanes so that a lane group's guard runs a block some lanes
+def test_lane_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
+    """The translated maglev_dynamics_prepared and maglev_gaps in each lane count against the
+    library's own, lane by lane, on test_branches' poses about the trim (scales 0 to 0.3: the
+    special functions' arguments on both sides of the series switch, test_branches checks
+    that), the poses mixed across lanes so that a lane group's guard runs a block some lanes
     discard; plus a lane of NaN beside finite ones (the NaN stays in its lane: the others
     equal)."""
     prepare = sim_lib.function("maglev_dynamics_prepare")
     stage = sim_lib.function("maglev_dynamics_prepared")
+    gaps = sim_lib.function("maglev_gaps")
     d = np.ravel(prepare(carriage.p)[0])
     rng = np.random.default_rng(53)
     poses = []
@@ -128,23 +129,29 @@ def test_lane_kernels_equal_the_scalar_stage(carriage, sim_lib, op) -> None:
     poses[5] = (np.full(12, np.nan), np.zeros(11))  # 16 poses: every lane count covers all
     order = rng.permutation(len(poses))
     kernels = sim_lib._lanes_functions()[2]
-    real_p = ctypes.POINTER(ctypes.c_double)
+    P = ctypes.POINTER(ctypes.c_double)
+    n_g = op.gaps.size
     for w in _widths(sim_lib):
-        fn = getattr(kernels, f"{KERNEL_PREFIX}{w}")
-        fn.restype = ctypes.c_int
+        dynamics, gap_kernel = (getattr(kernels, kernel_name(f, w))
+                                for f in ("maglev_dynamics_prepared", "maglev_gaps"))
         for start in range(0, len(poses) - w + 1, w):
             group = [poses[i] for i in order[start:start + w]]
             x = _aligned(np.array([g[0] for g in group]).T)
             u = _aligned(np.array([g[1] for g in group]).T)
             dd = _aligned(np.repeat(d[:, None], w, axis=1))
-            out = _aligned(np.zeros((12, w)))
-            assert fn(*(a.ctypes.data_as(real_p) for a in (x, u, dd, out))) == 0
+            pp = _aligned(np.repeat(carriage.p[:, None], w, axis=1))
+            xdot, g = _aligned(np.zeros((12, w))), _aligned(np.zeros((n_g, w)))
+            assert dynamics((P * 3)(*(a.ctypes.data_as(P) for a in (x, u, dd))),
+                            (P * 1)(xdot.ctypes.data_as(P))) == 0
+            assert gap_kernel((P * 2)(*(a.ctypes.data_as(P) for a in (x, pp))),
+                              (P * 1)(g.ctypes.data_as(P))) == 0
             for lane, (xs, us) in enumerate(group):
                 if not np.all(np.isfinite(xs)):  # the scalar check refuses it: NaN out
-                    assert not np.all(np.isfinite(out[:, lane]))
+                    assert not np.all(np.isfinite(xdot[:, lane]))
                     continue
                 want = np.ravel(stage(xs, us, d)[0])
-                assert np.array_equal(out[:, lane], want, equal_nan=True), (w, start, lane)
+                assert np.array_equal(xdot[:, lane], want), (w, start, lane)
+                assert np.array_equal(g[:, lane], np.ravel(gaps(xs, carriage.p)[0])), (w, lane)
 
 
 def _aligned(a: np.ndarray) -> np.ndarray:
@@ -163,9 +170,9 @@ def test_the_translation_refuses_what_it_does_not_know() -> None:
             "  casadi_real a0;\n  a0=arg[0]? arg[0][0] : 0;\n  a0=tanh(a0);\n"
             "  if (res[0]!=0) res[0][0]=a0;\n  return 0;\n}\n")
     with pytest.raises(LaneError, match="tanh"):
-        lane_kernels(body, "f")
+        lane_kernels(body, ("f",))
     ok = body.replace("tanh", "exp")
-    assert "vexp4(a0)" in lane_kernels(ok, "f")
+    assert "vexp4(a0)" in lane_kernels(ok, ("f",))
 
 
 _MVEC_HARNESS = """

@@ -26,14 +26,15 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["KERNEL_PREFIX", "MATH", "WIDTHS", "LaneError", "function_body", "lane_kernels"]
+__all__ = ["KERNELS", "KERNEL_PREFIX", "MATH", "WIDTHS", "LaneError", "function_body",
+           "kernel_name", "lane_kernels"]
 
 #: the lane counts generated, each with the x86 target its vectors use (the driver picks the
 #: widest the CPU has at run time; other CPUs get the W = 2 kernel, which any C compiler
 #: lowers to what the machine has)
 WIDTHS: dict[int, str] = {2: "", 4: "avx2", 8: "avx512f"}
-#: the kernel of W lanes is KERNEL_PREFIX + str(W)
-KERNEL_PREFIX = "maglev_lanes_dynamics_w"
+#: the kernels' names begin so (`kernel_name`)
+KERNEL_PREFIX = "maglev_lanes_"
 
 
 class LaneError(ValueError):
@@ -48,7 +49,7 @@ _PRELUDE = """\
 #include <math.h>
 """
 
-_KERNEL_HEAD = """
+_HELPERS = """
 #if {guard}
 typedef double V{w} __attribute__((vector_size({bytes})));
 typedef long long VI{w} __attribute__((vector_size({bytes})));
@@ -58,19 +59,22 @@ typedef long long VI{w} __attribute__((vector_size({bytes})));
 {target}static V{w} vcossin{w}(V{w} a, V{w}* s) {{
   V{w} r; int l; for (l = 0; l < {w}; ++l) sincos(a[l], &(*s)[l], &r[l]); return r;
 }}
+{target}static V{w} vsqrt{w}(V{w} a) {{
+  V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = sqrt(a[l]); return r;
+}}
 {target}static int vany{w}(VI{w} m) {{
   int l, r = 0; for (l = 0; l < {w}; ++l) r |= m[l] != 0; return r;
-}}
-{target}int {prefix}{w}(const double* x, const double* u, const double* d, double* xdot) {{
-  const V{w}* arg[3];
-  V{w}* res[1];
+}}"""
+_KERNEL_HEAD = """
+{target}int {kernel}(const double* const* in, double* const* out) {{
+  const V{w}* arg[{n_in}];
+  V{w}* res[{n_out}];
   const V{w} ZERO = {{0}};
   const V{w} ONE = ZERO + 1.0;
   const VI{w} ABS = (VI{w}){{0}} + 0x7fffffffffffffffLL;
-  arg[0] = (const V{w}*)x;
-  arg[1] = (const V{w}*)u;
-  arg[2] = (const V{w}*)d;
-  res[0] = (V{w}*)xdot;
+  int i;
+  for (i = 0; i < {n_in}; ++i) arg[i] = (const V{w}*)in[i];
+  for (i = 0; i < {n_out}; ++i) res[i] = (V{w}*)out[i];
 """
 
 # exp, sin and cos of W lanes: libm's per lane (the scalar function's bits), or glibc's
@@ -104,10 +108,11 @@ _FORMS: list[tuple[re.Pattern[str], str]] = [
     (re.compile(r"^(\s*)(a\d+)=casadi_sign\((a\d+)\);$"),
      r"\1\2=(V{w})(((VI{w})(ZERO-1.0) & (\3<ZERO)) | ((VI{w})ONE & (\3>ZERO))"
      r" | ((VI{w})\3 & ~((\3<ZERO) | (\3>ZERO))));"),
-    (re.compile(r"^(\s*)(a\d+)=(exp|sin|cos)\((a\d+)\);$"), r"\1\2=v\3{w}(\4);"),
+    (re.compile(r"^(\s*)(a\d+)=(exp|sin|cos|sqrt)\((a\d+)\);$"), r"\1\2=v\3{w}(\4);"),
     (re.compile(r"^(\s*)if \((a\d+)!=0\) \{$"), r"\1if (vany{w}(\2!=ZERO)) {{"),
     (re.compile(r"^(\s*)\}$"), r"\1}}"),
-    (re.compile(r"^(\s*)if \(res\[0\]!=0\) res\[0\]\[(\d+)\]=(a\d+);$"), r"\1res[0][\2]=\3;"),
+    (re.compile(r"^(\s*)if \(res\[(\d)\]!=0\) res\[\2\]\[(\d+)\]=(a\d+);$"),
+     r"\1res[\2][\3]=\4;"),
     (re.compile(r"^(\s*)\(void\)iw; \(void\)w; \(void\)mem;$"), ""),
     (re.compile(r"^(\s*)return 0;$"), r"\1return 0;"),
 ]
@@ -183,28 +188,44 @@ def _pair_sincos(lines: list[str], w: int) -> list[str]:
     return out
 
 
-def lane_kernels(c_source: str, name: str = "maglev_dynamics_prepared",
+#: the functions the lanes evaluate: generated name -> the kernel's short name
+KERNELS: dict[str, str] = {"maglev_dynamics_prepared": "dynamics", "maglev_gaps": "gaps"}
+
+
+def kernel_name(function: str, w: int) -> str:
+    """The C name of ``function``'s kernel of ``w`` lanes."""
+    return f"{KERNEL_PREFIX}{KERNELS.get(function, function.removeprefix('maglev_'))}_w{w}"
+
+
+def lane_kernels(c_source: str, names: tuple[str, ...] = tuple(KERNELS),
                  math: str = "libm") -> str:
-    """C source of ``name`` (a generated function with inputs x, u, d and one output) in W
-    lanes for each W of `WIDTHS`: ``int maglev_lanes_dynamics_wW(const double* x, const
-    double* u, const double* d, double* xdot)``, arrays [entry][W]. The W > 2 kernels exist
-    on x86-64 only, compiled for their target (``__attribute__((target))``): the caller
-    checks the CPU before calling one. ``math``: exp, sin and cos by libm per lane (each lane
-    bit for bit the scalar function), or by glibc's libmvec ("libmvec": an experiment,
-    bench/simd_batch.py; within 4 ulp a call, so not the scalar's bits)."""
+    """C source of each generated function of ``names`` (`KERNELS`) in W lanes for each W of
+    `WIDTHS`: ``int maglev_lanes_<short>_wW(const double* const* in, double* const* out)``,
+    ``in[i]`` the function's input i and ``out[j]`` its output j, each laid out [entry][W]
+    (`kernel_name`). The W > 2 kernels exist on x86-64 only, compiled for their target
+    (``__attribute__((target))``): the caller checks the CPU before calling one. ``math``:
+    exp, sin and cos by libm per lane (each lane bit for bit the scalar function), or by
+    glibc's libmvec ("libmvec": an experiment, bench/simd_batch.py; within 4 ulp a call, so
+    not the scalar's bits)."""
     if math not in MATH:
         raise ValueError(f"lane math {math!r}: one of {MATH}")
-    body = function_body(c_source, name)
-    parts = [_PRELUDE.format(name=name)]
+    bodies = {n: function_body(c_source, n) for n in names}
+    parts = [_PRELUDE.format(name=", ".join(names))]
     for w, target in WIDTHS.items():
         attribute = f'__attribute__((target("{target}"))) ' if target else ""
         helper = _LIBM if math == "libm" else _LIBMVEC
         functions = "".join(helper.format(target=attribute, w=w, f=f, isa=_ISA[w])
                             for f in ("exp", "sin", "cos"))
-        parts.append(_KERNEL_HEAD.format(
+        parts.append(_HELPERS.format(
             guard="defined(__x86_64__)" if target or math == "libmvec" else "1", w=w,
-            bytes=8 * w, prefix=KERNEL_PREFIX, target=attribute, math=functions))
-        lines = _translate(body, w)
-        parts.extend(_pair_sincos(lines, w) if math == "libm" else lines)
-        parts.append("}\n#endif")
+            bytes=8 * w, target=attribute, math=functions))
+        for name, body in bodies.items():
+            n_in = 1 + max(map(int, re.findall(r"arg\[(\d+)\]", body)))
+            n_out = 1 + max(map(int, re.findall(r"res\[(\d+)\]", body)))
+            parts.append(_KERNEL_HEAD.format(w=w, target=attribute, n_in=n_in, n_out=n_out,
+                                             kernel=kernel_name(name, w)))
+            lines = _translate(body, w)
+            parts.extend(_pair_sincos(lines, w) if math == "libm" else lines)
+            parts.append("}")
+        parts.append("#endif")
     return "\n".join(parts) + "\n"
