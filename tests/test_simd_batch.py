@@ -254,3 +254,39 @@ def test_roa_confirmation_batch_equals_single_runs(carriage, sim_lib, op) -> Non
                         tick=tick, speed_gain=k_v, force_budget=budget)
         end = traj.x[-1, index] - op.x_trim[index]
         assert (status, ratio) == (traj.status, float(end @ P @ end / (dx @ P @ dx)))
+
+
+@pytest.mark.needs_cc
+def test_sensed_runs_beside_the_lanes_are_the_scalar_loop(carriage, sim_lib, op) -> None:
+    """Runs on the sensors (the firmware's sense tick: its own C per run) stay on the scalar
+    path inside the lane driver, between runs that the lanes fly: every run equal to its
+    maglev_simulate, the sense ticks' recorded readings too."""
+    from maglevgen.analyses.simulate import run_loop
+    from maglevgen.control.carriage_plant import Plant
+
+    plant = Plant(carriage, sim_lib)
+    sensed, k_v, budget = run_loop(plant, "sensed")
+    firmware = run_loop(plant, "firmware")
+    min_gap = carriage.params.track.min_gap
+    n_u, n_g, n = op.allocation.shape[0] + 1, op.gaps.size, 200
+
+    def runs():  # made afresh: a sensed run's sense state is its own
+        out = []
+        for k, d in enumerate(({"z": 1e-3}, {"phi": 2e-3}, {"y": -1e-3}, {"z": -2e-3},
+                               {"theta": 1e-3})):
+            tick, kv, fb = (sensed, k_v, budget) if k % 2 == 0 else firmware
+            out.append(hold_run(carriage.p, op, "spec", DT, d, tick, kv, fb, n_steps=n))
+        return out
+
+    want = _scalar(sim_lib, runs(), n, min_gap, n_u, n_g)
+    batch = runs()
+    got = sim_lib.simulate_batch(batch, DT, n, min_gap, n_u, n_g, 1, lanes=0)
+    reference = runs()
+    for r in reference:
+        sim_lib.simulate(r.x0, DT, n, r.f_prop, r.k_pos, r.k_rate, r.a_ref, r.p, min_gap,
+                         n_u, n_g, r.loop)
+    for i, (a, b) in enumerate(zip(want, got, strict=True)):
+        assert _same(a, b), i
+    for r, s in zip(reference, batch, strict=True):
+        if r.loop.sense is not None:
+            assert np.array_equal(r.loop.sense.readings, s.loop.sense.readings)
