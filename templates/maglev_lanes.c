@@ -22,7 +22,13 @@
 #include "maglev_simulate.h" /* first: the library's functions it declares stay external */
 #include <math.h>
 #pragma GCC visibility push(hidden)
+/* maglev_simulate.c's tick law calls maglev_coupled_control through lanes_coupled_control
+   (below): the lane's u_gen from the lanes' kernel where it has one, else the library's */
+static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                 maglev_real* w, int mem);
+#define maglev_coupled_control lanes_coupled_control
 #include "maglev_simulate.c"
+#undef maglev_coupled_control
 #pragma GCC visibility pop
 
 #include <string.h>
@@ -40,12 +46,27 @@
 typedef LANES_KERNEL((*lanes_kernel));
 LANES_KERNEL(maglev_lanes_dynamics_w2);
 LANES_KERNEL(maglev_lanes_gaps_w2);
+LANES_KERNEL(maglev_lanes_control_w2);
 #if defined(__x86_64__)
 LANES_KERNEL(maglev_lanes_dynamics_w4);
 LANES_KERNEL(maglev_lanes_gaps_w4);
+LANES_KERNEL(maglev_lanes_control_w4);
 LANES_KERNEL(maglev_lanes_dynamics_w8);
 LANES_KERNEL(maglev_lanes_gaps_w8);
+LANES_KERNEL(maglev_lanes_control_w8);
 #endif
+
+/* the u_gen the tick's command takes for the lane it runs (NULL: maglev_coupled_control's,
+   computed now); one per thread */
+static __thread const maglev_real* lanes_u_gen;
+
+static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                 maglev_real* w, int mem) {
+    int i;
+    if (lanes_u_gen == 0) return maglev_coupled_control(arg, res, iw, w, mem);
+    for (i = 0; i < 5; ++i) res[0][i] = lanes_u_gen[i];
+    return 0;
+}
 #define NP_MAX 256 /* the most parameters the lanes' gaps take (else maglev_gaps per lane) */
 
 /* the batch: run i's inputs and outputs as maglev_batch_simulate (maglev_batch.c) takes them */
@@ -72,6 +93,8 @@ typedef struct {
     int ring_sat[MAGLEV_SIM_MAX_DELAY + 1];
     int w, sat, depth, lagged;
     int gaps_lanes; /* the gaps in lanes: p passed maglev_gaps's checks (lane_start) */
+    int control_lanes; /* the tick's u_gen in lanes: maglev_coupled_control took p */
+    maglev_real u_gen[5]; /* the lane's u_gen from the lanes' kernel at this step's tick */
 } lane;
 
 /* the lanes' stage arrays, [entry][W] */
@@ -79,6 +102,8 @@ typedef struct {
     double x[NX * LANES_MAX] ALIGN, xt[NX * LANES_MAX] ALIGN;
     double u[NU * LANES_MAX] ALIGN, u_half[NU * LANES_MAX] ALIGN, u_end[NU * LANES_MAX] ALIGN;
     double d[ND * LANES_MAX] ALIGN, p[NP_MAX * LANES_MAX] ALIGN, g[NG * LANES_MAX] ALIGN;
+    double K_pos[25 * LANES_MAX] ALIGN, K_rate[25 * LANES_MAX] ALIGN, a_ref[5 * LANES_MAX] ALIGN;
+    double u_gen[5 * LANES_MAX] ALIGN;
     double k1[NX * LANES_MAX] ALIGN, k2[NX * LANES_MAX] ALIGN, k3[NX * LANES_MAX] ALIGN,
         k4[NX * LANES_MAX] ALIGN;
 } stage_arrays;
@@ -182,6 +207,24 @@ static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
         L->gaps_lanes = sample_gaps(ws, &L->r, b->x0 + i * NX, g) == 0;
     }
     for (j = 0; j < b->n_p && j < NP_MAX; ++j) S->p[j * W + l] = p[j];
+    /* the tick's coupled control in lanes likewise, when maglev_coupled_control takes this p
+       and the gains (the gains and a_ref are the run's: checked finite) */
+    L->control_lanes = 0;
+    if (b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
+        maglev_real u_gen[5];
+        ws->arg[0] = b->x0 + i * NX;
+        ws->arg[1] = L->fixed + MAGLEV_SCHEDULE_K_POS;
+        ws->arg[2] = L->fixed + MAGLEV_SCHEDULE_K_RATE;
+        ws->arg[3] = L->fixed + MAGLEV_SCHEDULE_A_REF;
+        ws->arg[4] = p;
+        ws->res[0] = u_gen;
+        L->control_lanes = maglev_coupled_control(ws->arg, ws->res, ws->iw, ws->w, 0) == 0;
+    }
+    for (j = 0; j < 25; ++j) {
+        S->K_pos[j * W + l] = L->fixed[MAGLEV_SCHEDULE_K_POS + j];
+        S->K_rate[j * W + l] = L->fixed[MAGLEV_SCHEDULE_K_RATE + j];
+    }
+    for (j = 0; j < 5; ++j) S->a_ref[j * W + l] = L->fixed[MAGLEV_SCHEDULE_A_REF + j];
     for (j = 0; j < NX; ++j) b->x_traj[i * (b->n_steps + 1) * NX + j] = b->x0[i * NX + j];
     L->run = i;
     L->k = 0;
@@ -201,7 +244,8 @@ static maglev_real* lane_x(const lane* L, const batch* b) {
 
 /* run_loop's step k up to k1 (the tick, the delay, the lag); the lane's x and inputs into its
    columns. 1: the step goes on; 0: the run ended */
-static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const batch* b) {
+static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const batch* b,
+                      int ready) {
     const maglev_real* x = lane_x(L, b);
     const maglev_real t = (maglev_real)L->k * b->dt;
     maglev_real* u = b->u_traj + (L->run * (b->n_steps + 1) + L->k) * NU;
@@ -224,7 +268,10 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
                 L->ring_sat[d] = 0;
             }
         }
+        /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
+        lanes_u_gen = ready ? L->u_gen : 0;
         s = command(ws, &L->r, x, t, g, &L->law, slot);
+        lanes_u_gen = 0;
         if (s < 0) {
             lane_end(L, b, MAGLEV_SIM_ERROR);
             return 0;
@@ -329,9 +376,9 @@ static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
 
 /* the runs *next hands out, W at a time in lock step, until none is left */
 static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel gaps_kernel,
-                      long long* next) {
+                      lanes_kernel control_kernel, long long* next) {
     lane lanes[LANES_MAX];
-    int live[LANES_MAX], ok[LANES_MAX], any_gaps;
+    int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], any_gaps, any_tick;
     stage_arrays arrays, *S = &arrays;
     work ws;
     const maglev_real half = b->dt / (maglev_real)2;
@@ -339,6 +386,37 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
     memset(S, 0, sizeof(stage_arrays));
     for (l = 0; l < W; ++l) lanes[l].run = -1;
     while (any) {
+        /* the tick's coupled control of the running lanes at a tick, in lanes (a lane that
+           takes a new run below computes its own) */
+        any_tick = 0;
+        for (l = 0; l < W; ++l) {
+            lane* L = lanes + l;
+            ready[l] = 0;
+            if (L->run >= 0 && L->control_lanes && L->k % L->tick == 0) {
+                const maglev_real* x = lane_x(L, b);
+                int i;
+                for (i = 0; i < NX; ++i) S->x[i * W + l] = x[i];
+                ready[l] = any_tick = 1;
+            }
+        }
+        if (any_tick) {
+            const double* in[5];
+            double* out[1];
+            in[0] = S->x;
+            in[1] = S->K_pos;
+            in[2] = S->K_rate;
+            in[3] = S->a_ref;
+            in[4] = S->p;
+            out[0] = S->u_gen;
+            (void)control_kernel(in, out);
+            for (l = 0; l < W; ++l) {
+                int i;
+                if (!ready[l]) continue;
+                for (i = 0; i < 5; ++i) lanes[l].u_gen[i] = S->u_gen[i * W + l];
+                /* a non-finite u_gen (or x): maglev_coupled_control's own answer */
+                ready[l] = all_finite(lanes[l].u_gen, 5) && all_finite(lane_x(&lanes[l], b), NX);
+            }
+        }
         any = 0;
         for (l = 0; l < W; ++l) {
             live[l] = 0;
@@ -355,8 +433,9 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
                         break;
                     }
                     if (!lane_start(&lanes[l], &ws, S, l, W, b, i)) continue;
+                    ready[l] = 0;
                 }
-                if (lane_begin(&lanes[l], &ws, S, l, W, b)) {
+                if (lane_begin(&lanes[l], &ws, S, l, W, b, ready[l])) {
                     live[l] = 1;
                     break;
                 }
@@ -429,6 +508,7 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
                           long long* saturated, int* status) {
     batch b;
     lanes_kernel kernel = maglev_lanes_dynamics_w2, gaps_kernel = maglev_lanes_gaps_w2;
+    lanes_kernel control_kernel = maglev_lanes_control_w2;
     long long next = 0;
     const int W = maglev_lanes_width(width);
     if (W == 0 || n_runs < 0 || nx != NX || nu != NU || ng != NG || n_p < 1 || n_steps < 0
@@ -441,10 +521,12 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
     if (W == 4) {
         kernel = maglev_lanes_dynamics_w4;
         gaps_kernel = maglev_lanes_gaps_w4;
+        control_kernel = maglev_lanes_control_w4;
     }
     if (W == 8) {
         kernel = maglev_lanes_dynamics_w8;
         gaps_kernel = maglev_lanes_gaps_w8;
+        control_kernel = maglev_lanes_control_w8;
     }
 #endif
     b.n_runs = n_runs;
@@ -470,6 +552,6 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
 #else
     (void)threads;
 #endif
-    lanes_fly(&b, W, kernel, gaps_kernel, &next);
+    lanes_fly(&b, W, kernel, gaps_kernel, control_kernel, &next);
     return 0;
 }

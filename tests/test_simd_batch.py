@@ -110,15 +110,17 @@ def test_lanes_equal_the_scalar_loop_over_ten_seconds(carriage, sim_lib, op, run
 
 @pytest.mark.needs_cc
 def test_lane_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
-    """The translated maglev_dynamics_prepared and maglev_gaps in each lane count against the
-    library's own, lane by lane, on test_branches' poses about the trim (scales 0 to 0.3: the
-    special functions' arguments on both sides of the series switch, test_branches checks
-    that), the poses mixed across lanes so that a lane group's guard runs a block some lanes
-    discard; plus a lane of NaN beside finite ones (the NaN stays in its lane: the others
-    equal)."""
+    """The translated maglev_dynamics_prepared, maglev_gaps and maglev_coupled_control in each
+    lane count against the library's own, lane by lane, on test_branches' poses about the
+    trim (scales 0 to 0.3: the special functions' arguments on both sides of the series
+    switch, test_branches checks that), the poses mixed across lanes so that a lane group's
+    guard runs a block some lanes discard; plus a lane of NaN beside finite ones (the NaN
+    stays in its lane: the others equal)."""
     prepare = sim_lib.function("maglev_dynamics_prepare")
     stage = sim_lib.function("maglev_dynamics_prepared")
     gaps = sim_lib.function("maglev_gaps")
+    control = sim_lib.function("maglev_coupled_control")
+    k_pos, k_rate = (np.ravel(k, order="F") for k in op.gains("lqr"))
     d = np.ravel(prepare(carriage.p)[0])
     rng = np.random.default_rng(53)
     poses = []
@@ -132,8 +134,9 @@ def test_lane_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
     P = ctypes.POINTER(ctypes.c_double)
     n_g = op.gaps.size
     for w in _widths(sim_lib):
-        dynamics, gap_kernel = (getattr(kernels, kernel_name(f, w))
-                                for f in ("maglev_dynamics_prepared", "maglev_gaps"))
+        dynamics, gap_kernel, control_kernel = (
+            getattr(kernels, kernel_name(f, w))
+            for f in ("maglev_dynamics_prepared", "maglev_gaps", "maglev_coupled_control"))
         for start in range(0, len(poses) - w + 1, w):
             group = [poses[i] for i in order[start:start + w]]
             x = _aligned(np.array([g[0] for g in group]).T)
@@ -141,6 +144,11 @@ def test_lane_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
             dd = _aligned(np.repeat(d[:, None], w, axis=1))
             pp = _aligned(np.repeat(carriage.p[:, None], w, axis=1))
             xdot, g = _aligned(np.zeros((12, w))), _aligned(np.zeros((n_g, w)))
+            kp, kr, ar = (_aligned(np.repeat(np.asarray(v)[:, None], w, axis=1))
+                          for v in (k_pos, k_rate, op.a_trim))
+            u_gen = _aligned(np.zeros((5, w)))
+            assert control_kernel((P * 5)(*(a.ctypes.data_as(P) for a in (x, kp, kr, ar, pp))),
+                                  (P * 1)(u_gen.ctypes.data_as(P))) == 0
             assert dynamics((P * 3)(*(a.ctypes.data_as(P) for a in (x, u, dd))),
                             (P * 1)(xdot.ctypes.data_as(P))) == 0
             assert gap_kernel((P * 2)(*(a.ctypes.data_as(P) for a in (x, pp))),
@@ -152,6 +160,8 @@ def test_lane_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
                 want = np.ravel(stage(xs, us, d)[0])
                 assert np.array_equal(xdot[:, lane], want), (w, start, lane)
                 assert np.array_equal(g[:, lane], np.ravel(gaps(xs, carriage.p)[0])), (w, lane)
+                want = np.ravel(control(xs, k_pos, k_rate, op.a_trim, carriage.p)[0])
+                assert np.array_equal(u_gen[:, lane], want), (w, lane)
 
 
 def _aligned(a: np.ndarray) -> np.ndarray:

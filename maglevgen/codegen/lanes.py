@@ -189,7 +189,8 @@ def _pair_sincos(lines: list[str], w: int) -> list[str]:
 
 
 #: the functions the lanes evaluate: generated name -> the kernel's short name
-KERNELS: dict[str, str] = {"maglev_dynamics_prepared": "dynamics", "maglev_gaps": "gaps"}
+KERNELS: dict[str, str] = {"maglev_dynamics_prepared": "dynamics", "maglev_gaps": "gaps",
+                           "maglev_coupled_control": "control"}
 
 
 def kernel_name(function: str, w: int) -> str:
