@@ -400,8 +400,8 @@ class SimulationLibrary(GeneratedLibrary):
 
     def _lanes_functions(self, cc: str | None = None, math: str = "libm"):
         """(maglev_lanes_simulate, maglev_lanes_width, the loaded driver):
-        templates/maglev_lanes.c with the lane kernels of this library's
-        maglev_dynamics_prepared (maglevgen.codegen.lanes; ``math``: its exp, sin and cos),
+        templates/maglev_lanes.c with the lane kernels of this library's functions
+        (maglevgen.codegen.lanes; ``math``: their exp, sin and cos),
         compiled with -fopenmp against its derivation folder and linked against the library
         itself (cached as every library is), loaded once."""
         if math not in self._lanes:

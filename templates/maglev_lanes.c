@@ -5,12 +5,16 @@
    Not generated: the same driver serves every carriage. It includes the library's own
    maglev_simulate.c (-I the library's derivation folder) for the loop's pieces (the tick's
    command, the delay ring, the saturation, the speed loop, the actuator lag, the gaps and their
-   status) and is linked against the library for the generated functions those pieces call;
-   only the right-hand side of the RK4 stages (maglev_dynamics_prepared, most of a run's time)
-   runs in lanes, through the kernels maglevgen.codegen.lanes translates from the library's C,
-   each lane bit for bit the scalar function. Everything else is the scalar code of
-   maglev_simulate's run_loop, lane by lane, in its order, so a lane's run is the run
-   maglev_simulate makes (the tests compare every state, input, gap, status and count).
+   status) and is linked against the library for the generated functions those pieces call.
+   The generated functions a step spends its time in run in lanes, through the kernels
+   maglevgen.codegen.lanes translates from the library's C, each lane bit for bit the scalar
+   function: the RK4 stages' right-hand side (maglev_dynamics_prepared), the gaps
+   (maglev_gaps) and the tick's coupled control (maglev_coupled_control, which the command's
+   own code takes through lanes_coupled_control); each with the checks the scalar loop's call
+   makes (of p once per run, by one scalar call; of x and the output per lane and call).
+   Everything else is the scalar code of maglev_simulate's run_loop, lane by lane, in its
+   order, so a lane's run is the run maglev_simulate makes (the tests compare every state,
+   input, gap, status and count).
 
    A lane holds one run; when the run ends (its last step, a contact, a non-finite state, an
    error) the lane takes the next run of the batch at once, so no lane idles while runs are

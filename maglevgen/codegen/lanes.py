@@ -1,7 +1,8 @@
-"""One generated function over W samples at once: CasADi's C translated into SIMD lanes.
+"""Generated functions over W samples at once: CasADi's C translated into SIMD lanes.
 
-The firmware loop's right-hand side (``maglev_dynamics_prepared``, what every RK4 stage of a
-Monte-Carlo run evaluates) as CasADi and :mod:`maglevgen.codegen.branches` wrote it, statement
+What a step of the firmware loop evaluates (`KERNELS`: the right-hand side
+``maglev_dynamics_prepared`` at every RK4 stage, ``maglev_gaps`` and the tick's
+``maglev_coupled_control``) as CasADi and :mod:`maglevgen.codegen.branches` wrote it, statement
 by statement over GCC/Clang vectors of W doubles (``__attribute__((vector_size(8 W)))``):
 every arithmetic statement is the same IEEE operation in each lane, in the same order, so each
 lane's result is bit for bit the scalar function's at the same inputs (no contraction: the
@@ -13,7 +14,9 @@ kernels are compiled -std=c99, which keeps -ffp-contract=off, and without -mfma)
 - A guard of branches.py, ``if (N!=0) {``, runs its block when N is nonzero in *any* lane: no
   work on a branch that every lane discards; where the lanes disagree the block runs for all
   and the select keeps each lane's own side.
-- exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits).
+- exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits);
+  a sin and a cos of one value are one sincos (glibc's gives sin's and cos's bits; the
+  scalar code is compiled to the same call). sqrt is correctly rounded in every form.
   glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
   functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
   checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
