@@ -437,8 +437,8 @@ class SimulationLibrary(GeneratedLibrary):
 
     def _auto_lanes(self, n: int, threads: int) -> int | None:
         """``lanes=0``'s lane count for n runs on ``threads``: the widest this CPU runs that
-        the runs of a thread fill (at least 2), or None (the scalar driver) for a single
-        precision library or where the lane driver does not compile."""
+        the runs of a thread fill, or None (the scalar driver) when a thread has fewer than 2
+        runs, for a single precision library, or where the lane driver does not compile."""
         if self._real != np.float64 or self.sources is None:
             return None
         try:
@@ -446,7 +446,9 @@ class SimulationLibrary(GeneratedLibrary):
         except CompileError:
             return None
         per_thread = n // max(1, threads if threads > 0 else (os.cpu_count() or 1))
-        return max(w for w in (2, 4, 8) if w <= widest and (w == 2 or w <= per_thread))
+        if per_thread < 2:  # one run a thread: the lanes would run their other lanes idle
+            return None
+        return max(w for w in (2, 4, 8) if w <= widest and w <= per_thread)
 
     def simulate_batch(self, runs: list[BatchRun], dt: float, n_steps: int, gap_min: float,
                        n_u: int, n_gaps: int, threads: int = 0,
