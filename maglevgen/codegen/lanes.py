@@ -56,16 +56,20 @@ _HELPERS = """
 #if {guard}
 typedef double V{w} __attribute__((vector_size({bytes})));
 typedef long long VI{w} __attribute__((vector_size({bytes})));
-{math}{target}static V{w} vsincos{w}(V{w} a, V{w}* c) {{
-  V{w} r; int l; for (l = 0; l < {w}; ++l) sincos(a[l], &r[l], &(*c)[l]); return r;
+{math}{target}static __attribute__((unused)) V{w} vsincos{w}(V{w} a, V{w}* c) {{
+  V{w} r; double sl, cl; int l;
+  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); r[l] = sl; (*c)[l] = cl; }}
+  return r;
 }}
-{target}static V{w} vcossin{w}(V{w} a, V{w}* s) {{
-  V{w} r; int l; for (l = 0; l < {w}; ++l) sincos(a[l], &(*s)[l], &r[l]); return r;
+{target}static __attribute__((unused)) V{w} vcossin{w}(V{w} a, V{w}* s) {{
+  V{w} r; double sl, cl; int l;
+  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); (*s)[l] = sl; r[l] = cl; }}
+  return r;
 }}
-{target}static V{w} vsqrt{w}(V{w} a) {{
+{target}static __attribute__((unused)) V{w} vsqrt{w}(V{w} a) {{
   V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = sqrt(a[l]); return r;
 }}
-{target}static int vany{w}(VI{w} m) {{
+{target}static __attribute__((unused)) int vany{w}(VI{w} m) {{
   int l, r = 0; for (l = 0; l < {w}; ++l) r |= m[l] != 0; return r;
 }}"""
 _KERNEL_HEAD = """
@@ -76,6 +80,8 @@ _KERNEL_HEAD = """
   const V{w} ONE = ZERO + 1.0;
   const VI{w} ABS = (VI{w}){{0}} + 0x7fffffffffffffffLL;
   int i;
+  (void)ONE;
+  (void)ABS;
   for (i = 0; i < {n_in}; ++i) arg[i] = (const V{w}*)in[i];
   for (i = 0; i < {n_out}; ++i) res[i] = (V{w}*)out[i];
 """
@@ -83,13 +89,13 @@ _KERNEL_HEAD = """
 # exp, sin and cos of W lanes: libm's per lane (the scalar function's bits), or glibc's
 # libmvec (its vector ABI: b = SSE, d = AVX2, e = AVX-512), within 4 ulp of the rounded result
 _LIBM = """\
-{target}static V{w} v{f}{w}(V{w} a) {{
+{target}static __attribute__((unused)) V{w} v{f}{w}(V{w} a) {{
   V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = {f}(a[l]); return r;
 }}
 """
 _LIBMVEC = """\
 {target}V{w} _ZGV{isa}N{w}v_{f}(V{w} a);
-{target}static V{w} v{f}{w}(V{w} a) {{ return _ZGV{isa}N{w}v_{f}(a); }}
+{target}static __attribute__((unused)) V{w} v{f}{w}(V{w} a) {{ return _ZGV{isa}N{w}v_{f}(a); }}
 """
 _ISA = {2: "b", 4: "d", 8: "e"}
 #: the lane math of `lane_kernels`: libm per lane (bit for bit) or libmvec (link -lmvec)
