@@ -300,3 +300,28 @@ def test_sensed_runs_beside_the_lanes_are_the_scalar_loop(carriage, sim_lib, op)
     for r, s in zip(reference, batch, strict=True):
         if r.loop.sense is not None:
             assert np.array_equal(r.loop.sense.readings, s.loop.sense.readings)
+
+
+def _compile_lanes(cc: str, tmp_path, sim_lib) -> None:
+    """templates/maglev_lanes.c and the library's kernels, -Wall -Wextra -Werror."""
+    import subprocess
+    from pathlib import Path
+
+    kernels = tmp_path / "kernels.c"
+    kernels.write_text(lane_kernels((Path(sim_lib.sources) / "maglev_functions.c").read_text()))
+    driver = Path(__file__).resolve().parents[1] / "templates" / "maglev_lanes.c"
+    proc = subprocess.run([cc, "-std=c99", "-O1", "-fPIC", "-shared", "-Wall", "-Wextra",
+                           "-Werror", f"-I{sim_lib.sources}", str(driver), str(kernels),
+                           str(sim_lib.path), "-o", str(tmp_path / f"lanes_{cc}.so"), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[:2000]
+
+
+@pytest.mark.needs_cc
+def test_the_lane_driver_compiles_without_warnings_gcc(tmp_path, sim_lib) -> None:
+    _compile_lanes("gcc", tmp_path, sim_lib)
+
+
+@pytest.mark.needs_cc("clang")
+def test_the_lane_driver_compiles_without_warnings_clang(tmp_path, sim_lib) -> None:
+    _compile_lanes("clang", tmp_path, sim_lib)
