@@ -38,6 +38,7 @@ import casadi_peer
 import envelope as envelope_bench
 import native
 import peers as peers_bench
+import simd_batch
 import workflow
 import writeup
 from common import BENCH, ROOT, log, paired_ratios, run, summary, time_calls
@@ -898,6 +899,9 @@ def main(argv: list[str] | None = None) -> int:
         ))
         # CasADi's own codegen on the closed loop (issue 53): its own section, kept
         stage("casadi_peer", lambda: casadi_peer.run_section(3 if args.quick else 9))
+        # the lock-step batch in SIMD lanes against the scalar driver (issue 53): kept too
+        stage("simd_batch", lambda: simd_batch.run_section(16 if args.quick else 64,
+                                                           2 if args.quick else 3))
     results["machine"]["loadavg_end"] = os.getloadavg()
     # the Python contenders, measured as stages of their own, in their sections
     for key, section in (("dynamics_python", "dynamics"), ("closed_loop_python", "closed_loop")):

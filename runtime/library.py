@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -23,10 +24,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+from maglevgen.codegen.lanes import lane_kernels
 from maglevgen.codegen.simulate_api import function as api_function
 from maglevgen.derive.structure import Structure, numbered
 from maglevgen.errors import MaglevError
-from maglevgen.infrastructure.cache import cache_root, derivation_fingerprint, sign, signature_ok
+from maglevgen.infrastructure.cache import (
+    cache_root,
+    derivation_fingerprint,
+    sign,
+    signature_ok,
+    write_atomic,
+)
 from maglevgen.infrastructure.hashing import ContentHash, file_sha256, sha256_hex
 from maglevgen.infrastructure.output import write_output
 from maglevgen.runtime.compile import (
@@ -43,6 +51,7 @@ __all__ = [
     "BATCH_SOURCE",
     "CHECKSUMS",
     "COMPARISON_FLAGS",
+    "LANES_SOURCE",
     "SIM_ARGUMENT",
     "BatchRun",
     "ControlLoop",
@@ -60,6 +69,10 @@ __all__ = [
 CHECKSUMS = "checksums.json"
 #: the batch driver (templates/): many maglev_simulate runs per call, OpenMP across them
 BATCH_SOURCE = "maglev_batch.c"
+#: the lane driver (templates/): the same runs W at a time in SIMD lanes (issue 53)
+LANES_SOURCE = "maglev_lanes.c"
+#: the lane kernels' file (maglevgen.codegen.lanes), in a folder of its own keyed by its text
+LANES_KERNELS = "maglev_lanes_kernels.c"
 #: MAGLEV_SIM_ARGUMENT (maglev_simulate.h): the run refused an argument and wrote nothing
 SIM_ARGUMENT = 4
 #: gcc flags of the libraries a build compiles only for its comparisons (`build_libraries`:
@@ -199,6 +212,7 @@ class SimulationLibrary(GeneratedLibrary):
         super().__init__(path, precision)
         self.sources = sources
         self._batch = None
+        self._lanes: dict[str, tuple] = {}  # lane math -> the lane driver's functions
         real = ctypes.c_float if precision == "single" else ctypes.c_double
         ptr = ctypes.POINTER(real)
 
@@ -384,15 +398,79 @@ class SimulationLibrary(GeneratedLibrary):
             self._batch = fn
         return self._batch
 
+    def _lanes_functions(self, cc: str | None = None, math: str = "libm"):
+        """(maglev_lanes_simulate, maglev_lanes_width, the loaded driver):
+        templates/maglev_lanes.c with the lane kernels of this library's functions
+        (maglevgen.codegen.lanes; ``math``: their exp, sin and cos),
+        compiled with -fopenmp against its derivation folder and linked against the library
+        itself (cached as every library is), loaded once."""
+        if math not in self._lanes:
+            if self.sources is None or self._real != np.float64:
+                raise RuntimeError("the lanes run a double library loaded with its sources")
+            from importlib import resources
+
+            kernels = lane_kernels((self.sources / "maglev_functions.c").read_text(),
+                                   math=math)
+            folder = self.path.parent / "lanes" / sha256_hex(kernels.encode())[:24]
+            if not _write_text(folder / LANES_KERNELS, kernels):
+                raise MaglevError(f"cannot write the lane kernels into {folder}")
+            src = Path(str(resources.files("maglevgen.templates") / LANES_SOURCE))
+            flags = (*DEFAULT_FLAGS, f"-I{self.sources}",
+                     *(["-Wl,--no-as-needed,-lmvec"] if math == "libmvec" else []))
+            sources = [src, folder / LANES_KERNELS, self.path]
+            try:
+                lib = compile_shared(sources, (*flags, "-fopenmp"), cc=cc,
+                                     cache_dir=self.path.parent)
+            except CompileError:  # a compiler without OpenMP: the same runs on one thread
+                lib = compile_shared(sources, flags, cc=cc, cache_dir=self.path.parent)
+            if not trusted(lib):
+                raise MaglevError(f"refusing to load {lib}: its signature does not verify")
+            loaded = ctypes.CDLL(str(lib))
+            self._lanes[math] = (self._api(loaded, "maglev_lanes_simulate"),
+                                 self._api(loaded, "maglev_lanes_width"), loaded)
+        return self._lanes[math]
+
+    def lane_width(self, width: int = 0) -> int:
+        """The lanes `simulate_batch` runs with ``lanes=width`` on this CPU (0: the widest
+        it has, 8 with AVX-512F, 4 with AVX2, else 2); 0 when this CPU cannot run ``width``."""
+        return int(self._lanes_functions()[1](width))
+
+    def _auto_lanes(self, n: int, threads: int) -> int | None:
+        """``lanes=0``'s lane count for n runs on ``threads``: the widest this CPU runs that
+        the runs of a thread fill, or None (the scalar driver) when a thread has fewer than 2
+        runs, for a single precision library, or where the lane driver does not compile."""
+        if self._real != np.float64 or self.sources is None:
+            return None
+        try:
+            widest = self.lane_width()
+        except CompileError:
+            return None
+        per_thread = n // max(1, threads if threads > 0 else (os.cpu_count() or 1))
+        if per_thread < 2:  # one run a thread: the lanes would run their other lanes idle
+            return None
+        return max(w for w in (2, 4, 8) if w <= widest and w <= per_thread)
+
     def simulate_batch(self, runs: list[BatchRun], dt: float, n_steps: int, gap_min: float,
-                       n_u: int, n_gaps: int, threads: int = 0) -> list[Run]:
+                       n_u: int, n_gaps: int, threads: int = 0,
+                       lanes: int | None = None, lane_math: str = "libm") -> list[Run]:
         """Every run of ``runs`` as `simulate` makes it (one maglev_simulate call each, the
         same numbers), in one call of the batch driver on ``threads`` threads (0: every core,
-        OpenMP's default)."""
+        OpenMP's default). ``lanes``: None, one maglev_simulate per run (maglev_batch.c);
+        else the lane driver (maglev_lanes.c) with that many lanes (0: `_auto_lanes`: the
+        widest the CPU runs and the runs fill, the scalar driver where there are none): the
+        runs with a tick and no sense tick W at a time in SIMD lanes, the others as
+        maglev_simulate, each run the same numbers (tests/test_simd_batch.py). ``lane_math``
+        "libmvec": the lanes' exp, sin and cos by glibc's libmvec (bench/simd_batch.py's
+        experiment: no longer the scalar run's bits)."""
         real = self._real
         n = len(runs)
         if n == 0:
             return []
+        if lanes == 0:
+            lanes = self._auto_lanes(n, threads)
+        elif lanes is not None and self.lane_width(lanes) == 0:
+            raise ValueError(f"{lanes} lanes: this CPU runs {self.lane_width()} at most "
+                             "(2, 4 or 8)")
 
         def stack(values) -> np.ndarray:
             return np.ascontiguousarray(np.array([np.ravel(v) for v in values], dtype=real))
@@ -417,13 +495,17 @@ class SimulationLibrary(GeneratedLibrary):
         def c(a: np.ndarray):
             return a.ctypes.data_as(P)
 
-        rc = self._batch_function()(
-            ctypes.cast(self._simulate, ctypes.c_void_p), n, threads, n_x, n_u, n_gaps,
-            p.shape[1], c(x0), dt, n_steps, c(fp), c(kp), c(kr), c(ar), loops, c(p), gap_min,
-            c(x), c(u), c(g), last.ctypes.data_as(LP), saturated.ctypes.data_as(LP),
-            status.ctypes.data_as(ctypes.POINTER(ctypes.c_int)))
+        common = (n_x, n_u, n_gaps, p.shape[1], c(x0), dt, n_steps, c(fp), c(kp), c(kr), c(ar),
+                  loops, c(p), gap_min, c(x), c(u), c(g), last.ctypes.data_as(LP),
+                  saturated.ctypes.data_as(LP),
+                  status.ctypes.data_as(ctypes.POINTER(ctypes.c_int)))
+        if lanes is None:
+            rc = self._batch_function()(ctypes.cast(self._simulate, ctypes.c_void_p), n,
+                                        threads, *common)
+        else:
+            rc = self._lanes_functions(math=lane_math)[0](n, lanes, threads, *common)
         if rc != 0:
-            raise RuntimeError("maglev_batch_simulate refused its arguments")
+            raise RuntimeError("the batch driver refused its arguments")
         out = []
         for i in range(n):
             _refused("maglev_simulate", int(status[i]))
@@ -431,6 +513,16 @@ class SimulationLibrary(GeneratedLibrary):
             out.append(Run(int(last[i]), int(status[i]), x[i, :k], u[i, :k], g[i, :k],
                            int(saturated[i])))
         return out
+
+
+def _write_text(path: Path, text: str) -> bool:
+    """``text`` at ``path`` (`write_atomic`), unless the file holds it already."""
+    try:
+        if path.read_text() == text:
+            return True
+    except (OSError, UnicodeDecodeError):
+        pass
+    return write_atomic(path, text.encode())
 
 
 def _refused(name: str, status: int) -> None:

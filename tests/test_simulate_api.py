@@ -138,14 +138,18 @@ def test_ctypes_signatures_match_the_header_and_the_batch_driver(sim_lib,
                                                                  runtime_header: str) -> None:
     """Every argument of maglev_simulate, maglev_launch, maglev_lyapunov_batch (the header
     the library was compiled from) and maglev_batch_simulate (maglev_batch.c): the ctypes
-    argtype is the C type's, in the same place; the return types too; the structs passed by
+    argtype is the C type's, in the same place (and maglev_lanes_simulate, maglev_lanes_width:
+    maglev_lanes.c's); the return types too; the structs passed by
     pointer have the header's members, in order, with their types."""
     structs = _structs(runtime_header)
     protos = _prototypes(runtime_header)
     protos.update(_prototypes((ROOT / "templates" / "maglev_batch.c").read_text()))
+    protos.update(_prototypes((ROOT / "templates" / "maglev_lanes.c").read_text()))
+    lanes_simulate, lanes_width, _ = sim_lib._lanes_functions()
     loaded = {"maglev_simulate": sim_lib._simulate, "maglev_launch": sim_lib._launch,
               "maglev_lyapunov_batch": sim_lib._lyapunov,
-              "maglev_batch_simulate": sim_lib._batch_function()}
+              "maglev_batch_simulate": sim_lib._batch_function(),
+              "maglev_lanes_simulate": lanes_simulate, "maglev_lanes_width": lanes_width}
     for name, fn in loaded.items():
         ret, args = protos[name]
         assert fn.restype is _scalar(ret), name

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from maglevgen.analyses.roa_contact import CONTACT_STARTS, contact_level
-from maglevgen.analyses.simulate import DISTURBANCE, run_loop, simulate
+from maglevgen.analyses.simulate import DISTURBANCE, run_loop, simulate_batch
 from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.lqr import weighted_qr
@@ -70,7 +70,7 @@ from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary
 
 __all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "MAX_BATCH", "MAX_DIRECTIONS", "MAX_SPEEDS",
-           "Confirmation", "Evaluator", "Recovery", "Region",
+           "Confirm", "Confirmation", "Evaluator", "Recovery", "Region",
            "Sampling", "SpeedRegion", "axis_rows", "confirmation_run", "contact_level",
            "default_deviation", "design_weights", "lyapunov_matrix", "recovery_bracket",
            "recovery_lines", "region_markdown", "region_of_attraction", "region_png",
@@ -87,6 +87,8 @@ AXIS_UNITS: dict[str, tuple[str, float]] = {
 SHELL_LOW, SHELL_HIGH = -10, 8
 #: the factor on c when a confirmation run from the boundary does not settle, and how often
 CONFIRM_SHRINK, CONFIRM_ROUNDS = 0.64, 6
+#: the confirmation runs: (deviations, P) -> [(status, V(end) / V(start))] (`confirmation_run`)
+Confirm = Callable[[list[np.ndarray], np.ndarray], list[tuple[str, float]]]
 #: the confirmation runs' length [s] and RK4 step [s]
 CONFIRM_T_END, CONFIRM_DT = 6.0, 1e-3
 
@@ -454,11 +456,10 @@ def sampled_search(failures: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray
 
 def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controller: str,
                  min_gap: float, sampling: Sampling,
-                 confirm: Callable[[np.ndarray, np.ndarray], tuple[str, float]] | None = None
-                 ) -> SpeedRegion:
-    """The region at ``op`` (module docstring); ``confirm(dx, P)``: the status of a
-    closed-loop run from a deviation (10 reduced states) and V's ratio end / start, None: no
-    confirmation runs."""
+                 confirm: Confirm | None = None) -> SpeedRegion:
+    """The region at ``op`` (module docstring); ``confirm(dxs, P)``: the status of a
+    closed-loop run from each deviation (10 reduced states) and V's ratio end / start, None:
+    no confirmation runs."""
     d0 = default_deviation()
     P = lyapunov_matrix(op, controller)
     if P is None:
@@ -489,7 +490,9 @@ def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, cont
         boundary = _boundary_directions(D, P, worst, sampling.confirm)
         for shrinks in range(CONFIRM_ROUNDS + 1):
             r = np.sqrt(level)
-            confirmations = [Confirmation(lbl, *confirm(r * d, P)) for lbl, d in boundary]
+            done = confirm([r * d for _, d in boundary], P)  # one batch
+            confirmations = [Confirmation(lbl, *c)
+                             for (lbl, _), c in zip(boundary, done, strict=True)]
             if all(c.ok for c in confirmations) or shrinks == CONFIRM_ROUNDS:
                 break
             rejected += [c for c in confirmations if not c.ok]
@@ -515,14 +518,13 @@ def speed_region(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, cont
 RECOVERY_TOP, RECOVERY_BISECTIONS = 32.0, 5
 
 
-def recovery_bracket(confirm: Callable[[np.ndarray, np.ndarray], tuple[str, float]],
-                     d: np.ndarray, P: np.ndarray) -> tuple[float, float]:
+def recovery_bracket(confirm: Confirm, d: np.ndarray, P: np.ndarray) -> tuple[float, float]:
     """(lo, hi): the runs of ``confirm`` (the firmware loop) recover from lo d and not from
     hi d (hi inf: recovered up to RECOVERY_TOP d; lo 0: not even from d), multiples doubling
     from 1, then RECOVERY_BISECTIONS bisections. A bracket of the first failure found along
     the ray, not a proof that every smaller multiple recovers."""
     def ok(m: float) -> bool:
-        return Confirmation("", *confirm(m * d, P)).ok
+        return Confirmation("", *confirm([m * d], P)[0]).ok
 
     lo, hi, m = 0.0, float("inf"), 1.0
     while m <= RECOVERY_TOP:
@@ -564,19 +566,24 @@ def _boundary_directions(D: np.ndarray, P: np.ndarray, worst: list[int],
 
 
 def confirmation_run(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
-                     controller: str, min_gap: float, loop: tuple
-                     ) -> Callable[[np.ndarray, np.ndarray], tuple[str, float]]:
-    """(status, V(end) / V(start)) of a hold run from trim + a deviation (10 reduced states),
-    the controller run as ``loop`` = (tick, speed gain, force budget) says
-    (`simulate.run_loop`)."""
+                     controller: str, min_gap: float, loop: tuple) -> Confirm:
+    """[(status, V(end) / V(start))] of hold runs from trim + each deviation (10 reduced
+    states), the controller run as ``loop`` = (tick, speed gain, force budget) says
+    (`simulate.run_loop`): the runs in one batch (`simulate.simulate_batch`: the firmware
+    loop's runs side by side in SIMD lanes, each the run `simulate` makes)."""
     tick, k_v, budget = loop
 
-    def run(dx: np.ndarray, P: np.ndarray) -> tuple[str, float]:
-        disturbance = {s: float(v) for s, v in zip(REDUCED_STATES, dx, strict=True)}
-        traj = simulate(lib, p, op, controller, CONFIRM_T_END, CONFIRM_DT, min_gap,
-                        disturbance, tick=tick, speed_gain=k_v, force_budget=budget)
-        end = traj.x[-1, list(REDUCED_INDEX)] - op.x_trim[list(REDUCED_INDEX)]
-        return traj.status, float(end @ P @ end / (dx @ P @ dx))
+    def run(dxs: list[np.ndarray], P: np.ndarray) -> list[tuple[str, float]]:
+        jobs = [(p, op, controller, {s: float(v) for s, v in zip(REDUCED_STATES, dx,
+                                                                   strict=True)})
+                for dx in dxs]
+        trajs = simulate_batch(lib, jobs, CONFIRM_T_END, CONFIRM_DT, min_gap, tick=tick,
+                               speed_gain=k_v, force_budget=budget, threads=1)
+        out = []
+        for dx, traj in zip(dxs, trajs, strict=True):
+            end = traj.x[-1, list(REDUCED_INDEX)] - op.x_trim[list(REDUCED_INDEX)]
+            out.append((traj.status, float(end @ P @ end / (dx @ P @ dx))))
+        return out
 
     return run
 

@@ -430,11 +430,15 @@ def hold_trajectory(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
 def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
                    t_end: float, dt: float, min_gap: float, tick: Tick | None = None,
                    speed_gain: float = 0.0, force_budget: float | None = None,
-                   threads: int = 0, seeds: Sequence[int] | None = None) -> list[Trajectory]:
+                   threads: int = 0, seeds: Sequence[int] | None = None,
+                   lanes: int | None = 0) -> list[Trajectory]:
     """`simulate` of each job (p, op, controller, disturbance[, controller_op]), the runs in
     one call of the C batch driver on ``threads`` threads (0: every core): the same
     trajectories, in order. At a `SensedTick` each run draws its own noise: from ``seeds``
-    (one per job), else the tick's seed plus the job's place."""
+    (one per job), else the tick's seed plus the job's place. ``lanes``:
+    `SimulationLibrary.simulate_batch`'s (default 0: the tick-held runs W at a time in SIMD
+    lanes where the CPU and the batch allow, the same numbers; None: one maglev_simulate
+    per run)."""
     n_steps = _check_steps(t_end, dt)
     if not jobs:
         return []
@@ -447,7 +451,7 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
             for (p, op, c, d, *design), tk in zip(jobs, ticks, strict=True)]
     op0 = jobs[0][1]
     done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
-                              op0.gaps.size, threads)
+                              op0.gaps.size, threads, lanes)
     out = [hold_trajectory(lib, p, op, c, dt, min_gap, d, run, tk, speed_gain, force_budget)
            for (p, op, c, d, *_), run, tk in zip(jobs, done, ticks, strict=True)]
     for traj, r in zip(out, runs, strict=True):

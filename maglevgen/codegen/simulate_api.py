@@ -1,5 +1,5 @@
-"""The C API of the simulation loop (maglev_simulate.h) and the batch driver (maglev_batch.c)
-as data: each function's return type and arguments, in order.
+"""The C API of the simulation loop (maglev_simulate.h) and the batch drivers (maglev_batch.c,
+maglev_lanes.c) as data: each function's return type and arguments, in order.
 
 One list serves every side of the interface: maglev_simulate.h.j2 renders the prototypes from
 it, the manifest lists it (``simulate_functions``), and the ctypes runtime
@@ -79,6 +79,17 @@ SIMULATE_API: tuple[CFunction, ...] = (
         "maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj, "
         "maglev_real* gap_traj, long long* last, long long* saturated, int* status"),
         declared_in="maglev_batch.c"),
+    # the lane driver (templates/maglev_lanes.c, issue 53): the same runs, W at a time in SIMD
+    # lanes; the lane count it runs (0: the widest this CPU has)
+    CFunction("maglev_lanes_width", "int", _args("int width"), declared_in="maglev_lanes.c"),
+    CFunction("maglev_lanes_simulate", "int", _args(
+        "long long n_runs, int width, int threads, int nx, int nu, int ng, "
+        "long long n_p, const maglev_real* x0, maglev_real dt, long long n_steps, "
+        "const maglev_real* F_prop, const maglev_real* K_pos, const maglev_real* K_rate, "
+        "const maglev_real* a_ref, const maglev_control_loop* loops, const maglev_real* p, "
+        "maglev_real gap_min, maglev_real* x_traj, maglev_real* u_traj, "
+        "maglev_real* gap_traj, long long* last, long long* saturated, int* status"),
+        declared_in="maglev_lanes.c"),
 )
 
 

@@ -1,0 +1,561 @@
+/* maglev_lanes.c: many closed-loop runs of a run-time-parameter library's maglev_simulate in
+   lock step, W runs at once in SIMD lanes (issue 53), on every core (OpenMP; compiled without
+   it, on one).
+
+   Not generated: the same driver serves every carriage. It includes the library's own
+   maglev_simulate.c (-I the library's derivation folder) for the loop's pieces (the tick's
+   command, the delay ring, the saturation, the speed loop, the actuator lag, the gaps and their
+   status) and is linked against the library for the generated functions those pieces call.
+   The generated functions a step spends its time in run in lanes, through the kernels
+   maglevgen.codegen.lanes translates from the library's C, each lane bit for bit the scalar
+   function: the RK4 stages' right-hand side (maglev_dynamics_prepared), the gaps
+   (maglev_gaps) and the tick's coupled control (maglev_coupled_control, which the command's
+   own code takes through lanes_coupled_control); each with the checks the scalar loop's call
+   makes (of p once per run, by one scalar call; of x and the output per lane and call).
+   Everything else is the scalar code of maglev_simulate's run_loop, lane by lane, in its
+   order, so a lane's run is the run maglev_simulate makes (the tests compare every state,
+   input, gap, status and count).
+
+   A lane holds one run; when the run ends (its last step, a contact, a non-finite state, an
+   error) the lane takes the next run of the batch at once, so no lane idles while runs are
+   left and a finished run never touches the others (the lanes share no arithmetic). Runs the
+   lanes do not fly go to maglev_simulate whole: a loop without a tick (the continuous loop),
+   with the sense tick (loop->sense: the firmware's C per run), or with an argument
+   maglev_simulate refuses. */
+/* its maglev_simulate, maglev_launch, ... stay this driver's own (the library exports them) */
+#include "maglev_simulate.h" /* first: the library's functions it declares stay external */
+#include <math.h>
+#pragma GCC visibility push(hidden)
+/* maglev_simulate.c's tick law calls maglev_coupled_control through lanes_coupled_control
+   (below): the lane's u_gen from the lanes' kernel where it has one, else the library's */
+static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                 maglev_real* w, int mem);
+#define maglev_coupled_control lanes_coupled_control
+#include "maglev_simulate.c"
+#undef maglev_coupled_control
+#pragma GCC visibility pop
+
+#include <string.h>
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+#define LANES_MAX 8
+#define ALIGN __attribute__((aligned(8 * LANES_MAX)))
+
+/* the kernels (maglevgen.codegen.lanes, in double: a double library only): in[i] the
+   function's input i, out[j] its output j, each [entry][W] */
+#define LANES_KERNEL(name) int name(const maglev_real* const* in, maglev_real* const* out)
+typedef LANES_KERNEL((*lanes_kernel));
+LANES_KERNEL(maglev_lanes_dynamics_w2);
+LANES_KERNEL(maglev_lanes_gaps_w2);
+LANES_KERNEL(maglev_lanes_control_w2);
+#if defined(__x86_64__)
+LANES_KERNEL(maglev_lanes_dynamics_w4);
+LANES_KERNEL(maglev_lanes_gaps_w4);
+LANES_KERNEL(maglev_lanes_control_w4);
+LANES_KERNEL(maglev_lanes_dynamics_w8);
+LANES_KERNEL(maglev_lanes_gaps_w8);
+LANES_KERNEL(maglev_lanes_control_w8);
+#endif
+
+/* the u_gen the tick's command takes for the lane it runs (NULL: maglev_coupled_control's,
+   computed now); one per thread */
+static __thread const maglev_real* lanes_u_gen;
+
+static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                 maglev_real* w, int mem) {
+    int i;
+    if (lanes_u_gen == 0) return maglev_coupled_control(arg, res, iw, w, mem);
+    for (i = 0; i < 5; ++i) res[0][i] = lanes_u_gen[i];
+    return 0;
+}
+#define NP_MAX 256 /* the most parameters the lanes' gaps take (else maglev_gaps per lane) */
+
+/* the batch: run i's inputs and outputs as maglev_batch_simulate (maglev_batch.c) takes them */
+typedef struct {
+    long long n_runs, n_p, n_steps;
+    const maglev_real *x0, *F_prop, *K_pos, *K_rate, *a_ref, *p;
+    const maglev_control_loop* loops;
+    maglev_real dt, gap_min;
+    maglev_real *x_traj, *u_traj, *gap_traj;
+    long long *last, *saturated;
+    int* status;
+} batch;
+
+/* one lane: the run it flies and run_loop's state of that run between steps */
+typedef struct {
+    long long run; /* -1: none */
+    long long k, n_sat, tick;
+    loop_run r;
+    law_state law;
+    maglev_real fixed[NY], T[NT], buf[NY];
+    maglev_real ring[(MAGLEV_SIM_MAX_DELAY + 1) * NU], applied[NU];
+    maglev_real act[NU], act_half[NU], act_end[NU];
+    maglev_real e_half, e_full;
+    int ring_sat[MAGLEV_SIM_MAX_DELAY + 1];
+    int w, sat, depth, lagged;
+    int gaps_lanes; /* the gaps in lanes: p passed maglev_gaps's checks (lane_start) */
+    int control_lanes; /* the tick's u_gen in lanes: maglev_coupled_control took p */
+    maglev_real u_gen[5]; /* the lane's u_gen from the lanes' kernel at this step's tick */
+} lane;
+
+/* the lanes' stage arrays, [entry][W] */
+typedef struct {
+    double x[NX * LANES_MAX] ALIGN, xt[NX * LANES_MAX] ALIGN;
+    double u[NU * LANES_MAX] ALIGN, u_half[NU * LANES_MAX] ALIGN, u_end[NU * LANES_MAX] ALIGN;
+    double d[ND * LANES_MAX] ALIGN, p[NP_MAX * LANES_MAX] ALIGN, g[NG * LANES_MAX] ALIGN;
+    double K_pos[25 * LANES_MAX] ALIGN, K_rate[25 * LANES_MAX] ALIGN, a_ref[5 * LANES_MAX] ALIGN;
+    double u_gen[5 * LANES_MAX] ALIGN;
+    double k1[NX * LANES_MAX] ALIGN, k2[NX * LANES_MAX] ALIGN, k3[NX * LANES_MAX] ALIGN,
+        k4[NX * LANES_MAX] ALIGN;
+} stage_arrays;
+
+/* run i as maglev_simulate, whole */
+static void scalar_run(const batch* b, long long i) {
+    const long long rows = b->n_steps + 1;
+    b->last[i] = maglev_simulate(b->x0 + i * NX, b->dt, b->n_steps, b->F_prop[i],
+                                 b->K_pos + 25 * i, b->K_rate + 25 * i, b->a_ref + 5 * i,
+                                 b->loops + i, b->p + b->n_p * i, b->gap_min,
+                                 b->x_traj + i * rows * NX, b->u_traj + i * rows * NU,
+                                 b->gap_traj + i * rows * NG, b->saturated + i, b->status + i);
+}
+
+/* the lanes fly run i: the tick-held loop without the sense tick, arguments valid (the checks
+   of maglev_simulate) */
+static int lane_run_ok(const batch* b, long long i) {
+    const maglev_control_loop* loop = b->loops + i;
+    return loop->tick_steps > 0 && loop->sense == 0
+        && run_arguments_ok(b->x0 + i * NX, b->dt, b->n_steps, b->gap_min, b->x_traj,
+                            b->u_traj, b->gap_traj)
+        && isfinite(b->F_prop[i]) && finite_vector(b->K_pos + 25 * i, 25)
+        && finite_vector(b->K_rate + 25 * i, 25) && finite_vector(b->a_ref + 5 * i, 5)
+        && loop_valid(loop) && law_gains_ok(loop);
+}
+
+/* lane l of width W takes run i: maglev_simulate's and run_loop's set-up, d (the prepared
+   constants) into the lane's column. 1: the run is in the lane; 0: it ended already (status
+   and last written) */
+static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const batch* b,
+                      long long i) {
+    const maglev_control_loop* loop = b->loops + i;
+    const maglev_real* p = b->p + b->n_p * i;
+    const maglev_real half = b->dt / (maglev_real)2;
+    maglev_real d[ND];
+    int j;
+    if (!lane_run_ok(b, i)) {
+        scalar_run(b, i);
+        return 0;
+    }
+    b->saturated[i] = 0;
+    ws->arg[0] = p;
+    ws->res[0] = L->T;
+    if (maglev_allocation_matrix(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        b->status[i] = MAGLEV_SIM_ERROR;
+        b->last[i] = 0;
+        return 0;
+    }
+    L->fixed[MAGLEV_SCHEDULE_F_DRAG] = b->F_prop[i];
+    for (j = 0; j < 5; ++j) L->fixed[MAGLEV_SCHEDULE_A_REF + j] = b->a_ref[5 * i + j];
+    for (j = 0; j < 25; ++j) {
+        L->fixed[MAGLEV_SCHEDULE_K_POS + j] = b->K_pos[25 * i + j];
+        L->fixed[MAGLEV_SCHEDULE_K_RATE + j] = b->K_rate[25 * i + j];
+        L->fixed[MAGLEV_SCHEDULE_K_LAG + j] = loop->K_lag != 0 ? loop->K_lag[j] : 0;
+    }
+    for (j = 0; j < 25 * MAGLEV_SIM_MAX_DELAY; ++j) {
+        L->fixed[MAGLEV_SCHEDULE_K_DELAY + j] =
+            loop->K_delay != 0 && j < 25 * loop->delay_ticks ? loop->K_delay[j] : 0;
+    }
+    L->r.schedule = 0;
+    L->r.fixed = L->fixed;
+    L->r.hold_steps = 0;
+    L->r.F_extra = 0;
+    L->r.launch = 0;
+    L->r.v_end = 0;
+    L->r.loop = loop;
+    L->r.T = L->T;
+    L->r.p = p;
+    /* run_loop's */
+    L->tick = loop->tick_steps;
+    L->depth = loop->delay_ticks + 1;
+    L->lagged = loop->tau > 0;
+    L->e_half = loop->tau > 0 ? EXP(-half / loop->tau) : 0;
+    L->e_full = loop->tau > 0 ? EXP(-b->dt / loop->tau) : 0;
+    L->w = 0;
+    L->sat = 0;
+    L->n_sat = 0;
+    for (j = 0; j < NQ + 1; ++j) L->law.in_flight[j] = 0;
+    for (j = 0; j < LAW_NAXES; ++j) L->law.w_hat[j] = 0;
+    L->law.xi = 0;
+    L->law.n_flight = LAW_NAXES * loop->delay_ticks;
+    L->law.h = (maglev_real)L->tick * b->dt;
+    L->law.pole = loop->tau > 0 ? EXP(-L->law.h / loop->tau) : 0;
+    L->law.gain = (maglev_real)1 - L->law.pole;
+    for (j = 0; j < NU; ++j) L->act[j] = 0;
+    ws->arg[0] = p;
+    ws->res[0] = d;
+    if (maglev_dynamics_prepare(ws->arg, ws->res, ws->iw, ws->w, 0)) {
+        b->status[i] = MAGLEV_SIM_ERROR;
+        b->last[i] = 0;
+        return 0;
+    }
+    for (j = 0; j < ND; ++j) S->d[j * W + l] = d[j];
+    /* the gaps in lanes when maglev_gaps takes this p (its checks of p pass for the whole run:
+       p does not change; of x only its output's finiteness is left, checked per step), else
+       maglev_gaps of the lane at each step */
+    L->gaps_lanes = 0;
+    if (b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
+        maglev_real g[NG];
+        L->r.p = p;
+        L->gaps_lanes = sample_gaps(ws, &L->r, b->x0 + i * NX, g) == 0;
+    }
+    for (j = 0; j < b->n_p && j < NP_MAX; ++j) S->p[j * W + l] = p[j];
+    /* the tick's coupled control in lanes likewise, when maglev_coupled_control takes this p
+       and the gains (the gains and a_ref are the run's: checked finite) */
+    L->control_lanes = 0;
+    if (b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
+        maglev_real u_gen[5];
+        ws->arg[0] = b->x0 + i * NX;
+        ws->arg[1] = L->fixed + MAGLEV_SCHEDULE_K_POS;
+        ws->arg[2] = L->fixed + MAGLEV_SCHEDULE_K_RATE;
+        ws->arg[3] = L->fixed + MAGLEV_SCHEDULE_A_REF;
+        ws->arg[4] = p;
+        ws->res[0] = u_gen;
+        L->control_lanes = maglev_coupled_control(ws->arg, ws->res, ws->iw, ws->w, 0) == 0;
+    }
+    for (j = 0; j < 25; ++j) {
+        S->K_pos[j * W + l] = L->fixed[MAGLEV_SCHEDULE_K_POS + j];
+        S->K_rate[j * W + l] = L->fixed[MAGLEV_SCHEDULE_K_RATE + j];
+    }
+    for (j = 0; j < 5; ++j) S->a_ref[j * W + l] = L->fixed[MAGLEV_SCHEDULE_A_REF + j];
+    for (j = 0; j < NX; ++j) b->x_traj[i * (b->n_steps + 1) * NX + j] = b->x0[i * NX + j];
+    L->run = i;
+    L->k = 0;
+    return 1;
+}
+
+static void lane_end(lane* L, const batch* b, int status) {
+    b->status[L->run] = status;
+    b->last[L->run] = L->k;
+    b->saturated[L->run] = L->n_sat;
+    L->run = -1;
+}
+
+static maglev_real* lane_x(const lane* L, const batch* b) {
+    return b->x_traj + (L->run * (b->n_steps + 1) + L->k) * NX;
+}
+
+/* run_loop's step k up to k1 (the tick, the delay, the lag); the lane's x and inputs into its
+   columns. 1: the step goes on; 0: the run ended */
+static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const batch* b,
+                      int ready) {
+    const maglev_real* x = lane_x(L, b);
+    const maglev_real t = (maglev_real)L->k * b->dt;
+    maglev_real* u = b->u_traj + (L->run * (b->n_steps + 1) + L->k) * NU;
+    int i, d;
+    if (!all_finite(x, NX)) {
+        lane_end(L, b, MAGLEV_SIM_NONFINITE);
+        return 0;
+    }
+    if (L->k % L->tick == 0) {
+        const maglev_real* g;
+        maglev_real* slot = L->ring + L->w * NU;
+        int s;
+        if (gains_at(&L->r, x, L->buf, &g)) {
+            lane_end(L, b, MAGLEV_SIM_NONFINITE);
+            return 0;
+        }
+        if (L->k == 0) {
+            for (d = 0; d < L->depth; ++d) {
+                safe_command(&L->r, g, L->ring + d * NU);
+                L->ring_sat[d] = 0;
+            }
+        }
+        /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
+        lanes_u_gen = ready ? L->u_gen : 0;
+        s = command(ws, &L->r, x, t, g, &L->law, slot);
+        lanes_u_gen = 0;
+        if (s < 0) {
+            lane_end(L, b, MAGLEV_SIM_ERROR);
+            return 0;
+        }
+        L->ring_sat[L->w] = s;
+        L->w = (L->w + 1) % L->depth;
+        for (i = 0; i < NU; ++i) L->applied[i] = L->ring[L->w * NU + i];
+        L->sat = L->ring_sat[L->w];
+        L->act[0] = L->applied[0];
+    }
+    if (!L->lagged) {
+        for (i = 0; i < NU; ++i) L->act[i] = L->applied[i];
+    }
+    plant_lag_inputs(L->applied, L->act, NU, L->lagged, L->e_half, L->e_full, L->act_half,
+                     L->act_end);
+    for (i = 0; i < NU; ++i) {
+        u[i] = L->act[i];
+        S->u[i * W + l] = L->act[i];
+        S->u_half[i * W + l] = L->act_half[i];
+        S->u_end[i * W + l] = L->act_end[i];
+    }
+    for (i = 0; i < NX; ++i) S->x[i * W + l] = x[i];
+    return 1;
+}
+
+/* after k1: the gaps (from the lanes' gaps kernel, S->g, or maglev_gaps of the lane) and
+   their status, the last step. 1: the step goes on; 0: the run ended */
+static int lane_check(lane* L, work* ws, const stage_arrays* S, int l, int W, const batch* b) {
+    const maglev_real* x = lane_x(L, b);
+    maglev_real* gaps = b->gap_traj + (L->run * (b->n_steps + 1) + L->k) * NG;
+    int i, s;
+    if (L->gaps_lanes) {
+        for (i = 0; i < NG; ++i) gaps[i] = S->g[i * W + l];
+        if (!all_finite(gaps, NG)) { /* maglev_gaps: an error, its output zeroed */
+            for (i = 0; i < NG; ++i) gaps[i] = 0;
+            lane_end(L, b, MAGLEV_SIM_ERROR);
+            return 0;
+        }
+    } else if (sample_gaps(ws, &L->r, x, gaps)) {
+        lane_end(L, b, MAGLEV_SIM_ERROR);
+        return 0;
+    }
+    if ((s = gap_status(gaps, b->gap_min)) != MAGLEV_SIM_OK || L->k == b->n_steps) {
+        lane_end(L, b, s);
+        return 0;
+    }
+    return 1;
+}
+
+/* the lanes' next state: rk4_combine of each live lane, then the lane's next step */
+static void lane_finish_step(lane* L, const stage_arrays* S, int l, int W, const batch* b) {
+    const maglev_real sixth = b->dt / (maglev_real)6;
+    const maglev_real* x = lane_x(L, b);
+    maglev_real k1[NX], k2[NX], k3[NX], k4[NX];
+    int i;
+    for (i = 0; i < NX; ++i) {
+        k1[i] = S->k1[i * W + l];
+        k2[i] = S->k2[i * W + l];
+        k3[i] = S->k3[i * W + l];
+        k4[i] = S->k4[i * W + l];
+    }
+    for (i = 0; i < NU; ++i) L->act[i] = L->act_end[i];
+    rk4_combine(x, k1, k2, k3, k4, sixth, (maglev_real*)x + NX);
+    L->n_sat += L->sat;
+    L->k += 1;
+}
+
+/* xt = x + h k over every lane (the same operation per lane as run_loop's) */
+static void lanes_axpy(double* xt, const double* x, maglev_real h, const double* k, int W) {
+    int i;
+    for (i = 0; i < NX * W; ++i) xt[i] = x[i] + h * k[i];
+}
+
+/* lane l's stage as maglev_dynamics_prepared checks it (the scalar loop calls it through
+   that check): 1 when its x, u and xdot are finite, 0 where the check returns an error */
+static int lane_stage_ok(const double* x, const double* u, const double* xdot, int l, int W) {
+    int i;
+    for (i = 0; i < NX; ++i) {
+        if (!isfinite(x[i * W + l]) || !isfinite(xdot[i * W + l])) return 0;
+    }
+    for (i = 0; i < NU; ++i) {
+        if (!isfinite(u[i * W + l])) return 0;
+    }
+    return 1;
+}
+
+/* the stage kernel on every lane, then each live lane's check (ok[l] cleared on a failure) */
+static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
+                        const stage_arrays* S, double* xdot, const int* live, int* ok, int W) {
+    const double* in[3];
+    double* out[1];
+    int l;
+    in[0] = x;
+    in[1] = u;
+    in[2] = S->d;
+    out[0] = xdot;
+    (void)kernel(in, out);
+    for (l = 0; l < W; ++l) {
+        if (live[l] && !lane_stage_ok(x, u, xdot, l, W)) ok[l] = 0;
+    }
+}
+
+/* the runs *next hands out, W at a time in lock step, until none is left */
+static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel gaps_kernel,
+                      lanes_kernel control_kernel, long long* next) {
+    lane lanes[LANES_MAX];
+    int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], any_gaps, any_tick;
+    stage_arrays arrays, *S = &arrays;
+    work ws;
+    const maglev_real half = b->dt / (maglev_real)2;
+    int l, any = 1, more = 1;
+    memset(S, 0, sizeof(stage_arrays));
+    for (l = 0; l < W; ++l) lanes[l].run = -1;
+    while (any) {
+        /* the tick's coupled control of the running lanes at a tick, in lanes (a lane that
+           takes a new run below computes its own) */
+        any_tick = 0;
+        for (l = 0; l < W; ++l) {
+            lane* L = lanes + l;
+            ready[l] = 0;
+            if (L->run >= 0 && L->control_lanes && L->k % L->tick == 0) {
+                const maglev_real* x = lane_x(L, b);
+                int i;
+                for (i = 0; i < NX; ++i) S->x[i * W + l] = x[i];
+                ready[l] = any_tick = 1;
+            }
+        }
+        if (any_tick) {
+            const double* in[5];
+            double* out[1];
+            in[0] = S->x;
+            in[1] = S->K_pos;
+            in[2] = S->K_rate;
+            in[3] = S->a_ref;
+            in[4] = S->p;
+            out[0] = S->u_gen;
+            (void)control_kernel(in, out);
+            for (l = 0; l < W; ++l) {
+                int i;
+                if (!ready[l]) continue;
+                for (i = 0; i < 5; ++i) lanes[l].u_gen[i] = S->u_gen[i * W + l];
+                /* a non-finite u_gen (or x): maglev_coupled_control's own answer */
+                ready[l] = all_finite(lanes[l].u_gen, 5) && all_finite(lane_x(&lanes[l], b), NX);
+            }
+        }
+        any = 0;
+        for (l = 0; l < W; ++l) {
+            live[l] = 0;
+            for (;;) {
+                if (lanes[l].run < 0) {
+                    long long i;
+                    if (!more) break;
+#ifdef _OPENMP
+#pragma omp atomic capture
+#endif
+                    i = (*next)++;
+                    if (i >= b->n_runs) {
+                        more = 0;
+                        break;
+                    }
+                    if (!lane_start(&lanes[l], &ws, S, l, W, b, i)) continue;
+                    ready[l] = 0;
+                }
+                if (lane_begin(&lanes[l], &ws, S, l, W, b, ready[l])) {
+                    live[l] = 1;
+                    break;
+                }
+            }
+            any |= live[l];
+        }
+        if (!any) break;
+        for (l = 0; l < W; ++l) ok[l] = 1;
+        lanes_stage(kernel, S->x, S->u, S, S->k1, live, ok, W);
+        any_gaps = 0;
+        for (l = 0; l < W; ++l) {
+            if (live[l] && !ok[l]) {
+                lane_end(&lanes[l], b, MAGLEV_SIM_ERROR); /* run_loop: k1's error */
+                live[l] = 0;
+            }
+            any_gaps |= live[l] && lanes[l].gaps_lanes;
+        }
+        if (any_gaps) {
+            const double* in[2];
+            double* out[1];
+            in[0] = S->x;
+            in[1] = S->p;
+            out[0] = S->g;
+            (void)gaps_kernel(in, out);
+        }
+        for (l = 0; l < W; ++l) {
+            if (live[l]) live[l] = lane_check(&lanes[l], &ws, S, l, W, b);
+        }
+        lanes_axpy(S->xt, S->x, half, S->k1, W);
+        lanes_stage(kernel, S->xt, S->u_half, S, S->k2, live, ok, W);
+        lanes_axpy(S->xt, S->x, half, S->k2, W);
+        lanes_stage(kernel, S->xt, S->u_half, S, S->k3, live, ok, W);
+        lanes_axpy(S->xt, S->x, b->dt, S->k3, W);
+        lanes_stage(kernel, S->xt, S->u_end, S, S->k4, live, ok, W);
+        for (l = 0; l < W; ++l) {
+            if (!live[l]) continue;
+            if (ok[l]) {
+                lane_finish_step(&lanes[l], S, l, W, b);
+            } else {
+                lane_end(&lanes[l], b, MAGLEV_SIM_ERROR); /* run_loop: a stage's error */
+            }
+        }
+    }
+}
+
+/* the widest lanes this CPU runs (8: AVX-512F, 4: AVX2, else 2), or `width` when it is one
+   of those and the CPU has it; 0 for any other width */
+int maglev_lanes_width(int width) {
+    int best = 2;
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx2")) best = 4;
+    if (__builtin_cpu_supports("avx512f")) best = 8;
+#endif
+    if (width == 0) return best;
+    return (width == 2 || width == 4 || width == 8) && width <= best ? width : 0;
+}
+
+/* maglev_batch_simulate's runs (maglev_batch.c, without the function pointer: this driver
+   has maglev_simulate) in lanes of `width` (0: maglev_lanes_width's widest) on `threads`
+   threads (<= 0: OpenMP's default). Returns 0, or -1 when a pointer, a count or the width is
+   invalid (nothing run). */
+int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int nu, int ng,
+                          long long n_p, const maglev_real* x0, maglev_real dt,
+                          long long n_steps, const maglev_real* F_prop,
+                          const maglev_real* K_pos, const maglev_real* K_rate,
+                          const maglev_real* a_ref, const maglev_control_loop* loops,
+                          const maglev_real* p, maglev_real gap_min, maglev_real* x_traj,
+                          maglev_real* u_traj, maglev_real* gap_traj, long long* last,
+                          long long* saturated, int* status) {
+    batch b;
+    lanes_kernel kernel = maglev_lanes_dynamics_w2, gaps_kernel = maglev_lanes_gaps_w2;
+    lanes_kernel control_kernel = maglev_lanes_control_w2;
+    long long next = 0;
+    const int W = maglev_lanes_width(width);
+    if (W == 0 || n_runs < 0 || nx != NX || nu != NU || ng != NG || n_p < 1 || n_steps < 0
+        || x0 == 0 || F_prop == 0 || K_pos == 0 || K_rate == 0 || a_ref == 0 || loops == 0
+        || p == 0 || x_traj == 0 || u_traj == 0 || gap_traj == 0 || last == 0
+        || saturated == 0 || status == 0) {
+        return -1;
+    }
+#if defined(__x86_64__)
+    if (W == 4) {
+        kernel = maglev_lanes_dynamics_w4;
+        gaps_kernel = maglev_lanes_gaps_w4;
+        control_kernel = maglev_lanes_control_w4;
+    }
+    if (W == 8) {
+        kernel = maglev_lanes_dynamics_w8;
+        gaps_kernel = maglev_lanes_gaps_w8;
+        control_kernel = maglev_lanes_control_w8;
+    }
+#endif
+    b.n_runs = n_runs;
+    b.n_p = n_p;
+    b.n_steps = n_steps;
+    b.x0 = x0;
+    b.F_prop = F_prop;
+    b.K_pos = K_pos;
+    b.K_rate = K_rate;
+    b.a_ref = a_ref;
+    b.p = p;
+    b.loops = loops;
+    b.dt = dt;
+    b.gap_min = gap_min;
+    b.x_traj = x_traj;
+    b.u_traj = u_traj;
+    b.gap_traj = gap_traj;
+    b.last = last;
+    b.saturated = saturated;
+    b.status = status;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(threads > 0 ? threads : omp_get_max_threads())
+#else
+    (void)threads;
+#endif
+    lanes_fly(&b, W, kernel, gaps_kernel, control_kernel, &next);
+    return 0;
+}

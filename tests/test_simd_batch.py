@@ -1,0 +1,327 @@
+"""The lock-step batch in SIMD lanes (templates/maglev_lanes.c, maglevgen.codegen.lanes; issue
+53) against the scalar loop it replaces: each run through the lanes against maglev_simulate of
+the same inputs called on its own (`SimulationLibrary.simulate`, the loop checked against
+solve_ivp elsewhere). The lanes evaluate every arithmetic statement of the stage function
+as the scalar code does, per lane, with libm's exp/sin/cos per lane: every state, input and
+gap must be equal to the last bit, the status, the last sample and the saturated steps
+identical, for every lane count this CPU runs and a batch that is no multiple of it."""
+
+from __future__ import annotations
+
+import ctypes
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from maglevgen.analyses.simulate import FirmwareTick, Weights, hold_run, operating_point
+from maglevgen.codegen.lanes import WIDTHS, LaneError, kernel_name, lane_kernels
+from maglevgen.control.sampled import Tick
+
+DT = 1e-3
+TICK = FirmwareTick(250.0, 1, 2e-3)  # 4 steps a tick, one tick's delay, a 2 ms lag
+
+
+def _widths(sim_lib) -> list[int]:
+    return [w for w in WIDTHS if sim_lib.lane_width(w) == w]
+
+
+@pytest.fixture(scope="module")
+def runs(carriage, sim_lib, op):
+    """Eleven runs (no multiple of 2, 4 or 8): two controllers at the nominal parameters, a
+    heavier carriage with its own trim, a force budget that saturates, a disturbance that
+    reaches contact half-way (step 145 of 300), a NaN parameter (the tick's command refuses
+    it at step 0), a speed reference that overflows (the stage's error half-way), the
+    continuous loop and a plain tick (both flown by maglev_simulate whole, beside the
+    lanes)."""
+    p2 = carriage.p.copy()
+    p2[carriage.structure.param_names.index("vehicle.mass")] *= 1.04
+    min_gap = carriage.params.track.min_gap
+    op2 = operating_point(sim_lib, p2, op.speed, min_gap, Weights.of(carriage.params))
+    bad = carriage.p.copy()
+    bad[carriage.structure.param_names.index("vehicle.mass")] = np.nan
+    dist = {"z": 2e-3, "phi": 4e-3}
+    # a speed reference that overflows the propulsion half-way: the stage function's check
+    # (non-finite output) ends the run with an error among running ones
+    overflow = replace(hold_run(carriage.p, op, "spec", DT, dist, TICK, 500.0, 2e3).loop,
+                       accel=1e307)
+
+    def run(p, o, c, d, tick=TICK, budget=2e3):
+        return hold_run(p, o, c, DT, d, tick, 500.0, budget)
+
+    return [run(carriage.p, op, "lqr", dist), run(carriage.p, op, "spec", dist),
+            run(p2, op2, "lqr", {"y": -1e-3}), run(carriage.p, op, "lqr", dist, budget=0.05),
+            run(carriage.p, op, "lqr", {"z": -0.012}),
+            run(bad, op, "lqr", dist), run(carriage.p, op, "lqr", dist, tick=None, budget=None),
+            run(carriage.p, op, "coupled", dist, tick=Tick(250.0, 1)),
+            run(p2, op2, "spec", {"z": -1e-3}), run(carriage.p, op, "lqr", {"theta": 2e-3}),
+            run(carriage.p, op, "spec", {"psi": -3e-3})._replace(loop=overflow)]
+
+
+def _same(a, b) -> bool:
+    return (a.status == b.status and a.last == b.last
+            and a.saturated_steps == b.saturated_steps and np.array_equal(a.x, b.x)
+            and np.array_equal(a.u, b.u) and np.array_equal(a.gaps, b.gaps))
+
+
+def _scalar(sim_lib, runs, n_steps: int, min_gap: float, n_u: int, n_g: int) -> list:
+    return [sim_lib.simulate(r.x0, DT, n_steps, r.f_prop, r.k_pos, r.k_rate, r.a_ref, r.p,
+                             min_gap, n_u, n_g, r.loop) for r in runs]
+
+
+@pytest.mark.needs_cc
+def test_lanes_equal_the_scalar_loop(carriage, sim_lib, op, runs) -> None:
+    """Every lane count the CPU runs, on one and on two threads: each run bit for bit
+    maglev_simulate's. The runs reach what they are meant to (a contact half-way,
+    errors at once and half-way, saturated steps), so the comparison covers a lane ending among
+    running lanes and the lane taking the next run."""
+    n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
+    min_gap = carriage.params.track.min_gap
+    want = _scalar(sim_lib, runs, 300, min_gap, n_u, n_g)
+    statuses = [w.status for w in want]
+    assert statuses[4] == 1 and want[4].last < 200, (statuses[4], want[4].last)
+    assert statuses[5] == 3 and want[5].last == 0  # MAGLEV_SIM_ERROR at once
+    assert statuses[10] == 3 and 0 < want[10].last < 300, want[10].last  # an error half-way
+    assert want[3].saturated_steps > 0
+    assert statuses.count(0) == len(runs) - 3
+    assert _widths(sim_lib)
+    for w in _widths(sim_lib):
+        for threads in (1, 2):
+            got = sim_lib.simulate_batch(runs, DT, 300, min_gap, n_u, n_g, threads, lanes=w)
+            for i, (a, b) in enumerate(zip(want, got, strict=True)):
+                assert _same(a, b), (w, threads, i)
+
+
+@pytest.mark.needs_cc
+def test_lanes_equal_the_scalar_loop_over_ten_seconds(carriage, sim_lib, op, runs) -> None:
+    """The issue's measure: 10 s at 1 kHz (10^4 RK4 steps), the widest lanes, five runs
+    (one lane group of 4 and one run more, or a group of 8 part-filled): every state at the
+    end, and the whole trajectories, bit for bit."""
+    n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
+    min_gap = carriage.params.track.min_gap
+    chosen = [runs[i] for i in (0, 1, 2, 3, 8)]
+    want = _scalar(sim_lib, chosen, 10_000, min_gap, n_u, n_g)
+    assert [w.last for w in want].count(10_000) == 4  # the saturated one touches at 8.5 s
+    got = sim_lib.simulate_batch(chosen, DT, 10_000, min_gap, n_u, n_g, 1, lanes=0)
+    for a, b in zip(want, got, strict=True):
+        assert np.array_equal(a.x[-1], b.x[-1])
+        assert _same(a, b)
+
+
+@pytest.mark.needs_cc
+def test_lane_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
+    """The translated maglev_dynamics_prepared, maglev_gaps and maglev_coupled_control in each
+    lane count against the library's own, lane by lane, on test_branches' poses about the
+    trim (scales 0 to 0.3: the special functions' arguments on both sides of the series
+    switch, test_branches checks that), the poses mixed across lanes so that a lane group's
+    guard runs a block some lanes discard; plus a lane of NaN beside finite ones (the NaN
+    stays in its lane: the others equal)."""
+    prepare = sim_lib.function("maglev_dynamics_prepare")
+    stage = sim_lib.function("maglev_dynamics_prepared")
+    gaps = sim_lib.function("maglev_gaps")
+    control = sim_lib.function("maglev_coupled_control")
+    k_pos, k_rate = (np.ravel(k, order="F") for k in op.gains("lqr"))
+    d = np.ravel(prepare(carriage.p)[0])
+    rng = np.random.default_rng(53)
+    poses = []
+    for scale in (0.0, 1e-3, 0.1, 0.3):
+        for _ in range(4):
+            poses.append((op.x_trim + scale * rng.standard_normal(12),
+                          rng.standard_normal(11) * 100))
+    poses[5] = (np.full(12, np.nan), np.zeros(11))  # 16 poses: every lane count covers all
+    order = rng.permutation(len(poses))
+    kernels = sim_lib._lanes_functions()[2]
+    P = ctypes.POINTER(ctypes.c_double)
+    n_g = op.gaps.size
+    for w in _widths(sim_lib):
+        dynamics, gap_kernel, control_kernel = (
+            getattr(kernels, kernel_name(f, w))
+            for f in ("maglev_dynamics_prepared", "maglev_gaps", "maglev_coupled_control"))
+        for start in range(0, len(poses) - w + 1, w):
+            group = [poses[i] for i in order[start:start + w]]
+            x = _aligned(np.array([g[0] for g in group]).T)
+            u = _aligned(np.array([g[1] for g in group]).T)
+            dd = _aligned(np.repeat(d[:, None], w, axis=1))
+            pp = _aligned(np.repeat(carriage.p[:, None], w, axis=1))
+            xdot, g = _aligned(np.zeros((12, w))), _aligned(np.zeros((n_g, w)))
+            kp, kr, ar = (_aligned(np.repeat(np.asarray(v)[:, None], w, axis=1))
+                          for v in (k_pos, k_rate, op.a_trim))
+            u_gen = _aligned(np.zeros((5, w)))
+            assert control_kernel((P * 5)(*(a.ctypes.data_as(P) for a in (x, kp, kr, ar, pp))),
+                                  (P * 1)(u_gen.ctypes.data_as(P))) == 0
+            assert dynamics((P * 3)(*(a.ctypes.data_as(P) for a in (x, u, dd))),
+                            (P * 1)(xdot.ctypes.data_as(P))) == 0
+            assert gap_kernel((P * 2)(*(a.ctypes.data_as(P) for a in (x, pp))),
+                              (P * 1)(g.ctypes.data_as(P))) == 0
+            for lane, (xs, us) in enumerate(group):
+                if not np.all(np.isfinite(xs)):  # the scalar check refuses it: NaN out
+                    assert not np.all(np.isfinite(xdot[:, lane]))
+                    continue
+                want = np.ravel(stage(xs, us, d)[0])
+                assert np.array_equal(xdot[:, lane], want), (w, start, lane)
+                assert np.array_equal(g[:, lane], np.ravel(gaps(xs, carriage.p)[0])), (w, lane)
+                want = np.ravel(control(xs, k_pos, k_rate, op.a_trim, carriage.p)[0])
+                assert np.array_equal(u_gen[:, lane], want), (w, lane)
+
+
+def _aligned(a: np.ndarray) -> np.ndarray:
+    """A copy of ``a`` (C order) at a 64-byte boundary: the kernels load whole vectors."""
+    buf = np.empty(a.size + 8)
+    skip = (-buf.ctypes.data % 64) // 8
+    out = buf[skip:skip + a.size].reshape(a.shape)
+    out[...] = a
+    return out
+
+
+def test_the_translation_refuses_what_it_does_not_know() -> None:
+    """A statement of a form the lanes do not translate is an error, not C passed through."""
+    body = ("/* f:(x)->(y) */\nstatic int casadi_f0(const casadi_real** arg, "
+            "casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {\n"
+            "  casadi_real a0;\n  a0=arg[0]? arg[0][0] : 0;\n  a0=tanh(a0);\n"
+            "  if (res[0]!=0) res[0][0]=a0;\n  return 0;\n}\n")
+    with pytest.raises(LaneError, match="tanh"):
+        lane_kernels(body, ("f",))
+    ok = body.replace("tanh", "exp")
+    assert "vexp4(a0)" in lane_kernels(ok, ("f",))
+
+
+_MVEC_HARNESS = """
+typedef double V4 __attribute__((vector_size(32)));
+#define F(f) \\
+__attribute__((target("avx2"))) V4 _ZGVdN4v_##f(V4 a); \\
+__attribute__((target("avx2"))) void mvec_##f(const double* a, double* r, long n) { \\
+    long i; int l; \\
+    for (i = 0; i + 4 <= n; i += 4) { \\
+        V4 v, w; for (l = 0; l < 4; ++l) v[l] = a[i + l]; \\
+        w = _ZGVdN4v_##f(v); for (l = 0; l < 4; ++l) r[i + l] = w[l]; \\
+    } \\
+}
+F(exp)
+F(sin)
+F(cos)
+"""
+
+
+@pytest.mark.needs_cc
+def test_libmvec_within_its_bound_against_mpmath(tmp_path, sim_lib) -> None:
+    """The lanes' other math (``lane_math="libmvec"``, bench/simd_batch.py's experiment):
+    glibc's AVX2 exp, sin and cos against mpmath at 50 digits, within 4 ulp (glibc's stated
+    bound for libmvec) over exp's whole finite range, sin and cos on [-1000, 1000] and on the
+    small angles the model takes them of (|a| <= 0.5)."""
+    import subprocess
+
+    import mpmath
+
+    if sim_lib.lane_width(4) != 4:
+        pytest.skip("no AVX2 on this CPU")
+    src = tmp_path / "mvec.c"
+    src.write_text(_MVEC_HARNESS)
+    lib_path = tmp_path / "libmvec_harness.so"
+    subprocess.run(["gcc", "-std=c99", "-O2", "-fPIC", "-shared", str(src), "-o",
+                    str(lib_path), "-Wl,--no-as-needed,-lmvec", "-lm"], check=True)
+    lib = ctypes.CDLL(str(lib_path))
+    rng = np.random.default_rng(53)
+    domains = {"exp": [(-745.0, 709.0), (-1.0, 1.0)],
+               "sin": [(-1000.0, 1000.0), (-0.5, 0.5)], "cos": [(-1000.0, 1000.0), (-0.5, 0.5)]}
+    mpmath.mp.dps = 50
+    worst = {}
+    for name, ranges in domains.items():
+        a = np.concatenate([rng.uniform(lo, hi, 400) for lo, hi in ranges])
+        r = np.zeros_like(a)
+        fn = getattr(lib, f"mvec_{name}")
+        real_p = ctypes.POINTER(ctypes.c_double)
+        fn(a.ctypes.data_as(real_p), r.ctypes.data_as(real_p), ctypes.c_long(a.size))
+        errs = []
+        for x, got in zip(a, r, strict=True):
+            ref = getattr(mpmath, name)(mpmath.mpf(float(x)))
+            ulp = np.spacing(abs(float(ref))) if float(ref) != 0 else 5e-324
+            if abs(float(ref)) < 2.2250738585072014e-308:  # subnormal results: absolute
+                ulp = 5e-324
+            errs.append(float(abs(mpmath.mpf(float(got)) - ref)) / ulp)
+        worst[name] = max(errs)
+    assert all(v <= 4.0 for v in worst.values()), worst
+
+
+@pytest.mark.needs_cc
+def test_roa_confirmation_batch_equals_single_runs(carriage, sim_lib, op) -> None:
+    """roa's confirmation runs of one round go in one batch (the lanes): each (status,
+    V(end) / V(start)) is the one `simulate` gives for its deviation alone."""
+    from maglevgen.analyses import roa
+    from maglevgen.analyses.simulate import run_loop, simulate
+    from maglevgen.control.carriage_plant import Plant
+
+    min_gap = carriage.params.track.min_gap
+    tick, k_v, budget = loop = run_loop(Plant(carriage, sim_lib), "firmware")
+    P = roa.lyapunov_matrix(op, "spec")
+    assert P is not None
+    d0 = roa.default_deviation()
+    dxs = [m * d0 for m in (0.5, 1.0, -2.0, 40.0)]
+    got = roa.confirmation_run(sim_lib, carriage.p, op, "spec", min_gap, loop)(dxs, P)
+    index = list(roa.REDUCED_INDEX)
+    for dx, (status, ratio) in zip(dxs, got, strict=True):
+        traj = simulate(sim_lib, carriage.p, op, "spec", roa.CONFIRM_T_END, roa.CONFIRM_DT,
+                        min_gap, dict(zip(roa.REDUCED_STATES, map(float, dx), strict=True)),
+                        tick=tick, speed_gain=k_v, force_budget=budget)
+        end = traj.x[-1, index] - op.x_trim[index]
+        assert (status, ratio) == (traj.status, float(end @ P @ end / (dx @ P @ dx)))
+
+
+@pytest.mark.needs_cc
+def test_sensed_runs_beside_the_lanes_are_the_scalar_loop(carriage, sim_lib, op) -> None:
+    """Runs on the sensors (the firmware's sense tick: its own C per run) stay on the scalar
+    path inside the lane driver, between runs that the lanes fly: every run equal to its
+    maglev_simulate, the sense ticks' recorded readings too."""
+    from maglevgen.analyses.simulate import run_loop
+    from maglevgen.control.carriage_plant import Plant
+
+    plant = Plant(carriage, sim_lib)
+    sensed, k_v, budget = run_loop(plant, "sensed")
+    firmware = run_loop(plant, "firmware")
+    min_gap = carriage.params.track.min_gap
+    n_u, n_g, n = op.allocation.shape[0] + 1, op.gaps.size, 200
+
+    def runs():  # made afresh: a sensed run's sense state is its own
+        out = []
+        for k, d in enumerate(({"z": 1e-3}, {"phi": 2e-3}, {"y": -1e-3}, {"z": -2e-3},
+                               {"theta": 1e-3})):
+            tick, kv, fb = (sensed, k_v, budget) if k % 2 == 0 else firmware
+            out.append(hold_run(carriage.p, op, "spec", DT, d, tick, kv, fb, n_steps=n))
+        return out
+
+    want = _scalar(sim_lib, runs(), n, min_gap, n_u, n_g)
+    batch = runs()
+    got = sim_lib.simulate_batch(batch, DT, n, min_gap, n_u, n_g, 1, lanes=0)
+    reference = runs()
+    for r in reference:
+        sim_lib.simulate(r.x0, DT, n, r.f_prop, r.k_pos, r.k_rate, r.a_ref, r.p, min_gap,
+                         n_u, n_g, r.loop)
+    for i, (a, b) in enumerate(zip(want, got, strict=True)):
+        assert _same(a, b), i
+    for r, s in zip(reference, batch, strict=True):
+        if r.loop.sense is not None:
+            assert np.array_equal(r.loop.sense.readings, s.loop.sense.readings)
+
+
+def _compile_lanes(cc: str, tmp_path, sim_lib) -> None:
+    """templates/maglev_lanes.c and the library's kernels, -Wall -Wextra -Werror."""
+    import subprocess
+    from pathlib import Path
+
+    kernels = tmp_path / "kernels.c"
+    kernels.write_text(lane_kernels((Path(sim_lib.sources) / "maglev_functions.c").read_text()))
+    driver = Path(__file__).resolve().parents[1] / "templates" / "maglev_lanes.c"
+    proc = subprocess.run([cc, "-std=c99", "-O1", "-fPIC", "-shared", "-Wall", "-Wextra",
+                           "-Werror", f"-I{sim_lib.sources}", str(driver), str(kernels),
+                           str(sim_lib.path), "-o", str(tmp_path / f"lanes_{cc}.so"), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[:2000]
+
+
+@pytest.mark.needs_cc
+def test_the_lane_driver_compiles_without_warnings_gcc(tmp_path, sim_lib) -> None:
+    _compile_lanes("gcc", tmp_path, sim_lib)
+
+
+@pytest.mark.needs_cc("clang")
+def test_the_lane_driver_compiles_without_warnings_clang(tmp_path, sim_lib) -> None:
+    _compile_lanes("clang", tmp_path, sim_lib)
