@@ -88,9 +88,10 @@ def _bare_runs(study, lib, n: int) -> tuple[list, int, int]:
         prepared = _prepare(study, i, lib)
         if isinstance(prepared, list):
             continue
-        p, op, dist, _row = prepared
+        p, op, design, dist, _row = prepared
         runs.append(hold_run(p, op, study.controllers[0], study.dt, dist, study.tick,
-                             study.speed_gain, study.force_budget))
+                             study.speed_gain, study.force_budget, controller_op=design,
+                             n_steps=round(study.t_end / study.dt)))
         n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     return runs, n_u, n_g
 
