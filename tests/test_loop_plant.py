@@ -349,7 +349,8 @@ def test_spec_verdict_is_its_design_at_the_tick_on_the_lagged_loop(carriage, sim
     assert e.meets_spec and not e.continuous_gains.meets_spec
     said = env.firmware_design("spec")
     assert "2 ms actuator lag" in said and "meets [control.spec]" in said
-    assert "runs the same law" in said and "on the plant with the actuator lag" in said
+    assert "the same law (one C source)" in said and "sense tick" in said
+    assert "on the plant with the actuator lag" in said
     assert "continuous spec LQR gains on the same loop: FAILS damping ratio >= 0.5" in said
     assert e.margins is not None and "disk margins at the actuators" in e.spec_verdict
 
