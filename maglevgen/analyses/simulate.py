@@ -235,8 +235,9 @@ def spec_verdict(traj: Trajectory) -> RunVerdict | None:
 def run_status(traj: Trajectory) -> str:
     """What a run did: ``contact`` (a gap reached track.min_gap), ``diverging`` (a state
     became non-finite, or the deviation's peak grew from the first quarter of the run to the
-    last where the linearised closed loop is not stable), ``settled`` (every axis within
-    SETTLING_BAND of its peak deviation for the rest of the run) or ``not settled``.
+    last, beyond GROWTH_FLOOR, where the linearised closed loop is not stable), ``settled``
+    (every axis within SETTLING_BAND of its peak deviation for the rest of the run) or
+    ``not settled``.
 
     A hold run whose linearised closed loop at its trim is stable is not called diverging for
     a growing peak: over a run short against the slowest mode (about 15 s for the LQRs), the
@@ -263,13 +264,17 @@ def _status(traj: Trajectory, growth: float | None,
 
 
 def _growth_rate(t: np.ndarray, deviation: np.ndarray) -> float | None:
-    """`Trajectory.growth_rate` of the axis deviations ``deviation`` sampled at ``t``."""
+    """`Trajectory.growth_rate` of the axis deviations ``deviation`` sampled at ``t``: the
+    fastest growth of an axis's peak from the first quarter to the last, over the axes whose
+    last peak is above GROWTH_FLOOR (0 when none is: a run that stays that close to its trim
+    does not diverge, whatever its noise floor does; an undisturbed run on the sensors starts
+    at zero and ends at the noise's peak)."""
     n = t.size // 4
     if n < 2:
         return None
     dev = np.abs(deviation)
     first, last = dev[:n].max(axis=0), dev[-n:].max(axis=0)
-    ok = first > 0
+    ok = (first > 0) & (last > GROWTH_FLOOR)
     if not np.any(ok):
         return 0.0
     span = t[-n:].mean() - t[:n].mean()
@@ -571,6 +576,9 @@ def reference_check(functions, p: np.ndarray, traj: Trajectory) -> dict:
 # propulsion force the carriage slowly accelerates, which tilts it quasi-statically by a few
 # percent of the disturbance; that offset is not an oscillation left unsettled.)
 SETTLING_BAND = 0.05
+#: a deviation whose peak stays below this (each axis: SETTLING_BAND of the default
+#: disturbance, 50 um and 0.1 mrad) is not growth (`_growth_rate`)
+GROWTH_FLOOR = SETTLING_BAND * np.array([DISTURBANCE[k] for k in Q_STATES])
 
 
 def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND) -> float | None:
