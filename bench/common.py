@@ -97,3 +97,24 @@ def worst_stack(ci: str, root: str) -> int:
                                     if g not in seen), default=0)
 
     return worst(root, frozenset())
+
+
+def study_runs(study, lib, n: int) -> tuple[list, int, int]:
+    """The C batch driver's inputs (`simulate.hold_run`) for a Monte-Carlo study's first n
+    samples, every controller, prepared once as the study prepares them (its `_prepare`: the
+    sample's carriage, the nominal design, the disturbance): (runs, inputs, gaps)."""
+    from maglevgen.analyses.montecarlo import _prepare
+    from maglevgen.analyses.simulate import hold_run
+
+    runs, n_u, n_g = [], 0, 0
+    n_steps = round(study.t_end / study.dt)
+    for i in range(n):
+        prepared = _prepare(study, i, lib)
+        if isinstance(prepared, list):  # rejected, or no trim: no run
+            continue
+        p, op, design, dist, _row = prepared
+        for c in study.controllers:
+            runs.append(hold_run(p, op, c, study.dt, dist, study.tick, study.speed_gain,
+                                 study.force_budget, controller_op=design, n_steps=n_steps))
+        n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
+    return runs, n_u, n_g

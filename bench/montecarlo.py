@@ -21,17 +21,16 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import BENCH, log, paired_ratios, summary
+from common import BENCH, log, paired_ratios, study_runs, summary
 
 from maglevgen.analyses.montecarlo import (
-    _prepare,
     default_chunk,
     make_study,
     run_local,
     sample_inputs,
     sample_parameters,
 )
-from maglevgen.analyses.simulate import AXIS_STATES, hold_run, run_loop
+from maglevgen.analyses.simulate import AXIS_STATES, run_loop
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import operating_point
@@ -81,21 +80,6 @@ def _python_sample(carriage: DerivedCarriage, study, lib, i: int) -> float:
     return t_trim + time.perf_counter() - t0
 
 
-def _bare_runs(study, lib, n: int) -> tuple[list, int, int]:
-    """The C batch driver's inputs for the study's first n samples, prepared once."""
-    runs, n_u, n_g = [], 0, 0
-    for i in range(n):
-        prepared = _prepare(study, i, lib)
-        if isinstance(prepared, list):
-            continue
-        p, op, design, dist, _row = prepared
-        runs.append(hold_run(p, op, study.controllers[0], study.dt, dist, study.tick,
-                             study.speed_gain, study.force_budget, controller_op=design,
-                             n_steps=round(study.t_end / study.dt)))
-        n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
-    return runs, n_u, n_g
-
-
 def run(quick: bool = False, big: int | None = None) -> dict:
     carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
@@ -107,7 +91,7 @@ def run(quick: bool = False, big: int | None = None) -> dict:
     n = 40 if quick else 400
     repeats = 2 if quick else 3
     big = big if big is not None else (0 if quick else 10_000)
-    runs, n_u, n_g = _bare_runs(study, lib, n)
+    runs, n_u, n_g = study_runs(study, lib, n)
     n_steps = round(T_END / DT)
     lib.simulate_batch(runs[:2], DT, n_steps, study.min_gap, n_u, n_g, 1)  # the driver, once
     log(f"montecarlo: {n} samples x {repeats}: the bare C loop, the study on 1 and {cores} "

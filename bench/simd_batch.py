@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import BENCH, log, paired_ratios, replace_section, summary
+from common import BENCH, log, paired_ratios, replace_section, study_runs, summary
 
-from maglevgen.analyses.montecarlo import _prepare, default_chunk, make_study
-from maglevgen.analyses.simulate import hold_run, run_loop
+from maglevgen.analyses.montecarlo import default_chunk, make_study
+from maglevgen.analyses.simulate import run_loop
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.codegen.lanes import WIDTHS
 from maglevgen.control.carriage_plant import Plant
@@ -41,22 +41,6 @@ from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
 
 T_END, DT = 10.0, 1e-3
-
-
-def _runs(study, lib, n: int) -> tuple[list, int, int]:
-    """The batch driver's inputs for the study's first n samples (as run_samples_batch makes
-    them), prepared once."""
-    runs, n_u, n_g = [], 0, 0
-    for i in range(n):
-        prepared = _prepare(study, i, lib)
-        if isinstance(prepared, list):
-            continue
-        p, op, design, dist, _row = prepared
-        for c in study.controllers:
-            runs.append(hold_run(p, op, c, study.dt, dist, study.tick, study.speed_gain,
-                                 study.force_budget, design))
-        n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
-    return runs, n_u, n_g
 
 
 def _max_rel(a: np.ndarray, b: np.ndarray) -> float:
@@ -78,7 +62,7 @@ def measure(samples: int, reps: int) -> dict:
     controller = carriage.params.envelope.embedded_controller
     tick, k_v, budget = run_loop(plant, "firmware")
     study = make_study(plant, (controller,), T_END, DT, 0, tick, k_v, budget)
-    runs, n_u, n_g = _runs(study, lib, samples)
+    runs, n_u, n_g = study_runs(study, lib, samples)
     n_steps = round(T_END / DT)
     size = default_chunk(10_000, 2)  # the chunk of `maglevgen montecarlo --samples 10000`
     widths = [w for w in WIDTHS if lib.lane_width(w) == w]
