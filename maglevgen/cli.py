@@ -333,15 +333,16 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def cmd_fmu(args: argparse.Namespace) -> int:
-    from maglevgen.exports.fmu import FMI_VERSIONS
+    from maglevgen.exports.fmu import FMI_VERSIONS, default_loop
 
     carriage = _carriage(args)
     _announce(f"fmu: FMI {FMI_VERSIONS[args.fmi].label} {args.kind} FMU, compiled and checked")
     path = carriage.fmu(args.out, args.kind, args.controller, args.fmi, args.loop,
                         progress=True, allow_unstable=args.allow_unstable)
     controller = args.controller or carriage.params.envelope.embedded_controller
+    loop = args.loop or default_loop(carriage.params, controller)
     print(f"wrote {shown_name(path.resolve())} (FMI {FMI_VERSIONS[args.fmi].label}, {args.kind}, "
-          f"controller {controller}, {args.loop} loop, {path.stat().st_size} bytes)")
+          f"controller {controller}, {loop} loop, {path.stat().st_size} bytes)")
     return 0
 
 
@@ -584,8 +585,12 @@ def build_parser() -> argparse.ArgumentParser:
     fmu.add_argument("--fmi", choices=tuple(FMI_VERSIONS), default=DEFAULT_FMI,
                      help="FMI version: 2 (2.0, the default: every importer reads it) or 3 "
                           "(3.0); the same variables, controllers and start values")
-    fmu.add_argument("--loop", choices=FMU_LOOPS, default="firmware",
-                     help="firmware (default): the loop as built, as `simulate --loop "
+    fmu.add_argument("--loop", choices=FMU_LOOPS, default=None,
+                     help="sensed (default for the embedded controller where the file has "
+                          "[sensors]): the firmware's sense tick inside the FMU on the plant's "
+                          "noisy readings (noise_seed, noise_scale, sensor.*); "
+                          "firmware (the default otherwise): the loop as built on the exact "
+                          "state, as `simulate --loop "
                           "firmware` flies it: the built-in controller's tick law at the tick "
                           "of [control.spec] with its delay and design gains, the speed loop "
                           "and its integral, the force budget, each array force's lag in the "

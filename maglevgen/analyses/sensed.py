@@ -40,6 +40,7 @@ class SensedFirmware:
     layout: SensorLayout
     library: SenseLibrary
     params: object  # the carriage's parameters (its [sensors]: the runs' noise)
+    files: dict[str, str]  # the double-precision folder it was compiled from (the FMU's too)
 
 
 #: each plant's firmware for the host, kept while the plant lives: rendering its tables
@@ -68,4 +69,4 @@ def _render(plant: Plant) -> SensedFirmware:
     files = render_firmware(carriage, plant.gain_table(v_min, v_max), loop, "double",
                             sense=sense)
     return SensedFirmware(loop, float(v_min), float(v_max), layout, sense_library(files),
-                          params)
+                          params, files)

@@ -221,7 +221,7 @@ class Writers(CarriageCore):
                             res.latex.seconds, tuple(res.failed_checks))
 
     def fmu(self, out: str | Path, kind: str = "both", controller: str | None = None,
-            fmi: str = DEFAULT_FMI, loop: str = "firmware", progress: bool = False,
+            fmi: str = DEFAULT_FMI, loop: str | None = None, progress: bool = False,
             allow_unstable: bool = False) -> Path:
         """Export an FMI 2.0 or 3.0 FMU of the carriage with its controller, as ``maglevgen
         fmu``.
@@ -239,13 +239,17 @@ class Writers(CarriageCore):
         fmi : {'2', '3'}, optional
             The FMI version (``--fmi``): 2.0 (default,
             ``maglevgen.exports.fmu.DEFAULT_FMI``) or 3.0, the same variables.
-        loop : {'firmware', 'continuous'}, optional
-            ``--loop``: the loop as built, as ``simulate(loop="firmware")`` flies it
-            (default): the built-in controller's tick law at the tick of ``[control.spec]``
-            with its delay and its gains at the tick, the speed loop and its integral, the
-            force budget and each array force's first-order lag in the plant (model
-            exchange: as continuous states); or the paper's law at every derivative
-            evaluation (the start values of the FMU's tick parameters).
+        loop : {'sensed', 'firmware', 'continuous'}, optional
+            ``--loop``: ``"sensed"``, the loop as a carriage flies it: the embedded
+            controller's firmware sense tick (its Kalman filter and law, the firmware's C
+            inside the FMU) on the plant's readings of ``[sensors]`` with noise the FMU
+            draws from ``noise_seed``; ``"firmware"``, the loop as built on the exact state,
+            as ``simulate(loop="firmware")`` flies it: the built-in controller's tick law at
+            the tick of ``[control.spec]`` with its delay and its gains at the tick, the speed
+            loop and its integral, the force budget and each array force's first-order lag in
+            the plant (model exchange: as continuous states); ``"continuous"``, the paper's
+            law at every derivative evaluation. Default: ``"sensed"`` for the embedded
+            controller where the file has ``[sensors]``, else ``"firmware"``.
         progress : bool, optional
             Announce the slow steps (code generation, compilation) on stderr.
         allow_unstable : bool, optional
@@ -281,7 +285,8 @@ class Writers(CarriageCore):
 
         # every choice before the verification (minutes) that the embedded controller gets
         for option, value, choices in (("--kind", kind, KINDS), ("--fmi", fmi, FMI_VERSIONS),
-                                       ("--loop", loop, FMU_LOOPS)):
+                                       *((("--loop", loop, FMU_LOOPS),) if loop is not None
+                                         else ())):
             check_choice_text(option, value)
             if value not in choices:
                 raise InputError(f"{option} {value!r}: expected one of {', '.join(choices)}")
@@ -305,7 +310,8 @@ class Writers(CarriageCore):
 
             plant = self.__dict__["_plant"] = Plant(
                 self._carriage, progress=steps.step if progress else quiet)
-        data = build_fmu(plant, kind, controller, fmi=fmi, loop=loop_of(loop, FMU_LOOPS),
+        data = build_fmu(plant, kind, controller, fmi=fmi,
+                         loop=None if loop is None else loop_of(loop, FMU_LOOPS),
                          progress=steps.step if progress else quiet, verdict=verdict)
         (path,) = write_output({FMU_NAME: data}, Path(out))
         return path

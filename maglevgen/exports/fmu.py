@@ -26,7 +26,7 @@ import re
 import uuid
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from maglevgen.control.carriage_plant import Plant
     from maglevgen.control.operating import OperatingPoint
     from maglevgen.control.plant import LoopDesign
+    from maglevgen.exports.fmu_sense import FmuSense
 
 __all__ = [
     "DEFAULT_FMI",
@@ -64,6 +65,7 @@ __all__ = [
     "Progress",
     "build_fmu",
     "build_model",
+    "default_loop",
     "fmi3_base_unit",
     "fmi_headers",
     "fmu_controllers",
@@ -87,9 +89,17 @@ DEFAULT_INTERNAL_STEP = 1e-3  # [s] the RK4 step of `maglevgen simulate`'s defau
 # (maglevgen.control.carriage_plant.Plant.loop and firmware_gains: the tick law of
 # templates/maglev_tick_law.c.j2 at the tick of [control.spec] with its delay and the
 # controller's gains at the tick, the speed loop and its integral, the force budget, each array
-# force's first-order lag in the plant, as continuous states in model exchange), "continuous"
-# the paper's law at every derivative evaluation
-FMU_LOOPS: tuple[str, ...] = ("firmware", "continuous")
+# force's first-order lag in the plant, as continuous states in model exchange), "sensed" that
+# loop with the embedded controller's sense tick on the noisy readings of [sensors]
+# (maglevgen.exports.fmu_sense), "continuous" the paper's law at every derivative evaluation
+FMU_LOOPS: tuple[str, ...] = ("firmware", "sensed", "continuous")
+
+
+def default_loop(params, controller: str) -> str:
+    """The FMU's loop where none is asked, as a carriage flies: "sensed" for the embedded
+    controller where the file has [sensors], else "firmware"."""
+    embedded = params.envelope.embedded_controller
+    return "sensed" if controller == embedded and params.sensors is not None else "firmware"
 
 
 @dataclass(frozen=True)
@@ -101,7 +111,9 @@ class FmuTick:
     ``k_delay`` (25 MAX_DELAY_TICKS, of which a loop reads its first 25 delay_ticks): the tick
     law's gains on the predicted lagged generalized forces and on those in flight, column-major
     (templates/maglev_tick_law.c.j2; empty: zero); ``firmware``: the loop as built, whose FMU
-    carries the lagged array forces as continuous states (model exchange integrates them)."""
+    carries the lagged array forces as continuous states (model exchange integrates them);
+    ``sense``: that loop on the sensors (the firmware's sense tick computes the command; the
+    other gains above are its tables' and are fixed)."""
 
     rate: float = 0.0  # [Hz]
     delay: int = 0  # [ticks]
@@ -112,6 +124,7 @@ class FmuTick:
     k_lag: tuple[float, ...] = ()
     k_delay: tuple[float, ...] = ()
     firmware: bool = False
+    sense: FmuSense | None = None
 
 
 @dataclass(frozen=True)
@@ -253,6 +266,7 @@ class FmuModel:
     kind: str
     manifest: dict
     structure: Structure
+    sense: FmuSense | None = None  # the sensed loop's sensors and firmware (`fmu_sense`)
 
     def first(self, group: str) -> int:
         return next((i for i, v in enumerate(self.variables) if v.group == group), -1)
@@ -355,11 +369,44 @@ def fmu_variables(manifest: dict, structure: Structure, controller: FmuControlle
                             f"{i // na % na + 1} computed {i // (na * na) + 1} tick(s) before "
                             f"to generalized force {i % na + 1} (columns past 5 delay_ticks "
                             "unused)" + fixed, "tick") for i, v in enumerate(k_delay)]
+    if controller.law == "axis" and t.sense is not None:
+        out += _sense_variables(t.sense)
     if kind in ("cs", "both"):
         out.append(FmuVariable("rk4_step", "parameter", "fixed", "exact", DEFAULT_INTERNAL_STEP,
                                "s", "internal RK4 step of co-simulation; every communication "
                                "step must be a whole multiple of it", "step"))
     return tuple(out)
+
+
+def _sense_variables(sense: FmuSense) -> list[FmuVariable]:
+    """The sensed loop's noise parameters and each reading as the last tick took it."""
+    from maglevgen.exports.fmu_sense import NOISE_GENERATOR
+
+    fixed = " (fixed: set before initialization)"
+    out = [
+        FmuVariable("noise_seed", "parameter", "fixed", "exact", 0.0, "1",
+                    f"the readings' noise generator's seed, a whole number in [0, 2^53] "
+                    f"({NOISE_GENERATOR})" + fixed, "sense"),
+        FmuVariable("noise_scale", "parameter", "fixed", "exact", 1.0, "1",
+                    "every reading's noise, bias and resolution times this (0: exact "
+                    "readings)" + fixed, "sense")]
+    for name, unit, noise, bias, step in zip(sense.names, sense.units, sense.noise, sense.bias,
+                                             sense.resolution, strict=True):
+        out += [
+            FmuVariable(f"sensor.{name}.noise", "parameter", "fixed", "exact", noise, unit,
+                        f"RMS of {name}'s white noise at the tick (after its anti-alias "
+                        "filter; the rounding to its resolution adds its own)" + fixed,
+                        "sense"),
+            FmuVariable(f"sensor.{name}.bias", "parameter", "fixed", "exact", bias, unit,
+                        f"{name}'s in-run bias, its sign drawn once per run" + fixed, "sense"),
+            FmuVariable(f"sensor.{name}.resolution", "parameter", "fixed", "exact", step, unit,
+                        f"{name} rounded to a multiple of this (0: not rounded)" + fixed,
+                        "sense")]
+    out += [FmuVariable(f"reading.{name}", "output", "discrete", "calculated", None, unit,
+                        f"{name} as the firmware read it at the last tick (noise and rounding "
+                        "included)", "reading")
+            for name, unit in zip(sense.names, sense.units, strict=True)]
+    return out
 
 
 def _padded(values: tuple[float, ...], n: int) -> tuple[float, ...]:
@@ -384,7 +431,7 @@ def build_model(manifest: dict, structure: Structure, controller: str, kind: str
                          f"{', '.join(controllers)}")
     ctl = controllers[controller]
     return FmuModel(fmu_variables(manifest, structure, ctl, kind, tick), ctl, kind, manifest,
-                    structure)
+                    structure, None if tick is None else tick.sense)
 
 
 def _xml_escape(text: str) -> str:
@@ -413,14 +460,15 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
     pnames = [e["name"] for e in man["parameter_vector"]]
     used = ["maglev_dynamics", "maglev_trim", "maglev_lqr_gains", "maglev_allocation_matrix",
             "maglev_closed_loop_prepare", "maglev_closed_loop_prepared", "maglev_gaps",
-            "maglev_coupled_control"]
+            "maglev_coupled_control",
+            *(("maglev_gap_reading", "maglev_imu_reading") if model.sense else ())]
     sizes = {k: max(_function(man, f)[k] for f in used)
              for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")}
     version = FMI_VERSIONS[fmi]
     units = sorted({v.unit for v in model.variables})
-    sources = [*man["files"]["c"], WRAPPER_C]
+    sources = [*man["files"]["c"], *(model.sense.c_sources if model.sense else ()), WRAPPER_C]
     groups = ("state", "derivative", "gap", "force", "input", "cinput", "parameter",
-              "disturbance", "tick", "step")
+              "disturbance", "tick", "sense", "reading", "step")
     ctx = {
         "model": model, "variables": model.variables, "controller": model.controller,
         "kind": model.kind, "guid": guid, "version": __version__, "units": units,
@@ -444,7 +492,7 @@ def render_files(model: FmuModel, guid: str, fmi: str = DEFAULT_FMI,
         "error_names": sorted((v, k) for k, (v, _) in ERROR_CODES.items() if v),
         "fmi": version,
         "max_delay": MAX_DELAY_TICKS, "array_of_force": model.structure.array_of_force,
-        "matrix_gains": matrix_gains, "verdict": verdict,
+        "matrix_gains": matrix_gains, "verdict": verdict, "sense": model.sense,
         # FMI 3.0: the independent variable time (unit s) beside the list's units
         "units3": [(u, fmi3_base_unit(u)) for u in sorted({*units, "s"})],
     }
@@ -487,10 +535,13 @@ def build_fmu(plant: Plant, kind: str = "both", controller: str | None = None,
     """The .fmu archive's bytes for ``plant``'s carriage (generated C from the cached
     derivation), an FMI ``fmi`` ("2": 2.0, "3": 3.0) FMU; ``controller`` None: the controller
     the firmware embeds (``envelope.embedded_controller``); ``loop`` (a `Loop` of FMU_LOOPS,
-    None: ``CONTINUOUS``): the start values of the tick's parameters, ``FIRMWARE`` those of the
-    plant's loop as built (`Plant.loop`) with the controller's `firmware_gains` at
-    operation.speed (a "matrix" controller's K_pos and K_rate too) and the lagged array forces
-    as states, ``CONTINUOUS`` zeros (the law at every derivative evaluation); ``cache_dir``,
+    None: as a carriage flies, ``SENSED`` for the embedded controller where the file has
+    [sensors], else ``FIRMWARE``): the start values of the tick's parameters, ``FIRMWARE``
+    those of the plant's loop as built (`Plant.loop`) with the controller's `firmware_gains`
+    at operation.speed (a "matrix" controller's K_pos and K_rate too) and the lagged array
+    forces as states, ``SENSED`` that loop with the embedded controller's firmware sense tick
+    on the noisy readings of [sensors] in the binary (`maglevgen.exports.fmu_sense`),
+    ``CONTINUOUS`` zeros (the law at every derivative evaluation); ``cache_dir``,
     ``cc``: where and with what the FMU's own C is compiled; ``verdict``: the controller's
     verification (`maglevgen.build.EmbeddedVerdict.text`), in the model's description, or a
     callable that returns it (or raises), called once the options are checked and before the
@@ -507,17 +558,28 @@ def build_fmu(plant: Plant, kind: str = "both", controller: str | None = None,
     if fmi not in FMI_VERSIONS:
         raise InputError(f"--fmi {fmi!r}: expected one of {tuple(FMI_VERSIONS)}")
     version = FMI_VERSIONS[fmi]
+    embedded = carriage.params.envelope.embedded_controller
     if loop is None:
-        loop = Loop.CONTINUOUS
+        loop = Loop(default_loop(carriage.params, controller))
     if not isinstance(loop, Loop) or loop not in FMU_LOOPS:
         raise ValueError(f"loop {loop!r}: the FMU's loops are {', '.join(FMU_LOOPS)} (a Loop)")
+    if loop is Loop.SENSED and (controller != embedded or carriage.params.sensors is None):
+        raise InputError(f"--loop sensed: the firmware's sense tick flies the embedded "
+                         f"controller {embedded!r} on the readings of [sensors]"
+                         + ("" if controller == embedded else f", not {controller!r}")
+                         + ("" if carriage.params.sensors is not None
+                            else "; the parameter file has no [sensors]"))
     headers = fmi_headers(fmi)  # before any slow work: FMPy missing is bad input
     _check_trim(plant)
     if callable(verdict):
         verdict = verdict()
     builtin = controller in fmu_controllers() and controller != EXTERNAL.name
     tick, design = (_tick(plant, controller if builtin else None)
-                    if loop is Loop.FIRMWARE else (FmuTick(), None))
+                    if loop in (Loop.FIRMWARE, Loop.SENSED) else (FmuTick(), None))
+    if loop is Loop.SENSED:
+        from maglevgen.exports.fmu_sense import fmu_sense
+
+        tick = replace(tick, sense=fmu_sense(plant))
     folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     interface = render_interface(carriage, GenerateOptions("double", "runtime"), table)
@@ -533,6 +595,8 @@ def build_fmu(plant: Plant, kind: str = "both", controller: str | None = None,
     files = render_files(model, guid, fmi, matrix, verdict)
     sources: dict[str, bytes] = {n: (folder / n).read_bytes() for n in sorted(
         p.name for p in folder.iterdir() if p.suffix in (".c", ".h"))}
+    if tick.sense is not None:  # the firmware's sense tick, under names of its own
+        sources.update((n, t.encode()) for n, t in tick.sense.sources)
     sources[WRAPPER_C] = files[WRAPPER_C].encode()
     sources["manifest.json"] = interface["manifest.json"].encode()
     sources["README.txt"] = files["README.txt"].encode()
