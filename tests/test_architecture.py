@@ -100,7 +100,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.infrastructure.cache", "maglevgen.runtime.library",
          "maglevgen.control.operating", "maglevgen.runtime.compile",
          "maglevgen.analyses.simulate", "maglevgen.controllers", "maglevgen.control.built_loop",
-         "fmpy")),
+         "maglevgen.exports.fmu_sense", "fmpy")),
     "maglevgen.analyses.envelope_figures": ("matplotlib only when a figure is drawn",
                                             ("matplotlib",)),
     "maglevgen.analyses.roa": ("the Lyapunov solve's SciPy, matplotlib only for the figure",

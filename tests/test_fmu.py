@@ -20,6 +20,7 @@ from fmpy.validation import validate_fmu
 
 from maglevgen.analyses.simulate import AXIS_STATES, reference_trajectory, run_scenarios
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu, fmi_headers, fmu_controllers
@@ -43,7 +44,8 @@ def fmus(tmp_path_factory, carriage: DerivedCarriage, sim_lib):
     def get(kind: str, controller: str = "lqr") -> Path:
         if (kind, controller) not in made:
             path = folder / f"{kind}_{controller}.fmu"
-            path.write_bytes(build_fmu(Plant(carriage), kind, controller))
+            path.write_bytes(build_fmu(Plant(carriage), kind, controller,
+                                             loop=Loop.CONTINUOUS))
             made[kind, controller] = path
         return made[kind, controller]
 
@@ -308,7 +310,7 @@ def test_normal_actuators_fmu_reproduces_maglevgen_simulate(tmp_path: Path) -> N
     normal = DerivedCarriage(load_params(overrides=['control.actuators="normal"']))
     lib = simulation_library(normal.structure)
     path = tmp_path / "normal.fmu"
-    path.write_bytes(build_fmu(Plant(normal), "both", "lqr"))
+    path.write_bytes(build_fmu(Plant(normal), "both", "lqr", loop=Loop.CONTINUOUS))
     assert validate_fmu(str(path)) == []
     md = read_model_description(str(path))
     forces = [f"F_n{i}" for i in range(1, 7)]

@@ -52,7 +52,8 @@ def fmus(tmp_path_factory, carriage: DerivedCarriage, sim_lib):
     def get(kind: str, controller: str = "lqr") -> Path:
         if (kind, controller) not in made:
             path = folder / f"{kind}_{controller}.fmu"
-            path.write_bytes(build_fmu(Plant(carriage), kind, controller, fmi="3"))
+            path.write_bytes(build_fmu(Plant(carriage), kind, controller, fmi="3",
+                                             loop=Loop.CONTINUOUS))
             made[kind, controller] = path
         return made[kind, controller]
 

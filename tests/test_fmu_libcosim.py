@@ -29,6 +29,7 @@ from fmpy import read_model_description
 
 from maglevgen.analyses.simulate import AXIS_STATES, reference_trajectory, run_scenarios
 from maglevgen.carriage import DerivedCarriage
+from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu
@@ -73,7 +74,7 @@ def _run(path: Path, t_end_ns: int, start: dict[str, float]) -> tuple[np.ndarray
 @pytest.fixture(scope="module")
 def cs_fmu(tmp_path_factory, carriage: DerivedCarriage, sim_lib) -> Path:
     path = tmp_path_factory.mktemp("libcosim") / "cs.fmu"
-    path.write_bytes(build_fmu(Plant(carriage), "cs", "lqr", fmi="2"))
+    path.write_bytes(build_fmu(Plant(carriage), "cs", "lqr", fmi="2", loop=Loop.CONTINUOUS))
     return path
 
 
@@ -139,7 +140,7 @@ def test_me_loaded_by_fmi_library_agrees_with_dop853_on_the_sympy_model(
     from scipy.integrate import solve_ivp
 
     path = tmp_path / "me.fmu"
-    path.write_bytes(build_fmu(Plant(carriage), "me", "lqr", fmi="2"))
+    path.write_bytes(build_fmu(Plant(carriage), "me", "lqr", fmi="2", loop=Loop.CONTINUOUS))
     fmil = _fmi_library()
     libc = ctypes.CDLL(None)
     cb = _Callbacks(ctypes.cast(fmil.fmi2_log_forwarding, ctypes.c_void_p),

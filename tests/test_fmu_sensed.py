@@ -113,7 +113,7 @@ def test_cs_flies_the_hosts_sensed_loop_on_the_same_noise(fmus, carriage, sim_li
     var = {v.name: v for v in read_model_description(str(path)).modelVariables}
     names = _readings(path)
     assert names and "noise_seed" in var  # the default loop of the embedded controller
-    ticks = int(round(T_END * float(var["tick_rate"].start))) + 1
+    ticks = round(T_END * float(var["tick_rate"].start)) + 1
     noise, step = _reference_noise(var, names, 0, ticks)
     ref = _host(carriage, sim_lib, op, noise, step, monkeypatch)
     assert ref.sensing.tick_error == 0 and len(ref.t) == ticks

@@ -160,11 +160,12 @@ ERROR = 3  # fmi2Error
 
 @pytest.fixture(scope="module")
 def fmu_both(carriage, tmp_path_factory) -> Path:
+    from maglevgen.control.built_loop import Loop
     from maglevgen.control.carriage_plant import Plant
     from maglevgen.exports.fmu import build_fmu
 
     path = tmp_path_factory.mktemp("fmu") / "both.fmu"
-    path.write_bytes(build_fmu(Plant(carriage), "both", "lqr"))
+    path.write_bytes(build_fmu(Plant(carriage), "both", "lqr", loop=Loop.CONTINUOUS))
     return path
 
 
@@ -421,11 +422,12 @@ for kind, state, call in cases:
 
 @pytest.fixture(scope="module")
 def fmu3_both(carriage, tmp_path_factory) -> Path:
+    from maglevgen.control.built_loop import Loop
     from maglevgen.control.carriage_plant import Plant
     from maglevgen.exports.fmu import build_fmu
 
     path = tmp_path_factory.mktemp("fmu3") / "both.fmu"
-    path.write_bytes(build_fmu(Plant(carriage), "both", "lqr", fmi="3"))
+    path.write_bytes(build_fmu(Plant(carriage), "both", "lqr", fmi="3", loop=Loop.CONTINUOUS))
     return path
 
 

@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from importlib import resources
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from maglevgen.analyses.sensed import sensed_firmware
 from maglevgen.errors import InputError
 
 if TYPE_CHECKING:
@@ -78,8 +80,6 @@ def renamed_firmware(files: dict[str, str]) -> dict[str, str]:
     """The sense tick's files of a double-precision firmware folder (its C, every header,
     the host glue) with each ``maglev_`` identifier, and the file names, renamed
     ``maglev_fw_`` and maglev.h renamed maglev_fw.h."""
-    from importlib import resources
-
     glue = (resources.files("maglevgen.templates") / "maglev_host_sense.c").read_text()
     picked = {n: t for n, t in files.items()
               if n in _SOURCES or (n.endswith(".h") and not n.startswith("qemu_"))}
@@ -96,8 +96,6 @@ def fmu_sense(plant: Plant) -> FmuSense:
     """The sensed tick of ``plant``'s embedded controller for its FMU (the firmware compiled
     for the host, `maglevgen.analyses.sensed.sensed_firmware`); InputError without
     ``[sensors]``."""
-    from maglevgen.analyses.sensed import sensed_firmware
-
     fw = sensed_firmware(plant)
     layout, s = fw.layout, plant.params.sensors
     assert s is not None  # sensed_firmware refused a file without [sensors]
