@@ -142,12 +142,13 @@ def test_the_generators_normals_are_standard_normal() -> None:
     assert u.min() >= -1.0 and u.max() < 1.0 and abs(u.mean()) < 0.02
 
 
-def test_model_exchange_flies_near_the_cosimulation(fmus) -> None:
+@pytest.mark.parametrize("fmi", ["2", "3"])
+def test_model_exchange_flies_near_the_cosimulation(fmus, fmi) -> None:
     """Model exchange (CVode, the ticks as time events, the lagged forces as states) flies
     the same loop on the same noise: its heave and pitch within 2 % of the co-simulation's
     excursion (the plant is integrated differently, so a reading can round to the other
     side of a step)."""
-    path = fmus("2")
+    path = fmus(fmi)
     kw = {"stop_time": T_END, "output_interval": 1e-3, "output": STATES}
     cs = simulate_fmu(str(path), fmi_type="CoSimulation", **kw)
     me = simulate_fmu(str(path), fmi_type="ModelExchange", solver="CVode",
