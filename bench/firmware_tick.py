@@ -54,7 +54,8 @@ CLOCK_MHZ = 168
 TICK_HZ = 1000
 SOURCES = ("maglev_tick", "maglev_gain_table", "maglev_sense_table", "maglev_functions")
 #: the ticks measured: entry point -> its driver in bench/c
-DRIVERS = {"maglev_tick": "bench_tick.c", "maglev_sense_tick": "bench_sense_tick.c"}
+DRIVERS = {"maglev_tick": "bench_tick.c", "maglev_sense_tick": "bench_sense_tick.c",
+           "maglev_sense_init": "bench_sense_init.c"}
 
 
 def _cycles(mnemonic: str, operands: str) -> int:
@@ -122,7 +123,8 @@ def _profile(pcs: list[int], dis: dict) -> tuple[Counter, Counter]:
 
 
 def measure() -> dict:
-    """`maglev_tick`'s cost (the top-level keys) and `maglev_sense_tick`'s ("sense_tick")."""
+    """`maglev_tick`'s cost (the top-level keys), `maglev_sense_tick`'s ("sense_tick") and
+    `maglev_sense_init`'s ("sense_init": the start, and what a tick that starts again adds)."""
     carriage = DerivedCarriage(load_params())
     with tempfile.TemporaryDirectory(prefix="bench_tick_") as tmp:
         folder = Path(tmp) / "fw"
@@ -139,6 +141,7 @@ def measure() -> dict:
              "-o", "startup.o"], cwd=folder)
         out = _measure_tick(folder, objs, "maglev_tick")
         out["sense_tick"] = _measure_tick(folder, objs, "maglev_sense_tick")
+        out["sense_init"] = _measure_tick(folder, objs, "maglev_sense_init")
     return out
 
 
@@ -201,7 +204,7 @@ def _measure_tick(folder: Path, objs: list[str], entry: str) -> dict:
 
 
 def section(r: dict) -> list[str]:
-    s = r.get("sense_tick")
+    s, i = r.get("sense_tick"), r.get("sense_init")
     stack = ", ".join(f"`{k}` {v}" for k, v in r["stack_usage"].items())
     funcs = ", ".join(f"`{k}` {v}" for k, v in r["by_function"].items())
     return [BEGIN, "## 9. The embedded controller's tick on the Cortex-M4F "
@@ -223,7 +226,12 @@ def section(r: dict) -> list[str]:
             f"{r['share_percent']:.2f} % | {r['stack_bytes']} bytes |",
             *([f"| `maglev_sense_tick` (the readings: the Kalman filter and the same law) | "
                f"{s['instructions']} | {s['cycles']} | {s['share_percent']:.2f} % | "
-               f"{s['stack_bytes']} bytes |"] if s else []), "",
+               f"{s['stack_bytes']} bytes |"] if s else []),
+            *([f"| `maglev_sense_init` (the start from the first readings; a sense tick whose "
+               f"state is corrupted adds it: at most {s['share_percent'] + i['share_percent']:.0f} "
+               f"% of the period) | {i['instructions']} | {i['cycles']} | "
+               f"{i['share_percent']:.2f} % | {i['stack_bytes']} bytes |"] if s and i else []),
+            "",
             f"Instructions by function: {funcs}. VDIV/VSQRT executed per tick: "
             f"{r['fp_divides_and_roots']}.", "",
             f"Stack per function on the path (-fstack-usage, bytes; newlib's not compiled "

@@ -93,7 +93,7 @@ def _host(carriage, sim_lib, op, noise: np.ndarray, step: np.ndarray, monkeypatc
     """The host's sensed loop of the same controller from the same start, with ``noise``."""
     tick, k_v, budget = sim_loop.run_loop(Plant(carriage, sim_lib), Loop.SENSED)
 
-    def given(params, layout, n_ticks, seed=0, noise_scale=1.0):
+    def given(params, layout, n_ticks, *args, **kwargs):
         assert n_ticks <= noise.shape[0]
         return noise[:n_ticks], step
 
