@@ -82,7 +82,8 @@ def _sample_p(carriage: DerivedCarriage, cols: dict[str, np.ndarray], i: int) ->
     names = [e.name for e in carriage.entries]
     p = carriage.p.copy()
     for key in carriage.params.tolerances.parameters:
-        p[names.index(key)] = cols[key][i]
+        if key in names:  # not a sensor's (they set the readings, not p)
+            p[names.index(key)] = cols[key][i]
     return p
 
 
@@ -184,6 +185,8 @@ def _direct_contact_rate(carriage: DerivedCarriage, lib, n: int, t_end: float, d
             x_dist[cv.STATE_INDEX[s]] = rng.uniform(-a, a)
         p = carriage.p.copy()
         for key, t in tol.parameters.items():
+            if key not in names:
+                continue  # a sensor's: this loop reads the exact state
             if t.normal is not None:
                 z = rng.standard_normal()
                 while abs(z) > 4:
@@ -258,6 +261,10 @@ def test_samples_breaking_a_cross_key_rule_are_rejected_and_counted(sim_lib) -> 
     (["--scheduler", "tcp://127.0.0.1:9"], "unreachable"),
     (["--set", 'tolerances.parameters={"vehicle.mass" = {normal = 5.0}}'],
      "tolerances.parameters.vehicle.mass"),
+    (["--set", 'tolerances.parameters={"sensors.gap.resolution" = {uniform = 1e-7}}'],
+     "tolerances.parameters.sensors.gap.resolution = {'uniform': 1e-07}: not an entry"),
+    (["--set", 'tolerances.parameters={"sensors.imu.gyro_bias" = {normal = 5e-5}}'],
+     "tolerances.parameters.sensors.imu.gyro_bias = {'normal': 5e-05}: draws values in"),
 ])
 def test_bad_input_is_one_line_exit_2(argv, expected, capsys, tmp_path: Path) -> None:
     rc = main(["montecarlo", "--samples", "2", "--t-end", "0.01", "--out",
@@ -411,7 +418,8 @@ def test_a_sample_on_the_sensors_has_its_own_noise_whatever_the_chunks(sensed_st
                                                                         sim_lib) -> None:
     """Each sample's sensor noise comes from (seed, sample) alone: the rows do not depend on
     the workers or the chunks (bit for bit), and sample i's run equals `simulate` of its
-    carriage at a SensedTick seeded with SeedSequence(seed, spawn_key=(i, 1))'s first word."""
+    carriage at a SensedTick seeded with SeedSequence(seed, spawn_key=(i, 1))'s first word
+    reading with the row's sensor draws."""
     from dataclasses import replace
 
     from maglevgen.analyses.simulate import metrics, simulate
@@ -421,7 +429,9 @@ def test_a_sample_on_the_sensors_has_its_own_noise_whatever_the_chunks(sensed_st
     i = int(np.flatnonzero(one["status"] != "no trim")[0])
     p, own, nominal, dist, min_gap = _sample_run_inputs(carriage, one, i, sim_lib)
     seed = int(np.random.SeedSequence(5, spawn_key=(i, 1)).generate_state(1)[0])
-    tick = replace(study.tick, seed=seed)
+    drawn = tuple((k, float(one[k][i])) for k in carriage.params.tolerances.parameters
+                  if k.startswith("sensors."))  # the row's sensor draws: its readings'
+    tick = replace(study.tick, seed=seed, sensor_values=drawn)
     run = simulate(sim_lib, p, own, "spec", 0.3, 1e-3, min_gap, dist, tick=tick,
                    speed_gain=study.speed_gain, force_budget=study.force_budget,
                    controller_op=nominal)
@@ -433,3 +443,53 @@ def test_a_sample_on_the_sensors_has_its_own_noise_whatever_the_chunks(sensed_st
                      tick=replace(tick, seed=seed + 1), speed_gain=study.speed_gain,
                      force_budget=study.force_budget, controller_op=nominal)
     assert not np.array_equal(other.x[-1], run.x[-1])  # another seed's noise, another run
+
+
+GAP_NOISE = 'tolerances.parameters={"sensors.gap.noise" = {uniform = 9e-6}}'
+
+
+def test_a_sensor_tolerance_sets_each_samples_readings(sim_lib) -> None:
+    """A tolerance on the gap sensors' noise (10 um +- 9 um): each sample's row records its
+    draw, and its run's gap readings carry that noise: the spread of successive readings'
+    differences (std / sqrt(2), numpy on the recorded readings; the gaps move far less in a
+    tick) is sqrt(draw^2 + resolution^2 / 12) within 6 %, whatever the other samples drew.
+    The row is that run's (bit for bit), and the same sample read with the file's noise flies
+    another path; the firmware's tables are the file's design either way."""
+    from dataclasses import replace
+
+    from maglevgen.analyses.montecarlo import sample_tick
+    from maglevgen.analyses.sim_loop import run_loop
+    from maglevgen.analyses.simulate import metrics, simulate
+
+    carriage = DerivedCarriage(load_params(None, [SPEEDS, GAP_NOISE]))
+    plant = Plant(carriage, sim_lib)
+    tick, k_v, budget = run_loop(plant, "sensed")
+    seconds = 1.0
+    study = make_study(plant, ("spec",), t_end=seconds, dt=1e-3, seed=11, tick=tick,
+                       speed_gain=k_v, force_budget=budget)
+    cols = run_local(study, 3, workers=1)
+    drawn = cols["sensors.gap.noise"]
+    assert np.all(np.abs(drawn - 10e-6) <= 9e-6) and np.ptp(drawn) > 2e-6
+    resolution = carriage.params.sensors.gap.resolution
+    n_gap = len(carriage.params.sensors.gap_sensors)
+    seen = []
+    for i in np.flatnonzero(cols["status"] != "no trim"):
+        p, own, nominal, dist, min_gap = _sample_run_inputs(carriage, cols, int(i), sim_lib)
+        own_tick = sample_tick(study, int(i))
+        assert own_tick.sensor_values == (("sensors.gap.noise", drawn[i]),)
+        run = simulate(sim_lib, p, own, "spec", seconds, 1e-3, min_gap, dist, tick=own_tick,
+                       speed_gain=k_v, force_budget=budget, controller_op=nominal)
+        flown = metrics(run)
+        assert flown["min_gap"] == cols["min_gap"][i]
+        for axis in cv.AXES:
+            assert flown["axes"][axis]["peak_deviation"] == cols[f"peak.{axis}"][i], axis
+        gaps = run.sensing.readings[100:, :n_gap]
+        spread = np.std(np.diff(gaps, axis=0)) / np.sqrt(2)
+        expected = np.sqrt(drawn[i] ** 2 + resolution**2 / 12)
+        assert spread == pytest.approx(expected, rel=0.06), (i, spread, expected)
+        seen.append(spread)
+        filed = simulate(sim_lib, p, own, "spec", seconds, 1e-3, min_gap, dist,
+                         tick=replace(own_tick, sensor_values=()), speed_gain=k_v,
+                         force_budget=budget, controller_op=nominal)
+        assert not np.array_equal(filed.x, run.x)
+    assert len(seen) >= 2

@@ -227,3 +227,48 @@ def test_sensed_launch_flies_the_accelerating_trim(carriage: DerivedCarriage, si
                                         prm.track.min_gap)[0]
         assert abs(traj.x[k, 2] - x_a[2]) <= 50e-6, (traj.t[k], traj.x[k, 2] - x_a[2])
         assert abs(traj.x[k, 4] - x_a[4]) <= 50e-6, (traj.t[k], traj.x[k, 4] - x_a[4])
+
+
+#: the track encoder's 1 mm quantization as white noise of the same variance (1 mm / sqrt(12)
+#: RMS, no rounding): the same [sensors] variance, so the same Kalman filter and tables
+WHITE_ENCODER = ("sensors.track.noise=2.886751345948129e-4", "sensors.track.resolution=0.0")
+
+
+@pytest.mark.parametrize("encoder", [
+    pytest.param((), id="quantized", marks=pytest.mark.xfail(strict=True, reason=(
+        "issue 49: the filter models the encoder's 1 mm quantization as white noise of step^2/12;"
+        " at 20 m/s (20 mm a tick, a whole number of steps) the rounding error is an offset "
+        "that drifts only with the speed's deviation, which the filter averages as if white: "
+        "x 6.6x and u 3.7x its sqrt(P) (0.86x and 0.49x with white noise of the same variance)"))),
+    pytest.param(WHITE_ENCODER, id="white"),
+])
+def test_one_step_prediction_error_within_the_dares_covariance(sim_lib, encoder) -> None:
+    """A 6 s hold on the sensors at 20 m/s: every state's one-step prediction error (the state
+    at tick k + 1 less the sense tick's prediction at k, past the first second), RMS, within
+    1.15 x the square root of the DARE's a-priori covariance's diagonal (SciPy's
+    solve_discrete_are on the estimator's model): the filter is not overconfident. The plant
+    has none of the process noise the filter assumes, so most states sit below it (y 0.84,
+    u 0.49, p 0.28 measured); heave, set by the gap sensors' noise, at 1.00. With the encoder's
+    rounding (the default 1 mm encoder) x and u fail: the quantization is not white (xfail)."""
+    from scipy.linalg import solve_discrete_are
+
+    from maglevgen.analyses.sim_loop import estimation_error
+    from maglevgen.analyses.simulate import run_scenarios
+    from maglevgen.control.carriage_plant import Plant
+    from maglevgen.control.estimation import SensorLayout, estimator_model
+    from maglevgen.derive import conventions as cv
+    from maglevgen.params import load_params
+
+    carriage = DerivedCarriage(load_params(None, list(encoder)))
+    plant = Plant(carriage, sim_lib)
+    run = run_scenarios(plant, ("spec",), 6.0, 1e-3, SPEED, loop=Loop.SENSED, disturbance={})
+    traj = run.trajectories[0]
+    assert traj.c_status == 0
+    err = estimation_error(traj.sensing, traj.x, traj.tick.steps(traj.dt))[1000:]
+    model = estimator_model(sim_lib, carriage.p, traj.op, carriage.params,
+                            SensorLayout.of(carriage.params), plant.loop.actuator_lag)
+    P = solve_discrete_are(model.Phi.T, model.C.T, model.Q, model.R)
+    sd = np.sqrt(np.diag(P)[:model.n_x])
+    rms = np.array([np.sqrt(np.mean(err[:, cv.STATE_INDEX[s]] ** 2)) for s in model.states])
+    ratio = dict(zip(model.states, np.round(rms / sd, 3).tolist(), strict=True))
+    assert np.all(rms <= 1.15 * sd), ratio

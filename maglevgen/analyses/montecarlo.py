@@ -1,7 +1,8 @@
 """Monte-Carlo robustness over the carriage's tolerances (`maglevgen montecarlo`).
 
 Each sample draws the parameters listed in the file's ``[tolerances]`` (normal, truncated at
-+-4 sigma, or uniform about the file's value), a hold speed (by default uniform over the
++-4 sigma, or uniform about the file's value; entries of the parameter vector and the sensors'
+noises and biases, maglevgen.params.SENSOR_TOLERANCES), a hold speed (by default uniform over the
 envelope's [v_min, v_max]) and an initial disturbance; then, per controller, one closed-loop
 RK4 run (the hold scenario of `maglevgen simulate`) from the sampled carriage's own trim plus
 the disturbance, all in the compiled run-time-parameter C (the parameters are arguments of the
@@ -11,7 +12,12 @@ C, so nothing is regenerated or recompiled), and the run's status and per-axis m
 As the firmware flies (the default): the controller is the NOMINAL carriage's design at the
 sample's speed, its gains, its reference and its feed-forward propulsion (what the firmware's
 table and schedule hold, designed once on the file's values), flying the sampled carriage,
-which the firmware does not know. ``--redesign`` (`Study.redesign`) instead re-trims and
+which the firmware does not know. On the sensors (``--loop sensed``) each sample's readings
+carry its own noise (seeded per sample) drawn with its sampled sensor entries, the IMU's
+bias its sampled magnitude with a sign drawn per axis; the firmware's Kalman gains stay the
+design on the file's sensors (a tolerance is what the real sensor does, not what the filter
+was designed for). A loop on the exact state reads no sensor: its samples' sensor draws are
+recorded, not flown. ``--redesign`` (`Study.redesign`) instead re-trims and
 re-designs the controller for each sample's own parameters, as if the firmware knew them: an
 optimistic bound, named as such in the output.
 
@@ -77,6 +83,7 @@ from maglevgen.control.operating import (
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, MaglevError, NoTrimError
 from maglevgen.infrastructure.workers import process_pool
+from maglevgen.params import SENSOR_TOLERANCES
 
 MAX_SAMPLES = 10_000_000
 
@@ -90,7 +97,7 @@ class Study:
     structure: Any  # maglevgen.derive.structure.Structure
     names: tuple[str, ...]  # parameter vector entries
     p: tuple[float, ...]  # nominal parameter vector
-    keys: tuple[str, ...]  # toleranced entries, in file order
+    keys: tuple[str, ...]  # toleranced entries, in file order (parameters and sensors)
     sigma: tuple[float, ...]  # normal sigma, or NaN for a uniform one
     half: tuple[float, ...]  # uniform half-width (or the truncation for a normal)
     speed: tuple[float, float]
@@ -115,6 +122,9 @@ class Study:
     # (maglevgen.analyses.roa at BUILD_SAMPLING, without boundary runs): (speeds, P / c per speed,
     # NaN where there is none), for each sample's ``region_multiple``
     regions: dict | None = None
+    # the file's values of the toleranced sensor entries (maglevgen.params.SENSOR_TOLERANCES):
+    # (key, value) pairs; a sample's draws of them set its run's readings (`sample_sensors`)
+    sensors: tuple[tuple[str, float], ...] = ()
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -130,8 +140,9 @@ def sample_inputs(study: Study, index: int) -> np.ndarray:
     lo, hi = study.speed
     out = [rng.uniform(lo, hi)]
     out += [rng.uniform(-a, a) for _, a in study.disturbance]
+    sensors = dict(study.sensors)
     for name, sigma, half in zip(study.keys, study.sigma, study.half, strict=True):
-        nominal = study.p[study.names.index(name)]
+        nominal = sensors[name] if name in sensors else study.p[study.names.index(name)]
         if math.isnan(sigma):
             out.append(nominal + rng.uniform(-half, half))
             continue
@@ -171,8 +182,10 @@ def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
 
     p = np.array(study.p)
     values = draws[1 + len(study.disturbance):]
+    sensors = dict(study.sensors)
     for name, value in zip(study.keys, values, strict=True):
-        p[study.names.index(name)] = value
+        if name not in sensors:
+            p[study.names.index(name)] = value
     if any(r in k for k in study.keys for r in CROSS_KEY_RULES):
         data = json.loads(json.dumps(study.data))  # a deep copy
         for name, value in zip(study.keys, values, strict=True):
@@ -182,6 +195,15 @@ def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
         except InputError as exc:
             return str(exc).removeprefix("sample: ")
     return p
+
+
+def sample_sensors(study: Study, draws: np.ndarray) -> tuple[tuple[str, float], ...]:
+    """The sample's drawn sensor entries (key, value), in file order: what its run's readings
+    carry (`SensedTick.sensor_values`)."""
+    sensors = dict(study.sensors)
+    values = draws[1 + len(study.disturbance):]
+    return tuple((k, float(v)) for k, v in zip(study.keys, values, strict=True)
+                 if k in sensors)
 
 
 def _library(structure):
@@ -201,7 +223,7 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     p, op, design, disturbance, row = prepared
     return [_run_row(study, lib, p, row, c,
                      simulate(lib, p, op, c, study.t_end, study.dt, study.min_gap, disturbance,
-                              tick=_sample_tick(study, index), speed_gain=study.speed_gain,
+                              tick=sample_tick(study, index), speed_gain=study.speed_gain,
                               force_budget=study.force_budget, controller_op=design),
                      op, disturbance)
             for c in study.controllers]
@@ -216,7 +238,7 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
     library's C, as `run_sample` makes them."""
     lib = lib or _library(study.structure)
     out: list[list[dict] | None] = []
-    jobs, owners, seeds = [], [], []
+    jobs, owners, ticks = [], [], []
     for i in indices:
         prepared = _prepare(study, int(i), lib)
         if isinstance(prepared, list):
@@ -227,11 +249,11 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
         for c in study.controllers:
             jobs.append((p, op, c, disturbance, design))
             owners.append((len(out) - 1, row))
-            seeds.append(_noise_seed(study, int(i)))
+            ticks.append(sample_tick(study, int(i)))
     trajectories = simulate_batch(lib, jobs, study.t_end, study.dt, study.min_gap,
                                   tick=study.tick, speed_gain=study.speed_gain,
                                   force_budget=study.force_budget, threads=threads,
-                                  seeds=seeds)
+                                  ticks=ticks)
     runs: dict[int, list[dict]] = {}
     for (k, row), (p, op, c, d, _), traj in zip(owners, jobs, trajectories, strict=True):
         runs.setdefault(k, []).append(_run_row(study, lib, p, row, c, traj, op, d))
@@ -244,11 +266,14 @@ def _noise_seed(study: Study, index: int) -> int:
     return int(np.random.SeedSequence(study.seed, spawn_key=(index, 1)).generate_state(1)[0])
 
 
-def _sample_tick(study: Study, index: int):
-    """The study's tick for sample ``index``: at a `SensedTick`, with the sample's own noise."""
+def sample_tick(study: Study, index: int):
+    """The study's tick for sample ``index``: at a `SensedTick`, with the sample's own noise
+    and its drawn sensor entries (the firmware's tables stay the design on the file's)."""
     tick = study.tick
-    return replace(tick, seed=_noise_seed(study, index)) if isinstance(tick, SensedTick) \
-        else tick
+    if not isinstance(tick, SensedTick):
+        return tick
+    return replace(tick, seed=_noise_seed(study, index),
+                   sensor_values=sample_sensors(study, sample_inputs(study, index)))
 
 
 def _prepare(study: Study, index: int, lib):
@@ -555,6 +580,7 @@ def make_study(plant: Plant, controllers: Sequence[str], t_end: float, dt: float
                 raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limit:.4g} s "
                                  f"of the {c} controller at {v:g} m/s")
     keys = tuple(tol.parameters)
+    own = params.sensor_values()
     return Study(
         origin=carriage.loaded.source,
         # the samples are validated without the tolerances (drawn about the file's values)
@@ -569,7 +595,8 @@ def make_study(plant: Plant, controllers: Sequence[str], t_end: float, dt: float
         controllers=tuple(controllers), t_end=float(t_end), dt=float(dt),
         min_gap=float(params.track.min_gap), weights=w, seed=int(seed), tick=tick,
         speed_gain=float(speed_gain), force_budget=force_budget, redesign=bool(redesign),
-        regions=study_regions(plant, controllers, speed))
+        regions=study_regions(plant, controllers, speed),
+        sensors=tuple((k, own[k]) for k in keys if k in SENSOR_TOLERANCES))
 
 
 @dataclass
@@ -628,9 +655,9 @@ __all__ = ["MAX_SAMPLES", "ChunkFailedError", "Result", "Study", "aggregate",
            "check_scheduler", "concat", "contact_cause", "dask_client", "default_chunk",
            "default_workers", "design_text", "input_label", "make_study", "markdown",
            "nominal_design", "output_files", "plots", "region_multiple",
-           "run_chunk",
-           "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study", "sample_inputs",
-           "sample_parameters", "study_regions", "summary_json", "table", "table_files", "wilson"]
+           "run_chunk", "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study",
+           "sample_inputs", "sample_parameters", "sample_sensors", "sample_tick", "study_regions",
+           "summary_json", "table", "table_files", "wilson"]
 
 
 def check_scheduler(scheduler: str | None) -> None:

@@ -174,6 +174,13 @@ def design_text(study: Study) -> str:
         loop = "; flown by the firmware loop on the exact state (--loop firmware)"
     else:
         loop = "; the paper's law at every RK4 stage (--loop continuous)"
+    if study.sensors:
+        said = ", ".join(k for k, _ in study.sensors)
+        loop += (f"; the sensors' tolerances ({said}) drawn per sample and read with, the "
+                 "Kalman gains the design on the file's sensors"
+                 if isinstance(study.tick, SensedTick) else
+                 f"; the sensors' tolerances ({said}) drawn and recorded, not flown (the loop "
+                 "reads the exact state)")
     if study.redesign:
         return ("redesigned per sample (--redesign): each sampled carriage re-trimmed and its "
                 "controller re-designed for its own parameters, as if the firmware knew them"
@@ -257,9 +264,11 @@ def input_label(study: Study, name: str) -> str:
         sym = f"\\{state}" if state in _ANGLES else state
         unit = cv.STATES[cv.STATE_INDEX[state]].unit
         return rf"initial deviation $\Delta {sym}$ / {_unit_text(unit)}"
-    from maglevgen.params import flatten, validate
+    from maglevgen.params import flatten, schema_unit, validate
 
     units = {e.name: e.unit for e in flatten(validate(study.data, study.origin))}
+    if name.startswith("sensors."):  # a sensor's noise or bias: its schema's unit
+        units[name] = schema_unit(name)
     unit = units.get(name, "")
     return f"{name} / {_unit_text(unit)}" if unit and unit != "1" else name
 

@@ -23,6 +23,7 @@ from maglevgen.analyses.firmware_sources import render_firmware, sense_schedule
 from maglevgen.control.built_loop import LoopSetting
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import SensorLayout
+from maglevgen.params import Parameters, with_sensor_values
 from maglevgen.runtime.sense import SenseLibrary, sense_library
 
 __all__ = ["SensedFirmware", "sensed_firmware"]
@@ -39,8 +40,19 @@ class SensedFirmware:
     v_max: float
     layout: SensorLayout
     library: SenseLibrary
-    params: object  # the carriage's parameters (its [sensors]: the runs' noise)
+    params: Parameters  # the carriage's parameters (its [sensors]: the runs' noise)
     files: dict[str, str]  # the double-precision folder it was compiled from (the FMU's too)
+
+    def sampled(self, values: tuple[tuple[str, float], ...] = ()
+                ) -> tuple[Parameters, SensorLayout]:
+        """The parameters and sensor layout a run's readings' noise is drawn with: the
+        carriage's, with ``values`` (maglevgen.params.SENSOR_TOLERANCES entries, a
+        Monte-Carlo sample's draws) in place of its own; the tables stay the design on
+        the carriage's."""
+        if not values:
+            return self.params, self.layout
+        params = with_sensor_values(self.params, dict(values))
+        return params, SensorLayout.of(params)
 
 
 #: each plant's firmware for the host, kept while the plant lives: rendering its tables

@@ -82,11 +82,14 @@ def speed_loop_gain(mode: SpeedMode, bandwidth: float) -> float:
 class SensedTick(FirmwareTick):
     """A `FirmwareTick` flown on the sensors: the firmware's sense tick (``firmware``) on the
     plant's readings with their noise times ``noise_scale`` drawn from ``seed`` (a run's
-    own: `sensing`) in place of the exact state's feedback."""
+    own: `sensing`) in place of the exact state's feedback. ``sensor_values``: (key, value)
+    pairs of maglevgen.params.SENSOR_TOLERANCES (a Monte-Carlo sample's draws) the noise is
+    drawn with in place of the file's; the firmware's tables stay its design."""
 
     firmware: SensedFirmware | None = None
     seed: int = 0
     noise_scale: float = 1.0
+    sensor_values: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -126,12 +129,13 @@ def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
 def sensing(tick: SensedTick, n_ticks: int, record: bool = True, n_inputs: int = 0
             ) -> Sensing:
     """A run's `Sensing` of ``tick``: its sensors, ``n_ticks`` ticks of noise
-    (`reading_noise` with the tick's seed and scale) and, ``record``, each tick's readings
-    and prediction kept (and its command, given the plant's ``n_inputs``)."""
+    (`reading_noise` with the tick's seed, scale and sensor values) and, ``record``, each
+    tick's readings and prediction kept (and its command, given the plant's ``n_inputs``)."""
     fw = tick.firmware
     assert fw is not None  # SensedTick refuses None
+    params, noisy = fw.sampled(tick.sensor_values)  # the sample's sensors' noise
+    noise, step = reading_noise(params, noisy, n_ticks, tick.seed, tick.noise_scale)
     layout = fw.layout
-    noise, step = reading_noise(fw.params, layout, n_ticks, tick.seed, tick.noise_scale)
     return Sensing(fw.library, np.array([g.point for g in layout.gaps]).reshape(-1, 3),
                    np.array([g.normal for g in layout.gaps]).reshape(-1, 3),
                    np.array([g.nominal_gap for g in layout.gaps]), layout.imu_point,

@@ -436,11 +436,13 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
                    t_end: float, dt: float, min_gap: float, tick: Tick | None = None,
                    speed_gain: float = 0.0, force_budget: float | None = None,
                    threads: int = 0, seeds: Sequence[int] | None = None,
-                   lanes: int | None = 0) -> list[Trajectory]:
+                   lanes: int | None = 0, ticks: Sequence[Tick | None] | None = None
+                   ) -> list[Trajectory]:
     """`simulate` of each job (p, op, controller, disturbance[, controller_op]), the runs in
     one call of the C batch driver on ``threads`` threads (0: every core): the same
     trajectories, in order. At a `SensedTick` each run draws its own noise: from ``seeds``
-    (one per job), else the tick's seed plus the job's place. ``lanes``:
+    (one per job), else the tick's seed plus the job's place; ``ticks`` (one per job, the
+    same loop each: a Monte-Carlo sample's own noise and sensors) in place of both. ``lanes``:
     `SimulationLibrary.simulate_batch`'s (default 0: the tick-held runs W at a time in SIMD
     lanes where the CPU and the batch allow, the same numbers; None: one maglev_simulate
     per run)."""
@@ -449,8 +451,8 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
         return []
     seeds = seeds if seeds is not None else [
         (tick.seed if isinstance(tick, SensedTick) else 0) + i for i in range(len(jobs))]
-    ticks = [replace(tick, seed=int(s)) if isinstance(tick, SensedTick) else tick
-             for s in seeds]
+    ticks = ticks if ticks is not None else [
+        replace(tick, seed=int(s)) if isinstance(tick, SensedTick) else tick for s in seeds]
     runs = [hold_run(p, op, c, dt, d, tk, speed_gain, force_budget,
                      design[0] if design else None, n_steps=n_steps, record=False)
             for (p, op, c, d, *design), tk in zip(jobs, ticks, strict=True)]

@@ -25,6 +25,8 @@ from maglevgen.params.document import (
     Parameters,
     Provenance,
     entry_limits,
+    schema_unit,
+    with_sensor_values,
 )
 from maglevgen.params.fields import Vec3, limits_text
 from maglevgen.params.loading import (
@@ -50,6 +52,7 @@ from maglevgen.params.sections import (
     INERTIA_BOX,
     NORMAL_TRUNCATION,
     PAPER_ARRAY_FORCE,
+    SENSOR_TOLERANCES,
     Actuators,
     Array,
     AxisDeviation,
@@ -86,6 +89,7 @@ __all__ = [
     "PAPER_ARRAY_FORCE",
     "PROVENANCE_SOURCES",
     "SCHEMA_DEPTH",
+    "SENSOR_TOLERANCES",
     "Actuators",
     "Array",
     "AxisDeviation",
@@ -129,5 +133,7 @@ __all__ = [
     "schema_leaves",
     "schema_rows",
     "schema_table",
+    "schema_unit",
     "validate",
+    "with_sensor_values",
 ]

@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from maglevgen.infrastructure.text import check_text
 from maglevgen.params.fields import ModelError, Section, short_repr, table_of
 from maglevgen.params.sections import (
+    SENSOR_TOLERANCES,
     Actuators,
     Array,
     Circuit,
@@ -32,10 +33,11 @@ from maglevgen.params.sections import (
 )
 from maglevgen.params.vector import flatten, schema_leaves
 
-__all__ = ["ARRAY_NAME", "ARRAY_NAME_RULE", "PROVENANCE_SOURCES", "SCHEMA_DEPTH", "Parameters",
-           "Provenance", "entry_limits"]
+__all__ = ["ARRAY_NAME", "ARRAY_NAME_RULE", "PROVENANCE_SOURCES", "SCHEMA_DEPTH",
+           "Parameters", "Provenance", "entry_limits", "schema_unit", "with_sensor_values"]
 
 PROVENANCE_SOURCES = ("paper", "assumed")
+
 
 
 class Provenance(BaseModel):
@@ -170,12 +172,18 @@ class Parameters(Section):
         every sample then passes the key checks (the cross-key rules are checked per sample,
         maglevgen.analyses.montecarlo)."""
         values = {e.name: e.value for e in flatten(self)}
+        values.update(self.sensor_values())
         for key, tol in self.tolerances.parameters.items():
             where = f"tolerances.parameters.{key}"
+            if key in SENSOR_TOLERANCES and key not in values:
+                raise ModelError(where, short_repr(tol.model_dump(exclude_none=True)),
+                                 f"the file has no [{key.rpartition('.')[0]}]: no such "
+                                 "sensor to spread")
             if key not in values:
                 raise ModelError(where, short_repr(tol.model_dump(exclude_none=True)),
                                  "not an entry of the parameter vector (see `maglevgen "
-                                 "params show`)")
+                                 "params show`) nor a sensor's noise or bias ("
+                                 + ", ".join(SENSOR_TOLERANCES) + ")")
             if key.startswith("arrays.") and ".normal." in key:
                 raise ModelError(where, short_repr(tol.model_dump(exclude_none=True)),
                                  "an array's normal is a direction (normalised on load); "
@@ -187,9 +195,37 @@ class Parameters(Section):
                                  f"draws values in [{a:.6g}, {b:.6g}], outside the key's range "
                                  f"[{lo:g}, {hi:g}] ({why})")
 
+    def sensor_values(self) -> dict[str, float]:
+        """The `SENSOR_TOLERANCES` entries the file has (its sensors' groups), by key."""
+        out: dict[str, float] = {}
+        groups = self.sensors.groups() if self.sensors is not None else {}
+        for key in SENSOR_TOLERANCES:
+            _, group, field = key.split(".")
+            if group in groups:
+                out[key] = float(getattr(groups[group], field))
+        return out
+
     @property
     def wavenumber(self) -> float:
         return 2 * math.pi / self.halbach.wavelength
+
+
+def with_sensor_values(params: Parameters, values: dict[str, float]) -> Parameters:
+    """``params`` with the `SENSOR_TOLERANCES` entries of ``values`` in place of its own (a
+    Monte-Carlo sample's sensors; every value within its key's range, as the file's check of
+    its tolerances makes them): a copy, the rest shared."""
+    if not values:
+        return params
+    assert params.sensors is not None  # a sensor's tolerance needs the sensor (validated)
+    groups: dict[str, dict[str, float]] = {}
+    for key, value in values.items():
+        if key not in SENSOR_TOLERANCES:
+            raise KeyError(f"{key}: not one of SENSOR_TOLERANCES")
+        _, group, field = key.split(".")
+        groups.setdefault(group, {})[field] = float(value)
+    sensors = params.sensors.model_copy(update={
+        g: getattr(params.sensors, g).model_copy(update=f) for g, f in groups.items()})
+    return params.model_copy(update={"sensors": sensors})
 
 
 ARRAY_NAME = re.compile(r"[A-Za-z0-9_]{1,16}")
@@ -220,8 +256,20 @@ def entry_limits(entry: str) -> tuple[float, float]:
     return lo, hi
 
 
+def schema_unit(entry: str) -> str:
+    """The unit of an entry of the parameter vector or of `SENSOR_TOLERANCES`, as the
+    schema gives it."""
+    return str(_leaf_field(entry).json_schema_extra.get("unit", ""))
+
+
 def _leaf_limits(entry: str) -> tuple[float, float, str]:
     """(lo, hi, why) of an entry of the parameter vector (``arrays.3.position.z``)."""
+    lo, hi, why = _leaf_field(entry).json_schema_extra["limits"]
+    return float(lo), float(hi), str(why)
+
+
+def _leaf_field(entry: str) -> Any:
+    """The schema's FieldInfo of an entry (``arrays.3.position.z``, ``sensors.imu.gyro_bias``)."""
     parts = entry.split(".")
     model: Any = Parameters
     info: Any = None
@@ -237,5 +285,4 @@ def _leaf_limits(entry: str) -> tuple[float, float, str]:
         table = table_of(info.annotation)
         if table is not None:
             model, info = table, None
-    lo, hi, why = info.json_schema_extra["limits"]
-    return float(lo), float(hi), str(why)
+    return info

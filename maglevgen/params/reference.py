@@ -63,8 +63,8 @@ def schema_table() -> list[tuple[str, str, str, str, str]]:
                                  "", f"in {limits_text(lo, hi, '')}: {why}"))
                     continue
                 rows.append((f"{name}.<key>", "", info.description or "", "",
-                             "an entry of the parameter vector; its values +- the spread "
-                             "inside the key's range"))
+                             "an entry of the parameter vector or a sensor's noise or "
+                             "bias; its values +- the spread inside the key's range"))
                 walk(Tolerance, name + ".<key>.")
             elif field == "arrays":
                 rows.append((f"{name}.<name>", "", "the name of an array (a table key)", "",

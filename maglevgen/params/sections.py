@@ -23,6 +23,7 @@ __all__ = [
     "INERTIA_BOX",
     "NORMAL_TRUNCATION",
     "PAPER_ARRAY_FORCE",
+    "SENSOR_TOLERANCES",
     "Actuators",
     "Array",
     "AxisDeviation",
@@ -478,6 +479,15 @@ class Tolerance(Section):
         return float(self.uniform)
 
 
+#: the [sensors] entries a tolerance may spread besides the parameter vector: what a real
+#: sensor does apart from its datasheet (each reading's noise, each IMU axis's in-run bias).
+#: A Monte-Carlo sample's readings carry its drawn values; the firmware's Kalman gains stay
+#: the design on the file's values. Resolutions, rates and filters are the converter's design,
+#: not spreads; the disturbance is the filter's assumption, not a sensor's.
+SENSOR_TOLERANCES = ("sensors.gap.noise", "sensors.imu.gyro_noise", "sensors.imu.gyro_bias",
+                     "sensors.imu.accel_noise", "sensors.imu.accel_bias", "sensors.track.noise")
+
+
 class Tolerances(Section):
     """What `maglevgen montecarlo` samples: not part of the model's parameter vector."""
 
@@ -493,7 +503,10 @@ class Tolerances(Section):
                                                        "below the gaps' scale"]})
     parameters: dict[str, Tolerance] = Field(
         default_factory=dict, description="per entry of the parameter vector (its dotted name, "
-        "as `maglevgen params show` prints it, e.g. \"vehicle.mass\", \"vehicle.cg_offset.z\")")
+        "as `maglevgen params show` prints it, e.g. \"vehicle.mass\", \"vehicle.cg_offset.z\"), "
+        "or per sensor noise or bias (" + ", ".join(f'"{k}"' for k in SENSOR_TOLERANCES)
+        + "): each sample's readings carry its drawn value, the Kalman gains stay the design "
+        "on the file's")
 
     @field_validator("disturbance")
     @classmethod
