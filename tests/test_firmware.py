@@ -1089,6 +1089,11 @@ def test_firmware_readme_quotes_the_recorded_tick_cost() -> None:
         assert MEASURED[key] == recorded[key], key
     assert MEASURED["share_percent"] == pytest.approx(
         100 * recorded["cycles"] / (recorded["clock_mhz"] * 1e6 / 1000), abs=0.005)
+    for mine, theirs in (("sense", "sense_tick"), ("sense_init", "sense_init")):
+        for key in ("instructions", "cycles", "stack_bytes"):
+            assert MEASURED[mine][key] == recorded[theirs][key], (mine, key)
+        assert MEASURED[mine]["share_percent"] == pytest.approx(
+            100 * recorded[theirs]["cycles"] / (recorded["clock_mhz"] * 1e6 / 1000), abs=0.005)
 
 
 def _sampled_loop_growth(op, rate: float, delay: int) -> float:
