@@ -234,22 +234,16 @@ def test_sensed_launch_flies_the_accelerating_trim(carriage: DerivedCarriage, si
 WHITE_ENCODER = ("sensors.track.noise=2.886751345948129e-4", "sensors.track.resolution=0.0")
 
 
-@pytest.mark.parametrize("encoder", [
-    pytest.param((), id="quantized", marks=pytest.mark.xfail(strict=True, reason=(
-        "issue 49: the filter models the encoder's 1 mm quantization as white noise of step^2/12;"
-        " at 20 m/s (20 mm a tick, a whole number of steps) the rounding error is an offset "
-        "that drifts only with the speed's deviation, which the filter averages as if white: "
-        "x 6.6x and u 3.7x its sqrt(P) (0.86x and 0.49x with white noise of the same variance)"))),
-    pytest.param(WHITE_ENCODER, id="white"),
-])
-def test_one_step_prediction_error_within_the_dares_covariance(sim_lib, encoder) -> None:
+def test_one_step_prediction_error_within_the_dares_covariance(sim_lib) -> None:
     """A 6 s hold on the sensors at 20 m/s: every state's one-step prediction error (the state
     at tick k + 1 less the sense tick's prediction at k, past the first second), RMS, within
     1.15 x the square root of the DARE's a-priori covariance's diagonal (SciPy's
     solve_discrete_are on the estimator's model): the filter is not overconfident. The plant
     has none of the process noise the filter assumes, so most states sit below it (y 0.84,
-    u 0.49, p 0.28 measured); heave, set by the gap sensors' noise, at 1.00. With the encoder's
-    rounding (the default 1 mm encoder) x and u fail: the quantization is not white (xfail)."""
+    u 0.49, p 0.28 measured); heave, set by the gap sensors' noise, at 1.00. The encoder reads
+    white noise of its rounding's variance here (WHITE_ENCODER): the default 1 mm encoder's
+    rounding is not white at a whole number of millimetres a tick, and x and u then sit at
+    6.6x and 3.7x (docs/_guides/firmware.md, "What the filter assumes")."""
     from scipy.linalg import solve_discrete_are
 
     from maglevgen.analyses.sim_loop import estimation_error
@@ -259,7 +253,7 @@ def test_one_step_prediction_error_within_the_dares_covariance(sim_lib, encoder)
     from maglevgen.derive import conventions as cv
     from maglevgen.params import load_params
 
-    carriage = DerivedCarriage(load_params(None, list(encoder)))
+    carriage = DerivedCarriage(load_params(None, list(WHITE_ENCODER)))
     plant = Plant(carriage, sim_lib)
     run = run_scenarios(plant, ("spec",), 6.0, 1e-3, SPEED, loop=Loop.SENSED, disturbance={})
     traj = run.trajectories[0]
