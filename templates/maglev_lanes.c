@@ -18,10 +18,12 @@
 
    A lane holds one run; when the run ends (its last step, a contact, a non-finite state, an
    error) the lane takes the next run of the batch at once, so no lane idles while runs are
-   left and a finished run never touches the others (the lanes share no arithmetic). Runs the
-   lanes do not fly go to maglev_simulate whole: a loop without a tick (the continuous loop),
-   with the sense tick (loop->sense: the firmware's C per run), or with an argument
-   maglev_simulate refuses. */
+   left and a finished run never touches the others (the lanes share no arithmetic). A run on
+   the sensors (loop->sense) flies its plant in the lanes and, at each tick, its own sense tick
+   (run_loop's sensed_command: the readings, the run's noise, the firmware's C through the
+   run's pointers and state), lane by lane. Runs the lanes do not fly go to maglev_simulate
+   whole: a loop without a tick (the continuous loop), or with an argument maglev_simulate
+   refuses. */
 /* its maglev_simulate, maglev_launch, ... stay this driver's own (the library exports them) */
 #include "maglev_simulate.h" /* first: the library's functions it declares stay external */
 #include <math.h>
@@ -122,11 +124,11 @@ static void scalar_run(const batch* b, long long i) {
                                  b->gap_traj + i * rows * NG, b->saturated + i, b->status + i);
 }
 
-/* the lanes fly run i: the tick-held loop without the sense tick, arguments valid (the checks
-   of maglev_simulate) */
+/* the lanes fly run i: the tick-held loop (on the state or on the sensors), arguments valid
+   (the checks of maglev_simulate) */
 static int lane_run_ok(const batch* b, long long i) {
     const maglev_control_loop* loop = b->loops + i;
-    return loop->tick_steps > 0 && loop->sense == 0
+    return loop->tick_steps > 0
         && run_arguments_ok(b->x0 + i * NX, b->dt, b->n_steps, b->gap_min, b->x_traj,
                             b->u_traj, b->gap_traj)
         && isfinite(b->F_prop[i]) && finite_vector(b->K_pos + 25 * i, 25)
@@ -212,9 +214,10 @@ static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
     }
     for (j = 0; j < b->n_p && j < NP_MAX; ++j) S->p[j * W + l] = p[j];
     /* the tick's coupled control in lanes likewise, when maglev_coupled_control takes this p
-       and the gains (the gains and a_ref are the run's: checked finite) */
+       and the gains (the gains and a_ref are the run's: checked finite); on the sensors the
+       sense tick computes the command (sensed_command), not maglev_coupled_control */
     L->control_lanes = 0;
-    if (b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
+    if (loop->sense == 0 && b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
         maglev_real u_gen[5];
         ws->arg[0] = b->x0 + i * NX;
         ws->arg[1] = L->fixed + MAGLEV_SCHEDULE_K_POS;
@@ -272,10 +275,19 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
                 L->ring_sat[d] = 0;
             }
         }
-        /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
-        lanes_u_gen = ready ? L->u_gen : 0;
-        s = command(ws, &L->r, x, t, g, &L->law, slot);
-        lanes_u_gen = 0;
+        if (L->r.loop->sense != 0) {
+            /* on the sensors: run_loop's sensed_command, the lane's own sense tick, its
+               readings' rates by maglev_dynamics_prepared from the lane's d (ws->d: run_loop
+               prepares it per run, the lanes keep it in their column) */
+            for (i = 0; i < ND; ++i) ws->d[i] = S->d[i * W + l];
+            s = sensed_command(ws, &L->r, x, L->k / L->tick, t,
+                               L->ring + ((L->w + 1) % L->depth) * NU, L->act, L->lagged, slot);
+        } else {
+            /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
+            lanes_u_gen = ready ? L->u_gen : 0;
+            s = command(ws, &L->r, x, t, g, &L->law, slot);
+            lanes_u_gen = 0;
+        }
         if (s < 0) {
             lane_end(L, b, MAGLEV_SIM_ERROR);
             return 0;

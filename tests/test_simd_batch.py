@@ -266,40 +266,79 @@ def test_roa_confirmation_batch_equals_single_runs(carriage, sim_lib, op) -> Non
         assert (status, ratio) == (traj.status, float(end @ P @ end / (dx @ P @ dx)))
 
 
-@pytest.mark.needs_cc
-def test_sensed_runs_beside_the_lanes_are_the_scalar_loop(carriage, sim_lib, op) -> None:
-    """Runs on the sensors (the firmware's sense tick: its own C per run) stay on the scalar
-    path inside the lane driver, between runs that the lanes fly: every run equal to its
-    maglev_simulate, the sense ticks' recorded readings too."""
+@pytest.fixture(scope="module")
+def sensed_runs(carriage, sim_lib, op):
+    """A maker of eleven runs on the sensors (the firmware's sense tick, each run its own
+    noise seed, readings, predictions and commands recorded) and a run on the exact state
+    between them, ``n`` steps each, made afresh at each call (a run's sense state is its
+    own): nominal and heavier carriages, a disturbance that reaches contact, a force budget
+    the sense tick's law saturates at, a NaN parameter (an error at step 0) and a noise scale
+    of 0."""
     from maglevgen.analyses.simulate import run_loop
     from maglevgen.control.carriage_plant import Plant
 
     plant = Plant(carriage, sim_lib)
-    sensed, k_v, budget = run_loop(plant, "sensed")
+    sensed, k_v, budget = run_loop(plant, "sensed", seed=53)
     firmware = run_loop(plant, "firmware")
+    p2 = carriage.p.copy()
+    p2[carriage.structure.param_names.index("vehicle.mass")] *= 1.04
     min_gap = carriage.params.track.min_gap
-    n_u, n_g, n = op.allocation.shape[0] + 1, op.gaps.size, 200
+    op2 = operating_point(sim_lib, p2, op.speed, min_gap, Weights.of(carriage.params))
+    bad = carriage.p.copy()
+    bad[carriage.structure.param_names.index("vehicle.mass")] = np.nan
+    cases = [(carriage.p, op, {"z": 1e-3}, budget, 1.0), (p2, op2, {"phi": 2e-3}, budget, 1.0),
+             (carriage.p, op, {"y": -1e-3}, budget, 1.0),
+             (carriage.p, op, {"z": 0.03}, budget, 1.0),
+             (carriage.p, op, {"z": 2e-3, "phi": 4e-3}, 0.05, 1.0),
+             (bad, op, {"z": 1e-3}, budget, 1.0), (carriage.p, op, {"theta": 1e-3}, budget, 0.0),
+             (p2, op2, {"psi": -3e-3}, budget, 1.0), (carriage.p, op, {"z": -2e-3}, budget, 1.0),
+             (carriage.p, op, {"y": 2e-3}, budget, 3.0), (p2, op2, {"z": 1e-3}, budget, 1.0)]
 
-    def runs():  # made afresh: a sensed run's sense state is its own
-        out = []
-        for k, d in enumerate(({"z": 1e-3}, {"phi": 2e-3}, {"y": -1e-3}, {"z": -2e-3},
-                               {"theta": 1e-3})):
-            tick, kv, fb = (sensed, k_v, budget) if k % 2 == 0 else firmware
-            out.append(hold_run(carriage.p, op, "spec", DT, d, tick, kv, fb, n_steps=n))
+    def make(n: int) -> list:
+        out = [hold_run(p, o, "spec", DT, d, replace(sensed, seed=53 + k, noise_scale=scale),
+                        k_v, fb, n_steps=n)
+               for k, (p, o, d, fb, scale) in enumerate(cases)]
+        out.insert(3, hold_run(carriage.p, op, "spec", DT, {"z": 1e-3}, *firmware, n_steps=n))
         return out
 
-    want = _scalar(sim_lib, runs(), n, min_gap, n_u, n_g)
-    batch = runs()
-    got = sim_lib.simulate_batch(batch, DT, n, min_gap, n_u, n_g, 1, lanes=0)
-    reference = runs()
-    for r in reference:
-        sim_lib.simulate(r.x0, DT, n, r.f_prop, r.k_pos, r.k_rate, r.a_ref, r.p, min_gap,
-                         n_u, n_g, r.loop)
-    for i, (a, b) in enumerate(zip(want, got, strict=True)):
-        assert _same(a, b), i
-    for r, s in zip(reference, batch, strict=True):
-        if r.loop.sense is not None:
-            assert np.array_equal(r.loop.sense.readings, s.loop.sense.readings)
+    return make
+
+
+def _same_sensing(a, b) -> bool:
+    """Two runs' sense ticks recorded the same readings, predictions, commands and error."""
+    if a.loop.sense is None:
+        return b.loop.sense is None
+    sa, sb = a.loop.sense, b.loop.sense
+    return (np.array_equal(sa.readings, sb.readings) and np.array_equal(sa.predicted, sb.predicted)
+            and np.array_equal(sa.commands, sb.commands) and sa.tick_error == sb.tick_error)
+
+
+@pytest.mark.needs_cc
+def test_sensed_runs_in_the_lanes_equal_the_scalar_loop(carriage, sim_lib, op,
+                                                        sensed_runs) -> None:
+    """Runs on the sensors fly in the lanes (the plant's stages in SIMD, each run's sense tick
+    its own C per lane): at every lane count the CPU runs, the scalar driver (one
+    maglev_simulate a run) and on two threads, a batch of twelve (no multiple of 8), every
+    run bit for bit the run maglev_simulate makes on its own, its sense tick's readings,
+    predictions, commands and error too. The runs reach what they are meant to: a contact,
+    saturated steps, an error at once."""
+    n_u, n_g, n = op.allocation.shape[0] + 1, op.gaps.size, 400
+    min_gap = carriage.params.track.min_gap
+    reference = sensed_runs(n)
+    want = _scalar(sim_lib, reference, n, min_gap, n_u, n_g)
+    statuses = [w.status for w in want]
+    assert statuses[4] == 1 and 0 < want[4].last < n // 2, (statuses[4], want[4].last)  # contact
+    assert want[5].saturated_steps > 0
+    assert statuses[6] == 3 and want[6].last == 0  # the NaN parameter: an error at once
+    assert statuses.count(0) == len(reference) - 2
+    assert reference[0].loop.sense.readings.any() and reference[3].loop.sense is None
+    for lanes, threads in [(None, 1), *((w, 1) for w in _widths(sim_lib)), (0, 2)]:
+        batch = sensed_runs(n)
+        got = sim_lib.simulate_batch(batch, DT, n, min_gap, n_u, n_g, threads, lanes=lanes)
+        for i, (a, b) in enumerate(zip(want, got, strict=True)):
+            assert _same(a, b), (lanes, threads, i)
+        for i, (r, s) in enumerate(zip(reference, batch, strict=True)):
+            assert _same_sensing(r, s), (lanes, threads, i)
 
 
 def _compile_lanes(cc: str, tmp_path, sim_lib) -> None:
