@@ -32,9 +32,16 @@
    (below): the lane's u_gen from the lanes' kernel where it has one, else the library's */
 static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw,
                                  maglev_real* w, int mem);
+/* and the sense tick's readings take the plant's rates at the tick (held_rhs's
+   maglev_dynamics_prepared) through lanes_dynamics_prepared: from the lanes' kernel where it
+   computed them, else the library's */
+static int lanes_dynamics_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                   maglev_real* w, int mem);
 #define maglev_coupled_control lanes_coupled_control
+#define maglev_dynamics_prepared lanes_dynamics_prepared
 #include "maglev_simulate.c"
 #undef maglev_coupled_control
+#undef maglev_dynamics_prepared
 #pragma GCC visibility pop
 
 #include <string.h>
@@ -73,6 +80,20 @@ static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, mag
     for (i = 0; i < 5; ++i) res[0][i] = lanes_u_gen[i];
     return 0;
 }
+
+/* the xdot the sense tick's readings take for the lane it runs (NULL: maglev_dynamics_prepared's,
+   computed now) and whether maglev_dynamics_prepared's checks pass on it (lane_stage_ok: its x,
+   u and xdot finite; else its error, the output zeroed as it zeroes it); one per thread */
+static __thread const maglev_real* lanes_xdot;
+static __thread int lanes_xdot_ok;
+
+static int lanes_dynamics_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                   maglev_real* w, int mem) {
+    int i;
+    if (lanes_xdot == 0) return maglev_dynamics_prepared(arg, res, iw, w, mem);
+    for (i = 0; i < NX; ++i) res[0][i] = lanes_xdot_ok ? lanes_xdot[i] : 0;
+    return lanes_xdot_ok ? 0 : 1;
+}
 #define NP_MAX 256 /* the most parameters the lanes' gaps take (else maglev_gaps per lane) */
 
 /* the batch: run i's inputs and outputs as maglev_batch_simulate (maglev_batch.c) takes them */
@@ -101,6 +122,8 @@ typedef struct {
     int gaps_lanes; /* the gaps in lanes: p passed maglev_gaps's checks (lane_start) */
     int control_lanes; /* the tick's u_gen in lanes: maglev_coupled_control took p */
     maglev_real u_gen[5]; /* the lane's u_gen from the lanes' kernel at this step's tick */
+    maglev_real xdot[NX]; /* on the sensors: the plant's rates at this step's tick (kernel) */
+    int xdot_ok;          /* and maglev_dynamics_prepared's checks on them */
 } lane;
 
 /* the lanes' stage arrays, [entry][W] */
@@ -276,12 +299,19 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
             }
         }
         if (L->r.loop->sense != 0) {
-            /* on the sensors: run_loop's sensed_command, the lane's own sense tick, its
-               readings' rates by maglev_dynamics_prepared from the lane's d (ws->d: run_loop
+            /* on the sensors: run_loop's sensed_command, the lane's own sense tick; its
+               readings' rates from the dynamics kernel when it computed them at this x
+               (`ready`), else by maglev_dynamics_prepared from the lane's d (ws->d: run_loop
                prepares it per run, the lanes keep it in their column) */
-            for (i = 0; i < ND; ++i) ws->d[i] = S->d[i * W + l];
+            if (ready) {
+                lanes_xdot = L->xdot;
+                lanes_xdot_ok = L->xdot_ok;
+            } else {
+                for (i = 0; i < ND; ++i) ws->d[i] = S->d[i * W + l];
+            }
             s = sensed_command(ws, &L->r, x, L->k / L->tick, t,
                                L->ring + ((L->w + 1) % L->depth) * NU, L->act, L->lagged, slot);
+            lanes_xdot = 0;
         } else {
             /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
             lanes_u_gen = ready ? L->u_gen : 0;
@@ -394,7 +424,7 @@ static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
 static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel gaps_kernel,
                       lanes_kernel control_kernel, long long* next) {
     lane lanes[LANES_MAX];
-    int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], any_gaps, any_tick;
+    int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], any_gaps, any_tick, any_sense;
     stage_arrays arrays, *S = &arrays;
     work ws;
     const maglev_real half = b->dt / (maglev_real)2;
@@ -403,16 +433,43 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
     for (l = 0; l < W; ++l) lanes[l].run = -1;
     while (any) {
         /* the tick's coupled control of the running lanes at a tick, in lanes (a lane that
-           takes a new run below computes its own) */
-        any_tick = 0;
+           takes a new run below computes its own); on the sensors, the plant's rates under
+           the inputs acting at the tick, which the sense tick's readings take (sensed_command:
+           the command applied over this tick, the array forces through the lag), in lanes
+           after the run's first tick (whose inputs the safe command sets) */
+        any_tick = any_sense = 0;
         for (l = 0; l < W; ++l) {
             lane* L = lanes + l;
             ready[l] = 0;
-            if (L->run >= 0 && L->control_lanes && L->k % L->tick == 0) {
+            if (L->run >= 0 && L->k % L->tick == 0
+                && (L->control_lanes || (L->r.loop->sense != 0 && L->k > 0))) {
                 const maglev_real* x = lane_x(L, b);
                 int i;
                 for (i = 0; i < NX; ++i) S->x[i * W + l] = x[i];
-                ready[l] = any_tick = 1;
+                ready[l] = 1;
+                if (L->control_lanes) {
+                    any_tick = 1;
+                } else {
+                    const maglev_real* next = L->ring + ((L->w + 1) % L->depth) * NU;
+                    S->u[l] = next[0];
+                    for (i = 1; i < NU; ++i) S->u[i * W + l] = L->lagged ? L->act[i] : next[i];
+                    any_sense = 1;
+                }
+            }
+        }
+        if (any_sense) {
+            const double* in[3];
+            double* out[1];
+            in[0] = S->x;
+            in[1] = S->u;
+            in[2] = S->d;
+            out[0] = S->k1;
+            (void)kernel(in, out);
+            for (l = 0; l < W; ++l) {
+                int i;
+                if (!ready[l] || lanes[l].control_lanes) continue;
+                for (i = 0; i < NX; ++i) lanes[l].xdot[i] = S->k1[i * W + l];
+                lanes[l].xdot_ok = lane_stage_ok(S->x, S->u, S->k1, l, W);
             }
         }
         if (any_tick) {
@@ -427,7 +484,7 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
             (void)control_kernel(in, out);
             for (l = 0; l < W; ++l) {
                 int i;
-                if (!ready[l]) continue;
+                if (!ready[l] || !lanes[l].control_lanes) continue;
                 for (i = 0; i < 5; ++i) lanes[l].u_gen[i] = S->u_gen[i * W + l];
                 /* a non-finite u_gen (or x): maglev_coupled_control's own answer */
                 ready[l] = all_finite(lanes[l].u_gen, 5) && all_finite(lane_x(&lanes[l], b), NX);
