@@ -164,6 +164,48 @@ def test_lane_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
                 assert np.array_equal(u_gen[:, lane], want), (w, lane)
 
 
+@pytest.mark.needs_cc
+def test_reading_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
+    """The translated sensor readings (maglev_gap_reading, maglev_imu_reading: what a run on
+    the sensors reads at each tick) in each lane count against the library's own, lane by
+    lane, reading and Jacobian: random poses about the trim (scales 0 to 0.3), rates, sensor
+    points and unit normals, different in every lane."""
+    gap_reading = sim_lib.function("maglev_gap_reading")
+    imu_reading = sim_lib.function("maglev_imu_reading")
+    kernels = sim_lib._lanes_functions()[2]
+    P = ctypes.POINTER(ctypes.c_double)
+    rng = np.random.default_rng(530)
+
+    def call(kernel, inputs, outputs) -> None:
+        assert kernel((P * len(inputs))(*(a.ctypes.data_as(P) for a in inputs)),
+                      (P * len(outputs))(*(a.ctypes.data_as(P) for a in outputs))) == 0
+
+    for w in _widths(sim_lib):
+        for scale in (0.0, 1e-3, 0.1, 0.3):
+            x = _aligned(op.x_trim[:, None] + scale * rng.standard_normal((12, w)))
+            xdot = _aligned(rng.standard_normal((12, w)))
+            point = _aligned(rng.standard_normal((3, w)))
+            normal = rng.standard_normal((3, w))
+            normal = _aligned(normal / np.linalg.norm(normal, axis=0))
+            nominal = _aligned(0.01 + 0.02 * rng.random((1, w)))
+            pp = _aligned(np.repeat(carriage.p[:, None], w, axis=1))
+            reading, H = _aligned(np.zeros((1, w))), _aligned(np.zeros((12, w)))
+            call(getattr(kernels, kernel_name("maglev_gap_reading", w)),
+                 (x, point, normal, nominal), (reading, H))
+            gyro, force = _aligned(np.zeros((3, w))), _aligned(np.zeros((3, w)))
+            H_x, H_xdot = _aligned(np.zeros((72, w))), _aligned(np.zeros((72, w)))
+            call(getattr(kernels, kernel_name("maglev_imu_reading", w)),
+                 (x, xdot, point, pp), (gyro, force, H_x, H_xdot))
+            for lane in range(w):
+                want = gap_reading(x[:, lane], point[:, lane], normal[:, lane], nominal[:, lane])
+                assert np.array_equal(reading[:, lane], np.ravel(want[0])), (w, scale, lane)
+                assert np.array_equal(H[:, lane], np.ravel(want[1])), (w, scale, lane)
+                want = imu_reading(x[:, lane], xdot[:, lane], point[:, lane], carriage.p)
+                for got, ref in zip((gyro, force, H_x, H_xdot), want, strict=True):
+                    # the kernel's output column-major, as CasADi's
+                    assert np.array_equal(got[:, lane], np.ravel(ref, order="F")), (w, lane)
+
+
 def _aligned(a: np.ndarray) -> np.ndarray:
     """A copy of ``a`` (C order) at a 64-byte boundary: the kernels load whole vectors."""
     buf = np.empty(a.size + 8)
