@@ -406,3 +406,22 @@ def test_the_lane_driver_compiles_without_warnings_gcc(tmp_path, sim_lib) -> Non
 @pytest.mark.needs_cc("clang")
 def test_the_lane_driver_compiles_without_warnings_clang(tmp_path, sim_lib) -> None:
     _compile_lanes("clang", tmp_path, sim_lib)
+
+
+@pytest.mark.needs_cc
+def test_sensed_runs_in_the_lanes_over_ten_seconds(carriage, sim_lib, op, sensed_runs) -> None:
+    """The issue's measure on the sensors: 10 s at 1 kHz (10^4 ticks of the sense tick), the
+    widest lanes, the twelve runs: every state at the end, the whole trajectories and the
+    recorded readings bit for bit maglev_simulate's."""
+    n_u, n_g, n = op.allocation.shape[0] + 1, op.gaps.size, 10_000
+    min_gap = carriage.params.track.min_gap
+    reference = sensed_runs(n)
+    want = _scalar(sim_lib, reference, n, min_gap, n_u, n_g)
+    assert sum(w.last == n for w in want) >= 6, [w.last for w in want]
+    batch = sensed_runs(n)
+    got = sim_lib.simulate_batch(batch, DT, n, min_gap, n_u, n_g, 1, lanes=0)
+    for i, (a, b) in enumerate(zip(want, got, strict=True)):
+        assert np.array_equal(a.x[-1], b.x[-1]), i
+        assert _same(a, b), i
+    for i, (r, s) in enumerate(zip(reference, batch, strict=True)):
+        assert _same_sensing(r, s), i
