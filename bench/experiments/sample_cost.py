@@ -8,7 +8,8 @@ firmware's sense tick on noisy readings) and ``--loop firmware`` (the exact stat
 Per loop, on one process (`run_local`, workers=1: the study's own chunks, one thread): the CPU
 per sample of the whole study (draws, trims, gains, the C batch, metrics) and of the bare C
 batch alone on the same prepared runs (`simulate_batch` in the study's chunks, lanes as the
-study picks them, and the scalar driver), so the Python's share is their difference;
+study picks them, and the scalar driver; each sensed run's noise drawn again, outside the
+timing), so the Python's share is their difference;
 ``--profile``: cProfile's top functions of the study by cumulative and by own time.
 CPU time of this process (time.process_time); one round: the machine is shared, take the
 ratios, not the seconds.
@@ -51,9 +52,10 @@ def measure(loop: str, n: int, profile: bool) -> dict:
     runs, n_u, n_g = study_runs(study, lib, n)
     prepare = (time.process_time() - t0) / n
     n_steps = round(T_END / DT)
-    size = default_chunk(10_000, 2)
-    out = {"loop": loop, "samples": n, "study_s": whole, "prepare_s": prepare}
+    size = default_chunk(n, 1)  # the study's own chunks
+    out = {"loop": loop, "samples": n, "chunk": size, "study_s": whole, "prepare_s": prepare}
     for name, lanes in (("lanes", 0), ("scalar", None)):
+        runs, n_u, n_g = study_runs(study, lib, n)  # afresh: a sensed run's state is its own
         t0 = time.process_time()
         for i in range(0, len(runs), size):
             lib.simulate_batch(runs[i:i + size], DT, n_steps, study.min_gap, n_u, n_g, 1,
