@@ -401,10 +401,7 @@ def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
     readings and prediction kept when ``record``, and zero state-feedback gains: the sense
     tick's law flies the firmware's tables): what `simulate_batch` runs."""
     design = op if controller_op is None else controller_op
-    if isinstance(tick, SensedTick):
-        # the sense tick flies the firmware's own tables: no state-feedback gain is flown
-        # (maglev_simulate takes them finite and, on the sensors, reads none), so none is
-        # designed (a discrete Riccati solve a run)
+    if isinstance(tick, SensedTick):  # no gain designed: maglev_simulate reads none here
         sense = sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
         loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, sense=sense)
         K_pos = K_rate = np.zeros(25)
