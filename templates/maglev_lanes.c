@@ -10,8 +10,11 @@
    maglevgen.codegen.lanes translates from the library's C, each lane bit for bit the scalar
    function: the RK4 stages' right-hand side (maglev_dynamics_prepared), the gaps
    (maglev_gaps) and the tick's coupled control (maglev_coupled_control, which the command's
-   own code takes through lanes_coupled_control); each with the checks the scalar loop's call
-   makes (of p once per run, by one scalar call; of x and the output per lane and call).
+   own code takes through lanes_coupled_control); on the sensors, the plant's rates at a tick
+   and the readings (maglev_dynamics_prepared, maglev_gap_reading, maglev_imu_reading, which
+   sensed_command takes through lanes_dynamics_prepared, lanes_gap_reading and
+   lanes_imu_reading); each with the checks the scalar loop's call makes (of p once per run,
+   by one scalar call; of x and the output per lane and call).
    Everything else is the scalar code of maglev_simulate's run_loop, lane by lane, in its
    order, so a lane's run is the run maglev_simulate makes (the tests compare every state,
    input, gap, status and count).
@@ -19,9 +22,9 @@
    A lane holds one run; when the run ends (its last step, a contact, a non-finite state, an
    error) the lane takes the next run of the batch at once, so no lane idles while runs are
    left and a finished run never touches the others (the lanes share no arithmetic). A run on
-   the sensors (loop->sense) flies its plant in the lanes and, at each tick, its own sense tick
-   (run_loop's sensed_command: the readings, the run's noise, the firmware's C through the
-   run's pointers and state), lane by lane. Runs the lanes do not fly go to maglev_simulate
+   the sensors (loop->sense) flies its plant and its readings in the lanes and, at each tick,
+   its own sense tick (run_loop's sensed_command: the run's noise and rounding, the firmware's
+   estimator and law, its C through the run's pointers and state), lane by lane. Runs the lanes do not fly go to maglev_simulate
    whole: a loop without a tick (the continuous loop), or with an argument maglev_simulate
    refuses. */
 /* its maglev_simulate, maglev_launch, ... stay this driver's own (the library exports them) */
