@@ -458,8 +458,9 @@ class SimulationLibrary(GeneratedLibrary):
         OpenMP's default). ``lanes``: None, one maglev_simulate per run (maglev_batch.c);
         else the lane driver (maglev_lanes.c) with that many lanes (0: `_auto_lanes`: the
         widest the CPU runs and the runs fill, the scalar driver where there are none): the
-        runs with a tick and no sense tick W at a time in SIMD lanes, the others as
-        maglev_simulate, each run the same numbers (tests/test_simd_batch.py). ``lane_math``
+        runs with a tick W at a time in SIMD lanes (on the sensors too: each run's sense tick
+        its own C per lane), the others as maglev_simulate, each run the same numbers
+        (tests/test_simd_batch.py). ``lane_math``
         "libmvec": the lanes' exp, sin and cos by glibc's libmvec (bench/simd_batch.py's
         experiment: no longer the scalar run's bits)."""
         real = self._real

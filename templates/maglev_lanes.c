@@ -10,18 +10,23 @@
    maglevgen.codegen.lanes translates from the library's C, each lane bit for bit the scalar
    function: the RK4 stages' right-hand side (maglev_dynamics_prepared), the gaps
    (maglev_gaps) and the tick's coupled control (maglev_coupled_control, which the command's
-   own code takes through lanes_coupled_control); each with the checks the scalar loop's call
-   makes (of p once per run, by one scalar call; of x and the output per lane and call).
+   own code takes through lanes_coupled_control); on the sensors, the plant's rates at a tick
+   and the readings (maglev_dynamics_prepared, maglev_gap_reading, maglev_imu_reading, which
+   sensed_command takes through lanes_dynamics_prepared, lanes_gap_reading and
+   lanes_imu_reading); each with the checks the scalar loop's call makes (of p once per run,
+   by one scalar call; of x and the output per lane and call).
    Everything else is the scalar code of maglev_simulate's run_loop, lane by lane, in its
    order, so a lane's run is the run maglev_simulate makes (the tests compare every state,
    input, gap, status and count).
 
    A lane holds one run; when the run ends (its last step, a contact, a non-finite state, an
    error) the lane takes the next run of the batch at once, so no lane idles while runs are
-   left and a finished run never touches the others (the lanes share no arithmetic). Runs the
-   lanes do not fly go to maglev_simulate whole: a loop without a tick (the continuous loop),
-   with the sense tick (loop->sense: the firmware's C per run), or with an argument
-   maglev_simulate refuses. */
+   left and a finished run never touches the others (the lanes share no arithmetic). A run on
+   the sensors (loop->sense) flies its plant and its readings in the lanes and, at each tick,
+   its own sense tick (run_loop's sensed_command: the run's noise and rounding, the firmware's
+   estimator and law, its C through the run's pointers and state), lane by lane. Runs the lanes do not fly go to maglev_simulate
+   whole: a loop without a tick (the continuous loop), or with an argument maglev_simulate
+   refuses. */
 /* its maglev_simulate, maglev_launch, ... stay this driver's own (the library exports them) */
 #include "maglev_simulate.h" /* first: the library's functions it declares stay external */
 #include <math.h>
@@ -30,9 +35,26 @@
    (below): the lane's u_gen from the lanes' kernel where it has one, else the library's */
 static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, maglev_int* iw,
                                  maglev_real* w, int mem);
+/* and the sense tick's readings take the plant's rates at the tick (held_rhs's
+   maglev_dynamics_prepared) through lanes_dynamics_prepared: from the lanes' kernel where it
+   computed them, else the library's */
+static int lanes_dynamics_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                   maglev_real* w, int mem);
+/* and the readings themselves (sensor_readings' maglev_gap_reading and maglev_imu_reading)
+   likewise, through lanes_gap_reading and lanes_imu_reading */
+static int lanes_gap_reading(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                             maglev_real* w, int mem);
+static int lanes_imu_reading(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                             maglev_real* w, int mem);
 #define maglev_coupled_control lanes_coupled_control
+#define maglev_dynamics_prepared lanes_dynamics_prepared
+#define maglev_gap_reading lanes_gap_reading
+#define maglev_imu_reading lanes_imu_reading
 #include "maglev_simulate.c"
 #undef maglev_coupled_control
+#undef maglev_dynamics_prepared
+#undef maglev_gap_reading
+#undef maglev_imu_reading
 #pragma GCC visibility pop
 
 #include <string.h>
@@ -48,17 +70,25 @@ static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, mag
    function's input i, out[j] its output j, each [entry][W] */
 #define LANES_KERNEL(name) int name(const maglev_real* const* in, maglev_real* const* out)
 typedef LANES_KERNEL((*lanes_kernel));
-LANES_KERNEL(maglev_lanes_dynamics_w2);
-LANES_KERNEL(maglev_lanes_gaps_w2);
-LANES_KERNEL(maglev_lanes_control_w2);
+#define LANES_KERNELS(w)                                                                    \
+    LANES_KERNEL(maglev_lanes_dynamics_w##w);                                               \
+    LANES_KERNEL(maglev_lanes_gaps_w##w);                                                   \
+    LANES_KERNEL(maglev_lanes_control_w##w);                                                \
+    LANES_KERNEL(maglev_lanes_gap_reading_w##w);                                            \
+    LANES_KERNEL(maglev_lanes_imu_reading_w##w)
+LANES_KERNELS(2);
 #if defined(__x86_64__)
-LANES_KERNEL(maglev_lanes_dynamics_w4);
-LANES_KERNEL(maglev_lanes_gaps_w4);
-LANES_KERNEL(maglev_lanes_control_w4);
-LANES_KERNEL(maglev_lanes_dynamics_w8);
-LANES_KERNEL(maglev_lanes_gaps_w8);
-LANES_KERNEL(maglev_lanes_control_w8);
+LANES_KERNELS(4);
+LANES_KERNELS(8);
 #endif
+
+/* the kernels of one lane count */
+typedef struct {
+    lanes_kernel dynamics, gaps, control, gap_reading, imu_reading;
+} kernel_set;
+#define KERNEL_SET(w)                                                                       \
+    { maglev_lanes_dynamics_w##w, maglev_lanes_gaps_w##w, maglev_lanes_control_w##w,         \
+      maglev_lanes_gap_reading_w##w, maglev_lanes_imu_reading_w##w }
 
 /* the u_gen the tick's command takes for the lane it runs (NULL: maglev_coupled_control's,
    computed now); one per thread */
@@ -70,6 +100,60 @@ static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, mag
     if (lanes_u_gen == 0) return maglev_coupled_control(arg, res, iw, w, mem);
     for (i = 0; i < 5; ++i) res[0][i] = lanes_u_gen[i];
     return 0;
+}
+
+/* the xdot the sense tick's readings take for the lane it runs (NULL: maglev_dynamics_prepared's,
+   computed now) and whether maglev_dynamics_prepared's checks pass on it (lane_stage_ok: its x,
+   u and xdot finite; else its error, the output zeroed as it zeroes it); one per thread */
+static __thread const maglev_real* lanes_xdot;
+static __thread int lanes_xdot_ok;
+
+static int lanes_dynamics_prepared(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                                   maglev_real* w, int mem) {
+    int i;
+    if (lanes_xdot == 0) return maglev_dynamics_prepared(arg, res, iw, w, mem);
+    for (i = 0; i < NX; ++i) res[0][i] = lanes_xdot_ok ? lanes_xdot[i] : 0;
+    return lanes_xdot_ok ? 0 : 1;
+}
+
+/* the readings the sense tick takes for the lane it runs, from the kernels (NULL: the
+   library's, computed now): each gap sensor's, in sensor_readings' order (lanes_gap_next: the
+   next one's index; a call at another sensor's point is the library's), and the IMU's gyro
+   and specific force; with each one's checks (the library's: its inputs and the requested
+   outputs finite; sensor_readings requests no Jacobian; the IMU's check of p made once a
+   run, lane_start). One per thread. */
+typedef struct {
+    const maglev_sensing* sense;
+    maglev_real gap[MAGLEV_SIM_MAX_READINGS], gyro[3], specific_force[3];
+    int gap_ok[MAGLEV_SIM_MAX_READINGS], imu_ok;
+} lane_readings;
+static __thread const lane_readings* lanes_readings;
+static __thread int lanes_gap_next;
+
+static int lanes_gap_reading(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                             maglev_real* w, int mem) {
+    const lane_readings* R = lanes_readings;
+    const int j = lanes_gap_next;
+    if (R == 0 || j >= R->sense->n_gap || arg[1] != R->sense->gap_point + 3 * j || res[1] != 0) {
+        return maglev_gap_reading(arg, res, iw, w, mem);
+    }
+    lanes_gap_next = j + 1;
+    res[0][0] = R->gap_ok[j] ? R->gap[j] : 0;
+    return R->gap_ok[j] ? 0 : 1;
+}
+
+static int lanes_imu_reading(const maglev_real** arg, maglev_real** res, maglev_int* iw,
+                             maglev_real* w, int mem) {
+    const lane_readings* R = lanes_readings;
+    int i;
+    if (R == 0 || arg[2] != R->sense->imu_point || res[2] != 0 || res[3] != 0) {
+        return maglev_imu_reading(arg, res, iw, w, mem);
+    }
+    for (i = 0; i < 3; ++i) {
+        res[0][i] = R->imu_ok ? R->gyro[i] : 0;
+        res[1][i] = R->imu_ok ? R->specific_force[i] : 0;
+    }
+    return R->imu_ok ? 0 : 1;
 }
 #define NP_MAX 256 /* the most parameters the lanes' gaps take (else maglev_gaps per lane) */
 
@@ -98,7 +182,11 @@ typedef struct {
     int w, sat, depth, lagged;
     int gaps_lanes; /* the gaps in lanes: p passed maglev_gaps's checks (lane_start) */
     int control_lanes; /* the tick's u_gen in lanes: maglev_coupled_control took p */
+    int sense_lanes; /* on the sensors: the rates and readings at a tick in lanes (lane_start) */
     maglev_real u_gen[5]; /* the lane's u_gen from the lanes' kernel at this step's tick */
+    maglev_real xdot[NX]; /* on the sensors: the plant's rates at this step's tick (kernel) */
+    int xdot_ok;          /* and maglev_dynamics_prepared's checks on them */
+    lane_readings readings; /* and the readings there (kernels) */
 } lane;
 
 /* the lanes' stage arrays, [entry][W] */
@@ -108,6 +196,12 @@ typedef struct {
     double d[ND * LANES_MAX] ALIGN, p[NP_MAX * LANES_MAX] ALIGN, g[NG * LANES_MAX] ALIGN;
     double K_pos[25 * LANES_MAX] ALIGN, K_rate[25 * LANES_MAX] ALIGN, a_ref[5 * LANES_MAX] ALIGN;
     double u_gen[5 * LANES_MAX] ALIGN;
+    /* the readings' kernels: a gap sensor's point, normal and nominal gap, the IMU's point,
+       and their outputs (the Jacobians not kept) */
+    double s_point[3 * LANES_MAX] ALIGN, s_normal[3 * LANES_MAX] ALIGN, s_nominal[LANES_MAX] ALIGN;
+    double s_gap[LANES_MAX] ALIGN, s_H[12 * LANES_MAX] ALIGN;
+    double s_gyro[3 * LANES_MAX] ALIGN, s_force[3 * LANES_MAX] ALIGN;
+    double s_Hx[72 * LANES_MAX] ALIGN, s_Hxdot[72 * LANES_MAX] ALIGN;
     double k1[NX * LANES_MAX] ALIGN, k2[NX * LANES_MAX] ALIGN, k3[NX * LANES_MAX] ALIGN,
         k4[NX * LANES_MAX] ALIGN;
 } stage_arrays;
@@ -122,11 +216,11 @@ static void scalar_run(const batch* b, long long i) {
                                  b->gap_traj + i * rows * NG, b->saturated + i, b->status + i);
 }
 
-/* the lanes fly run i: the tick-held loop without the sense tick, arguments valid (the checks
-   of maglev_simulate) */
+/* the lanes fly run i: the tick-held loop (on the state or on the sensors), arguments valid
+   (the checks of maglev_simulate) */
 static int lane_run_ok(const batch* b, long long i) {
     const maglev_control_loop* loop = b->loops + i;
-    return loop->tick_steps > 0 && loop->sense == 0
+    return loop->tick_steps > 0
         && run_arguments_ok(b->x0 + i * NX, b->dt, b->n_steps, b->gap_min, b->x_traj,
                             b->u_traj, b->gap_traj)
         && isfinite(b->F_prop[i]) && finite_vector(b->K_pos + 25 * i, 25)
@@ -212,9 +306,10 @@ static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
     }
     for (j = 0; j < b->n_p && j < NP_MAX; ++j) S->p[j * W + l] = p[j];
     /* the tick's coupled control in lanes likewise, when maglev_coupled_control takes this p
-       and the gains (the gains and a_ref are the run's: checked finite) */
+       and the gains (the gains and a_ref are the run's: checked finite); on the sensors the
+       sense tick computes the command (sensed_command), not maglev_coupled_control */
     L->control_lanes = 0;
-    if (b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
+    if (loop->sense == 0 && b->n_p <= NP_MAX && all_finite(b->x0 + i * NX, NX)) {
         maglev_real u_gen[5];
         ws->arg[0] = b->x0 + i * NX;
         ws->arg[1] = L->fixed + MAGLEV_SCHEDULE_K_POS;
@@ -223,6 +318,27 @@ static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
         ws->arg[4] = p;
         ws->res[0] = u_gen;
         L->control_lanes = maglev_coupled_control(ws->arg, ws->res, ws->iw, ws->w, 0) == 0;
+    }
+    /* on the sensors, the rates and the readings at a tick in lanes when the IMU's reading
+       takes this p (its checks of p, finite and in range, pass for the whole run; of the
+       rest, per tick, lanes_read) */
+    L->sense_lanes = 0;
+    if (loop->sense != 0 && b->n_p <= NP_MAX) {
+        const maglev_sensing* s = loop->sense;
+        L->sense_lanes = 1;
+        if (s->imu_point != 0) {
+            maglev_real xdot[NX], gyro[3], force[3];
+            for (j = 0; j < NX; ++j) xdot[j] = 0;
+            ws->arg[0] = b->x0 + i * NX;
+            ws->arg[1] = xdot;
+            ws->arg[2] = s->imu_point;
+            ws->arg[3] = p;
+            ws->res[0] = gyro;
+            ws->res[1] = force;
+            ws->res[2] = 0;
+            ws->res[3] = 0;
+            L->sense_lanes = maglev_imu_reading(ws->arg, ws->res, ws->iw, ws->w, 0) == 0;
+        }
     }
     for (j = 0; j < 25; ++j) {
         S->K_pos[j * W + l] = L->fixed[MAGLEV_SCHEDULE_K_POS + j];
@@ -272,10 +388,29 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
                 L->ring_sat[d] = 0;
             }
         }
-        /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
-        lanes_u_gen = ready ? L->u_gen : 0;
-        s = command(ws, &L->r, x, t, g, &L->law, slot);
-        lanes_u_gen = 0;
+        if (L->r.loop->sense != 0) {
+            /* on the sensors: run_loop's sensed_command, the lane's own sense tick; its
+               readings' rates from the dynamics kernel when it computed them at this x
+               (`ready`), else by maglev_dynamics_prepared from the lane's d (ws->d: run_loop
+               prepares it per run, the lanes keep it in their column) */
+            if (ready) {
+                lanes_xdot = L->xdot;
+                lanes_xdot_ok = L->xdot_ok;
+                lanes_readings = &L->readings;
+                lanes_gap_next = 0;
+            } else {
+                for (i = 0; i < ND; ++i) ws->d[i] = S->d[i * W + l];
+            }
+            s = sensed_command(ws, &L->r, x, L->k / L->tick, t,
+                               L->ring + ((L->w + 1) % L->depth) * NU, L->act, L->lagged, slot);
+            lanes_xdot = 0;
+            lanes_readings = 0;
+        } else {
+            /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
+            lanes_u_gen = ready ? L->u_gen : 0;
+            s = command(ws, &L->r, x, t, g, &L->law, slot);
+            lanes_u_gen = 0;
+        }
         if (s < 0) {
             lane_end(L, b, MAGLEV_SIM_ERROR);
             return 0;
@@ -378,11 +513,79 @@ static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
     }
 }
 
+/* the readings of the lanes on the sensors at a tick (`sensed`), from the kernels at their
+   states S->x and rates S->k1, with the checks the library's functions make: each gap sensor
+   of the lanes that have it, then the IMU */
+static void lanes_read(const batch* b, stage_arrays* S, lane* lanes, const int* sensed, int W,
+                       const kernel_set* K) {
+    const double* in[4];
+    double* out[4];
+    int l, i, j, n_gap = 0, imu = 0;
+    for (l = 0; l < W; ++l) {
+        if (!sensed[l]) continue;
+        if (lanes[l].readings.sense->n_gap > n_gap) n_gap = lanes[l].readings.sense->n_gap;
+        imu |= lanes[l].readings.sense->imu_point != 0;
+    }
+    in[0] = S->x;
+    for (j = 0; j < n_gap; ++j) {
+        for (l = 0; l < W; ++l) {
+            const maglev_sensing* s = lanes[l].readings.sense;
+            if (!sensed[l] || j >= s->n_gap) continue;
+            for (i = 0; i < 3; ++i) {
+                S->s_point[i * W + l] = s->gap_point[3 * j + i];
+                S->s_normal[i * W + l] = s->gap_normal[3 * j + i];
+            }
+            S->s_nominal[l] = s->gap_nominal[j];
+        }
+        in[1] = S->s_point;
+        in[2] = S->s_normal;
+        in[3] = S->s_nominal;
+        out[0] = S->s_gap;
+        out[1] = S->s_H;
+        (void)K->gap_reading(in, out);
+        for (l = 0; l < W; ++l) {
+            lane_readings* R = &lanes[l].readings;
+            const maglev_sensing* s = R->sense;
+            if (!sensed[l] || j >= s->n_gap) continue;
+            R->gap[j] = S->s_gap[l];
+            R->gap_ok[j] = all_finite(lane_x(&lanes[l], b), NX)
+                           && all_finite(s->gap_point + 3 * j, 3)
+                           && all_finite(s->gap_normal + 3 * j, 3)
+                           && isfinite(s->gap_nominal[j]) && isfinite(S->s_gap[l]);
+        }
+    }
+    if (!imu) return;
+    for (l = 0; l < W; ++l) {
+        const maglev_sensing* s = lanes[l].readings.sense;
+        if (!sensed[l] || s->imu_point == 0) continue;
+        for (i = 0; i < 3; ++i) S->s_point[i * W + l] = s->imu_point[i];
+    }
+    in[1] = S->k1;
+    in[2] = S->s_point;
+    in[3] = S->p; /* a run-time-parameter library's reading takes p */
+    out[0] = S->s_gyro;
+    out[1] = S->s_force;
+    out[2] = S->s_Hx;
+    out[3] = S->s_Hxdot;
+    (void)K->imu_reading(in, out);
+    for (l = 0; l < W; ++l) {
+        lane_readings* R = &lanes[l].readings;
+        if (!sensed[l] || R->sense->imu_point == 0) continue;
+        for (i = 0; i < 3; ++i) {
+            R->gyro[i] = S->s_gyro[i * W + l];
+            R->specific_force[i] = S->s_force[i * W + l];
+        }
+        R->imu_ok = all_finite(lane_x(&lanes[l], b), NX) && all_finite(lanes[l].xdot, NX)
+                    && all_finite(R->sense->imu_point, 3) && all_finite(R->gyro, 3)
+                    && all_finite(R->specific_force, 3);
+    }
+}
+
 /* the runs *next hands out, W at a time in lock step, until none is left */
-static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel gaps_kernel,
-                      lanes_kernel control_kernel, long long* next) {
+static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* next) {
     lane lanes[LANES_MAX];
-    int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], any_gaps, any_tick;
+    int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], sensed[LANES_MAX], any_gaps;
+    int any_tick, any_sense;
     stage_arrays arrays, *S = &arrays;
     work ws;
     const maglev_real half = b->dt / (maglev_real)2;
@@ -391,17 +594,47 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
     for (l = 0; l < W; ++l) lanes[l].run = -1;
     while (any) {
         /* the tick's coupled control of the running lanes at a tick, in lanes (a lane that
-           takes a new run below computes its own) */
-        any_tick = 0;
+           takes a new run below computes its own); on the sensors, the plant's rates under
+           the inputs acting at the tick, which the sense tick's readings take (sensed_command:
+           the command applied over this tick, the array forces through the lag), in lanes
+           after the run's first tick (whose inputs the safe command sets) */
+        any_tick = any_sense = 0;
         for (l = 0; l < W; ++l) {
             lane* L = lanes + l;
             ready[l] = 0;
-            if (L->run >= 0 && L->control_lanes && L->k % L->tick == 0) {
+            if (L->run >= 0 && L->k % L->tick == 0
+                && (L->control_lanes || (L->sense_lanes && L->k > 0))) {
                 const maglev_real* x = lane_x(L, b);
                 int i;
                 for (i = 0; i < NX; ++i) S->x[i * W + l] = x[i];
-                ready[l] = any_tick = 1;
+                ready[l] = 1;
+                if (L->control_lanes) {
+                    any_tick = 1;
+                } else {
+                    const maglev_real* next = L->ring + ((L->w + 1) % L->depth) * NU;
+                    S->u[l] = next[0];
+                    for (i = 1; i < NU; ++i) S->u[i * W + l] = L->lagged ? L->act[i] : next[i];
+                    any_sense = 1;
+                }
             }
+        }
+        if (any_sense) {
+            const double* in[3];
+            double* out[1];
+            in[0] = S->x;
+            in[1] = S->u;
+            in[2] = S->d;
+            out[0] = S->k1;
+            (void)K->dynamics(in, out);
+            for (l = 0; l < W; ++l) {
+                int i;
+                sensed[l] = ready[l] && !lanes[l].control_lanes;
+                if (!sensed[l]) continue;
+                for (i = 0; i < NX; ++i) lanes[l].xdot[i] = S->k1[i * W + l];
+                lanes[l].xdot_ok = lane_stage_ok(S->x, S->u, S->k1, l, W);
+                lanes[l].readings.sense = lanes[l].r.loop->sense;
+            }
+            lanes_read(b, S, lanes, sensed, W, K);
         }
         if (any_tick) {
             const double* in[5];
@@ -412,10 +645,10 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
             in[3] = S->a_ref;
             in[4] = S->p;
             out[0] = S->u_gen;
-            (void)control_kernel(in, out);
+            (void)K->control(in, out);
             for (l = 0; l < W; ++l) {
                 int i;
-                if (!ready[l]) continue;
+                if (!ready[l] || !lanes[l].control_lanes) continue;
                 for (i = 0; i < 5; ++i) lanes[l].u_gen[i] = S->u_gen[i * W + l];
                 /* a non-finite u_gen (or x): maglev_coupled_control's own answer */
                 ready[l] = all_finite(lanes[l].u_gen, 5) && all_finite(lane_x(&lanes[l], b), NX);
@@ -448,7 +681,7 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
         }
         if (!any) break;
         for (l = 0; l < W; ++l) ok[l] = 1;
-        lanes_stage(kernel, S->x, S->u, S, S->k1, live, ok, W);
+        lanes_stage(K->dynamics, S->x, S->u, S, S->k1, live, ok, W);
         any_gaps = 0;
         for (l = 0; l < W; ++l) {
             if (live[l] && !ok[l]) {
@@ -463,17 +696,17 @@ static void lanes_fly(const batch* b, int W, lanes_kernel kernel, lanes_kernel g
             in[0] = S->x;
             in[1] = S->p;
             out[0] = S->g;
-            (void)gaps_kernel(in, out);
+            (void)K->gaps(in, out);
         }
         for (l = 0; l < W; ++l) {
             if (live[l]) live[l] = lane_check(&lanes[l], &ws, S, l, W, b);
         }
         lanes_axpy(S->xt, S->x, half, S->k1, W);
-        lanes_stage(kernel, S->xt, S->u_half, S, S->k2, live, ok, W);
+        lanes_stage(K->dynamics, S->xt, S->u_half, S, S->k2, live, ok, W);
         lanes_axpy(S->xt, S->x, half, S->k2, W);
-        lanes_stage(kernel, S->xt, S->u_half, S, S->k3, live, ok, W);
+        lanes_stage(K->dynamics, S->xt, S->u_half, S, S->k3, live, ok, W);
         lanes_axpy(S->xt, S->x, b->dt, S->k3, W);
-        lanes_stage(kernel, S->xt, S->u_end, S, S->k4, live, ok, W);
+        lanes_stage(K->dynamics, S->xt, S->u_end, S, S->k4, live, ok, W);
         for (l = 0; l < W; ++l) {
             if (!live[l]) continue;
             if (ok[l]) {
@@ -511,8 +744,11 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
                           maglev_real* u_traj, maglev_real* gap_traj, long long* last,
                           long long* saturated, int* status) {
     batch b;
-    lanes_kernel kernel = maglev_lanes_dynamics_w2, gaps_kernel = maglev_lanes_gaps_w2;
-    lanes_kernel control_kernel = maglev_lanes_control_w2;
+    static const kernel_set K2 = KERNEL_SET(2);
+#if defined(__x86_64__)
+    static const kernel_set K4 = KERNEL_SET(4), K8 = KERNEL_SET(8);
+#endif
+    const kernel_set* K = &K2;
     long long next = 0;
     const int W = maglev_lanes_width(width);
     if (W == 0 || n_runs < 0 || nx != NX || nu != NU || ng != NG || n_p < 1 || n_steps < 0
@@ -522,16 +758,8 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
         return -1;
     }
 #if defined(__x86_64__)
-    if (W == 4) {
-        kernel = maglev_lanes_dynamics_w4;
-        gaps_kernel = maglev_lanes_gaps_w4;
-        control_kernel = maglev_lanes_control_w4;
-    }
-    if (W == 8) {
-        kernel = maglev_lanes_dynamics_w8;
-        gaps_kernel = maglev_lanes_gaps_w8;
-        control_kernel = maglev_lanes_control_w8;
-    }
+    if (W == 4) K = &K4;
+    if (W == 8) K = &K8;
 #endif
     b.n_runs = n_runs;
     b.n_p = n_p;
@@ -556,6 +784,6 @@ int maglev_lanes_simulate(long long n_runs, int width, int threads, int nx, int 
 #else
     (void)threads;
 #endif
-    lanes_fly(&b, W, kernel, gaps_kernel, control_kernel, &next);
+    lanes_fly(&b, W, K, &next);
     return 0;
 }

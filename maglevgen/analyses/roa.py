@@ -570,7 +570,8 @@ def confirmation_run(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint,
     """[(status, V(end) / V(start))] of hold runs from trim + each deviation (10 reduced
     states), the controller run as ``loop`` = (tick, speed gain, force budget) says
     (`simulate.run_loop`): the runs in one batch (`simulate.simulate_batch`: the firmware
-    loop's runs side by side in SIMD lanes, each the run `simulate` makes)."""
+    loop's runs, on the state or on the sensors, side by side in SIMD lanes, each the run
+    `simulate` makes)."""
     tick, k_v, budget = loop
 
     def run(dxs: list[np.ndarray], P: np.ndarray) -> list[tuple[str, float]]:

@@ -398,14 +398,16 @@ def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
     """maglev_simulate's inputs for `simulate`'s run of ``n_steps`` steps (the disturbed trim
     of ``op``, the trim drag, the gains and the reference of ``controller_op`` (default
     ``op``), p and the loop; at a `SensedTick`, the run's sensors and noise, each tick's
-    readings and prediction kept when ``record``): what `simulate_batch` runs."""
+    readings and prediction kept when ``record``, and zero state-feedback gains: the sense
+    tick's law flies the firmware's tables): what `simulate_batch` runs."""
     design = op if controller_op is None else controller_op
-    if isinstance(tick, FirmwareTick):
+    if isinstance(tick, SensedTick):  # no gain designed: maglev_simulate reads none here
+        sense = sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
+        loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, sense=sense)
+        K_pos = K_rate = np.zeros(25)
+    elif isinstance(tick, FirmwareTick):
         gains = firmware_gains(design, controller, tick)
-        sense = (sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
-                 if isinstance(tick, SensedTick) else None)
-        loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, design=gains,
-                            sense=sense)
+        loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, design=gains)
         K_pos, K_rate = (k.ravel(order="F") for k in (gains.K_pos, gains.K_rate))
     else:
         loop = control_loop(dt, tick, speed_gain, force_budget, design.speed)

@@ -2,7 +2,8 @@
 
 What a step of the firmware loop evaluates (`KERNELS`: the right-hand side
 ``maglev_dynamics_prepared`` at every RK4 stage, ``maglev_gaps`` and the tick's
-``maglev_coupled_control``) as CasADi and :mod:`maglevgen.codegen.branches` wrote it, statement
+``maglev_coupled_control``; on the sensors, the readings ``maglev_gap_reading`` and
+``maglev_imu_reading``) as CasADi and :mod:`maglevgen.codegen.branches` wrote it, statement
 by statement over GCC/Clang vectors of W doubles (``__attribute__((vector_size(8 W)))``):
 every arithmetic statement is the same IEEE operation in each lane, in the same order, so each
 lane's result is bit for bit the scalar function's at the same inputs (no contraction: the
@@ -199,7 +200,9 @@ def _pair_sincos(lines: list[str], w: int) -> list[str]:
 
 #: the functions the lanes evaluate: generated name -> the kernel's short name
 KERNELS: dict[str, str] = {"maglev_dynamics_prepared": "dynamics", "maglev_gaps": "gaps",
-                           "maglev_coupled_control": "control"}
+                           "maglev_coupled_control": "control",
+                           "maglev_gap_reading": "gap_reading",
+                           "maglev_imu_reading": "imu_reading"}
 
 
 def kernel_name(function: str, w: int) -> str:
