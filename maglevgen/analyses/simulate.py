@@ -392,14 +392,12 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
 
 def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
              disturbance: dict[str, float], tick: Tick | None = None, speed_gain: float = 0.0,
-             force_budget: float | None = None,
-             controller_op: OperatingPoint | None = None, n_steps: int = 0,
-             record: bool = True) -> BatchRun:
+             force_budget: float | None = None, controller_op: OperatingPoint | None = None,
+             n_steps: int = 0, record: bool = True) -> BatchRun:
     """maglev_simulate's inputs for `simulate`'s run of ``n_steps`` steps (the disturbed trim
     of ``op``, the trim drag, the gains and the reference of ``controller_op`` (default
-    ``op``), p and the loop; at a `SensedTick`, the run's sensors and noise, each tick's
-    readings and prediction kept when ``record``, and zero state-feedback gains: the sense
-    tick's law flies the firmware's tables): what `simulate_batch` runs."""
+    ``op``), p and the loop; at a `SensedTick` its sensors and noise (readings, predictions
+    kept when ``record``) and zero gains (the firmware's tables fly): `simulate_batch`'s."""
     design = op if controller_op is None else controller_op
     if isinstance(tick, SensedTick):  # no gain designed: maglev_simulate reads none here
         sense = sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
