@@ -30,6 +30,7 @@ from maglevgen.analyses.verdicts import (
     store_verdict,
     verify_embedded,
 )
+from maglevgen.derive import conventions as cv
 from maglevgen.errors import VerificationError
 from maglevgen.infrastructure import progress
 from maglevgen.infrastructure.cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
@@ -645,8 +646,9 @@ def _summary_trim(plant, run, env, report: str) -> list[str]:
             "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
             "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
             f"{report}.", "",
-            f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
-            f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gap "
+            f"Trim at {op.speed:g} m/s: heave {op.x_trim[cv.STATE_INDEX['z']] * 1e3:+.4f} mm, "
+            f"pitch {op.x_trim[cv.STATE_INDEX['theta']] * 1e3:+.4f} mrad, "
+            f"F_prop {op.f_prop:.4g} N; closest-corner gap "
             "per array: " + ", ".join(f"{n} {g * 1e3:.3f} mm" for n, g in zip(names, op.gaps,
                                                                               strict=True))
             + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",

@@ -145,9 +145,10 @@ def travel_departure(traj: Trajectory) -> np.ndarray:
     every run travels 200 m in 10 s within a few decimetres, so x itself draws one line."""
     ref = traj.speed_reference
     v = np.full(traj.t.size, traj.op.speed) if ref is None else np.asarray(ref, dtype=float)
-    x_ref = traj.x[0, 0] + np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1])
-                                                            * np.diff(traj.t))))
-    return traj.x[:, 0] - x_ref
+    along = traj.x[:, cv.STATE_INDEX["x"]]
+    x_ref = along[0] + np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1])
+                                                        * np.diff(traj.t))))
+    return along - x_ref
 
 
 def figure_png(trajs: Sequence[Trajectory], title: str,

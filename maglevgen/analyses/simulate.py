@@ -110,11 +110,8 @@ C_STATUS = {1: "contact", 2: "diverging", 3: "generated code error"}
 # every status of a run (maglevgen.analyses.montecarlo's samples add theirs)
 RUN_STATUSES: tuple[str, ...] = ("settled", "not settled", "diverging", "contact",
                                  "generated code error")
-# the axis states' columns of x: a slice (a view, no gather) where they are consecutive
-_AXIS_COLUMNS: slice | list[int] = (
-    slice(AXIS_STATES[0], AXIS_STATES[-1] + 1)
-    if list(AXIS_STATES) == list(range(AXIS_STATES[0], AXIS_STATES[-1] + 1))
-    else list(AXIS_STATES))
+# the axis states' columns of x: a slice (a view, no gather)
+_AXIS_COLUMNS = cv.AXIS_COORDINATES
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls
 
 Progress = Callable[[int], None]
@@ -179,7 +176,7 @@ class Trajectory:
 
         Computed once (x is not reassigned), as sqrt((u^2 + v^2) + w^2): np.linalg.norm's
         operations in its order, without its passes over a strided (n, 3) view."""
-        u, v, w = self.x[:, 6], self.x[:, 7], self.x[:, 8]
+        u, v, w = (self.x[:, cv.STATE_INDEX[s]] for s in cv.STATE_NAMES[cv.VELOCITY])
         return np.sqrt(u * u + v * v + w * w)
 
     @property

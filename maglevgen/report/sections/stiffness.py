@@ -130,8 +130,8 @@ def stiffness_section(plant: Plant, trim, trep: dict, gains: dict) -> dict[str, 
             float(A[i, j]),
             jacobian_unit(cv.STATES[i].unit, cv.STATES[j].unit),
         )
-        for i in range(12)
-        for j in range(12)
+        for i in range(cv.N_STATES)
+        for j in range(cv.N_STATES)
         if abs(A[i, j]) > 1e-13 * scale
     ]
     return {
