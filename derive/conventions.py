@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 __all__ = ["ATTITUDE", "AXES", "AXIS_COORDINATES", "AXIS_POSITION_STATE", "CONTROLS",
            "DISTURBANCE", "KINETIC", "N_STATES", "POSITION", "PROPULSION", "Q_STATES", "RATES",
-           "STATES", "STATE_INDEX", "STATE_NAMES", "VELOCITY", "Signal", "state_span"]
+           "STATES", "STATE_INDEX", "STATE_NAMES", "VELOCITY", "Signal"]
 
 
 @dataclass(frozen=True)

@@ -41,8 +41,7 @@ from maglevgen.derive.structure import (
     input_names_of,
 )
 
-__all__ = ["CarriageModel", "Structure", "build_model", "inertia_cg_matrix", "input_names_of",
-           "symbol_name"]
+__all__ = ["CarriageModel", "Structure", "build_model", "inertia_cg_matrix", "input_names_of"]
 
 
 def symbol_name(param_name: str) -> str:

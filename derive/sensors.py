@@ -33,8 +33,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.geometry import ArraySymbols, array_gap
 from maglevgen.derive.rigid_body import rotation_body_to_inertial
 
-__all__ = ["GapSensorSymbols", "MeasurementModel", "accelerometer_reading", "gap_reading",
-           "gyro_reading", "measurement_model", "track_reading"]
+__all__ = ["GapSensorSymbols", "accelerometer_reading", "gap_reading", "measurement_model"]
 
 
 @dataclass(frozen=True)

@@ -36,8 +36,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.numeric import ModelFunctions
 from maglevgen.derive.search import lowest_trim_speed
 
-__all__ = ["NoTrimError", "Trim", "along_track_acceleration", "lift_off_speed", "solve_trim",
-           "trim_state"]
+__all__ = ["NoTrimError", "Trim", "along_track_acceleration", "lift_off_speed", "solve_trim"]
 
 
 class NoTrimError(ValueError):

@@ -26,7 +26,6 @@ from maglevgen.analyses.verdicts import (
     build_holds,
     embedded_runs,
     embedded_verdict,
-    embedded_verification,
     store_verdict,
     verify_embedded,
 )
@@ -51,29 +50,9 @@ from maglevgen.version import __version__
 if TYPE_CHECKING:
     from maglevgen.params import LoadedParams
 
-__all__ = [
-    "MESSAGE_LIMIT",
-    "STAMP",
-    "SUMMARY",
-    "BuildOptions",
-    "BuildResult",
-    "EmbeddedVerdict",
-    "JudgedRun",
-    "build_changes",
-    "build_folder",
-    "build_key",
-    "cached_result",
-    "check_build_inputs",
-    "embedded_runs",
-    "embedded_verification",
-    "other_structures",
-    "report_outputs",
-    "run_build",
-    "summary_text",
-    "up_to_date",
-    "verification_line",
-    "verify_embedded",
-]
+__all__ = ["MESSAGE_LIMIT", "STAMP", "BuildOptions", "BuildResult", "build_changes",
+           "build_folder", "build_key", "other_structures", "run_build", "up_to_date",
+           "verify_embedded"]
 
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"

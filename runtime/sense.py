@@ -28,7 +28,7 @@ from maglevgen.infrastructure.hashing import ContentHash
 from maglevgen.infrastructure.output import write_output
 from maglevgen.runtime.compile import DEFAULT_FLAGS, compile_shared, trusted
 
-__all__ = ["HOST_SENSE_SOURCE", "SENSE_SOURCES", "SenseLibrary", "Sensing", "sense_library"]
+__all__ = ["SenseLibrary", "Sensing", "sense_library"]
 
 #: the glue compiled into the folder (not generated: the same for every carriage)
 HOST_SENSE_SOURCE = "maglev_host_sense.c"

@@ -18,8 +18,8 @@ if TYPE_CHECKING:
     from maglevgen.analyses.montecarlo import Columns, Study
 
 __all__ = ["CONTACT_CAUSES", "FAILURES", "SAMPLE_STATUSES", "STATUSES", "WORST", "Z95",
-           "aggregate", "design_text", "input_label", "markdown", "plots", "summary_json",
-           "table", "table_files", "wilson"]
+           "aggregate", "input_label", "markdown", "plots", "summary_json", "table", "table_files",
+           "wilson"]
 
 # statuses of a sample's run: the simulation's (RUN_STATUSES) and two of the sample itself
 SAMPLE_STATUSES = ("rejected", "no trim")

@@ -52,8 +52,7 @@ from maglevgen.controllers import controller as registered_controller
 from maglevgen.derive import conventions as cv
 from maglevgen.runtime.ffi import GeneratedFunctionError
 
-__all__ = ["BUILD_HOLD", "HOLD_SPEED", "NOISE_BUDGET_SHARE", "NOISE_FORCE_SHARE", "NOISE_SCALES",
-           "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds", "sensed_holds"]
+__all__ = ["BUILD_HOLD", "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds", "sensed_holds"]
 
 #: the build's noisy holds: their length [s], the speed held besides the envelope's ends
 #: [m/s], and the sensor noise scales (the file's noise, and five times it)

@@ -46,26 +46,8 @@ from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.infrastructure import progress
 
-__all__ = [
-    "GAIN_ROUNDOFF",
-    "AcceleratingMargin",
-    "TrimPoint",
-    "accelerating_margins",
-    "axis_gains",
-    "coupled_comparison",
-    "displayed_gains",
-    "embedded_gains",
-    "envelope_of",
-    "envelope_verdicts",
-    "gains_report",
-    "pitch_paper_form",
-    "plain_formula",
-    "plant_of",
-    "stiffness_table",
-    "trim_point",
-    "trim_report",
-    "verdict_lines",
-]
+__all__ = ["AcceleratingMargin", "accelerating_margins", "displayed_gains", "embedded_gains",
+           "gains_report", "pitch_paper_form", "stiffness_table", "trim_point", "trim_report"]
 
 
 @dataclass(frozen=True)

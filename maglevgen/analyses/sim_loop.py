@@ -23,8 +23,8 @@ if TYPE_CHECKING:
     from maglevgen.analyses.sensed import SensedFirmware
     from maglevgen.control.estimation import SensorLayout
 
-__all__ = ["LOOPS", "FirmwareTick", "SensedTick", "control_loop", "estimation_error",
-           "firmware_gains", "flown_loop", "reading_noise", "run_loop", "sensed_metrics", "sensing",
+__all__ = ["FirmwareTick", "SensedTick", "control_loop", "estimation_error", "firmware_gains",
+           "flown_loop", "reading_noise", "run_loop", "sensed_metrics", "sensing",
            "speed_loop_gain"]
 
 

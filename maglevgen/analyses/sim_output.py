@@ -26,11 +26,9 @@ from maglevgen.derive import conventions as cv
 from maglevgen.infrastructure.columns import fcolumn_plain
 from maglevgen.infrastructure.workers import Shared, child, submit
 
-__all__ = ["FIGURES", "FIGURE_NAMES", "NPZ_FILE", "NPZ_LEVEL", "PEAK_FLOOR", "PEAK_WINDOW",
-           "PLOT_POINTS", "SPEED_FIGURE", "ZOOM_SECONDS", "columns", "csv_rows", "figure_png",
-           "metrics_markdown", "peak_envelope", "render_figures", "render_metrics",
-           "render_results", "render_trajectories", "speed_figure_png", "table", "trajectories_npz",
-           "trajectory_csv", "trajectory_file", "trajectory_names", "travel_departure"]
+__all__ = ["FIGURES", "FIGURE_NAMES", "PEAK_WINDOW", "ZOOM_SECONDS", "columns", "figure_png",
+           "render_figures", "render_metrics", "render_results", "render_trajectories",
+           "speed_figure_png", "trajectory_names", "travel_departure"]
 
 # The paper's figures: (file, title, [(state, scale, axis label)], figures reproduced)
 FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = (

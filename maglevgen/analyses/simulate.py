@@ -54,41 +54,12 @@ from maglevgen.errors import InputError, NoTrimError
 from maglevgen.runtime.library import BatchRun, Run, SimulationLibrary
 from maglevgen.runtime.sense import Sensing
 
-__all__ = [
-    "CHUNK_STEPS",
-    "C_STATUS",
-    "DISTURBANCE_DOC",
-    "RUN_STATUSES",
-    "SCENARIOS",
-    "SETTLING_BAND",
-    "FirmwareTick",
-    "Loop",
-    "Progress",
-    "SimulationRun",
-    "Trajectory",
-    "control_loop",
-    "disturbance_doc",
-    "firmware_gains",
-    "hold_run",
-    "hold_trajectory",
-    "initial_state",
-    "launch",
-    "linearly_stable_hold",
-    "metrics",
-    "moving_equilibrium",
-    "outside_envelope",
-    "reference_check",
-    "reference_trajectory",
-    "rk4_stability_limit",
-    "run_loop",
-    "run_scenarios",
-    "run_status",
-    "settling_time",
-    "simulate",
-    "simulate_batch",
-    "spec_verdict",
-    "speed_loop_gain",
-]
+__all__ = ["AXIS_STATES", "DISTURBANCE", "DISTURBANCE_DOC", "RUN_STATUSES", "SETTLING_BAND",
+           "FirmwareTick", "SimulationRun", "Tick", "Trajectory", "Weights", "control_loop",
+           "disturbance_doc", "firmware_gains", "hold_run", "hold_trajectory", "initial_state",
+           "launch", "metrics", "operating_point", "reference_check", "reference_trajectory",
+           "rk4_stability_limit", "run_loop", "run_scenarios", "settling_time", "simulate",
+           "simulate_batch", "spec_verdict", "speed_loop_gain"]
 
 # DISTURBANCE (derive.conventions) in words
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "

@@ -32,21 +32,7 @@ from maglevgen.derive.sensors import GapSensorSymbols, accelerometer_reading, ga
 from maglevgen.derive.structure import NORMAL_AXIS
 from maglevgen.derive.trim import along_track_acceleration
 
-__all__ = [
-    "ANALYSIS_FUNCTIONS",
-    "DESCRIPTIONS",
-    "FUNCTION_SPECS",
-    "NEWTON_TOLERANCES",
-    "N_AXES",
-    "PINV_REGULARIZATION",
-    "PINV_STEPS",
-    "PREFIX",
-    "Built",
-    "FunctionSpec",
-    "bake",
-    "bake_all",
-    "build_functions",
-]
+__all__ = ["DESCRIPTIONS", "PREFIX", "bake_all", "build_functions"]
 
 PREFIX = "maglev_"
 N_AXES = len(cv.AXES)

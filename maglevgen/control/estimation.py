@@ -32,38 +32,11 @@ from maglevgen.control.schedule import GainTable
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
-__all__ = [
-    "ESTIMATION_SHARE",
-    "NEEDED_STATES",
-    "NULL_SPACE_SHARE",
-    "EstimatorModel",
-    "EstimatorPoint",
-    "GapSensorGeometry",
-    "KalmanDesign",
-    "MeasurementModel",
-    "NoKalmanFilterError",
-    "Observability",
-    "SensorLayout",
-    "check_observable",
-    "continuous_equivalent",
-    "discrete_noise",
-    "estimate_gain",
-    "estimation_failures",
-    "estimator_model",
-    "estimator_points",
-    "face_axes",
-    "kalman",
-    "kalman_fields",
-    "kalman_row",
-    "kalman_table",
-    "loop_as_built",
-    "loop_as_built_speed_states",
-    "measurement_model",
-    "observability",
-    "process_noise",
-    "whole_loop",
-    "why_blind",
-]
+__all__ = ["ESTIMATION_SHARE", "NEEDED_STATES", "EstimatorPoint", "NoKalmanFilterError",
+           "SensorLayout", "continuous_equivalent", "estimation_failures", "estimator_model",
+           "estimator_points", "kalman", "kalman_table", "loop_as_built",
+           "loop_as_built_speed_states", "measurement_model", "observability", "whole_loop",
+           "why_blind"]
 
 #: the states the controller needs (the loop's: every state but the track position x)
 NEEDED_STATES: tuple[str, ...] = LOOP_STATES

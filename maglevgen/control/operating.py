@@ -44,28 +44,11 @@ from maglevgen.errors import InputError, NoTrimError
 from maglevgen.runtime.ffi import GeneratedFunctionError
 from maglevgen.runtime.library import SimulationLibrary
 
-__all__ = [
-    "AXIS_STATES",
-    "N_AXES",
-    "REDUCED_INDEX",
-    "REDUCED_STATES",
-    "STABILITY_MARGIN",
-    "AxisGains",
-    "CoupledComparison",
-    "OperatingPoint",
-    "SpecWeights",
-    "SpeedMode",
-    "Weights",
-    "checked_accelerating_trim",
-    "checked_trim",
-    "closed_loop_stability",
-    "compare_designs",
-    "coupled_lqr",
-    "coupled_weights",
-    "operating_point",
-    "speed_mode",
-    "stability",
-]
+__all__ = ["AXIS_STATES", "N_AXES", "REDUCED_INDEX", "REDUCED_STATES", "STABILITY_MARGIN",
+           "AxisGains", "CoupledComparison", "OperatingPoint", "SpeedMode", "Weights",
+           "checked_accelerating_trim", "checked_trim", "closed_loop_stability", "compare_designs",
+           "coupled_lqr", "coupled_weights", "numerical_lqr", "operating_point", "speed_mode",
+           "stability"]
 
 AXIS_STATES: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in Q_STATES)
 # the coupled model's states (see the module docstring)

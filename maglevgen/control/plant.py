@@ -54,7 +54,7 @@ from maglevgen.control.sampled import LOOP_INDEX, LOOP_STATES, Tick, loop_model,
 from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
 
-__all__ = ["Block", "Layout", "LoopDesign", "LoopPlant", "speed_loop_gains"]
+__all__ = ["LoopDesign", "LoopPlant", "speed_loop_gains"]
 
 # the controller's commands: the five generalized forces, then the propulsion
 COMMANDS: tuple[str, ...] = (*(c.name for c in cv.CONTROLS), "F_prop")

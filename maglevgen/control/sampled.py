@@ -30,7 +30,7 @@ from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
-__all__ = ["LOOP_STATES", "Tick", "TickDesign", "delay_augmented", "loop_gain", "loop_model",
+__all__ = ["LOOP_INDEX", "LOOP_STATES", "Tick", "delay_augmented", "loop_gain", "loop_model",
            "sampled_closed_loop", "sampled_eigenvalues", "speed_gain", "tick_design",
            "tick_design_loop_gains", "zoh"]
 

@@ -40,7 +40,7 @@ from maglevgen.derive.paper import paper_riccati
 from maglevgen.derive.riccati import lqr_gain_mp, lqr_gain_numeric, riccati_solution_mp
 from maglevgen.derive.trim import Trim
 
-__all__ = ["allocation_matrix", "axis_gains", "axis_plants", "carriage_gains", "coupled_comparison",
+__all__ = ["allocation_matrix", "axis_plants", "carriage_gains", "coupled_comparison",
            "effectiveness", "gain_schedule", "reduced_model"]
 
 

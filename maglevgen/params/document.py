@@ -32,8 +32,7 @@ from maglevgen.params.sections import (
 )
 from maglevgen.params.vector import flatten, schema_leaves
 
-__all__ = ["ARRAY_NAME", "ARRAY_NAME_RULE", "PROVENANCE_SOURCES", "SCHEMA_DEPTH", "Parameters",
-           "Provenance", "entry_limits"]
+__all__ = ["ARRAY_NAME_RULE", "SCHEMA_DEPTH", "Parameters", "entry_limits"]
 
 PROVENANCE_SOURCES = ("paper", "assumed")
 

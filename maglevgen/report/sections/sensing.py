@@ -21,8 +21,7 @@ from maglevgen.derive.sensors import GapSensorSymbols, gap_reading
 from maglevgen.report.display import ltx, matrix_tex
 from maglevgen.report.format import fcolumn, fnum, tex_escape, tex_unit, tex_verdict
 
-__all__ = ["DISK_MARGIN_FIGURE", "TABLE_SPEEDS", "gap_jacobian", "gap_jacobian_tex",
-           "sensing_section"]
+__all__ = ["gap_jacobian", "sensing_section"]
 
 DISK_MARGIN_FIGURE = "fig_disk_margins.png"
 

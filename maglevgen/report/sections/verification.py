@@ -14,7 +14,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import riccati_relative_residual
 from maglevgen.errors import MaglevError
 
-__all__ = ["Check", "Simulation", "verification_section"]
+__all__ = ["Check", "verification_section"]
 
 # The spread of the states about the trim that the C is compared with SymPy at (m, rad, m/s,
 # rad/s).
