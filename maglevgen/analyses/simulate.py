@@ -20,7 +20,7 @@ import numpy as np
 
 from maglevgen.analyses.run_spec import RunSpec, RunVerdict, judge_run
 from maglevgen.analyses.sim_loop import (
-    FirmwareTick,
+    LoopSetting,
     SensedTick,
     control_loop,
     firmware_gains,
@@ -55,7 +55,7 @@ from maglevgen.runtime.library import BatchRun, Run, SimulationLibrary
 from maglevgen.runtime.sense import Sensing
 
 __all__ = ["AXIS_STATES", "DISTURBANCE", "DISTURBANCE_DOC", "RUN_STATUSES", "SETTLING_BAND",
-           "FirmwareTick", "SimulationRun", "Tick", "Trajectory", "Weights", "control_loop",
+           "LoopSetting", "SimulationRun", "Tick", "Trajectory", "Weights", "control_loop",
            "disturbance_doc", "firmware_gains", "hold_run", "hold_trajectory", "initial_state",
            "launch", "metrics", "operating_point", "reference_check", "reference_trajectory",
            "rk4_stability_limit", "run_loop", "run_scenarios", "settling_time", "simulate",
@@ -368,7 +368,7 @@ def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
     ``op``), p and the loop; at a `SensedTick`, the run's sensors and noise, each tick's
     readings and prediction kept when ``record``): what `simulate_batch` runs."""
     design = op if controller_op is None else controller_op
-    if isinstance(tick, FirmwareTick):
+    if isinstance(tick, LoopSetting):
         gains = firmware_gains(design, controller, tick)
         sense = (sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
                  if isinstance(tick, SensedTick) else None)
@@ -603,7 +603,7 @@ def metrics(traj: Trajectory) -> dict:
             # k_i [N/m] and the clamp of |k_i xi| [N] (None: no integral)
             "speed_integral": getattr(traj.tick, "speed_integral", 0.0),
             "integral_limit": (float(traj.tick.integral_limit)
-                               if isinstance(traj.tick, FirmwareTick)
+                               if isinstance(traj.tick, LoopSetting)
                                and traj.tick.speed_integral > 0 else None)},
         "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
@@ -719,7 +719,7 @@ def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: 
     loop_kw: dict[str, Any] = {"tick": tick, "speed_gain": speed_gain,
                                "force_budget": force_budget}
     trajs = []
-    setting = tick.setting(speed_gain) if isinstance(tick, FirmwareTick) else None
+    setting = tick.setting(speed_gain) if isinstance(tick, LoopSetting) else None
     for c in controllers:
         sched = (plant.launch_schedule(points, c, refs, setting)
                  if scenario == "launch" else None)
