@@ -27,16 +27,8 @@ import sympy as sp
 
 from maglevgen.derive.geometry import control_effectiveness
 
-__all__ = [
-    "RankReport",
-    "allocation_rank_report",
-    "column_names",
-    "minimum_norm_allocation",
-    "paper_array_layout",
-    "paper_effectiveness",
-    "paper_normal_effectiveness",
-    "paper_normals",
-]
+__all__ = ["allocation_rank_report", "column_names", "minimum_norm_allocation",
+           "paper_array_layout", "paper_effectiveness", "paper_normal_effectiveness"]
 
 
 @dataclass(frozen=True)

@@ -79,11 +79,8 @@ from functools import lru_cache
 import sympy as sp
 
 from maglevgen.derive.distributed import face_axes, langevin, langevin_slope
-from maglevgen.derive.structure import CIRCUIT_DYNAMICS
 
-__all__ = ["CIRCUIT_DYNAMICS", "CircuitResponse", "DistributedLag", "circuit_response",
-           "distributed_lag", "drag_rate_per_circuit", "lift_rate_per_circuit",
-           "magnetic_damping_per_circuit", "tilt_rates"]
+__all__ = ["circuit_response", "distributed_lag", "drag_rate_per_circuit", "lift_rate_per_circuit"]
 
 
 

@@ -16,8 +16,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["AXES", "AXIS_POSITION_STATE", "CONTROLS", "DISTURBANCE", "PROPULSION", "Q_STATES",
-           "STATES", "STATE_INDEX", "STATE_NAMES", "Signal"]
+__all__ = ["ATTITUDE", "AXES", "AXIS_COORDINATES", "AXIS_POSITION_STATE", "CONTROLS",
+           "DISTURBANCE", "KINETIC", "N_STATES", "POSITION", "PROPULSION", "Q_STATES", "RATES",
+           "STATES", "STATE_INDEX", "STATE_NAMES", "VELOCITY", "Signal"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,23 @@ STATES: tuple[Signal, ...] = (
 
 STATE_NAMES: tuple[str, ...] = tuple(s.name for s in STATES)
 STATE_INDEX: dict[str, int] = {n: i for i, n in enumerate(STATE_NAMES)}
+N_STATES = len(STATES)
+
+
+def state_span(first: str, last: str) -> slice:
+    """The slice of STATES from ``first`` to ``last`` (both included): the state vector's
+    named blocks are read from here, never written as numbers."""
+    return slice(STATE_INDEX[first], STATE_INDEX[last] + 1)
+
+
+# The blocks of the state vector (eqs 1-2): the inertial position of O, the Z-Y-X Euler
+# angles, the body velocity and the body rates; KINETIC the velocity and rates together (the
+# states whose derivatives are the accelerations, the trim's residual).
+POSITION = state_span("x", "z")
+ATTITUDE = state_span("phi", "psi")
+VELOCITY = state_span("u", "w")
+RATES = state_span("p", "r")
+KINETIC = state_span("u", "r")
 
 # The five controlled degrees of freedom of the paper's eqs 17-21, in its order
 # a0 = [dy, dz, phi, theta, psi]; each axis pairs a position state with its rate state.
@@ -59,6 +77,9 @@ AXIS_POSITION_STATE: dict[str, str] = {
 }
 # The axis coordinates a = (y, z, phi, theta, psi): the states the per-axis design works on.
 Q_STATES: tuple[str, ...] = tuple(AXIS_POSITION_STATE[a] for a in AXES)
+# ... which are one block of the state vector: the pose without the along-track position.
+AXIS_COORDINATES = state_span(Q_STATES[0], Q_STATES[-1])
+assert STATE_NAMES[AXIS_COORDINATES] == Q_STATES
 # Generalized control force of each axis (the paper's u_y, u_z, u_phi, u_theta, u_psi).
 CONTROLS: tuple[Signal, ...] = (
     Signal("u_y", "N", "lateral control force (inertial y)"),

@@ -24,14 +24,7 @@ import sympy as sp
 
 from maglevgen.derive.memo import memoized
 
-__all__ = [
-    "DampingDerivation",
-    "closed_loop_matrix",
-    "damping_gain_closed_form",
-    "damping_ratio",
-    "optimal_damping_ratio",
-    "square_error_cost",
-]
+__all__ = ["damping_gain_closed_form", "optimal_damping_ratio", "square_error_cost"]
 
 _k, _m, _c, _x0 = sp.symbols("k m c x0", positive=True)
 

@@ -51,8 +51,8 @@ from dataclasses import dataclass
 import mpmath
 import sympy as sp
 
-__all__ = ["SERIES_BELOW", "DistributedLoad", "distributed_load", "face_axes", "langevin",
-           "langevin_curvature", "langevin_slope", "sinhc"]
+__all__ = ["SERIES_BELOW", "distributed_load", "face_axes", "langevin", "langevin_curvature",
+           "langevin_slope", "sinhc"]
 
 SERIES_BELOW = 0.25  # |u| below which sinhc, L and L' use their series
 

@@ -17,12 +17,10 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from maglevgen.derive.structure import CONTROL_AXES, NORMAL_AXIS, control_components
+from maglevgen.derive.structure import NORMAL_AXIS
 
-__all__ = ["CONTROL_AXES", "NORMAL_AXIS", "ArraySymbols", "array_gap", "array_gap_rate",
-           "array_speed",
-           "array_wrench", "control_components", "control_direction", "control_effectiveness",
-           "generalized_wrench_row"]
+__all__ = ["ArraySymbols", "array_gap", "array_gap_rate", "array_speed", "array_wrench",
+           "control_direction", "control_effectiveness", "generalized_wrench_row"]
 
 _AXIS_VECTOR = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}
 

@@ -21,8 +21,8 @@ from maglevgen.derive.memo import memoized
 from maglevgen.derive.model import CarriageModel, Structure, build_model, inertia_cg_matrix
 from maglevgen.derive.rigid_body import inertia_about_origin
 
-__all__ = ["GENERALIZED_FORCES", "Q_STATES", "STIFFNESS_PARTS", "StiffnessForm", "StiffnessParts",
-           "design_pose_stiffness", "generalized_mass_expr", "stiffness_form", "stiffness_parts"]
+__all__ = ["Q_STATES", "STIFFNESS_PARTS", "design_pose_stiffness", "generalized_mass_expr",
+           "stiffness_form", "stiffness_parts"]
 
 GENERALIZED_FORCES: tuple[str, ...] = ("F_y", "F_z", "M_x", "M_y", "M_z")
 Q_STATES = cv.Q_STATES  # re-exported: the axis coordinates live in conventions

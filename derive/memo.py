@@ -15,7 +15,7 @@ import functools
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar
 
-__all__ = ["MISSING", "F", "Store", "memoized", "set_store"]
+__all__ = ["MISSING", "memoized", "set_store"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 MISSING = object()

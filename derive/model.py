@@ -41,8 +41,7 @@ from maglevgen.derive.structure import (
     input_names_of,
 )
 
-__all__ = ["CarriageModel", "Structure", "build_model", "inertia_cg_matrix", "input_names_of",
-           "symbol_name"]
+__all__ = ["CarriageModel", "Structure", "build_model", "inertia_cg_matrix", "input_names_of"]
 
 
 def symbol_name(param_name: str) -> str:
@@ -122,8 +121,8 @@ def build_model(structure: Structure) -> CarriageModel:
         return sp.Matrix([sym[f"{prefix}.{c}"] for c in "xyz"])
 
     x = sp.Matrix(sp.symbols(" ".join(cv.STATE_NAMES), real=True))
-    pos, (phi, theta, psi) = x[0:3, 0], x[3:6]
-    vel, omega = x[6:9, 0], x[9:12, 0]
+    pos, (phi, theta, psi) = x[cv.POSITION, 0], x[cv.ATTITUDE]
+    vel, omega = x[cv.VELOCITY, 0], x[cv.RATES, 0]
     input_names = input_names_of(structure)
     u = sp.Matrix(sp.symbols(" ".join(input_names), real=True))
 

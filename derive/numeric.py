@@ -21,9 +21,9 @@ from maglevgen.derive.linearize import generalized_mass_expr, stiffness_form, st
 from maglevgen.derive.memo import memoized
 from maglevgen.derive.model import CarriageModel, Structure, build_model
 
-__all__ = ["Equilibrium", "ModelFunctions", "generalized_mass", "lambdified_parts",
-           "lambdify_stiffness", "linearize", "magnetic_stiffness", "model_functions",
-           "other_stiffness", "stiffness_split", "symbolic_model", "total_stiffness"]
+__all__ = ["ModelFunctions", "generalized_mass", "lambdified_parts", "linearize",
+           "magnetic_stiffness", "model_functions", "other_stiffness", "stiffness_split",
+           "symbolic_model", "total_stiffness"]
 
 
 class Equilibrium(Protocol):

@@ -19,17 +19,9 @@ from maglevgen.derive.allocation import minimum_norm_allocation
 from maglevgen.derive.memo import memoized
 from maglevgen.derive.riccati import axis_matrices, riccati_closed_form, riccati_residual
 
-__all__ = [
-    "PAPER_FORCES",
-    "paper_allocation",
-    "paper_allocation_constraints",
-    "paper_discrepancies_allocation",
-    "paper_discrepancies_riccati",
-    "paper_force_sums",
-    "paper_riccati",
-    "paper_riccati_residual",
-    "paper_stiffness",
-]
+__all__ = ["PAPER_FORCES", "paper_allocation", "paper_allocation_constraints",
+           "paper_discrepancies_allocation", "paper_discrepancies_riccati", "paper_force_sums",
+           "paper_riccati", "paper_stiffness"]
 
 # The ten array control forces of eqs 22-23, by their printed names.
 PAPER_FORCES: dict[str, sp.Symbol] = {

@@ -37,21 +37,9 @@ import sympy as sp
 
 from maglevgen.derive.memo import memoized
 
-__all__ = [
-    "AxisLQR",
-    "AxisLQRStable",
-    "LqrSweep",
-    "axis_matrices",
-    "default_sweep",
-    "lqr_gain_mp",
-    "lqr_gain_numeric",
-    "numerical_lqr_error_sweep",
-    "riccati_closed_form",
-    "riccati_relative_residual",
-    "riccati_residual",
-    "riccati_solution_mp",
-    "riccati_stable_form",
-]
+__all__ = ["LqrSweep", "axis_matrices", "default_sweep", "lqr_gain_mp", "lqr_gain_numeric",
+           "numerical_lqr_error_sweep", "riccati_closed_form", "riccati_relative_residual",
+           "riccati_residual", "riccati_solution_mp", "riccati_stable_form"]
 
 # A matrix in any of the three representations riccati_residual accepts.
 MatrixLike: TypeAlias = "sp.MatrixBase | mpmath.matrix | np.ndarray | Sequence[Sequence[float]]"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-__all__ = ["LIFT_OFF_RTOL", "lowest_trim_speed"]
+__all__ = ["lowest_trim_speed"]
 
 #: the bisection stops when the bracket is this fraction of its upper end
 LIFT_OFF_RTOL = 1e-6

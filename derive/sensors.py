@@ -33,8 +33,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.geometry import ArraySymbols, array_gap
 from maglevgen.derive.rigid_body import rotation_body_to_inertial
 
-__all__ = ["GapSensorSymbols", "MeasurementModel", "accelerometer_reading", "gap_reading",
-           "gyro_reading", "measurement_model", "track_reading"]
+__all__ = ["GapSensorSymbols", "accelerometer_reading", "gap_reading", "measurement_model"]
 
 
 @dataclass(frozen=True)
@@ -94,8 +93,8 @@ def measurement_model(gaps: Sequence[tuple[str, GapSensorSymbols]],
     none) and the track sensor (``track``), and their Jacobians."""
     x = sp.Matrix(sp.symbols(" ".join(cv.STATE_NAMES), real=True))
     xdot = sp.Matrix(sp.symbols(" ".join(f"{n}_dot" for n in cv.STATE_NAMES), real=True))
-    pos, (phi, theta, psi) = x[0:3, 0], x[3:6]
-    vel, omega = x[6:9, 0], x[9:12, 0]
+    pos, (phi, theta, psi) = x[cv.POSITION, 0], x[cv.ATTITUDE]
+    vel, omega = x[cv.VELOCITY, 0], x[cv.RATES, 0]
     R = rotation_body_to_inertial(phi, theta, psi)
     rows: list[sp.Expr] = []
     names: list[str] = []
@@ -107,8 +106,8 @@ def measurement_model(gaps: Sequence[tuple[str, GapSensorSymbols]],
             raise ValueError("an accelerometer's reading needs gravity")
         rows += list(gyro_reading(omega))
         names += ["gyro_p", "gyro_q", "gyro_r"]
-        rows += list(accelerometer_reading(imu_point, R, vel, omega, xdot[6:9, 0],
-                                           xdot[9:12, 0], gravity))
+        rows += list(accelerometer_reading(imu_point, R, vel, omega, xdot[cv.VELOCITY, 0],
+                                           xdot[cv.RATES, 0], gravity))
         names += ["accel_x", "accel_y", "accel_z"]
     if track:
         rows.append(track_reading(pos))

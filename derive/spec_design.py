@@ -36,7 +36,7 @@ import sympy as sp
 
 from maglevgen.derive.riccati import riccati_stable_form
 
-__all__ = ["RateWeightForm", "bryson_weights", "damping_ratio_form", "rate_weight_form"]
+__all__ = ["damping_ratio_form", "rate_weight_form"]
 
 _k = sp.Symbol("k", real=True)
 _m, _q1, _q2, _r, _zeta = sp.symbols("m q_1 q_2 r zeta", positive=True)

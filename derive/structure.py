@@ -13,7 +13,7 @@ from typing import Any
 
 from maglevgen.derive import conventions as cv
 
-__all__ = ["CIRCUIT_DYNAMICS", "CONTROL_AXES", "NORMAL_AXIS", "Structure", "box_principal_moments",
+__all__ = ["CIRCUIT_DYNAMICS", "NORMAL_AXIS", "Structure", "box_principal_moments",
            "control_components", "explicit_inertia", "input_names_of", "numbered"]
 
 # Body axes a control force component of an array can act along (paper eqs 22-23: F_y, F_z).

@@ -32,11 +32,11 @@ import numpy as np
 import sympy as sp
 from scipy.optimize import brentq, root
 
+from maglevgen.derive import conventions as cv
 from maglevgen.derive.numeric import ModelFunctions
 from maglevgen.derive.search import lowest_trim_speed
 
-__all__ = ["NoTrimError", "Trim", "along_track_acceleration", "lift_off_speed", "solve_trim",
-           "trim_state"]
+__all__ = ["NoTrimError", "Trim", "along_track_acceleration", "lift_off_speed", "solve_trim"]
 
 
 class NoTrimError(ValueError):
@@ -83,11 +83,22 @@ class Trim:
 
 def trim_state(speed: float, q: np.ndarray) -> np.ndarray:
     """The 12-state vector at pose q = (y, z, phi, theta, psi) moving at (speed, 0, 0) inertial."""
-    phi, theta, psi = q[2:5]
-    x = np.zeros(12)
-    x[1:6] = q
-    x[6:9] = _rotation(phi, theta, psi).T @ np.array([speed, 0.0, 0.0])
+    x = np.zeros(cv.N_STATES)
+    x[cv.AXIS_COORDINATES] = q
+    x[cv.VELOCITY] = _rotation(*x[cv.ATTITUDE]).T @ np.array([speed, 0.0, 0.0])
     return x
+
+
+# The trim's unknowns: the pose q (Q_STATES), then the propulsion force.
+_POSE = slice(0, len(cv.Q_STATES))
+_F_PROP = len(cv.Q_STATES)
+
+
+def _level_pose(z: float) -> np.ndarray:
+    """The pose q at heave z, level and centred."""
+    q = np.zeros(len(cv.Q_STATES))
+    q[cv.Q_STATES.index("z")] = z
+    return q
 
 
 def _rotation(phi: float, theta: float, psi: float) -> np.ndarray:
@@ -100,15 +111,16 @@ def _rotation(phi: float, theta: float, psi: float) -> np.ndarray:
 
 def _heave_limits(mf: ModelFunctions, p: np.ndarray, min_gap: float) -> tuple[float, float]:
     """The heave range in which every array keeps at least ``min_gap`` at zero attitude."""
-    g0 = mf.gaps(np.zeros(12), p).ravel()
-    dz = mf.gaps(np.eye(12)[2], p).ravel() - g0  # gap change per metre of heave
+    g0 = mf.gaps(np.zeros(cv.N_STATES), p).ravel()
+    # the gap change per metre of heave
+    dz = mf.gaps(np.eye(cv.N_STATES)[cv.STATE_INDEX["z"]], p).ravel() - g0
     lo = max((min_gap - g) / d for g, d in zip(g0, dz, strict=True) if d > 0)
     hi = min((min_gap - g) / d for g, d in zip(g0, dz, strict=True) if d < 0)
     return lo, hi
 
 
 def _vertical_force(mf: ModelFunctions, p: np.ndarray, speed: float, z: float) -> float:
-    x = trim_state(speed, np.array([0.0, z, 0.0, 0.0, 0.0]))
+    x = trim_state(speed, _level_pose(z))
     u = np.zeros(mf.model.u.shape[0])
     return float(mf.body_wrench(x, u, p)[2])
 
@@ -168,23 +180,23 @@ def solve_trim(mf: ModelFunctions, p: np.ndarray, speed: float, min_gap: float,
     z0 = brentq(lambda z: _vertical_force(mf, p, speed, z), z_lo, z_hi, xtol=1e-15)
 
     def residual(unknowns: np.ndarray) -> np.ndarray:
-        x = trim_state(speed, unknowns[:5])
+        x = trim_state(speed, unknowns[_POSE])
         u = np.zeros(n_u)
-        u[0] = unknowns[5]
+        u[0] = unknowns[_F_PROP]
         # along_track_acceleration: R^T e_x a is the trim state's velocity direction times a
-        return mf.xdot(x, u, p)[6:12] - np.concatenate([x[6:9] * (acceleration / speed),
-                                                        np.zeros(3)])
+        return mf.xdot(x, u, p)[cv.KINETIC] - np.concatenate(
+            [x[cv.VELOCITY] * (acceleration / speed), np.zeros(3)])
 
-    drag0 = mf.forces(trim_state(speed, np.array([0.0, z0, 0, 0, 0])), p)[2].sum()
+    drag0 = mf.forces(trim_state(speed, _level_pose(z0)), p)[2].sum()
     drag0 += _mass(mf, p) * acceleration
-    sol = root(residual, np.array([0.0, z0, 0.0, 0.0, 0.0, drag0]), method="hybr", tol=1e-14)
+    sol = root(residual, np.append(_level_pose(z0), drag0), method="hybr", tol=1e-14)
     res = float(np.max(np.abs(residual(sol.x))))
     if not sol.success and res > 1e-8:
         raise NoTrimError(f"no trim at speed {speed:g} m/s: the equilibrium solver did not "
                           f"converge ({' '.join(sol.message.split())}; residual {res:.3g})")
-    x = trim_state(speed, sol.x[:5])
+    x = trim_state(speed, sol.x[_POSE])
     u = np.zeros(n_u)
-    u[0] = sol.x[5]
+    u[0] = sol.x[_F_PROP]
     gaps, lift, drag = mf.forces(x, p)
     corners = mf.contact_gaps(x, p).ravel()  # contact: each face's closest corner
     if corners.min() < min_gap:

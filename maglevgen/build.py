@@ -26,10 +26,10 @@ from maglevgen.analyses.verdicts import (
     build_holds,
     embedded_runs,
     embedded_verdict,
-    embedded_verification,
     store_verdict,
     verify_embedded,
 )
+from maglevgen.derive import conventions as cv
 from maglevgen.errors import VerificationError
 from maglevgen.infrastructure import progress
 from maglevgen.infrastructure.cache import DEFAULT_PARAMS_NAME, params_digest, toolchain_fingerprint
@@ -50,29 +50,9 @@ from maglevgen.version import __version__
 if TYPE_CHECKING:
     from maglevgen.params import LoadedParams
 
-__all__ = [
-    "MESSAGE_LIMIT",
-    "STAMP",
-    "SUMMARY",
-    "BuildOptions",
-    "BuildResult",
-    "EmbeddedVerdict",
-    "JudgedRun",
-    "build_changes",
-    "build_folder",
-    "build_key",
-    "cached_result",
-    "check_build_inputs",
-    "embedded_runs",
-    "embedded_verification",
-    "other_structures",
-    "report_outputs",
-    "run_build",
-    "summary_text",
-    "up_to_date",
-    "verification_line",
-    "verify_embedded",
-]
+__all__ = ["MESSAGE_LIMIT", "STAMP", "BuildOptions", "BuildResult", "build_changes",
+           "build_folder", "build_key", "other_structures", "run_build", "up_to_date",
+           "verify_embedded"]
 
 STAMP = "BUILD.json"
 SUMMARY = "SUMMARY.md"
@@ -645,8 +625,9 @@ def _summary_trim(plant, run, env, report: str) -> list[str]:
             "Outputs: c/ (run-time-parameter C, maglev.h, CMake example, maglev_schedule.c), "
             "lib/libmaglev.so, simulation/ (trajectories, figs 3-8, metrics.md), envelope/, "
             f"{report}.", "",
-            f"Trim at {op.speed:g} m/s: heave {op.x_trim[2] * 1e3:+.4f} mm, pitch "
-            f"{op.x_trim[4] * 1e3:+.4f} mrad, F_prop {op.f_prop:.4g} N; closest-corner gap "
+            f"Trim at {op.speed:g} m/s: heave {op.x_trim[cv.STATE_INDEX['z']] * 1e3:+.4f} mm, "
+            f"pitch {op.x_trim[cv.STATE_INDEX['theta']] * 1e3:+.4f} mrad, "
+            f"F_prop {op.f_prop:.4g} N; closest-corner gap "
             "per array: " + ", ".join(f"{n} {g * 1e3:.3f} mm" for n, g in zip(names, op.gaps,
                                                                               strict=True))
             + f" (track.min_gap {carriage.params.track.min_gap * 1e3:g} mm).", "",

@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # the symbolic layers are imported when first used: running t
     from maglevgen.derive.numeric import ModelFunctions
     from maglevgen.derive.trim import Trim
 
-__all__ = ["DerivedCarriage", "StiffnessRow", "stiffness_rows", "structure_of"]
+__all__ = ["DerivedCarriage", "stiffness_rows", "structure_of"]
 
 
 def structure_of(params: Parameters) -> Structure:

@@ -30,9 +30,7 @@ from maglevgen.version import __version__
 if TYPE_CHECKING:
     from maglevgen.api import Carriage
 
-__all__ = ["build_parser", "cmd_build", "cmd_envelope", "cmd_firmware", "cmd_fmu", "cmd_gains",
-           "cmd_generate", "cmd_montecarlo", "cmd_params_schema", "cmd_params_show", "cmd_report",
-           "cmd_roa", "cmd_simulate", "cmd_trim", "main", "one_line", "run"]
+__all__ = ["build_parser", "main"]
 
 # The API (numpy) and the parameter schema (pydantic) are imported by the commands that need
 # them, so that `maglevgen --help` and `maglevgen build` on an up-to-date folder answer

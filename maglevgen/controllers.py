@@ -22,8 +22,6 @@ from maglevgen.control.registry import (
     names,
     register,
     title,
-    titles,
 )
 
-__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "title",
-           "titles"]
+__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "title"]

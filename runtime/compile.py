@@ -15,16 +15,8 @@ from maglevgen.errors import InputError, MaglevError
 from maglevgen.infrastructure.cache import cache_root, sign_file, signature_ok, write_atomic
 from maglevgen.infrastructure.hashing import ContentHash
 
-__all__ = [
-    "DEFAULT_FLAGS",
-    "CompileError",
-    "cached_shared",
-    "compile_object",
-    "compile_shared",
-    "compiler_name",
-    "find_compiler",
-    "trusted",
-]
+__all__ = ["DEFAULT_FLAGS", "CompileError", "cached_shared", "compile_object", "compile_shared",
+           "compiler_name", "trusted"]
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
 

@@ -47,24 +47,9 @@ from maglevgen.runtime.compile import (
 from maglevgen.runtime.ffi import GeneratedLibrary
 from maglevgen.runtime.sense import Sensing
 
-__all__ = [
-    "BATCH_SOURCE",
-    "CHECKSUMS",
-    "COMPARISON_FLAGS",
-    "LANES_SOURCE",
-    "SIM_ARGUMENT",
-    "BatchRun",
-    "ControlLoop",
-    "Progress",
-    "Run",
-    "SimulationLibrary",
-    "build_libraries",
-    "cached_simulation_library",
-    "derivation_key",
-    "loaded_library",
-    "runtime_sources",
-    "simulation_library",
-]
+__all__ = ["BatchRun", "ControlLoop", "Run", "SimulationLibrary", "build_libraries",
+           "cached_simulation_library", "derivation_key", "loaded_library", "runtime_sources",
+           "simulation_library"]
 
 CHECKSUMS = "checksums.json"
 #: the batch driver (templates/): many maglev_simulate runs per call, OpenMP across them

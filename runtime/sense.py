@@ -21,13 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
+from maglevgen.derive import conventions as cv
 from maglevgen.errors import MaglevError
 from maglevgen.infrastructure.cache import cache_root
 from maglevgen.infrastructure.hashing import ContentHash
 from maglevgen.infrastructure.output import write_output
 from maglevgen.runtime.compile import DEFAULT_FLAGS, compile_shared, trusted
 
-__all__ = ["HOST_SENSE_SOURCE", "SENSE_SOURCES", "SenseLibrary", "Sensing", "sense_library"]
+__all__ = ["SenseLibrary", "Sensing", "sense_library"]
 
 #: the glue compiled into the folder (not generated: the same for every carriage)
 HOST_SENSE_SOURCE = "maglev_host_sense.c"
@@ -130,7 +131,7 @@ class Sensing:
         if self.step.size != self.ny:
             raise ValueError(f"{self.step.size} resolutions for {self.ny} readings")
         self.readings = np.zeros((self.rows, self.ny))
-        self.predicted = np.zeros((self.rows, 12))
+        self.predicted = np.zeros((self.rows, cv.N_STATES))
         self.commands = np.zeros((self.rows if self.n_inputs else 0, self.n_inputs))
         self._state = self.library.new_state()
 

@@ -368,6 +368,8 @@ def _public_names() -> list[tuple[str, object, str]]:
     out: list[tuple[str, object, str]] = []
     for name in api.__all__:
         obj = getattr(api, name)
+        if not callable(obj):  # a constant (AXES, STATE_NAMES): nothing to document
+            continue
         out.append((name, obj, "class" if inspect.isclass(obj) else "function"))
         if inspect.isclass(obj):
             for attr, member in _members(obj).items():

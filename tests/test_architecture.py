@@ -13,6 +13,7 @@ import ast
 import functools
 import importlib
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -307,15 +308,126 @@ def test_the_controller_definitions_stand_alone() -> None:
         m: graph[m] - set(CONTROLLER_DEFINITIONS) for m in CONTROLLER_DEFINITIONS}
 
 
-def _public_definitions(tree: ast.Module) -> set[str]:
-    return {n.name for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))
-            and not n.name.startswith("_")}
+def _all_of(module: str) -> list[str] | None:
+    """The module's ``__all__`` (a computed one from the module itself), None: none."""
+    for n in ast.parse(MODULES[module].read_text()).body:
+        targets = n.targets if isinstance(n, ast.Assign) else [n.target] \
+            if isinstance(n, ast.AnnAssign) else []
+        if "__all__" in {getattr(t, "id", None) for t in targets}:
+            try:
+                return list(ast.literal_eval(n.value))  # type: ignore[union-attr]
+            except ValueError:  # computed (maglevgen.report: PEP 562, its names load on use)
+                return list(importlib.import_module(module).__all__)
+    return None
 
 
-def test_every_module_declares_its_public_names() -> None:
-    """``__all__`` in every module with code (a folder's docstring-only ``__init__`` has none):
-    every function and class it defines without a leading underscore, and only names that
-    exist there."""
+def _top_level(body: list[ast.stmt]):
+    for n in body:
+        if isinstance(n, (ast.If, ast.Try)):
+            yield from _top_level(n.body)
+            yield from _top_level(n.orelse)
+        else:
+            yield n
+
+
+@functools.cache
+def _bound(module: str) -> frozenset[str]:
+    """The names ``module`` binds at its top level (assigned, imported, defined)."""
+    tree = ast.parse(MODULES[module].read_text())
+    out: set[str] = set()
+    for n in _top_level(tree.body):
+        if isinstance(n, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            for t in n.targets if isinstance(n, ast.Assign) else [n.target]:
+                out |= {x.id for x in ast.walk(t) if isinstance(x, ast.Name)}
+        elif isinstance(n, (ast.Import, ast.ImportFrom)):
+            out |= {(a.asname or a.name).split(".")[0] for a in n.names}
+        elif isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(n.name)
+    if any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body):
+        out |= set(_all_of(module) or ())  # PEP 562: its names load on use
+    return frozenset(out)
+
+
+# Where other code uses the package from: the package itself, the benchmarks, the tests, the
+# examples, the docs' extensions and the mutation scripts.
+USERS = ("maglevgen", "derive", "runtime", "bench", "tests", "examples", "docs", "mutation")
+# Modules whose ``__all__`` is the documented API (docs/api.rst): it may list names nothing
+# in this repository imports.
+API_MODULES = {"maglevgen", "maglevgen.api"}
+# Modules whose ``__all__`` is not trimmed yet to what others use, and why.
+UNTRIMMED_ALL: dict[str, str] = {}  # module -> why its __all__ may list more (none today)
+
+
+def _resolve(me: str | None, node: ast.ImportFrom) -> str:
+    base = node.module or ""
+    if node.level and me:
+        parts = me.split(".")
+        if MODULES[me].stem != "__init__":
+            parts = parts[:-1]
+        parts = parts[:len(parts) - node.level + 1]
+        base = ".".join(parts + ([node.module] if node.module else []))
+    return base
+
+
+@functools.cache
+def _used_from_outside() -> dict[str, frozenset[str]]:
+    """module -> the names other files use of it: ``from m import name``, ``m.name`` through
+    an imported module (``import m as a``, ``from p import m``), a dotted string naming
+    ``m.name`` (mock.patch's), and a PEP 562 facade's ``_EXPORTS`` (name -> submodule)."""
+    own = {f.resolve(): m for m, f in MODULES.items()}
+    used: dict[str, set[str]] = {}
+    files = sorted(f for d in USERS for f in (ROOT / d).rglob("*.py") if "_build" not in f.parts)
+    for f in files:
+        me = own.get(f.resolve())
+        tree = ast.parse(f.read_text())
+        alias: dict[str, str] = {}
+
+        def use(module: str, name: str, me: str | None = me) -> None:
+            if module in MODULES and module != me and f"{module}.{name}" not in MODULES:
+                used.setdefault(module, set()).add(name)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                base = _resolve(me, node)
+                for a in node.names:
+                    if f"{base}.{a.name}" in MODULES:
+                        alias[a.asname or a.name] = f"{base}.{a.name}"
+                    else:
+                        use(base, a.name)
+            elif isinstance(node, ast.Import):
+                alias.update({a.asname: a.name for a in node.names if a.asname})
+            elif (isinstance(node, ast.Assign) and me
+                  and getattr(node.targets[0], "id", "") == "_EXPORTS"):
+                for name, sub in ast.literal_eval(node.value).items():
+                    use(f"{me}.{sub}", name, None)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute):
+                chain = [node.attr]
+                x = node.value
+                while isinstance(x, ast.Attribute):
+                    chain.insert(0, x.attr)
+                    x = x.value
+                if isinstance(x, ast.Name):
+                    chain.insert(0, alias.get(x.id, x.id))
+                    dotted = ".".join(chain).split(".")
+                    for k in range(len(dotted) - 1, 0, -1):
+                        if ".".join(dotted[:k]) in MODULES:
+                            use(".".join(dotted[:k]), dotted[k])
+                            break
+            elif (isinstance(node, ast.Constant) and isinstance(node.value, str)
+                  and re.fullmatch(r"maglevgen(\.\w+)+", node.value)):
+                dotted = node.value.split(".")
+                for k in range(len(dotted) - 1, 0, -1):
+                    if ".".join(dotted[:k]) in MODULES:
+                        use(".".join(dotted[:k]), dotted[k])
+                        break
+    # a name the module does not bind is another object's attribute (a local shadowing an
+    # imported module's name), not a use of the module
+    return {m: frozenset(n for n in names if n in _bound(m)) for m, names in used.items()}
+
+
+def test_every_module_declares_what_it_offers() -> None:
+    """``__all__`` in every module with code (a folder's docstring-only ``__init__`` has none),
+    of names that exist there."""
     bad = {}
     for m, f in MODULES.items():
         tree = ast.parse(f.read_text())
@@ -323,28 +435,36 @@ def test_every_module_declares_its_public_names() -> None:
                                             and isinstance(n.value, ast.Constant))]
         if not code:
             continue
-        declared = [n for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign))
-                    and "__all__" in {getattr(x, "id", None) for x in
-                                      (n.targets if isinstance(n, ast.Assign) else [n.target])}]
-        if not declared:
+        names = _all_of(m)
+        if names is None:
             bad[m] = "no __all__"
-            continue
-        try:
-            names = set(ast.literal_eval(declared[0].value))
-        except ValueError:  # computed (maglevgen.report: PEP 562, its names load on use)
-            names = set(importlib.import_module(m).__all__)
-        bound = {x.id for n in tree.body for x in ast.walk(n)
-                 if isinstance(x, ast.Name) and isinstance(x.ctx, ast.Store)}
-        bound |= {(a.asname or a.name).split(".")[0] for n in tree.body
-                  if isinstance(n, (ast.Import, ast.ImportFrom)) for a in n.names}
-        bound |= {n.name for n in tree.body
-                  if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))}
-        if any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body):
-            bound |= {n for n in names if hasattr(importlib.import_module(m), n)}  # PEP 562
-        missing, unknown = _public_definitions(tree) - names, names - bound
-        if missing or unknown:
-            bad[m] = {"not in __all__": sorted(missing), "unknown": sorted(unknown)}
+        elif set(names) - _bound(m):
+            bad[m] = {"unknown": sorted(set(names) - _bound(m))}
     assert bad == {}
+
+
+def test_all_is_what_other_modules_use() -> None:
+    """``__all__`` marks what a module offers upward (python-control's use): every public
+    name another file uses of it is listed, and (the API aside) nothing else."""
+    used = _used_from_outside()
+    bad = {}
+    for m in MODULES:
+        offered, wanted = set(_all_of(m) or ()), {n for n in used.get(m, ()) if n[0] != "_"}
+        unlisted = wanted - offered
+        unused = (set() if m in API_MODULES or m in UNTRIMMED_ALL
+                  else offered - wanted - {"__version__"})
+        if unlisted or unused:
+            bad[m] = {"used but not in __all__": sorted(unlisted),
+                      "in __all__, used by no other file": sorted(unused)}
+    assert bad == {}
+
+
+def test_the_use_walker_sees_every_kind_of_use() -> None:
+    """The walker behind the rule above finds each form of use (a planted example of each)."""
+    used = _used_from_outside()
+    assert {"STATE_INDEX", "KINETIC"} <= used["maglevgen.derive.conventions"]  # cv.X
+    assert "run_latex" in used["maglevgen.report.latex"]  # the facade's _EXPORTS
+    assert "solve_trim" in used["maglevgen.derive.trim"]  # from m import name
 
 
 def test_no_module_imports_another_modules_private_name() -> None:

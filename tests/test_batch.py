@@ -13,7 +13,7 @@ import pytest
 
 from maglevgen.analyses.montecarlo import make_study, run_sample, run_samples_batch
 from maglevgen.analyses.simulate import (
-    FirmwareTick,
+    LoopSetting,
     Weights,
     operating_point,
     simulate,
@@ -24,7 +24,7 @@ from maglevgen.control.sampled import Tick
 
 
 @pytest.mark.needs_cc
-@pytest.mark.parametrize("tick", [None, Tick(250.0, 1), FirmwareTick(250.0, 1, 2e-3)],
+@pytest.mark.parametrize("tick", [None, Tick(250.0, 1), LoopSetting(250.0, 1, 2e-3)],
                          ids=["continuous", "ticked", "firmware"])
 def test_batch_runs_equal_the_per_sample_runs(carriage, sim_lib, op, tick) -> None:
     """Three runs (two controllers at the nominal parameters, one of them again on a 4 %
@@ -37,7 +37,7 @@ def test_batch_runs_equal_the_per_sample_runs(carriage, sim_lib, op, tick) -> No
     op2 = operating_point(sim_lib, p2, op.speed, carriage.params.track.min_gap,
                           Weights.of(carriage.params))
     dist = {"z": 2e-3, "phi": 4e-3}
-    second = "spec" if isinstance(tick, FirmwareTick) else "coupled"
+    second = "spec" if isinstance(tick, LoopSetting) else "coupled"
     jobs = [(carriage.p, op, "lqr", dist), (carriage.p, op, second, dist),
             (p2, op2, "lqr", {"y": -1e-3})]
     kw = {"tick": tick, "speed_gain": 500.0 if tick else 0.0,

@@ -124,10 +124,8 @@ def test_what_the_c_loop_and_the_host_read_from_the_loop(plant: Plant) -> None:
     assert (c.tau, c.k_i, c.i_max) == (loop.actuator_lag, loop.speed_integral,
                                        loop.speed_integral_limit)
     assert (c.v_ref, c.accel) == (20.0, 0.5)
-    tick = loop.firmware_tick()
-    assert (tick.rate, tick.delay, tick.lag) == (loop.tick.rate, loop.tick.delay,
+    assert (loop.rate, loop.delay, loop.lag) == (loop.tick.rate, loop.tick.delay,
                                                  loop.actuator_lag)
-    assert tick.setting(loop.speed_gain).speed_integral == loop.speed_integral
 
 
 def test_a_controller_registered_after_the_points_are_solved_is_seen(plant: Plant) -> None:

@@ -312,7 +312,7 @@ def test_launch_flies_the_scheduled_design_at_the_tick(carriage, sim_lib, loop) 
     v_lo, v_hi = Plant(carriage, sim_lib).speed_range
     points = Plant(carriage, sim_lib).points(np.linspace(v_lo, v_hi, 8))
     refs = Plant(carriage, sim_lib).launch_references(points)
-    sched = Plant(carriage, sim_lib).launch_schedule(points, "spec", refs, tick.setting(k_v))
+    sched = Plant(carriage, sim_lib).launch_schedule(points, "spec", refs, tick)
     d = tick.delay
     design = firmware_gains(points[0], "spec", tick)
     np.testing.assert_array_equal(sched.values[0, K_LAG:K_DELAY],

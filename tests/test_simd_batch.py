@@ -14,12 +14,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from maglevgen.analyses.simulate import FirmwareTick, Weights, hold_run, operating_point
+from maglevgen.analyses.simulate import LoopSetting, Weights, hold_run, operating_point
 from maglevgen.codegen.lanes import WIDTHS, LaneError, kernel_name, lane_kernels
 from maglevgen.control.sampled import Tick
 
 DT = 1e-3
-TICK = FirmwareTick(250.0, 1, 2e-3)  # 4 steps a tick, one tick's delay, a 2 ms lag
+TICK = LoopSetting(250.0, 1, 2e-3)  # 4 steps a tick, one tick's delay, a 2 ms lag
 
 
 def _widths(sim_lib) -> list[int]:

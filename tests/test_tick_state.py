@@ -582,10 +582,9 @@ def test_the_firmware_integral_needs_a_finite_clamp() -> None:
     speed_integral_limit is refused by the firmware (the C clamp needs a number); without an
     integral the header's MAGLEV_TICK_I_MAX is 0."""
     from maglevgen.control.built_loop import LoopSetting
-    from maglevgen.control.sampled import Tick
 
-    def loop(*rest: float) -> LoopSetting:
-        return LoopSetting(Tick(1000.0, 1), 60.0, 0.0, *rest)
+    def loop(*rest: float) -> LoopSetting:  # (lag, speed_integral, integral_limit)
+        return LoopSetting(1000.0, 1, *rest, speed_gain=60.0)
 
     with pytest.raises(ValueError, match="finite limit"):
         loop(2e-3, 116.0).check_embeddable()

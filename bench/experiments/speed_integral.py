@@ -1,10 +1,10 @@
 """The speed loop with and without integral action on a carriage whose drag the feed-forward
 misses (issue 49: B0 -10 %, R and L +-30 %): a 6 s hold at v_min, 20 m/s and v_max in the
-host's firmware loop (maglev_simulate with a FirmwareTick: the tick law of the firmware, the
-`spec` design at the tick, one tick of delay, the 2 ms actuator lag, the force budget), the
-plant the perturbed carriage, the controller the nominal one (its design, reference and
-feed-forward: `simulate(..., controller_op=...)`, as `maglevgen montecarlo` flies its
-samples), from the undisturbed perturbed trim. Three speed loops: P (k_v of
+host's firmware loop (maglev_simulate with the loop as built, a LoopSetting: the tick law of
+the firmware, the `spec` design at the tick, one tick of delay, the 2 ms actuator lag, the
+force budget), the plant the perturbed carriage, the controller the nominal one (its design,
+reference and feed-forward: `simulate(..., controller_op=...)`, as `maglevgen montecarlo`
+flies its samples), from the undisturbed perturbed trim. Three speed loops: P (k_v of
 `sampled.speed_gain`, no integral: the loop before the integral), PI at the default
 control.spec.speed_integral_ratio, and PI with r = 1 (a double pole at the bandwidth).
 

@@ -25,7 +25,6 @@ from maglevgen.analyses.loop import (
     loop_plant,
     loop_setting,
     loop_stability,
-    sampled_stability,
     tick_design_stability,
 )
 from maglevgen.analyses.sensing import SensingCheck, sensing_check
@@ -47,38 +46,9 @@ from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
 
-__all__ = [
-    "DEFAULT_SPEEDS",
-    "MAX_SPEEDS",
-    "MODEL_CHOICES",
-    "ControllerEnvelope",
-    "Envelope",
-    "LoopMargins",
-    "LoopSetting",
-    "ModelCheck",
-    "SpecFailure",
-    "TickDesignCheck",
-    "alternate_models",
-    "compute_envelope",
-    "disk_margins_png",
-    "envelope_markdown",
-    "grid_ranges",
-    "loop_design",
-    "loop_margins",
-    "loop_plant",
-    "loop_setting",
-    "loop_stability",
-    "model_checks",
-    "sampled_stability",
-    "spec_failures",
-    "spec_verdict_text",
-    "speed_range",
-    "stability_map_png",
-    "tick_design_check",
-    "tick_design_stability",
-    "unstable_ranges",
-    "verdict_text",
-]
+__all__ = ["DEFAULT_SPEEDS", "MAX_SPEEDS", "STABILITY_MARGIN", "Envelope", "LoopMargins",
+           "alternate_models", "compute_envelope", "disk_margins_png", "envelope_markdown",
+           "loop_design", "loop_plant", "loop_setting", "speed_range", "stability_map_png"]
 
 DEFAULT_SPEEDS = 50
 MARGIN_SPEEDS = 5  # speeds of the grid (both ends among them) where the margins are computed

@@ -52,10 +52,8 @@ from maglevgen.version import __version__
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["ALLOCATE", "FIRMWARE_FLAGS", "MAX_READINGS", "PLANT", "QEMU_TICKS", "READINGS",
-           "READING_KINDS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "SenseSchedule",
-           "firmware_functions", "refresh_slices", "render_firmware", "sense_refresh_bound",
-           "sense_schedule"]
+__all__ = ["FIRMWARE_FLAGS", "QEMU_TICKS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "SenseSchedule",
+           "refresh_slices", "render_firmware", "sense_refresh_bound", "sense_schedule"]
 
 #: the Cortex-M4F flags of the folder's README and toolchain file (the firmware build)
 FIRMWARE_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",

@@ -16,7 +16,7 @@ from maglevgen.control.sampled import (
 )
 
 __all__ = ["LoopSetting", "loop_design", "loop_plant", "loop_setting", "loop_stability",
-           "sampled_stability", "tick_design_stability"]
+           "tick_design_stability"]
 
 
 def loop_stability(op: OperatingPoint, controller: str, setting: LoopSetting,

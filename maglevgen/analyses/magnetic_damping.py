@@ -24,7 +24,7 @@ from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import OperatingPoint
 from maglevgen.derive import conventions as cv
 
-__all__ = ["AXIS_RATES", "axis_damping", "damping_across_speed"]
+__all__ = ["axis_damping", "damping_across_speed"]
 
 # the body rate of each axis, in conventions.AXES order
 AXIS_RATES: tuple[str, ...] = ("v", "w", "p", "q", "r")

@@ -50,7 +50,6 @@ import numpy as np
 from maglevgen.analyses.montecarlo_report import (
     CONTACT_CAUSES,
     aggregate,
-    design_text,
     input_label,
     markdown,
     plots,
@@ -651,13 +650,11 @@ def default_workers() -> int:
         os.cpu_count() or 1)
 
 
-__all__ = ["MAX_SAMPLES", "ChunkFailedError", "Result", "Study", "aggregate",
-           "check_scheduler", "concat", "contact_cause", "dask_client", "default_chunk",
-           "default_workers", "design_text", "input_label", "make_study", "markdown",
-           "nominal_design", "output_files", "plots", "region_multiple",
-           "run_chunk", "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study",
-           "sample_inputs", "sample_parameters", "sample_sensors", "sample_tick", "study_regions",
-           "summary_json", "table", "table_files", "wilson"]
+__all__ = ["CONTACT_CAUSES", "FAILURES", "MAX_SAMPLES", "ChunkFailedError", "Columns", "Study",
+           "check_scheduler", "contact_cause", "default_chunk", "default_workers",
+           "input_label", "make_study", "markdown", "output_files", "run_dask", "run_local",
+           "run_sample", "run_samples_batch", "run_study", "sample_inputs",
+           "sample_parameters", "sample_tick", "wilson"]
 
 
 def check_scheduler(scheduler: str | None) -> None:

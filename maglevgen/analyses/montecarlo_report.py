@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from maglevgen.analyses.sim_loop import FirmwareTick, SensedTick
+from maglevgen.analyses.sim_loop import LoopSetting, SensedTick
 from maglevgen.analyses.simulate import RUN_STATUSES
 from maglevgen.controllers import controller as registered_controller
 from maglevgen.controllers import title as controller_title
@@ -18,8 +18,8 @@ if TYPE_CHECKING:
     from maglevgen.analyses.montecarlo import Columns, Study
 
 __all__ = ["CONTACT_CAUSES", "FAILURES", "SAMPLE_STATUSES", "STATUSES", "WORST", "Z95",
-           "aggregate", "design_text", "input_label", "markdown", "plots", "summary_json",
-           "table", "table_files", "wilson"]
+           "aggregate", "input_label", "markdown", "plots", "summary_json", "table", "table_files",
+           "wilson"]
 
 # statuses of a sample's run: the simulation's (RUN_STATUSES) and two of the sample itself
 SAMPLE_STATUSES = ("rejected", "no trim")
@@ -170,7 +170,7 @@ def design_text(study: Study) -> str:
     if isinstance(study.tick, SensedTick):
         loop = ("; flown by the firmware's sense tick on the sampled carriage's noisy "
                 "readings, each sample's noise its own (--loop sensed)")
-    elif isinstance(study.tick, FirmwareTick):
+    elif isinstance(study.tick, LoopSetting):
         loop = "; flown by the firmware loop on the exact state (--loop firmware)"
     else:
         loop = "; the paper's law at every RK4 stage (--loop continuous)"

@@ -52,8 +52,7 @@ from maglevgen.controllers import controller as registered_controller
 from maglevgen.derive import conventions as cv
 from maglevgen.runtime.ffi import GeneratedFunctionError
 
-__all__ = ["BUILD_HOLD", "HOLD_SPEED", "NOISE_BUDGET_SHARE", "NOISE_FORCE_SHARE", "NOISE_SCALES",
-           "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds", "sensed_holds"]
+__all__ = ["BUILD_HOLD", "NoisyHold", "hold_speeds", "noisy_hold", "noisy_holds", "sensed_holds"]
 
 #: the build's noisy holds: their length [s], the speed held besides the envelope's ends
 #: [m/s], and the sensor noise scales (the file's noise, and five times it)
@@ -250,14 +249,14 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             gyro, acc, _, _ = imu_fn(x, xdot, layout.imu_point, p)
             y[n_gap:n_gap + 6] = np.concatenate([np.ravel(gyro), np.ravel(acc)])
         if layout.track:
-            y[-1] = x[0]
+            y[-1] = x[cv.STATE_INDEX["x"]]
         y = y + noise[k]
         y = np.where(q > 0, np.round(y / np.where(q > 0, q, 1.0)) * q, y)
         y_ref = meas.y_trim.copy()
         if layout.track:
             y_ref[-1] += V * t  # the trim moves along the track
         dz_true = x - op.x_trim
-        dz_true[0] -= V * t
+        dz_true[cv.STATE_INDEX["x"]] -= V * t
         # the update, the control on the updated estimate (and on what the controller knows:
         # its commands in flight, its prediction of the lag), the prediction
         innov = (y - y_ref) - model.C @ z_pred - (model.D @ du_applied if d == 0 else 0.0)
@@ -308,7 +307,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
         forces[k] = [np.linalg.norm(du_hold[1 + first[i]:1 + first[i] + comps[i]])
                      for i in range(len(arrays))]
         gaps[k] = gap_k
-        att[k] = x[3:6] - op.x_trim[3:6]
+        att[k] = x[cv.ATTITUDE] - op.x_trim[cv.ATTITUDE]
     predicted = np.sqrt(np.clip(np.diag(design.P_updated)[:n_x], 0.0, None))
     if n_ticks == 0:  # diverged within the first tick: nothing to average
         forces, gaps, att, est_err = (np.full((1, a.shape[1]), np.nan)
@@ -409,7 +408,7 @@ def sensed_holds(plant: Plant, v_min: float, v_max: float, t_end: float = BUILD_
             out.append(_hold_metrics(
                 op.speed, t_end, scale, tuple(name for name, _ in structure), forces,
                 float(budget), traj.gaps[ticks] - op.gaps, float(np.min(traj.gaps)),
-                traj.x[ticks, 3:6] - op.x_trim[3:6], model.states,
+                traj.x[ticks, cv.ATTITUDE] - op.x_trim[cv.ATTITUDE], model.states,
                 err[:, [cv.STATE_INDEX[s] for s in model.states]], predicted,
                 float(traj.t[-1]) if ended else None, time.perf_counter() - start,
                 traj.gaps[ticks][1:]))

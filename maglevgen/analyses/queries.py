@@ -46,26 +46,8 @@ from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
 from maglevgen.infrastructure import progress
 
-__all__ = [
-    "GAIN_ROUNDOFF",
-    "AcceleratingMargin",
-    "TrimPoint",
-    "accelerating_margins",
-    "axis_gains",
-    "coupled_comparison",
-    "displayed_gains",
-    "embedded_gains",
-    "envelope_of",
-    "envelope_verdicts",
-    "gains_report",
-    "pitch_paper_form",
-    "plain_formula",
-    "plant_of",
-    "stiffness_table",
-    "trim_point",
-    "trim_report",
-    "verdict_lines",
-]
+__all__ = ["AcceleratingMargin", "accelerating_margins", "displayed_gains", "embedded_gains",
+           "gains_report", "pitch_paper_form", "stiffness_table", "trim_point", "trim_report"]
 
 
 @dataclass(frozen=True)
@@ -120,8 +102,10 @@ def trim_point(plant: Plant, speed: float | None, acceleration: float = 0.0) -> 
         raise NoTrimError(f"no trim at speed {v:g} m/s{moving}: {why}{hint}") from None
     u = np.zeros(lib.function("maglev_dynamics").shapes_in[1][0])
     u[0] = f_prop
-    acc = lib.function("maglev_dynamics")(x, u, p)[0].ravel()[6:]
-    acc[:3] -= x[6:9] * (acceleration / v)  # the translation's R^T (a, 0, 0) (derive/trim.py)
+    xdot = lib.function("maglev_dynamics")(x, u, p)[0].ravel()
+    # the translation's R^T (a, 0, 0) (derive/trim.py)
+    xdot[cv.VELOCITY] -= x[cv.VELOCITY] * (acceleration / v)
+    acc = xdot[cv.KINETIC]
     lift, drag = (a.ravel() for a in lib.function("maglev_array_forces")(x, p))
     K_mag, K_oth = lib.function("maglev_stiffness")(x, f_prop, p)
     return TrimPoint(v, x, f_prop, gaps, lift, drag, float(np.max(np.abs(acc))), K_mag, K_oth,
@@ -173,13 +157,15 @@ def accelerating_margins(plant: Plant, speeds: Sequence[float],
     carriage = plant.carriage
     a = carriage.params.envelope.launch_acceleration if acceleration is None else acceleration
     names = list(carriage.params.arrays)
+    heave, pitch = cv.STATE_INDEX["z"], cv.STATE_INDEX["theta"]
     out = []
     for v in speeds:
         still, moving = (trim_point(plant, v, acc) for acc in (0.0, a))
         i = int(np.argmin(moving.gaps))
         out.append(AcceleratingMargin(
-            float(v), float(a), float(still.x[4]), float(moving.x[4]), float(still.x[2]),
-            float(moving.x[2]), float(np.min(still.gaps)), float(moving.gaps[i]), names[i],
+            float(v), float(a), float(still.x[pitch]), float(moving.x[pitch]),
+            float(still.x[heave]), float(moving.x[heave]), float(np.min(still.gaps)),
+            float(moving.gaps[i]), names[i],
             still.f_prop, moving.f_prop, carriage.params.track.min_gap))
     return out
 

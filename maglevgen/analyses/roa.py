@@ -69,13 +69,12 @@ from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 from maglevgen.runtime.library import SimulationLibrary
 
-__all__ = ["BUILD_SAMPLING", "COMMAND_SAMPLING", "MAX_BATCH", "MAX_DIRECTIONS", "MAX_SPEEDS",
-           "Confirm", "Confirmation", "Evaluator", "Recovery", "Region",
-           "Sampling", "SpeedRegion", "axis_rows", "confirmation_run", "contact_level",
-           "default_deviation", "design_weights", "lyapunov_matrix", "recovery_bracket",
-           "recovery_lines", "region_markdown", "region_of_attraction", "region_png",
-           "sampled_search", "speed_region", "study", "study_files", "study_json", "study_lines",
-           "summary_lines"]
+__all__ = ["AXIS_NAMES", "AXIS_UNITS", "BUILD_SAMPLING", "BUILD_SPEEDS", "COMMAND_SAMPLING",
+           "CONFIRM_DT", "CONFIRM_T_END", "DEFAULT_SPEEDS", "MAX_BATCH", "MAX_DIRECTIONS",
+           "MAX_SPEEDS", "REDUCED_INDEX", "REDUCED_STATES", "Evaluator", "Region", "Sampling",
+           "confirmation_run", "contact_level", "default_deviation", "lyapunov_matrix",
+           "region_of_attraction", "region_png", "sampled_search", "speed_region", "study",
+           "study_files", "study_json", "study_lines", "summary_lines"]
 
 #: the states V is defined on, and their display units (mm, mrad; rates per second)
 AXIS_NAMES: tuple[str, ...] = cv.Q_STATES

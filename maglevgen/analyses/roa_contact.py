@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["CONTACT_SPREAD", "CONTACT_STARTS", "CONTACT_TOLERANCE", "contact_level"]
+__all__ = ["CONTACT_STARTS", "contact_level"]
 
 
 #: the optimiser's starts per gap besides the linearised optimum, and their spread

@@ -4,12 +4,12 @@ tick and C settings: `maglevgen.control.built_loop`, re-exported here)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from maglevgen.control.built_loop import FirmwareTick, Loop, control_loop, loop_design
+from maglevgen.control.built_loop import Loop, LoopSetting, control_loop, loop_design
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import OperatingPoint, SpeedMode
 from maglevgen.control.plant import LoopDesign
@@ -23,8 +23,8 @@ if TYPE_CHECKING:
     from maglevgen.analyses.sensed import SensedFirmware
     from maglevgen.control.estimation import SensorLayout
 
-__all__ = ["LOOPS", "FirmwareTick", "SensedTick", "control_loop", "estimation_error",
-           "firmware_gains", "flown_loop", "reading_noise", "run_loop", "sensed_metrics", "sensing",
+__all__ = ["LoopSetting", "SensedTick", "control_loop", "estimation_error", "firmware_gains",
+           "flown_loop", "reading_noise", "run_loop", "sensed_metrics", "sensing",
            "speed_loop_gain"]
 
 
@@ -41,18 +41,18 @@ def flown_loop(plant: Plant) -> Loop:
     return Loop.SENSED if plant.params.sensors is not None else Loop.FIRMWARE
 
 
-def firmware_gains(op: OperatingPoint, controller: str, tick: FirmwareTick) -> LoopDesign:
-    """``controller``'s gains on the loop ``tick`` describes (`loop.loop_design`, a
+def firmware_gains(op: OperatingPoint, controller: str, tick: LoopSetting) -> LoopDesign:
+    """``controller``'s gains on the loop ``tick`` (`loop.loop_design`, a
     `plant.LoopDesign`): its design at the tick on the loop as built where it has one (the
     `spec` controller: K_pos, K_rate, K_lag, K_delay, what the firmware's table holds), else
     its continuous gains (K_lag, K_delay None: fed back with zero gains)."""
-    return loop_design(op, controller, tick.setting())
+    return loop_design(op, controller, tick)
 
 
 def run_loop(plant: Plant, loop: Loop, seed: int = 0,
              noise_scale: float = 1.0) -> tuple[Tick | None, float, float | None]:
     """(tick, speed gain, force budget) of a run ``loop``: the plant's loop as built
-    (`Plant.loop`: its `FirmwareTick`, k_v and budget); that loop on the sensors (a
+    (`Plant.loop`, and its k_v and budget); that loop on the sensors (a
     `SensedTick` of `maglevgen.analyses.sensed.sensed_firmware`, its noise times
     ``noise_scale`` from ``seed``); or the paper's continuous law (None, 0, None)."""
     if loop not in tuple(Loop):
@@ -60,14 +60,13 @@ def run_loop(plant: Plant, loop: Loop, seed: int = 0,
     loop = Loop(loop)
     if loop is Loop.CONTINUOUS:
         return None, 0.0, None
-    built = plant.loop
-    tick = built.firmware_tick()
+    built = tick = plant.loop
     if loop is Loop.SENSED:
         from maglevgen.analyses.sensed import sensed_firmware
 
-        tick = SensedTick(tick.rate, tick.delay, tick.lag, tick.speed_integral,
-                          tick.integral_limit, sensed_firmware(plant), int(seed),
-                          float(noise_scale))
+        tick = SensedTick(**{f.name: getattr(built, f.name) for f in fields(LoopSetting)},
+                          firmware=sensed_firmware(plant), seed=int(seed),
+                          noise_scale=float(noise_scale))
     return tick, built.speed_gain, built.force_budget
 
 
@@ -79,8 +78,8 @@ def speed_loop_gain(mode: SpeedMode, bandwidth: float) -> float:
 
 
 @dataclass(frozen=True)
-class SensedTick(FirmwareTick):
-    """A `FirmwareTick` flown on the sensors: the firmware's sense tick (``firmware``) on the
+class SensedTick(LoopSetting):
+    """A `LoopSetting` flown on the sensors: the firmware's sense tick (``firmware``) on the
     plant's readings with their noise times ``noise_scale`` drawn from ``seed`` (a run's
     own: `sensing`) in place of the exact state's feedback. ``sensor_values``: (key, value)
     pairs of maglevgen.params.SENSOR_TOLERANCES (a Monte-Carlo sample's draws) the noise is

@@ -26,11 +26,9 @@ from maglevgen.derive import conventions as cv
 from maglevgen.infrastructure.columns import fcolumn_plain
 from maglevgen.infrastructure.workers import Shared, child, submit
 
-__all__ = ["FIGURES", "FIGURE_NAMES", "NPZ_FILE", "NPZ_LEVEL", "PEAK_FLOOR", "PEAK_WINDOW",
-           "PLOT_POINTS", "SPEED_FIGURE", "ZOOM_SECONDS", "columns", "csv_rows", "figure_png",
-           "metrics_markdown", "peak_envelope", "render_figures", "render_metrics",
-           "render_results", "render_trajectories", "speed_figure_png", "table", "trajectories_npz",
-           "trajectory_csv", "trajectory_file", "trajectory_names", "travel_departure"]
+__all__ = ["FIGURES", "FIGURE_NAMES", "PEAK_WINDOW", "ZOOM_SECONDS", "columns", "figure_png",
+           "render_figures", "render_metrics", "render_results", "render_trajectories",
+           "speed_figure_png", "trajectory_names", "travel_departure"]
 
 # The paper's figures: (file, title, [(state, scale, axis label)], figures reproduced)
 FIGURES: tuple[tuple[str, str, tuple[tuple[str, float, str], ...], str], ...] = (
@@ -145,9 +143,10 @@ def travel_departure(traj: Trajectory) -> np.ndarray:
     every run travels 200 m in 10 s within a few decimetres, so x itself draws one line."""
     ref = traj.speed_reference
     v = np.full(traj.t.size, traj.op.speed) if ref is None else np.asarray(ref, dtype=float)
-    x_ref = traj.x[0, 0] + np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1])
-                                                            * np.diff(traj.t))))
-    return traj.x[:, 0] - x_ref
+    along = traj.x[:, cv.STATE_INDEX["x"]]
+    x_ref = along[0] + np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1])
+                                                        * np.diff(traj.t))))
+    return along - x_ref
 
 
 def figure_png(trajs: Sequence[Trajectory], title: str,

@@ -20,7 +20,7 @@ import numpy as np
 
 from maglevgen.analyses.run_spec import RunSpec, RunVerdict, judge_run
 from maglevgen.analyses.sim_loop import (
-    FirmwareTick,
+    LoopSetting,
     SensedTick,
     control_loop,
     firmware_gains,
@@ -54,41 +54,12 @@ from maglevgen.errors import InputError, NoTrimError
 from maglevgen.runtime.library import BatchRun, Run, SimulationLibrary
 from maglevgen.runtime.sense import Sensing
 
-__all__ = [
-    "CHUNK_STEPS",
-    "C_STATUS",
-    "DISTURBANCE_DOC",
-    "RUN_STATUSES",
-    "SCENARIOS",
-    "SETTLING_BAND",
-    "FirmwareTick",
-    "Loop",
-    "Progress",
-    "SimulationRun",
-    "Trajectory",
-    "control_loop",
-    "disturbance_doc",
-    "firmware_gains",
-    "hold_run",
-    "hold_trajectory",
-    "initial_state",
-    "launch",
-    "linearly_stable_hold",
-    "metrics",
-    "moving_equilibrium",
-    "outside_envelope",
-    "reference_check",
-    "reference_trajectory",
-    "rk4_stability_limit",
-    "run_loop",
-    "run_scenarios",
-    "run_status",
-    "settling_time",
-    "simulate",
-    "simulate_batch",
-    "spec_verdict",
-    "speed_loop_gain",
-]
+__all__ = ["AXIS_STATES", "DISTURBANCE", "DISTURBANCE_DOC", "RUN_STATUSES", "SETTLING_BAND",
+           "LoopSetting", "SimulationRun", "Tick", "Trajectory", "Weights", "control_loop",
+           "disturbance_doc", "firmware_gains", "hold_run", "hold_trajectory", "initial_state",
+           "launch", "metrics", "operating_point", "reference_check", "reference_trajectory",
+           "rk4_stability_limit", "run_loop", "run_scenarios", "settling_time", "simulate",
+           "simulate_batch", "spec_verdict", "speed_loop_gain"]
 
 # DISTURBANCE (derive.conventions) in words
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "
@@ -110,11 +81,8 @@ C_STATUS = {1: "contact", 2: "diverging", 3: "generated code error"}
 # every status of a run (maglevgen.analyses.montecarlo's samples add theirs)
 RUN_STATUSES: tuple[str, ...] = ("settled", "not settled", "diverging", "contact",
                                  "generated code error")
-# the axis states' columns of x: a slice (a view, no gather) where they are consecutive
-_AXIS_COLUMNS: slice | list[int] = (
-    slice(AXIS_STATES[0], AXIS_STATES[-1] + 1)
-    if list(AXIS_STATES) == list(range(AXIS_STATES[0], AXIS_STATES[-1] + 1))
-    else list(AXIS_STATES))
+# the axis states' columns of x: a slice (a view, no gather)
+_AXIS_COLUMNS = cv.AXIS_COORDINATES
 CHUNK_STEPS = 20_000  # steps per C call: the progress display updates between calls
 
 Progress = Callable[[int], None]
@@ -179,7 +147,7 @@ class Trajectory:
 
         Computed once (x is not reassigned), as sqrt((u^2 + v^2) + w^2): np.linalg.norm's
         operations in its order, without its passes over a strided (n, 3) view."""
-        u, v, w = self.x[:, 6], self.x[:, 7], self.x[:, 8]
+        u, v, w = (self.x[:, cv.STATE_INDEX[s]] for s in cv.STATE_NAMES[cv.VELOCITY])
         return np.sqrt(u * u + v * v + w * w)
 
     @property
@@ -403,7 +371,7 @@ def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
         sense = sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
         loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, sense=sense)
         K_pos = K_rate = np.zeros(25)
-    elif isinstance(tick, FirmwareTick):
+    elif isinstance(tick, LoopSetting):
         gains = firmware_gains(design, controller, tick)
         loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, design=gains)
         K_pos, K_rate = (k.ravel(order="F") for k in (gains.K_pos, gains.K_rate))
@@ -637,7 +605,7 @@ def metrics(traj: Trajectory) -> dict:
             # k_i [N/m] and the clamp of |k_i xi| [N] (None: no integral)
             "speed_integral": getattr(traj.tick, "speed_integral", 0.0),
             "integral_limit": (float(traj.tick.integral_limit)
-                               if isinstance(traj.tick, FirmwareTick)
+                               if isinstance(traj.tick, LoopSetting)
                                and traj.tick.speed_integral > 0 else None)},
         "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
@@ -753,7 +721,7 @@ def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: 
     loop_kw: dict[str, Any] = {"tick": tick, "speed_gain": speed_gain,
                                "force_budget": force_budget}
     trajs = []
-    setting = tick.setting(speed_gain) if isinstance(tick, FirmwareTick) else None
+    setting = tick if isinstance(tick, LoopSetting) else None
     for c in controllers:
         sched = (plant.launch_schedule(points, c, refs, setting)
                  if scenario == "launch" else None)

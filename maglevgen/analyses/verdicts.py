@@ -32,10 +32,8 @@ if TYPE_CHECKING:
     from maglevgen.analyses.run_spec import RunVerdict
     from maglevgen.control.carriage_plant import Plant
 
-__all__ = ["RUN_DT", "RUN_T_END", "EmbeddedVerdict", "JudgedRun", "VerdictLine",
-           "build_holds", "cached_verdict", "embedded_runs", "embedded_verdict",
-           "embedded_verification",
-           "generate_example", "store_verdict", "verify_embedded"]
+__all__ = ["EmbeddedVerdict", "JudgedRun", "build_holds", "cached_verdict", "embedded_runs",
+           "embedded_verdict", "generate_example", "store_verdict", "verify_embedded"]
 
 #: the judged runs' length [s] and step [s] (`maglevgen build`'s defaults)
 RUN_T_END, RUN_DT = 10.0, 1e-3

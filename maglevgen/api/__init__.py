@@ -62,8 +62,9 @@ from maglevgen.api.results import (
 from maglevgen.api.studies import Studies
 from maglevgen.api.writers import Writers
 
-__all__ = ["Carriage", "EnvelopeResult", "Gains", "MonteCarloResult", "RegionResult",
-           "ReportResult", "SimulationResult", "SimulationRuns", "TrimResult", "load"]
+__all__ = ["AXES", "STATE_NAMES", "Carriage", "EnvelopeResult", "Gains", "MonteCarloResult",
+           "RegionResult", "ReportResult", "SimulationResult", "SimulationRuns", "TrimResult",
+           "load"]
 
 
 def load(params: str | Path | None = None, overrides: Sequence[str] = ()) -> Carriage:

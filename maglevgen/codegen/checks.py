@@ -41,8 +41,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 
-__all__ = ["ERROR_CODES", "ERROR_NAMES", "MAX_DELAY_TICKS", "TICK_KIND", "TRIM_KIND", "TRIM_SOLVES",
-           "TRIM_TOLERANCES", "UNCHECKED_INPUTS", "check_entries", "entry_checks", "error_defines",
+__all__ = ["ERROR_CODES", "MAX_DELAY_TICKS", "check_entries", "entry_checks", "error_defines",
            "error_name", "work_sizes"]
 
 #: name -> (value, meaning): maglev.h documents them, the C returns them, the runtime names them.

@@ -58,9 +58,9 @@ from maglevgen.codegen.emit import float_literal, render
 
 Precision = Literal["double", "single"]
 
-__all__ = ["CompileError", "Precision", "Token", "codegen_options", "compile_check",
-           "float_literal", "generate_c", "null_safe_version", "postprocess", "static_helpers",
-           "tokenize", "unchecked_entry_points"]
+__all__ = ["DOUBLE_MATH", "CompileError", "compile_check", "generate_c",
+           "guard_discarded_branches", "null_safe_version", "postprocess", "static_helpers",
+           "unchecked_entry_points"]
 
 
 def _words(text: str) -> frozenset[str]:

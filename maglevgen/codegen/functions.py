@@ -32,21 +32,7 @@ from maglevgen.derive.sensors import GapSensorSymbols, accelerometer_reading, ga
 from maglevgen.derive.structure import NORMAL_AXIS
 from maglevgen.derive.trim import along_track_acceleration
 
-__all__ = [
-    "ANALYSIS_FUNCTIONS",
-    "DESCRIPTIONS",
-    "FUNCTION_SPECS",
-    "NEWTON_TOLERANCES",
-    "N_AXES",
-    "PINV_REGULARIZATION",
-    "PINV_STEPS",
-    "PREFIX",
-    "Built",
-    "FunctionSpec",
-    "bake",
-    "bake_all",
-    "build_functions",
-]
+__all__ = ["DESCRIPTIONS", "PREFIX", "bake_all", "build_functions"]
 
 PREFIX = "maglev_"
 N_AXES = len(cv.AXES)
@@ -239,21 +225,22 @@ def _trim_io(model: CarriageModel, cm: CasadiModel, dynamics: ca.Function, preci
     # where the target and its Jacobian are exactly zero: the same iterations as without it)
     # and maglev_trim_accelerating, so the C holds one copy of the Newton solve's model.
     v, accel = ca.SX.sym("v"), ca.SX.sym("accel")
-    z6 = ca.SX.sym("z", 6)
+    z6 = ca.SX.sym("z", _F_PROP + 1)
     x_trim = _trim_state(v, z6)
-    u_trim = ca.vertcat(z6[5], ca.SX.zeros(n_u - 1))
-    phi, theta, psi = (model.x[cv.STATE_INDEX[s]] for s in ("phi", "theta", "psi"))
+    u_trim = ca.vertcat(z6[_F_PROP], ca.SX.zeros(n_u - 1))
+    angles = ("phi", "theta", "psi")
     a_sym = sp.Symbol("a_track", real=True)
-    target = SympyToCasadi({phi: z6[2], theta: z6[3], psi: z6[4], a_sym: accel})(
+    target = SympyToCasadi({**{model.x[cv.STATE_INDEX[s]]: z6[cv.Q_STATES.index(s)]
+                               for s in angles}, a_sym: accel})(
         along_track_acceleration(model.R, a_sym))
-    residual = dynamics(x_trim, u_trim, p)[6:12] - target
+    residual = dynamics(x_trim, u_trim, p)[cv.KINETIC] - target
     res_fn = ca.Function("maglev_trim_residual", [z6, ca.vertcat(v, accel, p)], [residual])
     abstol, abstol_step = NEWTON_TOLERANCES[precision]
     newton = ca.rootfinder("maglev_trim_newton", "fast_newton", res_fn,
                            {"max_iter": newton_iterations, "abstol": abstol,
                             "abstolStep": abstol_step})
     v_mx, a_mx, p_mx = ca.MX.sym("v"), ca.MX.sym("accel"), ca.MX.sym("p", p.shape[0])
-    guess = ca.vertcat(0, 0, 0, 0, 0, 0)
+    guess = ca.vertcat(*(0,) * (_F_PROP + 1))
     trim_state_fn = ca.Function("maglev_trim_state", [v, z6], [x_trim, u_trim])
     xt_mx, ut_mx = trim_state_fn(v_mx, newton(guess, ca.vertcat(v_mx, 0, p_mx)))
     io["trim"] = {"v": v_mx, "p": p_mx}, {"x_trim": xt_mx, "F_prop": ut_mx[0]}
@@ -414,12 +401,12 @@ def _sensor_io(model: CarriageModel, p: ca.SX, io: dict) -> None:
     conv = SympyToCasadi({**_pairs(xs, x), **_pairs(ds, xdot), **_pairs(bs, point),
                           **_pairs(ns, normal), g0: nominal,
                           g: p[model.structure.param_names.index("vehicle.gravity")]})
-    reading = conv(gap_reading(GapSensorSymbols(bs, ns, g0), xs[0:3, 0], R))
+    reading = conv(gap_reading(GapSensorSymbols(bs, ns, g0), xs[cv.POSITION, 0], R))
     io["gap_reading"] = ({"x": x, "point": point, "normal": normal, "nominal_gap": nominal},
                          {"reading": reading, "H": ca.jacobian(reading, x)})
-    gyro = x[9:12]
-    accel = conv(accelerometer_reading(bs, R, xs[6:9, 0], xs[9:12, 0], ds[6:9, 0], ds[9:12, 0],
-                                       g))
+    gyro = x[cv.RATES]
+    accel = conv(accelerometer_reading(bs, R, xs[cv.VELOCITY, 0], xs[cv.RATES, 0],
+                                       ds[cv.VELOCITY, 0], ds[cv.RATES, 0], g))
     both = ca.vertcat(gyro, accel)
     io["imu_reading"] = ({"x": x, "xdot": xdot, "point": point, "p": p},
                          {"gyro": gyro, "specific_force": accel, "H_x": ca.jacobian(both, x),
@@ -523,14 +510,20 @@ def _rk4_step(closed_loop: ca.Function, allocation_matrix: ca.Function) -> ca.Fu
                        ["x", "dt", *run_names], ["x_next", "u"])
 
 
+# The trim's unknowns z6 (as derive.trim): the pose q (Q_STATES), then the propulsion force.
+_F_PROP = len(cv.Q_STATES)
+
+
 def _trim_state(v: ca.SX, z6: ca.SX) -> ca.SX:
-    """The 12-state vector at pose z6[0:5] moving at (v, 0, 0) inertial (as derive.trim)."""
-    phi, theta, psi = z6[2], z6[3], z6[4]
+    """The 12-state vector at the pose q of z6 moving at (v, 0, 0) inertial (as derive.trim)."""
+    at = {s: z6[i] for i, s in enumerate(cv.Q_STATES)}
+    phi, theta, psi = at["phi"], at["theta"], at["psi"]
     cf, sf, ct, st, cp, sp_ = (ca.cos(phi), ca.sin(phi), ca.cos(theta), ca.sin(theta),
                                ca.cos(psi), ca.sin(psi))
     # body velocity R^T (v, 0, 0): v times the first row of R = Rz Ry Rx
     vel = v * ca.vertcat(cp * ct, cp * st * sf - sp_ * cf, cp * st * cf + sp_ * sf)
-    return ca.vertcat(0, z6[0:5], vel, 0, 0, 0)
+    at.update(zip(cv.STATE_NAMES[cv.VELOCITY], ca.vertsplit(vel), strict=True))
+    return ca.vertcat(*(at.get(s, 0) for s in cv.STATE_NAMES))
 
 
 # Iterated Tikhonov for the pseudoinverse, in its residual form: K = E^T (E E^T + d I)^-1,

@@ -32,11 +32,11 @@ from maglevgen.codegen.misra import deviation_list
 from maglevgen.codegen.simulate_api import SIMULATE_API
 from maglevgen.derive import conventions as cv
 from maglevgen.derive.model import CarriageModel
-from maglevgen.infrastructure.output import write_output  # noqa: F401  (re-exported: the writers' API)
+from maglevgen.infrastructure.output import write_output
 from maglevgen.params import entry_limits
 
-__all__ = ["TICK_FUNCTIONS", "function_table", "render", "render_c", "render_runtime_sources",
-           "render_tick_sources", "single_translation_unit"]
+__all__ = ["GenerateOptions", "function_table", "render", "render_runtime_sources",
+           "render_tick_sources", "write_output"]
 
 
 def _io(fn: ca.Function, out: bool) -> list[dict]:

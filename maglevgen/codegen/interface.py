@@ -27,21 +27,8 @@ from maglevgen.version import __version__
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = [
-    "C_NAME",
-    "FUNCTION_TABLE",
-    "INT_TYPES",
-    "IO_DOCS",
-    "PARAMETER_MODES",
-    "PRECISIONS",
-    "SIMULATE_FILES",
-    "SINGLE_FILE",
-    "GenerateOptions",
-    "banner",
-    "c_sources",
-    "interface_context",
-    "render_interface",
-]
+__all__ = ["C_NAME", "FUNCTION_TABLE", "INT_TYPES", "IO_DOCS", "SIMULATE_FILES", "SINGLE_FILE",
+           "GenerateOptions", "banner", "interface_context", "render_interface", "template_env"]
 
 C_NAME = "maglev_functions"
 SIMULATE_FILES = ("maglev_simulate.c", "maglev_simulate.h")

@@ -30,8 +30,7 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["KERNELS", "KERNEL_PREFIX", "MATH", "WIDTHS", "LaneError", "function_body",
-           "kernel_name", "lane_kernels"]
+__all__ = ["WIDTHS", "LaneError", "kernel_name", "lane_kernels"]
 
 #: the lane counts generated, each with the x86 target its vectors use (the driver picks the
 #: widest the CPU has at run time; other CPUs get the W = 2 kernel, which any C compiler

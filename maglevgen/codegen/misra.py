@@ -22,7 +22,7 @@ import re
 from dataclasses import dataclass
 from fnmatch import fnmatchcase
 
-__all__ = ["DEVIATIONS", "FILE_SCOPE", "Deviation", "deviation_list", "enclosing_functions"]
+__all__ = ["DEVIATIONS", "FILE_SCOPE", "deviation_list", "enclosing_functions"]
 
 #: the "function" of a finding outside every function body (declarations, macros)
 FILE_SCOPE = "(file scope)"

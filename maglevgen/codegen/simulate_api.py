@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["SIMULATE_API", "Argument", "CFunction", "function", "manifest_entries"]
+__all__ = ["SIMULATE_API", "function", "manifest_entries"]
 
 
 @dataclass(frozen=True)

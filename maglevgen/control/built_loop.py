@@ -1,7 +1,8 @@
-"""The loop as the firmware builds it, in ONE type (`LoopSetting`): its tick and delay, the
-actuator lag, the speed loop's gains and the integral's clamp, the force budget; and what each
-consumer reads from it: the host run's tick (`FirmwareTick`), the C loop's struct
-(`control_loop`, maglev_control_loop), the controller's gains on that loop (`loop_design`).
+"""The loop as the firmware builds it, in ONE type (`LoopSetting`, a `Tick`): its tick and
+delay, the actuator lag, the speed loop's gains and the integral's clamp, the force budget; and
+what each consumer reads from it: a host run's tick (the run takes the loop itself), the C
+loop's struct (`control_loop`, maglev_control_loop), the controller's gains on that loop
+(`loop_design`).
 How a run executes its controller is a `Loop` (the API's and CLI's ``loop`` strings are its
 values, parsed there; below the API a run takes the member).
 
@@ -30,7 +31,7 @@ from maglevgen.runtime.sense import Sensing
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["FirmwareTick", "Loop", "LoopSetting", "control_loop", "loop_design", "loop_plant",
+__all__ = ["Loop", "LoopSetting", "control_loop", "loop_design", "loop_plant",
            "loop_setting"]
 
 
@@ -54,124 +55,26 @@ class Loop(str, Enum):
 
 
 @dataclass(frozen=True)
-class LoopSetting:
-    """How the firmware runs every controller: its tick and the speed loop's gain, the
-    actuator lag, the speed integral and its clamp, the per-array force budget."""
+class LoopSetting(Tick):
+    """How the firmware runs every controller, in one type: its tick (`Tick`: ``rate`` [Hz]
+    and ``delay`` [ticks]), each array force's first-order ``lag`` [s] in the plant
+    ([actuators] time_constant; 0: none), the speed error's integral gain ``speed_integral``
+    [N/m] with the propulsion's |k_i xi| clamped at ``integral_limit`` [N] (the C tick's
+    anti-windup; inf: none), the speed loop's gain ``speed_gain`` [N s/m] (one value over the
+    envelope) and the speed pole ``bandwidth`` [1/s] it guarantees at least, the per-array
+    ``force_budget`` [N] (control.spec.force_budget; inf: none).
 
-    tick: Tick
-    speed_gain: float  # k_v [N s/m], one value over the envelope
-    bandwidth: float  # the speed pole it guarantees at least [1/s]
-    actuator_lag: float = 0.0  # [s] each array force's first-order lag ([actuators])
-    # k_i [N/m] of the speed error's integral (`plant.LoopPlant.k_i`; 0: none), and the
-    # largest propulsion |k_i xi| it may add [N] (the C tick's anti-windup clamp; inf: none)
-    speed_integral: float = 0.0
-    speed_integral_limit: float = float("inf")
-    force_budget: float = float("inf")  # [N] per array (control.spec.force_budget; inf: none)
-
-    def tick_text(self) -> str:
-        """"sampled-data loop at <rate> Hz with <n> tick(s) of delay[ and a <tau> ms actuator
-        lag]"."""
-        delay = f"{self.tick.delay} tick{'s' if self.tick.delay != 1 else ''} of delay"
-        lag = (f" and a {self.actuator_lag * 1e3:.3g} ms actuator lag" if self.actuator_lag > 0
-               else ", instant actuators")
-        return f"sampled-data loop at {self.tick.rate:g} Hz with {delay}{lag}"
-
-    def text(self) -> str:
-        integral = (f", k_i = {self.speed_integral:.4g} N/m (|k_i xi| <= "
-                    f"{self.speed_integral_limit:.4g} N)" if self.speed_integral > 0 else "")
-        return (f"{self.tick_text()}, zero-order hold, speed loop k_v = "
-                f"{self.speed_gain:.4g} N s/m{integral}")
-
-    # ------------------------------------------------- what the firmware and the FMU read
-
-    @property
-    def tick_rate(self) -> float:
-        """[Hz]"""
-        return float(self.tick.rate)
-
-    @property
-    def delay_ticks(self) -> int:
-        """Ticks from computing a command to applying it."""
-        return int(self.tick.delay)
-
-    @property
-    def c_integral_limit(self) -> float:
-        """The limit the C tick clamps |k_i xi| at: the given one, 0 without an integral."""
-        return float(self.speed_integral_limit) if self.speed_integral > 0 else 0.0
-
-    @property
-    def lag_pole(self) -> float:
-        """a = exp(-h/tau): the lag over one held tick (0 without a lag; `plant.LoopPlant`)."""
-        return float(np.exp(-1.0 / (self.tick_rate * self.actuator_lag))) \
-            if self.actuator_lag > 0 else 0.0
-
-    def check_embeddable(self) -> None:
-        """ValueError where the C tick cannot run it: a speed integral without a finite
-        clamp."""
-        if self.speed_integral > 0 and not np.isfinite(self.speed_integral_limit):
-            raise ValueError("the firmware's speed integral needs a finite limit "
-                             f"(speed_integral_limit {self.speed_integral_limit!r} N)")
-
-    def firmware_tick(self) -> FirmwareTick:
-        """The host run's tick of this loop (`FirmwareTick`: rate, delay, lag, integral)."""
-        return FirmwareTick(self.tick.rate, self.tick.delay, float(self.actuator_lag),
-                            float(self.speed_integral), float(self.speed_integral_limit))
-
-    def control_loop(self, dt: float, v_ref: float, accel: float = 0.0,
-                     design: LoopDesign | None = None) -> ControlLoop | None:
-        """The C loop's struct (maglev_control_loop) of this loop at the RK4 step ``dt``
-        (`control_loop` with its `firmware_tick`, speed gain and force budget)."""
-        return control_loop(dt, self.firmware_tick(), self.speed_gain, self.force_budget,
-                            v_ref, accel, design)
-
-
-def loop_setting(carriage: DerivedCarriage, points: Sequence[OperatingPoint]) -> LoopSetting:
-    """The tick of ``[control.spec]`` and the speed loop's gains (`plant.speed_loop_gains`
-    with control.spec.speed_integral_ratio r): one constant (k_v, k_i) over the points, k_v
-    the largest over them, so that the loop m s^2 + (slope + k_v) s + k_i has its poles at
-    -speed_bandwidth and -r speed_bandwidth where the drag slope is lowest (r = 0: the one
-    pole, at least as fast as speed_bandwidth at every speed); the integral clamped at
-    control.spec.speed_integral_limit; control.spec.force_budget per array."""
-    spec, mass = carriage.params.control.spec, carriage.params.vehicle.mass
-    k_v, k_i = max(speed_loop_gains(mass, op.trim_drag_slope, spec.speed_bandwidth,
-                                    spec.speed_integral_ratio) for op in points)
-    return LoopSetting(Tick.of(carriage.params), k_v, float(spec.speed_bandwidth),
-                       float(carriage.params.actuators.time_constant), k_i,
-                       float(spec.speed_integral_limit), float(spec.force_budget))
-
-
-def loop_plant(op: OperatingPoint, setting: LoopSetting) -> LoopPlant:
-    """The loop as built at ``op`` (`plant.LoopPlant`: tick, delay, actuator lag, speed loop)."""
-    return LoopPlant(op, setting.tick, setting.actuator_lag, setting.speed_gain,
-                     setting.speed_integral)
-
-
-def loop_design(op: OperatingPoint, controller: str, setting: LoopSetting,
-                continuous: bool = False) -> LoopDesign:
-    """``controller``'s gains on the loop as built: its design at the tick on `loop_plant`
-    (the controller's ``tick_design``, unless ``continuous``), else its continuous gains (no
-    feedback of the commands in flight or of the actuators). ValueError / LinAlgError where
-    the DARE has no stabilizing solution."""
-    c = registered_controller(controller)
-    if c.tick_design and c.weights is not None and not continuous:
-        return loop_plant(op, setting).design(c.weights)
-    return LoopDesign(*op.gains(controller))
-
-
-@dataclass(frozen=True)
-class FirmwareTick(Tick):
-    """The firmware's tick (`Tick`: rate and delay) with the rest of the loop as built: each
-    array force's first-order ``lag`` [s] in the plant ([actuators] time_constant) and the
-    speed error's integral gain ``speed_integral`` [N/m], its propulsion |k_i xi| clamped at
-    ``integral_limit`` [N] (anti-windup; inf: none). A run at a FirmwareTick runs the
-    firmware tick's law (templates/maglev_tick_law.c.j2) with each controller's gains on this
-    loop (`firmware_gains`: the design at the tick where the controller has one); a run at a
-    plain `Tick` runs the controller's continuous gains on the plant without the lag (the host
-    loop before issue 50). `LoopSetting.firmware_tick` builds it from the loop as built."""
+    A run at a LoopSetting runs the firmware tick's law (templates/maglev_tick_law.c.j2) with
+    each controller's gains on this loop (`loop_design`: the design at the tick where the
+    controller has one); a run at a plain `Tick` runs the controller's continuous gains on the
+    plant without the lag (the host loop before issue 50)."""
 
     lag: float = 0.0  # [s]
     speed_integral: float = 0.0  # [N/m]
     integral_limit: float = float("inf")  # [N]
+    speed_gain: float = 0.0  # [N s/m]
+    bandwidth: float = 0.0  # [1/s]
+    force_budget: float = float("inf")  # [N] per array
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -186,10 +89,102 @@ class FirmwareTick(Tick):
             raise InputError(f"speed integral limit {self.integral_limit!r} N: must be a "
                              "number >= 0 (inf: none)")
 
-    def setting(self, speed_gain: float = 0.0) -> LoopSetting:
-        """The `LoopSetting` of this loop (``speed_gain``: its k_v)."""
-        return LoopSetting(Tick(self.rate, self.delay), float(speed_gain), 0.0, self.lag,
-                           self.speed_integral, float(self.integral_limit))
+    def tick_text(self) -> str:
+        """"sampled-data loop at <rate> Hz with <n> tick(s) of delay[ and a <tau> ms actuator
+        lag]"."""
+        delay = f"{self.delay} tick{'s' if self.delay != 1 else ''} of delay"
+        lag = (f" and a {self.lag * 1e3:.3g} ms actuator lag" if self.lag > 0
+               else ", instant actuators")
+        return f"sampled-data loop at {self.rate:g} Hz with {delay}{lag}"
+
+    def text(self) -> str:
+        integral = (f", k_i = {self.speed_integral:.4g} N/m (|k_i xi| <= "
+                    f"{self.integral_limit:.4g} N)" if self.speed_integral > 0 else "")
+        return (f"{self.tick_text()}, zero-order hold, speed loop k_v = "
+                f"{self.speed_gain:.4g} N s/m{integral}")
+
+    # ------------------------------------------------- what the firmware and the FMU read
+
+    @property
+    def tick(self) -> Tick:
+        """The tick alone (rate and delay)."""
+        return Tick(self.rate, self.delay)
+
+    @property
+    def actuator_lag(self) -> float:
+        """[s] ``lag``, by its name in [actuators]."""
+        return self.lag
+
+    @property
+    def speed_integral_limit(self) -> float:
+        """[N] ``integral_limit``, by its name in [control.spec]."""
+        return self.integral_limit
+
+    @property
+    def tick_rate(self) -> float:
+        """[Hz]"""
+        return float(self.rate)
+
+    @property
+    def delay_ticks(self) -> int:
+        """Ticks from computing a command to applying it."""
+        return int(self.delay)
+
+    @property
+    def c_integral_limit(self) -> float:
+        """The limit the C tick clamps |k_i xi| at: the given one, 0 without an integral."""
+        return float(self.integral_limit) if self.speed_integral > 0 else 0.0
+
+    @property
+    def lag_pole(self) -> float:
+        """a = exp(-h/tau): the lag over one held tick (0 without a lag; `plant.LoopPlant`)."""
+        return float(np.exp(-1.0 / (self.tick_rate * self.lag))) if self.lag > 0 else 0.0
+
+    def check_embeddable(self) -> None:
+        """ValueError where the C tick cannot run it: a speed integral without a finite
+        clamp."""
+        if self.speed_integral > 0 and not np.isfinite(self.integral_limit):
+            raise ValueError("the firmware's speed integral needs a finite limit "
+                             f"(speed_integral_limit {self.integral_limit!r} N)")
+
+    def control_loop(self, dt: float, v_ref: float, accel: float = 0.0,
+                     design: LoopDesign | None = None) -> ControlLoop | None:
+        """The C loop's struct (maglev_control_loop) of this loop at the RK4 step ``dt``
+        (`control_loop` with its speed gain and force budget)."""
+        return control_loop(dt, self, self.speed_gain, self.force_budget, v_ref, accel, design)
+
+
+def loop_setting(carriage: DerivedCarriage, points: Sequence[OperatingPoint]) -> LoopSetting:
+    """The tick of ``[control.spec]`` and the speed loop's gains (`plant.speed_loop_gains`
+    with control.spec.speed_integral_ratio r): one constant (k_v, k_i) over the points, k_v
+    the largest over them, so that the loop m s^2 + (slope + k_v) s + k_i has its poles at
+    -speed_bandwidth and -r speed_bandwidth where the drag slope is lowest (r = 0: the one
+    pole, at least as fast as speed_bandwidth at every speed); the integral clamped at
+    control.spec.speed_integral_limit; control.spec.force_budget per array."""
+    spec, mass = carriage.params.control.spec, carriage.params.vehicle.mass
+    k_v, k_i = max(speed_loop_gains(mass, op.trim_drag_slope, spec.speed_bandwidth,
+                                    spec.speed_integral_ratio) for op in points)
+    tick = Tick.of(carriage.params)
+    return LoopSetting(tick.rate, tick.delay, float(carriage.params.actuators.time_constant),
+                       k_i, float(spec.speed_integral_limit), k_v, float(spec.speed_bandwidth),
+                       float(spec.force_budget))
+
+
+def loop_plant(op: OperatingPoint, setting: LoopSetting) -> LoopPlant:
+    """The loop as built at ``op`` (`plant.LoopPlant`: tick, delay, actuator lag, speed loop)."""
+    return LoopPlant(op, setting.tick, setting.lag, setting.speed_gain, setting.speed_integral)
+
+
+def loop_design(op: OperatingPoint, controller: str, setting: LoopSetting,
+                continuous: bool = False) -> LoopDesign:
+    """``controller``'s gains on the loop as built: its design at the tick on `loop_plant`
+    (the controller's ``tick_design``, unless ``continuous``), else its continuous gains (no
+    feedback of the commands in flight or of the actuators). ValueError / LinAlgError where
+    the DARE has no stabilizing solution."""
+    c = registered_controller(controller)
+    if c.tick_design and c.weights is not None and not continuous:
+        return loop_plant(op, setting).design(c.weights)
+    return LoopDesign(*op.gains(controller))
 
 
 def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: float | None,
@@ -197,9 +192,9 @@ def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: 
                  sense: Sensing | None = None) -> ControlLoop | None:
     """The C loop's settings (maglev_control_loop), or None for the continuous loop: the
     controller at every RK4 stage, the propulsion without speed feedback, no budget.
-    Validates them. A `FirmwareTick` adds the actuator lag and the speed integral;
+    Validates them. A `LoopSetting` adds the actuator lag and the speed integral;
     ``design`` (a `plant.LoopDesign`): the tick law's K_lag and K_delay of maglev_simulate;
-    ``sense`` (at a `FirmwareTick`; `maglevgen.analyses.sim_loop.sensing`): the firmware's
+    ``sense`` (at a `LoopSetting`; `maglevgen.analyses.sim_loop.sensing`): the firmware's
     sense tick on the readings."""
     if not (isinstance(speed_gain, (int, float)) and np.isfinite(speed_gain)
             and speed_gain >= 0):
@@ -212,14 +207,14 @@ def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: 
         return None
     budget = 0.0 if force_budget is None or np.isinf(force_budget) else float(force_budget)
     law: dict = {}
-    if isinstance(tick, FirmwareTick):
+    if isinstance(tick, LoopSetting):
         law = {"tau": float(tick.lag), "k_i": float(tick.speed_integral),
                "i_max": float(tick.integral_limit)}
     if design is not None:
         for key, K in (("k_lag", design.K_lag), ("k_delay", design.K_delay)):
             if K is not None and K.size:
                 law[key] = tuple(float(v) for v in K.ravel(order="F"))
-    if sense is not None and not isinstance(tick, FirmwareTick):
+    if sense is not None and not isinstance(tick, LoopSetting):
         raise ValueError("the sensors' loop runs at a firmware tick")
     return ControlLoop(0 if tick is None else tick.steps(dt), 0 if tick is None else tick.delay,
                        float(speed_gain), float(v_ref), float(accel), budget, **law,

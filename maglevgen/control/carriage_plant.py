@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
     from maglevgen.params import Parameters
 
-__all__ = ["MAX_CACHED_POINTS", "Plant", "lift_off_speed"]
+__all__ = ["Plant", "lift_off_speed"]
 
 #: the most operating points a plant keeps (an envelope of up to 100 000 speeds holds its own
 #: list while it runs; the plant of a long-lived `maglevgen.Carriage` keeps no more than this)

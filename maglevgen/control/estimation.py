@@ -26,44 +26,17 @@ import numpy as np
 import scipy.linalg
 
 from maglevgen.control.lqr import solve_dare
-from maglevgen.control.operating import OperatingPoint
+from maglevgen.control.operating import N_AXES, OperatingPoint
 from maglevgen.control.sampled import LOOP_STATES, Tick, delay_augmented, zoh
 from maglevgen.control.schedule import GainTable
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
-__all__ = [
-    "ESTIMATION_SHARE",
-    "NEEDED_STATES",
-    "NULL_SPACE_SHARE",
-    "EstimatorModel",
-    "EstimatorPoint",
-    "GapSensorGeometry",
-    "KalmanDesign",
-    "MeasurementModel",
-    "NoKalmanFilterError",
-    "Observability",
-    "SensorLayout",
-    "check_observable",
-    "continuous_equivalent",
-    "discrete_noise",
-    "estimate_gain",
-    "estimation_failures",
-    "estimator_model",
-    "estimator_points",
-    "face_axes",
-    "kalman",
-    "kalman_fields",
-    "kalman_row",
-    "kalman_table",
-    "loop_as_built",
-    "loop_as_built_speed_states",
-    "measurement_model",
-    "observability",
-    "process_noise",
-    "whole_loop",
-    "why_blind",
-]
+__all__ = ["ESTIMATION_SHARE", "NEEDED_STATES", "EstimatorPoint", "NoKalmanFilterError",
+           "SensorLayout", "continuous_equivalent", "estimation_failures", "estimator_model",
+           "estimator_points", "kalman", "kalman_table", "loop_as_built",
+           "loop_as_built_speed_states", "measurement_model", "observability", "whole_loop",
+           "why_blind"]
 
 #: the states the controller needs (the loop's: every state but the track position x)
 NEEDED_STATES: tuple[str, ...] = LOOP_STATES
@@ -177,7 +150,7 @@ def measurement_model(lib, p: np.ndarray, op: OperatingPoint,
         rows_C.append(H_x + H_xdot @ op.A)
         rows_D.append(H_xdot @ op.B)
     if layout.track:
-        rows_y.append(op.x_trim[:1])
+        rows_y.append(op.x_trim[[cv.STATE_INDEX["x"]]])
         e = np.zeros((1, n_x))
         e[0, cv.STATE_INDEX["x"]] = 1.0
         rows_C.append(e)
@@ -483,8 +456,8 @@ def estimate_gain(model: EstimatorModel, op: OperatingPoint, K_loop: np.ndarray)
     forces (the dynamics' inputs: F_prop, then the array forces)."""
     K_u = np.zeros((op.B.shape[1], model.Phi.shape[0]))
     cols = [model.states.index(s) for s in LOOP_STATES]
-    K_u[0, cols] = K_loop[5]
-    K_u[1:, cols] = op.allocation @ K_loop[:5]
+    K_u[0, cols] = K_loop[N_AXES]
+    K_u[1:, cols] = op.allocation @ K_loop[:N_AXES]
     return K_u
 
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["dare_doubling", "dare_residual", "numerical_dlqr", "numerical_lqr", "quadratic_cost",
-           "solve_dare", "weighted_qr"]
+__all__ = ["dare_doubling", "numerical_dlqr", "numerical_lqr", "quadratic_cost", "solve_dare",
+           "weighted_qr"]
 
 #: the doubling's stop: the change of X relative to its size; and its iterations (it converges
 #: quadratically: a handful where a stabilizing solution exists)

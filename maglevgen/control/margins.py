@@ -30,8 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DiskMargins", "delay_margin", "disk_gain_phase", "disk_margins",
-           "frequency_grid", "mu_upper_bound"]
+__all__ = ["DiskMargins", "delay_margin", "disk_gain_phase", "disk_margins"]
 
 MAX_EXTRA_TICKS = 20  # the delay margin is searched up to this many extra ticks
 

@@ -44,28 +44,11 @@ from maglevgen.errors import InputError, NoTrimError
 from maglevgen.runtime.ffi import GeneratedFunctionError
 from maglevgen.runtime.library import SimulationLibrary
 
-__all__ = [
-    "AXIS_STATES",
-    "N_AXES",
-    "REDUCED_INDEX",
-    "REDUCED_STATES",
-    "STABILITY_MARGIN",
-    "AxisGains",
-    "CoupledComparison",
-    "OperatingPoint",
-    "SpecWeights",
-    "SpeedMode",
-    "Weights",
-    "checked_accelerating_trim",
-    "checked_trim",
-    "closed_loop_stability",
-    "compare_designs",
-    "coupled_lqr",
-    "coupled_weights",
-    "operating_point",
-    "speed_mode",
-    "stability",
-]
+__all__ = ["AXIS_STATES", "N_AXES", "REDUCED_INDEX", "REDUCED_STATES", "STABILITY_MARGIN",
+           "AxisGains", "CoupledComparison", "OperatingPoint", "SpeedMode", "Weights",
+           "checked_accelerating_trim", "checked_trim", "closed_loop_stability", "compare_designs",
+           "coupled_lqr", "coupled_weights", "numerical_lqr", "operating_point", "speed_mode",
+           "stability"]
 
 AXIS_STATES: tuple[int, ...] = tuple(cv.STATE_INDEX[s] for s in Q_STATES)
 # the coupled model's states (see the module docstring)
@@ -173,12 +156,12 @@ class OperatingPoint:
         the circuits' lag, which sees the gap rates n . R v), and d acc/dV is A's velocity
         columns along the trim's velocity direction (the implicit-function theorem).
         """
-        acc = slice(6, 12)
+        acc, q, vel = cv.KINETIC, cv.AXIS_COORDINATES, cv.VELOCITY
         V = self.speed
-        dv_dq = V * _track_direction_slopes(*self.x_trim[3:6])
-        J = np.column_stack([self.A[acc, 1:6] + self.A[acc, 6:9] @ dv_dq, self.B[acc, 0]])
-        dacc_dV = self.A[acc, 6:9] @ (self.x_trim[6:9] / V)
-        return float(-np.linalg.solve(J, dacc_dV)[5])
+        dv_dq = V * _track_direction_slopes(*self.x_trim[cv.ATTITUDE])
+        J = np.column_stack([self.A[acc, q] + self.A[acc, vel] @ dv_dq, self.B[acc, 0]])
+        dacc_dV = self.A[acc, vel] @ (self.x_trim[vel] / V)
+        return float(-np.linalg.solve(J, dacc_dV)[len(Q_STATES)])  # F_prop's, after q's
 
     def axis_gains(self, K_reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(K_pos, K_rate) of a full-state gain K_reduced (5 x 10) on REDUCED_STATES:
@@ -245,8 +228,9 @@ def _checked(lib: SimulationLibrary, p: np.ndarray, speed: float, acceleration: 
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)
     u[0] = f_trim
-    acc = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()[6:]
-    acc[:3] -= x_trim[6:9] * (acceleration / speed)
+    xdot = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()
+    xdot[cv.VELOCITY] -= x_trim[cv.VELOCITY] * (acceleration / speed)
+    acc = xdot[cv.KINETIC]
     gaps = lib.function("maglev_gaps")(x_trim, p)[0].ravel()
     moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
     if not (np.all(np.isfinite(acc)) and np.max(np.abs(acc)) < 1e-8):
@@ -480,11 +464,12 @@ def speed_mode(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, mass: 
     r = np.divide(drag, lift, out=np.zeros_like(drag), where=lift != 0)
     fixed = float(-np.sum(drag * (1 - r**2) / ((1 + r**2) * V)))
     # the speed mode: the eigenvector with the largest share in u (x, a pure integrator, aside)
-    A_cl = op.full_closed_loop(controller)[1:, 1:]
+    kept = [i for i in range(cv.N_STATES) if i != cv.STATE_INDEX["x"]]
+    A_cl = op.full_closed_loop(controller)[np.ix_(kept, kept)]
     eigenvalue = float("nan")  # the coupled LQR where its Riccati equation has no solution
     if np.all(np.isfinite(A_cl)):
         ev, vec = np.linalg.eig(A_cl)
-        share = np.abs(vec[cv.STATE_INDEX["u"] - 1]) / np.linalg.norm(vec, axis=0)
+        share = np.abs(vec[kept.index(cv.STATE_INDEX["u"])]) / np.linalg.norm(vec, axis=0)
         eigenvalue = float(ev[np.argmax(share)].real)
     return SpeedMode(V, float(mass), op.trim_drag_slope, fixed, float(np.median(r)) * V,
                      eigenvalue, controller)

@@ -17,7 +17,7 @@ from maglevgen.control.registry import Controller, register
 if TYPE_CHECKING:
     from maglevgen.control.operating import OperatingPoint
 
-__all__ = ["N_AXES"]
+__all__ = []
 
 N_AXES = 5
 

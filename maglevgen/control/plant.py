@@ -54,7 +54,7 @@ from maglevgen.control.sampled import LOOP_INDEX, LOOP_STATES, Tick, loop_model,
 from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
 
-__all__ = ["Block", "Layout", "LoopDesign", "LoopPlant", "speed_loop_gains"]
+__all__ = ["LoopDesign", "LoopPlant", "speed_loop_gains"]
 
 # the controller's commands: the five generalized forces, then the propulsion
 COMMANDS: tuple[str, ...] = (*(c.name for c in cv.CONTROLS), "F_prop")
@@ -270,9 +270,9 @@ class LoopPlant:
                     design.K_delay[:, j * N_AXES:(j + 1) * N_AXES]
         if design.K_lag is not None and self.tau > 0:
             K[:N_AXES, L["prediction"]] = design.K_lag
-        vel = self.op.x_trim[6:9]
+        vel = self.op.x_trim[cv.VELOCITY]
         body = L["body"].start
-        for name, comp in zip(("u", "v", "w"), vel, strict=True):
+        for name, comp in zip(cv.STATE_NAMES[cv.VELOCITY], vel, strict=True):
             K[N_AXES, body + LOOP_STATES.index(name)] = self.k_v * comp / np.linalg.norm(vel)
         if self.k_i:
             K[N_AXES, L["speed_integral"]] = self.k_i
@@ -282,8 +282,8 @@ class LoopPlant:
         """dV as a row on `loop_layout` (dV = (u du + v dv + w dw)/V at trim)."""
         L = self.loop_layout
         c = np.zeros(L.size)
-        vel = self.op.x_trim[6:9]
-        for name, comp in zip(("u", "v", "w"), vel, strict=True):
+        vel = self.op.x_trim[cv.VELOCITY]
+        for name, comp in zip(cv.STATE_NAMES[cv.VELOCITY], vel, strict=True):
             c[L["body"].start + LOOP_STATES.index(name)] = comp / np.linalg.norm(vel)
         return c
 

@@ -11,8 +11,8 @@ import numpy as np
 if TYPE_CHECKING:
     from maglevgen.control.operating import OperatingPoint
 
-__all__ = ["REGISTRY", "Controller", "controller", "embeddable", "names", "register", "title",
-           "titles"]
+__all__ = ["REGISTRY", "Controller", "WeightsFn", "controller", "embeddable", "names", "register",
+           "title"]
 
 GainsFn = Callable[["OperatingPoint"], tuple[np.ndarray, np.ndarray]]
 # (q1, q2, r) per axis at an operating point: the position, rate and force weights

@@ -30,7 +30,7 @@ from maglevgen.control.spec import spec_weights
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
 
-__all__ = ["LOOP_STATES", "Tick", "TickDesign", "delay_augmented", "loop_gain", "loop_model",
+__all__ = ["LOOP_INDEX", "LOOP_STATES", "Tick", "delay_augmented", "loop_gain", "loop_model",
            "sampled_closed_loop", "sampled_eigenvalues", "speed_gain", "tick_design",
            "tick_design_loop_gains", "zoh"]
 
@@ -116,8 +116,8 @@ def _loop_gain_of(op: OperatingPoint, K_pos: np.ndarray, K_rate: np.ndarray,
     C_rate = A[axis_rows, :]  # a' as a function of the loop state (the Euler kinematics)
     K = np.zeros((N_AXES + 1, n))
     K[:N_AXES] = K_pos @ S + K_rate @ C_rate
-    vel = op.x_trim[6:9]
-    for name, comp in zip(("u", "v", "w"), vel, strict=True):
+    vel = op.x_trim[cv.VELOCITY]
+    for name, comp in zip(cv.STATE_NAMES[cv.VELOCITY], vel, strict=True):
         K[N_AXES, LOOP_STATES.index(name)] = k_v * comp / np.linalg.norm(vel)
     return K
 

@@ -28,38 +28,10 @@ if TYPE_CHECKING:
     from maglevgen.control.plant import LoopDesign
     from maglevgen.runtime.library import SimulationLibrary
 
-__all__ = [
-    "A_REF",
-    "DEFAULT_NODES",
-    "DENSE_GRID",
-    "DROP_SHARE",
-    "F_DRAG",
-    "GAIN_TABLE_BOUND",
-    "GAIN_TABLE_FIELDS",
-    "GAIN_TABLE_NODES",
-    "GAIN_TABLE_NY",
-    "K_DELAY",
-    "K_LAG",
-    "K_POS",
-    "K_RATE",
-    "NY",
-    "ZERO_VALUE",
-    "GainTable",
-    "Reference",
-    "Schedule",
-    "accelerating_references",
-    "field_errors",
-    "field_scales",
-    "field_slices",
-    "gain_table_row",
-    "gain_table_sources",
-    "node_values",
-    "schedule_c_source",
-    "tick_table_fields",
-    "truncated",
-    "value_terms",
-    "varying_values",
-]
+__all__ = ["A_REF", "GAIN_TABLE_BOUND", "GAIN_TABLE_FIELDS", "GAIN_TABLE_NY", "K_DELAY", "K_LAG",
+           "K_POS", "GainTable", "Reference", "Schedule", "accelerating_references",
+           "field_errors", "field_scales", "field_slices", "gain_table_row", "gain_table_sources",
+           "schedule_c_source", "tick_table_fields", "value_terms", "varying_values"]
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give: the
 # drag, the reference, K_pos and K_rate, then the tick law's K_lag and K_delay (room for

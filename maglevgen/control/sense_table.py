@@ -18,23 +18,8 @@ from maglevgen.control.schedule import GAIN_TABLE_BOUND, GainTable, field_scales
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, NoTrimError
 
-__all__ = [
-    "ACCEL_RANGE",
-    "ACCEL_ROUNDING",
-    "GAP_RANGE",
-    "GYRO_RANGE",
-    "M_DROPPED_SHARE",
-    "OWN_SCALE_FLOOR",
-    "TRACK_RANGE",
-    "TRIM_READING_SHARE",
-    "SensePlant",
-    "accelerating_change",
-    "reading_ranges",
-    "sense_fields",
-    "sense_plants",
-    "sense_scales",
-    "sense_table",
-]
+__all__ = ["ACCEL_RANGE", "GAP_RANGE", "GYRO_RANGE", "M_DROPPED_SHARE", "TRACK_RANGE",
+           "TRIM_READING_SHARE", "reading_ranges", "sense_fields", "sense_plants", "sense_table"]
 
 #: a gap reading is plausible within [0, this x its face's nominal gap] (a gap sensor's
 #: measuring range: contact to a few times the gap it flies at)

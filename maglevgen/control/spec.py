@@ -27,7 +27,7 @@ from maglevgen.control.registry import Controller, register
 if TYPE_CHECKING:
     from maglevgen.control.operating import OperatingPoint
 
-__all__ = ["RATE_WEIGHT_FLOOR", "axis_force_limits", "rate_weight", "spec_weights"]
+__all__ = ["axis_force_limits", "rate_weight", "spec_weights"]
 
 # q2 where the closed form is not positive, relative to q1 m / sigma (the rate weight that
 # would weigh the axis' natural-frequency rate like its position): small, not zero, so that R

@@ -22,6 +22,7 @@ import sympy as sp
 
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control.operating import (
+    N_AXES,
     REDUCED_STATES,
     AxisGains,
     CoupledComparison,
@@ -39,7 +40,7 @@ from maglevgen.derive.paper import paper_riccati
 from maglevgen.derive.riccati import lqr_gain_mp, lqr_gain_numeric, riccati_solution_mp
 from maglevgen.derive.trim import Trim
 
-__all__ = ["allocation_matrix", "axis_gains", "axis_plants", "carriage_gains", "coupled_comparison",
+__all__ = ["allocation_matrix", "axis_plants", "carriage_gains", "coupled_comparison",
            "effectiveness", "gain_schedule", "reduced_model"]
 
 
@@ -121,12 +122,12 @@ def reduced_model(carriage: DerivedCarriage, trim: Trim) -> tuple[np.ndarray, np
     idx = [cv.STATE_INDEX[s] for s in REDUCED_STATES]
     Ar = A[np.ix_(idx, idx)]
     Bg = B[idx, 1:] @ allocation_matrix(carriage)
-    C_rate = A[np.ix_([cv.STATE_INDEX[s] for s in REDUCED_STATES[:5]], idx)]
+    C_rate = A[np.ix_([cv.STATE_INDEX[s] for s in cv.Q_STATES], idx)]
     return Ar, Bg, C_rate
 
 
 def _feedback(gains: list[AxisGains], C_rate: np.ndarray, damping: bool = False) -> np.ndarray:
-    K = np.zeros((5, 10))
+    K = np.zeros((N_AXES, len(REDUCED_STATES)))
     for i, g in enumerate(gains):
         if damping:
             K[i] = (g.damping_gain or 0.0) * C_rate[i]

@@ -17,7 +17,6 @@ from maglevgen.analyses.firmware_sources import (
     SENSE_REFRESH_TICKS,
     TICK_INPUTS,
     SenseSchedule,
-    firmware_functions,
     refresh_slices,
     render_firmware,
     sense_refresh_bound,
@@ -28,9 +27,8 @@ from maglevgen.control.built_loop import LoopSetting
 from maglevgen.control.carriage_plant import Plant
 
 __all__ = ["FIRMWARE_FLAGS", "MEASURED", "QEMU_TICKS", "SENSE_REFRESH_TICKS", "TICK_INPUTS",
-           "SenseSchedule", "firmware_files", "firmware_functions",
-           "firmware_loop", "refresh_slices", "render_firmware", "sense_refresh_bound",
-           "sense_schedule"]
+           "SenseSchedule", "firmware_files", "firmware_loop", "refresh_slices", "render_firmware",
+           "sense_refresh_bound", "sense_schedule"]
 
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README

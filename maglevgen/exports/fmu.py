@@ -46,31 +46,15 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_FMI",
-    "DEFAULT_INTERNAL_STEP",
     "EXTERNAL",
-    "FMI3_BASE_UNITS",
     "FMI_VERSIONS",
-    "FMU_GAINS",
     "FMU_LOOPS",
     "FMU_NAME",
     "KINDS",
-    "MODEL_IDENTIFIER",
-    "TUNABLE_PARAMETERS",
-    "WRAPPER_C",
-    "FmiVersion",
-    "FmuController",
-    "FmuModel",
-    "FmuTick",
-    "FmuVariable",
-    "Progress",
     "build_fmu",
-    "build_model",
     "default_loop",
-    "fmi3_base_unit",
     "fmi_headers",
     "fmu_controllers",
-    "fmu_variables",
-    "render_files",
 ]
 
 # Imported by the command-line parser: nothing heavier than the conventions at module level.
@@ -653,17 +637,15 @@ def _tick(plant: Plant, controller: str | None) -> tuple[FmuTick, LoopDesign | N
     from maglevgen.control.built_loop import loop_design
 
     loop = plant.loop
-    tick = loop.firmware_tick()
     design = None
     if controller is not None:
-        design = loop_design(_operation_point(plant), controller, tick.setting())
+        design = loop_design(_operation_point(plant), controller, loop)
 
     def flat(K) -> tuple[float, ...]:
         return () if K is None else tuple(float(v) for v in K.ravel(order="F"))
 
-    return FmuTick(float(tick.rate), int(tick.delay), float(loop.speed_gain),
-                   float(loop.force_budget),
-                   float(tick.lag), float(tick.speed_integral),
+    return FmuTick(float(loop.rate), int(loop.delay), float(loop.speed_gain),
+                   float(loop.force_budget), float(loop.lag), float(loop.speed_integral),
                    flat(None if design is None else design.K_lag),
                    flat(None if design is None else design.K_delay), firmware=True), design
 

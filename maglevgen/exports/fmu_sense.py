@@ -31,7 +31,7 @@ from maglevgen.errors import InputError
 if TYPE_CHECKING:
     from maglevgen.control.carriage_plant import Plant
 
-__all__ = ["FW_PREFIX", "NOISE_GENERATOR", "FmuSense", "fmu_sense", "renamed_firmware"]
+__all__ = ["NOISE_GENERATOR", "FmuSense", "fmu_sense"]
 
 FW_PREFIX = "maglev_fw_"
 #: the generator's description (the FMU's documentation, its variables' and the C's)

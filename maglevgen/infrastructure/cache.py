@@ -36,27 +36,9 @@ from maglevgen.infrastructure.hashing import (
 )
 from maglevgen.version import __version__
 
-__all__ = [
-    "ALL_LIBS",
-    "ALL_PACKAGES",
-    "DEFAULT_PARAMS_NAME",
-    "DERIVATION_LIBS",
-    "DERIVATION_TEMPLATES",
-    "MEMO_LIBS",
-    "STORE",
-    "DiskStore",
-    "cache_root",
-    "default_cache_dir",
-    "derivation_fingerprint",
-    "install_store",
-    "key_file",
-    "params_digest",
-    "sign",
-    "sign_file",
-    "signature_ok",
-    "toolchain_fingerprint",
-    "write_atomic",
-]
+__all__ = ["DEFAULT_PARAMS_NAME", "STORE", "DiskStore", "cache_root", "default_cache_dir",
+           "derivation_fingerprint", "install_store", "key_file", "params_digest", "sign",
+           "sign_file", "signature_ok", "toolchain_fingerprint", "write_atomic"]
 
 # What the cached C of the derivation depends on besides the generator's source closure.
 # (every template render_runtime_sources renders or imports)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-__all__ = ["PLAIN_RANGE", "fcolumn_plain", "plain_column"]
+__all__ = ["fcolumn_plain", "plain_column"]
 
 #: a column prints plain decimals when every nonzero magnitude lies in [low, high); else every
 #: entry carries an exponent, so that 0.000223 never stands above 2.96 x 10^-5

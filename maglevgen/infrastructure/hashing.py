@@ -22,19 +22,8 @@ from functools import cache
 from importlib import metadata, util
 from pathlib import Path
 
-__all__ = [
-    "PACKAGES",
-    "ContentHash",
-    "closure_hash",
-    "file_sha256",
-    "imported_modules",
-    "keyed_hex",
-    "module_files",
-    "package_root",
-    "same_digest",
-    "sha256_hex",
-    "source_closure",
-]
+__all__ = ["ContentHash", "closure_hash", "file_sha256", "keyed_hex", "package_root",
+           "same_digest", "sha256_hex", "source_closure"]
 
 # The installed packages (pyproject's package-dir maps derive/, runtime/ under maglevgen.)
 PACKAGES = ("maglevgen", "maglevgen.api", "maglevgen.params", "maglevgen.infrastructure",

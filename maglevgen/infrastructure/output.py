@@ -33,8 +33,8 @@ from pathlib import Path
 from maglevgen.errors import InputError
 from maglevgen.infrastructure.text import shown_name
 
-__all__ = ["MARKER", "check_owned", "check_writable", "clean_stale_siblings", "foreign_entry",
-           "owned_names", "remove_stale_siblings", "write_output"]
+__all__ = ["MARKER", "InputError", "Path", "check_writable", "clean_stale_siblings",
+           "foreign_entry", "owned_names", "remove_stale_siblings", "write_output"]
 
 #: the file every output folder gets: the names maglevgen wrote there (the folder's own list)
 MARKER = ".maglevgen-output.json"

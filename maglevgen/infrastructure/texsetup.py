@@ -13,7 +13,7 @@ import shutil
 import subprocess
 import sys
 
-__all__ = ["INSTALL_HINT", "TEX_PACKAGES", "ensure_tex", "find_tex"]
+__all__ = ["INSTALL_HINT", "ensure_tex", "find_tex"]
 
 # Debian packages the PDF needs (the README's "Report" section and .ci/run name the same list;
 # poppler-utils gives pdftotext, with which the tests read the PDF back).

@@ -13,8 +13,7 @@ from __future__ import annotations
 import re
 import unicodedata
 
-__all__ = ["MAX_TEXT", "c_string", "check_text", "control_character", "markdown_code",
-           "shown_name"]
+__all__ = ["c_string", "check_text", "markdown_code", "shown_name"]
 
 #: the longest user text kept (a provenance note, a name): longer is a mistake, not a note
 MAX_TEXT = 2000

@@ -31,8 +31,7 @@ from typing import Any, Protocol
 
 from maglevgen.errors import InputError, MaglevError
 
-__all__ = ["Job", "PendingFiles", "PendingResult", "Shared", "child", "die_with_parent",
-           "process_pool", "submit"]
+__all__ = ["Job", "PendingFiles", "Shared", "child", "process_pool", "submit"]
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 

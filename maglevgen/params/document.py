@@ -33,8 +33,8 @@ from maglevgen.params.sections import (
 )
 from maglevgen.params.vector import flatten, schema_leaves
 
-__all__ = ["ARRAY_NAME", "ARRAY_NAME_RULE", "PROVENANCE_SOURCES", "SCHEMA_DEPTH",
-           "Parameters", "Provenance", "entry_limits", "schema_unit", "with_sensor_values"]
+__all__ = ["ARRAY_NAME_RULE", "SCHEMA_DEPTH", "Parameters", "entry_limits", "schema_unit",
+           "with_sensor_values"]
 
 PROVENANCE_SOURCES = ("paper", "assumed")
 

@@ -21,8 +21,8 @@ from maglevgen.params.document import SCHEMA_DEPTH, Parameters
 from maglevgen.params.fields import ModelError, short_repr
 from maglevgen.params.reference import schema_rows
 
-__all__ = ["MAX_SET", "LoadedParams", "default_params_path", "default_params_text",
-           "did_you_mean", "load_params", "parse_override", "validate"]
+__all__ = ["LoadedParams", "default_params_path", "default_params_text", "load_params",
+           "parse_override", "validate"]
 
 if sys.version_info >= (3, 11):
     import tomllib

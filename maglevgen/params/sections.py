@@ -16,36 +16,11 @@ from maglevgen.derive.conventions import (
 from maglevgen.derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
 from maglevgen.params.fields import ModelError, Section, Vec3, finite_number, short_repr
 
-__all__ = [
-    "ACTUATOR_MODELS",
-    "ARRAY_FORCE_LAWS",
-    "BOX_DIMENSIONS",
-    "INERTIA_BOX",
-    "NORMAL_TRUNCATION",
-    "PAPER_ARRAY_FORCE",
-    "SENSOR_TOLERANCES",
-    "Actuators",
-    "Array",
-    "AxisDeviation",
-    "Circuit",
-    "Control",
-    "ControlSpec",
-    "Envelope",
-    "GapSensor",
-    "GapSensors",
-    "Halbach",
-    "Imu",
-    "Inertia",
-    "ModelChoices",
-    "Operation",
-    "ProcessNoise",
-    "Sensors",
-    "Tolerance",
-    "Tolerances",
-    "Track",
-    "TrackSensor",
-    "Vehicle",
-]
+__all__ = ["ACTUATOR_MODELS", "ARRAY_FORCE_LAWS", "INERTIA_BOX", "NORMAL_TRUNCATION",
+           "PAPER_ARRAY_FORCE", "SENSOR_TOLERANCES", "Actuators", "Array", "Circuit",
+           "Control", "ControlSpec", "Envelope", "GapSensor", "GapSensors", "Halbach", "Imu",
+           "Inertia", "ModelChoices", "Operation", "ProcessNoise", "Sensors", "Tolerance",
+           "Tolerances", "Track", "TrackSensor", "Vehicle"]
 
 
 # Ranges shared by several fields: (lo, hi, why), see _f.

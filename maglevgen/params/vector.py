@@ -14,7 +14,7 @@ from maglevgen.params.sections import Vehicle
 if TYPE_CHECKING:
     from maglevgen.params.document import Parameters
 
-__all__ = ["NOT_IN_MODEL", "ParamEntry", "SchemaLeaf", "flatten", "schema_leaves"]
+__all__ = ["flatten", "schema_leaves"]
 
 
 # sections and tables that are not part of the model's parameter vector (dotted keys)

@@ -18,13 +18,11 @@ from typing import Any
 
 # name -> the module of this package that defines it
 _EXPORTS = {
-    "INSTALL_HINT": "latex", "TEX_PACKAGES": "latex", "LatexBuild": "latex",
-    "first_latex_error": "latex", "overfull_boxes": "latex", "run_latex": "latex",
-    "SECTION_TITLES": "render", "ReportFiles": "render", "ReportOptions": "render",
-    "ReportResult": "render", "build_context": "render", "render_report": "render",
-    "render_tex": "render", "report_files": "render", "write_report": "render",
-    "RUN_DT": "sections.actuators", "RUN_T_END": "sections.actuators",
-    "force_curves": "sections.force_law", "SIMULATION_FIGURES": "sections.simulation",
+    "INSTALL_HINT": "latex", "first_latex_error": "latex", "overfull_boxes": "latex",
+    "run_latex": "latex", "SECTION_TITLES": "render", "ReportOptions": "render",
+    "build_context": "render", "render_tex": "render", "report_files": "render",
+    "write_report": "render", "RUN_DT": "sections.actuators", "RUN_T_END": "sections.actuators",
+    "force_curves": "sections.force_law",
 }
 
 __all__ = sorted(_EXPORTS)

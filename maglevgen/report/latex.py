@@ -13,7 +13,7 @@ from pathlib import Path
 import jinja2
 
 from maglevgen.infrastructure import texsetup
-from maglevgen.infrastructure.texsetup import INSTALL_HINT, TEX_PACKAGES
+from maglevgen.infrastructure.texsetup import INSTALL_HINT
 from maglevgen.report.display import display_filter, math_prose
 from maglevgen.report.format import (
     axis_unit_row,
@@ -31,17 +31,8 @@ from maglevgen.report.format import (
     tex_unit,
 )
 
-__all__ = [
-    "INSTALL_HINT",
-    "TEX_PACKAGES",
-    "LatexBuild",
-    "find_tex",
-    "first_latex_error",
-    "latex_env",
-    "overfull_boxes",
-    "run_latex",
-    "source_date_epoch",
-]
+__all__ = ["INSTALL_HINT", "LatexBuild", "find_tex", "first_latex_error", "latex_env",
+           "overfull_boxes", "run_latex", "source_date_epoch"]
 
 
 def find_tex() -> str | None:

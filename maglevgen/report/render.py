@@ -65,8 +65,8 @@ from maglevgen.report.sections.trim import trim_section
 from maglevgen.report.sections.verification import verification_section
 from maglevgen.version import __version__
 
-__all__ = ["SECTION_TITLES", "Pending", "ReportFiles", "ReportOptions", "ReportResult",
-           "build_context", "render_report", "render_tex", "report_files", "write_report"]
+__all__ = ["SECTION_TITLES", "ReportOptions", "build_context", "render_tex", "report_files",
+           "write_report"]
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ import sympy as sp
 from maglevgen.report.display import ltx
 from maglevgen.report.format import tex_escape
 
-__all__ = ["K_SYM", "array_labels", "display_key_symbol", "display_symbol", "to_display"]
+__all__ = ["K_SYM", "array_labels", "display_key_symbol", "to_display"]
 
 _VEC = r"(?P<c>[xyz])"
 

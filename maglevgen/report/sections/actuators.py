@@ -20,8 +20,7 @@ from maglevgen.params import ACTUATOR_MODELS, LoadedParams
 from maglevgen.report.display import ltx, matrix_tex
 from maglevgen.report.format import fnum, tex_escape
 
-__all__ = ["ACTUATOR_TEXT", "RUN_DT", "RUN_T_END", "actuator_comparison_section", "run_controllers",
-           "with_actuators"]
+__all__ = ["RUN_DT", "RUN_T_END", "actuator_comparison_section", "with_actuators"]
 
 RUN_T_END, RUN_DT = 10.0, 1e-3
 

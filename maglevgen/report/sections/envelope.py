@@ -30,16 +30,8 @@ from maglevgen.report.display import matrix_tex
 from maglevgen.report.format import fcolumn, fnum, tex_escape
 from maglevgen.report.sections.verification import Check
 
-__all__ = [
-    "ENVELOPE_FIGURE",
-    "ROA_FIGURE",
-    "envelope_checks",
-    "envelope_context",
-    "envelope_section",
-    "roa_context",
-    "roa_section",
-    "roa_statement_tex",
-]
+__all__ = ["ENVELOPE_FIGURE", "ROA_FIGURE", "envelope_checks", "envelope_context",
+           "envelope_section", "roa_context", "roa_section"]
 
 # ============================================================================ envelope
 

@@ -16,7 +16,7 @@ import numpy as np
 from maglevgen.params import schema_leaves
 from maglevgen.report.symbols import display_key_symbol
 
-__all__ = ["Note", "ParamRow", "model_choices", "paper_number", "parameter_rows", "provenance_of"]
+__all__ = ["model_choices", "parameter_rows", "provenance_of"]
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,7 @@ from maglevgen.derive.sensors import GapSensorSymbols, gap_reading
 from maglevgen.report.display import ltx, matrix_tex
 from maglevgen.report.format import fcolumn, fnum, tex_escape, tex_unit, tex_verdict
 
-__all__ = ["DISK_MARGIN_FIGURE", "TABLE_SPEEDS", "gap_jacobian", "gap_jacobian_tex",
-           "sensing_section"]
+__all__ = ["gap_jacobian", "sensing_section"]
 
 DISK_MARGIN_FIGURE = "fig_disk_margins.png"
 
@@ -38,9 +37,10 @@ def gap_jacobian() -> tuple[sp.Matrix, sp.Matrix, sp.Matrix]:
     b = sp.Matrix(sp.symbols("b_x b_y b_z", real=True))
     n = sp.Matrix(sp.symbols("n_x n_y n_z", real=True))
     x = sp.Matrix(sp.symbols(" ".join(cv.STATE_NAMES), real=True))
-    R = rotation_body_to_inertial(*x[3:6])
-    d = gap_reading(GapSensorSymbols(b, n, sp.Symbol("g_0", positive=True)), x[0:3, 0], R)
-    J = sp.Matrix([d]).jacobian(x[1:6, 0]).subs({s: 0 for s in x})
+    R = rotation_body_to_inertial(*x[cv.ATTITUDE])
+    d = gap_reading(GapSensorSymbols(b, n, sp.Symbol("g_0", positive=True)), x[cv.POSITION, 0],
+                    R)
+    J = sp.Matrix([d]).jacobian(x[cv.AXIS_COORDINATES, 0]).subs({s: 0 for s in x})
     unit = n[0] ** 2 + n[1] ** 2 + n[2] ** 2
     return J.applyfunc(lambda e: sp.factor(sp.simplify(e * unit))), b, n
 

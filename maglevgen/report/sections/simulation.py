@@ -11,8 +11,7 @@ from typing import Any
 from maglevgen.errors import InputError
 from maglevgen.report.format import fnum, tex_breakable, tex_escape, tex_unit
 
-__all__ = ["METRIC_LABELS", "SIMULATION_FIGURES", "Simulation", "metric_label",
-           "simulation_section"]
+__all__ = ["Simulation", "simulation_section"]
 
 # PNGs written by `maglevgen simulate --out DIR`, with the paper's figures they correspond to.
 SIMULATION_FIGURES: tuple[tuple[str, str], ...] = (

@@ -30,7 +30,7 @@ from maglevgen.report.display import (
 from maglevgen.report.format import fnum
 from maglevgen.report.symbols import K_SYM, array_labels, to_display
 
-__all__ = ["LAW_COLUMNS", "ROLL", "jacobian_unit", "stiffness_section"]
+__all__ = ["stiffness_section"]
 
 _Q_LABELS = ("y", "z", r"\phi", r"\theta", r"\psi")
 _W_LABELS = ("F_y", "F_z", "M_x", "M_y", "M_z")
@@ -130,8 +130,8 @@ def stiffness_section(plant: Plant, trim, trep: dict, gains: dict) -> dict[str, 
             float(A[i, j]),
             jacobian_unit(cv.STATES[i].unit, cv.STATES[j].unit),
         )
-        for i in range(12)
-        for j in range(12)
+        for i in range(cv.N_STATES)
+        for j in range(cv.N_STATES)
         if abs(A[i, j]) > 1e-13 * scale
     ]
     return {

@@ -9,7 +9,7 @@ from typing import Any
 from maglevgen.report.format import faxis_unit, tex_verdict
 from maglevgen.report.latex import latex_env
 
-__all__ = ["summary", "verdict_context", "verdict_tex"]
+__all__ = ["summary", "verdict_tex"]
 
 
 def _discrepancies(trep: dict, gains: dict) -> list[dict[str, Any]]:

@@ -10,10 +10,17 @@ import mpmath
 import numpy as np
 
 from maglevgen.control.carriage_plant import Plant
+from maglevgen.derive import conventions as cv
 from maglevgen.derive.riccati import riccati_relative_residual
 from maglevgen.errors import MaglevError
 
-__all__ = ["Check", "Simulation", "verification_section"]
+__all__ = ["Check", "verification_section"]
+
+# The spread of the states about the trim that the C is compared with SymPy at (m, rad, m/s,
+# rad/s).
+_SPREAD: dict[str, float] = {"x": 0.5, "y": 1e-3, "z": 1e-3, "phi": 5e-3, "theta": 5e-3,
+                             "psi": 5e-3, "u": 1.0, "v": 0.02, "w": 0.02, "p": 0.05, "q": 0.05,
+                             "r": 0.05}
 
 
 @dataclass(frozen=True)
@@ -73,10 +80,8 @@ def _generated_c_checks(
     trim = carriage.trim()  # the reference trim: SciPy on the lambdified model
     rng = np.random.default_rng(seed)
     n_u = carriage.model.u.shape[0]
-    X = trim.x + rng.normal(
-        scale=[0.5, 1e-3, 1e-3, 5e-3, 5e-3, 5e-3, 1.0, 0.02, 0.02, 0.05, 0.05, 0.05],
-        size=(samples, 12),
-    )
+    X = trim.x + rng.normal(scale=[_SPREAD[s] for s in cv.STATE_NAMES],
+                            size=(samples, cv.N_STATES))
     U = trim.u + rng.normal(scale=2.0, size=(samples, n_u))
     dyn = lib.function("maglev_dynamics")
     ref = np.array([mf.xdot(x, u, p) for x, u in zip(X, U, strict=True)])
