@@ -22,7 +22,7 @@ def test_the_api_parses_each_loop_string_to_its_loop() -> None:
 
 
 @pytest.mark.parametrize(("text", "choices"), [("fimware", None), ("", None), (None, None),
-                                               (1, None), ("sensed", FMU_LOOPS)])
+                                               (1, None), ("ideal", FMU_LOOPS)])
 def test_the_api_refuses_other_loops_naming_the_choices(text, choices) -> None:
     with pytest.raises(InputError, match="^--loop .*: expected one of "
                        + (", ".join(choices) if choices else "firmware, sensed, continuous")):
@@ -35,6 +35,6 @@ def test_below_the_api_a_loop_string_is_refused(carriage: DerivedCarriage) -> No
         run_scenarios(plant, ("lqr",), 0.1, 1e-3, loop="firmware")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="a Loop"):
         build_fmu(plant, "cs", "lqr", loop="firmware")  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="the FMU's loops"):
+    with pytest.raises(InputError, match="flies the embedded controller 'spec'.*not 'lqr'"):
         build_fmu(plant, "cs", "lqr", loop=Loop.SENSED)
     assert not plant.loaded  # refused before the library
