@@ -35,6 +35,6 @@ def test_below_the_api_a_loop_string_is_refused(carriage: DerivedCarriage) -> No
         run_scenarios(plant, ("lqr",), 0.1, 1e-3, loop="firmware")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="a Loop"):
         build_fmu(plant, "cs", "lqr", loop="firmware")  # type: ignore[arg-type]
-    with pytest.raises(InputError, match="flies the embedded controller 'spec'.*not 'lqr'"):
+    with pytest.raises(InputError, match=r"flies the embedded controller 'spec'.*not 'lqr'"):
         build_fmu(plant, "cs", "lqr", loop=Loop.SENSED)
     assert not plant.loaded  # refused before the library

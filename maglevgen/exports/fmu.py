@@ -38,7 +38,7 @@ from maglevgen.errors import InputError
 from maglevgen.version import __version__
 
 if TYPE_CHECKING:
-    from maglevgen.control.built_loop import Loop
+    from maglevgen.control.built_loop import Loop, LoopSetting
     from maglevgen.control.carriage_plant import Plant
     from maglevgen.control.operating import OperatingPoint
     from maglevgen.control.plant import LoopDesign
@@ -88,27 +88,31 @@ def default_loop(params, controller: str) -> str:
 
 @dataclass(frozen=True)
 class FmuTick:
-    """The start values of the tick's parameters (0 everywhere: the continuous law).
+    """What the FMU's tick parameters start at: ``loop``, the loop as built (`Plant.loop`:
+    tick rate, delay, speed gain and integral, budget, actuator lag; its FMU carries the
+    lagged array forces as continuous states, which model exchange integrates), None for the
+    continuous law (every tick parameter 0); ``k_lag`` (25) and ``k_delay`` (25
+    MAX_DELAY_TICKS, of which a loop reads its first 25 delay_ticks): the tick law's gains on
+    the predicted lagged generalized forces and on those in flight, column-major
+    (templates/maglev_tick_law.c.j2; empty: zero); ``sense``: that loop on the sensors (the
+    firmware's sense tick computes the command from its tables; the gains above are fixed)."""
 
-    ``lag``: each array force's first-order lag [s] in the plant ([actuators] time_constant);
-    ``speed_integral``: k_i [N/m] on the speed error's integral; ``k_lag`` (25) and
-    ``k_delay`` (25 MAX_DELAY_TICKS, of which a loop reads its first 25 delay_ticks): the tick
-    law's gains on the predicted lagged generalized forces and on those in flight, column-major
-    (templates/maglev_tick_law.c.j2; empty: zero); ``firmware``: the loop as built, whose FMU
-    carries the lagged array forces as continuous states (model exchange integrates them);
-    ``sense``: that loop on the sensors (the firmware's sense tick computes the command; the
-    other gains above are its tables' and are fixed)."""
-
-    rate: float = 0.0  # [Hz]
-    delay: int = 0  # [ticks]
-    speed_gain: float = 0.0  # [N s/m]
-    force_budget: float = 0.0  # [N], 0: no limit
-    lag: float = 0.0  # [s]
-    speed_integral: float = 0.0  # [N/m]
+    loop: LoopSetting | None = None
     k_lag: tuple[float, ...] = ()
     k_delay: tuple[float, ...] = ()
-    firmware: bool = False
     sense: FmuSense | None = None
+
+    @property
+    def firmware(self) -> bool:
+        return self.loop is not None
+
+    def starts(self) -> tuple[float, float, float, float, float, float]:
+        """(tick_rate, delay_ticks, speed_gain, force_budget, actuator_lag, speed_integral)."""
+        lp = self.loop
+        if lp is None:
+            return (0.0,) * 6
+        return (float(lp.rate), float(lp.delay), float(lp.speed_gain), float(lp.force_budget),
+                float(lp.lag), float(lp.speed_integral))
 
 
 @dataclass(frozen=True)
@@ -316,25 +320,26 @@ def fmu_variables(manifest: dict, structure: Structure, controller: FmuControlle
                                f"{DISTURBANCE_DOC})", "disturbance"))
     if controller.law == "axis":
         fixed = " (fixed: set before initialization)"
+        rate, delay, speed_gain, budget, lag, k_i = t.starts()
         out += [
-            FmuVariable("tick_rate", "parameter", "fixed", "exact", t.rate, "1/s",
+            FmuVariable("tick_rate", "parameter", "fixed", "exact", rate, "1/s",
                         "the controller's tick rate [Hz]: the command computed from the state "
                         "sampled at each tick and held in between; 0: the continuous law"
                         + fixed,
                         "tick"),
-            FmuVariable("delay_ticks", "parameter", "fixed", "exact", float(t.delay), "1",
+            FmuVariable("delay_ticks", "parameter", "fixed", "exact", delay, "1",
                         "ticks from a command's computation to its application (a whole "
                         "number)" + fixed, "tick"),
-            FmuVariable("speed_gain", "parameter", "fixed", "exact", t.speed_gain, "N*s/m",
+            FmuVariable("speed_gain", "parameter", "fixed", "exact", speed_gain, "N*s/m",
                         "speed loop at the tick: F_prop = F_trim + dF_prop + speed_gain "
                         "(operation.speed - |(u, v, w)|)" + fixed, "tick"),
-            FmuVariable("force_budget", "parameter", "fixed", "exact", t.force_budget, "N",
+            FmuVariable("force_budget", "parameter", "fixed", "exact", budget, "N",
                         "each array's control force limited to this at the tick; 0: no "
                         "limit" + fixed, "tick"),
-            FmuVariable("actuator_lag", "parameter", "fixed", "exact", t.lag, "s",
+            FmuVariable("actuator_lag", "parameter", "fixed", "exact", lag, "s",
                         "each array's control force follows the command through a first-order "
                         "lag of this time constant (the tick only; 0: no lag)" + fixed, "tick"),
-            FmuVariable("speed_integral", "parameter", "fixed", "exact", t.speed_integral,
+            FmuVariable("speed_integral", "parameter", "fixed", "exact", k_i,
                         "N/m", "speed loop's gain on the speed error's integral at the tick: "
                         "F_prop - speed_integral xi, xi += (|(u, v, w)| - operation.speed) / "
                         "tick_rate" + fixed, "tick")]
@@ -644,10 +649,8 @@ def _tick(plant: Plant, controller: str | None) -> tuple[FmuTick, LoopDesign | N
     def flat(K) -> tuple[float, ...]:
         return () if K is None else tuple(float(v) for v in K.ravel(order="F"))
 
-    return FmuTick(float(loop.rate), int(loop.delay), float(loop.speed_gain),
-                   float(loop.force_budget), float(loop.lag), float(loop.speed_integral),
-                   flat(None if design is None else design.K_lag),
-                   flat(None if design is None else design.K_delay), firmware=True), design
+    return FmuTick(loop, flat(None if design is None else design.K_lag),
+                   flat(None if design is None else design.K_delay)), design
 
 
 def _check_trim(plant: Plant) -> None:
