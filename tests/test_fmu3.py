@@ -255,13 +255,15 @@ def test_errors_are_status_codes_with_a_message(fmus) -> None:
 @pytest.mark.slow  # the CLI verifies the embedded controller before it writes: ~200 s loaded
 def test_cli_writes_fmi3_with_the_embedded_controller(tmp_path: Path, carriage: DerivedCarriage,
                                                      sim_lib) -> None:
-    """The default controller is the one the firmware embeds, run as the firmware runs it
-    (--loop firmware, the default): the CLI's FMU follows the host's firmware loop of that
-    controller (`run_scenarios(loop="firmware")`: its design at the tick, the speed loop, the
-    budget, the actuator lag) bit for bit."""
+    """The default controller is the one the firmware embeds, run as the firmware runs it on
+    the exact state (--loop firmware; the default, on the sensors, is test_fmu_sensed.py's):
+    the CLI's FMU follows the host's firmware loop of that controller
+    (`run_scenarios(loop="firmware")`: its design at the tick, the speed loop, the budget, the
+    actuator lag) bit for bit."""
     out = tmp_path / "out"
     ok = subprocess.run([sys.executable, "-m", "maglevgen.cli", "fmu", "--fmi", "3", "--kind",
-                         "cs", "--out", str(out)], capture_output=True, text=True)
+                         "cs", "--loop", "firmware", "--out", str(out)], capture_output=True,
+                        text=True)
     assert ok.returncode == 0, ok.stderr
     embedded = carriage.params.envelope.embedded_controller
     assert "FMI 3.0" in ok.stdout and f"controller {embedded}" in ok.stdout
