@@ -181,11 +181,14 @@ def test_the_sensors_loop_needs_a_tick(carriage: DerivedCarriage, sim_lib, sense
                          carriage.p, 0.0, 7, 6, loop)
 
 
-def test_cli_sensed_loop_flies_only_the_embedded_controller(private_cache) -> None:
-    """`simulate --loop sensed --controller lqr`: exit 2, one line naming the option and why."""
+def test_cli_sensed_loop_flies_only_the_embedded_controller(sim_lib, tmp_path) -> None:
+    """`simulate --loop sensed --controller lqr`: exit 2, one line naming the option and why
+    (in a folder of its own: the default --out of a checkout where `make run` has built is
+    `maglevgen build`'s, which simulate refuses to write into first; sim_lib: the derivation
+    cached, so that no progress line joins the error)."""
     proc = subprocess.run([sys.executable, "-m", "maglevgen.cli", "simulate", "--loop",
                            "sensed", "--controller", "lqr", "--t-end", "0.1"],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, cwd=tmp_path)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "--loop sensed" in lines[0] and "'lqr'" in lines[0]
