@@ -53,9 +53,10 @@ CPU = list(FIRMWARE_FLAGS[:4])
 CLOCK_MHZ = 168
 TICK_HZ = 1000
 SOURCES = ("maglev_tick", "maglev_gain_table", "maglev_sense_table", "maglev_functions")
-#: the ticks measured: entry point -> its driver in bench/c
-DRIVERS = {"maglev_tick": "bench_tick.c", "maglev_sense_tick": "bench_sense_tick.c",
-           "maglev_sense_init": "bench_sense_init.c"}
+#: the calls measured: entry point -> its driver in bench/c and the driver's defines
+DRIVERS = {"maglev_tick": ("bench_tick.c", ()),
+           "maglev_sense_tick": ("bench_sense_tick.c", ()),
+           "maglev_sense_init": ("bench_sense_tick.c", ("-DBENCH_INIT",))}
 
 
 def _cycles(mnemonic: str, operands: str) -> int:
@@ -150,8 +151,9 @@ def _measure_tick(folder: Path, objs: list[str], entry: str) -> dict:
     templates = ROOT / "templates"
     profiles = {}
     for n in (1, 11):
-        run(["arm-none-eabi-gcc", *FIRMWARE_FLAGS, f"-DN_TICKS={n}", "-I.", "-c",
-             BENCH / "c" / DRIVERS[entry], "-o", "bench_tick.o"], cwd=folder)
+        driver, defines = DRIVERS[entry]
+        run(["arm-none-eabi-gcc", *FIRMWARE_FLAGS, f"-DN_TICKS={n}", *defines, "-I.", "-c",
+             BENCH / "c" / driver, "-o", "bench_tick.o"], cwd=folder)
         run(["arm-none-eabi-gcc", *CPU, "-nostartfiles", "-T",
              templates / "firmware_qemu_link.ld", "-Wl,--gc-sections", "startup.o",
              "bench_tick.o", *objs, "-lm", "-lc", "-o", f"tick{n}.elf"], cwd=folder)

@@ -24,8 +24,8 @@ if TYPE_CHECKING:
     from maglevgen.control.estimation import SensorLayout
 
 __all__ = ["LoopSetting", "SensedTick", "control_loop", "estimation_error", "firmware_gains",
-           "flown_loop", "reading_noise", "run_loop", "sensed_metrics", "sensing",
-           "speed_loop_gain"]
+           "flown_loop", "reading_noise", "reading_spread", "run_loop", "sensed_metrics",
+           "sensing", "speed_loop_gain", "white_rms"]
 
 
 # how a run executes its controller: as the firmware does on the sensors' readings (the
@@ -99,6 +99,31 @@ class SensedTick(LoopSetting):
             raise InputError(f"noise scale {self.noise_scale!r}: must be a finite number >= 0")
 
 
+def reading_spread(params, layout: SensorLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each reading of ``layout`` (``[sensors]``): (its noise's RMS at the tick, rounding
+    included (`SensorLayout.variances`), its in-run bias's magnitude (the IMU's; 0 else),
+    its resolution (the gaps' and the track's; 0 else)): what a run's noise is drawn from
+    (`reading_noise`, the FMU's `maglevgen.exports.fmu_sense`)."""
+    s = params.sensors
+    ny, n_gap = len(layout.names), len(layout.gaps)
+    bias = np.zeros(ny)
+    if s.imu is not None:
+        bias[n_gap:n_gap + 3] = s.imu.gyro_bias
+        bias[n_gap + 3:n_gap + 6] = s.imu.accel_bias
+    step = np.zeros(ny)
+    if s.gap is not None:
+        step[:n_gap] = s.gap.resolution
+    if s.track is not None:
+        step[-1] = s.track.resolution
+    return np.sqrt(layout.variances), bias, step
+
+
+def white_rms(sigma: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """The white noise's RMS that, with the rounding to ``step`` (variance step^2/12),
+    gives a reading's RMS ``sigma``."""
+    return np.sqrt(np.clip(sigma**2 - step**2 / 12, 0.0, None))
+
+
 def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
                   noise_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """What a run adds to the readings of ``layout`` (``[sensors]``) at each of ``n_ticks``
@@ -107,22 +132,16 @@ def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
     in-run bias (the IMU's: each axis's sign drawn once per run, first) plus white noise,
     drawn from numpy's default_rng(``seed``); the white noise leaves out the share of the
     variance the rounding to the resolution adds (the run rounds each noisy reading)."""
-    s = params.sensors
+    sigma, bias, step = reading_spread(params, layout)
     rng = np.random.default_rng(seed)
-    ny, n_gap = len(layout.names), len(layout.gaps)
-    sigma = np.sqrt(layout.variances) * noise_scale
-    bias = np.zeros(ny)
-    if s.imu is not None:  # each axis's in-run bias, its sign drawn once per run
-        bias[n_gap:n_gap + 3] = s.imu.gyro_bias * rng.choice((-1.0, 1.0), 3)
-        bias[n_gap + 3:n_gap + 6] = s.imu.accel_bias * rng.choice((-1.0, 1.0), 3)
-    step = np.zeros(ny)
-    if s.gap is not None:
-        step[:n_gap] = s.gap.resolution
-    if s.track is not None:
-        step[-1] = s.track.resolution
-    step *= noise_scale
-    white = np.sqrt(np.clip(sigma**2 - step**2 / 12, 0.0, None))
-    return bias * noise_scale + white * rng.standard_normal((n_ticks, ny)), step
+    n_gap = len(layout.gaps)
+    sigma = sigma * noise_scale
+    if params.sensors.imu is not None:  # each axis's in-run bias, its sign drawn once per run
+        bias[n_gap:n_gap + 3] *= rng.choice((-1.0, 1.0), 3)
+        bias[n_gap + 3:n_gap + 6] *= rng.choice((-1.0, 1.0), 3)
+    step = step * noise_scale
+    white = white_rms(sigma, step)
+    return bias * noise_scale + white * rng.standard_normal((n_ticks, len(layout.names))), step
 
 
 def sensing(tick: SensedTick, n_ticks: int, record: bool = True, n_inputs: int = 0

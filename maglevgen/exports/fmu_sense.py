@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from maglevgen.analyses.sensed import sensed_firmware
+from maglevgen.analyses.sim_loop import reading_spread, white_rms
 from maglevgen.errors import InputError
 
 if TYPE_CHECKING:
@@ -97,19 +98,9 @@ def fmu_sense(plant: Plant) -> FmuSense:
     for the host, `maglevgen.analyses.sensed.sensed_firmware`); InputError without
     ``[sensors]``."""
     fw = sensed_firmware(plant)
-    layout, s = fw.layout, plant.params.sensors
-    assert s is not None  # sensed_firmware refused a file without [sensors]
-    n_gap = len(layout.gaps)
-    step = np.zeros(len(layout.names))
-    bias = np.zeros(len(layout.names))
-    if s.gap is not None:
-        step[:n_gap] = s.gap.resolution
-    if s.track is not None:
-        step[-1] = s.track.resolution
-    if s.imu is not None:
-        bias[n_gap:n_gap + 3] = s.imu.gyro_bias
-        bias[n_gap + 3:n_gap + 6] = s.imu.accel_bias
-    white = np.sqrt(np.clip(layout.variances - step**2 / 12, 0.0, None))
+    layout = fw.layout
+    sigma, bias, step = reading_spread(plant.params, layout)
+    white = white_rms(sigma, step)
     units = []
     for name in layout.names:
         kind = name.split("_", 1)[0]
