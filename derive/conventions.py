@@ -16,9 +16,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["ATTITUDE", "AXES", "AXIS_COORDINATES", "AXIS_POSITION_STATE", "CONTROLS",
-           "DISTURBANCE", "KINETIC", "N_STATES", "POSITION", "PROPULSION", "Q_STATES", "RATES",
-           "STATES", "STATE_INDEX", "STATE_NAMES", "VELOCITY", "Signal"]
+__all__ = ["ARRAY_INPUTS", "ATTITUDE", "AXES", "AXIS_COORDINATES", "AXIS_POSITION_STATE",
+           "CONTROLS", "DISTURBANCE", "KINETIC", "N_STATES", "POSITION", "PROPULSION",
+           "PROPULSION_INPUT", "Q_STATES", "RATES", "STATES", "STATE_INDEX", "STATE_NAMES",
+           "VELOCITY", "Signal"]
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,10 @@ CONTROLS: tuple[Signal, ...] = (
 
 # Inputs of the dynamics: the propulsion force and each array's control force components.
 PROPULSION = Signal("F_prop", "N", "propulsion force along the track (inertial x)")
+#: where they stand in the input vector u (`derive.structure.input_names_of`): the propulsion
+#: first, then each array's control force components, array by array
+PROPULSION_INPUT = 0
+ARRAY_INPUTS = slice(1, None)
 
 #: The initial disturbance from trim per state (m, rad) of `maglevgen simulate`, and the
 #: parameter file's default tolerances.disturbance: small against the gaps (15 mm upper,

@@ -18,9 +18,7 @@ import json
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -45,9 +43,9 @@ from maglevgen.runtime.compile import (
     trusted,
 )
 from maglevgen.runtime.ffi import GeneratedLibrary
-from maglevgen.runtime.sense import Sensing
+from maglevgen.runtime.runs import BatchRun, ControlLoop, Run
 
-__all__ = ["BatchRun", "ControlLoop", "Run", "SimulationLibrary", "build_libraries",
+__all__ = ["SimulationLibrary", "build_libraries",
            "cached_simulation_library", "derivation_key", "loaded_library", "runtime_sources",
            "simulation_library"]
 
@@ -127,62 +125,6 @@ def runtime_sources(structure: Structure, precision: str = "double",
     data = {n: t.encode() for n, t in files.items()}
     write_output({**files, CHECKSUMS: _checksums(data)}, folder, ours=True)
     return folder
-
-
-@dataclass(frozen=True)
-class ControlLoop:
-    """maglev_control_loop (maglev_simulate.h): how the C loop runs the controller.
-
-    ``tick_steps`` RK4 steps per control tick (0: the command at every RK4 stage), the command
-    applied ``delay_ticks`` ticks after its tick and held between; the speed loop
-    F_prop = F_ff + ``k_v`` (v_ref(t) - |(u, v, w)|) - ``k_i`` xi, v_ref(t) = ``v_ref`` +
-    ``accel`` t, xi the speed error's integral, clamped at each tick to |k_i xi| <= ``i_max``
-    [N] (anti-windup; inf: no clamp); each array's control force limited to
-    ``force_budget`` [N] (<= 0 or inf: no limit) and lagged by ``tau`` [s] in the plant (0: no
-    lag); the tick law's gains ``k_lag`` (25) and ``k_delay`` (25 delay_ticks), column-major
-    (maglev_simulate's; empty: zero, the generalized forces u_gen as computed); ``sense``
-    (tick_steps > 0): the loop on the sensors' readings through the firmware's sense tick
-    (`maglevgen.runtime.sense.Sensing`) in place of the exact state's feedback.
-    """
-
-    tick_steps: int = 0
-    delay_ticks: int = 0
-    k_v: float = 0.0  # [N s/m]
-    v_ref: float = 0.0  # [m/s]
-    accel: float = 0.0  # [m/s^2]
-    force_budget: float = 0.0  # [N]
-    tau: float = 0.0  # [s]
-    k_i: float = 0.0  # [N/m]
-    i_max: float = float("inf")  # [N]
-    k_lag: tuple[float, ...] = ()
-    k_delay: tuple[float, ...] = ()
-    sense: Sensing | None = None  # the sensors and the firmware's sense tick (runtime.sense)
-
-
-class Run(NamedTuple):
-    """What maglev_simulate / maglev_launch return: the last sample's index, the
-    MAGLEV_SIM_* status, the rows of x, u and the gaps up to it, the RK4 steps taken with an
-    array's control force at its budget."""
-
-    last: int
-    status: int
-    x: np.ndarray
-    u: np.ndarray
-    gaps: np.ndarray
-    saturated_steps: int
-
-
-class BatchRun(NamedTuple):
-    """One run of `SimulationLibrary.simulate_batch`: maglev_simulate's inputs but the step,
-    the step count and gap_min, which all runs of a batch share."""
-
-    x0: np.ndarray
-    f_prop: float
-    k_pos: np.ndarray  # 25, column-major as maglev_simulate takes it
-    k_rate: np.ndarray
-    a_ref: np.ndarray
-    p: np.ndarray
-    loop: ControlLoop | None
 
 
 class SimulationLibrary(GeneratedLibrary):
@@ -529,16 +471,17 @@ def simulation_library(structure: Structure, precision: str = "double",
     return SimulationLibrary(lib, precision, folder)
 
 
-_LOADED: dict[Structure, SimulationLibrary] = {}
+_LOADED: dict[tuple[Structure, Path | None, str | None], SimulationLibrary] = {}
 
 
-def loaded_library(structure: Structure) -> SimulationLibrary:
-    """`simulation_library` of ``structure`` (double precision, the default cache), loaded
-    once in this process: what a worker process reuses for every chunk of a study it runs
-    (`maglevgen.analyses.montecarlo`)."""
-    if structure not in _LOADED:
-        _LOADED[structure] = simulation_library(structure)
-    return _LOADED[structure]
+def loaded_library(structure: Structure, cache_dir: Path | None = None,
+                   cc: str | None = None) -> SimulationLibrary:
+    """`simulation_library` of ``structure`` (double precision), loaded once in this process:
+    what a worker process reuses for every chunk of a study it runs (`Plant.worker_library`)."""
+    key = (structure, cache_dir, cc)
+    if key not in _LOADED:
+        _LOADED[key] = simulation_library(structure, cache_dir=cache_dir, cc=cc)
+    return _LOADED[key]
 
 
 def _cached(folder: Path, cc: str | None, cache_dir: Path | None) -> Path | None:

@@ -98,8 +98,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.exports.fmu": (
         "the FMU's own C is generated or compiled only on a cache miss; fmpy is optional",
         ("maglevgen.codegen.interface", "maglevgen.codegen.emit",
-         "maglevgen.infrastructure.cache", "maglevgen.runtime.library",
-         "maglevgen.control.operating", "maglevgen.runtime.compile",
+         "maglevgen.infrastructure.cache", "maglevgen.control.operating",
+         "maglevgen.runtime.compile",
          "maglevgen.analyses.simulate", "maglevgen.controllers", "maglevgen.control.built_loop",
          "maglevgen.exports.fmu_sense", "fmpy")),
     "maglevgen.analyses.envelope_figures": ("matplotlib only when a figure is drawn",
@@ -147,8 +147,7 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.analyses.montecarlo": (
         "a worker process imports the stages when its first chunk runs; Dask only with "
         "--scheduler",
-        ("distributed", "maglevgen.runtime.library",
-         "maglevgen.params", "maglevgen.analyses.roa", "re", "warnings")),
+        ("distributed", "maglevgen.params", "maglevgen.analyses.roa", "re", "warnings")),
     "maglevgen.analyses.montecarlo_report": (
         "pyarrow only for the Parquet table, matplotlib only for the plots, the schema only "
         "for a parameter's unit in a plot's label",
@@ -299,6 +298,27 @@ def test_imports_follow_the_pipeline() -> None:
     planted = {"maglevgen.derive.model": {"maglevgen.report.format"}}  # the check itself
     assert [m for m, ts in planted.items() for t in ts if _layer(t) > _layer(m)] == [
         "maglevgen.derive.model"]
+
+
+# The stages after the controls take the compiled library from the `Plant`
+# (maglevgen.control.carriage_plant), which loads it once; none of them looks it up again.
+PLANT_USERS = ("maglevgen.analyses", "maglevgen.exports", "maglevgen.report")
+LIBRARY_MODULE = "maglevgen.runtime.library"
+
+
+def _loads_the_library(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(m for m, targets in graph.items()
+                  if LIBRARY_MODULE in targets
+                  and any(m == u or m.startswith(u + ".") for u in PLANT_USERS))
+
+
+def test_analyses_exports_and_report_take_the_library_from_the_plant() -> None:
+    """Nothing under analyses/, exports/ or report/ imports the runtime library module (an
+    annotation under TYPE_CHECKING aside)."""
+    assert _loads_the_library(_graph()) == []
+    planted = {"maglevgen.report.figures": {LIBRARY_MODULE}, "maglevgen.control.plant": {
+        LIBRARY_MODULE}}
+    assert _loads_the_library(planted) == ["maglevgen.report.figures"]
 
 
 def test_the_controller_definitions_stand_alone() -> None:

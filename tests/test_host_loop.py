@@ -527,7 +527,7 @@ def test_loop_refuses_a_lag_or_integral_without_a_tick_and_bad_law_gains(carriag
     """maglev_control_loop: tau or k_i with tick_steps = 0, a negative or non-finite tau, a
     negative or non-finite k_i, a negative or NaN i_max, a non-finite K_lag or K_delay value:
     MAGLEV_SIM_ARGUMENT (the runtime's RuntimeError)."""
-    from maglevgen.runtime.library import ControlLoop
+    from maglevgen.runtime.runs import ControlLoop
 
     n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     K = np.zeros(25)

@@ -172,7 +172,7 @@ def test_the_sensors_loop_needs_a_tick(carriage: DerivedCarriage, sim_lib, sense
     """A sense on the continuous loop (tick_steps 0) is refused at entry (MAGLEV_SIM_ARGUMENT:
     the library's internal error), nothing run."""
     from maglevgen.analyses.sim_loop import sensing
-    from maglevgen.runtime.library import ControlLoop
+    from maglevgen.runtime.runs import ControlLoop
 
     tick = sensed_tick[0]
     loop = ControlLoop(0, 0, sense=sensing(tick, 10))
@@ -181,17 +181,22 @@ def test_the_sensors_loop_needs_a_tick(carriage: DerivedCarriage, sim_lib, sense
                          carriage.p, 0.0, 7, 6, loop)
 
 
-def test_cli_sensed_loop_flies_only_the_embedded_controller(sim_lib, tmp_path) -> None:
-    """`simulate --loop sensed --controller lqr`: exit 2, one line naming the option and why
-    (in a folder of its own: the default --out of a checkout where `make run` has built is
-    `maglevgen build`'s, which simulate refuses to write into first; sim_lib: the derivation
-    cached, so that no progress line joins the error)."""
-    proc = subprocess.run([sys.executable, "-m", "maglevgen.cli", "simulate", "--loop",
-                           "sensed", "--controller", "lqr", "--t-end", "0.1"],
-                          capture_output=True, text=True, cwd=tmp_path)
+@pytest.mark.parametrize("command", ["simulate", "montecarlo"])
+def test_cli_sensed_loop_flies_only_the_embedded_controller(sim_lib, tmp_path,
+                                                            command: str) -> None:
+    """`simulate|montecarlo --loop sensed --controller lqr`: exit 2, one line naming the
+    option and why, checked before the output folder (here a file, which is refused too: the
+    option is what the user has to change first); sim_lib: the derivation cached, so that no
+    progress line joins the error."""
+    taken = tmp_path / "taken"
+    taken.write_text("a user's file\n")
+    proc = subprocess.run([sys.executable, "-m", "maglevgen.cli", command, "--loop",
+                           "sensed", "--controller", "lqr", "--t-end", "0.1", "--out",
+                           str(taken)], capture_output=True, text=True, cwd=tmp_path)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--loop sensed" in lines[0] and "'lqr'" in lines[0]
+    assert len(lines) == 1 and "--loop sensed" in lines[0] and "'lqr'" in lines[0], lines
+    assert taken.read_text() == "a user's file\n"
 
 
 def test_sensed_launch_flies_the_accelerating_trim(carriage: DerivedCarriage, sim_lib) -> None:

@@ -33,7 +33,7 @@ from maglevgen.control.operating import speed_mode
 from maglevgen.control.schedule import Schedule
 from maglevgen.control.symbolic_reference import effectiveness
 from maglevgen.errors import InputError
-from maglevgen.runtime.library import ControlLoop
+from maglevgen.runtime.runs import ControlLoop
 
 AX = list(AXIS_STATES)
 DT = 1e-3

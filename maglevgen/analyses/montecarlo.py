@@ -93,7 +93,8 @@ class Study:
 
     origin: str
     data: dict  # the validated parameter set (model_dump) the samples are drawn about
-    structure: Any  # maglevgen.derive.structure.Structure
+    # how a worker process gets the compiled library (`Plant.worker_library`: loaded once there)
+    library: Callable[[], Any]
     names: tuple[str, ...]  # parameter vector entries
     p: tuple[float, ...]  # nominal parameter vector
     keys: tuple[str, ...]  # toleranced entries, in file order (parameters and sensors)
@@ -205,17 +206,9 @@ def sample_sensors(study: Study, draws: np.ndarray) -> tuple[tuple[str, float], 
                  if k in sensors)
 
 
-def _library(structure):
-    """The compiled library in this process (generated and compiled on a worker where its
-    cache lacks it), loaded once (`runtime.library.loaded_library`)."""
-    from maglevgen.runtime.library import loaded_library
-
-    return loaded_library(structure)
-
-
 def run_sample(study: Study, index: int, lib=None) -> list[dict]:
     """One row per controller: the draws, the status and the per-axis metrics."""
-    lib = lib or _library(study.structure)
+    lib = lib or study.library()
     prepared = _prepare(study, index, lib)
     if isinstance(prepared, list):
         return prepared
@@ -235,7 +228,7 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
     ``threads`` threads (0: every core): the same rows (each run is the same maglev_simulate
     call). The draws, the trim and the gains of each sample come first, in Python and the
     library's C, as `run_sample` makes them."""
-    lib = lib or _library(study.structure)
+    lib = lib or study.library()
     out: list[list[dict] | None] = []
     jobs, owners, ticks = [], [], []
     for i in indices:
@@ -430,7 +423,7 @@ def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
     chunks = _chunks(n, size)
     results: dict[int, Columns] = {}
     if workers <= 1:
-        lib = _library(study.structure)
+        lib = study.library()
         for k, c in enumerate(chunks):
             results[k] = table(run_samples_batch(study, c, lib, threads=1))
             if tick:
@@ -584,7 +577,7 @@ def make_study(plant: Plant, controllers: Sequence[str], t_end: float, dt: float
         origin=carriage.loaded.source,
         # the samples are validated without the tolerances (drawn about the file's values)
         data={k: v for k, v in params.model_dump().items() if k != "tolerances"},
-        structure=carriage.structure,
+        library=plant.worker_library,
         names=tuple(e.name for e in carriage.entries), p=tuple(map(float, carriage.p)),
         keys=keys,
         sigma=tuple(math.nan if t.normal is None else float(t.normal)

@@ -196,7 +196,6 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
     n5 = T.shape[1]
     n_cmd = K_c.shape[0]
     meas = measurement_model(lib, p, op, layout)
-    n_gap = len(layout.gaps)
 
     dynamics = lib.function("maglev_dynamics")
     gap_fn, imu_fn = lib.function("maglev_gap_reading"), lib.function("maglev_imu_reading")
@@ -247,7 +246,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             y[j] = float(np.ravel(gap_fn(x, g.point, g.normal, g.nominal_gap)[0])[0])
         if layout.imu_point is not None:
             gyro, acc, _, _ = imu_fn(x, xdot, layout.imu_point, p)
-            y[n_gap:n_gap + 6] = np.concatenate([np.ravel(gyro), np.ravel(acc)])
+            y[layout.gyro_readings], y[layout.accel_readings] = np.ravel(gyro), np.ravel(acc)
         if layout.track:
             y[-1] = x[cv.STATE_INDEX["x"]]
         y = y + noise[k]
@@ -277,7 +276,7 @@ def noisy_hold(lib, p: np.ndarray, params, op: OperatingPoint, controller: str |
             norm = np.linalg.norm(du[sl])
             if norm > budget:
                 du[sl] *= budget / norm
-        cmd[:n5] = T_pinv @ du[1:]  # what it sent, saturated
+        cmd[:n5] = T_pinv @ du[cv.ARRAY_INPUTS]  # what it sent, saturated
         est_err[k] = dz_true[keep] - z_post[:n_x]
         z_pred = model.Phi @ z_post + model.Gamma @ du
         if d == 0:
@@ -431,7 +430,7 @@ def _rhs(f, x: np.ndarray, F0: np.ndarray, u_trim: np.ndarray, du: np.ndarray, t
          p: np.ndarray, s: float) -> np.ndarray:
     """xdot at ``s`` seconds into a tick with the command ``du`` (F_prop, F_c) held from the
     lagged forces F0: F(s) = F_c + (F0 - F_c) exp(-s/tau), exact (tau = 0: F = F_c)."""
-    Fc = du[1:]
+    Fc = du[cv.ARRAY_INPUTS]
     Fs = Fc + (F0 - Fc) * np.exp(-s / tau) if tau > 0 else Fc
     return np.ravel(f(x, u_trim + np.concatenate([du[:1], Fs]), p)[0])
 
@@ -446,6 +445,6 @@ def _rk4(f, x: np.ndarray, F: np.ndarray, u_trim: np.ndarray, du: np.ndarray, ta
     k2 = _rhs(f, x + h / 2 * k1, F, u_trim, du, tau, p, h / 2)
     k3 = _rhs(f, x + h / 2 * k2, F, u_trim, du, tau, p, h / 2)
     k4 = _rhs(f, x + h * k3, F, u_trim, du, tau, p, h)
-    Fc = du[1:]
+    Fc = du[cv.ARRAY_INPUTS]
     F_end = Fc + (F - Fc) * np.exp(-h / tau) if tau > 0 else Fc.copy()
     return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), F_end

@@ -101,7 +101,7 @@ def trim_point(plant: Plant, speed: float | None, acceleration: float = 0.0) -> 
         moving = f" accelerating at {acceleration:g} m/s^2" if acceleration else ""
         raise NoTrimError(f"no trim at speed {v:g} m/s{moving}: {why}{hint}") from None
     u = np.zeros(lib.function("maglev_dynamics").shapes_in[1][0])
-    u[0] = f_prop
+    u[cv.PROPULSION_INPUT] = f_prop
     xdot = lib.function("maglev_dynamics")(x, u, p)[0].ravel()
     # the translation's R^T (a, 0, 0) (derive/trim.py)
     xdot[cv.VELOCITY] -= x[cv.VELOCITY] * (acceleration / v)

@@ -49,6 +49,7 @@ import json
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -67,7 +68,9 @@ from maglevgen.control.operating import (
 from maglevgen.controllers import controller as registered
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError
-from maglevgen.runtime.library import SimulationLibrary
+
+if TYPE_CHECKING:  # the library comes from the Plant; only its type is named here
+    from maglevgen.runtime.library import SimulationLibrary
 
 __all__ = ["AXIS_NAMES", "AXIS_UNITS", "BUILD_SAMPLING", "BUILD_SPEEDS", "COMMAND_SAMPLING",
            "CONFIRM_DT", "CONFIRM_T_END", "DEFAULT_SPEEDS", "MAX_BATCH", "MAX_DIRECTIONS",

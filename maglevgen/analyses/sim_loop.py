@@ -105,14 +105,14 @@ def reading_spread(params, layout: SensorLayout) -> tuple[np.ndarray, np.ndarray
     its resolution (the gaps' and the track's; 0 else)): what a run's noise is drawn from
     (`reading_noise`, the FMU's `maglevgen.exports.fmu_sense`)."""
     s = params.sensors
-    ny, n_gap = len(layout.names), len(layout.gaps)
+    ny = len(layout.names)
     bias = np.zeros(ny)
     if s.imu is not None:
-        bias[n_gap:n_gap + 3] = s.imu.gyro_bias
-        bias[n_gap + 3:n_gap + 6] = s.imu.accel_bias
+        bias[layout.gyro_readings] = s.imu.gyro_bias
+        bias[layout.accel_readings] = s.imu.accel_bias
     step = np.zeros(ny)
     if s.gap is not None:
-        step[:n_gap] = s.gap.resolution
+        step[layout.gap_readings] = s.gap.resolution
     if s.track is not None:
         step[-1] = s.track.resolution
     return np.sqrt(layout.variances), bias, step
@@ -134,11 +134,10 @@ def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
     variance the rounding to the resolution adds (the run rounds each noisy reading)."""
     sigma, bias, step = reading_spread(params, layout)
     rng = np.random.default_rng(seed)
-    n_gap = len(layout.gaps)
     sigma = sigma * noise_scale
     if params.sensors.imu is not None:  # each axis's in-run bias, its sign drawn once per run
-        bias[n_gap:n_gap + 3] *= rng.choice((-1.0, 1.0), 3)
-        bias[n_gap + 3:n_gap + 6] *= rng.choice((-1.0, 1.0), 3)
+        bias[layout.gyro_readings] *= rng.choice((-1.0, 1.0), 3)
+        bias[layout.accel_readings] *= rng.choice((-1.0, 1.0), 3)
     step = step * noise_scale
     white = white_rms(sigma, step)
     return bias * noise_scale + white * rng.standard_normal((n_ticks, len(layout.names))), step

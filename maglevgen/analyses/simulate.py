@@ -3,7 +3,7 @@
 The carriage starts at its trim with a small disturbance on every controlled axis and runs
 under the steady propulsion force that balances the drag at trim, with no control, the
 optimized damping or the LQR. Trim, gains and the integration loop all run in the compiled
-run-time-parameter library (maglevgen.runtime.library): Python only prepares the call and reads the
+run-time-parameter library (the `Plant`'s): Python only prepares the call and reads the
 result. ``reference_trajectory`` integrates the same closed loop with scipy's adaptive DOP853
 on the lambdified SymPy model, as an independent check.
 """
@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from maglevgen.analyses.sim_loop import (
     sensing,
     speed_loop_gain,
 )
-from maglevgen.control.built_loop import Loop
+from maglevgen.control.built_loop import Loop, flown_controllers
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.operating import (
     AXIS_STATES,
@@ -51,8 +51,11 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import DISTURBANCE, Q_STATES
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
-from maglevgen.runtime.library import BatchRun, Run, SimulationLibrary
+from maglevgen.runtime.runs import BatchRun, Run
 from maglevgen.runtime.sense import Sensing
+
+if TYPE_CHECKING:  # the library comes from the Plant; only its type is named here
+    from maglevgen.runtime.library import SimulationLibrary
 
 __all__ = ["AXIS_STATES", "DISTURBANCE", "DISTURBANCE_DOC", "RUN_STATUSES", "SETTLING_BAND",
            "LoopSetting", "SimulationRun", "Tick", "Trajectory", "Weights", "control_loop",
@@ -165,7 +168,7 @@ class Trajectory:
     def generalized_forces(self) -> np.ndarray:
         """(n, 5) u_gen produced by the array control forces: E F with E = pinv(T) (T = E's
         pseudoinverse, of rank 4 with the paper's geometry's normal actuators)."""
-        return self.u[:, 1:] @ np.linalg.pinv(self.op.allocation).T
+        return self.u[:, cv.ARRAY_INPUTS] @ np.linalg.pinv(self.op.allocation).T
 
     @property
     def array_forces(self) -> dict[str, np.ndarray]:
@@ -514,11 +517,11 @@ def reference_trajectory(functions, p: np.ndarray, op: OperatingPoint, controlle
     K_pos, K_rate = op.gains(controller)
     idx = list(AXIS_STATES)
     u = np.zeros(op.allocation.shape[0] + 1)
-    u[0] = op.f_prop
+    u[cv.PROPULSION_INPUT] = op.f_prop
 
     def rhs(_t: float, x: np.ndarray) -> np.ndarray:
         rates = functions.kin(x).ravel()[idx]  # position rates do not depend on u
-        u[1:] = op.allocation @ (-(K_pos @ (x[idx] - op.a_trim) + K_rate @ rates))
+        u[cv.ARRAY_INPUTS] = op.allocation @ (-(K_pos @ (x[idx] - op.a_trim) + K_rate @ rates))
         return functions.xdot(x, u, p).ravel()
 
     sol = solve_ivp(rhs, (t_eval[0], t_eval[-1]), initial_state(op, disturbance),
@@ -595,7 +598,7 @@ def metrics(traj: Trajectory) -> dict:
         "min_gap": float(np.min(traj.gaps)),
         "speed_start": float(speed[0]), "speed_end": float(speed[-1]),
         "speed_at_contact": float(speed[-1]) if status == "contact" else None,
-        "rms_array_force": float(np.sqrt(np.mean(traj.u[:, 1:] ** 2))),
+        "rms_array_force": float(np.sqrt(np.mean(traj.u[:, cv.ARRAY_INPUTS] ** 2))),
         "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
         "speed_error": _speed_error(traj, speed), "saturated_time": traj.saturated_time,
         # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
@@ -707,14 +710,7 @@ def run_scenarios(plant: Plant, controllers: tuple[str, ...], t_end: float, dt: 
     if dt > limits[worst]:
         raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limits[worst]:.4g} s "
                          f"of the stiffest closed-loop mode ({worst} controller)")
-    if loop is Loop.SENSED:
-        embedded = carriage.params.envelope.embedded_controller
-        others = [c for c in controllers if c != embedded]
-        if others:
-            raise InputError(f"--loop sensed: the firmware's sense tick flies the embedded "
-                             f"controller ({embedded!r}, envelope.embedded_controller), not "
-                             f"{', '.join(map(repr, others))}; --loop firmware runs any "
-                             "controller on the exact state")
+    flown_controllers(loop, controllers, carriage.params.envelope.embedded_controller)
     if loop is not Loop.CONTINUOUS:
         tick, speed_gain, force_budget = run_loop(plant, loop)
     control_loop(dt, tick, speed_gain, force_budget, op.speed)  # refused before any run

@@ -183,7 +183,7 @@ class Studies(CarriageCore):
         True
         """
         from maglevgen.analyses.simulate import run_scenarios
-        from maglevgen.control.built_loop import Loop
+        from maglevgen.control.built_loop import Loop, flown_controllers
 
         if controller != "all":
             check_controller(controller)
@@ -196,14 +196,15 @@ class Studies(CarriageCore):
             self._speed(speed)
         check_run_arguments(t_end, dt)
         initial = initial_disturbance(disturbance)  # before the library: bad input is one line
-        if out is not None:
-            from maglevgen.infrastructure.output import check_writable
-
-            check_writable(Path(out))  # before any work: a folder of the user's is refused
         controllers = controller_names() if controller == "all" else (controller,)
         if asked is Loop.SENSED and controller == "all":  # the firmware flies one
             controllers = (self._carriage.params.envelope.embedded_controller,)
         run_loop = chosen_loop(asked, controllers, self.params)
+        flown_controllers(run_loop, controllers, self.params.envelope.embedded_controller)
+        if out is not None:  # after the options: a bad one is the line the user sees
+            from maglevgen.infrastructure.output import check_writable
+
+            check_writable(Path(out))  # before any work: a folder of the user's is refused
         # this carriage's plant; its library, when not loaded yet, loads once run_scenarios has
         # checked its options (bad input stays the only line), announced only with progress
         plant = self._plant
@@ -390,7 +391,7 @@ class Studies(CarriageCore):
             run_study,
         )
         from maglevgen.analyses.simulate import run_loop
-        from maglevgen.control.built_loop import Loop
+        from maglevgen.control.built_loop import Loop, flown_controllers
         from maglevgen.infrastructure.output import check_writable, write_output
         from maglevgen.params import check_count
 
@@ -404,26 +405,21 @@ class Studies(CarriageCore):
         check_run_arguments(t_end, dt)
         asked = None if loop is None else loop_of(loop)  # None: as a carriage flies
         check_scheduler(scheduler)
-        if out is not None:
+        controllers = controller_names() if choice == "all" else (choice,)
+        if asked is None and redesign:  # a re-design per sample is not what the firmware flies
+            asked = Loop.FIRMWARE
+        run = chosen_loop(asked, controllers, self.params)
+        controllers = flown_controllers(run, controllers, self.params.envelope.embedded_controller,
+                                        all_asked=choice == "all")
+        if run is Loop.SENSED and redesign:
+            raise InputError("--redesign with --loop sensed: the firmware's tables are the "
+                             "nominal carriage's (a re-design per sample is not flown)")
+        if out is not None:  # after the options: a bad one is the line the user sees
             out = as_path("--out", out)
             check_writable(out)
         if progress:  # once the arguments are checked: a bad one stays the only line
             steps.announce(f"montecarlo: {samples} samples over [tolerances], the compiled "
                            "library and the study first")
-        controllers = controller_names() if choice == "all" else (choice,)
-        if asked is None and redesign:  # a re-design per sample is not what the firmware flies
-            asked = Loop.FIRMWARE
-        run = chosen_loop(asked, controllers, self.params)
-        if run is Loop.SENSED:  # the firmware's sense tick: its one controller, its tables
-            embedded = self.params.envelope.embedded_controller
-            if choice == "all":
-                controllers = (embedded,)
-            elif choice != embedded:
-                raise InputError(f"--loop sensed: the firmware's sense tick flies the embedded "
-                                 f"controller ({embedded!r}), not {choice!r}")
-            if redesign:
-                raise InputError("--redesign with --loop sensed: the firmware's tables are the "
-                                 "nominal carriage's (a re-design per sample is not flown)")
         study = make_study(self._plant, controllers, t_end, dt, seed,
                            *run_loop(self._plant, run),
                            redesign=flag("--redesign", redesign))

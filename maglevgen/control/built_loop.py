@@ -25,14 +25,14 @@ from maglevgen.control.plant import LoopDesign, LoopPlant, speed_loop_gains
 from maglevgen.control.registry import controller as registered_controller
 from maglevgen.control.sampled import Tick
 from maglevgen.errors import InputError
-from maglevgen.runtime.library import ControlLoop
+from maglevgen.runtime.runs import ControlLoop
 from maglevgen.runtime.sense import Sensing
 
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
-__all__ = ["Loop", "LoopSetting", "control_loop", "loop_design", "loop_plant",
-           "loop_setting"]
+__all__ = ["Loop", "LoopSetting", "control_loop", "flown_controllers", "loop_design",
+           "loop_plant", "loop_setting"]
 
 
 class Loop(str, Enum):
@@ -52,6 +52,24 @@ class Loop(str, Enum):
 
     def __format__(self, spec: str) -> str:
         return format(str(self.value), spec)
+
+
+def flown_controllers(loop: Loop, controllers: Sequence[str], embedded: str,
+                      all_asked: bool = False) -> tuple[str, ...]:
+    """The controllers a run on ``loop`` flies: ``controllers``, except on the sensors, where
+    the firmware's sense tick flies the ``embedded`` controller alone (its tables are that
+    one's): asked for all (``all_asked``), that one; asked for another, an InputError."""
+    if loop is not Loop.SENSED:
+        return tuple(controllers)
+    if all_asked:
+        return (embedded,)
+    others = [c for c in controllers if c != embedded]
+    if others:
+        raise InputError(f"--loop sensed: the firmware's sense tick flies the embedded "
+                         f"controller ({embedded!r}, envelope.embedded_controller), not "
+                         f"{', '.join(map(repr, others))}; --loop firmware runs any "
+                         "controller on the exact state")
+    return tuple(controllers)
 
 
 @dataclass(frozen=True)

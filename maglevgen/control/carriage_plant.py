@@ -16,7 +16,7 @@ one of those per point (`loop_plant`).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -35,7 +35,12 @@ from maglevgen.control.schedule import (
 )
 from maglevgen.derive.search import lowest_trim_speed
 from maglevgen.errors import InputError, NoTrimError
-from maglevgen.runtime.library import SimulationLibrary, simulation_library
+from maglevgen.runtime.library import (
+    SimulationLibrary,
+    loaded_library,
+    runtime_sources,
+    simulation_library,
+)
 
 if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
@@ -111,6 +116,20 @@ class Plant:
             self._lib = simulation_library(self.carriage.structure, cache_dir=self._cache_dir,
                                            cc=self._cc, progress=self._progress)
         return self._lib
+
+    @property
+    def worker_library(self) -> Callable[[], SimulationLibrary]:
+        """How another process gets this library: a picklable call that loads it there once
+        (from the same cache, with the same compiler) and then reuses it."""
+        return partial(loaded_library, self.carriage.structure, self._cache_dir, self._cc)
+
+    def runtime_sources(self, precision: str = "double", cache_dir: Path | None = None,
+                        progress: Callable[[str], None] | None = None) -> Path:
+        """The folder of the library's run-time-parameter C at ``precision`` (generated or
+        reused; ``cache_dir`` and ``progress`` default to this plant's)."""
+        return runtime_sources(self.carriage.structure, precision,
+                               self._cache_dir if cache_dir is None else cache_dir,
+                               self._progress if progress is None else progress)
 
     @property
     def loaded(self) -> bool:

@@ -103,6 +103,20 @@ class SensorLayout:
             names.append("track_x")
         return cls(tuple(gaps), imu, s.track is not None, np.array(var), tuple(names))
 
+    # The readings' order (`of`): the gaps, the IMU's three rates and three accelerations,
+    # the track position.
+    @property
+    def gap_readings(self) -> slice:
+        return slice(0, len(self.gaps))
+
+    @property
+    def gyro_readings(self) -> slice:
+        return slice(len(self.gaps), len(self.gaps) + 3)
+
+    @property
+    def accel_readings(self) -> slice:
+        return slice(len(self.gaps) + 3, len(self.gaps) + 6)
+
     def describe(self) -> str:
         """The set in a few words, for messages: "8 gap sensors (1 at each face centre ...)"."""
         parts = []
@@ -142,7 +156,7 @@ def measurement_model(lib, p: np.ndarray, op: OperatingPoint,
         rows_D.append(np.zeros((1, n_u)))
     if layout.imu_point is not None:
         u = np.zeros(n_u)
-        u[0] = op.f_prop
+        u[cv.PROPULSION_INPUT] = op.f_prop
         xdot = lib.function("maglev_dynamics")(op.x_trim, u, p)[0].ravel()
         gyro, accel, H_x, H_xdot = lib.function("maglev_imu_reading")(
             op.x_trim, xdot, layout.imu_point, p)
@@ -165,7 +179,7 @@ def process_noise(op: OperatingPoint, params) -> tuple[np.ndarray, np.ndarray]:
     controller's act) and their continuous intensity W = diag(density^2 / 2) (a one-sided
     density N is a two-sided N^2/2), [sensors.disturbance]."""
     d = params.sensors.disturbance
-    G = np.column_stack([op.B[:, 0], op.B[:, 1:] @ op.allocation])
+    G = np.column_stack([op.B[:, cv.PROPULSION_INPUT], op.B[:, cv.ARRAY_INPUTS] @ op.allocation])
     W = np.diag([d.force**2 / 2] * 3 + [d.moment**2 / 2] * 3)
     return G, W
 
@@ -237,13 +251,14 @@ def estimator_model(lib, p: np.ndarray, op: OperatingPoint, params,
     Cc, D = C, meas.D.copy()
     if nf:  # (dx, F): the array columns of B through the lag
         Ac = np.zeros((n + nf, n + nf))
-        Ac[:n, :n], Ac[:n, n:] = A, B[:, 1:]
+        Ac[:n, :n], Ac[:n, n:] = A, B[:, cv.ARRAY_INPUTS]
         Ac[n:, n:] = -np.eye(nf) / tau
         Bc = np.zeros((n + nf, m))
-        Bc[:n, 0], Bc[n:, 1:] = B[:, 0], np.eye(nf) / tau
+        Bc[:n, cv.PROPULSION_INPUT] = B[:, cv.PROPULSION_INPUT]
+        Bc[n:, cv.ARRAY_INPUTS] = np.eye(nf) / tau
         Gc = np.vstack([G[keep], np.zeros((nf, G.shape[1]))])
-        Cc = np.hstack([C, D[:, 1:]])
-        D[:, 1:] = 0.0
+        Cc = np.hstack([C, D[:, cv.ARRAY_INPUTS]])
+        D[:, cv.ARRAY_INPUTS] = 0.0
     Phi, Gamma = zoh(Ac, Bc, tick.period)
     Pa, Ga = delay_augmented(Phi, Gamma, d)
     nc = n + nf

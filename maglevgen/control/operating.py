@@ -184,7 +184,7 @@ class OperatingPoint:
         select = np.zeros((N_AXES, self.A.shape[0]))
         select[range(N_AXES), AXIS_STATES] = 1.0
         d_ugen = -(K_pos @ select + K_rate @ (select @ self.A))
-        return self.A + self.B[:, 1:] @ self.allocation @ d_ugen
+        return self.A + self.B[:, cv.ARRAY_INPUTS] @ self.allocation @ d_ugen
 
 
 def checked_trim(lib: SimulationLibrary, p: np.ndarray, speed: float,
@@ -227,7 +227,7 @@ def _checked(lib: SimulationLibrary, p: np.ndarray, speed: float, acceleration: 
     x_trim, f_trim = x_trim.ravel(), float(f_prop.ravel()[0])
     n_u = lib.function("maglev_dynamics").shapes_in[1][0]
     u = np.zeros(n_u)
-    u[0] = f_trim
+    u[cv.PROPULSION_INPUT] = f_trim
     xdot = lib.function("maglev_dynamics")(x_trim, u, p)[0].ravel()
     xdot[cv.VELOCITY] -= x_trim[cv.VELOCITY] * (acceleration / speed)
     acc = xdot[cv.KINETIC]
@@ -336,7 +336,7 @@ def operating_point(lib: SimulationLibrary, p: np.ndarray, speed: float, min_gap
     K, c = lib.function("maglev_lqr_gains")(speed, p)
     (T,) = lib.function("maglev_allocation_matrix")(p)
     u = np.zeros(T.shape[0] + 1)
-    u[0] = f_prop
+    u[cv.PROPULSION_INPUT] = f_prop
     A, B = lib.function("maglev_jacobians")(x_trim, u, p)
     k, m = (a.ravel() for a in lib.function("maglev_axis_plants")(speed, p))
     return OperatingPoint(float(speed), x_trim, f_prop, gaps, K, c.ravel(), T, A, B, weights,

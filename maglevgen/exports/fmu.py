@@ -7,7 +7,7 @@ same for both FMI versions, and both files are rendered from it by the templates
 version (`FMI_VERSIONS`: fmu_model_description.xml.j2 and fmu_wrapper.c.j2 for 2.0,
 fmu3_model_description.xml.j2 and fmu3_wrapper.c.j2 for 3.0), both wrappers around the one
 version-independent model core fmu_core.c.j2. The model is the run-time-parameter C of the
-carriage's structure (the cached derivation of maglevgen.runtime.library): every function takes
+carriage's structure (the cached derivation of its `Plant`'s library): every function takes
 the parameter vector p, so a parameter set through fmi2SetReal (fmi3SetFloat64) before
 initialization behaves like ``--set``: the trim (maglev_trim at ``operation.speed``), the
 gains (maglev_lqr_gains) and the allocation are computed from it when the FMU leaves
@@ -539,7 +539,6 @@ def build_fmu(plant: Plant, kind: str = "both", controller: str | None = None,
     from maglevgen.control.built_loop import Loop
     from maglevgen.infrastructure.cache import cache_root
     from maglevgen.runtime.compile import compile_object, compile_shared
-    from maglevgen.runtime.library import runtime_sources
 
     carriage = plant.carriage
     if controller is None:
@@ -569,7 +568,7 @@ def build_fmu(plant: Plant, kind: str = "both", controller: str | None = None,
         from maglevgen.exports.fmu_sense import fmu_sense
 
         tick = replace(tick, sense=fmu_sense(plant))
-    folder = runtime_sources(carriage.structure, "double", cache_dir, progress)
+    folder = plant.runtime_sources("double", cache_dir, progress)
     table = json.loads((folder / FUNCTION_TABLE).read_text())
     interface = render_interface(carriage, GenerateOptions("double", "runtime"), table)
     manifest = json.loads(interface["manifest.json"])

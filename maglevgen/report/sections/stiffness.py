@@ -120,7 +120,7 @@ def stiffness_section(plant: Plant, trim, trep: dict, gains: dict) -> dict[str, 
     inputs = [(ltx(syms[n]), v) for n, v in trep["paper_inputs"].items()]
     jacobians = plant.lib.function("maglev_jacobians")
     u = np.zeros(jacobians.shapes_in[1][0])
-    u[0] = trim.f_prop
+    u[cv.PROPULSION_INPUT] = trim.f_prop
     A, B = jacobians(trim.x, u, carriage.p)
     scale = np.max(np.abs(A))
     a_entries = [

@@ -101,7 +101,8 @@ def _generated_c_checks(
     xt, fp = lib.function("maglev_trim")([trim.speed], p)
     e_trim = max(
         float(np.max(np.abs(xt.ravel() - trim.x))),
-        abs(float(fp.ravel()[0]) - trim.u[0]) / abs(trim.u[0]),
+        abs(float(fp.ravel()[0]) - trim.u[cv.PROPULSION_INPUT])
+        / abs(trim.u[cv.PROPULSION_INPUT]),
     )
     Kc, _c = lib.function("maglev_lqr_gains")([trim.speed], p)
     K_ref = np.array([a["K_closed_form"] for a in gains["axes"].values()])
