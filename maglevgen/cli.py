@@ -40,7 +40,8 @@ __all__ = ["build_parser", "main"]
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", metavar="FILE", help="parameter file (default: the LLNL carriage)")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], dest="overrides",
-                   help="override a parameter, dotted name as in the file (repeatable)")
+                   help="override a parameter, dotted name as in the file, a key with dots quoted: "
+                        'tolerances.parameters."vehicle.mass".normal=0.2 (repeatable)')
     p.add_argument("--debug", action="store_true", help="show tracebacks")
 
 

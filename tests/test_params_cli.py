@@ -16,6 +16,7 @@ import pytest
 
 import maglevgen.carriage
 from maglevgen.cli import main
+from maglevgen.errors import InputError
 from maglevgen.params import default_params_text, load_params, schema_rows, validate
 
 if sys.version_info >= (3, 11):
@@ -312,6 +313,25 @@ def test_set_changes_the_loaded_value(
     assert loaded.overrides == ("vehicle.mass=12.5", "arrays.3.position=[0.3, 0, -0.03]")
     assert main(["params", "show", "--params", str(path), "--set", "vehicle.mass=12.5"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_set_addresses_a_quoted_key_as_the_file_would(tmp_path: Path) -> None:
+    """A key with dots in it (a toleranced entry's name) is quoted as TOML quotes it: the
+    override gives the parameters of a file edited to the same entry, for an entry the file
+    has and for one it omits (a table the schema has, added)."""
+    text = default_params_text()
+    line = '"sensors.imu.gyro_noise" = { uniform = 5e-5 }'
+    assert line in text
+    edited = tmp_path / "edited.toml"
+    edited.write_text(text.replace(line, '"sensors.imu.gyro_noise" = { uniform = 1e-4 }\n'
+                                   '"circuit.inductance" = { normal = 1e-7 }'), encoding="utf-8")
+    loaded = load_params(None, ['tolerances.parameters."sensors.imu.gyro_noise".uniform=1e-4',
+                                'tolerances.parameters."circuit.inductance"={ normal = 1e-7 }'])
+    assert loaded.params.tolerances == load_params(edited).params.tolerances
+    with pytest.raises(InputError, match=r"not a dotted parameter name \(keys with dots"):
+        load_params(None, ['tolerances.parameters."vehicle.mass=1'])
+    with pytest.raises(InputError, match=r"unknown key 'tolerances\.parametrs'"):
+        load_params(None, ['tolerances.parametrs."vehicle.mass".normal=0.1'])
 
 
 def test_show_raw_is_byte_identical(tmp_path: Path) -> None:

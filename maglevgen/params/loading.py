@@ -70,19 +70,48 @@ class LoadedParams:
     overrides: tuple[str, ...]
 
 
-def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
-    keys = dotted.split(".")
+#: one key of --set's NAME, as TOML writes a dotted key: a bare key or a "quoted" one (which
+#: may hold dots: a toleranced entry's name, ``tolerances.parameters."vehicle.mass"``)
+_KEY = r'[A-Za-z0-9_]+|"[^"\\\x00-\x1f\x7f]*"'
+_BARE = re.compile(r"[A-Za-z0-9_]+")
+
+
+def override_keys(name: str) -> tuple[str, ...] | None:
+    """The keys of --set's NAME (TOML's dotted-key syntax, quotes removed), None when it is
+    not one."""
+    if not re.fullmatch(rf"(?:{_KEY})(?:\.(?:{_KEY}))*", name):
+        return None
+    return tuple(k[1:-1] if k.startswith('"') else k for k in re.findall(_KEY, name))
+
+
+def _dotted(keys: Sequence[str]) -> str:
+    return ".".join(k if _BARE.fullmatch(k) else f'"{k}"' for k in keys)
+
+
+def _in_schema(keys: Sequence[str]) -> bool:
+    """Whether the schema has the key (its ``<name>`` and ``<key>`` match any one key): one
+    the file may omit."""
+    for row in schema_rows():
+        parts = row[0].split(".")
+        if len(parts) == len(keys) and all(p == k or (p.startswith("<") and p.endswith(">"))
+                                           for p, k in zip(parts, keys, strict=True)):
+            return True
+    return False
+
+
+def _set_dotted(data: dict[str, Any], name: str, value: Any) -> None:
+    keys = override_keys(name)
+    assert keys is not None  # parse_override checked it
     node: Any = data
     for depth, key in enumerate(keys[:-1]):
+        if isinstance(node, dict) and key not in node and _in_schema(keys[:depth + 1]):
+            node[key] = {}  # a table the file omits, which the schema has
         if not isinstance(node, dict) or key not in node:
-            bad = ".".join(keys[: depth + 1])
-            raise InputError(f"--set {dotted}: unknown key {bad!r}{did_you_mean(bad)}")
+            bad = _dotted(keys[: depth + 1])
+            raise InputError(f"--set {name}: unknown key {bad!r}{did_you_mean(bad)}")
         node = node[key]
-    # a key of the schema the file may omit (<name>: a table's key, any name)
-    optional = any(re.fullmatch(re.escape(k).replace(re.escape("<name>"), r"[^.]+"), dotted)
-                   for k, *_ in schema_rows())
-    if not isinstance(node, dict) or (keys[-1] not in node and not optional):
-        raise InputError(f"--set {dotted}: unknown key {dotted!r}{did_you_mean(dotted)}")
+    if not isinstance(node, dict) or (keys[-1] not in node and not _in_schema(keys)):
+        raise InputError(f"--set {name}: unknown key {name!r}{did_you_mean(name)}")
     node[keys[-1]] = value
 
 
@@ -121,9 +150,9 @@ def parse_override(item: str) -> tuple[str, Any]:
     if "=" not in item:
         raise InputError(f"--set {item!r}: expected NAME=VALUE")
     name, raw = (s.strip() for s in item.split("=", 1))
-    if not re.fullmatch(r"[A-Za-z0-9_]+(\.[A-Za-z0-9_]+)*", name):
+    if override_keys(name) is None:
         raise InputError(f"--set {short_repr(item)}: {short_repr(name)} is not a dotted "
-                         "parameter name")
+                         'parameter name (keys with dots in them quoted: a."b.c")')
     bad = check_text(item.split("=", 1)[1], MAX_SET)  # before strip(): a trailing newline too
     if bad is not None:  # a newline would let the value add keys of its own to the TOML
         one_line = " (one TOML value on one line)" if "control" in bad else ""
