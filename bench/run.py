@@ -793,6 +793,23 @@ def footprint(s: Setup, work: Path) -> dict:
 # ---------------------------------------------------------------------------------- main
 
 
+#: the measurements that write their own section of BENCHMARKS.md (between their markers) and
+#: raw results, each in a process of its own; a full run reruns them (firmware.py's MISRA pass
+#: about half an hour of it), --quick keeps them
+OWN_SECTIONS = ("roa.py", "fmu.py", "firmware.py", "firmware_tick.py", "output_feedback.py")
+
+
+def own_section(script: str) -> dict:
+    """Run bench/``script`` (it writes its section and its results file): its wall time and
+    exit status (a failure is logged and recorded, and the rest of the bench goes on; its
+    section then keeps its last run's figures and date)."""
+    t0 = time.perf_counter()
+    rc = subprocess.run([sys.executable, str(BENCH / script)], cwd=ROOT).returncode
+    if rc:
+        log(f"bench/{script} FAILED (exit {rc}): its section is its last run's")
+    return {"script": f"bench/{script}", "exit": rc, "wall_s": time.perf_counter() - t0}
+
+
 def montecarlo_in_a_fresh_process(quick: bool) -> dict:
     """bench/montecarlo.py's figures, measured in a process of its own: its worker processes
     fork from the process that runs the study, and a fork of this one (every derivation and
@@ -902,6 +919,8 @@ def main(argv: list[str] | None = None) -> int:
         # the lock-step batch in SIMD lanes against the scalar driver (issue 53): kept too
         stage("simd_batch", lambda: simd_batch.run_section(16 if args.quick else 64,
                                                            2 if args.quick else 3))
+        for script in OWN_SECTIONS if not args.quick else ():
+            stage("own_" + script.removesuffix(".py"), lambda script=script: own_section(script))
     results["machine"]["loadavg_end"] = os.getloadavg()
     # the Python contenders, measured as stages of their own, in their sections
     for key, section in (("dynamics_python", "dynamics"), ("closed_loop_python", "closed_loop")):

@@ -8,8 +8,8 @@ from importlib import import_module
 from pathlib import Path
 
 # BENCHMARKS.md from this line to its end holds the sections other scripts record on their own
-# (bench/firmware.py, roa.py, bench/experiments/paired_rebuild.py, embed_targets.py, batch.py,
-# the issues' runs):
+# (run.OWN_SECTIONS' scripts, which a full run reruns in processes of their own, and
+# bench/experiments/'s one-off measurements and the issues' runs, which it does not):
 # a full run regenerates what is above the line and carries the rest over byte for byte.
 KEPT_MARKER = "<!-- recorded separately: kept by make bench -->"
 FIRMWARE_BEGIN = "<!-- firmware benchmark: bench/firmware.py -->"

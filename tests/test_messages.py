@@ -1,5 +1,5 @@
-"""Messages as promised (issue 54): the cases bench/fuzz_messages.py found, each a bad value
-that ended in exit 1, in exit 2 with several stderr lines, or in a bare TypeError /
+"""Messages as promised (issue 54): the cases bench/experiments/fuzz_messages.py found, each a
+bad value that ended in exit 1, in exit 2 with several stderr lines, or in a bare TypeError /
 ValueError / OverflowError / MemoryError from the Python API.
 
 The promise (TESTING.md, the developer guide): a bad command-line value is exit 2 and ONE

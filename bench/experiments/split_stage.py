@@ -2,7 +2,7 @@
 against the same stage split in two (the array forces apart from the rigid body) and split per
 array (one array's force law called in a loop over the six arrays, then the rigid body).
 
-    .venv/bin/python bench/split_stage.py [--reps N] [--calls N] [--out FILE]
+    .venv/bin/python bench/experiments/split_stage.py [--reps N] [--calls N] [--out FILE]
 
 The distributed law's `maglev_dynamics_prepared` is about 55 KB of straight-line code, more
 than a 32 KB L1 instruction cache. Splitting it in two leaves the code run per stage as large;
@@ -12,8 +12,8 @@ parts, each part's constants extracted as maglevgen.codegen.functions._prepared 
 law's for each array from p with that array's entries in the first array's places), generated
 through the build's C pass (guarded branches included), compiled at the simulation library's
 flags and timed per call in one C process, interleaved (bench/c/bench_prepared.c, the state of
-bench/branches.py). Each variant's C is checked against CasADi's evaluation of the model as
-built. Writes bench/split_stage_results.json.
+bench/experiments/branches.py). Each variant's C is checked against CasADi's evaluation of the
+model as built. Writes bench/experiments/split_stage_results.json.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ import casadi as ca
 import numpy as np
 import sympy as sp
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent / "experiments"))
-from common import BENCH, DRIVER_DIR, log, paired_ratios, run, summary
+from common import DRIVER_DIR, EXPERIMENTS, log, paired_ratios, run, summary
 from laws import write_input
 
 from maglevgen.carriage import DerivedCarriage
@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--reps", type=int, default=15)
     ap.add_argument("--calls", type=int, default=20_000)
-    ap.add_argument("--out", type=Path, default=BENCH / "split_stage_results.json")
+    ap.add_argument("--out", type=Path, default=EXPERIMENTS / "split_stage_results.json")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_split_"))
     carriage = DerivedCarriage(load_params())

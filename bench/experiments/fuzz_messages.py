@@ -1,6 +1,7 @@
 """Messages as promised (issue 54): a small fuzzer of bad input, range edges and API arguments.
 
-    python bench/fuzz_messages.py [--part a|b|c|all] [--timeout S] [--cli-edges] [--from KEY]
+    python bench/experiments/fuzz_messages.py [--part a|b|c|all] [--timeout S] [--cli-edges]
+        [--from KEY]
 
 The promise (README, the developer guide): bad input gives exit 2 and ONE line on stderr, an
 internal failure exit 1, and a command never exits 0 with a non-finite number in its output;
@@ -21,9 +22,9 @@ the Python API raises `maglevgen.InputError` naming the argument. Three parts:
 
 Each case runs in a forked child of one process that has loaded the default carriage and its
 library (fd 1 and 2 to files, its own process group, killed at the timeout), so a case costs
-milliseconds unless it computes. Writes bench/fuzz_messages_results.json: the counts and every
-finding. Not a test: tests/test_input_boundaries.py and tests/test_api_arguments.py hold the
-cases it found.
+milliseconds unless it computes. Writes bench/experiments/fuzz_messages_results.json: the
+counts and every finding. Not a test: tests/test_input_boundaries.py and
+tests/test_api_arguments.py hold the cases it found.
 """
 
 from __future__ import annotations
@@ -44,11 +45,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
 
 import contextlib
 
-from common import BENCH, log
+from common import EXPERIMENTS, log
 
 from maglevgen.params import default_params_text, schema_table
 
@@ -57,7 +58,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-RESULTS = BENCH / "fuzz_messages_results.json"
+RESULTS = EXPERIMENTS / "fuzz_messages_results.json"
 DEFAULT = tomllib.loads(default_params_text())
 
 

@@ -1,7 +1,7 @@
 """No work on the discarded branch (issue 53): the per-stage right-hand side with and without
 maglevgen.codegen.branches.guard_discarded_branches, side by side.
 
-    .venv/bin/python bench/branches.py [--reps N] [--calls N] [--out FILE]
+    .venv/bin/python bench/experiments/branches.py [--reps N] [--calls N] [--out FILE]
 
 Builds the default carriage's `maglev_dynamics_prepare`/`maglev_dynamics_prepared` pair (the
 firmware loop's stage function, as maglevgen.codegen.functions builds it), generates its C
@@ -15,7 +15,7 @@ Then the whole closed loop: the simulation library as the build writes it now an
 it before (the same sources rendered with the pass off), RUNS firmware-loop holds of 10 s at
 1 kHz (the embedded controller at operation.speed, the default disturbance, one thread) per
 round, the two libraries alternating, process CPU time per round; the runs' final states
-compared. Writes the raw JSON (bench/branches_results.json).
+compared. Writes the raw JSON (bench/experiments/branches_results.json).
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common.py
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent / "experiments"))
-from common import BENCH, DRIVER_DIR, log, paired_ratios, run, summary
+from common import DRIVER_DIR, EXPERIMENTS, log, paired_ratios, run, summary
 from laws import write_input
 
 from maglevgen.analyses.simulate import DISTURBANCE, hold_run, run_loop
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--thresholds", type=int, nargs="*", default=[],
                     help="also time the pass with MIN_RUN at each of these values")
-    ap.add_argument("--out", type=Path, default=BENCH / "branches_results.json")
+    ap.add_argument("--out", type=Path, default=EXPERIMENTS / "branches_results.json")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_branches_"))
     carriage = DerivedCarriage(load_params())
