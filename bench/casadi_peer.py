@@ -16,7 +16,7 @@ thread. Contenders:
   C as CasADi writes it (no maglevgen pass), gcc -O3 -fPIC -shared, with and without
   -fno-semantic-interposition, evaluated through `casadi.external`;
 - JAX (jit + vmap + scan, CPU, float64, one thread): the same SX right-hand side translated
-  instruction by instruction into jax.numpy (bench/jax_peer.py), the same RK4 step,
+  instruction by instruction into jax.numpy (bench/jax_peer.py), the same RK4 expressions,
   ``lax.scan`` over the steps, ``vmap`` over the runs, compiled once (the compile timed
   apart). JAX is the optional ``bench`` extra (`make bench` installs it); without it the
   contender is skipped with a line saying so.
@@ -283,7 +283,9 @@ def section(res: dict) -> list[str]:
               "`map` over the runs, through `casadi.external`. JAX runs the same SX graph "
               "translated instruction by instruction into jax.numpy (bench/jax_peer.py: one "
               "jnp operation per CasADi operation, if_else as jnp.where), the same RK4 "
-              "expression, `lax.scan` over the steps and `vmap` over the runs under one `jit`, "
+              "expressions (the four stages one copy of the graph under a `lax.scan` over "
+              "their offsets: one copy for XLA to compile), `lax.scan` over the steps and "
+              "`vmap` over the runs under one `jit`, "
               "float64, XLA on one thread; its exp, sin and cos are XLA's, not glibc's. "
               "maglevgen's C runs the prepared right-hand side (the constants of p, the gains "
               "and T computed once per run) with the guarded branches. maglevgen's lanes "
