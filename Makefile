@@ -54,8 +54,10 @@ example-outputs: setup
 	$(BIN)/python docs/_ext/example_outputs.py
 
 # Benchmarks against the usual alternatives (a few minutes): writes BENCHMARKS.md and
-# bench/results.json.
+# bench/results.json. The bench extra (JAX, a peer of bench/casadi_peer.py) first; where it
+# does not install, the bench runs without JAX and says so.
 bench: setup
+	$(BIN)/pip install --quiet -e '.[bench]' || echo "make: the bench extra (JAX) did not install: bench/casadi_peer.py skips its JAX peer"
 	MAGLEV_BENCH_COMMAND="make bench" $(BIN)/python bench/run.py
 
 # Mutation testing of the paper's equations (cosmic-ray; 30-60 min on 2 cores, not part of
