@@ -36,7 +36,7 @@ def _context(lines: list[str], i: int, start: int) -> str:
     """What says whether the number at ``lines[i][start:]`` is a measurement: in a Markdown
     table its column's header; elsewhere the line before it, the block of lines it is in
     (back to a blank line: a table's header) and the paragraph above that block (its
-    caption), at most CONTEXT_LINES lines."""
+    caption, also where a page break falls between them), at most CONTEXT_LINES lines."""
     line = lines[i]
     if line.lstrip().startswith("|"):
         top = i
@@ -47,6 +47,12 @@ def _context(lines: list[str], i: int, start: int) -> str:
         return head[column] if 0 <= column < len(head) else ""
     above, blanks, j = [], 0, i - 1
     while j >= 0 and len(above) < CONTEXT_LINES:
+        if lines[j + 1].startswith("\f"):  # a page break (pdftotext's form feed) is layout:
+            # the page before ends in its number and the blank lines of its bottom margin
+            while j >= 0 and (not lines[j].strip() or lines[j].strip().isdigit()):
+                j -= 1
+            if j < 0:
+                break
         if not lines[j].strip():
             blanks += 1
             if blanks == 2:
@@ -72,7 +78,8 @@ def significant_digits(mantissa: str) -> int:
 def raw_findings(text: str, where: str = "") -> list[str]:
     """Every raw form in ``text``, each as "where, line N: what: the line"."""
     out = []
-    lines = text.splitlines()
+    lines = text.replace("\r\n", "\n").split("\n")  # not splitlines(): a form feed (a page
+    # break in pdftotext's output) stays at the start of its page's first line
     for n, line in enumerate(lines, 1):
         def hit(what: str, n: int = n, line: str = line) -> None:
             out.append(f"{where} line {n}: {what}: {line.strip()[:160]}")

@@ -29,6 +29,11 @@ def test_the_scanner_flags_each_raw_form_and_passes_what_a_person_writes() -> No
     # a table of errors: its header makes a tiny number a measurement, in Markdown by column
     table = "| axis | final deviation | error |\n| --- | --- | --- |\n| y | 3e-19 m | 2e-16 |"
     assert [f.split(":")[1].strip() for f in raw_findings(table)] == ["3e-19 is round-off noise"]
+    # a caption, then a page break (pdftotext: the page number, a form feed) before its table
+    caption = "Largest relative gain error against the reference:\n"
+    broken = "\n\n\n                 23\n\faxis   naive\nlateral  1.1e-10\nroll  2.1e-14"
+    assert raw_findings(caption + broken) == []
+    assert len(raw_findings("Gains at trim:\n" + broken)) == 1
 
 
 @pytest.mark.slow  # about a minute on 2 busy cores: trim, gains and envelope sweep it
