@@ -17,7 +17,11 @@ kernels are compiled -std=c99, which keeps -ffp-contract=off, and without -mfma)
   and the select keeps each lane's own side.
 - exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits);
   a sin and a cos of one value are one sincos (glibc's gives sin's and cos's bits; the
-  scalar code is compiled to the same call). sqrt is correctly rounded in every form.
+  scalar code is compiled to the same call). Each lane keeps its last few sincos arguments
+  and results (per thread): the readings, the gaps and the rates at a tick take the sines and
+  cosines of the same angles of x, so a lane's sincos at an argument of the same bits returns
+  the kept results (sincos's own bits) instead of computing them again. sqrt is correctly
+  rounded in every form.
   glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
   functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
   checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
@@ -56,14 +60,38 @@ _HELPERS = """
 #if {guard}
 typedef double V{w} __attribute__((vector_size({bytes})));
 typedef long long VI{w} __attribute__((vector_size({bytes})));
-{math}{target}static __attribute__((unused)) V{w} vsincos{w}(V{w} a, V{w}* c) {{
+/* the last SC_KEEP arguments of sincos in each lane (their bits) and its results, one per
+   thread: a lane's sincos at an argument it has kept is those results, sincos's own bits */
+#define SC_KEEP 4
+typedef struct {{
+  unsigned long long arg[SC_KEEP][{w}];
+  double s[SC_KEEP][{w}], c[SC_KEEP][{w}];
+  int n[{w}], next[{w}];
+}} SC{w};
+static __thread SC{w} sc{w};
+{math}{target}static void sc_lane{w}(SC{w}* m, double a, int l, double* s, double* c) {{
+  union {{ double d; unsigned long long u; }} b;
+  int j;
+  b.d = a;
+  for (j = 0; j < m->n[l]; ++j) {{
+    if (m->arg[j][l] == b.u) {{ *s = m->s[j][l]; *c = m->c[j][l]; return; }}
+  }}
+  sincos(a, s, c);
+  j = m->next[l];
+  m->arg[j][l] = b.u;
+  m->s[j][l] = *s;
+  m->c[j][l] = *c;
+  m->next[l] = (j + 1) % SC_KEEP;
+  if (m->n[l] < SC_KEEP) ++m->n[l];
+}}
+{target}static __attribute__((unused)) V{w} vsincos{w}(SC{w}* m, V{w} a, V{w}* c) {{
   V{w} r; double sl, cl; int l;
-  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); r[l] = sl; (*c)[l] = cl; }}
+  for (l = 0; l < {w}; ++l) {{ sc_lane{w}(m, a[l], l, &sl, &cl); r[l] = sl; (*c)[l] = cl; }}
   return r;
 }}
-{target}static __attribute__((unused)) V{w} vcossin{w}(V{w} a, V{w}* s) {{
+{target}static __attribute__((unused)) V{w} vcossin{w}(SC{w}* m, V{w} a, V{w}* s) {{
   V{w} r; double sl, cl; int l;
-  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); (*s)[l] = sl; r[l] = cl; }}
+  for (l = 0; l < {w}; ++l) {{ sc_lane{w}(m, a[l], l, &sl, &cl); (*s)[l] = sl; r[l] = cl; }}
   return r;
 }}
 {target}static __attribute__((unused)) V{w} vsqrt{w}(V{w} a) {{
@@ -79,9 +107,11 @@ _KERNEL_HEAD = """
   const V{w} ZERO = {{0}};
   const V{w} ONE = ZERO + 1.0;
   const VI{w} ABS = (VI{w}){{0}} + 0x7fffffffffffffffLL;
+  SC{w}* const sc = &sc{w};
   int i;
   (void)ONE;
   (void)ABS;
+  (void)sc;
   for (i = 0; i < {n_in}; ++i) arg[i] = (const V{w}*)in[i];
   for (i = 0; i < {n_out}; ++i) res[i] = (V{w}*)out[i];
 """
@@ -187,7 +217,7 @@ def _pair_sincos(lines: list[str], w: int) -> list[str]:
                 t = f"sc{len(temps)}"
                 temps.append(t)
                 both = "vsincos" if f == "sin" else "vcossin"
-                out[i] = f"{indent}{target}={both}{w}({a}, &{t});"
+                out[i] = f"{indent}{target}={both}{w}(sc, {a}, &{t});"
                 out[j] = f"{n.group(1)}{n.group(2)}={t};"
                 break
             if "{" in out[j] or "}" in out[j] or re.match(rf"^\s*{a}=", out[j]):
