@@ -208,10 +208,12 @@ def test_reading_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> No
 
 @pytest.mark.needs_cc
 def test_kept_sines_and_cosines_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
-    """Each lane keeps its last sincos arguments and results (maglevgen.codegen.lanes): a
-    sequence of calls in which every lane sees again an angle it had (kept, or pushed out by
-    newer ones), one it never had and one another lane had, through two kernels that take
-    the same angles, each lane against the library's own function at its own inputs."""
+    """The kernels keep their last sincos argument vectors and results
+    (maglevgen.codegen.lanes): a sequence of calls through two kernels that take the same
+    angles (the second call at each x finds them kept), with argument vectors the same as a
+    kept one in every lane but one (not the same: computed), more distinct ones than are kept
+    and then the first ones again, each lane against the library's own function at its own
+    inputs."""
     stage = sim_lib.function("maglev_dynamics_prepared")
     gap_reading = sim_lib.function("maglev_gap_reading")
     d = np.ravel(sim_lib.function("maglev_dynamics_prepare")(carriage.p)[0])
@@ -225,10 +227,11 @@ def test_kept_sines_and_cosines_equal_the_scalar_functions(carriage, sim_lib, op
         dd = _aligned(np.repeat(d[:, None], w, axis=1))
         pt, nm = (_aligned(np.repeat(v[:, None], w, axis=1)) for v in (point, normal))
         nom = _aligned(np.full((1, w), nominal))
-        # lane l at call k: pose (k + l) % 3 for six calls, then poses 3, 4, 5 (more than a
-        # lane keeps), then 0 again; the other lanes' poses shift, so a lane meets another's
-        for k, shift in enumerate([*range(6), 3, 4, 5, 0, 1]):
-            which = [(shift + lane) % 3 if k < 6 else (shift + lane) % 6 for lane in range(w)]
+        everywhere = [[i] * w for i in range(6)]
+        one_off = [[1] + [0] * (w - 1), [0] * (w - 1) + [2]]  # pose 0 but in one lane
+        mixed = [[lane % 6 for lane in range(w)], [(lane + 3) % 6 for lane in range(w)]]
+        sequence = [everywhere[0], *one_off, *mixed, *everywhere[1:], everywhere[0], *one_off]
+        for k, which in enumerate(sequence):
             x = _aligned(np.array([poses[i] for i in which]).T)
             xdot, reading, H = (_aligned(np.zeros(shape)) for shape in ((12, w), (1, w),
                                                                           (12, w)))

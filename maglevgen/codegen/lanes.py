@@ -17,11 +17,11 @@ kernels are compiled -std=c99, which keeps -ffp-contract=off, and without -mfma)
   and the select keeps each lane's own side.
 - exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits);
   a sin and a cos of one value are one sincos (glibc's gives sin's and cos's bits; the
-  scalar code is compiled to the same call). Each lane keeps its last few sincos arguments
-  and results (per thread): the readings, the gaps and the rates at a tick take the sines and
-  cosines of the same angles of x, so a lane's sincos at an argument of the same bits returns
-  the kept results (sincos's own bits) instead of computing them again. sqrt is correctly
-  rounded in every form.
+  scalar code is compiled to the same call). The kernels keep the last few sincos argument
+  vectors and results (per thread): the readings, the gaps, the tick's control and the rates
+  at a tick take the sines and cosines of the same angles of x, so sincos of an argument
+  vector of the same bits in every lane returns the kept results (sincos's own bits) instead
+  of computing them again. sqrt is correctly rounded in every form.
   glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
   functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
   checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
@@ -60,38 +60,47 @@ _HELPERS = """
 #if {guard}
 typedef double V{w} __attribute__((vector_size({bytes})));
 typedef long long VI{w} __attribute__((vector_size({bytes})));
-/* the last SC_KEEP arguments of sincos in each lane (their bits) and its results, one per
-   thread: a lane's sincos at an argument it has kept is those results, sincos's own bits */
+/* the last SC_KEEP argument vectors of sincos (every lane's bits) and its results, one
+   set per thread: sincos of an argument vector kept, lane for lane, is those results,
+   sincos's own bits */
 #define SC_KEEP 4
 typedef struct {{
-  unsigned long long arg[SC_KEEP][{w}];
-  double s[SC_KEEP][{w}], c[SC_KEEP][{w}];
-  int n[{w}], next[{w}];
+  V{w} arg[SC_KEEP], s[SC_KEEP], c[SC_KEEP];
+  int n, next;
 }} SC{w};
 static __thread SC{w} sc{w};
-{math}{target}static void sc_lane{w}(SC{w}* m, double a, int l, double* s, double* c) {{
-  union {{ double d; unsigned long long u; }} b;
-  int j;
-  b.d = a;
-  for (j = 0; j < m->n[l]; ++j) {{
-    if (m->arg[j][l] == b.u) {{ *s = m->s[j][l]; *c = m->c[j][l]; return; }}
+{math}{target}static inline int sc_find{w}(const SC{w}* m, V{w} a) {{
+  int j, l;
+  for (j = 0; j < m->n; ++j) {{
+    VI{w} d = (VI{w})m->arg[j] ^ (VI{w})a;
+    for (l = 0; l < {w} && d[l] == 0; ++l) {{}}
+    if (l == {w}) return j;
   }}
-  sincos(a, s, c);
-  j = m->next[l];
-  m->arg[j][l] = b.u;
-  m->s[j][l] = *s;
-  m->c[j][l] = *c;
-  m->next[l] = (j + 1) % SC_KEEP;
-  if (m->n[l] < SC_KEEP) ++m->n[l];
+  return -1;
+}}
+{target}static inline int sc_keep{w}(SC{w}* m, V{w} a, V{w} s, V{w} c) {{
+  const int j = m->next;
+  m->arg[j] = a;
+  m->s[j] = s;
+  m->c[j] = c;
+  m->next = (j + 1) % SC_KEEP;
+  if (m->n < SC_KEEP) ++m->n;
+  return j;
 }}
 {target}static __attribute__((unused)) V{w} vsincos{w}(SC{w}* m, V{w} a, V{w}* c) {{
   V{w} r; double sl, cl; int l;
-  for (l = 0; l < {w}; ++l) {{ sc_lane{w}(m, a[l], l, &sl, &cl); r[l] = sl; (*c)[l] = cl; }}
+  const int j = sc_find{w}(m, a);
+  if (j >= 0) {{ *c = m->c[j]; return m->s[j]; }}
+  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); r[l] = sl; (*c)[l] = cl; }}
+  (void)sc_keep{w}(m, a, r, *c);
   return r;
 }}
 {target}static __attribute__((unused)) V{w} vcossin{w}(SC{w}* m, V{w} a, V{w}* s) {{
   V{w} r; double sl, cl; int l;
-  for (l = 0; l < {w}; ++l) {{ sc_lane{w}(m, a[l], l, &sl, &cl); (*s)[l] = sl; r[l] = cl; }}
+  const int j = sc_find{w}(m, a);
+  if (j >= 0) {{ *s = m->s[j]; return m->c[j]; }}
+  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); (*s)[l] = sl; r[l] = cl; }}
+  (void)sc_keep{w}(m, a, *s, r);
   return r;
 }}
 {target}static __attribute__((unused)) V{w} vsqrt{w}(V{w} a) {{
