@@ -187,7 +187,7 @@ def section(results: dict) -> list[str]:
               "lag, speed loop, saturation, gaps and statuses per lane as maglev_simulate's own "
               "code; on the sensors the plant's rates at the tick and the readings in lanes too, "
               "each run's noise, rounding and sense tick (the firmware's C) per lane; libm's "
-              "exp, sin and cos per lane (each lane's last sincos arguments kept). libmvec: the "
+              "exp, sin and cos per lane (the last sincos argument vectors kept). libmvec: the "
               "same with glibc's vector "
               "exp, sin and cos (within 4 ulp; tests/test_simd_batch.py against mpmath): "
               "faster, but no longer the scalar run's bits, and a state that is rounding noise "
