@@ -24,9 +24,12 @@
    left and a finished run never touches the others (the lanes share no arithmetic). A run on
    the sensors (loop->sense) flies its plant and its readings in the lanes and, at each tick,
    its own sense tick (run_loop's sensed_command: the run's noise and rounding, the firmware's
-   estimator and law, its C through the run's pointers and state), lane by lane. Runs the lanes do not fly go to maglev_simulate
-   whole: a loop without a tick (the continuous loop), or with an argument maglev_simulate
-   refuses. */
+   estimator and law, its C through the run's pointers and state), lane by lane; where the
+   rates its readings took are k1's, bit for bit (the inputs the same in every live lane:
+   with the loop's delay), k1 is not computed again (lanes_fly). Runs the lanes do not fly go
+   to maglev_simulate whole: a loop without a tick (the continuous loop), or with an argument
+   maglev_simulate refuses. The part for runs on the sensors (lanes_read, same_column) is in
+   maglev_lanes_sense.c, included below. */
 /* its maglev_simulate, maglev_launch, ... stay this driver's own (the library exports them) */
 #include "maglev_simulate.h" /* first: the library's functions it declares stay external */
 #include <math.h>
