@@ -1,21 +1,25 @@
 """The lock-step batch in SIMD lanes (templates/maglev_lanes.c, issue 53) against the scalar
 batch driver (templates/maglev_batch.c, one maglev_simulate per run) on the default study's runs.
 
-    .venv/bin/python bench/simd_batch.py [--samples N] [--reps R]   (also part of `make bench`)
+    .venv/bin/python bench/simd_batch.py [--samples N] [--reps R] [--loops firmware sensed]
+    (also part of `make bench`)
 
-The runs are `maglevgen montecarlo`'s default study's (the embedded controller, ``--loop
-firmware``: its tick, delay, actuator lag, speed loop and force budget; 10 s at 1 kHz, 10^4 RK4
-steps; seed 0), prepared once. Each repeat runs every variant in turn on one thread, in the
-chunks of a 10^4-sample study on 2 processes (`default_chunk`: 64 runs a call; a W-lane batch
-needs at least W runs a call to fill its lanes): the scalar driver and the lanes at W = 2
-(SSE2), 4 (AVX2) and 8 (AVX-512F) where the CPU has them, each with libm's exp, sin and cos
-per lane (bit for bit) and with glibc's libmvec (the experiment: not bit for bit). CPU time
-of this process (time.process_time: the OpenMP team is one thread); medians, and the ratios
-to the scalar driver taken in the same repeat. Every run of every variant is compared with
-the scalar driver's: x, u, gaps, status, last sample and saturated steps equal to the last
-bit (and the largest relative and absolute differences of the final states where the last
-samples agree). Speed is measured here, never asserted in tests; tests/test_simd_batch.py
-checks the equality.
+The runs are `maglevgen montecarlo`'s default study's (the embedded controller, 10 s at 1 kHz,
+10^4 RK4 steps; seed 0) on each loop: ``--loop firmware`` (its tick, delay, actuator lag, speed
+loop and force budget on the exact state) and ``--loop sensed`` (`montecarlo`'s default: the
+same loop with the firmware's sense tick on each run's noisy readings), prepared once (a
+sensed run's sense state and records are its own: its runs are prepared afresh, untimed,
+for every variant). Each repeat runs every variant in turn on one thread, in the chunks of a
+10^4-sample study on 2 processes (`default_chunk`: 64 runs a call; a W-lane batch needs at
+least W runs a call to fill its lanes): the scalar driver and the lanes at W = 2 (SSE2), 4
+(AVX2) and 8 (AVX-512F) where the CPU has them, each with libm's exp, sin and cos per lane
+(bit for bit) and with glibc's libmvec (the experiment: not bit for bit). CPU time of this
+process (time.process_time: the OpenMP team is one thread); medians, and the ratios to the
+scalar driver taken in the same repeat. Every run of every variant is compared with the
+scalar driver's: x, u, gaps, status, last sample and saturated steps equal to the last bit,
+on the sensors each tick's readings, predictions and commands too (and the largest relative
+and absolute differences of the final states where the last samples agree). Speed is
+measured here, never asserted in tests; tests/test_simd_batch.py checks the equality.
 """
 
 from __future__ import annotations
@@ -54,15 +58,28 @@ END = "<!-- end of simd batch benchmark -->"
 RESULTS = BENCH / "simd_batch_results.json"
 
 
-def measure(samples: int, reps: int) -> dict:
-    """The variants' times and agreement (module docstring)."""
+LOOPS = ("firmware", "sensed")
+
+
+def _same_sensing(a, b) -> bool:
+    """Two runs' sense ticks recorded the same readings, predictions, commands and error."""
+    if a.loop.sense is None:
+        return b.loop.sense is None
+    sa, sb = a.loop.sense, b.loop.sense
+    return (np.array_equal(sa.readings, sb.readings) and np.array_equal(sa.predicted, sb.predicted)
+            and np.array_equal(sa.commands, sb.commands) and sa.tick_error == sb.tick_error)
+
+
+def measure(samples: int, reps: int, loop: str = "firmware") -> dict:
+    """The variants' times and agreement on ``loop`` (module docstring)."""
     carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     plant = Plant(carriage, lib)
     controller = carriage.params.envelope.embedded_controller
-    tick, k_v, budget = run_loop(plant, "firmware")
+    tick, k_v, budget = run_loop(plant, loop)
     study = make_study(plant, (controller,), T_END, DT, 0, tick, k_v, budget)
     runs, n_u, n_g = study_runs(study, lib, samples)
+    sensed = loop == "sensed"
     n_steps = round(T_END / DT)
     size = default_chunk(10_000, 2)  # the chunk of `maglevgen montecarlo --samples 10000`
     widths = [w for w in WIDTHS if lib.lane_width(w) == w]
@@ -70,31 +87,33 @@ def measure(samples: int, reps: int) -> dict:
         "scalar": (None, "libm"), **{f"W={w}": (w, "libm") for w in widths},
         **{f"W={w}, libmvec": (w, "libmvec") for w in widths}}
 
-    def batch(lanes: int | None, math: str) -> tuple[float, list]:
+    def batch(lanes: int | None, math: str) -> tuple[float, list, list]:
+        fresh = study_runs(study, lib, samples)[0] if sensed else runs  # untimed
         out = []
         t0 = time.process_time()
-        for i in range(0, len(runs), size):
-            out += lib.simulate_batch(runs[i:i + size], DT, n_steps, study.min_gap, n_u, n_g,
+        for i in range(0, len(fresh), size):
+            out += lib.simulate_batch(fresh[i:i + size], DT, n_steps, study.min_gap, n_u, n_g,
                                       1, lanes=lanes, lane_math=math)
-        return (time.process_time() - t0) / len(runs), out
+        return (time.process_time() - t0) / len(fresh), out, fresh
 
     for lanes, math in variants.values():  # each driver compiled and loaded once, untimed
         lib.simulate_batch(runs[:1], DT, 10, study.min_gap, n_u, n_g, 1, lanes=lanes,
                            lane_math=math)
     load_start = os.getloadavg()
-    log(f"simd_batch: {len(runs)} runs x {reps} repeats, variants {list(variants)}")
+    log(f"simd_batch: --loop {loop}, {len(runs)} runs x {reps} repeats, "
+        f"variants {list(variants)}")
     times: dict[str, list[float]] = {k: [] for k in variants}
     same: dict[str, bool] = dict.fromkeys(variants, True)
     rel: dict[str, float] = dict.fromkeys(variants, 0.0)
     absd: dict[str, float] = dict.fromkeys(variants, 0.0)
     reference: list | None = None
     for _ in range(reps):
-        reference = None
+        reference = reference_runs = None
         for name, (lanes, math) in variants.items():
-            t, got = batch(lanes, math)
+            t, got, flown = batch(lanes, math)
             times[name].append(t)
             if reference is None:
-                reference = got
+                reference, reference_runs = got, flown
                 continue
             for a, b in zip(reference, got, strict=True):
                 same[name] &= (a.status == b.status and a.last == b.last
@@ -104,13 +123,15 @@ def measure(samples: int, reps: int) -> dict:
                 if a.last == b.last:
                     rel[name] = max(rel[name], _max_rel(a.x[-1], b.x[-1]))
                     absd[name] = max(absd[name], float(np.max(np.abs(a.x[-1] - b.x[-1]))))
+            for a, b in zip(reference_runs, flown, strict=True):
+                same[name] &= _same_sensing(a, b)
     statuses: dict[str, int] = {}
     for r in reference or []:
         statuses[str(r.status)] = statuses.get(str(r.status), 0) + 1
     return {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "loadavg_start": load_start, "loadavg_end": os.getloadavg(), "t_end": T_END, "dt": DT,
-        "controller": controller, "loop": "firmware", "runs": len(runs), "chunk": size,
+        "controller": controller, "loop": loop, "runs": len(runs), "chunk": size,
         "reps": reps, "threads": 1, "widths_this_cpu": widths,
         "ms_per_run": {k: summary([1e3 * t for t in v]) for k, v in times.items()},
         "speedup_vs_scalar": {k: paired_ratios(times["scalar"], v)
@@ -122,17 +143,9 @@ def measure(samples: int, reps: int) -> dict:
     }
 
 
-def section(res: dict) -> list[str]:
-    """The section of BENCHMARKS.md."""
-    la, lb = res["loadavg_start"][0], res["loadavg_end"][0]
-    lines = [BEGIN, f"## Monte Carlo in SIMD lanes (issue 53; bench/simd_batch.py, "
-             f"{res['date']}; raw: bench/simd_batch_results.json)", "",
-             f"The default study's runs ({res['controller']}, `--loop firmware`, "
-             f"{res['t_end']:g} s at 1 kHz, seed 0), {res['runs']} runs in calls of "
-             f"{res['chunk']}, one thread, {res['reps']} repeats with the variants in turn; "
-             f"load average {la:.1f} at the start and {lb:.1f} at the end on the shared 2 "
-             "cores: CPU times, the ratios paired within a repeat.", "",
-             "| variant | ms per run (median) | runs per CPU-second | speed-up vs the scalar "
+def _table(res: dict) -> list[str]:
+    """One loop's table: the variants' times, ratios and agreement."""
+    lines = ["| variant | ms per run (median) | runs per CPU-second | speed-up vs the scalar "
              "driver (paired, median) | every run bit for bit the scalar's | final states: max "
              "relative / absolute difference |", "| --- | --- | --- | --- | --- | --- |"]
     for k, v in res["ms_per_run"].items():
@@ -143,11 +156,39 @@ def section(res: dict) -> list[str]:
                                      f"{res['max_abs_diff_final_state'][k]:.1e}")
         lines.append(f"| {k} | {v['median']:.2f} | {1e3 / v['median']:.1f} | {ratio} | "
                      f"{equal} | {diff} |")
+    return lines
+
+
+_LOOP_TEXT = {
+    "firmware": "`--loop firmware`: the tick, delay, lag, speed loop and budget on the exact "
+                "state",
+    "sensed": "`--loop sensed`, `montecarlo`'s default: the firmware's sense tick on each "
+              "run's noisy readings; every run's readings, predictions and commands compared "
+              "too"}
+
+
+def section(results: dict) -> list[str]:
+    """The section of BENCHMARKS.md: one table per loop measured."""
+    measured = list(results.values())
+    first, last = measured[0], measured[-1]
+    la, lb = first["loadavg_start"][0], last["loadavg_end"][0]
+    lines = [BEGIN, f"## Monte Carlo in SIMD lanes (issue 53; bench/simd_batch.py, "
+             f"{last['date']}; raw: bench/simd_batch_results.json)", "",
+             f"The default study's runs ({first['controller']}, {first['t_end']:g} s at 1 kHz, "
+             f"seed 0), {first['runs']} runs in calls of {first['chunk']}, one thread, "
+             f"{first['reps']} repeats with the variants in turn; load average {la:.1f} at the "
+             f"start and {lb:.1f} at the end on the shared 2 cores: CPU times, the ratios "
+             "paired within a repeat."]
+    for loop, res in results.items():
+        lines += ["", f"{_LOOP_TEXT.get(loop, loop)}:", "", *_table(res)]
     lines += ["", "scalar: templates/maglev_batch.c, one maglev_simulate per run. W=N: "
               "templates/maglev_lanes.c, N runs in lock step, the RK4 stages' "
               "maglev_dynamics_prepared in N lanes (maglevgen.codegen.lanes), the tick, delay, "
               "lag, speed loop, saturation, gaps and statuses per lane as maglev_simulate's own "
-              "code; libm's exp, sin and cos per lane. libmvec: the same with glibc's vector "
+              "code; on the sensors the plant's rates at the tick and the readings in lanes too, "
+              "each run's noise, rounding and sense tick (the firmware's C) per lane; libm's "
+              "exp, sin and cos per lane (the last sincos argument vectors kept). libmvec: the "
+              "same with glibc's vector "
               "exp, sin and cos (within 4 ulp; tests/test_simd_batch.py against mpmath): "
               "faster, but no longer the scalar run's bits, and a state that is rounding noise "
               "about zero then differs by more than itself, so not within 1e-12 relative on "
@@ -156,10 +197,10 @@ def section(res: dict) -> list[str]:
     return lines
 
 
-def run_section(samples: int = 64, reps: int = 3) -> dict:
-    """Measure, write the JSON and the section of BENCHMARKS.md (`make bench`'s stage
-    ``simd_batch``); the results."""
-    res = measure(samples, reps)
+def run_section(samples: int = 64, reps: int = 3, loops: tuple[str, ...] = LOOPS) -> dict:
+    """Measure each loop, write the JSON (loop -> results) and the section of BENCHMARKS.md
+    (`make bench`'s stage ``simd_batch``); the results."""
+    res = {loop: measure(samples, reps, loop) for loop in loops}
     RESULTS.write_text(json.dumps(res, indent=1) + "\n")
     replace_section(section(res), BEGIN, END)
     return res
@@ -169,8 +210,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--loops", nargs="+", default=list(LOOPS), choices=LOOPS)
     args = ap.parse_args(argv)
-    print("\n".join(section(run_section(args.samples, args.reps))))
+    print("\n".join(section(run_section(args.samples, args.reps, tuple(args.loops)))))
     return 0
 
 

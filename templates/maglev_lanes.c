@@ -24,9 +24,12 @@
    left and a finished run never touches the others (the lanes share no arithmetic). A run on
    the sensors (loop->sense) flies its plant and its readings in the lanes and, at each tick,
    its own sense tick (run_loop's sensed_command: the run's noise and rounding, the firmware's
-   estimator and law, its C through the run's pointers and state), lane by lane. Runs the lanes do not fly go to maglev_simulate
-   whole: a loop without a tick (the continuous loop), or with an argument maglev_simulate
-   refuses. */
+   estimator and law, its C through the run's pointers and state), lane by lane; where the
+   rates its readings took are k1's, bit for bit (the inputs the same in every live lane:
+   with the loop's delay), k1 is not computed again (lanes_fly). Runs the lanes do not fly go
+   to maglev_simulate whole: a loop without a tick (the continuous loop), or with an argument
+   maglev_simulate refuses. The part for runs on the sensors (lanes_read, same_column) is in
+   maglev_lanes_sense.c, included below. */
 /* its maglev_simulate, maglev_launch, ... stay this driver's own (the library exports them) */
 #include "maglev_simulate.h" /* first: the library's functions it declares stay external */
 #include <math.h>
@@ -64,6 +67,7 @@ static int lanes_imu_reading(const maglev_real** arg, maglev_real** res, maglev_
 #endif
 
 #define LANES_MAX 8
+#define NOISE_AHEAD 16 /* ticks (lane_begin) */
 #define ALIGN __attribute__((aligned(8 * LANES_MAX)))
 
 /* the kernels (maglevgen.codegen.lanes, in double: a double library only): in[i] the
@@ -185,6 +189,7 @@ typedef struct {
     int sense_lanes; /* on the sensors: the rates and readings at a tick in lanes (lane_start) */
     maglev_real u_gen[5]; /* the lane's u_gen from the lanes' kernel at this step's tick */
     maglev_real xdot[NX]; /* on the sensors: the plant's rates at this step's tick (kernel) */
+    maglev_real u_read[NU]; /* and the inputs they were computed under */
     int xdot_ok;          /* and maglev_dynamics_prepared's checks on them */
     lane_readings readings; /* and the readings there (kernels) */
 } lane;
@@ -393,6 +398,16 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
                readings' rates from the dynamics kernel when it computed them at this x
                (`ready`), else by maglev_dynamics_prepared from the lane's d (ws->d: run_loop
                prepares it per run, the lanes keep it in their column) */
+            /* the noise NOISE_AHEAD ticks on, fetched ahead (a run's noise, n_noise x ny, is
+               read once, a row a tick, W runs' rows in turn: else a cache miss a tick);
+               here, not in a function of its own: GCC finds a function of prefetches
+               alone free of side effects and drops its calls */
+            const maglev_sensing* sense = L->r.loop->sense;
+            const long long ahead = L->k / L->tick + NOISE_AHEAD;
+            if (ahead < sense->n_noise) { /* n_noise: 0 without noise */
+                __builtin_prefetch(sense->noise + ahead * sense->ny, 0, 0);
+                __builtin_prefetch(sense->noise + (ahead * sense->ny + sense->ny - 1), 0, 0);
+            }
             if (ready) {
                 lanes_xdot = L->xdot;
                 lanes_xdot_ok = L->xdot_ok;
@@ -497,9 +512,11 @@ static int lane_stage_ok(const double* x, const double* u, const double* xdot, i
     return 1;
 }
 
-/* the stage kernel on every lane, then each live lane's check (ok[l] cleared on a failure) */
+/* the stage kernel on every lane (unless `done`: xdot holds its result at these inputs
+   already), then each live lane's check (ok[l] cleared on a failure) */
 static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
-                        const stage_arrays* S, double* xdot, const int* live, int* ok, int W) {
+                        const stage_arrays* S, double* xdot, const int* live, int* ok, int W,
+                        int done) {
     const double* in[3];
     double* out[1];
     int l;
@@ -507,85 +524,21 @@ static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
     in[1] = u;
     in[2] = S->d;
     out[0] = xdot;
-    (void)kernel(in, out);
+    if (!done) (void)kernel(in, out);
     for (l = 0; l < W; ++l) {
         if (live[l] && !lane_stage_ok(x, u, xdot, l, W)) ok[l] = 0;
     }
 }
 
-/* the readings of the lanes on the sensors at a tick (`sensed`), from the kernels at their
-   states S->x and rates S->k1, with the checks the library's functions make: each gap sensor
-   of the lanes that have it, then the IMU */
-static void lanes_read(const batch* b, stage_arrays* S, lane* lanes, const int* sensed, int W,
-                       const kernel_set* K) {
-    const double* in[4];
-    double* out[4];
-    int l, i, j, n_gap = 0, imu = 0;
-    for (l = 0; l < W; ++l) {
-        if (!sensed[l]) continue;
-        if (lanes[l].readings.sense->n_gap > n_gap) n_gap = lanes[l].readings.sense->n_gap;
-        imu |= lanes[l].readings.sense->imu_point != 0;
-    }
-    in[0] = S->x;
-    for (j = 0; j < n_gap; ++j) {
-        for (l = 0; l < W; ++l) {
-            const maglev_sensing* s = lanes[l].readings.sense;
-            if (!sensed[l] || j >= s->n_gap) continue;
-            for (i = 0; i < 3; ++i) {
-                S->s_point[i * W + l] = s->gap_point[3 * j + i];
-                S->s_normal[i * W + l] = s->gap_normal[3 * j + i];
-            }
-            S->s_nominal[l] = s->gap_nominal[j];
-        }
-        in[1] = S->s_point;
-        in[2] = S->s_normal;
-        in[3] = S->s_nominal;
-        out[0] = S->s_gap;
-        out[1] = S->s_H;
-        (void)K->gap_reading(in, out);
-        for (l = 0; l < W; ++l) {
-            lane_readings* R = &lanes[l].readings;
-            const maglev_sensing* s = R->sense;
-            if (!sensed[l] || j >= s->n_gap) continue;
-            R->gap[j] = S->s_gap[l];
-            R->gap_ok[j] = all_finite(lane_x(&lanes[l], b), NX)
-                           && all_finite(s->gap_point + 3 * j, 3)
-                           && all_finite(s->gap_normal + 3 * j, 3)
-                           && isfinite(s->gap_nominal[j]) && isfinite(S->s_gap[l]);
-        }
-    }
-    if (!imu) return;
-    for (l = 0; l < W; ++l) {
-        const maglev_sensing* s = lanes[l].readings.sense;
-        if (!sensed[l] || s->imu_point == 0) continue;
-        for (i = 0; i < 3; ++i) S->s_point[i * W + l] = s->imu_point[i];
-    }
-    in[1] = S->k1;
-    in[2] = S->s_point;
-    in[3] = S->p; /* a run-time-parameter library's reading takes p */
-    out[0] = S->s_gyro;
-    out[1] = S->s_force;
-    out[2] = S->s_Hx;
-    out[3] = S->s_Hxdot;
-    (void)K->imu_reading(in, out);
-    for (l = 0; l < W; ++l) {
-        lane_readings* R = &lanes[l].readings;
-        if (!sensed[l] || R->sense->imu_point == 0) continue;
-        for (i = 0; i < 3; ++i) {
-            R->gyro[i] = S->s_gyro[i * W + l];
-            R->specific_force[i] = S->s_force[i * W + l];
-        }
-        R->imu_ok = all_finite(lane_x(&lanes[l], b), NX) && all_finite(lanes[l].xdot, NX)
-                    && all_finite(R->sense->imu_point, 3) && all_finite(R->gyro, 3)
-                    && all_finite(R->specific_force, 3);
-    }
-}
+/* the lanes on the sensors at a tick: their readings (lanes_read), k1 reused
+   (same_column) */
+#include "maglev_lanes_sense.c"
 
 /* the runs *next hands out, W at a time in lock step, until none is left */
 static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* next) {
     lane lanes[LANES_MAX];
     int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], sensed[LANES_MAX], any_gaps;
-    int any_tick, any_sense;
+    int any_tick, any_sense, k1_done;
     stage_arrays arrays, *S = &arrays;
     work ws;
     const maglev_real half = b->dt / (maglev_real)2;
@@ -601,7 +554,7 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
         any_tick = any_sense = 0;
         for (l = 0; l < W; ++l) {
             lane* L = lanes + l;
-            ready[l] = 0;
+            ready[l] = sensed[l] = 0;
             if (L->run >= 0 && L->k % L->tick == 0
                 && (L->control_lanes || (L->sense_lanes && L->k > 0))) {
                 const maglev_real* x = lane_x(L, b);
@@ -614,6 +567,7 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
                     const maglev_real* next = L->ring + ((L->w + 1) % L->depth) * NU;
                     S->u[l] = next[0];
                     for (i = 1; i < NU; ++i) S->u[i * W + l] = L->lagged ? L->act[i] : next[i];
+                    for (i = 0; i < NU; ++i) L->u_read[i] = S->u[i * W + l];
                     any_sense = 1;
                 }
             }
@@ -681,7 +635,18 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
         }
         if (!any) break;
         for (l = 0; l < W; ++l) ok[l] = 1;
-        lanes_stage(K->dynamics, S->x, S->u, S, S->k1, live, ok, W);
+        /* k1: on the sensors, the rates the readings took where every live lane's step is
+           the tick's (the run the lanes' kernel read, its x) and its inputs, bit for bit,
+           those they were computed under (with delay: the command applied over this tick,
+           set before the tick; the arrays through the lag): the same kernel at the same
+           inputs, so the same k1, not computed twice */
+        k1_done = any_sense;
+        for (l = 0; l < W && k1_done; ++l) {
+            if (live[l]) {
+                k1_done = sensed[l] && ready[l] && same_column(S->u, lanes[l].u_read, NU, l, W);
+            }
+        }
+        lanes_stage(K->dynamics, S->x, S->u, S, S->k1, live, ok, W, k1_done);
         any_gaps = 0;
         for (l = 0; l < W; ++l) {
             if (live[l] && !ok[l]) {
@@ -702,11 +667,11 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
             if (live[l]) live[l] = lane_check(&lanes[l], &ws, S, l, W, b);
         }
         lanes_axpy(S->xt, S->x, half, S->k1, W);
-        lanes_stage(K->dynamics, S->xt, S->u_half, S, S->k2, live, ok, W);
+        lanes_stage(K->dynamics, S->xt, S->u_half, S, S->k2, live, ok, W, 0);
         lanes_axpy(S->xt, S->x, half, S->k2, W);
-        lanes_stage(K->dynamics, S->xt, S->u_half, S, S->k3, live, ok, W);
+        lanes_stage(K->dynamics, S->xt, S->u_half, S, S->k3, live, ok, W, 0);
         lanes_axpy(S->xt, S->x, b->dt, S->k3, W);
-        lanes_stage(K->dynamics, S->xt, S->u_end, S, S->k4, live, ok, W);
+        lanes_stage(K->dynamics, S->xt, S->u_end, S, S->k4, live, ok, W, 0);
         for (l = 0; l < W; ++l) {
             if (!live[l]) continue;
             if (ok[l]) {

@@ -206,6 +206,49 @@ def test_reading_kernels_equal_the_scalar_functions(carriage, sim_lib, op) -> No
                     assert np.array_equal(got[:, lane], np.ravel(ref, order="F")), (w, lane)
 
 
+@pytest.mark.needs_cc
+def test_kept_sines_and_cosines_equal_the_scalar_functions(carriage, sim_lib, op) -> None:
+    """The kernels keep their last sincos argument vectors and results
+    (maglevgen.codegen.lanes): a sequence of calls through two kernels that take the same
+    angles (the second call at each x finds them kept), with argument vectors the same as a
+    kept one in every lane but one (not the same: computed), more distinct ones than are kept
+    and then the first ones again, each lane against the library's own function at its own
+    inputs."""
+    stage = sim_lib.function("maglev_dynamics_prepared")
+    gap_reading = sim_lib.function("maglev_gap_reading")
+    d = np.ravel(sim_lib.function("maglev_dynamics_prepare")(carriage.p)[0])
+    kernels = sim_lib._lanes_functions()[2]
+    P = ctypes.POINTER(ctypes.c_double)
+    rng = np.random.default_rng(5353)
+    point, normal, nominal = np.array([0.5, 0.2, -0.1]), np.array([0.0, 0.6, 0.8]), 0.02
+    for w in _widths(sim_lib):
+        poses = [op.x_trim + 0.1 * rng.standard_normal(12) for _ in range(6)]
+        u = _aligned(np.repeat(rng.standard_normal((11, 1)) * 100, w, axis=1))
+        dd = _aligned(np.repeat(d[:, None], w, axis=1))
+        pt, nm = (_aligned(np.repeat(v[:, None], w, axis=1)) for v in (point, normal))
+        nom = _aligned(np.full((1, w), nominal))
+        everywhere = [[i] * w for i in range(6)]
+        one_off = [[1] + [0] * (w - 1), [0] * (w - 1) + [2]]  # pose 0 but in one lane
+        mixed = [[lane % 6 for lane in range(w)], [(lane + 3) % 6 for lane in range(w)]]
+        sequence = [everywhere[0], *one_off, *mixed, *everywhere[1:], everywhere[0], *one_off]
+        for k, which in enumerate(sequence):
+            x = _aligned(np.array([poses[i] for i in which]).T)
+            xdot, reading, H = (_aligned(np.zeros(shape)) for shape in ((12, w), (1, w),
+                                                                          (12, w)))
+            assert getattr(kernels, kernel_name("maglev_dynamics_prepared", w))(
+                (P * 3)(*(a.ctypes.data_as(P) for a in (x, u, dd))),
+                (P * 1)(xdot.ctypes.data_as(P))) == 0
+            assert getattr(kernels, kernel_name("maglev_gap_reading", w))(
+                (P * 4)(*(a.ctypes.data_as(P) for a in (x, pt, nm, nom))),
+                (P * 2)(reading.ctypes.data_as(P), H.ctypes.data_as(P))) == 0
+            for lane in range(w):
+                want = np.ravel(stage(x[:, lane], u[:, lane], d)[0])
+                assert np.array_equal(xdot[:, lane], want), (w, k, lane)
+                want = gap_reading(x[:, lane], point, normal, np.array([nominal]))
+                assert np.array_equal(reading[:, lane], np.ravel(want[0])), (w, k, lane)
+                assert np.array_equal(H[:, lane], np.ravel(want[1])), (w, k, lane)
+
+
 def _aligned(a: np.ndarray) -> np.ndarray:
     """A copy of ``a`` (C order) at a 64-byte boundary: the kernels load whole vectors."""
     buf = np.empty(a.size + 8)

@@ -17,7 +17,11 @@ kernels are compiled -std=c99, which keeps -ffp-contract=off, and without -mfma)
   and the select keeps each lane's own side.
 - exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits);
   a sin and a cos of one value are one sincos (glibc's gives sin's and cos's bits; the
-  scalar code is compiled to the same call). sqrt is correctly rounded in every form.
+  scalar code is compiled to the same call). The kernels keep the last few sincos argument
+  vectors and results (per thread): the readings, the gaps, the tick's control and the rates
+  at a tick take the sines and cosines of the same angles of x, so sincos of an argument
+  vector of the same bits in every lane returns the kept results (sincos's own bits) instead
+  of computing them again. sqrt is correctly rounded in every form.
   glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
   functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
   checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
@@ -56,14 +60,47 @@ _HELPERS = """
 #if {guard}
 typedef double V{w} __attribute__((vector_size({bytes})));
 typedef long long VI{w} __attribute__((vector_size({bytes})));
-{math}{target}static __attribute__((unused)) V{w} vsincos{w}(V{w} a, V{w}* c) {{
+/* the last SC_KEEP argument vectors of sincos (every lane's bits) and its results, one
+   set per thread: sincos of an argument vector kept, lane for lane, is those results,
+   sincos's own bits */
+#define SC_KEEP 4
+typedef struct {{
+  V{w} arg[SC_KEEP], s[SC_KEEP], c[SC_KEEP];
+  int n, next;
+}} SC{w};
+static __thread SC{w} sc{w};
+{math}{target}static inline int sc_find{w}(const SC{w}* m, V{w} a) {{
+  int j, l;
+  for (j = 0; j < m->n; ++j) {{
+    VI{w} d = (VI{w})m->arg[j] ^ (VI{w})a;
+    for (l = 0; l < {w} && d[l] == 0; ++l) {{}}
+    if (l == {w}) return j;
+  }}
+  return -1;
+}}
+{target}static inline int sc_keep{w}(SC{w}* m, V{w} a, V{w} s, V{w} c) {{
+  const int j = m->next;
+  m->arg[j] = a;
+  m->s[j] = s;
+  m->c[j] = c;
+  m->next = (j + 1) % SC_KEEP;
+  if (m->n < SC_KEEP) ++m->n;
+  return j;
+}}
+{target}static __attribute__((unused)) V{w} vsincos{w}(SC{w}* m, V{w} a, V{w}* c) {{
   V{w} r; double sl, cl; int l;
+  const int j = sc_find{w}(m, a);
+  if (j >= 0) {{ *c = m->c[j]; return m->s[j]; }}
   for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); r[l] = sl; (*c)[l] = cl; }}
+  (void)sc_keep{w}(m, a, r, *c);
   return r;
 }}
-{target}static __attribute__((unused)) V{w} vcossin{w}(V{w} a, V{w}* s) {{
+{target}static __attribute__((unused)) V{w} vcossin{w}(SC{w}* m, V{w} a, V{w}* s) {{
   V{w} r; double sl, cl; int l;
+  const int j = sc_find{w}(m, a);
+  if (j >= 0) {{ *s = m->s[j]; return m->c[j]; }}
   for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); (*s)[l] = sl; r[l] = cl; }}
+  (void)sc_keep{w}(m, a, *s, r);
   return r;
 }}
 {target}static __attribute__((unused)) V{w} vsqrt{w}(V{w} a) {{
@@ -79,9 +116,11 @@ _KERNEL_HEAD = """
   const V{w} ZERO = {{0}};
   const V{w} ONE = ZERO + 1.0;
   const VI{w} ABS = (VI{w}){{0}} + 0x7fffffffffffffffLL;
+  SC{w}* const sc = &sc{w};
   int i;
   (void)ONE;
   (void)ABS;
+  (void)sc;
   for (i = 0; i < {n_in}; ++i) arg[i] = (const V{w}*)in[i];
   for (i = 0; i < {n_out}; ++i) res[i] = (V{w}*)out[i];
 """
@@ -187,7 +226,7 @@ def _pair_sincos(lines: list[str], w: int) -> list[str]:
                 t = f"sc{len(temps)}"
                 temps.append(t)
                 both = "vsincos" if f == "sin" else "vcossin"
-                out[i] = f"{indent}{target}={both}{w}({a}, &{t});"
+                out[i] = f"{indent}{target}={both}{w}(sc, {a}, &{t});"
                 out[j] = f"{n.group(1)}{n.group(2)}={t};"
                 break
             if "{" in out[j] or "}" in out[j] or re.match(rf"^\s*{a}=", out[j]):
