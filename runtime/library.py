@@ -139,8 +139,10 @@ class ControlLoop:
     ``accel`` t, xi the speed error's integral, clamped at each tick to |k_i xi| <= ``i_max``
     [N] (anti-windup; inf: no clamp); each array's control force limited to
     ``force_budget`` [N] (<= 0 or inf: no limit) and lagged by ``tau`` [s] in the plant (0: no
-    lag); the tick law's gains ``k_lag`` (25) and ``k_delay`` (25 delay_ticks), column-major
-    (maglev_simulate's; empty: zero, the generalized forces u_gen as computed); ``sense``
+    lag), the tick law's prediction of the lagged forces assuming ``law_tau`` (the lag the
+    firmware was designed for; None: ``tau``, the plant's); the tick law's gains ``k_lag``
+    (25) and ``k_delay`` (25 delay_ticks), column-major (maglev_simulate's; empty: zero, the
+    generalized forces u_gen as computed); ``sense``
     (tick_steps > 0): the loop on the sensors' readings through the firmware's sense tick
     (`maglevgen.runtime.sense.Sensing`) in place of the exact state's feedback.
     """
@@ -157,6 +159,8 @@ class ControlLoop:
     k_lag: tuple[float, ...] = ()
     k_delay: tuple[float, ...] = ()
     sense: Sensing | None = None  # the sensors and the firmware's sense tick (runtime.sense)
+    # [s] the lag the tick law's prediction assumes (the firmware's design); None: tau
+    law_tau: float | None = None
 
 
 class Run(NamedTuple):
@@ -219,7 +223,8 @@ class SimulationLibrary(GeneratedLibrary):
         class _Loop(ctypes.Structure):  # maglev_control_loop (maglev_simulate.h)
             _fields_ = [("tick_steps", ctypes.c_longlong), ("delay_ticks", ctypes.c_int),
                         ("k_v", real), ("v_ref", real), ("accel", real),
-                        ("force_budget", real), ("tau", real), ("k_i", real),
+                        ("force_budget", real), ("tau", real), ("law_tau", real),
+                        ("k_i", real),
                         ("i_max", real), ("K_lag", ptr), ("K_delay", ptr),
                         ("sense", ctypes.POINTER(_Sensing))]
 
@@ -271,8 +276,9 @@ class SimulationLibrary(GeneratedLibrary):
             sense = ctypes.pointer(loop.sense.struct(self._Sensing))
             keep.append(sense)
         return self._Loop(loop.tick_steps, loop.delay_ticks, loop.k_v, loop.v_ref, loop.accel,
-                          loop.force_budget, loop.tau, loop.k_i, loop.i_max, gains(loop.k_lag),
-                          gains(loop.k_delay), sense)
+                          loop.force_budget, loop.tau,
+                          loop.tau if loop.law_tau is None else loop.law_tau, loop.k_i,
+                          loop.i_max, gains(loop.k_lag), gains(loop.k_delay), sense)
 
     def _loop(self, loop: ControlLoop | None, keep: list):
         """The maglev_control_loop of ``loop`` (a pointer), or NULL for None (``keep``: as
