@@ -161,7 +161,8 @@ class SimulationLibrary(GeneratedLibrary):
         class _Loop(ctypes.Structure):  # maglev_control_loop (maglev_simulate.h)
             _fields_ = [("tick_steps", ctypes.c_longlong), ("delay_ticks", ctypes.c_int),
                         ("k_v", real), ("v_ref", real), ("accel", real),
-                        ("force_budget", real), ("tau", real), ("k_i", real),
+                        ("force_budget", real), ("tau", real), ("law_tau", real),
+                        ("k_i", real),
                         ("i_max", real), ("K_lag", ptr), ("K_delay", ptr),
                         ("sense", ctypes.POINTER(_Sensing))]
 
@@ -213,8 +214,9 @@ class SimulationLibrary(GeneratedLibrary):
             sense = ctypes.pointer(loop.sense.struct(self._Sensing))
             keep.append(sense)
         return self._Loop(loop.tick_steps, loop.delay_ticks, loop.k_v, loop.v_ref, loop.accel,
-                          loop.force_budget, loop.tau, loop.k_i, loop.i_max, gains(loop.k_lag),
-                          gains(loop.k_delay), sense)
+                          loop.force_budget, loop.tau,
+                          loop.tau if loop.law_tau is None else loop.law_tau, loop.k_i,
+                          loop.i_max, gains(loop.k_lag), gains(loop.k_delay), sense)
 
     def _loop(self, loop: ControlLoop | None, keep: list):
         """The maglev_control_loop of ``loop`` (a pointer), or NULL for None (``keep``: as

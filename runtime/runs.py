@@ -25,8 +25,10 @@ class ControlLoop:
     ``accel`` t, xi the speed error's integral, clamped at each tick to |k_i xi| <= ``i_max``
     [N] (anti-windup; inf: no clamp); each array's control force limited to
     ``force_budget`` [N] (<= 0 or inf: no limit) and lagged by ``tau`` [s] in the plant (0: no
-    lag); the tick law's gains ``k_lag`` (25) and ``k_delay`` (25 delay_ticks), column-major
-    (maglev_simulate's; empty: zero, the generalized forces u_gen as computed); ``sense``
+    lag), the tick law's prediction of the lagged forces assuming ``law_tau`` (the lag the
+    firmware was designed for; None: ``tau``, the plant's); the tick law's gains ``k_lag``
+    (25) and ``k_delay`` (25 delay_ticks), column-major (maglev_simulate's; empty: zero, the
+    generalized forces u_gen as computed); ``sense``
     (tick_steps > 0): the loop on the sensors' readings through the firmware's sense tick
     (`maglevgen.runtime.sense.Sensing`) in place of the exact state's feedback.
     """
@@ -43,6 +45,8 @@ class ControlLoop:
     k_lag: tuple[float, ...] = ()
     k_delay: tuple[float, ...] = ()
     sense: Sensing | None = None  # the sensors and the firmware's sense tick (runtime.sense)
+    # [s] the lag the tick law's prediction assumes (the firmware's design); None: tau
+    law_tau: float | None = None
 
 
 class Run(NamedTuple):

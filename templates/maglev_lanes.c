@@ -289,7 +289,7 @@ static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
     L->law.xi = 0;
     L->law.n_flight = LAW_NAXES * loop->delay_ticks;
     L->law.h = (maglev_real)L->tick * b->dt;
-    L->law.pole = loop->tau > 0 ? EXP(-L->law.h / loop->tau) : 0;
+    L->law.pole = loop->law_tau > 0 ? EXP(-L->law.h / loop->law_tau) : 0;
     L->law.gain = (maglev_real)1 - L->law.pole;
     for (j = 0; j < NU; ++j) L->act[j] = 0;
     ws->arg[0] = p;

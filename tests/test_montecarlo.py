@@ -419,7 +419,7 @@ def test_a_sample_on_the_sensors_has_its_own_noise_whatever_the_chunks(sensed_st
     """Each sample's sensor noise comes from (seed, sample) alone: the rows do not depend on
     the workers or the chunks (bit for bit), and sample i's run equals `simulate` of its
     carriage at a SensedTick seeded with SeedSequence(seed, spawn_key=(i, 1))'s first word
-    reading with the row's sensor draws."""
+    reading with the row's sensor draws, its plant lagging by the row's drawn actuator lag."""
     from dataclasses import replace
 
     from maglevgen.analyses.simulate import metrics, simulate
@@ -431,7 +431,8 @@ def test_a_sample_on_the_sensors_has_its_own_noise_whatever_the_chunks(sensed_st
     seed = int(np.random.SeedSequence(5, spawn_key=(i, 1)).generate_state(1)[0])
     drawn = tuple((k, float(one[k][i])) for k in carriage.params.tolerances.parameters
                   if k.startswith("sensors."))  # the row's sensor draws: its readings'
-    tick = replace(study.tick, seed=seed, sensor_values=drawn)
+    tick = replace(study.tick, seed=seed, sensor_values=drawn,
+                   plant_lag=float(one["actuators.time_constant"][i]))
     run = simulate(sim_lib, p, own, "spec", 0.3, 1e-3, min_gap, dist, tick=tick,
                    speed_gain=study.speed_gain, force_budget=study.force_budget,
                    controller_op=nominal)

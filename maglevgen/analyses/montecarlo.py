@@ -1,8 +1,9 @@
 """Monte-Carlo robustness over the carriage's tolerances (`maglevgen montecarlo`).
 
 Each sample draws the parameters listed in the file's ``[tolerances]`` (normal, truncated at
-+-4 sigma, or uniform about the file's value; entries of the parameter vector and the sensors'
-noises and biases, maglevgen.params.SENSOR_TOLERANCES), a hold speed (by default uniform over the
++-4 sigma, or uniform about the file's value; entries of the parameter vector, and beside it
+the loop's, maglevgen.params.LOOP_TOLERANCES: the actuators' lag, the sensors' noises and
+biases), a hold speed (by default uniform over the
 envelope's [v_min, v_max]) and an initial disturbance; then, per controller, one closed-loop
 RK4 run (the hold scenario of `maglevgen simulate`) from the sampled carriage's own trim plus
 the disturbance, all in the compiled run-time-parameter C (the parameters are arguments of the
@@ -16,10 +17,13 @@ which the firmware does not know. On the sensors (``--loop sensed``) each sample
 carry its own noise (seeded per sample) drawn with its sampled sensor entries, the IMU's
 bias its sampled magnitude with a sign drawn per axis; the firmware's Kalman gains stay the
 design on the file's sensors (a tolerance is what the real sensor does, not what the filter
-was designed for). A loop on the exact state reads no sensor: its samples' sensor draws are
-recorded, not flown. ``--redesign`` (`Study.redesign`) instead re-trims and
-re-designs the controller for each sample's own parameters, as if the firmware knew them: an
-optimistic bound, named as such in the output.
+was designed for). Likewise a drawn actuator lag is the sampled plant's (the C loop's tau):
+the firmware's K_lag, K_delay, its prediction of the lagged forces and its sense tick's
+tables stay the design on the file's lag (`sample_tick`). A loop on the exact state reads no
+sensor: its samples' sensor draws are recorded, not flown (the continuous law's, the lag's
+too). ``--redesign`` (`Study.redesign`) instead re-trims and re-designs the controller for each
+sample's own parameters (the drawn lag included), as if the firmware knew them: an optimistic
+bound, named as such in the output.
 
 Reproducibility: sample i draws from ``SeedSequence(seed, spawn_key=(i,))`` (numpy's i-th
 child of the seed), so its result depends on (seed, i) alone, never on the worker count or
@@ -63,7 +67,7 @@ from maglevgen.analyses.montecarlo_report import SAMPLE_STATUSES as SAMPLE_STATU
 from maglevgen.analyses.montecarlo_report import STATUSES as STATUSES
 from maglevgen.analyses.montecarlo_report import WORST as WORST
 from maglevgen.analyses.montecarlo_report import Z95 as Z95
-from maglevgen.analyses.sim_loop import SensedTick
+from maglevgen.analyses.sim_loop import LoopSetting, SensedTick
 from maglevgen.analyses.simulate import (
     control_loop,
     metrics,
@@ -82,7 +86,7 @@ from maglevgen.control.operating import (
 from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, MaglevError, NoTrimError
 from maglevgen.infrastructure.workers import process_pool
-from maglevgen.params import SENSOR_TOLERANCES
+from maglevgen.params import ACTUATOR_LAG, LOOP_TOLERANCES, SENSOR_TOLERANCES
 
 MAX_SAMPLES = 10_000_000
 
@@ -122,9 +126,15 @@ class Study:
     # (maglevgen.analyses.roa at BUILD_SAMPLING, without boundary runs): (speeds, P / c per speed,
     # NaN where there is none), for each sample's ``region_multiple``
     regions: dict | None = None
-    # the file's values of the toleranced sensor entries (maglevgen.params.SENSOR_TOLERANCES):
-    # (key, value) pairs; a sample's draws of them set its run's readings (`sample_sensors`)
-    sensors: tuple[tuple[str, float], ...] = ()
+    # the file's values of the toleranced entries beside p (maglevgen.params.LOOP_TOLERANCES:
+    # the actuators' lag, the sensors' noises and biases): (key, value) pairs; a sample's
+    # draws of them set its run's plant lag and readings (`sample_tick`)
+    loop_values: tuple[tuple[str, float], ...] = ()
+
+    @property
+    def sensors(self) -> tuple[tuple[str, float], ...]:
+        """The toleranced sensor entries of `loop_values` (SENSOR_TOLERANCES)."""
+        return tuple((k, v) for k, v in self.loop_values if k in SENSOR_TOLERANCES)
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -140,9 +150,9 @@ def sample_inputs(study: Study, index: int) -> np.ndarray:
     lo, hi = study.speed
     out = [rng.uniform(lo, hi)]
     out += [rng.uniform(-a, a) for _, a in study.disturbance]
-    sensors = dict(study.sensors)
+    beside = dict(study.loop_values)
     for name, sigma, half in zip(study.keys, study.sigma, study.half, strict=True):
-        nominal = sensors[name] if name in sensors else study.p[study.names.index(name)]
+        nominal = beside[name] if name in beside else study.p[study.names.index(name)]
         if math.isnan(sigma):
             out.append(nominal + rng.uniform(-half, half))
             continue
@@ -182,9 +192,9 @@ def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
 
     p = np.array(study.p)
     values = draws[1 + len(study.disturbance):]
-    sensors = dict(study.sensors)
+    beside = dict(study.loop_values)
     for name, value in zip(study.keys, values, strict=True):
-        if name not in sensors:
+        if name not in beside:
             p[study.names.index(name)] = value
     if any(r in k for k in study.keys for r in CROSS_KEY_RULES):
         data = json.loads(json.dumps(study.data))  # a deep copy
@@ -200,10 +210,17 @@ def sample_parameters(study: Study, draws: np.ndarray) -> np.ndarray | str:
 def sample_sensors(study: Study, draws: np.ndarray) -> tuple[tuple[str, float], ...]:
     """The sample's drawn sensor entries (key, value), in file order: what its run's readings
     carry (`SensedTick.sensor_values`)."""
-    sensors = dict(study.sensors)
     values = draws[1 + len(study.disturbance):]
     return tuple((k, float(v)) for k, v in zip(study.keys, values, strict=True)
-                 if k in sensors)
+                 if k in SENSOR_TOLERANCES)
+
+
+def sample_lag(study: Study, draws: np.ndarray) -> float | None:
+    """The sample's drawn actuator lag [s] (maglevgen.params.ACTUATOR_LAG), None where the
+    file gives it no tolerance: what its run's plant lags by (`sample_tick`)."""
+    if ACTUATOR_LAG not in study.keys:
+        return None
+    return float(draws[1 + len(study.disturbance) + study.keys.index(ACTUATOR_LAG)])
 
 
 def run_sample(study: Study, index: int, lib=None) -> list[dict]:
@@ -259,13 +276,23 @@ def _noise_seed(study: Study, index: int) -> int:
 
 
 def sample_tick(study: Study, index: int):
-    """The study's tick for sample ``index``: at a `SensedTick`, with the sample's own noise
-    and its drawn sensor entries (the firmware's tables stay the design on the file's)."""
+    """The study's tick for sample ``index``: at a `LoopSetting` with the sample's drawn
+    actuator lag as the plant's (``plant_lag``; the firmware's K_lag, K_delay and lag
+    prediction stay the design on the file's lag; with ``study.redesign`` the design's lag
+    too, re-designed for it); at a `SensedTick` also with the sample's own noise and its
+    drawn sensor entries (the firmware's tables stay the design on the file's). The
+    continuous loop (no tick) flies no lag: its draws are recorded, not flown."""
     tick = study.tick
+    if not isinstance(tick, LoopSetting):
+        return tick
+    draws = sample_inputs(study, index)
+    lag = sample_lag(study, draws)
+    if lag is not None:
+        tick = replace(tick, lag=lag) if study.redesign else replace(tick, plant_lag=lag)
     if not isinstance(tick, SensedTick):
         return tick
     return replace(tick, seed=_noise_seed(study, index),
-                   sensor_values=sample_sensors(study, sample_inputs(study, index)))
+                   sensor_values=sample_sensors(study, draws))
 
 
 def _prepare(study: Study, index: int, lib):
@@ -572,7 +599,7 @@ def make_study(plant: Plant, controllers: Sequence[str], t_end: float, dt: float
                 raise InputError(f"--dt {dt:g} s exceeds the RK4 stability limit {limit:.4g} s "
                                  f"of the {c} controller at {v:g} m/s")
     keys = tuple(tol.parameters)
-    own = params.sensor_values()
+    own = params.loop_values()
     return Study(
         origin=carriage.loaded.source,
         # the samples are validated without the tolerances (drawn about the file's values)
@@ -588,7 +615,7 @@ def make_study(plant: Plant, controllers: Sequence[str], t_end: float, dt: float
         min_gap=float(params.track.min_gap), weights=w, seed=int(seed), tick=tick,
         speed_gain=float(speed_gain), force_budget=force_budget, redesign=bool(redesign),
         regions=study_regions(plant, controllers, speed),
-        sensors=tuple((k, own[k]) for k in keys if k in SENSOR_TOLERANCES))
+        loop_values=tuple((k, own[k]) for k in keys if k in LOOP_TOLERANCES))
 
 
 @dataclass

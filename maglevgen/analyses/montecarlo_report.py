@@ -13,6 +13,7 @@ from maglevgen.analyses.simulate import RUN_STATUSES
 from maglevgen.controllers import controller as registered_controller
 from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
+from maglevgen.params import ACTUATOR_LAG, LOOP_TOLERANCES
 
 if TYPE_CHECKING:
     from maglevgen.analyses.montecarlo import Columns, Study
@@ -181,6 +182,16 @@ def design_text(study: Study) -> str:
                  if isinstance(study.tick, SensedTick) else
                  f"; the sensors' tolerances ({said}) drawn and recorded, not flown (the loop "
                  "reads the exact state)")
+    lag = dict(study.loop_values).get(ACTUATOR_LAG)
+    if lag is not None:
+        loop += ((f"; the actuators' lag drawn per sample about {lag * 1e3:.3g} ms and flown "
+                  "by the sampled plant, "
+                  + ("the controller re-designed for it" if study.redesign else
+                     "the firmware's K_lag, K_delay and lag prediction the design on the "
+                     "file's"))
+                 if isinstance(study.tick, LoopSetting) else
+                 "; the actuators' lag drawn and recorded, not flown (the continuous law has "
+                 "no lag)")
     if study.redesign:
         return ("redesigned per sample (--redesign): each sampled carriage re-trimmed and its "
                 "controller re-designed for its own parameters, as if the firmware knew them"
@@ -267,7 +278,7 @@ def input_label(study: Study, name: str) -> str:
     from maglevgen.params import flatten, schema_unit, validate
 
     units = {e.name: e.unit for e in flatten(validate(study.data, study.origin))}
-    if name.startswith("sensors."):  # a sensor's noise or bias: its schema's unit
+    if name in LOOP_TOLERANCES:  # the actuators' lag, a sensor's noise or bias: its schema's
         units[name] = schema_unit(name)
     unit = units.get(name, "")
     return f"{name} / {_unit_text(unit)}" if unit and unit != "1" else name

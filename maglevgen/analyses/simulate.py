@@ -604,7 +604,7 @@ def metrics(traj: Trajectory) -> dict:
         # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
         "tick": None if traj.tick is None else {
             "rate": traj.tick.rate, "delay": traj.tick.delay,
-            "actuator_lag": getattr(traj.tick, "lag", 0.0),
+            "actuator_lag": getattr(traj.tick, "flown_lag", 0.0),  # the plant's
             # k_i [N/m] and the clamp of |k_i xi| [N] (None: no integral)
             "speed_integral": getattr(traj.tick, "speed_integral", 0.0),
             "integral_limit": (float(traj.tick.integral_limit)

@@ -93,9 +93,17 @@ class LoopSetting(Tick):
     speed_gain: float = 0.0  # [N s/m]
     bandwidth: float = 0.0  # [1/s]
     force_budget: float = float("inf")  # [N] per array
+    # [s] the plant's lag where it is not the ``lag`` the firmware was designed for (a
+    # Monte-Carlo sample's drawn [actuators] time_constant); None: ``lag``
+    plant_lag: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.plant_lag is not None and not (
+                isinstance(self.plant_lag, (int, float)) and np.isfinite(self.plant_lag)
+                and self.plant_lag > 0):
+            raise InputError(f"the plant's actuator lag {self.plant_lag!r} s: must be a "
+                             "finite number > 0")
         if not (isinstance(self.lag, (int, float)) and np.isfinite(self.lag) and self.lag >= 0):
             raise InputError(f"actuator lag {self.lag!r} s: must be a finite number >= 0")
         if not (isinstance(self.speed_integral, (int, float))
@@ -127,6 +135,11 @@ class LoopSetting(Tick):
     def tick(self) -> Tick:
         """The tick alone (rate and delay)."""
         return Tick(self.rate, self.delay)
+
+    @property
+    def flown_lag(self) -> float:
+        """[s] the plant's lag: ``plant_lag`` where given, else the design's ``lag``."""
+        return float(self.lag if self.plant_lag is None else self.plant_lag)
 
     @property
     def actuator_lag(self) -> float:
@@ -210,7 +223,8 @@ def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: 
                  sense: Sensing | None = None) -> ControlLoop | None:
     """The C loop's settings (maglev_control_loop), or None for the continuous loop: the
     controller at every RK4 stage, the propulsion without speed feedback, no budget.
-    Validates them. A `LoopSetting` adds the actuator lag and the speed integral;
+    Validates them. A `LoopSetting` adds the actuator lag (the plant's, `flown_lag`; the tick
+    law's prediction the design's ``lag``) and the speed integral;
     ``design`` (a `plant.LoopDesign`): the tick law's K_lag and K_delay of maglev_simulate;
     ``sense`` (at a `LoopSetting`; `maglevgen.analyses.sim_loop.sensing`): the firmware's
     sense tick on the readings."""
@@ -226,8 +240,8 @@ def control_loop(dt: float, tick: Tick | None, speed_gain: float, force_budget: 
     budget = 0.0 if force_budget is None or np.isinf(force_budget) else float(force_budget)
     law: dict = {}
     if isinstance(tick, LoopSetting):
-        law = {"tau": float(tick.lag), "k_i": float(tick.speed_integral),
-               "i_max": float(tick.integral_limit)}
+        law = {"tau": tick.flown_lag, "law_tau": float(tick.lag),
+               "k_i": float(tick.speed_integral), "i_max": float(tick.integral_limit)}
     if design is not None:
         for key, K in (("k_lag", design.K_lag), ("k_delay", design.K_delay)):
             if K is not None and K.size:

@@ -29,8 +29,10 @@ from maglevgen.params.loading import (
 from maglevgen.params.options import check_count, check_key_option, check_option, check_run_options
 from maglevgen.params.reference import annotate_with_units, schema_rows, schema_table
 from maglevgen.params.sections import (
+    ACTUATOR_LAG,
     ACTUATOR_MODELS,
     ARRAY_FORCE_LAWS,
+    LOOP_TOLERANCES,
     NORMAL_TRUNCATION,
     PAPER_ARRAY_FORCE,
     SENSOR_TOLERANCES,
@@ -38,9 +40,10 @@ from maglevgen.params.sections import (
 )
 from maglevgen.params.vector import flatten, schema_leaves
 
-__all__ = ["ACTUATOR_MODELS", "ARRAY_FORCE_LAWS", "CIRCUIT_DYNAMICS", "NORMAL_TRUNCATION",
-           "PAPER_ARRAY_FORCE", "SENSOR_TOLERANCES", "LoadedParams", "ModelChoices", "Parameters",
-           "annotate_with_units", "check_count", "check_key_option", "check_option",
-           "check_run_options", "default_params_path", "default_params_text", "entry_limits",
-           "flatten", "load_params", "parse_override", "schema_leaves", "schema_rows",
-           "schema_table", "schema_unit", "validate", "with_sensor_values"]
+__all__ = ["ACTUATOR_LAG", "ACTUATOR_MODELS", "ARRAY_FORCE_LAWS", "CIRCUIT_DYNAMICS",
+           "LOOP_TOLERANCES", "NORMAL_TRUNCATION", "PAPER_ARRAY_FORCE", "SENSOR_TOLERANCES",
+           "LoadedParams", "ModelChoices", "Parameters", "annotate_with_units", "check_count",
+           "check_key_option", "check_option", "check_run_options", "default_params_path",
+           "default_params_text", "entry_limits", "flatten", "load_params", "parse_override",
+           "schema_leaves", "schema_rows", "schema_table", "schema_unit", "validate",
+           "with_sensor_values"]

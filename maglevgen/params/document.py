@@ -12,6 +12,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from maglevgen.infrastructure.text import check_text
 from maglevgen.params.fields import ModelError, Section, short_repr, table_of
 from maglevgen.params.sections import (
+    ACTUATOR_LAG,
+    LOOP_TOLERANCES,
     SENSOR_TOLERANCES,
     Actuators,
     Array,
@@ -172,7 +174,7 @@ class Parameters(Section):
         every sample then passes the key checks (the cross-key rules are checked per sample,
         maglevgen.analyses.montecarlo)."""
         values = {e.name: e.value for e in flatten(self)}
-        values.update(self.sensor_values())
+        values.update(self.loop_values())
         for key, tol in self.tolerances.parameters.items():
             where = f"tolerances.parameters.{key}"
             if key in SENSOR_TOLERANCES and key not in values:
@@ -182,18 +184,28 @@ class Parameters(Section):
             if key not in values:
                 raise ModelError(where, short_repr(tol.model_dump(exclude_none=True)),
                                  "not an entry of the parameter vector (see `maglevgen "
-                                 "params show`) nor a sensor's noise or bias ("
-                                 + ", ".join(SENSOR_TOLERANCES) + ")")
+                                 "params show`) nor the loop's (the actuators' lag, a "
+                                 "sensor's noise or bias: " + ", ".join(LOOP_TOLERANCES) + ")")
             if key.startswith("arrays.") and ".normal." in key:
                 raise ModelError(where, short_repr(tol.model_dump(exclude_none=True)),
                                  "an array's normal is a direction (normalised on load); "
                                  "tolerance its position instead")
             lo, hi, why = _leaf_limits(key)
             a, b = values[key] - tol.half_width, values[key] + tol.half_width
+            if key == ACTUATOR_LAG and not a > 0:
+                raise ModelError(where, short_repr(tol.model_dump(exclude_none=True)),
+                                 f"draws values in [{a:.6g}, {b:.6g}]: a sample's lag must "
+                                 "stay > 0 (the firmware's design feeds the lagged forces "
+                                 "back)")
             if not lo <= a <= b <= hi:
                 raise ModelError(where, short_repr(tol.model_dump(exclude_none=True)),
                                  f"draws values in [{a:.6g}, {b:.6g}], outside the key's range "
                                  f"[{lo:g}, {hi:g}] ({why})")
+
+    def loop_values(self) -> dict[str, float]:
+        """The `LOOP_TOLERANCES` entries the file has (the actuators' lag, its sensors'
+        groups' noises and biases), by key."""
+        return {ACTUATOR_LAG: float(self.actuators.time_constant), **self.sensor_values()}
 
     def sensor_values(self) -> dict[str, float]:
         """The `SENSOR_TOLERANCES` entries the file has (its sensors' groups), by key."""
@@ -257,7 +269,7 @@ def entry_limits(entry: str) -> tuple[float, float]:
 
 
 def schema_unit(entry: str) -> str:
-    """The unit of an entry of the parameter vector or of `SENSOR_TOLERANCES`, as the
+    """The unit of an entry of the parameter vector or of `LOOP_TOLERANCES`, as the
     schema gives it."""
     return str(_leaf_field(entry).json_schema_extra.get("unit", ""))
 

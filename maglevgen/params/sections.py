@@ -16,8 +16,9 @@ from maglevgen.derive.conventions import (
 from maglevgen.derive.structure import CIRCUIT_DYNAMICS, box_principal_moments
 from maglevgen.params.fields import ModelError, Section, Vec3, finite_number, short_repr
 
-__all__ = ["ACTUATOR_MODELS", "ARRAY_FORCE_LAWS", "INERTIA_BOX", "NORMAL_TRUNCATION",
-           "PAPER_ARRAY_FORCE", "SENSOR_TOLERANCES", "Actuators", "Array", "Circuit",
+__all__ = ["ACTUATOR_LAG", "ACTUATOR_MODELS", "ARRAY_FORCE_LAWS", "INERTIA_BOX",
+           "LOOP_TOLERANCES", "NORMAL_TRUNCATION", "PAPER_ARRAY_FORCE", "SENSOR_TOLERANCES",
+           "Actuators", "Array", "Circuit",
            "Control", "ControlSpec", "Envelope", "GapSensor", "GapSensors", "Halbach", "Imu",
            "Inertia", "ModelChoices", "Operation", "ProcessNoise", "Sensors", "Tolerance",
            "Tolerances", "Track", "TrackSensor", "Vehicle"]
@@ -462,6 +463,17 @@ class Tolerance(Section):
 SENSOR_TOLERANCES = ("sensors.gap.noise", "sensors.imu.gyro_noise", "sensors.imu.gyro_bias",
                      "sensors.imu.accel_noise", "sensors.imu.accel_bias", "sensors.track.noise")
 
+#: the actuators' lag (each array force's L/R) a tolerance may spread: what the real drive
+#: does apart from its nominal L/R. A sample's plant lags by its drawn value; the firmware's
+#: design (K_lag, K_delay, its prediction's lag pole, the sense tick's tables) stays the
+#: file's. A draw must stay > 0 (0 is a plant without the lag the design feeds back).
+ACTUATOR_LAG = "actuators.time_constant"
+
+#: every entry a tolerance may spread besides the parameter vector: the loop's (the actuators'
+#: lag, the sensors' noises and biases), flown by each Monte-Carlo sample's run while the
+#: firmware's design stays the one on the file's values
+LOOP_TOLERANCES = (ACTUATOR_LAG, *SENSOR_TOLERANCES)
+
 
 class Tolerances(Section):
     """What `maglevgen montecarlo` samples: not part of the model's parameter vector."""
@@ -481,7 +493,9 @@ class Tolerances(Section):
         "as `maglevgen params show` prints it, e.g. \"vehicle.mass\", \"vehicle.cg_offset.z\"), "
         "or per sensor noise or bias (" + ", ".join(f'"{k}"' for k in SENSOR_TOLERANCES)
         + "): each sample's readings carry its drawn value, the Kalman gains stay the design "
-        "on the file's")
+        f"on the file's; or \"{ACTUATOR_LAG}\" (each array force's lag, > 0 in every "
+        "draw): each sample's plant lags by its drawn value, the firmware's gains, lag "
+        "prediction and Kalman filter stay the design on the file's")
 
     @field_validator("disturbance")
     @classmethod
