@@ -542,6 +542,36 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
         assert raw not in text, f"raw Python/SymPy output {raw!r} in the PDF"
 
 
+def _pages_ending_in_a_caption(text: str) -> list[tuple[int, str]]:
+    """The pages (pdftotext's form feeds) whose last line of text, the page number aside,
+    introduces what follows (ends in a colon): a caption left apart from its table."""
+    out = []
+    for n, page in enumerate(text.split("\f"), 1):
+        lines = [ln.strip() for ln in page.splitlines()
+                 if ln.strip() and not ln.strip().isdigit()]
+        if lines and lines[-1].endswith(":"):
+            out.append((n, lines[-1][-80:]))
+    return out
+
+
+def test_the_page_scanner_finds_a_caption_at_a_page_foot() -> None:
+    page = "Largest relative error against the reference:\n\n\n   23\n"
+    assert _pages_ending_in_a_caption("text\n" + page + "\faxis  naive\nroll 1e-14\n") == [
+        (1, "Largest relative error against the reference:")]
+    assert _pages_ending_in_a_caption("text:\nthe table\n   23\n\fmore") == []
+
+
+@pytest.mark.needs_cc
+@pytest.mark.needs_tex
+def test_no_caption_ends_a_page_apart_from_its_table(default_report: Path,
+                                                     mass_report: Path) -> None:
+    """A table or figure introduced by a line ending in a colon starts on that line's page
+    (LaTeX preferred the break before a centred table: four captions of the default report
+    ended a page with a cached build verdict in it)."""
+    for report in (default_report, mass_report):
+        assert _pages_ending_in_a_caption(_pdf_text(report / "report.pdf")) == []
+
+
 @pytest.mark.needs_cc
 @pytest.mark.needs_tex
 def test_no_raw_python_or_sympy_text_anywhere_in_the_pdf(default_report: Path) -> None:
