@@ -9,6 +9,7 @@ it, so the tests that build one carry ``needs_cc``.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -544,21 +545,25 @@ def test_summary_page_has_the_verdicts_and_no_raw_python(default_report: Path,
 
 def _pages_ending_in_a_caption(text: str) -> list[tuple[int, str]]:
     """The pages (pdftotext's form feeds) whose last line of text, the page number aside,
-    introduces what follows (ends in a colon): a caption left apart from its table."""
-    out = []
-    for n, page in enumerate(text.split("\f"), 1):
-        lines = [ln.strip() for ln in page.splitlines()
-                 if ln.strip() and not ln.strip().isdigit()]
-        if lines and lines[-1].endswith(":"):
-            out.append((n, lines[-1][-80:]))
-    return out
+    introduces what follows (ends in a colon) while the next page opens with a centred block
+    (a table's rows, indented in pdftotext's layout): a caption left apart from its table. A
+    paragraph that only breaks after a colon goes on at the left margin."""
+    pages = [[ln for ln in page.splitlines() if ln.strip() and not ln.strip().isdigit()]
+             for page in text.split("\f")]
+    return [(n, lines[-1].strip()[-80:])
+            for n, (lines, after) in enumerate(itertools.pairwise(pages), 1)
+            if lines and after and lines[-1].rstrip().endswith(":")
+            and after[0].startswith(" " * 8)]
 
 
 def test_the_page_scanner_finds_a_caption_at_a_page_foot() -> None:
     page = "Largest relative error against the reference:\n\n\n   23\n"
-    assert _pages_ending_in_a_caption("text\n" + page + "\faxis  naive\nroll 1e-14\n") == [
+    table = "\f          axis  naive\n          roll 1e-14\n"
+    assert _pages_ending_in_a_caption("text\n" + page + table) == [
         (1, "Largest relative error against the reference:")]
-    assert _pages_ending_in_a_caption("text:\nthe table\n   23\n\fmore") == []
+    # the paragraph goes on at the margin: a break after a colon, not a caption
+    assert _pages_ending_in_a_caption("text\n" + page + "\fits rest):\n" + table[1:]) == []
+    assert _pages_ending_in_a_caption("text:\nthe table\n   23\n" + table) == []
 
 
 @pytest.mark.needs_cc
