@@ -197,10 +197,10 @@ class Studies(CarriageCore):
         check_run_arguments(t_end, dt)
         initial = initial_disturbance(disturbance)  # before the library: bad input is one line
         controllers = controller_names() if controller == "all" else (controller,)
-        if asked is Loop.SENSED and controller == "all":  # the firmware flies one
-            controllers = (self._carriage.params.envelope.embedded_controller,)
         run_loop = chosen_loop(asked, controllers, self.params)
-        flown_controllers(run_loop, controllers, self.params.envelope.embedded_controller)
+        controllers = flown_controllers(run_loop, controllers,  # on the sensors: the firmware's one
+                                        self.params.envelope.embedded_controller,
+                                        all_asked=controller == "all")
         if out is not None:  # after the options: a bad one is the line the user sees
             from maglevgen.infrastructure.output import check_writable
 
