@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import errno
+import functools
 import os
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -15,10 +17,18 @@ from maglevgen.errors import InputError, MaglevError
 from maglevgen.infrastructure.cache import cache_root, sign_file, signature_ok, write_atomic
 from maglevgen.infrastructure.hashing import ContentHash
 
-__all__ = ["DEFAULT_FLAGS", "CompileError", "cached_shared", "compile_object", "compile_shared",
-           "compiler_name", "trusted"]
+__all__ = ["DEFAULT_FLAGS", "HOST_TUNED_FLAGS", "CompileError", "cached_shared",
+           "compile_object", "compile_shared", "compiler_name", "trusted"]
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
+#: added to DEFAULT_FLAGS for the libraries that only ever run on the machine that compiled
+#: them, where the time goes (the Monte-Carlo lanes' driver, the firmware's sense tick for the
+#: host): tuned for this CPU, with no fused multiply-add formed (-ffp-contract=off; -std=c99
+#: implies it for gcc, not for clang), so every operation is the same IEEE operation as at
+#: -O2 and every result the same bits (tests/test_simd_batch.py, tests/test_sensed.py). The
+#: cache key of a library built with them holds what -march=native means on this machine
+#: (`_native_target`): a cache folder shared by different CPUs keeps one library per CPU.
+HOST_TUNED_FLAGS: tuple[str, ...] = ("-O3", "-march=native", "-ffp-contract=off")
 
 
 class CompileError(MaglevError):
@@ -162,11 +172,26 @@ def _library_path(compiler: str, sources: Sequence[Path], flags: Sequence[str],
                   cache_dir: Path | None) -> Path:
     """Where the library of these sources, flags and compiler is cached: its key hashes the
     compiler path, the flags and every source's and header's bytes."""
-    h = ContentHash(compiler, *flags)
+    h = ContentHash(compiler, *flags, *(_native_target(compiler) if "-march=native" in flags
+                                        else ()))
     for src in sources:
         h.files((f.name, f) for f in (sorted(src.parent.glob("*.[ch]")) if src.suffix == ".c"
                                       else [src]))
     return cache_root(cache_dir) / f"lib{h.hexdigest(24)}.so"
+
+
+@functools.cache
+def _native_target(compiler: str) -> tuple[str, ...]:
+    """What ``-march=native`` stands for with this compiler on this CPU: the options its driver
+    passes the compiler proper (gcc's cc1 ``-march=... -m...``; clang's ``-target-cpu ...
+    -target-feature ...``), paths left out; empty when the driver does not say."""
+    try:
+        proc = subprocess.run([compiler, "-march=native", "-###", "-x", "c", "-c", os.devnull,
+                               "-o", os.devnull], capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.SubprocessError):
+        return ()
+    lines = [ln for ln in proc.stderr.splitlines() if "cc1" in ln]
+    return tuple(t for ln in lines for t in shlex.split(ln) if "/" not in t)
 
 
 def _checksum_path(lib: Path) -> Path:

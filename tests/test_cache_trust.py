@@ -142,3 +142,26 @@ def test_a_planted_library_is_refused_with_a_clear_message(private: Path) -> Non
                for s in steps), steps
     assert lib.read_bytes() != other.read_bytes()
     assert not fired.exists()
+
+
+def test_a_host_tuned_library_is_cached_per_cpu(tmp_path, monkeypatch):
+    """-march=native means another CPU elsewhere: a cache folder shared by two machines must
+    not hand one the other's library (SIGILL), so the key holds what the driver expands it to."""
+    from maglevgen.runtime import compile as comp
+
+    src = tmp_path / "a.c"
+    src.write_text("int f(void) { return 1; }\n")
+    gcc = shutil.which("gcc")
+    assert gcc is not None
+    expanded = comp._native_target(gcc)
+    # the driver's own expansion names the CPU (gcc's cc1 -march=<cpu> -m<feature>...)
+    assert any(t.startswith("-march=") and t != "-march=native" for t in expanded)
+    assert not any("/" in t for t in expanded)  # no temporary file names: a stable key
+    tuned = (*comp.DEFAULT_FLAGS, *comp.HOST_TUNED_FLAGS)
+    here = comp._library_path(gcc, [src], tuned, tmp_path)
+    monkeypatch.setattr(comp, "_native_target", lambda cc: ("-march=another-cpu",))
+    assert comp._library_path(gcc, [src], tuned, tmp_path) != here
+    # and a library not tuned to the CPU keeps one key whatever the CPU
+    plain = comp._library_path(gcc, [src], comp.DEFAULT_FLAGS, tmp_path)
+    monkeypatch.setattr(comp, "_native_target", lambda cc: ("-march=a-third-cpu",))
+    assert comp._library_path(gcc, [src], comp.DEFAULT_FLAGS, tmp_path) == plain

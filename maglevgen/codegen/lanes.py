@@ -7,7 +7,7 @@ What a step of the firmware loop evaluates (`KERNELS`: the right-hand side
 by statement over GCC/Clang vectors of W doubles (``__attribute__((vector_size(8 W)))``):
 every arithmetic statement is the same IEEE operation in each lane, in the same order, so each
 lane's result is bit for bit the scalar function's at the same inputs (no contraction: the
-kernels are compiled -std=c99, which keeps -ffp-contract=off, and without -mfma).
+kernels are compiled -ffp-contract=off, `maglevgen.runtime.compile.HOST_TUNED_FLAGS`).
 
 - A comparison becomes a lane mask turned into 0.0/1.0; CasADi's select ``X=(N!=0?Y:0)``
   becomes ``Y`` AND the mask ``N != 0`` (0.0 where the scalar gives 0, Y's bits where it gives
