@@ -139,8 +139,10 @@ def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
         bias[layout.gyro_readings] *= rng.choice((-1.0, 1.0), 3)
         bias[layout.accel_readings] *= rng.choice((-1.0, 1.0), 3)
     step = step * noise_scale
-    white = white_rms(sigma, step)
-    return bias * noise_scale + white * rng.standard_normal((n_ticks, len(layout.names))), step
+    noise = rng.standard_normal((n_ticks, len(layout.names)))
+    noise *= white_rms(sigma, step)  # in place: a run's noise is its largest array
+    noise += bias * noise_scale
+    return noise, step
 
 
 def sensing(tick: SensedTick, n_ticks: int, record: bool = True, n_inputs: int = 0
