@@ -44,7 +44,7 @@ from maglevgen.runtime.compile import (
     trusted,
 )
 from maglevgen.runtime.ffi import GeneratedLibrary
-from maglevgen.runtime.runs import BatchRun, ControlLoop, Run
+from maglevgen.runtime.runs import BatchBuffers, BatchRun, ControlLoop, Run
 
 __all__ = ["SimulationLibrary", "build_libraries",
            "cached_simulation_library", "derivation_key", "loaded_library", "runtime_sources",
@@ -382,7 +382,8 @@ class SimulationLibrary(GeneratedLibrary):
 
     def simulate_batch(self, runs: list[BatchRun], dt: float, n_steps: int, gap_min: float,
                        n_u: int, n_gaps: int, threads: int = 0,
-                       lanes: int | None = None, lane_math: str = "libm") -> list[Run]:
+                       lanes: int | None = None, lane_math: str = "libm",
+                       buffers: BatchBuffers | None = None) -> list[Run]:
         """Every run of ``runs`` as `simulate` makes it (one maglev_simulate call each, the
         same numbers), in one call of the batch driver on ``threads`` threads (0: every core,
         OpenMP's default). ``lanes``: None, one maglev_simulate per run (maglev_batch.c);
@@ -392,7 +393,9 @@ class SimulationLibrary(GeneratedLibrary):
         its own C per lane), the others as maglev_simulate, each run the same numbers
         (tests/test_simd_batch.py). ``lane_math``
         "libmvec": the lanes' exp, sin and cos by glibc's libmvec (bench/simd_batch.py's
-        experiment: no longer the scalar run's bits)."""
+        experiment: no longer the scalar run's bits). ``buffers``: the runs' rows written
+        into these (`BatchBuffers`: the runs returned valid until the next call with them),
+        else into new arrays."""
         real = self._real
         n = len(runs)
         if n == 0:
@@ -414,9 +417,10 @@ class SimulationLibrary(GeneratedLibrary):
         loops = (self._Loop * n)(*[self._loop_struct(lp, keep)
                                   for lp in (r.loop or plain for r in runs)])
         n_x, rows = x0.shape[1], n_steps + 1
-        x = np.zeros((n, rows, n_x), dtype=real)
-        u = np.zeros((n, rows, n_u), dtype=real)
-        g = np.zeros((n, rows, n_gaps), dtype=real)
+        if buffers is not None:
+            x, u, g = buffers.take(n, rows, (n_x, n_u, n_gaps), real)
+        else:
+            x, u, g = (np.zeros((n, rows, w), dtype=real) for w in (n_x, n_u, n_gaps))
         last = np.zeros(n, dtype=np.int64)
         saturated = np.zeros(n, dtype=np.int64)
         status = np.full(n, -1, dtype=np.intc)

@@ -12,7 +12,7 @@ import numpy as np
 
 from maglevgen.runtime.sense import Sensing
 
-__all__ = ["BatchRun", "ControlLoop", "Run"]
+__all__ = ["BatchBuffers", "BatchRun", "ControlLoop", "Run"]
 
 
 @dataclass(frozen=True)
@@ -73,3 +73,31 @@ class BatchRun(NamedTuple):
     a_ref: np.ndarray
     p: np.ndarray
     loop: ControlLoop | None
+
+
+class BatchBuffers:
+    """The rows `SimulationLibrary.simulate_batch` writes (x, u and the gaps of every run),
+    kept from one call to the next: for a caller that reduces each call's runs before the
+    next call (a Monte-Carlo worker), so a call writes into memory already mapped instead of
+    fresh pages, which the kernel maps and zeroes one by one on the first write (here, under
+    load, up to as long as the runs themselves: bench/simd_batch.py). The runs a call returns
+    are views into these arrays, good until the next call with the same buffers. Not shared
+    between threads."""
+
+    def __init__(self) -> None:
+        self._key: tuple | None = None
+        self._arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def take(self, n: int, rows: int, widths: tuple[int, int, int], dtype
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Arrays (n, rows, width) of x, u and the gaps, grown when a call needs more runs,
+        made again when the rows or widths change; NaN where no call wrote (a row the C left
+        unwritten shows as NaN, never as an earlier run's value that looks right)."""
+        key = (rows, widths, np.dtype(dtype))
+        if self._arrays is None or self._key != key or self._arrays[0].shape[0] < n:
+            self._key = key
+            self._arrays = tuple(np.full((n, rows, w), np.nan, dtype=dtype)  # type: ignore[assignment]
+                                 for w in widths)
+        assert self._arrays is not None
+        x, u, g = (a[:n] for a in self._arrays)
+        return x, u, g

@@ -21,6 +21,7 @@ from maglevgen.analyses.simulate import (
 )
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.sampled import Tick
+from maglevgen.runtime.runs import BatchBuffers
 
 
 @pytest.mark.needs_cc
@@ -66,3 +67,32 @@ def test_batch_study_rows_equal_the_per_sample_rows(carriage, sim_lib) -> None:
             same = (a[k] == b[k] or (isinstance(a[k], float) and math.isnan(a[k])
                                      and math.isnan(b[k])))
             assert same, (k, a[k], b[k])
+
+
+@pytest.mark.needs_cc
+def test_runs_into_kept_buffers_equal_the_per_sample_runs(carriage, sim_lib, op) -> None:
+    """`BatchBuffers` kept across calls (a Monte-Carlo worker's): a batch of three firmware-
+    loop runs, then one of two others into the same memory (filled with NaN at first, so a
+    row the C left unwritten would show): every run equal to `simulate`'s own, the second
+    batch's untouched by the first's values, and the first's runs views that the second
+    call overwrote (the contract: good until the next call)."""
+    tick = LoopSetting(250.0, 1, 2e-3)
+    kw = {"tick": tick, "speed_gain": 500.0, "force_budget": 2e3}
+    min_gap = carriage.params.track.min_gap
+    buffers = BatchBuffers()
+    batches = [[(carriage.p, op, "spec", {"z": 2e-3}), (carriage.p, op, "lqr", {"phi": 4e-3}),
+                (carriage.p, op, "spec", {"y": -1e-3})],
+               [(carriage.p, op, "lqr", {"z": -1e-3}), (carriage.p, op, "spec", {"psi": 3e-3})]]
+    first = None
+    for jobs in batches:
+        got = simulate_batch(sim_lib, jobs, 0.3, 1e-3, min_gap, threads=1, buffers=buffers,
+                             **kw)
+        for (p, o, c, d), b in zip(jobs, got, strict=True):
+            a = simulate(sim_lib, p, o, c, 0.3, 1e-3, min_gap, d, **kw)
+            assert a.status == b.status
+            for name in ("x", "u", "gaps"):
+                assert np.array_equal(getattr(a, name), getattr(b, name)), (c, name)
+        if first is None:
+            first = got[0].x.copy(), got[0].x
+    assert first is not None
+    assert not np.array_equal(first[0], first[1])  # the first batch's view: overwritten

@@ -43,6 +43,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures.process import BrokenProcessPool
@@ -87,6 +88,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.errors import InputError, MaglevError, NoTrimError
 from maglevgen.infrastructure.workers import process_pool
 from maglevgen.params import ACTUATOR_LAG, LOOP_TOLERANCES, SENSOR_TOLERANCES
+from maglevgen.runtime.runs import BatchBuffers
 
 MAX_SAMPLES = 10_000_000
 
@@ -239,12 +241,13 @@ def run_sample(study: Study, index: int, lib=None) -> list[dict]:
 
 
 def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
-                      threads: int = 0) -> list[dict]:
+                      threads: int = 0, buffers: BatchBuffers | None = None) -> list[dict]:
     """`run_sample`'s rows of every sample of ``indices``, in order, with the closed-loop runs
     of all of them in one call of the C batch driver (maglevgen.analyses.simulate.simulate_batch) on
     ``threads`` threads (0: every core): the same rows (each run is the same maglev_simulate
     call). The draws, the trim and the gains of each sample come first, in Python and the
-    library's C, as `run_sample` makes them."""
+    library's C, as `run_sample` makes them. ``buffers``: the runs' rows written there
+    (`BatchBuffers`; every row is reduced before this returns)."""
     lib = lib or study.library()
     out: list[list[dict] | None] = []
     jobs, owners, ticks = [], [], []
@@ -262,7 +265,7 @@ def run_samples_batch(study: Study, indices: Sequence[int], lib=None,
     trajectories = simulate_batch(lib, jobs, study.t_end, study.dt, study.min_gap,
                                   tick=study.tick, speed_gain=study.speed_gain,
                                   force_budget=study.force_budget, threads=threads,
-                                  ticks=ticks)
+                                  ticks=ticks, buffers=buffers)
     runs: dict[int, list[dict]] = {}
     for (k, row), (p, op, c, d, _), traj in zip(owners, jobs, trajectories, strict=True):
         runs.setdefault(k, []).append(_run_row(study, lib, p, row, c, traj, op, d))
@@ -414,8 +417,19 @@ def run_chunk(study: Study, indices: Sequence[int]) -> Columns:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # overflow in a diverging sample: its status says so
         # the chunk's runs in one call of the C batch driver, on one thread: the workers (or
-        # Dask) spread the chunks over the cores
-        return table(run_samples_batch(study, indices, threads=1))
+        # Dask) spread the chunks over the cores; each chunk's rows into the memory of the
+        # process's (thread's) previous chunk
+        return table(run_samples_batch(study, indices, threads=1, buffers=_worker_buffers()))
+
+
+_WORKER = threading.local()
+
+
+def _worker_buffers() -> BatchBuffers:
+    """This thread's `BatchBuffers`, kept across the chunks it runs."""
+    if not hasattr(_WORKER, "buffers"):
+        _WORKER.buffers = BatchBuffers()
+    return _WORKER.buffers
 
 
 # ------------------------------------------------------------------------------ execution
@@ -450,9 +464,9 @@ def run_local(study: Study, n: int, workers: int, chunk: int | None = None,
     chunks = _chunks(n, size)
     results: dict[int, Columns] = {}
     if workers <= 1:
-        lib = study.library()
+        lib, buffers = study.library(), BatchBuffers()
         for k, c in enumerate(chunks):
-            results[k] = table(run_samples_batch(study, c, lib, threads=1))
+            results[k] = table(run_samples_batch(study, c, lib, threads=1, buffers=buffers))
             if tick:
                 tick(len(c))
         return concat([results[k] for k in range(len(chunks))])

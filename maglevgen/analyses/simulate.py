@@ -51,7 +51,7 @@ from maglevgen.derive import conventions as cv
 from maglevgen.derive.conventions import DISTURBANCE, Q_STATES
 from maglevgen.derive.structure import input_names_of
 from maglevgen.errors import InputError, NoTrimError
-from maglevgen.runtime.runs import BatchRun, Run
+from maglevgen.runtime.runs import BatchBuffers, BatchRun, Run
 from maglevgen.runtime.sense import Sensing
 
 if TYPE_CHECKING:  # the library comes from the Plant; only its type is named here
@@ -407,8 +407,8 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
                    t_end: float, dt: float, min_gap: float, tick: Tick | None = None,
                    speed_gain: float = 0.0, force_budget: float | None = None,
                    threads: int = 0, seeds: Sequence[int] | None = None,
-                   lanes: int | None = 0, ticks: Sequence[Tick | None] | None = None
-                   ) -> list[Trajectory]:
+                   lanes: int | None = 0, ticks: Sequence[Tick | None] | None = None,
+                   buffers: BatchBuffers | None = None) -> list[Trajectory]:
     """`simulate` of each job (p, op, controller, disturbance[, controller_op]), the runs in
     one call of the C batch driver on ``threads`` threads (0: every core): the same
     trajectories, in order. At a `SensedTick` each run draws its own noise: from ``seeds``
@@ -416,7 +416,8 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
     same loop each: a Monte-Carlo sample's own noise and sensors) in place of both. ``lanes``:
     `SimulationLibrary.simulate_batch`'s (default 0: the tick-held runs W at a time in SIMD
     lanes where the CPU and the batch allow, the same numbers; None: one maglev_simulate
-    per run)."""
+    per run). ``buffers`` (`BatchBuffers`): the trajectories' rows written into them, good
+    until the next call with the same buffers."""
     n_steps = _check_steps(t_end, dt)
     if not jobs:
         return []
@@ -429,7 +430,7 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
             for (p, op, c, d, *design), tk in zip(jobs, ticks, strict=True)]
     op0 = jobs[0][1]
     done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
-                              op0.gaps.size, threads, lanes)
+                              op0.gaps.size, threads, lanes, buffers=buffers)
     out = [hold_trajectory(lib, p, op, c, dt, min_gap, d, run, tk, speed_gain, force_budget)
            for (p, op, c, d, *_), run, tk in zip(jobs, done, ticks, strict=True)]
     for traj, r in zip(out, runs, strict=True):
