@@ -3,10 +3,13 @@ one process against the bare C batch loop of the same runs (issue 37: within 1.1
 on every core (at least 1.8x on 2), 10^4 samples (under a minute), and the same sweep as a
 Python loop over SciPy (the trim by SciPy's root finding on the lambdified model, the run by
 solve_ivp) as the ratio. The study is the CLI's default: the default [tolerances], the embedded
-controller, ``--loop firmware`` (its tick, delay, speed loop and force budget), 10 s at 1 kHz
-(10^4 RK4 steps), seed 0; bench/experiments/batch.py splits the same path into its stages.
+controller, ``--loop sensed`` (its firmware's sense tick on each run's noisy readings, the
+tick, delay, lag, speed loop and force budget; ``--loop firmware``: the same on the exact
+state), 10 s at 1 kHz (10^4 RK4 steps), seed 0; bench/experiments/batch.py splits the
+firmware loop's path into its stages.
 
-    python bench/montecarlo.py [--quick] [--big N]   (also part of `make bench`)
+    python bench/montecarlo.py [--quick] [--big N] [--loop sensed|firmware]
+    (also part of `make bench`)
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from maglevgen.control.operating import operating_point
 from maglevgen.derive import conventions as cv
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
+from maglevgen.runtime.runs import BatchBuffers
 
 T_END, DT = 10.0, 1e-3
 
@@ -80,11 +84,11 @@ def _python_sample(carriage: DerivedCarriage, study, lib, i: int) -> float:
     return t_trim + time.perf_counter() - t0
 
 
-def run(quick: bool = False, big: int | None = None) -> dict:
+def run(quick: bool = False, big: int | None = None, loop: str = "sensed") -> dict:
     carriage = DerivedCarriage(load_params())
     lib = simulation_library(carriage.structure)
     controller = carriage.params.envelope.embedded_controller
-    tick, k_v, budget = run_loop(Plant(carriage, lib), "firmware")
+    tick, k_v, budget = run_loop(Plant(carriage, lib), loop)
     study = make_study(Plant(carriage, lib), (controller,), T_END, DT, 0, tick, k_v, budget)
     load_start = os.getloadavg()
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
@@ -96,14 +100,19 @@ def run(quick: bool = False, big: int | None = None) -> dict:
     lib.simulate_batch(runs[:2], DT, n_steps, study.min_gap, n_u, n_g, 1)  # the driver, once
     log(f"montecarlo: {n} samples x {repeats}: the bare C loop, the study on 1 and {cores} "
         "processes")
-    # the bare loop in the chunks a 1-process study makes: a call's trajectories (2.3 MB a
-    # run) are memory the C writes for the first time, which one call of every run would inflate
+    # the bare loop in the chunks a 1-process study makes, into the memory of the previous
+    # chunk as a worker writes them (BatchBuffers: not pages the kernel maps afresh); a run on
+    # the sensors is prepared afresh (untimed) for every repeat, its sense state its own
     size = default_chunk(n, 1)
     bare, one, many = [], [], []
+    buffers = BatchBuffers()
     for _ in range(repeats):  # the three alternate in every repeat
+        if loop == "sensed":
+            runs = study_runs(study, lib, n)[0]
         t0 = time.perf_counter()
         for i in range(0, len(runs), size):
-            lib.simulate_batch(runs[i:i + size], DT, n_steps, study.min_gap, n_u, n_g, 1)
+            lib.simulate_batch(runs[i:i + size], DT, n_steps, study.min_gap, n_u, n_g, 1,
+                               buffers=buffers)
         bare.append((time.perf_counter() - t0) / len(runs))
         t0 = time.perf_counter()
         run_local(study, n, workers=1)
@@ -113,7 +122,7 @@ def run(quick: bool = False, big: int | None = None) -> dict:
         many.append((time.perf_counter() - t0) / n)
     out = {
         "loadavg_start": load_start, "t_end": T_END, "dt": DT, "controller": controller,
-        "loop": "firmware", "cores": cores, "samples": n, "repeats": repeats, "seed": 0,
+        "loop": loop, "cores": cores, "samples": n, "repeats": repeats, "seed": 0,
         "chunk": size,
         "bare_c_per_run_s": summary(bare), "study_per_run_1_s": summary(one),
         "study_per_run_all_s": summary(many),
@@ -182,9 +191,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--big", type=int, default=None, help="runs of the big batch (0: skip)")
+    ap.add_argument("--loop", choices=("sensed", "firmware"), default="sensed",
+                    help="the study's loop (default: montecarlo's, on the sensors)")
     ap.add_argument("--json", type=Path, default=BENCH / "montecarlo_results.json")
     args = ap.parse_args(argv)
-    r = run(args.quick, args.big)
+    r = run(args.quick, args.big, args.loop)
     args.json.write_text(json.dumps(r, indent=1) + "\n")
     print("\n".join(markdown(r)))
     return 0

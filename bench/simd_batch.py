@@ -43,6 +43,7 @@ from maglevgen.codegen.lanes import WIDTHS
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.params import load_params
 from maglevgen.runtime.library import simulation_library
+from maglevgen.runtime.runs import BatchBuffers
 
 T_END, DT = 10.0, 1e-3
 
@@ -87,13 +88,19 @@ def measure(samples: int, reps: int, loop: str = "firmware") -> dict:
         "scalar": (None, "libm"), **{f"W={w}": (w, "libm") for w in widths},
         **{f"W={w}, libmvec": (w, "libmvec") for w in widths}}
 
+    # each variant's chunks into memory of its own kept across repeats, as a Monte-Carlo
+    # worker writes them (BatchBuffers: no fresh pages for the kernel to map)
+    buffers: dict[tuple, BatchBuffers] = {}
+
     def batch(lanes: int | None, math: str) -> tuple[float, list, list]:
         fresh = study_runs(study, lib, samples)[0] if sensed else runs  # untimed
         out = []
         t0 = time.process_time()
         for i in range(0, len(fresh), size):
             out += lib.simulate_batch(fresh[i:i + size], DT, n_steps, study.min_gap, n_u, n_g,
-                                      1, lanes=lanes, lane_math=math)
+                                      1, lanes=lanes, lane_math=math,
+                                      buffers=buffers.setdefault((lanes, math, i),
+                                                                 BatchBuffers()))
         return (time.process_time() - t0) / len(fresh), out, fresh
 
     for lanes, math in variants.values():  # each driver compiled and loaded once, untimed
