@@ -97,7 +97,7 @@ def run(quick: bool = False, big: int | None = None, loop: str = "sensed") -> di
     big = big if big is not None else (0 if quick else 10_000)
     runs, n_u, n_g = study_runs(study, lib, n)
     n_steps = round(T_END / DT)
-    lib.simulate_batch(runs[:2], DT, n_steps, study.min_gap, n_u, n_g, 1)  # the driver, once
+    lib.simulate_batch(runs[:2], DT, n_steps, study.min_gap, n_u, n_g, 1, lanes=0)  # compiled
     log(f"montecarlo: {n} samples x {repeats}: the bare C loop, the study on 1 and {cores} "
         "processes")
     # the bare loop in the chunks a 1-process study makes, into the memory of the previous
@@ -112,7 +112,7 @@ def run(quick: bool = False, big: int | None = None, loop: str = "sensed") -> di
         t0 = time.perf_counter()
         for i in range(0, len(runs), size):
             lib.simulate_batch(runs[i:i + size], DT, n_steps, study.min_gap, n_u, n_g, 1,
-                               buffers=buffers)
+                               lanes=0, buffers=buffers)
         bare.append((time.perf_counter() - t0) / len(runs))
         t0 = time.perf_counter()
         run_local(study, n, workers=1)
@@ -164,7 +164,8 @@ def markdown(r: dict) -> list[str]:
            f"{r['loadavg_end'][0]:.1f} at the end: the scaling needs idle cores)"
            if "loadavg_start" in r else "") + ".", "",
         "| what | time |", "| --- | --- |",
-        f"| per run, the bare C loop (`maglev_batch_simulate` of the prepared runs, 1 thread, "
+        f"| per run, the bare C loop (`SimulationLibrary.simulate_batch` of the prepared runs, "
+        f"1 thread, in SIMD lanes as the study runs them, "
         f"in the study's chunks of {r.get('chunk', '?')}) "
         f"| {_ms(r['bare_c_per_run_s'])} |",
         f"| per run, the study on 1 process (`run_local`: draws, trims, gains, the C batch, "
