@@ -346,6 +346,123 @@ def test_table_schedule_return_codes(gain_table) -> None:
             np.testing.assert_array_equal(out, end)
 
 
+def _clenshaw_reference(c, t, real):
+    """One value's Clenshaw in numpy scalars of ``real`` (np.float64 / np.float32), each
+    operation rounded as the C's: b1 = b2 = 0; for k = n-1 down to 1, b0 = ((t2 b1) - b2) +
+    c[k], b2 = b1, b1 = b0; then ((t b1) - b2) + c[0], from the table's coefficients rounded
+    once to ``real`` (R(c))."""
+    c = [real(x) for x in c]
+    b1 = b2 = real(0)
+    t2 = t + t
+    for k in range(len(c) - 1, 0, -1):
+        b0 = ((t2 * b1) - b2) + c[k]
+        b2 = b1
+        b1 = b0
+    return ((t * b1) - b2) + c[0]
+
+
+def _table_reference(table, v: float, real) -> tuple[int, float]:
+    """(return code, t) of the table's _t helper at v, in ``real``: NaN or infinite v
+    MAGLEV_ERR_NONFINITE (t unused), outside [v_min, v_max] MAGLEV_ERR_SPEED at the nearer
+    end, t = (T_SCALE / v) - T_OFFSET with the C's constants rounded once to ``real``."""
+    a, b = 1.0 / table.v_max, 1.0 / table.v_min
+    v = real(v)
+    if not np.isfinite(v):
+        return ERR["MAGLEV_ERR_NONFINITE"], real(0)
+    rc, vc = 0, v
+    if v < real(table.v_min):
+        rc, vc = ERR["MAGLEV_ERR_SPEED"], real(table.v_min)
+    elif v > real(table.v_max):
+        rc, vc = ERR["MAGLEV_ERR_SPEED"], real(table.v_max)
+    return rc, (real(2.0 / (b - a)) / vc) - real((a + b) / (b - a))
+
+
+@pytest.mark.needs_cc
+def test_table_schedule_is_its_clenshaw_bit_for_bit(gain_table, firmware, tmp_path: Path
+                                                    ) -> None:
+    """maglev_schedule, maglev_schedule_varying and maglev_schedule_f_prop (the table's
+    values written out with their coefficients, and the loop over the tables) compiled for the
+    host in double and in float: every output at 1001 speeds across [v_min, v_max], both ends
+    and their neighbours, below v_min, above v_max, NaN and +-inf, bit for bit the Clenshaw
+    recurrence in numpy scalars of the same precision, operation by operation in the C's order
+    (`_clenshaw_reference`), from the table's coefficients (GainTable); return codes too."""
+    import subprocess
+
+    from maglevgen.control.schedule import (
+        field_slices,
+        gain_table_sources,
+        value_terms,
+        varying_values,
+    )
+
+    table = gain_table[0]
+    ny = table.coeffs.shape[1]
+    terms = value_terms(table.coeffs)
+    vary = varying_values(table)
+    f_prop = dict(zip((n for n, _ in table.fields), field_slices(table.fields),
+                      strict=True))["F_prop"][0]
+    lo, hi = table.v_min, table.v_max
+    speeds = [*np.linspace(lo, hi, 1001), np.nextafter(lo, 0), np.nextafter(lo, 1e9),
+              np.nextafter(hi, 0), np.nextafter(hi, 1e9), 0.0, -3.0, 0.99 * lo, 1.01 * hi,
+              1e6, np.nan, np.inf, -np.inf]
+    forms = {"written": {"varying": True, "one_output": "F_prop"},
+             "loop": {"varying": True, "one_output": "F_prop", "written_out": False}}
+    for precision, folder in firmware["folders"].items():
+        real = np.float64 if precision == "double" else np.float32
+        creal = ctypes.c_double if precision == "double" else ctypes.c_float
+        refs = []
+        for v in speeds:
+            rc, t = _table_reference(table, v, real)
+            row = np.zeros(ny, dtype=real)
+            if rc != ERR["MAGLEV_ERR_NONFINITE"]:
+                for j in table.stored:
+                    row[j] = _clenshaw_reference(table.coeffs[:terms[j], j], t, real)
+            # _varying: at t = 0 for NaN or infinite v
+            t0 = real(0) if rc == ERR["MAGLEV_ERR_NONFINITE"] else t
+            varied = np.array([_clenshaw_reference(table.coeffs[:terms[j], j], t0, real)
+                               for j in vary], dtype=real)
+            refs.append((rc, row, varied))
+        # the firmware folder's own table (gain_table's library), and both forms with
+        # every function
+        libs = {"firmware": gain_table[2][precision]}
+        for form, kw in forms.items():
+            src = tmp_path / f"{form}_{precision}"
+            src.mkdir()
+            files = {**gain_table_sources(table, **kw),
+                     "maglev_functions.h": (folder / "maglev_functions.h").read_text()}
+            for name, text in files.items():
+                (src / name).write_text(text)
+            libs[form] = src / "gt.so"
+            subprocess.run(["cc", *WARN, "-O2", "-fPIC", "-shared", "maglev_gain_table.c",
+                            "-o", str(libs[form])], cwd=src, check=True)
+        for form, so in libs.items():
+            lib = ctypes.CDLL(str(so))
+            lib.maglev_schedule.argtypes = [creal, ctypes.POINTER(creal)]
+            lib.maglev_schedule_f_prop.argtypes = [creal, ctypes.POINTER(creal)]
+            for v, (rc, row, varied) in zip(speeds, refs, strict=True):
+                out = (creal * ny)(*([7.0] * ny))
+                assert lib.maglev_schedule(v, out) == rc, (form, precision, v)
+                got = np.array(out[:], dtype=real)
+                assert got.tobytes() == row.tobytes(), (form, precision, v, np.flatnonzero(
+                    got.view(f"u{got.itemsize}") != row.view(f"u{row.itemsize}")))
+                one = creal(7.0)
+                assert lib.maglev_schedule_f_prop(v, ctypes.byref(one)) == rc
+                assert real(one.value).tobytes() == row[f_prop].tobytes(), (form, v)
+                if form == "firmware":
+                    continue
+                fn = lib.maglev_schedule_varying
+                fn.argtypes = [creal, ctypes.c_int, ctypes.c_int, ctypes.POINTER(creal)]
+                n = len(vary)
+                out = (creal * n)(*([7.0] * n))
+                assert fn(v, 0, n, out) == rc
+                assert np.array(out[:], dtype=real).tobytes() == varied.tobytes(), (form, v)
+                # a slice hanging over both ends: only the indices within [0, n) written
+                out = (creal * n)(*([7.0] * n))
+                assert fn(v, -2, 5, out) == rc
+                part = np.full(n, 7.0, dtype=real)
+                part[:3] = varied[:3]
+                assert np.array(out[:], dtype=real).tobytes() == part.tobytes(), (form, v)
+
 @pytest.mark.needs_cc
 def test_table_gains_keep_the_closed_loop_eigenvalues(gain_table, firmware,
                                                       carriage: DerivedCarriage,

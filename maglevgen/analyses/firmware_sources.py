@@ -39,6 +39,7 @@ from maglevgen.control.built_loop import LoopSetting
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.schedule import (
     GainTable,
+    clenshaw_lines,
     field_slices,
     gain_table_sources,
     value_terms,
@@ -227,18 +228,14 @@ def _sense_code(sense: SenseSchedule, nu: int) -> dict[str, list]:
                  for i in range(len(pose)) for k in range(sense.n_gap)]
     pose_rows += [f"yt[{k}] = {val('y_trim', k) or 'R(0)'};" for k in range(sense.n_gap)]
     # the refresh's slices: each varying value's Clenshaw written out with its coefficients
-    # (maglev_sense_schedule_varying's operations; its first step, (t2 0 - 0) + c = c, taken)
+    # (`schedule.clenshaw_lines`: maglev_sense_schedule_varying's operations in its order)
     refresh: list[list[str]] = []
     bounds = refresh_slices(table)
     order = varying_values(table)
     for k in range(len(bounds) - 1):
         lines = []
         for i in range(bounds[k], bounds[k + 1]):
-            cs = [c_literal(float(x)) for x in table.coeffs[:terms[order[i]], order[i]]]
-            lines += [f"b1 = R({cs[-1]});", "b2 = R(0);"]
-            for ck in reversed(cs[1:-1]):
-                lines += [f"b0 = ((t2 * b1) - b2) + R({ck});", "b2 = b1;", "b1 = b0;"]
-            lines.append(f"tab[{i}] = ((t * b1) - b2) + R({cs[0]});")
+            lines += clenshaw_lines(table.coeffs[:terms[order[i]], order[i]], f"tab[{i}]")
         refresh.append(lines)
     # the law's estimate less the accelerating trim's change at the commanded acceleration a
     # (the launch's reference), and that trim's propulsion change
@@ -355,7 +352,7 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetti
             " * maglev_sense_tick): F_prop [N] (trim propulsion), x_trim (the trim state, its u\n"
             " * less v), y_trim (the readings at trim), Phi_minus_I, Gamma, C, D and M (the\n"
             " * update's gain), column-major, on the estimator's plant states and lagged forces,\n"
-            " * at the offsets above.", varying=True))
+            " * at the offsets above.", varying=True, written_out=False))
 
     if "K_lag" not in dict(table.fields):
         raise ValueError("the firmware's table carries the design at the tick "

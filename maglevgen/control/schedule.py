@@ -9,6 +9,7 @@ stage keeps RK4's fourth order (a C0 or C1 interpolant would not).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -30,8 +31,9 @@ if TYPE_CHECKING:
 
 __all__ = ["A_REF", "GAIN_TABLE_BOUND", "GAIN_TABLE_FIELDS", "GAIN_TABLE_NY", "K_DELAY", "K_LAG",
            "K_POS", "GainTable", "Reference", "Schedule", "accelerating_references",
-           "field_errors", "field_scales", "field_slices", "gain_table_row", "gain_table_sources",
-           "schedule_c_source", "tick_table_fields", "value_terms", "varying_values"]
+           "clenshaw_lines", "field_errors", "field_scales", "field_slices", "gain_table_row",
+           "gain_table_sources", "schedule_c_source", "tick_table_fields", "value_terms",
+           "varying_values"]
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give: the
 # drag, the reference, K_pos and K_rate, then the tick law's K_lag and K_delay (room for
@@ -375,11 +377,46 @@ def value_terms(coeffs: np.ndarray) -> np.ndarray:
     return np.where(nz.any(axis=0), last + 1, 1)
 
 
+#: the smallest normal float: a coefficient at least this large is the same nonzero normal
+#: number as a double and as a float (maglev_real either), so Clenshaw's first step,
+#: ((t2 * 0) - 0) + c, is c exactly (flush-to-zero or not)
+_NORMAL = float(np.finfo(np.float32).tiny)
+
+
+def clenshaw_lines(coeffs, target: str) -> list[str]:
+    """One value's Clenshaw written out as C statements (one a line) with its coefficients
+    ``coeffs`` (c[0], ..., c[n-1]) as literals R(c) and its result into ``target``: the
+    operations of the loop over its terms (b1 = b2 = 0; for k = n-1 down to 1:
+    b0 = ((t2 * b1) - b2) + c[k], b2 = b1, b1 = b0; then ((t * b1) - b2) + c[0]), in the same
+    order, so its result bit for bit. The loop's first step from b1 = b2 = 0 gives c[n-1]
+    exactly when that is a nonzero normal float (both precisions): taken (b1 = R(c[n-1]));
+    a one-term value is then the literal alone. Uses the C variables t, t2 (t + t), b0, b1,
+    b2 (maglev_real) and the macro R (the cast to maglev_real)."""
+    from maglevgen.codegen.emit import c_literal  # local: jinja2 only when C is written
+
+    cs = [c_literal(float(c)) for c in coeffs]
+    top = len(cs) - 1
+    exact = abs(float(coeffs[top])) >= _NORMAL
+    if top == 0 and exact:
+        return [f"{target} = R({cs[0]});"]
+    lines = [f"b1 = R({cs[top]});" if top > 0 and exact else "b1 = R(0);", "b2 = R(0);"]
+    for c in reversed(cs[1:top] if top > 0 and exact else cs[1:]):
+        lines += [f"b0 = ((t2 * b1) - b2) + R({c});", "b2 = b1;", "b1 = b0;"]
+    lines.append(f"{target} = ((t * b1) - b2) + R({cs[0]});")
+    return lines
+
+
+def _clenshaw_vars(lines: list[str]) -> list[str]:
+    """The work variables `clenshaw_lines`'s ``lines`` use (besides t), to declare."""
+    return [name for name in ("t2", "b0", "b1", "b2")
+            if any(re.search(rf"\b{name}\b", ln) for ln in lines)]
+
+
 def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
                        function: str = "maglev_schedule", prefix: str = "MAGLEV_SCHEDULE",
                        title: str = "gain schedule", summary: str = "",
-                       varying: bool = False,
-                       one_output: str | None = None) -> dict[str, str]:
+                       varying: bool = False, one_output: str | None = None,
+                       written_out: bool = True) -> dict[str, str]:
     """``stem``.h and .c (default maglev_gain_table): ``function(v, out)`` (default
     maglev_schedule) from static const tables, its macros ``prefix``_* (the range, the row's
     size and each field's offset); ``title`` and ``summary`` (comment lines, " * " each: what
@@ -395,7 +432,12 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
     last nonzero term (`value_terms`: `GainTable.fit`'s drop_share zeroes the rest).
     ``varying``: also ``function``_varying(v, from, count, out), the values of more than one
     term (`varying_values`) from..from+count-1 into out[] at those indices (the sense tick's
-    refresh: one slice a tick; the one-term values are constants in its code).
+    refresh: one slice a tick; the one-term values are constants in its code), a loop over
+    static tables of the coefficients. ``written_out``: ``function`` evaluates each stored
+    value's Clenshaw written out with its coefficients as literals (`clenshaw_lines`: the
+    loop's operations in its order, so its values bit for bit; no loop, no table read: the
+    tick's cost), else the loop over the tables (smaller code where the function is off the
+    tick's path); the one-value function is written out either way.
     """
     from maglevgen.codegen.checks import error_defines  # local: jinja2 only when C is written
     from maglevgen.codegen.emit import render
@@ -415,11 +457,18 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
            "stem": stem, "function": function, "prefix": prefix, "title": title,
            "summary": summary, "terms": terms, "offsets": [0, *np.cumsum(terms).tolist()],
            "varying": [i for i, n in enumerate(terms) if n > 1] if varying else [],
-           "one_output": None}
+           "one_output": None, "written_out": written_out}
+    # each stored value's Clenshaw written out (maglev_schedule and the one-value function)
+    ctx["clenshaw"] = [clenshaw_lines(table.coeffs[:k, j], f"out[{j}]")
+                       for j, k in zip(table.stored, terms, strict=True)]
+    ctx["clenshaw_vars"] = _clenshaw_vars([ln for lines in ctx["clenshaw"] for ln in lines])
     if one_output is not None:
         first, size = next((f, s) for name, f, s in fields if name == one_output)
         if size != 1:
             raise ValueError(f"one_output {one_output!r}: a field of one value expected")
         slot = list(table.stored).index(first) if first in table.stored else None
-        ctx["one_output"] = {"name": one_output, "slot": slot}
+        lines = [] if slot is None else clenshaw_lines(table.coeffs[:terms[slot], first],
+                                                       "*out")
+        ctx["one_output"] = {"name": one_output, "slot": slot, "lines": lines,
+                             "vars": _clenshaw_vars(lines)}
     return {f"{stem}{ext}": render(f"maglev_gain_table{ext}.j2", **ctx) for ext in (".h", ".c")}

@@ -33,11 +33,11 @@ __all__ = ["FIRMWARE_FLAGS", "MEASURED", "QEMU_TICKS", "SENSE_REFRESH_TICKS", "T
 #: the tick's cost on the Cortex-M4F at the default carriage, as bench/firmware_tick.py
 #: measured it (BENCHMARKS.md, "Firmware tick on the Cortex-M4F"); quoted by the README
 MEASURED: dict = {
-    "instructions": 5538, "cycles": 9158, "share_percent": 5.45, "clock_mhz": 168,
+    "instructions": 3203, "cycles": 5662, "share_percent": 3.37, "clock_mhz": 168,
     "stack_bytes": 800,
     # maglev_sense_tick: the estimator's products over its table's nonzero values, a slice of
     # its cache's refresh, the law (52696 instructions, 51 % with the table every tick)
-    "sense": {"instructions": 8987, "cycles": 15388, "share_percent": 9.16,
+    "sense": {"instructions": 6652, "cycles": 11892, "share_percent": 7.08,
               "stack_bytes": 1232},
     # maglev_sense_init: the whole table at once (the start, and a tick that starts again)
     "sense_init": {"instructions": 14887, "cycles": 24409, "share_percent": 14.53,
