@@ -274,3 +274,24 @@ def test_one_step_prediction_error_within_the_dares_covariance(sim_lib) -> None:
     rms = np.array([np.sqrt(np.mean(err[:, cv.STATE_INDEX[s]] ** 2)) for s in model.states])
     ratio = dict(zip(model.states, np.round(rms / sd, 3).tolist(), strict=True))
     assert np.all(rms <= 1.15 * sd), ratio
+
+
+@pytest.mark.needs_cc
+def test_the_host_tuned_libraries_hold_no_fused_multiply_add(sensed_tick, sim_lib) -> None:
+    """The sense tick's host build and the lanes' driver are tuned to this CPU
+    (`HOST_TUNED_FLAGS`) yet must be the same IEEE operations as the firmware's and the
+    scalar loop's: the disassembler finds no fused multiply-add (x86's vfmadd/vfmsub/vfnmadd/
+    vfnmsub, add-sub forms included) in either."""
+    import re
+    import shutil
+    import subprocess
+
+    objdump = shutil.which("objdump")
+    if objdump is None:
+        pytest.fail("objdump (binutils) is needed to read the compiled code")
+    lanes = sim_lib._lanes_functions()[2]._name
+    for lib in (sensed_tick[0].firmware.library.path, lanes):
+        text = subprocess.run([objdump, "-d", str(lib)], capture_output=True, text=True,
+                              check=True).stdout
+        fused = re.findall(r"\tv?fn?m(?:add|sub)\S*", text)
+        assert not fused, (lib, sorted(set(fused))[:5])
