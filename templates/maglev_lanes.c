@@ -68,6 +68,7 @@ static int lanes_imu_reading(const maglev_real** arg, maglev_real** res, maglev_
 
 #define LANES_MAX 8
 #define NOISE_AHEAD 16 /* ticks (lane_begin) */
+#define ROWS_AHEAD 16 /* steps (lane_begin) */
 #define ALIGN __attribute__((aligned(8 * LANES_MAX)))
 
 /* the kernels (maglevgen.codegen.lanes, in double: a double library only): in[i] the
@@ -107,7 +108,7 @@ static int lanes_coupled_control(const maglev_real** arg, maglev_real** res, mag
 }
 
 /* the xdot the sense tick's readings take for the lane it runs (NULL: maglev_dynamics_prepared's,
-   computed now) and whether maglev_dynamics_prepared's checks pass on it (lane_stage_ok: its x,
+   computed now) and whether maglev_dynamics_prepared's checks pass on it (lanes_stage_ok: its x,
    u and xdot finite; else its error, the output zeroed as it zeroes it); one per thread */
 static __thread const maglev_real* lanes_xdot;
 static __thread int lanes_xdot_ok;
@@ -379,6 +380,18 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
         lane_end(L, b, MAGLEV_SIM_NONFINITE);
         return 0;
     }
+    /* the run's rows ROWS_AHEAD steps on, fetched for writing: each lane writes three rows
+       a step (x, u, gaps), W lanes' interleaved, into memory the cache does not hold (a
+       chunk's rows are tens of MB); without it the stores wait on each line's fetch */
+    if (L->k + ROWS_AHEAD <= b->n_steps) {
+        const long long row = L->run * (b->n_steps + 1) + L->k + ROWS_AHEAD;
+        __builtin_prefetch(b->x_traj + row * NX, 1, 3);
+        __builtin_prefetch(b->x_traj + row * NX + NX - 1, 1, 3);
+        __builtin_prefetch(b->u_traj + row * NU, 1, 3);
+        __builtin_prefetch(b->u_traj + row * NU + NU - 1, 1, 3);
+        __builtin_prefetch(b->gap_traj + row * NG, 1, 3);
+        __builtin_prefetch(b->gap_traj + row * NG + NG - 1, 1, 3);
+    }
     if (L->k % L->tick == 0) {
         const maglev_real* g;
         maglev_real* slot = L->ring + L->w * NU;
@@ -475,20 +488,22 @@ static int lane_check(lane* L, work* ws, const stage_arrays* S, int l, int W, co
     return 1;
 }
 
-/* the lanes' next state: rk4_combine of each live lane, then the lane's next step */
-static void lane_finish_step(lane* L, const stage_arrays* S, int l, int W, const batch* b) {
-    const maglev_real sixth = b->dt / (maglev_real)6;
-    const maglev_real* x = lane_x(L, b);
-    maglev_real k1[NX], k2[NX], k3[NX], k4[NX];
-    int i;
-    for (i = 0; i < NX; ++i) {
-        k1[i] = S->k1[i * W + l];
-        k2[i] = S->k2[i * W + l];
-        k3[i] = S->k3[i * W + l];
-        k4[i] = S->k4[i * W + l];
+/* the lanes' next states into xn: rk4_combine over every lane at once (its operation per
+   entry, so each lane's bits; [entry][W] taken as W blocks of NX entries) */
+static void lanes_rk4(const stage_arrays* S, maglev_real sixth, double* xn, int W) {
+    int c;
+    for (c = 0; c < W; ++c) {
+        rk4_combine(S->x + c * NX, S->k1 + c * NX, S->k2 + c * NX, S->k3 + c * NX,
+                    S->k4 + c * NX, sixth, xn + c * NX);
     }
+}
+
+/* a live lane's next state (xn's column, lanes_rk4), then its next step */
+static void lane_finish_step(lane* L, const double* xn, int l, int W, const batch* b) {
+    maglev_real* x_next = lane_x(L, b) + NX;
+    int i;
+    for (i = 0; i < NX; ++i) x_next[i] = xn[i * W + l];
     for (i = 0; i < NU; ++i) L->act[i] = L->act_end[i];
-    rk4_combine(x, k1, k2, k3, k4, sixth, (maglev_real*)x + NX);
     L->n_sat += L->sat;
     L->k += 1;
 }
@@ -499,17 +514,23 @@ static void lanes_axpy(double* xt, const double* x, maglev_real h, const double*
     for (i = 0; i < NX * W; ++i) xt[i] = x[i] + h * k[i];
 }
 
-/* lane l's stage as maglev_dynamics_prepared checks it (the scalar loop calls it through
-   that check): 1 when its x, u and xdot are finite, 0 where the check returns an error */
-static int lane_stage_ok(const double* x, const double* u, const double* xdot, int l, int W) {
-    int i;
+/* the lanes' stage as maglev_dynamics_prepared checks it (the scalar loop calls it through
+   that check): ok[l] cleared for each live lane l whose x, u or xdot holds a non-finite
+   value (where the check returns an error); over [entry][W] at once, the lanes' columns
+   side by side (vectorised) */
+static void lanes_stage_ok(const double* x, const double* u, const double* xdot,
+                           const int* live, int* ok, int W) {
+    int bad[LANES_MAX] = {0};
+    int i, l;
     for (i = 0; i < NX; ++i) {
-        if (!isfinite(x[i * W + l]) || !isfinite(xdot[i * W + l])) return 0;
+        for (l = 0; l < W; ++l) bad[l] |= !isfinite(x[i * W + l]) | !isfinite(xdot[i * W + l]);
     }
     for (i = 0; i < NU; ++i) {
-        if (!isfinite(u[i * W + l])) return 0;
+        for (l = 0; l < W; ++l) bad[l] |= !isfinite(u[i * W + l]);
     }
-    return 1;
+    for (l = 0; l < W; ++l) {
+        if (live[l] && bad[l]) ok[l] = 0;
+    }
 }
 
 /* the stage kernel on every lane (unless `done`: xdot holds its result at these inputs
@@ -519,15 +540,12 @@ static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
                         int done) {
     const double* in[3];
     double* out[1];
-    int l;
     in[0] = x;
     in[1] = u;
     in[2] = S->d;
     out[0] = xdot;
     if (!done) (void)kernel(in, out);
-    for (l = 0; l < W; ++l) {
-        if (live[l] && !lane_stage_ok(x, u, xdot, l, W)) ok[l] = 0;
-    }
+    lanes_stage_ok(x, u, xdot, live, ok, W);
 }
 
 /* the lanes on the sensors at a tick: their readings (lanes_read), k1 reused
@@ -580,12 +598,14 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
             in[2] = S->d;
             out[0] = S->k1;
             (void)K->dynamics(in, out);
+            for (l = 0; l < W; ++l) ok[l] = 1;
+            lanes_stage_ok(S->x, S->u, S->k1, ready, ok, W);
             for (l = 0; l < W; ++l) {
                 int i;
                 sensed[l] = ready[l] && !lanes[l].control_lanes;
                 if (!sensed[l]) continue;
                 for (i = 0; i < NX; ++i) lanes[l].xdot[i] = S->k1[i * W + l];
-                lanes[l].xdot_ok = lane_stage_ok(S->x, S->u, S->k1, l, W);
+                lanes[l].xdot_ok = ok[l];
                 lanes[l].readings.sense = lanes[l].r.loop->sense;
             }
             lanes_read(b, S, lanes, sensed, W, K);
@@ -672,10 +692,11 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
         lanes_stage(K->dynamics, S->xt, S->u_half, S, S->k3, live, ok, W, 0);
         lanes_axpy(S->xt, S->x, b->dt, S->k3, W);
         lanes_stage(K->dynamics, S->xt, S->u_end, S, S->k4, live, ok, W, 0);
+        lanes_rk4(S, b->dt / (maglev_real)6, S->xt, W);
         for (l = 0; l < W; ++l) {
             if (!live[l]) continue;
             if (ok[l]) {
-                lane_finish_step(&lanes[l], S, l, W, b);
+                lane_finish_step(&lanes[l], S->xt, l, W, b);
             } else {
                 lane_end(&lanes[l], b, MAGLEV_SIM_ERROR); /* run_loop: a stage's error */
             }

@@ -96,3 +96,38 @@ def test_runs_into_kept_buffers_equal_the_per_sample_runs(carriage, sim_lib, op)
             first = got[0].x.copy(), got[0].x
     assert first is not None
     assert not np.array_equal(first[0], first[1])  # the first batch's view: overwritten
+
+
+def test_sensed_runs_into_kept_buffers_equal_the_per_sample_runs(carriage, sim_lib,
+                                                                 op) -> None:
+    """On the sensors, the runs' noise kept too (`BatchBuffers.noise`, reused by the next
+    call): two batches of sensed runs with their own seeds into the same buffers, every run's
+    noise, states, inputs and gaps equal to `simulate`'s own run with a fresh noise array of
+    the same seed, and the first batch's noise overwritten by the second's (the contract)."""
+    from dataclasses import replace
+
+    from maglevgen.analyses.sim_loop import run_loop
+
+    tick, k_v, budget = run_loop(Plant(carriage, sim_lib), "sensed")
+    kw = {"speed_gain": k_v, "force_budget": budget}
+    min_gap = carriage.params.track.min_gap
+    buffers = BatchBuffers()
+    batches = [([(carriage.p, op, "spec", {"z": 2e-3}), (carriage.p, op, "spec", {"y": -1e-3})],
+                [11, 12]),
+               ([(carriage.p, op, "spec", {"psi": 3e-3})], [13])]
+    first = None
+    for jobs, seeds in batches:
+        got = simulate_batch(sim_lib, jobs, 0.2, 1e-3, min_gap, tick=tick, threads=1,
+                             seeds=seeds, buffers=buffers, **kw)
+        for (p, o, c, d), s, b in zip(jobs, seeds, got, strict=True):
+            a = simulate(sim_lib, p, o, c, 0.2, 1e-3, min_gap, d,
+                         tick=replace(tick, seed=s), **kw)
+            assert a.status == b.status
+            assert np.array_equal(a.sensing.noise, b.sensing.noise)
+            for name in ("x", "u", "gaps"):
+                assert np.array_equal(getattr(a, name), getattr(b, name)), (s, name)
+        if first is None:
+            first = got[0].sensing.noise.copy(), got[0].sensing.noise
+    assert first is not None
+    assert np.shares_memory(first[1], buffers.noise(0, first[1].shape))
+    assert not np.array_equal(first[0], first[1])  # the first batch's noise: overwritten

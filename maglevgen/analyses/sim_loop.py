@@ -20,6 +20,8 @@ from maglevgen.errors import InputError
 from maglevgen.runtime.sense import Sensing
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from maglevgen.analyses.sensed import SensedFirmware
     from maglevgen.control.estimation import SensorLayout
 
@@ -125,13 +127,16 @@ def white_rms(sigma: np.ndarray, step: np.ndarray) -> np.ndarray:
 
 
 def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
-                  noise_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                  noise_scale: float = 1.0, out: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """What a run adds to the readings of ``layout`` (``[sensors]``) at each of ``n_ticks``
     ticks, and each reading's resolution, every noise, bias and resolution times
     ``noise_scale``: (noise (n_ticks, readings), steps). The noise is each reading's
     in-run bias (the IMU's: each axis's sign drawn once per run, first) plus white noise,
     drawn from numpy's default_rng(``seed``); the white noise leaves out the share of the
-    variance the rounding to the resolution adds (the run rounds each noisy reading)."""
+    variance the rounding to the resolution adds (the run rounds each noisy reading).
+    ``out``: a float64 C-contiguous array of that shape the noise is written into (the same
+    numbers: memory kept across runs, `BatchBuffers.noise`), else a new one."""
     sigma, bias, step = reading_spread(params, layout)
     rng = np.random.default_rng(seed)
     sigma = sigma * noise_scale
@@ -139,21 +144,29 @@ def reading_noise(params, layout: SensorLayout, n_ticks: int, seed: int = 0,
         bias[layout.gyro_readings] *= rng.choice((-1.0, 1.0), 3)
         bias[layout.accel_readings] *= rng.choice((-1.0, 1.0), 3)
     step = step * noise_scale
-    noise = rng.standard_normal((n_ticks, len(layout.names)))
+    shape = (n_ticks, len(layout.names))
+    if out is not None and (out.shape != shape or out.dtype != np.float64
+                            or not out.flags.c_contiguous):
+        raise ValueError(f"the noise's array is {out.shape} {out.dtype}, not {shape} float64 "
+                         "C-contiguous")
+    noise = rng.standard_normal(shape) if out is None else rng.standard_normal(out=out)
     noise *= white_rms(sigma, step)  # in place: a run's noise is its largest array
     noise += bias * noise_scale
     return noise, step
 
 
-def sensing(tick: SensedTick, n_ticks: int, record: bool = True, n_inputs: int = 0
-            ) -> Sensing:
+def sensing(tick: SensedTick, n_ticks: int, record: bool = True, n_inputs: int = 0,
+            noise_memory: Callable[[tuple[int, int]], np.ndarray] | None = None) -> Sensing:
     """A run's `Sensing` of ``tick``: its sensors, ``n_ticks`` ticks of noise
-    (`reading_noise` with the tick's seed, scale and sensor values) and, ``record``, each
-    tick's readings and prediction kept (and its command, given the plant's ``n_inputs``)."""
+    (`reading_noise` with the tick's seed, scale and sensor values; written into the array
+    ``noise_memory`` gives for its shape, `BatchBuffers.noise`, else a new one) and,
+    ``record``, each tick's readings and prediction kept (and its command, given the
+    plant's ``n_inputs``)."""
     fw = tick.firmware
     assert fw is not None  # SensedTick refuses None
     params, noisy = fw.sampled(tick.sensor_values)  # the sample's sensors' noise
-    noise, step = reading_noise(params, noisy, n_ticks, tick.seed, tick.noise_scale)
+    out = None if noise_memory is None else noise_memory((n_ticks, len(noisy.names)))
+    noise, step = reading_noise(params, noisy, n_ticks, tick.seed, tick.noise_scale, out)
     layout = fw.layout
     return Sensing(fw.library, np.array([g.point for g in layout.gaps]).reshape(-1, 3),
                    np.array([g.normal for g in layout.gaps]).reshape(-1, 3),

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -364,14 +364,17 @@ def simulate(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint, controll
 def hold_run(p: np.ndarray, op: OperatingPoint, controller: str, dt: float,
              disturbance: dict[str, float], tick: Tick | None = None, speed_gain: float = 0.0,
              force_budget: float | None = None, controller_op: OperatingPoint | None = None,
-             n_steps: int = 0, record: bool = True) -> BatchRun:
+             n_steps: int = 0, record: bool = True,
+             noise_memory: Callable[[tuple[int, int]], np.ndarray] | None = None) -> BatchRun:
     """maglev_simulate's inputs for `simulate`'s run of ``n_steps`` steps (the disturbed trim
     of ``op``, the trim drag, the gains and the reference of ``controller_op`` (default
     ``op``), p and the loop; at a `SensedTick` its sensors and noise (readings, predictions
-    kept when ``record``) and zero gains (the firmware's tables fly): `simulate_batch`'s."""
+    kept when ``record``; the noise in ``noise_memory``'s array: `sim_loop.sensing`) and zero
+    gains (the firmware's tables fly): `simulate_batch`'s."""
     design = op if controller_op is None else controller_op
     if isinstance(tick, SensedTick):  # no gain designed: maglev_simulate reads none here
-        sense = sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1])
+        sense = sensing(tick, n_steps // tick.steps(dt) + 1, record, op.B.shape[1],
+                        noise_memory)
         loop = control_loop(dt, tick, speed_gain, force_budget, design.speed, sense=sense)
         K_pos = K_rate = np.zeros(25)
     elif isinstance(tick, LoopSetting):
@@ -417,7 +420,8 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
     `SimulationLibrary.simulate_batch`'s (default 0: the tick-held runs W at a time in SIMD
     lanes where the CPU and the batch allow, the same numbers; None: one maglev_simulate
     per run). ``buffers`` (`BatchBuffers`): the trajectories' rows written into them, good
-    until the next call with the same buffers."""
+    until the next call with the same buffers, and so are the runs' noise arrays
+    (`BatchBuffers.noise`)."""
     n_steps = _check_steps(t_end, dt)
     if not jobs:
         return []
@@ -426,8 +430,9 @@ def simulate_batch(lib: SimulationLibrary, jobs: list[tuple],
     ticks = ticks if ticks is not None else [
         replace(tick, seed=int(s)) if isinstance(tick, SensedTick) else tick for s in seeds]
     runs = [hold_run(p, op, c, dt, d, tk, speed_gain, force_budget,
-                     design[0] if design else None, n_steps=n_steps, record=False)
-            for (p, op, c, d, *design), tk in zip(jobs, ticks, strict=True)]
+                     design[0] if design else None, n_steps=n_steps, record=False,
+                     noise_memory=None if buffers is None else partial(buffers.noise, j))
+            for j, ((p, op, c, d, *design), tk) in enumerate(zip(jobs, ticks, strict=True))]
     op0 = jobs[0][1]
     done = lib.simulate_batch(runs, dt, n_steps, min_gap, op0.allocation.shape[0] + 1,
                               op0.gaps.size, threads, lanes, buffers=buffers)
