@@ -77,14 +77,14 @@ def _sources(carriage: DerivedCarriage, folder: Path) -> GainTable:
 
 def m4_footprint(folder: Path) -> dict:
     """Bytes kept per group on Cortex-M4F and the worst stack."""
-    m4 = ROOT / "tests" / "c" / "m4"
+    startup = ROOT / "templates" / "firmware_qemu_startup.c"  # the firmware folder's
     (folder / "bench.ld").write_text(LINK)
     objs = []
     for name in ("maglev_functions", "maglev_gain_table"):
         run(["arm-none-eabi-gcc", *FLAGS, "-fcallgraph-info=su", "-c", f"{name}.c", "-o",
              f"{name}.o"], cwd=folder)
         objs.append(f"{name}.o")
-    run(["arm-none-eabi-gcc", *CPU, "-Os", "-c", str(m4 / "startup.c"), "-o", "startup.o"],
+    run(["arm-none-eabi-gcc", *CPU, "-Os", "-c", str(startup), "-o", "startup.o"],
         cwd=folder)
     ci = "".join((folder / f"{n}.ci").read_text() for n in ("maglev_functions",
                                                              "maglev_gain_table"))

@@ -458,8 +458,13 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
            "summary": summary, "terms": terms, "offsets": [0, *np.cumsum(terms).tolist()],
            "varying": [i for i, n in enumerate(terms) if n > 1] if varying else [],
            "one_output": None, "written_out": written_out}
-    # each stored value's Clenshaw written out (maglev_schedule and the one-value function)
-    ctx["clenshaw"] = [clenshaw_lines(table.coeffs[:k, j], f"out[{j}]")
+    # each stored value's Clenshaw written out (maglev_schedule and the one-value function),
+    # its output named by the header's field macro: out[<prefix>_OUT_<FIELD> + k]
+    def named(j: int) -> str:
+        name, first = next((nm, f) for nm, f, size in fields if f <= j < f + size)
+        return f"out[{prefix}_OUT_{name.upper()}{f' + {j - first}' if j > first else ''}]"
+
+    ctx["clenshaw"] = [clenshaw_lines(table.coeffs[:k, j], named(j))
                        for j, k in zip(table.stored, terms, strict=True)]
     ctx["clenshaw_vars"] = _clenshaw_vars([ln for lines in ctx["clenshaw"] for ln in lines])
     if one_output is not None:
