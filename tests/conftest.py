@@ -219,6 +219,16 @@ def sim_lib(carriage: DerivedCarriage, private_cache):
 
 
 @pytest.fixture(scope="session")
+def sensed_tick(carriage: DerivedCarriage, sim_lib):
+    """`run_loop`'s (tick, speed gain, force budget) of the default carriage on the sensors:
+    its firmware rendered and its sense tick compiled for the host, once."""
+    from maglevgen.analyses.sim_loop import run_loop
+    from maglevgen.control.carriage_plant import Plant
+
+    return run_loop(Plant(carriage, sim_lib), "sensed")
+
+
+@pytest.fixture(scope="session")
 def op(sim_lib, carriage: DerivedCarriage):
     """Trim and gains at the default speed, from the generated C."""
     from maglevgen.analyses.simulate import Weights, operating_point

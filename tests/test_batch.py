@@ -98,17 +98,15 @@ def test_runs_into_kept_buffers_equal_the_per_sample_runs(carriage, sim_lib, op)
     assert not np.array_equal(first[0], first[1])  # the first batch's view: overwritten
 
 
-def test_sensed_runs_into_kept_buffers_equal_the_per_sample_runs(carriage, sim_lib,
-                                                                 op) -> None:
+def test_sensed_runs_into_kept_buffers_equal_the_per_sample_runs(carriage, sim_lib, op,
+                                                                 sensed_tick) -> None:
     """On the sensors, the runs' noise kept too (`BatchBuffers.noise`, reused by the next
     call): two batches of sensed runs with their own seeds into the same buffers, every run's
     noise, states, inputs and gaps equal to `simulate`'s own run with a fresh noise array of
     the same seed, and the first batch's noise overwritten by the second's (the contract)."""
     from dataclasses import replace
 
-    from maglevgen.analyses.sim_loop import run_loop
-
-    tick, k_v, budget = run_loop(Plant(carriage, sim_lib), "sensed")
+    tick, k_v, budget = sensed_tick
     kw = {"speed_gain": k_v, "force_budget": budget}
     min_gap = carriage.params.track.min_gap
     buffers = BatchBuffers()

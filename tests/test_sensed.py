@@ -25,14 +25,6 @@ SPEED, SECONDS, SKIP = 20.0, 3.0, 500  # the compared hold; its first ticks (the
 
 
 @pytest.fixture(scope="module")
-def sensed_tick(carriage: DerivedCarriage, sim_lib):
-    from maglevgen.analyses.sim_loop import run_loop
-    from maglevgen.control.carriage_plant import Plant
-
-    return run_loop(Plant(carriage, sim_lib), "sensed")
-
-
-@pytest.fixture(scope="module")
 def held(carriage: DerivedCarriage, sim_lib, sensed_tick):
     """The C hold on the sensors from trim at SPEED, and noisy_hold's with the same noise."""
     from maglevgen.analyses.output_feedback import noisy_hold
