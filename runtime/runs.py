@@ -103,13 +103,14 @@ class BatchBuffers:
     def take(self, n: int, rows: int, widths: tuple[int, int, int], dtype
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Arrays (n, rows, width) of x, u and the gaps, grown when a call needs more runs,
-        made again when the rows or widths change; NaN where no call wrote (a row the C left
-        unwritten shows as NaN, never as an earlier run's value that looks right)."""
+        made again when the rows or widths change. Made NaN-filled, so that in the first
+        call a row the C left unwritten would show as NaN; a later call gets the memory as
+        the previous one left it, the C writing every row up to each run's last, the part
+        a `Run` returns (tests/test_batch.py compares such runs with fresh ones)."""
         key = (rows, widths, np.dtype(dtype))
-        if self._arrays is None or self._key != key or self._arrays[0].shape[0] < n:
-            self._key = key
-            self._arrays = tuple(np.full((n, rows, w), np.nan, dtype=dtype)  # type: ignore[assignment]
-                                 for w in widths)
-        assert self._arrays is not None
-        x, u, g = (a[:n] for a in self._arrays)
-        return x, u, g
+        arrays = self._arrays
+        if arrays is None or self._key != key or arrays[0].shape[0] < n:
+            x, u, g = (np.full((n, rows, w), np.nan, dtype=dtype) for w in widths)
+            self._key, self._arrays = key, (x, u, g)
+            return x, u, g
+        return arrays[0][:n], arrays[1][:n], arrays[2][:n]
