@@ -149,10 +149,16 @@ def test_the_firmware_folder_embeds_it(example: dict) -> None:
     start, offsets = 0, {}
     for name, size in GAIN_TABLE_FIELDS:
         offsets[name], start = range(start, start + size), start + size
-    # the values maglev_schedule writes (each one's Clenshaw written out: out[j] = ...)
+    # the values maglev_schedule writes (each one's Clenshaw written out:
+    # out[MAGLEV_SCHEDULE_OUT_<FIELD> + k] = ...), placed by the header's field macros
+    macro = {m: int(v) for m, v in re.findall(r"#define (MAGLEV_SCHEDULE_OUT_\w+) (\d+)",
+                                                fw["maglev_gain_table.h"])}
     body = fw["maglev_gain_table.c"].split("int maglev_schedule(", 1)[1].split("\n}\n", 1)[0]
-    stored = {int(i) for i in re.findall(r"^\s*out\[(\d+)\] = ", body, re.MULTILINE)}
+    stored = {macro[m] + int(k or 0) for m, k in
+              re.findall(r"^\s*out\[(MAGLEV_SCHEDULE_OUT_\w+)(?: \+ (\d+))?\] = ", body,
+                         re.MULTILINE)}
     assert stored
+    assert macro["MAGLEV_SCHEDULE_OUT_K_RATE"] == offsets["K_rate"][0]
     n = int(len(offsets["K_rate"]) ** 0.5)
     assert not stored & set(offsets["K_pos"])
     assert stored & set(offsets["K_rate"]) == {offsets["K_rate"][i * (n + 1)] for i in range(n)}
