@@ -22,7 +22,6 @@ from scipy import stats
 
 from maglevgen.analyses import sim_loop
 from maglevgen.analyses.simulate import simulate
-from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.derive import conventions as cv
 from maglevgen.exports.fmu import build_fmu
@@ -89,9 +88,11 @@ def _readings(path: Path) -> list[str]:
             .modelVariables if v.name.startswith("reading.")]
 
 
-def _host(carriage, sim_lib, op, noise: np.ndarray, step: np.ndarray, monkeypatch):
-    """The host's sensed loop of the same controller from the same start, with ``noise``."""
-    tick, k_v, budget = sim_loop.run_loop(Plant(carriage, sim_lib), Loop.SENSED)
+def _host(carriage, sim_lib, op, sensed_tick, noise: np.ndarray, step: np.ndarray,
+          monkeypatch):
+    """The host's sensed loop of the same controller from the same start, with ``noise``
+    (``sensed_tick``: conftest's, `run_loop`'s on the sensors)."""
+    tick, k_v, budget = sensed_tick
 
     def given(params, layout, n_ticks, *args, **kwargs):
         assert n_ticks <= noise.shape[0]
@@ -105,7 +106,7 @@ def _host(carriage, sim_lib, op, noise: np.ndarray, step: np.ndarray, monkeypatc
 
 @pytest.mark.parametrize("fmi", ["2", "3"])
 def test_cs_flies_the_hosts_sensed_loop_on_the_same_noise(fmus, carriage, sim_lib, op, fmi,
-                                                          monkeypatch) -> None:
+                                                          sensed_tick, monkeypatch) -> None:
     """Co-simulation: the FMU's states, applied inputs and readings equal the host's sensed
     loop's at every sample, bit for bit, when the host adds the noise of the documented
     generator; another seed flies another run; the default loop is the sensed one."""
@@ -115,7 +116,7 @@ def test_cs_flies_the_hosts_sensed_loop_on_the_same_noise(fmus, carriage, sim_li
     assert names and "noise_seed" in var  # the default loop of the embedded controller
     ticks = round(T_END * float(var["tick_rate"].start)) + 1
     noise, step = _reference_noise(var, names, 0, ticks)
-    ref = _host(carriage, sim_lib, op, noise, step, monkeypatch)
+    ref = _host(carriage, sim_lib, op, sensed_tick, noise, step, monkeypatch)
     assert ref.sensing.tick_error == 0 and len(ref.t) == ticks
     res = simulate_fmu(str(path), fmi_type="CoSimulation", stop_time=T_END,
                        output_interval=1e-3,
