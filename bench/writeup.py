@@ -124,6 +124,7 @@ def targets(r: dict) -> list[dict]:
             "met": not heap,
         },
         *_montecarlo_targets(r.get("montecarlo")),
+        *_lanes_targets(r.get("simd_batch"), r.get("casadi_peer")),
     ]
 
 
@@ -181,9 +182,59 @@ def _montecarlo_targets(mc: dict | None) -> list[dict]:
     ]
     if "big_runs" in mc:
         out.append({"name": f"Monte Carlo: {mc['big_runs']} samples of the default study "
-                            "under 60 s",
+                            f"(`--loop {mc.get('loop', 'firmware')}`) under 60 s on "
+                            f"{mc['cores']} cores",
                     "measured": f"{mc['big_s']:.1f} s (the bare C loop alone: "
                                 f"{mc['big_floor_s']:.0f} s)", "met": mc["big_s"] < 60})
+    return out
+
+
+# issue 53: the batch at W lanes against the scalar loop, per run against the scalar
+# operation-count limit, and against every peer per CPU-second
+LANES_SPEEDUP, LANES_W, LIMIT_RATIO = 3.0, 8, 1.5
+
+
+def _lanes_targets(simd: dict | None, peer: dict | None) -> list[dict]:
+    """Issue 53's targets from the same run's bench/simd_batch.py (each loop's scalar
+    driver and lanes, taking turns in each repeat) and bench/casadi_peer.py (the operation
+    count's scalar limit, the peers' runs per CPU-second)."""
+    out = []
+    key = f"W={LANES_W}"
+    for loop, res in (simd or {}).items():
+        if key not in res.get("speedup_vs_scalar", {}):
+            out.append({"name": f"the batch at {LANES_W} lanes at least {LANES_SPEEDUP:g}x "
+                                f"the scalar loop per core (`--loop {loop}`)",
+                        "measured": f"not measured: this CPU runs lanes "
+                                    f"{res.get('widths_this_cpu')}", "met": False})
+            continue
+        ratio = res["speedup_vs_scalar"][key]["median"]
+        same = res["bitwise_same_as_scalar"][key]
+        out.append({
+            "name": f"the batch at {LANES_W} lanes at least {LANES_SPEEDUP:g}x the scalar loop "
+                    f"per core, each run the scalar run's bits (`--loop {loop}`)",
+            "measured": f"{ratio:.3g}x ({res['ms_per_run'][key]['median']:.3g} ms a run "
+                        f"against {res['ms_per_run']['scalar']['median']:.3g}); "
+                        + ("every run bit for bit" if same else "**runs differ**"),
+            "met": ratio >= LANES_SPEEDUP and same})
+        if peer is not None and loop == "firmware":  # the operation count is this loop's
+            limit = peer["limit_ms_per_run"]["scalar"]
+            per_run = res["ms_per_run"][key]["median"]
+            out.append({
+                "name": f"a run within {LIMIT_RATIO:g}x of the scalar operation-count limit on "
+                        f"one core (`--loop firmware`, {LANES_W} lanes; the sense tick's "
+                        "hand-written C has no CasADi operation count)",
+                "measured": f"{per_run / limit:.3g}x ({per_run:.3g} ms against "
+                            f"{limit:.3g} ms: {peer['operations_per_run'] / 1e6:.0f} M "
+                            "operations at the machine's scalar peak)",
+                "met": per_run <= LIMIT_RATIO * limit})
+    if peer is not None:
+        speedups = {k: v["median"] for k, v in peer["project_speedup"].items()}
+        out.append({
+            "name": "ahead of every peer per CPU-second (the same closed loop and inputs)",
+            "measured": "; ".join(f"{v:.3g}x {k}" for k, v in speedups.items())
+                        + ("" if peer.get("jax_skipped") is None
+                           else f"; JAX not measured: {peer['jax_skipped']}"),
+            "met": bool(speedups) and min(speedups.values()) > 1})
     return out
 
 

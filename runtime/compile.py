@@ -21,16 +21,18 @@ __all__ = ["DEFAULT_FLAGS", "HOST_TUNED_FLAGS", "CompileError", "cached_shared",
            "compile_object", "compile_shared", "compiler_name", "trusted"]
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared")
-#: added to DEFAULT_FLAGS for the libraries that only ever run on the machine that compiled
-#: them, where the time goes (the Monte-Carlo lanes' driver, the firmware's sense tick for the
-#: host): tuned for this CPU, with no fused multiply-add formed, so every operation is the same
-#: IEEE operation as at -O2 and every result the same bits: -ffp-contract=off (-std=c99 implies
-#: it for gcc, not for clang), and no SLP vectorisation, whose add-sub patterns GCC 12 fuses
-#: into vfmaddsub/vfmsubadd even so (the firmware's written-out gain schedule lost bits that
-#: way). tests/test_sensed.py disassembles both libraries for fused instructions. The cache key
-#: of a library built with them holds what -march=native means on this machine
-#: (`_native_target`): a cache folder shared by different CPUs keeps one library per CPU.
-HOST_TUNED_FLAGS: tuple[str, ...] = ("-O3", "-march=native", "-ffp-contract=off",
+#: DEFAULT_FLAGS at -O3 (one -O level on the line) for the libraries that only ever run on the
+#: machine that compiled them, where the time goes (the Monte-Carlo lanes' driver, the
+#: firmware's sense tick for the host): tuned for this CPU, with no fused multiply-add formed,
+#: so every operation is the same IEEE operation as at -O2 and every result the same bits:
+#: -ffp-contract=off (-std=c99 implies it for gcc, not for clang), and no SLP vectorisation,
+#: whose add-sub patterns GCC 12 fuses into vfmaddsub/vfmsubadd even so (the firmware's
+#: written-out gain schedule lost bits that way). tests/test_sensed.py disassembles both
+#: libraries for fused instructions. The cache key of a library built with them holds what
+#: -march=native means on this machine (`_native_target`): a cache folder shared by different
+#: CPUs keeps one library per CPU.
+HOST_TUNED_FLAGS: tuple[str, ...] = (*("-O3" if f == "-O2" else f for f in DEFAULT_FLAGS),
+                                     "-march=native", "-ffp-contract=off",
                                      "-fno-tree-slp-vectorize")
 
 

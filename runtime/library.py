@@ -345,7 +345,7 @@ class SimulationLibrary(GeneratedLibrary):
             if not _write_text(folder / LANES_KERNELS, kernels):
                 raise MaglevError(f"cannot write the lane kernels into {folder}")
             src = Path(str(resources.files("maglevgen.templates") / LANES_SOURCE))
-            flags = (*DEFAULT_FLAGS, *HOST_TUNED_FLAGS, f"-I{self.sources}",
+            flags = (*HOST_TUNED_FLAGS, f"-I{self.sources}",
                      *(["-Wl,--no-as-needed,-lmvec"] if math == "libmvec" else []))
             sources = [src, folder / LANES_KERNELS, self.path]
             try:

@@ -26,7 +26,7 @@ from maglevgen.errors import MaglevError
 from maglevgen.infrastructure.cache import cache_root
 from maglevgen.infrastructure.hashing import ContentHash
 from maglevgen.infrastructure.output import write_output
-from maglevgen.runtime.compile import DEFAULT_FLAGS, HOST_TUNED_FLAGS, compile_shared, trusted
+from maglevgen.runtime.compile import HOST_TUNED_FLAGS, compile_shared, trusted
 
 __all__ = ["SenseLibrary", "Sensing", "sense_library"]
 
@@ -36,7 +36,7 @@ HOST_SENSE_SOURCE = "maglev_host_sense.c"
 SENSE_SOURCES = ("maglev_tick.c", "maglev_gain_table.c", "maglev_sense_table.c",
                  "maglev_functions.c")
 #: the warnings the firmware's own build treats as errors, on the host's compile too
-HOST_FLAGS = (*DEFAULT_FLAGS, *HOST_TUNED_FLAGS, "-Wall", "-Wextra", "-Werror")
+HOST_FLAGS = (*HOST_TUNED_FLAGS, "-Wall", "-Wextra", "-Werror")
 
 
 class SenseLibrary:

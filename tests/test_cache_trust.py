@@ -157,7 +157,7 @@ def test_a_host_tuned_library_is_cached_per_cpu(tmp_path, monkeypatch):
     # the driver's own expansion names the CPU (gcc's cc1 -march=<cpu> -m<feature>...)
     assert any(t.startswith("-march=") and t != "-march=native" for t in expanded)
     assert not any("/" in t for t in expanded)  # no temporary file names: a stable key
-    tuned = (*comp.DEFAULT_FLAGS, *comp.HOST_TUNED_FLAGS)
+    tuned = comp.HOST_TUNED_FLAGS
     here = comp._library_path(gcc, [src], tuned, tmp_path)
     monkeypatch.setattr(comp, "_native_target", lambda cc: ("-march=another-cpu",))
     assert comp._library_path(gcc, [src], tuned, tmp_path) != here
