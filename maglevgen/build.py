@@ -497,7 +497,7 @@ def _gain_table_c(plant, env, manifest: str | bytes) -> dict[str, str]:
 
 
 def _stability_map(env) -> dict[str, bytes]:
-    from maglevgen.analyses.envelope import disk_margins_png, stability_map_png
+    from maglevgen.analyses.envelope_figures import disk_margins_png, stability_map_png
 
     out = {"envelope/stability_map.png": stability_map_png(env)}
     margins = next((c.margins for c in env.controllers.values() if c.margins is not None), None)

@@ -50,7 +50,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
         "the unchanged rebuild (< 0.5 s) reads the parameter text and BUILD.json only; the "
         "stages are imported when something has to be built",
         ("maglevgen.infrastructure.cache", "maglevgen.carriage", "maglevgen.codegen.interface",
-         "maglevgen.analyses.envelope", "maglevgen.runtime.library",
+         "maglevgen.analyses.envelope", "maglevgen.analyses.envelope_figures",
+         "maglevgen.runtime.library",
          "maglevgen.analyses.magnetic_damping", "maglevgen.controllers",
          "maglevgen.params", "maglevgen.runtime.compile", "maglevgen.control.schedule",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
@@ -128,7 +129,8 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
          "maglevgen.derive.structure", "maglevgen.params")),
     "maglevgen.api.studies": (
         "each study imports the analysis it runs, as its command does",
-        ("maglevgen.analyses.envelope", "maglevgen.analyses.montecarlo", "maglevgen.analyses.roa",
+        ("maglevgen.analyses.envelope", "maglevgen.analyses.envelope_figures",
+         "maglevgen.analyses.montecarlo", "maglevgen.analyses.roa",
          "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
          "maglevgen.control.carriage_plant", "maglevgen.control.built_loop",
          "maglevgen.codegen.generate", "maglevgen.infrastructure.output", "maglevgen.params")),

@@ -18,7 +18,6 @@ from functools import partial
 
 import numpy as np
 
-from maglevgen.analyses.envelope_figures import disk_margins_png, stability_map_png
 from maglevgen.analyses.loop import (
     LoopSetting,
     loop_design,
@@ -47,8 +46,8 @@ from maglevgen.errors import InputError
 from maglevgen.params import ARRAY_FORCE_LAWS, CIRCUIT_DYNAMICS, LoadedParams
 
 __all__ = ["DEFAULT_SPEEDS", "MAX_SPEEDS", "STABILITY_MARGIN", "Envelope", "LoopMargins",
-           "alternate_models", "compute_envelope", "disk_margins_png", "envelope_markdown",
-           "loop_design", "loop_plant", "loop_setting", "speed_range", "stability_map_png"]
+           "alternate_models", "compute_envelope", "envelope_markdown", "loop_design",
+           "loop_plant", "loop_setting", "speed_range"]
 
 DEFAULT_SPEEDS = 50
 MARGIN_SPEEDS = 5  # speeds of the grid (both ends among them) where the margins are computed

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import io
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from maglevgen.analyses.envelope import Envelope, LoopMargins
 from maglevgen.controllers import controller as registered_controller
 from maglevgen.controllers import title as controller_title
-
-if TYPE_CHECKING:
-    from maglevgen.analyses.envelope import Envelope, LoopMargins
 
 __all__ = ["disk_margins_png", "stability_map_png"]
 

@@ -296,7 +296,8 @@ class Studies(CarriageCore):
         rep = env.to_json()
         paths: tuple[Path, ...] = ()
         if out is not None:
-            from maglevgen.analyses.envelope import envelope_markdown, stability_map_png
+            from maglevgen.analyses.envelope import envelope_markdown
+            from maglevgen.analyses.envelope_figures import stability_map_png
             from maglevgen.infrastructure.output import write_output
 
             paths = tuple(write_output({"envelope.json": json.dumps(rep, indent=1) + "\n",

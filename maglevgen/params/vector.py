@@ -4,15 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
 
 from maglevgen.params.fields import field_extra
 from maglevgen.params.sections import Vehicle
-
-if TYPE_CHECKING:
-    from maglevgen.params.document import Parameters
 
 __all__ = ["flatten", "schema_leaves"]
 
@@ -84,6 +80,8 @@ def _walk(obj: BaseModel) -> Iterator[ParamEntry]:
             yield ParamEntry(f"{leaf.key}.{sfx}", c, leaf.unit, leaf.description)
 
 
-def flatten(params: Parameters) -> list[ParamEntry]:
-    """The parameter vector in file order, one scalar per entry, with units from the schema."""
+def flatten(params: BaseModel) -> list[ParamEntry]:
+    """The parameter vector of ``params`` (a parameter document,
+    `maglevgen.params.document.Parameters`) in file order, one scalar per entry, with units
+    from the schema."""
     return list(_walk(params))
