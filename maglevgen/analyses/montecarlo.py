@@ -68,6 +68,7 @@ from maglevgen.analyses.montecarlo_report import SAMPLE_STATUSES as SAMPLE_STATU
 from maglevgen.analyses.montecarlo_report import STATUSES as STATUSES
 from maglevgen.analyses.montecarlo_report import WORST as WORST
 from maglevgen.analyses.montecarlo_report import Z95 as Z95
+from maglevgen.analyses.montecarlo_study import Columns, Study
 from maglevgen.analyses.sim_loop import LoopSetting, SensedTick
 from maglevgen.analyses.simulate import (
     control_loop,
@@ -91,57 +92,6 @@ from maglevgen.params import ACTUATOR_LAG, LOOP_TOLERANCES, SENSOR_TOLERANCES
 from maglevgen.runtime.runs import BatchBuffers
 
 MAX_SAMPLES = 10_000_000
-
-
-@dataclass(frozen=True)
-class Study:
-    """Everything a worker needs to run any sample: small and picklable."""
-
-    origin: str
-    data: dict  # the validated parameter set (model_dump) the samples are drawn about
-    # how a worker process gets the compiled library (`Plant.worker_library`: loaded once there)
-    library: Callable[[], Any]
-    names: tuple[str, ...]  # parameter vector entries
-    p: tuple[float, ...]  # nominal parameter vector
-    keys: tuple[str, ...]  # toleranced entries, in file order (parameters and sensors)
-    sigma: tuple[float, ...]  # normal sigma, or NaN for a uniform one
-    half: tuple[float, ...]  # uniform half-width (or the truncation for a normal)
-    speed: tuple[float, float]
-    disturbance: tuple[tuple[str, float], ...]
-    controllers: tuple[str, ...]
-    t_end: float
-    dt: float
-    min_gap: float
-    weights: Weights
-    seed: int
-    # how the controller runs in every sample (maglevgen.analyses.simulate.simulate): its tick
-    # (maglevgen.analyses.simulate.Tick; None: at every RK4 stage), the speed loop's k_v [N s/m],
-    # the
-    # per-array force budget [N] (None: no limit)
-    tick: Any = None
-    speed_gain: float = 0.0
-    force_budget: float | None = None
-    # True: each sample's controller re-designed for its own parameters (``--redesign``);
-    # False: the nominal design at the sample's speed, as the firmware flies (module docstring)
-    redesign: bool = False
-    # per controller the nominal carriage's sampled region of attraction over the speed range
-    # (maglevgen.analyses.roa at BUILD_SAMPLING, without boundary runs): (speeds, P / c per speed,
-    # NaN where there is none), for each sample's ``region_multiple``
-    regions: dict | None = None
-    # the file's values of the toleranced entries beside p (maglevgen.params.LOOP_TOLERANCES:
-    # the actuators' lag, the sensors' noises and biases): (key, value) pairs; a sample's
-    # draws of them set its run's plant lag and readings (`sample_tick`)
-    loop_values: tuple[tuple[str, float], ...] = ()
-
-    @property
-    def sensors(self) -> tuple[tuple[str, float], ...]:
-        """The toleranced sensor entries of `loop_values` (SENSOR_TOLERANCES)."""
-        return tuple((k, v) for k, v in self.loop_values if k in SENSOR_TOLERANCES)
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        """The sampled inputs, in draw order: speed, disturbances, parameters."""
-        return ("speed", *(f"disturbance.{s}" for s, _ in self.disturbance), *self.keys)
 
 
 def sample_inputs(study: Study, index: int) -> np.ndarray:
@@ -435,9 +385,6 @@ def _worker_buffers() -> BatchBuffers:
 # ------------------------------------------------------------------------------ execution
 
 Tick = Callable[[int], None]
-Columns = dict[str, np.ndarray]  # a table: one array per column, one row per run
-
-
 def concat(tables: list[Columns]) -> Columns:
     """Tables of consecutive chunks as one."""
     return {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
@@ -684,7 +631,7 @@ def default_workers() -> int:
         os.cpu_count() or 1)
 
 
-__all__ = ["CONTACT_CAUSES", "FAILURES", "MAX_SAMPLES", "ChunkFailedError", "Columns", "Study",
+__all__ = ["CONTACT_CAUSES", "FAILURES", "MAX_SAMPLES", "ChunkFailedError",
            "check_scheduler", "contact_cause", "default_chunk", "default_workers",
            "input_label", "make_study", "markdown", "output_files", "run_dask", "run_local",
            "run_sample", "run_samples_batch", "run_study", "sample_inputs",

@@ -4,19 +4,17 @@ from __future__ import annotations
 
 import io
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from maglevgen.analyses.montecarlo_study import Columns, Study
 from maglevgen.analyses.sim_loop import LoopSetting, SensedTick
 from maglevgen.analyses.simulate import RUN_STATUSES
 from maglevgen.controllers import controller as registered_controller
 from maglevgen.controllers import title as controller_title
 from maglevgen.derive import conventions as cv
 from maglevgen.params import ACTUATOR_LAG, LOOP_TOLERANCES
-
-if TYPE_CHECKING:
-    from maglevgen.analyses.montecarlo import Columns, Study
 
 __all__ = ["CONTACT_CAUSES", "FAILURES", "SAMPLE_STATUSES", "STATUSES", "WORST", "Z95",
            "aggregate", "input_label", "markdown", "plots", "summary_json", "table", "table_files",
