@@ -122,6 +122,7 @@ def test_a_sample_flies_the_nominal_design(small, sim_lib) -> None:
     assert flown["min_gap"] == cols["min_gap"][i]
     for axis in cv.AXES:
         assert flown["axes"][axis]["peak_deviation"] == cols[f"peak.{axis}"][i], axis
+        assert flown["axes"][axis]["final_deviation"] == cols[f"final.{axis}"][i], axis
     redesigned = metrics(simulate(sim_lib, p, own, "coupled", 0.4, 1e-3, min_gap, dist))
     assert redesigned["min_gap"] != flown["min_gap"]
 
@@ -160,6 +161,7 @@ def test_a_redesigned_sample_equals_maglevgen_simulate(small, tmp_path: Path) ->
     for axis in cv.AXES:
         ax = run["axes"][axis]
         assert ax["peak_deviation"] == pytest.approx(cols[f"peak.{axis}"][i], rel=1e-12)
+        assert ax["final_deviation"] == pytest.approx(cols[f"final.{axis}"][i], rel=1e-12)
         st = cols[f"settling_time.{axis}"][i]
         assert (ax["settling_time"] is None) == bool(np.isnan(st))
         if ax["settling_time"] is not None:

@@ -249,6 +249,22 @@ def test_settling_time_definition() -> None:
     assert settling_time(t, np.cos(t)) is None
 
 
+def test_settling_is_about_the_final_value_and_above_a_floor() -> None:
+    """A decay onto a steady offset settles as the decay alone does (the offset is the final
+    deviation, not a failure to settle): exp(-t) falls to 5 % of its start at ln 20 = 3.0 s;
+    a jitter below the floor settles at once, one above it never."""
+    t = np.linspace(0, 10, 1001)
+    decay = np.exp(-t) * np.cos(10 * t)
+    for offset in (0.0, 0.3, -2.0):  # up to twice the excursion itself
+        assert settling_time(t, offset + decay) == pytest.approx(np.log(20), abs=0.2)
+    jitter = 1e-4 * np.sin(377 * t) * np.cos(61 * t)  # a bounded, non-decaying noise
+    assert settling_time(t, jitter) is None  # within 5 % of its own excursion: never
+    assert settling_time(t, jitter, floor=2e-4) == 0.0
+    assert settling_time(t, 0.3 + decay + jitter, floor=5e-2) == pytest.approx(np.log(20),
+                                                                          abs=0.2)
+    assert settling_time(t, 0.3 + decay, floor=1.5) == 0.0  # never outside the floor
+
+
 def test_rk4_stability_limit_matches_the_imaginary_axis_bound() -> None:
     # RK4 is stable on the imaginary axis up to |h omega| = 2 sqrt(2)
     assert rk4_stability_limit(np.array([50j, -50j])) == pytest.approx(2 * np.sqrt(2) / 50,

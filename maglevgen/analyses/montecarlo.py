@@ -268,6 +268,7 @@ def _prepare(study: Study, index: int, lib):
             st = ax.get("settling_time")
             r[f"settling_time.{axis}"] = math.nan if st is None else float(st)
             r[f"peak.{axis}"] = float(ax.get("peak_deviation", math.nan))
+            r[f"final.{axis}"] = float(ax.get("final_deviation", math.nan))
         if m is not None:
             r["min_gap"] = m["min_gap"]
             r["speed_at_contact"] = (math.nan if m["speed_at_contact"] is None

@@ -92,7 +92,8 @@ def aggregate(study: Study, cols: dict[str, np.ndarray]) -> dict:
         axes = {}
         for axis in cv.AXES:
             axes[axis] = {"settling_time": _quantiles(cols[f"settling_time.{axis}"][sel][ran]),
-                          "peak_deviation": _quantiles(cols[f"peak.{axis}"][sel][ran])}
+                          "peak_deviation": _quantiles(cols[f"peak.{axis}"][sel][ran]),
+                          "final_deviation": _quantiles(cols[f"final.{axis}"][sel][ran])}
         corr = {}
         for name in study.columns:
             x = cols[name][sel][ran]
@@ -220,13 +221,14 @@ def markdown(summary: dict) -> str:
         lines.append(f"| {a['title']} (`{c}`) | {a['runs']} | {rate} | {fails} | {counts} |")
     for c, a in summary["controllers"].items():
         lines += ["", f"## {a['title']} (`{c}`)", "",
-                  "| axis | settling time p50 / p95 / max [s] | peak deviation p50 / p95 / max |",
-                  "| --- | --- | --- |"]
+                  "| axis | settling time p50 / p95 / max [s] | peak deviation p50 / p95 / max "
+                  "| final deviation p50 / p95 / max |", "| --- | --- | --- | --- |"]
         for axis, q in a["axes"].items():
             def f(d: dict) -> str:
                 return " / ".join("-" if d[k] is None else f"{d[k]:.4g}"
                                   for k in ("median", "p95", "max"))
-            lines.append(f"| {axis} | {f(q['settling_time'])} | {f(q['peak_deviation'])} |")
+            lines.append(f"| {axis} | {f(q['settling_time'])} | {f(q['peak_deviation'])} "
+                         f"| {f(q['final_deviation'])} |")
         if a["failure_probability"]:
             lines += ["", "Correlation of failure (contact, diverging) with each sampled input "
                       "(Pearson, over the runs):", ""]

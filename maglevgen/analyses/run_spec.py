@@ -4,9 +4,11 @@ metrics.json carries and SUMMARY.md lists beside the envelope's verdicts.
 The checks of one run (hold or launch; deviations from the run's reference, the trim at the
 current speed or the accelerating trim of a launch):
 
-- settling time: every axis within the settling band (`simulate.SETTLING_BAND`) of its peak
-  for the rest of the run no later than ln(1/band) / min_decay_rate, the time a mode decaying
-  at the slowest allowed rate takes to fall into the band;
+- settling time: every axis within the settling band (`simulate.SETTLING_BAND`) of its largest
+  excursion from its final value, or within its floor (`simulate.GROWTH_FLOOR`) where that is
+  larger, for the rest of the run (`simulate.settling_time`) no later than ln(1/band) /
+  min_decay_rate, the time a mode decaying at the slowest allowed rate takes to fall into the
+  band;
 - peak deviation per axis at most control.spec.max_deviation. The disturbance itself counts,
   and so does the motion it starts: a yaw psi0 at body speed V moves the carriage sideways at
   V sin(psi0) from the first instant, which a bounded force stops only after a distance (about

@@ -15,6 +15,7 @@ import numpy as np
 
 from maglevgen.analyses.simulate import (
     DISTURBANCE_DOC,
+    FINAL_SHARE,
     SETTLING_BAND,
     Trajectory,
     disturbance_doc,
@@ -275,10 +276,13 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
              "first quarter of the run to the last, beyond 5 % of the default disturbance, "
              "where the linearised closed loop is not stable: a stable one's growth over a "
              "short run is its transient, and a noise floor is not growth), 'settled' "
-             "(every axis within "
-             f"{SETTLING_BAND:.0%} of its peak for the rest of the run) or 'not settled'. "
-             "Settling time: the first time after which the deviation stays within "
-             f"{SETTLING_BAND:.0%} of its peak; 'not settled' when it never does.", ""]
+             "(every axis settles) or 'not settled'. Settling time: the first time after "
+             "which the deviation stays about its final value (its mean over the run's last "
+             f"{FINAL_SHARE:.0%}) within {SETTLING_BAND:.0%} of its largest excursion from "
+             f"it, or within {SETTLING_BAND:.0%} of the default disturbance where that is "
+             "larger (the sensors' noise keeps a run jittering: a small disturbance's 5 % is "
+             "below that jitter); 'not settled' when it never does. A steady offset from the "
+             "trim is the final deviation, not a failure to settle.", ""]
     for m in all_metrics:
         lines += [f"## {controller_title(m['controller'])} (`{m['controller']}`)", "",
                   f"Status: {m['status']}" + (f" ({m['event']})" if m["event"] else "")
