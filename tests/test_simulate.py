@@ -263,6 +263,13 @@ def test_settling_is_about_the_final_value_and_above_a_floor() -> None:
     assert settling_time(t, 0.3 + decay + jitter, floor=5e-2) == pytest.approx(np.log(20),
                                                                           abs=0.2)
     assert settling_time(t, 0.3 + decay, floor=1.5) == 0.0  # never outside the floor
+    # a decay into the band at 9.5 s: within the last 10 % of a 10 s run (the window its
+    # final value is the mean of), too late to tell; in a 40 s run it settles at 9.5 s
+    slow = np.log(20) / 9.5
+    assert settling_time(t, np.exp(-slow * t) * np.cos(10 * t)) is None
+    t40 = np.linspace(0, 40, 4001)
+    assert settling_time(t40, np.exp(-slow * t40) * np.cos(10 * t40)) == pytest.approx(
+        9.5, abs=0.3)
 
 
 def test_rk4_stability_limit_matches_the_imaginary_axis_bound() -> None:

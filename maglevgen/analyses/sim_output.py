@@ -281,7 +281,8 @@ def metrics_markdown(all_metrics: Sequence[dict], disturbance: str = DISTURBANCE
              f"{FINAL_SHARE:.0%}) within {SETTLING_BAND:.0%} of its largest excursion from "
              f"it, or within {SETTLING_BAND:.0%} of the default disturbance where that is "
              "larger (the sensors' noise keeps a run jittering: a small disturbance's 5 % is "
-             "below that jitter); 'not settled' when it never does. A steady offset from the "
+             "below that jitter); 'not settled' when it never does or does only within those "
+             f"last {FINAL_SHARE:.0%}. A steady offset from the "
              "trim is the final deviation, not a failure to settle.", ""]
     for m in all_metrics:
         lines += [f"## {controller_title(m['controller'])} (`{m['controller']}`)", "",

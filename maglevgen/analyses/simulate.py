@@ -570,11 +570,13 @@ GROWTH_FLOOR = SETTLING_BAND * np.array([DISTURBANCE[k] for k in Q_STATES])
 def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND,
                   floor: float = 0.0) -> float | None:
     """The settling time about the final value: the first time after which ``dev`` stays
-    within ``band`` x its largest excursion from its final value (the mean of the run's last
-    FINAL_SHARE), or within ``floor`` of it where that is larger; None if it never does. A
+    within ``band`` x its largest excursion from its final value (`final_value`), or within
+    ``floor`` of it where that is larger; None if it never does, or does only within the
+    run's last FINAL_SHARE, the window its final value is the mean of (too late to tell). A
     steady offset from the trim (a sampled carriage flying the nominal design: the
     controller has no integral action on the axis) is the run's final deviation, not a
     failure to settle."""
+    tail = max(1, round(FINAL_SHARE * len(dev)))
     mag = np.abs(dev - final_value(dev))
     peak = mag.max()
     if peak == 0:
@@ -582,7 +584,7 @@ def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND,
     outside = np.flatnonzero(mag > max(band * peak, floor))
     if outside.size == 0:
         return 0.0
-    if outside[-1] >= len(t) - 1:
+    if outside[-1] >= len(t) - tail:
         return None
     return float(t[outside[-1] + 1])
 
