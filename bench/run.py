@@ -937,7 +937,12 @@ def main(argv: list[str] | None = None) -> int:
     log(f"wrote {args.out} and {args.json} in {results['meta']['wall_s']:.0f} s")
     for t in results["targets"]:
         log(f"target {t['name']}: {t['measured']} ({'met' if t['met'] else 'MISSED'})")
-    return 0
+    # a script whose section failed keeps its last run's figures: written, then said (exit 1)
+    failed = [v["script"] for k, v in results.items()
+              if k.startswith("own_") and isinstance(v, dict) and v.get("exit")]
+    if failed:
+        log(f"FAILED: {', '.join(failed)} (their sections are their last runs'); exit 1")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

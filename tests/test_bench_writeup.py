@@ -60,3 +60,26 @@ def test_a_section_not_measured_is_carried_over(writeup: ModuleType) -> None:
     assert writeup._old_section(old, "## Envelope and launch") == [
         "## Envelope and launch (2026-11-27)", "", "98 ms", ""]
     assert writeup._old_section(old, "## Peers for the generated C") == []
+
+
+def test_issue_53s_lanes_target_needs_the_ratio_and_every_runs_bits(writeup: ModuleType) -> None:
+    """The batch at 8 lanes meets its target at 3x the scalar loop only where every run is
+    the scalar run's bits; the operation-count row is the firmware loop's alone."""
+    def loop(ratio: float, same: bool) -> dict:
+        return {"speedup_vs_scalar": {"W=8": {"median": ratio}},
+                "bitwise_same_as_scalar": {"W=8": same},
+                "ms_per_run": {"W=8": {"median": 10.0}, "scalar": {"median": 10.0 * ratio}}}
+
+    peer = {"limit_ms_per_run": {"scalar": 8.0}, "operations_per_run": 1.4e8,
+            "project_speedup": {"CasADi": {"median": 1.5}, "JAX": {"median": 0.9}},
+            "jax_skipped": None}
+    rows = writeup._lanes_targets({"firmware": loop(3.2, True), "sensed": loop(4.0, False)},
+                                  peer)
+    met = {r["name"]: r["met"] for r in rows}
+    lanes = [n for n in met if n.startswith("the batch at 8 lanes")]
+    assert [met[n] for n in lanes] == [True, False]  # the sensed lanes' runs differ
+    limit = [n for n in met if "operation-count" in n]
+    assert len(limit) == 1 and "--loop firmware" in limit[0]
+    assert met[limit[0]] is True  # 10 ms within 1.5 x 8 ms
+    assert met["ahead of every peer per CPU-second (the same closed loop and inputs)"] is False
+    assert writeup._lanes_targets(None, None) == []
