@@ -54,8 +54,8 @@ example-outputs: setup
 	$(BIN)/python docs/_ext/example_outputs.py
 
 # Benchmarks against the usual alternatives: writes BENCHMARKS.md and bench/results.json.
-# A full run is long (46 min before bench/run.py's OWN_SECTIONS joined it, firmware.py's
-# MISRA pass about 30 min more); `$(BIN)/python bench/run.py --quick` is the short one. The bench extra (JAX, a peer of bench/casadi_peer.py) first; where it
+# A full run is long (71 min on 2026-12-05, of which firmware.py's
+# MISRA pass 25 min); `$(BIN)/python bench/run.py --quick` is the short one. The bench extra (JAX, a peer of bench/casadi_peer.py) first; where it
 # does not install, the bench runs without JAX and says so.
 bench: setup
 	$(BIN)/pip install --quiet -e '.[bench]' || echo "make: the bench extra (JAX) did not install: bench/casadi_peer.py skips its JAX peer"
