@@ -561,7 +561,7 @@ FINAL_SHARE = 0.1
 #: each axis's deviation floor: SETTLING_BAND of the default disturbance (50 um, 0.1 mrad),
 #: the band a run from that disturbance settles into. A deviation within it of its final value
 #: counts as settled whatever its own excursion (`settling_times`: on the sensors the
-#: readings' noise keeps every axis jittering, 5-9 um and 40-85 urad with the default
+#: readings' noise keeps every axis jittering, 4-7 um and 40-85 urad with the default
 #: [sensors], more than 5 % of a small disturbance), and one whose peak stays below it is not
 #: growth (`_growth_rate`).
 GROWTH_FLOOR = SETTLING_BAND * np.array([DISTURBANCE[k] for k in Q_STATES])
