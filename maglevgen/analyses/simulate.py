@@ -558,12 +558,10 @@ def reference_check(functions, p: np.ndarray, traj: Trajectory) -> dict:
 SETTLING_BAND = 0.05
 #: the share of a run at its end whose mean is a deviation's final value (`settling_time`)
 FINAL_SHARE = 0.1
-#: each axis's deviation floor: SETTLING_BAND of the default disturbance (50 um, 0.1 mrad),
-#: the band a run from that disturbance settles into. A deviation within it of its final value
-#: counts as settled whatever its own excursion (`settling_times`: on the sensors the
-#: readings' noise keeps every axis jittering, 4-7 um and 40-85 urad with the default
-#: [sensors], more than 5 % of a small disturbance), and one whose peak stays below it is not
-#: growth (`_growth_rate`).
+#: each axis's deviation floor: SETTLING_BAND of the default disturbance (50 um, 0.1 mrad).
+#: Within it of its final value a deviation is settled whatever its excursion (on the sensors
+#: the noise keeps every axis jittering, 4-7 um and 40-85 urad with the default [sensors],
+#: more than 5 % of a small disturbance); one whose peak stays below it is not growth.
 GROWTH_FLOOR = SETTLING_BAND * np.array([DISTURBANCE[k] for k in Q_STATES])
 
 
@@ -572,12 +570,10 @@ def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND,
     """The settling time about the final value: the first time after which ``dev`` stays
     within ``band`` x its largest excursion from its final value (`final_value`), or within
     ``floor`` of it where that is larger; None if it never does, or does only within the
-    run's last FINAL_SHARE, the window its final value is the mean of (too late to tell). A
-    steady offset from the trim (a sampled carriage flying the nominal design: the
-    controller has no integral action on the axis) is the run's final deviation, not a
-    failure to settle."""
-    tail = max(1, round(FINAL_SHARE * len(dev)))
-    mag = np.abs(dev - final_value(dev))
+    window its final value is the mean of (too late to tell). A steady offset from the trim
+    (a sampled carriage flying the nominal design) is the final deviation, not unsettled."""
+    tail = _final_window(len(dev))
+    mag = np.abs(dev - np.mean(dev[-tail:]))
     peak = mag.max()
     if peak == 0:
         return 0.0
@@ -589,9 +585,14 @@ def settling_time(t: np.ndarray, dev: np.ndarray, band: float = SETTLING_BAND,
     return float(t[outside[-1] + 1])
 
 
+def _final_window(n: int) -> int:
+    """The samples of a run of ``n`` whose mean is its final value: its last FINAL_SHARE."""
+    return max(1, round(FINAL_SHARE * n))
+
+
 def final_value(dev: np.ndarray) -> np.ndarray:
     """A deviation's final value (per column): its mean over the run's last FINAL_SHARE."""
-    return np.mean(dev[-max(1, round(FINAL_SHARE * len(dev))):], axis=0)
+    return np.mean(dev[-_final_window(len(dev)):], axis=0)
 
 
 def settling_times(t: np.ndarray, dev: np.ndarray) -> list[float | None]:

@@ -4,19 +4,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from maglevgen.control.operating import OperatingPoint
 
 __all__ = ["REGISTRY", "Controller", "WeightsFn", "controller", "embeddable", "names", "register",
            "title"]
 
-GainsFn = Callable[["OperatingPoint"], tuple[np.ndarray, np.ndarray]]
+# A law's functions of an operating point (`maglevgen.control.operating.OperatingPoint`, which
+# looks its gains up here: named only in words, so the registry stays below operating.py).
+# (K_pos, K_rate) at an operating point
+GainsFn = Callable[[Any], tuple[np.ndarray, np.ndarray]]
 # (q1, q2, r) per axis at an operating point: the position, rate and force weights
-WeightsFn = Callable[["OperatingPoint"], tuple[np.ndarray, np.ndarray, np.ndarray]]
+WeightsFn = Callable[[Any], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
