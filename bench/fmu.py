@@ -25,11 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import BENCH, log, paired_ratios, replace_section, summary
 
-from maglevgen.analyses.simulate import (
-    DISTURBANCE,
-    initial_state,
-    reference_trajectory,
-)
+from maglevgen.analyses.reference import reference_trajectory
+from maglevgen.analyses.simulate import DISTURBANCE, initial_state
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant

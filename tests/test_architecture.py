@@ -91,8 +91,10 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
                                  "the checks' C is rendered (and CasADi's edited) only when C "
                                  "is generated", ("maglevgen.codegen.cpass",
                                                   "maglevgen.codegen.emit")),
-    "maglevgen.analyses.simulate": (
-        "a hold run needs no SciPy (the launch and --check do)", ("scipy",)),
+    "maglevgen.analyses.reference": ("imported without SciPy; a reference run loads it",
+                                     ("scipy",)),
+    "maglevgen.codegen.lanes": ("mpmath only when lane kernels are generated (exp's table)",
+                                ("mpmath",)),
     "maglevgen.analyses.sim_loop": (
         "a hold run needs no firmware (the sensors' loop compiles it)",
         ("maglevgen.analyses.sensed",)),
@@ -130,10 +132,11 @@ LAZY_IMPORTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "maglevgen.api.studies": (
         "each study imports the analysis it runs, as its command does",
         ("maglevgen.analyses.envelope", "maglevgen.analyses.envelope_figures",
-         "maglevgen.analyses.montecarlo", "maglevgen.analyses.roa",
-         "maglevgen.analyses.sim_output", "maglevgen.analyses.simulate",
-         "maglevgen.control.carriage_plant", "maglevgen.control.built_loop",
-         "maglevgen.codegen.generate", "maglevgen.infrastructure.output", "maglevgen.params")),
+         "maglevgen.analyses.montecarlo", "maglevgen.analyses.reference",
+         "maglevgen.analyses.roa", "maglevgen.analyses.sim_output",
+         "maglevgen.analyses.simulate", "maglevgen.control.carriage_plant",
+         "maglevgen.control.built_loop", "maglevgen.codegen.generate",
+         "maglevgen.infrastructure.output", "maglevgen.params")),
     "maglevgen.api.writers": (
         "each writer imports the stage it runs, as its command does",
         ("maglevgen.analyses.verdicts", "maglevgen.build",

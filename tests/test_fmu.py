@@ -18,7 +18,8 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
-from maglevgen.analyses.simulate import AXIS_STATES, reference_trajectory, run_scenarios
+from maglevgen.analyses.reference import reference_trajectory
+from maglevgen.analyses.simulate import AXIS_STATES, run_scenarios
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant

@@ -20,6 +20,7 @@ from scipy.stats import binomtest
 
 from maglevgen.analyses.montecarlo import (
     input_label,
+    interp_rows,
     make_study,
     run_dask,
     run_local,
@@ -497,3 +498,18 @@ def test_a_sensor_tolerance_sets_each_samples_readings(sim_lib) -> None:
                          force_budget=budget, controller_op=nominal)
         assert not np.array_equal(filed.x, run.x)
     assert len(seen) >= 2
+
+
+def test_interp_rows_is_numpys_interp_of_each_column() -> None:
+    """A region's P/c at a sample's speed (`region_multiple`) interpolated over every entry
+    at once: np.interp's numbers, column by column, to the last bit, at the grid's speeds,
+    between them, outside the range (clamped) and with NaN entries (an empty region)."""
+    rng = np.random.default_rng(5)
+    xp = np.sort(rng.uniform(6.0, 40.0, 9))
+    fp = rng.normal(size=(9, 100)) * 10.0 ** rng.uniform(-6, 6, (9, 100))
+    fp[3, 7] = fp[6, 2] = np.nan
+    fp[4:6, 9] = np.inf  # inf - inf: numpy's second formula, then the equal ends
+    for x in [*rng.uniform(0.0, 50.0, 3000), *xp]:
+        got = interp_rows(float(x), xp, fp)
+        ref = np.array([np.interp(x, xp, fp[:, j]) for j in range(fp.shape[1])])
+        assert np.array_equal(got, ref, equal_nan=True), x

@@ -2,9 +2,10 @@
 53) against the scalar loop it replaces: each run through the lanes against maglev_simulate of
 the same inputs called on its own (`SimulationLibrary.simulate`, the loop checked against
 solve_ivp elsewhere). The lanes evaluate every arithmetic statement of the stage function
-as the scalar code does, per lane, with libm's exp/sin/cos per lane: every state, input and
-gap must be equal to the last bit, the status, the last sample and the saturated steps
-identical, for every lane count this CPU runs and a batch that is no multiple of it."""
+as the scalar code does, per lane, with libm's sin and cos per lane and an exp over the lanes
+that gives libm's exp's bits: every state, input and gap must be equal to the last bit, the
+status, the last sample and the saturated steps identical, for every lane count this CPU runs
+and a batch that is no multiple of it."""
 
 from __future__ import annotations
 
@@ -325,6 +326,68 @@ def test_libmvec_within_its_bound_against_mpmath(tmp_path, sim_lib) -> None:
             errs.append(float(abs(mpmath.mpf(float(got)) - ref)) / ulp)
         worst[name] = max(errs)
     assert all(v <= 4.0 for v in worst.values()), worst
+
+
+def _lanes_exp(sim_lib, w: int, x: np.ndarray) -> tuple[np.ndarray, int]:
+    fn = getattr(sim_lib._lanes_functions()[2], f"maglev_lanes_exp_w{w}")
+    fn.restype = ctypes.c_int
+    y = np.empty_like(x)
+    real_p = ctypes.POINTER(ctypes.c_double)
+    used = fn(x.ctypes.data_as(real_p), y.ctypes.data_as(real_p), ctypes.c_long(x.size))
+    return y, used
+
+
+@pytest.mark.needs_cc
+def test_the_lanes_exp_has_libms_bits(sim_lib) -> None:
+    """The kernels' exp over 4 and 8 lanes (glibc's algorithm in FMA vectors,
+    maglevgen.codegen.lanes) against libm's exp called through ctypes, bit for bit: 4 * 10^5
+    arguments over the range where it runs (|x| from 2^-54 to 512), every one of its 128
+    table entries at both ends of its interval, and glibc's special cases (tiny, 512 on,
+    overflow, underflow, infinities, NaN), which it hands to libm. On glibc 2.28 on, whose
+    exp this is, the vector form must be the one that ran (its self-check passed)."""
+    import platform
+
+    libm = ctypes.CDLL("libm.so.6")
+    libm.exp.restype, libm.exp.argtypes = ctypes.c_double, [ctypes.c_double]
+    rng = np.random.default_rng(53)
+    k = np.arange(-128 * 40, 128 * 40)
+    x = np.concatenate([rng.uniform(-40, 40, 200_000), rng.uniform(-511.9, 511.9, 200_000),
+                        k * np.log(2) / 128, k * np.log(2) / 128 + np.log(2) / 256,
+                        np.nextafter(k * np.log(2) / 128 + np.log(2) / 256, 0),
+                        [2.0**-54, -(2.0**-54), 2.0**-60, 0.0, -0.0, 512.0, -512.0, 709.78,
+                         710.0, -745.1, -746.0, -1000.0, np.inf, -np.inf, np.nan, 5e-324]])
+    x = np.concatenate([x, np.zeros(-x.size % 8)])
+    ref = np.array([libm.exp(float(v)) for v in x])
+    libc, version = platform.libc_ver()
+    glibc_exp = (libc == "glibc" and tuple(map(int, version.split(".")[:2])) >= (2, 28)
+                 and platform.machine() == "x86_64")
+    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
+    if not widths:
+        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
+    for w in widths:
+        got, used = _lanes_exp(sim_lib, w, x)
+        assert np.array_equal(got.view(np.int64), ref.view(np.int64)), w
+        assert used == 1 or not glibc_exp, f"W={w}: the lanes' exp fell back to libm"
+
+
+@pytest.mark.needs_cc
+def test_the_lanes_exp_within_glibcs_bound_against_mpmath(sim_lib) -> None:
+    """The kernels' exp (the vector form of glibc's) against mpmath at 50 digits: within
+    0.52 ulp, glibc's stated bound for its exp with FMA (0.509 ulp) and a margin."""
+    import mpmath
+
+    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
+    if not widths:
+        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
+    rng = np.random.default_rng(7)
+    x = np.concatenate([rng.uniform(-40, 40, 2000), rng.uniform(-500, 500, 400)])
+    mpmath.mp.dps = 50
+    ref = [mpmath.exp(mpmath.mpf(float(v))) for v in x]
+    for w in widths:
+        got, _ = _lanes_exp(sim_lib, w, x)
+        worst = max(float(abs(mpmath.mpf(float(g)) - r)) / np.spacing(abs(float(r)))
+                    for g, r in zip(got, ref, strict=True))
+        assert worst <= 0.52, (w, worst)
 
 
 @pytest.mark.needs_cc

@@ -20,10 +20,10 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.signal import find_peaks
 
+from maglevgen.analyses.reference import reference_trajectory
 from maglevgen.analyses.simulate import (
     AXIS_STATES,
     initial_state,
-    reference_trajectory,
     rk4_stability_limit,
     run_scenarios,
     settling_time,
@@ -401,7 +401,7 @@ def test_cli_bad_step_exits_2_with_one_line(tmp_path: Path, sim_lib) -> None:
 @pytest.mark.slow  # runs against solve_ivp
 def test_reference_check_reports_small_deviation_and_catches_a_wrong_run(sim_lib, carriage,
                                                                          op) -> None:
-    from maglevgen.analyses.simulate import reference_check
+    from maglevgen.analyses.reference import reference_check
 
     traj = _run(sim_lib, carriage, op, "lqr", 0.5)
     ok = reference_check(carriage.functions, carriage.p, traj)

@@ -8,7 +8,7 @@ envelope's [v_min, v_max]) and an initial disturbance; then, per controller, one
 RK4 run (the hold scenario of `maglevgen simulate`) from the sampled carriage's own trim plus
 the disturbance, all in the compiled run-time-parameter C (the parameters are arguments of the
 C, so nothing is regenerated or recompiled), and the run's status and per-axis metrics
-(maglevgen.analyses.simulate.metrics).
+(maglevgen.analyses.simulate.run_summary).
 
 As the firmware flies (the default): the controller is the NOMINAL carriage's design at the
 sample's speed, its gains, its reference and its feed-forward propulsion (what the firmware's
@@ -72,8 +72,8 @@ from maglevgen.analyses.montecarlo_study import Columns, Study
 from maglevgen.analyses.sim_loop import LoopSetting, SensedTick
 from maglevgen.analyses.simulate import (
     control_loop,
-    metrics,
     rk4_stability_limit,
+    run_summary,
     simulate,
     simulate_batch,
 )
@@ -295,9 +295,9 @@ def nominal_design(study: Study, lib, speed: float) -> OperatingPoint:
 
 def _run_row(study: Study, lib, p, row, controller: str, traj, op,
              disturbance: dict[str, float]) -> dict:
-    """The row of one controller's run: its status and metrics, the cause of a contact, the
-    initial deviation as a multiple of the region at its speed."""
-    m = metrics(traj)
+    """The row of one controller's run: its status and `run_summary`, the cause of a contact,
+    the initial deviation as a multiple of the region at its speed."""
+    m = run_summary(traj)
     r = row(controller, m["status"], m["event"] or "", m)
     r["contact_cause"] = contact_cause(lib, p, study.min_gap, m)
     r["region_multiple"] = region_multiple(study, controller, op.speed, disturbance)
@@ -314,11 +314,32 @@ def region_multiple(study: Study, controller: str, speed: float,
         return math.nan
     speeds, M = study.regions[controller]
     dx = np.array([disturbance.get(s, 0.0) for s in REDUCED_STATES])
-    flat = M.reshape(M.shape[0], -1)
-    Mv = np.array([np.interp(speed, speeds, flat[:, j]) for j in range(flat.shape[1])])
+    Mv = interp_rows(speed, speeds, M.reshape(M.shape[0], -1))
     if not np.all(np.isfinite(Mv)):
         return math.inf
     return float(np.sqrt(max(dx @ Mv.reshape(M.shape[1:]) @ dx, 0.0)))
+
+
+def interp_rows(x: float, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """np.interp(x, xp, fp[:, j]) of every column j of ``fp`` at once (xp increasing, x
+    clamped to its ends), in numpy's operations: fp[i] at a grid point, else
+    slope (x - xp[i]) + fp[i] with slope (fp[i+1] - fp[i]) / (xp[i+1] - xp[i]) and, where that
+    is NaN, from the right end, then fp[i] where the ends are equal."""
+    if x <= xp[0]:
+        return fp[0].copy()
+    if x >= xp[-1]:
+        return fp[-1].copy()
+    i = int(np.searchsorted(xp, x, side="right")) - 1
+    if xp[i] == x:
+        return fp[i].copy()
+    with np.errstate(invalid="ignore"):  # NaN or inf entries, as np.interp: no warning
+        slope = (fp[i + 1] - fp[i]) / (xp[i + 1] - xp[i])
+        out = slope * (x - xp[i]) + fp[i]
+        nan = np.isnan(out)
+        if nan.any():
+            out[nan] = (slope * (x - xp[i + 1]) + fp[i + 1])[nan]
+        out[nan & (fp[i] == fp[i + 1])] = fp[i][nan & (fp[i] == fp[i + 1])]
+    return out
 
 
 def study_regions(plant: Plant, controllers: Sequence[str],
@@ -634,9 +655,9 @@ def default_workers() -> int:
 
 __all__ = ["CONTACT_CAUSES", "FAILURES", "MAX_SAMPLES", "ChunkFailedError",
            "check_scheduler", "contact_cause", "default_chunk", "default_workers",
-           "input_label", "make_study", "markdown", "output_files", "run_dask", "run_local",
-           "run_sample", "run_samples_batch", "run_study", "sample_inputs",
-           "sample_parameters", "sample_tick", "wilson"]
+           "input_label", "interp_rows", "make_study", "markdown", "output_files",
+           "run_dask", "run_local", "run_sample", "run_samples_batch", "run_study",
+           "sample_inputs", "sample_parameters", "sample_tick", "wilson"]
 
 
 def check_scheduler(scheduler: str | None) -> None:

@@ -4,8 +4,8 @@ The carriage starts at its trim with a small disturbance on every controlled axi
 under the steady propulsion force that balances the drag at trim, with no control, the
 optimized damping or the LQR. Trim, gains and the integration loop all run in the compiled
 run-time-parameter library (the `Plant`'s): Python only prepares the call and reads the
-result. ``reference_trajectory`` integrates the same closed loop with scipy's adaptive DOP853
-on the lambdified SymPy model, as an independent check.
+result. `maglevgen.analyses.reference` integrates the same closed loop with scipy's adaptive
+DOP853 on the lambdified SymPy model, as an independent check.
 """
 
 from __future__ import annotations
@@ -60,9 +60,9 @@ if TYPE_CHECKING:  # the library comes from the Plant; only its type is named he
 __all__ = ["AXIS_STATES", "DISTURBANCE", "DISTURBANCE_DOC", "FINAL_SHARE", "RUN_STATUSES",
            "SETTLING_BAND", "LoopSetting", "SimulationRun", "Tick", "Trajectory", "Weights",
            "control_loop", "disturbance_doc", "firmware_gains", "hold_run", "hold_trajectory",
-           "initial_state", "launch", "metrics", "operating_point", "reference_check",
-           "reference_trajectory", "rk4_stability_limit", "run_loop", "run_scenarios",
-           "settling_time", "simulate", "simulate_batch", "spec_verdict", "speed_loop_gain"]
+           "initial_state", "launch", "metrics", "operating_point", "rk4_stability_limit",
+           "run_loop", "run_scenarios", "run_summary", "settling_time", "simulate",
+           "simulate_batch", "spec_verdict", "speed_loop_gain"]
 
 # DISTURBANCE (derive.conventions) in words
 DISTURBANCE_DOC = ("1 mm lateral (y), 1 mm heave up (z), 2 mrad roll, 2 mrad pitch, "
@@ -513,42 +513,6 @@ def moving_equilibrium(lib: SimulationLibrary, p: np.ndarray, op: OperatingPoint
     return np.column_stack([np.interp(speeds, grid, trims[:, i]) for i in range(trims.shape[1])])
 
 
-def reference_trajectory(functions, p: np.ndarray, op: OperatingPoint, controller: str,
-                         t_eval: np.ndarray, disturbance: dict[str, float] | None = None,
-                         rtol: float = 1e-12, atol: float = 1e-13) -> np.ndarray:
-    """The same closed loop by scipy DOP853 on the lambdified model (derive.numeric)."""
-    from scipy.integrate import solve_ivp
-
-    disturbance = DISTURBANCE if disturbance is None else disturbance
-    K_pos, K_rate = op.gains(controller)
-    idx = list(AXIS_STATES)
-    u = np.zeros(op.allocation.shape[0] + 1)
-    u[cv.PROPULSION_INPUT] = op.f_prop
-
-    def rhs(_t: float, x: np.ndarray) -> np.ndarray:
-        rates = functions.kin(x).ravel()[idx]  # position rates do not depend on u
-        u[cv.ARRAY_INPUTS] = op.allocation @ (-(K_pos @ (x[idx] - op.a_trim) + K_rate @ rates))
-        return functions.xdot(x, u, p).ravel()
-
-    sol = solve_ivp(rhs, (t_eval[0], t_eval[-1]), initial_state(op, disturbance),
-                    method="DOP853", t_eval=t_eval, rtol=rtol, atol=atol)
-    if not sol.success:
-        raise RuntimeError(f"reference integration failed: {sol.message}")
-    return sol.y.T
-
-
-def reference_check(functions, p: np.ndarray, traj: Trajectory) -> dict:
-    """The C run against DOP853 on the lambdified model at the same samples: the largest
-    deviation of each controlled axis, absolute and relative to the axis' peak excursion."""
-    ref = reference_trajectory(functions, p, traj.op, traj.controller, traj.t,
-                               traj.disturbance)
-    idx = list(AXIS_STATES)
-    dev = np.abs(traj.x[:, idx] - ref[:, idx]).max(axis=0)
-    peak = np.abs(ref[:, idx] - traj.op.a_trim).max(axis=0)
-    return {axis: {"max_abs": float(d), "relative_to_peak": float(d / pk) if pk > 0 else 0.0}
-            for axis, d, pk in zip(cv.AXES, dev, peak, strict=True)}
-
-
 # ------------------------------------------------------------------------------- metrics
 
 # Settled: within 5 % of the largest excursion from the final value for the rest of the run.
@@ -603,11 +567,11 @@ def settling_times(t: np.ndarray, dev: np.ndarray) -> list[float | None]:
             for i in range(dev.shape[1])]
 
 
-def metrics(traj: Trajectory) -> dict:
-    """Per axis: settling time, peak deviation and RMS generalized control force; for the
-    run: its status, gaps, speeds, the speed error after the first second
-    (`Trajectory.speed_error`), the time spent with an array at its force budget, and how
-    the controller ran."""
+def run_summary(traj: Trajectory) -> dict:
+    """What a run did, for a table of many runs (a Monte-Carlo sample's row): its status and
+    event, growth rate, gaps and speeds, the speed error after the first second
+    (`Trajectory.speed_error`), the time with an array at its force budget, and per axis
+    its settling time, peak and final deviation. `metrics` is this and the rest."""
     # each derived series computed once (the properties would recompute them per use)
     dev = traj.axis_deviation
     speed = traj.speed
@@ -615,16 +579,13 @@ def metrics(traj: Trajectory) -> dict:
     settling, finals = settling_times(traj.t, dev), final_value(dev)
     status = (C_STATUS[traj.c_status] if traj.c_status in C_STATUS
               else _status(traj, growth, lambda: settling))
-    ugen = traj.generalized_forces
     axes = {}
     for i, (axis, state, ctrl) in enumerate(zip(cv.AXES, Q_STATES, cv.CONTROLS, strict=True)):
-        unit = cv.STATES[cv.STATE_INDEX[state]].unit
         axes[axis] = {
-            "state": state, "unit": unit, "force_unit": ctrl.unit,
-            "settling_time": settling[i],
+            "state": state, "unit": cv.STATES[cv.STATE_INDEX[state]].unit,
+            "force_unit": ctrl.unit, "settling_time": settling[i],
             "peak_deviation": float(np.max(np.abs(dev[:, i]))),
             "final_deviation": float(abs(finals[i])),
-            "rms_control": float(np.sqrt(np.mean(ugen[:, i] ** 2))),
         }
     return {
         "controller": traj.controller, "scenario": traj.scenario, "status": status,
@@ -633,25 +594,38 @@ def metrics(traj: Trajectory) -> dict:
         "min_gap": float(np.min(traj.gaps)),
         "speed_start": float(speed[0]), "speed_end": float(speed[-1]),
         "speed_at_contact": float(speed[-1]) if status == "contact" else None,
-        "rms_array_force": float(np.sqrt(np.mean(traj.u[:, cv.ARRAY_INPUTS] ** 2))),
-        "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
         "speed_error": _speed_error(traj, speed), "saturated_time": traj.saturated_time,
-        # how the controller ran: its tick (None: at every RK4 stage), the speed loop, the budget
-        "tick": None if traj.tick is None else {
-            "rate": traj.tick.rate, "delay": traj.tick.delay,
-            "actuator_lag": getattr(traj.tick, "flown_lag", 0.0),  # the plant's
-            # k_i [N/m] and the clamp of |k_i xi| [N] (None: no integral)
-            "speed_integral": getattr(traj.tick, "speed_integral", 0.0),
-            "integral_limit": (float(traj.tick.integral_limit)
-                               if isinstance(traj.tick, LoopSetting)
-                               and traj.tick.speed_integral > 0 else None)},
-        "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
         "axes": axes,
-        # the run against [control.spec] (`spec_verdict`; None for a run without limits)
-        "spec": None if (verdict := spec_verdict(traj)) is None else verdict.to_json(),
-        "sensing": sensed_metrics(traj),
     }
 
+
+def metrics(traj: Trajectory) -> dict:
+    """`run_summary` and, per axis, the RMS generalized control force; for the run, the
+    array forces' RMS and peaks, how the controller ran, the run against its spec and, on
+    the sensors, `sensed_metrics` (the keys in that order among the summary's)."""
+    m = run_summary(traj)
+    ugen = traj.generalized_forces
+    for i, ax in enumerate(m["axes"].values()):
+        ax["rms_control"] = float(np.sqrt(np.mean(ugen[:, i] ** 2)))
+    tick = traj.tick
+    return {**{k: m[k] for k in list(m)[:12]},
+            "rms_array_force": float(np.sqrt(np.mean(traj.u[:, cv.ARRAY_INPUTS] ** 2))),
+            "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
+            "speed_error": m["speed_error"], "saturated_time": m["saturated_time"],
+            # how the controller ran: its tick (None: at every RK4 stage), the speed loop,
+            # the budget; the plant's lag, k_i [N/m] and the clamp of |k_i xi| [N] (None: no
+            # integral)
+            "tick": None if tick is None else {
+                "rate": tick.rate, "delay": tick.delay,
+                "actuator_lag": getattr(tick, "flown_lag", 0.0),
+                "speed_integral": getattr(tick, "speed_integral", 0.0),
+                "integral_limit": (float(tick.integral_limit) if isinstance(tick, LoopSetting)
+                                   and tick.speed_integral > 0 else None)},
+            "speed_gain": traj.speed_gain, "force_budget": traj.force_budget,
+            "axes": m["axes"],
+            # the run against [control.spec] (`spec_verdict`; None for a run without limits)
+            "spec": None if (verdict := spec_verdict(traj)) is None else verdict.to_json(),
+            "sensing": sensed_metrics(traj)}
 
 
 # ------------------------------------------------------------------------------- the job

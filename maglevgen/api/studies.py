@@ -228,7 +228,7 @@ class Studies(CarriageCore):
             steps.step(f"warning: {run.warning}")
         checks: dict[str, dict] = {}
         if check:
-            from maglevgen.analyses.simulate import reference_check
+            from maglevgen.analyses.reference import reference_check
 
             if progress:
                 steps.step("checking against DOP853 (rtol 1e-12) on the lambdified model")

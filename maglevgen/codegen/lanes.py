@@ -15,13 +15,18 @@ kernels are compiled -ffp-contract=off, `maglevgen.runtime.compile.HOST_TUNED_FL
 - A guard of branches.py, ``if (N!=0) {``, runs its block when N is nonzero in *any* lane: no
   work on a branch that every lane discards; where the lanes disagree the block runs for all
   and the select keeps each lane's own side.
-- exp, sin and cos are libm's per lane (the scalar function's own calls, so the same bits);
-  a sin and a cos of one value are one sincos (glibc's gives sin's and cos's bits; the
-  scalar code is compiled to the same call). The kernels keep the last few sincos argument
-  vectors and results (per thread): the readings, the gaps, the tick's control and the rates
-  at a tick take the sines and cosines of the same angles of x, so sincos of an argument
-  vector of the same bits in every lane returns the kept results (sincos's own bits) instead
-  of computing them again. sqrt is correctly rounded in every form.
+- exp over 4 and 8 lanes is glibc's own algorithm in FMA vectors (`_EXP_CONSTANTS`, its
+  table from mpmath, `exp_table`), so libm's bits on glibc 2.28 on: the kernels check that
+  on 4096 arguments the first time (`exp_check`) and call libm per lane where it does not
+  hold (another C library, a CPU without FMA) and for glibc's special cases (|x| below
+  2^-54 or from 512 on); tests/test_simd_batch.py compares it with libm bit for bit and
+  with mpmath. Two lanes, sin and cos are libm's per lane (the scalar function's own calls,
+  so the same bits); a sin and a cos of one value are one sincos (glibc's gives sin's and
+  cos's bits; the scalar code is compiled to the same call). The kernels keep the last few
+  sincos argument vectors and results (per thread): the readings, the gaps, the tick's
+  control and the rates at a tick take the sines and cosines of the same angles of x, so
+  sincos of an argument vector of the same bits in every lane returns the kept results
+  (sincos's own bits) instead of computing them again. sqrt is correctly rounded in every form.
   glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
   functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
   checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
@@ -33,6 +38,7 @@ A statement of a kind not listed is refused (`LaneError`), never passed through.
 from __future__ import annotations
 
 import re
+import struct
 
 __all__ = ["WIDTHS", "LaneError", "kernel_name", "lane_kernels"]
 
@@ -56,10 +62,36 @@ _PRELUDE = """\
 #include <math.h>
 """
 
+#: glibc's exp (2.28 on: sysdeps/ieee754/dbl-64/e_exp.c, the algorithm of Arm's optimized
+#: routines) as its x86-64 FMA build computes it (the build glibc runs on a CPU with AVX2 and
+#: FMA): x = k ln2/128 + r, exp(x) = 2^(k/128) (1 + tail) (1 + p(r)) with k's 2^(k/128) split
+#: into a double and its relative tail (`exp_table`), p of degree 5; every operation and
+#: contraction in the order its object code has them (objdump of libm.so.6, glibc 2.36)
+_EXP_CONSTANTS = """\
+#if defined(__x86_64__)
+#include <immintrin.h>
+#include <string.h>
+#define EXP_INVLN2N 0x1.71547652b82fep+7 /* 128 / ln 2 */
+#define EXP_SHIFT 0x1.8p52 /* rounds to an integer in the last bits */
+#define EXP_NEGLN2HIN -0x1.62e42fefa0000p-8 /* -ln 2 / 128, high and low parts */
+#define EXP_NEGLN2LON -0x1.cf79abc9e3b3ap-47
+#define EXP_C2 0x1.ffffffffffdbdp-2 /* p(r) = r + C2 r^2 + ... + C5 r^5 */
+#define EXP_C3 0x1.555555555543cp-3
+#define EXP_C4 0x1.55555cf172b91p-5
+#define EXP_C5 0x1.1111167a4d017p-7
+#define EXP_CHECKS 4096 /* arguments exp_check compares with libm's exp */
+/* entry 2k: the tail T_k, 2k + 1: the bits of H_k less k << 45, 2^(k/128) = H_k (1 + T_k) */
+static const unsigned long long EXP_TAB[256] __attribute__((aligned(64))) = {{
+{table}
+}};
+#endif
+"""
+
 _HELPERS = """
 #if {guard}
 typedef double V{w} __attribute__((vector_size({bytes})));
 typedef long long VI{w} __attribute__((vector_size({bytes})));
+typedef unsigned long long VU{w} __attribute__((vector_size({bytes})));
 /* the last SC_KEEP argument vectors of sincos (every lane's bits) and its results, one
    set per thread: sincos of an argument vector kept, lane for lane, is those results,
    sincos's own bits */
@@ -132,6 +164,108 @@ _LIBM = """\
   V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = {f}(a[l]); return r;
 }}
 """
+# exp of W = 4 and 8 lanes at once (`_EXP_CONSTANTS`): libm's bits where exp_check found them
+# on this machine (the same glibc build), libm per lane otherwise and for glibc's special
+# cases (|a| below 2^-54, from 512 on, not finite)
+_VEXP = """\
+#define FMA{w}(a, b, c) ((V{w}){fma}((a), (b), (c)))
+{target_fma}static V{w} vexp{w}_core(V{w} x) {{
+  const V{w} z = {{0}};
+  V{w} kd = FMA{w}(x, z + EXP_INVLN2N, z + EXP_SHIFT);
+  const VU{w} ki = (VU{w})kd;
+  const VI{w} idx = (VI{w})((ki & 0x7f) << 1);
+  V{w} r, r2, tail, tmp, scale;
+  kd = kd - EXP_SHIFT;
+  r = FMA{w}(kd, z + EXP_NEGLN2HIN, x);
+  r = FMA{w}(kd, z + EXP_NEGLN2LON, r);
+  tail = (V{w}){gather_pd};
+  scale = (V{w})((VU{w}){gather_epi64} + (ki << 45));
+  r2 = r * r;
+  tmp = FMA{w}(FMA{w}(r, z + EXP_C3, z + EXP_C2), r2, r + tail);
+  tmp = FMA{w}(r2 * r2, FMA{w}(r, z + EXP_C5, z + EXP_C4), tmp);
+  return FMA{w}(scale, tmp, scale);
+}}
+/* vexp{w}_core against libm's exp on EXP_CHECKS arguments of an LCG over [-40, 40] and
+   [-500, 500]: 1 when every result has libm's bits */
+{target_fma}static int exp_check{w}(void) {{
+  unsigned long long s = 0x9e3779b97f4a7c15ULL;
+  int i, l;
+  for (i = 0; i < EXP_CHECKS; i += {w}) {{
+    V{w} a, r;
+    for (l = 0; l < {w}; ++l) {{
+      s = s * 6364136223846793005ULL + 1442695040888963407ULL;
+      a[l] = ((double)(s >> 11) * 0x1p-52 - 1.0) * (i % (2 * {w}) ? 40.0 : 500.0);
+    }}
+    r = vexp{w}_core(a);
+    for (l = 0; l < {w}; ++l) {{
+      const double e = exp(a[l]), v = r[l];
+      if (memcmp(&e, &v, sizeof e) != 0) return 0;
+    }}
+  }}
+  return 1;
+}}
+static int exp_state{w}; /* 0 unknown, 1 the vector exp has libm's bits here, 2 not */
+static int exp_lanes{w}(void) {{
+  int st = __atomic_load_n(&exp_state{w}, __ATOMIC_RELAXED);
+  if (st == 0) {{
+    __builtin_cpu_init();
+    st = __builtin_cpu_supports("fma") && exp_check{w}() ? 1 : 2;
+    __atomic_store_n(&exp_state{w}, st, __ATOMIC_RELAXED);
+  }}
+  return st == 1;
+}}
+{target_fma}static __attribute__((unused)) V{w} vexp{w}(V{w} a) {{
+  const VU{w} off = (((VU{w})a >> 52) & 0x7ff) - 0x3c9;
+  V{w} r;
+  int l, special = 0;
+  for (l = 0; l < {w}; ++l) special |= off[l] > 0x3e;
+  if (special || !exp_lanes{w}()) {{
+    for (l = 0; l < {w}; ++l) r[l] = exp(a[l]);
+    return r;
+  }}
+  return vexp{w}_core(a);
+}}
+/* y = exp(x) of n values by the kernels' exp ({w} at a time, the rest per value); returns 1
+   when the vector form ran (libm's bits found), 0 when libm's exp did (the tests) */
+{target}int maglev_lanes_exp_w{w}(const double* x, double* y, long n) {{
+  long i = 0;
+  int l;
+  for (; i + {w} <= n; i += {w}) {{
+    V{w} a, r;
+    for (l = 0; l < {w}; ++l) a[l] = x[i + l];
+    r = vexp{w}(a);
+    for (l = 0; l < {w}; ++l) y[i + l] = r[l];
+  }}
+  for (; i < n; ++i) y[i] = exp(x[i]);
+  return exp_lanes{w}();
+}}
+"""
+_VEXP_ISA = {
+    8: {"fma": "_mm512_fmadd_pd", "target_fma": '__attribute__((target("avx512f,fma"))) ',
+        "gather_pd": "_mm512_i64gather_pd((__m512i)idx, EXP_TAB, 8)",
+        "gather_epi64": "_mm512_i64gather_epi64((__m512i)(idx + 1), EXP_TAB, 8)"},
+    4: {"fma": "_mm256_fmadd_pd", "target_fma": '__attribute__((target("avx2,fma"))) ',
+        "gather_pd": "_mm256_i64gather_pd((const double*)EXP_TAB, (__m256i)idx, 8)",
+        "gather_epi64": "_mm256_i64gather_epi64((const long long*)EXP_TAB, (__m256i)(idx + 1), 8)"},
+}
+
+
+def exp_table() -> list[int]:
+    """`_EXP_CONSTANTS`' EXP_TAB, from mpmath at 200 bits: H_k = 2^(k/128) rounded to a
+    double, T_k = (2^(k/128) - H_k) / H_k rounded; entries T_k's bits and H_k's less
+    k << 45 (glibc's __exp_data.tab, which the tests check through exp's results)."""
+    import mpmath
+
+    def bits(v: float) -> int:
+        return struct.unpack("<Q", struct.pack("<d", v))[0]
+
+    out = []
+    with mpmath.workprec(200):
+        for k in range(128):
+            exact = mpmath.mpf(2) ** (mpmath.mpf(k) / 128)
+            h = float(exact)
+            out += [bits(float((exact - h) / h)), (bits(h) - (k << 45)) % 2**64]
+    return out
 _LIBMVEC = """\
 {target}V{w} _ZGV{isa}N{w}v_{f}(V{w} a);
 {target}static __attribute__((unused)) V{w} v{f}{w}(V{w} a) {{ return _ZGV{isa}N{w}v_{f}(a); }}
@@ -262,11 +396,18 @@ def lane_kernels(c_source: str, names: tuple[str, ...] = tuple(KERNELS),
         raise ValueError(f"lane math {math!r}: one of {MATH}")
     bodies = {n: function_body(c_source, n) for n in names}
     parts = [_PRELUDE.format(name=", ".join(names))]
+    if math == "libm":
+        table = exp_table()
+        parts.append(_EXP_CONSTANTS.format(table=",\n".join(
+            ", ".join(f"0x{t:016x}ULL" for t in table[i:i + 4]) for i in range(0, 256, 4))))
     for w, target in WIDTHS.items():
         attribute = f'__attribute__((target("{target}"))) ' if target else ""
         helper = _LIBM if math == "libm" else _LIBMVEC
+        vector_exp = math == "libm" and w in _VEXP_ISA
         functions = "".join(helper.format(target=attribute, w=w, f=f, isa=_ISA[w])
-                            for f in ("exp", "sin", "cos"))
+                            for f in ("exp", "sin", "cos") if f != "exp" or not vector_exp)
+        if vector_exp:
+            functions += _VEXP.format(target=attribute, w=w, **_VEXP_ISA[w])
         parts.append(_HELPERS.format(
             guard="defined(__x86_64__)" if target or math == "libmvec" else "1", w=w,
             bytes=8 * w, target=attribute, math=functions))
