@@ -12,9 +12,9 @@ sensed run's sense state and records are its own: its runs are prepared afresh, 
 for every variant). Each repeat runs every variant in turn on one thread, in the chunks of a
 10^4-sample study on 2 processes (`default_chunk`: 64 runs a call; a W-lane batch needs at
 least W runs a call to fill its lanes): the scalar driver and the lanes at W = 2 (SSE2), 4
-(AVX2) and 8 (AVX-512F) where the CPU has them, each with libm's bits (sin and cos per lane,
-exp at W = 4 and 8 glibc's algorithm over the lanes, maglevgen.codegen.lanes) and with
-glibc's libmvec (the experiment: not bit for bit). CPU time of this
+(AVX2) and 8 (AVX-512F) where the CPU has them, each with libm's bits (at W = 4 and 8
+glibc's exp and small-angle sincos over the lanes, maglevgen.codegen.lanes; libm per lane
+else) and with glibc's libmvec (the experiment: not bit for bit). CPU time of this
 process (time.process_time: the OpenMP team is one thread); medians, and the ratios to the
 scalar driver taken in the same repeat. Every run of every variant is compared with the
 scalar driver's: x, u, gaps, status, last sample and saturated steps equal to the last bit,
@@ -195,9 +195,9 @@ def section(results: dict) -> list[str]:
               "lag, speed loop, saturation, gaps and statuses per lane as maglev_simulate's own "
               "code; on the sensors the plant's rates at the tick and the readings in lanes too, "
               "each run's noise, rounding and sense tick (the firmware's C) per lane; libm's "
-              "sin and cos per lane (the last sincos argument vectors kept), exp over the "
-              "lanes at W = 4 and 8 (glibc's algorithm in FMA vectors: libm's bits, checked "
-              "at load and by tests/test_simd_batch.py). libmvec: the "
+              "bits: at W = 4 and 8 glibc's exp and, below 3/256, its sincos in FMA vectors "
+              "(checked at load and by tests/test_simd_batch.py), else libm per lane; the last "
+              "sincos argument vectors kept. libmvec: the "
               "same with glibc's vector "
               "exp, sin and cos (within 4 ulp; tests/test_simd_batch.py against mpmath): "
               "faster, but no longer the scalar run's bits, and a state that is rounding noise "

@@ -21,12 +21,8 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
-from maglevgen.analyses.simulate import (
-    AXIS_STATES,
-    DISTURBANCE,
-    reference_trajectory,
-    run_scenarios,
-)
+from maglevgen.analyses.reference import reference_trajectory
+from maglevgen.analyses.simulate import AXIS_STATES, DISTURBANCE, run_scenarios
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control.built_loop import Loop
 from maglevgen.control.carriage_plant import Plant

@@ -2,10 +2,10 @@
 53) against the scalar loop it replaces: each run through the lanes against maglev_simulate of
 the same inputs called on its own (`SimulationLibrary.simulate`, the loop checked against
 solve_ivp elsewhere). The lanes evaluate every arithmetic statement of the stage function
-as the scalar code does, per lane, with libm's sin and cos per lane and an exp over the lanes
-that gives libm's exp's bits: every state, input and gap must be equal to the last bit, the
-status, the last sample and the saturated steps identical, for every lane count this CPU runs
-and a batch that is no multiple of it."""
+as the scalar code does, per lane, with an exp and a sincos over the lanes that give libm's
+bits (libm's per lane where they cannot): every state, input and gap must be equal to the
+last bit, the status, the last sample and the saturated steps identical, for every lane count
+this CPU runs and a batch that is no multiple of it."""
 
 from __future__ import annotations
 
@@ -388,6 +388,77 @@ def test_the_lanes_exp_within_glibcs_bound_against_mpmath(sim_lib) -> None:
         worst = max(float(abs(mpmath.mpf(float(g)) - r)) / np.spacing(abs(float(r)))
                     for g, r in zip(got, ref, strict=True))
         assert worst <= 0.52, (w, worst)
+
+
+def _lanes_sincos(sim_lib, w: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    fn = getattr(sim_lib._lanes_functions()[2], f"maglev_lanes_sincos_w{w}")
+    fn.restype = ctypes.c_int
+    s, c = np.empty_like(x), np.empty_like(x)
+    real_p = ctypes.POINTER(ctypes.c_double)
+    used = fn(x.ctypes.data_as(real_p), s.ctypes.data_as(real_p), c.ctypes.data_as(real_p),
+              ctypes.c_long(x.size))
+    return s, c, used
+
+
+@pytest.mark.needs_cc
+def test_the_lanes_sincos_has_libms_bits(sim_lib) -> None:
+    """The kernels' sincos over 4 and 8 lanes (glibc's for |x| below 3/256 in FMA vectors,
+    libm's per lane else) against libm's sincos through ctypes, bit for bit: 2 * 10^5
+    arguments log-uniform from 2^-40 to beyond 3/256, both signs, the bounds (2^-27, the
+    table's points 0 and 1/128 and the midpoint between them, 3/256), zeros, subnormals,
+    angles up to 4 rad and non-finite values. On glibc 2.28 on the vector form must be the
+    one that ran."""
+    import platform
+
+    libm = ctypes.CDLL("libm.so.6")
+    libm.sincos.restype = None
+    dp = ctypes.POINTER(ctypes.c_double)
+    libm.sincos.argtypes = [ctypes.c_double, dp, dp]
+    rng = np.random.default_rng(27)
+    edges = [2.0**-27, 2.0**-28, 1 / 128, 1 / 256, 3 / 256, 0.0, 5e-324, 1e-310]
+    edges += [np.nextafter(v, d) for v in edges[:5] for d in (0.0, 1.0)]
+    x = np.concatenate([
+        rng.choice([-1.0, 1.0], 200_000) * 2.0 ** rng.uniform(-40, -6.3, 200_000),
+        rng.uniform(-4.0, 4.0, 2000), edges, np.negative(edges), [np.inf, -np.inf, np.nan]])
+    x = np.concatenate([x, np.zeros(-x.size % 8)])
+    ref_s, ref_c = np.empty_like(x), np.empty_like(x)
+    s1, c1 = ctypes.c_double(), ctypes.c_double()
+    for i, v in enumerate(x):
+        libm.sincos(float(v), ctypes.byref(s1), ctypes.byref(c1))
+        ref_s[i], ref_c[i] = s1.value, c1.value
+    libc, version = platform.libc_ver()
+    glibc = (libc == "glibc" and tuple(map(int, version.split(".")[:2])) >= (2, 28)
+             and platform.machine() == "x86_64")
+    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
+    if not widths:
+        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
+    for w in widths:
+        s, c, used = _lanes_sincos(sim_lib, w, x)
+        assert np.array_equal(s.view(np.int64), ref_s.view(np.int64)), w
+        assert np.array_equal(c.view(np.int64), ref_c.view(np.int64)), w
+        assert used == 1 or not glibc, f"W={w}: the lanes' sincos fell back to libm"
+
+
+@pytest.mark.needs_cc
+def test_the_lanes_sincos_within_glibcs_bound_against_mpmath(sim_lib) -> None:
+    """The kernels' sine and cosine where the vector form runs (|x| below 3/256) against
+    mpmath at 50 digits: within 0.55 ulp, glibc's stated bound for them (0.548 ulp)."""
+    import mpmath
+
+    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
+    if not widths:
+        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
+    rng = np.random.default_rng(11)
+    x = rng.choice([-1.0, 1.0], 2000) * 2.0 ** rng.uniform(-27, -6.42, 2000)
+    mpmath.mp.dps = 50
+    ref_s = [mpmath.sin(mpmath.mpf(float(v))) for v in x]
+    ref_c = [mpmath.cos(mpmath.mpf(float(v))) for v in x]
+    for w in widths:
+        s, c, _ = _lanes_sincos(sim_lib, w, x)
+        for got, ref in ((s, ref_s), (c, ref_c)):
+            worst = max(float(abs(mpmath.mpf(float(g)) - r)) / np.spacing(abs(float(r)))
+                        for g, r in zip(got, ref, strict=True))
+            assert worst <= 0.55, (w, worst)
 
 
 @pytest.mark.needs_cc

@@ -20,13 +20,15 @@ kernels are compiled -ffp-contract=off, `maglevgen.runtime.compile.HOST_TUNED_FL
   on 4096 arguments the first time (`exp_check`) and call libm per lane where it does not
   hold (another C library, a CPU without FMA) and for glibc's special cases (|x| below
   2^-54 or from 512 on); tests/test_simd_batch.py compares it with libm bit for bit and
-  with mpmath. Two lanes, sin and cos are libm's per lane (the scalar function's own calls,
-  so the same bits); a sin and a cos of one value are one sincos (glibc's gives sin's and
-  cos's bits; the scalar code is compiled to the same call). The kernels keep the last few
-  sincos argument vectors and results (per thread): the readings, the gaps, the tick's
-  control and the rates at a tick take the sines and cosines of the same angles of x, so
-  sincos of an argument vector of the same bits in every lane returns the kept results
-  (sincos's own bits) instead of computing them again. sqrt is correctly rounded in every form.
+  with mpmath. A sin and a cos of one value are one sincos (glibc's gives sin's and cos's
+  bits; the scalar code is compiled to the same call): over 4 and 8 lanes whose |x| are all
+  below 3/256 (the attitude's small angles) glibc's sincos there in FMA vectors
+  (`sincos_table`), checked the same way, else libm's per lane, as exp on two lanes. The
+  kernels keep the last few sincos argument vectors and results (per thread): the readings,
+  the gaps, the tick's control and the rates at a tick take the sines and cosines of the
+  same angles of x, so sincos of an argument vector of the same bits in every lane returns
+  the kept results (sincos's own bits) instead of computing them again. sqrt is correctly
+  rounded in every form.
   glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
   functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
   checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
@@ -80,6 +82,23 @@ _EXP_CONSTANTS = """\
 #define EXP_C4 0x1.55555cf172b91p-5
 #define EXP_C5 0x1.1111167a4d017p-7
 #define EXP_CHECKS 4096 /* arguments exp_check compares with libm's exp */
+/* glibc's sincos for 2^-27 <= |x| < 3/256 (s_sin.c's do_sin's Taylor form and do_cos) */
+#define SC_S1 -0x1.5555555555555p-3 /* the sine's Taylor coefficients */
+#define SC_S2 0x1.1111111110ecep-7
+#define SC_S3 -0x1.a01a019db08b8p-13
+#define SC_S4 0x1.71de27b9a7ed9p-19
+#define SC_S5 -0x1.addffc2fcdf59p-26
+#define SC_SN3 -0x1.5555555555515p-3 /* sin and cos of the offset from the table's point */
+#define SC_SN5 0x1.11110e829872fp-7
+#define SC_CS2 0x1.0p-1
+#define SC_CS4 -0x1.5555555555535p-5
+#define SC_CS6 0x1.6c16bedd9e239p-10
+#define SC_BIG 0x1.8p45 /* rounds |x| to the table's points, k / 128 */
+#define SC_CHECKS 4096 /* arguments sincos_check compares with libm's sincos */
+/* sin(k/128) and cos(k/128) as double-doubles (high, low) for k = 0, 1 */
+static const double SC_TAB[8] __attribute__((aligned(64))) = {{
+{sc_table}
+}};
 /* entry 2k: the tail T_k, 2k + 1: the bits of H_k less k << 45, 2^(k/128) = H_k (1 + T_k) */
 static const unsigned long long EXP_TAB[256] __attribute__((aligned(64))) = {{
 {table}
@@ -119,19 +138,19 @@ static __thread SC{w} sc{w};
   if (m->n < SC_KEEP) ++m->n;
   return j;
 }}
-{target}static __attribute__((unused)) V{w} vsincos{w}(SC{w}* m, V{w} a, V{w}* c) {{
-  V{w} r; double sl, cl; int l;
+{sincos}{target}static __attribute__((unused)) V{w} vsincos{w}(SC{w}* m, V{w} a, V{w}* c) {{
+  V{w} r;
   const int j = sc_find{w}(m, a);
   if (j >= 0) {{ *c = m->c[j]; return m->s[j]; }}
-  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); r[l] = sl; (*c)[l] = cl; }}
+  sc_all{w}(a, &r, c);
   (void)sc_keep{w}(m, a, r, *c);
   return r;
 }}
 {target}static __attribute__((unused)) V{w} vcossin{w}(SC{w}* m, V{w} a, V{w}* s) {{
-  V{w} r; double sl, cl; int l;
+  V{w} r;
   const int j = sc_find{w}(m, a);
   if (j >= 0) {{ *s = m->s[j]; return m->c[j]; }}
-  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); (*s)[l] = sl; r[l] = cl; }}
+  sc_all{w}(a, s, &r);
   (void)sc_keep{w}(m, a, *s, r);
   return r;
 }}
@@ -164,11 +183,112 @@ _LIBM = """\
   V{w} r; int l; for (l = 0; l < {w}; ++l) r[l] = {f}(a[l]); return r;
 }}
 """
+# sin and cos of W lanes by libm's sincos per lane
+_SINCOS = """\
+{target}static void sc_all{w}(V{w} a, V{w}* s, V{w}* c) {{
+  double sl, cl;
+  int l;
+  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); (*s)[l] = sl; (*c)[l] = cl; }}
+}}
+"""
+# sin and cos of W = 4 and 8 lanes at once where every lane's |a| is below 3/256 (the model's
+# small attitude angles): glibc's sincos there (a and 1 below 2^-27; `_EXP_CONSTANTS`' SC_*:
+# its Taylor sine and its cosine from its table's entries for 0 and 1/128), checked against
+# libm's like exp; libm's sincos per lane otherwise. Why 3/256: glibc's table (110 points
+# k/128) is not every point's correctly rounded double-double (mpmath's differ in the low
+# word's last bit at 17 of them, the first at k = 2), so only the entries it reads below
+# 3/256, k = 0 and 1, which are, can be rebuilt here
+_VSINCOS = """\
+{target_fma}static V{w} vsincos{w}_core(V{w} x, V{w}* c_out) {{
+  const V{w} z = {{0}};
+  const VU{w} sign = (VU{w}){{0}} + 0x8000000000000000ULL;
+  const V{w} ax = (V{w})((VU{w})x & ~sign);
+  const V{w} xx = x * x;
+  const V{w} u = ax + SC_BIG;
+  const VI{w} k = (VI{w})(((VU{w})u & 0xffffffffULL) << 2);
+  const V{w} y = (V{w})(sign & (VU{w})(x < z)) + (ax - (u - SC_BIG));
+  const V{w} yy = y * y;
+  const V{w} s = FMA{w}(y * yy, FMA{w}(yy, z + SC_SN5, z + SC_SN3), y);
+  const V{w} cc = yy * FMA{w}(FMA{w}(yy, z + SC_CS6, z + SC_CS4), yy, z + SC_CS2);
+  V{w} p = FMA{w}(xx, z + SC_S5, z + SC_S4), cor;
+  p = FMA{w}(xx, p, z + SC_S3);
+  p = FMA{w}(xx, p, z + SC_S2);
+  p = FMA{w}(xx, p, z + SC_S1);
+  cor = FNMA{w}((V{w}){gather_sc1}, s, (V{w}){gather_sc3});
+  cor = FNMA{w}(cc, (V{w}){gather_sc2}, cor);
+  cor = FNMA{w}(s, (V{w}){gather_sc0}, cor);
+  *c_out = cor + (V{w}){gather_sc2};
+  return x + FMA{w}(xx, FMA{w}(x, p, (V{w})sign), z);
+}}
+/* vsincos{w}_core against libm's sincos on SC_CHECKS arguments of an LCG, log-uniform over
+   its range, both signs: 1 when every result has libm's bits */
+{target_fma}static int sincos_check{w}(void) {{
+  unsigned long long st = 0x2545f4914f6cdd1dULL;
+  int i, l;
+  for (i = 0; i < SC_CHECKS; i += {w}) {{
+    V{w} a, s, c;
+    for (l = 0; l < {w}; ++l) {{
+      st = st * 6364136223846793005ULL + 1442695040888963407ULL;
+      a[l] = (l % 2 ? 1.0 : -1.0) * exp2(-27.0 + 20.5 * (double)(st >> 11) * 0x1p-53);
+    }}
+    s = vsincos{w}_core(a, &c);
+    for (l = 0; l < {w}; ++l) {{
+      double sl, cl;
+      const double vs = s[l], vc = c[l];
+      sincos(a[l], &sl, &cl);
+      if (memcmp(&sl, &vs, sizeof sl) != 0 || memcmp(&cl, &vc, sizeof cl) != 0) return 0;
+    }}
+  }}
+  return 1;
+}}
+static int sincos_state{w}; /* as exp_state{w} */
+static int sincos_lanes{w}(void) {{
+  int st = __atomic_load_n(&sincos_state{w}, __ATOMIC_RELAXED);
+  if (st == 0) {{
+    __builtin_cpu_init();
+    st = __builtin_cpu_supports("fma") && sincos_check{w}() ? 1 : 2;
+    __atomic_store_n(&sincos_state{w}, st, __ATOMIC_RELAXED);
+  }}
+  return st == 1;
+}}
+{target_fma}static void sc_all{w}(V{w} a, V{w}* s, V{w}* c) {{
+  const VU{w} high = ((VU{w})a >> 32) & 0x7fffffff;
+  double sl, cl;
+  int l, out = 0;
+  for (l = 0; l < {w}; ++l) out |= high[l] >= 0x3f880000;
+  if (!out && sincos_lanes{w}()) {{
+    /* below 2^-27 sincos gives a and 1 */
+    const VI{w} tiny = (VI{w})(high < 0x3e400000);
+    const V{w} one = (V{w}){{0}} + 1.0;
+    V{w} cr;
+    const V{w} sr = vsincos{w}_core(a, &cr);
+    *s = (V{w})((tiny & (VI{w})a) | (~tiny & (VI{w})sr));
+    *c = (V{w})((tiny & (VI{w})one) | (~tiny & (VI{w})cr));
+    return;
+  }}
+  for (l = 0; l < {w}; ++l) {{ sincos(a[l], &sl, &cl); (*s)[l] = sl; (*c)[l] = cl; }}
+}}
+/* s, c = sin, cos of n values by the kernels' sincos ({w} at a time, the rest per value);
+   returns 1 when the vector form is in use (libm's bits found), 0 else (the tests) */
+{target}int maglev_lanes_sincos_w{w}(const double* x, double* s, double* c, long n) {{
+  long i = 0;
+  int l;
+  for (; i + {w} <= n; i += {w}) {{
+    V{w} a, rs, rc;
+    for (l = 0; l < {w}; ++l) a[l] = x[i + l];
+    sc_all{w}(a, &rs, &rc);
+    for (l = 0; l < {w}; ++l) {{ s[i + l] = rs[l]; c[i + l] = rc[l]; }}
+  }}
+  for (; i < n; ++i) sincos(x[i], s + i, c + i);
+  return sincos_lanes{w}();
+}}
+"""
 # exp of W = 4 and 8 lanes at once (`_EXP_CONSTANTS`): libm's bits where exp_check found them
 # on this machine (the same glibc build), libm per lane otherwise and for glibc's special
 # cases (|a| below 2^-54, from 512 on, not finite)
 _VEXP = """\
 #define FMA{w}(a, b, c) ((V{w}){fma}((a), (b), (c)))
+#define FNMA{w}(a, b, c) ((V{w}){fnma}((a), (b), (c)))
 {target_fma}static V{w} vexp{w}_core(V{w} x) {{
   const V{w} z = {{0}};
   V{w} kd = FMA{w}(x, z + EXP_INVLN2N, z + EXP_SHIFT);
@@ -241,13 +361,35 @@ static int exp_lanes{w}(void) {{
 }}
 """
 _VEXP_ISA = {
-    8: {"fma": "_mm512_fmadd_pd", "target_fma": '__attribute__((target("avx512f,fma"))) ',
+    8: {"fma": "_mm512_fmadd_pd", "fnma": "_mm512_fnmadd_pd",
+        "target_fma": '__attribute__((target("avx512f,fma"))) ',
+        **{f"gather_sc{j}": f"_mm512_i64gather_pd((__m512i)(k + {j}), SC_TAB, 8)"
+           for j in range(4)},
         "gather_pd": "_mm512_i64gather_pd((__m512i)idx, EXP_TAB, 8)",
         "gather_epi64": "_mm512_i64gather_epi64((__m512i)(idx + 1), EXP_TAB, 8)"},
-    4: {"fma": "_mm256_fmadd_pd", "target_fma": '__attribute__((target("avx2,fma"))) ',
+    4: {"fma": "_mm256_fmadd_pd", "fnma": "_mm256_fnmadd_pd",
+        "target_fma": '__attribute__((target("avx2,fma"))) ',
+        **{f"gather_sc{j}": f"_mm256_i64gather_pd(SC_TAB, (__m256i)(k + {j}), 8)"
+           for j in range(4)},
         "gather_pd": "_mm256_i64gather_pd((const double*)EXP_TAB, (__m256i)idx, 8)",
-        "gather_epi64": "_mm256_i64gather_epi64((const long long*)EXP_TAB, (__m256i)(idx + 1), 8)"},
+        "gather_epi64":
+            "_mm256_i64gather_epi64((const long long*)EXP_TAB, (__m256i)(idx + 1), 8)"},
 }
+
+
+def sincos_table() -> list[float]:
+    """`_EXP_CONSTANTS`' SC_TAB from mpmath at 300 bits: for k = 0, 1, sin(k/128) rounded
+    to a double and the rest rounded, then cos(k/128) likewise (glibc's table's first two
+    entries, which the tests check through sincos's results)."""
+    import mpmath
+
+    out = []
+    with mpmath.workprec(300):
+        for k in range(2):
+            for f in (mpmath.sin, mpmath.cos):
+                exact = f(mpmath.mpf(k) / 128)
+                out += [float(exact), float(exact - float(exact))]
+    return out
 
 
 def exp_table() -> list[int]:
@@ -399,18 +541,21 @@ def lane_kernels(c_source: str, names: tuple[str, ...] = tuple(KERNELS),
     if math == "libm":
         table = exp_table()
         parts.append(_EXP_CONSTANTS.format(table=",\n".join(
-            ", ".join(f"0x{t:016x}ULL" for t in table[i:i + 4]) for i in range(0, 256, 4))))
+            ", ".join(f"0x{t:016x}ULL" for t in table[i:i + 4]) for i in range(0, 256, 4)),
+            sc_table=", ".join(v.hex() for v in sincos_table())))
     for w, target in WIDTHS.items():
         attribute = f'__attribute__((target("{target}"))) ' if target else ""
         helper = _LIBM if math == "libm" else _LIBMVEC
         vector_exp = math == "libm" and w in _VEXP_ISA
         functions = "".join(helper.format(target=attribute, w=w, f=f, isa=_ISA[w])
                             for f in ("exp", "sin", "cos") if f != "exp" or not vector_exp)
+        sincos = _SINCOS.format(target=attribute, w=w)
         if vector_exp:
             functions += _VEXP.format(target=attribute, w=w, **_VEXP_ISA[w])
+            sincos = _VSINCOS.format(target=attribute, w=w, **_VEXP_ISA[w])
         parts.append(_HELPERS.format(
             guard="defined(__x86_64__)" if target or math == "libmvec" else "1", w=w,
-            bytes=8 * w, target=attribute, math=functions))
+            bytes=8 * w, target=attribute, math=functions, sincos=sincos))
         for name, body in bodies.items():
             n_in = 1 + max(map(int, re.findall(r"arg\[(\d+)\]", body)))
             n_out = 1 + max(map(int, re.findall(r"res\[(\d+)\]", body)))
