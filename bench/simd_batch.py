@@ -200,7 +200,7 @@ def section(results: dict) -> list[str]:
               "sincos argument vectors kept. libmvec: the "
               "same with glibc's vector "
               "exp, sin and cos (within 4 ulp; tests/test_simd_batch.py against mpmath): "
-              "faster, but no longer the scalar run's bits, and a state that is rounding noise "
+              "not the scalar run's bits, and a state that is rounding noise "
               "about zero then differs by more than itself, so not within 1e-12 relative on "
               "every state: montecarlo and roa run the bit-for-bit lanes (W = the widest the "
               "CPU has that a call's runs fill).", END]

@@ -608,7 +608,8 @@ def metrics(traj: Trajectory) -> dict:
     for i, ax in enumerate(m["axes"].values()):
         ax["rms_control"] = float(np.sqrt(np.mean(ugen[:, i] ** 2)))
     tick = traj.tick
-    return {**{k: m[k] for k in list(m)[:12]},
+    later = ("speed_error", "saturated_time", "axes")  # metrics.json: after the forces
+    return {**{k: v for k, v in m.items() if k not in later},
             "rms_array_force": float(np.sqrt(np.mean(traj.u[:, cv.ARRAY_INPUTS] ** 2))),
             "peak_array_force": {a: float(np.max(f)) for a, f in traj.array_forces.items()},
             "speed_error": m["speed_error"], "saturated_time": m["saturated_time"],

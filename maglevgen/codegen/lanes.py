@@ -15,7 +15,7 @@ kernels are compiled -ffp-contract=off, `maglevgen.runtime.compile.HOST_TUNED_FL
 - A guard of branches.py, ``if (N!=0) {``, runs its block when N is nonzero in *any* lane: no
   work on a branch that every lane discards; where the lanes disagree the block runs for all
   and the select keeps each lane's own side.
-- exp over 4 and 8 lanes is glibc's own algorithm in FMA vectors (`_EXP_CONSTANTS`, its
+- exp over 4 and 8 lanes is glibc's own algorithm in FMA vectors (`_GLIBC_MATH`, its
   table from mpmath, `exp_table`), so libm's bits on glibc 2.28 on: the kernels check that
   on 4096 arguments the first time (`exp_check`) and call libm per lane where it does not
   hold (another C library, a CPU without FMA) and for glibc's special cases (|x| below
@@ -64,12 +64,13 @@ _PRELUDE = """\
 #include <math.h>
 """
 
-#: glibc's exp (2.28 on: sysdeps/ieee754/dbl-64/e_exp.c, the algorithm of Arm's optimized
-#: routines) as its x86-64 FMA build computes it (the build glibc runs on a CPU with AVX2 and
+#: the constants of glibc's exp and sincos (below) over the lanes. exp (2.28 on:
+#: sysdeps/ieee754/dbl-64/e_exp.c, the algorithm of Arm's optimized routines) as its x86-64
+#: FMA build computes it (the build glibc runs on a CPU with AVX2 and
 #: FMA): x = k ln2/128 + r, exp(x) = 2^(k/128) (1 + tail) (1 + p(r)) with k's 2^(k/128) split
 #: into a double and its relative tail (`exp_table`), p of degree 5; every operation and
 #: contraction in the order its object code has them (objdump of libm.so.6, glibc 2.36)
-_EXP_CONSTANTS = """\
+_GLIBC_MATH = """\
 #if defined(__x86_64__)
 #include <immintrin.h>
 #include <string.h>
@@ -192,7 +193,7 @@ _SINCOS = """\
 }}
 """
 # sin and cos of W = 4 and 8 lanes at once where every lane's |a| is below 3/256 (the model's
-# small attitude angles): glibc's sincos there (a and 1 below 2^-27; `_EXP_CONSTANTS`' SC_*:
+# small attitude angles): glibc's sincos there (a and 1 below 2^-27; `_GLIBC_MATH`' SC_*:
 # its Taylor sine and its cosine from its table's entries for 0 and 1/128), checked against
 # libm's like exp; libm's sincos per lane otherwise. Why 3/256: glibc's table (110 points
 # k/128) is not every point's correctly rounded double-double (mpmath's differ in the low
@@ -283,7 +284,7 @@ static int sincos_lanes{w}(void) {{
   return sincos_lanes{w}();
 }}
 """
-# exp of W = 4 and 8 lanes at once (`_EXP_CONSTANTS`): libm's bits where exp_check found them
+# exp of W = 4 and 8 lanes at once (`_GLIBC_MATH`): libm's bits where exp_check found them
 # on this machine (the same glibc build), libm per lane otherwise and for glibc's special
 # cases (|a| below 2^-54, from 512 on, not finite)
 _VEXP = """\
@@ -378,7 +379,7 @@ _VEXP_ISA = {
 
 
 def sincos_table() -> list[float]:
-    """`_EXP_CONSTANTS`' SC_TAB from mpmath at 300 bits: for k = 0, 1, sin(k/128) rounded
+    """`_GLIBC_MATH`' SC_TAB from mpmath at 300 bits: for k = 0, 1, sin(k/128) rounded
     to a double and the rest rounded, then cos(k/128) likewise (glibc's table's first two
     entries, which the tests check through sincos's results)."""
     import mpmath
@@ -393,7 +394,7 @@ def sincos_table() -> list[float]:
 
 
 def exp_table() -> list[int]:
-    """`_EXP_CONSTANTS`' EXP_TAB, from mpmath at 200 bits: H_k = 2^(k/128) rounded to a
+    """`_GLIBC_MATH`' EXP_TAB, from mpmath at 200 bits: H_k = 2^(k/128) rounded to a
     double, T_k = (2^(k/128) - H_k) / H_k rounded; entries T_k's bits and H_k's less
     k << 45 (glibc's __exp_data.tab, which the tests check through exp's results)."""
     import mpmath
@@ -540,7 +541,7 @@ def lane_kernels(c_source: str, names: tuple[str, ...] = tuple(KERNELS),
     parts = [_PRELUDE.format(name=", ".join(names))]
     if math == "libm":
         table = exp_table()
-        parts.append(_EXP_CONSTANTS.format(table=",\n".join(
+        parts.append(_GLIBC_MATH.format(table=",\n".join(
             ", ".join(f"0x{t:016x}ULL" for t in table[i:i + 4]) for i in range(0, 256, 4)),
             sc_table=", ".join(v.hex() for v in sincos_table())))
     for w, target in WIDTHS.items():
