@@ -328,6 +328,23 @@ def test_libmvec_within_its_bound_against_mpmath(tmp_path, sim_lib) -> None:
     assert all(v <= 4.0 for v in worst.values()), worst
 
 
+def _vector_widths(sim_lib) -> list[int]:
+    """The lane counts whose exp and sincos are vectors on this CPU (skip without any)."""
+    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
+    if not widths:
+        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
+    return widths
+
+
+def _glibc_x86() -> bool:
+    """glibc 2.28 on, on x86-64: the C library whose exp and sincos the lanes' are."""
+    import platform
+
+    libc, version = platform.libc_ver()
+    return (libc == "glibc" and tuple(map(int, version.split(".")[:2])) >= (2, 28)
+            and platform.machine() == "x86_64")
+
+
 def _lanes_exp(sim_lib, w: int, x: np.ndarray) -> tuple[np.ndarray, int]:
     fn = getattr(sim_lib._lanes_functions()[2], f"maglev_lanes_exp_w{w}")
     fn.restype = ctypes.c_int
@@ -345,7 +362,6 @@ def test_the_lanes_exp_has_libms_bits(sim_lib) -> None:
     table entries at both ends of its interval, and glibc's special cases (tiny, 512 on,
     overflow, underflow, infinities, NaN), which it hands to libm. On glibc 2.28 on, whose
     exp this is, the vector form must be the one that ran (its self-check passed)."""
-    import platform
 
     libm = ctypes.CDLL("libm.so.6")
     libm.exp.restype, libm.exp.argtypes = ctypes.c_double, [ctypes.c_double]
@@ -358,16 +374,10 @@ def test_the_lanes_exp_has_libms_bits(sim_lib) -> None:
                          710.0, -745.1, -746.0, -1000.0, np.inf, -np.inf, np.nan, 5e-324]])
     x = np.concatenate([x, np.zeros(-x.size % 8)])
     ref = np.array([libm.exp(float(v)) for v in x])
-    libc, version = platform.libc_ver()
-    glibc_exp = (libc == "glibc" and tuple(map(int, version.split(".")[:2])) >= (2, 28)
-                 and platform.machine() == "x86_64")
-    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
-    if not widths:
-        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
-    for w in widths:
+    for w in _vector_widths(sim_lib):
         got, used = _lanes_exp(sim_lib, w, x)
         assert np.array_equal(got.view(np.int64), ref.view(np.int64)), w
-        assert used == 1 or not glibc_exp, f"W={w}: the lanes' exp fell back to libm"
+        assert used == 1 or not _glibc_x86(), f"W={w}: the lanes' exp fell back to libm"
 
 
 @pytest.mark.needs_cc
@@ -376,9 +386,7 @@ def test_the_lanes_exp_within_glibcs_bound_against_mpmath(sim_lib) -> None:
     0.52 ulp, glibc's stated bound for its exp with FMA (0.509 ulp) and a margin."""
     import mpmath
 
-    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
-    if not widths:
-        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
+    widths = _vector_widths(sim_lib)
     rng = np.random.default_rng(7)
     x = np.concatenate([rng.uniform(-40, 40, 2000), rng.uniform(-500, 500, 400)])
     mpmath.mp.dps = 50
@@ -408,7 +416,6 @@ def test_the_lanes_sincos_has_libms_bits(sim_lib) -> None:
     table's points 0 and 1/128 and the midpoint between them, 3/256), zeros, subnormals,
     angles up to 4 rad and non-finite values. On glibc 2.28 on the vector form must be the
     one that ran."""
-    import platform
 
     libm = ctypes.CDLL("libm.so.6")
     libm.sincos.restype = None
@@ -426,17 +433,11 @@ def test_the_lanes_sincos_has_libms_bits(sim_lib) -> None:
     for i, v in enumerate(x):
         libm.sincos(float(v), ctypes.byref(s1), ctypes.byref(c1))
         ref_s[i], ref_c[i] = s1.value, c1.value
-    libc, version = platform.libc_ver()
-    glibc = (libc == "glibc" and tuple(map(int, version.split(".")[:2])) >= (2, 28)
-             and platform.machine() == "x86_64")
-    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
-    if not widths:
-        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
-    for w in widths:
+    for w in _vector_widths(sim_lib):
         s, c, used = _lanes_sincos(sim_lib, w, x)
         assert np.array_equal(s.view(np.int64), ref_s.view(np.int64)), w
         assert np.array_equal(c.view(np.int64), ref_c.view(np.int64)), w
-        assert used == 1 or not glibc, f"W={w}: the lanes' sincos fell back to libm"
+        assert used == 1 or not _glibc_x86(), f"W={w}: the lanes' sincos fell back to libm"
 
 
 @pytest.mark.needs_cc
@@ -445,9 +446,7 @@ def test_the_lanes_sincos_within_glibcs_bound_against_mpmath(sim_lib) -> None:
     mpmath at 50 digits: within 0.55 ulp, glibc's stated bound for them (0.548 ulp)."""
     import mpmath
 
-    widths = [w for w in (4, 8) if sim_lib.lane_width(w) == w]
-    if not widths:
-        pytest.skip("this CPU has neither AVX2 nor AVX-512F")
+    widths = _vector_widths(sim_lib)
     rng = np.random.default_rng(11)
     x = rng.choice([-1.0, 1.0], 2000) * 2.0 ** rng.uniform(-27, -6.42, 2000)
     mpmath.mp.dps = 50

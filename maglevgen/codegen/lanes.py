@@ -100,6 +100,17 @@ _GLIBC_MATH = """\
 static const double SC_TAB[8] __attribute__((aligned(64))) = {{
 {sc_table}
 }};
+/* whether a vector function has libm's bits here: *state 0 until asked, then 1 when this CPU
+   has FMA and `check` (run once; any thread finds the same) found libm's bits, else 2 */
+static int libm_bits(int* state, int (*check)(void)) {{
+  int st = __atomic_load_n(state, __ATOMIC_RELAXED);
+  if (st == 0) {{
+    __builtin_cpu_init();
+    st = __builtin_cpu_supports("fma") && check() ? 1 : 2;
+    __atomic_store_n(state, st, __ATOMIC_RELAXED);
+  }}
+  return st == 1;
+}}
 /* entry 2k: the tail T_k, 2k + 1: the bits of H_k less k << 45, 2^(k/128) = H_k (1 + T_k) */
 static const unsigned long long EXP_TAB[256] __attribute__((aligned(64))) = {{
 {table}
@@ -242,16 +253,8 @@ _VSINCOS = """\
   }}
   return 1;
 }}
-static int sincos_state{w}; /* as exp_state{w} */
-static int sincos_lanes{w}(void) {{
-  int st = __atomic_load_n(&sincos_state{w}, __ATOMIC_RELAXED);
-  if (st == 0) {{
-    __builtin_cpu_init();
-    st = __builtin_cpu_supports("fma") && sincos_check{w}() ? 1 : 2;
-    __atomic_store_n(&sincos_state{w}, st, __ATOMIC_RELAXED);
-  }}
-  return st == 1;
-}}
+static int sincos_state{w}; /* libm_bits' state of the vector sincos */
+static int sincos_lanes{w}(void) {{ return libm_bits(&sincos_state{w}, sincos_check{w}); }}
 {target_fma}static void sc_all{w}(V{w} a, V{w}* s, V{w}* c) {{
   const VU{w} high = ((VU{w})a >> 32) & 0x7fffffff;
   double sl, cl;
@@ -325,16 +328,8 @@ _VEXP = """\
   }}
   return 1;
 }}
-static int exp_state{w}; /* 0 unknown, 1 the vector exp has libm's bits here, 2 not */
-static int exp_lanes{w}(void) {{
-  int st = __atomic_load_n(&exp_state{w}, __ATOMIC_RELAXED);
-  if (st == 0) {{
-    __builtin_cpu_init();
-    st = __builtin_cpu_supports("fma") && exp_check{w}() ? 1 : 2;
-    __atomic_store_n(&exp_state{w}, st, __ATOMIC_RELAXED);
-  }}
-  return st == 1;
-}}
+static int exp_state{w}; /* libm_bits' state of the vector exp */
+static int exp_lanes{w}(void) {{ return libm_bits(&exp_state{w}, exp_check{w}); }}
 {target_fma}static __attribute__((unused)) V{w} vexp{w}(V{w} a) {{
   const VU{w} off = (((VU{w})a >> 52) & 0x7ff) - 0x3c9;
   V{w} r;
