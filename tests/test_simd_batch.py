@@ -337,12 +337,13 @@ def _vector_widths(sim_lib) -> list[int]:
 
 
 def _glibc_x86() -> bool:
-    """glibc 2.28 on, on x86-64: the C library whose exp and sincos the lanes' are."""
+    """glibc 2.36 on x86-64: the build whose object code the lanes' exp and sincos were
+    written from (maglevgen.codegen.lanes). Another build may contract other operations
+    into FMAs: the lanes then fall back to libm per lane, the bits still libm's."""
     import platform
 
     libc, version = platform.libc_ver()
-    return (libc == "glibc" and tuple(map(int, version.split(".")[:2])) >= (2, 28)
-            and platform.machine() == "x86_64")
+    return libc == "glibc" and version == "2.36" and platform.machine() == "x86_64"
 
 
 def _lanes_exp(sim_lib, w: int, x: np.ndarray) -> tuple[np.ndarray, int]:
@@ -360,8 +361,8 @@ def test_the_lanes_exp_has_libms_bits(sim_lib) -> None:
     maglevgen.codegen.lanes) against libm's exp called through ctypes, bit for bit: 4 * 10^5
     arguments over the range where it runs (|x| from 2^-54 to 512), every one of its 128
     table entries at both ends of its interval, and glibc's special cases (tiny, 512 on,
-    overflow, underflow, infinities, NaN), which it hands to libm. On glibc 2.28 on, whose
-    exp this is, the vector form must be the one that ran (its self-check passed)."""
+    overflow, underflow, infinities, NaN), which it hands to libm. On glibc 2.36, whose exp
+    this is, the vector form must be the one that ran (its self-check passed)."""
 
     libm = ctypes.CDLL("libm.so.6")
     libm.exp.restype, libm.exp.argtypes = ctypes.c_double, [ctypes.c_double]
@@ -414,8 +415,8 @@ def test_the_lanes_sincos_has_libms_bits(sim_lib) -> None:
     libm's per lane else) against libm's sincos through ctypes, bit for bit: 2 * 10^5
     arguments log-uniform from 2^-40 to beyond 3/256, both signs, the bounds (2^-27, the
     table's points 0 and 1/128 and the midpoint between them, 3/256), zeros, subnormals,
-    angles up to 4 rad and non-finite values. On glibc 2.28 on the vector form must be the
-    one that ran."""
+    angles up to 4 rad and non-finite values. On glibc 2.36 the vector form must be the one
+    that ran."""
 
     libm = ctypes.CDLL("libm.so.6")
     libm.sincos.restype = None

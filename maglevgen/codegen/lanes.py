@@ -15,20 +15,20 @@ kernels are compiled -ffp-contract=off, `maglevgen.runtime.compile.HOST_TUNED_FL
 - A guard of branches.py, ``if (N!=0) {``, runs its block when N is nonzero in *any* lane: no
   work on a branch that every lane discards; where the lanes disagree the block runs for all
   and the select keeps each lane's own side.
-- exp over 4 and 8 lanes is glibc's own algorithm in FMA vectors (`_GLIBC_MATH`, its
-  table from mpmath, `exp_table`), so libm's bits on glibc 2.28 on: the kernels check that
-  on 4096 arguments the first time (`exp_check`) and call libm per lane where it does not
-  hold (another C library, a CPU without FMA) and for glibc's special cases (|x| below
-  2^-54 or from 512 on); tests/test_simd_batch.py compares it with libm bit for bit and
-  with mpmath. A sin and a cos of one value are one sincos (glibc's gives sin's and cos's
-  bits; the scalar code is compiled to the same call): over 4 and 8 lanes whose |x| are all
-  below 3/256 (the attitude's small angles) glibc's sincos there in FMA vectors
-  (`sincos_table`), checked the same way, else libm's per lane, as exp on two lanes. The
-  kernels keep the last few sincos argument vectors and results (per thread): the readings,
-  the gaps, the tick's control and the rates at a tick take the sines and cosines of the
-  same angles of x, so sincos of an argument vector of the same bits in every lane returns
-  the kept results (sincos's own bits) instead of computing them again. sqrt is correctly
-  rounded in every form.
+- exp over 4 and 8 lanes is glibc's own algorithm in FMA vectors (`_GLIBC_MATH`, its table
+  from mpmath, `exp_table`), so libm's bits with the glibc build it was written from (2.36,
+  x86-64): the kernels check that on 4096 arguments the first time (`libm_bits`) and call
+  libm per lane where it does not hold (another C library or build, a CPU without FMA) and
+  for glibc's special cases (|x| below 2^-54 or from 512 on); tests/test_simd_batch.py
+  compares it with libm bit for bit and with mpmath. A sin and a cos of one value are one
+  sincos (glibc's gives sin's and cos's bits; the scalar code is compiled to the same call):
+  over 4 and 8 lanes whose |x| are all below 3/256 (the attitude's small angles) glibc's
+  sincos there in FMA vectors (`sincos_table`), checked the same way, else libm's per lane,
+  as exp on two lanes. The kernels keep the last few sincos argument vectors and results
+  (per thread): the readings, the gaps, the tick's control and the rates at a tick take the
+  sines and cosines of the same angles of x, so sincos of an argument vector of the same
+  bits in every lane returns the kept results (sincos's own bits) instead of computing them
+  again. sqrt is correctly rounded in every form.
   glibc's libmvec (``math="libmvec"``) is there to measure (bench/simd_batch.py): its
   functions are within 4 ulp of the rounded result (glibc's manual; tests/test_simd_batch.py
   checks them against mpmath), not libm's bits, which the bit-for-bit contract of the
