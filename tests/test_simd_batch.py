@@ -382,6 +382,49 @@ def test_the_lanes_exp_has_libms_bits(sim_lib) -> None:
 
 
 @pytest.mark.needs_cc
+def test_the_lanes_fall_back_to_libm_where_their_check_fails(tmp_path, sim_lib) -> None:
+    """Another C library or glibc build (its exp or sincos not these operations): the kernels
+    built with one word of exp's table and one of sincos's changed, as such a build would
+    differ, must find it on their first call and give libm's bits through libm per lane (the
+    vector form reported unused), on the arguments the vector forms would have taken."""
+    import subprocess
+
+    from maglevgen.runtime.compile import HOST_TUNED_FLAGS
+
+    widths = _vector_widths(sim_lib)
+    source = lane_kernels((sim_lib.sources / "maglev_functions.c").read_text())
+    exp_word = "0x3feff63da9fb3335ULL"  # H_1's bits, 2^(1/128) rounded (less 1 << 45)
+    sc_word = (1 / 128 - (1 / 128) ** 3 / 6).hex()  # not sin(1/128)'s double-double
+    assert exp_word in source
+    broken = source.replace(exp_word, "0x3feff63da9fb3336ULL", 1)
+    high = float.fromhex(broken.split("SC_TAB[8]")[1].split("{")[1].split(",")[4].strip())
+    broken = broken.replace(high.hex(), sc_word, 1)
+    src = tmp_path / "kernels.c"
+    src.write_text(broken)
+    lib_path = tmp_path / "kernels.so"
+    subprocess.run(["gcc", *HOST_TUNED_FLAGS, "-shared", "-fPIC", str(src), "-o", str(lib_path),
+                    "-lm"], check=True)
+    lib = ctypes.CDLL(str(lib_path))
+    libm = ctypes.CDLL("libm.so.6")
+    libm.exp.restype, libm.exp.argtypes = ctypes.c_double, [ctypes.c_double]
+    rng = np.random.default_rng(3)
+    x = np.concatenate([rng.uniform(-40, 40, 4000), rng.uniform(-0.0117, 0.0117, 4000)])
+    real_p = ctypes.POINTER(ctypes.c_double)
+    for w in widths:
+        exp_fn = getattr(lib, f"maglev_lanes_exp_w{w}")
+        sc_fn = getattr(lib, f"maglev_lanes_sincos_w{w}")
+        y, s, c = np.empty_like(x), np.empty_like(x), np.empty_like(x)
+        assert exp_fn(x.ctypes.data_as(real_p), y.ctypes.data_as(real_p),
+                      ctypes.c_long(x.size)) == 0, w
+        assert sc_fn(x.ctypes.data_as(real_p), s.ctypes.data_as(real_p),
+                     c.ctypes.data_as(real_p), ctypes.c_long(x.size)) == 0, w
+        assert np.array_equal(y, [libm.exp(float(v)) for v in x]), w
+        ref_s, ref_c = _lanes_sincos(sim_lib, w, x)[:2]  # the working kernels: libm's bits
+        assert np.array_equal(s.view(np.int64), ref_s.view(np.int64)), w
+        assert np.array_equal(c.view(np.int64), ref_c.view(np.int64)), w
+
+
+@pytest.mark.needs_cc
 def test_the_lanes_exp_within_glibcs_bound_against_mpmath(sim_lib) -> None:
     """The kernels' exp (the vector form of glibc's) against mpmath at 50 digits: within
     0.52 ulp, glibc's stated bound for its exp with FMA (0.509 ulp) and a margin."""
