@@ -337,13 +337,18 @@ def _vector_widths(sim_lib) -> list[int]:
 
 
 def _glibc_x86() -> bool:
-    """glibc 2.36 on x86-64: the build whose object code the lanes' exp and sincos were
-    written from (maglevgen.codegen.lanes). Another build may contract other operations
-    into FMAs: the lanes then fall back to libm per lane, the bits still libm's."""
+    """glibc 2.36 on x86-64 with FMA (where it runs its FMA build of exp and sincos): the
+    build whose object code the lanes' exp and sincos were written from
+    (maglevgen.codegen.lanes). Another build may contract other operations into FMAs: the
+    lanes then fall back to libm per lane, the bits still libm's."""
     import platform
+    from pathlib import Path
 
     libc, version = platform.libc_ver()
-    return libc == "glibc" and version == "2.36" and platform.machine() == "x86_64"
+    cpuinfo = Path("/proc/cpuinfo")
+    fma = cpuinfo.exists() and " fma " in f" {cpuinfo.read_text()} ".replace("\n", " ")
+    return (libc == "glibc" and version == "2.36" and platform.machine() == "x86_64"
+            and fma)
 
 
 def _lanes_exp(sim_lib, w: int, x: np.ndarray) -> tuple[np.ndarray, int]:
