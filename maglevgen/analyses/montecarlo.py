@@ -338,7 +338,8 @@ def interp_rows(x: float, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
         nan = np.isnan(out)
         if nan.any():
             out[nan] = (slope * (x - xp[i + 1]) + fp[i + 1])[nan]
-        out[nan & (fp[i] == fp[i + 1])] = fp[i][nan & (fp[i] == fp[i + 1])]
+            flat = nan & (fp[i] == fp[i + 1])
+            out[flat] = fp[i][flat]
     return out
 
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import re
 import struct
+from functools import cache
 
 __all__ = ["WIDTHS", "LaneError", "kernel_name", "lane_kernels"]
 
@@ -356,7 +357,7 @@ static int exp_lanes{w}(void) {{ return libm_bits(&exp_state{w}, exp_check{w}); 
   return exp_lanes{w}();
 }}
 """
-_VEXP_ISA = {
+_VECTOR_ISA = {
     8: {"fma": "_mm512_fmadd_pd", "fnma": "_mm512_fnmadd_pd",
         "target_fma": '__attribute__((target("avx512f,fma"))) ',
         **{f"gather_sc{j}": f"_mm512_i64gather_pd((__m512i)(k + {j}), SC_TAB, 8)"
@@ -373,7 +374,8 @@ _VEXP_ISA = {
 }
 
 
-def sincos_table() -> list[float]:
+@cache
+def sincos_table() -> tuple[float, ...]:
     """`_GLIBC_MATH`' SC_TAB from mpmath at 300 bits: for k = 0, 1, sin(k/128) rounded
     to a double and the rest rounded, then cos(k/128) likewise (glibc's table's first two
     entries, which the tests check through sincos's results)."""
@@ -385,10 +387,11 @@ def sincos_table() -> list[float]:
             for f in (mpmath.sin, mpmath.cos):
                 exact = f(mpmath.mpf(k) / 128)
                 out += [float(exact), float(exact - float(exact))]
-    return out
+    return tuple(out)
 
 
-def exp_table() -> list[int]:
+@cache
+def exp_table() -> tuple[int, ...]:
     """`_GLIBC_MATH`' EXP_TAB, from mpmath at 200 bits: H_k = 2^(k/128) rounded to a
     double, T_k = (2^(k/128) - H_k) / H_k rounded; entries T_k's bits and H_k's less
     k << 45 (glibc's __exp_data.tab, which the tests check through exp's results)."""
@@ -403,7 +406,9 @@ def exp_table() -> list[int]:
             exact = mpmath.mpf(2) ** (mpmath.mpf(k) / 128)
             h = float(exact)
             out += [bits(float((exact - h) / h)), (bits(h) - (k << 45)) % 2**64]
-    return out
+    return tuple(out)
+
+
 _LIBMVEC = """\
 {target}V{w} _ZGV{isa}N{w}v_{f}(V{w} a);
 {target}static __attribute__((unused)) V{w} v{f}{w}(V{w} a) {{ return _ZGV{isa}N{w}v_{f}(a); }}
@@ -527,9 +532,10 @@ def lane_kernels(c_source: str, names: tuple[str, ...] = tuple(KERNELS),
     ``in[i]`` the function's input i and ``out[j]`` its output j, each laid out [entry][W]
     (`kernel_name`). The W > 2 kernels exist on x86-64 only, compiled for their target
     (``__attribute__((target))``): the caller checks the CPU before calling one. ``math``:
-    exp, sin and cos by libm per lane (each lane bit for bit the scalar function), or by
-    glibc's libmvec ("libmvec": an experiment, bench/simd_batch.py; within 4 ulp a call, so
-    not the scalar's bits)."""
+    exp, sin and cos with libm's bits (each lane bit for bit the scalar function: at W = 4
+    and 8 glibc's exp and small-angle sincos in vectors where they give them, libm per lane
+    otherwise), or by glibc's libmvec ("libmvec": an experiment, bench/simd_batch.py; within
+    4 ulp a call, so not the scalar's bits)."""
     if math not in MATH:
         raise ValueError(f"lane math {math!r}: one of {MATH}")
     bodies = {n: function_body(c_source, n) for n in names}
@@ -542,13 +548,13 @@ def lane_kernels(c_source: str, names: tuple[str, ...] = tuple(KERNELS),
     for w, target in WIDTHS.items():
         attribute = f'__attribute__((target("{target}"))) ' if target else ""
         helper = _LIBM if math == "libm" else _LIBMVEC
-        vector_exp = math == "libm" and w in _VEXP_ISA
+        glibc_vectors = math == "libm" and w in _VECTOR_ISA
         functions = "".join(helper.format(target=attribute, w=w, f=f, isa=_ISA[w])
-                            for f in ("exp", "sin", "cos") if f != "exp" or not vector_exp)
+                            for f in ("exp", "sin", "cos") if f != "exp" or not glibc_vectors)
         sincos = _SINCOS.format(target=attribute, w=w)
-        if vector_exp:
-            functions += _VEXP.format(target=attribute, w=w, **_VEXP_ISA[w])
-            sincos = _VSINCOS.format(target=attribute, w=w, **_VEXP_ISA[w])
+        if glibc_vectors:
+            functions += _VEXP.format(target=attribute, w=w, **_VECTOR_ISA[w])
+            sincos = _VSINCOS.format(target=attribute, w=w, **_VECTOR_ISA[w])
         parts.append(_HELPERS.format(
             guard="defined(__x86_64__)" if target or math == "libmvec" else "1", w=w,
             bytes=8 * w, target=attribute, math=functions, sincos=sincos))
