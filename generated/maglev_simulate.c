@@ -488,24 +488,24 @@ static int sensor_readings(work* ws, const loop_run* r, const maglev_real* x,
     return 0;
 }
 
-/* the sense tick's command at tick n (time t, state x): the readings with the plant's inputs
+/* the sense tick's readings at tick n (time t, state x): the readings with the plant's inputs
    acting now (the propulsion of `next`, the command applied over this tick; the array forces
    through the lag from act, else next's), the tick's noise added and each rounded to its
-   step; the sense tick (its init first at n = 0) writes u, then F_extra joins the
-   propulsion. Returns -1 on an error (a generated function's, or the sense function's code
-   in tick_error), else 1 when an array's control force is at the budget, 0 when none is. */
-static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, long long n,
-                          maglev_real t, const maglev_real* next, const maglev_real* act,
-                          int lagged, maglev_real* u) {
-    maglev_sensing* s = r->loop->sense;
-    const maglev_real budget = r->loop->force_budget;
-    maglev_real u_now[NU], xdot[NX], y[MAGLEV_SIM_MAX_READINGS], sq[NA];
-    maglev_real v_ref = r->loop->v_ref + r->loop->accel * t, a_ref = r->loop->accel;
-    const unsigned long valid = s->ny >= 32 ? 0xFFFFFFFFUL : (1UL << s->ny) - 1UL;
-    int i, rc;
-    if (r->launch && v_ref > r->v_end) {
-        v_ref = r->v_end;
-        a_ref = 0;
+   step, into y; the tick's speed reference and its slope, and every reading flagged valid.
+   Returns -1 on a generated function's error, else 0. */
+static int sensed_readings(work* ws, const loop_run* r, const maglev_real* x, long long n,
+                           maglev_real t, const maglev_real* next, const maglev_real* act,
+                           int lagged, maglev_real* y, maglev_real* v_ref, maglev_real* a_ref,
+                           unsigned long* valid) {
+    const maglev_sensing* s = r->loop->sense;
+    maglev_real u_now[NU], xdot[NX];
+    int i;
+    *v_ref = r->loop->v_ref + r->loop->accel * t;
+    *a_ref = r->loop->accel;
+    *valid = s->ny >= 32 ? 0xFFFFFFFFUL : (1UL << s->ny) - 1UL;
+    if (r->launch && *v_ref > r->v_end) {
+        *v_ref = r->v_end;
+        *a_ref = 0;
     }
     u_now[0] = next[0];
     for (i = 1; i < NU; ++i) u_now[i] = lagged ? act[i] : next[i];
@@ -514,8 +514,18 @@ static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, lon
         if (n < s->n_noise) y[i] += s->noise[n * s->ny + i];
         if (s->step[i] > 0) y[i] = NEARBYINT(y[i] / s->step[i]) * s->step[i];
     }
-    rc = n == 0 ? s->init(s->state, y, valid, v_ref) : 0;
-    if (rc == 0) rc = s->tick(s->state, y, valid, v_ref, a_ref, u);
+    return 0;
+}
+
+/* after the sense tick of tick n on the readings y returned rc and wrote u: the records,
+   the error, F_extra joins the propulsion. Returns -1 on an error (the sense function's code
+   in tick_error), else 1 when an array's control force is at the budget, 0 when none is. */
+static int sensed_after(const loop_run* r, long long n, const maglev_real* y, int rc,
+                        maglev_real* u) {
+    maglev_sensing* s = r->loop->sense;
+    const maglev_real budget = r->loop->force_budget;
+    maglev_real sq[NA];
+    int i;
     if (n < s->n_rows) {
         if (s->readings != 0) {
             for (i = 0; i < s->ny; ++i) s->readings[n * s->ny + i] = y[i];
@@ -541,6 +551,23 @@ static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, lon
         if (SQRT(sq[i]) >= budget * ((maglev_real)1 - (maglev_real)1e-9)) return 1;
     }
     return 0;
+}
+
+/* the sense tick's command at tick n (time t, state x): its readings (sensed_readings), the
+   sense tick (its init first at n = 0) writes u, then sensed_after. Returns -1 on an error
+   (a generated function's, or the sense function's code in tick_error), else 1 when an
+   array's control force is at the budget, 0 when none is. */
+static int sensed_command(work* ws, const loop_run* r, const maglev_real* x, long long n,
+                          maglev_real t, const maglev_real* next, const maglev_real* act,
+                          int lagged, maglev_real* u) {
+    const maglev_sensing* s = r->loop->sense;
+    maglev_real y[MAGLEV_SIM_MAX_READINGS], v_ref, a_ref;
+    unsigned long valid;
+    int rc;
+    if (sensed_readings(ws, r, x, n, t, next, act, lagged, y, &v_ref, &a_ref, &valid)) return -1;
+    rc = n == 0 ? s->init(s->state, y, valid, v_ref) : 0;
+    if (rc == 0) rc = s->tick(s->state, y, valid, v_ref, a_ref, u);
+    return sensed_after(r, n, y, rc, u);
 }
 
 /* the run with r->loop not plain: the tick-held (tick_steps > 0) or the continuous loop */

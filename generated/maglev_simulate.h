@@ -113,6 +113,21 @@ typedef int (*maglev_sense_init_fn)(void* state, const maglev_real* y, unsigned 
 typedef int (*maglev_sense_tick_fn)(void* state, const maglev_real* y, unsigned long valid,
                                     maglev_real v_ref, maglev_real a_ref, maglev_real* u);
 
+/* the sense tick over W runs in SIMD lanes (maglev_lanes_simulate), from the same firmware:
+   create(W) a lanes' state (NULL: none for W), destroy it; move(lanes, W, l, state, 1) loads
+   lane l from a sense state (after init), move(.., 0) stores it back; tick(lanes, W, active,
+   states, y, valid, v_ref, a_ref, u, rc) is maglev_sense_tick of every active lane, each bit
+   for bit the scalar's (y [NY][W] and u [NU][W] aligned to W doubles; v_ref, a_ref, valid
+   and rc one a lane; the states the lanes' own, their x_pred written) */
+typedef struct {
+    void* (*create)(int width);
+    void (*destroy)(void* lanes);
+    void (*move)(void* lanes, int width, int lane, void* state, int into_lanes);
+    void (*tick)(void* lanes, int width, const int* active, void* const* states,
+                 const maglev_real* y, const unsigned long* valid, const maglev_real* v_ref,
+                 const maglev_real* a_ref, maglev_real* u, int* rc);
+} maglev_sense_lanes;
+
 /* the sensors and the sense tick of a run (maglev_control_loop.sense; see above) */
 typedef struct {
     maglev_sense_init_fn init;
@@ -133,6 +148,7 @@ typedef struct {
     maglev_real* commands;          /* n_rows x MAGLEV_NU: the sense tick's command, or NULL */
     long long n_rows;
     int tick_error;                 /* out: the sense function's code that ended the run */
+    const maglev_sense_lanes* lanes; /* the same sense tick in lanes, or NULL (per run) */
 } maglev_sensing;
 
 typedef struct {

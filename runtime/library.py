@@ -155,7 +155,7 @@ class SimulationLibrary(GeneratedLibrary):
                         ("imu_point", ptr), ("step", ptr), ("noise", ptr),
                         ("n_noise", ctypes.c_longlong), ("readings", ptr), ("predicted", ptr),
                         ("commands", ptr), ("n_rows", ctypes.c_longlong),
-                        ("tick_error", ctypes.c_int)]
+                        ("tick_error", ctypes.c_int), ("lanes", ctypes.c_void_p)]
 
         self._Sensing = _Sensing
 

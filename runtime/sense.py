@@ -35,6 +35,9 @@ HOST_SENSE_SOURCE = "maglev_host_sense.c"
 #: the firmware folder's C the sense tick needs (the QEMU and example files left out)
 SENSE_SOURCES = ("maglev_tick.c", "maglev_gain_table.c", "maglev_sense_table.c",
                  "maglev_functions.c")
+#: the sense tick over SIMD lanes (analyses.firmware_sources.host_sense_sources), compiled
+#: beside the folder's C when given: not a file of the firmware folder
+LANES_SOURCE = "maglev_sense_lanes.c"
 #: the warnings the firmware's own build treats as errors, on the host's compile too
 HOST_FLAGS = (*HOST_TUNED_FLAGS, "-Wall", "-Wextra", "-Werror")
 
@@ -58,6 +61,11 @@ class SenseLibrary:
             raise MaglevError(f"{path}: no sense tick in the library")
         self.init: int = init
         self.tick: int = tick
+        #: the address of its maglev_sense_lanes (maglev_simulate.h: the sense tick over the
+        #: Monte Carlo's SIMD lanes), None when compiled without them
+        self.lanes: int | None = None
+        if hasattr(self._lib, "maglev_host_sense_lanes"):
+            self.lanes = ctypes.cast(self._lib.maglev_host_sense_lanes, ctypes.c_void_p).value
 
     def __reduce__(self):
         """Another process loads the same library (its signature checked again there)."""
@@ -69,9 +77,10 @@ class SenseLibrary:
 
 
 def sense_library(files: dict[str, str], cache_dir: Path | None = None,
-                  cc: str | None = None) -> SenseLibrary:
+                  cc: str | None = None, lanes: str | None = None) -> SenseLibrary:
     """The sense tick of a firmware folder rendered in double precision (``files``: name ->
-    text, with maglev_sense_table.c), compiled for the host or reused from the cache."""
+    text, with maglev_sense_table.c), compiled for the host or reused from the cache;
+    ``lanes``: that sense tick over SIMD lanes (`LANES_SOURCE`) compiled with it."""
     missing = [n for n in SENSE_SOURCES if n not in files]
     if missing or "double" not in files.get("maglev.h", ""):
         raise ValueError("the host's sense tick needs a firmware folder in double precision "
@@ -80,12 +89,15 @@ def sense_library(files: dict[str, str], cache_dir: Path | None = None,
     needed = {n: t for n, t in files.items() if n.endswith((".c", ".h"))
               and not n.startswith("qemu_") and n != "main.c"}
     needed[HOST_SENSE_SOURCE] = glue
+    if lanes is not None:
+        needed[LANES_SOURCE] = lanes
     key = ContentHash(*(f"{n}\0{t}" for n, t in sorted(needed.items()))).hexdigest(24)
     folder = cache_root(cache_dir) / "firmware" / key
     if not all((folder / n).is_file() and (folder / n).read_text() == t
                for n, t in needed.items()):
         write_output(needed, folder, ours=True)
-    lib = compile_shared([folder / n for n in (*SENSE_SOURCES, HOST_SENSE_SOURCE)],
+    extra = (LANES_SOURCE,) if lanes is not None else ()
+    lib = compile_shared([folder / n for n in (*SENSE_SOURCES, HOST_SENSE_SOURCE, *extra)],
                          HOST_FLAGS, cc=cc, cache_dir=cache_root(cache_dir) / "lib")
     return SenseLibrary(lib)
 
@@ -163,6 +175,7 @@ class Sensing:
             c(self.gap_point), c(self.gap_normal), c(self.gap_nominal), c(self.imu_point),
             c(self.step), c(self.noise), 0 if self.noise is None else self.noise.shape[0],
             c(self.readings) if self.rows else None, c(self.predicted) if self.rows else None,
-            c(self.commands) if self.commands.size else None, self.rows, 0)
+            c(self.commands) if self.commands.size else None, self.rows, 0,
+            self.library.lanes)
         self._struct = s
         return s

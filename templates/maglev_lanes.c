@@ -193,7 +193,24 @@ typedef struct {
     maglev_real u_read[NU]; /* and the inputs they were computed under */
     int xdot_ok;          /* and maglev_dynamics_prepared's checks on them */
     lane_readings readings; /* and the readings there (kernels) */
+    int sense_batch; /* on the sensors: its sense tick in the thread's sense lanes (lane_start) */
+    maglev_real y[MAGLEV_SIM_MAX_READINGS]; /* a tick's readings, waiting for the sense lanes */
 } lane;
+
+/* the thread's sense lanes (maglev_sensing.lanes: the firmware's sense tick over W runs in
+   SIMD lanes, one firmware's) and the runs of a step waiting for them (lane_sense_defer):
+   each one's readings [NY][W], speed reference and its slope, valid flags and state; their
+   commands [NU][W] and codes */
+typedef struct {
+    const maglev_sense_lanes* fns; /* NULL: none (each run's sense tick per lane) */
+    void* lanes;
+    int tried; /* fns->create was called (the first run with sense lanes) */
+    double y[MAGLEV_SIM_MAX_READINGS * LANES_MAX] ALIGN, u[NU * LANES_MAX] ALIGN;
+    maglev_real v_ref[LANES_MAX], a_ref[LANES_MAX];
+    unsigned long valid[LANES_MAX];
+    void* states[LANES_MAX];
+    int active[LANES_MAX], rc[LANES_MAX], any;
+} sense_group;
 
 /* the lanes' stage arrays, [entry][W] */
 typedef struct {
@@ -238,7 +255,7 @@ static int lane_run_ok(const batch* b, long long i) {
    constants) into the lane's column. 1: the run is in the lane; 0: it ended already (status
    and last written) */
 static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const batch* b,
-                      long long i) {
+                      long long i, sense_group* G) {
     const maglev_control_loop* loop = b->loops + i;
     const maglev_real* p = b->p + b->n_p * i;
     const maglev_real half = b->dt / (maglev_real)2;
@@ -346,6 +363,17 @@ static int lane_start(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
             L->sense_lanes = maglev_imu_reading(ws->arg, ws->res, ws->iw, ws->w, 0) == 0;
         }
     }
+    /* its sense tick in the thread's sense lanes when the run's firmware has them (the
+       first such run makes them: one firmware's a thread) */
+    L->sense_batch = 0;
+    if (loop->sense != 0 && loop->sense->lanes != 0) {
+        if (!G->tried) {
+            G->tried = 1;
+            G->lanes = loop->sense->lanes->create(W);
+            if (G->lanes != 0) G->fns = loop->sense->lanes;
+        }
+        L->sense_batch = G->fns == loop->sense->lanes;
+    }
     for (j = 0; j < 25; ++j) {
         S->K_pos[j * W + l] = L->fixed[MAGLEV_SCHEDULE_K_POS + j];
         S->K_rate[j * W + l] = L->fixed[MAGLEV_SCHEDULE_K_RATE + j];
@@ -370,11 +398,18 @@ static maglev_real* lane_x(const lane* L, const batch* b) {
 
 /* run_loop's step k up to k1 (the tick, the delay, the lag); the lane's x and inputs into its
    columns. 1: the step goes on; 0: the run ended */
+static int lane_resume(lane* L, stage_arrays* S, int l, int W, const batch* b, int ticked,
+                       int s);
+static int lane_sense_defer(lane* L, work* ws, sense_group* G, int l, int W,
+                            const maglev_real* x, maglev_real t, maglev_real* slot);
+
+/* run_loop's step k up to the tick's command (the tick, the delay, the lag), then
+   lane_resume. 1: the step goes on; 0: the run ended; 2 (`defer` and the run's sense tick
+   in the sense lanes): the step waits for them (lane_sense_resume) */
 static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const batch* b,
-                      int ready) {
+                      int ready, sense_group* G, int defer) {
     const maglev_real* x = lane_x(L, b);
     const maglev_real t = (maglev_real)L->k * b->dt;
-    maglev_real* u = b->u_traj + (L->run * (b->n_steps + 1) + L->k) * NU;
     int i, d;
     if (!all_finite(x, NX)) {
         lane_end(L, b, MAGLEV_SIM_NONFINITE);
@@ -429,16 +464,42 @@ static int lane_begin(lane* L, work* ws, stage_arrays* S, int l, int W, const ba
             } else {
                 for (i = 0; i < ND; ++i) ws->d[i] = S->d[i * W + l];
             }
-            s = sensed_command(ws, &L->r, x, L->k / L->tick, t,
-                               L->ring + ((L->w + 1) % L->depth) * NU, L->act, L->lagged, slot);
+            if (defer && L->sense_batch) {
+                s = lane_sense_defer(L, ws, G, l, W, x, t, slot);
+            } else {
+                /* the sense tick per lane on the run's own state: the lanes' column stored
+                   there first and loaded back after (at the first tick, sensed_command's init
+                   makes the state) */
+                void* state = L->r.loop->sense->state;
+                if (L->sense_batch && L->k > 0) G->fns->move(G->lanes, W, l, state, 0);
+                s = sensed_command(ws, &L->r, x, L->k / L->tick, t,
+                                   L->ring + ((L->w + 1) % L->depth) * NU, L->act, L->lagged,
+                                   slot);
+                if (L->sense_batch) G->fns->move(G->lanes, W, l, state, 1);
+            }
             lanes_xdot = 0;
             lanes_readings = 0;
+            if (s == 2) return 2;
         } else {
             /* u_gen from the lanes' kernel when it was computed at this x (`ready`) */
             lanes_u_gen = ready ? L->u_gen : 0;
             s = command(ws, &L->r, x, t, g, &L->law, slot);
             lanes_u_gen = 0;
         }
+        return lane_resume(L, S, l, W, b, 1, s);
+    }
+    return lane_resume(L, S, l, W, b, 0, 0);
+}
+
+/* the rest of run_loop's step k up to k1 after the tick's command (`ticked`; s its return):
+   the delay ring, the lag; the lane's x and inputs into its columns. 1: the step goes on;
+   0: the run ended */
+static int lane_resume(lane* L, stage_arrays* S, int l, int W, const batch* b, int ticked,
+                       int s) {
+    const maglev_real* x = lane_x(L, b);
+    maglev_real* u = b->u_traj + (L->run * (b->n_steps + 1) + L->k) * NU;
+    int i;
+    if (ticked) {
         if (s < 0) {
             lane_end(L, b, MAGLEV_SIM_ERROR);
             return 0;
@@ -552,16 +613,44 @@ static void lanes_stage(lanes_kernel kernel, const double* x, const double* u,
    (same_column) */
 #include "maglev_lanes_sense.c"
 
+/* lane l's step begun (lane_begin), taking the next runs *next hands out while its run ends
+   before k1 (none left: *more 0). 1: the step goes on; 2: it waits for the sense lanes; 0: no
+   run left */
+static int lane_fill(lane* L, work* ws, stage_arrays* S, int l, int W, const batch* b,
+                     long long* next, int* more, int ready, sense_group* G, int defer) {
+    int r;
+    for (;;) {
+        if (L->run < 0) {
+            long long i;
+            if (!*more) return 0;
+#ifdef _OPENMP
+#pragma omp atomic capture
+#endif
+            i = (*next)++;
+            if (i >= b->n_runs) {
+                *more = 0;
+                return 0;
+            }
+            if (!lane_start(L, ws, S, l, W, b, i, G)) continue;
+            ready = 0;
+        }
+        r = lane_begin(L, ws, S, l, W, b, ready, G, defer);
+        if (r) return r;
+    }
+}
+
 /* the runs *next hands out, W at a time in lock step, until none is left */
 static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* next) {
     lane lanes[LANES_MAX];
     int live[LANES_MAX], ok[LANES_MAX], ready[LANES_MAX], sensed[LANES_MAX], any_gaps;
     int any_tick, any_sense, k1_done;
     stage_arrays arrays, *S = &arrays;
+    sense_group group, *G = &group;
     work ws;
     const maglev_real half = b->dt / (maglev_real)2;
     int l, any = 1, more = 1;
     memset(S, 0, sizeof(stage_arrays));
+    memset(G, 0, sizeof(sense_group));
     for (l = 0; l < W; ++l) lanes[l].run = -1;
     while (any) {
         /* the tick's coupled control of the running lanes at a tick, in lanes (a lane that
@@ -628,30 +717,26 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
                 ready[l] = all_finite(lanes[l].u_gen, 5) && all_finite(lane_x(&lanes[l], b), NX);
             }
         }
+        /* each lane's step up to k1; the sense ticks of the lanes on the sense lanes wait
+           for them (lane_sense_defer), all at once below, then those lanes' steps go on (a
+           run that ends there hands its lane on, the next run's sense tick per lane) */
         any = 0;
         for (l = 0; l < W; ++l) {
-            live[l] = 0;
-            for (;;) {
-                if (lanes[l].run < 0) {
-                    long long i;
-                    if (!more) break;
-#ifdef _OPENMP
-#pragma omp atomic capture
-#endif
-                    i = (*next)++;
-                    if (i >= b->n_runs) {
-                        more = 0;
-                        break;
-                    }
-                    if (!lane_start(&lanes[l], &ws, S, l, W, b, i)) continue;
-                    ready[l] = 0;
-                }
-                if (lane_begin(&lanes[l], &ws, S, l, W, b, ready[l])) {
-                    live[l] = 1;
-                    break;
-                }
-            }
+            live[l] = lane_fill(&lanes[l], &ws, S, l, W, b, next, &more, ready[l], G, 1) != 0;
             any |= live[l];
+        }
+        if (G->any) {
+            G->fns->tick(G->lanes, W, G->active, G->states, G->y, G->valid, G->v_ref, G->a_ref,
+                         G->u, G->rc);
+            for (l = 0; l < W; ++l) {
+                if (!G->active[l]) continue;
+                G->active[l] = 0;
+                live[l] = lane_sense_resume(&lanes[l], S, l, W, b, G)
+                          || lane_fill(&lanes[l], &ws, S, l, W, b, next, &more, 0, G, 0);
+            }
+            G->any = 0;
+            any = 0;
+            for (l = 0; l < W; ++l) any |= live[l];
         }
         if (!any) break;
         for (l = 0; l < W; ++l) ok[l] = 1;
@@ -702,6 +787,7 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
             }
         }
     }
+    if (G->lanes != 0) G->fns->destroy(G->lanes);
 }
 
 /* the widest lanes this CPU runs (8: AVX-512F, 4: AVX2, else 2), or `width` when it is one

@@ -78,3 +78,39 @@ static int same_column(const double* a, const maglev_real* v, int n, int l, int 
     }
     return 1;
 }
+
+/* the sense tick of lane l's run at this step's tick, in the sense lanes: its readings
+   (sensed_readings) into the group, its state (at its first tick made by the sense init
+   here, then loaded into the lanes); 2: waiting for the group's tick; else sensed_command's
+   return (an error of the readings, or of the init: then no tick, as sensed_command) */
+static int lane_sense_defer(lane* L, work* ws, sense_group* G, int l, int W,
+                            const maglev_real* x, maglev_real t, maglev_real* slot) {
+    const maglev_sensing* s = L->r.loop->sense;
+    const long long n = L->k / L->tick;
+    const maglev_real* next = L->ring + ((L->w + 1) % L->depth) * NU;
+    int j, rc;
+    if (sensed_readings(ws, &L->r, x, n, t, next, L->act, L->lagged, L->y, G->v_ref + l,
+                        G->a_ref + l, G->valid + l)) {
+        return -1;
+    }
+    if (n == 0) {
+        rc = s->init(s->state, L->y, G->valid[l], G->v_ref[l]);
+        if (rc != 0) return sensed_after(&L->r, n, L->y, rc, slot);
+        G->fns->move(G->lanes, W, l, s->state, 1);
+    }
+    for (j = 0; j < s->ny; ++j) G->y[j * W + l] = L->y[j];
+    G->states[l] = s->state;
+    G->active[l] = 1;
+    G->any = 1;
+    return 2;
+}
+
+/* lane l's step after the group's sense tick: its command into the delay ring
+   (sensed_after), then lane_resume */
+static int lane_sense_resume(lane* L, stage_arrays* S, int l, int W, const batch* b,
+                             const sense_group* G) {
+    maglev_real* slot = L->ring + L->w * NU;
+    int i;
+    for (i = 0; i < NU; ++i) slot[i] = G->u[i * W + l];
+    return lane_resume(L, S, l, W, b, 1, sensed_after(&L->r, L->k / L->tick, L->y, G->rc[l], slot));
+}

@@ -32,6 +32,7 @@ from maglevgen.codegen.emit import c_literal, render
 from maglevgen.codegen.functions import bake_all, build_functions
 from maglevgen.codegen.generate import function_table
 from maglevgen.codegen.interface import C_NAME, GenerateOptions, interface_context, template_env
+from maglevgen.codegen.lanes import KERNEL_PREFIX, WIDTHS, kernel_name, lane_kernels
 from maglevgen.codegen.misra import deviation_list
 from maglevgen.control import estimation as est
 from maglevgen.control import sense_table as st
@@ -42,6 +43,7 @@ from maglevgen.control.schedule import (
     clenshaw_lines,
     field_slices,
     gain_table_sources,
+    schedule_lines,
     value_terms,
     varying_values,
 )
@@ -54,7 +56,8 @@ if TYPE_CHECKING:
     from maglevgen.carriage import DerivedCarriage
 
 __all__ = ["FIRMWARE_FLAGS", "QEMU_TICKS", "SENSE_REFRESH_TICKS", "TICK_INPUTS", "SenseSchedule",
-           "refresh_slices", "render_firmware", "sense_refresh_bound", "sense_schedule"]
+           "host_sense_sources", "refresh_slices", "render_firmware", "sense_refresh_bound",
+           "sense_schedule"]
 
 #: the Cortex-M4F flags of the folder's README and toolchain file (the firmware build)
 FIRMWARE_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",
@@ -74,6 +77,8 @@ READINGS = ("maglev_gap_reading", "maglev_imu_reading")
 PLANT = "maglev_dynamics"  # --with-plant: the float32 plant in the image (HIL/SIL)
 #: run_qemu.sh's closed loop: ticks from the trim with the heave 1 mm off (1 s at 1 kHz)
 QEMU_TICKS = 1000
+#: the host sense lanes' kernels begin so (not the run-time-parameter library's lane kernels)
+HOST_KERNEL_PREFIX = "maglev_fw_lanes_"
 
 
 
@@ -322,6 +327,42 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetti
     into the README and the manifest; ``sense``: the estimator's schedule
     (`sense_schedule`; None: maglev_tick alone, ideal sensing).
     """
+    return _firmware(carriage, table, loop, precision, with_plant, measured, verdict, sense)[0]
+
+
+def host_sense_sources(carriage: DerivedCarriage, table: GainTable, loop: LoopSetting,
+                       sense: SenseSchedule) -> tuple[dict[str, str], str]:
+    """The firmware folder in double precision with its sense tick (`render_firmware`), and
+    that sense tick over SIMD lanes for the host's Monte Carlo (maglev_sense_lanes.c,
+    templates/firmware_sense_lanes.c.j2; not a file of the folder): the estimator's and
+    the schedule's generated lines and the tick law's functions as lane kernels
+    (`maglevgen.codegen.lanes`) of the folder's own maglev_functions.c."""
+    files, ctx = _firmware(carriage, table, loop, "double", sense=sense)
+    tick_fn = ctx["tick_function"]
+    kernels = lane_kernels(files[f"{C_NAME}.c"], (tick_fn, ALLOCATE)).replace(
+        KERNEL_PREFIX, HOST_KERNEL_PREFIX)
+    f_prop = next(first for (name, _), (first, _) in zip(
+        table.fields, field_slices(table.fields), strict=True) if name == "F_prop")
+    terms = value_terms(table.coeffs)
+    a, b = 1.0 / table.v_max, 1.0 / table.v_min
+    schedule = {"v_min": c_literal(table.v_min), "v_max": c_literal(table.v_max),
+                "t_scale": c_literal(2.0 / (b - a)), "t_offset": c_literal((a + b) / (b - a)),
+                "clenshaw": schedule_lines(table),
+                "f_prop": (clenshaw_lines(table.coeffs[:terms[f_prop], f_prop], "f_ff")
+                           if f_prop in table.stored else [])}
+    widths = [(w, target, "defined(__x86_64__)" if target else "1")
+              for w, target in WIDTHS.items()]
+    source = template_env().get_template("firmware_sense_lanes.c.j2").render(
+        ctx, kernels=kernels, schedule=schedule, widths=widths,
+        kernel_prefix=HOST_KERNEL_PREFIX,
+        tick_kernel=kernel_name(tick_fn, 0).removeprefix(KERNEL_PREFIX).removesuffix("_w0"))
+    return files, source
+
+
+def _firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetting,
+              precision: str = "single", with_plant: bool = False,
+              measured: dict | None = None, verdict: dict | None = None,
+              sense: SenseSchedule | None = None) -> tuple[dict[str, str], dict]:
     loop.check_embeddable()
     opts = GenerateOptions(precision, "baked", "int32")
     embedded = carriage.params.envelope.embedded_controller
@@ -424,4 +465,4 @@ def render_firmware(carriage: DerivedCarriage, table: GainTable, loop: LoopSetti
         "flags": list(FIRMWARE_FLAGS),
     }
     files["manifest.json"] = json.dumps(manifest, indent=2) + "\n"
-    return files
+    return files, tick_ctx

@@ -19,7 +19,7 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass
 
-from maglevgen.analyses.firmware_sources import render_firmware, sense_schedule
+from maglevgen.analyses.firmware_sources import host_sense_sources, sense_schedule
 from maglevgen.control.built_loop import LoopSetting
 from maglevgen.control.carriage_plant import Plant
 from maglevgen.control.estimation import SensorLayout
@@ -78,7 +78,6 @@ def _render(plant: Plant) -> SensedFirmware:
     loop.check_embeddable()
     sense = sense_schedule(plant, v_min, v_max, loop)
     assert sense is not None  # [sensors] is there: SensorLayout.of refused otherwise
-    files = render_firmware(carriage, plant.gain_table(v_min, v_max), loop, "double",
-                            sense=sense)
-    return SensedFirmware(loop, float(v_min), float(v_max), layout, sense_library(files),
-                          params, files)
+    files, lanes = host_sense_sources(carriage, plant.gain_table(v_min, v_max), loop, sense)
+    return SensedFirmware(loop, float(v_min), float(v_max), layout,
+                          sense_library(files, lanes=lanes), params, files)

@@ -43,7 +43,7 @@ import re
 import struct
 from functools import cache
 
-__all__ = ["WIDTHS", "LaneError", "kernel_name", "lane_kernels"]
+__all__ = ["KERNEL_PREFIX", "WIDTHS", "LaneError", "kernel_name", "lane_kernels"]
 
 #: the lane counts generated, each with the x86 target its vectors use (the driver picks the
 #: widest the CPU has at run time; other CPUs get the W = 2 kernel, which any C compiler

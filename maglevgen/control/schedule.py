@@ -32,8 +32,8 @@ if TYPE_CHECKING:
 __all__ = ["A_REF", "GAIN_TABLE_BOUND", "GAIN_TABLE_FIELDS", "GAIN_TABLE_NY", "K_DELAY", "K_LAG",
            "K_POS", "GainTable", "Reference", "Schedule", "accelerating_references",
            "clenshaw_lines", "field_errors", "field_scales", "field_slices", "gain_table_row",
-           "gain_table_sources", "schedule_c_source", "tick_table_fields", "value_terms",
-           "varying_values"]
+           "gain_table_sources", "schedule_c_source", "schedule_lines", "tick_table_fields",
+           "value_terms", "varying_values"]
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give: the
 # drag, the reference, K_pos and K_rate, then the tick law's K_lag and K_delay (room for
@@ -412,6 +412,22 @@ def _clenshaw_vars(lines: list[str]) -> list[str]:
             if any(re.search(rf"\b{name}\b", ln) for ln in lines)]
 
 
+def schedule_lines(table: GainTable, prefix: str = "MAGLEV_SCHEDULE") -> list[list[str]]:
+    """Each stored value's Clenshaw written out (`clenshaw_lines`), its output named by the
+    header's field macro: out[<prefix>_OUT_<FIELD> + k] (the written-out ``function`` of
+    `gain_table_sources`, and the sense tick's lanes: the same lines)."""
+    terms = [int(k) for k in value_terms(table.coeffs)[list(table.stored)]]
+    fields = [(name, first, size) for (name, size), (first, _) in zip(
+        table.fields, field_slices(table.fields), strict=True)]
+
+    def named(j: int) -> str:
+        name, first = next((nm, f) for nm, f, size in fields if f <= j < f + size)
+        return f"out[{prefix}_OUT_{name.upper()}{f' + {j - first}' if j > first else ''}]"
+
+    return [clenshaw_lines(table.coeffs[:k, j], named(j))
+            for j, k in zip(table.stored, terms, strict=True)]
+
+
 def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
                        function: str = "maglev_schedule", prefix: str = "MAGLEV_SCHEDULE",
                        title: str = "gain schedule", summary: str = "",
@@ -458,14 +474,7 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
            "summary": summary, "terms": terms, "offsets": [0, *np.cumsum(terms).tolist()],
            "varying": [i for i, n in enumerate(terms) if n > 1] if varying else [],
            "one_output": None, "written_out": written_out}
-    # each stored value's Clenshaw written out (maglev_schedule and the one-value function),
-    # its output named by the header's field macro: out[<prefix>_OUT_<FIELD> + k]
-    def named(j: int) -> str:
-        name, first = next((nm, f) for nm, f, size in fields if f <= j < f + size)
-        return f"out[{prefix}_OUT_{name.upper()}{f' + {j - first}' if j > first else ''}]"
-
-    ctx["clenshaw"] = [clenshaw_lines(table.coeffs[:k, j], named(j))
-                       for j, k in zip(table.stored, terms, strict=True)]
+    ctx["clenshaw"] = schedule_lines(table, prefix)
     ctx["clenshaw_vars"] = _clenshaw_vars([ln for lines in ctx["clenshaw"] for ln in lines])
     if one_output is not None:
         first, size = next((f, s) for name, f, s in fields if name == one_output)
