@@ -117,15 +117,16 @@ typedef int (*maglev_sense_tick_fn)(void* state, const maglev_real* y, unsigned 
    create(W) a lanes' state (NULL: none for W), destroy it; move(lanes, W, l, state, 1) loads
    lane l from a sense state (after init), move(.., 0) stores it back; tick(lanes, W, active,
    states, y, valid, v_ref, a_ref, u, rc) is maglev_sense_tick of every active lane, each bit
-   for bit the scalar's (y [NY][W] and u [NU][W] aligned to W doubles; v_ref, a_ref, valid
-   and rc one a lane; the states the lanes' own, their x_pred written) */
+   for bit the scalar's (y [NY][W] and u [NU][W]; v_ref, a_ref, valid
+   and rc one a lane; the states the lanes' own, their x_pred written), and returns how many
+   lanes it computed in vectors (the others by maglev_sense_tick itself) */
 typedef struct {
     void* (*create)(int width);
     void (*destroy)(void* lanes);
     void (*move)(void* lanes, int width, int lane, void* state, int into_lanes);
-    void (*tick)(void* lanes, int width, const int* active, void* const* states,
-                 const maglev_real* y, const unsigned long* valid, const maglev_real* v_ref,
-                 const maglev_real* a_ref, maglev_real* u, int* rc);
+    int (*tick)(void* lanes, int width, const int* active, void* const* states,
+                const maglev_real* y, const unsigned long* valid, const maglev_real* v_ref,
+                const maglev_real* a_ref, maglev_real* u, int* rc);
 } maglev_sense_lanes;
 
 /* the sensors and the sense tick of a run (maglev_control_loop.sense; see above) */

@@ -726,7 +726,7 @@ static void lanes_fly(const batch* b, int W, const kernel_set* K, long long* nex
             any |= live[l];
         }
         if (G->any) {
-            G->fns->tick(G->lanes, W, G->active, G->states, G->y, G->valid, G->v_ref, G->a_ref,
+            (void)G->fns->tick(G->lanes, W, G->active, G->states, G->y, G->valid, G->v_ref, G->a_ref,
                          G->u, G->rc);
             for (l = 0; l < W; ++l) {
                 if (!G->active[l]) continue;
