@@ -23,8 +23,11 @@
    error) the lane takes the next run of the batch at once, so no lane idles while runs are
    left and a finished run never touches the others (the lanes share no arithmetic). A run on
    the sensors (loop->sense) flies its plant and its readings in the lanes and, at each tick,
-   its own sense tick (run_loop's sensed_command: the run's noise and rounding, the firmware's
-   estimator and law, its C through the run's pointers and state), lane by lane; where the
+   its own sense tick (run_loop's sensed_command: the run's noise and rounding lane by lane,
+   then the firmware's estimator and law, through the run's pointers and state): for all the
+   lanes at once in the firmware's sense lanes where the run's firmware has them
+   (maglev_sensing.lanes: each lane bit for bit maglev_sense_tick; the lanes hold the runs'
+   sense states, lane_sense_defer), else per lane; where the
    rates its readings took are k1's, bit for bit (the inputs the same in every live lane:
    with the loop's delay), k1 is not computed again (lanes_fly). Runs the lanes do not fly go
    to maglev_simulate whole: a loop without a tick (the continuous loop), or with an argument

@@ -27,7 +27,8 @@ _ARGUMENT = re.compile(r"^(const )?(maglev_real|long long|int|maglev_control_loo
 # typedef struct { ... } NAME; with one "TYPE NAME[, NAME];" member per line
 _STRUCT = re.compile(r"typedef struct \{\n(.*?)\n\} (maglev_\w+);", re.S)
 _MEMBER = re.compile(r"^\s*(const )?(maglev_real|long long|int|void|maglev_sensing|"
-                     r"maglev_sense_init_fn|maglev_sense_tick_fn)(\*)? ([\w, ]+);")
+                     r"maglev_sense_init_fn|maglev_sense_tick_fn|maglev_sense_lanes)(\*)? "
+                     r"([\w, ]+);")
 
 WANTED = {"maglev_simulate", "maglev_launch", "maglev_lyapunov_batch"}
 
@@ -77,6 +78,11 @@ _SENSE_FUNCTIONS = {
 def _member(t: str, p: bool, structs: dict):
     if t in _SENSE_FUNCTIONS:
         return ("function", _SENSE_FUNCTIONS[t])
+    if t == "maglev_sense_lanes":
+        # filled by the firmware's host library (its maglev_host_sense_lanes), passed through
+        # as that object's address
+        assert p, f"{t} held by value"
+        return ("address",)
     if t == "void":
         assert p, "a void member"
         return ("address",)
