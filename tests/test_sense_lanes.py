@@ -7,7 +7,8 @@ are recorded runs' (the plant's, noisy), and the ticks reach every branch the sc
 has: a reading flagged invalid, NaN or out of its range, no usable gap (MAGLEV_ERR_SENSOR),
 a non-finite speed reference, a corrupted state (the reset), speeds beyond the tables'
 range, forces at the budget, lanes out of step (started at other ticks: another refresh
-slice and buffer) and lanes that sit a tick out."""
+slice and buffer) and lanes that sit a tick out; on the library as the runs build it and on
+the same sources built by clang (-Wall -Wextra -Werror, as the host's build of them)."""
 
 from __future__ import annotations
 
@@ -59,7 +60,18 @@ def recorded(carriage, sim_lib, op, sensed_tick):
                                 run.loop)
         assert traj.last == N_TICKS
         out.append(run.loop.sense.readings.copy())
-    return out, sensed.firmware.library, op.speed, budget, carriage.structure.array_of_force
+    return out, sensed.firmware, op.speed, budget, carriage.structure.array_of_force
+
+
+@pytest.fixture(scope="module")
+def clang_library(recorded, tmp_path_factory):
+    """The same firmware folder and sense lanes compiled by clang (`sense_library`'s flags,
+    warnings as errors)."""
+    from maglevgen.runtime.sense import sense_library
+
+    firmware = recorded[1]
+    return sense_library(firmware.files, tmp_path_factory.mktemp("clang"), cc="clang",
+                         lanes=firmware.lanes)
 
 
 def _column(lib, lanes, w: int, lane: int, size: int) -> bytes:
@@ -72,7 +84,18 @@ def _column(lib, lanes, w: int, lane: int, size: int) -> bytes:
 @pytest.mark.needs_cc
 @pytest.mark.parametrize("w", list(WIDTHS))
 def test_sense_lanes_tick_equals_the_firmware_tick(recorded, w) -> None:
-    readings, library, speed, budget, array_of_force = recorded
+    _compare(recorded, recorded[1].library, w)
+
+
+@pytest.mark.needs_cc("clang")
+@pytest.mark.parametrize("w", list(WIDTHS))
+def test_sense_lanes_tick_equals_the_firmware_tick_clang(recorded, clang_library, w) -> None:
+    _compare(recorded, clang_library, w)
+
+
+def _compare(recorded, library, w: int) -> None:
+    """The lanes' tick against the scalar tick of the same library (above)."""
+    readings, _, speed, budget, array_of_force = recorded
     lib = _api(library)
     lanes = lib.maglev_host_sense_lanes_new(w)
     if not lanes:

@@ -42,6 +42,7 @@ class SensedFirmware:
     library: SenseLibrary
     params: Parameters  # the carriage's parameters (its [sensors]: the runs' noise)
     files: dict[str, str]  # the double-precision folder it was compiled from (the FMU's too)
+    lanes: str = ""  # and its sense tick over SIMD lanes, compiled beside it (host only)
 
     def sampled(self, values: tuple[tuple[str, float], ...] = ()
                 ) -> tuple[Parameters, SensorLayout]:
@@ -80,4 +81,4 @@ def _render(plant: Plant) -> SensedFirmware:
     assert sense is not None  # [sensors] is there: SensorLayout.of refused otherwise
     files, lanes = host_sense_sources(carriage, plant.gain_table(v_min, v_max), loop, sense)
     return SensedFirmware(loop, float(v_min), float(v_max), layout,
-                          sense_library(files, lanes=lanes), params, files)
+                          sense_library(files, lanes=lanes), params, files, lanes)
