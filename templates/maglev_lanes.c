@@ -399,8 +399,6 @@ static maglev_real* lane_x(const lane* L, const batch* b) {
     return b->x_traj + (L->run * (b->n_steps + 1) + L->k) * NX;
 }
 
-/* run_loop's step k up to k1 (the tick, the delay, the lag); the lane's x and inputs into its
-   columns. 1: the step goes on; 0: the run ended */
 static int lane_resume(lane* L, stage_arrays* S, int l, int W, const batch* b, int ticked,
                        int s);
 static int lane_sense_defer(lane* L, work* ws, sense_group* G, int l, int W,
