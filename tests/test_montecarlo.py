@@ -19,6 +19,7 @@ import pytest
 from scipy.stats import binomtest
 
 from maglevgen.analyses.montecarlo import (
+    default_chunk,
     input_label,
     interp_rows,
     make_study,
@@ -67,6 +68,23 @@ def test_results_do_not_depend_on_workers_or_chunks(small) -> None:
     _, study, one = small
     _same(one, run_local(study, 6, workers=2, chunk=2))
     _same(one, run_local(study, 6, workers=2, chunk=5))
+
+
+def test_default_chunks_fill_the_lanes(sim_lib) -> None:
+    """The default chunk keeps the SIMD lanes full: from the widest lane count this CPU runs
+    (the library's) on, a multiple of it, so that no chunk flies its last runs in lanes left
+    idle; at most 64, and at least 4 chunks a worker for the studies the bench and the guide
+    time (400 and 10^4 samples)."""
+    width = sim_lib.lane_width(0)
+    for n in (1, 7, 30, 100, 400, 799, 1000, 10_000, 123_457):
+        for workers in (1, 2, 3, 8):
+            size = default_chunk(n, workers)
+            assert 1 <= size <= 64, (n, workers, size)
+            if size >= width:
+                assert size % width == 0, (n, workers, size, width)
+    for n in (400, 10_000):
+        for workers in (1, 2):
+            assert -(-n // default_chunk(n, workers)) >= 4 * workers, (n, workers)
 
 
 def test_dask_local_cluster_gives_the_same_results(small) -> None:

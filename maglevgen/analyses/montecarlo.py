@@ -417,10 +417,20 @@ def _chunks(n: int, size: int) -> list[range]:
     return [range(i, min(n, i + size)) for i in range(0, n, size)]
 
 
+#: the runs the C batch flies at once at most (templates/maglev_lanes.c's LANES_MAX: 8 lanes
+#: of AVX-512; the 4 and 2 lanes of other CPUs divide it)
+LANE_BATCH = 8
+
+
 def default_chunk(n: int, workers: int) -> int:
-    """Enough chunks to balance the workers (8 per worker), few enough that the per-call
-    overhead stays small (at most 64 samples a chunk)."""
-    return max(1, min(64, math.ceil(n / (8 * max(1, workers)))))
+    """Enough chunks to balance the workers (about 8 per worker), few enough that the
+    per-call overhead stays small (at most 64 samples a chunk), and a multiple of the lanes'
+    width where it reaches it (of the largest power of 2 up to LANE_BATCH it reaches): the
+    lanes fly a chunk's runs W at a time, and a chunk of 25 would fly its last run alone in
+    8 lanes (at the cost of 8)."""
+    size = max(1, min(64, math.ceil(n / (8 * max(1, workers)))))
+    step = 1 << (min(size, LANE_BATCH).bit_length() - 1)
+    return size // step * step
 
 
 class ChunkFailedError(MaglevError):
