@@ -32,7 +32,8 @@ if TYPE_CHECKING:
 __all__ = ["A_REF", "GAIN_TABLE_BOUND", "GAIN_TABLE_FIELDS", "GAIN_TABLE_NY", "K_DELAY", "K_LAG",
            "K_POS", "GainTable", "Reference", "Schedule", "accelerating_references",
            "clenshaw_lines", "field_errors", "field_scales", "field_slices", "gain_table_row",
-           "gain_table_sources", "schedule_c_source", "schedule_lines", "tick_table_fields",
+           "gain_table_sources", "schedule_c_source", "schedule_lines", "speed_map",
+           "tick_table_fields",
            "value_terms", "varying_values"]
 
 # one node's values, in the order maglev_simulate.h's MAGLEV_SCHEDULE_* offsets give: the
@@ -412,6 +413,14 @@ def _clenshaw_vars(lines: list[str]) -> list[str]:
             if any(re.search(rf"\b{name}\b", ln) for ln in lines)]
 
 
+def speed_map(table: GainTable) -> tuple[float, float]:
+    """(T_SCALE, T_OFFSET) of the table's evaluation: t = T_SCALE / v - T_OFFSET maps 1/v
+    over [1/v_max, 1/v_min] onto [-1, 1] (every written evaluation of a table takes these,
+    so the same constants)."""
+    a, b = 1.0 / table.v_max, 1.0 / table.v_min
+    return 2.0 / (b - a), (a + b) / (b - a)
+
+
 def schedule_lines(table: GainTable, prefix: str = "MAGLEV_SCHEDULE") -> list[list[str]]:
     """Each stored value's Clenshaw written out (`clenshaw_lines`), its output named by the
     header's field macro: out[<prefix>_OUT_<FIELD> + k] (the written-out ``function`` of
@@ -460,13 +469,12 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
 
     n, ny = table.coeffs.shape
     terms = [int(k) for k in value_terms(table.coeffs)[list(table.stored)]]
-    a, b = 1.0 / table.v_max, 1.0 / table.v_min
     fields = [(name, first, size) for (name, size), (first, _) in zip(
         table.fields, field_slices(table.fields), strict=True)]
     ctx = {"v_min": table.v_min, "v_max": table.v_max, "ny": ny, "nterms": n,
            "fields": fields, "errors": table.errors, "dense_grid": DENSE_GRID,
            "bound": GAIN_TABLE_BOUND, "stored": table.stored, "coeffs": table.coeffs,
-           "t_scale": 2.0 / (b - a), "t_offset": (a + b) / (b - a),
+           "t_scale": speed_map(table)[0], "t_offset": speed_map(table)[1],
            "error_defines": error_defines(("MAGLEV_OK", "MAGLEV_ERR_NONFINITE",
                                            "MAGLEV_ERR_SPEED", "MAGLEV_ERR_ARGUMENT"),
                                           docs=False),
