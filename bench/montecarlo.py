@@ -1,6 +1,8 @@
 """`maglevgen montecarlo`'s default study against its C floor: the study's runs per second on
 one process against the bare C batch loop of the same runs (issue 37: within 1.1x), on one and
-on every core (at least 1.8x on 2), 10^4 samples (under a minute), and the same sweep as a
+on every core (at least 1.8x on 2), 10^4 samples (under a minute; on the sensors with the floor
+of the C loop and numpy's draw of the runs' noise, and on ``--loop firmware`` beside it), and the
+same sweep as a
 Python loop over SciPy (the trim by SciPy's root finding on the lambdified model, the run by
 solve_ivp) as the ratio. The study is the CLI's default: the default [tolerances], the embedded
 controller, ``--loop sensed`` (its firmware's sense tick on each run's noisy readings, the
@@ -32,7 +34,9 @@ from maglevgen.analyses.montecarlo import (
     run_local,
     sample_inputs,
     sample_parameters,
+    sample_tick,
 )
+from maglevgen.analyses.sim_loop import SensedTick, reading_noise
 from maglevgen.analyses.simulate import AXIS_STATES, run_loop
 from maglevgen.carriage import DerivedCarriage
 from maglevgen.control.carriage_plant import Plant
@@ -82,6 +86,25 @@ def _python_sample(carriage: DerivedCarriage, study, lib, i: int) -> float:
     solve_ivp(rhs, (0.0, T_END), x0, method="RK45", rtol=1e-6, atol=1e-9,
               t_eval=np.arange(0.0, T_END + DT / 2, DT), events=contact)
     return t_trim + time.perf_counter() - t0
+
+
+def noise_draw_per_run(study, n: int) -> dict:
+    """Seconds a run's noise takes to draw (`sim_loop.reading_noise` of samples 0..n-1's own
+    ticks, as `simulate.hold_run` draws it, into one array as `BatchBuffers` keeps it): the
+    part of a run on the sensors that numpy's generator makes, whatever the C costs."""
+    n_ticks = round(T_END / DT) + 1
+    out: np.ndarray | None = None
+    times = []
+    for i in range(n):
+        tick = sample_tick(study, i)
+        assert isinstance(tick, SensedTick)
+        params, noisy = tick.firmware.sampled(tick.sensor_values)
+        if out is None:
+            out = np.empty((n_ticks, len(noisy.names)))
+        t0 = time.perf_counter()
+        reading_noise(params, noisy, n_ticks, tick.seed, tick.noise_scale, out)
+        times.append(time.perf_counter() - t0)
+    return summary(times)
 
 
 def run(quick: bool = False, big: int | None = None, loop: str = "sensed") -> dict:
@@ -136,6 +159,16 @@ def run(quick: bool = False, big: int | None = None, loop: str = "sensed") -> di
         run_local(study, big, workers=cores)
         out["big_runs"], out["big_s"] = big, time.perf_counter() - t0
         out["big_floor_s"] = big * summary(bare)["median"] / cores
+        if loop == "sensed":
+            noise = out["noise_per_run_s"] = noise_draw_per_run(study, 40)
+            out["big_floor_noise_s"] = out["big_floor_s"] + big * noise["median"] / cores
+            log(f"montecarlo: {big} runs of --loop firmware on {cores} processes")
+            fw_study = make_study(Plant(carriage, lib), (controller,), T_END, DT, 0,
+                                  *run_loop(Plant(carriage, lib), "firmware"))
+            run_local(fw_study, 2 * cores, workers=1)  # its library built, outside the timing
+            t0 = time.perf_counter()
+            run_local(fw_study, big, workers=cores)
+            out["big_firmware_s"] = time.perf_counter() - t0
     n_py = 2 if quick else 4
     carriage.functions  # noqa: B018  (lambdify once, outside the timing)
     log(f"montecarlo: {n_py} samples by SciPy (trim + solve_ivp RK45) on the lambdified model")
@@ -178,7 +211,17 @@ def markdown(r: dict) -> list[str]:
     if "big_runs" in r:
         lines.append(f"| {r['big_runs']} runs on {r['cores']} processes | {r['big_s']:.1f} s "
                      f"(target < 60 s); the bare C loop alone on {r['cores']} cores would take "
-                     f"{r['big_floor_s']:.0f} s |")
+                     f"{r['big_floor_s']:.0f} s"
+                     + (f", and with numpy's draw of each run's noise "
+                        f"({r['noise_per_run_s']['median'] * 1e3:.2f} ms a run, "
+                        "`sim_loop.reading_noise`) "
+                        f"{r['big_floor_noise_s']:.0f} s: the floor with no other Python "
+                        "at all (the trims, the moving equilibrium's, the metrics)"
+                        if "big_floor_noise_s" in r else "") + " |")
+    if "big_firmware_s" in r:
+        lines.append(f"| {r['big_runs']} runs of `--loop firmware` (the same study on the "
+                     f"exact state at the tick: no sensors, no noise, no estimator) on "
+                     f"{r['cores']} processes | {r['big_firmware_s']:.1f} s (target < 60 s) |")
     p = r["python_per_run_s"]
     lines += [
         f"| per run by SciPy: root-finding trim + solve_ivp RK45 (rtol 1e-6) on the lambdified "
