@@ -99,11 +99,14 @@ def worst_stack(ci: str, root: str) -> int:
     return worst(root, frozenset())
 
 
-def study_runs(study, lib, n: int) -> tuple[list, int, int]:
+def study_runs(study, lib, n: int, as_flown: bool = False) -> tuple[list, int, int]:
     """The C batch driver's inputs (`simulate.hold_run`) for a Monte-Carlo study's first n
     samples, every controller, prepared once as the study prepares them (its `_prepare`: the
-    sample's carriage, the nominal design, the disturbance): (runs, inputs, gaps)."""
-    from maglevgen.analyses.montecarlo import _prepare
+    sample's carriage, the nominal design, the disturbance): (runs, inputs, gaps). On the
+    study's tick, each run's readings and predictions recorded; ``as_flown``: on each
+    sample's own tick (its noise seed, sensors and lag: `montecarlo.sample_tick`) with
+    nothing recorded, the runs `montecarlo.run_samples_batch` flies."""
+    from maglevgen.analyses.montecarlo import _prepare, sample_tick
     from maglevgen.analyses.simulate import hold_run
 
     runs, n_u, n_g = [], 0, 0
@@ -114,7 +117,9 @@ def study_runs(study, lib, n: int) -> tuple[list, int, int]:
             continue
         p, op, design, dist, _row = prepared
         for c in study.controllers:
-            runs.append(hold_run(p, op, c, study.dt, dist, study.tick, study.speed_gain,
-                                 study.force_budget, controller_op=design, n_steps=n_steps))
+            tick = sample_tick(study, i) if as_flown else study.tick
+            runs.append(hold_run(p, op, c, study.dt, dist, tick, study.speed_gain,
+                                 study.force_budget, controller_op=design, n_steps=n_steps,
+                                 record=not as_flown))
         n_u, n_g = op.allocation.shape[0] + 1, op.gaps.size
     return runs, n_u, n_g

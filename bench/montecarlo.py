@@ -118,20 +118,21 @@ def run(quick: bool = False, big: int | None = None, loop: str = "sensed") -> di
     n = 40 if quick else 400
     repeats = 2 if quick else 3
     big = big if big is not None else (0 if quick else 10_000)
-    runs, n_u, n_g = study_runs(study, lib, n)
+    runs, n_u, n_g = study_runs(study, lib, n, as_flown=True)
     n_steps = round(T_END / DT)
     lib.simulate_batch(runs[:2], DT, n_steps, study.min_gap, n_u, n_g, 1, lanes=0)  # compiled
     log(f"montecarlo: {n} samples x {repeats}: the bare C loop, the study on 1 and {cores} "
         "processes")
-    # the bare loop in the chunks a 1-process study makes, into the memory of the previous
-    # chunk as a worker writes them (BatchBuffers: not pages the kernel maps afresh); a run on
-    # the sensors is prepared afresh (untimed) for every repeat, its sense state its own
+    # the bare loop (the study's runs: each sample's own tick, nothing recorded) in the chunks
+    # a 1-process study makes, into the memory of the previous chunk as a worker writes them
+    # (BatchBuffers: not pages the kernel maps afresh); a run on the sensors is prepared
+    # afresh (untimed) for every repeat, its sense state its own
     size = default_chunk(n, 1)
     bare, one, many = [], [], []
     buffers = BatchBuffers()
     for _ in range(repeats):  # the three alternate in every repeat
         if loop == "sensed":
-            runs = study_runs(study, lib, n)[0]
+            runs = study_runs(study, lib, n, as_flown=True)[0]
         t0 = time.perf_counter()
         for i in range(0, len(runs), size):
             lib.simulate_batch(runs[i:i + size], DT, n_steps, study.min_gap, n_u, n_g, 1,

@@ -185,7 +185,17 @@ def _montecarlo_targets(mc: dict | None) -> list[dict]:
                             f"(`--loop {mc.get('loop', 'firmware')}`) under 60 s on "
                             f"{mc['cores']} cores",
                     "measured": f"{mc['big_s']:.1f} s (the bare C loop alone: "
-                                f"{mc['big_floor_s']:.0f} s)", "met": mc["big_s"] < 60})
+                                f"{mc['big_floor_s']:.0f} s"
+                                + (f"; with numpy's draw of the noise: "
+                                   f"{mc['big_floor_noise_s']:.0f} s"
+                                   if "big_floor_noise_s" in mc else "") + ")",
+                    "met": mc["big_s"] < 60})
+    if "big_firmware_s" in mc:
+        out.append({"name": f"Monte Carlo: {mc['big_runs']} samples of the same study on "
+                            f"`--loop firmware` (the exact state at the tick) under 60 s on "
+                            f"{mc['cores']} cores",
+                    "measured": f"{mc['big_firmware_s']:.1f} s",
+                    "met": mc["big_firmware_s"] < 60})
     return out
 
 
