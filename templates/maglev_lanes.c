@@ -514,8 +514,10 @@ static int lane_resume(lane* L, stage_arrays* S, int l, int W, const batch* b, i
     if (!L->lagged) {
         for (i = 0; i < NU; ++i) L->act[i] = L->applied[i];
     }
-    plant_lag_inputs(L->applied, L->act, NU, L->lagged, L->e_half, L->e_full, L->act_half,
-                     L->act_end);
+    /* from the ring's entry, which applied copies (and holds until the next tick): not from
+       applied itself, whose values the copy above has only just stored */
+    plant_lag_inputs(L->ring + L->w * NU, L->act, NU, L->lagged, L->e_half, L->e_full,
+                     L->act_half, L->act_end);
     for (i = 0; i < NU; ++i) {
         u[i] = L->act[i];
         S->u[i * W + l] = L->act[i];
