@@ -1,14 +1,13 @@
 """`maglevgen montecarlo`'s default study against its C floor: the study's runs per second on
 one process against the bare C batch loop of the same runs (issue 37: within 1.1x), on one and
-on every core (at least 1.8x on 2), 10^4 samples (under a minute; on the sensors with the floor
-of the C loop and numpy's draw of the runs' noise, and on ``--loop firmware`` beside it), and the
-same sweep as a
-Python loop over SciPy (the trim by SciPy's root finding on the lambdified model, the run by
-solve_ivp) as the ratio. The study is the CLI's default: the default [tolerances], the embedded
-controller, ``--loop sensed`` (its firmware's sense tick on each run's noisy readings, the
-tick, delay, lag, speed loop and force budget; ``--loop firmware``: the same on the exact
-state), 10 s at 1 kHz (10^4 RK4 steps), seed 0; bench/experiments/batch.py splits the
-firmware loop's path into its stages.
+on every core (at least 1.8x on 2), 10^4 samples (under a minute; on the sensors beside the
+floor of the C loop and numpy's draw of the runs' noise, and on ``--loop firmware``), and the
+same sweep as a Python loop over SciPy (the trim by SciPy's root finding on the lambdified
+model, the run by solve_ivp) as the ratio. The study is the CLI's default: the default
+[tolerances], the embedded controller, ``--loop sensed`` (its firmware's sense tick on each
+run's noisy readings, the tick, delay, lag, speed loop and force budget; ``--loop firmware``:
+the same on the exact state), 10 s at 1 kHz (10^4 RK4 steps), seed 0;
+bench/experiments/batch.py splits the firmware loop's path into its stages.
 
     python bench/montecarlo.py [--quick] [--big N] [--loop sensed|firmware]
     (also part of `make bench`)
