@@ -257,13 +257,13 @@ def _sense_context(sense: SenseSchedule, precision: str, nu: int, tick_rate: flo
                    acceleration: float) -> dict:
 
     names = sense.readings
+    t_scale, t_offset = speed_map(sense.table)
     return {"code": _sense_code(sense, nu), "n_vary": len(varying_values(sense.table)),
             "refresh_ticks": SENSE_REFRESH_TICKS, "slices": refresh_slices(sense.table),
             # maglev_sense_table.c's V_MIN, V_MAX, T_SCALE, T_OFFSET: the same text, so the
             # same constants (gain_table_sources)
             "v_min": c_literal(sense.table.v_min), "v_max": c_literal(sense.table.v_max),
-            "t_scale": c_literal(speed_map(sense.table)[0]),
-            "t_offset": c_literal(speed_map(sense.table)[1]),
+            "t_scale": c_literal(t_scale), "t_offset": c_literal(t_offset),
             "acceleration": acceleration,
             "refresh_bound": sense_refresh_bound(sense.table, acceleration, tick_rate),
             "n_states": len(sense.states), "n_lag": sense.n_lag, "n_gap": sense.n_gap,
@@ -344,9 +344,9 @@ def host_sense_sources(carriage: DerivedCarriage, table: GainTable, loop: LoopSe
     f_prop = next(first for (name, _), (first, _) in zip(
         table.fields, field_slices(table.fields), strict=True) if name == "F_prop")
     terms = value_terms(table.coeffs)
+    t_scale, t_offset = speed_map(table)
     schedule = {"v_min": c_literal(table.v_min), "v_max": c_literal(table.v_max),
-                "t_scale": c_literal(speed_map(table)[0]),
-                "t_offset": c_literal(speed_map(table)[1]),
+                "t_scale": c_literal(t_scale), "t_offset": c_literal(t_offset),
                 "clenshaw": schedule_lines(table),
                 "f_prop": (clenshaw_lines(table.coeffs[:terms[f_prop], f_prop], "f_ff")
                            if f_prop in table.stored else [])}

@@ -471,10 +471,11 @@ def gain_table_sources(table: GainTable, stem: str = "maglev_gain_table",
     terms = [int(k) for k in value_terms(table.coeffs)[list(table.stored)]]
     fields = [(name, first, size) for (name, size), (first, _) in zip(
         table.fields, field_slices(table.fields), strict=True)]
+    t_scale, t_offset = speed_map(table)
     ctx = {"v_min": table.v_min, "v_max": table.v_max, "ny": ny, "nterms": n,
            "fields": fields, "errors": table.errors, "dense_grid": DENSE_GRID,
            "bound": GAIN_TABLE_BOUND, "stored": table.stored, "coeffs": table.coeffs,
-           "t_scale": speed_map(table)[0], "t_offset": speed_map(table)[1],
+           "t_scale": t_scale, "t_offset": t_offset,
            "error_defines": error_defines(("MAGLEV_OK", "MAGLEV_ERR_NONFINITE",
                                            "MAGLEV_ERR_SPEED", "MAGLEV_ERR_ARGUMENT"),
                                           docs=False),
